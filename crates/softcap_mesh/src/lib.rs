@@ -18,3 +18,5 @@ pub mod types;
 pub use nalgebra;
 pub use structured::box_tet_mesh;
 pub use types::{TetMesh, TriMesh};
+pub mod shell;
+pub use shell::{LinearShell, ShellBasis, ShellError, ShellSettings};
