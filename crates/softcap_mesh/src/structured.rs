@@ -15,7 +15,11 @@ pub fn box_tet_mesh(min: [f64; 3], max: [f64; 3], cells: [usize; 3]) -> TetMesh 
     for k in 0..=nz {
         for j in 0..=ny {
             for i in 0..=nx {
-                let t = [i as f64 / nx as f64, j as f64 / ny as f64, k as f64 / nz as f64];
+                let t = [
+                    i as f64 / nx as f64,
+                    j as f64 / ny as f64,
+                    k as f64 / nz as f64,
+                ];
                 vertices.push(Vector3::new(
                     min[0] + t[0] * (max[0] - min[0]),
                     min[1] + t[1] * (max[1] - min[1]),

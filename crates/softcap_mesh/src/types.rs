@@ -57,9 +57,16 @@ impl TetMesh {
                 let face = f.map(|i| tet[i]);
                 let mut key = face;
                 key.sort_unstable();
-                count.entry(key).and_modify(|e| e.1 += 1).or_insert((face, 1));
+                count
+                    .entry(key)
+                    .and_modify(|e| e.1 += 1)
+                    .or_insert((face, 1));
             }
         }
-        count.into_values().filter(|(_, n)| *n == 1).map(|(f, _)| f).collect()
+        count
+            .into_values()
+            .filter(|(_, n)| *n == 1)
+            .map(|(f, _)| f)
+            .collect()
     }
 }

@@ -1,0 +1,55 @@
+//! Mesh file formats: Wavefront OBJ, PLY, Gmsh 4.1 `.msh`, TetGen `.node`/`.ele`.
+//!
+//! Every reader comes in two forms: `read_*(path)` and `read_*_from(reader, name)`, where
+//! `name` is used in error messages. Writers write to `NAME.tmp` and rename, so a failed write
+//! never leaves a file that looks finished.
+
+pub mod msh;
+pub mod obj;
+pub mod ply;
+pub mod tetgen;
+
+use crate::error::{MeshError, Result};
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// Opens `path` for buffered reading, naming it in the error.
+pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
+    File::open(path)
+        .map(BufReader::new)
+        .map_err(|e| MeshError::io(path, e))
+}
+
+/// Writes `path` atomically: `body` writes into `path.tmp`, which is synced and renamed.
+pub(crate) fn write_atomic(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    let result = (|| {
+        let mut w = BufWriter::new(File::create(&tmp)?);
+        body(&mut w)?;
+        w.flush()?;
+        w.get_ref().sync_all()?;
+        drop(w);
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(MeshError::io(path, e));
+    }
+    Ok(())
+}
+
+/// Parses the next whitespace token as `T`, or explains which field is missing or malformed.
+pub(crate) fn field<'a, T: std::str::FromStr>(
+    tokens: &mut impl Iterator<Item = &'a str>,
+    what: &str,
+) -> std::result::Result<T, String> {
+    let tok = tokens.next().ok_or_else(|| format!("missing {what}"))?;
+    tok.parse()
+        .map_err(|_| format!("cannot parse {what} from {tok:?}"))
+}
