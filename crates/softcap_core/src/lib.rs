@@ -1,17 +1,43 @@
 //! Math with no I/O that every softcap stage stands on.
 //!
-//! | module | what |
-//! |---|---|
-//! | [`polar`] | robust 3×3 polar decomposition F = R S (near-inverted elements included) |
+//! | module | what | paper |
+//! |---|---|---|
+//! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
+//! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
+//! | [`levenberg_marquardt`] | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
+//! | [`polar`] | robust 3×3 polar decomposition F = R S (near-inverted elements included) | Irving et al. 2004 |
+//! | [`error`] | [`CoreError`], the crate's one error type | |
 //!
 //! ```
-//! use softcap_core::{nalgebra::Matrix3, polar_decomposition};
-//! let f = Matrix3::new(2.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-//! let p = polar_decomposition(&f);
-//! assert!((p.rotation - Matrix3::identity()).norm() < 1e-12);
+//! use softcap_core::{Rbf, RbfSettings, ScatteredData};
+//! // Interpolate f(x, y) = (x + 2y, 3 − y) from five samples with φ(r) = r³ + quadratic tail.
+//! let points = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.5, 0.2, 0.3, 0.9];
+//! let values: Vec<f64> = points.chunks(2).flat_map(|p| [p[0] + 2.0 * p[1], 3.0 - p[1]]).collect();
+//! let data = ScatteredData::new(&points, 2, &values, 2)?;
+//! let rbf = Rbf::interpolate(&data, &RbfSettings::default())?;
+//! let y = rbf.evaluate(&[0.25, 0.75])?;
+//! assert!((y[0] - 1.75).abs() < 1e-10 && (y[1] - 2.25).abs() < 1e-10);
+//! # Ok::<(), softcap_core::CoreError>(())
 //! ```
 
+mod dense;
+pub mod error;
+pub mod least_squares;
+pub mod levenberg_marquardt;
 pub mod polar;
+pub mod rbf;
 
-pub use nalgebra;
+pub use error::{CoreError, Result};
+pub use least_squares::{
+    Bounds, ConvergenceReason, FiniteDifference, LeastSquaresProblem, LeastSquaresReport,
+    SolverStatus,
+};
+pub use levenberg_marquardt::{DampingScaling, LevenbergMarquardtSettings, levenberg_marquardt};
 pub use polar::{Polar, polar_decomposition};
+pub use rbf::{
+    GreedyErrorMeasure, GreedyRbfReport, GreedyRbfSettings, GreedyStatus, GreedyStep,
+    PolynomialTail, Rbf, RbfKernel, RbfSettings, ScatteredData, greedy_rbf,
+};
+
+pub use faer;
+pub use nalgebra;

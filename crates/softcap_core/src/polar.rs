@@ -47,10 +47,11 @@ pub fn polar_decomposition(f: &Matrix3<f64>) -> Polar {
     let mut sigma: Vector3<f64> = svd.singular_values;
     if (u * v_t).determinant() < 0.0 {
         // Flip the direction of the smallest singular value (Irving et al. 2004 §5).
-        let (imin, _) = sigma
-            .iter()
-            .enumerate()
-            .fold((0, f64::INFINITY), |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc });
+        let (imin, _) =
+            sigma.iter().enumerate().fold(
+                (0, f64::INFINITY),
+                |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc },
+            );
         for r in 0..3 {
             u[(r, imin)] = -u[(r, imin)];
         }
@@ -59,7 +60,10 @@ pub fn polar_decomposition(f: &Matrix3<f64>) -> Polar {
     let rotation = u * v_t;
     let v = v_t.transpose();
     let stretch = v * Matrix3::from_diagonal(&sigma) * v_t;
-    Polar { rotation, stretch: 0.5 * (stretch + stretch.transpose()) }
+    Polar {
+        rotation,
+        stretch: 0.5 * (stretch + stretch.transpose()),
+    }
 }
 
 fn gram_schmidt_fallback(f: &Matrix3<f64>) -> Polar {
@@ -67,7 +71,10 @@ fn gram_schmidt_fallback(f: &Matrix3<f64>) -> Polar {
     let c1 = (f.column(1) - c0 * c0.dot(&f.column(1))).normalize();
     let c2 = c0.cross(&c1);
     let rotation = Matrix3::from_columns(&[c0, c1, c2]);
-    Polar { rotation, stretch: rotation.transpose() * f }
+    Polar {
+        rotation,
+        stretch: rotation.transpose() * f,
+    }
 }
 
 #[cfg(test)]
@@ -79,10 +86,16 @@ mod tests {
     fn check(f: &Matrix3<f64>) {
         let p = polar_decomposition(f);
         let r = p.rotation;
-        assert!((r.transpose() * r - Matrix3::identity()).norm() < 1e-10, "R not orthogonal");
+        assert!(
+            (r.transpose() * r - Matrix3::identity()).norm() < 1e-10,
+            "R not orthogonal"
+        );
         assert!((r.determinant() - 1.0).abs() < 1e-10, "R not proper");
         assert!((p.stretch - p.stretch.transpose()).norm() < 1e-10 * (1.0 + f.norm()));
-        assert!((r * p.stretch - f).norm() < 1e-9 * (1.0 + f.norm()), "F != RS");
+        assert!(
+            (r * p.stretch - f).norm() < 1e-9 * (1.0 + f.norm()),
+            "F != RS"
+        );
     }
 
     #[test]
@@ -92,7 +105,10 @@ mod tests {
         let f = Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -0.2);
         check(&f);
         let p = polar_decomposition(&f);
-        assert!((p.rotation - Matrix3::identity()).norm() < 1e-12, "smallest stretch must carry the sign");
+        assert!(
+            (p.rotation - Matrix3::identity()).norm() < 1e-12,
+            "smallest stretch must carry the sign"
+        );
         // Degenerate (flat) element.
         check(&Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0));
     }
