@@ -1,0 +1,69 @@
+//! [`FaceError`], the crate's one error type.
+
+use std::path::PathBuf;
+
+/// Errors of the face stage. Non-convergence of an optimizer is a reported status, not an error.
+#[derive(Debug, thiserror::Error)]
+pub enum FaceError {
+    /// A file could not be opened or read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A CSV record is malformed.
+    #[error("{path}:{line}: field `{field}`: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// The offending field.
+        field: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Input data is inconsistent (wrong sizes, missing markers, degenerate geometry).
+    #[error("invalid input `{what}`: {reason}")]
+    InvalidInput {
+        /// What was checked.
+        what: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A setting is out of range.
+    #[error("invalid setting `{field}`: {reason}")]
+    InvalidSetting {
+        /// The settings field.
+        field: &'static str,
+        /// Why it is invalid.
+        reason: String,
+    },
+    /// A sparse factorization failed (matrix not positive definite).
+    #[error("factorization of {what} failed: {reason}")]
+    Factorization {
+        /// Which system.
+        what: &'static str,
+        /// The solver's message.
+        reason: String,
+    },
+    /// The pixel classifier failed to train or predict.
+    #[error("pixel classifier: {0}")]
+    Classifier(String),
+    /// An error from a softcap_core solver or interpolator (message kept).
+    #[error("softcap_core: {0}")]
+    Core(String),
+    /// An image could not be written.
+    #[error("{path}: {reason}")]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        reason: String,
+    },
+}
+
+/// Result alias of this crate.
+pub type Result<T> = std::result::Result<T, FaceError>;
