@@ -1,0 +1,463 @@
+//! Assembly of the reduced (free-DOF) system into a faer sparse matrix and its sparse Cholesky
+//! factorization.
+//!
+//! Dirichlet constraints are handled by **elimination**: constrained DOFs are removed from the
+//! system, their prescribed values live in the position vector (so the Newton/fixed-point updates
+//! over the free DOFs never see them). The sparsity pattern (lower triangle, CSC, free DOFs in
+//! node-major order) is built once per (mesh, constraint set) together with a scatter map from every
+//! element-matrix entry to its slot; the symbolic Cholesky factorization (AMD ordering) is computed
+//! once and reused for every numeric factorization; a numeric factor serves any number of
+//! right-hand sides (bickel2009 appendix: "we compute a sparse Cholesky factorization … and then use
+//! this factorization many times").
+
+use crate::FemError;
+use crate::element::{Matrix12, StiffnessKind};
+use crate::model::ElasticModel;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{
+    LdltRef, LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
+use faer::{Conj, MatMut, Par, Side};
+use nalgebra::{Matrix3, Vector3};
+use std::collections::BTreeMap;
+
+const NONE: u32 = u32::MAX;
+
+/// Prescribed positions of individual degrees of freedom (dof = 3·node + axis), in metres.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DirichletBc {
+    /// dof → prescribed position component [m]. A BTreeMap keeps iteration deterministic.
+    pub values: BTreeMap<usize, f64>,
+}
+
+impl DirichletBc {
+    /// Empty set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+    /// Fixes all three components of `node` at `position_m`.
+    pub fn fix_node(&mut self, node: usize, position_m: Vector3<f64>) {
+        for c in 0..3 {
+            self.values.insert(3 * node + c, position_m[c]);
+        }
+    }
+    /// Fixes one component.
+    pub fn fix_dof(&mut self, dof: usize, value_m: f64) {
+        self.values.insert(dof, value_m);
+    }
+    /// Constrained dofs in increasing order.
+    pub fn dofs(&self) -> Vec<usize> {
+        self.values.keys().copied().collect()
+    }
+    /// Writes the prescribed values into `x`.
+    pub fn apply(&self, x: &mut [Vector3<f64>]) {
+        for (&d, &v) in &self.values {
+            if d / 3 < x.len() {
+                x[d / 3][d % 3] = v;
+            }
+        }
+    }
+}
+
+/// Map between global dofs (3·node + axis) and free (unconstrained) dofs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DofMap {
+    free_of_dof: Vec<u32>,
+    dof_of_free: Vec<usize>,
+}
+
+impl DofMap {
+    /// Free dofs = all dofs except `constrained`.
+    pub fn new(num_nodes: usize, constrained: &[usize]) -> Result<Self, FemError> {
+        let n = 3 * num_nodes;
+        let mut fixed = vec![false; n];
+        for &d in constrained {
+            if d >= n {
+                return Err(FemError::DofOutOfRange {
+                    dof: d,
+                    num_dofs: n,
+                });
+            }
+            fixed[d] = true;
+        }
+        let mut free_of_dof = vec![NONE; n];
+        let mut dof_of_free = Vec::with_capacity(n);
+        for d in 0..n {
+            if !fixed[d] {
+                free_of_dof[d] = dof_of_free.len() as u32;
+                dof_of_free.push(d);
+            }
+        }
+        if dof_of_free.is_empty() {
+            return Err(FemError::NoFreeDofs);
+        }
+        Ok(Self {
+            free_of_dof,
+            dof_of_free,
+        })
+    }
+    /// Number of free dofs.
+    pub fn num_free(&self) -> usize {
+        self.dof_of_free.len()
+    }
+    /// Number of all dofs.
+    pub fn num_dofs(&self) -> usize {
+        self.free_of_dof.len()
+    }
+    /// Free index of a global dof, if free.
+    pub fn free_index(&self, dof: usize) -> Option<usize> {
+        self.free_of_dof
+            .get(dof)
+            .and_then(|&f| (f != NONE).then_some(f as usize))
+    }
+    /// Global dof of free index `f`.
+    pub fn dof(&self, f: usize) -> usize {
+        self.dof_of_free[f]
+    }
+    /// Gathers the free components of a node-vector field.
+    pub fn gather(&self, v: &[Vector3<f64>]) -> Vec<f64> {
+        self.dof_of_free.iter().map(|&d| v[d / 3][d % 3]).collect()
+    }
+    /// Adds a free-dof vector into a node-vector field (scaled by `s`).
+    pub fn scatter_add(&self, free: &[f64], s: f64, v: &mut [Vector3<f64>]) {
+        for (f, &d) in self.dof_of_free.iter().enumerate() {
+            v[d / 3][d % 3] += s * free[f];
+        }
+    }
+}
+
+/// Lower-triangular CSC pattern of the reduced stiffness matrix with element scatter maps.
+#[derive(Clone, Debug)]
+pub struct SystemPattern {
+    dofs: DofMap,
+    symbolic: SymbolicSparseColMat<usize>,
+    /// per element: slot of local entry (i, j), i, j ∈ 0..12, or NONE.
+    element_slots: Vec<[u32; 144]>,
+    /// per node: slots of its 3×3 diagonal block (NONE where constrained).
+    node_slots: Vec<[u32; 9]>,
+}
+
+impl SystemPattern {
+    /// Builds the pattern of the free-dof system of a mesh with `tets` over `num_nodes` nodes.
+    pub fn new(num_nodes: usize, tets: &[[usize; 4]], dofs: DofMap) -> Result<Self, FemError> {
+        let mut nbrs: Vec<Vec<usize>> = (0..num_nodes).map(|i| vec![i]).collect();
+        for (t, tet) in tets.iter().enumerate() {
+            for &a in tet {
+                if a >= num_nodes {
+                    return Err(FemError::VertexOutOfRange {
+                        tet: t,
+                        vertex: a,
+                        num_vertices: num_nodes,
+                    });
+                }
+                for &b in tet {
+                    nbrs[a].push(b);
+                }
+            }
+        }
+        for n in &mut nbrs {
+            n.sort_unstable();
+            n.dedup();
+        }
+        let nf = dofs.num_free();
+        let mut col_ptr = Vec::with_capacity(nf + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0usize);
+        for j in 0..nf {
+            let node = dofs.dof(j) / 3;
+            for &m in &nbrs[node] {
+                for c in 0..3 {
+                    if let Some(i) = dofs.free_index(3 * m + c)
+                        && i >= j
+                    {
+                        row_idx.push(i);
+                    }
+                }
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let symbolic = SymbolicSparseColMat::new_checked(nf, nf, col_ptr, None, row_idx);
+        let slot = |i: usize, j: usize| -> u32 {
+            let (r, c) = if i >= j { (i, j) } else { (j, i) };
+            let cp = symbolic.col_ptr();
+            let rows = &symbolic.row_idx()[cp[c]..cp[c + 1]];
+            match rows.binary_search(&r) {
+                Ok(k) => (cp[c] + k) as u32,
+                Err(_) => NONE,
+            }
+        };
+        let mut element_slots = Vec::with_capacity(tets.len());
+        for tet in tets {
+            let mut s = [NONE; 144];
+            for li in 0..12 {
+                let Some(fi) = dofs.free_index(3 * tet[li / 3] + li % 3) else {
+                    continue;
+                };
+                for lj in 0..12 {
+                    let Some(fj) = dofs.free_index(3 * tet[lj / 3] + lj % 3) else {
+                        continue;
+                    };
+                    // Store each global lower entry once: local (li, lj) with fi ≥ fj.
+                    if fi >= fj {
+                        s[li * 12 + lj] = slot(fi, fj);
+                    }
+                }
+            }
+            element_slots.push(s);
+        }
+        let mut node_slots = Vec::with_capacity(num_nodes);
+        for n in 0..num_nodes {
+            let mut s = [NONE; 9];
+            for a in 0..3 {
+                for b in 0..3 {
+                    if let (Some(fi), Some(fj)) =
+                        (dofs.free_index(3 * n + a), dofs.free_index(3 * n + b))
+                        && fi >= fj
+                    {
+                        s[a * 3 + b] = slot(fi, fj);
+                    }
+                }
+            }
+            node_slots.push(s);
+        }
+        Ok(Self {
+            dofs,
+            symbolic,
+            element_slots,
+            node_slots,
+        })
+    }
+
+    /// The dof map.
+    pub fn dofs(&self) -> &DofMap {
+        &self.dofs
+    }
+
+    /// Number of stored (lower) nonzeros.
+    pub fn nnz(&self) -> usize {
+        self.symbolic.row_idx().len()
+    }
+
+    /// A zeroed value array for this pattern.
+    pub fn zeros(&self) -> Vec<f64> {
+        vec![0.0; self.nnz()]
+    }
+
+    /// Scatter-adds one element matrix.
+    pub fn add_element(&self, e: usize, k: &Matrix12, values: &mut [f64]) {
+        let s = &self.element_slots[e];
+        for li in 0..12 {
+            for lj in 0..12 {
+                let slot = s[li * 12 + lj];
+                if slot != NONE {
+                    values[slot as usize] += k[(li, lj)];
+                }
+            }
+        }
+    }
+
+    /// Adds a symmetric 3×3 block to the diagonal block of `node` (contact springs).
+    pub fn add_node_block(&self, node: usize, m: &Matrix3<f64>, values: &mut [f64]) {
+        let s = &self.node_slots[node];
+        for a in 0..3 {
+            for b in 0..3 {
+                let slot = s[a * 3 + b];
+                if slot != NONE {
+                    values[slot as usize] += m[(a, b)];
+                }
+            }
+        }
+    }
+
+    /// Diagonal entries of `node`'s free dofs (NaN where constrained).
+    pub fn node_diagonal(&self, node: usize, values: &[f64]) -> Vector3<f64> {
+        let s = &self.node_slots[node];
+        Vector3::from_fn(|a, _| {
+            let slot = s[a * 4];
+            if slot == NONE {
+                f64::NAN
+            } else {
+                values[slot as usize]
+            }
+        })
+    }
+
+    /// Assembles Σ_e (element matrix) over all elements of `model` at `x` into a fresh value array.
+    pub fn assemble<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+    ) -> Vec<f64> {
+        let mut values = self.zeros();
+        for e in 0..model.elements().len() {
+            let k = model.element_matrix(e, x, kind);
+            self.add_element(e, &k, &mut values);
+        }
+        values
+    }
+
+    /// faer view of the lower triangle with the given values.
+    pub fn matrix<'a>(&'a self, values: &'a [f64]) -> SparseColMatRef<'a, usize, f64> {
+        SparseColMatRef::new(self.symbolic.as_ref(), values)
+    }
+
+    /// y = A x for the symmetric matrix stored by its lower triangle (free-dof vectors).
+    pub fn mul_vec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut y = vec![0.0; x.len()];
+        let cp = self.symbolic.col_ptr();
+        let ri = self.symbolic.row_idx();
+        for j in 0..x.len() {
+            for k in cp[j]..cp[j + 1] {
+                let i = ri[k];
+                y[i] += values[k] * x[j];
+                if i != j {
+                    y[j] += values[k] * x[i];
+                }
+            }
+        }
+        y
+    }
+}
+
+/// Which numeric factorization was used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum FactorKind {
+    /// LLᵀ (matrix positive definite).
+    Llt,
+    /// LDLᵀ fallback (symmetric indefinite, e.g. a consistent tangent under compression).
+    Ldlt,
+}
+
+/// Sparse Cholesky of a [`SystemPattern`]'s matrices: symbolic analysis once, numeric factorization
+/// per matrix, any number of solves per factor.
+#[derive(Debug)]
+pub struct SparseCholesky {
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    kind: Option<FactorKind>,
+    par: Par,
+}
+
+impl SparseCholesky {
+    /// Symbolic factorization (AMD fill-reducing ordering) of `pattern`.
+    pub fn new(pattern: &SystemPattern) -> Result<Self, FemError> {
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.symbolic.as_ref(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        )
+        .map_err(|e| FemError::Factorization {
+            reason: format!("symbolic: {e:?}"),
+        })?;
+        let len = symbolic.len_val();
+        Ok(Self {
+            symbolic,
+            l_values: vec![0.0; len],
+            kind: None,
+            par: Par::Seq,
+        })
+    }
+
+    /// Numeric factorization of `values` (same pattern): LLᵀ, falling back to LDLᵀ if the matrix is
+    /// not positive definite.
+    pub fn factor(
+        &mut self,
+        pattern: &SystemPattern,
+        values: &[f64],
+    ) -> Result<FactorKind, FemError> {
+        if !values.iter().all(|v| v.is_finite()) {
+            self.kind = None;
+            return Err(FemError::NonFinite {
+                what: "stiffness matrix",
+            });
+        }
+        let a = pattern.matrix(values);
+        let req = self
+            .symbolic
+            .factorize_numeric_llt_scratch::<f64>(self.par, Default::default())
+            .or(self
+                .symbolic
+                .factorize_numeric_ldlt_scratch::<f64>(self.par, Default::default()));
+        let mut buf = MemBuffer::new(req);
+        let llt = self.symbolic.factorize_numeric_llt::<f64>(
+            &mut self.l_values,
+            a,
+            Side::Lower,
+            Default::default(),
+            self.par,
+            MemStack::new(&mut buf),
+            Default::default(),
+        );
+        if llt.is_ok() {
+            self.kind = Some(FactorKind::Llt);
+            return Ok(FactorKind::Llt);
+        }
+        let ldlt = self
+            .symbolic
+            .factorize_numeric_ldlt::<f64>(
+                &mut self.l_values,
+                a,
+                Side::Lower,
+                Default::default(),
+                self.par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .map(|_| ());
+        match ldlt {
+            Ok(()) if self.l_values.iter().all(|v| v.is_finite()) => {
+                self.kind = Some(FactorKind::Ldlt);
+                Ok(FactorKind::Ldlt)
+            }
+            Ok(()) => {
+                self.kind = None;
+                Err(FemError::Factorization {
+                    reason: "LDLT produced non-finite values".into(),
+                })
+            }
+            Err(e) => {
+                self.kind = None;
+                Err(FemError::Factorization {
+                    reason: format!("{e:?}"),
+                })
+            }
+        }
+    }
+
+    /// Kind of the current numeric factor (None before a successful [`Self::factor`]).
+    pub fn kind(&self) -> Option<FactorKind> {
+        self.kind
+    }
+
+    /// Solves A X = B in place for a column-major block of right-hand sides (`rhs.len()` a
+    /// multiple of n).
+    pub fn solve_in_place(&self, rhs: &mut [f64]) -> Result<(), FemError> {
+        let n = self.symbolic.nrows();
+        if n == 0 || !rhs.len().is_multiple_of(n) {
+            return Err(FemError::LengthMismatch {
+                what: "right-hand side",
+                expected: n,
+                got: rhs.len(),
+            });
+        }
+        let k = rhs.len() / n;
+        let Some(kind) = self.kind else {
+            return Err(FemError::Factorization {
+                reason: "solve before a successful factorization".into(),
+            });
+        };
+        let mat = MatMut::from_column_major_slice_mut(rhs, n, k);
+        let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, self.par));
+        let stack = MemStack::new(&mut buf);
+        match kind {
+            FactorKind::Llt => LltRef::new(&self.symbolic, &self.l_values)
+                .solve_in_place_with_conj(Conj::No, mat, self.par, stack),
+            FactorKind::Ldlt => LdltRef::new(&self.symbolic, &self.l_values)
+                .solve_in_place_with_conj(Conj::No, mat, self.par, stack),
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,335 @@
+//! Rigid probe contact (bickel2009 §3.4): a rigid tip placed by a pose, node-to-probe penetration
+//! queries through parry3d, and a penalty "linear force field at each colliding point".
+//!
+//! **Formulation.** Every candidate node (by default: the boundary nodes) is tested against the
+//! probe. A node x inside the probe gets the closest boundary point c and outward normal
+//! n = (c − x)/‖c − x‖ (parry's `project_local_point`), and a linear spring acting along n only
+//! (frictionless):
+//!
+//! f_c = k_c n nᵀ (c − x),  ∂f_c/∂x = −k_c n nᵀ,
+//!
+//! with (c, n) frozen within an equilibrium iteration and re-queried at the next one (active set
+//! = penetrating nodes, re-evaluated each iteration). The penalty k_c is scale-free: it is
+//! `penalty_factor` × the node's mean diagonal stiffness, so the residual penetration is about
+//! 1/penalty_factor of the elastic displacement the contact force alone would cause locally.
+//!
+//! The probe is **displacement-controlled** along its axis in experiments: the load path moves the
+//! pose, and the probe reaction (−Σ f_c) and its component along the axis are reported. A
+//! force-controlled probe is obtained by searching the axial position (not in this crate).
+//!
+//! **Frames.** `world_from_probe` is a nalgebra `Isometry3`; the probe's local +z axis is its
+//! approach direction and the tip's leading point is the probe-frame origin. parry3d works on glam
+//! types: points are converted at the boundary (`to_parry` / `from_parry`).
+
+use crate::FemError;
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+use parry3d::math::Vector as PVec;
+use parry3d::query::PointQuery;
+use parry3d::shape::{Ball, Cylinder, TriMesh, TriMeshFlags};
+use serde::{Deserialize, Serialize};
+
+/// Tip geometry in the probe frame (+z = approach direction, leading point at the origin).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum TipShape {
+    /// Sphere of radius r, centre at (0, 0, −r).
+    Sphere {
+        /// radius [m]
+        radius_m: f64,
+    },
+    /// Flat disk (short cylinder) of radius r and thickness t, axis z, occupying z ∈ [−t, 0].
+    Disk {
+        /// radius [m]
+        radius_m: f64,
+        /// thickness [m]
+        thickness_m: f64,
+    },
+    /// Cylinder lying across the approach direction (axis along probe x), radius r, centre
+    /// (0, 0, −r) — the rolling/sliding cylinder of bickel2009 Fig. 4.
+    Cylinder {
+        /// radius [m]
+        radius_m: f64,
+        /// half of the length along probe x [m]
+        half_length_m: f64,
+    },
+    /// Closed, consistently oriented triangle mesh in the probe frame.
+    Mesh {
+        /// vertices [m]
+        vertices_m: Vec<Vector3<f64>>,
+        /// triangles (outward-facing counter-clockwise)
+        triangles: Vec<[u32; 3]>,
+    },
+}
+
+enum ParryShape {
+    Ball(Ball),
+    Cylinder(Cylinder),
+    Mesh(Box<TriMesh>),
+}
+
+/// A rigid probe: tip shape (compiled to a parry3d shape) and pose.
+pub struct Probe {
+    tip: TipShape,
+    shape: ParryShape,
+    /// shape frame → probe frame (parry's cylinder axis is y; ours are z or x).
+    probe_from_shape: Isometry3<f64>,
+    /// Pose of the probe in the world.
+    pub world_from_probe: Isometry3<f64>,
+}
+
+impl std::fmt::Debug for Probe {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Probe")
+            .field("tip", &self.tip)
+            .field("world_from_probe", &self.world_from_probe)
+            .finish()
+    }
+}
+
+impl Clone for Probe {
+    fn clone(&self) -> Self {
+        // TipShape was validated when self was built; rebuilding cannot fail.
+        let mut p =
+            Probe::new(self.tip.clone(), self.world_from_probe).expect("validated tip shape");
+        p.world_from_probe = self.world_from_probe;
+        p
+    }
+}
+
+fn to_parry(v: &Vector3<f64>) -> PVec {
+    PVec::new(v.x, v.y, v.z)
+}
+
+fn from_parry(v: PVec) -> Vector3<f64> {
+    Vector3::new(v.x, v.y, v.z)
+}
+
+impl Probe {
+    /// Builds the probe; errors on non-positive dimensions or an unusable mesh.
+    pub fn new(tip: TipShape, world_from_probe: Isometry3<f64>) -> Result<Self, FemError> {
+        let bad = |reason: &str| {
+            Err(FemError::InvalidProbe {
+                reason: reason.to_string(),
+            })
+        };
+        let rot_y_to_z =
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+        let rot_y_to_x =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -std::f64::consts::FRAC_PI_2);
+        let (shape, probe_from_shape) = match &tip {
+            TipShape::Sphere { radius_m } => {
+                if !(*radius_m > 0.0 && radius_m.is_finite()) {
+                    return bad("sphere radius must be positive");
+                }
+                (
+                    ParryShape::Ball(Ball::new(*radius_m)),
+                    Isometry3::translation(0.0, 0.0, -radius_m),
+                )
+            }
+            TipShape::Disk {
+                radius_m,
+                thickness_m,
+            } => {
+                if !(*radius_m > 0.0
+                    && *thickness_m > 0.0
+                    && radius_m.is_finite()
+                    && thickness_m.is_finite())
+                {
+                    return bad("disk radius and thickness must be positive");
+                }
+                (
+                    ParryShape::Cylinder(Cylinder::new(0.5 * thickness_m, *radius_m)),
+                    Isometry3::from_parts(
+                        Translation3::new(0.0, 0.0, -0.5 * thickness_m),
+                        rot_y_to_z,
+                    ),
+                )
+            }
+            TipShape::Cylinder {
+                radius_m,
+                half_length_m,
+            } => {
+                if !(*radius_m > 0.0
+                    && *half_length_m > 0.0
+                    && radius_m.is_finite()
+                    && half_length_m.is_finite())
+                {
+                    return bad("cylinder radius and half length must be positive");
+                }
+                (
+                    ParryShape::Cylinder(Cylinder::new(*half_length_m, *radius_m)),
+                    Isometry3::from_parts(Translation3::new(0.0, 0.0, -radius_m), rot_y_to_x),
+                )
+            }
+            TipShape::Mesh {
+                vertices_m,
+                triangles,
+            } => {
+                if vertices_m.iter().any(|v| !v.iter().all(|c| c.is_finite())) {
+                    return bad("non-finite mesh vertex");
+                }
+                let verts = vertices_m.iter().map(to_parry).collect();
+                let mesh = TriMesh::with_flags(verts, triangles.clone(), TriMeshFlags::ORIENTED)
+                    .map_err(|e| FemError::InvalidProbe {
+                        reason: format!("{e:?}"),
+                    })?;
+                (ParryShape::Mesh(Box::new(mesh)), Isometry3::identity())
+            }
+        };
+        Ok(Self {
+            tip,
+            shape,
+            probe_from_shape,
+            world_from_probe,
+        })
+    }
+
+    /// The tip description.
+    pub fn tip(&self) -> &TipShape {
+        &self.tip
+    }
+
+    /// Approach direction (probe +z) in the world.
+    pub fn axis_world(&self) -> Vector3<f64> {
+        self.world_from_probe.rotation * Vector3::z()
+    }
+
+    /// The probe advanced by `distance_m` along its axis (displacement control).
+    pub fn advanced(&self, distance_m: f64) -> Probe {
+        let mut p = self.clone();
+        p.world_from_probe.translation.vector += self.axis_world() * distance_m;
+        p
+    }
+
+    /// If `point_world` lies inside the tip: (penetration depth [m], outward unit normal, closest
+    /// surface point), all in the world frame.
+    pub fn penetration(
+        &self,
+        point_world: &Vector3<f64>,
+    ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+        let world_from_shape = self.world_from_probe * self.probe_from_shape;
+        let local = world_from_shape.inverse_transform_point(&Point3::from(*point_world));
+        let q = to_parry(&local.coords);
+        let proj = match &self.shape {
+            ParryShape::Ball(s) => s.project_local_point(q, false),
+            ParryShape::Cylinder(s) => s.project_local_point(q, false),
+            ParryShape::Mesh(s) => s.project_local_point(q, false),
+        };
+        if !proj.is_inside {
+            return None;
+        }
+        let c_local = from_parry(proj.point);
+        let d = c_local - local.coords;
+        let depth = d.norm();
+        if depth <= 0.0 || depth.is_nan() {
+            return None;
+        }
+        let n_world = world_from_shape.rotation * (d / depth);
+        let c_world = world_from_shape
+            .transform_point(&Point3::from(c_local))
+            .coords;
+        Some((depth, n_world, c_world))
+    }
+}
+
+/// Contact settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContactSettings {
+    /// Penalty stiffness relative to the node's mean diagonal stiffness.
+    pub penalty_factor: f64,
+}
+
+impl Default for ContactSettings {
+    fn default() -> Self {
+        Self {
+            penalty_factor: 1.0e4,
+        }
+    }
+}
+
+/// One active contact spring.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactSpring {
+    /// node index
+    pub node: usize,
+    /// outward normal (direction the probe pushes the node) [unit]
+    pub normal: Vector3<f64>,
+    /// closest probe-surface point [m]
+    pub target_m: Vector3<f64>,
+    /// penalty stiffness [N/m]
+    pub stiffness_n_per_m: f64,
+}
+
+impl ContactSpring {
+    /// f_c = k n nᵀ (c − x).
+    pub fn force(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        self.normal * (self.stiffness_n_per_m * self.normal.dot(&(self.target_m - x)))
+    }
+    /// −∂f_c/∂x = k n nᵀ (added to the system matrix).
+    pub fn matrix(&self) -> Matrix3<f64> {
+        self.normal * self.normal.transpose() * self.stiffness_n_per_m
+    }
+}
+
+/// Contact outcome at an equilibrium state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ContactReport {
+    /// Contact patch: nodes in contact, increasing order.
+    pub patch_nodes: Vec<usize>,
+    /// Total contact force exerted by the probe on the body [N].
+    pub contact_force_n: Vector3<f64>,
+    /// Reaction on the probe = −contact force [N].
+    pub probe_reaction_n: Vector3<f64>,
+    /// Force the probe exerts along its approach axis [N] (positive when pushing).
+    pub axial_force_n: f64,
+    /// Largest penetration among patch nodes [m].
+    pub max_penetration_m: f64,
+}
+
+/// A probe with its candidate nodes and settings.
+#[derive(Clone, Debug)]
+pub struct ContactProblem {
+    /// The probe.
+    pub probe: Probe,
+    /// Nodes tested for contact (e.g. boundary nodes), increasing order.
+    pub candidate_nodes: Vec<usize>,
+    /// Settings.
+    pub settings: ContactSettings,
+}
+
+impl ContactProblem {
+    /// Springs for all penetrating candidates at positions `x`; `node_stiffness(n)` is the node's
+    /// mean diagonal stiffness.
+    pub fn springs(
+        &self,
+        x: &[Vector3<f64>],
+        node_stiffness: impl Fn(usize) -> f64,
+    ) -> Vec<ContactSpring> {
+        self.candidate_nodes
+            .iter()
+            .filter_map(|&n| {
+                let (_, normal, target_m) = self.probe.penetration(&x[n])?;
+                Some(ContactSpring {
+                    node: n,
+                    normal,
+                    target_m,
+                    stiffness_n_per_m: self.settings.penalty_factor * node_stiffness(n),
+                })
+            })
+            .collect()
+    }
+
+    /// Report for a set of springs at positions `x`.
+    pub fn report(&self, springs: &[ContactSpring], x: &[Vector3<f64>]) -> ContactReport {
+        let mut r = ContactReport::default();
+        for s in springs {
+            r.patch_nodes.push(s.node);
+            r.contact_force_n += s.force(&x[s.node]);
+            r.max_penetration_m = r
+                .max_penetration_m
+                .max(s.normal.dot(&(s.target_m - x[s.node])));
+        }
+        r.probe_reaction_n = -r.contact_force_n;
+        r.axial_force_n = r.contact_force_n.dot(&self.probe.axis_world());
+        r
+    }
+}

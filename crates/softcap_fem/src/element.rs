@@ -1,0 +1,332 @@
+//! Tetrahedron geometry and the linear corotational element (bickel2009 §3.2, eq. 7; Müller &
+//! Gross 2004).
+//!
+//! Notation: rest nodes X_a, deformed nodes x_a (a = 0..3), shape-function gradients g_a = ∇N_a
+//! (constant on a linear tet), deformation gradient F = Σ_a x_a g_aᵀ = D_s D_m⁻¹, rest volume V.
+//!
+//! Corotational force (Müller & Gross 2004, the force behind bickel2009 eq. 10):
+//!
+//! f_e = R_e K_e (R_eᵀ x_e − X_e),
+//!
+//! with R_e the rotation of the polar decomposition F = R S ([`softcap_core::polar_decomposition`]).
+//! Because R is the *polar* rotation, ∇(Rᵀx − X) = RᵀF − I = S − I is symmetric, so
+//! f_a = V R σ(ε) g_a with ε = sym(RᵀF) − I and σ = 2μ ε + λ_L tr(ε) I. This is the gradient of
+//! Ψ(F) = ½ ε : C : ε, i.e. the element is hyperelastic for fixed (λ, α).
+//!
+//! Two linearizations are offered ([`StiffnessKind`]):
+//! * **warped** R K_e Rᵀ (bickel2009 §3.2, eq. 10–11): what the paper assembles; it drops the
+//!   derivative of R and is the matrix of the fixed-point iteration of §3.4;
+//! * **consistent** ∂f/∂x including dR (derived below in [`corotational_tangent`]): the exact
+//!   Jacobian, used by Newton iterations and by the exact parameter Jacobian.
+
+use crate::{FemError, LinearParams};
+use nalgebra::{Matrix3, SMatrix, Vector3, Vector6};
+
+/// 12×12 element matrix, node-major (rows 3a..3a+3 belong to node a).
+pub type Matrix12 = SMatrix<f64, 12, 12>;
+
+/// How an element is linearized for assembly.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum StiffnessKind {
+    /// R K_e Rᵀ (bickel2009 eq. 10–11, Müller & Gross 2004); for the neo-Hookean element this is
+    /// the same as `Consistent`.
+    Warped,
+    /// The exact derivative ∂f/∂x (includes ∂R/∂x for the corotational element).
+    Consistent,
+}
+
+/// Precomputed rest geometry of one tet.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TetGeometry {
+    /// Vertex indices.
+    pub nodes: [usize; 4],
+    /// Shape-function gradients g_a = ∇N_a in the rest frame [1/m].
+    pub grads: [Vector3<f64>; 4],
+    /// Rest volume V_e [m³] (positive).
+    pub volume_m3: f64,
+}
+
+impl TetGeometry {
+    /// Rest geometry of the tet `nodes` over `rest` positions; `index` is used in errors.
+    pub fn new(index: usize, nodes: [usize; 4], rest: &[Vector3<f64>]) -> Result<Self, FemError> {
+        for &v in &nodes {
+            if v >= rest.len() {
+                return Err(FemError::VertexOutOfRange {
+                    tet: index,
+                    vertex: v,
+                    num_vertices: rest.len(),
+                });
+            }
+            if !rest[v].iter().all(|c| c.is_finite()) {
+                return Err(FemError::NonFinite {
+                    what: "rest vertex position",
+                });
+            }
+        }
+        let x0 = rest[nodes[0]];
+        let dm = Matrix3::from_columns(&[
+            rest[nodes[1]] - x0,
+            rest[nodes[2]] - x0,
+            rest[nodes[3]] - x0,
+        ]);
+        let det = dm.determinant();
+        let scale = dm.column(0).norm() * dm.column(1).norm() * dm.column(2).norm();
+        let inv = dm.try_inverse();
+        let Some(dm_inv) = inv.filter(|_| det.abs() > 1e-12 * scale && scale > 0.0) else {
+            return Err(FemError::DegenerateElement {
+                tet: index,
+                volume_m3: det / 6.0,
+            });
+        };
+        let g1: Vector3<f64> = dm_inv.row(0).transpose();
+        let g2: Vector3<f64> = dm_inv.row(1).transpose();
+        let g3: Vector3<f64> = dm_inv.row(2).transpose();
+        Ok(Self {
+            nodes,
+            grads: [-(g1 + g2 + g3), g1, g2, g3],
+            volume_m3: det.abs() / 6.0,
+        })
+    }
+
+    /// F = Σ_a x_a g_aᵀ.
+    pub fn deformation_gradient(&self, x: &[Vector3<f64>]) -> Matrix3<f64> {
+        let mut f = Matrix3::zeros();
+        for a in 0..4 {
+            f += x[self.nodes[a]] * self.grads[a].transpose();
+        }
+        f
+    }
+
+    /// The strain–displacement matrix B_e of bickel2009 eq. 7: ε = B_e u_e with the Voigt order
+    /// (ε_xx, ε_yy, ε_zz, γ_xy, γ_xz, γ_yz) of bickel2009 §3.2 (engineering shears).
+    pub fn b_matrix(&self) -> SMatrix<f64, 6, 12> {
+        let mut b = SMatrix::<f64, 6, 12>::zeros();
+        for a in 0..4 {
+            let g = self.grads[a];
+            let c = 3 * a;
+            b[(0, c)] = g.x;
+            b[(1, c + 1)] = g.y;
+            b[(2, c + 2)] = g.z;
+            b[(3, c)] = g.y;
+            b[(3, c + 1)] = g.x;
+            b[(4, c)] = g.z;
+            b[(4, c + 2)] = g.x;
+            b[(5, c + 1)] = g.z;
+            b[(5, c + 2)] = g.y;
+        }
+        b
+    }
+}
+
+/// Rest geometry of every tet; errors name the first bad tet.
+pub fn tet_geometries(
+    rest: &[Vector3<f64>],
+    tets: &[[usize; 4]],
+) -> Result<Vec<TetGeometry>, FemError> {
+    tets.iter()
+        .enumerate()
+        .map(|(i, t)| TetGeometry::new(i, *t, rest))
+        .collect()
+}
+
+/// (V B_eᵀ G B_e, V B_eᵀ H B_e): the two parameter-free parts of K_e = λ_e (·) + α_e (·)
+/// (bickel2009 eq. 7), in closed form per 3×3 node block:
+///
+/// (V BᵀGB)_ab = V/2 ((g_a·g_b) I + g_b g_aᵀ),  (V BᵀHB)_ab = V (g_a g_bᵀ − g_b g_aᵀ − (g_a·g_b) I).
+pub fn stiffness_basis(geom: &TetGeometry) -> (Matrix12, Matrix12) {
+    let mut kg = Matrix12::zeros();
+    let mut kh = Matrix12::zeros();
+    let v = geom.volume_m3;
+    for a in 0..4 {
+        for b in 0..4 {
+            let ga = geom.grads[a];
+            let gb = geom.grads[b];
+            let d = ga.dot(&gb);
+            let bg = (gb * ga.transpose() + Matrix3::identity() * d) * (0.5 * v);
+            let bh = (ga * gb.transpose() - gb * ga.transpose() - Matrix3::identity() * d) * v;
+            kg.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&bg);
+            kh.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&bh);
+        }
+    }
+    (kg, kh)
+}
+
+/// Unwarped element stiffness K_e = λ_e V BᵀGB + α_e V BᵀHB (bickel2009 eq. 7).
+pub fn element_stiffness(geom: &TetGeometry, p: &LinearParams) -> Matrix12 {
+    let (kg, kh) = stiffness_basis(geom);
+    kg * p.lambda + kh * p.alpha
+}
+
+/// Stress of the local linear material, σ = 2μ ε + λ_L tr(ε) I with (λ_L, μ) = (α, λ/2 − α):
+/// the tensor form of σ = (λG + αH) ε (bickel2009 eq. 1, 5).
+pub fn linear_stress(p: &LinearParams, strain: &Matrix3<f64>) -> Matrix3<f64> {
+    let (lame, mu) = p.lame();
+    strain * (2.0 * mu) + Matrix3::identity() * (lame * strain.trace())
+}
+
+/// Corotated small strain ε = sym(RᵀF) − I and the rotation R of F = R S.
+pub fn corotated_strain(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let polar = softcap_core::polar_decomposition(f);
+    let rtf = polar.rotation.transpose() * f;
+    (
+        polar.rotation,
+        0.5 * (rtf + rtf.transpose()) - Matrix3::identity(),
+    )
+}
+
+/// Voigt vector (ε_xx, ε_yy, ε_zz, γ_xy, γ_xz, γ_yz) of a symmetric strain tensor
+/// (bickel2009 §3.2; engineering shears so that σ = Eε with E of eq. 5).
+pub fn strain_voigt(e: &Matrix3<f64>) -> Vector6<f64> {
+    Vector6::new(
+        e[(0, 0)],
+        e[(1, 1)],
+        e[(2, 2)],
+        2.0 * e[(0, 1)],
+        2.0 * e[(0, 2)],
+        2.0 * e[(1, 2)],
+    )
+}
+
+/// Internal (elastic restoring) forces f_e = R K_e (Rᵀ x_e − X_e) of one corotational element
+/// (Müller & Gross 2004; bickel2009 eq. 10), evaluated as f_a = V R σ(sym(RᵀF) − I) g_a.
+/// Returns the forces *exerted by the nodes on the element*: equilibrium is f_int = f_ext.
+pub fn corotational_forces(
+    geom: &TetGeometry,
+    p: &LinearParams,
+    x: &[Vector3<f64>],
+) -> [Vector3<f64>; 4] {
+    let f = geom.deformation_gradient(x);
+    let (r, eps) = corotated_strain(&f);
+    let p_mat = r * linear_stress(p, &eps) * geom.volume_m3;
+    [
+        p_mat * geom.grads[0],
+        p_mat * geom.grads[1],
+        p_mat * geom.grads[2],
+        p_mat * geom.grads[3],
+    ]
+}
+
+/// The warped stiffness R K_e Rᵀ (bickel2009 §3.2, Müller & Gross 2004) for a given rotation.
+pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3<f64>) -> Matrix12 {
+    let k = element_stiffness(geom, p);
+    let mut out = Matrix12::zeros();
+    for a in 0..4 {
+        for b in 0..4 {
+            let blk = rotation * k.fixed_view::<3, 3>(3 * a, 3 * b) * rotation.transpose();
+            out.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
+        }
+    }
+    out
+}
+
+fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
+}
+
+/// Consistent tangent ∂f_e/∂x_e of the corotational element (parameters held fixed).
+///
+/// With P(F) = R σ(ε), ε = sym(RᵀF) − I and F = RS: for a direction dF let M = RᵀdF and
+/// W = RᵀdR = [w]×. Differentiating F = RS gives M − Mᵀ = WS + SW = [(tr S I − S) w]×, hence
+/// w = (tr S I − S)⁻¹ axial(M − Mᵀ) (the rotation-derivative formula of McAdams et al. 2011 / Twigg
+/// & Kačić-Alesić 2010). Then dε = sym(M − W S) and dP = R W σ + R σ(dε); column (b, j) of the
+/// element matrix is V dP g_a for dF = e_j g_bᵀ. Near inversion (tr S I − S singular) the rotation
+/// term is dropped.
+pub fn corotational_tangent(geom: &TetGeometry, p: &LinearParams, x: &[Vector3<f64>]) -> Matrix12 {
+    let f = geom.deformation_gradient(x);
+    let polar = softcap_core::polar_decomposition(&f);
+    let r = polar.rotation;
+    let rtf = r.transpose() * f;
+    let s = 0.5 * (rtf + rtf.transpose());
+    let eps = s - Matrix3::identity();
+    let sigma = linear_stress(p, &eps);
+    let sys = Matrix3::identity() * s.trace() - s;
+    let sys_inv = if sys.determinant().abs() > 1e-10 * (1.0 + s.norm().powi(3)) {
+        sys.try_inverse()
+    } else {
+        None
+    };
+    let mut out = Matrix12::zeros();
+    for b in 0..4 {
+        for j in 0..3 {
+            let mut df = Matrix3::zeros();
+            for k in 0..3 {
+                df[(j, k)] = geom.grads[b][k];
+            }
+            let m = r.transpose() * df;
+            let a_mat = m - m.transpose();
+            let axial = Vector3::new(a_mat[(2, 1)], a_mat[(0, 2)], a_mat[(1, 0)]);
+            let w = sys_inv.map_or_else(Vector3::zeros, |inv| inv * axial);
+            let wm = skew(&w);
+            let de = m - wm * s;
+            let de = 0.5 * (de + de.transpose());
+            let dp = (r * wm * sigma + r * linear_stress(p, &de)) * geom.volume_m3;
+            for a in 0..4 {
+                let col = dp * geom.grads[a];
+                for i in 0..3 {
+                    out[(3 * a + i, 3 * b + j)] = col[i];
+                }
+            }
+        }
+    }
+    out
+}
+
+/// ∂f_e/∂λ_e and ∂f_e/∂α_e at fixed rotation: R (V BᵀGB)(Rᵀx − X) and R (V BᵀHB)(Rᵀx − X)
+/// (the per-element right-hand sides of bickel2009 appendix eq. 11–12). Evaluated as V R σ g_a
+/// with σ_G = ε and σ_H = tr(ε) I − 2ε.
+pub fn corotational_parameter_forces(
+    geom: &TetGeometry,
+    x: &[Vector3<f64>],
+) -> ([Vector3<f64>; 4], [Vector3<f64>; 4]) {
+    let f = geom.deformation_gradient(x);
+    let (r, eps) = corotated_strain(&f);
+    let pg = r * eps * geom.volume_m3;
+    let ph = r * (Matrix3::identity() * eps.trace() - eps * 2.0) * geom.volume_m3;
+    let g = geom.grads;
+    (
+        [pg * g[0], pg * g[1], pg * g[2], pg * g[3]],
+        [ph * g[0], ph * g[1], ph * g[2], ph * g[3]],
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::{matrix_g, matrix_h};
+
+    fn sample() -> (Vec<Vector3<f64>>, TetGeometry) {
+        let rest = vec![
+            Vector3::new(0.1, 0.0, 0.0),
+            Vector3::new(1.0, 0.2, 0.1),
+            Vector3::new(0.2, 1.1, 0.0),
+            Vector3::new(0.0, 0.3, 0.9),
+        ];
+        let g = TetGeometry::new(0, [0, 1, 2, 3], &rest).unwrap();
+        (rest, g)
+    }
+
+    #[test]
+    fn closed_form_basis_equals_bt_g_b() {
+        let (_, g) = sample();
+        let b = g.b_matrix();
+        let (kg, kh) = stiffness_basis(&g);
+        let kg_ref = b.transpose() * matrix_g() * b * g.volume_m3;
+        let kh_ref = b.transpose() * matrix_h() * b * g.volume_m3;
+        assert!((kg - kg_ref).norm() < 1e-12 * kg_ref.norm());
+        assert!((kh - kh_ref).norm() < 1e-12 * kh_ref.norm());
+    }
+
+    #[test]
+    fn degenerate_tet_is_an_error() {
+        let rest = vec![
+            Vector3::zeros(),
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::new(1.0, 1.0, 0.0),
+        ];
+        assert!(matches!(
+            TetGeometry::new(7, [0, 1, 2, 3], &rest),
+            Err(FemError::DegenerateElement { tet: 7, .. })
+        ));
+    }
+}

@@ -1,0 +1,67 @@
+//! # softcap_fem — tet FEM for soft-tissue capture
+//!
+//! The simulator the fitting stages stand on (bickel2009 §3 and appendix).
+//!
+//! | module | what | paper |
+//! |---|---|---|
+//! | [`material`] | (λ, α) parameters, G and H, (E, ν) and Lamé conversions; stable neo-Hookean parameters | bickel2009 eq. 2–6; Smith 2018 §3.4 |
+//! | [`element`] | tet geometry, B_e, K_e = λ V BᵀGB + α V BᵀHB, corotational force R K (Rᵀx − X), warped and consistent stiffness | bickel2009 eq. 7; Müller & Gross 2004 |
+//! | [`neohookean`] | stable neo-Hookean Ψ, PK1, ∂P/∂F, element force and tangent | Smith, de Goes & Kim 2018 |
+//! | [`model`] | whole-mesh models, strain-dependent parameter hook p_e(ε_e) | bickel2009 §3.3–3.4 |
+//! | [`assembly`] | Dirichlet elimination, faer sparse pattern, sparse Cholesky (symbolic once, many solves) | bickel2009 appendix |
+//! | [`statics`] | equilibrium iterations, incremental loading, Newton with line search, eq. 10 with frozen rotations | bickel2009 §3.4, eq. 10 |
+//! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
+//! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
+//!
+//! ```
+//! use softcap_fem::{CorotationalModel, DirichletBc, EquilibriumSettings, LinearParams, StaticSolver};
+//! use softcap_fem::nalgebra::Vector3;
+//! let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 0.2, 0.2], [5, 1, 1]);
+//! let mut model = CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(1e4, 0.3)?)?;
+//! let mut bc = DirichletBc::new();
+//! for (i, v) in mesh.vertices.iter().enumerate() {
+//!     if v.x == 0.0 { bc.fix_node(i, *v); }
+//! }
+//! let mut solver = StaticSolver::with_bc(&model, &bc)?;
+//! let mut x = mesh.vertices.clone();
+//! let mut f = vec![Vector3::zeros(); x.len()];
+//! for (i, v) in mesh.vertices.iter().enumerate() {
+//!     if v.x == 1.0 { f[i].z = -0.01; }
+//! }
+//! let report = solver.solve(&mut model, &mut x, &f, None, &EquilibriumSettings::default());
+//! assert!(report.converged());
+//! # Ok::<(), softcap_fem::FemError>(())
+//! ```
+
+pub mod assembly;
+pub mod contact;
+pub mod derivatives;
+pub mod element;
+mod error;
+pub mod material;
+pub mod model;
+pub mod neohookean;
+pub mod statics;
+
+pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPattern};
+pub use contact::{ContactProblem, ContactReport, ContactSettings, ContactSpring, Probe, TipShape};
+pub use derivatives::{Sensitivity, alpha_index, element_stiffness_derivative, lambda_index};
+pub use element::{
+    Matrix12, StiffnessKind, TetGeometry, corotated_strain, corotational_forces,
+    corotational_parameter_forces, corotational_tangent, element_stiffness, stiffness_basis,
+    strain_voigt, tet_geometries, warped_stiffness,
+};
+pub use error::FemError;
+pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
+pub use model::{CorotationalModel, ElasticModel, NeoHookeanModel, StrainDependentParams};
+pub use neohookean::{
+    energy_density, neohookean_energy, neohookean_forces, neohookean_tangent, pk1, pk1_derivative,
+};
+pub use statics::{
+    EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,
+    SolveStatus, StaticSolver, StepReport, incremental_loading,
+};
+
+pub use faer;
+pub use nalgebra;
+pub use parry3d;

@@ -1,0 +1,254 @@
+//! Whole-mesh elastic models: the corotational (λ, α) model of bickel2009 §3 with per-element
+//! parameters and an optional strain-dependent parameter hook, and the stable neo-Hookean model.
+
+use crate::element::{
+    Matrix12, StiffnessKind, TetGeometry, corotated_strain, corotational_forces,
+    corotational_tangent, strain_voigt, tet_geometries, warped_stiffness,
+};
+use crate::neohookean::{neohookean_energy, neohookean_forces, neohookean_tangent};
+use crate::{FemError, LinearParams, NeoHookeanParams};
+use nalgebra::{Matrix3, Vector3, Vector6};
+use softcap_mesh::TetMesh;
+use std::sync::Arc;
+
+/// A tet-mesh elastic model as the solvers see it.
+pub trait ElasticModel {
+    /// Rest positions X [m].
+    fn rest_positions(&self) -> &[Vector3<f64>];
+    /// Precomputed rest geometry of every element.
+    fn elements(&self) -> &[TetGeometry];
+    /// Internal forces of element `e` at positions `x` (per element node).
+    fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4];
+    /// Element matrix of element `e` at `x`.
+    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12;
+    /// Total elastic energy if the model is hyperelastic with fixed parameters.
+    fn energy(&self, x: &[Vector3<f64>]) -> Option<f64>;
+    /// Called at the start of every equilibrium iteration with the current positions; a model with
+    /// strain-dependent parameters updates them here (bickel2009 §3.4). Default: nothing.
+    fn update_state(&mut self, _x: &[Vector3<f64>]) {}
+
+    /// Number of nodes.
+    fn num_nodes(&self) -> usize {
+        self.rest_positions().len()
+    }
+
+    /// Global internal force vector f_int(x) (assembled in element order: deterministic).
+    fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let mut out = vec![Vector3::zeros(); self.num_nodes()];
+        for (e, geom) in self.elements().iter().enumerate() {
+            let f = self.element_forces(e, x);
+            for a in 0..4 {
+                out[geom.nodes[a]] += f[a];
+            }
+        }
+        out
+    }
+}
+
+/// Strain-dependent parameters p_e = p_e(ε_e) (bickel2009 eq. 8 is one such function: an RBF in
+/// strain space per element). `strain` is the corotated Voigt strain (ε_xx, ε_yy, ε_zz, γ_xy, γ_xz,
+/// γ_yz) of [`crate::strain_voigt`].
+pub trait StrainDependentParams: Send + Sync {
+    /// Parameters of `element` at `strain`.
+    fn params(&self, element: usize, strain: &Vector6<f64>) -> LinearParams;
+}
+
+impl<F> StrainDependentParams for F
+where
+    F: Fn(usize, &Vector6<f64>) -> LinearParams + Send + Sync,
+{
+    fn params(&self, element: usize, strain: &Vector6<f64>) -> LinearParams {
+        self(element, strain)
+    }
+}
+
+/// Linear corotational tet model with per-element (λ_e, α_e) (bickel2009 §3.2, eq. 7).
+#[derive(Clone)]
+pub struct CorotationalModel {
+    rest: Vec<Vector3<f64>>,
+    geometry: Vec<TetGeometry>,
+    params: Vec<LinearParams>,
+    hook: Option<Arc<dyn StrainDependentParams>>,
+}
+
+impl std::fmt::Debug for CorotationalModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CorotationalModel")
+            .field("nodes", &self.rest.len())
+            .field("elements", &self.geometry.len())
+            .field("strain_dependent", &self.hook.is_some())
+            .finish()
+    }
+}
+
+impl CorotationalModel {
+    /// Model over `mesh` with per-element parameters (one per tet, each validated).
+    pub fn new(mesh: &TetMesh, params: Vec<LinearParams>) -> Result<Self, FemError> {
+        let geometry = tet_geometries(&mesh.vertices, &mesh.tets)?;
+        if params.len() != geometry.len() {
+            return Err(FemError::LengthMismatch {
+                what: "per-element parameters",
+                expected: geometry.len(),
+                got: params.len(),
+            });
+        }
+        for (e, p) in params.iter().enumerate() {
+            p.validate(e)?;
+        }
+        Ok(Self {
+            rest: mesh.vertices.clone(),
+            geometry,
+            params,
+            hook: None,
+        })
+    }
+
+    /// Homogeneous model.
+    pub fn homogeneous(mesh: &TetMesh, p: LinearParams) -> Result<Self, FemError> {
+        Self::new(mesh, vec![p; mesh.tets.len()])
+    }
+
+    /// Attaches a strain-dependent parameter function, applied at every equilibrium iteration.
+    pub fn with_strain_dependence(mut self, hook: Arc<dyn StrainDependentParams>) -> Self {
+        self.hook = Some(hook);
+        self
+    }
+
+    /// Current per-element parameters.
+    pub fn params(&self) -> &[LinearParams] {
+        &self.params
+    }
+
+    /// Replaces the per-element parameters (not validated: a fitter may probe outside the valid
+    /// region; [`LinearParams::validate`] is available).
+    pub fn set_params(&mut self, params: &[LinearParams]) -> Result<(), FemError> {
+        if params.len() != self.params.len() {
+            return Err(FemError::LengthMismatch {
+                what: "per-element parameters",
+                expected: self.params.len(),
+                got: params.len(),
+            });
+        }
+        self.params.copy_from_slice(params);
+        Ok(())
+    }
+
+    /// Element rotations R_e (polar decomposition of F_e) at `x`.
+    pub fn rotations(&self, x: &[Vector3<f64>]) -> Vec<Matrix3<f64>> {
+        self.geometry
+            .iter()
+            .map(|g| corotated_strain(&g.deformation_gradient(x)).0)
+            .collect()
+    }
+
+    /// Corotated Voigt strains ε_e at `x` (the strain-space coordinates of bickel2009 §3.3).
+    pub fn strains(&self, x: &[Vector3<f64>]) -> Vec<Vector6<f64>> {
+        self.geometry
+            .iter()
+            .map(|g| strain_voigt(&corotated_strain(&g.deformation_gradient(x)).1))
+            .collect()
+    }
+}
+
+impl ElasticModel for CorotationalModel {
+    fn rest_positions(&self) -> &[Vector3<f64>] {
+        &self.rest
+    }
+    fn elements(&self) -> &[TetGeometry] {
+        &self.geometry
+    }
+    fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
+        corotational_forces(&self.geometry[e], &self.params[e], x)
+    }
+    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12 {
+        let g = &self.geometry[e];
+        match kind {
+            StiffnessKind::Warped => {
+                let (r, _) = corotated_strain(&g.deformation_gradient(x));
+                warped_stiffness(g, &self.params[e], &r)
+            }
+            StiffnessKind::Consistent => corotational_tangent(g, &self.params[e], x),
+        }
+    }
+    fn energy(&self, x: &[Vector3<f64>]) -> Option<f64> {
+        if self.hook.is_some() {
+            return None; // Cauchy-elastic only (thesis §7.4.3): no potential.
+        }
+        let mut total = 0.0;
+        for (g, p) in self.geometry.iter().zip(&self.params) {
+            let (_, eps) = corotated_strain(&g.deformation_gradient(x));
+            let sigma = crate::element::linear_stress(p, &eps);
+            total += 0.5 * g.volume_m3 * (sigma.component_mul(&eps)).sum();
+        }
+        Some(total)
+    }
+    fn update_state(&mut self, x: &[Vector3<f64>]) {
+        if let Some(hook) = self.hook.clone() {
+            for (e, g) in self.geometry.iter().enumerate() {
+                let eps = strain_voigt(&corotated_strain(&g.deformation_gradient(x)).1);
+                self.params[e] = hook.params(e, &eps);
+            }
+        }
+    }
+}
+
+/// Stable neo-Hookean tet model (Smith et al. 2018) with per-element parameters.
+#[derive(Clone, Debug)]
+pub struct NeoHookeanModel {
+    rest: Vec<Vector3<f64>>,
+    geometry: Vec<TetGeometry>,
+    params: Vec<NeoHookeanParams>,
+}
+
+impl NeoHookeanModel {
+    /// Model over `mesh` with one parameter set per tet.
+    pub fn new(mesh: &TetMesh, params: Vec<NeoHookeanParams>) -> Result<Self, FemError> {
+        let geometry = tet_geometries(&mesh.vertices, &mesh.tets)?;
+        if params.len() != geometry.len() {
+            return Err(FemError::LengthMismatch {
+                what: "per-element parameters",
+                expected: geometry.len(),
+                got: params.len(),
+            });
+        }
+        Ok(Self {
+            rest: mesh.vertices.clone(),
+            geometry,
+            params,
+        })
+    }
+
+    /// Homogeneous model.
+    pub fn homogeneous(mesh: &TetMesh, p: NeoHookeanParams) -> Result<Self, FemError> {
+        Self::new(mesh, vec![p; mesh.tets.len()])
+    }
+
+    /// Per-element parameters.
+    pub fn params(&self) -> &[NeoHookeanParams] {
+        &self.params
+    }
+}
+
+impl ElasticModel for NeoHookeanModel {
+    fn rest_positions(&self) -> &[Vector3<f64>] {
+        &self.rest
+    }
+    fn elements(&self) -> &[TetGeometry] {
+        &self.geometry
+    }
+    fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
+        neohookean_forces(&self.geometry[e], &self.params[e], x)
+    }
+    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], _kind: StiffnessKind) -> Matrix12 {
+        neohookean_tangent(&self.geometry[e], &self.params[e], x)
+    }
+    fn energy(&self, x: &[Vector3<f64>]) -> Option<f64> {
+        Some(
+            self.geometry
+                .iter()
+                .zip(&self.params)
+                .map(|(g, p)| neohookean_energy(g, p, x))
+                .sum(),
+        )
+    }
+}

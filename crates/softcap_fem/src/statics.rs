@@ -1,0 +1,503 @@
+//! Static equilibrium: the equilibrium iterations and incremental loading of bickel2009 §3.4, and a
+//! Newton solver with line search (used with the stable neo-Hookean model).
+//!
+//! Every iteration solves, over the free DOFs (constraints eliminated),
+//!
+//! A Δx = f_ext + f_c(x) − f_int(x),  x ← x + s Δx,
+//!
+//! where A is the assembled element matrix plus contact springs k n nᵀ. With
+//! [`StiffnessKind::Warped`] (default) A = K(x) = Σ R_e K_e R_eᵀ and one full step is exactly the
+//! paper's update x ← K⁻¹(F + K′X) (bickel2009 eq. 10, since f_int = K x − K′X): the quasi-static
+//! fixed-point iteration of §3.4, where the parameters p_e(ε_e) are refreshed from the current
+//! strain at the start of each iteration ([`ElasticModel::update_state`]). With
+//! [`StiffnessKind::Consistent`] it is Newton's method. The step length s comes from backtracking:
+//! on the energy (Armijo) when the model has one and contact is off, otherwise on the residual norm;
+//! if no step decreases the merit the full step is taken (fixed-point behaviour).
+
+use crate::FemError;
+use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
+use crate::contact::{ContactProblem, ContactReport, ContactSpring};
+use crate::element::StiffnessKind;
+use crate::model::ElasticModel;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the equilibrium iterations.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EquilibriumSettings {
+    /// Maximum iterations per solve.
+    pub max_iterations: usize,
+    /// Converged when ‖Δx‖_∞ ≤ this × (bounding-box diagonal of the rest mesh) …
+    pub displacement_tol_rel: f64,
+    /// … and ‖r‖₂ ≤ this × max(‖f_ext‖₂, ‖f_int‖₂, ‖f_c‖₂) (or the residual is exactly tiny).
+    pub residual_tol_rel: f64,
+    /// Matrix used in the iterations.
+    pub stiffness: StiffnessKind,
+    /// Backtracking line search on/off.
+    pub line_search: bool,
+    /// Maximum number of step halvings.
+    pub max_halvings: usize,
+}
+
+impl Default for EquilibriumSettings {
+    fn default() -> Self {
+        Self {
+            max_iterations: 100,
+            displacement_tol_rel: 1e-10,
+            residual_tol_rel: 1e-8,
+            stiffness: StiffnessKind::Warped,
+            line_search: true,
+            max_halvings: 12,
+        }
+    }
+}
+
+impl EquilibriumSettings {
+    /// Newton's method (consistent tangent) with line search: the neo-Hookean solver.
+    pub fn newton() -> Self {
+        Self {
+            stiffness: StiffnessKind::Consistent,
+            ..Self::default()
+        }
+    }
+}
+
+/// Outcome of an equilibrium solve; never a panic.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum SolveStatus {
+    /// Both tolerances met.
+    Converged,
+    /// Iteration limit reached.
+    MaxIterations,
+    /// The system matrix could not be factored.
+    FactorizationFailed {
+        /// reason reported by the factorization
+        reason: String,
+    },
+    /// Positions or forces became non-finite.
+    NonFinite,
+}
+
+/// Report of one equilibrium solve.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EquilibriumReport {
+    /// Status.
+    pub status: SolveStatus,
+    /// Iterations performed.
+    pub iterations: usize,
+    /// Final ‖r‖₂ over free dofs [N].
+    pub residual_norm_n: f64,
+    /// Last ‖Δx‖_∞ [m].
+    pub last_update_m: f64,
+    /// Contact outcome (default/empty without a probe).
+    pub contact: ContactReport,
+}
+
+impl EquilibriumReport {
+    /// True if converged.
+    pub fn converged(&self) -> bool {
+        self.status == SolveStatus::Converged
+    }
+}
+
+/// Static solver bound to a mesh and a set of constrained dofs; owns the sparsity pattern and the
+/// symbolic factorization (reused across iterations, load steps and right-hand sides).
+#[derive(Debug)]
+pub struct StaticSolver {
+    pattern: SystemPattern,
+    cholesky: SparseCholesky,
+    length_scale_m: f64,
+    values: Vec<f64>,
+}
+
+impl StaticSolver {
+    /// Pattern + symbolic factorization for `model`'s mesh with `constrained_dofs` eliminated.
+    pub fn new<M: ElasticModel + ?Sized>(
+        model: &M,
+        constrained_dofs: &[usize],
+    ) -> Result<Self, FemError> {
+        let n = model.num_nodes();
+        let dofs = DofMap::new(n, constrained_dofs)?;
+        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
+        let pattern = SystemPattern::new(n, &tets, dofs)?;
+        let cholesky = SparseCholesky::new(&pattern)?;
+        let rest = model.rest_positions();
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in rest {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let length_scale_m = (hi - lo).norm().max(f64::MIN_POSITIVE);
+        Ok(Self {
+            pattern,
+            cholesky,
+            length_scale_m,
+            values: Vec::new(),
+        })
+    }
+
+    /// Solver for the constraint set of `bc`.
+    pub fn with_bc<M: ElasticModel + ?Sized>(
+        model: &M,
+        bc: &DirichletBc,
+    ) -> Result<Self, FemError> {
+        Self::new(model, &bc.dofs())
+    }
+
+    /// The pattern (dof map, scatter maps).
+    pub fn pattern(&self) -> &SystemPattern {
+        &self.pattern
+    }
+
+    /// The dof map.
+    pub fn dofs(&self) -> &DofMap {
+        self.pattern.dofs()
+    }
+
+    /// The factorization of the last system matrix (valid after a solve).
+    pub fn cholesky(&self) -> &SparseCholesky {
+        &self.cholesky
+    }
+
+    /// Values of the last assembled system matrix (lower triangle, pattern order).
+    pub fn last_matrix_values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// Assembles A (+ contact springs) at `x` and factors it.
+    pub fn assemble_and_factor<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        contact: Option<&ContactProblem>,
+    ) -> Result<Vec<ContactSpring>, FemError> {
+        let mut values = self.pattern.assemble(model, x, kind);
+        let springs = match contact {
+            Some(c) => {
+                let pat = &self.pattern;
+                let vals = &values;
+                let springs = c.springs(x, |n| {
+                    let d = pat.node_diagonal(n, vals);
+                    let (s, k) = d
+                        .iter()
+                        .filter(|v| v.is_finite())
+                        .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
+                    if k > 0 { s / k as f64 } else { 0.0 }
+                });
+                for s in &springs {
+                    self.pattern
+                        .add_node_block(s.node, &s.matrix(), &mut values);
+                }
+                springs
+            }
+            None => Vec::new(),
+        };
+        self.cholesky.factor(&self.pattern, &values)?;
+        self.values = values;
+        Ok(springs)
+    }
+
+    fn residual<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[Vector3<f64>],
+        f_ext: &[Vector3<f64>],
+        springs: &[ContactSpring],
+    ) -> (Vec<f64>, f64) {
+        let f_int = model.internal_forces(x);
+        let mut r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(e, i)| e - i).collect();
+        let mut fc = Vec::with_capacity(springs.len());
+        for s in springs {
+            let f = s.force(&x[s.node]);
+            r[s.node] += f;
+            fc.push(f);
+        }
+        let dofs = self.dofs();
+        let free = dofs.gather(&r);
+        // Scale: the largest of the external, internal (incl. reactions at constrained dofs) and
+        // contact force norms.
+        let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
+        let scale = norm(f_ext).max(norm(&f_int)).max(norm(&fc));
+        (free, scale)
+    }
+
+    /// Solves f_int(x) = f_ext (+ contact) for the free dofs, starting from `x` (whose constrained
+    /// components must already hold the prescribed values). Never panics: failures are reported in
+    /// the status, and `x` keeps the last finite iterate.
+    pub fn solve<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &mut M,
+        x: &mut [Vector3<f64>],
+        f_ext: &[Vector3<f64>],
+        contact: Option<&ContactProblem>,
+        settings: &EquilibriumSettings,
+    ) -> EquilibriumReport {
+        let mut report = EquilibriumReport {
+            status: SolveStatus::MaxIterations,
+            iterations: 0,
+            residual_norm_n: f64::NAN,
+            last_update_m: f64::NAN,
+            contact: ContactReport::default(),
+        };
+        if x.len() != model.num_nodes() || f_ext.len() != model.num_nodes() {
+            report.status = SolveStatus::FactorizationFailed {
+                reason: "length mismatch of x / f_ext".into(),
+            };
+            return report;
+        }
+        let tol_x = settings.displacement_tol_rel * self.length_scale_m;
+        for it in 0..settings.max_iterations {
+            model.update_state(x);
+            let springs = match self.assemble_and_factor(&*model, x, settings.stiffness, contact) {
+                Ok(s) => s,
+                Err(FemError::NonFinite { .. }) => {
+                    report.status = SolveStatus::NonFinite;
+                    return report;
+                }
+                Err(e) => {
+                    report.status = SolveStatus::FactorizationFailed {
+                        reason: e.to_string(),
+                    };
+                    return report;
+                }
+            };
+            let (r, scale) = self.residual(&*model, x, f_ext, &springs);
+            let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+            report.residual_norm_n = rnorm;
+            if let Some(c) = contact {
+                report.contact = c.report(&springs, x);
+            }
+            if !rnorm.is_finite() {
+                report.status = SolveStatus::NonFinite;
+                return report;
+            }
+            // A residual below what a displacement of tol_x would cause is also accepted.
+            let diag_max = self.values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let res_ok = rnorm <= settings.residual_tol_rel * scale || rnorm <= diag_max * tol_x;
+            if it > 0 && res_ok && report.last_update_m <= tol_x {
+                report.status = SolveStatus::Converged;
+                return report;
+            }
+            let mut dx = r.clone();
+            if let Err(e) = self.cholesky.solve_in_place(&mut dx) {
+                report.status = SolveStatus::FactorizationFailed {
+                    reason: e.to_string(),
+                };
+                return report;
+            }
+            let dx_inf = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            if !dx_inf.is_finite() {
+                report.status = SolveStatus::NonFinite;
+                return report;
+            }
+            let step = if settings.line_search {
+                self.line_search(
+                    &*model,
+                    x,
+                    f_ext,
+                    contact.map(|_| springs.as_slice()),
+                    &dx,
+                    &r,
+                    settings,
+                )
+            } else {
+                1.0
+            };
+            self.dofs().scatter_add(&dx, step, x);
+            report.iterations = it + 1;
+            report.last_update_m = dx_inf * step;
+        }
+        report
+    }
+
+    fn line_search<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[Vector3<f64>],
+        f_ext: &[Vector3<f64>],
+        springs: Option<&[ContactSpring]>,
+        dx: &[f64],
+        r: &[f64],
+        settings: &EquilibriumSettings,
+    ) -> f64 {
+        let dofs = self.dofs();
+        let trial = |s: f64| {
+            let mut xt = x.to_vec();
+            dofs.scatter_add(dx, s, &mut xt);
+            xt
+        };
+        let sp = springs.unwrap_or(&[]);
+        let energy_merit = springs.is_none() && model.energy(x).is_some();
+        if energy_merit {
+            let ext =
+                |xs: &[Vector3<f64>]| xs.iter().zip(f_ext).map(|(a, f)| a.dot(f)).sum::<f64>();
+            let e0 = model.energy(x).unwrap_or(f64::NAN) - ext(x);
+            let slope = -dx.iter().zip(r).map(|(a, b)| a * b).sum::<f64>();
+            if slope < 0.0 {
+                let mut s = 1.0;
+                for _ in 0..=settings.max_halvings {
+                    let xt = trial(s);
+                    let e = model.energy(&xt).unwrap_or(f64::NAN) - ext(&xt);
+                    if e.is_finite() && e <= e0 + 1e-4 * s * slope + 1e-14 * e0.abs() {
+                        return s;
+                    }
+                    s *= 0.5;
+                }
+                return 1.0;
+            }
+        }
+        let r0 = r.iter().map(|v| v * v).sum::<f64>();
+        let mut s = 1.0;
+        for _ in 0..=settings.max_halvings {
+            let xt = trial(s);
+            let (rt, _) = self.residual(model, &xt, f_ext, sp);
+            let rn = rt.iter().map(|v| v * v).sum::<f64>();
+            if rn.is_finite() && rn < r0 {
+                return s;
+            }
+            s *= 0.5;
+        }
+        1.0
+    }
+
+    /// bickel2009 eq. 10 with the rotations *frozen*: x = K(R)⁻¹(F + K′(R) X) for given element
+    /// rotations (the linear problem whose parameter derivative is appendix eq. 11). Constrained
+    /// components of `x` hold the prescribed values; the free ones are overwritten.
+    pub fn solve_frozen_rotations(
+        &mut self,
+        model: &crate::CorotationalModel,
+        rotations: &[nalgebra::Matrix3<f64>],
+        x: &mut [Vector3<f64>],
+        f_ext: &[Vector3<f64>],
+    ) -> Result<(), FemError> {
+        let geoms = model.elements();
+        if rotations.len() != geoms.len() {
+            return Err(FemError::LengthMismatch {
+                what: "rotations",
+                expected: geoms.len(),
+                got: rotations.len(),
+            });
+        }
+        let mut values = self.pattern.zeros();
+        let mut f_int = vec![Vector3::zeros(); x.len()];
+        for (e, g) in geoms.iter().enumerate() {
+            let k = crate::element::warped_stiffness(g, &model.params()[e], &rotations[e]);
+            self.pattern.add_element(e, &k, &mut values);
+            // f_int = R K (Rᵀx − X) with the given R.
+            let ke = crate::element::element_stiffness(g, &model.params()[e]);
+            let r = rotations[e];
+            let mut u = nalgebra::SVector::<f64, 12>::zeros();
+            for a in 0..4 {
+                let ua = r.transpose() * x[g.nodes[a]] - model.rest_positions()[g.nodes[a]];
+                u.fixed_rows_mut::<3>(3 * a).copy_from(&ua);
+            }
+            let fu = ke * u;
+            for a in 0..4 {
+                f_int[g.nodes[a]] += r * fu.fixed_rows::<3>(3 * a);
+            }
+        }
+        self.cholesky.factor(&self.pattern, &values)?;
+        self.values = values;
+        let r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+        let mut dx = self.dofs().gather(&r);
+        self.cholesky.solve_in_place(&mut dx)?;
+        self.dofs().scatter_add(&dx, 1.0, x);
+        Ok(())
+    }
+}
+
+/// The load applied at pseudo-time t ∈ (0, 1] of an incremental loading run.
+#[derive(Clone, Debug, Default)]
+pub struct LoadState {
+    /// External nodal forces [N] (one per node).
+    pub external_forces_n: Vec<Vector3<f64>>,
+    /// Prescribed positions of the constrained dofs (must cover the solver's constrained set).
+    pub prescribed: DirichletBc,
+    /// The probe and its candidate nodes, if any.
+    pub contact: Option<ContactProblem>,
+}
+
+/// Settings of incremental loading (bickel2009 §3.4).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IncrementalSettings {
+    /// Number of load increments.
+    pub steps: usize,
+    /// Equilibrium iterations per increment.
+    pub equilibrium: EquilibriumSettings,
+}
+
+impl Default for IncrementalSettings {
+    fn default() -> Self {
+        Self {
+            steps: 10,
+            equilibrium: EquilibriumSettings::default(),
+        }
+    }
+}
+
+/// Per-increment record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepReport {
+    /// Load factor t of this increment.
+    pub t: f64,
+    /// Equilibrium outcome.
+    pub equilibrium: EquilibriumReport,
+}
+
+/// Report of an incremental loading run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IncrementalReport {
+    /// One record per increment performed.
+    pub steps: Vec<StepReport>,
+    /// Converged if every increment converged; otherwise the first failing status.
+    pub status: SolveStatus,
+}
+
+/// Incremental loading (bickel2009 §3.4): the load `load(t)` is applied in `settings.steps` equal
+/// increments of t; at each increment the constraints and probe pose are updated and equilibrium is
+/// iterated (parameters refreshed from the current strain at every iteration). Stops at the first
+/// increment that fails (reported, `x` keeps the last iterate).
+pub fn incremental_loading<M: ElasticModel + ?Sized>(
+    solver: &mut StaticSolver,
+    model: &mut M,
+    x: &mut [Vector3<f64>],
+    mut load: impl FnMut(f64) -> LoadState,
+    settings: &IncrementalSettings,
+) -> IncrementalReport {
+    let n = settings.steps.max(1);
+    let mut steps = Vec::with_capacity(n);
+    for s in 1..=n {
+        let t = s as f64 / n as f64;
+        let state = load(t);
+        state.prescribed.apply(x);
+        let forces = if state.external_forces_n.len() == x.len() {
+            state.external_forces_n
+        } else {
+            vec![Vector3::zeros(); x.len()]
+        };
+        let rep = solver.solve(
+            model,
+            x,
+            &forces,
+            state.contact.as_ref(),
+            &settings.equilibrium,
+        );
+        let ok = rep.converged();
+        let status = rep.status.clone();
+        steps.push(StepReport {
+            t,
+            equilibrium: rep,
+        });
+        if !ok {
+            return IncrementalReport { steps, status };
+        }
+    }
+    IncrementalReport {
+        steps,
+        status: SolveStatus::Converged,
+    }
+}
