@@ -58,6 +58,74 @@ pub fn box_tet_mesh(min: [f64; 3], max: [f64; 3], cells: [usize; 3]) -> TetMesh 
     mesh
 }
 
+/// Unit icosphere: the icosahedron with every triangle split into 4, `subdivisions` times,
+/// new vertices projected onto the unit sphere. `10·4ˢ + 2` vertices, `20·4ˢ` triangles,
+/// counter-clockwise seen from outside.
+pub fn icosphere(subdivisions: u32) -> crate::types::TriMesh {
+    use std::collections::HashMap;
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut vertices: Vec<Vector3<f64>> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|p| Vector3::from(*p).normalize())
+    .collect();
+    let mut triangles: Vec<[usize; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdivisions {
+        let mut mid: HashMap<(usize, usize), usize> = HashMap::new();
+        let mut midpoint = |a: usize, b: usize, vertices: &mut Vec<Vector3<f64>>| {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                vertices.push(((vertices[a] + vertices[b]) * 0.5).normalize());
+                vertices.len() - 1
+            })
+        };
+        let mut next = Vec::with_capacity(triangles.len() * 4);
+        for [a, b, c] in triangles {
+            let ab = midpoint(a, b, &mut vertices);
+            let bc = midpoint(b, c, &mut vertices);
+            let ca = midpoint(c, a, &mut vertices);
+            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        triangles = next;
+    }
+    crate::types::TriMesh {
+        vertices,
+        triangles,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
