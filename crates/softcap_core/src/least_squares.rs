@@ -143,6 +143,9 @@ pub enum ConvergenceReason {
     Cost,
     /// An accepted step reduced F by less than `relative_cost_tolerance` · F.
     RelativeCost,
+    /// Nelder–Mead: the simplex shrank below `x_tolerance` and its values spread less than
+    /// `f_tolerance`.
+    SimplexSize,
 }
 
 /// Outcome of a least-squares or Nelder–Mead run. Never a panic: every way of stopping is here.
@@ -208,6 +211,12 @@ pub(crate) fn setup<P: LeastSquaresProblem + ?Sized>(
     let n = problem.num_params();
     let m = problem.num_residuals();
     check_len("initial parameters", n, initial.len())?;
+    let (bounds, p) = setup_bounds(initial, bounds)?;
+    Ok((n, m, bounds, p))
+}
+
+pub(crate) fn setup_bounds(initial: &[f64], bounds: Option<&Bounds>) -> Result<(Bounds, Vec<f64>)> {
+    let n = initial.len();
     check_finite("initial parameters", initial)?;
     let bounds = match bounds {
         Some(b) => {
@@ -218,7 +227,7 @@ pub(crate) fn setup<P: LeastSquaresProblem + ?Sized>(
     };
     let mut p = initial.to_vec();
     bounds.clamp(&mut p);
-    Ok((n, m, bounds, p))
+    Ok((bounds, p))
 }
 
 pub(crate) fn half_squared_norm(r: &[f64]) -> f64 {

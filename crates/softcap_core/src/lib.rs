@@ -5,6 +5,10 @@
 //! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
 //! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
 //! | [`levenberg_marquardt`] | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
+//! | [`gauss_newton`] | Gauss–Newton with step-halving (Armijo) line search | Saito & Barbič |
+//! | [`nelder_mead`] | adaptive Nelder–Mead simplex, bounds by clamping | wang2015 |
+//! | [`kmeans`] | seeded k-means++ / Lloyd; k-medoids for custom dissimilarities | thesis §8.3 eq. 8.4 |
+//! | [`bspline`] | uniform cubic B-spline curves, weighted least-squares fit | thesis §4.3.1 eq. 4.2 |
 //! | [`polar`] | robust 3×3 polar decomposition F = R S (near-inverted elements included) | Irving et al. 2004 |
 //! | [`error`] | [`CoreError`], the crate's one error type | |
 //!
@@ -20,19 +24,27 @@
 //! # Ok::<(), softcap_core::CoreError>(())
 //! ```
 
+pub mod bspline;
 mod dense;
 pub mod error;
+pub mod gauss_newton;
+pub mod kmeans;
 pub mod least_squares;
 pub mod levenberg_marquardt;
+pub mod nelder_mead;
 pub mod polar;
 pub mod rbf;
 
+pub use bspline::{BSplineFitSettings, UniformCubicBSpline, fit_uniform_cubic_bspline};
 pub use error::{CoreError, Result};
+pub use gauss_newton::{GaussNewtonSettings, gauss_newton};
+pub use kmeans::{KMeansResult, KMeansSettings, KMedoidsResult, kmeans, kmedoids};
 pub use least_squares::{
     Bounds, ConvergenceReason, FiniteDifference, LeastSquaresProblem, LeastSquaresReport,
     SolverStatus,
 };
 pub use levenberg_marquardt::{DampingScaling, LevenbergMarquardtSettings, levenberg_marquardt};
+pub use nelder_mead::{NelderMeadReport, NelderMeadSettings, nelder_mead};
 pub use polar::{Polar, polar_decomposition};
 pub use rbf::{
     GreedyErrorMeasure, GreedyRbfReport, GreedyRbfSettings, GreedyStatus, GreedyStep,
