@@ -212,6 +212,46 @@ fn tetgen_round_trip_and_bad_line() {
 }
 
 #[test]
+fn non_finite_coordinates_are_rejected_with_their_line() {
+    let err = read_obj_from(Cursor::new("v 0 0 0\nv 1 nan 0\n"), "n.obj").unwrap_err();
+    assert_eq!(err.line(), Some(2), "{err}");
+    assert!(err.to_string().contains("y is NaN"), "{err}");
+    let err = read_obj_from(Cursor::new("v 0 0 0\nvn inf 0 1\n"), "n.obj").unwrap_err();
+    assert_eq!(err.line(), Some(2), "{err}");
+    let node = "2 3 0 0\n1 0 0 0\n2 0 -inf 0\n";
+    let err =
+        read_tetgen_from(Cursor::new(node), "n.node", Cursor::new("0 4 0\n"), "n.ele").unwrap_err();
+    assert_eq!(err.line(), Some(3), "{err}");
+    let ply = "ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\nproperty double y\nproperty double z\nend_header\n0 NaN 0\n";
+    let err = read_ply_from(Cursor::new(ply), "n.ply").unwrap_err();
+    assert_eq!(err.line(), Some(8), "{err}");
+    let good = std::fs::read_to_string(example_template().join("volume.msh")).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let nodes = lines.iter().position(|l| *l == "$Nodes").unwrap();
+    let mut bad: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+    bad[nodes + 3 + 465] = "nan 0 0".into();
+    let err = msh::read_msh_from(Cursor::new(bad.join("\n") + "\n"), "n.msh");
+    // Either the parser rejects "nan" at its line, or the finite check names node 1.
+    let err = err.unwrap_err().to_string();
+    assert!(err.starts_with("n.msh"), "{err}");
+}
+
+#[test]
+fn ict_face_and_example_volume_pass_validation() {
+    let face = read_obj_tri_mesh(repo_root().join("fixtures/ict-face/neutral.obj")).unwrap();
+    face.validate(&ValidationSettings::default()).unwrap();
+    let mut vol = read_msh_tet_mesh(example_template().join("volume.msh")).unwrap();
+    let flipped = vol.orient_positive();
+    vol.validate(&ValidationSettings::default()).unwrap();
+    println!(
+        "example volume.msh: {} tets, {flipped} flipped to positive orientation",
+        vol.tets.len()
+    );
+    vol.scale(MM_TO_M);
+    assert!((vol.volume() - 0.04 * 0.04 * 0.02).abs() < 1e-12);
+}
+
+#[test]
 fn missing_file_is_named() {
     let err = read_obj("/nonexistent/dir/face.obj").unwrap_err();
     assert!(

@@ -142,13 +142,16 @@ fn convert(file: MshFile<u64, i32, f64>, name: &Path) -> Result<MshMesh> {
             }
         }
         for (node, tag) in block.nodes.iter().zip(block_tags) {
+            let p = Vector3::new(node.x, node.y, node.z);
+            crate::io::obj::finite(&p, &format!("node {tag}"))
+                .map_err(|m| MeshError::format(name, m))?;
             if tag_to_index.insert(tag, out.vertices.len()).is_some() {
                 return Err(MeshError::format(
                     name,
                     format!("node tag {tag} defined twice"),
                 ));
             }
-            out.vertices.push(Vector3::new(node.x, node.y, node.z));
+            out.vertices.push(p);
             out.node_tags.push(tag);
         }
     }

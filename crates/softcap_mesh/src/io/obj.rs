@@ -115,7 +115,9 @@ fn parse_line(line: &str, mesh: &mut ObjMesh) -> std::result::Result<(), String>
                 t.parse::<f64>()
                     .map_err(|_| format!("unexpected token {t:?} after vertex coordinates"))?;
             }
-            mesh.vertices.push(Vector3::new(x, y, z));
+            let p = Vector3::new(x, y, z);
+            finite(&p, "vertex")?;
+            mesh.vertices.push(p);
         }
         "vt" => {
             let u = field(&mut tokens, "texture u")?;
@@ -131,7 +133,9 @@ fn parse_line(line: &str, mesh: &mut ObjMesh) -> std::result::Result<(), String>
             let x = field(&mut tokens, "normal x")?;
             let y = field(&mut tokens, "normal y")?;
             let z = field(&mut tokens, "normal z")?;
-            mesh.normals.push(Vector3::new(x, y, z));
+            let n = Vector3::new(x, y, z);
+            finite(&n, "normal")?;
+            mesh.normals.push(n);
         }
         "f" => {
             let mut v = Vec::new();
@@ -171,6 +175,18 @@ fn parse_line(line: &str, mesh: &mut ObjMesh) -> std::result::Result<(), String>
         other => return Err(format!("unknown OBJ statement {other:?}")),
     }
     Ok(())
+}
+
+/// Rejects NaN or infinite coordinates.
+pub(crate) fn finite(p: &Vector3<f64>, what: &str) -> std::result::Result<(), String> {
+    match p.iter().position(|c| !c.is_finite()) {
+        Some(a) => Err(format!(
+            "{what} coordinate {} is {}",
+            ["x", "y", "z"][a],
+            p[a]
+        )),
+        None => Ok(()),
+    }
 }
 
 /// Resolves a 1-based (or negative, relative) OBJ index against `count` defined items.

@@ -333,7 +333,9 @@ pub fn read_ply_from(mut reader: impl BufRead, name: impl AsRef<Path>) -> Result
             };
             if is_vertex {
                 let [x, y, z] = xyz.map(|i| scalars[i.unwrap_or(0)]);
-                mesh.vertices.push(Vector3::new(x, y, z));
+                let p = Vector3::new(x, y, z);
+                crate::io::obj::finite(&p, &format!("vertex {row}")).map_err(err_at)?;
+                mesh.vertices.push(p);
             } else if is_face {
                 if list.len() < 3 {
                     return Err(err_at(format!(

@@ -108,7 +108,9 @@ pub fn read_tetgen_from(
                     nattr + nmark
                 ));
             }
-            Ok((id, Vector3::new(x, y, z)))
+            let p = Vector3::new(x, y, z);
+            crate::io::obj::finite(&p, "point")?;
+            Ok((id, p))
         };
         let (id, p) = parse().map_err(|m| perr(*line, m))?;
         if number_to_index.insert(id, vertices.len()).is_some() {
