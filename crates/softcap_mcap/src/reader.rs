@@ -1,0 +1,367 @@
+//! Reading softcap (and any other) MCAP files, with errors that name the file.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+use crate::catalog::{SoftcapMessage, Topic};
+use crate::error::{Error, Result};
+use crate::provenance::{PROVENANCE_METADATA, Provenance, TIMESTAMP_KEY};
+
+/// One channel of a recording, as listed in its summary.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelSummary {
+    /// MCAP channel id.
+    pub id: u16,
+    /// Topic name.
+    pub topic: String,
+    /// Schema name (`softcap.MarkerFrame`, `foxglove.SceneUpdate`), empty if schemaless.
+    pub schema_name: String,
+    /// Schema encoding (`protobuf`, `jsonschema`, ...).
+    pub schema_encoding: String,
+    /// Message encoding (`protobuf`, `json`, ...).
+    pub message_encoding: String,
+    /// Number of messages (from the summary statistics).
+    pub message_count: u64,
+}
+
+/// A message read from a recording, with its channel's description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawMessage {
+    /// Topic name.
+    pub topic: String,
+    /// Schema name, empty if schemaless.
+    pub schema_name: String,
+    /// Message encoding.
+    pub message_encoding: String,
+    /// Log time, ns since session start.
+    pub log_time_ns: u64,
+    /// Encoded message bytes.
+    pub data: Vec<u8>,
+}
+
+/// An MCAP file read into memory and validated.
+///
+/// [`Recording::open`] checks the magic bytes, the footer and summary section and reads every
+/// record once (chunk CRCs included), so a corrupt or truncated file is reported up front as
+/// [`Error::Corrupt`] or [`Error::Truncated`] naming the file and the problem.
+#[derive(Debug)]
+pub struct Recording {
+    path: PathBuf,
+    bytes: Vec<u8>,
+    summary: mcap::Summary,
+}
+
+impl Recording {
+    /// Reads and validates `path`.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        let bytes = std::fs::read(&path).map_err(|source| Error::Io {
+            path: path.clone(),
+            action: "reading",
+            source,
+        })?;
+        Self::from_bytes(path, bytes)
+    }
+
+    /// Validates an in-memory MCAP file; `path` is used in error messages.
+    pub fn from_bytes(path: impl Into<PathBuf>, bytes: Vec<u8>) -> Result<Self> {
+        let path = path.into();
+        let len = bytes.len() as u64;
+        let magic = mcap::MAGIC;
+        if bytes.len() < magic.len() || &bytes[..magic.len()] != magic {
+            let problem = if bytes.is_empty() {
+                "file is empty".to_string()
+            } else {
+                "does not start with the MCAP magic bytes (not an MCAP file)".to_string()
+            };
+            return Err(Error::Corrupt { path, problem });
+        }
+        if bytes.len() < 2 * magic.len() || &bytes[bytes.len() - magic.len()..] != magic {
+            return Err(Error::Truncated {
+                path,
+                len,
+                problem: "no end magic: the file ends before its footer (writer did not finish)"
+                    .into(),
+            });
+        }
+        let summary = match mcap::Summary::read(&bytes) {
+            Ok(Some(s)) => s,
+            Ok(None) => {
+                return Err(Error::Corrupt {
+                    path,
+                    problem: "no summary section (softcap files always have one)".into(),
+                });
+            }
+            Err(e) => return Err(classify(path, len, &e)),
+        };
+        let recording = Self {
+            path,
+            bytes,
+            summary,
+        };
+        // One full pass: every record parses, every chunk decompresses and matches its CRC.
+        for message in recording.raw_stream()? {
+            message.map_err(|e| classify(recording.path.clone(), len, &e))?;
+        }
+        Ok(recording)
+    }
+
+    /// The file's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The whole file's bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// The parsed summary section (`mcap` crate type).
+    pub fn summary(&self) -> &mcap::Summary {
+        &self.summary
+    }
+
+    /// Message count and log-time range `(start, end)` in ns, from the summary statistics.
+    pub fn stats(&self) -> (u64, Option<(u64, u64)>) {
+        match &self.summary.stats {
+            Some(s) if s.message_count > 0 => (
+                s.message_count,
+                Some((s.message_start_time, s.message_end_time)),
+            ),
+            Some(s) => (s.message_count, None),
+            None => (0, None),
+        }
+    }
+
+    /// Every channel, ordered by topic.
+    pub fn channels(&self) -> Vec<ChannelSummary> {
+        let counts = self
+            .summary
+            .stats
+            .as_ref()
+            .map(|s| s.channel_message_counts.clone())
+            .unwrap_or_default();
+        let mut out: Vec<ChannelSummary> = self
+            .summary
+            .channels
+            .values()
+            .map(|c| ChannelSummary {
+                id: c.id,
+                topic: c.topic.clone(),
+                schema_name: c
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
+                schema_encoding: c
+                    .schema
+                    .as_ref()
+                    .map(|s| s.encoding.clone())
+                    .unwrap_or_default(),
+                message_encoding: c.message_encoding.clone(),
+                message_count: counts.get(&c.id).copied().unwrap_or(0),
+            })
+            .collect();
+        out.sort_by(|a, b| a.topic.cmp(&b.topic).then(a.id.cmp(&b.id)));
+        out
+    }
+
+    /// The channel of `topic`, if present.
+    pub fn channel(&self, topic: &str) -> Option<ChannelSummary> {
+        self.channels().into_iter().find(|c| c.topic == topic)
+    }
+
+    /// The schema record (name, encoding, data) of `topic`'s channel.
+    pub fn schema_of(&self, topic: &str) -> Option<(String, String, Vec<u8>)> {
+        self.summary
+            .channels
+            .values()
+            .find(|c| c.topic == topic)
+            .and_then(|c| c.schema.as_ref())
+            .map(|s| (s.name.clone(), s.encoding.clone(), s.data.to_vec()))
+    }
+
+    fn raw_stream(&self) -> Result<mcap::MessageStream<'_>> {
+        mcap::MessageStream::new(&self.bytes)
+            .map_err(|e| classify(self.path.clone(), self.bytes.len() as u64, &e))
+    }
+
+    /// Every message in file order.
+    pub fn messages(&self) -> Result<Vec<RawMessage>> {
+        let len = self.bytes.len() as u64;
+        self.raw_stream()?
+            .map(|m| {
+                let m = m.map_err(|e| classify(self.path.clone(), len, &e))?;
+                Ok(RawMessage {
+                    topic: m.channel.topic.clone(),
+                    schema_name: m
+                        .channel
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default(),
+                    message_encoding: m.channel.message_encoding.clone(),
+                    log_time_ns: m.log_time,
+                    data: m.data.into_owned(),
+                })
+            })
+            .collect()
+    }
+
+    /// Every message on `topic`, in file order.
+    pub fn messages_on(&self, topic: &str) -> Result<Vec<RawMessage>> {
+        Ok(self
+            .messages()?
+            .into_iter()
+            .filter(|m| m.topic == topic)
+            .collect())
+    }
+
+    /// Decodes every message on `topic` as `M`: `(log_time_ns, message)` in file order.
+    ///
+    /// Errors if the channel is missing, carries another schema, or a message does not decode.
+    pub fn read<M: SoftcapMessage>(&self, topic: &Topic<M>) -> Result<Vec<(u64, M)>> {
+        let name = topic.name();
+        let channel = self.channel(name).ok_or_else(|| Error::MissingChannel {
+            path: self.path.clone(),
+            topic: name.into(),
+        })?;
+        let expected = M::schema_name();
+        if channel.schema_name != expected || channel.message_encoding != "protobuf" {
+            return Err(Error::WrongSchema {
+                path: self.path.clone(),
+                topic: name.into(),
+                expected,
+                found: channel.schema_name,
+                encoding: channel.message_encoding,
+            });
+        }
+        self.messages_on(name)?
+            .into_iter()
+            .map(|m| {
+                M::decode(m.data.as_slice())
+                    .map(|msg| (m.log_time_ns, msg))
+                    .map_err(|source| Error::Decode {
+                        path: self.path.clone(),
+                        topic: name.into(),
+                        log_time_ns: m.log_time_ns,
+                        source,
+                    })
+            })
+            .collect()
+    }
+
+    /// Decodes the single (static) message on `topic`.
+    pub fn read_static<M: SoftcapMessage>(&self, topic: &Topic<M>) -> Result<M> {
+        let mut all = self.read(topic)?;
+        if all.len() != 1 {
+            return Err(Error::NotStatic {
+                path: self.path.clone(),
+                topic: topic.name().into(),
+                count: all.len(),
+            });
+        }
+        Ok(all.remove(0).1)
+    }
+
+    /// Every metadata record `(name, key → value)`, in file order.
+    pub fn metadata(&self) -> Result<Vec<(String, BTreeMap<String, String>)>> {
+        let len = self.bytes.len() as u64;
+        self.summary
+            .metadata_indexes
+            .iter()
+            .map(|idx| {
+                mcap::read::metadata(&self.bytes, idx)
+                    .map(|m| (m.name, m.metadata))
+                    .map_err(|e| classify(self.path.clone(), len, &e))
+            })
+            .collect()
+    }
+
+    /// The `softcap.provenance` record, if the file has one.
+    pub fn provenance(&self) -> Result<Option<Provenance>> {
+        self.metadata()?
+            .into_iter()
+            .find(|(name, _)| name == PROVENANCE_METADATA)
+            .map(|(_, m)| Provenance::from_metadata(&self.path, &m))
+            .transpose()
+    }
+
+    /// Content digest (lower-case hex SHA-256); equal for files with equal content.
+    ///
+    /// Hashes, each field length-prefixed: every channel ordered by topic (topic, message
+    /// encoding, schema name, encoding and data, channel metadata); every message in file order
+    /// (topic, log time, data); every metadata record in file order (name, then its sorted
+    /// key/values, leaving out the `timestamp` of `softcap.provenance`); every attachment (name,
+    /// media type, data). Chunking, compression, record offsets and the writer library do not
+    /// enter, so two runs with the same inputs and arguments give the same digest.
+    pub fn digest(&self) -> Result<String> {
+        let mut h = Sha256::new();
+        let mut put = |tag: &[u8], bytes: &[u8]| {
+            h.update(tag);
+            h.update((bytes.len() as u64).to_le_bytes());
+            h.update(bytes);
+        };
+        let mut channels: Vec<_> = self.summary.channels.values().collect();
+        channels.sort_by(|a, b| a.topic.cmp(&b.topic).then(a.id.cmp(&b.id)));
+        for c in channels {
+            put(b"C", c.topic.as_bytes());
+            put(b"e", c.message_encoding.as_bytes());
+            match &c.schema {
+                Some(s) => {
+                    put(b"S", s.name.as_bytes());
+                    put(b"s", s.encoding.as_bytes());
+                    put(b"d", &s.data);
+                }
+                None => put(b"S", b""),
+            }
+            for (k, v) in &c.metadata {
+                put(b"k", k.as_bytes());
+                put(b"v", v.as_bytes());
+            }
+        }
+        let len = self.bytes.len() as u64;
+        for m in self.raw_stream()? {
+            let m = m.map_err(|e| classify(self.path.clone(), len, &e))?;
+            put(b"M", m.channel.topic.as_bytes());
+            put(b"t", &m.log_time.to_le_bytes());
+            put(b"m", &m.data);
+        }
+        for (name, map) in self.metadata()? {
+            put(b"D", name.as_bytes());
+            for (k, v) in &map {
+                if name == PROVENANCE_METADATA && k == TIMESTAMP_KEY {
+                    continue;
+                }
+                put(b"k", k.as_bytes());
+                put(b"v", v.as_bytes());
+            }
+        }
+        for idx in &self.summary.attachment_indexes {
+            let a = mcap::read::attachment(&self.bytes, idx)
+                .map_err(|e| classify(self.path.clone(), len, &e))?;
+            put(b"A", a.name.as_bytes());
+            put(b"y", a.media_type.as_bytes());
+            put(b"a", &a.data);
+        }
+        Ok(hex::encode(h.finalize()))
+    }
+}
+
+/// Maps an `mcap` read error to a structured error naming the file.
+fn classify(path: PathBuf, len: u64, e: &mcap::McapError) -> Error {
+    use mcap::McapError as E;
+    match e {
+        E::UnexpectedEof | E::BadFooter => Error::Truncated {
+            path,
+            len,
+            problem: e.to_string(),
+        },
+        _ => Error::Corrupt {
+            path,
+            problem: e.to_string(),
+        },
+    }
+}
