@@ -1,0 +1,47 @@
+//! Frame time of the run-time synthesis (thesis §5.5.2, Table 5.1): ICT face (9.4k vertices) and a
+//! midpoint-subdivided face (≈590k vertices), H = 89, F = 243, P = 6 (WPSD).
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use softcap_psd::{Animator, EvaluationSettings, FitMode, IctData, RigSettings, fit_wpsd, pose_sets, subdivide_rig};
+use std::hint::black_box;
+use std::path::PathBuf;
+
+fn bench(c: &mut Criterion) {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/ict-face");
+    let data = IctData::load(&dir).expect("ICT fixture");
+    let settings = RigSettings::default();
+    let rig = softcap_psd::FaceRig::new(&data.mesh, &settings).expect("rig");
+    let (training, heldout) = pose_sets(&data, &EvaluationSettings::default());
+    // P = 6: rest + five expressions with large deformations (thesis: 6 example poses)
+    let names = ["jawOpen", "mouthSmile_L", "browInnerUp_R", "mouthPucker", "eyeBlink_L"];
+    let mut basis = vec![0];
+    basis.extend(names.iter().filter_map(|n| training.iter().position(|r| r.name == *n)));
+    let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();
+    let examples = rig.examples(&poses).expect("examples");
+    let model = fit_wpsd(&examples, &basis, FitMode::Interpolate, &rig.edge_weights).expect("fit");
+    let frames: Vec<Vec<_>> = heldout.iter().map(|r| rig.handle_positions(&data.pose(r))).collect();
+
+    let mut group = c.benchmark_group("psd_frame");
+    group.sample_size(20);
+    let mut anim = Animator::new(&rig, &model).expect("animator");
+    let mut k = 0;
+    group.bench_function(format!("ict_{}v_H89_F{}_P{}", rig.num_vertices(), rig.graph.len(), basis.len()), |b| {
+        b.iter(|| {
+            k = (k + 1) % frames.len();
+            anim.frame(black_box(&frames[k])).expect("frame");
+        })
+    });
+    let (fine_rig, fine_model) = subdivide_rig(&rig, &model, 3, &settings.edge_weights);
+    let mut anim = Animator::new(&fine_rig, &fine_model).expect("animator");
+    group.sample_size(10);
+    group.bench_function(format!("subdivided_{}v_H89_F{}_P{}", fine_rig.num_vertices(), rig.graph.len(), basis.len()), |b| {
+        b.iter(|| {
+            k = (k + 1) % frames.len();
+            anim.frame(black_box(&frames[k])).expect("frame");
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,76 @@
+//! The one error type of `softcap_psd`.
+
+use std::path::PathBuf;
+
+/// Errors of the pose-space detail stage.
+#[derive(Debug, thiserror::Error)]
+pub enum PsdError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// the file
+        path: PathBuf,
+        /// the OS error
+        source: std::io::Error,
+    },
+    /// A pose file is malformed.
+    #[error("{path}: byte {offset}: {reason}")]
+    BadPoseFile {
+        /// the file
+        path: PathBuf,
+        /// byte offset of the problem
+        offset: usize,
+        /// what is wrong
+        reason: String,
+    },
+    /// A marker-trajectory file is malformed.
+    #[error("{path}: line {line}: field `{field}`: {reason}")]
+    BadMarkerFile {
+        /// the file
+        path: PathBuf,
+        /// 1-based line
+        line: usize,
+        /// the column
+        field: String,
+        /// what is wrong
+        reason: String,
+    },
+    /// Array sizes disagree.
+    #[error("{what}: expected {expected}, got {got}")]
+    SizeMismatch {
+        /// what was being checked
+        what: &'static str,
+        /// expected length
+        expected: usize,
+        /// actual length
+        got: usize,
+    },
+    /// A setting is out of range.
+    #[error("setting `{field}`: {reason}")]
+    InvalidSetting {
+        /// the field
+        field: &'static str,
+        /// why
+        reason: String,
+    },
+    /// The mesh could not be read.
+    #[error(transparent)]
+    Mesh(#[from] softcap_mesh::MeshError),
+    /// The linear shell could not be built.
+    #[error(transparent)]
+    Shell(#[from] softcap_mesh::ShellError),
+    /// An RBF fit failed.
+    #[error(transparent)]
+    Rbf(#[from] softcap_core::CoreError),
+    /// Writing an image or plot failed.
+    #[error("{path}: {reason}")]
+    Render {
+        /// the output
+        path: PathBuf,
+        /// why
+        reason: String,
+    },
+}
+
+/// Result with [`PsdError`].
+pub type Result<T, E = PsdError> = std::result::Result<T, E>;

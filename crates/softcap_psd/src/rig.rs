@@ -1,0 +1,337 @@
+//! The face rig: handles, linear-shell basis, feature graph and edge weights on a rest mesh,
+//! the conversion of example poses into training examples (thesis §5.4.2: details
+//! `d = example − large-scale(example)` in local frames), and the run-time [`Animator`]
+//! (thesis §5.5.2: large-scale kernel, normal update, fine-scale kernel, normal update).
+
+use crate::detail::{DetailModel, Examples};
+use crate::error::{PsdError, Result};
+use crate::frames::{self, BLOCK, Topology};
+use crate::graph::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_handles};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use softcap_mesh::{LinearShell, ShellBasis, ShellSettings, TriMesh};
+
+/// Settings of the face rig.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RigSettings {
+    /// Number of handle vertices H (thesis: 89).
+    pub handles: usize,
+    /// Number of feature edges F (thesis: 243).
+    pub feature_edges: usize,
+    /// Linear shell stiffnesses (thesis: k_s = 1, k_b = 100 for cm).
+    pub shell: ShellSettings,
+    /// WPSD edge weights (thesis: ≤ 16 edges, drop < 0.025).
+    pub edge_weights: EdgeWeightSettings,
+}
+
+impl Default for RigSettings {
+    fn default() -> Self {
+        Self {
+            handles: 89,
+            feature_edges: 243,
+            shell: ShellSettings::default(),
+            edge_weights: EdgeWeightSettings::default(),
+        }
+    }
+}
+
+/// Everything that depends only on the rest mesh and the handle choice.
+#[derive(Clone, Debug)]
+pub struct FaceRig {
+    /// Rest positions.
+    pub rest: Vec<Vector3<f64>>,
+    /// Rest positions in f32 for the run-time kernels.
+    pub rest_f32: Vec<[f32; 3]>,
+    /// Connectivity.
+    pub topology: Topology,
+    /// Handle vertex ids.
+    pub handles: Vec<usize>,
+    /// Shell basis `B` (thesis §5.3).
+    pub basis: ShellBasis,
+    /// Feature graph over the handles (§5.4.1).
+    pub graph: FeatureGraph,
+    /// WPSD edge weights (eq. 5.4).
+    pub edge_weights: EdgeWeights,
+}
+
+/// Cotangent Laplacian and Voronoi areas of `mesh` (from `softcap_mesh`), then the factorised
+/// shell over `handles` (thesis eq. 5.1).
+pub fn shell_for_mesh(mesh: &TriMesh, handles: &[usize], settings: &ShellSettings) -> Result<LinearShell> {
+    let lap = softcap_mesh::cotangent_laplacian(mesh)?;
+    let areas = softcap_mesh::voronoi_areas(mesh)?;
+    Ok(LinearShell::new(lap.as_ref(), &areas, handles, settings)?)
+}
+
+impl FaceRig {
+    /// Build the rig on `mesh` with farthest-point handles (see [`farthest_point_handles`]).
+    pub fn new(mesh: &TriMesh, settings: &RigSettings) -> Result<Self> {
+        let handles = farthest_point_handles(&mesh.vertices, settings.handles);
+        Self::with_handles(mesh, handles, None, settings)
+    }
+
+    /// Build the rig with given handles and, optionally, a given feature graph (its rest
+    /// lengths are re-measured on this mesh — detail transfer, §5.4.4).
+    pub fn with_handles(
+        mesh: &TriMesh,
+        handles: Vec<usize>,
+        graph: Option<&FeatureGraph>,
+        settings: &RigSettings,
+    ) -> Result<Self> {
+        let shell = shell_for_mesh(mesh, &handles, &settings.shell)?;
+        let basis = shell.basis();
+        let handle_rest: Vec<_> = handles.iter().map(|&v| mesh.vertices[v]).collect();
+        let graph = match graph {
+            Some(g) => g.with_rest(&handle_rest),
+            None => FeatureGraph::nearest_neighbours(&handle_rest, settings.feature_edges),
+        };
+        let edge_weights = EdgeWeights::new(&mesh.vertices, &handle_rest, &graph, &settings.edge_weights);
+        Ok(Self {
+            rest: mesh.vertices.clone(),
+            rest_f32: mesh.vertices.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+            topology: Topology::new(mesh.vertices.len(), &mesh.triangles),
+            handles,
+            basis,
+            graph,
+            edge_weights,
+        })
+    }
+
+    /// Number of vertices.
+    pub fn num_vertices(&self) -> usize {
+        self.rest.len()
+    }
+
+    /// Handle positions of a full pose.
+    pub fn handle_positions(&self, pose: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        self.handles.iter().map(|&v| pose[v]).collect()
+    }
+
+    /// Feature vector (§5.4.1) of given handle positions.
+    pub fn features(&self, handle_positions: &[Vector3<f64>]) -> Vec<f64> {
+        let mut f = vec![0.0; self.graph.len()];
+        self.graph.features(handle_positions, &mut f);
+        f
+    }
+
+    /// Large-scale positions `x0 + B·u_H` (thesis §5.3) and their unit vertex normals.
+    pub fn large_scale(&self, handle_positions: &[Vector3<f64>]) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+        let uh = self.handle_displacements(handle_positions);
+        let mut x = vec![[0.0f32; 3]; self.num_vertices()];
+        large_scale_kernel(&self.basis, &self.rest_f32, &uh, &mut x);
+        let mut fnrm = vec![[0.0f32; 3]; self.topology.triangles.len()];
+        frames::face_normals(&self.topology, &x, &mut fnrm);
+        let mut nrm = vec![[0.0f32; 3]; x.len()];
+        frames::vertex_normals(&self.topology, &fnrm, &mut nrm);
+        (x, nrm)
+    }
+
+    fn handle_displacements(&self, handle_positions: &[Vector3<f64>]) -> Vec<[f32; 3]> {
+        self.handles
+            .iter()
+            .zip(handle_positions)
+            .map(|(&v, p)| {
+                let u = p - self.rest[v];
+                [u.x as f32, u.y as f32, u.z as f32]
+            })
+            .collect()
+    }
+
+    /// Training examples from full poses: features of the handles and details
+    /// `d = R_vᵀ (x_pose − x_large)` in the local frames of the large-scale deformation.
+    pub fn examples(&self, poses: &[Vec<Vector3<f64>>]) -> Result<Examples> {
+        let n = self.num_vertices();
+        let t = poses.len();
+        let fdim = self.graph.len();
+        let mut features = vec![0.0; t * fdim];
+        let mut details = vec![0.0; n * t * 3];
+        for (s, pose) in poses.iter().enumerate() {
+            if pose.len() != n {
+                return Err(PsdError::SizeMismatch { what: "pose vertices", expected: n, got: pose.len() });
+            }
+            let hp = self.handle_positions(pose);
+            self.graph.features(&hp, &mut features[s * fdim..(s + 1) * fdim]);
+            let (x, nrm) = self.large_scale(&hp);
+            for v in 0..n {
+                let fr = frames::local_frame(&self.topology, &x, nrm[v], v);
+                let e = [(pose[v].x - x[v][0] as f64) as f32, (pose[v].y - x[v][1] as f64) as f32, (pose[v].z - x[v][2] as f64) as f32];
+                let d = frames::to_local(&fr, e);
+                for k in 0..3 {
+                    details[(v * t + s) * 3 + k] = d[k] as f64;
+                }
+            }
+        }
+        Ok(Examples { num_features: fdim, num_vertices: n, features, details })
+    }
+}
+
+/// `x[v] = x0[v] + Σ_h B[v,h] u_H[h]` in parallel vertex blocks (thesis §5.3 "large-scale kernel").
+pub fn large_scale_kernel(basis: &ShellBasis, rest: &[[f32; 3]], uh: &[[f32; 3]], x: &mut [[f32; 3]]) {
+    x.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
+        basis.apply_rows(uh, b * BLOCK, chunk);
+        for (k, o) in chunk.iter_mut().enumerate() {
+            let r = rest[b * BLOCK + k];
+            *o = [o[0] + r[0], o[1] + r[1], o[2] + r[2]];
+        }
+    });
+}
+
+/// Run-time synthesis (thesis §5.5.2): handle positions → detailed positions and normals.
+/// Buffers are allocated once; each frame runs four parallel kernels.
+#[derive(Debug)]
+pub struct Animator<'a> {
+    rig: &'a FaceRig,
+    model: &'a DetailModel,
+    /// Final positions of the last frame.
+    pub positions: Vec<[f32; 3]>,
+    /// Final unit normals of the last frame.
+    pub normals: Vec<[f32; 3]>,
+    large: Vec<[f32; 3]>,
+    face_normals: Vec<[f32; 3]>,
+    features: Vec<f64>,
+    g: Vec<f32>,
+    uh: Vec<[f32; 3]>,
+}
+
+impl<'a> Animator<'a> {
+    /// Prepare buffers for `rig` with detail `model`.
+    pub fn new(rig: &'a FaceRig, model: &'a DetailModel) -> Result<Self> {
+        let n = rig.num_vertices();
+        if model.num_vertices() != n {
+            return Err(PsdError::SizeMismatch { what: "detail-model vertices", expected: n, got: model.num_vertices() });
+        }
+        if model.num_features != rig.graph.len() {
+            return Err(PsdError::SizeMismatch { what: "feature edges", expected: rig.graph.len(), got: model.num_features });
+        }
+        Ok(Self {
+            rig,
+            model,
+            positions: vec![[0.0; 3]; n],
+            normals: vec![[0.0; 3]; n],
+            large: vec![[0.0; 3]; n],
+            face_normals: vec![[0.0; 3]; rig.topology.triangles.len()],
+            features: vec![0.0; rig.graph.len()],
+            g: Vec::new(),
+            uh: vec![[0.0; 3]; rig.handles.len()],
+        })
+    }
+
+    /// Synthesize one frame from handle positions (`H` entries).
+    pub fn frame(&mut self, handle_positions: &[Vector3<f64>]) -> Result<()> {
+        let rig = self.rig;
+        if handle_positions.len() != rig.handles.len() {
+            return Err(PsdError::SizeMismatch { what: "handle positions", expected: rig.handles.len(), got: handle_positions.len() });
+        }
+        for ((u, &v), p) in self.uh.iter_mut().zip(&rig.handles).zip(handle_positions) {
+            let d = p - rig.rest[v];
+            *u = [d.x as f32, d.y as f32, d.z as f32];
+        }
+        rig.graph.features(handle_positions, &mut self.features);
+        self.model.squared_feature_differences(&self.features, &mut self.g);
+        // 1. large-scale kernel
+        large_scale_kernel(&rig.basis, &rig.rest_f32, &self.uh, &mut self.large);
+        // 2. normals of the large-scale surface
+        frames::face_normals(&rig.topology, &self.large, &mut self.face_normals);
+        frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
+        // 3. fine-scale kernel: x = x_large + R_v d_v(f)
+        let (large, normals, g, model, topo) = (&self.large, &self.normals, &self.g, self.model, &rig.topology);
+        self.positions.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
+            let first = b * BLOCK;
+            model.evaluate_rows(g, first, chunk);
+            for (k, o) in chunk.iter_mut().enumerate() {
+                let v = first + k;
+                let fr = frames::local_frame(topo, large, normals[v], v);
+                let w = frames::to_world(&fr, *o);
+                let x = large[v];
+                *o = [x[0] + w[0], x[1] + w[1], x[2] + w[2]];
+            }
+        });
+        // 4. normals of the detailed surface
+        frames::face_normals(&rig.topology, &self.positions, &mut self.face_normals);
+        frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
+        Ok(())
+    }
+}
+
+/// One level of midpoint (1→4) subdivision; returns the new mesh and, per new vertex, its two
+/// parent vertices (equal for old vertices). Used to build the ≈530k-vertex benchmark face.
+pub fn subdivide_midpoint(mesh: &TriMesh) -> (TriMesh, Vec<[u32; 2]>) {
+    use std::collections::HashMap;
+    let mut vertices = mesh.vertices.clone();
+    let mut parents: Vec<[u32; 2]> = (0..vertices.len() as u32).map(|v| [v, v]).collect();
+    let mut mid: HashMap<(usize, usize), usize> = HashMap::new();
+    let mut triangles = Vec::with_capacity(mesh.triangles.len() * 4);
+    for t in &mesh.triangles {
+        let mut m = [0usize; 3];
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let key = (a.min(b), a.max(b));
+            m[k] = *mid.entry(key).or_insert_with(|| {
+                vertices.push(0.5 * (mesh.vertices[a] + mesh.vertices[b]));
+                parents.push([key.0 as u32, key.1 as u32]);
+                vertices.len() - 1
+            });
+        }
+        triangles.push([t[0], m[0], m[2]]);
+        triangles.push([t[1], m[1], m[0]]);
+        triangles.push([t[2], m[2], m[1]]);
+        triangles.push([m[0], m[1], m[2]]);
+    }
+    (TriMesh { vertices, triangles }, parents)
+}
+
+/// Refine a rig and its detail model by `levels` midpoint subdivisions (benchmark faces of
+/// thesis §5.5.2 size). New rows of `B` and of the RBF weights are the averages of the two
+/// parent rows — the barycentric weight interpolation of the transfer (§5.4.4) — instead of a
+/// shell solve on the fine mesh; per-frame work is identical. Edge weights (eq. 5.4) are
+/// recomputed on the fine rest shape.
+pub fn subdivide_rig(
+    rig: &FaceRig,
+    model: &DetailModel,
+    levels: usize,
+    edge_settings: &EdgeWeightSettings,
+) -> (FaceRig, DetailModel) {
+    let mut mesh = TriMesh {
+        vertices: rig.rest.clone(),
+        triangles: rig.topology.triangles.iter().map(|t| t.map(|v| v as usize)).collect(),
+    };
+    let mut b = rig.basis.weights.clone();
+    let mut w = model.weights.clone();
+    let h = rig.basis.h;
+    let p3 = 3 * model.num_poses();
+    for _ in 0..levels {
+        let (fine, parents) = subdivide_midpoint(&mesh);
+        let avg = |src: &[f32], width: usize| -> Vec<f32> {
+            let mut out = vec![0.0f32; parents.len() * width];
+            out.par_chunks_mut(width).zip(&parents).for_each(|(o, pa)| {
+                let (a, c) = (pa[0] as usize, pa[1] as usize);
+                for k in 0..width {
+                    o[k] = 0.5 * (src[a * width + k] + src[c * width + k]);
+                }
+            });
+            out
+        };
+        b = avg(&b, h);
+        w = avg(&w, p3);
+        mesh = fine;
+    }
+    let handle_rest: Vec<_> = rig.handles.iter().map(|&v| mesh.vertices[v]).collect();
+    let edge_weights = EdgeWeights::new(&mesh.vertices, &handle_rest, &rig.graph, edge_settings);
+    let n = mesh.vertices.len();
+    let fine_rig = FaceRig {
+        rest_f32: mesh.vertices.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+        topology: Topology::new(n, &mesh.triangles),
+        rest: mesh.vertices,
+        handles: rig.handles.clone(),
+        basis: ShellBasis { n, h, weights: b },
+        graph: rig.graph.clone(),
+        edge_weights: edge_weights.clone(),
+    };
+    let metric = match model.metric {
+        crate::detail::Metric::Global => crate::detail::Metric::Global,
+        crate::detail::Metric::Weighted(_) => crate::detail::Metric::Weighted(edge_weights),
+    };
+    let fine_model = DetailModel { num_features: model.num_features, centers: model.centers.clone(), weights: w, metric };
+    (fine_rig, fine_model)
+}
