@@ -1,10 +1,9 @@
 //! Blend-shape baselines of thesis §5.5.1: global blend shapes (one convex weight vector per
-//! pose, matched in the feature space of §5.4.1) and local blend shapes (per-vertex convex
-//! weights matched with the weighted metric of eq. 5.3).
+//! pose, fitted to the marker positions) and local blend shapes (convex marker fits per handle
+//! region under the locally supported kernel of eq. 5.4, blended smoothly to the vertices).
 
 use crate::graph::EdgeWeights;
 use nalgebra::Vector3;
-use rayon::prelude::*;
 
 /// Convex weights `c` (c ≥ 0, Σc = 1) minimising `Σ_i a_i (Σ_j c_j F[j][i] − f_i)²`, i.e.
 /// `½ cᵀGc − bᵀc` with `G = F diag(a) Fᵀ`, `b = F diag(a) f`: accelerated projected gradient
@@ -54,61 +53,88 @@ pub fn project_simplex(x: &mut [f64]) {
     }
 }
 
-/// Global blend shapes: `x = Σ_j c_j x_j` with one convex `c` fitted in feature space.
+/// Normal equations of `min_c Σ_h κ_h ‖Σ_j c_j u_{h,j} − u_h‖²` (marker-position fit).
+fn marker_normal_equations(basis_handles: &[&[Vector3<f64>]], target: &[Vector3<f64>], kappa: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let p = basis_handles.len();
+    let mut g = vec![0.0; p * p];
+    let mut b = vec![0.0; p];
+    for (h, (&k, t)) in kappa.iter().zip(target).enumerate() {
+        if k == 0.0 {
+            continue;
+        }
+        for i in 0..p {
+            let ui = basis_handles[i][h];
+            b[i] += k * ui.dot(t);
+            for j in 0..p {
+                g[i * p + j] += k * ui.dot(&basis_handles[j][h]);
+            }
+        }
+    }
+    (g, b)
+}
+
+/// Global blend shapes (thesis §5.5.1): one convex weight vector `c` that best matches the
+/// marker (handle) positions, `x = Σ_j c_j x_j`.
+///
+/// `basis_handles[j]` / `target_handles` are handle positions relative to the rest pose.
 pub fn global_blend(
     basis_positions: &[&[Vector3<f64>]],
-    basis_features: &[&[f64]],
-    f: &[f64],
+    basis_handles: &[&[Vector3<f64>]],
+    target_handles: &[Vector3<f64>],
     iterations: usize,
 ) -> Vec<Vector3<f64>> {
     let p = basis_positions.len();
-    let mut g = vec![0.0; p * p];
-    let mut b = vec![0.0; p];
-    for i in 0..p {
-        b[i] = basis_features[i].iter().zip(f).map(|(x, y)| x * y).sum();
-        for j in 0..p {
-            g[i * p + j] = basis_features[i].iter().zip(basis_features[j]).map(|(x, y)| x * y).sum();
-        }
-    }
+    let (g, b) = marker_normal_equations(basis_handles, target_handles, &vec![1.0; target_handles.len()]);
     let mut c = vec![0.0; p];
     simplex_least_squares(&g, &b, p, iterations, &mut c);
     let n = basis_positions[0].len();
     (0..n).map(|v| (0..p).map(|j| c[j] * basis_positions[j][v]).sum()).collect()
 }
 
-/// Local blend shapes: per vertex `x_v = Σ_j c_{v,j} x_{j,v}` with convex `c_v` fitted under
-/// the weighted feature metric of eq. 5.3 (only the ≤16 edges the vertex sees).
+/// Local blend shapes (thesis §5.5.1): one convex marker fit per handle region, with the markers
+/// weighted by the locally supported kernel of eq. 5.4 seen from that handle
+/// (`κ_h' = Σ_{i ∋ h'} α_{h,i} / 2`), blended smoothly to every vertex with its own edge
+/// weights: `c_v = Σ_i α_{v,i} (c_{i,1} + c_{i,2}) / 2`, `x_v = Σ_j c_{v,j} x_{j,v}` — a smooth
+/// version of region-segmented blend shapes.
 pub fn local_blend(
     basis_positions: &[&[Vector3<f64>]],
-    basis_features: &[&[f64]],
+    basis_handles: &[&[Vector3<f64>]],
+    target_handles: &[Vector3<f64>],
+    handles: &[usize],
+    graph_edges: &[[usize; 2]],
     edge_weights: &EdgeWeights,
-    f: &[f64],
     iterations: usize,
 ) -> Vec<Vector3<f64>> {
     let p = basis_positions.len();
+    let hn = handles.len();
+    let mut region = vec![0.0; hn * p];
+    for (h, &v) in handles.iter().enumerate() {
+        let mut kappa = vec![0.0; hn];
+        let (ids, al) = edge_weights.row(v);
+        for (&i, &a) in ids.iter().zip(al) {
+            for &e in &graph_edges[i as usize] {
+                kappa[e] += 0.5 * a as f64;
+            }
+        }
+        let (g, b) = marker_normal_equations(basis_handles, target_handles, &kappa);
+        simplex_least_squares(&g, &b, p, iterations, &mut region[h * p..(h + 1) * p]);
+    }
     let n = basis_positions[0].len();
     (0..n)
-        .into_par_iter()
         .map(|v| {
             let (ids, al) = edge_weights.row(v);
-            let mut g = vec![0.0; p * p];
-            let mut b = vec![0.0; p];
+            let mut x = Vector3::zeros();
             for (&i, &a) in ids.iter().zip(al) {
                 if a == 0.0 {
                     continue;
                 }
-                let (i, a) = (i as usize, a as f64);
-                for j in 0..p {
-                    let fj = basis_features[j][i];
-                    b[j] += a * fj * f[i];
-                    for k in 0..p {
-                        g[j * p + k] += a * fj * basis_features[k][i];
+                for &e in &graph_edges[i as usize] {
+                    for j in 0..p {
+                        x += (0.5 * a as f64 * region[e * p + j]) * basis_positions[j][v];
                     }
                 }
             }
-            let mut c = vec![0.0; p];
-            simplex_least_squares(&g, &b, p, iterations, &mut c);
-            (0..p).map(|j| c[j] * basis_positions[j][v]).sum()
+            x
         })
         .collect()
 }

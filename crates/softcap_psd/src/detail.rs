@@ -4,7 +4,7 @@
 
 use crate::error::{PsdError, Result};
 use crate::graph::EdgeWeights;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_core::{PolynomialTail, Rbf, RbfKernel, RbfSettings, ScatteredData};

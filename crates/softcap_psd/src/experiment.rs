@@ -66,7 +66,31 @@ pub struct EvaluationSettings {
     pub blend_iterations: usize,
     /// Seed of the mixtures (training uses `seed`, held-out `seed + 1`).
     pub seed: u64,
+    /// Expressions of the emulated performance (thesis §5.5.1: the actor performs a handful of
+    /// expressions); empty = all 57.
+    pub expressions: Vec<String>,
 }
+
+/// The default performance: left/right wrinkle-forming expressions of brow, eyes, nose, cheeks
+/// and mouth, plus jaw and lip shapes.
+pub const PERFORMANCE_EXPRESSIONS: [&str; 16] = [
+    "browInnerUp_L",
+    "browInnerUp_R",
+    "browOuterUp_L",
+    "browOuterUp_R",
+    "browDown_L",
+    "browDown_R",
+    "noseSneer_L",
+    "noseSneer_R",
+    "eyeSquint_L",
+    "eyeSquint_R",
+    "mouthSmile_L",
+    "mouthSmile_R",
+    "cheekPuff_L",
+    "cheekPuff_R",
+    "jawOpen",
+    "mouthPucker",
+];
 
 impl Default for EvaluationSettings {
     fn default() -> Self {
@@ -78,6 +102,7 @@ impl Default for EvaluationSettings {
             max_poses: 24,
             blend_iterations: 200,
             seed: 2008,
+            expressions: PERFORMANCE_EXPRESSIONS.iter().map(|s| s.to_string()).collect(),
         }
     }
 }
@@ -123,7 +148,9 @@ impl EvaluationReport {
 
 /// Training and held-out pose recipes: rest, the 57 expressions and seeded mixtures.
 pub fn pose_sets(data: &IctData, s: &EvaluationSettings) -> (Vec<PoseRecipe>, Vec<PoseRecipe>) {
-    let all: Vec<usize> = (0..data.expressions.names.len()).collect();
+    let all: Vec<usize> = (0..data.expressions.names.len())
+        .filter(|&k| s.expressions.is_empty() || s.expressions.contains(&data.expressions.names[k]))
+        .collect();
     let mut training = vec![PoseRecipe { name: "rest".into(), weights: vec![] }];
     training.extend(all.iter().map(|&k| PoseRecipe { name: data.expressions.names[k].clone(), weights: vec![(k, 1.0)] }));
     training.extend(random_combinations(&data.expressions, &all, s.training_mixtures, s.max_terms, s.seed));
@@ -147,7 +174,6 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
     let held_pos: Vec<Vec<Vector3<f64>>> = heldout.iter().map(|r| data.pose(r)).collect();
     let examples = rig.examples(&train_pos)?;
     let held_handles: Vec<Vec<Vector3<f64>>> = held_pos.iter().map(|p| rig.handle_positions(p)).collect();
-    let held_features: Vec<Vec<f64>> = held_handles.iter().map(|h| rig.features(h)).collect();
 
     let large_only = held_pos
         .iter()
@@ -192,20 +218,22 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
 
     // Blend-shape baselines on the WPSD greedy basis order (same examples for all methods, as
     // in Fig. 5.6).
-    let train_features: Vec<&[f64]> = (0..examples.len()).map(|t| examples.feature(t)).collect();
+    let rel = |p: &[Vector3<f64>]| -> Vec<Vector3<f64>> { rig.handles.iter().map(|&v| p[v] - rig.rest[v]).collect() };
+    let train_handles: Vec<Vec<Vector3<f64>>> = train_pos.iter().map(|p| rel(p)).collect();
+    let held_rel: Vec<Vec<Vector3<f64>>> = held_pos.iter().map(|p| rel(p)).collect();
     for label in ["global blend shapes", "local blend shapes"] {
         let mut sizes = Vec::new();
         let mut errs = Vec::new();
         for p in 1..=wpsd_basis_order.len() {
             let basis = &wpsd_basis_order[..p];
             let bp: Vec<&[Vector3<f64>]> = basis.iter().map(|&t| train_pos[t].as_slice()).collect();
-            let bf: Vec<&[f64]> = basis.iter().map(|&t| train_features[t]).collect();
+            let bh: Vec<&[Vector3<f64>]> = basis.iter().map(|&t| train_handles[t].as_slice()).collect();
             let mut acc = 0.0;
-            for (f, truth) in held_features.iter().zip(&held_pos) {
+            for (target, truth) in held_rel.iter().zip(&held_pos) {
                 let x = if label.starts_with("global") {
-                    global_blend(&bp, &bf, f, s.blend_iterations)
+                    global_blend(&bp, &bh, target, s.blend_iterations)
                 } else {
-                    local_blend(&bp, &bf, &rig.edge_weights, f, s.blend_iterations)
+                    local_blend(&bp, &bh, target, &rig.handles, &rig.graph.edges, &rig.edge_weights, s.blend_iterations)
                 };
                 acc += rms_mm(&x, truth).powi(2);
             }

@@ -59,8 +59,8 @@ pub struct FaceRig {
 /// Cotangent Laplacian and Voronoi areas of `mesh` (from `softcap_mesh`), then the factorised
 /// shell over `handles` (thesis eq. 5.1).
 pub fn shell_for_mesh(mesh: &TriMesh, handles: &[usize], settings: &ShellSettings) -> Result<LinearShell> {
-    let lap = softcap_mesh::cotangent_laplacian(mesh)?;
-    let areas = softcap_mesh::voronoi_areas(mesh)?;
+    let lap = softcap_mesh::cotan_laplacian(mesh);
+    let areas = softcap_mesh::voronoi_areas(mesh);
     Ok(LinearShell::new(lap.as_ref(), &areas, handles, settings)?)
 }
 
