@@ -13,7 +13,7 @@ fn bench(c: &mut Criterion) {
     let rig = softcap_psd::FaceRig::new(&data.mesh, &settings).expect("rig");
     let (training, heldout) = pose_sets(&data, &EvaluationSettings::default());
     // P = 6: rest + five expressions with large deformations (thesis: 6 example poses)
-    let names = ["jawOpen", "mouthSmile_L", "browInnerUp_R", "mouthPucker", "eyeBlink_L"];
+    let names = ["jawOpen", "mouthSmile_L", "browInnerUp_R", "mouthPucker", "cheekPuff_L"];
     let mut basis = vec![0];
     basis.extend(names.iter().filter_map(|n| training.iter().position(|r| r.name == *n)));
     let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();

@@ -9,6 +9,19 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_core::{PolynomialTail, Rbf, RbfKernel, RbfSettings, ScatteredData};
 
+/// Largest basis size P supported by the run-time kernel (stack buffer of distances).
+pub const MAX_POSES: usize = 64;
+
+fn check_basis(basis: &[usize], examples: &Examples) -> Result<()> {
+    if basis.is_empty() || basis.len() > MAX_POSES {
+        return Err(PsdError::InvalidSetting { field: "basis", reason: format!("{} poses; need 1..={MAX_POSES}", basis.len()) });
+    }
+    if let Some(&t) = basis.iter().find(|&&t| t >= examples.len()) {
+        return Err(PsdError::InvalidSetting { field: "basis", reason: format!("example {t} ≥ {} examples", examples.len()) });
+    }
+    Ok(())
+}
+
 /// Training examples: feature vectors and per-vertex local details of T poses.
 #[derive(Clone, Debug)]
 pub struct Examples {
@@ -101,9 +114,8 @@ impl DetailModel {
     /// [`DetailModel::squared_feature_differences`] are `g` (eq. 5.2 / 5.5).
     pub fn evaluate_rows(&self, g: &[f32], first: usize, out: &mut [[f32; 3]]) {
         let p = self.num_poses();
-        const MAXP: usize = 64;
-        assert!(p <= MAXP, "at most {MAXP} basis poses");
-        let mut r = [0.0f32; MAXP];
+        assert!(p <= MAX_POSES, "at most {MAX_POSES} basis poses (checked by the fits)");
+        let mut r = [0.0f32; MAX_POSES];
         if let Metric::Global = self.metric {
             for j in 0..p {
                 r[j] = (0..self.num_features).map(|i| g[i * p + j]).sum::<f32>().sqrt();
@@ -150,6 +162,7 @@ impl DetailModel {
 /// PSD (thesis eq. 5.2): one global metric; the RBF fit is `softcap_core::Rbf` with φ(r) = r
 /// and no polynomial tail (exact interpolation, or least squares with the basis as centres).
 pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<DetailModel> {
+    check_basis(basis, examples)?;
     let (f, n, t_all) = (examples.num_features, examples.num_vertices, examples.len());
     let p = basis.len();
     let centers: Vec<f64> = basis.iter().flat_map(|&j| examples.feature(j).to_vec()).collect();
@@ -193,6 +206,7 @@ pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<De
 /// mean diagonal). A per-vertex metric can make two basis poses indistinguishable at a vertex;
 /// then the interpolation system is singular and the minimum-norm (SVD) solution is used.
 pub fn fit_wpsd(examples: &Examples, basis: &[usize], mode: FitMode, edge_weights: &EdgeWeights) -> Result<DetailModel> {
+    check_basis(basis, examples)?;
     let (f, n, t_all) = (examples.num_features, examples.num_vertices, examples.len());
     if edge_weights.len() != n {
         return Err(PsdError::SizeMismatch { what: "edge-weight rows", expected: n, got: edge_weights.len() });
