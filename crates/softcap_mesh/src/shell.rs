@@ -27,12 +27,12 @@
 //! Units: `k_b / k_s` has units of length²; the defaults `k_s = 1`, `k_b = 100` are the
 //! thesis values for faces modelled in centimetres.
 
+use crate::types::TriMesh;
 use faer::linalg::solvers::Solve;
 use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
 use faer::{Mat, Side};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use crate::types::TriMesh;
 use std::collections::BTreeMap;
 
 /// Errors of the linear shell.
@@ -206,7 +206,11 @@ impl ShellBasis {
                     az[l] += w[l] * z[l];
                 }
             }
-            let (mut x, mut y, mut z) = (ax.iter().sum::<f32>(), ay.iter().sum::<f32>(), az.iter().sum::<f32>());
+            let (mut x, mut y, mut z) = (
+                ax.iter().sum::<f32>(),
+                ay.iter().sum::<f32>(),
+                az.iter().sum::<f32>(),
+            );
             for c in split..h {
                 x += row[c] * ux[c];
                 y += row[c] * uy[c];
@@ -340,7 +344,11 @@ impl LinearShell {
 
     /// [`LinearShell::new`] with the cotangent Laplacian and mixed Voronoi areas of `mesh`
     /// ([`crate::laplacian`], thesis eq. 3.4–3.5).
-    pub fn from_mesh(mesh: &TriMesh, handles: &[usize], settings: &ShellSettings) -> Result<Self, ShellError> {
+    pub fn from_mesh(
+        mesh: &TriMesh,
+        handles: &[usize],
+        settings: &ShellSettings,
+    ) -> Result<Self, ShellError> {
         let lap = crate::laplacian::cotan_laplacian(mesh);
         let areas = crate::laplacian::voronoi_areas(mesh);
         Self::new(lap.as_ref(), &areas, handles, settings)
@@ -557,7 +565,10 @@ mod tests {
             for i in 0..n {
                 let ring = i.min(j).min(n - 1 - i).min(n - 1 - j);
                 let (dx, dy) = if ring >= 1 {
-                    (jitter * h * ((i * 7 + j * 3) as f64).sin(), jitter * h * ((i * 5 + j * 11) as f64).cos())
+                    (
+                        jitter * h * ((i * 7 + j * 3) as f64).sin(),
+                        jitter * h * ((i * 5 + j * 11) as f64).cos(),
+                    )
                 } else {
                     (0.0, 0.0)
                 };
@@ -575,7 +586,13 @@ mod tests {
                 triangles.push([a, a + n + 1, a + n]);
             }
         }
-        (TriMesh { vertices, triangles }, rings)
+        (
+            TriMesh {
+                vertices,
+                triangles,
+            },
+            rings,
+        )
     }
 
     /// The cotangent Laplacian has linear precision on any planar mesh, so with the two outer
@@ -584,16 +601,25 @@ mod tests {
     #[test]
     fn flat_patch_reproduces_linear_fields() {
         let (mesh, handles) = grid(14, 0.25);
-        let field = |p: &Vector3<f64>| Vector3::new(0.1 + 0.3 * p.x - 0.2 * p.y, -0.4 * p.x, 0.05 + p.y);
+        let field =
+            |p: &Vector3<f64>| Vector3::new(0.1 + 0.3 * p.x - 0.2 * p.y, -0.4 * p.x, 0.05 + p.y);
         let s = LinearShell::from_mesh(&mesh, &handles, &ShellSettings::default()).unwrap();
         let uh: Vec<_> = handles.iter().map(|&v| field(&mesh.vertices[v])).collect();
         let u = s.solve(&uh).unwrap();
         for (v, p) in mesh.vertices.iter().enumerate() {
-            assert!((u[v] - field(p)).norm() < 1e-9, "vertex {v}: {:?} vs {:?}", u[v], field(p));
+            assert!(
+                (u[v] - field(p)).norm() < 1e-9,
+                "vertex {v}: {:?} vs {:?}",
+                u[v],
+                field(p)
+            );
         }
         // the precomputed basis gives the same deformation (f32 storage: 1e-6)
         let b = s.basis();
-        let uh32: Vec<[f32; 3]> = uh.iter().map(|u| [u.x as f32, u.y as f32, u.z as f32]).collect();
+        let uh32: Vec<[f32; 3]> = uh
+            .iter()
+            .map(|u| [u.x as f32, u.y as f32, u.z as f32])
+            .collect();
         let mut ub = vec![[0.0f32; 3]; mesh.vertices.len()];
         b.apply(&uh32, &mut ub);
         for v in 0..mesh.vertices.len() {
@@ -609,14 +635,31 @@ mod tests {
     fn flat_grid_reproduces_biharmonic_field() {
         let (mesh, handles) = grid(16, 0.0);
         let f = |p: &Vector3<f64>| p.x * p.x * p.y + p.x.powi(3) - 3.0 * p.x * p.y * p.y;
-        let s = LinearShell::from_mesh(&mesh, &handles, &ShellSettings { k_s: 0.0, k_b: 1.0 }).unwrap();
-        let uh: Vec<_> = handles.iter().map(|&v| Vector3::new(0.0, 0.0, f(&mesh.vertices[v]))).collect();
+        let s =
+            LinearShell::from_mesh(&mesh, &handles, &ShellSettings { k_s: 0.0, k_b: 1.0 }).unwrap();
+        let uh: Vec<_> = handles
+            .iter()
+            .map(|&v| Vector3::new(0.0, 0.0, f(&mesh.vertices[v])))
+            .collect();
         let u = s.solve(&uh).unwrap();
         for (v, p) in mesh.vertices.iter().enumerate() {
-            assert!((u[v].z - f(p)).abs() < 1e-9, "vertex {v}: {} vs {}", u[v].z, f(p));
+            assert!(
+                (u[v].z - f(p)).abs() < 1e-9,
+                "vertex {v}: {} vs {}",
+                u[v].z,
+                f(p)
+            );
         }
         // with stretching on, the same constraints give a different (non-biharmonic) field
-        let s = LinearShell::from_mesh(&mesh, &handles, &ShellSettings { k_s: 1.0, k_b: 1e-3 }).unwrap();
+        let s = LinearShell::from_mesh(
+            &mesh,
+            &handles,
+            &ShellSettings {
+                k_s: 1.0,
+                k_b: 1e-3,
+            },
+        )
+        .unwrap();
         let u2 = s.solve(&uh).unwrap();
         let centre = 8 * 16 + 8;
         assert!((u2[centre].z - f(&mesh.vertices[centre])).abs() > 1e-5);

@@ -2,7 +2,9 @@
 //! midpoint-subdivided face (≈590k vertices), H = 89, F = 243, P = 6 (WPSD).
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use softcap_psd::{Animator, EvaluationSettings, FitMode, IctData, RigSettings, fit_wpsd, pose_sets, subdivide_rig};
+use softcap_psd::{
+    Animator, EvaluationSettings, FitMode, IctData, RigSettings, fit_wpsd, pose_sets, subdivide_rig,
+};
 use std::hint::black_box;
 use std::path::PathBuf;
 
@@ -13,33 +15,62 @@ fn bench(c: &mut Criterion) {
     let rig = softcap_psd::FaceRig::new(&data.mesh, &settings).expect("rig");
     let (training, heldout) = pose_sets(&data, &EvaluationSettings::default());
     // P = 6: rest + five expressions with large deformations (thesis: 6 example poses)
-    let names = ["jawOpen", "mouthSmile_L", "browInnerUp_R", "mouthPucker", "cheekPuff_L"];
+    let names = [
+        "jawOpen",
+        "mouthSmile_L",
+        "browInnerUp_R",
+        "mouthPucker",
+        "cheekPuff_L",
+    ];
     let mut basis = vec![0];
-    basis.extend(names.iter().filter_map(|n| training.iter().position(|r| r.name == *n)));
+    basis.extend(
+        names
+            .iter()
+            .filter_map(|n| training.iter().position(|r| r.name == *n)),
+    );
     let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();
     let examples = rig.examples(&poses).expect("examples");
     let model = fit_wpsd(&examples, &basis, FitMode::Interpolate, &rig.edge_weights).expect("fit");
-    let frames: Vec<Vec<_>> = heldout.iter().map(|r| rig.handle_positions(&data.pose(r))).collect();
+    let frames: Vec<Vec<_>> = heldout
+        .iter()
+        .map(|r| rig.handle_positions(&data.pose(r)))
+        .collect();
 
     let mut group = c.benchmark_group("psd_frame");
     group.sample_size(20);
     let mut anim = Animator::new(&rig, &model).expect("animator");
     let mut k = 0;
-    group.bench_function(format!("ict_{}v_H89_F{}_P{}", rig.num_vertices(), rig.graph.len(), basis.len()), |b| {
-        b.iter(|| {
-            k = (k + 1) % frames.len();
-            anim.frame(black_box(&frames[k])).expect("frame");
-        })
-    });
+    group.bench_function(
+        format!(
+            "ict_{}v_H89_F{}_P{}",
+            rig.num_vertices(),
+            rig.graph.len(),
+            basis.len()
+        ),
+        |b| {
+            b.iter(|| {
+                k = (k + 1) % frames.len();
+                anim.frame(black_box(&frames[k])).expect("frame");
+            })
+        },
+    );
     let (fine_rig, fine_model) = subdivide_rig(&rig, &model, 3, &settings.edge_weights);
     let mut anim = Animator::new(&fine_rig, &fine_model).expect("animator");
     group.sample_size(10);
-    group.bench_function(format!("subdivided_{}v_H89_F{}_P{}", fine_rig.num_vertices(), rig.graph.len(), basis.len()), |b| {
-        b.iter(|| {
-            k = (k + 1) % frames.len();
-            anim.frame(black_box(&frames[k])).expect("frame");
-        })
-    });
+    group.bench_function(
+        format!(
+            "subdivided_{}v_H89_F{}_P{}",
+            fine_rig.num_vertices(),
+            rig.graph.len(),
+            basis.len()
+        ),
+        |b| {
+            b.iter(|| {
+                k = (k + 1) % frames.len();
+                anim.frame(black_box(&frames[k])).expect("frame");
+            })
+        },
+    );
     group.finish();
 }
 

@@ -9,7 +9,9 @@ use nalgebra::Vector3;
 /// `½ cᵀGc − bᵀc` with `G = F diag(a) Fᵀ`, `b = F diag(a) f`: accelerated projected gradient
 /// (FISTA) on the simplex, `iterations` steps of size 1/‖G‖_∞ (a bound on λ_max).
 pub fn simplex_least_squares(g: &[f64], b: &[f64], p: usize, iterations: usize, out: &mut [f64]) {
-    let lip = (0..p).map(|i| (0..p).map(|j| g[i * p + j].abs()).sum::<f64>()).fold(0.0, f64::max);
+    let lip = (0..p)
+        .map(|i| (0..p).map(|j| g[i * p + j].abs()).sum::<f64>())
+        .fold(0.0, f64::max);
     out[..p].fill(1.0 / p as f64);
     if lip <= 0.0 || p == 1 {
         return;
@@ -54,7 +56,11 @@ pub fn project_simplex(x: &mut [f64]) {
 }
 
 /// Normal equations of `min_c Σ_h κ_h ‖Σ_j c_j u_{h,j} − u_h‖²` (marker-position fit).
-fn marker_normal_equations(basis_handles: &[&[Vector3<f64>]], target: &[Vector3<f64>], kappa: &[f64]) -> (Vec<f64>, Vec<f64>) {
+fn marker_normal_equations(
+    basis_handles: &[&[Vector3<f64>]],
+    target: &[Vector3<f64>],
+    kappa: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
     let p = basis_handles.len();
     let mut g = vec![0.0; p * p];
     let mut b = vec![0.0; p];
@@ -84,11 +90,17 @@ pub fn global_blend(
     iterations: usize,
 ) -> Vec<Vector3<f64>> {
     let p = basis_positions.len();
-    let (g, b) = marker_normal_equations(basis_handles, target_handles, &vec![1.0; target_handles.len()]);
+    let (g, b) = marker_normal_equations(
+        basis_handles,
+        target_handles,
+        &vec![1.0; target_handles.len()],
+    );
     let mut c = vec![0.0; p];
     simplex_least_squares(&g, &b, p, iterations, &mut c);
     let n = basis_positions[0].len();
-    (0..n).map(|v| (0..p).map(|j| c[j] * basis_positions[j][v]).sum()).collect()
+    (0..n)
+        .map(|v| (0..p).map(|j| c[j] * basis_positions[j][v]).sum())
+        .collect()
 }
 
 /// Local blend shapes (thesis §5.5.1): one convex marker fit per handle region, with the markers
@@ -146,9 +158,15 @@ mod tests {
     #[test]
     fn simplex_fit_recovers_convex_weights() {
         // features of 3 shapes in 4-D; target is 0.2/0.5/0.3 of them
-        let fs = [[1.0, 0.0, 0.2, 0.0], [0.0, 1.0, 0.1, 0.3], [0.3, 0.2, 1.0, -0.4]];
+        let fs = [
+            [1.0, 0.0, 0.2, 0.0],
+            [0.0, 1.0, 0.1, 0.3],
+            [0.3, 0.2, 1.0, -0.4],
+        ];
         let want = [0.2, 0.5, 0.3];
-        let f: Vec<f64> = (0..4).map(|i| (0..3).map(|j| want[j] * fs[j][i]).sum()).collect();
+        let f: Vec<f64> = (0..4)
+            .map(|i| (0..3).map(|j| want[j] * fs[j][i]).sum())
+            .collect();
         let mut g = vec![0.0; 9];
         let mut b = vec![0.0; 3];
         for i in 0..3 {

@@ -14,10 +14,16 @@ pub const MAX_POSES: usize = 64;
 
 fn check_basis(basis: &[usize], examples: &Examples) -> Result<()> {
     if basis.is_empty() || basis.len() > MAX_POSES {
-        return Err(PsdError::InvalidSetting { field: "basis", reason: format!("{} poses; need 1..={MAX_POSES}", basis.len()) });
+        return Err(PsdError::InvalidSetting {
+            field: "basis",
+            reason: format!("{} poses; need 1..={MAX_POSES}", basis.len()),
+        });
     }
     if let Some(&t) = basis.iter().find(|&&t| t >= examples.len()) {
-        return Err(PsdError::InvalidSetting { field: "basis", reason: format!("example {t} ≥ {} examples", examples.len()) });
+        return Err(PsdError::InvalidSetting {
+            field: "basis",
+            reason: format!("example {t} ≥ {} examples", examples.len()),
+        });
     }
     Ok(())
 }
@@ -114,11 +120,17 @@ impl DetailModel {
     /// [`DetailModel::squared_feature_differences`] are `g` (eq. 5.2 / 5.5).
     pub fn evaluate_rows(&self, g: &[f32], first: usize, out: &mut [[f32; 3]]) {
         let p = self.num_poses();
-        assert!(p <= MAX_POSES, "at most {MAX_POSES} basis poses (checked by the fits)");
+        assert!(
+            p <= MAX_POSES,
+            "at most {MAX_POSES} basis poses (checked by the fits)"
+        );
         let mut r = [0.0f32; MAX_POSES];
         if let Metric::Global = self.metric {
             for j in 0..p {
-                r[j] = (0..self.num_features).map(|i| g[i * p + j]).sum::<f32>().sqrt();
+                r[j] = (0..self.num_features)
+                    .map(|i| g[i * p + j])
+                    .sum::<f32>()
+                    .sqrt();
             }
         }
         for (k, o) in out.iter_mut().enumerate() {
@@ -165,8 +177,15 @@ pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<De
     check_basis(basis, examples)?;
     let (f, n, t_all) = (examples.num_features, examples.num_vertices, examples.len());
     let p = basis.len();
-    let centers: Vec<f64> = basis.iter().flat_map(|&j| examples.feature(j).to_vec()).collect();
-    let settings = RbfSettings { kernel: RbfKernel::Linear, tail: PolynomialTail::None, ..Default::default() };
+    let centers: Vec<f64> = basis
+        .iter()
+        .flat_map(|&j| examples.feature(j).to_vec())
+        .collect();
+    let settings = RbfSettings {
+        kernel: RbfKernel::Linear,
+        tail: PolynomialTail::None,
+        ..Default::default()
+    };
     let mut weights = vec![0.0f32; n * 3 * p];
     let samples: Vec<usize> = match mode {
         FitMode::Interpolate => basis.to_vec(),
@@ -182,7 +201,10 @@ pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<De
                 values[s * 3 * n + 3 * v..s * 3 * n + 3 * v + 3].copy_from_slice(&d);
             }
         }
-        let points: Vec<f64> = samples.iter().flat_map(|&t| examples.feature(t).to_vec()).collect();
+        let points: Vec<f64> = samples
+            .iter()
+            .flat_map(|&t| examples.feature(t).to_vec())
+            .collect();
         let data = ScatteredData::new(&points, f, &values, 3 * n)?;
         let rbf = match mode {
             FitMode::Interpolate => Rbf::interpolate(&data, &settings)?,
@@ -197,7 +219,12 @@ pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<De
             }
         }
     }
-    Ok(DetailModel { num_features: f, centers, weights, metric: Metric::Global })
+    Ok(DetailModel {
+        num_features: f,
+        centers,
+        weights,
+        metric: Metric::Global,
+    })
 }
 
 /// WPSD (thesis eq. 5.3–5.5): per vertex v, solve the P×P system `Φ_v w_v = d_v` with
@@ -205,46 +232,72 @@ pub fn fit_psd(examples: &Examples, basis: &[usize], mode: FitMode) -> Result<De
 /// matrix `Φ_v[t][j] = ‖f_t − f_j‖_v` via ridge-stabilised normal equations (ridge 1e-10 of the
 /// mean diagonal). A per-vertex metric can make two basis poses indistinguishable at a vertex;
 /// then the interpolation system is singular and the minimum-norm (SVD) solution is used.
-pub fn fit_wpsd(examples: &Examples, basis: &[usize], mode: FitMode, edge_weights: &EdgeWeights) -> Result<DetailModel> {
+pub fn fit_wpsd(
+    examples: &Examples,
+    basis: &[usize],
+    mode: FitMode,
+    edge_weights: &EdgeWeights,
+) -> Result<DetailModel> {
     check_basis(basis, examples)?;
     let (f, n, t_all) = (examples.num_features, examples.num_vertices, examples.len());
     if edge_weights.len() != n {
-        return Err(PsdError::SizeMismatch { what: "edge-weight rows", expected: n, got: edge_weights.len() });
+        return Err(PsdError::SizeMismatch {
+            what: "edge-weight rows",
+            expected: n,
+            got: edge_weights.len(),
+        });
     }
     let p = basis.len();
-    let centers: Vec<f64> = basis.iter().flat_map(|&j| examples.feature(j).to_vec()).collect();
+    let centers: Vec<f64> = basis
+        .iter()
+        .flat_map(|&j| examples.feature(j).to_vec())
+        .collect();
     let samples: Vec<usize> = match mode {
         FitMode::Interpolate => basis.to_vec(),
         FitMode::LeastSquares => (0..t_all).collect(),
     };
     let mut weights = vec![0.0f32; n * 3 * p];
-    weights.par_chunks_mut(3 * p).enumerate().for_each(|(v, wv)| {
-        let phi = DMatrix::from_fn(samples.len(), p, |s, j| {
-            edge_weights.distance2(v, examples.feature(samples[s]), &centers[j * f..(j + 1) * f]).sqrt()
+    weights
+        .par_chunks_mut(3 * p)
+        .enumerate()
+        .for_each(|(v, wv)| {
+            let phi = DMatrix::from_fn(samples.len(), p, |s, j| {
+                edge_weights
+                    .distance2(
+                        v,
+                        examples.feature(samples[s]),
+                        &centers[j * f..(j + 1) * f],
+                    )
+                    .sqrt()
+            });
+            let rhs = DMatrix::from_fn(samples.len(), 3, |s, k| examples.detail(v, samples[s])[k]);
+            let sol = match mode {
+                FitMode::Interpolate => solve_square(phi, rhs),
+                FitMode::LeastSquares => {
+                    let mut ata = phi.transpose() * &phi;
+                    let atb = phi.transpose() * rhs;
+                    let ridge = 1e-10 * ata.trace() / p as f64 + 1e-300;
+                    for j in 0..p {
+                        ata[(j, j)] += ridge;
+                    }
+                    match ata.clone().cholesky() {
+                        Some(c) => c.solve(&atb),
+                        None => solve_square(ata, atb),
+                    }
+                }
+            };
+            for j in 0..p {
+                for k in 0..3 {
+                    wv[3 * j + k] = sol[(j, k)] as f32;
+                }
+            }
         });
-        let rhs = DMatrix::from_fn(samples.len(), 3, |s, k| examples.detail(v, samples[s])[k]);
-        let sol = match mode {
-            FitMode::Interpolate => solve_square(phi, rhs),
-            FitMode::LeastSquares => {
-                let mut ata = phi.transpose() * &phi;
-                let atb = phi.transpose() * rhs;
-                let ridge = 1e-10 * ata.trace() / p as f64 + 1e-300;
-                for j in 0..p {
-                    ata[(j, j)] += ridge;
-                }
-                match ata.clone().cholesky() {
-                    Some(c) => c.solve(&atb),
-                    None => solve_square(ata, atb),
-                }
-            }
-        };
-        for j in 0..p {
-            for k in 0..3 {
-                wv[3 * j + k] = sol[(j, k)] as f32;
-            }
-        }
-    });
-    Ok(DetailModel { num_features: f, centers, weights, metric: Metric::Weighted(edge_weights.clone()) })
+    Ok(DetailModel {
+        num_features: f,
+        centers,
+        weights,
+        metric: Metric::Weighted(edge_weights.clone()),
+    })
 }
 
 fn solve_square(a: DMatrix<f64>, b: DMatrix<f64>) -> DMatrix<f64> {
@@ -252,12 +305,15 @@ fn solve_square(a: DMatrix<f64>, b: DMatrix<f64>) -> DMatrix<f64> {
     if let Some(x) = a.clone().lu().solve(&b) {
         // accept the LU solution only if it is well conditioned in practice
         let resid = (&a * &x - &b).amax();
-        if resid <= 1e-9 * (b.amax() + scale * x.amax()) && x.amax() * scale <= 1e8 * b.amax().max(1e-300) {
+        if resid <= 1e-9 * (b.amax() + scale * x.amax())
+            && x.amax() * scale <= 1e8 * b.amax().max(1e-300)
+        {
             return x;
         }
     }
     let svd = a.svd(true, true);
-    svd.solve(&b, 1e-10 * scale).unwrap_or_else(|_| DMatrix::zeros(b.nrows(), b.ncols()))
+    svd.solve(&b, 1e-10 * scale)
+        .unwrap_or_else(|_| DMatrix::zeros(b.nrows(), b.ncols()))
 }
 
 /// Which model a greedy run fits.
@@ -322,7 +378,10 @@ pub fn greedy_selection(
     loop {
         let model = method.fit(examples, &basis)?;
         let err = example_errors(&model, examples);
-        let step = GreedyStep { basis: basis.clone(), training_rms: (err.iter().sum::<f64>() / total).sqrt() };
+        let step = GreedyStep {
+            basis: basis.clone(),
+            training_rms: (err.iter().sum::<f64>() / total).sqrt(),
+        };
         on_step(&step, &model)?;
         steps.push(step);
         if basis.len() >= max_poses {
@@ -332,7 +391,12 @@ pub fn greedy_selection(
         let candidate = (0..examples.len())
             .filter(|&t| {
                 basis.iter().all(|&b| {
-                    let d: f64 = examples.feature(t).iter().zip(examples.feature(b)).map(|(x, y)| (x - y).powi(2)).sum();
+                    let d: f64 = examples
+                        .feature(t)
+                        .iter()
+                        .zip(examples.feature(b))
+                        .map(|(x, y)| (x - y).powi(2))
+                        .sum();
                     d.sqrt() > 1e-9 * (f as f64).sqrt()
                 })
             })
@@ -353,10 +417,22 @@ mod tests {
 
     /// Synthetic examples: details are a smooth function of the features.
     fn synthetic(t: usize, n: usize) -> (Examples, EdgeWeights) {
-        let hp: Vec<Vector3<f64>> = (0..6).map(|k| Vector3::new(k as f64, (k % 2) as f64, 0.0)).collect();
+        let hp: Vec<Vector3<f64>> = (0..6)
+            .map(|k| Vector3::new(k as f64, (k % 2) as f64, 0.0))
+            .collect();
         let graph = FeatureGraph::nearest_neighbours(&hp, 9);
-        let rest: Vec<Vector3<f64>> = (0..n).map(|v| Vector3::new(5.0 * v as f64 / n as f64, 0.5, 0.0)).collect();
-        let ew = EdgeWeights::new(&rest, &hp, &graph, &EdgeWeightSettings { max_edges: 4, min_weight: 0.025 });
+        let rest: Vec<Vector3<f64>> = (0..n)
+            .map(|v| Vector3::new(5.0 * v as f64 / n as f64, 0.5, 0.0))
+            .collect();
+        let ew = EdgeWeights::new(
+            &rest,
+            &hp,
+            &graph,
+            &EdgeWeightSettings {
+                max_edges: 4,
+                min_weight: 0.025,
+            },
+        );
         let fdim = graph.len();
         let mut features = vec![0.0; t * fdim];
         for s in 1..t {
@@ -368,11 +444,23 @@ mod tests {
         for v in 0..n {
             for s in 0..t {
                 let f = &features[s * fdim..(s + 1) * fdim];
-                let x = f.iter().enumerate().map(|(i, y)| y * (1.0 + (i + v) as f64 * 0.1)).sum::<f64>();
+                let x = f
+                    .iter()
+                    .enumerate()
+                    .map(|(i, y)| y * (1.0 + (i + v) as f64 * 0.1))
+                    .sum::<f64>();
                 details[(v * t + s) * 3..(v * t + s) * 3 + 3].copy_from_slice(&[x, x * x, -x]);
             }
         }
-        (Examples { num_features: fdim, num_vertices: n, features, details }, ew)
+        (
+            Examples {
+                num_features: fdim,
+                num_vertices: n,
+                features,
+                details,
+            },
+            ew,
+        )
     }
 
     #[test]
@@ -388,7 +476,11 @@ mod tests {
                 for v in 0..30 {
                     let e = ex.detail(v, t);
                     for k in 0..3 {
-                        assert!((d[v][k] as f64 - e[k]).abs() < 1e-4, "t {t} v {v}: {:?} vs {e:?}", d[v]);
+                        assert!(
+                            (d[v][k] as f64 - e[k]).abs() < 1e-4,
+                            "t {t} v {v}: {:?} vs {e:?}",
+                            d[v]
+                        );
                     }
                 }
             }
@@ -398,13 +490,22 @@ mod tests {
     #[test]
     fn greedy_least_squares_error_decreases() {
         let (ex, ew) = synthetic(20, 25);
-        for method in [Method::Psd(FitMode::LeastSquares), Method::Wpsd(FitMode::LeastSquares, ew.clone())] {
+        for method in [
+            Method::Psd(FitMode::LeastSquares),
+            Method::Wpsd(FitMode::LeastSquares, ew.clone()),
+        ] {
             let steps = greedy_selection(&ex, &method, 0, 8, |_, _| Ok(())).unwrap();
             assert_eq!(steps.len(), 8);
             for w in steps.windows(2) {
-                assert!(w[1].training_rms <= w[0].training_rms * (1.0 + 1e-6), "{steps:?}");
+                assert!(
+                    w[1].training_rms <= w[0].training_rms * (1.0 + 1e-6),
+                    "{steps:?}"
+                );
             }
-            assert!(steps[7].training_rms < 0.5 * steps[0].training_rms, "{steps:?}");
+            assert!(
+                steps[7].training_rms < 0.5 * steps[0].training_rms,
+                "{steps:?}"
+            );
         }
     }
 }

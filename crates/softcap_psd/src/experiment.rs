@@ -39,12 +39,17 @@ impl IctData {
                 });
             }
         }
-        Ok(Self { mesh, expressions, identities })
+        Ok(Self {
+            mesh,
+            expressions,
+            identities,
+        })
     }
 
     /// Positions of a recipe on the generic neutral.
     pub fn pose(&self, recipe: &PoseRecipe) -> Vec<Vector3<f64>> {
-        self.expressions.combine(&self.mesh.vertices, &recipe.weights)
+        self.expressions
+            .combine(&self.mesh.vertices, &recipe.weights)
     }
 }
 
@@ -102,7 +107,10 @@ impl Default for EvaluationSettings {
             max_poses: 24,
             blend_iterations: 200,
             seed: 2008,
-            expressions: PERFORMANCE_EXPRESSIONS.iter().map(|s| s.to_string()).collect(),
+            expressions: PERFORMANCE_EXPRESSIONS
+                .iter()
+                .map(|s| s.to_string())
+                .collect(),
         }
     }
 }
@@ -151,20 +159,46 @@ pub fn pose_sets(data: &IctData, s: &EvaluationSettings) -> (Vec<PoseRecipe>, Ve
     let all: Vec<usize> = (0..data.expressions.names.len())
         .filter(|&k| s.expressions.is_empty() || s.expressions.contains(&data.expressions.names[k]))
         .collect();
-    let mut training = vec![PoseRecipe { name: "rest".into(), weights: vec![] }];
-    training.extend(all.iter().map(|&k| PoseRecipe { name: data.expressions.names[k].clone(), weights: vec![(k, 1.0)] }));
-    training.extend(random_combinations(&data.expressions, &all, s.training_mixtures, s.max_terms, s.seed));
-    let heldout = random_combinations(&data.expressions, &all, s.heldout_mixtures, s.max_terms, s.seed + 1);
+    let mut training = vec![PoseRecipe {
+        name: "rest".into(),
+        weights: vec![],
+    }];
+    training.extend(all.iter().map(|&k| PoseRecipe {
+        name: data.expressions.names[k].clone(),
+        weights: vec![(k, 1.0)],
+    }));
+    training.extend(random_combinations(
+        &data.expressions,
+        &all,
+        s.training_mixtures,
+        s.max_terms,
+        s.seed,
+    ));
+    let heldout = random_combinations(
+        &data.expressions,
+        &all,
+        s.heldout_mixtures,
+        s.max_terms,
+        s.seed + 1,
+    );
     (training, heldout)
 }
 
 fn rms_mm(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
     // data are in cm
-    10.0 * (a.iter().zip(b).map(|(x, y)| (x - y).norm_squared()).sum::<f64>() / a.len() as f64).sqrt()
+    10.0 * (a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).norm_squared())
+        .sum::<f64>()
+        / a.len() as f64)
+        .sqrt()
 }
 
 fn to_vec3(x: &[[f32; 3]]) -> Vec<Vector3<f64>> {
-    x.iter().map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect()
+    x.iter()
+        .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect()
 }
 
 /// Run the Fig. 5.5 comparison on `rig` (built on `data.mesh`).
@@ -173,7 +207,8 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
     let train_pos: Vec<Vec<Vector3<f64>>> = training.iter().map(|r| data.pose(r)).collect();
     let held_pos: Vec<Vec<Vector3<f64>>> = heldout.iter().map(|r| data.pose(r)).collect();
     let examples = rig.examples(&train_pos)?;
-    let held_handles: Vec<Vec<Vector3<f64>>> = held_pos.iter().map(|p| rig.handle_positions(p)).collect();
+    let held_handles: Vec<Vec<Vector3<f64>>> =
+        held_pos.iter().map(|p| rig.handle_positions(p)).collect();
 
     let large_only = held_pos
         .iter()
@@ -187,8 +222,14 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
     let methods = [
         ("PSD", Method::Psd(FitMode::Interpolate)),
         ("PSD LSq", Method::Psd(FitMode::LeastSquares)),
-        ("WPSD", Method::Wpsd(FitMode::Interpolate, rig.edge_weights.clone())),
-        ("WPSD LSq", Method::Wpsd(FitMode::LeastSquares, rig.edge_weights.clone())),
+        (
+            "WPSD",
+            Method::Wpsd(FitMode::Interpolate, rig.edge_weights.clone()),
+        ),
+        (
+            "WPSD LSq",
+            Method::Wpsd(FitMode::LeastSquares, rig.edge_weights.clone()),
+        ),
     ];
     for (label, method) in &methods {
         let mut sizes = Vec::new();
@@ -218,7 +259,9 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
 
     // Blend-shape baselines on the WPSD greedy basis order (same examples for all methods, as
     // in Fig. 5.6).
-    let rel = |p: &[Vector3<f64>]| -> Vec<Vector3<f64>> { rig.handles.iter().map(|&v| p[v] - rig.rest[v]).collect() };
+    let rel = |p: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+        rig.handles.iter().map(|&v| p[v] - rig.rest[v]).collect()
+    };
     let train_handles: Vec<Vec<Vector3<f64>>> = train_pos.iter().map(|p| rel(p)).collect();
     let held_rel: Vec<Vec<Vector3<f64>>> = held_pos.iter().map(|p| rel(p)).collect();
     for label in ["global blend shapes", "local blend shapes"] {
@@ -227,13 +270,22 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
         for p in 1..=wpsd_basis_order.len() {
             let basis = &wpsd_basis_order[..p];
             let bp: Vec<&[Vector3<f64>]> = basis.iter().map(|&t| train_pos[t].as_slice()).collect();
-            let bh: Vec<&[Vector3<f64>]> = basis.iter().map(|&t| train_handles[t].as_slice()).collect();
+            let bh: Vec<&[Vector3<f64>]> =
+                basis.iter().map(|&t| train_handles[t].as_slice()).collect();
             let mut acc = 0.0;
             for (target, truth) in held_rel.iter().zip(&held_pos) {
                 let x = if label.starts_with("global") {
                     global_blend(&bp, &bh, target, s.blend_iterations)
                 } else {
-                    local_blend(&bp, &bh, target, &rig.handles, &rig.graph.edges, &rig.edge_weights, s.blend_iterations)
+                    local_blend(
+                        &bp,
+                        &bh,
+                        target,
+                        &rig.handles,
+                        &rig.graph.edges,
+                        &rig.edge_weights,
+                        s.blend_iterations,
+                    )
                 };
                 acc += rms_mm(&x, truth).powi(2);
             }
@@ -244,7 +296,10 @@ pub fn evaluate(data: &IctData, rig: &FaceRig, s: &EvaluationSettings) -> Result
             method: label.to_string(),
             basis_sizes: sizes,
             heldout_rms_mm: errs,
-            basis_names: wpsd_basis_order.iter().map(|&t| training[t].name.clone()).collect(),
+            basis_names: wpsd_basis_order
+                .iter()
+                .map(|&t| training[t].name.clone())
+                .collect(),
         });
     }
 

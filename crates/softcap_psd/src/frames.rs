@@ -68,7 +68,11 @@ fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 }
 #[inline]
 fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 #[inline]
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -77,48 +81,83 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 #[inline]
 fn normalize(a: [f32; 3], fallback: [f32; 3]) -> [f32; 3] {
     let l = dot(a, a).sqrt();
-    if l > 1e-20 { [a[0] / l, a[1] / l, a[2] / l] } else { fallback }
+    if l > 1e-20 {
+        [a[0] / l, a[1] / l, a[2] / l]
+    } else {
+        fallback
+    }
 }
 
 /// Area-weighted face normals (unnormalised, = cross product) into `face_normals`.
 pub fn face_normals(topo: &Topology, positions: &[[f32; 3]], face_normals: &mut [[f32; 3]]) {
-    face_normals.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
-        for (k, out) in chunk.iter_mut().enumerate() {
-            let t = topo.triangles[b * BLOCK + k];
-            let [a, p, q] = t.map(|v| positions[v as usize]);
-            *out = cross(sub(p, a), sub(q, a));
-        }
-    });
+    face_normals
+        .par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(b, chunk)| {
+            for (k, out) in chunk.iter_mut().enumerate() {
+                let t = topo.triangles[b * BLOCK + k];
+                let [a, p, q] = t.map(|v| positions[v as usize]);
+                *out = cross(sub(p, a), sub(q, a));
+            }
+        });
 }
 
 /// Unit vertex normals: normalised sum of incident area-weighted face normals.
 pub fn vertex_normals(topo: &Topology, face_normals: &[[f32; 3]], normals: &mut [[f32; 3]]) {
-    normals.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
-        for (k, out) in chunk.iter_mut().enumerate() {
-            let v = b * BLOCK + k;
-            let mut s = [0.0f32; 3];
-            for &f in &topo.vertex_faces[topo.face_offsets[v] as usize..topo.face_offsets[v + 1] as usize] {
-                let n = face_normals[f as usize];
-                s = [s[0] + n[0], s[1] + n[1], s[2] + n[2]];
+    normals
+        .par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(b, chunk)| {
+            for (k, out) in chunk.iter_mut().enumerate() {
+                let v = b * BLOCK + k;
+                let mut s = [0.0f32; 3];
+                for &f in &topo.vertex_faces
+                    [topo.face_offsets[v] as usize..topo.face_offsets[v + 1] as usize]
+                {
+                    let n = face_normals[f as usize];
+                    s = [s[0] + n[0], s[1] + n[1], s[2] + n[2]];
+                }
+                *out = normalize(s, [0.0, 0.0, 1.0]);
             }
-            *out = normalize(s, [0.0, 0.0, 1.0]);
-        }
-    });
+        });
 }
 
 /// Orthonormal local frame `[t, b, n]` of vertex `v`: `n` the vertex normal, `t` the direction to
 /// the reference neighbour projected onto the tangent plane, `b = n × t`.
 #[inline]
-pub fn local_frame(topo: &Topology, positions: &[[f32; 3]], normal: [f32; 3], v: usize) -> [[f32; 3]; 3] {
-    let e = sub(positions[topo.reference_neighbour[v] as usize], positions[v]);
+pub fn local_frame(
+    topo: &Topology,
+    positions: &[[f32; 3]],
+    normal: [f32; 3],
+    v: usize,
+) -> [[f32; 3]; 3] {
+    let e = sub(
+        positions[topo.reference_neighbour[v] as usize],
+        positions[v],
+    );
     let d = dot(e, normal);
-    let tp = [e[0] - d * normal[0], e[1] - d * normal[1], e[2] - d * normal[2]];
+    let tp = [
+        e[0] - d * normal[0],
+        e[1] - d * normal[1],
+        e[2] - d * normal[2],
+    ];
     let mut t = normalize(tp, [0.0; 3]);
     if t == [0.0; 3] {
         // isolated vertex or neighbour along the normal: any axis not parallel to n
-        let a = if normal[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let a = if normal[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
         let d = dot(a, normal);
-        t = normalize([a[0] - d * normal[0], a[1] - d * normal[1], a[2] - d * normal[2]], [1.0, 0.0, 0.0]);
+        t = normalize(
+            [
+                a[0] - d * normal[0],
+                a[1] - d * normal[1],
+                a[2] - d * normal[2],
+            ],
+            [1.0, 0.0, 0.0],
+        );
     }
     let b = cross(normal, t);
     [t, b, normal]
@@ -149,8 +188,9 @@ mod tests {
     fn frames_are_orthonormal_and_rotate_with_the_mesh() {
         // a bumpy 6×6 grid
         let n = 6;
-        let pos: Vec<[f32; 3]> =
-            (0..n * n).map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)]).collect();
+        let pos: Vec<[f32; 3]> = (0..n * n)
+            .map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)])
+            .collect();
         let mut tris = Vec::new();
         for j in 0..n - 1 {
             for i in 0..n - 1 {

@@ -14,7 +14,10 @@ pub fn farthest_point_handles(rest: &[Vector3<f64>], count: usize) -> Vec<usize>
     }
     let centroid = rest.iter().sum::<Vector3<f64>>() / n as f64;
     let first = argmax(rest.iter().map(|p| -(p - centroid).norm_squared()));
-    let mut dist: Vec<f64> = rest.iter().map(|p| (p - rest[first]).norm_squared()).collect();
+    let mut dist: Vec<f64> = rest
+        .iter()
+        .map(|p| (p - rest[first]).norm_squared())
+        .collect();
     let mut out = vec![first];
     while out.len() < count.min(n) {
         let next = argmax(dist.iter().copied());
@@ -55,8 +58,10 @@ impl FeatureGraph {
         let mut cand: Vec<(f64, [usize; 2])> = Vec::new();
         let mut must = Vec::new();
         for a in 0..h {
-            let mut nb: Vec<(f64, usize)> =
-                (0..h).filter(|&b| b != a).map(|b| ((handle_rest[a] - handle_rest[b]).norm(), b)).collect();
+            let mut nb: Vec<(f64, usize)> = (0..h)
+                .filter(|&b| b != a)
+                .map(|b| ((handle_rest[a] - handle_rest[b]).norm(), b))
+                .collect();
             nb.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             for (k, &(d, b)) in nb.iter().take(8).enumerate() {
                 let e = [a.min(b), a.max(b)];
@@ -66,7 +71,8 @@ impl FeatureGraph {
                 cand.push((d, e));
             }
         }
-        let key = |x: &(f64, [usize; 2]), y: &(f64, [usize; 2])| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1));
+        let key =
+            |x: &(f64, [usize; 2]), y: &(f64, [usize; 2])| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1));
         must.sort_by(key);
         must.dedup_by(|x, y| x.1 == y.1);
         cand.sort_by(key);
@@ -91,7 +97,11 @@ impl FeatureGraph {
     pub fn with_rest(&self, handle_rest: &[Vector3<f64>]) -> Self {
         Self {
             edges: self.edges.clone(),
-            rest_lengths: self.edges.iter().map(|e| (handle_rest[e[0]] - handle_rest[e[1]]).norm()).collect(),
+            rest_lengths: self
+                .edges
+                .iter()
+                .map(|e| (handle_rest[e[0]] - handle_rest[e[1]]).norm())
+                .collect(),
         }
     }
 
@@ -125,7 +135,10 @@ pub struct EdgeWeightSettings {
 
 impl Default for EdgeWeightSettings {
     fn default() -> Self {
-        Self { max_edges: 16, min_weight: 0.025 }
+        Self {
+            max_edges: 16,
+            min_weight: 0.025,
+        }
     }
 }
 
@@ -164,14 +177,23 @@ impl EdgeWeights {
                     .iter()
                     .zip(&graph.rest_lengths)
                     .enumerate()
-                    .map(|(i, (e, l))| ((x - handle_rest[e[0]]).norm() + (x - handle_rest[e[1]]).norm() - l, i))
+                    .map(|(i, (e, l))| {
+                        (
+                            (x - handle_rest[e[0]]).norm() + (x - handle_rest[e[1]]).norm() - l,
+                            i,
+                        )
+                    })
                     .collect();
                 excess.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
                 let e0 = excess.first().map_or(0.0, |e| e.0);
                 // Shift by the closest edge's excess so the nearest edge always has weight 1 (the
                 // normalisation of eq. 5.4 cancels the common factor exp(β e0)).
                 let cut = excess.get(width).map_or(f64::INFINITY, |e| e.0 - e0);
-                let beta = if cut > 0.0 && cut.is_finite() { ln_min / cut } else { 0.0 };
+                let beta = if cut > 0.0 && cut.is_finite() {
+                    ln_min / cut
+                } else {
+                    0.0
+                };
                 let mut ids = vec![0u16; width];
                 let mut al = vec![0f32; width];
                 let mut sum = 0.0;
@@ -196,7 +218,11 @@ impl EdgeWeights {
             edges.extend(i);
             alphas.extend(a);
         }
-        Self { width, edges, alphas }
+        Self {
+            width,
+            edges,
+            alphas,
+        }
     }
 
     /// Number of vertices.
@@ -218,7 +244,10 @@ impl EdgeWeights {
     /// Weighted squared feature distance `Σ_i α_{v,i} (f_i − g_i)²` (thesis eq. 5.3, squared).
     pub fn distance2(&self, v: usize, f: &[f64], g: &[f64]) -> f64 {
         let (ids, al) = self.row(v);
-        ids.iter().zip(al).map(|(&i, &a)| a as f64 * (f[i as usize] - g[i as usize]).powi(2)).sum()
+        ids.iter()
+            .zip(al)
+            .map(|(&i, &a)| a as f64 * (f[i as usize] - g[i as usize]).powi(2))
+            .sum()
     }
 }
 
@@ -227,7 +256,9 @@ mod tests {
     use super::*;
 
     fn grid(nx: usize, ny: usize) -> Vec<Vector3<f64>> {
-        (0..nx * ny).map(|k| Vector3::new((k % nx) as f64, (k / nx) as f64, 0.0)).collect()
+        (0..nx * ny)
+            .map(|k| Vector3::new((k % nx) as f64, (k / nx) as f64, 0.0))
+            .collect()
     }
 
     #[test]
@@ -249,7 +280,10 @@ mod tests {
         fg.features(&scaled, &mut f);
         assert!(f.iter().all(|x| (x - 0.1).abs() < 1e-12));
         let rot = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 1.0);
-        let rotated: Vec<_> = hp.iter().map(|p| rot * p + Vector3::new(1.0, 2.0, 3.0)).collect();
+        let rotated: Vec<_> = hp
+            .iter()
+            .map(|p| rot * p + Vector3::new(1.0, 2.0, 3.0))
+            .collect();
         fg.features(&rotated, &mut f);
         assert!(f.iter().all(|x| x.abs() < 1e-12));
     }

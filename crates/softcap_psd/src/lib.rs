@@ -45,13 +45,18 @@ pub mod rig;
 pub mod transfer;
 
 pub use blend::{global_blend, local_blend, project_simplex, simplex_least_squares};
-pub use detail::{DetailModel, Examples, FitMode, GreedyStep, Method, Metric, fit_psd, fit_wpsd, greedy_selection};
+pub use detail::{
+    DetailModel, Examples, FitMode, GreedyStep, Method, Metric, fit_psd, fit_wpsd, greedy_selection,
+};
 pub use error::{PsdError, Result};
 pub use experiment::{Curve, EvaluationReport, EvaluationSettings, IctData, evaluate, pose_sets};
 pub use frames::Topology;
 pub use graph::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_handles};
 pub use nalgebra;
 pub use poses::{PoseDeltas, PoseRecipe, random_combinations};
-pub use rig::{Animator, FaceRig, RigSettings, large_scale_kernel, shell_for_mesh, subdivide_midpoint, subdivide_rig};
+pub use rig::{
+    Animator, FaceRig, RigSettings, large_scale_kernel, shell_for_mesh, subdivide_midpoint,
+    subdivide_rig,
+};
 pub use softcap_mesh::{LinearShell, ShellBasis, ShellSettings};
 pub use transfer::{Correspondence, identity_correspondence, transfer_details};

@@ -13,7 +13,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
-#[command(name = "softcap-psd", version, about = "Pose-space details: learning, real-time synthesis, transfer")]
+#[command(
+    name = "softcap-psd",
+    version,
+    about = "Pose-space details: learning, real-time synthesis, transfer"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -79,7 +83,11 @@ fn main() -> ExitCode {
         Ok(c) => c,
         Err(e) => {
             let _ = e.print();
-            return if e.use_stderr() { ExitCode::from(2) } else { ExitCode::SUCCESS };
+            return if e.use_stderr() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::SUCCESS
+            };
         }
     };
     let result = match &cli.command {
@@ -94,16 +102,27 @@ fn main() -> ExitCode {
             let bad_input = e.chain().any(|c| {
                 matches!(
                     c.downcast_ref::<PsdError>(),
-                    Some(PsdError::BadPoseFile { .. } | PsdError::BadMarkerFile { .. } | PsdError::Mesh(_) | PsdError::Io { .. })
+                    Some(
+                        PsdError::BadPoseFile { .. }
+                            | PsdError::BadMarkerFile { .. }
+                            | PsdError::Mesh(_)
+                            | PsdError::Io { .. }
+                    )
                 )
             });
-            if bad_input { ExitCode::from(2) } else { ExitCode::from(1) }
+            if bad_input {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
         }
     }
 }
 
 fn to_f32(x: &[Vector3<f64>]) -> Vec<[f32; 3]> {
-    x.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect()
+    x.iter()
+        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect()
 }
 
 impl EvaluateArgs {
@@ -116,14 +135,26 @@ impl EvaluateArgs {
             settings.max_poses = p;
         }
         let data = IctData::load(&self.fixtures)?;
-        std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
+        std::fs::create_dir_all(&self.out)
+            .with_context(|| format!("creating {}", self.out.display()))?;
         let t0 = std::time::Instant::now();
         let rig = FaceRig::new(&data.mesh, &settings.rig)?;
-        eprintln!("rig: {} vertices, H = {}, F = {} ({:.1} s)", rig.num_vertices(), rig.handles.len(), rig.graph.len(), t0.elapsed().as_secs_f64());
+        eprintln!(
+            "rig: {} vertices, H = {}, F = {} ({:.1} s)",
+            rig.num_vertices(),
+            rig.handles.len(),
+            rig.graph.len(),
+            t0.elapsed().as_secs_f64()
+        );
         let report = evaluate(&data, &rig, &settings)?;
         eprintln!("evaluation done ({:.1} s)", t0.elapsed().as_secs_f64());
         for c in &report.curves {
-            let cells: Vec<String> = c.basis_sizes.iter().zip(&c.heldout_rms_mm).map(|(p, e)| format!("P{p}:{e:.3}")).collect();
+            let cells: Vec<String> = c
+                .basis_sizes
+                .iter()
+                .zip(&c.heldout_rms_mm)
+                .map(|(p, e)| format!("P{p}:{e:.3}"))
+                .collect();
             println!("{:22} {}", c.method, cells.join(" "));
         }
         println!("large-scale only: {:.3} mm", report.large_scale_only_rms_mm);
@@ -134,7 +165,10 @@ impl EvaluateArgs {
         let json = serde_json::to_string_pretty(&transfer)?;
         write_atomic(&self.out.join("transfer.json"), json.as_bytes())?;
         for t in &transfer {
-            println!("{}: large-scale only {:.3} mm, with transferred details {:.3} mm", t.identity, t.large_only_rms_mm, t.transferred_rms_mm);
+            println!(
+                "{}: large-scale only {:.3} mm, with transferred details {:.3} mm",
+                t.identity, t.large_only_rms_mm, t.transferred_rms_mm
+            );
         }
         Ok(())
     }
@@ -149,18 +183,30 @@ struct TransferRow {
 }
 
 fn rms_mm(a: &[[f32; 3]], b: &[Vector3<f64>]) -> f64 {
-    let s: f64 = a.iter().zip(b).map(|(x, y)| (Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) - y).norm_squared()).sum();
+    let s: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) - y).norm_squared())
+        .sum();
     10.0 * (s / a.len() as f64).sqrt()
 }
 
 /// Source-face renders and the identity transfer (thesis §5.4.4, Fig. 5.8 style).
-fn renders(data: &IctData, rig: &FaceRig, settings: &EvaluationSettings, out: &Path) -> Result<Vec<TransferRow>> {
+fn renders(
+    data: &IctData,
+    rig: &FaceRig,
+    settings: &EvaluationSettings,
+    out: &Path,
+) -> Result<Vec<TransferRow>> {
     let (training, heldout) = pose_sets(data, settings);
     let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();
     let examples = rig.examples(&poses)?;
     let method = Method::Wpsd(FitMode::LeastSquares, rig.edge_weights.clone());
     let steps = greedy_selection(&examples, &method, 0, 12, |_, _| Ok(()))?;
-    let basis = steps.last().map(|s| s.basis.clone()).unwrap_or_else(|| vec![0]);
+    let basis = steps
+        .last()
+        .map(|s| s.basis.clone())
+        .unwrap_or_else(|| vec![0]);
     let model = method.fit(&examples, &basis)?;
     // the held-out pose with the largest detail (error of the shell alone)
     let pick = heldout
@@ -180,11 +226,18 @@ fn renders(data: &IctData, rig: &FaceRig, settings: &EvaluationSettings, out: &P
     let mut grid: Vec<image::RgbImage> = Vec::new();
     let mut targets = vec![("generic".to_string(), data.mesh.vertices.clone())];
     for k in 0..data.identities.names.len() {
-        targets.push((data.identities.names[k].clone(), data.identities.combine(&data.mesh.vertices, &[(k, 1.0)])));
+        targets.push((
+            data.identities.names[k].clone(),
+            data.identities.combine(&data.mesh.vertices, &[(k, 1.0)]),
+        ));
     }
     for (name, rest) in &targets {
-        let mesh = softcap_mesh::TriMesh { vertices: rest.clone(), triangles: data.mesh.triangles.clone() };
-        let trig = FaceRig::with_handles(&mesh, rig.handles.clone(), Some(&rig.graph), &settings.rig)?;
+        let mesh = softcap_mesh::TriMesh {
+            vertices: rest.clone(),
+            triangles: data.mesh.triangles.clone(),
+        };
+        let trig =
+            FaceRig::with_handles(&mesh, rig.handles.clone(), Some(&rig.graph), &settings.rig)?;
         let tmodel = transfer_details(&model, &trig, &identity_correspondence(rest.len()))?;
         let truth = data.expressions.combine(rest, &recipe.weights);
         let hp = trig.handle_positions(&truth);
@@ -210,26 +263,59 @@ fn renders(data: &IctData, rig: &FaceRig, settings: &EvaluationSettings, out: &P
         };
         let signed: Vec<[f32; 3]> = (0..large.len())
             .map(|v| {
-                let d: f32 = (0..3).map(|k| (anim.positions[v][k] - large[v][k]) * large_n[v][k]).sum();
+                let d: f32 = (0..3)
+                    .map(|k| (anim.positions[v][k] - large[v][k]) * large_n[v][k])
+                    .sum();
                 render::diverging(d / 0.2) // ±2 mm
             })
             .collect();
         grid.push(render::render(&view, &large, &large_n, tris, None));
-        grid.push(render::render(&view, &anim.positions, &anim.normals, tris, None));
-        grid.push(render::render(&view, &truth32, &normals_of(&truth32), tris, None));
-        grid.push(render::render(&view, &anim.positions, &anim.normals, tris, Some(&signed)));
+        grid.push(render::render(
+            &view,
+            &anim.positions,
+            &anim.normals,
+            tris,
+            None,
+        ));
+        grid.push(render::render(
+            &view,
+            &truth32,
+            &normals_of(&truth32),
+            tris,
+            None,
+        ));
+        grid.push(render::render(
+            &view,
+            &anim.positions,
+            &anim.normals,
+            tris,
+            Some(&signed),
+        ));
     }
-    let (tw, th) = (grid[0].width(), grid.iter().map(|g| g.height()).max().unwrap_or(0));
-    let mut sheet = image::RgbImage::from_pixel(4 * tw, th * targets.len() as u32, image::Rgb([255, 255, 255]));
+    let (tw, th) = (
+        grid[0].width(),
+        grid.iter().map(|g| g.height()).max().unwrap_or(0),
+    );
+    let mut sheet = image::RgbImage::from_pixel(
+        4 * tw,
+        th * targets.len() as u32,
+        image::Rgb([255, 255, 255]),
+    );
     for (i, img) in grid.iter().enumerate() {
-        image::imageops::overlay(&mut sheet, img, ((i % 4) as u32 * tw) as i64, ((i / 4) as u32 * th) as i64);
+        image::imageops::overlay(
+            &mut sheet,
+            img,
+            ((i % 4) as u32 * tw) as i64,
+            ((i / 4) as u32 * th) as i64,
+        );
     }
     render::save_png(&sheet, &out.join("transfer_identities.png"))?;
     Ok(rows)
 }
 
 fn toml_settings<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     toml_parse(&text).with_context(|| format!("parsing {}", path.display()))
 }
 
@@ -265,28 +351,48 @@ impl MarkersArgs {
             }
         }
         write_atomic(&self.out, text.as_bytes())?;
-        eprintln!("{}: {frame} frames × {} handles", self.out.display(), handles.len());
+        eprintln!(
+            "{}: {frame} frames × {} handles",
+            self.out.display(),
+            handles.len()
+        );
         Ok(())
     }
 }
 
 /// Read `frame,handle,x_cm,y_cm,z_cm` rows into per-frame handle positions.
 fn read_markers(path: &Path, handles: usize) -> Result<Vec<Vec<Vector3<f64>>>, PsdError> {
-    let bad = |line: usize, field: &str, reason: String| PsdError::BadMarkerFile { path: path.into(), line, field: field.into(), reason };
+    let bad = |line: usize, field: &str, reason: String| PsdError::BadMarkerFile {
+        path: path.into(),
+        line,
+        field: field.into(),
+        reason,
+    };
     let mut rdr = csv::Reader::from_path(path).map_err(|e| bad(1, "header", e.to_string()))?;
     let mut frames: Vec<Vec<Option<Vector3<f64>>>> = Vec::new();
     for (i, rec) in rdr.records().enumerate() {
         let line = i + 2;
         let rec = rec.map_err(|e| bad(line, "row", e.to_string()))?;
-        let get = |k: usize, name: &str| -> Result<&str, PsdError> { rec.get(k).ok_or_else(|| bad(line, name, "missing".into())) };
-        let frame: usize = get(0, "frame")?.trim().parse().map_err(|e| bad(line, "frame", format!("{e}")))?;
-        let h: usize = get(1, "handle")?.trim().parse().map_err(|e| bad(line, "handle", format!("{e}")))?;
+        let get = |k: usize, name: &str| -> Result<&str, PsdError> {
+            rec.get(k).ok_or_else(|| bad(line, name, "missing".into()))
+        };
+        let frame: usize = get(0, "frame")?
+            .trim()
+            .parse()
+            .map_err(|e| bad(line, "frame", format!("{e}")))?;
+        let h: usize = get(1, "handle")?
+            .trim()
+            .parse()
+            .map_err(|e| bad(line, "handle", format!("{e}")))?;
         if h >= handles {
             return Err(bad(line, "handle", format!("{h} ≥ {handles} handles")));
         }
         let mut p = Vector3::zeros();
         for (k, name) in ["x_cm", "y_cm", "z_cm"].iter().enumerate() {
-            let x: f64 = get(2 + k, name)?.trim().parse().map_err(|e| bad(line, name, format!("{e}")))?;
+            let x: f64 = get(2 + k, name)?
+                .trim()
+                .parse()
+                .map_err(|e| bad(line, name, format!("{e}")))?;
             if !x.is_finite() {
                 return Err(bad(line, name, "not finite".into()));
             }
@@ -303,7 +409,11 @@ fn read_markers(path: &Path, handles: usize) -> Result<Vec<Vec<Vector3<f64>>>, P
         .map(|(f, hs)| {
             hs.into_iter()
                 .enumerate()
-                .map(|(h, p)| p.ok_or_else(|| bad(0, "handle", format!("frame {f} has no row for handle {h}"))))
+                .map(|(h, p)| {
+                    p.ok_or_else(|| {
+                        bad(0, "handle", format!("frame {f} has no row for handle {h}"))
+                    })
+                })
                 .collect()
         })
         .collect()
@@ -320,7 +430,10 @@ impl AnimateArgs {
         let examples = rig.examples(&poses)?;
         let method = Method::Wpsd(FitMode::LeastSquares, rig.edge_weights.clone());
         let steps = greedy_selection(&examples, &method, 0, self.poses.max(1), |_, _| Ok(()))?;
-        let basis = steps.last().map(|s| s.basis.clone()).unwrap_or_else(|| vec![0]);
+        let basis = steps
+            .last()
+            .map(|s| s.basis.clone())
+            .unwrap_or_else(|| vec![0]);
         let model = method.fit(&examples, &basis)?;
         let mut anim = Animator::new(&rig, &model)?;
         let tmp = self.out.with_extension("partial");
@@ -331,15 +444,21 @@ impl AnimateArgs {
             anim.frame(hp)?;
             total += t.elapsed();
             let mesh = softcap_mesh::TriMesh {
-                vertices: anim.positions.iter().map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect(),
+                vertices: anim
+                    .positions
+                    .iter()
+                    .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+                    .collect(),
                 triangles: data.mesh.triangles.clone(),
             };
             softcap_mesh::write_tri_mesh_obj(tmp.join(format!("frame_{f:04}.obj")), &mesh)?;
         }
         if self.out.exists() {
-            std::fs::remove_dir_all(&self.out).with_context(|| format!("replacing {}", self.out.display()))?;
+            std::fs::remove_dir_all(&self.out)
+                .with_context(|| format!("replacing {}", self.out.display()))?;
         }
-        std::fs::rename(&tmp, &self.out).with_context(|| format!("renaming to {}", self.out.display()))?;
+        std::fs::rename(&tmp, &self.out)
+            .with_context(|| format!("renaming to {}", self.out.display()))?;
         eprintln!(
             "{} frames, P = {}, mean synthesis time {:.2} ms/frame",
             frames.len(),
@@ -357,9 +476,19 @@ mod tests {
     #[test]
     fn cli_parses_subcommands() {
         let s: EvaluationSettings = toml_parse("max_poses = 5\n[rig]\nhandles = 40\n").unwrap();
-        assert_eq!((s.max_poses, s.rig.handles, s.rig.feature_edges), (5, 40, 243));
-        let c = Cli::try_parse_from(["softcap-psd", "evaluate", "--out", "x", "--max-poses", "8"]).unwrap();
-        assert!(matches!(c.command, Command::Evaluate(EvaluateArgs { max_poses: Some(8), .. })));
+        assert_eq!(
+            (s.max_poses, s.rig.handles, s.rig.feature_edges),
+            (5, 40, 243)
+        );
+        let c = Cli::try_parse_from(["softcap-psd", "evaluate", "--out", "x", "--max-poses", "8"])
+            .unwrap();
+        assert!(matches!(
+            c.command,
+            Command::Evaluate(EvaluateArgs {
+                max_poses: Some(8),
+                ..
+            })
+        ));
         assert!(Cli::try_parse_from(["softcap-psd", "animate", "--out", "x"]).is_err());
     }
 

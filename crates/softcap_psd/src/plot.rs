@@ -7,13 +7,24 @@ use std::path::Path;
 
 /// Draw every curve of `report` (log-scale error) into a PNG at `path`.
 pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()> {
-    let err = |e: &dyn std::fmt::Display| PsdError::Render { path: path.into(), reason: e.to_string() };
+    let err = |e: &dyn std::fmt::Display| PsdError::Render {
+        path: path.into(),
+        reason: e.to_string(),
+    };
     let tmp = path.with_extension("tmp.png");
     {
         let root = BitMapBackend::new(&tmp, (900, 600)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
-        let pmax = report.curves.iter().flat_map(|c| c.basis_sizes.iter().copied()).max().unwrap_or(1);
-        let values = report.curves.iter().flat_map(|c| c.heldout_rms_mm.iter().copied());
+        let pmax = report
+            .curves
+            .iter()
+            .flat_map(|c| c.basis_sizes.iter().copied())
+            .max()
+            .unwrap_or(1);
+        let values = report
+            .curves
+            .iter()
+            .flat_map(|c| c.heldout_rms_mm.iter().copied());
         let (lo, hi) = values.fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
         let lo = lo.min(report.large_scale_only_rms_mm).max(1e-4);
         let hi = hi.max(report.large_scale_only_rms_mm);
@@ -36,13 +47,27 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
             .y_desc("RMS vertex error on held-out poses [mm]")
             .draw()
             .map_err(|e| err(&e))?;
-        let styles: [(RGBColor, bool); 6] =
-            [(BLUE, false), (BLUE, true), (RED, false), (RED, true), (BLACK, false), (GREEN, false)];
+        let styles: [(RGBColor, bool); 6] = [
+            (BLUE, false),
+            (BLUE, true),
+            (RED, false),
+            (RED, true),
+            (BLACK, false),
+            (GREEN, false),
+        ];
         for (k, c) in report.curves.iter().enumerate() {
             let (color, dashed) = styles[k % styles.len()];
-            let pts: Vec<(f64, f64)> =
-                c.basis_sizes.iter().zip(&c.heldout_rms_mm).map(|(&p, &e)| (p as f64, e)).collect();
-            let style = ShapeStyle { color: color.to_rgba(), filled: true, stroke_width: if dashed { 1 } else { 2 } };
+            let pts: Vec<(f64, f64)> = c
+                .basis_sizes
+                .iter()
+                .zip(&c.heldout_rms_mm)
+                .map(|(&p, &e)| (p as f64, e))
+                .collect();
+            let style = ShapeStyle {
+                color: color.to_rgba(),
+                filled: true,
+                stroke_width: if dashed { 1 } else { 2 },
+            };
             chart
                 .draw_series(LineSeries::new(pts.clone(), style))
                 .map_err(|e| err(&e))?
@@ -60,7 +85,10 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
         }
         let ls = report.large_scale_only_rms_mm;
         chart
-            .draw_series(LineSeries::new(vec![(1.0, ls), (pmax as f64, ls)], ShapeStyle::from(&RGBColor(128, 128, 128))))
+            .draw_series(LineSeries::new(
+                vec![(1.0, ls), (pmax as f64, ls)],
+                ShapeStyle::from(&RGBColor(128, 128, 128)),
+            ))
             .map_err(|e| err(&e))?
             .label("large-scale shell only")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(128, 128, 128)));
@@ -73,5 +101,8 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
             .map_err(|e| err(&e))?;
         root.present().map_err(|e| err(&e))?;
     }
-    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io { path: path.into(), source })
+    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io {
+        path: path.into(),
+        source,
+    })
 }

@@ -22,13 +22,20 @@ impl PoseDeltas {
     /// Read an `SCPOSE01` file (format in `fixtures/ict-face/README.md`).
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|source| PsdError::Io { path: path.into(), source })?;
+        let bytes = std::fs::read(path).map_err(|source| PsdError::Io {
+            path: path.into(),
+            source,
+        })?;
         Self::parse(&bytes, path)
     }
 
     /// Parse `SCPOSE01` bytes; `path` only names the source in errors.
     pub fn parse(bytes: &[u8], path: &Path) -> Result<Self> {
-        let mut r = Reader { bytes, pos: 0, path };
+        let mut r = Reader {
+            bytes,
+            pos: 0,
+            path,
+        };
         if r.take(8)? != b"SCPOSE01" {
             return Err(r.err("magic is not SCPOSE01"));
         }
@@ -50,7 +57,9 @@ impl PoseDeltas {
             for _ in 0..nnz {
                 let v = r.u32()?;
                 if v as usize >= num_vertices {
-                    return Err(r.err(&format!("vertex {v} out of range ({num_vertices} vertices)")));
+                    return Err(r.err(&format!(
+                        "vertex {v} out of range ({num_vertices} vertices)"
+                    )));
                 }
                 let mut d = Vector3::zeros();
                 for k in 0..3 {
@@ -64,7 +73,11 @@ impl PoseDeltas {
         if r.pos != bytes.len() {
             return Err(r.err("trailing bytes after the last pose"));
         }
-        Ok(Self { num_vertices, names, deltas })
+        Ok(Self {
+            num_vertices,
+            names,
+            deltas,
+        })
     }
 
     /// Dense displacement field of pose `k`.
@@ -96,7 +109,11 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn err(&self, reason: &str) -> PsdError {
-        PsdError::BadPoseFile { path: self.path.into(), offset: self.pos, reason: reason.into() }
+        PsdError::BadPoseFile {
+            path: self.path.into(),
+            offset: self.pos,
+            reason: reason.into(),
+        }
     }
     fn take(&mut self, n: usize) -> Result<&'a [u8]> {
         if self.pos + n > self.bytes.len() {

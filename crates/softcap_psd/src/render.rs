@@ -32,7 +32,13 @@ impl View {
         let margin = 0.05 * (hi[0] - lo[0]).max(hi[1] - lo[1]);
         let scale = (hi[0] - lo[0] + 2.0 * margin) / width as f32;
         let height = ((hi[1] - lo[1] + 2.0 * margin) / scale).ceil() as u32;
-        Self { width, height, x0: lo[0] - margin, y0: lo[1] - margin, scale }
+        Self {
+            width,
+            height,
+            x0: lo[0] - margin,
+            y0: lo[1] - margin,
+            scale,
+        }
     }
 }
 
@@ -52,18 +58,45 @@ pub fn render(
         let n = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
         [l[0] / n, l[1] / n, l[2] / n]
     };
-    let to_px = |p: [f32; 3]| [(p[0] - view.x0) / view.scale, h as f32 - (p[1] - view.y0) / view.scale, p[2]];
+    let to_px = |p: [f32; 3]| {
+        [
+            (p[0] - view.x0) / view.scale,
+            h as f32 - (p[1] - view.y0) / view.scale,
+            p[2],
+        ]
+    };
     for t in triangles {
         let idx = t.map(|v| v as usize);
         let s = idx.map(|v| to_px(positions[v]));
-        let area = (s[1][0] - s[0][0]) * (s[2][1] - s[0][1]) - (s[2][0] - s[0][0]) * (s[1][1] - s[0][1]);
+        let area =
+            (s[1][0] - s[0][0]) * (s[2][1] - s[0][1]) - (s[2][0] - s[0][0]) * (s[1][1] - s[0][1]);
         if area.abs() < 1e-12 {
             continue;
         }
-        let minx = s.iter().map(|p| p[0]).fold(f32::INFINITY, f32::min).floor().max(0.0) as usize;
-        let maxx = s.iter().map(|p| p[0]).fold(f32::NEG_INFINITY, f32::max).ceil().min(w as f32 - 1.0) as isize;
-        let miny = s.iter().map(|p| p[1]).fold(f32::INFINITY, f32::min).floor().max(0.0) as usize;
-        let maxy = s.iter().map(|p| p[1]).fold(f32::NEG_INFINITY, f32::max).ceil().min(h as f32 - 1.0) as isize;
+        let minx = s
+            .iter()
+            .map(|p| p[0])
+            .fold(f32::INFINITY, f32::min)
+            .floor()
+            .max(0.0) as usize;
+        let maxx = s
+            .iter()
+            .map(|p| p[0])
+            .fold(f32::NEG_INFINITY, f32::max)
+            .ceil()
+            .min(w as f32 - 1.0) as isize;
+        let miny = s
+            .iter()
+            .map(|p| p[1])
+            .fold(f32::INFINITY, f32::min)
+            .floor()
+            .max(0.0) as usize;
+        let maxy = s
+            .iter()
+            .map(|p| p[1])
+            .fold(f32::NEG_INFINITY, f32::max)
+            .ceil()
+            .min(h as f32 - 1.0) as isize;
         if maxx < 0 || maxy < 0 {
             continue;
         }
@@ -93,7 +126,11 @@ pub fn render(
                 let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-20);
                 let lambert = ((n[0] * light[0] + n[1] * light[1] + n[2] * light[2]) / len).abs();
                 let shade = 0.15 + 0.85 * lambert;
-                img.put_pixel(px as u32, py as u32, image::Rgb(c.map(|x| (255.0 * (x * shade).clamp(0.0, 1.0)) as u8)));
+                img.put_pixel(
+                    px as u32,
+                    py as u32,
+                    image::Rgb(c.map(|x| (255.0 * (x * shade).clamp(0.0, 1.0)) as u8)),
+                );
             }
         }
     }
@@ -104,14 +141,24 @@ pub fn render(
 pub fn save_png(img: &image::RgbImage, path: &Path) -> Result<()> {
     let tmp = path.with_extension("tmp.png");
     img.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(|e| PsdError::Render { path: path.into(), reason: e.to_string() })?;
-    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io { path: path.into(), source })
+        .map_err(|e| PsdError::Render {
+            path: path.into(),
+            reason: e.to_string(),
+        })?;
+    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io {
+        path: path.into(),
+        source,
+    })
 }
 
 /// Blue–white–red colour for a signed value in `[-1, 1]`.
 pub fn diverging(x: f32) -> [f32; 3] {
     let x = x.clamp(-1.0, 1.0);
-    if x >= 0.0 { [1.0, 1.0 - x, 1.0 - x] } else { [1.0 + x, 1.0 + x, 1.0] }
+    if x >= 0.0 {
+        [1.0, 1.0 - x, 1.0 - x]
+    } else {
+        [1.0 + x, 1.0 + x, 1.0]
+    }
 }
 
 #[cfg(test)]
@@ -120,16 +167,47 @@ mod tests {
 
     #[test]
     fn square_covers_its_pixels_and_nearer_triangle_wins() {
-        let pos = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let pos = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
         let nrm = [[0.0, 0.0, 1.0]; 4];
-        let view = View { width: 10, height: 10, x0: 0.0, y0: 0.0, scale: 0.1 };
+        let view = View {
+            width: 10,
+            height: 10,
+            x0: 0.0,
+            y0: 0.0,
+            scale: 0.1,
+        };
         let img = render(&view, &pos, &nrm, &[[0, 1, 2], [0, 2, 3]], None);
         let lit = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
         assert_eq!(lit, 100);
         // a red triangle in front (z = 1) over a blue one (z = 0)
-        let pos2 = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
-        let cols = [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]];
-        let img = render(&view, &pos2, &[[0.0, 0.0, 1.0]; 6], &[[3, 4, 5], [0, 1, 2]], Some(&cols));
+        let pos2 = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 1.0],
+            [0.0, 1.0, 1.0],
+        ];
+        let cols = [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+        ];
+        let img = render(
+            &view,
+            &pos2,
+            &[[0.0, 0.0, 1.0]; 6],
+            &[[3, 4, 5], [0, 1, 2]],
+            Some(&cols),
+        );
         let p = img.get_pixel(2, 7).0;
         assert!(p[0] > 100 && p[2] == 0, "{p:?}");
     }

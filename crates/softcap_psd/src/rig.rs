@@ -58,7 +58,11 @@ pub struct FaceRig {
 
 /// Cotangent Laplacian and Voronoi areas of `mesh` (from `softcap_mesh`), then the factorised
 /// shell over `handles` (thesis eq. 5.1).
-pub fn shell_for_mesh(mesh: &TriMesh, handles: &[usize], settings: &ShellSettings) -> Result<LinearShell> {
+pub fn shell_for_mesh(
+    mesh: &TriMesh,
+    handles: &[usize],
+    settings: &ShellSettings,
+) -> Result<LinearShell> {
     let lap = softcap_mesh::cotan_laplacian(mesh);
     let areas = softcap_mesh::voronoi_areas(mesh);
     Ok(LinearShell::new(lap.as_ref(), &areas, handles, settings)?)
@@ -86,10 +90,15 @@ impl FaceRig {
             Some(g) => g.with_rest(&handle_rest),
             None => FeatureGraph::nearest_neighbours(&handle_rest, settings.feature_edges),
         };
-        let edge_weights = EdgeWeights::new(&mesh.vertices, &handle_rest, &graph, &settings.edge_weights);
+        let edge_weights =
+            EdgeWeights::new(&mesh.vertices, &handle_rest, &graph, &settings.edge_weights);
         Ok(Self {
             rest: mesh.vertices.clone(),
-            rest_f32: mesh.vertices.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+            rest_f32: mesh
+                .vertices
+                .iter()
+                .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                .collect(),
             topology: Topology::new(mesh.vertices.len(), &mesh.triangles),
             handles,
             basis,
@@ -148,26 +157,45 @@ impl FaceRig {
         let mut details = vec![0.0; n * t * 3];
         for (s, pose) in poses.iter().enumerate() {
             if pose.len() != n {
-                return Err(PsdError::SizeMismatch { what: "pose vertices", expected: n, got: pose.len() });
+                return Err(PsdError::SizeMismatch {
+                    what: "pose vertices",
+                    expected: n,
+                    got: pose.len(),
+                });
             }
             let hp = self.handle_positions(pose);
-            self.graph.features(&hp, &mut features[s * fdim..(s + 1) * fdim]);
+            self.graph
+                .features(&hp, &mut features[s * fdim..(s + 1) * fdim]);
             let (x, nrm) = self.large_scale(&hp);
             for v in 0..n {
                 let fr = frames::local_frame(&self.topology, &x, nrm[v], v);
-                let e = [(pose[v].x - x[v][0] as f64) as f32, (pose[v].y - x[v][1] as f64) as f32, (pose[v].z - x[v][2] as f64) as f32];
+                let e = [
+                    (pose[v].x - x[v][0] as f64) as f32,
+                    (pose[v].y - x[v][1] as f64) as f32,
+                    (pose[v].z - x[v][2] as f64) as f32,
+                ];
                 let d = frames::to_local(&fr, e);
                 for k in 0..3 {
                     details[(v * t + s) * 3 + k] = d[k] as f64;
                 }
             }
         }
-        Ok(Examples { num_features: fdim, num_vertices: n, features, details })
+        Ok(Examples {
+            num_features: fdim,
+            num_vertices: n,
+            features,
+            details,
+        })
     }
 }
 
 /// `x[v] = x0[v] + Σ_h B[v,h] u_H[h]` in parallel vertex blocks (thesis §5.3 "large-scale kernel").
-pub fn large_scale_kernel(basis: &ShellBasis, rest: &[[f32; 3]], uh: &[[f32; 3]], x: &mut [[f32; 3]]) {
+pub fn large_scale_kernel(
+    basis: &ShellBasis,
+    rest: &[[f32; 3]],
+    uh: &[[f32; 3]],
+    x: &mut [[f32; 3]],
+) {
     x.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
         basis.apply_rows(uh, b * BLOCK, chunk);
         for (k, o) in chunk.iter_mut().enumerate() {
@@ -199,10 +227,18 @@ impl<'a> Animator<'a> {
     pub fn new(rig: &'a FaceRig, model: &'a DetailModel) -> Result<Self> {
         let n = rig.num_vertices();
         if model.num_vertices() != n {
-            return Err(PsdError::SizeMismatch { what: "detail-model vertices", expected: n, got: model.num_vertices() });
+            return Err(PsdError::SizeMismatch {
+                what: "detail-model vertices",
+                expected: n,
+                got: model.num_vertices(),
+            });
         }
         if model.num_features != rig.graph.len() {
-            return Err(PsdError::SizeMismatch { what: "feature edges", expected: rig.graph.len(), got: model.num_features });
+            return Err(PsdError::SizeMismatch {
+                what: "feature edges",
+                expected: rig.graph.len(),
+                got: model.num_features,
+            });
         }
         Ok(Self {
             rig,
@@ -221,32 +257,46 @@ impl<'a> Animator<'a> {
     pub fn frame(&mut self, handle_positions: &[Vector3<f64>]) -> Result<()> {
         let rig = self.rig;
         if handle_positions.len() != rig.handles.len() {
-            return Err(PsdError::SizeMismatch { what: "handle positions", expected: rig.handles.len(), got: handle_positions.len() });
+            return Err(PsdError::SizeMismatch {
+                what: "handle positions",
+                expected: rig.handles.len(),
+                got: handle_positions.len(),
+            });
         }
         for ((u, &v), p) in self.uh.iter_mut().zip(&rig.handles).zip(handle_positions) {
             let d = p - rig.rest[v];
             *u = [d.x as f32, d.y as f32, d.z as f32];
         }
         rig.graph.features(handle_positions, &mut self.features);
-        self.model.squared_feature_differences(&self.features, &mut self.g);
+        self.model
+            .squared_feature_differences(&self.features, &mut self.g);
         // 1. large-scale kernel
         large_scale_kernel(&rig.basis, &rig.rest_f32, &self.uh, &mut self.large);
         // 2. normals of the large-scale surface
         frames::face_normals(&rig.topology, &self.large, &mut self.face_normals);
         frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
         // 3. fine-scale kernel: x = x_large + R_v d_v(f)
-        let (large, normals, g, model, topo) = (&self.large, &self.normals, &self.g, self.model, &rig.topology);
-        self.positions.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| {
-            let first = b * BLOCK;
-            model.evaluate_rows(g, first, chunk);
-            for (k, o) in chunk.iter_mut().enumerate() {
-                let v = first + k;
-                let fr = frames::local_frame(topo, large, normals[v], v);
-                let w = frames::to_world(&fr, *o);
-                let x = large[v];
-                *o = [x[0] + w[0], x[1] + w[1], x[2] + w[2]];
-            }
-        });
+        let (large, normals, g, model, topo) = (
+            &self.large,
+            &self.normals,
+            &self.g,
+            self.model,
+            &rig.topology,
+        );
+        self.positions
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .for_each(|(b, chunk)| {
+                let first = b * BLOCK;
+                model.evaluate_rows(g, first, chunk);
+                for (k, o) in chunk.iter_mut().enumerate() {
+                    let v = first + k;
+                    let fr = frames::local_frame(topo, large, normals[v], v);
+                    let w = frames::to_world(&fr, *o);
+                    let x = large[v];
+                    *o = [x[0] + w[0], x[1] + w[1], x[2] + w[2]];
+                }
+            });
         // 4. normals of the detailed surface
         frames::face_normals(&rig.topology, &self.positions, &mut self.face_normals);
         frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
@@ -278,7 +328,13 @@ pub fn subdivide_midpoint(mesh: &TriMesh) -> (TriMesh, Vec<[u32; 2]>) {
         triangles.push([t[2], m[2], m[1]]);
         triangles.push([m[0], m[1], m[2]]);
     }
-    (TriMesh { vertices, triangles }, parents)
+    (
+        TriMesh {
+            vertices,
+            triangles,
+        },
+        parents,
+    )
 }
 
 /// Refine a rig and its detail model by `levels` midpoint subdivisions (benchmark faces of
@@ -294,7 +350,12 @@ pub fn subdivide_rig(
 ) -> (FaceRig, DetailModel) {
     let mut mesh = TriMesh {
         vertices: rig.rest.clone(),
-        triangles: rig.topology.triangles.iter().map(|t| t.map(|v| v as usize)).collect(),
+        triangles: rig
+            .topology
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| v as usize))
+            .collect(),
     };
     let mut b = rig.basis.weights.clone();
     let mut w = model.weights.clone();
@@ -320,7 +381,11 @@ pub fn subdivide_rig(
     let edge_weights = EdgeWeights::new(&mesh.vertices, &handle_rest, &rig.graph, edge_settings);
     let n = mesh.vertices.len();
     let fine_rig = FaceRig {
-        rest_f32: mesh.vertices.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+        rest_f32: mesh
+            .vertices
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect(),
         topology: Topology::new(n, &mesh.triangles),
         rest: mesh.vertices,
         handles: rig.handles.clone(),
@@ -332,6 +397,11 @@ pub fn subdivide_rig(
         crate::detail::Metric::Global => crate::detail::Metric::Global,
         crate::detail::Metric::Weighted(_) => crate::detail::Metric::Weighted(edge_weights),
     };
-    let fine_model = DetailModel { num_features: model.num_features, centers: model.centers.clone(), weights: w, metric };
+    let fine_model = DetailModel {
+        num_features: model.num_features,
+        centers: model.centers.clone(),
+        weights: w,
+        metric,
+    };
     (fine_rig, fine_model)
 }

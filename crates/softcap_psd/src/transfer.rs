@@ -10,7 +10,9 @@ pub type Correspondence = Vec<[(u32, f32); 3]>;
 
 /// Identity correspondence for meshes in vertex correspondence (ICT-FaceKit identities).
 pub fn identity_correspondence(n: usize) -> Correspondence {
-    (0..n as u32).map(|v| [(v, 1.0), (v, 0.0), (v, 0.0)]).collect()
+    (0..n as u32)
+        .map(|v| [(v, 1.0), (v, 0.0), (v, 0.0)])
+        .collect()
 }
 
 /// Transfer `model` to `target` (a rig built on the target rest face with the feature graph
@@ -20,13 +22,25 @@ pub fn identity_correspondence(n: usize) -> Correspondence {
 /// own rest lengths), and the WPSD edge weights are those of the target rig (eq. 5.4 on the
 /// target rest shape). Details stay in local frames, so evaluating eq. 5.5 on the target
 /// animation gives target-oriented displacements.
-pub fn transfer_details(model: &DetailModel, target: &FaceRig, correspondence: &Correspondence) -> Result<DetailModel> {
+pub fn transfer_details(
+    model: &DetailModel,
+    target: &FaceRig,
+    correspondence: &Correspondence,
+) -> Result<DetailModel> {
     let n = target.num_vertices();
     if correspondence.len() != n {
-        return Err(PsdError::SizeMismatch { what: "correspondence entries", expected: n, got: correspondence.len() });
+        return Err(PsdError::SizeMismatch {
+            what: "correspondence entries",
+            expected: n,
+            got: correspondence.len(),
+        });
     }
     if target.graph.len() != model.num_features {
-        return Err(PsdError::SizeMismatch { what: "feature edges", expected: model.num_features, got: target.graph.len() });
+        return Err(PsdError::SizeMismatch {
+            what: "feature edges",
+            expected: model.num_features,
+            got: target.graph.len(),
+        });
     }
     let p3 = 3 * model.num_poses();
     let ns = model.num_vertices();
@@ -39,7 +53,11 @@ pub fn transfer_details(model: &DetailModel, target: &FaceRig, correspondence: &
             }
             let s = s as usize;
             if s >= ns {
-                return Err(PsdError::SizeMismatch { what: "correspondence source vertex", expected: ns, got: s });
+                return Err(PsdError::SizeMismatch {
+                    what: "correspondence source vertex",
+                    expected: ns,
+                    got: s,
+                });
             }
             for (o, w) in out.iter_mut().zip(&model.weights[s * p3..(s + 1) * p3]) {
                 *o += b * w;
@@ -50,5 +68,10 @@ pub fn transfer_details(model: &DetailModel, target: &FaceRig, correspondence: &
         Metric::Global => Metric::Global,
         Metric::Weighted(_) => Metric::Weighted(target.edge_weights.clone()),
     };
-    Ok(DetailModel { num_features: model.num_features, centers: model.centers.clone(), weights, metric })
+    Ok(DetailModel {
+        num_features: model.num_features,
+        centers: model.centers.clone(),
+        weights,
+        metric,
+    })
 }
