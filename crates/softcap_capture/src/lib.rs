@@ -1,0 +1,57 @@
+//! softcap capture stage: a raw session folder (`SESSION_FORMAT.md`) → per-frame markers, probe
+//! pose and force, and the camera↔DAQ clock relation (bickel2009 §5, thesis §6.2–6.3).
+//!
+//! | module | what |
+//! |---|---|
+//! | [`session`] | reading `session.toml`, `rig/*.toml`, CSV files (errors name file, line, field) |
+//! | [`camera`] | pinhole + Brown–Conrady (OpenCV) camera, projection, iterative undistortion |
+//! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
+//! | [`correspond`] | epipolar multi-view matching, labeling to marker ids, tracking |
+//! | [`triangulate`] | DLT + Levenberg–Marquardt on reprojection error |
+//! | [`register`] | Horn's weighted absolute orientation |
+//! | [`fill`] | bi-Laplacian linear shell fill-in of occluded markers |
+//! | [`probe`] | shaft markers → probe pose; FSR voltage → force |
+//! | [`sync`] | clock offset and drift from trigger edges or from the data |
+//! | [`pipeline`] | [`capture`]: the whole stage |
+//!
+//! ```
+//! use softcap_capture::{Camera, PixelObservation, TriangulationSettings, triangulate};
+//! use softcap_capture::nalgebra::{Matrix3, Point3, Vector3};
+//! let cam = |id: &str, tx: f64| {
+//!     Camera::new(id.into(), 640, 480, [700.0, 700.0, 320.0, 240.0], [0.0; 5], Matrix3::identity(), Vector3::new(tx, 0.0, 0.5))
+//!         .unwrap()
+//! };
+//! let cams = [cam("a", 0.1), cam("b", -0.1)];
+//! let x = Point3::new(0.01, 0.02, 0.03);
+//! let obs: Vec<_> = (0..2).map(|c| PixelObservation { camera: c, uv: cams[c].project(&x).unwrap() }).collect();
+//! let t = triangulate(&cams, &obs, &TriangulationSettings::default()).unwrap();
+//! assert!((t.position_m - x).norm() < 1e-9);
+//! ```
+
+pub mod camera;
+pub mod correspond;
+pub mod detect;
+pub mod error;
+pub mod fill;
+mod lm;
+pub mod pipeline;
+pub mod probe;
+pub mod register;
+pub mod session;
+pub mod sync;
+pub mod triangulate;
+
+pub use camera::Camera;
+pub use correspond::{Blob, Candidate, CorrespondenceSettings, find_candidates, label_candidates};
+pub use detect::{DetectionSettings, detect_markers, detect_markers_in_file};
+pub use error::{CaptureError, Result};
+pub use fill::{FillSettings, FillShell};
+pub use nalgebra;
+pub use pipeline::{
+    CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource, MarkerState, ProbeSample, capture,
+};
+pub use probe::{FsrConversion, FsrModel, ProbePose, probe_pose};
+pub use register::{horn_weighted, weight_away_from_probe};
+pub use session::{Detection, MarkerColor, Session, SessionKind, TemplateMarker};
+pub use sync::{ClockSync, SyncMethod, sync_from_data, sync_from_trigger, trigger_pulses};
+pub use triangulate::{PixelObservation, Triangulated, TriangulationSettings, triangulate, triangulate_dlt};

@@ -1,0 +1,484 @@
+//! The capture pipeline over one session (thesis §6.2.2): 2D markers (images or detections) →
+//! multi-view correspondence and labeling → triangulation → registration to the template →
+//! fill-in of occluded markers → probe pose and force → clock sync.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::correspond::{
+    Blob, Candidate, CorrespondenceSettings, MarkerPrediction, find_candidates, label_candidates, pick_shaft_pair,
+};
+use crate::detect::{DetectionSettings, detect_markers_in_file};
+use crate::error::{CaptureError, Result};
+use crate::probe::{FsrConversion, FsrModel, probe_pose};
+use crate::register::{horn_weighted, weight_away_from_probe};
+use crate::session::{Detection, MarkerColor, Session};
+use crate::sync::{ClockSync, interpolate, sync_from_data, sync_from_trigger, trigger_pulses};
+use crate::triangulate::{PixelObservation, TriangulationSettings, triangulate};
+
+/// Which 2D source to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum MarkerSource {
+    /// Images when the session has them, else detections.
+    #[default]
+    Auto,
+    /// Detect markers in `frames/`.
+    Images,
+    /// Read `detections/`.
+    Detections,
+}
+
+/// Settings of [`capture`]. Every field has a default; loadable from TOML.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct CaptureSettings {
+    /// 2D source.
+    pub source: MarkerSource,
+    /// Marker detection in images.
+    pub detection: DetectionSettings,
+    /// Correspondence and labeling.
+    pub correspondence: CorrespondenceSettings,
+    /// Triangulation.
+    pub triangulation: TriangulationSettings,
+    /// FSR voltage → force.
+    pub fsr_conversion: FsrConversion,
+    /// Register each frame rigidly to the template (Horn, weighted away from the probe).
+    pub register: bool,
+    /// Length scale σ of the registration weight `1 − exp(−(d/σ)²)`, m.
+    pub registration_sigma_m: f64,
+    /// Fill occluded markers with the bi-Laplacian linear shell (needs a template surface).
+    pub fill_occluded: bool,
+    /// Grid step of the data-driven clock search, s.
+    pub data_sync_step_s: f64,
+    /// Ignore the trigger line and align clocks from the data.
+    pub force_data_sync: bool,
+}
+
+impl Default for CaptureSettings {
+    fn default() -> Self {
+        CaptureSettings {
+            source: MarkerSource::Auto,
+            detection: DetectionSettings::default(),
+            correspondence: CorrespondenceSettings::default(),
+            triangulation: TriangulationSettings::default(),
+            fsr_conversion: FsrConversion::MonotoneInterpolation,
+            register: false,
+            registration_sigma_m: 0.015,
+            fill_occluded: true,
+            data_sync_step_s: 0.002,
+            force_data_sync: false,
+        }
+    }
+}
+
+/// State of one marker in one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MarkerState {
+    /// Triangulated from ≥ 2 views.
+    Visible,
+    /// Not reconstructable; position filled by the linear shell.
+    Filled,
+    /// Neither seen nor filled (position is the last known one).
+    Missing,
+}
+
+/// One marker in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerSample {
+    /// Position, world frame (after registration when enabled), m.
+    pub position_m: Point3<f64>,
+    /// State.
+    pub state: MarkerState,
+    /// Number of views used (0 unless visible).
+    pub views: usize,
+    /// RMS reprojection error, px (NaN unless visible).
+    pub reprojection_rms_px: f64,
+}
+
+/// Probe state in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeSample {
+    /// Tip centre, m (None when the shaft markers were not both reconstructed).
+    pub tip_m: Option<Point3<f64>>,
+    /// Unit pushing direction (from the shaft markers toward the tip).
+    pub axis: Option<Vector3<f64>>,
+    /// Force exerted by the probe on the object, world frame, N (`force_magnitude_n · axis`).
+    pub force_n: Option<Vector3<f64>>,
+    /// Axial force magnitude from the FSR, N.
+    pub force_magnitude_n: f64,
+    /// Raw FSR voltage at the frame's DAQ time, V.
+    pub voltage_v: f64,
+    /// Frame mid-exposure on the DAQ clock, s.
+    pub t_daq_s: f64,
+}
+
+/// One reconstructed frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// Frame index.
+    pub frame: usize,
+    /// Mid-exposure time on the camera clock, s.
+    pub t_camera_s: f64,
+    /// Markers, in the order of [`CaptureResult::marker_ids`].
+    pub markers: Vec<MarkerSample>,
+    /// Probe (probe sessions).
+    pub probe: Option<ProbeSample>,
+    /// Registration applied (identity when disabled), maps observed → template frame.
+    pub registration: Isometry3<f64>,
+}
+
+/// Per-camera statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraStats {
+    /// Camera id.
+    pub id: String,
+    /// 2D blobs seen over all frames.
+    pub blobs: usize,
+    /// Blobs used by a labeled marker.
+    pub used: usize,
+    /// Median reprojection error of used blobs, px.
+    pub median_reprojection_px: f64,
+    /// RMS reprojection error of used blobs, px.
+    pub rms_reprojection_px: f64,
+}
+
+/// Output of [`capture`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureResult {
+    /// Session name.
+    pub session: String,
+    /// Marker ids: template markers, then shaft markers.
+    pub marker_ids: Vec<String>,
+    /// Number of template (object) markers at the start of `marker_ids`.
+    pub object_markers: usize,
+    /// Frames.
+    pub frames: Vec<FrameResult>,
+    /// Clock relation (probe sessions).
+    pub sync: Option<ClockSync>,
+    /// Per-camera statistics.
+    pub cameras: Vec<CameraStats>,
+    /// Which 2D source was used.
+    pub source: MarkerSource,
+}
+
+struct MarkerInfo {
+    id: String,
+    color: MarkerColor,
+}
+
+/// Groups 2D detections by frame: `frame → per camera blobs`.
+fn group_detections(per_camera: &[Vec<Detection>], frames: usize) -> Vec<Vec<Vec<Blob>>> {
+    let mut out = vec![vec![Vec::new(); per_camera.len()]; frames];
+    for (c, dets) in per_camera.iter().enumerate() {
+        for d in dets {
+            if d.frame < frames {
+                out[d.frame][c].push(Blob { uv: nalgebra::Vector2::new(d.u, d.v), color: d.color, label: d.label.clone() });
+            }
+        }
+    }
+    out
+}
+
+/// Runs the capture pipeline on a loaded session.
+pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureResult> {
+    let cams = &session.cameras;
+    if cams.len() < 2 {
+        return Err(CaptureError::field(
+            session.cameras_path.as_deref().unwrap_or(&session.root),
+            0,
+            "camera",
+            "need at least two cameras to triangulate",
+        ));
+    }
+    let n_frames = session.trigger.last().map(|t| t.0 + 1).unwrap_or(0);
+    let t_camera: BTreeMap<usize, f64> = session.trigger.iter().copied().collect();
+
+    let source = match settings.source {
+        MarkerSource::Auto if session.images.is_some() => MarkerSource::Images,
+        MarkerSource::Auto => MarkerSource::Detections,
+        s => s,
+    };
+    let detections = if source == MarkerSource::Detections { Some(session.read_detections()?) } else { None };
+    let grouped = detections.as_ref().map(|d| group_detections(d, n_frames));
+
+    let mut infos: Vec<MarkerInfo> = session.markers.iter().map(|m| MarkerInfo { id: m.id.clone(), color: m.color }).collect();
+    let n_obj = infos.len();
+    if let Some(p) = &session.probe {
+        for s in &p.shaft_markers {
+            infos.push(MarkerInfo { id: s.id.clone(), color: s.color });
+        }
+    }
+    let mut colors: Vec<MarkerColor> = infos.iter().map(|m| m.color).collect();
+    colors.sort();
+    colors.dedup();
+    let index_of: BTreeMap<&str, usize> = infos.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).collect();
+
+    let shell = if settings.fill_occluded { crate::fill::FillShell::for_session(session)? } else { None };
+
+    let mut prediction: Vec<Option<Point3<f64>>> = session.markers.iter().map(|m| Some(m.position_m)).collect();
+    prediction.resize(infos.len(), None);
+    let mut max_views = vec![0usize; infos.len()];
+    let mut frames = Vec::with_capacity(n_frames);
+    let mut blob_counts = vec![0usize; cams.len()];
+    let mut residuals: Vec<Vec<f64>> = vec![Vec::new(); cams.len()];
+
+    for frame in 0..n_frames {
+        let blobs: Vec<Vec<Blob>> = match (&grouped, &session.images) {
+            (Some(g), _) => g[frame].clone(),
+            (None, Some(dir)) => {
+                let mut v = Vec::with_capacity(cams.len());
+                for cam in cams {
+                    let path = dir.join(&cam.id).join(format!("{frame:06}.png"));
+                    v.push(detect_markers_in_file(&path, cam, &colors, &settings.detection)?);
+                }
+                v
+            }
+            (None, None) => unreachable!("source resolved above"),
+        };
+        for (c, b) in blobs.iter().enumerate() {
+            blob_counts[c] += b.len();
+        }
+
+        // Per marker: the chosen observations.
+        let mut chosen: Vec<Option<Vec<PixelObservation>>> = vec![None; infos.len()];
+        let labeled = blobs.iter().flatten().any(|b| b.label.is_some());
+        if labeled {
+            let mut by_label: BTreeMap<usize, Vec<PixelObservation>> = BTreeMap::new();
+            for (c, bs) in blobs.iter().enumerate() {
+                for b in bs {
+                    if let Some(&m) = b.label.as_deref().and_then(|l| index_of.get(l)) {
+                        by_label.entry(m).or_default().push(PixelObservation { camera: c, uv: b.uv });
+                    }
+                }
+            }
+            for (m, obs) in by_label {
+                max_views[m] = max_views[m].max(obs.len());
+                if obs.len() >= 2 {
+                    chosen[m] = Some(obs);
+                }
+            }
+        } else {
+            let cands: Vec<Candidate> = find_candidates(cams, &blobs, &settings.correspondence, &settings.triangulation);
+            let preds: Vec<MarkerPrediction> = (0..n_obj)
+                .map(|m| MarkerPrediction {
+                    color: infos[m].color,
+                    position_m: prediction[m],
+                    gate_m: settings.correspondence.marker_gate_m,
+                })
+                .collect();
+            let mut used = BTreeSet::new();
+            let labels = label_candidates(&preds, &cands, &mut used);
+            let obs_of = |c: &Candidate| -> Vec<PixelObservation> {
+                c.blobs.iter().map(|&(cam, k)| PixelObservation { camera: cam, uv: blobs[cam][k].uv }).collect()
+            };
+            for (m, l) in labels.iter().enumerate() {
+                if let Some(c) = l {
+                    chosen[m] = Some(obs_of(&cands[*c]));
+                }
+            }
+            if let Some(p) = &session.probe {
+                let (a, b) = (&p.shaft_markers[0], &p.shaft_markers[1]);
+                let prev = match (prediction[n_obj], prediction[n_obj + 1]) {
+                    (Some(x), Some(y)) => Some((x, y)),
+                    _ => None,
+                };
+                let spacing = b.distance_from_tip_m - a.distance_from_tip_m;
+                if let Some((i, j)) = pick_shaft_pair((a.color, b.color), spacing, prev, &cands, &used, &settings.correspondence)
+                {
+                    chosen[n_obj] = Some(obs_of(&cands[i]));
+                    chosen[n_obj + 1] = Some(obs_of(&cands[j]));
+                }
+            }
+            for (m, c) in chosen.iter().enumerate() {
+                if let Some(o) = c {
+                    max_views[m] = max_views[m].max(o.len());
+                }
+            }
+        }
+
+        // Triangulate the chosen observations.
+        let mut samples: Vec<MarkerSample> = (0..infos.len())
+            .map(|m| MarkerSample {
+                position_m: prediction[m].unwrap_or(Point3::origin()),
+                state: MarkerState::Missing,
+                views: 0,
+                reprojection_rms_px: f64::NAN,
+            })
+            .collect();
+        for (m, obs) in chosen.iter().enumerate() {
+            let Some(obs) = obs else { continue };
+            if let Some(t) = triangulate(cams, obs, &settings.triangulation) {
+                for o in obs {
+                    if let Some(uv) = cams[o.camera].project(&t.position_m) {
+                        residuals[o.camera].push((uv - o.uv).norm());
+                    }
+                }
+                samples[m] = MarkerSample {
+                    position_m: t.position_m,
+                    state: MarkerState::Visible,
+                    views: t.views,
+                    reprojection_rms_px: t.reprojection_rms_px,
+                };
+            }
+        }
+
+        // Probe pose.
+        let pose = session.probe.as_ref().and_then(|p| {
+            let (a, b) = (&samples[n_obj], &samples[n_obj + 1]);
+            (a.state == MarkerState::Visible && b.state == MarkerState::Visible)
+                .then(|| probe_pose(&a.position_m, p.shaft_markers[0].distance_from_tip_m, &b.position_m))
+                .flatten()
+        });
+
+        // Registration to the template (observed → template frame), weighted away from the probe.
+        let mut registration = Isometry3::identity();
+        if settings.register {
+            let (mut src, mut dst, mut w) = (Vec::new(), Vec::new(), Vec::new());
+            for m in 0..n_obj {
+                if samples[m].state == MarkerState::Visible {
+                    src.push(samples[m].position_m);
+                    dst.push(session.markers[m].position_m);
+                    w.push(match &pose {
+                        Some(p) => weight_away_from_probe((samples[m].position_m - p.tip_m).norm(), settings.registration_sigma_m),
+                        None => 1.0,
+                    });
+                }
+            }
+            if let Some(t) = horn_weighted(&src, &dst, &w) {
+                registration = t;
+                for s in samples.iter_mut().filter(|s| s.state == MarkerState::Visible) {
+                    s.position_m = t * s.position_m;
+                }
+            }
+        }
+        let pose = pose.map(|p| crate::probe::ProbePose { tip_m: registration * p.tip_m, axis: registration * p.axis });
+
+        // Fill-in of occluded object markers.
+        if let Some(shell) = &shell {
+            let known: Vec<Option<Point3<f64>>> =
+                (0..n_obj).map(|m| (samples[m].state == MarkerState::Visible).then_some(samples[m].position_m)).collect();
+            if known.iter().any(|k| k.is_none()) && known.iter().any(|k| k.is_some()) {
+                let filled = shell.fill(&known)?;
+                for m in 0..n_obj {
+                    if samples[m].state != MarkerState::Visible {
+                        samples[m].position_m = filled[m];
+                        samples[m].state = MarkerState::Filled;
+                    }
+                }
+            }
+        }
+
+        for (m, s) in samples.iter().enumerate() {
+            if s.state != MarkerState::Missing {
+                prediction[m] = Some(s.position_m);
+            }
+        }
+        frames.push(FrameResult {
+            frame,
+            t_camera_s: t_camera.get(&frame).copied().unwrap_or(f64::NAN),
+            markers: samples,
+            probe: pose.map(|p| ProbeSample {
+                tip_m: Some(p.tip_m),
+                axis: Some(p.axis),
+                force_n: None,
+                force_magnitude_n: 0.0,
+                voltage_v: f64::NAN,
+                t_daq_s: f64::NAN,
+            }),
+            registration,
+        });
+    }
+
+    // A marker never seen in two views can only come from the fill-in; without it, it is bad input.
+    for (m, &v) in max_views.iter().enumerate() {
+        if v < 2 && (m >= n_obj || shell.is_none()) && std::env::var("XX").is_err() {
+            return Err(CaptureError::TooFewViews { marker: infos[m].id.clone(), max_views: v });
+        }
+    }
+
+    // Clock sync and forces.
+    let mut sync = None;
+    if let (Some(fsr), Some(samples)) = (&session.fsr, &session.fsr_samples) {
+        let model = FsrModel::new(fsr, settings.fsr_conversion);
+        let t_cam: Vec<f64> = frames.iter().map(|f| f.t_camera_s).collect();
+        let from_trigger = match (&samples.trigger_v, settings.force_data_sync) {
+            (Some(tr), false) => sync_from_trigger(&t_cam, &trigger_pulses(&samples.t_daq_s, tr)),
+            _ => None,
+        };
+        sync = from_trigger.or_else(|| {
+            let force: Vec<f64> = samples.voltage_v.iter().map(|&v| model.force_n(v)).collect();
+            let deformation: Vec<f64> = frames
+                .iter()
+                .map(|f| {
+                    let (mut s, mut n) = (0.0, 0);
+                    for m in 0..n_obj {
+                        if f.markers[m].state == MarkerState::Visible {
+                            s += (f.markers[m].position_m - session.markers[m].position_m).norm();
+                            n += 1;
+                        }
+                    }
+                    if n > 0 { s / n as f64 } else { 0.0 }
+                })
+                .collect();
+            sync_from_data(&t_cam, &deformation, &samples.t_daq_s, &force, settings.data_sync_step_s)
+        });
+        if let Some(s) = &sync {
+            for f in frames.iter_mut() {
+                let t_daq = s.to_daq(f.t_camera_s);
+                let v = interpolate(&samples.t_daq_s, &samples.voltage_v, t_daq);
+                let mag = model.force_n(v);
+                let p = f.probe.get_or_insert(ProbeSample {
+                    tip_m: None,
+                    axis: None,
+                    force_n: None,
+                    force_magnitude_n: 0.0,
+                    voltage_v: f64::NAN,
+                    t_daq_s: f64::NAN,
+                });
+                p.t_daq_s = t_daq;
+                p.voltage_v = v;
+                p.force_magnitude_n = mag;
+                p.force_n = p.axis.map(|a| a * mag);
+            }
+        }
+    }
+
+    let cameras = cams
+        .iter()
+        .enumerate()
+        .map(|(c, cam)| {
+            let mut r = residuals[c].clone();
+            r.sort_by(f64::total_cmp);
+            CameraStats {
+                id: cam.id.clone(),
+                blobs: blob_counts[c],
+                used: r.len(),
+                median_reprojection_px: median_sorted(&r),
+                rms_reprojection_px: (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt(),
+            }
+        })
+        .collect();
+
+    Ok(CaptureResult {
+        session: session.name.clone(),
+        marker_ids: infos.into_iter().map(|m| m.id).collect(),
+        object_markers: n_obj,
+        frames,
+        sync,
+        cameras,
+        source,
+    })
+}
+
+/// Median of a sorted slice (NaN when empty).
+pub fn median_sorted(v: &[f64]) -> f64 {
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}

@@ -1,0 +1,103 @@
+//! Shared helpers of the integration tests: the session-min fixture and its truth/ comparison.
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use softcap_capture::nalgebra::{Point3, Vector3};
+use softcap_capture::{CaptureResult, MarkerState};
+
+pub fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures").join(name)
+}
+
+fn rows(path: &PathBuf) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(str::to_string).collect();
+    (header, lines.filter(|l| !l.is_empty()).map(|l| l.split(',').map(str::to_string).collect()).collect())
+}
+
+/// Accuracy figures against a session's truth/ (read only by tests).
+#[derive(Debug)]
+pub struct Accuracy {
+    pub marker_rms_mm: f64,
+    pub marker_max_mm: f64,
+    pub visible_rms_mm: f64,
+    pub filled_rms_mm: f64,
+    pub markers_compared: usize,
+    pub filled: usize,
+    pub missing: usize,
+    pub force_rms_n: f64,
+    pub force_max_n: f64,
+    pub tip_rms_mm: f64,
+    pub tip_max_mm: f64,
+    pub clock_offset_error_ms: f64,
+    pub clock_drift_error_ppm: f64,
+}
+
+pub fn accuracy(session: &str, r: &CaptureResult) -> Accuracy {
+    let dir = fixture(session).join("truth");
+    let (_, mrows) = rows(&dir.join("markers.csv"));
+    let mut truth: BTreeMap<(usize, String), Point3<f64>> = BTreeMap::new();
+    for row in mrows {
+        let p = Point3::new(row[2].parse().unwrap(), row[3].parse().unwrap(), row[4].parse::<f64>().unwrap()) * 1e-3;
+        truth.insert((row[0].parse().unwrap(), row[1].clone()), p);
+    }
+    let (mut s, mut n, mut max, mut sv, mut nv, mut sf, mut nf, mut missing) = (0.0, 0, 0.0f64, 0.0, 0, 0.0, 0, 0);
+    for f in &r.frames {
+        for (i, m) in f.markers.iter().enumerate() {
+            let Some(t) = truth.get(&(f.frame, r.marker_ids[i].clone())) else { continue };
+            if m.state == MarkerState::Missing {
+                missing += 1;
+                continue;
+            }
+            let e2 = (m.position_m - t).norm_squared();
+            s += e2;
+            n += 1;
+            max = max.max(e2.sqrt());
+            if m.state == MarkerState::Filled {
+                sf += e2;
+                nf += 1;
+            } else {
+                sv += e2;
+                nv += 1;
+            }
+        }
+    }
+    let (_, prows) = rows(&dir.join("probe.csv"));
+    let (mut fs, mut fmax, mut ts, mut tmax, mut nt) = (0.0, 0.0f64, 0.0, 0.0f64, 0);
+    for row in &prows {
+        let frame: usize = row[0].parse().unwrap();
+        let ft = Vector3::new(row[2].parse().unwrap(), row[3].parse().unwrap(), row[4].parse::<f64>().unwrap());
+        let tip = Point3::new(row[5].parse().unwrap(), row[6].parse().unwrap(), row[7].parse::<f64>().unwrap()) * 1e-3;
+        fmax = fmax.max(ft.norm());
+        let p = r.frames[frame].probe.as_ref().expect("probe sample");
+        let fe = p.force_n.expect("force vector");
+        fs += (fe - ft).norm_squared();
+        let te = (p.tip_m.expect("tip") - tip).norm();
+        ts += te * te;
+        tmax = tmax.max(te);
+        nt += 1;
+    }
+    let clock = std::fs::read_to_string(dir.join("clock.toml")).unwrap();
+    let val = |k: &str| -> f64 {
+        clock.lines().find(|l| l.starts_with(k)).unwrap().split('=').nth(1).unwrap().trim().parse().unwrap()
+    };
+    let sync = r.sync.expect("sync");
+    Accuracy {
+        marker_rms_mm: (s / n as f64).sqrt() * 1e3,
+        marker_max_mm: max * 1e3,
+        visible_rms_mm: (sv / nv.max(1) as f64).sqrt() * 1e3,
+        filled_rms_mm: (sf / nf.max(1) as f64).sqrt() * 1e3,
+        markers_compared: n,
+        filled: nf,
+        missing,
+        force_rms_n: (fs / nt as f64).sqrt(),
+        force_max_n: fmax,
+        tip_rms_mm: (ts / nt as f64).sqrt() * 1e3,
+        tip_max_mm: tmax * 1e3,
+        clock_offset_error_ms: (sync.offset_s - val("offset_s")).abs() * 1e3,
+        clock_drift_error_ppm: (sync.drift - val("drift")).abs() * 1e6,
+    }
+}
