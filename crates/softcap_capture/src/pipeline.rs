@@ -12,6 +12,7 @@ use crate::correspond::{
 };
 use crate::detect::{DetectionSettings, detect_markers_in_file};
 use crate::error::{CaptureError, Result};
+use crate::fill::FillSettings;
 use crate::probe::{FsrConversion, FsrModel, probe_pose};
 use crate::register::{horn_weighted, weight_away_from_probe};
 use crate::session::{Detection, MarkerColor, Session};
@@ -51,6 +52,8 @@ pub struct CaptureSettings {
     pub registration_sigma_m: f64,
     /// Fill occluded markers with the bi-Laplacian linear shell (needs a template surface).
     pub fill_occluded: bool,
+    /// Linear-shell fill-in settings.
+    pub fill: FillSettings,
     /// Grid step of the data-driven clock search, s.
     pub data_sync_step_s: f64,
     /// Ignore the trigger line and align clocks from the data.
@@ -64,10 +67,11 @@ impl Default for CaptureSettings {
             detection: DetectionSettings::default(),
             correspondence: CorrespondenceSettings::default(),
             triangulation: TriangulationSettings::default(),
-            fsr_conversion: FsrConversion::MonotoneInterpolation,
+            fsr_conversion: FsrConversion::PowerLaw,
             register: false,
             registration_sigma_m: 0.015,
             fill_occluded: true,
+            fill: FillSettings::default(),
             data_sync_step_s: 0.002,
             force_data_sync: false,
         }
@@ -217,7 +221,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
     colors.dedup();
     let index_of: BTreeMap<&str, usize> = infos.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).collect();
 
-    let shell = if settings.fill_occluded { crate::fill::FillShell::for_session(session)? } else { None };
+    let shell = if settings.fill_occluded { crate::fill::FillShell::for_session(session, &settings.fill)? } else { None };
 
     let mut prediction: Vec<Option<Point3<f64>>> = session.markers.iter().map(|m| Some(m.position_m)).collect();
     prediction.resize(infos.len(), None);

@@ -29,17 +29,6 @@ fn session_min_from_detections_meets_accuracy() {
 }
 
 #[test]
-fn debug_force() {
-    let session = Session::load(&common::fixture("session-min")).unwrap();
-    for conv in [softcap_capture::FsrConversion::MonotoneInterpolation, softcap_capture::FsrConversion::PowerLaw] {
-        let settings = CaptureSettings { source: MarkerSource::Detections, fsr_conversion: conv, ..Default::default() };
-        let r = capture(&session, &settings).unwrap();
-        let a = common::accuracy("session-min", &r);
-        println!("{conv:?}: force rms {:.4}", a.force_rms_n);
-        let text = std::fs::read_to_string(common::fixture("session-min/truth/probe.csv")).unwrap();
-        for (l, f) in text.lines().skip(1).zip(&r.frames) {
-            let p = f.probe.as_ref().unwrap();
-            println!("{l} | {:.4} {:?}", p.force_magnitude_n, p.force_n.map(|v| v.z));
-        }
-    }
+fn session_min_from_images_meets_accuracy() {
+    assert_done_when(&check(MarkerSource::Images));
 }
