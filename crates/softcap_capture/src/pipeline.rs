@@ -144,8 +144,12 @@ pub struct CameraStats {
     pub blobs: usize,
     /// Blobs used by a labeled marker.
     pub used: usize,
+    /// Mean reprojection error of used blobs, px.
+    pub mean_reprojection_px: f64,
     /// Median reprojection error of used blobs, px.
     pub median_reprojection_px: f64,
+    /// Largest reprojection error of used blobs, px.
+    pub max_reprojection_px: f64,
     /// RMS reprojection error of used blobs, px.
     pub rms_reprojection_px: f64,
 }
@@ -461,7 +465,9 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 id: cam.id.clone(),
                 blobs: blob_counts[c],
                 used: r.len(),
+                mean_reprojection_px: r.iter().sum::<f64>() / r.len().max(1) as f64,
                 median_reprojection_px: median_sorted(&r),
+                max_reprojection_px: r.last().copied().unwrap_or(0.0),
                 rms_reprojection_px: (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt(),
             }
         })

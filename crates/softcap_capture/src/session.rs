@@ -713,3 +713,8 @@ impl Session {
         self.cameras.iter().map(|c| read_detections_csv(&dir.join(format!("{}.csv", c.id)))).collect()
     }
 }
+
+/// Reads a `CaptureSettings` TOML file.
+pub fn parse_settings_toml(path: &Path) -> Result<crate::pipeline::CaptureSettings> {
+    parse_toml(path)
+}
