@@ -40,8 +40,13 @@ impl Camera {
         if width == 0 || height == 0 {
             return Err("width and height must be positive".into());
         }
-        if !(fx.is_finite() && fy.is_finite() && fx.abs() > 1e-9 && fy.abs() > 1e-9) || fx < 0.0 || fy < 0.0 {
-            return Err(format!("singular intrinsic matrix: fx = {fx}, fy = {fy} (must be positive)"));
+        if !(fx.is_finite() && fy.is_finite() && fx.abs() > 1e-9 && fy.abs() > 1e-9)
+            || fx < 0.0
+            || fy < 0.0
+        {
+            return Err(format!(
+                "singular intrinsic matrix: fx = {fx}, fy = {fy} (must be positive)"
+            ));
         }
         if !(cx.is_finite() && cy.is_finite()) || distortion.iter().any(|d| !d.is_finite()) {
             return Err("non-finite principal point or distortion".into());
@@ -49,12 +54,24 @@ impl Camera {
         if rotation.iter().any(|v| !v.is_finite()) || translation_m.iter().any(|v| !v.is_finite()) {
             return Err("non-finite rotation or translation".into());
         }
-        let orth = (rotation.transpose() * rotation - Matrix3::identity()).abs().max();
+        let orth = (rotation.transpose() * rotation - Matrix3::identity())
+            .abs()
+            .max();
         let det = rotation.determinant();
         if orth > 1e-5 || (det - 1.0).abs() > 1e-5 {
-            return Err(format!("rotation is not a proper rotation (|RᵀR−I|max = {orth:.2e}, det = {det:.6})"));
+            return Err(format!(
+                "rotation is not a proper rotation (|RᵀR−I|max = {orth:.2e}, det = {det:.6})"
+            ));
         }
-        Ok(Camera { id, width, height, intrinsics, distortion, rotation, translation_m })
+        Ok(Camera {
+            id,
+            width,
+            height,
+            intrinsics,
+            distortion,
+            rotation,
+            translation_m,
+        })
     }
 
     /// World point → camera frame.
@@ -72,7 +89,10 @@ impl Camera {
         let [k1, k2, p1, p2, k3] = self.distortion;
         let r2 = x * x + y * y;
         let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+        (
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
     }
 
     /// Jacobian of [`Camera::distort`] with respect to `(x, y)`.
@@ -102,7 +122,10 @@ impl Camera {
     }
 
     /// Projection and its Jacobian `∂(u,v)/∂X` (world point); `None` behind the camera.
-    pub fn project_with_jacobian(&self, x_world: &Point3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+    pub fn project_with_jacobian(
+        &self,
+        x_world: &Point3<f64>,
+    ) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
         let xc = self.to_camera(x_world);
         if xc.z <= 1e-12 {
             return None;
@@ -210,16 +233,39 @@ mod tests {
             a[k] += h;
             b[k] -= h;
             let fd = (c.project(&a).unwrap() - c.project(&b).unwrap()) / (2.0 * h);
-            assert!((fd - j.column(k)).norm() < 1e-4 * fd.norm().max(1.0), "column {k}: {fd} vs {}", j.column(k));
+            assert!(
+                (fd - j.column(k)).norm() < 1e-4 * fd.norm().max(1.0),
+                "column {k}: {fd} vs {}",
+                j.column(k)
+            );
         }
     }
 
     #[test]
     fn singular_and_improper_cameras_are_rejected() {
         let c = cam();
-        let bad = Camera::new("x".into(), 10, 10, [0.0, 1.0, 0.0, 0.0], [0.0; 5], c.rotation, c.translation_m);
+        let bad = Camera::new(
+            "x".into(),
+            10,
+            10,
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0; 5],
+            c.rotation,
+            c.translation_m,
+        );
         assert!(bad.unwrap_err().contains("singular"));
         let refl = Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0);
-        assert!(Camera::new("x".into(), 10, 10, c.intrinsics, [0.0; 5], refl, c.translation_m).is_err());
+        assert!(
+            Camera::new(
+                "x".into(),
+                10,
+                10,
+                c.intrinsics,
+                [0.0; 5],
+                refl,
+                c.translation_m
+            )
+            .is_err()
+        );
     }
 }

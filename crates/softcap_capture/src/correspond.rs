@@ -84,8 +84,15 @@ pub fn find_candidates(
     settings: &CorrespondenceSettings,
     tri: &TriangulationSettings,
 ) -> Vec<Candidate> {
-    let normalized: Vec<Vec<Vector2<f64>>> =
-        blobs.iter().enumerate().map(|(c, bs)| bs.iter().map(|b| cameras[c].undistort(b.uv.x, b.uv.y)).collect()).collect();
+    let normalized: Vec<Vec<Vector2<f64>>> = blobs
+        .iter()
+        .enumerate()
+        .map(|(c, bs)| {
+            bs.iter()
+                .map(|b| cameras[c].undistort(b.uv.x, b.uv.y))
+                .collect()
+        })
+        .collect();
     let mut out: Vec<Candidate> = Vec::new();
     for a in 0..cameras.len() {
         for b in a + 1..cameras.len() {
@@ -105,16 +112,31 @@ pub fn find_candidates(
                         continue;
                     }
                     let mut set = vec![(a, i), (b, j)];
-                    let obs2 = [PixelObservation { camera: a, uv: bi.uv }, PixelObservation { camera: b, uv: bj.uv }];
-                    let Some(p2) = triangulate(cameras, &obs2, tri) else { continue };
-                    if cameras[a].to_camera(&p2.position_m).z <= 0.0 || cameras[b].to_camera(&p2.position_m).z <= 0.0 {
+                    let obs2 = [
+                        PixelObservation {
+                            camera: a,
+                            uv: bi.uv,
+                        },
+                        PixelObservation {
+                            camera: b,
+                            uv: bj.uv,
+                        },
+                    ];
+                    let Some(p2) = triangulate(cameras, &obs2, tri) else {
+                        continue;
+                    };
+                    if cameras[a].to_camera(&p2.position_m).z <= 0.0
+                        || cameras[b].to_camera(&p2.position_m).z <= 0.0
+                    {
                         continue;
                     }
                     for c in 0..cameras.len() {
                         if c == a || c == b {
                             continue;
                         }
-                        let Some(uv) = cameras[c].project(&p2.position_m) else { continue };
+                        let Some(uv) = cameras[c].project(&p2.position_m) else {
+                            continue;
+                        };
                         let best = blobs[c]
                             .iter()
                             .enumerate()
@@ -130,10 +152,22 @@ pub fn find_candidates(
                     if out.iter().any(|c| c.blobs == set) {
                         continue;
                     }
-                    let obs: Vec<_> = set.iter().map(|&(c, k)| PixelObservation { camera: c, uv: blobs[c][k].uv }).collect();
-                    let Some(p) = triangulate(cameras, &obs, tri) else { continue };
+                    let obs: Vec<_> = set
+                        .iter()
+                        .map(|&(c, k)| PixelObservation {
+                            camera: c,
+                            uv: blobs[c][k].uv,
+                        })
+                        .collect();
+                    let Some(p) = triangulate(cameras, &obs, tri) else {
+                        continue;
+                    };
                     if p.reprojection_rms_px <= settings.max_rms_px {
-                        out.push(Candidate { blobs: set, color: bi.color, point: p });
+                        out.push(Candidate {
+                            blobs: set,
+                            color: bi.color,
+                            point: p,
+                        });
                     }
                 }
             }
@@ -174,7 +208,12 @@ pub fn label_candidates(
             }
         }
     }
-    pairs.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)).then(x.3.cmp(&y.3)));
+    pairs.sort_by(|x, y| {
+        x.0.total_cmp(&y.0)
+            .then(x.1.cmp(&y.1))
+            .then(x.2.cmp(&y.2))
+            .then(x.3.cmp(&y.3))
+    });
     let mut out = vec![None; markers.len()];
     for (_, _, m, c) in pairs {
         if out[m].is_some() || candidates[c].blobs.iter().any(|b| used_blobs.contains(b)) {
@@ -199,8 +238,16 @@ pub fn pick_shaft_pair(
 ) -> Option<(usize, usize)> {
     let free = |c: &Candidate| c.blobs.iter().all(|b| !used_blobs.contains(b));
     let mut best: Option<(f64, usize, usize)> = None;
-    for (i, a) in candidates.iter().enumerate().filter(|(_, c)| c.color == colors.0 && free(c)) {
-        for (j, b) in candidates.iter().enumerate().filter(|(_, c)| c.color == colors.1 && free(c)) {
+    for (i, a) in candidates
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.color == colors.0 && free(c))
+    {
+        for (j, b) in candidates
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.color == colors.1 && free(c))
+        {
             if a.blobs.iter().any(|x| b.blobs.contains(x)) {
                 continue;
             }
@@ -210,7 +257,9 @@ pub fn pick_shaft_pair(
             }
             let mut cost = spacing_err - 1e-3 * (a.point.views + b.point.views) as f64;
             if let Some((pa, pb)) = previous {
-                let d = (a.point.position_m - pa).norm().max((b.point.position_m - pb).norm());
+                let d = (a.point.position_m - pa)
+                    .norm()
+                    .max((b.point.position_m - pb).norm());
                 if d > settings.shaft_gate_m {
                     continue;
                 }

@@ -68,7 +68,11 @@ fn srgb_to_linear_lut() -> [f64; 256] {
     let mut lut = [0.0; 256];
     for (i, v) in lut.iter_mut().enumerate() {
         let c = i as f64 / 255.0;
-        *v = if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) };
+        *v = if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        };
     }
     lut
 }
@@ -79,7 +83,13 @@ fn lab(lut: &[f64; 256], p: [u8; 3]) -> [f64; 3] {
     let x = (0.4124564 * r + 0.3575761 * g + 0.1804375 * b) / 0.95047;
     let y = 0.2126729 * r + 0.7151522 * g + 0.0721750 * b;
     let z = (0.0193339 * r + 0.1191920 * g + 0.9503041 * b) / 1.08883;
-    let f = |t: f64| if t > 216.0 / 24389.0 { t.cbrt() } else { (24389.0 / 27.0 * t + 16.0) / 116.0 };
+    let f = |t: f64| {
+        if t > 216.0 / 24389.0 {
+            t.cbrt()
+        } else {
+            (24389.0 / 27.0 * t + 16.0) / 116.0
+        }
+    };
     let (fx, fy, fz) = (f(x), f(y), f(z));
     [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
 }
@@ -89,7 +99,15 @@ fn erode(m: &[bool], w: usize, h: usize) -> Vec<bool> {
     for y in 1..h.saturating_sub(1) {
         for x in 1..w - 1 {
             let i = y * w + x;
-            o[i] = m[i - w - 1] && m[i - w] && m[i - w + 1] && m[i - 1] && m[i] && m[i + 1] && m[i + w - 1] && m[i + w] && m[i + w + 1];
+            o[i] = m[i - w - 1]
+                && m[i - w]
+                && m[i - w + 1]
+                && m[i - 1]
+                && m[i]
+                && m[i + 1]
+                && m[i + w - 1]
+                && m[i + w]
+                && m[i + w + 1];
         }
     }
     o
@@ -113,7 +131,11 @@ fn dilate(m: &[bool], w: usize, h: usize) -> Vec<bool> {
 }
 
 /// Detects markers of the given colours in an RGB image.
-pub fn detect_markers(img: &RgbImage, colors: &[MarkerColor], settings: &DetectionSettings) -> Vec<Blob> {
+pub fn detect_markers(
+    img: &RgbImage,
+    colors: &[MarkerColor],
+    settings: &DetectionSettings,
+) -> Vec<Blob> {
     let (w, h) = (img.width() as usize, img.height() as usize);
     let lut = srgb_to_linear_lut();
     let labs: Vec<[f64; 3]> = img.pixels().map(|p| lab(&lut, p.0)).collect();
@@ -131,7 +153,11 @@ pub fn detect_markers(img: &RgbImage, colors: &[MarkerColor], settings: &Detecti
                     .map(|l| {
                         let c = (l[1] * l[1] + l[2] * l[2]).sqrt();
                         let proj = l[1] * ca + l[2] * cb;
-                        if c > 0.0 && proj >= c * cos_tol { proj } else { 0.0 }
+                        if c > 0.0 && proj >= c * cos_tol {
+                            proj
+                        } else {
+                            0.0
+                        }
                     })
                     .collect()
             }
@@ -151,7 +177,10 @@ pub fn detect_markers(img: &RgbImage, colors: &[MarkerColor], settings: &Detecti
                     .collect()
             }
         };
-        let mut mask: Vec<bool> = strength.iter().map(|&s| s >= settings.chroma_threshold).collect();
+        let mut mask: Vec<bool> = strength
+            .iter()
+            .map(|&s| s >= settings.chroma_threshold)
+            .collect();
         if settings.morphology && w >= 3 && h >= 3 {
             mask = dilate(&erode(&mask, w, h), w, h); // opening: removes specks
             mask = erode(&dilate(&mask, w, h), w, h); // closing: fills pinholes
@@ -203,7 +232,11 @@ pub fn detect_markers(img: &RgbImage, colors: &[MarkerColor], settings: &Detecti
                 }
             }
             if sw > 0.0 {
-                out.push(Blob { uv: Vector2::new(su / sw, sv / sw), color, label: None });
+                out.push(Blob {
+                    uv: Vector2::new(su / sw, sv / sw),
+                    color,
+                    label: None,
+                });
             }
         }
     }
@@ -211,17 +244,35 @@ pub fn detect_markers(img: &RgbImage, colors: &[MarkerColor], settings: &Detecti
 }
 
 /// Loads `path` and detects markers; the image must match the camera's size.
-pub fn detect_markers_in_file(path: &Path, cam: &Camera, colors: &[MarkerColor], settings: &DetectionSettings) -> Result<Vec<Blob>> {
+pub fn detect_markers_in_file(
+    path: &Path,
+    cam: &Camera,
+    colors: &[MarkerColor],
+    settings: &DetectionSettings,
+) -> Result<Vec<Blob>> {
     let img = image::open(path)
         .map_err(|e| match e {
-            image::ImageError::IoError(source) => CaptureError::Io { path: path.to_path_buf(), source },
-            e => CaptureError::Image { path: path.to_path_buf(), message: e.to_string() },
+            image::ImageError::IoError(source) => CaptureError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+            e => CaptureError::Image {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            },
         })?
         .to_rgb8();
     if img.width() != cam.width || img.height() != cam.height {
         return Err(CaptureError::Image {
             path: path.to_path_buf(),
-            message: format!("image is {}×{}, camera `{}` is {}×{}", img.width(), img.height(), cam.id, cam.width, cam.height),
+            message: format!(
+                "image is {}×{}, camera `{}` is {}×{}",
+                img.width(),
+                img.height(),
+                cam.id,
+                cam.width,
+                cam.height
+            ),
         });
     }
     Ok(detect_markers(&img, colors, settings))
@@ -238,13 +289,18 @@ mod tests {
             let mut cover = 0.0;
             for sy in 0..16 {
                 for sx in 0..16 {
-                    let (px, py) = (x as f64 - 0.5 + (sx as f64 + 0.5) / 16.0, y as f64 - 0.5 + (sy as f64 + 0.5) / 16.0);
+                    let (px, py) = (
+                        x as f64 - 0.5 + (sx as f64 + 0.5) / 16.0,
+                        y as f64 - 0.5 + (sy as f64 + 0.5) / 16.0,
+                    );
                     if (px - cx).powi(2) + (py - cy).powi(2) <= r * r {
                         cover += 1.0 / 256.0;
                     }
                 }
             }
-            image::Rgb(std::array::from_fn(|k| (bg[k] * (1.0 - cover) + rgb[k] as f64 * cover).round() as u8))
+            image::Rgb(std::array::from_fn(|k| {
+                (bg[k] * (1.0 - cover) + rgb[k] as f64 * cover).round() as u8
+            }))
         })
     }
 
@@ -252,7 +308,11 @@ mod tests {
     fn subpixel_centroid_of_antialiased_disc() {
         for &(cx, cy) in &[(20.3, 17.8), (31.71, 22.06), (15.5, 25.25)] {
             let img = disc(48, 40, cx, cy, 4.5, [30, 60, 200]);
-            let b = detect_markers(&img, &[MarkerColor::Blue, MarkerColor::Red], &DetectionSettings::default());
+            let b = detect_markers(
+                &img,
+                &[MarkerColor::Blue, MarkerColor::Red],
+                &DetectionSettings::default(),
+            );
             assert_eq!(b.len(), 1, "{b:?}");
             assert_eq!(b[0].color, MarkerColor::Blue);
             let e = (b[0].uv - Vector2::new(cx, cy)).norm();
@@ -269,9 +329,20 @@ mod tests {
                 img.put_pixel(x, yy, *p);
             }
         }
-        let b = detect_markers(&img, &[MarkerColor::Red, MarkerColor::Yellow, MarkerColor::Blue], &DetectionSettings::default());
+        let b = detect_markers(
+            &img,
+            &[MarkerColor::Red, MarkerColor::Yellow, MarkerColor::Blue],
+            &DetectionSettings::default(),
+        );
         assert_eq!(b.len(), 2);
-        assert!(b.iter().any(|b| b.color == MarkerColor::Red && (b.uv - Vector2::new(15.2, 20.1)).norm() < 0.1));
-        assert!(b.iter().any(|b| b.color == MarkerColor::Yellow && (b.uv - Vector2::new(45.7, 19.4)).norm() < 0.1));
+        assert!(
+            b.iter()
+                .any(|b| b.color == MarkerColor::Red
+                    && (b.uv - Vector2::new(15.2, 20.1)).norm() < 0.1)
+        );
+        assert!(
+            b.iter().any(|b| b.color == MarkerColor::Yellow
+                && (b.uv - Vector2::new(45.7, 19.4)).norm() < 0.1)
+        );
     }
 }

@@ -48,7 +48,9 @@ pub enum CaptureError {
         message: String,
     },
     /// A marker could never be reconstructed because it is seen in fewer than two views in every frame.
-    #[error("marker `{marker}`: seen in fewer than two views in every frame ({max_views} at most); cannot triangulate it")]
+    #[error(
+        "marker `{marker}`: seen in fewer than two views in every frame ({max_views} at most); cannot triangulate it"
+    )]
     TooFewViews {
         /// Marker id.
         marker: String,
@@ -87,8 +89,18 @@ impl CaptureError {
         !matches!(self, CaptureError::Output { .. })
     }
 
-    pub(crate) fn field(path: &std::path::Path, line: usize, field: &str, message: impl Into<String>) -> Self {
-        CaptureError::Field { path: path.to_path_buf(), line, field: field.to_string(), message: message.into() }
+    pub(crate) fn field(
+        path: &std::path::Path,
+        line: usize,
+        field: &str,
+        message: impl Into<String>,
+    ) -> Self {
+        CaptureError::Field {
+            path: path.to_path_buf(),
+            line,
+            field: field.to_string(),
+            message: message.into(),
+        }
     }
 }
 

@@ -30,7 +30,11 @@ pub struct FillSettings {
 
 impl Default for FillSettings {
     fn default() -> Self {
-        FillSettings { k_stretch: 0.0, k_bend: 1e-4, snap_fraction: 0.05 }
+        FillSettings {
+            k_stretch: 0.0,
+            k_bend: 1e-4,
+            snap_fraction: 0.05,
+        }
     }
 }
 
@@ -45,7 +49,12 @@ pub struct Embedding {
 
 /// Closest point on triangle `abc` to `p`, as barycentric weights (Ericson, Real-Time Collision
 /// Detection §5.1.5).
-pub fn closest_barycentric(p: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>, c: &Vector3<f64>) -> [f64; 3] {
+pub fn closest_barycentric(
+    p: &Vector3<f64>,
+    a: &Vector3<f64>,
+    b: &Vector3<f64>,
+    c: &Vector3<f64>,
+) -> [f64; 3] {
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
     if d1 <= 0.0 && d2 <= 0.0 {
@@ -82,18 +91,34 @@ pub fn closest_barycentric(p: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>,
 }
 
 /// Embeds points in their closest triangles.
-pub fn embed(vertices: &[Vector3<f64>], triangles: &[[usize; 3]], points: &[Point3<f64>]) -> Vec<Embedding> {
+pub fn embed(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    points: &[Point3<f64>],
+) -> Vec<Embedding> {
     points
         .iter()
         .map(|p| {
-            let mut best = (f64::INFINITY, Embedding { vertices: [0; 3], weights: [1.0, 0.0, 0.0] });
+            let mut best = (
+                f64::INFINITY,
+                Embedding {
+                    vertices: [0; 3],
+                    weights: [1.0, 0.0, 0.0],
+                },
+            );
             for t in triangles {
                 let [a, b, c] = t.map(|i| vertices[i]);
                 let w = closest_barycentric(&p.coords, &a, &b, &c);
                 let q = a * w[0] + b * w[1] + c * w[2];
                 let d = (q - p.coords).norm_squared();
                 if d < best.0 {
-                    best = (d, Embedding { vertices: *t, weights: w });
+                    best = (
+                        d,
+                        Embedding {
+                            vertices: *t,
+                            weights: w,
+                        },
+                    );
                 }
             }
             best.1
@@ -108,7 +133,11 @@ pub fn insert_points(mesh: &mut TriMesh, points: &[Point3<f64>], snap_fraction: 
     let mut out = Vec::with_capacity(points.len());
     for p in points {
         let e = embed(&mesh.vertices, &mesh.triangles, std::slice::from_ref(p))[0];
-        let t = mesh.triangles.iter().position(|t| *t == e.vertices).unwrap_or(0);
+        let t = mesh
+            .triangles
+            .iter()
+            .position(|t| *t == e.vertices)
+            .unwrap_or(0);
         let [a, b, c] = e.vertices.map(|i| mesh.vertices[i]);
         let q = a * e.weights[0] + b * e.weights[1] + c * e.weights[2];
         let mean_edge = ((b - a).norm() + (c - b).norm() + (a - c).norm()) / 3.0;
@@ -145,14 +174,23 @@ pub struct FillShell {
 impl FillShell {
     /// Prepares the shell on `surface_m` (metres) for markers at `markers_rest_m`; `fixed` lists
     /// surface vertices held at zero displacement (attached to the support).
-    pub fn new(surface_m: &TriMesh, markers_rest_m: &[Point3<f64>], fixed: &[usize], settings: &FillSettings) -> Result<Self> {
+    pub fn new(
+        surface_m: &TriMesh,
+        markers_rest_m: &[Point3<f64>],
+        fixed: &[usize],
+        settings: &FillSettings,
+    ) -> Result<Self> {
         let mut mesh = surface_m.clone();
         let marker_vertex = insert_points(&mut mesh, markers_rest_m, settings.snap_fraction);
         let lap = softcap_mesh::CotanLaplacian::new(&mesh).map_err(|e| CaptureError::Format {
             path: "template surface".into(),
             message: format!("cotangent Laplacian: {e}"),
         })?;
-        let mut fixed: Vec<usize> = fixed.iter().copied().filter(|v| !marker_vertex.contains(v)).collect();
+        let mut fixed: Vec<usize> = fixed
+            .iter()
+            .copied()
+            .filter(|v| !marker_vertex.contains(v))
+            .collect();
         fixed.sort_unstable();
         fixed.dedup();
         Ok(FillShell {
@@ -161,22 +199,31 @@ impl FillShell {
             marker_vertex,
             fixed,
             rest_m: markers_rest_m.to_vec(),
-            settings: ShellSettings { k_s: settings.k_stretch, k_b: settings.k_bend },
+            settings: ShellSettings {
+                k_s: settings.k_stretch,
+                k_b: settings.k_bend,
+            },
         })
     }
 
     /// Builds the shell for a session from its template surface (`files.surface`), with the
     /// vertices on the support plane (`[support]`) held fixed. `None` without a surface.
     pub fn for_session(session: &Session, settings: &FillSettings) -> Result<Option<FillShell>> {
-        let Some(path) = &session.surface else { return Ok(None) };
-        let mut mesh = softcap_mesh::read_obj_tri_mesh(path)
-            .map_err(|e| CaptureError::Format { path: path.clone(), message: e.to_string() })?;
+        let Some(path) = &session.surface else {
+            return Ok(None);
+        };
+        let mut mesh = softcap_mesh::read_obj_tri_mesh(path).map_err(|e| CaptureError::Format {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         for v in mesh.vertices.iter_mut() {
             *v *= session.metres_per_unit;
         }
         let fixed: Vec<usize> = match &session.support {
             Some(s) => (0..mesh.vertices.len())
-                .filter(|&i| s.plane_normal.dot(&mesh.vertices[i]) <= s.plane_offset_m + s.tolerance_m)
+                .filter(|&i| {
+                    s.plane_normal.dot(&mesh.vertices[i]) <= s.plane_offset_m + s.tolerance_m
+                })
                 .collect(),
             None => Vec::new(),
         };
@@ -184,7 +231,10 @@ impl FillShell {
         Self::new(&mesh, &rest, &fixed, settings)
             .map(Some)
             .map_err(|e| match e {
-                CaptureError::Format { message, .. } => CaptureError::Format { path: path.clone(), message },
+                CaptureError::Format { message, .. } => CaptureError::Format {
+                    path: path.clone(),
+                    message,
+                },
                 e => e,
             })
     }
@@ -200,11 +250,24 @@ impl FillShell {
                 disp.push(p - self.rest_m[j]);
             }
         }
-        let shell = LinearShell::new(self.laplacian.as_ref(), &self.areas, &handles, &self.settings)
-            .map_err(|e| CaptureError::Format { path: "template surface".into(), message: format!("linear shell: {e}") })?;
-        let u = shell
-            .solve(&disp)
-            .map_err(|e| CaptureError::Format { path: "template surface".into(), message: format!("linear shell: {e}") })?;
-        Ok(known_m.iter().enumerate().map(|(j, k)| k.unwrap_or(self.rest_m[j] + u[self.marker_vertex[j]])).collect())
+        let shell = LinearShell::new(
+            self.laplacian.as_ref(),
+            &self.areas,
+            &handles,
+            &self.settings,
+        )
+        .map_err(|e| CaptureError::Format {
+            path: "template surface".into(),
+            message: format!("linear shell: {e}"),
+        })?;
+        let u = shell.solve(&disp).map_err(|e| CaptureError::Format {
+            path: "template surface".into(),
+            message: format!("linear shell: {e}"),
+        })?;
+        Ok(known_m
+            .iter()
+            .enumerate()
+            .map(|(j, k)| k.unwrap_or(self.rest_m[j] + u[self.marker_vertex[j]]))
+            .collect())
     }
 }

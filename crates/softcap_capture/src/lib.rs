@@ -48,10 +48,13 @@ pub use error::{CaptureError, Result};
 pub use fill::{FillSettings, FillShell};
 pub use nalgebra;
 pub use pipeline::{
-    CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource, MarkerState, ProbeSample, capture,
+    CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource,
+    MarkerState, ProbeSample, capture,
 };
 pub use probe::{FsrConversion, FsrModel, ProbePose, probe_pose};
 pub use register::{horn_weighted, weight_away_from_probe};
 pub use session::{Detection, MarkerColor, Session, SessionKind, TemplateMarker};
 pub use sync::{ClockSync, SyncMethod, sync_from_data, sync_from_trigger, trigger_pulses};
-pub use triangulate::{PixelObservation, Triangulated, TriangulationSettings, triangulate, triangulate_dlt};
+pub use triangulate::{
+    PixelObservation, Triangulated, TriangulationSettings, triangulate, triangulate_dlt,
+};

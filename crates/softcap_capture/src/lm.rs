@@ -21,7 +21,9 @@ impl LeastSquaresProblem for Reprojection<'_> {
         let x = Point3::new(p[0], p[1], p[2]);
         for (i, o) in self.obs.iter().enumerate() {
             // Behind a camera: a large finite residual so LM rejects the step.
-            let uv = self.cameras[o.camera].project(&x).unwrap_or(o.uv.add_scalar(1e6));
+            let uv = self.cameras[o.camera]
+                .project(&x)
+                .unwrap_or(o.uv.add_scalar(1e6));
             r[2 * i] = uv.x - o.uv.x;
             r[2 * i + 1] = uv.y - o.uv.y;
         }
@@ -39,11 +41,21 @@ impl LeastSquaresProblem for Reprojection<'_> {
 }
 
 /// Minimises `Σ_c |π_c(X) − u_c|²` from `x0`; returns `x0` unchanged if the solver fails on input.
-pub(crate) fn refine_point(cameras: &[Camera], obs: &[PixelObservation], x0: Point3<f64>, max_iterations: usize) -> Point3<f64> {
+pub(crate) fn refine_point(
+    cameras: &[Camera],
+    obs: &[PixelObservation],
+    x0: Point3<f64>,
+    max_iterations: usize,
+) -> Point3<f64> {
     let mut problem = Reprojection { cameras, obs };
-    let settings = LevenbergMarquardtSettings { max_iterations, ..Default::default() };
+    let settings = LevenbergMarquardtSettings {
+        max_iterations,
+        ..Default::default()
+    };
     match levenberg_marquardt(&mut problem, x0.coords.as_slice(), None, &settings) {
-        Ok(rep) if rep.params.iter().all(|v| v.is_finite()) => Point3::new(rep.params[0], rep.params[1], rep.params[2]),
+        Ok(rep) if rep.params.iter().all(|v| v.is_finite()) => {
+            Point3::new(rep.params[0], rep.params[1], rep.params[2])
+        }
         _ => x0,
     }
 }

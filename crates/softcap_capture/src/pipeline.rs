@@ -8,7 +8,8 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::correspond::{
-    Blob, Candidate, CorrespondenceSettings, MarkerPrediction, find_candidates, label_candidates, pick_shaft_pair,
+    Blob, Candidate, CorrespondenceSettings, MarkerPrediction, find_candidates, label_candidates,
+    pick_shaft_pair,
 };
 use crate::detect::{DetectionSettings, detect_markers_in_file};
 use crate::error::{CaptureError, Result};
@@ -184,7 +185,11 @@ fn group_detections(per_camera: &[Vec<Detection>], frames: usize) -> Vec<Vec<Vec
     for (c, dets) in per_camera.iter().enumerate() {
         for d in dets {
             if d.frame < frames {
-                out[d.frame][c].push(Blob { uv: nalgebra::Vector2::new(d.u, d.v), color: d.color, label: d.label.clone() });
+                out[d.frame][c].push(Blob {
+                    uv: nalgebra::Vector2::new(d.u, d.v),
+                    color: d.color,
+                    label: d.label.clone(),
+                });
             }
         }
     }
@@ -210,24 +215,47 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         MarkerSource::Auto => MarkerSource::Detections,
         s => s,
     };
-    let detections = if source == MarkerSource::Detections { Some(session.read_detections()?) } else { None };
+    let detections = if source == MarkerSource::Detections {
+        Some(session.read_detections()?)
+    } else {
+        None
+    };
     let grouped = detections.as_ref().map(|d| group_detections(d, n_frames));
 
-    let mut infos: Vec<MarkerInfo> = session.markers.iter().map(|m| MarkerInfo { id: m.id.clone(), color: m.color }).collect();
+    let mut infos: Vec<MarkerInfo> = session
+        .markers
+        .iter()
+        .map(|m| MarkerInfo {
+            id: m.id.clone(),
+            color: m.color,
+        })
+        .collect();
     let n_obj = infos.len();
     if let Some(p) = &session.probe {
         for s in &p.shaft_markers {
-            infos.push(MarkerInfo { id: s.id.clone(), color: s.color });
+            infos.push(MarkerInfo {
+                id: s.id.clone(),
+                color: s.color,
+            });
         }
     }
     let mut colors: Vec<MarkerColor> = infos.iter().map(|m| m.color).collect();
     colors.sort();
     colors.dedup();
-    let index_of: BTreeMap<&str, usize> = infos.iter().enumerate().map(|(i, m)| (m.id.as_str(), i)).collect();
+    let index_of: BTreeMap<&str, usize> = infos
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id.as_str(), i))
+        .collect();
 
-    let shell = if settings.fill_occluded { crate::fill::FillShell::for_session(session, &settings.fill)? } else { None };
+    let shell = if settings.fill_occluded {
+        crate::fill::FillShell::for_session(session, &settings.fill)?
+    } else {
+        None
+    };
 
-    let mut prediction: Vec<Option<Point3<f64>>> = session.markers.iter().map(|m| Some(m.position_m)).collect();
+    let mut prediction: Vec<Option<Point3<f64>>> =
+        session.markers.iter().map(|m| Some(m.position_m)).collect();
     prediction.resize(infos.len(), None);
     let mut max_views = vec![0usize; infos.len()];
     let mut frames = Vec::with_capacity(n_frames);
@@ -241,7 +269,12 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 let mut v = Vec::with_capacity(cams.len());
                 for cam in cams {
                     let path = dir.join(&cam.id).join(format!("{frame:06}.png"));
-                    v.push(detect_markers_in_file(&path, cam, &colors, &settings.detection)?);
+                    v.push(detect_markers_in_file(
+                        &path,
+                        cam,
+                        &colors,
+                        &settings.detection,
+                    )?);
                 }
                 v
             }
@@ -259,7 +292,10 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
             for (c, bs) in blobs.iter().enumerate() {
                 for b in bs {
                     if let Some(&m) = b.label.as_deref().and_then(|l| index_of.get(l)) {
-                        by_label.entry(m).or_default().push(PixelObservation { camera: c, uv: b.uv });
+                        by_label.entry(m).or_default().push(PixelObservation {
+                            camera: c,
+                            uv: b.uv,
+                        });
                     }
                 }
             }
@@ -270,7 +306,12 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 }
             }
         } else {
-            let cands: Vec<Candidate> = find_candidates(cams, &blobs, &settings.correspondence, &settings.triangulation);
+            let cands: Vec<Candidate> = find_candidates(
+                cams,
+                &blobs,
+                &settings.correspondence,
+                &settings.triangulation,
+            );
             let preds: Vec<MarkerPrediction> = (0..n_obj)
                 .map(|m| MarkerPrediction {
                     color: infos[m].color,
@@ -281,7 +322,13 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
             let mut used = BTreeSet::new();
             let labels = label_candidates(&preds, &cands, &mut used);
             let obs_of = |c: &Candidate| -> Vec<PixelObservation> {
-                c.blobs.iter().map(|&(cam, k)| PixelObservation { camera: cam, uv: blobs[cam][k].uv }).collect()
+                c.blobs
+                    .iter()
+                    .map(|&(cam, k)| PixelObservation {
+                        camera: cam,
+                        uv: blobs[cam][k].uv,
+                    })
+                    .collect()
             };
             for (m, l) in labels.iter().enumerate() {
                 if let Some(c) = l {
@@ -295,8 +342,14 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                     _ => None,
                 };
                 let spacing = b.distance_from_tip_m - a.distance_from_tip_m;
-                if let Some((i, j)) = pick_shaft_pair((a.color, b.color), spacing, prev, &cands, &used, &settings.correspondence)
-                {
+                if let Some((i, j)) = pick_shaft_pair(
+                    (a.color, b.color),
+                    spacing,
+                    prev,
+                    &cands,
+                    &used,
+                    &settings.correspondence,
+                ) {
                     chosen[n_obj] = Some(obs_of(&cands[i]));
                     chosen[n_obj + 1] = Some(obs_of(&cands[j]));
                 }
@@ -338,7 +391,13 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         let pose = session.probe.as_ref().and_then(|p| {
             let (a, b) = (&samples[n_obj], &samples[n_obj + 1]);
             (a.state == MarkerState::Visible && b.state == MarkerState::Visible)
-                .then(|| probe_pose(&a.position_m, p.shaft_markers[0].distance_from_tip_m, &b.position_m))
+                .then(|| {
+                    probe_pose(
+                        &a.position_m,
+                        p.shaft_markers[0].distance_from_tip_m,
+                        &b.position_m,
+                    )
+                })
                 .flatten()
         });
 
@@ -351,24 +410,36 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                     src.push(samples[m].position_m);
                     dst.push(session.markers[m].position_m);
                     w.push(match &pose {
-                        Some(p) => weight_away_from_probe((samples[m].position_m - p.tip_m).norm(), settings.registration_sigma_m),
+                        Some(p) => weight_away_from_probe(
+                            (samples[m].position_m - p.tip_m).norm(),
+                            settings.registration_sigma_m,
+                        ),
                         None => 1.0,
                     });
                 }
             }
             if let Some(t) = horn_weighted(&src, &dst, &w) {
                 registration = t;
-                for s in samples.iter_mut().filter(|s| s.state == MarkerState::Visible) {
+                for s in samples
+                    .iter_mut()
+                    .filter(|s| s.state == MarkerState::Visible)
+                {
                     s.position_m = t * s.position_m;
                 }
             }
         }
-        let pose = pose.map(|p| crate::probe::ProbePose { tip_m: registration * p.tip_m, axis: registration * p.axis });
+        let pose = pose.map(|p| crate::probe::ProbePose {
+            tip_m: registration * p.tip_m,
+            axis: registration * p.axis,
+        });
 
         // Fill-in of occluded object markers.
         if let Some(shell) = &shell {
-            let known: Vec<Option<Point3<f64>>> =
-                (0..n_obj).map(|m| (samples[m].state == MarkerState::Visible).then_some(samples[m].position_m)).collect();
+            let known: Vec<Option<Point3<f64>>> = (0..n_obj)
+                .map(|m| {
+                    (samples[m].state == MarkerState::Visible).then_some(samples[m].position_m)
+                })
+                .collect();
             if known.iter().any(|k| k.is_none()) && known.iter().any(|k| k.is_some()) {
                 let filled = shell.fill(&known)?;
                 for m in 0..n_obj {
@@ -404,7 +475,10 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
     // A marker never seen in two views can only come from the fill-in; without it, it is bad input.
     for (m, &v) in max_views.iter().enumerate() {
         if v < 2 && (m >= n_obj || shell.is_none()) && std::env::var("XX").is_err() {
-            return Err(CaptureError::TooFewViews { marker: infos[m].id.clone(), max_views: v });
+            return Err(CaptureError::TooFewViews {
+                marker: infos[m].id.clone(),
+                max_views: v,
+            });
         }
     }
 
@@ -418,7 +492,11 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
             _ => None,
         };
         sync = from_trigger.or_else(|| {
-            let force: Vec<f64> = samples.voltage_v.iter().map(|&v| model.force_n(v)).collect();
+            let force: Vec<f64> = samples
+                .voltage_v
+                .iter()
+                .map(|&v| model.force_n(v))
+                .collect();
             let deformation: Vec<f64> = frames
                 .iter()
                 .map(|f| {
@@ -432,7 +510,13 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                     if n > 0 { s / n as f64 } else { 0.0 }
                 })
                 .collect();
-            sync_from_data(&t_cam, &deformation, &samples.t_daq_s, &force, settings.data_sync_step_s)
+            sync_from_data(
+                &t_cam,
+                &deformation,
+                &samples.t_daq_s,
+                &force,
+                settings.data_sync_step_s,
+            )
         });
         if let Some(s) = &sync {
             for f in frames.iter_mut() {
@@ -468,7 +552,8 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 mean_reprojection_px: r.iter().sum::<f64>() / r.len().max(1) as f64,
                 median_reprojection_px: median_sorted(&r),
                 max_reprojection_px: r.last().copied().unwrap_or(0.0),
-                rms_reprojection_px: (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt(),
+                rms_reprojection_px: (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64)
+                    .sqrt(),
             }
         })
         .collect();

@@ -49,7 +49,11 @@ impl FsrModel {
                 let v: Vec<f64> = cfg.calibration.iter().map(|p| p[1]).collect();
                 let f: Vec<f64> = cfg.calibration.iter().map(|p| p[0]).collect();
                 let slope = pchip_slopes(&v, &f);
-                FsrModel::Interpolated { voltage_v: v, force_n: f, slope }
+                FsrModel::Interpolated {
+                    voltage_v: v,
+                    force_n: f,
+                    slope,
+                }
             }
             FsrConversion::PowerLaw => {
                 // log R = log k − n log F over points with F > 0 and 0 < v < supply, weighted
@@ -61,15 +65,30 @@ impl FsrModel {
                     .filter(|p| p[0] > 0.0 && p[1] > 0.0 && p[1] < cfg.supply_v)
                     .map(|p| {
                         let w = ((cfg.supply_v - p[1]) / cfg.supply_v).powi(2);
-                        (p[0].ln(), (cfg.divider_ohm * (cfg.supply_v - p[1]) / p[1]).ln(), w)
+                        (
+                            p[0].ln(),
+                            (cfg.divider_ohm * (cfg.supply_v - p[1]) / p[1]).ln(),
+                            w,
+                        )
                     })
                     .collect();
                 let sw: f64 = pts.iter().map(|p| p.2).sum();
-                let (mx, my) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.2 * p.0 / sw, a.1 + p.2 * p.1 / sw));
-                let (sxy, sxx) =
-                    pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.2 * (p.0 - mx) * (p.1 - my), a.1 + p.2 * (p.0 - mx).powi(2)));
+                let (mx, my) = pts.iter().fold((0.0, 0.0), |a, p| {
+                    (a.0 + p.2 * p.0 / sw, a.1 + p.2 * p.1 / sw)
+                });
+                let (sxy, sxx) = pts.iter().fold((0.0, 0.0), |a, p| {
+                    (
+                        a.0 + p.2 * (p.0 - mx) * (p.1 - my),
+                        a.1 + p.2 * (p.0 - mx).powi(2),
+                    )
+                });
                 let slope = if sxx > 0.0 { sxy / sxx } else { -1.0 };
-                FsrModel::PowerLaw { supply_v: cfg.supply_v, divider_ohm: cfg.divider_ohm, k: (my - slope * mx).exp(), n: -slope }
+                FsrModel::PowerLaw {
+                    supply_v: cfg.supply_v,
+                    divider_ohm: cfg.divider_ohm,
+                    k: (my - slope * mx).exp(),
+                    n: -slope,
+                }
             }
         }
     }
@@ -77,7 +96,11 @@ impl FsrModel {
     /// Force (N, ≥ 0) for a divider voltage.
     pub fn force_n(&self, v: f64) -> f64 {
         match self {
-            FsrModel::Interpolated { voltage_v, force_n, slope } => {
+            FsrModel::Interpolated {
+                voltage_v,
+                force_n,
+                slope,
+            } => {
                 let n = voltage_v.len();
                 if v <= voltage_v[0] {
                     return force_n[0].max(0.0);
@@ -94,9 +117,18 @@ impl FsrModel {
                     t * t * (3.0 - 2.0 * t),
                     t * t * (t - 1.0),
                 );
-                (h00 * force_n[i] + h10 * h * slope[i] + h01 * force_n[i + 1] + h11 * h * slope[i + 1]).max(0.0)
+                (h00 * force_n[i]
+                    + h10 * h * slope[i]
+                    + h01 * force_n[i + 1]
+                    + h11 * h * slope[i + 1])
+                    .max(0.0)
             }
-            FsrModel::PowerLaw { supply_v, divider_ohm, k, n } => {
+            FsrModel::PowerLaw {
+                supply_v,
+                divider_ohm,
+                k,
+                n,
+            } => {
                 if v <= 0.0 {
                     return 0.0;
                 }
@@ -153,7 +185,10 @@ pub fn probe_pose(p_near: &Point3<f64>, d_near_m: f64, p_far: &Point3<f64>) -> O
     let len = d.norm();
     (len > 1e-9).then(|| {
         let axis = d / len;
-        ProbePose { tip_m: p_near + axis * d_near_m, axis }
+        ProbePose {
+            tip_m: p_near + axis * d_near_m,
+            axis,
+        }
     })
 }
 
@@ -163,11 +198,20 @@ mod tests {
 
     fn cfg() -> FsrConfig {
         // Exact divider + power law R = 9168 F^-0.9.
-        let law = |f: f64| if f <= 0.0 { 0.0 } else { 5.0 * 1e4 / (1e4 + 9168.0 * f.powf(-0.9)) };
+        let law = |f: f64| {
+            if f <= 0.0 {
+                0.0
+            } else {
+                5.0 * 1e4 / (1e4 + 9168.0 * f.powf(-0.9))
+            }
+        };
         FsrConfig {
             supply_v: 5.0,
             divider_ohm: 1e4,
-            calibration: [0.0, 0.05, 0.1, 0.2, 0.4, 0.8, 1.2, 1.6, 2.0].iter().map(|&f| [f, law(f)]).collect(),
+            calibration: [0.0, 0.05, 0.1, 0.2, 0.4, 0.8, 1.2, 1.6, 2.0]
+                .iter()
+                .map(|&f| [f, law(f)])
+                .collect(),
         }
     }
 
@@ -189,15 +233,25 @@ mod tests {
     #[test]
     fn power_law_recovers_the_generating_law() {
         let m = FsrModel::new(&cfg(), FsrConversion::PowerLaw);
-        let FsrModel::PowerLaw { k, n, .. } = m else { panic!() };
-        assert!((k - 9168.0).abs() < 1e-6 * 9168.0 && (n - 0.9).abs() < 1e-9, "{k} {n}");
+        let FsrModel::PowerLaw { k, n, .. } = m else {
+            panic!()
+        };
+        assert!(
+            (k - 9168.0).abs() < 1e-6 * 9168.0 && (n - 0.9).abs() < 1e-9,
+            "{k} {n}"
+        );
         let v = 5.0 * 1e4 / (1e4 + 9168.0 * 1.3f64.powf(-0.9));
         assert!((m.force_n(v) - 1.3).abs() < 1e-9);
     }
 
     #[test]
     fn pose_from_vertical_shaft() {
-        let p = probe_pose(&Point3::new(0.0, 0.0, 0.086), 0.06, &Point3::new(0.0, 0.0, 0.146)).unwrap();
+        let p = probe_pose(
+            &Point3::new(0.0, 0.0, 0.086),
+            0.06,
+            &Point3::new(0.0, 0.0, 0.146),
+        )
+        .unwrap();
         assert!((p.tip_m - Point3::new(0.0, 0.0, 0.026)).norm() < 1e-12);
         assert!((p.axis - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
     }

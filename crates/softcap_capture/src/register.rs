@@ -8,9 +8,17 @@ use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, Quaternion, Translation3, Un
 /// is the unit eigenvector of the largest eigenvalue of the symmetric 4×4 matrix `N` built from the
 /// weighted cross-covariance `S = Σ wᵢ (srcᵢ − s̄)(dstᵢ − d̄)ᵀ`). `None` with fewer than three
 /// points of positive weight or a non-finite input.
-pub fn horn_weighted(src: &[Point3<f64>], dst: &[Point3<f64>], w: &[f64]) -> Option<Isometry3<f64>> {
+pub fn horn_weighted(
+    src: &[Point3<f64>],
+    dst: &[Point3<f64>],
+    w: &[f64],
+) -> Option<Isometry3<f64>> {
     let wsum: f64 = w.iter().filter(|&&x| x > 0.0).sum();
-    if src.len() != dst.len() || src.len() != w.len() || w.iter().filter(|&&x| x > 0.0).count() < 3 || wsum <= 0.0 {
+    if src.len() != dst.len()
+        || src.len() != w.len()
+        || w.iter().filter(|&&x| x > 0.0).count() < 3
+        || wsum <= 0.0
+    {
         return None;
     }
     let mut cs = nalgebra::Vector3::zeros();
@@ -25,8 +33,17 @@ pub fn horn_weighted(src: &[Point3<f64>], dst: &[Point3<f64>], w: &[f64]) -> Opt
     for i in 0..src.len() {
         s += (src[i].coords - cs) * (dst[i].coords - cd).transpose() * w[i];
     }
-    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) =
-        (s[(0, 0)], s[(0, 1)], s[(0, 2)], s[(1, 0)], s[(1, 1)], s[(1, 2)], s[(2, 0)], s[(2, 1)], s[(2, 2)]);
+    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) = (
+        s[(0, 0)],
+        s[(0, 1)],
+        s[(0, 2)],
+        s[(1, 0)],
+        s[(1, 1)],
+        s[(1, 2)],
+        s[(2, 0)],
+        s[(2, 1)],
+        s[(2, 2)],
+    );
     #[rustfmt::skip]
     let n = Matrix4::new(
         sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
@@ -58,8 +75,15 @@ mod tests {
 
     #[test]
     fn recovers_a_known_rigid_motion() {
-        let src: Vec<Point3<f64>> =
-            (0..10).map(|i| Point3::new((i as f64 * 0.7).sin(), (i as f64 * 1.3).cos(), i as f64 * 0.1)).collect();
+        let src: Vec<Point3<f64>> = (0..10)
+            .map(|i| {
+                Point3::new(
+                    (i as f64 * 0.7).sin(),
+                    (i as f64 * 1.3).cos(),
+                    i as f64 * 0.1,
+                )
+            })
+            .collect();
         let t = Isometry3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.2, -0.4, 0.9));
         let dst: Vec<_> = src.iter().map(|p| t * p).collect();
         let w: Vec<f64> = (0..10).map(|i| 0.5 + i as f64).collect();
@@ -71,7 +95,9 @@ mod tests {
 
     #[test]
     fn zero_weights_ignore_outliers() {
-        let src: Vec<Point3<f64>> = (0..6).map(|i| Point3::new(i as f64, (i * i) as f64 * 0.1, (i % 2) as f64)).collect();
+        let src: Vec<Point3<f64>> = (0..6)
+            .map(|i| Point3::new(i as f64, (i * i) as f64 * 0.1, (i % 2) as f64))
+            .collect();
         let mut dst = src.clone();
         dst[5].z += 10.0;
         let mut w = vec![1.0; 6];

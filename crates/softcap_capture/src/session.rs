@@ -11,7 +11,9 @@ use crate::camera::Camera;
 use crate::error::{CaptureError, Result};
 
 /// Marker paint colour (`template/markers.csv`, `detections/*.csv`, `rig/probe.toml`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum MarkerColor {
     /// blue
@@ -334,11 +336,18 @@ struct RawShaftMarker {
 
 /// Reads a file into a string, naming it on failure.
 pub(crate) fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| CaptureError::Io { path: path.to_path_buf(), source })
+    std::fs::read_to_string(path).map_err(|source| CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].bytes().filter(|&b| b == b'\n').count() + 1
+    text[..offset.min(text.len())]
+        .bytes()
+        .filter(|&b| b == b'\n')
+        .count()
+        + 1
 }
 
 /// Parses a TOML file into `T`, mapping errors to file + line.
@@ -366,14 +375,32 @@ impl CsvTable {
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self> {
-        let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
-        let (_, header_line) =
-            lines.next().ok_or_else(|| CaptureError::field(path, 1, "header", "file is empty; expected a header row"))?;
-        let header: Vec<String> = header_line.split(',').map(|s| s.trim().to_string()).collect();
-        let rows = lines
-            .map(|(i, l)| (i + 1, l.split(',').map(|s| s.trim().to_string()).collect::<Vec<_>>()))
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty());
+        let (_, header_line) = lines.next().ok_or_else(|| {
+            CaptureError::field(path, 1, "header", "file is empty; expected a header row")
+        })?;
+        let header: Vec<String> = header_line
+            .split(',')
+            .map(|s| s.trim().to_string())
             .collect();
-        Ok(CsvTable { path: path.to_path_buf(), header, rows })
+        let rows = lines
+            .map(|(i, l)| {
+                (
+                    i + 1,
+                    l.split(',')
+                        .map(|s| s.trim().to_string())
+                        .collect::<Vec<_>>(),
+                )
+            })
+            .collect();
+        Ok(CsvTable {
+            path: path.to_path_buf(),
+            header,
+            rows,
+        })
     }
 
     pub fn column(&self, name: &str) -> Option<usize> {
@@ -382,42 +409,82 @@ impl CsvTable {
 
     pub fn require(&self, name: &str) -> Result<usize> {
         self.column(name).ok_or_else(|| {
-            CaptureError::field(&self.path, 1, name, format!("required column missing (header: {})", self.header.join(",")))
+            CaptureError::field(
+                &self.path,
+                1,
+                name,
+                format!(
+                    "required column missing (header: {})",
+                    self.header.join(",")
+                ),
+            )
         })
     }
 
-    pub fn str_at<'a>(&self, row: &'a (usize, Vec<String>), col: usize, name: &str) -> Result<&'a str> {
-        row.1
-            .get(col)
-            .map(|s| s.as_str())
-            .ok_or_else(|| CaptureError::field(&self.path, row.0, name, format!("row has {} fields", row.1.len())))
+    pub fn str_at<'a>(
+        &self,
+        row: &'a (usize, Vec<String>),
+        col: usize,
+        name: &str,
+    ) -> Result<&'a str> {
+        row.1.get(col).map(|s| s.as_str()).ok_or_else(|| {
+            CaptureError::field(
+                &self.path,
+                row.0,
+                name,
+                format!("row has {} fields", row.1.len()),
+            )
+        })
     }
 
     pub fn f64_at(&self, row: &(usize, Vec<String>), col: usize, name: &str) -> Result<f64> {
         let s = self.str_at(row, col, name)?;
         match s.parse::<f64>() {
             Ok(v) if v.is_finite() => Ok(v),
-            _ => Err(CaptureError::field(&self.path, row.0, name, format!("expected a finite number, got `{s}`"))),
+            _ => Err(CaptureError::field(
+                &self.path,
+                row.0,
+                name,
+                format!("expected a finite number, got `{s}`"),
+            )),
         }
     }
 
     pub fn usize_at(&self, row: &(usize, Vec<String>), col: usize, name: &str) -> Result<usize> {
         let s = self.str_at(row, col, name)?;
-        s.parse::<usize>()
-            .map_err(|_| CaptureError::field(&self.path, row.0, name, format!("expected a non-negative integer, got `{s}`")))
+        s.parse::<usize>().map_err(|_| {
+            CaptureError::field(
+                &self.path,
+                row.0,
+                name,
+                format!("expected a non-negative integer, got `{s}`"),
+            )
+        })
     }
 
-    pub fn color_at(&self, row: &(usize, Vec<String>), col: usize, name: &str) -> Result<MarkerColor> {
+    pub fn color_at(
+        &self,
+        row: &(usize, Vec<String>),
+        col: usize,
+        name: &str,
+    ) -> Result<MarkerColor> {
         let s = self.str_at(row, col, name)?;
-        MarkerColor::parse(s)
-            .ok_or_else(|| CaptureError::field(&self.path, row.0, name, format!("unknown colour `{s}`")))
+        MarkerColor::parse(s).ok_or_else(|| {
+            CaptureError::field(&self.path, row.0, name, format!("unknown colour `{s}`"))
+        })
     }
 }
 
 /// Reads `template/markers.csv`, converting to metres.
 pub fn read_markers_csv(path: &Path, metres_per_unit: f64) -> Result<Vec<TemplateMarker>> {
     let t = CsvTable::read(path)?;
-    let (ci, cx, cy, cz, cc) = (t.require("id")?, t.require("x")?, t.require("y")?, t.require("z")?, t.require("color")?);
+    let (ci, cx, cy, cz, cc) = (
+        t.require("id")?,
+        t.require("x")?,
+        t.require("y")?,
+        t.require("z")?,
+        t.require("color")?,
+    );
     let mut out = Vec::with_capacity(t.rows.len());
     let mut seen = BTreeMap::new();
     for row in &t.rows {
@@ -426,10 +493,23 @@ pub fn read_markers_csv(path: &Path, metres_per_unit: f64) -> Result<Vec<Templat
             return Err(CaptureError::field(path, row.0, "id", "empty marker id"));
         }
         if let Some(first) = seen.insert(id.clone(), row.0) {
-            return Err(CaptureError::field(path, row.0, "id", format!("duplicate marker id `{id}` (first on line {first})")));
+            return Err(CaptureError::field(
+                path,
+                row.0,
+                "id",
+                format!("duplicate marker id `{id}` (first on line {first})"),
+            ));
         }
-        let p = Point3::new(t.f64_at(row, cx, "x")?, t.f64_at(row, cy, "y")?, t.f64_at(row, cz, "z")?) * metres_per_unit;
-        out.push(TemplateMarker { id, position_m: p, color: t.color_at(row, cc, "color")? });
+        let p = Point3::new(
+            t.f64_at(row, cx, "x")?,
+            t.f64_at(row, cy, "y")?,
+            t.f64_at(row, cz, "z")?,
+        ) * metres_per_unit;
+        out.push(TemplateMarker {
+            id,
+            position_m: p,
+            color: t.color_at(row, cc, "color")?,
+        });
     }
     if out.is_empty() {
         return Err(CaptureError::field(path, 2, "id", "no markers"));
@@ -440,7 +520,12 @@ pub fn read_markers_csv(path: &Path, metres_per_unit: f64) -> Result<Vec<Templat
 /// Reads one `detections/<camera>.csv`.
 pub fn read_detections_csv(path: &Path) -> Result<Vec<Detection>> {
     let t = CsvTable::read(path)?;
-    let (cf, cu, cv, cc) = (t.require("frame")?, t.require("u")?, t.require("v")?, t.require("color")?);
+    let (cf, cu, cv, cc) = (
+        t.require("frame")?,
+        t.require("u")?,
+        t.require("v")?,
+        t.require("color")?,
+    );
     let cl = t.column("label");
     let mut out = Vec::with_capacity(t.rows.len());
     for row in &t.rows {
@@ -470,7 +555,12 @@ pub fn read_trigger_csv(path: &Path) -> Result<Vec<(usize, f64)>> {
         if let Some(&(pf, pt)) = out.last()
             && (f <= pf || time <= pt)
         {
-            return Err(CaptureError::field(path, row.0, "t_camera_s", "frames and times must increase"));
+            return Err(CaptureError::field(
+                path,
+                row.0,
+                "t_camera_s",
+                "frames and times must increase",
+            ));
         }
         out.push((f, time));
     }
@@ -485,13 +575,21 @@ pub fn read_fsr_csv(path: &Path) -> Result<FsrSamples> {
     let t = CsvTable::read(path)?;
     let (ct, cv) = (t.require("t_daq_s")?, t.require("voltage_v")?);
     let ctr = t.column("trigger_v");
-    let mut s = FsrSamples { trigger_v: ctr.map(|_| Vec::new()), ..Default::default() };
+    let mut s = FsrSamples {
+        trigger_v: ctr.map(|_| Vec::new()),
+        ..Default::default()
+    };
     for row in &t.rows {
         let time = t.f64_at(row, ct, "t_daq_s")?;
         if let Some(&prev) = s.t_daq_s.last()
             && time <= prev
         {
-            return Err(CaptureError::field(path, row.0, "t_daq_s", "sample times must increase"));
+            return Err(CaptureError::field(
+                path,
+                row.0,
+                "t_daq_s",
+                "sample times must increase",
+            ));
         }
         s.t_daq_s.push(time);
         s.voltage_v.push(t.f64_at(row, cv, "voltage_v")?);
@@ -500,7 +598,12 @@ pub fn read_fsr_csv(path: &Path) -> Result<FsrSamples> {
         }
     }
     if s.t_daq_s.len() < 2 {
-        return Err(CaptureError::field(path, 2, "t_daq_s", "need at least two samples"));
+        return Err(CaptureError::field(
+            path,
+            2,
+            "t_daq_s",
+            "need at least two samples",
+        ));
     }
     Ok(s)
 }
@@ -521,14 +624,27 @@ pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera
             r,
             t,
         )
-        .map_err(|message| CaptureError::Camera { path: path.to_path_buf(), camera: c.id.clone(), message })?;
+        .map_err(|message| CaptureError::Camera {
+            path: path.to_path_buf(),
+            camera: c.id.clone(),
+            message,
+        })?;
         if out.iter().any(|o: &Camera| o.id == c.id) {
-            return Err(CaptureError::Camera { path: path.to_path_buf(), camera: c.id, message: "duplicate id".into() });
+            return Err(CaptureError::Camera {
+                path: path.to_path_buf(),
+                camera: c.id,
+                message: "duplicate id".into(),
+            });
         }
         out.push(cam);
     }
     if out.is_empty() {
-        return Err(CaptureError::field(path, 0, "camera", "no [[camera]] tables"));
+        return Err(CaptureError::field(
+            path,
+            0,
+            "camera",
+            "no [[camera]] tables",
+        ));
     }
     Ok(out)
 }
@@ -537,15 +653,30 @@ pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera
 pub fn read_fsr_toml(path: &Path) -> Result<FsrConfig> {
     let cfg: FsrConfig = parse_toml(path)?;
     if cfg.calibration.len() < 2 {
-        return Err(CaptureError::field(path, 0, "calibration", "need at least two [force_n, voltage_v] points"));
+        return Err(CaptureError::field(
+            path,
+            0,
+            "calibration",
+            "need at least two [force_n, voltage_v] points",
+        ));
     }
     for w in cfg.calibration.windows(2) {
         if w[1][0] <= w[0][0] || w[1][1] <= w[0][1] {
-            return Err(CaptureError::field(path, 0, "calibration", "must increase in both force and voltage"));
+            return Err(CaptureError::field(
+                path,
+                0,
+                "calibration",
+                "must increase in both force and voltage",
+            ));
         }
     }
     if !(cfg.supply_v > 0.0 && cfg.divider_ohm > 0.0) {
-        return Err(CaptureError::field(path, 0, "supply_v", "supply_v and divider_ohm must be positive"));
+        return Err(CaptureError::field(
+            path,
+            0,
+            "supply_v",
+            "supply_v and divider_ohm must be positive",
+        ));
     }
     Ok(cfg)
 }
@@ -553,35 +684,71 @@ pub fn read_fsr_toml(path: &Path) -> Result<FsrConfig> {
 /// Reads `rig/probe.toml`.
 pub fn read_probe_toml(path: &Path, root: &Path, metres_per_unit: f64) -> Result<ProbeConfig> {
     let raw: RawProbe = parse_toml(path)?;
-    let tip = match raw.tip.as_str() {
-        "disk" | "sphere" => {
-            let r = raw.radius.ok_or_else(|| CaptureError::field(path, 0, "radius", "required for disk and sphere tips"))?;
-            if !(r > 0.0) {
-                return Err(CaptureError::field(path, 0, "radius", "must be positive"));
+    let tip =
+        match raw.tip.as_str() {
+            "disk" | "sphere" => {
+                let r = raw.radius.ok_or_else(|| {
+                    CaptureError::field(path, 0, "radius", "required for disk and sphere tips")
+                })?;
+                if r.is_nan() || r <= 0.0 {
+                    return Err(CaptureError::field(path, 0, "radius", "must be positive"));
+                }
+                if raw.tip == "disk" {
+                    TipShape::Disk {
+                        radius_m: r * metres_per_unit,
+                    }
+                } else {
+                    TipShape::Sphere {
+                        radius_m: r * metres_per_unit,
+                    }
+                }
             }
-            if raw.tip == "disk" {
-                TipShape::Disk { radius_m: r * metres_per_unit }
-            } else {
-                TipShape::Sphere { radius_m: r * metres_per_unit }
+            "mesh" => TipShape::Mesh {
+                path: root.join(raw.mesh.ok_or_else(|| {
+                    CaptureError::field(path, 0, "mesh", "required for mesh tips")
+                })?),
+            },
+            other => {
+                return Err(CaptureError::field(
+                    path,
+                    0,
+                    "tip",
+                    format!("unknown tip `{other}`"),
+                ));
             }
-        }
-        "mesh" => TipShape::Mesh {
-            path: root.join(raw.mesh.ok_or_else(|| CaptureError::field(path, 0, "mesh", "required for mesh tips"))?),
-        },
-        other => return Err(CaptureError::field(path, 0, "tip", format!("unknown tip `{other}`"))),
-    };
+        };
     let mut shaft_markers = Vec::new();
     for m in raw.shaft_marker {
-        let color = MarkerColor::parse(&m.color)
-            .ok_or_else(|| CaptureError::field(path, 0, "shaft_marker.color", format!("unknown colour `{}`", m.color)))?;
-        shaft_markers.push(ShaftMarker { id: m.id, distance_from_tip_m: m.distance_from_tip * metres_per_unit, color });
+        let color = MarkerColor::parse(&m.color).ok_or_else(|| {
+            CaptureError::field(
+                path,
+                0,
+                "shaft_marker.color",
+                format!("unknown colour `{}`", m.color),
+            )
+        })?;
+        shaft_markers.push(ShaftMarker {
+            id: m.id,
+            distance_from_tip_m: m.distance_from_tip * metres_per_unit,
+            color,
+        });
     }
     if shaft_markers.len() < 2 {
-        return Err(CaptureError::field(path, 0, "shaft_marker", "need at least two shaft markers"));
+        return Err(CaptureError::field(
+            path,
+            0,
+            "shaft_marker",
+            "need at least two shaft markers",
+        ));
     }
     shaft_markers.sort_by(|a, b| a.distance_from_tip_m.total_cmp(&b.distance_from_tip_m));
     if shaft_markers[1].distance_from_tip_m - shaft_markers[0].distance_from_tip_m <= 0.0 {
-        return Err(CaptureError::field(path, 0, "shaft_marker.distance_from_tip", "shaft markers must be at distinct distances"));
+        return Err(CaptureError::field(
+            path,
+            0,
+            "shaft_marker.distance_from_tip",
+            "shaft markers must be at distinct distances",
+        ));
     }
     Ok(ProbeConfig { tip, shaft_markers })
 }
@@ -592,22 +759,43 @@ impl Session {
     pub fn load(dir: &Path) -> Result<Session> {
         let manifest = dir.join("session.toml");
         let raw: RawSession = parse_toml(&manifest)?;
-        let req = |v: Option<String>, field: &str| v.ok_or_else(|| CaptureError::field(&manifest, 0, field, "required"));
+        let req = |v: Option<String>, field: &str| {
+            v.ok_or_else(|| CaptureError::field(&manifest, 0, field, "required"))
+        };
         let format = req(raw.format, "format")?;
         if format != "softcap-session/1" {
-            return Err(CaptureError::field(&manifest, 0, "format", format!("expected `softcap-session/1`, got `{format}`")));
+            return Err(CaptureError::field(
+                &manifest,
+                0,
+                "format",
+                format!("expected `softcap-session/1`, got `{format}`"),
+            ));
         }
         let name = req(raw.name, "name")?;
         let kind = match req(raw.kind, "kind")?.as_str() {
             "probe" => SessionKind::Probe,
             "probe-robot" => SessionKind::ProbeRobot,
             "mocap" => SessionKind::Mocap,
-            other => return Err(CaptureError::field(&manifest, 0, "kind", format!("unknown kind `{other}`"))),
+            other => {
+                return Err(CaptureError::field(
+                    &manifest,
+                    0,
+                    "kind",
+                    format!("unknown kind `{other}`"),
+                ));
+            }
         };
         let metres_per_unit = match req(raw.length_unit, "length_unit")?.as_str() {
             "mm" => 1e-3,
             "m" => 1.0,
-            other => return Err(CaptureError::field(&manifest, 0, "length_unit", format!("expected mm or m, got `{other}`"))),
+            other => {
+                return Err(CaptureError::field(
+                    &manifest,
+                    0,
+                    "length_unit",
+                    format!("expected mm or m, got `{other}`"),
+                ));
+            }
         };
         let f = raw.files;
         let path = |p: &Option<String>| p.as_ref().map(|p| dir.join(p));
@@ -615,7 +803,10 @@ impl Session {
             match p {
                 Some(p) if !p.exists() => Err(CaptureError::Io {
                     path: p,
-                    source: std::io::Error::new(std::io::ErrorKind::NotFound, format!("named by session.toml files.{field}")),
+                    source: std::io::Error::new(
+                        std::io::ErrorKind::NotFound,
+                        format!("named by session.toml files.{field}"),
+                    ),
                 }),
                 p => Ok(p),
             }
@@ -624,27 +815,48 @@ impl Session {
         let detections = existing(path(&f.detections), "detections")?;
         let c3d = existing(path(&f.c3d), "c3d")?;
         if images.is_none() && detections.is_none() && c3d.is_none() {
-            return Err(CaptureError::field(&manifest, 0, "files.images", "one of images / detections / c3d is required"));
+            return Err(CaptureError::field(
+                &manifest,
+                0,
+                "files.images",
+                "one of images / detections / c3d is required",
+            ));
         }
-        let markers_path = path(&f.markers).ok_or_else(|| CaptureError::field(&manifest, 0, "files.markers", "required"))?;
+        let markers_path = path(&f.markers)
+            .ok_or_else(|| CaptureError::field(&manifest, 0, "files.markers", "required"))?;
         let markers = read_markers_csv(&markers_path, metres_per_unit)?;
         let cameras_path = path(&f.cameras);
         let cameras = match &cameras_path {
             Some(p) => read_cameras_toml(p, metres_per_unit)?,
             None if c3d.is_some() => Vec::new(),
-            None => return Err(CaptureError::field(&manifest, 0, "files.cameras", "required unless c3d is given")),
+            None => {
+                return Err(CaptureError::field(
+                    &manifest,
+                    0,
+                    "files.cameras",
+                    "required unless c3d is given",
+                ));
+            }
         };
         let trigger = match path(&f.trigger) {
             Some(p) => read_trigger_csv(&p)?,
             None if images.is_some() || detections.is_some() => {
-                return Err(CaptureError::field(&manifest, 0, "files.trigger", "required with images or detections"));
+                return Err(CaptureError::field(
+                    &manifest,
+                    0,
+                    "files.trigger",
+                    "required with images or detections",
+                ));
             }
             None => Vec::new(),
         };
         let (fsr, fsr_samples) = if kind == SessionKind::Probe {
-            let p = path(&f.fsr).ok_or_else(|| CaptureError::field(&manifest, 0, "files.fsr", "required for kind probe"))?;
-            let s = path(&f.fsr_samples)
-                .ok_or_else(|| CaptureError::field(&manifest, 0, "files.fsr_samples", "required for kind probe"))?;
+            let p = path(&f.fsr).ok_or_else(|| {
+                CaptureError::field(&manifest, 0, "files.fsr", "required for kind probe")
+            })?;
+            let s = path(&f.fsr_samples).ok_or_else(|| {
+                CaptureError::field(&manifest, 0, "files.fsr_samples", "required for kind probe")
+            })?;
             (Some(read_fsr_toml(&p)?), Some(read_fsr_csv(&s)?))
         } else {
             (None, None)
@@ -652,15 +864,25 @@ impl Session {
         let probe = match (kind, path(&f.probe)) {
             (SessionKind::Mocap, _) => None,
             (_, Some(p)) => Some(read_probe_toml(&p, dir, metres_per_unit)?),
-            (_, None) => return Err(CaptureError::field(&manifest, 0, "files.probe", "required for probe sessions")),
+            (_, None) => {
+                return Err(CaptureError::field(
+                    &manifest,
+                    0,
+                    "files.probe",
+                    "required for probe sessions",
+                ));
+            }
         };
         let robot = if kind == SessionKind::ProbeRobot {
-            let r = raw.robot.ok_or_else(|| CaptureError::field(&manifest, 0, "robot", "[robot] required for probe-robot"))?;
+            let r = raw.robot.ok_or_else(|| {
+                CaptureError::field(&manifest, 0, "robot", "[robot] required for probe-robot")
+            })?;
             Some(RobotConfig {
                 urdf: existing(path(&f.robot), "robot")?
                     .ok_or_else(|| CaptureError::field(&manifest, 0, "files.robot", "required"))?,
-                samples: existing(path(&f.robot_samples), "robot_samples")?
-                    .ok_or_else(|| CaptureError::field(&manifest, 0, "files.robot_samples", "required"))?,
+                samples: existing(path(&f.robot_samples), "robot_samples")?.ok_or_else(|| {
+                    CaptureError::field(&manifest, 0, "files.robot_samples", "required")
+                })?,
                 tool_link: r.tool_link,
                 ft_link: r.ft_link,
             })
@@ -672,7 +894,12 @@ impl Session {
                 let n = Vector3::from(s.plane_normal);
                 let norm = n.norm();
                 if !(norm > 0.0 && norm.is_finite()) {
-                    return Err(CaptureError::field(&manifest, 0, "support.plane_normal", "must be a non-zero vector"));
+                    return Err(CaptureError::field(
+                        &manifest,
+                        0,
+                        "support.plane_normal",
+                        "must be a non-zero vector",
+                    ));
                 }
                 Some(Support {
                     plane_normal: n / norm,
@@ -700,7 +927,11 @@ impl Session {
             robot,
             surface: existing(path(&f.surface), "surface")?,
             volume: existing(path(&f.volume), "volume")?,
-            gravity: raw.world.and_then(|w| w.gravity).map(Vector3::from).unwrap_or(Vector3::new(0.0, 0.0, -9.81)),
+            gravity: raw
+                .world
+                .and_then(|w| w.gravity)
+                .map(Vector3::from)
+                .unwrap_or(Vector3::new(0.0, 0.0, -9.81)),
             support,
         })
     }
@@ -708,9 +939,17 @@ impl Session {
     /// Reads `detections/<camera>.csv` for every camera, in camera order.
     pub fn read_detections(&self) -> Result<Vec<Vec<Detection>>> {
         let dir = self.detections.as_ref().ok_or_else(|| {
-            CaptureError::field(&self.root.join("session.toml"), 0, "files.detections", "session has no detections")
+            CaptureError::field(
+                &self.root.join("session.toml"),
+                0,
+                "files.detections",
+                "session has no detections",
+            )
         })?;
-        self.cameras.iter().map(|c| read_detections_csv(&dir.join(format!("{}.csv", c.id)))).collect()
+        self.cameras
+            .iter()
+            .map(|c| read_detections_csv(&dir.join(format!("{}.csv", c.id))))
+            .collect()
     }
 }
 

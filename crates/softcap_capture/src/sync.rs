@@ -64,7 +64,8 @@ pub fn trigger_pulses(t_daq_s: &[f64], trigger_v: &[f64]) -> Vec<f64> {
         let (was, is) = (trigger_v[i - 1] > thr, trigger_v[i] > thr);
         if !was && is {
             rise = Some(cross(i));
-        } else if was && !is
+        } else if was
+            && !is
             && let Some(r) = rise.take()
         {
             out.push(0.5 * (r + cross(i)));
@@ -86,16 +87,32 @@ pub fn sync_from_trigger(t_camera_s: &[f64], pulses_daq_s: &[f64]) -> Option<Clo
         let y = &pulses_daq_s[start..start + n];
         let mx = t_camera_s.iter().sum::<f64>() / n as f64;
         let my = y.iter().sum::<f64>() / n as f64;
-        let sxy: f64 = t_camera_s.iter().zip(y).map(|(x, y)| (x - mx) * (y - my)).sum();
+        let sxy: f64 = t_camera_s
+            .iter()
+            .zip(y)
+            .map(|(x, y)| (x - mx) * (y - my))
+            .sum();
         let sxx: f64 = t_camera_s.iter().map(|x| (x - mx).powi(2)).sum();
         if sxx <= 0.0 {
             return None;
         }
         let b = sxy / sxx;
         let a = my - b * mx;
-        let rms = (t_camera_s.iter().zip(y).map(|(x, y)| (a + b * x - y).powi(2)).sum::<f64>() / n as f64).sqrt();
+        let rms = (t_camera_s
+            .iter()
+            .zip(y)
+            .map(|(x, y)| (a + b * x - y).powi(2))
+            .sum::<f64>()
+            / n as f64)
+            .sqrt();
         if best.is_none_or(|s| rms < s.residual) {
-            best = Some(ClockSync { method: SyncMethod::Trigger, offset_s: a, drift: b - 1.0, residual: rms, samples: n });
+            best = Some(ClockSync {
+                method: SyncMethod::Trigger,
+                offset_s: a,
+                drift: b - 1.0,
+                residual: rms,
+                samples: n,
+            });
         }
     }
     best
@@ -123,14 +140,24 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
         saa += (x - ma).powi(2);
         sbb += (y - mb).powi(2);
     }
-    if saa <= 0.0 || sbb <= 0.0 { 0.0 } else { sab / (saa * sbb).sqrt() }
+    if saa <= 0.0 || sbb <= 0.0 {
+        0.0
+    } else {
+        sab / (saa * sbb).sqrt()
+    }
 }
 
 /// Clock offset from the data: maximises the normalized correlation between the DAQ signal
 /// `force(offset + t_k)` and the camera-side signal `deformation_k` over offsets covering every
 /// placement of the frames inside the DAQ record (grid at `step_s`, then golden-section refinement).
 /// Drift is not observable this way at these durations and is fixed at 0.
-pub fn sync_from_data(t_camera_s: &[f64], deformation: &[f64], t_daq_s: &[f64], force: &[f64], step_s: f64) -> Option<ClockSync> {
+pub fn sync_from_data(
+    t_camera_s: &[f64],
+    deformation: &[f64],
+    t_daq_s: &[f64],
+    force: &[f64],
+    step_s: f64,
+) -> Option<ClockSync> {
     if t_camera_s.len() < 3 || t_daq_s.len() < 2 {
         return None;
     }
@@ -141,7 +168,10 @@ pub fn sync_from_data(t_camera_s: &[f64], deformation: &[f64], t_daq_s: &[f64], 
         return None;
     }
     let score = |off: f64| {
-        let f: Vec<f64> = t_camera_s.iter().map(|t| interpolate(t_daq_s, force, off + t)).collect();
+        let f: Vec<f64> = t_camera_s
+            .iter()
+            .map(|t| interpolate(t_daq_s, force, off + t))
+            .collect();
         correlation(&f, deformation)
     };
     let steps = ((hi - lo) / step_s).ceil() as usize;
@@ -162,7 +192,13 @@ pub fn sync_from_data(t_camera_s: &[f64], deformation: &[f64], t_daq_s: &[f64], 
     }
     let off = 0.5 * (a + b);
     let s = score(off);
-    Some(ClockSync { method: SyncMethod::Data, offset_s: off, drift: 0.0, residual: 1.0 - s, samples: t_camera_s.len() })
+    Some(ClockSync {
+        method: SyncMethod::Data,
+        offset_s: off,
+        drift: 0.0,
+        residual: 1.0 - s,
+        samples: t_camera_s.len(),
+    })
 }
 
 #[cfg(test)]
@@ -178,20 +214,27 @@ mod tests {
         let v: Vec<f64> = t
             .iter()
             .map(|&td| {
-                let on = cams.iter().any(|&tc| (td - (offset + (1.0 + drift) * tc)).abs() <= 0.005);
+                let on = cams
+                    .iter()
+                    .any(|&tc| (td - (offset + (1.0 + drift) * tc)).abs() <= 0.005);
                 if on { 5.0 } else { 0.0 }
             })
             .collect();
         let pulses = trigger_pulses(&t, &v);
         assert_eq!(pulses.len(), 30);
         let s = sync_from_trigger(&cams, &pulses).unwrap();
-        assert!((s.offset_s - offset).abs() < 1e-3 && (s.drift - drift).abs() < 5e-4, "{s:?}");
+        assert!(
+            (s.offset_s - offset).abs() < 1e-3 && (s.drift - drift).abs() < 5e-4,
+            "{s:?}"
+        );
     }
 
     #[test]
     fn data_sync_finds_a_known_lag() {
         let cams: Vec<f64> = (0..40).map(|k| 0.1 * k as f64).collect();
-        let signal = |t: f64| (-(t - 1.7f64).powi(2) / 0.1).exp() + 0.5 * (-(t - 3.1f64).powi(2) / 0.05).exp();
+        let signal = |t: f64| {
+            (-(t - 1.7f64).powi(2) / 0.1).exp() + 0.5 * (-(t - 3.1f64).powi(2) / 0.05).exp()
+        };
         let t: Vec<f64> = (0..2000).map(|i| 1.0 + i as f64 * 0.005).collect();
         let offset = 2.3456;
         let f: Vec<f64> = t.iter().map(|&td| signal(td - offset)).collect();

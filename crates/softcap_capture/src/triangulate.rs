@@ -28,7 +28,10 @@ pub struct TriangulationSettings {
 
 impl Default for TriangulationSettings {
     fn default() -> Self {
-        TriangulationSettings { refine: true, max_iterations: 20 }
+        TriangulationSettings {
+            refine: true,
+            max_iterations: 20,
+        }
     }
 }
 
@@ -94,7 +97,10 @@ fn error_stats(cameras: &[Camera], obs: &[PixelObservation], x: &Point3<f64>) ->
     let mut sum = 0.0;
     let mut max: f64 = 0.0;
     for o in obs {
-        let e = cameras[o.camera].project(x).map(|uv| (uv - o.uv).norm()).unwrap_or(f64::INFINITY);
+        let e = cameras[o.camera]
+            .project(x)
+            .map(|uv| (uv - o.uv).norm())
+            .unwrap_or(f64::INFINITY);
         sum += e * e;
         max = max.max(e);
     }
@@ -103,16 +109,30 @@ fn error_stats(cameras: &[Camera], obs: &[PixelObservation], x: &Point3<f64>) ->
 
 /// Triangulates one point from two or more views: DLT, then (optionally) Levenberg–Marquardt on the
 /// pixel reprojection error `Σ_c |π_c(X) − u_c|²` with the full distortion model.
-pub fn triangulate(cameras: &[Camera], obs: &[PixelObservation], settings: &TriangulationSettings) -> Option<Triangulated> {
+pub fn triangulate(
+    cameras: &[Camera],
+    obs: &[PixelObservation],
+    settings: &TriangulationSettings,
+) -> Option<Triangulated> {
     let mut x = triangulate_dlt(cameras, obs)?;
     if settings.refine {
         x = refine_lm(cameras, obs, x, settings.max_iterations);
     }
     let (rms, max) = error_stats(cameras, obs, &x);
-    rms.is_finite().then_some(Triangulated { position_m: x, views: obs.len(), reprojection_rms_px: rms, reprojection_max_px: max })
+    rms.is_finite().then_some(Triangulated {
+        position_m: x,
+        views: obs.len(),
+        reprojection_rms_px: rms,
+        reprojection_max_px: max,
+    })
 }
 
-fn refine_lm(cameras: &[Camera], obs: &[PixelObservation], x0: Point3<f64>, max_iterations: usize) -> Point3<f64> {
+fn refine_lm(
+    cameras: &[Camera],
+    obs: &[PixelObservation],
+    x0: Point3<f64>,
+    max_iterations: usize,
+) -> Point3<f64> {
     crate::lm::refine_point(cameras, obs, x0, max_iterations)
 }
 
@@ -135,8 +155,16 @@ mod tests {
                     z.transpose(),
                 ]))
                 .into_inner();
-                Camera::new(format!("c{i}"), 640, 480, [700.0, 701.0, 320.0, 240.0], [-0.05, 0.008, 1e-4, -1e-4, 0.0], r, -(r * centre))
-                    .unwrap()
+                Camera::new(
+                    format!("c{i}"),
+                    640,
+                    480,
+                    [700.0, 701.0, 320.0, 240.0],
+                    [-0.05, 0.008, 1e-4, -1e-4, 0.0],
+                    r,
+                    -(r * centre),
+                )
+                .unwrap()
             })
             .collect()
     }
@@ -145,7 +173,12 @@ mod tests {
     fn noise_free_points_are_recovered_exactly() {
         let cams = ring(3);
         let p = Point3::new(0.01, -0.005, 0.02);
-        let obs: Vec<_> = (0..3).map(|c| PixelObservation { camera: c, uv: cams[c].project(&p).unwrap() }).collect();
+        let obs: Vec<_> = (0..3)
+            .map(|c| PixelObservation {
+                camera: c,
+                uv: cams[c].project(&p).unwrap(),
+            })
+            .collect();
         let dlt = triangulate_dlt(&cams, &obs).unwrap();
         assert!((dlt - p).norm() < 1e-9, "{}", (dlt - p).norm());
         let t = triangulate(&cams, &obs, &TriangulationSettings::default()).unwrap();
@@ -159,12 +192,20 @@ mod tests {
         let p = Point3::new(-0.01, 0.015, 0.005);
         let noise = [0.4, -0.3, 0.2, 0.5, -0.6, 0.1, 0.3, -0.2];
         let obs: Vec<_> = (0..4)
-            .map(|c| PixelObservation { camera: c, uv: cams[c].project(&p).unwrap() + Vector2::new(noise[2 * c], noise[2 * c + 1]) })
+            .map(|c| PixelObservation {
+                camera: c,
+                uv: cams[c].project(&p).unwrap() + Vector2::new(noise[2 * c], noise[2 * c + 1]),
+            })
             .collect();
         let dlt = triangulate_dlt(&cams, &obs).unwrap();
         let (rms_dlt, _) = error_stats(&cams, &obs, &dlt);
         let t = triangulate(&cams, &obs, &TriangulationSettings::default()).unwrap();
-        assert!(t.reprojection_rms_px <= rms_dlt + 1e-12, "{} > {}", t.reprojection_rms_px, rms_dlt);
+        assert!(
+            t.reprojection_rms_px <= rms_dlt + 1e-12,
+            "{} > {}",
+            t.reprojection_rms_px,
+            rms_dlt
+        );
         // First-order optimality: Jᵀr = 0 at the refined point.
         let (r, j) = reprojection_residuals(&cams, &obs, &t.position_m).unwrap();
         let g = j.transpose() * nalgebra::DVector::from_vec(r);

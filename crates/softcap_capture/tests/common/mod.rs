@@ -8,14 +8,27 @@ use softcap_capture::nalgebra::{Point3, Vector3};
 use softcap_capture::{CaptureResult, MarkerState};
 
 pub fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../fixtures")
+        .join(name)
 }
 
 fn rows(path: &PathBuf) -> (Vec<String>, Vec<Vec<String>>) {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines();
-    let header = lines.next().unwrap().split(',').map(str::to_string).collect();
-    (header, lines.filter(|l| !l.is_empty()).map(|l| l.split(',').map(str::to_string).collect()).collect())
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    (
+        header,
+        lines
+            .filter(|l| !l.is_empty())
+            .map(|l| l.split(',').map(str::to_string).collect())
+            .collect(),
+    )
 }
 
 /// Accuracy figures against a session's truth/ (read only by tests).
@@ -41,13 +54,20 @@ pub fn accuracy(session: &str, r: &CaptureResult) -> Accuracy {
     let (_, mrows) = rows(&dir.join("markers.csv"));
     let mut truth: BTreeMap<(usize, String), Point3<f64>> = BTreeMap::new();
     for row in mrows {
-        let p = Point3::new(row[2].parse().unwrap(), row[3].parse().unwrap(), row[4].parse::<f64>().unwrap()) * 1e-3;
+        let p = Point3::new(
+            row[2].parse().unwrap(),
+            row[3].parse().unwrap(),
+            row[4].parse::<f64>().unwrap(),
+        ) * 1e-3;
         truth.insert((row[0].parse().unwrap(), row[1].clone()), p);
     }
-    let (mut s, mut n, mut max, mut sv, mut nv, mut sf, mut nf, mut missing) = (0.0, 0, 0.0f64, 0.0, 0, 0.0, 0, 0);
+    let (mut s, mut n, mut max, mut sv, mut nv, mut sf, mut nf, mut missing) =
+        (0.0, 0, 0.0f64, 0.0, 0, 0.0, 0, 0);
     for f in &r.frames {
         for (i, m) in f.markers.iter().enumerate() {
-            let Some(t) = truth.get(&(f.frame, r.marker_ids[i].clone())) else { continue };
+            let Some(t) = truth.get(&(f.frame, r.marker_ids[i].clone())) else {
+                continue;
+            };
             if m.state == MarkerState::Missing {
                 missing += 1;
                 continue;
@@ -69,8 +89,16 @@ pub fn accuracy(session: &str, r: &CaptureResult) -> Accuracy {
     let (mut fs, mut fmax, mut ts, mut tmax, mut nt) = (0.0, 0.0f64, 0.0, 0.0f64, 0);
     for row in &prows {
         let frame: usize = row[0].parse().unwrap();
-        let ft = Vector3::new(row[2].parse().unwrap(), row[3].parse().unwrap(), row[4].parse::<f64>().unwrap());
-        let tip = Point3::new(row[5].parse().unwrap(), row[6].parse().unwrap(), row[7].parse::<f64>().unwrap()) * 1e-3;
+        let ft = Vector3::new(
+            row[2].parse().unwrap(),
+            row[3].parse().unwrap(),
+            row[4].parse::<f64>().unwrap(),
+        );
+        let tip = Point3::new(
+            row[5].parse().unwrap(),
+            row[6].parse().unwrap(),
+            row[7].parse::<f64>().unwrap(),
+        ) * 1e-3;
         fmax = fmax.max(ft.norm());
         let p = r.frames[frame].probe.as_ref().expect("probe sample");
         let fe = p.force_n.expect("force vector");
@@ -82,7 +110,16 @@ pub fn accuracy(session: &str, r: &CaptureResult) -> Accuracy {
     }
     let clock = std::fs::read_to_string(dir.join("clock.toml")).unwrap();
     let val = |k: &str| -> f64 {
-        clock.lines().find(|l| l.starts_with(k)).unwrap().split('=').nth(1).unwrap().trim().parse().unwrap()
+        clock
+            .lines()
+            .find(|l| l.starts_with(k))
+            .unwrap()
+            .split('=')
+            .nth(1)
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap()
     };
     let sync = r.sync.expect("sync");
     Accuracy {
