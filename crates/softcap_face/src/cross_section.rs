@@ -209,6 +209,8 @@ pub struct Shading {
     pub d_depth: f64,
     /// ∂ratio/∂w.
     pub d_width: f64,
+    /// ∂ratio/∂p.
+    pub d_p: f64,
 }
 
 /// F(a, u) and its partials from cached unit horizons: returns (F, ∂F/∂a, ∂F/∂u) for u ≥ 0.
@@ -252,6 +254,7 @@ pub fn wedge_shading(width: f64, depth: f64, p: f64, horizons: &UnitHorizons) ->
         ratio: f,
         d_depth: f_a / width,
         d_width: -f_a * depth / (width * width) - f_u * p / (width * width),
+        d_p: f_u / width,
     }
 }
 

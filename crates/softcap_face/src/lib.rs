@@ -4,6 +4,12 @@
 //! | module | what | thesis |
 //! |---|---|---|
 //! | [`cross_section`] | wrinkle profile S(w,d,p), visible-wedge ambient integral with exact ∂/∂d, ∂/∂w | §4.3.2 eq. 4.3–4.4 |
+//! | [`track`] | PCA + weighted cubic B-spline valley (eq. 4.2), per-cross-section (d, w) by Gauss–Newton on eq. 4.4 | §4.3.1–4.3.2 |
+//! | [`mocap`] | AnimFace CSV reader | §3.2 m_{i,t} |
+//! | [`landmarks`] | marker → scan-vertex table (ICP registration + closest vertex) | §4.2.1 f_{i,0} |
+//! | [`correspondence`] | space warp c(x) = Σ w_i ‖x − c_i‖³ + q(x), u_{i,t} = c(m_{i,t}) − f_{i,0} | §4.2.1 eq. 4.1 |
+//! | [`animate`] | bi-Laplacian linear shell driven by the marker displacements | §3.2.1 eq. 3.3 |
+//! | [`raster`] | z-buffer software rasterizer for figures | |
 //! | [`render`] | ground-truth wrinkle video: Monte-Carlo ambient occlusion on a 3D height field | test renderer |
 //! | [`classify`] | per-colour RBF-kernel SVM pixel classification (smartcore) | §4.3.1 |
 //! | [`morphology`] | erosion, dilation, opening, closing, connected components | §4.3.1 |
@@ -18,19 +24,33 @@
 //! assert!((crest.ratio - 1.0).abs() < 1e-9);
 //! ```
 
+pub mod animate;
 pub mod classify;
+pub mod correspondence;
 pub mod cross_section;
 pub mod error;
 pub mod image;
+pub mod landmarks;
+pub mod mocap;
 pub mod morphology;
+pub mod raster;
 pub mod render;
+pub mod track;
 
+pub use animate::{FaceAnimator, factor_shell};
 pub use classify::{SvmSettings, classify_frames};
+pub use correspondence::Correspondence;
 pub use cross_section::{
     HorizonSettings, Shading, UnitHorizons, ambient_ratio, wedge_shading, wrinkle_profile,
     wrinkle_profile_slope,
 };
 pub use error::{FaceError, Result};
 pub use image::RgbImage;
+pub use landmarks::{Landmark, derive_landmarks, landmarks_csv, parse_landmarks_csv};
+pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
+pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use render::{AoRenderSettings, RenderedFrame, WrinkleScene, render_ambient_occlusion};
+pub use track::{
+    CrossSection, TrackSettings, TrackedWrinkle, ValleySpline, fit_cross_section, track_wrinkle,
+};

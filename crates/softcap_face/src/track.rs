@@ -1,0 +1,411 @@
+//! Wrinkle tracking (thesis §4.3.1) and per-cross-section shape estimation (§4.3.2).
+//!
+//! patch of wrinkle pixels → PCA (mean p̄, principal axis a, x_i = (p_i − p̄)ᵀa) → uniform cubic
+//! B-spline valley v(x) fitted by weighted least squares (eq. 4.2) with w_i = (g_max − g_min)/(g_i − g_min)
+//! → cross-sections perpendicular to v → (d, w) by Gauss–Newton on eq. 4.4 (softcap_core's
+//! bounded Levenberg–Marquardt, i.e. Gauss–Newton with a trust-region safeguard).
+//!
+//! The weighted cubic B-spline fit is written here because softcap_core's B-spline module had
+//! not landed when this stage was built; it is a plain uniform cubic B-spline with a tiny
+//! second-difference regularizer so spans without pixels stay determined.
+
+use nalgebra::{DMatrix, Vector2};
+use serde::{Deserialize, Serialize};
+use softcap_core::{
+    Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, SolverStatus, levenberg_marquardt,
+};
+
+use crate::cross_section::{HorizonSettings, UnitHorizons, wedge_shading};
+use crate::error::{FaceError, Result};
+use crate::image::RgbImage;
+
+/// A uniform cubic B-spline curve v: [x0, x1] → ℝ².
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ValleySpline {
+    /// Parameter range start (pixels along the PCA axis).
+    pub x0: f64,
+    /// Parameter range end.
+    pub x1: f64,
+    /// Control points (image pixels).
+    pub control: Vec<[f64; 2]>,
+}
+
+fn basis(t: f64) -> [f64; 4] {
+    let s = 1.0 - t;
+    [
+        s * s * s / 6.0,
+        (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
+        (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0,
+        t * t * t / 6.0,
+    ]
+}
+
+fn basis_deriv(t: f64) -> [f64; 4] {
+    [
+        -(1.0 - t) * (1.0 - t) / 2.0,
+        (3.0 * t * t - 4.0 * t) / 2.0,
+        (-3.0 * t * t + 2.0 * t + 1.0) / 2.0,
+        t * t / 2.0,
+    ]
+}
+
+impl ValleySpline {
+    fn segments(&self) -> usize {
+        self.control.len() - 3
+    }
+
+    fn locate(&self, x: f64) -> (usize, f64, f64) {
+        let n = self.segments();
+        let h = (self.x1 - self.x0) / n as f64;
+        let u = ((x - self.x0) / h).clamp(0.0, n as f64);
+        let j = (u.floor() as usize).min(n - 1);
+        (j, u - j as f64, h)
+    }
+
+    /// v(x).
+    pub fn eval(&self, x: f64) -> Vector2<f64> {
+        let (j, t, _) = self.locate(x);
+        let b = basis(t);
+        (0..4).fold(Vector2::zeros(), |acc, k| {
+            acc + b[k] * Vector2::from(self.control[j + k])
+        })
+    }
+
+    /// v'(x).
+    pub fn deriv(&self, x: f64) -> Vector2<f64> {
+        let (j, t, h) = self.locate(x);
+        let b = basis_deriv(t);
+        (0..4).fold(Vector2::zeros(), |acc, k| {
+            acc + b[k] / h * Vector2::from(self.control[j + k])
+        })
+    }
+
+    /// Weighted least-squares fit (thesis eq. 4.2) of `n_control` (≥ 4) control points to
+    /// points `p_i` at parameters `x_i` with weights `w_i`.
+    pub fn fit(
+        xs: &[f64],
+        points: &[Vector2<f64>],
+        weights: &[f64],
+        n_control: usize,
+    ) -> Result<Self> {
+        if n_control < 4 || xs.len() < n_control {
+            return Err(FaceError::InvalidInput {
+                what: "valley spline",
+                reason: format!("{} pixels for {n_control} control points", xs.len()),
+            });
+        }
+        let (x0, x1) = xs
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let mut spline = Self {
+            x0,
+            x1,
+            control: vec![[0.0; 2]; n_control],
+        };
+        let mut ata = DMatrix::<f64>::zeros(n_control, n_control);
+        let mut atb = DMatrix::<f64>::zeros(n_control, 2);
+        let mut wsum = 0.0;
+        for ((&x, p), &w) in xs.iter().zip(points).zip(weights) {
+            let (j, t, _) = spline.locate(x);
+            let b = basis(t);
+            for a in 0..4 {
+                for c in 0..4 {
+                    ata[(j + a, j + c)] += w * b[a] * b[c];
+                }
+                atb[(j + a, 0)] += w * b[a] * p.x;
+                atb[(j + a, 1)] += w * b[a] * p.y;
+            }
+            wsum += w;
+        }
+        // Tiny second-difference regularizer (relative 1e-6 of the data weight).
+        let lam = 1e-6 * wsum / n_control as f64;
+        for k in 1..n_control - 1 {
+            let idx = [k - 1, k, k + 1];
+            let c = [1.0, -2.0, 1.0];
+            for a in 0..3 {
+                for b in 0..3 {
+                    ata[(idx[a], idx[b])] += lam * c[a] * c[b];
+                }
+            }
+        }
+        let chol = ata.cholesky().ok_or_else(|| FaceError::InvalidInput {
+            what: "valley spline",
+            reason: "singular normal equations".into(),
+        })?;
+        let sol = chol.solve(&atb);
+        for k in 0..n_control {
+            spline.control[k] = [sol[(k, 0)], sol[(k, 1)]];
+        }
+        Ok(spline)
+    }
+
+    /// Closest parameter to `q` (Newton on ‖q − v(x)‖² from `x_guess`, clamped to the range).
+    pub fn closest(&self, q: &Vector2<f64>, x_guess: f64) -> f64 {
+        let mut x = x_guess.clamp(self.x0, self.x1);
+        for _ in 0..8 {
+            let r = self.eval(x) - q;
+            let d = self.deriv(x);
+            let step = r.dot(&d) / d.norm_squared().max(1e-12);
+            x = (x - step).clamp(self.x0, self.x1);
+            if step.abs() < 1e-10 {
+                break;
+            }
+        }
+        x
+    }
+}
+
+/// Settings of [`track_wrinkle`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrackSettings {
+    /// Valley-spline control points (thesis: 5–12, by wrinkle length).
+    pub n_control: usize,
+    /// Spacing of cross-sections along the spline (pixels).
+    pub section_spacing_px: f64,
+    /// Half thickness of the slab of pixels pooled into one cross-section (pixels).
+    pub section_half_thickness_px: f64,
+    /// Cross-sections closer than this to either spline end are skipped (pixels).
+    pub end_margin_px: f64,
+    /// I_obs(m): mean gray of the slab's pixels above this quantile (the unshadowed bulge).
+    pub ambient_quantile: f64,
+    /// Horizon search of the 2.5D model.
+    pub horizon: HorizonSettings,
+    /// Gauss–Newton / LM settings.
+    pub solver: LevenbergMarquardtSettings,
+}
+
+impl Default for TrackSettings {
+    fn default() -> Self {
+        Self {
+            n_control: 6,
+            section_spacing_px: 8.0,
+            section_half_thickness_px: 3.0,
+            end_margin_px: 22.0,
+            ambient_quantile: 0.9,
+            horizon: HorizonSettings::default(),
+            solver: LevenbergMarquardtSettings {
+                max_iterations: 50,
+                ..Default::default()
+            },
+        }
+    }
+}
+
+/// One estimated cross-section.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CrossSection {
+    /// Spline parameter x.
+    pub x: f64,
+    /// Image position of the valley: v(x) moved by the fitted offset p₀ along the normal.
+    pub valley_px: [f64; 2],
+    /// Estimated depth d (pixels).
+    pub depth_px: f64,
+    /// Estimated width w (pixels).
+    pub width_px: f64,
+    /// RMS of the intensity-ratio residuals.
+    pub rms: f64,
+    /// Whether the solver reported convergence.
+    pub converged: bool,
+}
+
+/// A tracked wrinkle: valley spline plus cross-sections.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrackedWrinkle {
+    /// PCA mean p̄ (pixels).
+    pub mean_px: [f64; 2],
+    /// PCA principal axis a.
+    pub axis: [f64; 2],
+    /// The valley spline v(x).
+    pub spline: ValleySpline,
+    /// Cross-sections along it.
+    pub sections: Vec<CrossSection>,
+}
+
+/// Samples (p_k, I_obs(p_k)/I_obs(m)) of one cross-section and the eq. 4.4 residuals.
+struct SectionProblem<'a> {
+    p: &'a [f64],
+    ratio: &'a [f64],
+    horizon: HorizonSettings,
+}
+
+impl LeastSquaresProblem for SectionProblem<'_> {
+    fn num_params(&self) -> usize {
+        3
+    }
+    fn num_residuals(&self) -> usize {
+        self.p.len()
+    }
+    fn residuals(&mut self, params: &[f64], r: &mut [f64]) {
+        let (d, w, p0) = (params[0], params[1], params[2]);
+        for k in 0..self.p.len() {
+            let p = self.p[k] - p0;
+            let h = UnitHorizons::new(p / w, &self.horizon);
+            r[k] = self.ratio[k] - wedge_shading(w, d, p, &h).ratio;
+        }
+    }
+    fn jacobian(&mut self, params: &[f64], j: &mut DMatrix<f64>) -> bool {
+        let (d, w, p0) = (params[0], params[1], params[2]);
+        for k in 0..self.p.len() {
+            let p = self.p[k] - p0;
+            let h = UnitHorizons::new(p / w, &self.horizon);
+            let s = wedge_shading(w, d, p, &h);
+            j[(k, 0)] = -s.d_depth;
+            j[(k, 1)] = -s.d_width;
+            j[(k, 2)] = s.d_p;
+        }
+        true
+    }
+}
+
+/// Fit (d, w) of one cross-section to intensity ratios (thesis eq. 4.4), together with a
+/// sub-pixel offset p₀ of the valley from the spline (the model is evaluated at p − p₀; the
+/// thesis fixes p₀ = 0, which biases w whenever the spline is a fraction of a pixel off).
+/// Returns (d, w, p₀, rms, converged).
+pub fn fit_cross_section(
+    p: &[f64],
+    ratio: &[f64],
+    settings: &TrackSettings,
+) -> Result<(f64, f64, f64, f64, bool)> {
+    // Start: w from the half-depth width of the dip, d from the darkest ratio via
+    // F(0⁺) = 1/(1 + 4a²).
+    let fmin = ratio
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .clamp(0.05, 0.99);
+    let half = 0.5 * (1.0 + fmin);
+    let mut wide: f64 = 0.0;
+    for (&pk, &rk) in p.iter().zip(ratio) {
+        if rk < half {
+            wide = wide.max(pk.abs());
+        }
+    }
+    let w0 = (wide / 0.7).max(1.0);
+    let a0 = ((1.0 / fmin - 1.0) / 4.0).sqrt();
+    let mut problem = SectionProblem {
+        p,
+        ratio,
+        horizon: settings.horizon,
+    };
+    let bounds = Bounds::new(
+        vec![0.0, 0.3, -2.0],
+        vec![f64::INFINITY, f64::INFINITY, 2.0],
+    )
+    .map_err(|e| FaceError::Core(e.to_string()))?;
+    let rep = levenberg_marquardt(
+        &mut problem,
+        &[a0 * w0, w0, 0.0],
+        Some(&bounds),
+        &settings.solver,
+    )
+    .map_err(|e| FaceError::Core(e.to_string()))?;
+    let rms = (2.0 * rep.cost / p.len() as f64).sqrt();
+    Ok((
+        rep.params[0],
+        rep.params[1],
+        rep.params[2],
+        rms,
+        matches!(rep.status, SolverStatus::Converged { .. }),
+    ))
+}
+
+/// Track one wrinkle patch (pixel indices into `image`): PCA, weighted valley spline,
+/// cross-section fits.
+pub fn track_wrinkle(
+    image: &RgbImage,
+    patch: &[usize],
+    settings: &TrackSettings,
+) -> Result<TrackedWrinkle> {
+    if patch.len() < 3 * settings.n_control {
+        return Err(FaceError::InvalidInput {
+            what: "wrinkle patch",
+            reason: format!("{} pixels", patch.len()),
+        });
+    }
+    let pts: Vec<Vector2<f64>> = patch
+        .iter()
+        .map(|&i| Vector2::new((i % image.width) as f64, (i / image.width) as f64))
+        .collect();
+    let gray: Vec<f64> = patch.iter().map(|&i| image.gray(i)).collect();
+    // PCA of the patch.
+    let mean = pts.iter().sum::<Vector2<f64>>() / pts.len() as f64;
+    let mut cov = nalgebra::Matrix2::<f64>::zeros();
+    for q in &pts {
+        cov += (q - mean) * (q - mean).transpose();
+    }
+    let eig = cov.symmetric_eigen();
+    let k = if eig.eigenvalues[0] >= eig.eigenvalues[1] {
+        0
+    } else {
+        1
+    };
+    let mut axis: Vector2<f64> = eig.eigenvectors.column(k).into_owned();
+    if axis.x < 0.0 || (axis.x == 0.0 && axis.y < 0.0) {
+        axis = -axis;
+    }
+    let xs: Vec<f64> = pts.iter().map(|q| (q - mean).dot(&axis)).collect();
+    // Valley weights w_i = (g_max − g_min)/(g_i − g_min) (eq. 4.2), floored to stay finite.
+    let (gmin, gmax) = gray
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &g| {
+            (a.min(g), b.max(g))
+        });
+    let span = (gmax - gmin).max(1e-12);
+    let weights: Vec<f64> = gray
+        .iter()
+        .map(|&g| span / (g - gmin).max(0.02 * span))
+        .collect();
+    let spline = ValleySpline::fit(&xs, &pts, &weights, settings.n_control)?;
+    // Signed distance p and spline parameter of every patch pixel.
+    let mut coords = Vec::with_capacity(pts.len());
+    for (q, &x) in pts.iter().zip(&xs) {
+        let xc = spline.closest(q, x);
+        let t = spline.deriv(xc).normalize();
+        let n = Vector2::new(-t.y, t.x);
+        coords.push((xc, (q - spline.eval(xc)).dot(&n)));
+    }
+    let mut sections = Vec::new();
+    let mut x = spline.x0 + settings.end_margin_px;
+    while x <= spline.x1 - settings.end_margin_px {
+        let mut ps = Vec::new();
+        let mut gs = Vec::new();
+        for (k, &(xc, p)) in coords.iter().enumerate() {
+            if (xc - x).abs() <= settings.section_half_thickness_px
+                && xc > spline.x0
+                && xc < spline.x1
+            {
+                ps.push(p);
+                gs.push(gray[k]);
+            }
+        }
+        if ps.len() >= 8 {
+            let mut sorted = gs.clone();
+            sorted.sort_by(f64::total_cmp);
+            let from = ((sorted.len() as f64 - 1.0) * settings.ambient_quantile) as usize;
+            let top = &sorted[from..];
+            let i_m = top.iter().sum::<f64>() / top.len() as f64;
+            let ratio: Vec<f64> = gs.iter().map(|g| g / i_m).collect();
+            let (d, w, p0, rms, converged) = fit_cross_section(&ps, &ratio, settings)?;
+            let t = spline.deriv(x).normalize();
+            let v = spline.eval(x) + p0 * Vector2::new(-t.y, t.x);
+            sections.push(CrossSection {
+                x,
+                valley_px: [v.x, v.y],
+                depth_px: d,
+                width_px: w,
+                rms,
+                converged,
+            });
+        }
+        x += settings.section_spacing_px;
+    }
+    Ok(TrackedWrinkle {
+        mean_px: [mean.x, mean.y],
+        axis: [axis.x, axis.y],
+        spline,
+        sections,
+    })
+}
