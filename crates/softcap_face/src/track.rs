@@ -4,84 +4,47 @@
 //! B-spline valley v(x) fitted by weighted least squares (eq. 4.2) with w_i = (g_max − g_min)/(g_i − g_min)
 //! → cross-sections perpendicular to v → (d, w) by Gauss–Newton on eq. 4.4 (softcap_core's
 //! bounded Levenberg–Marquardt, i.e. Gauss–Newton with a trust-region safeguard).
-//!
-//! The weighted cubic B-spline fit is written here because softcap_core's B-spline module had
-//! not landed when this stage was built; it is a plain uniform cubic B-spline with a tiny
-//! second-difference regularizer so spans without pixels stay determined.
 
 use nalgebra::{DMatrix, Vector2};
 use serde::{Deserialize, Serialize};
 use softcap_core::{
-    Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, SolverStatus, levenberg_marquardt,
+    BSplineFitSettings, Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, SolverStatus,
+    UniformCubicBSpline, fit_uniform_cubic_bspline, levenberg_marquardt,
 };
 
 use crate::cross_section::{HorizonSettings, UnitHorizons, wedge_shading};
 use crate::error::{FaceError, Result};
 use crate::image::RgbImage;
 
-/// A uniform cubic B-spline curve v: [x0, x1] → ℝ².
+/// The valley spline v: [x0, x1] → ℝ², a uniform cubic B-spline (softcap_core
+/// [`UniformCubicBSpline`]) over the PCA parameter x.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ValleySpline {
     /// Parameter range start (pixels along the PCA axis).
     pub x0: f64,
     /// Parameter range end.
     pub x1: f64,
-    /// Control points (image pixels).
-    pub control: Vec<[f64; 2]>,
-}
-
-fn basis(t: f64) -> [f64; 4] {
-    let s = 1.0 - t;
-    [
-        s * s * s / 6.0,
-        (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
-        (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0,
-        t * t * t / 6.0,
-    ]
-}
-
-fn basis_deriv(t: f64) -> [f64; 4] {
-    [
-        -(1.0 - t) * (1.0 - t) / 2.0,
-        (3.0 * t * t - 4.0 * t) / 2.0,
-        (-3.0 * t * t + 2.0 * t + 1.0) / 2.0,
-        t * t / 2.0,
-    ]
+    /// The curve.
+    pub curve: UniformCubicBSpline,
 }
 
 impl ValleySpline {
-    fn segments(&self) -> usize {
-        self.control.len() - 3
-    }
-
-    fn locate(&self, x: f64) -> (usize, f64, f64) {
-        let n = self.segments();
-        let h = (self.x1 - self.x0) / n as f64;
-        let u = ((x - self.x0) / h).clamp(0.0, n as f64);
-        let j = (u.floor() as usize).min(n - 1);
-        (j, u - j as f64, h)
-    }
-
     /// v(x).
     pub fn eval(&self, x: f64) -> Vector2<f64> {
-        let (j, t, _) = self.locate(x);
-        let b = basis(t);
-        (0..4).fold(Vector2::zeros(), |acc, k| {
-            acc + b[k] * Vector2::from(self.control[j + k])
-        })
+        let v = self.curve.evaluate(x.clamp(self.x0, self.x1));
+        Vector2::new(v[0], v[1])
     }
 
     /// v'(x).
     pub fn deriv(&self, x: f64) -> Vector2<f64> {
-        let (j, t, h) = self.locate(x);
-        let b = basis_deriv(t);
-        (0..4).fold(Vector2::zeros(), |acc, k| {
-            acc + b[k] / h * Vector2::from(self.control[j + k])
-        })
+        let v = self.curve.derivative(x.clamp(self.x0, self.x1));
+        Vector2::new(v[0], v[1])
     }
 
     /// Weighted least-squares fit (thesis eq. 4.2) of `n_control` (≥ 4) control points to
-    /// points `p_i` at parameters `x_i` with weights `w_i`.
+    /// points `p_i` at parameters `x_i` with weights `w_i` (softcap_core
+    /// [`fit_uniform_cubic_bspline`], with a tiny second-difference term so spans without
+    /// pixels stay determined).
     pub fn fit(
         xs: &[f64],
         points: &[Vector2<f64>],
@@ -99,46 +62,16 @@ impl ValleySpline {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
                 (a.min(x), b.max(x))
             });
-        let mut spline = Self {
-            x0,
-            x1,
-            control: vec![[0.0; 2]; n_control],
+        let values: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y]).collect();
+        let wsum: f64 = weights.iter().sum();
+        let settings = BSplineFitSettings {
+            num_control_points: n_control,
+            smoothing: 1e-6 * wsum / n_control as f64,
+            domain: Some((x0, x1)),
         };
-        let mut ata = DMatrix::<f64>::zeros(n_control, n_control);
-        let mut atb = DMatrix::<f64>::zeros(n_control, 2);
-        let mut wsum = 0.0;
-        for ((&x, p), &w) in xs.iter().zip(points).zip(weights) {
-            let (j, t, _) = spline.locate(x);
-            let b = basis(t);
-            for a in 0..4 {
-                for c in 0..4 {
-                    ata[(j + a, j + c)] += w * b[a] * b[c];
-                }
-                atb[(j + a, 0)] += w * b[a] * p.x;
-                atb[(j + a, 1)] += w * b[a] * p.y;
-            }
-            wsum += w;
-        }
-        // Tiny second-difference regularizer (relative 1e-6 of the data weight).
-        let lam = 1e-6 * wsum / n_control as f64;
-        for k in 1..n_control - 1 {
-            let idx = [k - 1, k, k + 1];
-            let c = [1.0, -2.0, 1.0];
-            for a in 0..3 {
-                for b in 0..3 {
-                    ata[(idx[a], idx[b])] += lam * c[a] * c[b];
-                }
-            }
-        }
-        let chol = ata.cholesky().ok_or_else(|| FaceError::InvalidInput {
-            what: "valley spline",
-            reason: "singular normal equations".into(),
-        })?;
-        let sol = chol.solve(&atb);
-        for k in 0..n_control {
-            spline.control[k] = [sol[(k, 0)], sol[(k, 1)]];
-        }
-        Ok(spline)
+        let curve = fit_uniform_cubic_bspline(xs, &values, 2, Some(weights), &settings)
+            .map_err(|e| FaceError::Core(e.to_string()))?;
+        Ok(Self { x0, x1, curve })
     }
 
     /// Closest parameter to `q` (Newton on ‖q − v(x)‖² from `x_guess`, clamped to the range).
