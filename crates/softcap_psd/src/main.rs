@@ -221,7 +221,7 @@ fn renders(
         .map(|x| x.0)
         .unwrap_or(0);
     let recipe = &heldout[pick];
-    let tile = 300;
+    let tile = 200;
     let mut rows = Vec::new();
     let mut grid: Vec<image::RgbImage> = Vec::new();
     let mut targets = vec![("generic".to_string(), data.mesh.vertices.clone())];
