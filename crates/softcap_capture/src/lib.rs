@@ -13,6 +13,7 @@
 //! | [`probe`] | shaft markers → probe pose; FSR voltage → force |
 //! | [`sync`] | clock offset and drift from trigger edges or from the data |
 //! | [`pipeline`] | [`capture`]: the whole stage |
+//! | [`output`] | `capture.mcap` via `softcap_mcap` |
 //!
 //! ```
 //! use softcap_capture::{Camera, PixelObservation, TriangulationSettings, triangulate};
@@ -34,6 +35,7 @@ pub mod detect;
 pub mod error;
 pub mod fill;
 mod lm;
+pub mod output;
 pub mod pipeline;
 pub mod probe;
 pub mod register;
@@ -47,6 +49,7 @@ pub use detect::{DetectionSettings, detect_markers, detect_markers_in_file};
 pub use error::{CaptureError, Result};
 pub use fill::{FillSettings, FillShell};
 pub use nalgebra;
+pub use output::{report, write_capture_mcap};
 pub use pipeline::{
     CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource,
     MarkerState, ProbeSample, capture,

@@ -1,0 +1,133 @@
+//! The `softcap-capture` binary: exit codes and messages on bad input, and a full run writing
+//! capture.mcap that reads back.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn copy_dir(src: &Path, dst: &Path) {
+    std::fs::create_dir_all(dst).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let e = e.unwrap();
+        let to = dst.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            if e.file_name() != "truth" {
+                copy_dir(&e.path(), &to);
+            }
+        } else {
+            std::fs::copy(e.path(), &to).unwrap();
+        }
+    }
+}
+
+/// A writable copy of session-min (without truth/).
+fn session_copy() -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("session");
+    copy_dir(&common::fixture("session-min"), &dir);
+    (tmp, dir)
+}
+
+fn edit(path: &Path, f: impl FnOnce(String) -> String) {
+    let text = std::fs::read_to_string(path).unwrap();
+    std::fs::write(path, f(text)).unwrap();
+}
+
+/// Runs the binary on `dir` with detections; returns (exit code, stderr, output path).
+fn run(dir: &Path) -> (i32, String, PathBuf) {
+    let out = dir.parent().unwrap().join("capture.mcap");
+    let o = Command::new(env!("CARGO_BIN_EXE_softcap-capture"))
+        .arg(dir)
+        .arg("-o")
+        .arg(&out)
+        .args(["--source", "detections"])
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+        out,
+    )
+}
+
+fn assert_bad_input(dir: &Path, needles: &[&str]) {
+    let (code, err, out) = run(dir);
+    println!("{err}");
+    assert_eq!(code, 2, "exit code; stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks `{n}`: {err}");
+    }
+    assert!(!out.exists(), "no output on bad input");
+    assert!(
+        !out.with_extension("mcap.tmp").exists(),
+        "no temporary left behind"
+    );
+}
+
+#[test]
+fn missing_file_names_the_file() {
+    let (_t, dir) = session_copy();
+    std::fs::remove_file(dir.join("trigger.csv")).unwrap();
+    assert_bad_input(&dir, &["trigger.csv", "cannot read"]);
+}
+
+#[test]
+fn malformed_toml_names_file_and_line() {
+    let (_t, dir) = session_copy();
+    edit(&dir.join("rig/cameras.toml"), |s| {
+        s.replacen("fx = 711.936538", "fx = = 711.9", 1)
+    });
+    assert_bad_input(&dir, &["rig/cameras.toml:5"]);
+}
+
+#[test]
+fn malformed_csv_line_names_file_line_and_field() {
+    let (_t, dir) = session_copy();
+    edit(&dir.join("detections/cam1.csv"), |s| {
+        let mut lines: Vec<String> = s.lines().map(str::to_string).collect();
+        lines[6] = "0,abc,12.0,blue".into();
+        lines.join("\n") + "\n"
+    });
+    assert_bad_input(&dir, &["detections/cam1.csv:7", "field `u`", "abc"]);
+}
+
+#[test]
+fn singular_camera_names_the_camera() {
+    let (_t, dir) = session_copy();
+    edit(&dir.join("rig/cameras.toml"), |s| {
+        s.replacen("fy = 710.775901", "fy = 0.0", 1)
+    });
+    assert_bad_input(&dir, &["rig/cameras.toml", "camera `cam1`", "singular"]);
+}
+
+#[test]
+fn marker_in_fewer_than_two_views_names_the_marker() {
+    // Without a template surface nothing can fill m25, which only camera 1 sees.
+    let (_t, dir) = session_copy();
+    edit(&dir.join("session.toml"), |s| {
+        s.replace("surface = \"template/surface.obj\"\n", "")
+    });
+    assert_bad_input(&dir, &["marker `m25`", "fewer than two views"]);
+}
+
+#[test]
+fn full_run_writes_a_readable_capture_mcap() {
+    let (_t, dir) = session_copy();
+    let (code, err, out) = run(&dir);
+    assert_eq!(code, 0, "{err}");
+    let rec = softcap_mcap::Recording::open(&out).unwrap();
+    let frames = rec.read(&softcap_mcap::topics::MARKERS).unwrap();
+    assert_eq!(frames.len(), 33);
+    let probe = rec.read(&softcap_mcap::topics::PROBE).unwrap();
+    assert_eq!(probe.len(), 33);
+    let f24 = &probe[24].1;
+    let force = f24.force_n.as_ref().unwrap();
+    assert!((force.z - -1.816).abs() < 0.06, "frame 24 force {force:?}");
+    let sync = rec.read_static(&softcap_mcap::topics::CLOCK_SYNC).unwrap();
+    // Message convention t_camera = (1 + drift)·t_daq + offset: offset ≈ −2.898 s.
+    assert!((sync.offset_s + 2.898387).abs() < 2e-3, "{sync:?}");
+    assert!(rec.channel("/viz/capture/markers").is_some());
+    assert!(rec.provenance().unwrap().is_some());
+    assert!(err.contains("wrote"));
+}
