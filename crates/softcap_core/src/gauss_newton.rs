@@ -5,7 +5,7 @@
 //! faer's Cholesky (a tiny ridge 10⁻¹² · max diag(JᵀJ) is added only if JᵀJ is singular) and
 //! takes p ← P(p + α h), where P projects onto the bounds and α = 1, ½, ¼, … is the first
 //! step length satisfying the Armijo condition F(p_new) ≤ F(p) + c · gᵀ(p_new − p),
-//! c = `armijo`. Bounds are handled like [`crate::levenberg_marquardt`]: parameters on a bound
+//! c = `armijo`. Bounds are handled like [`crate::levenberg_marquardt`](mod@crate::levenberg_marquardt): parameters on a bound
 //! whose descent direction points outward are held fixed, the trial point is clamped.
 
 use faer::Mat;

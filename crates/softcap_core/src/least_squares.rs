@@ -1,5 +1,5 @@
-//! Shared pieces of the nonlinear least-squares solvers ([`crate::levenberg_marquardt`],
-//! [`crate::gauss_newton`]): the problem trait, box bounds, finite-difference Jacobians, the
+//! Shared pieces of the nonlinear least-squares solvers ([`crate::levenberg_marquardt`](mod@crate::levenberg_marquardt),
+//! [`crate::gauss_newton`](mod@crate::gauss_newton)): the problem trait, box bounds, finite-difference Jacobians, the
 //! reported status and the report.
 //!
 //! All solvers minimize the cost F(p) = ½ ‖r(p)‖² over p ∈ ℝⁿ (optionally within a box

@@ -4,10 +4,10 @@
 //! |---|---|---|
 //! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
 //! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
-//! | [`levenberg_marquardt`] | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
-//! | [`gauss_newton`] | Gauss–Newton with step-halving (Armijo) line search | Saito & Barbič |
-//! | [`nelder_mead`] | adaptive Nelder–Mead simplex, bounds by clamping | wang2015 |
-//! | [`kmeans`] | seeded k-means++ / Lloyd; k-medoids for custom dissimilarities | thesis §8.3 eq. 8.4 |
+//! | [`levenberg_marquardt`](mod@levenberg_marquardt) | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
+//! | [`gauss_newton`](mod@gauss_newton) | Gauss–Newton with step-halving (Armijo) line search | Saito & Barbič |
+//! | [`nelder_mead`](mod@nelder_mead) | adaptive Nelder–Mead simplex, bounds by clamping | wang2015 |
+//! | [`kmeans`](mod@kmeans) | seeded k-means++ / Lloyd; k-medoids for custom dissimilarities | thesis §8.3 eq. 8.4 |
 //! | [`bspline`] | uniform cubic B-spline curves, weighted least-squares fit | thesis §4.3.1 eq. 4.2 |
 //! | [`polar`] | robust 3×3 polar decomposition F = R S (near-inverted elements included) | Irving et al. 2004 |
 //! | [`error`] | [`CoreError`], the crate's one error type | |
