@@ -37,6 +37,10 @@ pub struct EquilibriumSettings {
     pub line_search: bool,
     /// Maximum number of step halvings.
     pub max_halvings: usize,
+    /// Contact active set (and each spring's closest point / normal) is re-queried at every
+    /// iteration up to this many, then frozen, so that nodes at the rim of the contact patch cannot
+    /// chatter in and out forever; the remaining iterations converge the frozen linear force field.
+    pub contact_freeze_after: usize,
 }
 
 impl Default for EquilibriumSettings {
@@ -48,6 +52,7 @@ impl Default for EquilibriumSettings {
             stiffness: StiffnessKind::Warped,
             line_search: true,
             max_halvings: 12,
+            contact_freeze_after: 12,
         }
     }
 }
@@ -175,9 +180,29 @@ impl StaticSolver {
         kind: StiffnessKind,
         contact: Option<&ContactProblem>,
     ) -> Result<Vec<ContactSpring>, FemError> {
+        self.assemble_and_factor_with(model, x, kind, contact, None)
+    }
+
+    /// As [`Self::assemble_and_factor`], but with a given (frozen) set of contact springs instead of
+    /// querying the probe when `frozen` is `Some`.
+    pub fn assemble_and_factor_with<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        contact: Option<&ContactProblem>,
+        frozen: Option<&[ContactSpring]>,
+    ) -> Result<Vec<ContactSpring>, FemError> {
         let mut values = self.pattern.assemble(model, x, kind);
-        let springs = match contact {
-            Some(c) => {
+        let springs = match (contact, frozen) {
+            (Some(_), Some(f)) => {
+                for s in f {
+                    self.pattern
+                        .add_node_block(s.node, &s.matrix(), &mut values);
+                }
+                f.to_vec()
+            }
+            (Some(c), None) => {
                 let pat = &self.pattern;
                 let vals = &values;
                 let springs = c.springs(x, |n| {
@@ -194,7 +219,7 @@ impl StaticSolver {
                 }
                 springs
             }
-            None => Vec::new(),
+            (None, _) => Vec::new(),
         };
         self.cholesky.factor(&self.pattern, &values)?;
         self.values = values;
@@ -250,9 +275,22 @@ impl StaticSolver {
             return report;
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
+        let mut last_springs: Option<Vec<ContactSpring>> = None;
         for it in 0..settings.max_iterations {
             model.update_state(x);
-            let springs = match self.assemble_and_factor(&*model, x, settings.stiffness, contact) {
+            let freeze = it >= settings.contact_freeze_after && it > 0;
+            let frozen_ref = if freeze {
+                last_springs.as_deref()
+            } else {
+                None
+            };
+            let springs = match self.assemble_and_factor_with(
+                &*model,
+                x,
+                settings.stiffness,
+                contact,
+                frozen_ref,
+            ) {
                 Ok(s) => s,
                 Err(FemError::NonFinite { .. }) => {
                     report.status = SolveStatus::NonFinite;
@@ -266,6 +304,7 @@ impl StaticSolver {
                 }
             };
             let (r, scale) = self.residual(&*model, x, f_ext, &springs);
+            last_springs = Some(springs.clone());
             let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.residual_norm_n = rnorm;
             if let Some(c) = contact {
