@@ -238,7 +238,7 @@ pub fn fit_uniform_cubic_bspline(
             params.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         ),
     };
-    // Geometry only matters through `locate`; build a placeholder curve to reuse it.
+    // Knot geometry only matters through `locate`: a zero-coefficient curve on the same domain gives it.
     let mut curve = UniformCubicBSpline::new(vec![0.0; n * dim], dim, t_min, t_max)?;
     let n_smooth = if settings.smoothing > 0.0 { n - 2 } else { 0 };
     let rows = ns + n_smooth;

@@ -71,18 +71,8 @@ pub fn gauss_newton<P: LeastSquaresProblem + ?Sized>(
     let finite = lin.residuals(problem, &p, &mut r);
     let mut cost = half_squared_norm(&r);
     let mut history = vec![cost];
-    let report = |p: Vec<f64>, r: Vec<f64>, cost, gnorm, it, lin: &Linearizer, history, status| {
-        LeastSquaresReport {
-            params: p,
-            residuals: r,
-            cost,
-            gradient_norm: gnorm,
-            iterations: it,
-            residual_evaluations: lin.residual_evaluations,
-            jacobian_evaluations: lin.jacobian_evaluations,
-            cost_history: history,
-            status,
-        }
+    let report = |p, r, cost, gnorm, it, lin: &Linearizer, history, status| {
+        lin.report(p, r, cost, gnorm, it, history, status)
     };
     if !finite {
         return Ok(report(

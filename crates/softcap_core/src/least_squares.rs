@@ -245,6 +245,30 @@ pub(crate) struct Linearizer {
 }
 
 impl Linearizer {
+    /// The report both least-squares solvers return, with this linearizer's evaluation counts.
+    pub(crate) fn report(
+        &self,
+        params: Vec<f64>,
+        residuals: Vec<f64>,
+        cost: f64,
+        gradient_norm: f64,
+        iterations: usize,
+        cost_history: Vec<f64>,
+        status: SolverStatus,
+    ) -> LeastSquaresReport {
+        LeastSquaresReport {
+            params,
+            residuals,
+            cost,
+            gradient_norm,
+            iterations,
+            residual_evaluations: self.residual_evaluations,
+            jacobian_evaluations: self.jacobian_evaluations,
+            cost_history,
+            status,
+        }
+    }
+
     pub fn new() -> Self {
         Self {
             jacobian: None,
