@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use prost_reflect::{DescriptorPool, DynamicMessage};
+use prost_reflect::{DescriptorPool, DynamicMessage, SerializeOptions};
 use softcap_mcap::Recording;
 
 use crate::BadInput;
@@ -39,6 +39,24 @@ pub enum Verb {
         #[arg(long)]
         what: String,
         /// Output file (`.csv`; `.obj` or `.ply` for meshes).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// PNG time series of numeric fields of one channel, e.g.
+    /// `softcap inspect plot capture.mcap --topic /capture/probe --field force_n.z -o f.png`.
+    Plot {
+        file: PathBuf,
+        /// Channel to plot.
+        #[arg(long)]
+        topic: String,
+        /// Field path (proto names): `force_n.z`, `markers[id=7].position_m.z`,
+        /// `markers[0].reprojection_error_px`. Repeat for several series.
+        #[arg(long = "field", required = true)]
+        fields: Vec<String>,
+        /// Field for the x axis instead of the log time in seconds.
+        #[arg(long)]
+        x: Option<String>,
+        /// Output PNG.
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -118,20 +136,64 @@ impl Inspect {
                 let r = open(file)?;
                 crate::export::export(&r, what, output)?;
             }
+            Verb::Plot {
+                file,
+                topic,
+                fields,
+                x,
+                output,
+            } => {
+                let r = open(file)?;
+                let series = crate::plot::extract(&r, topic, fields, x.as_deref())?;
+                let x_label = x.clone().unwrap_or_else(|| "log time [s]".into());
+                crate::plot::draw(
+                    &series,
+                    &format!("{} — {topic}", file.display()),
+                    &x_label,
+                    output,
+                )?;
+                let n: usize = series.iter().map(|s| s.points.len()).sum();
+                writeln!(
+                    out,
+                    "wrote {} ({} series, {n} points)",
+                    output.display(),
+                    series.len()
+                )?;
+            }
         }
         out.flush()?;
         Ok(())
     }
 }
 
-/// Writes every message as `{"topic", "log_time_ns", "schema", "message"}` JSON lines.
-fn dump(r: &Recording, topic: Option<&str>, out: &mut impl Write) -> anyhow::Result<()> {
+/// One decoded message.
+pub(crate) struct Decoded {
+    pub topic: String,
+    pub log_time_ns: u64,
+    pub schema: String,
+    pub message: serde_json::Value,
+}
+
+/// Decodes the messages of `topic` (all topics when `None`) to JSON with the file's embedded
+/// schemas. With `plain_fields`, proto field names are kept, default-valued fields are written
+/// and 64-bit integers are numbers (what `plot` needs); otherwise the canonical proto3 JSON
+/// mapping is used (what `dump` prints).
+pub(crate) fn decode_messages(
+    r: &Recording,
+    topic: Option<&str>,
+    plain_fields: bool,
+) -> anyhow::Result<Vec<Decoded>> {
     if let Some(t) = topic
         && r.channel(t).is_none()
     {
         return Err(BadInput(format!("{}: no channel `{t}`", r.path().display())).into());
     }
+    let options = SerializeOptions::new()
+        .use_proto_field_name(plain_fields)
+        .skip_default_fields(!plain_fields)
+        .stringify_64_bit_integers(!plain_fields);
     let mut pools: std::collections::BTreeMap<String, Option<DescriptorPool>> = Default::default();
+    let mut decoded = Vec::new();
     for m in r.messages()? {
         if topic.is_some_and(|t| t != m.topic) {
             continue;
@@ -160,18 +222,31 @@ fn dump(r: &Recording, topic: Option<&str>, out: &mut impl Write) -> anyhow::Res
                         )
                     })
                     .map_err(|e| BadInput(format!("{e:#}")))?;
-                serde_json::to_value(&dynamic)?
+                dynamic.serialize_with_options(serde_json::value::Serializer, &options)?
             }
             ("json", _) => serde_json::from_slice(&m.data).unwrap_or_else(|_| {
                 serde_json::Value::String(String::from_utf8_lossy(&m.data).into())
             }),
             _ => serde_json::json!({ "bytes": m.data.len() }),
         };
+        decoded.push(Decoded {
+            topic: m.topic.clone(),
+            log_time_ns: m.log_time_ns,
+            schema: m.schema_name.clone(),
+            message,
+        });
+    }
+    Ok(decoded)
+}
+
+/// Writes every message as `{"topic", "log_time_ns", "schema", "message"}` JSON lines.
+fn dump(r: &Recording, topic: Option<&str>, out: &mut impl Write) -> anyhow::Result<()> {
+    for m in decode_messages(r, topic, false)? {
         let line = serde_json::json!({
             "topic": m.topic,
             "log_time_ns": m.log_time_ns,
-            "schema": m.schema_name,
-            "message": message,
+            "schema": m.schema,
+            "message": m.message,
         });
         writeln!(out, "{line}")?;
     }

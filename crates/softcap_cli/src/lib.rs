@@ -7,6 +7,7 @@
 //! | `softcap inspect dump FILE [--topic T]` | JSON lines, protobuf decoded with the embedded schema |
 //! | `softcap inspect digest FILE` | content digest (ignores the provenance timestamp) |
 //! | `softcap inspect export FILE --what markers\|probe\|surface\|volume\|TOPIC -o OUT` | CSV / OBJ / PLY |
+//! | `softcap inspect plot FILE --topic T --field PATH… -o OUT.png` | PNG time series of numeric fields |
 //! | `softcap <stage> ARGS…` | runs `softcap-<stage>` found next to `softcap` or on `PATH` |
 //!
 //! Exit codes: 0 success, 1 failure while running, 2 bad usage or bad input (a corrupt or
@@ -14,6 +15,7 @@
 
 mod export;
 mod inspect;
+pub mod plot;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -248,3 +248,63 @@ fn corrupt_and_truncated_files_exit_2_naming_file_and_problem() {
     assert_eq!(code, 2);
     assert!(err.contains("softcap-no-such-stage-xyz"), "{err}");
 }
+
+#[test]
+fn plot_extracts_fields_and_writes_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("capture.mcap");
+    write_capture(&f);
+    // The extracted series are exactly the written values (frame 0 has force z = 0, a proto3
+    // default that the JSON mapping would omit; it must still be read as 0).
+    let r = softcap_mcap::Recording::open(&f).unwrap();
+    let s = softcap_cli::plot::extract(
+        &r,
+        "/capture/probe",
+        &["force_n.z".into(), "voltage_v".into()],
+        None,
+    )
+    .unwrap();
+    assert_eq!(s[0].points, vec![(0.0, 0.0), (0.033, -2.0)]);
+    assert_eq!(s[1].points, vec![(0.0, 1.5), (0.033, 1.5)]);
+    let m = softcap_cli::plot::extract(
+        &r,
+        "/capture/markers",
+        &["markers[id=3].position_m.z".into()],
+        Some("frame"),
+    )
+    .unwrap();
+    assert_eq!(m[0].points, vec![(0.0, -0.125), (1.0, -0.125)]);
+
+    let png = dir.path().join("force.png");
+    let (code, out, err) = softcap(&[
+        "inspect",
+        "plot",
+        f.to_str().unwrap(),
+        "--topic",
+        "/capture/probe",
+        "--field",
+        "force_n.z",
+        "--field",
+        "tip_m.x",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("2 series, 4 points"), "{out}");
+    let img = std::fs::read(&png).unwrap();
+    assert_eq!(&img[1..4], b"PNG");
+
+    let (code, _, err) = softcap(&[
+        "inspect",
+        "plot",
+        f.to_str().unwrap(),
+        "--topic",
+        "/capture/probe",
+        "--field",
+        "force_n.w",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("force_n.w"), "{err}");
+}
