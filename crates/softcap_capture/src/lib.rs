@@ -4,7 +4,7 @@
 //! | module | what |
 //! |---|---|
 //! | [`session`] | reading `session.toml`, `rig/*.toml`, CSV files (errors name file, line, field) |
-//! | [`camera`] | pinhole + Brown–Conrady (OpenCV) camera, projection, iterative undistortion |
+//! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
 //! | [`correspond`] | epipolar multi-view matching, labeling to marker ids, tracking |
 //! | [`triangulate`] | DLT + Levenberg–Marquardt on reprojection error |

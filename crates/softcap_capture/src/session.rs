@@ -624,10 +624,10 @@ pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera
             r,
             t,
         )
-        .map_err(|message| CaptureError::Camera {
+        .map_err(|e| CaptureError::Camera {
             path: path.to_path_buf(),
             camera: c.id.clone(),
-            message,
+            message: e.to_string(),
         })?;
         if out.iter().any(|o: &Camera| o.id == c.id) {
             return Err(CaptureError::Camera {

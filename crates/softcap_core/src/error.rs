@@ -67,6 +67,12 @@ pub enum CoreError {
         /// Extra information (residual, pivot).
         detail: String,
     },
+    /// A camera that cannot project: singular intrinsics, non-finite values, improper rotation.
+    #[error("{reason}")]
+    InvalidCamera {
+        /// What is wrong with it.
+        reason: String,
+    },
     /// An index out of range (e.g. an RBF centre index ≥ number of samples).
     #[error("{what}: index {index} out of range 0..{len}")]
     IndexOutOfRange {

@@ -2,6 +2,7 @@
 //!
 //! | module | what | paper |
 //! |---|---|---|
+//! | [`camera`] | pinhole camera with OpenCV Brown–Conrady distortion: project, Jacobian, undistort, rays | SESSION_FORMAT.md |
 //! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
 //! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
 //! | [`levenberg_marquardt`](mod@levenberg_marquardt) | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
@@ -25,6 +26,7 @@
 //! ```
 
 pub mod bspline;
+pub mod camera;
 mod dense;
 pub mod error;
 pub mod gauss_newton;
@@ -36,6 +38,7 @@ pub mod polar;
 pub mod rbf;
 
 pub use bspline::{BSplineFitSettings, UniformCubicBSpline, fit_uniform_cubic_bspline};
+pub use camera::Camera;
 pub use error::{CoreError, Result};
 pub use gauss_newton::{GaussNewtonSettings, gauss_newton};
 pub use kmeans::{KMeansResult, KMeansSettings, KMedoidsResult, kmeans, kmedoids};
