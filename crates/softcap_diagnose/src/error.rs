@@ -1,0 +1,60 @@
+//! The error type of `softcap_diagnose`.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while diagnosing a recording.
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    /// The recording is unusable (empty, inconsistent marker counts, non-finite values …).
+    #[error("bad recording: {what}")]
+    BadRecording {
+        /// what is wrong
+        what: String,
+    },
+    /// A frame carries a non-finite value.
+    #[error("frame {frame}: non-finite {field}")]
+    NonFinite {
+        /// frame index
+        frame: u64,
+        /// which field
+        field: &'static str,
+    },
+    /// The model simulation failed (reported, never a panic).
+    #[error("simulation failed at frame {frame}: {reason}")]
+    Simulation {
+        /// frame index (or `u64::MAX` for the unloaded state)
+        frame: u64,
+        /// solver status / reason
+        reason: String,
+    },
+    /// The FEM layer reported an error.
+    #[error(transparent)]
+    Fem(#[from] Box<softcap_fem::FemError>),
+    /// Reading or writing an MCAP file failed.
+    #[error("{path}: {source}")]
+    Mcap {
+        /// file
+        path: PathBuf,
+        /// cause
+        source: Box<softcap_mcap::Error>,
+    },
+    /// A required channel or field is missing in an input file.
+    #[error("{path}: {what}")]
+    BadInput {
+        /// file
+        path: PathBuf,
+        /// what is missing or wrong
+        what: String,
+    },
+    /// Writing the JSON or the report failed.
+    #[error("{path}: {reason}")]
+    Output {
+        /// file
+        path: PathBuf,
+        /// cause
+        reason: String,
+    },
+}
+
+/// Result alias.
+pub type Result<T, E = DiagnoseError> = std::result::Result<T, E>;

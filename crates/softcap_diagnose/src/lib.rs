@@ -1,0 +1,54 @@
+//! # softcap_diagnose — locate a model/recording mismatch, name the physics left out, model it
+//!
+//! The diagnosis stage of DESIGN.md ("Missing-physics diagnosis"), issue 8.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`recording`] | the in-memory recording: frames (time, probe pose, force, markers), normals, support |
+//! | [`segment`] | phases (rest, loading, hold, unloading, released), probe locations, marker regions |
+//! | [`residual`] | residual components (normal, tangential, gravity, probe axis), the located table, noise σ |
+//!
+//! ```
+//! use softcap_diagnose::{Phase, Recording, Frame, SegmentSettings, Segmentation};
+//! use softcap_diagnose::nalgebra::Vector3;
+//! let frames = (0..6u64)
+//!     .map(|k| {
+//!         let p = [0.0, 0.5, 1.0, 1.0, 0.0, 0.0][k as usize];
+//!         Frame {
+//!             frame: k,
+//!             time_s: 0.1 * k as f64,
+//!             tip_m: Vector3::new(0.0, 0.0, 0.01 - 0.002 * p),
+//!             axis: -Vector3::z(),
+//!             force_n: -Vector3::z() * p,
+//!             markers_m: vec![None],
+//!         }
+//!     })
+//!     .collect();
+//! let rec = Recording {
+//!     marker_ids: vec!["m0".into()],
+//!     rest_markers_m: vec![Vector3::new(0.0, 0.0, 0.01)],
+//!     normals: vec![Vector3::z()],
+//!     gravity_m_s2: Vector3::new(0.0, 0.0, -9.81),
+//!     support: None,
+//!     tip_radius_m: 0.002,
+//!     frames,
+//! };
+//! let seg = Segmentation::new(&rec, &SegmentSettings::default());
+//! assert_eq!(seg.phases[0], Phase::Rest);
+//! assert_eq!(seg.phases[2], Phase::Hold);
+//! assert_eq!(seg.phases[5], Phase::Released);
+//! ```
+
+mod error;
+pub mod recording;
+pub mod residual;
+pub mod segment;
+
+pub use error::{DiagnoseError, Result};
+pub use recording::{Frame, Recording, SupportPlane, surface_normals};
+pub use residual::{
+    Component, Located, Residuals, component, frame_axes, locate, noise_sigma_m, residuals, rmse_m,
+};
+pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
+
+pub use nalgebra;
