@@ -93,4 +93,24 @@ pub enum FemError {
         /// explanation
         reason: String,
     },
+    /// J2 plasticity parameters out of range (σ_y > 0, H ≥ 0).
+    #[error(
+        "element {element}: plasticity (yield {yield_stress_pa} Pa, hardening {hardening_modulus_pa} Pa) needs yield > 0 and hardening >= 0"
+    )]
+    InvalidPlasticity {
+        /// element index
+        element: usize,
+        /// σ_y
+        yield_stress_pa: f64,
+        /// H
+        hardening_modulus_pa: f64,
+    },
+    /// A plastic deformation gradient with det F_p ≤ 0 or not invertible.
+    #[error("tet {tet}: plastic deformation gradient has det {det} (must be > 0)")]
+    InvalidPlasticGradient {
+        /// tet index
+        tet: usize,
+        /// det F_p
+        det: f64,
+    },
 }

@@ -12,6 +12,7 @@
 //! | [`statics`] | equilibrium iterations, incremental loading, Newton with line search, eq. 10 with frozen rotations | bickel2009 §3.4, eq. 10 |
 //! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
+//! | [`plasticity`] | (a) additive J2 plastic strain on the corotational element, f = ‖dev σ‖ − √(2/3)(σ_y + Hᾱ), radial return + algorithmic tangent, permanent set ε_p = (Eε_max − σ_y)/(E + H) in 1D; (b) multiplicative F_e = F F_p⁻¹ on stable neo-Hookean, E_e = V det F_p Ψ(F_e) | Simo & Hughes 1998 Box 3.1–3.2; saito-barbic §3.2 eq. 1–2 |
 //!
 //! ```
 //! use softcap_fem::{CorotationalModel, DirichletBc, EquilibriumSettings, LinearParams, StaticSolver};
@@ -35,12 +36,14 @@
 
 pub mod assembly;
 pub mod contact;
+mod corotated;
 pub mod derivatives;
 pub mod element;
 mod error;
 pub mod material;
 pub mod model;
 pub mod neohookean;
+pub mod plasticity;
 pub mod statics;
 
 pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPattern};
@@ -56,6 +59,10 @@ pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
 pub use model::{CorotationalModel, ElasticModel, NeoHookeanModel, StrainDependentParams};
 pub use neohookean::{
     energy_density, neohookean_energy, neohookean_forces, neohookean_tangent, pk1, pk1_derivative,
+};
+pub use plasticity::{
+    ElastoplasticModel, J2PlasticityParams, PlasticNeoHookeanModel, PlasticState, ReturnMapping,
+    plastic_from_vector, plastic_to_vector, radial_return,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,
