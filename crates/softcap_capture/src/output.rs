@@ -76,6 +76,8 @@ pub fn write_capture_mcap(
         prov.add_input(&input).map_err(out)?;
     }
     let mut w = Writer::create(path, &prov).map_err(out)?;
+    w.write_static(&topics::SESSION, &session_info(session, result))
+        .map_err(out)?;
     let viz_settings = VizSettings::default();
     let markers_viz = viz_topic(topics::MARKERS.name());
     let probe_viz = viz_topic(topics::PROBE.name());
@@ -163,6 +165,57 @@ pub fn write_capture_mcap(
     w.write_static(&topics::CAPTURE_REPORT, &report(result))
         .map_err(out)?;
     w.finish().map_err(out)
+}
+
+/// The `/capture/session` message: what a later stage needs to interpret the capture without the
+/// session folder (marker ids and rest positions, gravity, support, density, probe tip).
+pub fn session_info(session: &Session, result: &CaptureResult) -> proto::SessionInfo {
+    use crate::session::{SessionKind, TipShape};
+    let (tip_shape, tip_radius_m, tip_mesh_path) = match session.probe.as_ref().map(|p| &p.tip) {
+        Some(TipShape::Disk { radius_m }) => ("disk", *radius_m, String::new()),
+        Some(TipShape::Sphere { radius_m }) => ("sphere", *radius_m, String::new()),
+        Some(TipShape::Mesh { path }) => (
+            "mesh",
+            0.0,
+            path.strip_prefix(&session.root)
+                .unwrap_or(path)
+                .display()
+                .to_string(),
+        ),
+        None => ("", 0.0, String::new()),
+    };
+    let object_markers = result.object_markers.min(session.markers.len());
+    proto::SessionInfo {
+        name: session.name.clone(),
+        kind: match session.kind {
+            SessionKind::Probe => "probe",
+            SessionKind::ProbeRobot => "probe-robot",
+            SessionKind::Mocap => "mocap",
+        }
+        .into(),
+        marker_ids: result.marker_ids.clone(),
+        object_markers: object_markers as u32,
+        rest_positions_m: session.markers[..object_markers]
+            .iter()
+            .map(|m| vec3(&m.position_m.coords))
+            .collect(),
+        gravity_m_s2: Some(vec3(&session.gravity)),
+        support: session.support.map(|s| proto::SupportPlane {
+            normal: Some(vec3(&s.plane_normal)),
+            offset_m: s.plane_offset_m,
+            tolerance_m: s.tolerance_m,
+        }),
+        density_kg_m3: session.density_kg_m3,
+        tip_shape: tip_shape.into(),
+        tip_radius_m,
+        shaft_direction: "handle-to-tip".into(),
+        trigger_present: session
+            .fsr_samples
+            .as_ref()
+            .is_some_and(|f| f.trigger_v.is_some()),
+        tip_mesh_path,
+        metres_per_unit: session.metres_per_unit,
+    }
 }
 
 fn entry(key: &str, value: proto::key_value::Value, unit: &str) -> proto::KeyValue {

@@ -241,6 +241,8 @@ pub struct Session {
     pub gravity: Vector3<f64>,
     /// Support plane.
     pub support: Option<Support>,
+    /// `[object] density_kg_m3`, if given.
+    pub density_kg_m3: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -254,6 +256,12 @@ struct RawSession {
     world: Option<RawWorld>,
     support: Option<RawSupport>,
     robot: Option<RawRobot>,
+    object: Option<RawObject>,
+}
+
+#[derive(Deserialize)]
+struct RawObject {
+    density_kg_m3: Option<f64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -909,6 +917,17 @@ impl Session {
             }
             None => None,
         };
+        let density_kg_m3 = raw.object.and_then(|o| o.density_kg_m3);
+        if let Some(d) = density_kg_m3
+            && !(d > 0.0 && d.is_finite())
+        {
+            return Err(CaptureError::field(
+                &manifest,
+                0,
+                "object.density_kg_m3",
+                "must be a positive number",
+            ));
+        }
         Ok(Session {
             root: dir.to_path_buf(),
             name,
@@ -933,6 +952,7 @@ impl Session {
                 .map(Vector3::from)
                 .unwrap_or(Vector3::new(0.0, 0.0, -9.81)),
             support,
+            density_kg_m3,
         })
     }
 

@@ -130,4 +130,37 @@ fn full_run_writes_a_readable_capture_mcap() {
     assert!(rec.channel("/viz/capture/markers").is_some());
     assert!(rec.provenance().unwrap().is_some());
     assert!(err.contains("wrote"));
+
+    // /capture/session through the typed reader shared by tissue and diagnose.
+    let data = softcap_mcap::CaptureData::read(&out).unwrap();
+    let info = &data.session;
+    assert_eq!(info.name, "session-min");
+    assert_eq!(info.kind, "probe");
+    assert_eq!(info.object_markers, 37);
+    assert_eq!(info.marker_ids.len(), 39); // 37 object + 2 shaft markers
+    assert_eq!(info.marker_ids[0], "m00");
+    // template/markers.csv m00 = (3.06336, 4.05583, 20) mm.
+    let m00 = info.rest_positions_m[0];
+    assert!((m00[0] - 3.06336e-3).abs() < 1e-12 && (m00[2] - 0.02).abs() < 1e-12);
+    assert_eq!(info.gravity_m_s2, [0.0, 0.0, -9.81]);
+    let support = info.support.unwrap();
+    assert_eq!(support.normal, [0.0, 0.0, 1.0]);
+    assert!((support.tolerance_m - 0.5e-3).abs() < 1e-15);
+    assert_eq!(info.density_kg_m3, Some(1050.0));
+    assert_eq!(info.tip_shape, "disk");
+    assert!((info.tip_radius_m - 5e-3).abs() < 1e-15);
+    assert_eq!(info.shaft_direction, "handle-to-tip");
+    assert!(info.trigger_present);
+    assert_eq!(data.frames.len(), 33);
+    assert!(data.frames.iter().all(|f| f.probe.is_some()));
+    // truth/README.md: two probe locations, (19.49, 6.38) and (20.51, 20.08) mm.
+    let locations = data.probe_locations(&Default::default());
+    assert_eq!(locations.len(), 2, "{locations:?}");
+    for (l, (x, y)) in locations
+        .iter()
+        .zip([(19.49e-3, 6.38e-3), (20.51e-3, 20.08e-3)])
+    {
+        let tip = l.first_tip_m;
+        assert!(((tip[0] - x).hypot(tip[1] - y)) < 1.5e-3, "{tip:?}");
+    }
 }

@@ -62,6 +62,7 @@ impl_softcap_message!(
     ProbeSample,
     ClockSync,
     CameraStats,
+    SessionInfo,
     ElementMaterial,
     StrainSpaceBasis,
     SimulatedMarkers,
@@ -138,6 +139,9 @@ pub mod topics {
     pub const CLOCK_SYNC: Topic<ClockSync> = Topic::new("/capture/clock_sync");
     /// Per-camera statistics (one message per camera at time 0).
     pub const CAMERA_STATS: Topic<CameraStats> = Topic::new("/capture/camera_stats");
+    /// What capture knew about the session: marker ids, rest positions, gravity, support, probe
+    /// tip (static, time 0).
+    pub const SESSION: Topic<SessionInfo> = Topic::new("/capture/session");
     /// Capture summary report (time 0).
     pub const CAPTURE_REPORT: Topic<Report> = Topic::new("/capture/report");
     /// Per-example per-tet (λ, α), one message per example at its frame's time.
@@ -200,6 +204,12 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.CameraStats",
         is_static: true,
         units: "counts, reprojection errors px",
+    },
+    ChannelInfo {
+        topic: "/capture/session",
+        schema: "softcap.SessionInfo",
+        is_static: true,
+        units: "rest positions m, gravity m/s², support offset/tolerance m, density kg/m³, tip radius m",
     },
     ChannelInfo {
         topic: "/capture/report",

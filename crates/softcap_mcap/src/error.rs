@@ -77,6 +77,14 @@ pub enum Error {
         field: String,
         problem: String,
     },
+    /// A message decoded but a field's value is unusable (non-finite, out of range, inconsistent).
+    #[error("{path}: channel `{topic}` field `{field}`: {problem}")]
+    Invalid {
+        path: PathBuf,
+        topic: String,
+        field: String,
+        problem: String,
+    },
     /// The output path has no file name (e.g. `/` or `..`).
     #[error("{path}: output path has no file name")]
     BadOutputPath { path: PathBuf },

@@ -6,6 +6,7 @@
 //! | [`catalog`] | [`SoftcapMessage`], typed [`Topic`]s, the standard [`topics`], [`CATALOG`], embedded schema |
 //! | [`writer`] | [`Writer`]: zstd chunks, message indexes, summary, atomic `NAME.mcap.tmp` → `NAME.mcap` |
 //! | [`reader`] | [`Recording`]: validated reading, typed decoding, [`Recording::digest`] |
+//! | [`capture`] | [`CaptureData::read`]: typed reading of a `capture.mcap` (session, markers, probe, sync, probe locations) |
 //! | [`provenance`] | [`Provenance`]: the `softcap.provenance` metadata record |
 //! | [`viz`] | Foxglove `SceneUpdate` / `FrameTransform` twins for `/viz/...` channels |
 //! | [`error`] | [`Error`] |
@@ -30,6 +31,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod capture;
 pub mod catalog;
 pub mod error;
 pub mod provenance;
@@ -43,6 +45,10 @@ pub mod proto {
     include!(concat!(env!("OUT_DIR"), "/softcap.rs"));
 }
 
+pub use capture::{
+    CaptureData, CaptureFrame, MarkerObservation, Phase, ProbeLocation, ProbeLocationSettings,
+    ProbeObservation, SessionInfo, SupportPlane,
+};
 pub use catalog::{
     CATALOG, ChannelInfo, MESSAGE_ENCODING, SCHEMA_ENCODING, SoftcapMessage, Topic,
     descriptor_pool, descriptor_set, message_names, topics, viz_topic,

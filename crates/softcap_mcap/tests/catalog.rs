@@ -31,6 +31,7 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.CameraStats",
         ),
         (topics::CAPTURE_REPORT.name().to_string(), "softcap.Report"),
+        (topics::SESSION.name().to_string(), "softcap.SessionInfo"),
         (
             topics::ELEMENT_MATERIAL.name().to_string(),
             "softcap.ElementMaterial",
