@@ -113,4 +113,14 @@ pub enum FemError {
         /// det F_p
         det: f64,
     },
+    /// A stiffness matrix that is not positive definite (e.g. transversely isotropic parameters).
+    #[error(
+        "element {element}: stiffness not positive definite (smallest eigenvalue {min_eigenvalue_pa} Pa)"
+    )]
+    NotPositiveDefinite {
+        /// element index (usize::MAX when not tied to an element)
+        element: usize,
+        /// smallest eigenvalue (Mandel basis)
+        min_eigenvalue_pa: f64,
+    },
 }

@@ -12,6 +12,7 @@
 //! | [`statics`] | equilibrium iterations, incremental loading, Newton with line search, eq. 10 with frozen rotations | bickel2009 §3.4, eq. 10 |
 //! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
+//! | [`anisotropy`] | transversely isotropic E with five parameters {E11, E12, E13, E33, E44} and a per-element fibre, σ = C ε on the corotated strain; E_a = E33 − 2E13²/(E11+E12); PD check and Mandel eigenvalue clipping | thesis §8.5 eq. 8.5; Rebonato & Jäckel 1999 |
 //! | [`plasticity`] | (a) additive J2 plastic strain on the corotational element, f = ‖dev σ‖ − √(2/3)(σ_y + Hᾱ), radial return + algorithmic tangent, permanent set ε_p = (Eε_max − σ_y)/(E + H) in 1D; (b) multiplicative F_e = F F_p⁻¹ on stable neo-Hookean, E_e = V det F_p Ψ(F_e) | Simo & Hughes 1998 Box 3.1–3.2; saito-barbic §3.2 eq. 1–2 |
 //!
 //! ```
@@ -34,6 +35,7 @@
 //! # Ok::<(), softcap_fem::FemError>(())
 //! ```
 
+pub mod anisotropy;
 pub mod assembly;
 pub mod contact;
 mod corotated;
@@ -46,6 +48,9 @@ pub mod neohookean;
 pub mod plasticity;
 pub mod statics;
 
+pub use anisotropy::{
+    AnisotropicModel, TransverselyIsotropicParams, material_frame, stiffness_in_frame,
+};
 pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPattern};
 pub use contact::{ContactProblem, ContactReport, ContactSettings, ContactSpring, Probe, TipShape};
 pub use derivatives::{Sensitivity, alpha_index, element_stiffness_derivative, lambda_index};

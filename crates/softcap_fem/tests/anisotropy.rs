@@ -1,0 +1,234 @@
+//! Transversely isotropic elasticity (thesis eq. 8.5): uniaxial stretch along and across the fibre
+//! gives the analytic moduli, the isotropic special case is bickel2009 eq. 5, PD check/projection,
+//! and tangent / parameter derivatives against finite differences.
+
+use softcap_fem::nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+use softcap_fem::*;
+
+const L: f64 = 1.0;
+const W: f64 = 0.2;
+
+/// Roller supports at x = 0 (plus 3-2-1), prescribed axial end position at x = L: uniaxial stress.
+fn rollers(mesh: &softcap_mesh::TetMesh, end_x: f64) -> DirichletBc {
+    let mut bc = DirichletBc::new();
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        if v.x.abs() < 1e-12 {
+            bc.fix_dof(3 * i, 0.0);
+            if v.y.abs() < 1e-12 && v.z.abs() < 1e-12 {
+                bc.fix_node(i, *v);
+            } else if v.y.abs() < 1e-12 {
+                bc.fix_dof(3 * i + 1, 0.0);
+            } else if v.z.abs() < 1e-12 {
+                bc.fix_dof(3 * i + 2, 0.0);
+            }
+        }
+        if (v.x - L).abs() < 1e-12 {
+            bc.fix_dof(3 * i, end_x);
+        }
+    }
+    bc
+}
+
+/// Apparent modulus σ/ε and lateral strains (y, z) of a bar stretched by `strain` along x.
+fn uniaxial(p: TransverselyIsotropicParams, fibre: Vector3<f64>, strain: f64) -> (f64, f64, f64) {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [L, W, W], [4, 1, 1]);
+    let mut model = AnisotropicModel::homogeneous(&mesh, p, Unit::new_normalize(fibre)).unwrap();
+    let bc = rollers(&mesh, L * (1.0 + strain));
+    let mut solver = StaticSolver::with_bc(&model, &bc).unwrap();
+    let mut x = mesh.vertices.clone();
+    bc.apply(&mut x);
+    let zero = vec![Vector3::zeros(); x.len()];
+    let rep = solver.solve(
+        &mut model,
+        &mut x,
+        &zero,
+        None,
+        &EquilibriumSettings::newton(),
+    );
+    assert!(rep.converged(), "{rep:?}");
+    let f = model.internal_forces(&x);
+    let mut force = 0.0;
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        if (v.x - L).abs() < 1e-12 {
+            force += f[i].x;
+        }
+    }
+    let corner = mesh
+        .vertices
+        .iter()
+        .position(|v| (v - Vector3::new(L, W, W)).norm() < 1e-12)
+        .unwrap();
+    let ey = x[corner].y / W - 1.0;
+    let ez = x[corner].z / W - 1.0;
+    (force / (W * W) / strain, ey, ez)
+}
+
+fn printed() -> TransverselyIsotropicParams {
+    // Soft across the tubes, stiff along them: E_t = 2e4, E_a = 8e4, ν_t = 0.35, ν_a = 0.25,
+    // G_a = 1.2e4 (Pa).
+    TransverselyIsotropicParams::from_engineering(2.0e4, 8.0e4, 0.35, 0.25, 1.2e4).unwrap()
+}
+
+#[test]
+fn uniaxial_stretch_along_and_across_the_fibre_gives_the_analytic_moduli() {
+    let p = printed();
+    // The closed-form moduli of the eq. 8.5 matrix equal the engineering constants.
+    assert!((p.young_fibre_pa() - 8.0e4).abs() < 1e-8 * 8.0e4);
+    assert!((p.young_transverse_pa() - 2.0e4).abs() < 1e-8 * 2.0e4);
+    let strain = 0.01;
+    // Along the fibre: modulus E_a, both lateral strains −ν_a ε.
+    let (e_along, ey, ez) = uniaxial(p, Vector3::x(), strain);
+    assert!(
+        (e_along - p.young_fibre_pa()).abs() < 1e-6 * p.young_fibre_pa(),
+        "along: {e_along} vs {}",
+        p.young_fibre_pa()
+    );
+    assert!((ey + 0.25 * strain).abs() < 1e-8 && (ez + 0.25 * strain).abs() < 1e-8);
+    // Across the fibre (fibre along y): modulus E_t; lateral −ν_t ε in the transverse plane (z)
+    // and −ν_a E_t/E_a ε along the fibre (y) by compliance symmetry.
+    let (e_across, ey, ez) = uniaxial(p, Vector3::y(), strain);
+    assert!(
+        (e_across - p.young_transverse_pa()).abs() < 1e-6 * p.young_transverse_pa(),
+        "across: {e_across} vs {}",
+        p.young_transverse_pa()
+    );
+    assert!((ez + 0.35 * strain).abs() < 1e-8, "{ez}");
+    assert!((ey + 0.25 * 2.0e4 / 8.0e4 * strain).abs() < 1e-8, "{ey}");
+    // Fibre along z is also "across".
+    let (e_z, _, _) = uniaxial(p, Vector3::z(), strain);
+    assert!((e_z - p.young_transverse_pa()).abs() < 1e-6 * p.young_transverse_pa());
+}
+
+#[test]
+fn isotropic_special_case_is_bickel_eq5_in_any_fibre_frame() {
+    let iso = LinearParams::from_young_poisson(3.0e4, 0.3).unwrap();
+    let p = TransverselyIsotropicParams::from_isotropic(&iso);
+    let fibre = Unit::new_normalize(Vector3::new(0.3, -0.5, 0.8));
+    let c = stiffness_in_frame(&p.stiffness_local(), &fibre);
+    let e = iso.stress_strain_matrix();
+    assert!((c - e).norm() < 1e-9 * e.norm(), "{c} vs {e}");
+    // A rotated TI material: C(fibre) = T(Q) C_local T(Q)ᵀ is symmetric and PD-preserving.
+    let c2 = stiffness_in_frame(&printed().stiffness_local(), &fibre);
+    assert!((c2 - c2.transpose()).norm() < 1e-9 * c2.norm());
+    // E_a along an arbitrary fibre: σ_aa for a uniaxial stress state along the fibre.
+    let comp = c2.try_inverse().unwrap();
+    let a = fibre.into_inner();
+    let sigma = softcap_fem::nalgebra::Vector6::new(
+        a.x * a.x,
+        a.y * a.y,
+        a.z * a.z,
+        a.x * a.y,
+        a.x * a.z,
+        a.y * a.z,
+    );
+    let eps = comp * sigma;
+    let eaa = eps[0] * a.x * a.x
+        + eps[1] * a.y * a.y
+        + eps[2] * a.z * a.z
+        + eps[3] * a.x * a.y
+        + eps[4] * a.x * a.z
+        + eps[5] * a.y * a.z;
+    assert!((1.0 / eaa - 8.0e4).abs() < 1e-6 * 8.0e4, "{}", 1.0 / eaa);
+}
+
+#[test]
+fn positive_definiteness_check_and_projection() {
+    let good = printed();
+    assert!(good.is_positive_definite());
+    // Projection leaves a PD set (above the floor) unchanged.
+    let same = good.project_positive_definite(1.0);
+    for (a, b) in same.to_vector().iter().zip(good.to_vector()) {
+        assert!((a - b).abs() < 1e-9 * b.abs().max(1.0));
+    }
+    // E13 too large: the normal block is indefinite.
+    let bad = TransverselyIsotropicParams {
+        e13_pa: 1.0e5,
+        ..good
+    };
+    assert!(!bad.is_positive_definite());
+    assert!(matches!(
+        bad.validate(4),
+        Err(FemError::NotPositiveDefinite { element: 4, .. })
+    ));
+    let floor = 1.0e3;
+    let fixed = bad.project_positive_definite(floor);
+    let eig = fixed.mandel_eigenvalues();
+    assert!(eig.iter().all(|&l| l >= floor * (1.0 - 1e-9)), "{eig:?}");
+    // Unaffected eigenvalues are kept (E11 − E12 and 2E44).
+    let before = bad.mandel_eigenvalues();
+    assert!((eig[0] - before[0]).abs() < 1e-9 * before[0]);
+    assert!((eig[1] - before[1]).abs() < 1e-9 * before[1]);
+    assert!((eig[3] - before[3]).abs() < 1e-9 * before[3]);
+    // The 6×6 Mandel matrix really is PD (smallest eigenvalue from nalgebra).
+    let c = fixed.stiffness_local();
+    let t = softcap_fem::nalgebra::Matrix6::from_diagonal(&softcap_fem::nalgebra::Vector6::new(
+        1.0,
+        1.0,
+        1.0,
+        2f64.sqrt(),
+        2f64.sqrt(),
+        2f64.sqrt(),
+    ));
+    let mandel = t * c * t;
+    let min = mandel.symmetric_eigenvalues().min();
+    assert!(min >= floor * (1.0 - 1e-9), "min eigenvalue {min}");
+    // A fitter's set_params projects and reports.
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 1.0, 1.0], [1, 1, 1]);
+    let mut model =
+        AnisotropicModel::homogeneous(&mesh, good, Unit::new_normalize(Vector3::z())).unwrap();
+    let mut ps = model.params().to_vec();
+    ps[1] = bad;
+    assert_eq!(model.set_params(&ps, 1e-3).unwrap(), 1);
+    assert!(model.params().iter().all(|p| p.is_positive_definite()));
+    assert!(AnisotropicModel::homogeneous(&mesh, bad, Unit::new_normalize(Vector3::z())).is_err());
+}
+
+#[test]
+fn tangent_and_parameter_forces_match_finite_differences() {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 1.0, 1.0], [1, 1, 1]);
+    let fibre = Unit::new_normalize(Vector3::new(0.2, 0.9, -0.4));
+    let model = AnisotropicModel::homogeneous(&mesh, printed(), fibre).unwrap();
+    let rot = Rotation3::from_euler_angles(0.5, -0.4, 0.9);
+    let a = Matrix3::new(1.04, 0.02, -0.01, 0.03, 0.97, 0.02, -0.02, 0.01, 1.05);
+    let x: Vec<Vector3<f64>> = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .map(|(i, v)| rot * (a * v) + Vector3::new((i as f64).sin(), 0.0, (i as f64).cos()) * 0.01)
+        .collect();
+    let h = 1e-6;
+    assert!(model.energy(&x).is_none());
+    for e in 0..model.elements().len() {
+        let k = model.element_matrix(e, &x, StiffnessKind::Consistent);
+        let nodes = model.elements()[e].nodes;
+        let mut worst: f64 = 0.0;
+        for b in 0..4 {
+            for j in 0..3 {
+                let mut xp = x.clone();
+                let mut xm = x.clone();
+                xp[nodes[b]][j] += h;
+                xm[nodes[b]][j] -= h;
+                let fp = model.element_forces(e, &xp);
+                let fm = model.element_forces(e, &xm);
+                for aa in 0..4 {
+                    let d = (fp[aa] - fm[aa]) / (2.0 * h);
+                    for i in 0..3 {
+                        worst = worst.max((d[i] - k[(3 * aa + i, 3 * b + j)]).abs());
+                    }
+                }
+            }
+        }
+        assert!(worst < 1e-6 * k.norm(), "element {e}: tangent FD {worst}");
+        // Forces are linear in p: f(p) = Σ_k p_k ∂f/∂p_k exactly.
+        let pf = model.parameter_forces(e, &x);
+        let pv = printed().to_vector();
+        let fe = model.element_forces(e, &x);
+        for aa in 0..4 {
+            let mut sum = Vector3::zeros();
+            for kk in 0..5 {
+                sum += pf[kk][aa] * pv[kk];
+            }
+            assert!((sum - fe[aa]).norm() < 1e-9 * fe[aa].norm().max(1e-9));
+        }
+    }
+}
