@@ -123,4 +123,12 @@ pub enum FemError {
         /// smallest eigenvalue (Mandel basis)
         min_eigenvalue_pa: f64,
     },
+    /// Friction parameters out of range (μ ≥ 0, slip distance > 0).
+    #[error("friction: mu = {mu} must be >= 0 and slip distance {slip_distance_m} m > 0")]
+    InvalidFriction {
+        /// Coulomb coefficient
+        mu: f64,
+        /// regularization slip
+        slip_distance_m: f64,
+    },
 }

@@ -13,6 +13,9 @@
 //! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
 //! | [`anisotropy`] | transversely isotropic E with five parameters {E11, E12, E13, E33, E44} and a per-element fibre, σ = C ε on the corotated strain; E_a = E33 − 2E13²/(E11+E12); PD check and Mandel eigenvalue clipping | thesis §8.5 eq. 8.5; Rebonato & Jäckel 1999 |
+//! | [`friction`] | regularized Coulomb at the probe: f_t = −μ f_n s(‖δ‖/ε) δ/‖δ‖, s(r) = 2r − r² (r < 1), 1 after; stick anchors in the probe frame, dragged to ε on commit | Li et al. 2020 (IPC) §5.1 f₁ mollifier; bickel2009 §3.4 contact |
+//! | [`support`] | support slip: attached face on a plane ν·x = d, bilateral normal penalty, tangential springs −k_t P(x − a) or regularized Coulomb | issue 4 (support slip) |
+//! | [`nodal`] | equilibrium with node-level terms (frictional contact, supports): A Δx = f_ext + Σ f_b − f_int | bickel2009 §3.4 iterations |
 //! | [`plasticity`] | (a) additive J2 plastic strain on the corotational element, f = ‖dev σ‖ − √(2/3)(σ_y + Hᾱ), radial return + algorithmic tangent, permanent set ε_p = (Eε_max − σ_y)/(E + H) in 1D; (b) multiplicative F_e = F F_p⁻¹ on stable neo-Hookean, E_e = V det F_p Ψ(F_e) | Simo & Hughes 1998 Box 3.1–3.2; saito-barbic §3.2 eq. 1–2 |
 //!
 //! ```
@@ -42,11 +45,14 @@ mod corotated;
 pub mod derivatives;
 pub mod element;
 mod error;
+pub mod friction;
 pub mod material;
 pub mod model;
 pub mod neohookean;
+pub mod nodal;
 pub mod plasticity;
 pub mod statics;
+pub mod support;
 
 pub use anisotropy::{
     AnisotropicModel, TransverselyIsotropicParams, material_frame, stiffness_in_frame,
@@ -60,11 +66,15 @@ pub use element::{
     strain_voigt, tet_geometries, warped_stiffness,
 };
 pub use error::FemError;
+pub use friction::{
+    FrictionParams, FrictionReport, FrictionalContact, mollifier, regularized_coulomb,
+};
 pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
 pub use model::{CorotationalModel, ElasticModel, NeoHookeanModel, StrainDependentParams};
 pub use neohookean::{
     energy_density, neohookean_energy, neohookean_forces, neohookean_tangent, pk1, pk1_derivative,
 };
+pub use nodal::{NodalSolver, NodalTerm};
 pub use plasticity::{
     ElastoplasticModel, J2PlasticityParams, PlasticNeoHookeanModel, PlasticState, ReturnMapping,
     plastic_from_vector, plastic_to_vector, radial_return,
@@ -73,6 +83,7 @@ pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,
     SolveStatus, StaticSolver, StepReport, incremental_loading,
 };
+pub use support::{SupportPlane, SupportReport, SupportTangential};
 
 pub use faer;
 pub use nalgebra;

@@ -1,0 +1,276 @@
+//! Regularized Coulomb friction at the probe contact (extends [`crate::contact`] additively).
+//!
+//! **Law.** Each contact node n with normal force f_n ≥ 0 (from its penalty spring of
+//! [`crate::ContactSpring`]) and unit normal ν carries a stick anchor a (a material point stored in
+//! the probe frame, so it moves with the probe). Its tangential slip is δ = (I − ννᵀ)(x − a) and
+//! the friction force on the body is
+//!
+//! f_t = −μ f_n s(‖δ‖/ε) δ/‖δ‖,  s(r) = 2r − r² (r < 1), 1 (r ≥ 1),
+//!
+//! the C¹ mollifier f₁ of IPC's smoothed Coulomb friction (Li et al. 2020 §5.1, eq. 16) applied to
+//! the slip since the anchor. For ‖δ‖ ≥ ε the node slides with |f_t| = μ f_n exactly (Coulomb);
+//! below it sticks with tangential stiffness ≈ 2μ f_n/ε (the regularized stick zone, ε =
+//! [`FrictionParams::slip_distance_m`]). History (elastic-ideally-plastic tangential spring): after
+//! each converged load step [`crate::NodalTerm::commit`] drags every anchor with ‖δ‖ > ε along δ to
+//! distance ε, so a sliding node keeps |f_t| = μ f_n at the next step and a reversal re-sticks after
+//! slipping 2ε. f_n is lagged (refreshed at every iteration, as IPC lags λ), so the stiffness block
+//!
+//! −∂f_t/∂x = μ f_n [s′(r)/ε t tᵀ + s(r)/‖δ‖ (P − t tᵀ)] P,  t = δ/‖δ‖, P = I − ννᵀ
+//!
+//! (→ 2μ f_n/ε P at δ = 0) is symmetric PSD. Parameters: μ (fit target) and ε (numerical).
+//! ∂f_t/∂μ = f_t/μ exactly, so a fitter gets the μ derivative for free.
+
+use crate::FemError;
+use crate::contact::{ContactProblem, ContactSpring};
+use crate::nodal::NodalTerm;
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Regularized Coulomb parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrictionParams {
+    /// Coulomb coefficient μ ≥ 0.
+    pub mu: f64,
+    /// Regularization slip ε > 0 [m]: slip below which a node sticks elastically.
+    pub slip_distance_m: f64,
+}
+
+impl Default for FrictionParams {
+    fn default() -> Self {
+        Self {
+            mu: 0.5,
+            slip_distance_m: 1e-5,
+        }
+    }
+}
+
+impl FrictionParams {
+    /// Checks μ ≥ 0 and ε > 0, both finite.
+    pub fn validate(&self) -> Result<(), FemError> {
+        if self.mu.is_finite()
+            && self.mu >= 0.0
+            && self.slip_distance_m.is_finite()
+            && self.slip_distance_m > 0.0
+        {
+            Ok(())
+        } else {
+            Err(FemError::InvalidFriction {
+                mu: self.mu,
+                slip_distance_m: self.slip_distance_m,
+            })
+        }
+    }
+}
+
+/// s(r) and s′(r) of the C¹ mollifier (IPC f₁).
+pub fn mollifier(r: f64) -> (f64, f64) {
+    if r < 1.0 {
+        (2.0 * r - r * r, 2.0 - 2.0 * r)
+    } else {
+        (1.0, 0.0)
+    }
+}
+
+/// Friction force on the body f_t(δ) and −∂f_t/∂δ for tangential slip `delta` (already projected)
+/// in the tangent plane with projector `p`, normal force `normal_force_n` ≥ 0.
+pub fn regularized_coulomb(
+    params: &FrictionParams,
+    normal_force_n: f64,
+    delta: &Vector3<f64>,
+    p: &Matrix3<f64>,
+) -> (Vector3<f64>, Matrix3<f64>) {
+    let fn_ = normal_force_n.max(0.0);
+    let eps = params.slip_distance_m;
+    let scale = params.mu * fn_;
+    let d = delta.norm();
+    if d < 1e-14 * eps {
+        return (Vector3::zeros(), p * (2.0 * scale / eps));
+    }
+    let r = d / eps;
+    let (s, ds) = mollifier(r);
+    let t = delta / d;
+    let ttt = t * t.transpose();
+    let f = -t * (scale * s);
+    let k = (ttt * (ds / eps) + (p - ttt) * (s / d)) * scale;
+    (f, k * p)
+}
+
+/// Outcome of a frictional contact state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrictionReport {
+    /// Contact nodes, increasing.
+    pub patch_nodes: Vec<usize>,
+    /// Σ f_n over the patch [N].
+    pub normal_force_n: f64,
+    /// Total force of the probe on the body (normal + friction) [N].
+    pub contact_force_n: Vector3<f64>,
+    /// Total friction force of the probe on the body [N].
+    pub friction_force_n: Vector3<f64>,
+    /// Tangential force ON THE PROBE = −friction force on the body [N].
+    pub probe_tangential_force_n: Vector3<f64>,
+    /// Nodes with ‖δ‖ ≥ ε (sliding).
+    pub sliding_nodes: usize,
+    /// Nodes with ‖δ‖ < ε (sticking).
+    pub sticking_nodes: usize,
+}
+
+/// Probe contact (normal penalty of [`crate::contact`]) plus regularized Coulomb friction; a
+/// [`NodalTerm`] for [`crate::NodalSolver`].
+#[derive(Clone, Debug)]
+pub struct FrictionalContact {
+    /// The probe contact (normal part).
+    pub contact: ContactProblem,
+    /// Friction parameters.
+    pub friction: FrictionParams,
+    committed: BTreeMap<usize, Vector3<f64>>,
+    working: BTreeMap<usize, Vector3<f64>>,
+    springs: Vec<ContactSpring>,
+    normal_forces_n: Vec<f64>,
+}
+
+impl FrictionalContact {
+    /// New frictional contact with no stick history.
+    pub fn new(contact: ContactProblem, friction: FrictionParams) -> Result<Self, FemError> {
+        friction.validate()?;
+        Ok(Self {
+            contact,
+            friction,
+            committed: BTreeMap::new(),
+            working: BTreeMap::new(),
+            springs: Vec::new(),
+            normal_forces_n: Vec::new(),
+        })
+    }
+
+    /// Moves the probe (anchors move with it: they live in the probe frame).
+    pub fn set_pose(&mut self, world_from_probe: Isometry3<f64>) {
+        self.contact.probe.world_from_probe = world_from_probe;
+    }
+
+    /// Committed stick anchors of the contact nodes, world frame.
+    pub fn anchors_world(&self) -> Vec<(usize, Vector3<f64>)> {
+        self.committed
+            .iter()
+            .map(|(&n, a)| (n, self.to_world(a)))
+            .collect()
+    }
+
+    fn to_world(&self, a_probe: &Vector3<f64>) -> Vector3<f64> {
+        self.contact
+            .probe
+            .world_from_probe
+            .transform_point(&Point3::from(*a_probe))
+            .coords
+    }
+
+    fn to_probe(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        self.contact
+            .probe
+            .world_from_probe
+            .inverse_transform_point(&Point3::from(*x))
+            .coords
+    }
+
+    fn slip(&self, i: usize, x: &[Vector3<f64>]) -> (Vector3<f64>, Matrix3<f64>) {
+        let s = &self.springs[i];
+        let p = Matrix3::identity() - s.normal * s.normal.transpose();
+        let a = self
+            .working
+            .get(&s.node)
+            .map_or(x[s.node], |a| self.to_world(a));
+        (p * (x[s.node] - a), p)
+    }
+
+    fn friction_at(&self, i: usize, x: &[Vector3<f64>]) -> (Vector3<f64>, Matrix3<f64>) {
+        let (delta, p) = self.slip(i, x);
+        regularized_coulomb(&self.friction, self.normal_forces_n[i], &delta, &p)
+    }
+
+    /// Report at positions `x` (after a solve).
+    pub fn report(&self, x: &[Vector3<f64>]) -> FrictionReport {
+        let mut r = FrictionReport::default();
+        for (i, s) in self.springs.iter().enumerate() {
+            let fnv = s.force(&x[s.node]);
+            let (ft, _) = self.friction_at(i, x);
+            r.patch_nodes.push(s.node);
+            r.normal_force_n += fnv.dot(&s.normal).max(0.0);
+            r.contact_force_n += fnv + ft;
+            r.friction_force_n += ft;
+            let (delta, _) = self.slip(i, x);
+            if delta.norm() >= self.friction.slip_distance_m * (1.0 - 1e-9) {
+                r.sliding_nodes += 1;
+            } else {
+                r.sticking_nodes += 1;
+            }
+        }
+        r.probe_tangential_force_n = -r.friction_force_n;
+        r
+    }
+}
+
+impl NodalTerm for FrictionalContact {
+    fn refresh(
+        &mut self,
+        x: &[Vector3<f64>],
+        node_stiffness: &dyn Fn(usize) -> f64,
+        requery: bool,
+    ) {
+        if requery || self.springs.is_empty() {
+            self.springs = self.contact.springs(x, node_stiffness);
+            let mut working = BTreeMap::new();
+            for s in &self.springs {
+                let a = self
+                    .working
+                    .get(&s.node)
+                    .or_else(|| self.committed.get(&s.node))
+                    .copied()
+                    .unwrap_or_else(|| self.to_probe(&x[s.node]));
+                working.insert(s.node, a);
+            }
+            self.working = working;
+        }
+        self.normal_forces_n = self
+            .springs
+            .iter()
+            .map(|s| s.force(&x[s.node]).dot(&s.normal).max(0.0))
+            .collect();
+    }
+
+    fn add_forces(&self, x: &[Vector3<f64>], out: &mut [Vector3<f64>]) {
+        for (i, s) in self.springs.iter().enumerate() {
+            let (ft, _) = self.friction_at(i, x);
+            out[s.node] += s.force(&x[s.node]) + ft;
+        }
+    }
+
+    fn blocks(&self, x: &[Vector3<f64>]) -> Vec<(usize, Matrix3<f64>)> {
+        self.springs
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.node, s.matrix() + self.friction_at(i, x).1))
+            .collect()
+    }
+
+    fn commit(&mut self, x: &[Vector3<f64>]) {
+        let eps = self.friction.slip_distance_m;
+        let mut committed = BTreeMap::new();
+        for i in 0..self.springs.len() {
+            let node = self.springs[i].node;
+            let (delta, _) = self.slip(i, x);
+            let d = delta.norm();
+            let a_world = self
+                .working
+                .get(&node)
+                .map_or(x[node], |a| self.to_world(a));
+            let a_world = if d > eps {
+                a_world + delta * (1.0 - eps / d)
+            } else {
+                a_world
+            };
+            committed.insert(node, self.to_probe(&a_world));
+        }
+        self.committed = committed.clone();
+        self.working = committed;
+    }
+}
