@@ -22,6 +22,9 @@
 //! ε_p = (E ε_max − σ_y)/(E + H) (trial stress Eε_max returned to σ_y + H ε_p), and zero when
 //! E ε_max ≤ σ_y. H is the uniaxial plastic (hardening) modulus: σ = σ_y + H ε_p on the plastic
 //! branch, so the elastoplastic tangent modulus is E H/(E + H).
+//! Parameters for a fitter: (σ_y, H) per element ([`ElastoplasticModel::set_plasticity`]), with
+//! per-step analytic ∂f/∂(σ_y, H) ([`ElastoplasticModel::plasticity_parameter_forces`]); whole
+//! load paths are differentiated by central differences (re-run the path).
 //!
 //! **(b) Multiplicative plastic deformation gradient on the stable neo-Hookean element**
 //! ([`PlasticNeoHookeanModel`], saito-barbic §3.2, eq. 1–2). Each tet carries F_p (det F_p > 0), the
@@ -116,6 +119,31 @@ impl ReturnMapping {
         let dev = de - Matrix3::identity() * (tr / 3.0);
         Matrix3::identity() * (kappa * tr) + dev * (2.0 * mu * self.theta)
             - self.normal * (2.0 * mu * self.theta_bar * self.normal.component_mul(de).sum())
+    }
+}
+
+impl ReturnMapping {
+    /// ∂σ/∂σ_y and ∂σ/∂H of this return at fixed total strain and committed state (zero when
+    /// elastic): σ = σ* − 2μΔγ n with Δγ = (‖s*‖ − √(2/3)(σ_y + Hᾱⁿ))/(2μ + 2H/3), so
+    /// ∂Δγ/∂σ_y = −√(2/3)/(2μ + 2H/3) and ∂Δγ/∂H = −(√(2/3)ᾱⁿ + ⅔Δγ)/(2μ + 2H/3).
+    pub fn parameter_derivatives(
+        &self,
+        elastic: &LinearParams,
+        plastic: &J2PlasticityParams,
+        committed: &PlasticState,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        if self.delta_gamma <= 0.0 {
+            return (Matrix3::zeros(), Matrix3::zeros());
+        }
+        let (_, mu) = elastic.lame();
+        let den = 2.0 * mu + 2.0 * plastic.hardening_modulus_pa / 3.0;
+        let c = (2.0f64 / 3.0).sqrt();
+        let dg_dsy = -c / den;
+        let dg_dh = -(c * committed.equivalent_plastic_strain + 2.0 / 3.0 * self.delta_gamma) / den;
+        (
+            self.normal * (-2.0 * mu * dg_dsy),
+            self.normal * (-2.0 * mu * dg_dh),
+        )
     }
 }
 
@@ -280,6 +308,25 @@ impl ElastoplasticModel {
             ),
             r,
             s,
+        )
+    }
+
+    /// ∂f_e/∂σ_y and ∂f_e/∂H of element `e` at `x` for the current load step (committed state
+    /// held fixed): V R (∂σ/∂q) g_a. Over a multi-step path the committed state also depends on
+    /// (σ_y, H); a fitter differentiates the whole path by central differences through
+    /// [`Self::set_plasticity`] (re-run the path) — these per-step derivatives are exact for a
+    /// single step from the virgin state.
+    pub fn plasticity_parameter_forces(
+        &self,
+        e: usize,
+        x: &[Vector3<f64>],
+    ) -> ([Vector3<f64>; 4], [Vector3<f64>; 4]) {
+        let (rm, r, _) = self.element_return(e, x);
+        let (dsy, dh) =
+            rm.parameter_derivatives(&self.params[e], &self.plasticity[e], &self.committed[e]);
+        (
+            forces_from_stress(&self.geometry[e], &r, &dsy),
+            forces_from_stress(&self.geometry[e], &r, &dh),
         )
     }
 
@@ -542,5 +589,19 @@ mod tests {
             / (2.0 * h);
         let an = rm.tangent_apply(&el, &de);
         assert!((fd - an).norm() < 1e-6 * an.norm(), "{fd} vs {an}");
+        // Parameter derivatives vs central differences in σ_y and H.
+        let (dsy, dh) = rm.parameter_derivatives(&el, &pl, &state);
+        let at = |sy: f64, hh: f64| {
+            let q = J2PlasticityParams {
+                yield_stress_pa: sy,
+                hardening_modulus_pa: hh,
+            };
+            radial_return(&el, &q, &eps, &state).stress_pa
+        };
+        let (sy, hh) = (pl.yield_stress_pa, pl.hardening_modulus_pa);
+        let fd_sy = (at(sy + 1e-4, hh) - at(sy - 1e-4, hh)) / 2e-4;
+        let fd_h = (at(sy, hh + 1e-2) - at(sy, hh - 1e-2)) / 2e-2;
+        assert!((fd_sy - dsy).norm() < 1e-6 * dsy.norm(), "{fd_sy} vs {dsy}");
+        assert!((fd_h - dh).norm() < 1e-6 * dh.norm(), "{fd_h} vs {dh}");
     }
 }
