@@ -138,3 +138,50 @@ fn block_on_frictional_plane_sticks_below_mu_p() {
         sr.mean_slip_m
     );
 }
+
+#[test]
+fn block_dragged_over_frictional_plane_slides_at_mu_n() {
+    // Top face clamped to a rigid plate: pressed down by 5 mm, then dragged 40 mm along x. Once
+    // the base slides, the plane's tangential reaction is μ times its normal reaction.
+    let (mesh, mut model, bottom, top) = block();
+    let mu = 0.4;
+    let mut support = SupportPlane::new(
+        Unit::new_normalize(Vector3::z()),
+        0.0,
+        bottom.clone(),
+        &mesh.vertices,
+        SupportTangential::Friction(FrictionParams {
+            mu,
+            slip_distance_m: 1e-5,
+        }),
+    )
+    .unwrap();
+    let mut bc = DirichletBc::new();
+    for &n in &top {
+        bc.fix_node(n, mesh.vertices[n]);
+    }
+    let mut solver = NodalSolver::new(&model, &bc.dofs()).unwrap();
+    let mut x = mesh.vertices.clone();
+    let zero = vec![Vector3::zeros(); x.len()];
+    let settings = EquilibriumSettings::newton();
+    let mut ratios = Vec::new();
+    for k in 0..=8 {
+        let s = 0.005 * k as f64;
+        for &n in &top {
+            x[n] = mesh.vertices[n] + Vector3::new(s, 0.0, -0.005);
+        }
+        let rep = solver.solve(&mut model, &mut x, &zero, &mut [&mut support], &settings);
+        assert!(rep.converged(), "drag {s}: {rep:?}");
+        support.commit(&x);
+        let sr = support.report(&x);
+        assert!(sr.normal_force_n > 0.0);
+        ratios.push(sr.tangential_force_n.norm() / sr.normal_force_n);
+    }
+    // Never above μ; reaches μ (to 1e-4) once sliding; the base has slid most of the drag.
+    assert!(ratios.iter().all(|&r| r <= mu * (1.0 + 1e-9)), "{ratios:?}");
+    let last = *ratios.last().unwrap();
+    assert!((last - mu).abs() < 1e-4 * mu, "T/N = {last}");
+    let sr = support.report(&x);
+    assert!(sr.mean_slip_m.x > 0.02, "slip {}", sr.mean_slip_m.x);
+    assert!(sr.tangential_force_n.x < 0.0);
+}
