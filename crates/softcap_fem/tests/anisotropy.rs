@@ -78,6 +78,10 @@ fn uniaxial_stretch_along_and_across_the_fibre_gives_the_analytic_moduli() {
     let strain = 0.01;
     // Along the fibre: modulus E_a, both lateral strains −ν_a ε.
     let (e_along, ey, ez) = uniaxial(p, Vector3::x(), strain);
+    eprintln!(
+        "anisotropy: along fibre {e_along:.6} Pa (analytic {:.6}), lateral {ey:.3e} {ez:.3e}",
+        p.young_fibre_pa()
+    );
     assert!(
         (e_along - p.young_fibre_pa()).abs() < 1e-6 * p.young_fibre_pa(),
         "along: {e_along} vs {}",
@@ -87,6 +91,10 @@ fn uniaxial_stretch_along_and_across_the_fibre_gives_the_analytic_moduli() {
     // Across the fibre (fibre along y): modulus E_t; lateral −ν_t ε in the transverse plane (z)
     // and −ν_a E_t/E_a ε along the fibre (y) by compliance symmetry.
     let (e_across, ey, ez) = uniaxial(p, Vector3::y(), strain);
+    eprintln!(
+        "anisotropy: across fibre {e_across:.6} Pa (analytic {:.6})",
+        p.young_transverse_pa()
+    );
     assert!(
         (e_across - p.young_transverse_pa()).abs() < 1e-6 * p.young_transverse_pa(),
         "across: {e_across} vs {}",

@@ -174,17 +174,21 @@ fn dragged_probe_sticks_like_a_bonded_probe_below_mu_n() {
     let bonded_x: f64 = rep.patch_nodes.iter().map(|&n| f_int[n].x).sum();
     // Force on the body from the bonded probe = internal force at the patch; on the probe: −.
     let rel = (ft.x + bonded_x).abs() / bonded_x.abs();
+    eprintln!(
+        "friction stick: F_t on probe {:.4} N, bonded {:.4} N (rel {rel:.2e}), N = {:.3} N",
+        ft.x, -bonded_x, rep.normal_force_n
+    );
     assert!(
-        rel < 0.03,
+        rel < 1e-3,
         "stick {} N vs bonded {} N (rel {rel})",
         -ft.x,
         bonded_x
     );
-    // Stick is linear in the drag: F(s) − F(0) = 2 (F(s/2) − F(0)) within the same tolerance.
+    // Stick is linear in the drag: F(s) − F(0) = 2 (F(s/2) − F(0)) (rel. 1e-3).
     let half = reps[1].0.probe_tangential_force_n - f0;
     let full = ft - f0;
     assert!(
-        (full - half * 2.0).norm() < 0.03 * full.norm(),
+        (full - half * 2.0).norm() < 1e-3 * full.norm(),
         "{full} vs 2 × {half}"
     );
 }
@@ -207,7 +211,11 @@ fn dragged_probe_slides_at_mu_n() {
     assert_eq!(rep.sliding_nodes, rep.patch_nodes.len(), "{rep:?}");
     let ft = rep.probe_tangential_force_n;
     let ratio = ft.norm() / rep.normal_force_n;
-    assert!((ratio - mu).abs() < 1e-4 * mu, "F_t/N = {ratio}");
+    eprintln!(
+        "friction slide: F_t on probe {ft:?} N, N = {:.4} N, |F_t|/N = {ratio:.8} (μ = {mu})",
+        rep.normal_force_n
+    );
+    assert!((ratio - mu).abs() < 1e-5 * mu, "F_t/N = {ratio}");
     // Mostly against the drag (the slip direction tilts by ~1° on the asymmetric mesh).
     assert!(ft.x < 0.0 && ft.y.abs() < 0.05 * ft.norm(), "{ft} {rep:?}");
 }

@@ -105,6 +105,10 @@ fn bar_loaded_past_yield_keeps_the_analytic_permanent_strain() {
     let (young, sy, h, eps_max) = (1.0e4, 50.0, 2.0e3, 0.02);
     let eps_p = (young * eps_max - sy) / (young + h);
     let (peak, residual, model) = load_unload(eps_max, 4);
+    eprintln!(
+        "plasticity: permanent strain {residual:.10} vs analytic {eps_p:.10} (err {:.1e}), peak force {peak:.6} N",
+        (residual - eps_p).abs()
+    );
     assert!(
         (residual - eps_p).abs() < 1e-8,
         "permanent strain {residual} vs analytic {eps_p}"
@@ -127,6 +131,7 @@ fn bar_loaded_past_yield_keeps_the_analytic_permanent_strain() {
 fn bar_loaded_below_yield_has_no_permanent_set() {
     // ε_max = 0.004 < σ_y/E = 0.005.
     let (peak, residual, model) = load_unload(0.004, 2);
+    eprintln!("plasticity: below yield residual strain {residual:.1e}");
     assert!(residual.abs() < 1e-12, "residual strain {residual}");
     assert!((peak - 1.0e4 * 0.004 * W * W).abs() < 1e-9);
     assert!(

@@ -89,6 +89,12 @@ fn block_on_tangential_springs_translates_by_f_over_n_kt_plus_elastic_shear() {
     // (4.6% of the elastic part) for k_t n = 0.3 × the block's shear stiffness.
     let top_mean = mean_x(&x, &mesh.vertices, &top);
     let rel = (top_mean - (rigid + shear)).abs() / (rigid + shear);
+    eprintln!(
+        "support springs: mean base slip {:.10} m vs F/(n k_t) {rigid:.10} m; top {top_mean:.6} vs {:.6} (rel {rel:.2e}); gap {:.1e} m",
+        sr.mean_slip_m.x,
+        rigid + shear,
+        sr.max_normal_gap_m
+    );
     assert!(
         rel < 0.015,
         "top {top_mean} vs {} + {shear} (rel {rel})",
@@ -180,6 +186,7 @@ fn block_dragged_over_frictional_plane_slides_at_mu_n() {
     // Never above μ; reaches μ (to 1e-4) once sliding; the base has slid most of the drag.
     assert!(ratios.iter().all(|&r| r <= mu * (1.0 + 1e-9)), "{ratios:?}");
     let last = *ratios.last().unwrap();
+    eprintln!("support friction drag: T/N per step {ratios:.5?} (μ = {mu})");
     assert!((last - mu).abs() < 1e-4 * mu, "T/N = {last}");
     let sr = support.report(&x);
     assert!(sr.mean_slip_m.x > 0.02, "slip {}", sr.mean_slip_m.x);
