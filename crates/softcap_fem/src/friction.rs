@@ -148,6 +148,15 @@ impl FrictionalContact {
         self.contact.probe.world_from_probe = world_from_probe;
     }
 
+    /// Forgets the stick history (all anchors), e.g. when the probe is lifted off between
+    /// locations.
+    pub fn reset_history(&mut self) {
+        self.committed.clear();
+        self.working.clear();
+        self.springs.clear();
+        self.normal_forces_n.clear();
+    }
+
     /// Committed stick anchors of the contact nodes, world frame.
     pub fn anchors_world(&self) -> Vec<(usize, Vector3<f64>)> {
         self.committed

@@ -219,3 +219,54 @@ fn dragged_probe_slides_at_mu_n() {
     // Mostly against the drag (the slip direction tilts by ~1° on the asymmetric mesh).
     assert!(ft.x < 0.0 && ft.y.abs() < 0.05 * ft.norm(), "{ft} {rep:?}");
 }
+
+#[test]
+fn frictionless_limit_matches_the_static_contact_solver() {
+    // μ = 0: the nodal solver with FrictionalContact reproduces StaticSolver's penalty contact.
+    let mut r = rig();
+    let (_, reps) = drag(&mut r, 0.0, 0.01, &[0.0]);
+    let (rep, x_nodal) = &reps[0];
+    assert!(rep.friction_force_n.norm() == 0.0);
+    let probe = Probe::new(
+        TipShape::Disk {
+            radius_m: 0.3,
+            thickness_m: 0.1,
+        },
+        pose(0.01, 0.0),
+    )
+    .unwrap();
+    let contact = ContactProblem {
+        probe,
+        candidate_nodes: r.top.clone(),
+        settings: ContactSettings::default(),
+    };
+    let mut solver = StaticSolver::with_bc(&r.model, &r.bc).unwrap();
+    let mut x = r.mesh.vertices.clone();
+    let zero = vec![Vector3::zeros(); x.len()];
+    let mut last = None;
+    for k in 1..=4 {
+        let mut c = contact.clone();
+        c.probe.world_from_probe = pose(0.01 * k as f64 / 4.0, 0.0);
+        let rep = solver.solve(
+            &mut r.model,
+            &mut x,
+            &zero,
+            Some(&c),
+            &EquilibriumSettings::newton(),
+        );
+        assert!(rep.converged());
+        last = Some(rep);
+    }
+    let srep = last.unwrap();
+    let worst = x
+        .iter()
+        .zip(x_nodal)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).norm()));
+    assert!(worst < 1e-9, "max position difference {worst} m");
+    assert!(
+        (srep.contact.axial_force_n - rep.normal_force_n).abs() < 1e-6 * rep.normal_force_n,
+        "{} vs {}",
+        srep.contact.axial_force_n,
+        rep.normal_force_n
+    );
+}
