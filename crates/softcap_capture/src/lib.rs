@@ -4,6 +4,7 @@
 //! | module | what |
 //! |---|---|
 //! | [`session`] | reading `session.toml`, `rig/*.toml`, CSV files (errors name file, line, field) |
+//! | [`c3d`] | C3D takes (kind `mocap`): POINT trajectories in metres, ANALOG channels |
 //! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
 //! | [`correspond`] | epipolar multi-view matching, labeling to marker ids, tracking |
@@ -29,6 +30,7 @@
 //! assert!((t.position_m - x).norm() < 1e-9);
 //! ```
 
+pub mod c3d;
 pub mod camera;
 pub mod correspond;
 pub mod detect;
@@ -43,6 +45,7 @@ pub mod session;
 pub mod sync;
 pub mod triangulate;
 
+pub use c3d::{AnalogChannels, C3dTake, read_c3d};
 pub use camera::Camera;
 pub use correspond::{Blob, Candidate, CorrespondenceSettings, find_candidates, label_candidates};
 pub use detect::{DetectionSettings, detect_markers, detect_markers_in_file};
