@@ -3,7 +3,12 @@ fn main() {
     for a in std::env::args().skip(1) {
         match softcap_capture::read_c3d(std::path::Path::new(&a)) {
             Ok(t) => {
-                let valid = t.positions_m.iter().flatten().filter(|p| p.is_some()).count();
+                let valid = t
+                    .positions_m
+                    .iter()
+                    .flatten()
+                    .filter(|p| p.is_some())
+                    .count();
                 println!(
                     "{a}: {} markers, {} frames at {} Hz (first {}), {valid} valid points; {} analog channels at {} Hz, {} samples each; first labels {:?}; analog {:?} units {:?}",
                     t.marker_labels.len(),
@@ -17,6 +22,7 @@ fn main() {
                     &t.analog.labels[..t.analog.labels.len().min(6)],
                     &t.analog.units[..t.analog.units.len().min(6)],
                 );
+                println!("  analog labels: {:?}", t.analog.labels);
             }
             Err(e) => println!("{e}"),
         }

@@ -178,7 +178,9 @@ pub fn read_c3d(path: &Path) -> Result<C3dTake> {
     labels.truncate(n_markers);
     let frame_rate_hz = c3d.points.frame_rate as f64;
     if !(frame_rate_hz > 0.0 && frame_rate_hz.is_finite()) {
-        return Err(format(format!("POINT:RATE {frame_rate_hz} is not positive")));
+        return Err(format(format!(
+            "POINT:RATE {frame_rate_hz} is not positive"
+        )));
     }
     let mut positions_m = Vec::with_capacity(n_frames);
     for f in 0..n_frames {
@@ -211,7 +213,12 @@ pub fn read_c3d(path: &Path) -> Result<C3dTake> {
         })
         .collect();
     let analog_units = (0..n_channels)
-        .map(|c| a.units.get(c).map(|u| u.trim().to_string()).unwrap_or_default())
+        .map(|c| {
+            a.units
+                .get(c)
+                .map(|u| u.trim().to_string())
+                .unwrap_or_default()
+        })
         .collect();
     Ok(C3dTake {
         path: path.to_path_buf(),

@@ -4,6 +4,7 @@
 //! | module | what |
 //! |---|---|
 //! | [`session`] | reading `session.toml`, `rig/*.toml`, CSV files (errors name file, line, field) |
+//! | [`aniposelib`] | aniposelib calibration TOML and labeled 2D points (real multi-camera rigs) |
 //! | [`c3d`] | C3D takes (kind `mocap`): POINT trajectories in metres, ANALOG channels |
 //! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
@@ -30,6 +31,7 @@
 //! assert!((t.position_m - x).norm() < 1e-9);
 //! ```
 
+pub mod aniposelib;
 pub mod c3d;
 pub mod camera;
 pub mod correspond;
@@ -45,6 +47,7 @@ pub mod session;
 pub mod sync;
 pub mod triangulate;
 
+pub use aniposelib::{read_aniposelib_calibration, read_labeled_points};
 pub use c3d::{AnalogChannels, C3dTake, read_c3d};
 pub use camera::Camera;
 pub use correspond::{Blob, Candidate, CorrespondenceSettings, find_candidates, label_candidates};

@@ -474,7 +474,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
 
     // A marker never seen in two views can only come from the fill-in; without it, it is bad input.
     for (m, &v) in max_views.iter().enumerate() {
-        if v < 2 && (m >= n_obj || shell.is_none()) && std::env::var("XX").is_err() {
+        if v < 2 && (m >= n_obj || shell.is_none()) {
             return Err(CaptureError::TooFewViews {
                 marker: infos[m].id.clone(),
                 max_views: v,
