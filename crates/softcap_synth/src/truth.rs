@@ -1,0 +1,738 @@
+//! Ground truth: the stable neo-Hookean block (Smith, de Goes & Kim 2018; `softcap_fem`) on a
+//! mesh finer than the template it writes, probed quasi-statically frame by frame with
+//! `softcap_fem`'s rigid-probe contact (bickel2009 §3.4), displacement-controlled along the probe
+//! axis.
+//!
+//! The truth element is [`TruthModel`]: the stable neo-Hookean energy per element, optionally plus
+//! a second-order Yeoh term (strain stiffening)
+//!
+//! Ψ(F) = μ/2 (I_C − 3) − μ (J − 1) + λ/2 (J − 1)² + c₂ (I_C − 3)²,
+//! P = P_snh + 4 c₂ (I_C − 3) F,  ∂P/∂F = ∂P_snh/∂F + 4 c₂ [(I_C − 3) I₉ + 2 vec F vec Fᵀ],
+//!
+//! with per-element (λ, μ) (stiff inclusion = a sphere of elements with scaled parameters).
+//! Gravity pre-load applies the consistent body force of linear tets, f_a = ρ V_e g / 4 per node.
+
+use nalgebra::{Isometry3, Matrix3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use softcap_fem::element::{Matrix12, StiffnessKind, TetGeometry};
+use softcap_fem::{
+    ContactProblem, ContactSettings, ElasticModel, EquilibriumSettings, NeoHookeanParams, Probe,
+    StaticSolver, TipShape, neohookean_energy, neohookean_forces, neohookean_tangent,
+    tet_geometries,
+};
+use softcap_mesh::{TetEmbedding, TetLocator, TetMesh, box_tet_mesh};
+
+use crate::error::{Result, SynthError};
+use crate::scenario::{Effect, Scenario};
+
+const MM: f64 = 1e-3;
+
+/// Stable neo-Hookean elements with per-element parameters and an optional Yeoh c₂ term.
+#[derive(Clone, Debug)]
+pub struct TruthModel {
+    rest: Vec<Vector3<f64>>,
+    geometry: Vec<TetGeometry>,
+    /// Per-element (λ, μ).
+    pub params: Vec<NeoHookeanParams>,
+    /// Per-element Yeoh c₂, Pa (0 = plain stable neo-Hookean).
+    pub c2_pa: Vec<f64>,
+}
+
+impl TruthModel {
+    /// Model over `mesh`; `params` and `c2_pa` hold one entry per tet.
+    pub fn new(mesh: &TetMesh, params: Vec<NeoHookeanParams>, c2_pa: Vec<f64>) -> Result<Self> {
+        let geometry = tet_geometries(&mesh.vertices, &mesh.tets)?;
+        if params.len() != geometry.len() || c2_pa.len() != geometry.len() {
+            return Err(softcap_fem::FemError::LengthMismatch {
+                what: "per-element truth parameters",
+                expected: geometry.len(),
+                got: params.len().min(c2_pa.len()),
+            }
+            .into());
+        }
+        Ok(Self {
+            rest: mesh.vertices.clone(),
+            geometry,
+            params,
+            c2_pa,
+        })
+    }
+
+    /// Yeoh term: P_s = 4 c₂ (I_C − 3) F.
+    fn yeoh_pk1(c2: f64, f: &Matrix3<f64>) -> Matrix3<f64> {
+        f * (4.0 * c2 * (f.norm_squared() - 3.0))
+    }
+}
+
+impl ElasticModel for TruthModel {
+    fn rest_positions(&self) -> &[Vector3<f64>] {
+        &self.rest
+    }
+    fn elements(&self) -> &[TetGeometry] {
+        &self.geometry
+    }
+    fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
+        let g = &self.geometry[e];
+        let mut f = neohookean_forces(g, &self.params[e], x);
+        let c2 = self.c2_pa[e];
+        if c2 != 0.0 {
+            let p = Self::yeoh_pk1(c2, &g.deformation_gradient(x)) * g.volume_m3;
+            for a in 0..4 {
+                f[a] += p * g.grads[a];
+            }
+        }
+        f
+    }
+    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], _kind: StiffnessKind) -> Matrix12 {
+        let g = &self.geometry[e];
+        let mut k = neohookean_tangent(g, &self.params[e], x);
+        let c2 = self.c2_pa[e];
+        if c2 != 0.0 {
+            let f = g.deformation_gradient(x);
+            let vf = SVector::<f64, 9>::from_column_slice(f.as_slice());
+            let d = SMatrix::<f64, 9, 9>::identity() * (4.0 * c2 * (f.norm_squared() - 3.0))
+                + vf * vf.transpose() * (8.0 * c2);
+            let mut dfdx = SMatrix::<f64, 9, 12>::zeros();
+            for b in 0..4 {
+                for j in 0..3 {
+                    for l in 0..3 {
+                        dfdx[(j + 3 * l, 3 * b + j)] = g.grads[b][l];
+                    }
+                }
+            }
+            k += dfdx.transpose() * d * dfdx * g.volume_m3;
+        }
+        k
+    }
+    fn energy(&self, x: &[Vector3<f64>]) -> Option<f64> {
+        Some(
+            self.geometry
+                .iter()
+                .enumerate()
+                .map(|(e, g)| {
+                    let ic = g.deformation_gradient(x).norm_squared() - 3.0;
+                    neohookean_energy(g, &self.params[e], x) + g.volume_m3 * self.c2_pa[e] * ic * ic
+                })
+                .sum(),
+        )
+    }
+}
+
+/// Phase of a frame (HEART.md conventions).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Before the first contact.
+    Rest,
+    /// Loading ramp.
+    Loading,
+    /// Held at full depth.
+    Hold,
+    /// Unloading ramp.
+    Unloading,
+    /// After a release, probe lifted.
+    Released,
+}
+
+impl Phase {
+    /// Lowercase name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Rest => "rest",
+            Phase::Loading => "loading",
+            Phase::Hold => "hold",
+            Phase::Unloading => "unloading",
+            Phase::Released => "released",
+        }
+    }
+}
+
+/// One frame of the protocol (what the probe does), before simulation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameSpec {
+    /// Frame index.
+    pub frame: usize,
+    /// Exposure mid-time on the camera clock, s.
+    pub t_camera_s: f64,
+    /// Phase.
+    pub phase: Phase,
+    /// Location index the probe is at (or moving to).
+    pub location: usize,
+    /// Probe pose: origin at the tip face centre, +z the approach direction (into the object).
+    pub world_from_probe: Isometry3<f64>,
+    /// Commanded depth of the tip face centre below the rest surface along the axis, m
+    /// (negative while hovering).
+    pub depth_m: f64,
+}
+
+/// Simulated truth of one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameTruth {
+    /// The protocol frame.
+    pub spec: FrameSpec,
+    /// Object marker positions, m (world).
+    pub markers_m: Vec<Vector3<f64>>,
+    /// Unit outward normals of the painted marker discs.
+    pub marker_normals: Vec<Vector3<f64>>,
+    /// Force exerted by the probe on the object, N (world).
+    pub force_n: Vector3<f64>,
+    /// Force along the probe axis (what the FSR reads), N (≥ 0 when pushing).
+    pub axial_force_n: f64,
+    /// Equilibrium iterations used.
+    pub iterations: usize,
+}
+
+/// Probe geometry shared by simulation, rendering and writing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbeGeometry {
+    /// Contact tip shape (probe frame, +z into the object).
+    pub tip: TipShape,
+    /// Tip radius, m.
+    pub radius_m: f64,
+    /// Disk thickness, m (0 for a sphere).
+    pub thickness_m: f64,
+    /// Shaft radius, m.
+    pub shaft_radius_m: f64,
+    /// Shaft length from the tip, m.
+    pub shaft_length_m: f64,
+    /// Shaft marker ids, distances from the tip (m) and colours.
+    pub shaft_markers: Vec<(String, f64, String)>,
+    /// Shaft marker sphere radius, m.
+    pub shaft_marker_radius_m: f64,
+}
+
+impl ProbeGeometry {
+    /// From the scenario.
+    pub fn new(s: &Scenario) -> Self {
+        let p = &s.probe;
+        let tip = if p.tip == "sphere" {
+            TipShape::Sphere {
+                radius_m: p.radius_mm * MM,
+            }
+        } else {
+            TipShape::Disk {
+                radius_m: p.radius_mm * MM,
+                thickness_m: p.thickness_mm * MM,
+            }
+        };
+        Self {
+            tip,
+            radius_m: p.radius_mm * MM,
+            thickness_m: if p.tip == "sphere" {
+                0.0
+            } else {
+                p.thickness_mm * MM
+            },
+            shaft_radius_m: p.shaft_radius_mm * MM,
+            shaft_length_m: p.shaft_length_mm * MM,
+            shaft_markers: (0..2)
+                .map(|i| {
+                    (
+                        format!("shaft{i}"),
+                        p.shaft_marker_distances_mm[i] * MM,
+                        p.shaft_marker_colors[i].clone(),
+                    )
+                })
+                .collect(),
+            shaft_marker_radius_m: p.shaft_marker_radius_mm * MM,
+        }
+    }
+
+    /// World positions of the shaft markers for a probe pose.
+    pub fn shaft_marker_positions(&self, world_from_probe: &Isometry3<f64>) -> Vec<Vector3<f64>> {
+        self.shaft_markers
+            .iter()
+            .map(|(_, d, _)| {
+                world_from_probe
+                    .transform_point(&[0.0, 0.0, -d].into())
+                    .coords
+            })
+            .collect()
+    }
+}
+
+/// The block, its meshes and markers.
+#[derive(Clone, Debug)]
+pub struct Block {
+    /// Size, m.
+    pub size_m: Vector3<f64>,
+    /// Template (fit) mesh at rest, m.
+    pub fit_mesh: TetMesh,
+    /// Ground-truth mesh at rest, m.
+    pub truth_mesh: TetMesh,
+    /// Marker ids.
+    pub marker_ids: Vec<String>,
+    /// Marker rest positions (stress-free shape), m.
+    pub markers_rest_m: Vec<Vector3<f64>>,
+}
+
+impl Block {
+    /// Meshes and seeded marker layout of the scenario.
+    pub fn new(s: &Scenario, rng: &mut ChaCha8Rng) -> Self {
+        let size = s.object.size_mm.map(|v| v * MM);
+        let fit_mesh = box_tet_mesh([0.0; 3], size, s.object.fit_cells);
+        let truth_mesh = box_tet_mesh([0.0; 3], size, s.object.truth_cells);
+        let [gx, gy] = s.object.marker_grid;
+        let m = s.object.marker_margin_mm * MM;
+        let j = s.object.marker_jitter_mm * MM;
+        let mut marker_ids = Vec::new();
+        let mut markers_rest_m = Vec::new();
+        for r in 0..gy {
+            for c in 0..gx {
+                let x = m + (size[0] - 2.0 * m) * c as f64 / (gx - 1) as f64;
+                let y = m + (size[1] - 2.0 * m) * r as f64 / (gy - 1) as f64;
+                let (dx, dy) = (
+                    rng.random_range(-1.0..=1.0) * j,
+                    rng.random_range(-1.0..=1.0) * j,
+                );
+                marker_ids.push(format!("m{:02}", marker_ids.len()));
+                markers_rest_m.push(Vector3::new(
+                    (x + dx).clamp(0.5 * m, size[0] - 0.5 * m),
+                    (y + dy).clamp(0.5 * m, size[1] - 0.5 * m),
+                    size[2],
+                ));
+            }
+        }
+        Self {
+            size_m: Vector3::from(size),
+            fit_mesh,
+            truth_mesh,
+            marker_ids,
+            markers_rest_m,
+        }
+    }
+
+    /// Height of the top face, m.
+    pub fn top_m(&self) -> f64 {
+        self.size_m.z
+    }
+}
+
+/// Per-element truth parameters of the scenario (heterogeneity and stiffening switched by effects).
+pub fn truth_model(s: &Scenario, mesh: &TetMesh) -> Result<TruthModel> {
+    let young = if s.has(Effect::GravityPreload) {
+        s.effect_settings.gravity_young_pa
+    } else {
+        s.material.young_pa
+    };
+    let base = NeoHookeanParams::from_young_poisson(young, s.material.poisson)?;
+    let inc = &s.material.inclusion;
+    let centre = Vector3::from(inc.centre_mm) * MM;
+    let mut params = Vec::with_capacity(mesh.tets.len());
+    for t in &mesh.tets {
+        let c: Vector3<f64> = t.iter().map(|&i| mesh.vertices[i]).sum::<Vector3<f64>>() / 4.0;
+        let inside = s.has(Effect::StiffInclusion) && (c - centre).norm() <= inc.radius_mm * MM;
+        let (lame, mu) = base.lame();
+        params.push(if inside {
+            NeoHookeanParams::from_lame(lame * inc.stiffness_ratio, mu * inc.stiffness_ratio)?
+        } else {
+            base
+        });
+    }
+    let c2 = if s.has(Effect::StrainStiffening) {
+        s.material.stiffening.c2_over_mu * base.mu
+    } else {
+        0.0
+    };
+    TruthModel::new(mesh, params, vec![c2; mesh.tets.len()])
+}
+
+/// Seeded probe locations on the top face (or the scenario's explicit list), m.
+pub fn probe_locations(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
+    if !s.protocol.locations_mm.is_empty() {
+        return s
+            .protocol
+            .locations_mm
+            .iter()
+            .map(|p| [p[0] * MM, p[1] * MM])
+            .collect();
+    }
+    let m = s.protocol.edge_margin_mm * MM;
+    let (lx, ly) = (
+        (block.size_m.x - 2.0 * m).max(0.0),
+        (block.size_m.y - 2.0 * m).max(0.0),
+    );
+    let n = s.protocol.locations;
+    // Dart throwing with a shrinking minimum spacing: spread out, deterministic for the seed.
+    let mut spacing = (lx * ly / n as f64).sqrt() * 0.9;
+    let mut out: Vec<[f64; 2]> = Vec::with_capacity(n);
+    let mut tries = 0;
+    while out.len() < n {
+        let p = [m + rng.random::<f64>() * lx, m + rng.random::<f64>() * ly];
+        if out
+            .iter()
+            .all(|q| (q[0] - p[0]).hypot(q[1] - p[1]) >= spacing)
+        {
+            out.push(p);
+        }
+        tries += 1;
+        if tries % 200 == 0 {
+            spacing *= 0.9;
+        }
+    }
+    out
+}
+
+/// Probe orientation: +z of the probe along `axis` (into the object).
+fn probe_rotation(tilt_deg: f64, azimuth_rad: f64) -> UnitQuaternion<f64> {
+    let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+    let tilt_axis =
+        nalgebra::Unit::new_normalize(Vector3::new(-azimuth_rad.sin(), azimuth_rad.cos(), 0.0));
+    UnitQuaternion::from_axis_angle(&tilt_axis, tilt_deg.to_radians()) * down
+}
+
+/// The frame schedule: frame 0 at rest with the probe hovering over the first location, then per
+/// location a ramp, a hold, a release and moves to the next location.
+pub fn schedule(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<FrameSpec> {
+    let locations = probe_locations(s, block, rng);
+    let p = &s.protocol;
+    let tilt = if s.has(Effect::ProbeFriction) {
+        p.tilt_deg.max(15.0)
+    } else {
+        p.tilt_deg
+    };
+    let depths: Vec<f64> = locations
+        .iter()
+        .map(|_| (p.depth_mm[0] + rng.random::<f64>() * (p.depth_mm[1] - p.depth_mm[0])) * MM)
+        .collect();
+    let azimuths: Vec<f64> = locations
+        .iter()
+        .map(|_| rng.random::<f64>() * std::f64::consts::TAU)
+        .collect();
+    let top = block.top_m();
+    let pose = |loc: usize, depth_m: f64| {
+        let rot = probe_rotation(tilt, azimuths[loc]);
+        let axis = rot * Vector3::z();
+        let surface = Vector3::new(locations[loc][0], locations[loc][1], top);
+        Isometry3::from_parts(Translation3::from(surface + axis * depth_m), rot)
+    };
+    let hover = -p.hover_mm * MM;
+    let mut frames = Vec::new();
+    let mut push = |phase: Phase, location: usize, iso: Isometry3<f64>, depth_m: f64| {
+        let frame = frames.len();
+        frames.push(FrameSpec {
+            frame,
+            t_camera_s: p.start_time_s + frame as f64 / p.frame_rate_hz,
+            phase,
+            location,
+            world_from_probe: iso,
+            depth_m,
+        });
+    };
+    push(Phase::Rest, 0, pose(0, hover), hover);
+    for (l, &d) in depths.iter().enumerate() {
+        for k in 1..=p.ramp_frames {
+            let z = d * k as f64 / p.ramp_frames as f64;
+            push(Phase::Loading, l, pose(l, z), z);
+        }
+        for _ in 0..p.hold_frames {
+            push(Phase::Hold, l, pose(l, d), d);
+        }
+        for k in 1..=p.release_frames {
+            let z = d * (1.0 - k as f64 / p.release_frames as f64);
+            push(Phase::Unloading, l, pose(l, z), z);
+        }
+        let next = (l + 1).min(locations.len() - 1);
+        for k in 1..=p.move_frames {
+            let a = pose(l, hover);
+            let b = pose(next, hover);
+            let t = k as f64 / p.move_frames as f64;
+            let iso = Isometry3::from_parts(
+                Translation3::from(a.translation.vector.lerp(&b.translation.vector, t)),
+                a.rotation.slerp(&b.rotation, t),
+            );
+            push(Phase::Released, next, iso, hover);
+        }
+    }
+    frames
+}
+
+/// Consistent body force of linear tets under gravity: f_a = Σ_e ρ V_e g / 4.
+pub fn gravity_forces(mesh: &TetMesh, density_kg_m3: f64, g: Vector3<f64>) -> Vec<Vector3<f64>> {
+    let mut f = vec![Vector3::zeros(); mesh.vertices.len()];
+    for t in 0..mesh.tets.len() {
+        let w = g * (density_kg_m3 * mesh.tet_volume(t) / 4.0);
+        for &a in &mesh.tets[t] {
+            f[a] += w;
+        }
+    }
+    f
+}
+
+/// Everything the simulation produced.
+#[derive(Clone, Debug)]
+pub struct Truth {
+    /// The block.
+    pub block: Block,
+    /// Probe geometry.
+    pub probe: ProbeGeometry,
+    /// Per-frame truth.
+    pub frames: Vec<FrameTruth>,
+    /// The observed template (frame-0 state): markers, m.
+    pub template_markers_m: Vec<Vector3<f64>>,
+    /// The observed template fit mesh (frame-0 state; sagged under gravity pre-load), m.
+    pub template_fit_mesh: TetMesh,
+    /// Probe locations on the top face, m.
+    pub locations_m: Vec<[f64; 2]>,
+    /// Elements of the truth mesh inside the stiff inclusion (0 when off).
+    pub inclusion_elements: usize,
+    /// Largest equilibrium iteration count of any frame.
+    pub max_iterations: usize,
+}
+
+/// Runs the ground-truth simulation of a scenario.
+pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
+    for e in &s.effects {
+        if matches!(
+            e,
+            Effect::Viscoelasticity
+                | Effect::Plasticity
+                | Effect::SupportSlip
+                | Effect::Anisotropy
+                | Effect::InertiaDamping
+                | Effect::ProbeFriction
+        ) {
+            return Err(SynthError::Unsupported {
+                scenario: s.name.clone(),
+                message: format!(
+                    "effect {} needs softcap_fem support (femdyn / feminel APIs) that is not on main yet",
+                    e.name()
+                ),
+            });
+        }
+    }
+    let block = Block::new(s, rng);
+    let frames_spec = schedule(s, &block, rng);
+    let probe_geom = ProbeGeometry::new(s);
+    let mesh = &block.truth_mesh;
+    let mut model = truth_model(s, mesh)?;
+    let inclusion_elements = if s.has(Effect::StiffInclusion) {
+        let base = model
+            .params
+            .iter()
+            .map(|p| p.mu)
+            .fold(f64::INFINITY, f64::min);
+        model.params.iter().filter(|p| p.mu > base * 1.0001).count()
+    } else {
+        0
+    };
+
+    // Support: the bottom face bonded to the table.
+    let mut bc = softcap_fem::DirichletBc::new();
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        if v.z <= 1e-12 {
+            bc.fix_node(i, *v);
+        }
+    }
+    let mut solver = StaticSolver::with_bc(&model, &bc)?;
+    let top = block.top_m();
+    let candidates: Vec<usize> = (0..mesh.vertices.len())
+        .filter(|&i| mesh.vertices[i].z >= top - 1e-12)
+        .collect();
+    let f_ext = if s.has(Effect::GravityPreload) {
+        gravity_forces(
+            mesh,
+            s.object.density_kg_m3,
+            Vector3::from(s.effect_settings.gravity_m_s2),
+        )
+    } else {
+        vec![Vector3::zeros(); mesh.vertices.len()]
+    };
+    let settings = EquilibriumSettings {
+        max_iterations: 60,
+        displacement_tol_rel: 1e-9,
+        residual_tol_rel: 1e-7,
+        ..EquilibriumSettings::newton()
+    };
+    let contact_settings = ContactSettings {
+        penalty_factor: s.probe.penalty_factor,
+    };
+    // Unloaded state: rest, or sagged under gravity.
+    let mut unloaded = mesh.vertices.clone();
+    let mut max_iterations = 0;
+    if s.has(Effect::GravityPreload) {
+        let mut x = mesh.vertices.clone();
+        let steps = 8;
+        for k in 1..=steps {
+            let f: Vec<_> = f_ext
+                .iter()
+                .map(|f| f * (k as f64 / steps as f64))
+                .collect();
+            let rep = solver.solve(&mut model, &mut x, &f, None, &settings);
+            if !rep.converged() {
+                return Err(SynthError::Simulation {
+                    frame: 0,
+                    message: format!("gravity pre-load step {k}: {:?}", rep.status),
+                });
+            }
+            max_iterations = max_iterations.max(rep.iterations);
+        }
+        unloaded = x;
+    }
+    let locator = TetLocator::new(mesh);
+    let embed = |p: &Vector3<f64>| -> TetEmbedding {
+        locator
+            .locate(p)
+            .expect("a point of the block lies in or near its mesh")
+    };
+    let marker_embeddings: Vec<TetEmbedding> = block.markers_rest_m.iter().map(embed).collect();
+    let geometry = model.elements().to_vec();
+
+    let mut x = unloaded.clone();
+    let mut prev_pose: Option<Isometry3<f64>> = None;
+    let mut prev_spec: Option<FrameSpec> = None;
+    let mut frames = Vec::with_capacity(frames_spec.len());
+    for spec in &frames_spec {
+        let probe = Probe::new(probe_geom.tip.clone(), spec.world_from_probe)?;
+        let touches = candidates.iter().any(|&i| {
+            probe.penetration(&unloaded[i]).is_some() || probe.penetration(&x[i]).is_some()
+        });
+        let (force_n, axial, iterations) = if !touches {
+            x.clone_from(&unloaded);
+            (Vector3::zeros(), 0.0, 0)
+        } else {
+            let from = prev_pose.unwrap_or(spec.world_from_probe);
+            let mut result = None;
+            // Unloading: warm-start from the previous displacement scaled by the depth ratio, so
+            // the contact patch starts close to its final shape instead of inside the probe.
+            if let Some(prev) = prev_spec.as_ref().filter(|p| {
+                p.location == spec.location && spec.depth_m < p.depth_m && p.depth_m > 0.0
+            }) {
+                let ratio = (spec.depth_m / prev.depth_m).clamp(0.0, 1.0);
+                for (xi, ui) in x.iter_mut().zip(&unloaded) {
+                    *xi = ui + (*xi - ui) * ratio;
+                }
+            }
+            let start = x.clone();
+            for substeps in [1usize, 4, 16] {
+                x.clone_from(&start);
+                let mut ok = true;
+                let mut last = None;
+                for k in 1..=substeps {
+                    let t = k as f64 / substeps as f64;
+                    let iso = Isometry3::from_parts(
+                        Translation3::from(
+                            from.translation
+                                .vector
+                                .lerp(&spec.world_from_probe.translation.vector, t),
+                        ),
+                        from.rotation.slerp(&spec.world_from_probe.rotation, t),
+                    );
+                    let problem = ContactProblem {
+                        probe: Probe::new(probe_geom.tip.clone(), iso)?,
+                        candidate_nodes: candidates.clone(),
+                        settings: contact_settings.clone(),
+                    };
+                    let mut rep =
+                        solver.solve(&mut model, &mut x, &f_ext, Some(&problem), &settings);
+                    // The active set is frozen late in the iterations; re-solve from the
+                    // converged state until no node of the patch is held in tension.
+                    for _ in 0..4 {
+                        if !rep.converged()
+                            || rep
+                                .contact
+                                .patch_nodes
+                                .iter()
+                                .all(|&n| problem.probe.penetration(&x[n]).is_some())
+                        {
+                            break;
+                        }
+                        rep = solver.solve(&mut model, &mut x, &f_ext, Some(&problem), &settings);
+                    }
+                    if !rep.converged() {
+                        ok = false;
+                        last = Some(rep);
+                        break;
+                    }
+                    last = Some(rep);
+                }
+                let rep = last.expect("at least one substep ran");
+                if ok {
+                    result = Some((
+                        rep.contact.contact_force_n,
+                        rep.contact.axial_force_n,
+                        rep.iterations,
+                    ));
+                    break;
+                } else if substeps == 16 {
+                    return Err(SynthError::Simulation {
+                        frame: spec.frame,
+                        message: format!("{:?} after 16 substeps", rep.status),
+                    });
+                }
+            }
+            result.expect("converged or returned")
+        };
+        max_iterations = max_iterations.max(iterations);
+        prev_pose = Some(spec.world_from_probe);
+        prev_spec = Some(spec.clone());
+        let markers_m = marker_embeddings
+            .iter()
+            .map(|e| e.position(&mesh.tets, &x))
+            .collect();
+        let marker_normals = marker_embeddings
+            .iter()
+            .map(|e| {
+                let f = geometry[e.tet].deformation_gradient(&x);
+                let n = f
+                    .try_inverse()
+                    .map(|fi| fi.transpose() * Vector3::z())
+                    .unwrap_or(Vector3::z());
+                n.normalize()
+            })
+            .collect();
+        frames.push(FrameTruth {
+            spec: spec.clone(),
+            markers_m,
+            marker_normals,
+            force_n,
+            axial_force_n: axial,
+            iterations,
+        });
+    }
+
+    // The observed template: frame-0 state (sagged under gravity pre-load), carried to the fit
+    // mesh by embedding its vertices in the truth mesh.
+    let template_markers_m = marker_embeddings
+        .iter()
+        .map(|e| e.position(&mesh.tets, &unloaded))
+        .collect();
+    let mut template_fit_mesh = block.fit_mesh.clone();
+    for v in template_fit_mesh.vertices.iter_mut() {
+        *v = embed(v).position(&mesh.tets, &unloaded);
+    }
+    let locations_m = frames_spec
+        .iter()
+        .map(|f| f.location)
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .map(|l| {
+            let p = frames_spec
+                .iter()
+                .find(|f| f.location == l && f.phase == Phase::Hold)
+                .or_else(|| frames_spec.iter().find(|f| f.location == l))
+                .expect("location has frames");
+            let c = p.world_from_probe.translation.vector
+                - p.world_from_probe.rotation * Vector3::z() * p.depth_m;
+            [c.x, c.y]
+        })
+        .collect();
+    Ok(Truth {
+        block,
+        probe: probe_geom,
+        frames,
+        template_markers_m,
+        template_fit_mesh,
+        locations_m,
+        inclusion_elements,
+        max_iterations,
+    })
+}
+
+/// Seeded RNG of one purpose: every consumer gets its own stream so that switching one output on
+/// or off does not change the others.
+pub fn stream(seed: u64, purpose: u64) -> ChaCha8Rng {
+    let mut r = ChaCha8Rng::seed_from_u64(seed);
+    r.set_stream(purpose);
+    r
+}
