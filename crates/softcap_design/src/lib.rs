@@ -1,0 +1,51 @@
+//! # softcap_design — materials with desired deformation behaviour (thesis ch. 8)
+//!
+//! Measure base materials, predict stacked composites and search for the composite whose
+//! force–displacement behaviour best matches a goal (bickel2010 ch. 8).
+//!
+//! | module | what | thesis |
+//! |---|---|---|
+//! | [`material`] | isotropic RBF over strain invariants → (λ, μ); transversely isotropic RBF over strain → (E11, E12, E13, E33, E44) with PD projection | eq. 8.1, 8.2, 8.5; §8.3 |
+//! | [`model`] | corotational composite model with per-element E(p(ε)) | §8.2 |
+//! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
+//! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |
+//!
+//! ```
+//! use softcap_design::{BaseMaterial, InvariantMaterial, CompositeSettings, CompositeSimulator, LayeredBlock};
+//! use std::sync::Arc;
+//! let settings = CompositeSettings { layers: 2, forces_n: vec![1.0], ..CompositeSettings::default() };
+//! let block = Arc::new(LayeredBlock::uniform(&settings)?);
+//! let mats = Arc::new(vec![
+//!     BaseMaterial::Isotropic(InvariantMaterial::from_young_poisson(2.0e5, 0.3)),
+//!     BaseMaterial::Isotropic(InvariantMaterial::from_young_poisson(8.0e5, 0.3)),
+//! ]);
+//! let mut sim = CompositeSimulator::new(block, mats, &settings)?;
+//! let soft_top = sim.simulate(&[1, 0])?;
+//! let hard_top = sim.simulate(&[0, 1])?;
+//! assert!(soft_top.probe_displacement_m[0] > 0.0 && hard_top.probe_displacement_m[0] > 0.0);
+//! # Ok::<(), softcap_design::DesignError>(())
+//! ```
+
+pub mod composite;
+mod error;
+pub mod material;
+pub mod model;
+pub mod search;
+
+pub use composite::{
+    CompositeResponse, CompositeSettings, CompositeSimulator, LayeredBlock, rms_displacement_error,
+};
+pub use error::{DesignError, Result};
+pub use material::{
+    BaseMaterial, InvariantMaterial, IsotropicBounds, StrainRbf, TransverseBounds,
+    TransverseMaterial, TransverseParams, isotropic_matrix, project_lame, project_transverse,
+    strain_invariants, strain_tensor,
+};
+pub use model::CompositeModel;
+pub use search::{
+    DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings, TableEvaluator,
+    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
+    point_box_distance,
+};
+
+pub use softcap_fem;
