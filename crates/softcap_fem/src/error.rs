@@ -78,6 +78,14 @@ pub enum FemError {
         /// which quantity
         what: &'static str,
     },
+    /// A setting or model parameter outside its valid range (time step, Prony branch, density, …).
+    #[error("{what} = {value} is outside its valid range")]
+    InvalidSetting {
+        /// which setting
+        what: &'static str,
+        /// offending value
+        value: f64,
+    },
     /// The sparse factorization failed (matrix singular or not positive definite even for LDLᵀ).
     #[error("sparse factorization failed: {reason}")]
     Factorization {

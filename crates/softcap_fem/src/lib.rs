@@ -11,6 +11,10 @@
 //! | [`assembly`] | Dirichlet elimination, faer sparse pattern, sparse Cholesky (symbolic once, many solves) | bickel2009 appendix |
 //! | [`statics`] | equilibrium iterations, incremental loading, Newton with line search, eq. 10 with frozen rotations | bickel2009 §3.4, eq. 10 |
 //! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
+//! | [`gravity`] | lumped masses m_a = Σ ρV_e/4, body force M g, rest shape X from a static shape: R K (Rᵀx_s − X) = M g by Newton with exact ∂f/∂X (corotational and neo-Hookean) | wang2015 §3, §6.1 eq. 3, 7–8 |
+//! | [`viscoelastic`] | Prony series G(t)/G_∞ = 1 + Σ g_i e^{−t/τ_i} as QLV on the element stress in the unrotated frame, P = R(T + Σh_i), exact exponential recurrence h ← a h + b ΔT | Simo & Hughes 1998 §10.3; Puso & Weiss 1998 |
+//! | [`dynamics`] | M ẍ + D ẋ + f_int(x) = f_ext, lumped M, Rayleigh D = αM + βK; implicit Euler (A = M/h² + D/h + K) and Newmark average acceleration (A = 4M/h² + 2D/h + K), Newton per step, probe contact | wang2015 eq. 3 |
+//! | [`modal`] | smallest K φ = λ M φ: dense M^{-1/2} K M^{-1/2} eigen; shift-invert Lanczos on (K − σM)⁻¹M with locking/restarts for repeated (rigid-body) modes | wang2015 §7 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
 //! | [`anisotropy`] | transversely isotropic E with five parameters {E11, E12, E13, E33, E44} and a per-element fibre, σ = C ε on the corotated strain; E_a = E33 − 2E13²/(E11+E12); PD check and Mandel eigenvalue clipping | thesis §8.5 eq. 8.5; Rebonato & Jäckel 1999 |
 //! | [`friction`] | regularized Coulomb at the probe: f_t = −μ f_n s(‖δ‖/ε) δ/‖δ‖, s(r) = 2r − r² (r < 1), 1 after; stick anchors in the probe frame, dragged to ε on commit | Li et al. 2020 (IPC) §5.1 f₁ mollifier; bickel2009 §3.4 contact |
@@ -43,16 +47,20 @@ pub mod assembly;
 pub mod contact;
 mod corotated;
 pub mod derivatives;
+pub mod dynamics;
 pub mod element;
 mod error;
 pub mod friction;
+pub mod gravity;
 pub mod material;
+pub mod modal;
 pub mod model;
 pub mod neohookean;
 pub mod nodal;
 pub mod plasticity;
 pub mod statics;
 pub mod support;
+pub mod viscoelastic;
 
 pub use anisotropy::{
     AnisotropicModel, TransverselyIsotropicParams, material_frame, stiffness_in_frame,
@@ -84,6 +92,21 @@ pub use statics::{
     SolveStatus, StaticSolver, StepReport, incremental_loading,
 };
 pub use support::{SupportPlane, SupportReport, SupportTangential};
+
+pub use gravity::{
+    RestShape, RestShapeModel, RestShapeReport, RestShapeSettings, RestShapeStatus,
+    STANDARD_GRAVITY_M_S2, element_rest_jacobian, gravity_forces, lumped_masses,
+    lumped_masses_per_element, solve_rest_shape,
+};
+pub use viscoelastic::{
+    PronyBranch, PronySeries, ViscoelasticModel, viscoelastic_quasi_static_step,
+};
+
+pub use dynamics::{
+    DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings,
+    Integrator, RayleighDamping,
+};
+pub use modal::{LanczosModes, LanczosReport, ModalSettings, Modes, dense_modes, lanczos_modes};
 
 pub use faer;
 pub use nalgebra;

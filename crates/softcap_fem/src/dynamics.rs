@@ -1,0 +1,508 @@
+//! Dynamics: lumped mass, Rayleigh damping and implicit time integration of wang2015 eq. 3,
+//!
+//! M ẍ + D ẋ + f_int(x) = f_ext (+ probe contact),  D = α M + β K  (wang2015 §3, eq. 3),
+//!
+//! where M is the lumped (diagonal) mass of [`crate::lumped_masses`], f_int the model's internal
+//! force (for the corotational model R K (Rᵀx − X)), and K the model's element matrices at the current
+//! iterate ([`StiffnessKind::Warped`] R K Rᵀ by default, as in wang2015; the damping force is
+//! β Σ_e K_e v_e evaluated element by element).
+//!
+//! Two implicit integrators, both solved by Newton iterations on x_{n+1} over the free dofs
+//! (constraints eliminated; their prescribed positions at t_{n+1} are applied first):
+//!
+//! * **implicit (backward) Euler**: v_{n+1} = (x_{n+1} − x_n)/h, a_{n+1} = (v_{n+1} − v_n)/h;
+//!   system matrix A = M/h² + D/h + K. First order, numerically damped (for a linear mode the
+//!   amplification is z = 1/(1 − h s)).
+//! * **Newmark, average acceleration** (β_N = 1/4, γ_N = 1/2): x_{n+1} = x_n + h v_n + h²/4
+//!   (a_n + a_{n+1}), v_{n+1} = v_n + h/2 (a_n + a_{n+1}); A = 4M/h² + 2D/h + K. Second order,
+//!   unconditionally stable, no numerical damping (for a linear mode it is the trapezoidal rule,
+//!   z = (1 + h s/2)/(1 − h s/2)).
+//!
+//! Each Newton iteration solves A Δx = f_ext + f_c − f_int(x) − D v(x) − M a(x) with the
+//! factorization of [`SparseCholesky`] (pattern and symbolic analysis built once per solver).
+//! Probe contact enters as the penalty springs of [`crate::contact`] (re-queried each iteration).
+//! Models with internal time-dependent state ([`crate::ViscoelasticModel`]) are stepped by the caller:
+//! `set_time_step(h)` once, then `commit(x)` after each converged step.
+
+use crate::FemError;
+use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
+use crate::contact::{ContactProblem, ContactReport};
+use crate::element::StiffnessKind;
+use crate::model::ElasticModel;
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Time integrator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Integrator {
+    /// Backward (implicit) Euler: first order, dissipative.
+    ImplicitEuler,
+    /// Newmark average acceleration (β = 1/4, γ = 1/2): second order, energy conserving.
+    NewmarkAverageAcceleration,
+}
+
+/// Rayleigh damping D = α M + β K (wang2015 eq. 3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RayleighDamping {
+    /// mass-proportional coefficient α [1/s]
+    pub alpha_per_s: f64,
+    /// stiffness-proportional coefficient β [s]
+    pub beta_s: f64,
+}
+
+impl RayleighDamping {
+    /// Modal damping ratio of a mode with angular frequency ω [rad/s]: ζ = α/(2ω) + βω/2.
+    pub fn damping_ratio(&self, omega_rad_s: f64) -> f64 {
+        self.alpha_per_s / (2.0 * omega_rad_s) + 0.5 * self.beta_s * omega_rad_s
+    }
+
+    /// (α, β) giving damping ratios ζ₁, ζ₂ at ω₁ ≠ ω₂ (the classical two-frequency fit).
+    pub fn from_two_ratios(omega1: f64, zeta1: f64, omega2: f64, zeta2: f64) -> Self {
+        // [1/(2ω₁) ω₁/2; 1/(2ω₂) ω₂/2] [α; β] = [ζ₁; ζ₂]
+        let det = omega2 / (4.0 * omega1) - omega1 / (4.0 * omega2);
+        let alpha = (zeta1 * omega2 / 2.0 - zeta2 * omega1 / 2.0) / det;
+        let beta = (zeta2 / (2.0 * omega1) - zeta1 / (2.0 * omega2)) / det;
+        Self {
+            alpha_per_s: alpha,
+            beta_s: beta,
+        }
+    }
+}
+
+/// Settings of the dynamic solver.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DynamicsSettings {
+    /// Integrator.
+    pub integrator: Integrator,
+    /// Time step h [s].
+    pub time_step_s: f64,
+    /// Rayleigh damping.
+    pub damping: RayleighDamping,
+    /// Element matrix used for K (in A and in the damping force).
+    pub stiffness: StiffnessKind,
+    /// Newton iterations per step (1 = linearly implicit).
+    pub max_iterations: usize,
+    /// Converged when ‖r‖₂ ≤ `residual_tol_rel` × max(‖f_ext‖, ‖f_int‖, ‖M a‖, ‖f_c‖), or when
+    /// ‖r‖₂ is below what a displacement of this × bounding-box diagonal would cause.
+    pub displacement_tol_rel: f64,
+    /// Relative residual tolerance (see `displacement_tol_rel`).
+    pub residual_tol_rel: f64,
+}
+
+impl Default for DynamicsSettings {
+    fn default() -> Self {
+        Self {
+            integrator: Integrator::NewmarkAverageAcceleration,
+            time_step_s: 1e-3,
+            damping: RayleighDamping::default(),
+            stiffness: StiffnessKind::Warped,
+            max_iterations: 20,
+            displacement_tol_rel: 1e-10,
+            residual_tol_rel: 1e-8,
+        }
+    }
+}
+
+/// Positions, velocities and accelerations of every node at time t.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DynamicState {
+    /// time [s]
+    pub time_s: f64,
+    /// x [m]
+    pub positions_m: Vec<Vector3<f64>>,
+    /// ẋ [m/s]
+    pub velocities_m_s: Vec<Vector3<f64>>,
+    /// ẍ [m/s²]
+    pub accelerations_m_s2: Vec<Vector3<f64>>,
+}
+
+impl DynamicState {
+    /// State at time 0 with positions `x`, zero velocity and acceleration (call
+    /// [`DynamicSolver::initialize_acceleration`] before a Newmark run that does not start in
+    /// equilibrium).
+    pub fn at_rest(x: Vec<Vector3<f64>>) -> Self {
+        let n = x.len();
+        Self {
+            time_s: 0.0,
+            positions_m: x,
+            velocities_m_s: vec![Vector3::zeros(); n],
+            accelerations_m_s2: vec![Vector3::zeros(); n],
+        }
+    }
+}
+
+/// Outcome of one time step (never a panic).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum DynamicStepStatus {
+    /// Newton converged.
+    Converged,
+    /// Iteration limit reached (the state is advanced with the last iterate).
+    MaxIterations,
+    /// Factorization failed or values became non-finite (the state is not advanced).
+    Failed {
+        /// reason
+        reason: String,
+    },
+}
+
+/// Report of one time step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DynamicStepReport {
+    /// Status.
+    pub status: DynamicStepStatus,
+    /// Newton iterations.
+    pub iterations: usize,
+    /// Final residual norm [N].
+    pub residual_norm_n: f64,
+    /// Contact outcome at the end of the step.
+    pub contact: ContactReport,
+}
+
+/// Implicit dynamic solver bound to a mesh, masses and a constrained-dof set.
+#[derive(Debug)]
+pub struct DynamicSolver {
+    pattern: SystemPattern,
+    cholesky: SparseCholesky,
+    masses_kg: Vec<f64>,
+    length_scale_m: f64,
+}
+
+struct Kinematics {
+    cx: f64,
+    cv: f64,
+}
+
+impl DynamicSolver {
+    /// Pattern + symbolic factorization; `masses_kg` one per node (positive where free).
+    pub fn new<M: ElasticModel + ?Sized>(
+        model: &M,
+        masses_kg: Vec<f64>,
+        constrained_dofs: &[usize],
+    ) -> Result<Self, FemError> {
+        let n = model.num_nodes();
+        if masses_kg.len() != n {
+            return Err(FemError::LengthMismatch {
+                what: "nodal masses",
+                expected: n,
+                got: masses_kg.len(),
+            });
+        }
+        if let Some(&m) = masses_kg.iter().find(|m| !(m.is_finite() && **m >= 0.0)) {
+            return Err(FemError::InvalidSetting {
+                what: "nodal mass kg",
+                value: m,
+            });
+        }
+        let dofs = DofMap::new(n, constrained_dofs)?;
+        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
+        let pattern = SystemPattern::new(n, &tets, dofs)?;
+        let cholesky = SparseCholesky::new(&pattern)?;
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in model.rest_positions() {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        Ok(Self {
+            pattern,
+            cholesky,
+            masses_kg,
+            length_scale_m: (hi - lo).norm().max(f64::MIN_POSITIVE),
+        })
+    }
+
+    /// Solver for the constraint set of `bc`.
+    pub fn with_bc<M: ElasticModel + ?Sized>(
+        model: &M,
+        masses_kg: Vec<f64>,
+        bc: &DirichletBc,
+    ) -> Result<Self, FemError> {
+        Self::new(model, masses_kg, &bc.dofs())
+    }
+
+    /// The dof map.
+    pub fn dofs(&self) -> &DofMap {
+        self.pattern.dofs()
+    }
+
+    /// Nodal masses [kg].
+    pub fn masses_kg(&self) -> &[f64] {
+        &self.masses_kg
+    }
+
+    /// Damping force D v = α M v + β Σ_e K_e v_e at positions `x`.
+    pub fn damping_forces<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        damping: &RayleighDamping,
+        kind: StiffnessKind,
+    ) -> Vec<Vector3<f64>> {
+        let mut out: Vec<Vector3<f64>> = v
+            .iter()
+            .zip(&self.masses_kg)
+            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
+            .collect();
+        if damping.beta_s != 0.0 {
+            for (e, g) in model.elements().iter().enumerate() {
+                let k = model.element_matrix(e, x, kind);
+                let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+                for a in 0..4 {
+                    ve.fixed_rows_mut::<3>(3 * a).copy_from(&v[g.nodes[a]]);
+                }
+                let fe = k * ve * damping.beta_s;
+                for a in 0..4 {
+                    out[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
+                }
+            }
+        }
+        out
+    }
+
+    /// Sets a₀ = M⁻¹ (f_ext − f_int(x₀) − D v₀) on the free dofs (zero on constrained dofs and on
+    /// massless nodes): the consistent start of a Newmark run.
+    pub fn initialize_acceleration<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        state: &mut DynamicState,
+        external_forces_n: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+    ) {
+        let fi = model.internal_forces(&state.positions_m);
+        let fd = self.damping_forces(
+            model,
+            &state.positions_m,
+            &state.velocities_m_s,
+            &settings.damping,
+            settings.stiffness,
+        );
+        for (i, a) in state.accelerations_m_s2.iter_mut().enumerate() {
+            let m = self.masses_kg[i];
+            *a = Vector3::zeros();
+            if m > 0.0 {
+                for c in 0..3 {
+                    if self.dofs().free_index(3 * i + c).is_some() {
+                        a[c] = (external_forces_n[i][c] - fi[i][c] - fd[i][c]) / m;
+                    }
+                }
+            }
+        }
+    }
+
+    fn kinematics(settings: &DynamicsSettings) -> Kinematics {
+        let h = settings.time_step_s;
+        match settings.integrator {
+            Integrator::ImplicitEuler => Kinematics {
+                cx: 1.0 / (h * h),
+                cv: 1.0 / h,
+            },
+            Integrator::NewmarkAverageAcceleration => Kinematics {
+                cx: 4.0 / (h * h),
+                cv: 2.0 / h,
+            },
+        }
+    }
+
+    /// (v_{n+1}, a_{n+1}) of the integrator for a trial x_{n+1}.
+    fn velocity_acceleration(
+        settings: &DynamicsSettings,
+        state: &DynamicState,
+        x: &[Vector3<f64>],
+    ) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let h = settings.time_step_s;
+        let n = x.len();
+        let mut v = Vec::with_capacity(n);
+        let mut a = Vec::with_capacity(n);
+        for i in 0..n {
+            let dx = x[i] - state.positions_m[i];
+            match settings.integrator {
+                Integrator::ImplicitEuler => {
+                    let vi = dx / h;
+                    a.push((vi - state.velocities_m_s[i]) / h);
+                    v.push(vi);
+                }
+                Integrator::NewmarkAverageAcceleration => {
+                    let ai = (dx - state.velocities_m_s[i] * h) * (4.0 / (h * h))
+                        - state.accelerations_m_s2[i];
+                    v.push(
+                        state.velocities_m_s[i] + (state.accelerations_m_s2[i] + ai) * (0.5 * h),
+                    );
+                    a.push(ai);
+                }
+            }
+        }
+        (v, a)
+    }
+
+    /// Advances `state` by one step h under `external_forces_n` (at t_{n+1}), optional prescribed
+    /// positions at t_{n+1} (must cover the solver's constrained dofs if they move; otherwise the
+    /// constrained components keep their current values) and optional probe contact.
+    pub fn step<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &mut M,
+        state: &mut DynamicState,
+        external_forces_n: &[Vector3<f64>],
+        prescribed: Option<&DirichletBc>,
+        contact: Option<&ContactProblem>,
+        settings: &DynamicsSettings,
+    ) -> DynamicStepReport {
+        let mut report = DynamicStepReport {
+            status: DynamicStepStatus::MaxIterations,
+            iterations: 0,
+            residual_norm_n: f64::NAN,
+            contact: ContactReport::default(),
+        };
+        let n = model.num_nodes();
+        let h = settings.time_step_s;
+        if state.positions_m.len() != n
+            || external_forces_n.len() != n
+            || !(h > 0.0 && h.is_finite())
+        {
+            report.status = DynamicStepStatus::Failed {
+                reason: "length mismatch of state / forces, or time step not positive".into(),
+            };
+            return report;
+        }
+        let kin = Self::kinematics(settings);
+        let damping = settings.damping;
+        let a_mass = kin.cx + damping.alpha_per_s * kin.cv;
+        let a_stiff = 1.0 + damping.beta_s * kin.cv;
+        // Predictor: x_{n+1} = x_n + h v_n (+ h²/4 a_n for Newmark), prescribed dofs applied.
+        let mut x: Vec<Vector3<f64>> = (0..n)
+            .map(|i| {
+                let mut p = state.positions_m[i] + state.velocities_m_s[i] * h;
+                if settings.integrator == Integrator::NewmarkAverageAcceleration {
+                    p += state.accelerations_m_s2[i] * (0.25 * h * h);
+                }
+                p
+            })
+            .collect();
+        // Constrained dofs: keep the current value unless prescribed.
+        for d in 0..3 * n {
+            if self.dofs().free_index(d).is_none() {
+                x[d / 3][d % 3] = state.positions_m[d / 3][d % 3];
+            }
+        }
+        if let Some(bc) = prescribed {
+            bc.apply(&mut x);
+        }
+        let tol_x = settings.displacement_tol_rel * self.length_scale_m;
+        let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
+        for it in 0..settings.max_iterations.max(1) + 1 {
+            model.update_state(&x);
+            let (v, a) = Self::velocity_acceleration(settings, state, &x);
+            let mut values = self.pattern.zeros();
+            let fi = model.internal_forces(&x);
+            let mut fd: Vec<Vector3<f64>> = v
+                .iter()
+                .zip(&self.masses_kg)
+                .map(|(vi, m)| vi * (damping.alpha_per_s * m))
+                .collect();
+            for (e, g) in model.elements().iter().enumerate() {
+                let k = model.element_matrix(e, &x, settings.stiffness);
+                self.pattern.add_element(e, &(k * a_stiff), &mut values);
+                if damping.beta_s != 0.0 {
+                    let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+                    for q in 0..4 {
+                        ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[g.nodes[q]]);
+                    }
+                    let fe = k * ve * damping.beta_s;
+                    for q in 0..4 {
+                        fd[g.nodes[q]] += fe.fixed_rows::<3>(3 * q);
+                    }
+                }
+            }
+            for (i, &m) in self.masses_kg.iter().enumerate() {
+                self.pattern
+                    .add_node_block(i, &(Matrix3::identity() * (a_mass * m)), &mut values);
+            }
+            let mut r: Vec<Vector3<f64>> = (0..n)
+                .map(|i| external_forces_n[i] - fi[i] - fd[i] - a[i] * self.masses_kg[i])
+                .collect();
+            let mut fc_norm = 0.0;
+            if let Some(c) = contact {
+                let pat = &self.pattern;
+                let vals = values.clone();
+                let springs = c.springs(&x, |node| {
+                    let d = pat.node_diagonal(node, &vals);
+                    let (s, k) = d
+                        .iter()
+                        .filter(|v| v.is_finite())
+                        .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
+                    if k > 0 { s / k as f64 } else { 0.0 }
+                });
+                let mut fcs = Vec::with_capacity(springs.len());
+                for s in &springs {
+                    self.pattern
+                        .add_node_block(s.node, &s.matrix(), &mut values);
+                    let f = s.force(&x[s.node]);
+                    r[s.node] += f;
+                    fcs.push(f);
+                }
+                fc_norm = norm(&fcs);
+                report.contact = c.report(&springs, &x);
+            }
+            let rf = self.dofs().gather(&r);
+            let rn = rf.iter().map(|v| v * v).sum::<f64>().sqrt();
+            report.residual_norm_n = rn;
+            if !rn.is_finite() {
+                report.status = DynamicStepStatus::Failed {
+                    reason: "non-finite residual".into(),
+                };
+                return report;
+            }
+            let inertia: Vec<Vector3<f64>> = a
+                .iter()
+                .zip(&self.masses_kg)
+                .map(|(ai, m)| ai * *m)
+                .collect();
+            let scale = norm(external_forces_n)
+                .max(norm(&fi))
+                .max(norm(&inertia))
+                .max(fc_norm);
+            let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
+            // Converged once the residual test passes after at least one update (a linear problem
+            // converges in one Newton step).
+            let converged = it > 0 && res_ok;
+            if converged || it >= settings.max_iterations.max(1) {
+                report.status = if converged {
+                    DynamicStepStatus::Converged
+                } else {
+                    DynamicStepStatus::MaxIterations
+                };
+                state.time_s += h;
+                state.positions_m = x;
+                state.velocities_m_s = v;
+                state.accelerations_m_s2 = a;
+                return report;
+            }
+            if let Err(e) = self.cholesky.factor(&self.pattern, &values) {
+                report.status = DynamicStepStatus::Failed {
+                    reason: e.to_string(),
+                };
+                return report;
+            }
+            let mut dx = rf;
+            if let Err(e) = self.cholesky.solve_in_place(&mut dx) {
+                report.status = DynamicStepStatus::Failed {
+                    reason: e.to_string(),
+                };
+                return report;
+            }
+            let last_dx = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            if !last_dx.is_finite() {
+                report.status = DynamicStepStatus::Failed {
+                    reason: "non-finite update".into(),
+                };
+                return report;
+            }
+            self.dofs().scatter_add(&dx, 1.0, &mut x);
+            report.iterations = it + 1;
+        }
+        report
+    }
+}

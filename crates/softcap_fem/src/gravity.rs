@@ -1,0 +1,470 @@
+//! Body force from density with lumped masses, and the rest (reference) shape that explains an
+//! observed static shape under gravity (wang2015 §6.1, eq. 7–8).
+//!
+//! **Lumped mass** (wang2015 §3, "the lumped mass at each node"): every tet gives a quarter of its
+//! mass ρ_e V_e to each of its four nodes, m_a = Σ_{e ∋ a} ρ_e V_e / 4. For a uniform body force
+//! this equals the consistent load of the linear tet, so [`gravity_forces`] f_a = m_a g is exact
+//! for the element.
+//!
+//! **Rest shape** (wang2015 eq. 7): a static shape x_s observed under gravity satisfies
+//!
+//! R K (Rᵀ x_s − X) = M g,
+//!
+//! i.e. the internal force f_int(x_s; X) of the body *with rest shape X*, evaluated at x_s, balances
+//! the weight. wang2015 eq. 8 poses this as min_X ‖R K (Rᵀ x_s − X) − M g‖² and minimises it by a
+//! virtual-force simulation; [`solve_rest_shape`] solves the same equations (the minimum is a root
+//! when the observed shape is an equilibrium) by Newton's method on X with the exact Jacobian
+//! ∂f_int/∂X, which is what the paper's appendix derives for its implicit solver. The Jacobian is
+//! obtained for *any* element whose force is f_a = V(X) P(F) g_a(X) with F = D_s D_m(X)⁻¹:
+//!
+//! ∂f/∂X · δX = K_x · (−F δX_a)_a + δV P G + V P δG,
+//! δV = V tr(D_m⁻¹ δD_m),  G = [g₁ g₂ g₃] = D_m⁻ᵀ,  δG = −(D_m⁻¹ δD_m D_m⁻¹)ᵀ,
+//!
+//! where K_x = ∂f/∂x is the model's consistent tangent (the term with −F δX_a is the change of F,
+//! δF = −F δD_m D_m⁻¹, pushed through K_x). It therefore works unchanged for the corotational model
+//! (wang2015's model, whose R and K both depend on X) and for the stable neo-Hookean model: for the
+//! latter eq. 7 reads f_int^NH(x_s; X) = M g and the same Newton iteration is the inverse solve
+//! (a fixed-point iteration would need the tangent anyway). The nodes fixed to a support keep their
+//! observed positions (X = x_s there). The load M g is held fixed during the solve: mass is
+//! conserved, so compute it once from the density and the configuration in which the density was
+//! measured.
+
+use crate::FemError;
+use crate::assembly::DofMap;
+use crate::element::StiffnessKind;
+use crate::model::{CorotationalModel, ElasticModel, NeoHookeanModel};
+use faer::linalg::solvers::Solve;
+use faer::sparse::{SparseColMat, Triplet};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+use softcap_mesh::TetMesh;
+
+/// Standard gravity [m/s²] along −z: the default `gravity_m_s2`.
+pub const STANDARD_GRAVITY_M_S2: Vector3<f64> = Vector3::new(0.0, 0.0, -9.80665);
+
+/// Lumped nodal masses m_a = Σ_{e ∋ a} ρ V_e / 4 [kg] of a uniform density `density_kg_m3`
+/// (volumes from the model's rest shape).
+pub fn lumped_masses<M: ElasticModel + ?Sized>(model: &M, density_kg_m3: f64) -> Vec<f64> {
+    let mut m = vec![0.0; model.num_nodes()];
+    for g in model.elements() {
+        for &a in &g.nodes {
+            m[a] += 0.25 * density_kg_m3 * g.volume_m3;
+        }
+    }
+    m
+}
+
+/// Lumped nodal masses with one density per element [kg/m³].
+pub fn lumped_masses_per_element<M: ElasticModel + ?Sized>(
+    model: &M,
+    density_kg_m3: &[f64],
+) -> Result<Vec<f64>, FemError> {
+    if density_kg_m3.len() != model.elements().len() {
+        return Err(FemError::LengthMismatch {
+            what: "per-element densities",
+            expected: model.elements().len(),
+            got: density_kg_m3.len(),
+        });
+    }
+    let mut m = vec![0.0; model.num_nodes()];
+    for (g, rho) in model.elements().iter().zip(density_kg_m3) {
+        for &a in &g.nodes {
+            m[a] += 0.25 * rho * g.volume_m3;
+        }
+    }
+    Ok(m)
+}
+
+/// Nodal body forces f_a = m_a g [N] (the M g of wang2015 eq. 3 and 7).
+pub fn gravity_forces(masses_kg: &[f64], gravity_m_s2: Vector3<f64>) -> Vec<Vector3<f64>> {
+    masses_kg.iter().map(|&m| gravity_m_s2 * m).collect()
+}
+
+/// A model that can be rebuilt over a different rest shape with the same topology and parameters
+/// (what the rest-shape solve iterates over).
+pub trait RestShapeModel: ElasticModel + Sized {
+    /// The same model with rest positions `rest_m`.
+    fn with_rest_positions(&self, rest_m: &[Vector3<f64>]) -> Result<Self, FemError>;
+}
+
+fn mesh_over(model: &impl ElasticModel, rest_m: &[Vector3<f64>]) -> Result<TetMesh, FemError> {
+    if rest_m.len() != model.num_nodes() {
+        return Err(FemError::LengthMismatch {
+            what: "rest positions",
+            expected: model.num_nodes(),
+            got: rest_m.len(),
+        });
+    }
+    Ok(TetMesh {
+        vertices: rest_m.to_vec(),
+        tets: model.elements().iter().map(|g| g.nodes).collect(),
+    })
+}
+
+impl RestShapeModel for CorotationalModel {
+    /// Note: a strain-dependence hook is not carried over (the rebuilt model has the current
+    /// per-element parameters, frozen).
+    fn with_rest_positions(&self, rest_m: &[Vector3<f64>]) -> Result<Self, FemError> {
+        CorotationalModel::new(&mesh_over(self, rest_m)?, self.params().to_vec())
+    }
+}
+
+impl RestShapeModel for NeoHookeanModel {
+    fn with_rest_positions(&self, rest_m: &[Vector3<f64>]) -> Result<Self, FemError> {
+        NeoHookeanModel::new(&mesh_over(self, rest_m)?, self.params().to_vec())
+    }
+}
+
+/// Settings of [`solve_rest_shape`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RestShapeSettings {
+    /// Maximum Newton iterations.
+    pub max_iterations: usize,
+    /// Converged when ‖r‖₂ ≤ this × ‖f_ext‖₂ over the free dofs (r = f_int(x_s; X) − f_ext).
+    pub residual_tol_rel: f64,
+    /// Maximum step halvings of the backtracking on ‖r‖ (a step that degenerates a tet is halved too).
+    pub max_halvings: usize,
+}
+
+impl Default for RestShapeSettings {
+    fn default() -> Self {
+        Self {
+            max_iterations: 50,
+            residual_tol_rel: 1e-11,
+            max_halvings: 20,
+        }
+    }
+}
+
+/// Outcome of [`solve_rest_shape`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum RestShapeStatus {
+    /// The residual tolerance was met.
+    Converged,
+    /// Iteration limit reached (the best X so far is returned).
+    MaxIterations,
+    /// No step along the Newton direction reduced the residual.
+    LineSearchFailed,
+    /// The Jacobian could not be factored.
+    FactorizationFailed {
+        /// faer's message
+        reason: String,
+    },
+}
+
+/// Report of [`solve_rest_shape`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RestShapeReport {
+    /// Status.
+    pub status: RestShapeStatus,
+    /// Newton iterations performed.
+    pub iterations: usize,
+    /// Final ‖R K (Rᵀ x_s − X) − M g‖₂ over the free dofs [N] (square root of wang2015 eq. 8's
+    /// objective restricted to unsupported dofs).
+    pub residual_norm_n: f64,
+    /// ‖M g‖₂ over the free dofs [N] (scale of the residual).
+    pub load_norm_n: f64,
+    /// Residual norm per iteration (entry 0 = initial guess).
+    pub history_n: Vec<f64>,
+}
+
+impl RestShapeReport {
+    /// True if converged.
+    pub fn converged(&self) -> bool {
+        self.status == RestShapeStatus::Converged
+    }
+}
+
+/// Rest shape and model with that rest shape (the model is what the forward simulation needs).
+#[derive(Clone, Debug)]
+pub struct RestShape<M> {
+    /// Rest positions X [m].
+    pub rest_positions_m: Vec<Vector3<f64>>,
+    /// `model` rebuilt over X.
+    pub model: M,
+    /// Solve report.
+    pub report: RestShapeReport,
+}
+
+/// Element Jacobian ∂f_e/∂X_e (12×12, node-major) of the internal forces with respect to the rest
+/// positions at deformed positions `x`, for any element whose forces are V P(F) g_a (see the module
+/// docs for the formula).
+pub fn element_rest_jacobian<M: ElasticModel + ?Sized>(
+    model: &M,
+    e: usize,
+    x: &[Vector3<f64>],
+) -> crate::element::Matrix12 {
+    let g = &model.elements()[e];
+    let rest = model.rest_positions();
+    let f = model.element_forces(e, x);
+    let kx = model.element_matrix(e, x, StiffnessKind::Consistent);
+    let def = g.deformation_gradient(x);
+    let x0 = rest[g.nodes[0]];
+    let dm = Matrix3::from_columns(&[
+        rest[g.nodes[1]] - x0,
+        rest[g.nodes[2]] - x0,
+        rest[g.nodes[3]] - x0,
+    ]);
+    let d = Matrix3::from_columns(&[g.grads[1], g.grads[2], g.grads[3]]).transpose(); // D_m⁻¹
+    let v = g.volume_m3;
+    let gmat = Matrix3::from_columns(&[g.grads[1], g.grads[2], g.grads[3]]); // D_m⁻ᵀ
+    let p = Matrix3::from_columns(&[f[1], f[2], f[3]]) * dm.transpose() / v;
+    let mut out = crate::element::Matrix12::zeros();
+    for b in 0..4 {
+        for j in 0..3 {
+            // δX = e_j at node b.
+            let mut ddm = Matrix3::zeros();
+            if b == 0 {
+                for c in 0..3 {
+                    ddm[(j, c)] = -1.0;
+                }
+            } else {
+                ddm[(j, b - 1)] = 1.0;
+            }
+            // K_x · (−F δX_a)_a: only node b moves, by −F e_j.
+            let dxb = -def.column(j).into_owned();
+            let mut col = nalgebra::SVector::<f64, 12>::zeros();
+            for r in 0..12 {
+                col[r] = kx[(r, 3 * b)] * dxb.x
+                    + kx[(r, 3 * b + 1)] * dxb.y
+                    + kx[(r, 3 * b + 2)] * dxb.z;
+            }
+            let dv = v * (d * ddm).trace();
+            let dg = -(d * ddm * d).transpose();
+            let dfm = p * gmat * dv + p * dg * v;
+            for a in 1..4 {
+                for i in 0..3 {
+                    col[3 * a + i] += dfm[(i, a - 1)];
+                    col[i] -= dfm[(i, a - 1)];
+                }
+            }
+            for r in 0..12 {
+                out[(r, 3 * b + j)] = col[r];
+            }
+        }
+    }
+    out
+}
+
+/// Rest shape X such that the body rebuilt over X and evaluated at the observed static shape
+/// `static_positions_m` is in equilibrium with `external_forces_n` on every unconstrained dof
+/// (wang2015 eq. 7; eq. 8 as its least-squares form). `constrained_dofs` (3·node + axis) keep
+/// X = x_s (the nodes held by the support). `model` supplies topology and parameters; its own rest
+/// shape is the initial guess if `initial_rest_m` is `None` (x_s is a good one too).
+///
+/// Newton's method with the exact Jacobian ([`element_rest_jacobian`], nonsymmetric, faer sparse
+/// LU) and backtracking on ‖r‖₂. Failures are reported in the status, never a panic; errors only for
+/// inconsistent input lengths or a degenerate initial rest shape.
+pub fn solve_rest_shape<M: RestShapeModel>(
+    model: &M,
+    static_positions_m: &[Vector3<f64>],
+    external_forces_n: &[Vector3<f64>],
+    constrained_dofs: &[usize],
+    initial_rest_m: Option<&[Vector3<f64>]>,
+    settings: &RestShapeSettings,
+) -> Result<RestShape<M>, FemError> {
+    let n = model.num_nodes();
+    for (what, len) in [
+        ("static positions", static_positions_m.len()),
+        ("external forces", external_forces_n.len()),
+    ] {
+        if len != n {
+            return Err(FemError::LengthMismatch {
+                what,
+                expected: n,
+                got: len,
+            });
+        }
+    }
+    let dofs = DofMap::new(n, constrained_dofs)?;
+    let mut rest: Vec<Vector3<f64>> = initial_rest_m
+        .map(<[_]>::to_vec)
+        .unwrap_or_else(|| model.rest_positions().to_vec());
+    if rest.len() != n {
+        return Err(FemError::LengthMismatch {
+            what: "initial rest positions",
+            expected: n,
+            got: rest.len(),
+        });
+    }
+    for &d in constrained_dofs {
+        rest[d / 3][d % 3] = static_positions_m[d / 3][d % 3];
+    }
+    let mut current = model.with_rest_positions(&rest)?;
+    let xs = static_positions_m;
+    let residual = |m: &M| -> Vec<f64> {
+        let fi = m.internal_forces(xs);
+        let r: Vec<Vector3<f64>> = fi
+            .iter()
+            .zip(external_forces_n)
+            .map(|(a, b)| a - b)
+            .collect();
+        dofs.gather(&r)
+    };
+    let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
+    let load_norm_n = norm(&dofs.gather(external_forces_n));
+    let mut r = residual(&current);
+    let mut rn = norm(&r);
+    let mut report = RestShapeReport {
+        status: RestShapeStatus::MaxIterations,
+        iterations: 0,
+        residual_norm_n: rn,
+        load_norm_n,
+        history_n: vec![rn],
+    };
+    let nf = dofs.num_free();
+    for it in 0..settings.max_iterations {
+        if rn <= settings.residual_tol_rel * load_norm_n.max(f64::MIN_POSITIVE) {
+            report.status = RestShapeStatus::Converged;
+            break;
+        }
+        // Assemble J = ∂r/∂X over the free dofs.
+        let mut triplets = Vec::with_capacity(current.elements().len() * 144);
+        for (e, g) in current.elements().iter().enumerate() {
+            let je = element_rest_jacobian(&current, e, xs);
+            for li in 0..12 {
+                let Some(fi) = dofs.free_index(3 * g.nodes[li / 3] + li % 3) else {
+                    continue;
+                };
+                for lj in 0..12 {
+                    if let Some(fj) = dofs.free_index(3 * g.nodes[lj / 3] + lj % 3) {
+                        triplets.push(Triplet::new(fi, fj, je[(li, lj)]));
+                    }
+                }
+            }
+        }
+        let lu = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &triplets)
+            .map_err(|e| format!("{e:?}"))
+            .and_then(|a| a.sp_lu().map_err(|e| format!("{e:?}")));
+        let lu = match lu {
+            Ok(lu) => lu,
+            Err(reason) => {
+                report.status = RestShapeStatus::FactorizationFailed { reason };
+                break;
+            }
+        };
+        let mut dx = faer::Mat::<f64>::from_fn(nf, 1, |i, _| -r[i]);
+        lu.solve_in_place(dx.as_mut());
+        let dx: Vec<f64> = (0..nf).map(|i| dx[(i, 0)]).collect();
+        if !dx.iter().all(|v| v.is_finite()) {
+            report.status = RestShapeStatus::FactorizationFailed {
+                reason: "non-finite Newton step".into(),
+            };
+            break;
+        }
+        let mut step = 1.0;
+        let mut accepted = None;
+        for _ in 0..=settings.max_halvings {
+            let mut trial = rest.clone();
+            dofs.scatter_add(&dx, step, &mut trial);
+            if let Ok(m) = current.with_rest_positions(&trial) {
+                let rt = residual(&m);
+                let rtn = norm(&rt);
+                if rtn.is_finite() && rtn < rn {
+                    accepted = Some((trial, m, rt, rtn));
+                    break;
+                }
+            }
+            step *= 0.5;
+        }
+        let Some((trial, m, rt, rtn)) = accepted else {
+            report.status = RestShapeStatus::LineSearchFailed;
+            break;
+        };
+        rest = trial;
+        current = m;
+        r = rt;
+        rn = rtn;
+        report.iterations = it + 1;
+        report.residual_norm_n = rn;
+        report.history_n.push(rn);
+    }
+    if rn <= settings.residual_tol_rel * load_norm_n.max(f64::MIN_POSITIVE) {
+        report.status = RestShapeStatus::Converged;
+    }
+    Ok(RestShape {
+        rest_positions_m: rest,
+        model: current,
+        report,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{LinearParams, NeoHookeanParams};
+
+    fn sheared_single_tet() -> (TetMesh, Vec<Vector3<f64>>) {
+        let mesh = TetMesh {
+            vertices: vec![
+                Vector3::new(0.1, 0.0, 0.0),
+                Vector3::new(1.0, 0.2, 0.1),
+                Vector3::new(0.2, 1.1, 0.0),
+                Vector3::new(0.0, 0.3, 0.9),
+            ],
+            tets: vec![[0, 1, 2, 3]],
+        };
+        let rot = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5);
+        let x = mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(i, v)| rot * (v * (1.0 + 0.05 * i as f64)) + Vector3::new(0.01, 0.0, 0.02))
+            .collect();
+        (mesh, x)
+    }
+
+    fn check_fd<M: RestShapeModel>(model: &M, x: &[Vector3<f64>]) -> f64 {
+        let j = element_rest_jacobian(model, 0, x);
+        let h = 1e-6;
+        let mut err: f64 = 0.0;
+        for c in 0..12 {
+            let mut rp = model.rest_positions().to_vec();
+            let mut rm = rp.clone();
+            rp[c / 3][c % 3] += h;
+            rm[c / 3][c % 3] -= h;
+            let fp = model.with_rest_positions(&rp).unwrap().element_forces(0, x);
+            let fm = model.with_rest_positions(&rm).unwrap().element_forces(0, x);
+            for r in 0..12 {
+                let fd = (fp[r / 3][r % 3] - fm[r / 3][r % 3]) / (2.0 * h);
+                err = err.max((fd - j[(r, c)]).abs());
+            }
+        }
+        err / j.norm()
+    }
+
+    #[test]
+    fn rest_jacobian_matches_finite_differences() {
+        let (mesh, x) = sheared_single_tet();
+        let co = CorotationalModel::homogeneous(
+            &mesh,
+            LinearParams::from_young_poisson(1e4, 0.3).unwrap(),
+        )
+        .unwrap();
+        let e_co = check_fd(&co, &x);
+        assert!(e_co < 1e-7, "corotational rel err {e_co:e}");
+        let nh = NeoHookeanModel::homogeneous(
+            &mesh,
+            NeoHookeanParams::from_young_poisson(1e4, 0.3).unwrap(),
+        )
+        .unwrap();
+        let e_nh = check_fd(&nh, &x);
+        assert!(e_nh < 1e-7, "neo-Hookean rel err {e_nh:e}");
+    }
+
+    #[test]
+    fn lumped_mass_sums_to_total() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.2, 0.1, 0.3], [2, 2, 3]);
+        let model = CorotationalModel::homogeneous(
+            &mesh,
+            LinearParams::from_young_poisson(1e4, 0.3).unwrap(),
+        )
+        .unwrap();
+        let m = lumped_masses(&model, 1000.0);
+        let total: f64 = m.iter().sum();
+        assert!((total - 1000.0 * 0.2 * 0.1 * 0.3).abs() < 1e-12);
+        let f = gravity_forces(&m, STANDARD_GRAVITY_M_S2);
+        let fz: f64 = f.iter().map(|v| v.z).sum();
+        assert!((fz + total * 9.80665).abs() < 1e-10);
+    }
+}
