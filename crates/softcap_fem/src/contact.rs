@@ -10,8 +10,16 @@
 //!
 //! with (c, n) frozen within an equilibrium iteration and re-queried at the next one (active set
 //! = penetrating nodes, re-evaluated each iteration). The penalty k_c is scale-free: it is
-//! `penalty_factor` × the node's mean diagonal stiffness, so the residual penetration is about
-//! 1/penalty_factor of the elastic displacement the contact force alone would cause locally.
+//! `penalty_factor` × the node's mean diagonal stiffness (taken once per equilibrium solve), so the
+//! residual penetration is about 1/penalty_factor of the elastic displacement the contact force
+//! alone would cause locally.
+//!
+//! These springs are the gradient and (Gauss–Newton) Hessian of the penalty potential
+//! ½ Σ k_c depth(x)², depth = ‖c − x‖ inside the tip, 0 outside; it is C¹, so the equilibrium
+//! solver minimises elastic energy − work + this potential with an Armijo line search
+//! ([`crate::StaticSolver::solve`]) and the active set settles instead of cycling: a rim node that
+//! an undamped step would throw out of the probe (and back in at the next iteration) is held by the
+//! line search at the step that lowers the total energy.
 //!
 //! The probe is **displacement-controlled** along its axis in experiments: the load path moves the
 //! pose, and the probe reaction (−Σ f_c) and its component along the axis are reported. A
@@ -316,6 +324,85 @@ impl ContactProblem {
                 })
             })
             .collect()
+    }
+
+    /// Springs at `x` with hysteresis (the active-set update of the equilibrium iterations): every
+    /// candidate inside the tip gets a fresh spring (closest point, normal); a node that had a
+    /// spring in `previous` but is no longer inside keeps that spring as long as it is still
+    /// compressed against its plane, n·(c − x) > 0. Without this, a rim node that the last
+    /// iteration placed on the tangent plane of its closest point — outside a curved tip by
+    /// ≈ s²/2R for a tangential slip s, more than the penalty penetration ≈ f/k_c — drops out,
+    /// springs back in at the next iteration, and the active set cycles. Sorted by node.
+    pub(crate) fn springs_with_hysteresis(
+        &self,
+        x: &[Vector3<f64>],
+        node_stiffness: impl Fn(usize) -> f64,
+        previous: &[ContactSpring],
+    ) -> Vec<ContactSpring> {
+        let mut springs = self.springs(x, node_stiffness);
+        let fresh: std::collections::BTreeSet<usize> = springs.iter().map(|s| s.node).collect();
+        let kept = previous
+            .iter()
+            .filter(|s| !fresh.contains(&s.node) && s.normal.dot(&(s.target_m - x[s.node])) > 0.0)
+            .cloned()
+            .collect::<Vec<_>>();
+        if !kept.is_empty() {
+            springs.extend(kept);
+            springs.sort_by_key(|s| s.node);
+        }
+        springs
+    }
+
+    /// Penalty energy of a fixed spring set plus the true penetration of every other candidate:
+    /// ½ Σ_springs k_c max(0, n·(c − x))² + ½ Σ_others k_c depth(x)² — the line-search merit of
+    /// one equilibrium iteration (its gradient at the linearization point is −Σ f_c).
+    pub(crate) fn penalty_energy_with(
+        &self,
+        x: &[Vector3<f64>],
+        node_stiffness: impl Fn(usize) -> f64,
+        springs: &[ContactSpring],
+    ) -> f64 {
+        let mut e = 0.0;
+        for s in springs {
+            let g = s.normal.dot(&(s.target_m - x[s.node])).max(0.0);
+            e += 0.5 * s.stiffness_n_per_m * g * g;
+        }
+        let mut k = 0;
+        for &n in &self.candidate_nodes {
+            while k < springs.len() && springs[k].node < n {
+                k += 1;
+            }
+            if k < springs.len() && springs[k].node == n {
+                continue;
+            }
+            if let Some((depth, _, _)) = self.probe.penetration(&x[n]) {
+                e += 0.5 * self.settings.penalty_factor * node_stiffness(n) * depth * depth;
+            }
+        }
+        e
+    }
+
+    /// Forces of [`Self::penalty_energy_with`]: the springs (compressive part only) and fresh
+    /// springs of the other penetrating candidates, as springs.
+    pub(crate) fn springs_with(
+        &self,
+        x: &[Vector3<f64>],
+        node_stiffness: impl Fn(usize) -> f64,
+        springs: &[ContactSpring],
+    ) -> Vec<ContactSpring> {
+        let fixed: std::collections::BTreeSet<usize> = springs.iter().map(|s| s.node).collect();
+        let mut out: Vec<ContactSpring> = springs
+            .iter()
+            .filter(|s| s.normal.dot(&(s.target_m - x[s.node])) > 0.0)
+            .cloned()
+            .collect();
+        out.extend(
+            self.springs(x, node_stiffness)
+                .into_iter()
+                .filter(|s| !fixed.contains(&s.node)),
+        );
+        out.sort_by_key(|s| s.node);
+        out
     }
 
     /// Report for a set of springs at positions `x`.

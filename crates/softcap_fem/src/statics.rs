@@ -11,8 +11,9 @@
 //! fixed-point iteration of §3.4, where the parameters p_e(ε_e) are refreshed from the current
 //! strain at the start of each iteration ([`ElasticModel::update_state`]). With
 //! [`StiffnessKind::Consistent`] it is Newton's method. The step length s comes from backtracking:
-//! on the energy (Armijo) when the model has one and contact is off, otherwise on the residual norm;
-//! if no step decreases the merit the full step is taken (fixed-point behaviour).
+//! on the energy (Armijo) when the model has one, otherwise on the residual norm;
+//! if no step decreases the merit the full step is taken (fixed-point behaviour). With a probe the
+//! energy includes the contact penalty ½ Σ k_c depth² (see [`StaticSolver::solve`]).
 
 use crate::FemError;
 use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
@@ -193,34 +194,60 @@ impl StaticSolver {
         contact: Option<&ContactProblem>,
         frozen: Option<&[ContactSpring]>,
     ) -> Result<Vec<ContactSpring>, FemError> {
+        self.assemble_and_factor_impl(model, x, kind, contact, frozen, None)
+    }
+
+    /// Mean |diagonal| of `node`'s free dofs in `values` (0 if the node is fully constrained): the
+    /// scale of the contact penalty (see [`crate::contact`]).
+    fn node_stiffness(pattern: &SystemPattern, values: &[f64], node: usize) -> f64 {
+        let d = pattern.node_diagonal(node, values);
+        let (s, k) = d
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
+        if k > 0 { s / k as f64 } else { 0.0 }
+    }
+
+    /// Assembly + factorization. `node_stiffness`: the per-node penalty scale, fixed for a whole
+    /// solve (an empty table is filled from this assembly, before the springs are added), and the
+    /// previous iteration's springs for the active-set hysteresis; `None` takes the scale from this
+    /// assembly without keeping it and queries the tip afresh.
+    fn assemble_and_factor_impl<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        contact: Option<&ContactProblem>,
+        frozen: Option<&[ContactSpring]>,
+        node_stiffness: Option<(&mut Vec<f64>, &[ContactSpring])>,
+    ) -> Result<Vec<ContactSpring>, FemError> {
         let mut values = self.pattern.assemble(model, x, kind);
         let springs = match (contact, frozen) {
-            (Some(_), Some(f)) => {
-                for s in f {
-                    self.pattern
-                        .add_node_block(s.node, &s.matrix(), &mut values);
-                }
-                f.to_vec()
-            }
+            (Some(_), Some(f)) => f.to_vec(),
             (Some(c), None) => {
                 let pat = &self.pattern;
                 let vals = &values;
-                let springs = c.springs(x, |n| {
-                    let d = pat.node_diagonal(n, vals);
-                    let (s, k) = d
-                        .iter()
-                        .filter(|v| v.is_finite())
-                        .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
-                    if k > 0 { s / k as f64 } else { 0.0 }
-                });
-                for s in &springs {
-                    self.pattern
-                        .add_node_block(s.node, &s.matrix(), &mut values);
+                match node_stiffness {
+                    Some((table, previous)) => {
+                        if table.len() != x.len() {
+                            *table = vec![0.0; x.len()];
+                            for &n in &c.candidate_nodes {
+                                if n < x.len() {
+                                    table[n] = Self::node_stiffness(pat, vals, n);
+                                }
+                            }
+                        }
+                        c.springs_with_hysteresis(x, |n| table[n], previous)
+                    }
+                    None => c.springs(x, |n| Self::node_stiffness(pat, vals, n)),
                 }
-                springs
             }
             (None, _) => Vec::new(),
         };
+        for s in &springs {
+            self.pattern
+                .add_node_block(s.node, &s.matrix(), &mut values);
+        }
         self.cholesky.factor(&self.pattern, &values)?;
         self.values = values;
         Ok(springs)
@@ -253,6 +280,15 @@ impl StaticSolver {
     /// Solves f_int(x) = f_ext (+ contact) for the free dofs, starting from `x` (whose constrained
     /// components must already hold the prescribed values). Never panics: failures are reported in
     /// the status, and `x` keeps the last finite iterate.
+    ///
+    /// With a probe, the penalty stiffness of every candidate node is fixed at the first iteration
+    /// and the active set has hysteresis (a spring stays while it is compressed against its plane,
+    /// see [`ContactProblem`]'s `springs_with_hysteresis`); the line search then minimises
+    /// Π(x) = Ψ(x) − f_extᵀx + ½ Σ_springs k_c ⟨n·(c − x)⟩₊² + ½ Σ_others k_c depth(x)², whose
+    /// gradient at x is −(residual): a step that would throw a rim node out of the tip, or push a
+    /// free node deep into it, is cut back, so the active set settles instead of cycling. A
+    /// Cauchy-elastic model (strain-dependent hook, no Ψ) backtracks on the norm of the residual of
+    /// the same contact forces.
     pub fn solve<M: ElasticModel + ?Sized>(
         &mut self,
         model: &mut M,
@@ -276,6 +312,7 @@ impl StaticSolver {
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
         let mut last_springs: Option<Vec<ContactSpring>> = None;
+        let mut node_stiffness: Vec<f64> = Vec::new();
         for it in 0..settings.max_iterations {
             model.update_state(x);
             let freeze = it >= settings.contact_freeze_after && it > 0;
@@ -284,12 +321,13 @@ impl StaticSolver {
             } else {
                 None
             };
-            let springs = match self.assemble_and_factor_with(
+            let springs = match self.assemble_and_factor_impl(
                 &*model,
                 x,
                 settings.stiffness,
                 contact,
                 frozen_ref,
+                Some((&mut node_stiffness, last_springs.as_deref().unwrap_or(&[]))),
             ) {
                 Ok(s) => s,
                 Err(FemError::NonFinite { .. }) => {
@@ -304,7 +342,6 @@ impl StaticSolver {
                 }
             };
             let (r, scale) = self.residual(&*model, x, f_ext, &springs);
-            last_springs = Some(springs.clone());
             let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.residual_norm_n = rnorm;
             if let Some(c) = contact {
@@ -334,18 +371,17 @@ impl StaticSolver {
                 return report;
             }
             let step = if settings.line_search {
-                self.line_search(
-                    &*model,
-                    x,
-                    f_ext,
-                    contact.map(|_| springs.as_slice()),
-                    &dx,
-                    &r,
-                    settings,
-                )
+                let merit = contact.map(|problem| ContactMerit {
+                    problem,
+                    node_stiffness: &node_stiffness,
+                    springs: &springs,
+                    frozen: freeze,
+                });
+                self.line_search(&*model, x, f_ext, merit, &dx, &r, settings)
             } else {
                 1.0
             };
+            last_springs = Some(springs);
             self.dofs().scatter_add(&dx, step, x);
             report.iterations = it + 1;
             report.last_update_m = dx_inf * step;
@@ -353,12 +389,13 @@ impl StaticSolver {
         report
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn line_search<M: ElasticModel + ?Sized>(
         &self,
         model: &M,
         x: &[Vector3<f64>],
         f_ext: &[Vector3<f64>],
-        springs: Option<&[ContactSpring]>,
+        contact: Option<ContactMerit<'_>>,
         dx: &[f64],
         r: &[f64],
         settings: &EquilibriumSettings,
@@ -369,18 +406,20 @@ impl StaticSolver {
             dofs.scatter_add(dx, s, &mut xt);
             xt
         };
-        let sp = springs.unwrap_or(&[]);
-        let energy_merit = springs.is_none() && model.energy(x).is_some();
+        // Frozen springs are a fixed linear force field: no potential of the probe to add.
+        let energy_merit = contact.as_ref().is_none_or(|c| !c.frozen) && model.energy(x).is_some();
         if energy_merit {
-            let ext =
-                |xs: &[Vector3<f64>]| xs.iter().zip(f_ext).map(|(a, f)| a.dot(f)).sum::<f64>();
-            let e0 = model.energy(x).unwrap_or(f64::NAN) - ext(x);
+            let merit = |xs: &[Vector3<f64>]| {
+                let ext = xs.iter().zip(f_ext).map(|(a, f)| a.dot(f)).sum::<f64>();
+                let penalty = contact.as_ref().map_or(0.0, |c| c.energy(xs));
+                model.energy(xs).unwrap_or(f64::NAN) - ext + penalty
+            };
+            let e0 = merit(x);
             let slope = -dx.iter().zip(r).map(|(a, b)| a * b).sum::<f64>();
-            if slope < 0.0 {
+            if slope < 0.0 && e0.is_finite() {
                 let mut s = 1.0;
                 for _ in 0..=settings.max_halvings {
-                    let xt = trial(s);
-                    let e = model.energy(&xt).unwrap_or(f64::NAN) - ext(&xt);
+                    let e = merit(&trial(s));
                     if e.is_finite() && e <= e0 + 1e-4 * s * slope + 1e-14 * e0.abs() {
                         return s;
                     }
@@ -393,7 +432,8 @@ impl StaticSolver {
         let mut s = 1.0;
         for _ in 0..=settings.max_halvings {
             let xt = trial(s);
-            let (rt, _) = self.residual(model, &xt, f_ext, sp);
+            let springs = contact.as_ref().map_or(Vec::new(), |c| c.springs(&xt));
+            let (rt, _) = self.residual(model, &xt, f_ext, &springs);
             let rn = rt.iter().map(|v| v * v).sum::<f64>();
             if rn.is_finite() && rn < r0 {
                 return s;
@@ -446,6 +486,32 @@ impl StaticSolver {
         self.cholesky.solve_in_place(&mut dx)?;
         self.dofs().scatter_add(&dx, 1.0, x);
         Ok(())
+    }
+}
+
+/// The probe as the line search sees it: this iteration's springs (compressive part) plus the true
+/// penetration of every other candidate, per-node stiffness fixed for the solve; or a frozen set.
+struct ContactMerit<'a> {
+    problem: &'a ContactProblem,
+    node_stiffness: &'a [f64],
+    /// The springs of this iteration (fixed during the line search).
+    springs: &'a [ContactSpring],
+    /// Springs frozen (linear force field, no potential of the tip).
+    frozen: bool,
+}
+
+impl ContactMerit<'_> {
+    fn energy(&self, x: &[Vector3<f64>]) -> f64 {
+        self.problem
+            .penalty_energy_with(x, |n| self.node_stiffness[n], self.springs)
+    }
+    fn springs(&self, x: &[Vector3<f64>]) -> Vec<ContactSpring> {
+        if self.frozen {
+            self.springs.to_vec()
+        } else {
+            self.problem
+                .springs_with(x, |n| self.node_stiffness[n], self.springs)
+        }
     }
 }
 
