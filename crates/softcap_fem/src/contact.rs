@@ -237,6 +237,34 @@ impl Probe {
             .coords;
         Some((depth, n_world, c_world))
     }
+
+    /// Signed distance to the tip surface (positive outside), outward unit normal and closest
+    /// surface point, world frame; `None` on a degenerate query (point on the surface).
+    pub(crate) fn closest(
+        &self,
+        point_world: &Vector3<f64>,
+    ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+        let world_from_shape = self.world_from_probe * self.probe_from_shape;
+        let local = world_from_shape.inverse_transform_point(&Point3::from(*point_world));
+        let q = to_parry(&local.coords);
+        let proj = match &self.shape {
+            ParryShape::Ball(s) => s.project_local_point(q, false),
+            ParryShape::Cylinder(s) => s.project_local_point(q, false),
+            ParryShape::Mesh(s) => s.project_local_point(q, false),
+        };
+        let c_local = from_parry(proj.point);
+        let d = local.coords - c_local;
+        let dist = d.norm();
+        if dist <= 0.0 || !dist.is_finite() {
+            return None;
+        }
+        let sign = if proj.is_inside { -1.0 } else { 1.0 };
+        let n_world = world_from_shape.rotation * (d * (sign / dist));
+        let c_world = world_from_shape
+            .transform_point(&Point3::from(c_local))
+            .coords;
+        Some((sign * dist, n_world, c_world))
+    }
 }
 
 /// Contact settings.
@@ -326,36 +354,47 @@ impl ContactProblem {
             .collect()
     }
 
-    /// Springs at `x` with hysteresis (the active-set update of the equilibrium iterations): every
-    /// candidate inside the tip gets a fresh spring (closest point, normal); a node that had a
-    /// spring in `previous` but is no longer inside keeps that spring as long as it is still
-    /// compressed against its plane, n·(c − x) > 0. Without this, a rim node that the last
+    /// Springs at `x` with hysteresis (the active-set update of the equilibrium iterations). Every
+    /// candidate inside the tip gets a spring at its closest point. A node that had a spring in
+    /// `previous` but is no longer inside stays in the set while it is still compressed against
+    /// that spring's plane, n·(c − x) > 0, re-linearized at its current closest surface point (so
+    /// the next iteration pulls it back onto the tip). Without this, a rim node that the last
     /// iteration placed on the tangent plane of its closest point — outside a curved tip by
     /// ≈ s²/2R for a tangential slip s, more than the penalty penetration ≈ f/k_c — drops out,
-    /// springs back in at the next iteration, and the active set cycles. Sorted by node.
+    /// springs back in at the next iteration, and the active set cycles. A node whose contact is
+    /// really tensile ends outside its plane and leaves at the next update. Sorted by node.
     pub(crate) fn springs_with_hysteresis(
         &self,
         x: &[Vector3<f64>],
         node_stiffness: impl Fn(usize) -> f64,
         previous: &[ContactSpring],
     ) -> Vec<ContactSpring> {
-        let mut springs = self.springs(x, node_stiffness);
+        let mut springs = self.springs(x, &node_stiffness);
         let fresh: std::collections::BTreeSet<usize> = springs.iter().map(|s| s.node).collect();
-        let kept = previous
-            .iter()
-            .filter(|s| !fresh.contains(&s.node) && s.normal.dot(&(s.target_m - x[s.node])) > 0.0)
-            .cloned()
-            .collect::<Vec<_>>();
-        if !kept.is_empty() {
-            springs.extend(kept);
+        let before = springs.len();
+        for s in previous {
+            if fresh.contains(&s.node) || s.normal.dot(&(s.target_m - x[s.node])) <= 0.0 {
+                continue;
+            }
+            if let Some((_, normal, target_m)) = self.probe.closest(&x[s.node]) {
+                springs.push(ContactSpring {
+                    node: s.node,
+                    normal,
+                    target_m,
+                    stiffness_n_per_m: self.settings.penalty_factor * node_stiffness(s.node),
+                });
+            }
+        }
+        if springs.len() > before {
             springs.sort_by_key(|s| s.node);
         }
         springs
     }
 
-    /// Penalty energy of a fixed spring set plus the true penetration of every other candidate:
-    /// ½ Σ_springs k_c max(0, n·(c − x))² + ½ Σ_others k_c depth(x)² — the line-search merit of
-    /// one equilibrium iteration (its gradient at the linearization point is −Σ f_c).
+    /// Line-search merit of one equilibrium iteration: the (bilateral) springs of the iteration,
+    /// fixed, plus the true penetration of every other candidate,
+    /// ½ Σ_springs k_c (n·(c − x))² + ½ Σ_others k_c depth(x)²; its gradient at any x is −Σ f_c of
+    /// [`Self::springs_with`]. `springs` sorted by node.
     pub(crate) fn penalty_energy_with(
         &self,
         x: &[Vector3<f64>],
@@ -364,7 +403,7 @@ impl ContactProblem {
     ) -> f64 {
         let mut e = 0.0;
         for s in springs {
-            let g = s.normal.dot(&(s.target_m - x[s.node])).max(0.0);
+            let g = s.normal.dot(&(s.target_m - x[s.node]));
             e += 0.5 * s.stiffness_n_per_m * g * g;
         }
         let mut k = 0;
@@ -382,8 +421,8 @@ impl ContactProblem {
         e
     }
 
-    /// Forces of [`Self::penalty_energy_with`]: the springs (compressive part only) and fresh
-    /// springs of the other penetrating candidates, as springs.
+    /// Forces of [`Self::penalty_energy_with`] as springs: the fixed springs, and fresh springs of
+    /// the other penetrating candidates. Sorted by node.
     pub(crate) fn springs_with(
         &self,
         x: &[Vector3<f64>],
@@ -391,11 +430,7 @@ impl ContactProblem {
         springs: &[ContactSpring],
     ) -> Vec<ContactSpring> {
         let fixed: std::collections::BTreeSet<usize> = springs.iter().map(|s| s.node).collect();
-        let mut out: Vec<ContactSpring> = springs
-            .iter()
-            .filter(|s| s.normal.dot(&(s.target_m - x[s.node])) > 0.0)
-            .cloned()
-            .collect();
+        let mut out = springs.to_vec();
         out.extend(
             self.springs(x, node_stiffness)
                 .into_iter()

@@ -282,11 +282,12 @@ impl StaticSolver {
     /// the status, and `x` keeps the last finite iterate.
     ///
     /// With a probe, the penalty stiffness of every candidate node is fixed at the first iteration
-    /// and the active set has hysteresis (a spring stays while it is compressed against its plane,
-    /// see [`ContactProblem`]'s `springs_with_hysteresis`); the line search then minimises
-    /// Π(x) = Ψ(x) − f_extᵀx + ½ Σ_springs k_c ⟨n·(c − x)⟩₊² + ½ Σ_others k_c depth(x)², whose
-    /// gradient at x is −(residual): a step that would throw a rim node out of the tip, or push a
-    /// free node deep into it, is cut back, so the active set settles instead of cycling. A
+    /// and the active set has hysteresis (a spring stays while its node is compressed against its
+    /// plane, re-linearized at the node's closest tip point; see
+    /// `ContactProblem::springs_with_hysteresis`). The line search then minimises, per iteration,
+    /// Π(x) = Ψ(x) − f_extᵀx + ½ Σ_springs k_c (n·(c − x))² + ½ Σ_others k_c depth(x)², whose
+    /// gradient is −(residual): a step that would throw a rim node out of the tip, or push a free
+    /// node deep into it, is cut back, so the active set settles instead of cycling. A
     /// Cauchy-elastic model (strain-dependent hook, no Ψ) backtracks on the norm of the residual of
     /// the same contact forces.
     pub fn solve<M: ElasticModel + ?Sized>(
