@@ -7,6 +7,10 @@
 //! | [`recording`] | the in-memory recording: frames (time, probe pose, force, markers), normals, support |
 //! | [`segment`] | phases (rest, loading, hold, unloading, released), probe locations, marker regions |
 //! | [`residual`] | residual components (normal, tangential, gravity, probe axis), the located table, noise σ |
+//! | [`sim`] | the [`ProbeSimulator`] contract and the corotational FEM implementation |
+//! | [`signal`] | low-pass, derivative, time shift on frame-time traces |
+//! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits |
+//! | [`diagnose`] | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
 //!
 //! ```
 //! use softcap_diagnose::{Phase, Recording, Frame, SegmentSettings, Segmentation};
@@ -39,16 +43,26 @@
 //! assert_eq!(seg.phases[5], Phase::Released);
 //! ```
 
+pub mod diagnose;
 mod error;
+pub mod hypothesis;
 pub mod recording;
 pub mod residual;
 pub mod segment;
+pub mod signal;
+pub mod sim;
 
+pub use diagnose::{
+    DiagnoseSettings, Diagnosis, DiagnosisRun, RankedHypothesis, Signatures, diagnose, prepare,
+    signature_support, signatures,
+};
 pub use error::{DiagnoseError, Result};
+pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
 pub use recording::{Frame, Recording, SupportPlane, surface_normals};
 pub use residual::{
     Component, Located, Residuals, component, frame_axes, locate, noise_sigma_m, residuals, rmse_m,
 };
 pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
+pub use sim::{FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SimLoad, SimOutput};
 
 pub use nalgebra;

@@ -146,13 +146,19 @@ impl Segmentation {
         let thr = (settings.contact_force_fraction * peak).max(settings.contact_force_min_n);
         let contact: Vec<bool> = fmag.iter().map(|&f| f > thr && peak > 0.0).collect();
 
-        // Maximal runs of contact frames.
+        // Maximal runs of contact frames, split where the tip jumps to another place (a lagging
+        // force may not drop below the threshold between two locations).
         let mut runs: Vec<(usize, usize)> = Vec::new();
         let mut i = 0;
         while i < n {
             if contact[i] {
                 let s = i;
-                while i < n && contact[i] {
+                i += 1;
+                while i < n
+                    && contact[i]
+                    && (rec.frames[i].tip_m - rec.frames[i - 1].tip_m).norm()
+                        < settings.same_location_radius_m
+                {
                     i += 1;
                 }
                 runs.push((s, i));

@@ -1,0 +1,816 @@
+//! The diagnosis: simulate the recording with the model, locate the residual, refit every
+//! hypothesis with leave-one-location-out cross-validation and an information criterion, separate
+//! look-alikes by their signatures, answer a verdict (or `none`), confirm the winner by
+//! re-simulation (DESIGN.md "Missing-physics diagnosis" 1–4; issue 8).
+
+use crate::hypothesis::{
+    Field, Hypothesis, Prepared, Refit, predict, refit, refit_variants, stiffness_scale_variant,
+};
+use crate::recording::Recording;
+use crate::residual::{Component, Located, Residuals, component, locate, noise_sigma_m, residuals};
+use crate::segment::{Phase, Region, SegmentSettings, Segmentation};
+use crate::signal::crossing_time;
+use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
+use crate::{DiagnoseError, Result};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Settings of the diagnosis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DiagnoseSettings {
+    /// Phase / location / region segmentation.
+    pub segment: SegmentSettings,
+    /// A hypothesis must explain at least this fraction of the held-out mean-square error …
+    pub min_heldout_gain: f64,
+    /// … lower the BIC by at least this much …
+    pub min_delta_bic: f64,
+    /// … and the baseline held-out MSE must exceed this multiple of the noise MSE (3σ²).
+    pub noise_floor_factor: f64,
+    /// Hypotheses whose held-out MSE is within this fraction of the best are look-alikes; their
+    /// signatures decide.
+    pub lookalike_margin: f64,
+    /// Re-simulate the winner (load extensions) with the full model, per fold.
+    pub confirm_with_resimulation: bool,
+    /// Density of the gravity basis, kg/m³.
+    pub reference_density_kg_m3: f64,
+}
+
+impl Default for DiagnoseSettings {
+    fn default() -> Self {
+        Self {
+            segment: SegmentSettings::default(),
+            min_heldout_gain: 0.3,
+            min_delta_bic: 10.0,
+            noise_floor_factor: 1.5,
+            lookalike_margin: 0.15,
+            confirm_with_resimulation: true,
+            reference_density_kg_m3: 1000.0,
+        }
+    }
+}
+
+/// One ranked hypothesis (the JSON schema of issue 8).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RankedHypothesis {
+    /// Catalog name.
+    pub hypothesis: String,
+    /// Fraction of the held-out mean-square error the extension explains, 1 − after²/before².
+    pub score: f64,
+    /// Held-out RMS marker error of the default model, m.
+    pub heldout_rmse_before_m: f64,
+    /// Held-out RMS marker error with the extension refitted on the other locations, m.
+    pub heldout_rmse_after_m: f64,
+    /// Full-data parameters.
+    pub params: BTreeMap<String, f64>,
+    /// Evidence: information criterion, signatures, re-simulation.
+    pub evidence: BTreeMap<String, serde_json::Value>,
+}
+
+/// The diagnosis document (`--json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Diagnosis {
+    /// Name of the missing physics, or `none`.
+    pub verdict: String,
+    /// Every hypothesis, best first (`none` included).
+    pub ranked: Vec<RankedHypothesis>,
+    /// Where the default model's error lives, largest first.
+    pub located: Vec<Located>,
+}
+
+/// Signature features separating look-alikes (see the issue's "Use signatures" paragraph).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Signatures {
+    /// Mean relative change of ‖f‖ over the holds ((last − first)/peak): < 0 relaxation
+    /// (material), > 0 force still rising (sensor).
+    pub hold_force_drift: f64,
+    /// Mean delay of the force behind the tip depth at 10 % of the ramp, s.
+    pub force_delay_10_s: f64,
+    /// … at 50 % of the ramp, s (pure time shift: equal delays; first-order lag: growing delay).
+    pub force_delay_50_s: f64,
+    /// Area of the normalised force–depth loop (0 elastic, > 0 hysteretic).
+    pub force_depth_hysteresis: f64,
+    /// Area of the normalised (probed-marker displacement along the axis)–depth loop.
+    pub geometry_depth_hysteresis: f64,
+    /// RMS baseline residual of probed markers after release, m (permanent offset).
+    pub released_offset_m: f64,
+    /// RMS tangential baseline residual of probed markers in contact, m.
+    pub contact_tangential_m: f64,
+    /// RMS baseline residual of attached markers in contact, m.
+    pub attached_motion_m: f64,
+    /// Mean baseline residual along gravity at rest, m.
+    pub rest_gravity_m: f64,
+    /// Marker noise σ per coordinate, m.
+    pub noise_sigma_m: f64,
+}
+
+/// Everything the report needs.
+pub struct DiagnosisRun {
+    /// The document.
+    pub diagnosis: Diagnosis,
+    /// Segmentation used.
+    pub segmentation: Segmentation,
+    /// Default-model prediction per frame, m.
+    pub baseline_m: Field,
+    /// Extended-model prediction of the verdict (full-data fit; re-simulated where possible), m.
+    pub extended_m: Option<Field>,
+    /// Residuals before.
+    pub residuals_before: Residuals,
+    /// Residuals after (verdict), else equal to before.
+    pub residuals_after: Residuals,
+    /// Signatures.
+    pub signatures: Signatures,
+    /// Per (region, phase): RMS before / after, m.
+    pub table: Vec<(String, String, f64, f64)>,
+}
+
+fn tangential_dir(rec: &Recording, seg: &Segmentation, l: usize) -> Vector3<f64> {
+    let loc = &seg.locations[l];
+    // surface normal: the normal of the marker closest to the contact point
+    let normal = rec
+        .rest_markers_m
+        .iter()
+        .zip(&rec.normals)
+        .min_by(|a, b| {
+            (a.0 - loc.contact_tip_m)
+                .norm()
+                .total_cmp(&(b.0 - loc.contact_tip_m).norm())
+        })
+        .map(|x| *x.1)
+        .unwrap_or_else(|| -loc.axis);
+    let pt = |v: Vector3<f64>| v - normal * normal.dot(&v);
+    let travel = pt(loc.peak_tip_m - loc.contact_tip_m);
+    let depth = (loc.peak_tip_m - loc.contact_tip_m).norm();
+    if travel.norm() > 0.2 * depth && travel.norm() > 1e-6 {
+        return travel.normalize();
+    }
+    pt(loc.axis)
+        .try_normalize(0.05)
+        .unwrap_or_else(Vector3::zeros)
+}
+
+/// Runs the baseline simulation of every frame (one full solve each, with the tangent response),
+/// the unloaded state and the gravity response.
+pub fn prepare(
+    rec: &Recording,
+    seg: &Segmentation,
+    sim: &mut dyn ProbeSimulator,
+    settings: &DiagnoseSettings,
+) -> Result<Prepared> {
+    let nt = rec.frames.len();
+    let rest = sim.simulate(&SimLoad::default(), false)?.markers_m;
+    let gravity_field_m = if rec.gravity_m_s2 != Vector3::zeros() {
+        let g = sim.simulate(
+            &SimLoad {
+                probe: None,
+                body_force_n_m3: rec.gravity_m_s2 * settings.reference_density_kg_m3,
+            },
+            false,
+        )?;
+        g.markers_m.iter().zip(&rest).map(|(a, b)| a - b).collect()
+    } else {
+        vec![Vector3::zeros(); rest.len()]
+    };
+    let mut baseline_m = Vec::with_capacity(nt);
+    let mut response: Vec<Option<[Vec<Vector3<f64>>; 3]>> = Vec::with_capacity(nt);
+    for (k, f) in rec.frames.iter().enumerate() {
+        if seg.phases[k].in_contact() {
+            let out = sim
+                .simulate(
+                    &SimLoad {
+                        probe: Some(ProbeLoad {
+                            tip_m: f.tip_m,
+                            force_n: f.force_n,
+                        }),
+                        body_force_n_m3: Vector3::zeros(),
+                    },
+                    true,
+                )
+                .map_err(|e| match e {
+                    DiagnoseError::Simulation { reason, .. } => DiagnoseError::Simulation {
+                        frame: f.frame,
+                        reason,
+                    },
+                    e => e,
+                })?;
+            baseline_m.push(out.markers_m);
+            response.push(out.force_response);
+        } else {
+            baseline_m.push(rest.clone());
+            response.push(None);
+        }
+    }
+    // Frames without a response (out of contact) take the one of the nearest contact frame: the
+    // extensions may move load there (time shift, lag).
+    let have: Vec<usize> = (0..nt).filter(|&k| response[k].is_some()).collect();
+    let zero = [0, 1, 2].map(|_| vec![Vector3::zeros(); rest.len()]);
+    let response = (0..nt)
+        .map(|k| {
+            if let Some(r) = &response[k] {
+                return r.clone();
+            }
+            have.iter()
+                .min_by_key(|&&j| j.abs_diff(k))
+                .and_then(|&j| response[j].clone())
+                .unwrap_or_else(|| zero.clone())
+        })
+        .collect();
+    let friction_dir = (0..seg.num_folds())
+        .map(|l| tangential_dir(rec, seg, l))
+        .collect();
+    Ok(Prepared {
+        times_s: rec.times_s(),
+        force_n: rec.frames.iter().map(|f| f.force_n).collect(),
+        baseline_m,
+        response,
+        rest_model_m: rest,
+        gravity_field_m,
+        friction_dir,
+    })
+}
+
+fn loop_area(x: &[f64], y: &[f64]) -> f64 {
+    // shoelace over the closed polygon, normalised by the bounding box
+    let n = x.len();
+    if n < 3 {
+        return 0.0;
+    }
+    let (xr, yr) = (
+        x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - x.iter().cloned().fold(f64::INFINITY, f64::min),
+        y.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - y.iter().cloned().fold(f64::INFINITY, f64::min),
+    );
+    if xr <= 0.0 || yr <= 0.0 {
+        return 0.0;
+    }
+    let mut a = 0.0;
+    for i in 0..n {
+        let j = (i + 1) % n;
+        a += x[i] * y[j] - x[j] * y[i];
+    }
+    (0.5 * a).abs() / (xr * yr)
+}
+
+/// Signature features of the recording and the baseline residual.
+pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signatures {
+    let t = rec.times_s();
+    let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
+    let g = rec.gravity_dir();
+    let mut s = Signatures {
+        noise_sigma_m: noise_sigma_m(rec, seg),
+        ..Default::default()
+    };
+    let (mut drift, mut nd) = (0.0, 0);
+    let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
+    let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
+    for l in &seg.locations {
+        let cf = &l.contact_frames;
+        let hold: Vec<usize> = cf
+            .iter()
+            .copied()
+            .filter(|&k| seg.phases[k] == Phase::Hold)
+            .collect();
+        if hold.len() >= 2 && l.peak_force_n > 0.0 {
+            drift += (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n;
+            nd += 1;
+        }
+        // depth and force crossings on the first ramp of the location
+        let Some(&s0) = cf.first() else { continue };
+        let start = s0.saturating_sub(1);
+        let end = cf
+            .last()
+            .map(|&e| (e + 2).min(rec.frames.len()))
+            .unwrap_or(start);
+        let depth: Vec<f64> = (0..rec.frames.len())
+            .map(|k| (rec.frames[k].tip_m - rec.frames[start].tip_m).dot(&l.axis))
+            .collect();
+        let dmax = (start..end).map(|k| depth[k]).fold(0.0, f64::max);
+        if dmax > 0.0 {
+            let peak_k = (start..end)
+                .max_by(|&a, &b| depth[a].total_cmp(&depth[b]))
+                .unwrap_or(start);
+            let fpk = (start..=peak_k).map(|k| fmag[k]).fold(0.0, f64::max);
+            // search force crossings over the whole contact run (force may peak after the depth)
+            let fpk_all = (start..end).map(|k| fmag[k]).fold(0.0, f64::max).max(fpk);
+            // geometry signal: mean displacement of the near markers along the probe axis
+            let near: Vec<usize> = (0..rec.num_markers())
+                .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
+                .collect();
+            let geo: Vec<f64> = (0..rec.frames.len())
+                .map(|k| {
+                    let (mut acc, mut n) = (0.0, 0);
+                    for &m in &near {
+                        if let Some(p) = rec.frames[k].markers_m[m] {
+                            acc += (p - rec.rest_markers_m[m]).dot(&l.axis);
+                            n += 1;
+                        }
+                    }
+                    if n > 0 { acc / n as f64 } else { 0.0 }
+                })
+                .collect();
+            let gmax = (start..end).map(|k| geo[k]).fold(0.0, f64::max);
+            let _ = (peak_k, fpk);
+            if let (Some(a10), Some(b10), Some(a50), Some(b50)) = (
+                crossing_time(&t, &geo, 0.1 * gmax, start..end),
+                crossing_time(&t, &fmag, 0.1 * fpk_all, start..end),
+                crossing_time(&t, &geo, 0.5 * gmax, start..end),
+                crossing_time(&t, &fmag, 0.5 * fpk_all, start..end),
+            ) {
+                d10 += b10 - a10;
+                d50 += b50 - a50;
+                ndel += 1;
+            }
+            // loops over the contact run
+            let idx: Vec<usize> = (start..end).collect();
+            let xs: Vec<f64> = idx.iter().map(|&k| depth[k]).collect();
+            let fs: Vec<f64> = idx.iter().map(|&k| fmag[k]).collect();
+            let gs: Vec<f64> = idx.iter().map(|&k| geo[k]).collect();
+            fh += loop_area(&xs, &fs);
+            gh += loop_area(&xs, &gs);
+            nh += 1;
+        }
+    }
+    if nd > 0 {
+        s.hold_force_drift = drift / nd as f64;
+    }
+    if ndel > 0 {
+        s.force_delay_10_s = d10 / ndel as f64;
+        s.force_delay_50_s = d50 / ndel as f64;
+    }
+    if nh > 0 {
+        s.force_depth_hysteresis = fh / nh as f64;
+        s.geometry_depth_hysteresis = gh / nh as f64;
+    }
+    let rms = |sel: &dyn Fn(usize, usize) -> bool, f: &dyn Fn(&Vector3<f64>, usize) -> f64| {
+        let (mut a, mut n) = (0.0, 0);
+        for (k, row) in res.iter().enumerate() {
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r
+                    && sel(k, m)
+                {
+                    let v = f(r, m);
+                    a += v * v;
+                    n += 1;
+                }
+            }
+        }
+        if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
+    };
+    s.released_offset_m = rms(
+        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
+        &|r, _| r.norm(),
+    );
+    s.contact_tangential_m = rms(
+        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
+        &|r, m| {
+            component(
+                r,
+                Component::Tangential,
+                &rec.normals[m],
+                &g,
+                &Vector3::zeros(),
+            )
+        },
+    );
+    s.attached_motion_m = rms(
+        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
+        &|r, _| r.norm(),
+    );
+    let (mut a, mut n) = (0.0, 0);
+    for (k, row) in res.iter().enumerate() {
+        if seg.phases[k] == Phase::Rest {
+            for r in row.iter().flatten() {
+                a += r.dot(&g);
+                n += 1;
+            }
+        }
+    }
+    if n > 0 {
+        s.rest_gravity_m = a / n as f64;
+    }
+    s
+}
+
+/// How strongly the signatures support `h` (0 = no opinion, 1 = supported, −1 = contradicted).
+pub fn signature_support(h: Hypothesis, s: &Signatures) -> f64 {
+    let sig3 = 3.0 * s.noise_sigma_m;
+    let shift_like = s.force_delay_50_s.abs() > 1e-6
+        && (s.force_delay_10_s - s.force_delay_50_s).abs() < 0.35 * s.force_delay_50_s.abs();
+    match h {
+        Hypothesis::Viscoelasticity => {
+            if s.hold_force_drift < -0.01 {
+                1.0
+            } else if s.hold_force_drift > 0.01 {
+                -1.0
+            } else {
+                0.0
+            }
+        }
+        Hypothesis::SensorLag => {
+            let mut v = 0.0;
+            if s.hold_force_drift > 0.005 {
+                v += 1.0;
+            } else if s.hold_force_drift < -0.01 {
+                v -= 1.0;
+            }
+            if shift_like {
+                v -= 0.5;
+            }
+            v
+        }
+        Hypothesis::ClockOffset => {
+            if shift_like {
+                1.0
+            } else {
+                0.0
+            }
+        }
+        Hypothesis::Plasticity => {
+            if s.released_offset_m > sig3 {
+                1.0
+            } else {
+                -1.0
+            }
+        }
+        Hypothesis::SupportSlip => {
+            if s.attached_motion_m > sig3 {
+                1.0
+            } else {
+                -1.0
+            }
+        }
+        Hypothesis::GravityPreload => {
+            if s.rest_gravity_m.abs() > sig3 {
+                1.0
+            } else {
+                0.0
+            }
+        }
+        Hypothesis::ProbeFriction => {
+            if s.contact_tangential_m > sig3 {
+                0.5
+            } else {
+                0.0
+            }
+        }
+        Hypothesis::Anisotropy | Hypothesis::InertiaDamping => 0.0,
+    }
+}
+
+fn resimulate(
+    h: Hypothesis,
+    params: &[(String, f64)],
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &mut dyn ProbeSimulator,
+    settings: &DiagnoseSettings,
+    keep: &dyn Fn(usize) -> bool,
+) -> Result<Option<Field>> {
+    let Some(forces) = p.effective_forces(h, params, &seg.fold_of_frame) else {
+        return Ok(None);
+    };
+    let body = if h == Hypothesis::GravityPreload {
+        let d = params
+            .iter()
+            .find(|x| x.0 == "density_per_1000_kg_m3")
+            .map(|x| x.1)
+            .unwrap_or(0.0);
+        rec.gravity_m_s2 * settings.reference_density_kg_m3 * d
+    } else {
+        Vector3::zeros()
+    };
+    let thr = 1e-9;
+    let mut out = Vec::with_capacity(rec.frames.len());
+    for (k, f) in rec.frames.iter().enumerate() {
+        if !keep(k) {
+            out.push(p.baseline_m[k].clone());
+            continue;
+        }
+        let probe = (forces[k].norm() > thr).then_some(ProbeLoad {
+            tip_m: f.tip_m,
+            force_n: forces[k],
+        });
+        let o = sim.simulate(
+            &SimLoad {
+                probe,
+                body_force_n_m3: body,
+            },
+            false,
+        )?;
+        out.push(o.markers_m);
+    }
+    Ok(Some(out))
+}
+
+/// Diagnoses `rec` against the model behind `sim`.
+pub fn diagnose(
+    rec: &Recording,
+    sim: &mut dyn ProbeSimulator,
+    settings: &DiagnoseSettings,
+) -> Result<DiagnosisRun> {
+    rec.validate()?;
+    if sim.num_markers() != rec.num_markers() {
+        return Err(DiagnoseError::BadRecording {
+            what: format!(
+                "model has {} markers, recording {}",
+                sim.num_markers(),
+                rec.num_markers()
+            ),
+        });
+    }
+    let seg = Segmentation::new(rec, &settings.segment);
+    if seg.num_folds() < 2 {
+        return Err(DiagnoseError::BadRecording {
+            what: format!(
+                "{} probe location(s): leave-one-location-out needs at least 2",
+                seg.num_folds()
+            ),
+        });
+    }
+    let prepared = prepare(rec, &seg, sim, settings)?;
+    let res_before = residuals(rec, &prepared.baseline_m);
+    let located = locate(rec, &seg, &res_before);
+    let sig = signatures(rec, &seg, &res_before);
+    let in_fold = |k: usize| seg.fold_of_frame[k].is_some();
+    let (mut e0, mut n0, mut n_all, mut e_all) = (0.0, 0usize, 0usize, 0.0);
+    for (k, row) in res_before.iter().enumerate() {
+        for r in row.iter().flatten() {
+            e_all += r.norm_squared();
+            n_all += 1;
+            if in_fold(k) {
+                e0 += r.norm_squared();
+                n0 += 1;
+            }
+        }
+    }
+    let before = (e0 / n0.max(1) as f64).sqrt();
+    let n_scalar = (3 * n_all).max(1) as f64;
+    let bic = |rss: f64, k: usize| {
+        n_scalar * (rss.max(1e-300) / n_scalar).ln() + k as f64 * n_scalar.ln()
+    };
+    let bic0 = bic(e_all, 0);
+
+    let refits: Vec<Refit> = Hypothesis::ALL
+        .into_iter()
+        .filter_map(|h| refit(h, rec, &seg, &prepared))
+        .collect();
+    let not_applicable: Vec<Hypothesis> = Hypothesis::ALL
+        .into_iter()
+        .filter(|h| refits.iter().all(|r| r.hypothesis != *h))
+        .collect();
+    let scale_only = refit_variants(
+        Hypothesis::Viscoelasticity,
+        &[stiffness_scale_variant(&prepared)],
+        rec,
+        &seg,
+        &prepared,
+    )
+    .map(|r| (r.heldout_rss_m2 / r.heldout_n.max(1) as f64).sqrt())
+    .unwrap_or(before)
+    .min(before);
+    let noise_mse = 3.0 * sig.noise_sigma_m.powi(2);
+    let explainable = before * before > settings.noise_floor_factor * noise_mse;
+
+    struct Row {
+        h: Hypothesis,
+        after: f64,
+        score: f64,
+        dbic: f64,
+        support: f64,
+        qualifies: bool,
+    }
+    let mut rows: Vec<Row> = refits
+        .iter()
+        .map(|r| {
+            let after = (r.heldout_rss_m2 / r.heldout_n.max(1) as f64).sqrt();
+            let score = if before > 0.0 {
+                1.0 - (after * after) / (before * before)
+            } else {
+                0.0
+            };
+            let dbic = bic(r.rss_m2, r.num_params) - bic0;
+            let support = signature_support(r.hypothesis, &sig);
+            let beats_scale =
+                after * after <= (1.0 - 0.5 * settings.min_heldout_gain) * scale_only * scale_only;
+            let qualifies = explainable
+                && score >= settings.min_heldout_gain
+                && beats_scale
+                && dbic <= -settings.min_delta_bic;
+            Row {
+                h: r.hypothesis,
+                after,
+                score,
+                dbic,
+                support,
+                qualifies,
+            }
+        })
+        .collect();
+    rows.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.h.cmp(&b.h)));
+
+    // Look-alikes: among qualifying hypotheses whose held-out MSE is within the margin of the best,
+    // the signatures decide (then the held-out score).
+    let verdict = {
+        let q: Vec<&Row> = rows.iter().filter(|r| r.qualifies).collect();
+        match q.first() {
+            None => None,
+            Some(best) => {
+                let lim = best.after * best.after * (1.0 + settings.lookalike_margin);
+                q.iter()
+                    .filter(|r| r.after * r.after <= lim && r.support >= 0.0)
+                    .max_by(|a, b| {
+                        a.support
+                            .total_cmp(&b.support)
+                            .then(b.after.total_cmp(&a.after))
+                    })
+                    .or(Some(best))
+                    .map(|r| r.h)
+            }
+        }
+    };
+    if let Some(v) = verdict
+        && let Some(i) = rows.iter().position(|r| r.h == v)
+    {
+        let r = rows.remove(i);
+        rows.insert(0, r);
+    }
+
+    let mut ranked = Vec::new();
+    let mut extended_m = None;
+    for row in &rows {
+        let r = refits
+            .iter()
+            .find(|x| x.hypothesis == row.h)
+            .ok_or_else(|| DiagnoseError::BadRecording {
+                what: "internal: refit lost".into(),
+            })?;
+        let mut evidence: BTreeMap<String, serde_json::Value> = BTreeMap::new();
+        evidence.insert("delta_bic".into(), row.dbic.into());
+        evidence.insert("signature_support".into(), row.support.into());
+        evidence.insert("qualifies".into(), row.qualifies.into());
+        evidence.insert("num_params".into(), r.num_params.into());
+        evidence.insert(
+            "method".into(),
+            "linearised refit (tangent response)".into(),
+        );
+        let mut after = row.after;
+        if Some(row.h) == verdict {
+            let lin = predict(row.h, rec, &seg, &prepared, r);
+            let mut ext = lin;
+            if settings.confirm_with_resimulation && row.h.is_load_extension() {
+                // held-out by re-simulation: each fold's parameters applied to its own frames
+                let (mut e, mut n) = (0.0, 0usize);
+                for (l, fp) in r.fold_params.iter().enumerate() {
+                    let in_l = |k: usize| seg.fold_of_frame[k] == Some(l);
+                    if let Some(pred) =
+                        resimulate(row.h, fp, rec, &seg, &prepared, sim, settings, &in_l)?
+                    {
+                        for (k, row_res) in residuals(rec, &pred).iter().enumerate() {
+                            if seg.fold_of_frame[k] == Some(l) {
+                                for x in row_res.iter().flatten() {
+                                    e += x.norm_squared();
+                                    n += 1;
+                                }
+                            }
+                        }
+                    }
+                }
+                if n > 0 {
+                    let resim_after = (e / n as f64).sqrt();
+                    evidence.insert("heldout_rmse_linearised_m".into(), after.into());
+                    evidence.insert("heldout_rmse_resimulated_m".into(), resim_after.into());
+                    evidence.insert("method".into(), "re-simulated with the full model".into());
+                    after = resim_after;
+                }
+                if let Some(full) = resimulate(
+                    row.h,
+                    &r.params,
+                    rec,
+                    &seg,
+                    &prepared,
+                    sim,
+                    settings,
+                    &|_| true,
+                )? {
+                    ext = full;
+                }
+            }
+            extended_m = Some(ext);
+        }
+        let score = if before > 0.0 {
+            1.0 - (after * after) / (before * before)
+        } else {
+            0.0
+        };
+        ranked.push(RankedHypothesis {
+            hypothesis: row.h.name().into(),
+            score,
+            heldout_rmse_before_m: before,
+            heldout_rmse_after_m: after,
+            params: r.params.iter().cloned().collect(),
+            evidence,
+        });
+    }
+    for h in not_applicable {
+        let mut evidence = BTreeMap::new();
+        evidence.insert("applicable".into(), false.into());
+        evidence.insert(
+            "reason".into(),
+            match h {
+                Hypothesis::GravityPreload => "no gravity in the session",
+                Hypothesis::ProbeFriction => "no tangential probe travel or tilt at any location",
+                Hypothesis::SupportSlip => "no support plane and no gravity direction",
+                _ => "no extension field for this recording",
+            }
+            .into(),
+        );
+        ranked.push(RankedHypothesis {
+            hypothesis: h.name().into(),
+            score: 0.0,
+            heldout_rmse_before_m: before,
+            heldout_rmse_after_m: before,
+            params: BTreeMap::new(),
+            evidence,
+        });
+    }
+    // `none`: the default model itself.
+    let mut none_ev = BTreeMap::new();
+    none_ev.insert("noise_sigma_m".into(), sig.noise_sigma_m.into());
+    none_ev.insert("explainable_beyond_noise".into(), explainable.into());
+    none_ev.insert(
+        "heldout_rmse_stiffness_scale_only_m".into(),
+        scale_only.into(),
+    );
+    let none = RankedHypothesis {
+        hypothesis: "none".into(),
+        score: 0.0,
+        heldout_rmse_before_m: before,
+        heldout_rmse_after_m: before,
+        params: BTreeMap::new(),
+        evidence: none_ev,
+    };
+    if verdict.is_some() {
+        let pos = ranked
+            .iter()
+            .skip(1)
+            .position(|r| r.score <= 0.0)
+            .map(|p| p + 1)
+            .unwrap_or(ranked.len());
+        ranked.insert(pos, none);
+    } else {
+        ranked.insert(0, none);
+    }
+    // signature evidence on every hypothesis row
+    let sig_json = serde_json::to_value(&sig).unwrap_or_default();
+    for r in &mut ranked {
+        r.evidence.insert("signatures".into(), sig_json.clone());
+    }
+
+    let residuals_after = match &extended_m {
+        Some(x) => residuals(rec, x),
+        None => res_before.clone(),
+    };
+    let mut table = Vec::new();
+    for region in Region::ALL {
+        for phase in Phase::ALL {
+            let sel = |k: usize, m: usize| seg.phases[k] == phase && seg.regions[m] == region;
+            let rms = |res: &Residuals| {
+                let (mut a, mut n) = (0.0, 0);
+                for (k, row) in res.iter().enumerate() {
+                    for (m, r) in row.iter().enumerate() {
+                        if let Some(r) = r
+                            && sel(k, m)
+                        {
+                            a += r.norm_squared();
+                            n += 1;
+                        }
+                    }
+                }
+                (n > 0).then(|| (a / n as f64).sqrt())
+            };
+            if let (Some(b), Some(a)) = (rms(&res_before), rms(&residuals_after)) {
+                table.push((region.name().to_string(), phase.name().to_string(), b, a));
+            }
+        }
+    }
+
+    Ok(DiagnosisRun {
+        diagnosis: Diagnosis {
+            verdict: verdict
+                .map(|h| h.name().to_string())
+                .unwrap_or_else(|| "none".into()),
+            ranked,
+            located,
+        },
+        segmentation: seg,
+        baseline_m: prepared.baseline_m,
+        extended_m,
+        residuals_before: res_before,
+        residuals_after,
+        signatures: sig,
+        table,
+    })
+}

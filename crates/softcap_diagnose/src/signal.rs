@@ -1,0 +1,108 @@
+//! Small time-series kernels on non-uniformly sampled traces (frame times), used by the hypothesis
+//! extensions: first-order low-pass, derivatives, time shift.
+
+use nalgebra::Vector3;
+
+/// First-order low-pass y' = (f − y)/τ with y(t₀) = f(t₀), integrated exactly for a piecewise
+/// linear input: with slope s = (f_k − f_{k−1})/Δ,
+/// y_k = f_k − sτ + (y_{k−1} − f_{k−1} + sτ) e^{−Δ/τ}.
+pub fn low_pass(t: &[f64], f: &[Vector3<f64>], tau_s: f64) -> Vec<Vector3<f64>> {
+    let mut y = Vec::with_capacity(f.len());
+    if f.is_empty() {
+        return y;
+    }
+    y.push(f[0]);
+    for k in 1..f.len() {
+        let dt = (t[k] - t[k - 1]).max(1e-12);
+        let s = (f[k] - f[k - 1]) / dt;
+        let e = (-dt / tau_s).exp();
+        let prev = y[k - 1];
+        y.push(f[k] - s * tau_s + (prev - f[k - 1] + s * tau_s) * e);
+    }
+    y
+}
+
+/// Time derivative by central differences (one-sided at the ends).
+pub fn derivative(t: &[f64], f: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    let n = f.len();
+    (0..n)
+        .map(|k| {
+            if n < 2 {
+                return Vector3::zeros();
+            }
+            let (a, b) = if k == 0 {
+                (0, 1)
+            } else if k == n - 1 {
+                (n - 2, n - 1)
+            } else {
+                (k - 1, k + 1)
+            };
+            (f[b] - f[a]) / (t[b] - t[a]).max(1e-12)
+        })
+        .collect()
+}
+
+/// Linear interpolation of the trace at `tq` (clamped to the ends).
+pub fn sample(t: &[f64], f: &[Vector3<f64>], tq: f64) -> Vector3<f64> {
+    let n = t.len();
+    if n == 0 {
+        return Vector3::zeros();
+    }
+    if tq <= t[0] {
+        return f[0];
+    }
+    if tq >= t[n - 1] {
+        return f[n - 1];
+    }
+    let k = t.partition_point(|&x| x <= tq).clamp(1, n - 1);
+    let w = (tq - t[k - 1]) / (t[k] - t[k - 1]);
+    f[k - 1] * (1.0 - w) + f[k] * w
+}
+
+/// Time at which a scalar trace first crosses `level` upwards within `range` (linear interpolation).
+pub fn crossing_time(
+    t: &[f64],
+    v: &[f64],
+    level: f64,
+    range: std::ops::Range<usize>,
+) -> Option<f64> {
+    let s = range.start.max(1);
+    for k in s..range.end.min(v.len()) {
+        if v[k - 1] < level && v[k] >= level {
+            let w = (level - v[k - 1]) / (v[k] - v[k - 1]);
+            return Some(t[k - 1] + w * (t[k] - t[k - 1]));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn low_pass_of_a_ramp_matches_the_analytic_solution() {
+        // y' = (t − y)/τ, y(0)=0 → y = t − τ(1 − e^{−t/τ}); exact for a linear input.
+        let tau = 0.3;
+        let t: Vec<f64> = (0..50).map(|k| 0.037 * k as f64).collect();
+        let f: Vec<_> = t.iter().map(|&x| Vector3::new(x, 0.0, 0.0)).collect();
+        let y = low_pass(&t, &f, tau);
+        for (k, &tk) in t.iter().enumerate() {
+            let exact = tk - tau * (1.0 - (-tk / tau).exp());
+            assert!((y[k].x - exact).abs() < 1e-12, "{k}: {} vs {exact}", y[k].x);
+        }
+    }
+
+    #[test]
+    fn sample_and_derivative_of_a_quadratic() {
+        let t: Vec<f64> = (0..20).map(|k| 0.1 * k as f64).collect();
+        let f: Vec<_> = t.iter().map(|&x| Vector3::new(x * x, 0.0, 0.0)).collect();
+        let d = derivative(&t, &f);
+        // Central differences are exact for quadratics.
+        assert!((d[7].x - 2.0 * t[7]).abs() < 1e-12);
+        assert!((sample(&t, &f, 0.55).x - 0.5 * (0.25 + 0.36)).abs() < 1e-12);
+        let v: Vec<f64> = f.iter().map(|p| p.x).collect();
+        let tc = crossing_time(&t, &v, 1.0, 0..20).unwrap();
+        assert!((tc - (0.9 + (1.0 - 0.81) / (1.0 - 0.81) * 0.1)).abs() < 1e-12);
+    }
+}
