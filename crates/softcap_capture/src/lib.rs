@@ -63,7 +63,10 @@ pub use pipeline::{
 pub use probe::{FsrConversion, FsrModel, ProbePose, probe_pose};
 pub use register::{horn_weighted, weight_away_from_probe};
 pub use session::{Detection, MarkerColor, Session, SessionKind, TemplateMarker};
-pub use sync::{ClockSync, SyncMethod, sync_from_data, sync_from_trigger, trigger_pulses};
+pub use sync::{
+    ClockSync, SyncMethod, refine_sync_least_squares, sync_from_data, sync_from_trigger,
+    trigger_pulses,
+};
 pub use triangulate::{
     PixelObservation, Triangulated, TriangulationSettings, triangulate, triangulate_dlt,
 };

@@ -141,10 +141,11 @@ pub fn write_capture_mcap(
             residual_s: s.residual,
             method: match s.method {
                 SyncMethod::Trigger => "trigger-line edges, least-squares line".into(),
-                SyncMethod::Data => {
-                    "force vs marker deformation cross-correlation (residual = 1 - correlation)"
-                        .into()
-                }
+                SyncMethod::Data => format!(
+                    "data: max correlation of force with probe depth, then least-squares offset + drift \
+                     (residual_s = RMS force residual / RMS dF/dt; force residual {:.4} N, correlation {:.4})",
+                    s.residual_force_n, s.correlation
+                ),
             },
             samples: s.samples as u64,
         };
@@ -273,15 +274,15 @@ pub fn report(r: &CaptureResult) -> proto::Report {
             "s",
         ));
         e.push(entry("clock.t_daq_drift", Value::Number(s.drift), ""));
-        e.push(entry(
-            "clock.residual",
-            Value::Number(s.residual),
-            if s.method == SyncMethod::Trigger {
-                "s"
-            } else {
-                ""
-            },
-        ));
+        e.push(entry("clock.residual", Value::Number(s.residual), "s"));
+        if s.method == SyncMethod::Data {
+            e.push(entry(
+                "clock.residual_force",
+                Value::Number(s.residual_force_n),
+                "N",
+            ));
+            e.push(entry("clock.correlation", Value::Number(s.correlation), ""));
+        }
     }
     proto::Report {
         title: "capture".into(),

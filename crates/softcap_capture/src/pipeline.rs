@@ -16,8 +16,11 @@ use crate::error::{CaptureError, Result};
 use crate::fill::FillSettings;
 use crate::probe::{FsrConversion, FsrModel, probe_pose};
 use crate::register::{horn_weighted, weight_away_from_probe};
-use crate::session::{Detection, MarkerColor, Session};
-use crate::sync::{ClockSync, interpolate, sync_from_data, sync_from_trigger, trigger_pulses};
+use crate::session::{Detection, MarkerColor, Session, TemplateMarker};
+use crate::sync::{
+    ClockSync, interpolate, refine_sync_least_squares, sync_from_data, sync_from_trigger,
+    trigger_pulses,
+};
 use crate::triangulate::{PixelObservation, TriangulationSettings, triangulate};
 
 /// Which 2D source to use.
@@ -59,6 +62,9 @@ pub struct CaptureSettings {
     pub data_sync_step_s: f64,
     /// Ignore the trigger line and align clocks from the data.
     pub force_data_sync: bool,
+    /// Bound on the relative clock drift fitted by the data-driven sync (crystal tolerance;
+    /// 1e-4 = 100 ppm).
+    pub data_sync_max_drift: f64,
 }
 
 impl Default for CaptureSettings {
@@ -75,6 +81,7 @@ impl Default for CaptureSettings {
             fill: FillSettings::default(),
             data_sync_step_s: 0.002,
             force_data_sync: false,
+            data_sync_max_drift: 1e-4,
         }
     }
 }
@@ -497,26 +504,27 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 .iter()
                 .map(|&v| model.force_n(v))
                 .collect();
-            let deformation: Vec<f64> = frames
-                .iter()
-                .map(|f| {
-                    let (mut s, mut n) = (0.0, 0);
-                    for m in 0..n_obj {
-                        if f.markers[m].state == MarkerState::Visible {
-                            s += (f.markers[m].position_m - session.markers[m].position_m).norm();
-                            n += 1;
-                        }
-                    }
-                    if n > 0 { s / n as f64 } else { 0.0 }
-                })
-                .collect();
+            let signal = probe_depth_signal(&frames, &session.markers)
+                .unwrap_or_else(|| mean_marker_displacement(&frames, &session.markers));
             sync_from_data(
                 &t_cam,
-                &deformation,
+                &signal,
                 &samples.t_daq_s,
                 &force,
                 settings.data_sync_step_s,
             )
+            .map(|s| {
+                let groups = contact_runs(&signal);
+                refine_sync_least_squares(
+                    &t_cam,
+                    &signal,
+                    &samples.t_daq_s,
+                    &force,
+                    Some(&groups),
+                    settings.data_sync_max_drift,
+                    &s,
+                )
+            })
         });
         if let Some(s) = &sync {
             for f in frames.iter_mut() {
@@ -567,6 +575,80 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         cameras,
         source,
     })
+}
+
+/// Probe depth below the rest surface per frame, the camera-side signal of the data-driven clock
+/// sync: with the tip `p` and pushing axis `a`, the largest `(p − m)·a` over the rest template
+/// markers `m` laterally within twice the third-nearest marker's distance from the probe axis
+/// (the most upstream of them lie on the surface facing the probe; markers on side faces lie
+/// further downstream), clamped at 0 (no contact). Frames without a probe pose get 0. `None`
+/// when fewer than three frames show the probe in contact.
+pub fn probe_depth_signal(frames: &[FrameResult], rest: &[TemplateMarker]) -> Option<Vec<f64>> {
+    if rest.len() < 3 {
+        return None;
+    }
+    let depth: Vec<f64> = frames
+        .iter()
+        .map(|f| {
+            let Some((tip, axis)) = f.probe.as_ref().and_then(|p| Some((p.tip_m?, p.axis?))) else {
+                return 0.0;
+            };
+            let mut near: Vec<(f64, f64)> = rest
+                .iter()
+                .map(|m| {
+                    let d = tip - m.position_m;
+                    let along = d.dot(&axis);
+                    ((d - axis * along).norm(), along)
+                })
+                .collect();
+            near.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let radius = 2.0 * near[2].0;
+            near.iter()
+                .take_while(|n| n.0 <= radius)
+                .map(|n| n.1)
+                .fold(f64::NEG_INFINITY, f64::max)
+                .max(0.0)
+        })
+        .collect();
+    (depth.iter().filter(|&&d| d > 0.0).count() >= 3).then_some(depth)
+}
+
+/// Slope groups of the data-driven clock fit: each run of consecutive frames with a positive
+/// signal (one press at one probe location) is a group; frames without contact (signal 0, so
+/// their slope does not matter) join group 0.
+pub fn contact_runs(signal: &[f64]) -> Vec<usize> {
+    let mut out = vec![0; signal.len()];
+    let (mut run, mut in_contact) = (0usize, false);
+    for (k, &d) in signal.iter().enumerate() {
+        if d > 0.0 {
+            if !in_contact && signal[..k].iter().any(|&x| x > 0.0) {
+                run += 1;
+            }
+            in_contact = true;
+            out[k] = run;
+        } else {
+            in_contact = false;
+        }
+    }
+    out
+}
+
+/// Mean displacement of the visible object markers from rest per frame (the fallback camera-side
+/// signal of the data-driven clock sync when the probe is not tracked).
+pub fn mean_marker_displacement(frames: &[FrameResult], rest: &[TemplateMarker]) -> Vec<f64> {
+    frames
+        .iter()
+        .map(|f| {
+            let (mut s, mut n) = (0.0, 0);
+            for (m, r) in f.markers.iter().zip(rest) {
+                if m.state == MarkerState::Visible {
+                    s += (m.position_m - r.position_m).norm();
+                    n += 1;
+                }
+            }
+            if n > 0 { s / n as f64 } else { 0.0 }
+        })
+        .collect()
 }
 
 /// Median of a sorted slice (NaN when empty).

@@ -1,6 +1,8 @@
 //! Camera ↔ DAQ clock alignment `t_daq = offset_s + (1 + drift)·t_camera`: from the trigger line's
 //! edges (least-squares line through the exposure mid-times), or, without a trigger line, from the
-//! data (force against marker deformation, maximised normalized cross-correlation).
+//! data: a camera-side signal (probe depth below the rest surface, or marker deformation) against
+//! the DAQ force — first the offset maximising their normalized correlation, then offset and drift
+//! refined by least squares on the force model `F(t_daq,k) ≈ a + b·d_k` ([`refine_sync_least_squares`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -10,7 +12,8 @@ use serde::{Deserialize, Serialize};
 pub enum SyncMethod {
     /// Trigger line edges sampled by the DAQ.
     Trigger,
-    /// Cross-correlation of FSR force with marker deformation (drift fixed at 0).
+    /// From the data: correlation of force with probe depth (or marker deformation), refined by
+    /// least squares on offset and drift.
     Data,
 }
 
@@ -23,10 +26,16 @@ pub struct ClockSync {
     pub offset_s: f64,
     /// Relative drift (dimensionless).
     pub drift: f64,
-    /// Residual: RMS of the line fit to the exposure mid-times (trigger), s; or 1 − correlation (data).
+    /// Residual, s: RMS of the line fit to the exposure mid-times (trigger); for data, the RMS
+    /// force residual of the least-squares fit divided by the RMS force rate `|dF/dt|` at the
+    /// frames (the timing error that would explain it).
     pub residual: f64,
     /// Number of trigger pulses matched (trigger) or frames used (data).
     pub samples: usize,
+    /// Data sync only: RMS force residual of `F(t_daq,k) − (a + b·d_k)`, N (NaN for trigger).
+    pub residual_force_n: f64,
+    /// Data sync only: normalized correlation of force and signal at the estimate (NaN for trigger).
+    pub correlation: f64,
 }
 
 impl ClockSync {
@@ -112,6 +121,8 @@ pub fn sync_from_trigger(t_camera_s: &[f64], pulses_daq_s: &[f64]) -> Option<Clo
                 drift: b - 1.0,
                 residual: rms,
                 samples: n,
+                residual_force_n: f64::NAN,
+                correlation: f64::NAN,
             });
         }
     }
@@ -192,13 +203,207 @@ pub fn sync_from_data(
     }
     let off = 0.5 * (a + b);
     let s = score(off);
+    let fit = ForceModelFit::new(t_camera_s, deformation, t_daq_s, force, None);
+    let (residual_force_n, residual_s) = fit.residuals_at(off, 0.0);
     Some(ClockSync {
         method: SyncMethod::Data,
         offset_s: off,
         drift: 0.0,
-        residual: 1.0 - s,
+        residual: residual_s,
         samples: t_camera_s.len(),
+        residual_force_n,
+        correlation: s,
     })
+}
+
+/// The least-squares problem of [`refine_sync_least_squares`]: parameters
+/// `[c, drift, a, b_0 … b_{L−1}]` with `t_daq,k = c + (1 + drift)(t_k − t̄)` (centred, so `c` and
+/// `drift` are uncorrelated), residuals `r_k = a + b_{g(k)}·d_k − F(t_daq,k)` where `g(k)` is the
+/// frame's group (one slope per probe location: the object's stiffness differs between them).
+struct ForceModelFit<'a> {
+    t_camera_s: &'a [f64],
+    signal: &'a [f64],
+    t_daq_s: &'a [f64],
+    force: &'a [f64],
+    /// Slope group of each frame.
+    group: Vec<usize>,
+    groups: usize,
+    t_mean: f64,
+    /// Half-width of the central difference of F, s (one DAQ sample interval).
+    h_s: f64,
+}
+
+impl<'a> ForceModelFit<'a> {
+    fn new(
+        t_camera_s: &'a [f64],
+        signal: &'a [f64],
+        t_daq_s: &'a [f64],
+        force: &'a [f64],
+        group: Option<&[usize]>,
+    ) -> Self {
+        let group = match group {
+            Some(g) if g.len() == signal.len() => g.to_vec(),
+            _ => vec![0; signal.len()],
+        };
+        let groups = group.iter().max().map_or(1, |g| g + 1);
+        let mut dt: Vec<f64> = t_daq_s.windows(2).map(|w| w[1] - w[0]).collect();
+        dt.sort_by(f64::total_cmp);
+        ForceModelFit {
+            t_camera_s,
+            signal,
+            t_daq_s,
+            force,
+            group,
+            groups,
+            t_mean: t_camera_s.iter().sum::<f64>() / t_camera_s.len() as f64,
+            h_s: dt.get(dt.len() / 2).copied().unwrap_or(1e-3),
+        }
+    }
+
+    fn tau(&self, c: f64, drift: f64, k: usize) -> f64 {
+        c + (1.0 + drift) * (self.t_camera_s[k] - self.t_mean)
+    }
+
+    fn force_at(&self, t: f64) -> f64 {
+        interpolate(self.t_daq_s, self.force, t)
+    }
+
+    fn force_rate(&self, t: f64) -> f64 {
+        (self.force_at(t + self.h_s) - self.force_at(t - self.h_s)) / (2.0 * self.h_s)
+    }
+
+    /// Best `[a, b_0 …]` for a clock: linear least squares of `F(τ_k)` on `(1, d_k e_{g(k)})`.
+    fn linear_fit(&self, c: f64, drift: f64) -> Vec<f64> {
+        let n = 1 + self.groups;
+        let mut ata = nalgebra::DMatrix::<f64>::zeros(n, n);
+        let mut atf = nalgebra::DVector::<f64>::zeros(n);
+        for k in 0..self.signal.len() {
+            let f = self.force_at(self.tau(c, drift, k));
+            let mut row = nalgebra::DVector::<f64>::zeros(n);
+            row[0] = 1.0;
+            row[1 + self.group[k]] = self.signal[k];
+            ata += &row * row.transpose();
+            atf += &row * f;
+        }
+        // A slope group whose signal is all zero gets a zero slope (tiny ridge keeps it regular).
+        for i in 0..n {
+            ata[(i, i)] += 1e-12 * (1.0 + ata[(i, i)]);
+        }
+        ata.cholesky()
+            .map(|ch| ch.solve(&atf).iter().copied().collect())
+            .unwrap_or_else(|| vec![0.0; n])
+    }
+
+    fn model(&self, lin: &[f64], k: usize) -> f64 {
+        lin[0] + lin[1 + self.group[k]] * self.signal[k]
+    }
+
+    /// `(RMS force residual (N), time-equivalent residual (s))` at a clock given as
+    /// `t_daq = offset + (1 + drift)·t_camera`, with the best `(a, b)` for it.
+    fn residuals_at(&self, offset_s: f64, drift: f64) -> (f64, f64) {
+        let c = offset_s + (1.0 + drift) * self.t_mean;
+        let lin = self.linear_fit(c, drift);
+        let (mut s2, mut rate2) = (0.0, 0.0);
+        for k in 0..self.signal.len() {
+            let t = self.tau(c, drift, k);
+            s2 += (self.model(&lin, k) - self.force_at(t)).powi(2);
+            rate2 += self.force_rate(t).powi(2);
+        }
+        let n = self.signal.len() as f64;
+        let rms = (s2 / n).sqrt();
+        let rate = (rate2 / n).sqrt();
+        (rms, if rate > 0.0 { rms / rate } else { f64::NAN })
+    }
+}
+
+impl softcap_core::LeastSquaresProblem for ForceModelFit<'_> {
+    fn num_params(&self) -> usize {
+        3 + self.groups
+    }
+
+    fn num_residuals(&self) -> usize {
+        self.signal.len()
+    }
+
+    fn residuals(&mut self, p: &[f64], r: &mut [f64]) {
+        for (k, r) in r.iter_mut().enumerate() {
+            *r = self.model(&p[2..], k) - self.force_at(self.tau(p[0], p[1], k));
+        }
+    }
+
+    /// `∂r_k/∂c = −F'(τ_k)`, `∂r_k/∂drift = −F'(τ_k)(t_k − t̄)`, `∂r_k/∂a = 1`, `∂r_k/∂b_{g(k)} = d_k`,
+    /// with F' the central difference of the interpolated force over one DAQ interval.
+    fn jacobian(&mut self, p: &[f64], j: &mut nalgebra::DMatrix<f64>) -> bool {
+        for k in 0..self.signal.len() {
+            let rate = self.force_rate(self.tau(p[0], p[1], k));
+            j[(k, 0)] = -rate;
+            j[(k, 1)] = -rate * (self.t_camera_s[k] - self.t_mean);
+            j[(k, 2)] = 1.0;
+            j[(k, 3 + self.group[k])] = self.signal[k];
+        }
+        true
+    }
+}
+
+/// Refines a data-driven clock estimate by least squares over offset and drift together with the
+/// linear force model `F(t_daq,k) ≈ a + b_{g(k)}·d_k` with one slope per group `g` (probe
+/// location; `None`: one group), the drift bounded by `|drift| ≤ max_drift` (a clock crystal's
+/// tolerance; drift is weakly observable over a short take, and unbounded it absorbs model
+/// error between probe locations) (Levenberg–Marquardt, `softcap_core`), starting
+/// from `initial` (e.g. [`sync_from_data`]'s correlation maximum). Returns the refined estimate
+/// with its residuals, or `initial` when the refinement fails or does not lower the residual.
+pub fn refine_sync_least_squares(
+    t_camera_s: &[f64],
+    signal: &[f64],
+    t_daq_s: &[f64],
+    force: &[f64],
+    groups: Option<&[usize]>,
+    max_drift: f64,
+    initial: &ClockSync,
+) -> ClockSync {
+    if t_camera_s.len() < 5 {
+        return *initial;
+    }
+    let mut fit = ForceModelFit::new(t_camera_s, signal, t_daq_s, force, groups);
+    let c0 = initial.offset_s + (1.0 + initial.drift) * fit.t_mean;
+    let mut p0 = vec![c0, initial.drift];
+    p0[1] = p0[1].clamp(-max_drift, max_drift);
+    p0.extend(fit.linear_fit(c0, p0[1]));
+    let mut lower = vec![f64::NEG_INFINITY; p0.len()];
+    let mut upper = vec![f64::INFINITY; p0.len()];
+    (lower[1], upper[1]) = (-max_drift, max_drift);
+    let Ok(bounds) = softcap_core::Bounds::new(lower, upper) else {
+        return *initial;
+    };
+    let settings = softcap_core::LevenbergMarquardtSettings {
+        max_iterations: 100,
+        ..Default::default()
+    };
+    let Ok(report) = softcap_core::levenberg_marquardt(&mut fit, &p0, Some(&bounds), &settings)
+    else {
+        return *initial;
+    };
+    let p = &report.params;
+    if !p.iter().all(|v| v.is_finite()) {
+        return *initial;
+    }
+    let offset_s = p[0] - (1.0 + p[1]) * fit.t_mean;
+    let (residual_force_n, residual) = fit.residuals_at(offset_s, p[1]);
+    if residual_force_n.is_nan() || residual_force_n > initial.residual_force_n {
+        return *initial;
+    }
+    let corr_signal: Vec<f64> = (0..t_camera_s.len())
+        .map(|k| fit.force_at(fit.tau(p[0], p[1], k)))
+        .collect();
+    ClockSync {
+        method: SyncMethod::Data,
+        offset_s,
+        drift: p[1],
+        residual,
+        samples: t_camera_s.len(),
+        residual_force_n,
+        correlation: correlation(&corr_signal, signal),
+    }
 }
 
 #[cfg(test)]
@@ -241,5 +446,54 @@ mod tests {
         let d: Vec<f64> = cams.iter().map(|&tc| 3.0 * signal(tc)).collect();
         let s = sync_from_data(&cams, &d, &t, &f, 0.005).unwrap();
         assert!((s.offset_s - offset).abs() < 1e-3, "{s:?}");
+    }
+
+    #[test]
+    fn least_squares_refines_offset_and_drift_with_one_slope_per_press() {
+        // Two presses (trapezoids in depth) with different stiffness; force = k_j · depth on the
+        // DAQ clock t_daq = offset + (1 + drift) t_camera.
+        let (offset, drift) = (1.2345, 6e-5);
+        let depth = |t: f64| {
+            let press =
+                |t0: f64| ((t - t0) / 0.6).clamp(0.0, 1.0) - ((t - t0 - 0.9) / 0.3).clamp(0.0, 1.0);
+            (2.0 * press(0.5), 2.2 * press(2.5))
+        };
+        let cams: Vec<f64> = (0..45).map(|k| 0.1 * k as f64 + 0.05).collect();
+        let signal: Vec<f64> = cams
+            .iter()
+            .map(|&t| {
+                let (a, b) = depth(t);
+                a + b
+            })
+            .collect();
+        let t_daq: Vec<f64> = (0..1200).map(|i| offset + 0.005 * i as f64 - 0.5).collect();
+        let force: Vec<f64> = t_daq
+            .iter()
+            .map(|&td| {
+                let (a, b) = depth((td - offset) / (1.0 + drift));
+                0.7 * a + 0.9 * b
+            })
+            .collect();
+        let groups = vec![0; cams.len()]
+            .iter()
+            .zip(&cams)
+            .map(|(_, &t)| usize::from(t > 2.0))
+            .collect::<Vec<_>>();
+        let initial = sync_from_data(&cams, &signal, &t_daq, &force, 0.005).unwrap();
+        let refined = refine_sync_least_squares(
+            &cams,
+            &signal,
+            &t_daq,
+            &force,
+            Some(&groups),
+            1e-4,
+            &initial,
+        );
+        assert!(
+            (refined.offset_s - offset).abs() < 3e-4,
+            "initial {initial:?} refined {refined:?}"
+        );
+        assert!(refined.residual_force_n <= initial.residual_force_n);
+        assert!(refined.residual_force_n < 0.01, "{refined:?}");
     }
 }

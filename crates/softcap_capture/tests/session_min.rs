@@ -48,3 +48,38 @@ fn session_min_from_detections_meets_accuracy() {
 fn session_min_from_images_meets_accuracy() {
     assert_done_when(&check(MarkerSource::Images));
 }
+
+/// Without a trigger line the clocks come from the data: probe depth against FSR force, offset by
+/// maximum correlation, then offset + drift by least squares. session-min with `trigger_v` removed
+/// from fsr.csv must give the offset within 3 ms of truth/clock.toml.
+#[test]
+fn session_min_without_trigger_line_syncs_from_the_data() {
+    let (_tmp, dir) = common::session_copy("session-min");
+    let fsr = dir.join("fsr.csv");
+    let text = std::fs::read_to_string(&fsr).unwrap();
+    let stripped: String = text
+        .lines()
+        .map(|l| l.rsplitn(2, ',').nth(1).unwrap().to_string() + "\n")
+        .collect();
+    assert!(stripped.starts_with("t_daq_s,voltage_v\n"));
+    std::fs::write(&fsr, stripped).unwrap();
+    let session = Session::load(&dir).unwrap();
+    assert!(session.fsr_samples.as_ref().unwrap().trigger_v.is_none());
+    let settings = CaptureSettings {
+        source: MarkerSource::Detections,
+        ..Default::default()
+    };
+    let r = capture(&session, &settings).unwrap();
+    let s = r.sync.unwrap();
+    let a = common::accuracy("session-min", &r);
+    println!("data sync: {s:?}");
+    println!("accuracy: {a:#?}");
+    assert_eq!(s.method, softcap_capture::SyncMethod::Data);
+    assert!(
+        a.clock_offset_error_ms <= 3.0,
+        "clock offset error {:.3} ms",
+        a.clock_offset_error_ms
+    );
+    assert!(s.residual.is_finite() && s.residual_force_n.is_finite());
+    assert!(s.correlation > 0.9, "correlation {}", s.correlation);
+}

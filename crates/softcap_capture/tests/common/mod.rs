@@ -138,3 +138,25 @@ pub fn accuracy(session: &str, r: &CaptureResult) -> Accuracy {
         clock_drift_error_ppm: (sync.drift - val("drift")).abs() * 1e6,
     }
 }
+
+/// Copies a fixture session (without truth/) into a fresh temporary folder.
+pub fn session_copy(name: &str) -> (tempfile::TempDir, PathBuf) {
+    fn copy_dir(src: &std::path::Path, dst: &std::path::Path) {
+        std::fs::create_dir_all(dst).unwrap();
+        for e in std::fs::read_dir(src).unwrap() {
+            let e = e.unwrap();
+            let to = dst.join(e.file_name());
+            if e.file_type().unwrap().is_dir() {
+                if e.file_name() != "truth" {
+                    copy_dir(&e.path(), &to);
+                }
+            } else {
+                std::fs::copy(e.path(), &to).unwrap();
+            }
+        }
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join(name);
+    copy_dir(&fixture(name), &dir);
+    (tmp, dir)
+}
