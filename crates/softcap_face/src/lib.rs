@@ -11,6 +11,8 @@
 //! | [`animate`] | bi-Laplacian linear shell driven by the marker displacements | §3.2.1 eq. 3.3 |
 //! | [`raster`] | z-buffer software rasterizer for figures | |
 //! | [`render`] | ground-truth wrinkle video: Monte-Carlo ambient occlusion on a 3D height field | test renderer |
+//! | [`synth`] | 3D wrinkle synthesis: camera projection, valley offset, discrete-shell energy by Gauss–Newton | §3.3.1 eq. 3.6 |
+//! | [`removal`] | wrinkle removal preprocess: detail split, bi-Laplacian patch, details back | §3.3.2 |
 //! | [`classify`] | per-colour RBF-kernel SVM pixel classification (smartcore) | §4.3.1 |
 //! | [`morphology`] | erosion, dilation, opening, closing, connected components | §4.3.1 |
 //! | [`image`] | [`RgbImage`] (linear float RGB, PNG out) | |
@@ -34,7 +36,9 @@ pub mod landmarks;
 pub mod mocap;
 pub mod morphology;
 pub mod raster;
+pub mod removal;
 pub mod render;
+pub mod synth;
 pub mod track;
 
 pub use animate::{FaceAnimator, factor_shell};
@@ -50,7 +54,13 @@ pub use landmarks::{Landmark, derive_landmarks, landmarks_csv, parse_landmarks_c
 pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
 pub use raster::{OrthoView, render_mesh, vertex_normals};
+pub use removal::{RemovalSettings, remove_wrinkles};
 pub use render::{AoRenderSettings, RenderedFrame, WrinkleScene, render_ambient_occlusion};
+pub use synth::{
+    DiscreteShell, PinholeCamera, ProjectedWrinkle, RegionReport, SynthesisResult,
+    SynthesisSettings, WrinkleCurve, WrinkleSample, project_wrinkle, smoothed_normals,
+    synthesize_wrinkles,
+};
 pub use track::{
     CrossSection, TrackSettings, TrackedWrinkle, ValleySpline, fit_cross_section, track_wrinkle,
 };
