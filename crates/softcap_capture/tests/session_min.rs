@@ -59,7 +59,7 @@ fn session_min_without_trigger_line_syncs_from_the_data() {
     let text = std::fs::read_to_string(&fsr).unwrap();
     let stripped: String = text
         .lines()
-        .map(|l| l.rsplitn(2, ',').nth(1).unwrap().to_string() + "\n")
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string() + "\n")
         .collect();
     assert!(stripped.starts_with("t_daq_s,voltage_v\n"));
     std::fs::write(&fsr, stripped).unwrap();
