@@ -87,6 +87,10 @@ pub struct DynamicsSettings {
     pub displacement_tol_rel: f64,
     /// Relative residual tolerance (see `displacement_tol_rel`).
     pub residual_tol_rel: f64,
+    /// Probe contact springs are re-queried at each Newton iteration up to this many, then frozen
+    /// for the rest of the step (as in [`crate::EquilibriumSettings::contact_freeze_after`]: rim
+    /// nodes cannot chatter in and out of the patch forever).
+    pub contact_freeze_after: usize,
 }
 
 impl Default for DynamicsSettings {
@@ -99,6 +103,7 @@ impl Default for DynamicsSettings {
             max_iterations: 20,
             displacement_tol_rel: 1e-10,
             residual_tol_rel: 1e-8,
+            contact_freeze_after: 8,
         }
     }
 }
@@ -391,6 +396,7 @@ impl DynamicSolver {
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
         let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
+        let mut frozen: Option<Vec<crate::contact::ContactSpring>> = None;
         for it in 0..settings.max_iterations.max(1) + 1 {
             model.update_state(&x);
             let (v, a) = Self::velocity_acceleration(settings, state, &x);
@@ -424,16 +430,24 @@ impl DynamicSolver {
                 .collect();
             let mut fc_norm = 0.0;
             if let Some(c) = contact {
-                let pat = &self.pattern;
-                let vals = values.clone();
-                let springs = c.springs(&x, |node| {
-                    let d = pat.node_diagonal(node, &vals);
-                    let (s, k) = d
-                        .iter()
-                        .filter(|v| v.is_finite())
-                        .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
-                    if k > 0 { s / k as f64 } else { 0.0 }
-                });
+                let springs = match &frozen {
+                    Some(f) => f.clone(),
+                    None => {
+                        let pat = &self.pattern;
+                        let vals = values.clone();
+                        c.springs(&x, |node| {
+                            let d = pat.node_diagonal(node, &vals);
+                            let (s, k) = d
+                                .iter()
+                                .filter(|v| v.is_finite())
+                                .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
+                            if k > 0 { s / k as f64 } else { 0.0 }
+                        })
+                    }
+                };
+                if it + 1 >= settings.contact_freeze_after {
+                    frozen = Some(springs.clone());
+                }
                 let mut fcs = Vec::with_capacity(springs.len());
                 for s in &springs {
                     self.pattern

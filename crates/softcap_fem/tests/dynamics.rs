@@ -120,3 +120,106 @@ fn implicit_euler_damped_oscillator_matches_theory() {
     // Backward Euler adds numerical damping ≈ ω²h/2: the measured decay exceeds the physical one.
     assert!(sigma > -s.re);
 }
+
+/// A flat disk probe (radius 0.3 m) pressed 20 mm into a clamped block (ramped over 10 steps, then held): the damped
+/// motion (implicit Euler, Rayleigh damping, contact springs re-queried per Newton iteration) settles
+/// on the static contact solution of [`incremental_loading`] with the same probe path.
+#[test]
+fn probe_contact_dynamics_settle_on_static_solution() {
+    use softcap_fem::nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 1.0, 0.5], [8, 8, 4]);
+    let mut model =
+        CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(1e4, 0.3).unwrap())
+            .unwrap();
+    let mut bc = DirichletBc::new();
+    let mut top = Vec::new();
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        if v.z.abs() < 1e-12 {
+            bc.fix_node(i, *v);
+        }
+        if (v.z - 0.5).abs() < 1e-12 {
+            top.push(i);
+        }
+    }
+    let contact_at = |t: f64| ContactProblem {
+        probe: Probe::new(
+            TipShape::Disk {
+                radius_m: 0.3,
+                thickness_m: 0.05,
+            },
+            Isometry3::from_parts(
+                Translation3::new(0.5, 0.5, 0.5 - 0.02 * t),
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+            ),
+        )
+        .unwrap(),
+        candidate_nodes: top.clone(),
+        settings: ContactSettings::default(),
+    };
+    let zero = vec![Vector3::zeros(); mesh.vertices.len()];
+    let mut statics = StaticSolver::with_bc(&model, &bc).unwrap();
+    let mut xs = mesh.vertices.clone();
+    let inc = incremental_loading(
+        &mut statics,
+        &mut model,
+        &mut xs,
+        |t| LoadState {
+            external_forces_n: zero.clone(),
+            prescribed: bc.clone(),
+            contact: Some(contact_at(t)),
+        },
+        &IncrementalSettings::default(),
+    );
+    assert_eq!(inc.status, SolveStatus::Converged, "{inc:?}");
+    let f_static = inc
+        .steps
+        .last()
+        .unwrap()
+        .equilibrium
+        .contact
+        .contact_force_n;
+    let masses = lumped_masses(&model, 1000.0);
+    let modes = dense_modes(&model, &masses, &bc.dofs(), 1).unwrap();
+    let omega = modes.eigenvalues[0].sqrt();
+    let settings = DynamicsSettings {
+        integrator: Integrator::ImplicitEuler,
+        time_step_s: 0.5 * 2.0 * std::f64::consts::PI / omega,
+        damping: RayleighDamping {
+            alpha_per_s: omega,
+            beta_s: 0.0,
+        },
+        ..DynamicsSettings::default()
+    };
+    let mut solver = DynamicSolver::with_bc(&model, masses, &bc).unwrap();
+    let mut state = DynamicState::at_rest(mesh.vertices.clone());
+    let mut last = None;
+    for n in 1..=60 {
+        let c = contact_at((n as f64 / 10.0).min(1.0));
+        last = Some(solver.step(&mut model, &mut state, &zero, None, Some(&c), &settings));
+    }
+    let last = last.unwrap();
+    let err = state
+        .positions_m
+        .iter()
+        .zip(&xs)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    let df = (last.contact.contact_force_n - f_static).norm() / f_static.norm();
+    println!(
+        "probe contact: static force {:.6e} N ({} nodes), dynamic (settled) {:.6e} N ({} nodes), max |x_dyn − x_static| {err:.2e} m, status {:?}",
+        f_static.z,
+        inc.steps
+            .last()
+            .unwrap()
+            .equilibrium
+            .contact
+            .patch_nodes
+            .len(),
+        last.contact.contact_force_n.z,
+        last.contact.patch_nodes.len(),
+        last.status
+    );
+    assert!(f_static.norm() > 0.0);
+    assert!(err < 1e-6, "{err:e}");
+    assert!(df < 1e-4, "{df:e}");
+}
