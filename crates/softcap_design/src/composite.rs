@@ -57,12 +57,13 @@ impl Default for CompositeSettings {
             cells_per_layer: 1,
             quarter_symmetry: true,
             probe_radius_m: 0.009,
-            forces_n: vec![1.0, 2.0, 3.0, 4.0, 5.0],
+            forces_n: vec![2.0, 4.0, 6.0, 8.0, 10.0],
             increments: 1,
             equilibrium: EquilibriumSettings {
                 max_iterations: 200,
-                displacement_tol_rel: 1e-7,
+                displacement_tol_rel: 1e-6,
                 residual_tol_rel: 1e-6,
+                line_search: false,
                 ..EquilibriumSettings::default()
             },
         }

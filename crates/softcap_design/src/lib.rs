@@ -6,8 +6,11 @@
 //! | module | what | thesis |
 //! |---|---|---|
 //! | [`material`] | isotropic RBF over strain invariants → (λ, μ); transversely isotropic RBF over strain → (E11, E12, E13, E33, E44) with PD projection | eq. 8.1, 8.2, 8.5; §8.3 |
+//! | [`fit`] | base-material fit: linear pre-fit, centres from its strains, LM over all examples, missing tangential forces | §8.3, eq. 8.3 |
 //! | [`model`] | corotational composite model with per-element E(p(ε)) | §8.2 |
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
+//! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
+//! | [`rubber`] | the invariant model fitted to Treloar uniaxial + Kawabata biaxial rubber data at once | eq. 8.1–8.2, §8.3 |
 //! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |
 //!
 //! ```
@@ -28,20 +31,35 @@
 
 pub mod composite;
 mod error;
+pub mod experiment;
+pub mod fit;
 pub mod material;
 pub mod model;
+pub mod rubber;
 pub mod search;
 
 pub use composite::{
     CompositeResponse, CompositeSettings, CompositeSimulator, LayeredBlock, rms_displacement_error,
 };
 pub use error::{DesignError, Result};
+pub use experiment::{
+    ExperimentReport, ExperimentSettings, ParallelEvaluator, TargetOutcome, reference_library,
+    run_experiment,
+};
+pub use fit::{
+    BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_isotropic,
+    simulate_examples, synthesize_measurements, tangential_forces,
+};
 pub use material::{
     BaseMaterial, InvariantMaterial, IsotropicBounds, StrainRbf, TransverseBounds,
     TransverseMaterial, TransverseParams, isotropic_matrix, project_lame, project_transverse,
     strain_invariants, strain_tensor,
 };
 pub use model::CompositeModel;
+pub use rubber::{
+    DataSetError, RubberFitReport, RubberFitSettings, RubberPoint, fit_rubber, nominal_stress,
+    read_biaxial, read_uniaxial, rubber_errors,
+};
 pub use search::{
     DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings, TableEvaluator,
     branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
