@@ -20,7 +20,7 @@
 //! let mut scenario = Scenario::default();
 //! scenario.protocol.locations = 4;
 //! let report = synthesize(&scenario, std::path::Path::new("/tmp/session"))?;
-//! assert_eq!(report.frames, 1 + 4 * 13);
+//! assert_eq!(report.frames, 1 + 4 * (5 + 3 + 3 + 3)); // rest + (ramp, hold, release, move) per location
 //! # Ok::<(), softcap_synth::SynthError>(())
 //! ```
 

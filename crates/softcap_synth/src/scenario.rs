@@ -209,7 +209,7 @@ pub struct InclusionSettings {
 impl Default for InclusionSettings {
     fn default() -> Self {
         Self {
-            centre_mm: [14.0, 26.0, 14.0],
+            centre_mm: [14.0, 26.0, 12.0],
             radius_mm: 7.0,
             stiffness_ratio: 6.0,
         }
@@ -311,7 +311,7 @@ impl Default for ProtocolSettings {
             ramp_frames: 5,
             hold_frames: 3,
             release_frames: 3,
-            move_frames: 2,
+            move_frames: 3,
             frame_rate_hz: 10.0,
             start_time_s: 0.8845,
             hover_mm: 6.0,

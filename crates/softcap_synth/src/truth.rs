@@ -552,7 +552,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     let mut max_iterations = 0;
     if s.has(Effect::GravityPreload) {
         let mut x = mesh.vertices.clone();
-        let steps = 8;
+        let steps = 2;
         for k in 1..=steps {
             let f: Vec<_> = f_ext
                 .iter()

@@ -150,12 +150,14 @@ fn bad_scenarios_name_the_field_and_write_nothing() {
 fn every_committed_scenario_parses() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/scenarios");
     let mut n = 0;
-    for e in std::fs::read_dir(&dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.extension().is_some_and(|x| x == "toml") {
-            Scenario::load(&p).unwrap_or_else(|e| panic!("{e}"));
-            n += 1;
+    for d in [dir.clone(), dir.join("suite")] {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                Scenario::load(&p).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
         }
     }
-    assert!(n >= 2);
+    assert!(n >= 7, "{n} scenarios");
 }

@@ -1,0 +1,186 @@
+//! The capture stage reads every diagnose-suite scenario of the virtual rig and recovers the
+//! markers, probe tip and force against `truth/` (which only tests read).
+
+use softcap_capture::nalgebra::{Point3, Vector3};
+use softcap_capture::{CaptureSettings, MarkerState, Session, capture};
+use softcap_synth::{Effect, Scenario, synthesize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+fn scenario_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/scenarios/suite")
+}
+
+fn csv_rows(path: &Path) -> Vec<Vec<String>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+#[derive(Debug)]
+struct Accuracy {
+    marker_rms_mm: f64,
+    missing: usize,
+    frames_without_probe_pose: Vec<usize>,
+    force_rms_n: f64,
+    force_max_n: f64,
+    tip_rms_mm: f64,
+    clock_offset_error_ms: f64,
+}
+
+fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
+    let mut truth: BTreeMap<(usize, String), Point3<f64>> = BTreeMap::new();
+    for row in csv_rows(&dir.join("truth/markers.csv")) {
+        let p = Point3::new(
+            row[2].parse().unwrap(),
+            row[3].parse().unwrap(),
+            row[4].parse::<f64>().unwrap(),
+        ) * 1e-3;
+        truth.insert((row[0].parse().unwrap(), row[1].clone()), p);
+    }
+    let (mut s, mut n, mut missing) = (0.0, 0usize, 0usize);
+    for f in &r.frames {
+        for (i, m) in f.markers.iter().enumerate() {
+            let Some(t) = truth.get(&(f.frame, r.marker_ids[i].clone())) else {
+                continue;
+            };
+            if m.state == MarkerState::Missing {
+                missing += 1;
+                continue;
+            }
+            s += (m.position_m - t).norm_squared();
+            n += 1;
+        }
+    }
+    let (mut fs, mut fmax, mut ts, mut nt) = (0.0, 0.0f64, 0.0, 0usize);
+    let mut no_pose = Vec::new();
+    for row in csv_rows(&dir.join("truth/probe.csv")) {
+        let frame: usize = row[0].parse().unwrap();
+        let ft = Vector3::new(
+            row[2].parse().unwrap(),
+            row[3].parse().unwrap(),
+            row[4].parse::<f64>().unwrap(),
+        );
+        let tip = Point3::new(
+            row[5].parse().unwrap(),
+            row[6].parse().unwrap(),
+            row[7].parse::<f64>().unwrap(),
+        ) * 1e-3;
+        fmax = fmax.max(ft.norm());
+        let Some(p) = r.frames[frame].probe.as_ref() else {
+            no_pose.push(frame);
+            continue;
+        };
+        let (Some(fe), Some(te)) = (p.force_n, p.tip_m) else {
+            no_pose.push(frame);
+            continue;
+        };
+        fs += (fe - ft).norm_squared();
+        ts += (te - tip).norm_squared();
+        nt += 1;
+    }
+    let clock = std::fs::read_to_string(dir.join("truth/clock.toml")).unwrap();
+    let offset: f64 = clock
+        .lines()
+        .find(|l| l.starts_with("offset_s"))
+        .unwrap()
+        .split('=')
+        .nth(1)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    Accuracy {
+        marker_rms_mm: (s / n as f64).sqrt() * 1e3,
+        missing,
+        frames_without_probe_pose: no_pose,
+        force_rms_n: (fs / nt as f64).sqrt(),
+        force_max_n: fmax,
+        tip_rms_mm: (ts / nt as f64).sqrt() * 1e3,
+        clock_offset_error_ms: (r.sync.expect("sync").offset_s - offset).abs() * 1e3,
+    }
+}
+
+#[test]
+fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(scenario_dir())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    paths.sort();
+    assert!(paths.len() >= 6, "{} suite scenarios", paths.len());
+    for path in paths {
+        let scenario = Scenario::load(&path).unwrap();
+        let t0 = std::time::Instant::now();
+        let out = tmp.path().join(&scenario.name);
+        let report = synthesize(&scenario, &out).unwrap();
+        let t_synth = t0.elapsed().as_secs_f64();
+        let session = Session::load(&out).unwrap();
+        let r = capture(&session, &CaptureSettings::default()).unwrap();
+        let a = accuracy(&out, &r);
+        println!(
+            "{}: {} frames, synth {:.1} s, max force {:.3} N, max marker displacement {:.2} mm; {a:?}",
+            scenario.name,
+            report.frames,
+            t_synth,
+            report.max_axial_force_n,
+            report.max_marker_displacement_m * 1e3
+        );
+        assert_eq!(r.frames.len(), report.frames);
+        assert!(
+            a.frames_without_probe_pose.is_empty(),
+            "{}: no probe pose in frames {:?}",
+            scenario.name,
+            a.frames_without_probe_pose
+        );
+        assert_eq!(
+            a.missing, 0,
+            "{}: every marker visible or filled",
+            scenario.name
+        );
+        assert!(
+            a.marker_rms_mm < 0.3,
+            "{}: marker RMS {:.3} mm",
+            scenario.name,
+            a.marker_rms_mm
+        );
+        assert!(
+            a.tip_rms_mm < 0.5,
+            "{}: tip RMS {:.3} mm",
+            scenario.name,
+            a.tip_rms_mm
+        );
+        if scenario.has(Effect::SensorLag) {
+            // The concealed effect: the FSR reading lags and hysteresis bends it, so the
+            // recovered force is clearly off the truth.
+            assert!(
+                a.force_rms_n > 0.05 * a.force_max_n,
+                "{}: sensor lag should show, force RMS {:.4} N of max {:.3} N",
+                scenario.name,
+                a.force_rms_n,
+                a.force_max_n
+            );
+        } else {
+            assert!(
+                a.force_rms_n < 0.03 * a.force_max_n,
+                "{}: force RMS {:.4} N vs max {:.3} N",
+                scenario.name,
+                a.force_rms_n,
+                a.force_max_n
+            );
+        }
+        if !scenario.has(Effect::ClockOffset) {
+            assert!(
+                a.clock_offset_error_ms < 2.0,
+                "{}: clock {:.3} ms",
+                scenario.name,
+                a.clock_offset_error_ms
+            );
+        }
+    }
+}
