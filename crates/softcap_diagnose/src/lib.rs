@@ -10,6 +10,9 @@
 //! | [`sim`] | the [`ProbeSimulator`] contract and the corotational FEM implementation |
 //! | [`signal`] | low-pass, derivative, time shift on frame-time traces |
 //! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits |
+//! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
+//! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
+//! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
 //! | [`diagnose`] | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
 //!
 //! ```
@@ -46,8 +49,11 @@
 pub mod diagnose;
 mod error;
 pub mod hypothesis;
+pub mod io;
+pub mod output;
 pub mod recording;
 pub mod residual;
+mod run;
 pub mod segment;
 pub mod signal;
 pub mod sim;
@@ -58,10 +64,13 @@ pub use diagnose::{
 };
 pub use error::{DiagnoseError, Result};
 pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
+pub use io::{MaterialModel, read_material, recording_from_capture};
+pub use output::{write_json, write_mcap, write_report};
 pub use recording::{Frame, Recording, SupportPlane, surface_normals};
 pub use residual::{
     Component, Located, Residuals, component, frame_axes, locate, noise_sigma_m, residuals, rmse_m,
 };
+pub use run::{RunConfig, StageSettings, run};
 pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
 pub use sim::{FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SimLoad, SimOutput};
 

@@ -361,3 +361,203 @@ fn timing_probe() {
     let run = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).unwrap();
     eprintln!("diagnose {:?} {}", t0.elapsed(), run.diagnosis.verdict);
 }
+
+fn pv(p: &Vector3<f64>) -> softcap_mcap::proto::Vec3 {
+    softcap_mcap::proto::Vec3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    }
+}
+
+/// Writes the session as a capture.mcap and the default model as a material.mcap.
+fn write_inputs(
+    rec: &Recording,
+    dir: &std::path::Path,
+) -> (std::path::PathBuf, std::path::PathBuf) {
+    use softcap_mcap::{Provenance, Writer, proto, topics};
+    let cap = dir.join("capture.mcap");
+    let mut w = Writer::create(&cap, &Provenance::new("capture", "test")).unwrap();
+    let session = proto::SessionInfo {
+        name: "in-memory".into(),
+        kind: "probe".into(),
+        marker_ids: rec.marker_ids.clone(),
+        object_markers: rec.num_markers() as u32,
+        rest_positions_m: rec.rest_markers_m.iter().map(pv).collect(),
+        gravity_m_s2: Some(pv(&rec.gravity_m_s2)),
+        support: rec.support.map(|s| proto::SupportPlane {
+            normal: Some(pv(&s.normal)),
+            offset_m: s.offset_m,
+            tolerance_m: s.tolerance_m,
+        }),
+        tip_shape: "disk".into(),
+        tip_radius_m: rec.tip_radius_m,
+        shaft_direction: "handle-to-tip".into(),
+        metres_per_unit: 1.0,
+        ..Default::default()
+    };
+    w.write_static(&topics::SESSION, &session).unwrap();
+    for f in &rec.frames {
+        let t_ns = (f.time_s * 1e9).round() as u64;
+        let markers = f
+            .markers_m
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| {
+                p.map(|p| proto::Marker {
+                    id: i as u32,
+                    position_m: Some(pv(&p)),
+                    visible: true,
+                    views: 3,
+                    ..Default::default()
+                })
+            })
+            .collect();
+        w.write(
+            &topics::MARKERS,
+            t_ns,
+            &proto::MarkerFrame {
+                frame: f.frame,
+                t_camera_s: f.time_s,
+                markers,
+            },
+        )
+        .unwrap();
+        w.write(
+            &topics::PROBE,
+            t_ns,
+            &proto::ProbeSample {
+                frame: f.frame,
+                t_camera_s: f.time_s,
+                tip_m: Some(pv(&f.tip_m)),
+                axis: Some(pv(&f.axis)),
+                force_n: Some(pv(&f.force_n)),
+                voltage_v: 0.0,
+            },
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+
+    let mat = dir.join("material.mcap");
+    let m = mesh();
+    let p = LinearParams::from_young_poisson(20e3, 0.45).unwrap();
+    let mut w = Writer::create(&mat, &Provenance::new("tissue fit", "test")).unwrap();
+    w.write_static(
+        &topics::VOLUME_MESH,
+        &proto::TetMesh {
+            name: "volume".into(),
+            positions_m: m.vertices.iter().flat_map(|v| [v.x, v.y, v.z]).collect(),
+            tets: m.tets.iter().flat_map(|t| t.map(|i| i as u32)).collect(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    w.write(
+        &topics::ELEMENT_MATERIAL,
+        0,
+        &proto::ElementMaterial {
+            lambda_pa: vec![p.lambda; m.tets.len()],
+            alpha_pa: vec![p.alpha; m.tets.len()],
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    w.finish().unwrap();
+    (cap, mat)
+}
+
+#[test]
+fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
+    let s = session(Effect::ClockOffset(0.1), false);
+    let dir = tempfile::tempdir().unwrap();
+    let (cap, mat) = write_inputs(&s.rec, dir.path());
+    let cfg = softcap_diagnose::RunConfig {
+        capture: cap.clone(),
+        material: mat.clone(),
+        output: dir.path().join("diagnosis.mcap"),
+        json: Some(dir.path().join("diagnosis.json")),
+        report: Some(dir.path().join("report")),
+        settings: Default::default(),
+        arguments: vec!["softcap-diagnose".into()],
+    };
+    let d = softcap_diagnose::run(&cfg).unwrap();
+    assert_eq!(d.verdict, "clock-offset");
+
+    // JSON: exactly the issue-8 schema
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("diagnosis.json")).unwrap())
+            .unwrap();
+    let keys =
+        |v: &serde_json::Value| -> Vec<String> { v.as_object().unwrap().keys().cloned().collect() };
+    assert_eq!(keys(&j), ["located", "ranked", "verdict"]);
+    assert_eq!(j["verdict"], "clock-offset");
+    assert_eq!(
+        keys(&j["ranked"][0]),
+        [
+            "evidence",
+            "heldout_rmse_after_m",
+            "heldout_rmse_before_m",
+            "hypothesis",
+            "params",
+            "score"
+        ]
+    );
+    assert_eq!(
+        keys(&j["located"][0]),
+        ["component", "phase", "region", "rmse_m"]
+    );
+    let offset = j["ranked"][0]["params"]["offset_s"].as_f64().unwrap();
+    assert!((offset - 0.1).abs() <= 0.0126, "offset {offset}");
+
+    // report
+    let report = std::fs::read_to_string(dir.path().join("report/report.md")).unwrap();
+    assert!(report.contains("**Verdict: `clock-offset`**"));
+    for f in ["residual_map.png", "residual_time.png", "loops.png"] {
+        let bytes = std::fs::read(dir.path().join("report").join(f)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{f}");
+        assert!(report.contains(f));
+    }
+
+    // diagnosis.mcap round trip
+    let r = softcap_mcap::Recording::open(dir.path().join("diagnosis.mcap")).unwrap();
+    let dm = r.read_static(&softcap_mcap::topics::DIAGNOSIS).unwrap();
+    assert_eq!(dm.verdict, "clock-offset");
+    assert_eq!(dm.ranked.len(), 10);
+    let em = r
+        .read_static(&softcap_mcap::topics::EXTENDED_MODEL)
+        .unwrap();
+    assert_eq!(em.hypothesis, "clock-offset");
+    assert!(
+        em.params
+            .iter()
+            .any(|p| p.key == "offset_s" && p.unit == "s")
+    );
+    let ext = r.read(&softcap_mcap::topics::EXTENDED_MARKERS).unwrap();
+    assert_eq!(ext.len(), s.rec.frames.len());
+
+    // bad input: exit code 2, nothing written
+    let exe = env!("CARGO_BIN_EXE_softcap-diagnose");
+    let out = dir.path().join("bad.mcap");
+    let corrupt = dir.path().join("corrupt.mcap");
+    let bytes = std::fs::read(&cap).unwrap();
+    std::fs::write(&corrupt, &bytes[..bytes.len() / 2]).unwrap();
+    for (c, m) in [(&corrupt, &mat), (&cap, &dir.path().join("missing.mcap"))] {
+        let st = std::process::Command::new(exe)
+            .arg(c)
+            .arg(m)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_eq!(
+            st.status.code(),
+            Some(2),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
+        assert!(!out.exists());
+        let err = String::from_utf8_lossy(&st.stderr);
+        assert!(err.contains(".mcap"), "{err}");
+    }
+}

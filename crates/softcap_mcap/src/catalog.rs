@@ -68,6 +68,10 @@ impl_softcap_message!(
     SimulatedMarkers,
     Scalar,
     Report,
+    HypothesisScore,
+    LocatedResidual,
+    Diagnosis,
+    ExtendedModel,
 );
 
 /// A typed channel name: writing or reading through a `Topic<M>` guarantees the channel carries
@@ -152,6 +156,16 @@ pub mod topics {
     pub const SIMULATED_MARKERS: Topic<SimulatedMarkers> = Topic::new("/tissue/simulated_markers");
     /// Tissue stage report (time 0).
     pub const TISSUE_REPORT: Topic<Report> = Topic::new("/tissue/report");
+    /// Diagnosis: verdict, ranked hypotheses, located residuals (static, time 0).
+    pub const DIAGNOSIS: Topic<Diagnosis> = Topic::new("/diagnose/diagnosis");
+    /// Extended model: the named term and its fitted parameters (static, time 0).
+    pub const EXTENDED_MODEL: Topic<ExtendedModel> = Topic::new("/diagnose/extended_model");
+    /// Default-model simulation of every recorded frame, at the frame's time.
+    pub const BASELINE_MARKERS: Topic<SimulatedMarkers> = Topic::new("/diagnose/baseline_markers");
+    /// Extended-model simulation of every recorded frame, at the frame's time.
+    pub const EXTENDED_MARKERS: Topic<SimulatedMarkers> = Topic::new("/diagnose/extended_markers");
+    /// Diagnose stage report (time 0).
+    pub const DIAGNOSE_REPORT: Topic<Report> = Topic::new("/diagnose/report");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -237,6 +251,36 @@ pub const CATALOG: &[ChannelInfo] = &[
     },
     ChannelInfo {
         topic: "/tissue/report",
+        schema: "softcap.Report",
+        is_static: true,
+        units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/diagnose/diagnosis",
+        schema: "softcap.Diagnosis",
+        is_static: true,
+        units: "rmse m, score 1",
+    },
+    ChannelInfo {
+        topic: "/diagnose/extended_model",
+        schema: "softcap.ExtendedModel",
+        is_static: true,
+        units: "params per entry",
+    },
+    ChannelInfo {
+        topic: "/diagnose/baseline_markers",
+        schema: "softcap.SimulatedMarkers",
+        is_static: false,
+        units: "positions m",
+    },
+    ChannelInfo {
+        topic: "/diagnose/extended_markers",
+        schema: "softcap.SimulatedMarkers",
+        is_static: false,
+        units: "positions m",
+    },
+    ChannelInfo {
+        topic: "/diagnose/report",
         schema: "softcap.Report",
         is_static: true,
         units: "per entry",

@@ -45,6 +45,20 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.SimulatedMarkers",
         ),
         (topics::TISSUE_REPORT.name().to_string(), "softcap.Report"),
+        (topics::DIAGNOSIS.name().to_string(), "softcap.Diagnosis"),
+        (
+            topics::EXTENDED_MODEL.name().to_string(),
+            "softcap.ExtendedModel",
+        ),
+        (
+            topics::BASELINE_MARKERS.name().to_string(),
+            "softcap.SimulatedMarkers",
+        ),
+        (
+            topics::EXTENDED_MARKERS.name().to_string(),
+            "softcap.SimulatedMarkers",
+        ),
+        (topics::DIAGNOSE_REPORT.name().to_string(), "softcap.Report"),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

@@ -1,0 +1,593 @@
+//! Outputs of a diagnosis: the JSON document (`--json`), the report folder (`--report`: report.md
+//! with a residual map on the surface, residual against time, measured vs simulated
+//! force–displacement loops and a before/after table) and `diagnosis.mcap`.
+
+use crate::diagnose::{Diagnosis, DiagnosisRun};
+use crate::hypothesis::Hypothesis;
+use crate::recording::Recording;
+use crate::residual::Residuals;
+use crate::segment::Phase;
+use crate::{DiagnoseError, Result};
+use nalgebra::Vector3;
+use plotters::prelude::*;
+use softcap_mcap::{Provenance, Writer, proto, topics};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn out_err(path: &Path, e: impl std::fmt::Display) -> DiagnoseError {
+    DiagnoseError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
+}
+
+/// Writes `bytes` atomically (`NAME.tmp` then rename).
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, bytes).map_err(|e| out_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| out_err(path, e))
+}
+
+/// Writes the diagnosis JSON (issue 8 schema).
+pub fn write_json(path: &Path, d: &Diagnosis) -> Result<()> {
+    let s = serde_json::to_string_pretty(d).map_err(|e| out_err(path, e))?;
+    write_atomic(path, s.as_bytes())
+}
+
+fn key_value(key: &str, v: f64) -> proto::KeyValue {
+    let unit = if key.ends_with("_s") {
+        "s"
+    } else if key.ends_with("_s2") {
+        "s^2"
+    } else if key.ends_with("_n") {
+        "N"
+    } else if key.ends_with("_m_per_n") {
+        "m/N"
+    } else {
+        ""
+    };
+    proto::KeyValue {
+        key: key.into(),
+        value: Some(proto::key_value::Value::Number(v)),
+        unit: unit.into(),
+    }
+}
+
+/// The diagnosis as its protobuf message.
+pub fn diagnosis_message(d: &Diagnosis) -> proto::Diagnosis {
+    proto::Diagnosis {
+        verdict: d.verdict.clone(),
+        ranked: d
+            .ranked
+            .iter()
+            .map(|r| proto::HypothesisScore {
+                hypothesis: r.hypothesis.clone(),
+                score: r.score,
+                heldout_rmse_before_m: r.heldout_rmse_before_m,
+                heldout_rmse_after_m: r.heldout_rmse_after_m,
+                params: r.params.iter().map(|(k, v)| key_value(k, *v)).collect(),
+                evidence_json: serde_json::to_string(&r.evidence).unwrap_or_default(),
+            })
+            .collect(),
+        located: d
+            .located
+            .iter()
+            .map(|l| proto::LocatedResidual {
+                region: l.region.clone(),
+                phase: l.phase.clone(),
+                component: l.component.clone(),
+                rmse_m: l.rmse_m,
+            })
+            .collect(),
+    }
+}
+
+/// The extended model (the verdict's term and parameters).
+pub fn extended_model_message(d: &Diagnosis, base_material_sha256: &str) -> proto::ExtendedModel {
+    let top = d.ranked.iter().find(|r| r.hypothesis == d.verdict);
+    proto::ExtendedModel {
+        hypothesis: d.verdict.clone(),
+        term: Hypothesis::from_name(&d.verdict)
+            .map(|h| h.term().to_string())
+            .unwrap_or_else(|| "none: the default elastostatic model (bickel2009)".into()),
+        params: top
+            .map(|r| r.params.iter().map(|(k, v)| key_value(k, *v)).collect())
+            .unwrap_or_default(),
+        base_material_sha256: base_material_sha256.into(),
+    }
+}
+
+fn sim_markers(rec: &Recording, k: usize, x: &[Vector3<f64>]) -> proto::SimulatedMarkers {
+    let v = |p: &Vector3<f64>| proto::Vec3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    };
+    proto::SimulatedMarkers {
+        frame: rec.frames[k].frame,
+        example: 0,
+        load_step: 0,
+        ids: (0..x.len() as u32).collect(),
+        positions_m: x.iter().map(v).collect(),
+        measured_m: rec.frames[k]
+            .markers_m
+            .iter()
+            .zip(x)
+            .map(|(m, s)| v(&m.unwrap_or(*s)))
+            .collect(),
+    }
+}
+
+/// Writes `diagnosis.mcap`: diagnosis, extended model, baseline/extended simulations per frame,
+/// a key-value report.
+pub fn write_mcap(
+    path: &Path,
+    provenance: &Provenance,
+    rec: &Recording,
+    run: &DiagnosisRun,
+    base_material_sha256: &str,
+) -> Result<()> {
+    let e = |source: softcap_mcap::Error| DiagnoseError::Mcap {
+        path: path.to_path_buf(),
+        source: Box::new(source),
+    };
+    let d = &run.diagnosis;
+    let mut w = Writer::create(path, provenance).map_err(e)?;
+    w.write_static(&topics::DIAGNOSIS, &diagnosis_message(d))
+        .map_err(e)?;
+    w.write_static(
+        &topics::EXTENDED_MODEL,
+        &extended_model_message(d, base_material_sha256),
+    )
+    .map_err(e)?;
+    let t0 = rec.frames.first().map(|f| f.time_s).unwrap_or(0.0);
+    for k in 0..rec.frames.len() {
+        let t_ns = ((rec.frames[k].time_s - t0).max(0.0) * 1e9).round() as u64;
+        w.write(
+            &topics::BASELINE_MARKERS,
+            t_ns,
+            &sim_markers(rec, k, &run.baseline_m[k]),
+        )
+        .map_err(e)?;
+        if let Some(x) = &run.extended_m {
+            w.write(&topics::EXTENDED_MARKERS, t_ns, &sim_markers(rec, k, &x[k]))
+                .map_err(e)?;
+        }
+    }
+    let top = d.ranked.first();
+    let report = proto::Report {
+        title: "softcap diagnose".into(),
+        entries: vec![
+            proto::KeyValue {
+                key: "verdict".into(),
+                value: Some(proto::key_value::Value::Text(d.verdict.clone())),
+                unit: String::new(),
+            },
+            proto::KeyValue {
+                key: "heldout_rmse_before".into(),
+                value: top.map(|r| proto::key_value::Value::Number(r.heldout_rmse_before_m)),
+                unit: "m".into(),
+            },
+            proto::KeyValue {
+                key: "heldout_rmse_after".into(),
+                value: top.map(|r| proto::key_value::Value::Number(r.heldout_rmse_after_m)),
+                unit: "m".into(),
+            },
+            proto::KeyValue {
+                key: "locations".into(),
+                value: Some(proto::key_value::Value::Integer(
+                    run.segmentation.num_folds() as i64,
+                )),
+                unit: String::new(),
+            },
+            proto::KeyValue {
+                key: "noise_sigma".into(),
+                value: Some(proto::key_value::Value::Number(
+                    run.signatures.noise_sigma_m,
+                )),
+                unit: "m".into(),
+            },
+        ],
+    };
+    w.write_static(&topics::DIAGNOSE_REPORT, &report)
+        .map_err(e)?;
+    w.finish().map_err(e)?;
+    Ok(())
+}
+
+fn per_marker_rms(res: &Residuals, m: usize) -> f64 {
+    let (mut a, mut n) = (0.0, 0);
+    for row in res {
+        if let Some(r) = row[m] {
+            a += r.norm_squared();
+            n += 1;
+        }
+    }
+    if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
+}
+
+fn per_frame_rms(row: &[Option<Vector3<f64>>]) -> f64 {
+    let (mut a, mut n) = (0.0, 0);
+    for r in row.iter().flatten() {
+        a += r.norm_squared();
+        n += 1;
+    }
+    if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
+}
+
+/// Colour of `v` in [0, 1] (blue → green → yellow → red).
+fn heat(v: f64) -> RGBColor {
+    let v = v.clamp(0.0, 1.0);
+    let (r, g, b) = if v < 0.33 {
+        let t = v / 0.33;
+        (0.0, t, 1.0 - t)
+    } else if v < 0.66 {
+        let t = (v - 0.33) / 0.33;
+        (t, 1.0, 0.0)
+    } else {
+        let t = (v - 0.66) / 0.34;
+        (1.0, 1.0 - t, 0.0)
+    };
+    RGBColor((255.0 * r) as u8, (255.0 * g) as u8, (255.0 * b) as u8)
+}
+
+type DrawResult<T> = std::result::Result<T, String>;
+
+/// Residual map on the surface: markers at their rest positions projected onto the plane
+/// perpendicular to the mean probe axis, coloured by per-marker RMS residual (before | after),
+/// common colour scale; probe locations as crosses.
+fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+    let axis: Vector3<f64> = run.segmentation.locations.iter().map(|l| l.axis).sum();
+    let n = axis.try_normalize(1e-12).unwrap_or_else(|| -Vector3::z());
+    let u = n
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or_else(|| n.cross(&Vector3::y()).normalize());
+    let v = n.cross(&u);
+    let pts: Vec<(f64, f64)> = rec
+        .rest_markers_m
+        .iter()
+        .map(|p| (1e3 * p.dot(&u), 1e3 * p.dot(&v)))
+        .collect();
+    let before: Vec<f64> = (0..rec.num_markers())
+        .map(|m| per_marker_rms(&run.residuals_before, m))
+        .collect();
+    let after: Vec<f64> = (0..rec.num_markers())
+        .map(|m| per_marker_rms(&run.residuals_after, m))
+        .collect();
+    let vmax = before.iter().chain(&after).cloned().fold(1e-12, f64::max);
+    let (x0, x1, y0, y1) = pts.iter().fold(
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
+        |a, p| (a.0.min(p.0), a.1.max(p.0), a.2.min(p.1), a.3.max(p.1)),
+    );
+    let pad = 0.08 * (x1 - x0).max(y1 - y0).max(1.0);
+    let root = BitMapBackend::new(path, (1200, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let halves = root.split_evenly((1, 2));
+    for (area, (title, vals)) in halves.iter().zip([("before", &before), ("after", &after)]) {
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "RMS marker residual {title} (max {:.3} mm)",
+                    1e3 * vals.iter().cloned().fold(0.0, f64::max)
+                ),
+                ("sans-serif", 18),
+            )
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(45)
+            .build_cartesian_2d((x0 - pad)..(x1 + pad), (y0 - pad)..(y1 + pad))
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc("surface u, mm")
+            .y_desc("surface v, mm")
+            .draw()
+            .map_err(|e| e.to_string())?;
+        chart
+            .draw_series(
+                pts.iter()
+                    .zip(vals.iter())
+                    .map(|(p, &r)| Circle::new(*p, 7, heat(r / vmax).filled())),
+            )
+            .map_err(|e| e.to_string())?;
+        chart
+            .draw_series(run.segmentation.locations.iter().map(|l| {
+                let p = l.contact_tip_m;
+                Cross::new((1e3 * p.dot(&u), 1e3 * p.dot(&v)), 6, BLACK.stroke_width(2))
+            }))
+            .map_err(|e| e.to_string())?;
+    }
+    root.present().map_err(|e| e.to_string())
+}
+
+/// Residual against time: RMS over markers per frame, before and after; force on a second panel.
+fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+    let t: Vec<f64> = rec.times_s();
+    let b: Vec<f64> = run
+        .residuals_before
+        .iter()
+        .map(|r| 1e3 * per_frame_rms(r))
+        .collect();
+    let a: Vec<f64> = run
+        .residuals_after
+        .iter()
+        .map(|r| 1e3 * per_frame_rms(r))
+        .collect();
+    let f: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
+    let tmax = t.last().copied().unwrap_or(1.0).max(t[0] + 1e-6);
+    let ymax = b.iter().chain(&a).cloned().fold(1e-9, f64::max) * 1.1;
+    let fmax = f.iter().cloned().fold(1e-9, f64::max) * 1.1;
+    let root = BitMapBackend::new(path, (1100, 700)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let (top, bottom) = root.split_vertically(460);
+    let mut chart = ChartBuilder::on(&top)
+        .caption("RMS marker residual per frame", ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(60)
+        .build_cartesian_2d(t[0]..tmax, 0.0..ymax)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .y_desc("residual, mm")
+        .draw()
+        .map_err(|e| e.to_string())?;
+    // hold phases shaded
+    for (k, p) in run.segmentation.phases.iter().enumerate() {
+        if *p == Phase::Hold && k + 1 < t.len() {
+            chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(t[k], 0.0), (t[k + 1], ymax)],
+                    RGBColor(230, 230, 230).filled(),
+                )))
+                .map_err(|e| e.to_string())?;
+        }
+    }
+    chart
+        .draw_series(LineSeries::new(
+            t.iter().cloned().zip(b.iter().cloned()),
+            RED.stroke_width(2),
+        ))
+        .map_err(|e| e.to_string())?
+        .label("default model")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+    chart
+        .draw_series(LineSeries::new(
+            t.iter().cloned().zip(a.iter().cloned()),
+            BLUE.stroke_width(2),
+        ))
+        .map_err(|e| e.to_string())?
+        .label(format!("extended ({})", run.diagnosis.verdict))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    let mut fc = ChartBuilder::on(&bottom)
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(60)
+        .build_cartesian_2d(t[0]..tmax, 0.0..fmax)
+        .map_err(|e| e.to_string())?;
+    fc.configure_mesh()
+        .x_desc("time, s")
+        .y_desc("|force|, N")
+        .draw()
+        .map_err(|e| e.to_string())?;
+    fc.draw_series(LineSeries::new(
+        t.iter().cloned().zip(f.iter().cloned()),
+        BLACK.stroke_width(2),
+    ))
+    .map_err(|e| e.to_string())?;
+    root.present().map_err(|e| e.to_string())
+}
+
+/// Force–displacement loops: |f| against the mean displacement of the probed markers near each
+/// location along the probe axis, measured vs default-model vs extended-model simulation.
+fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+    let seg = &run.segmentation;
+    let nloc = seg.locations.len().min(6);
+    let root = BitMapBackend::new(path, (1200, 420 * nloc.div_ceil(3) as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let cells = root.split_evenly((nloc.div_ceil(3), 3));
+    for (li, area) in seg.locations.iter().take(nloc).zip(cells.iter()) {
+        let near: Vec<usize> = (0..rec.num_markers())
+            .filter(|&m| (rec.rest_markers_m[m] - li.contact_tip_m).norm() <= seg.near_radius_m)
+            .collect();
+        if near.is_empty() {
+            continue;
+        }
+        let mut frames: Vec<usize> = li.contact_frames.clone();
+        if let Some(&first) = frames.first()
+            && first > 0
+        {
+            frames.insert(0, first - 1);
+        }
+        let disp = |x: &dyn Fn(usize, usize) -> Option<Vector3<f64>>, k: usize| {
+            let (mut s, mut n) = (0.0, 0);
+            for &m in &near {
+                if let Some(p) = x(k, m) {
+                    s += (p - rec.rest_markers_m[m]).dot(&li.axis);
+                    n += 1;
+                }
+            }
+            if n > 0 { 1e3 * s / n as f64 } else { 0.0 }
+        };
+        let meas: Vec<(f64, f64)> = frames
+            .iter()
+            .map(|&k| {
+                (
+                    disp(&|k, m| rec.frames[k].markers_m[m], k),
+                    rec.frames[k].force_n.norm(),
+                )
+            })
+            .collect();
+        let base: Vec<(f64, f64)> = frames
+            .iter()
+            .map(|&k| {
+                (
+                    disp(&|k, m| Some(run.baseline_m[k][m]), k),
+                    rec.frames[k].force_n.norm(),
+                )
+            })
+            .collect();
+        let ext: Option<Vec<(f64, f64)>> = run.extended_m.as_ref().map(|x| {
+            frames
+                .iter()
+                .map(|&k| (disp(&|k, m| Some(x[k][m]), k), rec.frames[k].force_n.norm()))
+                .collect()
+        });
+        let all = meas
+            .iter()
+            .chain(&base)
+            .chain(ext.iter().flatten())
+            .copied();
+        let (x0, x1, y1) = all.fold((f64::INFINITY, f64::NEG_INFINITY, 1e-9f64), |a, p| {
+            (a.0.min(p.0), a.1.max(p.0), a.2.max(p.1))
+        });
+        let px = 0.05 * (x1 - x0).max(1e-3);
+        let mut chart = ChartBuilder::on(area)
+            .caption(format!("location {}", li.index), ("sans-serif", 16))
+            .margin(8)
+            .x_label_area_size(35)
+            .y_label_area_size(50)
+            .build_cartesian_2d((x0 - px)..(x1 + px), 0.0..(1.1 * y1))
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc("displacement along probe axis, mm")
+            .y_desc("|force|, N")
+            .draw()
+            .map_err(|e| e.to_string())?;
+        chart
+            .draw_series(LineSeries::new(meas.clone(), BLACK.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label("measured")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+        chart
+            .draw_series(LineSeries::new(base, RED.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label("default model")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+        if let Some(ext) = ext {
+            chart
+                .draw_series(LineSeries::new(ext, BLUE.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label("extended")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    root.present().map_err(|e| e.to_string())
+}
+
+/// Writes `DIR/report.md` and its figures (`residual_map.png`, `residual_time.png`,
+/// `loops.png`).
+pub fn write_report(dir: &Path, rec: &Recording, run: &DiagnosisRun) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| out_err(dir, e))?;
+    let figs = [
+        (
+            "residual_map.png",
+            draw_residual_map as fn(&Path, &Recording, &DiagnosisRun) -> DrawResult<()>,
+        ),
+        ("residual_time.png", draw_residual_time),
+        ("loops.png", draw_loops),
+    ];
+    for (name, draw) in figs {
+        let p = dir.join(name);
+        let tmp = dir.join(format!("{name}.tmp.png"));
+        draw(&tmp, rec, run).map_err(|e| out_err(&p, e))?;
+        std::fs::rename(&tmp, &p).map_err(|e| out_err(&p, e))?;
+    }
+    let d = &run.diagnosis;
+    let mut s = String::new();
+    let mm = |x: f64| 1e3 * x;
+    let _ = writeln!(s, "# softcap diagnose report\n");
+    let _ = writeln!(s, "**Verdict: `{}`**\n", d.verdict);
+    if let Some(top) = d.ranked.first() {
+        let _ = writeln!(
+            s,
+            "Held-out marker RMS (leave one probe location out): {:.4} mm before, {:.4} mm after \
+             ({:.1}× lower).\n",
+            mm(top.heldout_rmse_before_m),
+            mm(top.heldout_rmse_after_m),
+            top.heldout_rmse_before_m / top.heldout_rmse_after_m.max(1e-300)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "{} frames, {} markers, {} probe locations, marker noise σ ≈ {:.4} mm.\n",
+        rec.frames.len(),
+        rec.num_markers(),
+        run.segmentation.num_folds(),
+        mm(run.signatures.noise_sigma_m)
+    );
+    let _ = writeln!(s, "## Ranked hypotheses\n");
+    let _ = writeln!(
+        s,
+        "| hypothesis | score | held-out before (mm) | held-out after (mm) | params |\n|---|---|---|---|---|"
+    );
+    for r in &d.ranked {
+        let params: Vec<String> = r
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k} = {v:.4e}"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {:.4} | {:.4} | {} |",
+            r.hypothesis,
+            r.score,
+            mm(r.heldout_rmse_before_m),
+            mm(r.heldout_rmse_after_m),
+            params.join(", ")
+        );
+    }
+    let _ = writeln!(s, "\n## Where the error lives (default model)\n");
+    let _ = writeln!(
+        s,
+        "| region | phase | component | RMS (mm) |\n|---|---|---|---|"
+    );
+    for l in d.located.iter().take(15) {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.4} |",
+            l.region,
+            l.phase,
+            l.component,
+            mm(l.rmse_m)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n## Before / after by region and phase (in-sample, full fit)\n"
+    );
+    let _ = writeln!(
+        s,
+        "| region | phase | before (mm) | after (mm) |\n|---|---|---|---|"
+    );
+    for (region, phase, b, a) in &run.table {
+        let _ = writeln!(s, "| {region} | {phase} | {:.4} | {:.4} |", mm(*b), mm(*a));
+    }
+    let _ = writeln!(s, "\n## Signatures\n\n```\n{:#?}\n```\n", run.signatures);
+    let _ = writeln!(s, "## Figures\n");
+    let _ = writeln!(s, "![residual map](residual_map.png)\n");
+    let _ = writeln!(s, "![residual against time](residual_time.png)\n");
+    let _ = writeln!(s, "![force-displacement loops](loops.png)");
+    write_atomic(&dir.join("report.md"), s.as_bytes())
+}

@@ -1,0 +1,106 @@
+//! The stage entry point: `softcap diagnose capture.mcap material.mcap -o diagnosis.mcap
+//! [--json FILE] [--report DIR]`.
+
+use crate::diagnose::{DiagnoseSettings, Diagnosis, diagnose};
+use crate::io::{read_material, recording_from_capture};
+use crate::output::{write_json, write_mcap, write_report};
+use crate::sim::{FemProbeSimulator, FemSimSettings};
+use crate::{DiagnoseError, Result};
+use serde::{Deserialize, Serialize};
+use softcap_mcap::Provenance;
+use softcap_mcap::capture::CaptureData;
+use std::path::PathBuf;
+
+/// Settings of the stage (loadable from TOML).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StageSettings {
+    /// Diagnosis.
+    pub diagnose: DiagnoseSettings,
+    /// Simulator (contact patch, equilibrium).
+    pub simulator: FemSimSettings,
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct RunConfig {
+    /// capture.mcap.
+    pub capture: PathBuf,
+    /// material.mcap.
+    pub material: PathBuf,
+    /// diagnosis.mcap to write.
+    pub output: PathBuf,
+    /// Optional JSON output.
+    pub json: Option<PathBuf>,
+    /// Optional report folder.
+    pub report: Option<PathBuf>,
+    /// Settings.
+    pub settings: StageSettings,
+    /// Full argument list (provenance).
+    pub arguments: Vec<String>,
+}
+
+/// Reads the inputs, diagnoses, writes every requested output. Inputs are read and validated
+/// before anything is written.
+pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
+    let cap = CaptureData::read(&cfg.capture).map_err(|e| DiagnoseError::Mcap {
+        path: cfg.capture.clone(),
+        source: Box::new(e),
+    })?;
+    let material = read_material(&cfg.material)?;
+    let rec = recording_from_capture(&cap, &material.mesh)?;
+    let Some(support) = rec.support else {
+        return Err(DiagnoseError::BadInput {
+            path: cfg.capture.clone(),
+            what: "/capture/session has no support plane: the model needs its boundary condition"
+                .into(),
+        });
+    };
+    let fixed = FemProbeSimulator::nodes_on_plane(
+        &material.mesh,
+        &support.normal,
+        support.offset_m,
+        support.tolerance_m.max(1e-9),
+    );
+    if fixed.is_empty() {
+        return Err(DiagnoseError::BadInput {
+            path: cfg.material.clone(),
+            what: "no mesh node lies on the session's support plane".into(),
+        });
+    }
+    let mut sim = FemProbeSimulator::new(
+        &material.mesh,
+        material.model,
+        &fixed,
+        &rec.rest_markers_m,
+        cfg.settings.simulator.clone(),
+    )?;
+    let result = diagnose(&rec, &mut sim, &cfg.settings.diagnose)?;
+    let sha = softcap_mcap::sha256_file(&cfg.material).map_err(|e| DiagnoseError::Mcap {
+        path: cfg.material.clone(),
+        source: Box::new(e),
+    })?;
+    let settings_toml = toml::to_string(&cfg.settings).unwrap_or_default();
+    let mcap_err = |path: &PathBuf| {
+        let path = path.clone();
+        move |e| DiagnoseError::Mcap {
+            path: path.clone(),
+            source: Box::new(e),
+        }
+    };
+    let provenance = Provenance::new("diagnose", env!("CARGO_PKG_VERSION"))
+        .with_arguments(cfg.arguments.iter())
+        .with_settings(settings_toml)
+        .with_input(&cfg.capture)
+        .map_err(mcap_err(&cfg.capture))?
+        .with_input(&cfg.material)
+        .map_err(mcap_err(&cfg.material))?;
+    write_mcap(&cfg.output, &provenance, &rec, &result, &sha)?;
+    if let Some(j) = &cfg.json {
+        write_json(j, &result.diagnosis)?;
+    }
+    if let Some(d) = &cfg.report {
+        write_report(d, &rec, &result)?;
+    }
+    Ok(result.diagnosis)
+}
