@@ -13,6 +13,7 @@
 //! | [`register`] | Horn's weighted absolute orientation |
 //! | [`fill`] | bi-Laplacian linear shell fill-in of occluded markers |
 //! | [`probe`] | shaft markers → probe pose; FSR voltage → force |
+//! | [`robot`] | URDF forward kinematics of the tool, robot.csv F/T rotated into the world |
 //! | [`sync`] | clock offset and drift from trigger edges or from the data |
 //! | [`pipeline`] | [`capture`]: the whole stage |
 //! | [`output`] | `capture.mcap` via `softcap_mcap` |
@@ -43,6 +44,7 @@ pub mod output;
 pub mod pipeline;
 pub mod probe;
 pub mod register;
+pub mod robot;
 pub mod session;
 pub mod sync;
 pub mod triangulate;
@@ -58,10 +60,11 @@ pub use nalgebra;
 pub use output::{report, write_capture_mcap};
 pub use pipeline::{
     CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource,
-    MarkerState, ProbeSample, capture,
+    MarkerState, ProbeSample, capture, capture_mocap,
 };
 pub use probe::{FsrConversion, FsrModel, ProbePose, probe_pose};
 pub use register::{horn_weighted, weight_away_from_probe};
+pub use robot::{RobotModel, RobotProbeState, RobotRig};
 pub use session::{Detection, MarkerColor, Session, SessionKind, TemplateMarker};
 pub use sync::{
     ClockSync, SyncMethod, refine_sync_least_squares, sync_from_data, sync_from_trigger,

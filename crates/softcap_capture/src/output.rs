@@ -31,6 +31,11 @@ pub fn log_time_ns(t_camera_s: f64) -> u64 {
 pub fn session_inputs(session: &Session) -> Vec<PathBuf> {
     let mut v = vec![session.root.join("session.toml")];
     v.extend(session.cameras_path.iter().cloned());
+    v.extend(session.c3d.iter().cloned());
+    if let Some(r) = &session.robot {
+        v.push(r.urdf.clone());
+        v.push(r.samples.clone());
+    }
     v.extend(session.surface.iter().cloned());
     if let Some(dir) = &session.detections {
         v.extend(

@@ -16,6 +16,7 @@ use crate::error::{CaptureError, Result};
 use crate::fill::FillSettings;
 use crate::probe::{FsrConversion, FsrModel, probe_pose};
 use crate::register::{horn_weighted, weight_away_from_probe};
+use crate::robot::RobotRig;
 use crate::session::{Detection, MarkerColor, Session, TemplateMarker};
 use crate::sync::{
     ClockSync, interpolate, refine_sync_least_squares, sync_from_data, sync_from_trigger,
@@ -179,6 +180,8 @@ pub struct CaptureResult {
     pub cameras: Vec<CameraStats>,
     /// Which 2D source was used.
     pub source: MarkerSource,
+    /// Analog channels of a C3D take (kind `mocap`), on the take's clock.
+    pub analog: Option<crate::c3d::AnalogChannels>,
 }
 
 struct MarkerInfo {
@@ -205,6 +208,9 @@ fn group_detections(per_camera: &[Vec<Detection>], frames: usize) -> Vec<Vec<Vec
 
 /// Runs the capture pipeline on a loaded session.
 pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureResult> {
+    if let Some(c3d) = &session.c3d {
+        return capture_mocap(session, c3d);
+    }
     let cams = &session.cameras;
     if cams.len() < 2 {
         return Err(CaptureError::field(
@@ -547,6 +553,53 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         }
     }
 
+    // Robot rigs: tool pose by forward kinematics, F/T into the world, clocks from the data.
+    if let Some(rc) = &session.robot {
+        let rig = RobotRig::load(
+            &rc.urdf,
+            &rc.samples,
+            &rc.tool_link,
+            &rc.ft_link,
+            session.metres_per_unit,
+        )?;
+        let t_cam: Vec<f64> = frames.iter().map(|f| f.t_camera_s).collect();
+        let t_daq = &rig.samples.t_daq_s;
+        // Axial force (along the tool axis) on the DAQ clock.
+        let force: Vec<f64> = t_daq
+            .iter()
+            .map(|&t| rig.state_at(t).map_or(0.0, |s| s.force_n.dot(&s.axis)))
+            .collect();
+        let signal = probe_depth_signal(&frames, &session.markers)
+            .unwrap_or_else(|| mean_marker_displacement(&frames, &session.markers));
+        sync = sync_from_data(&t_cam, &signal, t_daq, &force, settings.data_sync_step_s).map(|s| {
+            let groups = contact_runs(&signal);
+            refine_sync_least_squares(
+                &t_cam,
+                &signal,
+                t_daq,
+                &force,
+                Some(&groups),
+                settings.data_sync_max_drift,
+                &s,
+            )
+        });
+        if let Some(s) = &sync {
+            for f in frames.iter_mut() {
+                let t = s.to_daq(f.t_camera_s);
+                if let Some(st) = rig.state_at(t) {
+                    f.probe = Some(ProbeSample {
+                        tip_m: Some(f.registration * st.tip_m),
+                        axis: Some(f.registration * st.axis),
+                        force_n: Some(f.registration * st.force_n),
+                        force_magnitude_n: st.force_n.dot(&st.axis),
+                        voltage_v: f64::NAN,
+                        t_daq_s: t,
+                    });
+                }
+            }
+        }
+    }
+
     let cameras = cams
         .iter()
         .enumerate()
@@ -574,6 +627,73 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         sync,
         cameras,
         source,
+        analog: None,
+    })
+}
+
+/// The capture of a C3D take (session kind `mocap`, `files.c3d`): the template markers (by id =
+/// POINT:LABELS) per frame, already reconstructed by the mocap system (state visible, 0 views,
+/// no reprojection error); invalid points are missing (position = last known, else rest). Frame
+/// `k` is at `t_camera_s = k / POINT:RATE`. The analog channels are carried in the result.
+pub fn capture_mocap(session: &Session, c3d_path: &std::path::Path) -> Result<CaptureResult> {
+    let take = crate::c3d::read_c3d(c3d_path)?;
+    let columns: Vec<usize> = session
+        .markers
+        .iter()
+        .map(|m| {
+            take.marker_index(&m.id)
+                .ok_or_else(|| CaptureError::Format {
+                    path: c3d_path.to_path_buf(),
+                    message: format!(
+                        "marker `{}` of the template is not in POINT:LABELS ({} labels)",
+                        m.id,
+                        take.marker_labels.len()
+                    ),
+                })
+        })
+        .collect::<Result<_>>()?;
+    let mut last: Vec<Point3<f64>> = session.markers.iter().map(|m| m.position_m).collect();
+    let frames = take
+        .positions_m
+        .iter()
+        .enumerate()
+        .map(|(k, row)| FrameResult {
+            frame: k,
+            t_camera_s: take.frame_time_s(k),
+            markers: columns
+                .iter()
+                .enumerate()
+                .map(|(m, &c)| match row[c] {
+                    Some(p) => {
+                        last[m] = p;
+                        MarkerSample {
+                            position_m: p,
+                            state: MarkerState::Visible,
+                            views: 0,
+                            reprojection_rms_px: f64::NAN,
+                        }
+                    }
+                    None => MarkerSample {
+                        position_m: last[m],
+                        state: MarkerState::Missing,
+                        views: 0,
+                        reprojection_rms_px: f64::NAN,
+                    },
+                })
+                .collect(),
+            probe: None,
+            registration: Isometry3::identity(),
+        })
+        .collect();
+    Ok(CaptureResult {
+        session: session.name.clone(),
+        marker_ids: session.markers.iter().map(|m| m.id.clone()).collect(),
+        object_markers: session.markers.len(),
+        frames,
+        sync: None,
+        cameras: Vec::new(),
+        source: MarkerSource::Auto,
+        analog: Some(take.analog),
     })
 }
 

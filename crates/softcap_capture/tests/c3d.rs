@@ -147,3 +147,76 @@ fn truncated_c3d_is_bad_input_naming_the_file() {
     let e = read_c3d(&p).unwrap_err();
     assert!(e.to_string().contains("cut.c3d"), "{e}");
 }
+
+/// A `mocap` session (fixtures/c3d/qualisys-session: `files.c3d` + a 4-marker template) through the
+/// capture stage and the binary: 40 frames at 200 Hz, markers equal the take's, analog carried.
+#[test]
+fn mocap_session_captures_the_template_markers_from_the_take() {
+    use softcap_capture::{CaptureSettings, MarkerState, Session, SessionKind, capture};
+    let dir = common::fixture("c3d/qualisys-session");
+    let session = Session::load(&dir).unwrap();
+    assert_eq!(session.kind, SessionKind::Mocap);
+    let r = capture(&session, &CaptureSettings::default()).unwrap();
+    let take = read_c3d(&common::fixture("c3d/Qualisys.c3d")).unwrap();
+    assert_eq!(r.frames.len(), 40);
+    assert_eq!(r.marker_ids, ["L_IAS", "L_IPS", "R_IPS", "R_IAS"]);
+    assert!((r.frames[39].t_camera_s - 39.0 / 200.0).abs() < 1e-12);
+    for f in &r.frames {
+        for (m, s) in f.markers.iter().enumerate() {
+            let c = take.marker_index(&r.marker_ids[m]).unwrap();
+            match take.positions_m[f.frame][c] {
+                Some(p) => {
+                    assert_eq!(s.state, MarkerState::Visible);
+                    assert_eq!(s.position_m, p);
+                }
+                None => assert_eq!(s.state, MarkerState::Missing),
+            }
+        }
+    }
+    assert_eq!(r.analog.as_ref().unwrap().labels.len(), 69);
+
+    let out_dir = tempfile::tempdir().unwrap();
+    let out = out_dir.path().join("capture.mcap");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_softcap-capture"))
+        .arg(&dir)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let rec = softcap_mcap::Recording::open(&out).unwrap();
+    assert_eq!(rec.read(&softcap_mcap::topics::MARKERS).unwrap().len(), 40);
+}
+
+#[test]
+fn mocap_template_marker_missing_from_the_take_is_bad_input_naming_it() {
+    let (_tmp, dir) = common::session_copy("c3d/qualisys-session");
+    std::fs::copy(common::fixture("c3d/Qualisys.c3d"), dir.join("take.c3d")).unwrap();
+    let toml = std::fs::read_to_string(dir.join("session.toml")).unwrap();
+    std::fs::write(
+        dir.join("session.toml"),
+        toml.replace("../Qualisys.c3d", "take.c3d"),
+    )
+    .unwrap();
+    let csv = dir.join("template/markers.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    std::fs::write(&csv, text + "NOSE,0,0,0,white\n").unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_softcap-capture"))
+        .arg(&dir)
+        .arg("-o")
+        .arg(dir.join("out.mcap"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("marker `NOSE`") && err.contains("take.c3d"),
+        "{err}"
+    );
+    assert!(!dir.join("out.mcap").exists());
+}
