@@ -561,3 +561,15 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
         assert!(err.contains(".mcap"), "{err}");
     }
 }
+
+/// Regenerates the example report in docs/diagnose/ (run with `--ignored`).
+#[test]
+#[ignore]
+fn write_docs_report() {
+    let s = session(Effect::Creep { g: 0.8, tau_s: 0.2 }, false);
+    let mut sim = simulator(20e3);
+    let run = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).unwrap();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/diagnose");
+    softcap_diagnose::write_report(&dir, &s.rec, &run).unwrap();
+    softcap_diagnose::write_json(&dir.join("diagnosis.json"), &run.diagnosis).unwrap();
+}
