@@ -139,4 +139,10 @@ pub enum FemError {
         /// regularization slip
         slip_distance_m: f64,
     },
+    /// Probing-example input or fit problem (marker embedding, samples, probe placement).
+    #[error("probing: {what}")]
+    Probing {
+        /// what is wrong
+        what: String,
+    },
 }

@@ -1,0 +1,1408 @@
+//! Probing examples: the one simulator and fitter of bickel2009 §3–4 that every stage uses.
+//!
+//! * [`ProbingSetup`] — a tet mesh with embedded markers (barycentric, [`softcap_mesh::TetLocator`]),
+//!   its surface regions (bickel2009 §4.1: *attached* nodes from the support plane, the
+//!   *probed* patch under the tip of each example, the rest *free*), the umbrella adjacency of
+//!   eq. 9 and a factorization pattern reused by every solve.
+//! * [`ProbeExample`] — one captured deformation: frame, time, probe pose, measured force and
+//!   observed markers.
+//! * [`ProbingSetup::simulate`] — the elastostatic response to the measured force spread over the
+//!   contact patch as nodal forces (force boundary condition of §4.1; Fig. 7 "distribute it
+//!   uniformly"), with any [`ElasticModel`].
+//! * [`fit_example`] — per-example (λ_e, α_e) by Levenberg–Marquardt on eq. 9,
+//!   `min_p Σ‖x_i(p, F̄) − x̄_i‖² + γ‖Lp‖²`, with the adjoint Jacobian of the appendix (eq. 10–12,
+//!   [`Sensitivity::jt_times`]: one solve per observed marker coordinate with one factorization),
+//!   the umbrella Laplacian L over tets sharing a vertex, and Poisson's ratio kept physically
+//!   valid by box bounds on the parameterization (log λ_e, ν_e = α_e/λ_e).
+//! * [`fit_homogeneous`] — the average-fit homogeneous linear corotational model (bickel2009
+//!   Fig. 8 baseline): one (λ, α) for all tets and all examples.
+//! * [`StrainSpaceMaterial`] — the per-element strain-space RBF p(ε) = Σ wᵢ φ(‖ε − εᵢ‖), φ(r) = r
+//!   (eq. 8), with greedy basis selection (§4.2, [`softcap_core::greedy_rbf`]), implementing
+//!   [`StrainDependentParams`] for synthesis by incremental loading (§3.4).
+//! * [`simulate_probe_contact`] — synthesis of a novel probe (shape, pose, force) with rigid-probe
+//!   contact (§3.4): incremental loading in depth, then a secant search on the depth until the
+//!   axial contact force equals the requested force.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+use softcap_mesh::{TetEmbedding, TetLocator, TetMesh};
+
+use crate::assembly::DirichletBc;
+use crate::contact::{ContactProblem, ContactSettings, Probe, TipShape};
+use crate::derivatives::Sensitivity;
+use crate::element::StiffnessKind;
+use crate::model::{CorotationalModel, ElasticModel, StrainDependentParams};
+use crate::statics::{EquilibriumReport, EquilibriumSettings, SolveStatus, StaticSolver};
+use crate::{FemError, LinearParams};
+
+fn probing_error(what: impl Into<String>) -> FemError {
+    FemError::Probing { what: what.into() }
+}
+
+/// A marker observed in one example.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObservedMarker {
+    /// Marker index (into the markers given to [`ProbingSetup::new`]).
+    pub marker: usize,
+    /// Measured position, m, world frame.
+    pub position_m: Vector3<f64>,
+}
+
+/// One captured probing deformation (bickel2009 §4.1).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProbeExample {
+    /// Capture frame.
+    pub frame: u64,
+    /// Time, s.
+    pub time_s: f64,
+    /// Probe tip (leading point of the tip), m, world frame.
+    pub tip_m: Vector3<f64>,
+    /// Unit approach axis (handle → tip), world frame.
+    pub axis: Vector3<f64>,
+    /// Force exerted by the probe on the object, N, world frame.
+    pub force_n: Vector3<f64>,
+    /// Observed markers.
+    pub observed: Vec<ObservedMarker>,
+}
+
+/// Settings of the contact patch of a force boundary condition.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PatchSettings {
+    /// Radius of the probe footprint, m (disk radius, or the contact radius of a sphere).
+    pub radius_m: f64,
+    /// Boundary nodes up to this far (along the axis) behind the first surface met by the probe
+    /// belong to the patch, as a fraction of `radius_m`.
+    pub depth_window: f64,
+}
+
+impl Default for PatchSettings {
+    fn default() -> Self {
+        Self {
+            radius_m: 0.005,
+            depth_window: 0.5,
+        }
+    }
+}
+
+/// A tet mesh prepared for probing examples: marker embedding, regions, adjacency.
+#[derive(Clone, Debug)]
+pub struct ProbingSetup {
+    /// The mesh (rest = capture frame 0), m.
+    pub mesh: TetMesh,
+    /// Barycentric embedding of every marker at rest.
+    pub markers: Vec<TetEmbedding>,
+    /// Attached nodes (fixed at rest), increasing.
+    pub attached_nodes: Vec<usize>,
+    /// Boundary nodes, increasing.
+    pub boundary_nodes: Vec<usize>,
+    /// Lumped boundary area per node (⅓ of each incident boundary triangle), m² (0 inside).
+    pub node_areas_m2: Vec<f64>,
+    /// Tets sharing a vertex with each tet (umbrella operator of eq. 9).
+    pub adjacency: Vec<Vec<usize>>,
+}
+
+/// Boundary nodes within `tolerance_m` of the plane n·x = `offset_m` (the attached region of
+/// bickel2009 §4.1 from the session's support plane).
+pub fn support_nodes(
+    mesh: &TetMesh,
+    normal: &Vector3<f64>,
+    offset_m: f64,
+    tolerance_m: f64,
+) -> Vec<usize> {
+    let n = normal.normalize();
+    mesh.vertices
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| (n.dot(x) - offset_m).abs() <= tolerance_m)
+        .map(|(i, _)| i)
+        .collect()
+}
+
+impl ProbingSetup {
+    /// Embeds the markers' rest positions in `mesh` and records the attached nodes. Markers
+    /// slightly outside the mesh (paint on a coarse surface) are embedded in the closest tet
+    /// with extrapolating barycentric weights.
+    pub fn new(
+        mesh: TetMesh,
+        marker_rest_m: &[Vector3<f64>],
+        attached_nodes: Vec<usize>,
+    ) -> Result<Self, FemError> {
+        // Validate the mesh (degenerate / inverted tets) through the element geometry.
+        crate::element::tet_geometries(&mesh.vertices, &mesh.tets)?;
+        let locator = TetLocator::new(&mesh);
+        let markers = marker_rest_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(probing_error(format!(
+                        "marker {i}: non-finite rest position"
+                    )));
+                }
+                locator
+                    .locate(p)
+                    .ok_or_else(|| probing_error(format!("marker {i}: cannot embed in the mesh")))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut attached_nodes = attached_nodes;
+        attached_nodes.sort_unstable();
+        attached_nodes.dedup();
+        if let Some(&n) = attached_nodes.last()
+            && n >= mesh.vertices.len()
+        {
+            return Err(FemError::VertexOutOfRange {
+                tet: usize::MAX,
+                vertex: n,
+                num_vertices: mesh.vertices.len(),
+            });
+        }
+        let faces = mesh.boundary_faces();
+        let mut node_areas_m2 = vec![0.0; mesh.vertices.len()];
+        for f in &faces {
+            let [a, b, c] = f.map(|i| mesh.vertices[i]);
+            let area = 0.5 * (b - a).cross(&(c - a)).norm();
+            for &i in f {
+                node_areas_m2[i] += area / 3.0;
+            }
+        }
+        let mut boundary_nodes: Vec<usize> = faces.iter().flatten().copied().collect();
+        boundary_nodes.sort_unstable();
+        boundary_nodes.dedup();
+        let adjacency = softcap_mesh::tet_vertex_adjacency(mesh.vertices.len(), &mesh.tets);
+        Ok(Self {
+            mesh,
+            markers,
+            attached_nodes,
+            boundary_nodes,
+            node_areas_m2,
+            adjacency,
+        })
+    }
+
+    /// Number of tets.
+    pub fn num_elements(&self) -> usize {
+        self.mesh.tets.len()
+    }
+
+    /// Dirichlet conditions: the attached nodes at rest.
+    pub fn dirichlet(&self) -> DirichletBc {
+        let mut bc = DirichletBc::new();
+        for &n in &self.attached_nodes {
+            bc.fix_node(n, self.mesh.vertices[n]);
+        }
+        bc
+    }
+
+    /// A static solver (pattern and symbolic factorization, reused by every solve) for `model`.
+    pub fn solver<M: ElasticModel + ?Sized>(&self, model: &M) -> Result<StaticSolver, FemError> {
+        StaticSolver::with_bc(model, &self.dirichlet())
+    }
+
+    /// Marker positions for node positions `x`.
+    pub fn marker_positions(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        self.markers
+            .iter()
+            .map(|e| e.position(&self.mesh.tets, x))
+            .collect()
+    }
+
+    /// The probed region of an example (bickel2009 §4.1 region (i)): boundary nodes whose rest
+    /// position lies within `radius_m` of the probe axis line and at most
+    /// `depth_window · radius_m` behind the first boundary node the probe meets. When no node
+    /// lies inside the footprint (coarse mesh) the boundary node closest to the axis is used.
+    pub fn patch_nodes(&self, example: &ProbeExample, patch: &PatchSettings) -> Vec<usize> {
+        let axis = example.axis.normalize();
+        let coords: Vec<(usize, f64, f64)> = self
+            .boundary_nodes
+            .iter()
+            .filter(|n| self.attached_nodes.binary_search(n).is_err())
+            .map(|&n| {
+                let d = self.mesh.vertices[n] - example.tip_m;
+                let along = d.dot(&axis);
+                (n, along, (d - axis * along).norm())
+            })
+            .collect();
+        let inside: Vec<&(usize, f64, f64)> =
+            coords.iter().filter(|c| c.2 <= patch.radius_m).collect();
+        if inside.is_empty() {
+            return coords
+                .iter()
+                .min_by(|a, b| a.2.total_cmp(&b.2).then(a.0.cmp(&b.0)))
+                .map(|c| vec![c.0])
+                .unwrap_or_default();
+        }
+        let first = inside.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
+        let window = patch.depth_window * patch.radius_m;
+        inside
+            .iter()
+            .filter(|c| c.1 <= first + window)
+            .map(|c| c.0)
+            .collect()
+    }
+
+    /// Nodal forces of an example: the measured force spread over the patch nodes in proportion
+    /// to their lumped boundary area (uniform pressure, bickel2009 §4.1 / Fig. 7).
+    pub fn nodal_forces(&self, example: &ProbeExample, patch_nodes: &[usize]) -> Vec<Vector3<f64>> {
+        let mut f = vec![Vector3::zeros(); self.mesh.vertices.len()];
+        let total: f64 = patch_nodes.iter().map(|&n| self.node_areas_m2[n]).sum();
+        for &n in patch_nodes {
+            let w = if total > 0.0 {
+                self.node_areas_m2[n] / total
+            } else {
+                1.0 / patch_nodes.len() as f64
+            };
+            f[n] += example.force_n * w;
+        }
+        f
+    }
+
+    /// Simulates an example under `model`: the force boundary condition of
+    /// [`Self::nodal_forces`] on the patch, attached nodes fixed, equilibrium iterated from `x`
+    /// (warm start; attached components are reset to rest).
+    pub fn simulate<M: ElasticModel + ?Sized>(
+        &self,
+        solver: &mut StaticSolver,
+        model: &mut M,
+        x: &mut [Vector3<f64>],
+        forces: &[Vector3<f64>],
+        settings: &EquilibriumSettings,
+    ) -> EquilibriumReport {
+        self.dirichlet().apply(x);
+        solver.solve(model, x, forces, None, settings)
+    }
+}
+
+/// Marker residual r = x_markers(x) − x̄ (3 per observed marker) and its RMS, m.
+fn marker_residuals(setup: &ProbingSetup, example: &ProbeExample, x: &[Vector3<f64>]) -> Vec<f64> {
+    let mut r = Vec::with_capacity(3 * example.observed.len());
+    for o in &example.observed {
+        let p = setup.markers[o.marker].position(&setup.mesh.tets, x);
+        r.extend((p - o.position_m).iter());
+    }
+    r
+}
+
+fn rms_of(r: &[f64]) -> f64 {
+    if r.is_empty() {
+        0.0
+    } else {
+        (r.iter().map(|v| v * v).sum::<f64>() / (r.len() / 3).max(1) as f64).sqrt()
+    }
+}
+
+/// Settings of the per-example fit (bickel2009 eq. 9).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ExampleFitSettings {
+    /// γ of eq. 9 on the log-stiffness field, m² (a unit jump of ln λ between neighbouring tets
+    /// costs as much as √γ of marker error).
+    pub gamma_m2: f64,
+    /// γ on the Poisson-ratio field, m².
+    pub gamma_nu_m2: f64,
+    /// Bounds on λ_e relative to the initial value.
+    pub lambda_factor_bounds: (f64, f64),
+    /// Bounds on ν_e = α_e/λ_e (physically valid: within (−1, 0.5)).
+    pub nu_bounds: (f64, f64),
+    /// Levenberg–Marquardt iterations (accepted or rejected steps).
+    pub max_iterations: usize,
+    /// Stop when an accepted step lowers the cost by less than this fraction.
+    pub relative_cost_tolerance: f64,
+    /// Initial damping μ relative to the largest diagonal of JᵀJ.
+    pub initial_damping: f64,
+    /// Matrix of the linearization: `Consistent` (exact ∂x/∂p of the corotational equilibrium)
+    /// or `Warped` (bickel2009 eq. 11 with rotations held fixed).
+    pub jacobian: StiffnessKind,
+    /// Equilibrium iterations of every simulation.
+    pub equilibrium: EquilibriumSettings,
+    /// Conjugate-gradient iterations per damped normal-equation solve.
+    pub cg_iterations: usize,
+    /// Force boundary-condition patch.
+    pub patch: PatchSettings,
+}
+
+impl Default for ExampleFitSettings {
+    fn default() -> Self {
+        Self {
+            gamma_m2: 1e-12,
+            gamma_nu_m2: 1e-11,
+            lambda_factor_bounds: (0.02, 50.0),
+            nu_bounds: (0.0, 0.49),
+            max_iterations: 12,
+            relative_cost_tolerance: 1e-3,
+            initial_damping: 1e-3,
+            jacobian: StiffnessKind::Consistent,
+            equilibrium: EquilibriumSettings {
+                max_iterations: 60,
+                displacement_tol_rel: 1e-9,
+                residual_tol_rel: 1e-7,
+                ..EquilibriumSettings::default()
+            },
+            cg_iterations: 300,
+            patch: PatchSettings::default(),
+        }
+    }
+}
+
+/// Result of one per-example fit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExampleFit {
+    /// Fitted (λ_e, α_e) per tet.
+    pub params: Vec<LinearParams>,
+    /// Equilibrium node positions under the fitted parameters, m.
+    pub positions_m: Vec<Vector3<f64>>,
+    /// Corotated Voigt strain of each tet at that equilibrium (the strain-space sample ε_e).
+    pub strains: Vec<Vector6<f64>>,
+    /// RMS marker error before fitting (initial parameters), m.
+    pub initial_rms_m: f64,
+    /// RMS marker error after fitting, m.
+    pub rms_m: f64,
+    /// Cost Σ‖r‖² + γ‖Lp‖² after each accepted step (first entry: initial).
+    pub cost_history: Vec<f64>,
+    /// LM iterations performed.
+    pub iterations: usize,
+    /// Equilibrium status of the final simulation.
+    pub status: SolveStatus,
+}
+
+/// (log-λ, ν) parameterization of the per-tet material (λ_e = λ_ref,e · exp(s_e), α_e = ν_e λ_e).
+fn params_from_q(lambda_ref: &[f64], q: &[f64]) -> Vec<LinearParams> {
+    let t = lambda_ref.len();
+    (0..t)
+        .map(|e| {
+            let lambda = lambda_ref[e] * q[e].exp();
+            LinearParams {
+                lambda,
+                alpha: q[t + e] * lambda,
+            }
+        })
+        .collect()
+}
+
+/// y = L v for the umbrella operator (Lv)_i = Σ_j (v_i − v_j) over `adjacency` (eq. 9).
+fn umbrella_apply(adjacency: &[Vec<usize>], v: &[f64], out: &mut [f64]) {
+    for (i, nb) in adjacency.iter().enumerate() {
+        let mut s = nb.len() as f64 * v[i];
+        for &j in nb {
+            s -= v[j];
+        }
+        out[i] = s;
+    }
+}
+
+/// Simulates `example` with `params` from the warm start `x`; returns the equilibrium report.
+fn simulate_params(
+    setup: &ProbingSetup,
+    solver: &mut StaticSolver,
+    model: &mut CorotationalModel,
+    params: &[LinearParams],
+    forces: &[Vector3<f64>],
+    x: &mut [Vector3<f64>],
+    settings: &EquilibriumSettings,
+) -> Result<EquilibriumReport, FemError> {
+    model.set_params(params)?;
+    Ok(setup.simulate(solver, model, x, forces, settings))
+}
+
+/// Jᵀ w for every observed marker coordinate: the rows of J_m = ∂x_markers/∂p (3k × 2T,
+/// parameters interleaved (λ_e, α_e)) by the adjoint method of the appendix (eq. 11–12): one
+/// solve with the one factorization per row.
+fn marker_jacobian_rows(
+    setup: &ProbingSetup,
+    example: &ProbeExample,
+    sens: &Sensitivity<'_>,
+) -> Result<Vec<Vec<f64>>, FemError> {
+    let ndof = 3 * setup.mesh.vertices.len();
+    let mut rows = Vec::with_capacity(3 * example.observed.len());
+    let mut w = vec![0.0; ndof];
+    for o in &example.observed {
+        let emb = &setup.markers[o.marker];
+        let tet = setup.mesh.tets[emb.tet];
+        for c in 0..3 {
+            for a in 0..4 {
+                w[3 * tet[a] + c] = emb.weights[a];
+            }
+            rows.push(sens.jt_times(&w)?);
+            for a in 0..4 {
+                w[3 * tet[a] + c] = 0.0;
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// The rows of [`marker_jacobian_rows`] at the current equilibrium `x` of `model`.
+pub fn marker_jacobian(
+    setup: &ProbingSetup,
+    solver: &mut StaticSolver,
+    model: &CorotationalModel,
+    example: &ProbeExample,
+    x: &[Vector3<f64>],
+    kind: StiffnessKind,
+) -> Result<Vec<Vec<f64>>, FemError> {
+    let sens = Sensitivity::new(solver, model, x, kind, None)?;
+    marker_jacobian_rows(setup, example, &sens)
+}
+
+/// Per-example parameter estimation, bickel2009 eq. 9:
+///
+/// p̂ = argmin_p Σᵢ ‖xᵢ(p, F̄) − x̄ᵢ‖² + γ‖Lp‖²,
+///
+/// by a projected Levenberg–Marquardt iteration over q = (ln λ_e/λ_ref,e, ν_e) with box bounds
+/// (Poisson's ratio stays in `nu_bounds`, so α = νλ is always physically valid). Each iteration
+/// simulates the example ([`ProbingSetup::simulate`]), builds the marker Jacobian by the adjoint
+/// method (appendix eq. 10–12, [`Sensitivity`], one factorization for all rows), and solves the
+/// damped normal equations (J_mᵀJ_m + γLᵀL + μD) h = −g matrix-free by preconditioned conjugate
+/// gradients (J_m is 3k × 2T and dense, L sparse). `initial` gives λ_ref and the start.
+pub fn fit_example(
+    setup: &ProbingSetup,
+    example: &ProbeExample,
+    initial: &[LinearParams],
+    settings: &ExampleFitSettings,
+) -> Result<ExampleFit, FemError> {
+    let t = setup.num_elements();
+    if initial.len() != t {
+        return Err(FemError::LengthMismatch {
+            what: "initial per-element parameters",
+            expected: t,
+            got: initial.len(),
+        });
+    }
+    for (e, p) in initial.iter().enumerate() {
+        p.validate(e)?;
+    }
+    let lambda_ref: Vec<f64> = initial.iter().map(|p| p.lambda).collect();
+    let n = 2 * t;
+    let (nlo, nhi) = settings.nu_bounds;
+    if !(nlo > -1.0 && nhi < 0.5 && nlo <= nhi) {
+        return Err(FemError::InvalidPoissonRatio {
+            nu: if nhi >= 0.5 { nhi } else { nlo },
+        });
+    }
+    let (flo, fhi) = settings.lambda_factor_bounds;
+    let lower: Vec<f64> = (0..n).map(|i| if i < t { flo.ln() } else { nlo }).collect();
+    let upper: Vec<f64> = (0..n).map(|i| if i < t { fhi.ln() } else { nhi }).collect();
+    let mut q: Vec<f64> = (0..n)
+        .map(|i| {
+            if i < t {
+                0.0
+            } else {
+                let p = initial[i - t];
+                p.alpha / p.lambda
+            }
+        })
+        .collect();
+    for i in 0..n {
+        q[i] = q[i].clamp(lower[i], upper[i]);
+    }
+    let gam = |i: usize| {
+        if i < t {
+            settings.gamma_m2
+        } else {
+            settings.gamma_nu_m2
+        }
+    };
+
+    let mut model = CorotationalModel::new(&setup.mesh, params_from_q(&lambda_ref, &q))?;
+    let mut solver = setup.solver(&model)?;
+    let patch = setup.patch_nodes(example, &settings.patch);
+    let forces = setup.nodal_forces(example, &patch);
+    let mut x = setup.mesh.vertices.clone();
+
+    // Cost = ‖r_m‖² + γ‖L s‖² + γ_ν‖L ν‖².
+    let reg_cost = |q: &[f64]| {
+        let mut lq = vec![0.0; t];
+        let mut c = 0.0;
+        for (block, g) in [(0, settings.gamma_m2), (t, settings.gamma_nu_m2)] {
+            umbrella_apply(&setup.adjacency, &q[block..block + t], &mut lq);
+            c += g * lq.iter().map(|v| v * v).sum::<f64>();
+        }
+        c
+    };
+    let rep = simulate_params(
+        setup,
+        &mut solver,
+        &mut model,
+        &params_from_q(&lambda_ref, &q),
+        &forces,
+        &mut x,
+        &settings.equilibrium,
+    )?;
+    let mut status = rep.status.clone();
+    let mut r = marker_residuals(setup, example, &x);
+    let initial_rms_m = rms_of(&r);
+    let mut cost = r.iter().map(|v| v * v).sum::<f64>() + reg_cost(&q);
+    let mut history = vec![cost];
+    let mut iterations = 0;
+    let mut mu_rel = settings.initial_damping;
+    let mut jac_valid = false;
+    let mut jm: Vec<Vec<f64>> = Vec::new(); // rows in q-space
+    let mut diag_max = vec![0.0f64; n];
+    let mut grad = vec![0.0; n];
+
+    while iterations < settings.max_iterations && !r.is_empty() {
+        iterations += 1;
+        if !jac_valid {
+            let rows = marker_jacobian(setup, &mut solver, &model, example, &x, settings.jacobian)
+                .or_else(|_| {
+                    marker_jacobian(
+                        setup,
+                        &mut solver,
+                        &model,
+                        example,
+                        &x,
+                        StiffnessKind::Warped,
+                    )
+                })?;
+            let params = model.params().to_vec();
+            // Chain rule to q: ∂/∂s_e = λ_e (∂/∂λ_e + ν_e ∂/∂α_e), ∂/∂ν_e = λ_e ∂/∂α_e.
+            jm = rows
+                .iter()
+                .map(|row| {
+                    let mut out = vec![0.0; n];
+                    for e in 0..t {
+                        let (jl, ja) = (row[2 * e], row[2 * e + 1]);
+                        let lam = params[e].lambda;
+                        let nu = q[t + e];
+                        out[e] = lam * (jl + nu * ja);
+                        out[t + e] = lam * ja;
+                    }
+                    out
+                })
+                .collect();
+            // g = J_mᵀ r + γ Lᵀ L q (L symmetric).
+            grad.iter_mut().for_each(|g| *g = 0.0);
+            for (row, ri) in jm.iter().zip(&r) {
+                for i in 0..n {
+                    grad[i] += row[i] * ri;
+                }
+            }
+            let mut lq = vec![0.0; t];
+            let mut llq = vec![0.0; t];
+            for block in [0, t] {
+                umbrella_apply(&setup.adjacency, &q[block..block + t], &mut lq);
+                umbrella_apply(&setup.adjacency, &lq, &mut llq);
+                for i in 0..t {
+                    grad[block + i] += gam(block + i) * llq[i];
+                }
+            }
+            for i in 0..n {
+                let deg = setup.adjacency[i % t].len() as f64;
+                let d =
+                    jm.iter().map(|row| row[i] * row[i]).sum::<f64>() + gam(i) * (deg * deg + deg);
+                diag_max[i] = diag_max[i].max(d);
+            }
+            jac_valid = true;
+        }
+        // Free variables: not held at a bound by the gradient.
+        let free: Vec<bool> = (0..n)
+            .map(|i| !((q[i] <= lower[i] && grad[i] > 0.0) || (q[i] >= upper[i] && grad[i] < 0.0)))
+            .collect();
+        let dmax = diag_max.iter().copied().fold(0.0, f64::max).max(1e-300);
+        let mu = mu_rel * dmax;
+        let h = damped_step(
+            setup,
+            &jm,
+            &grad,
+            &free,
+            &diag_max,
+            mu,
+            &gam,
+            settings.cg_iterations,
+        );
+        let mut q_trial: Vec<f64> = (0..n).map(|i| q[i] + h[i]).collect();
+        for i in 0..n {
+            q_trial[i] = q_trial[i].clamp(lower[i], upper[i]);
+        }
+        let mut x_trial = x.clone();
+        let rep = simulate_params(
+            setup,
+            &mut solver,
+            &mut model,
+            &params_from_q(&lambda_ref, &q_trial),
+            &forces,
+            &mut x_trial,
+            &settings.equilibrium,
+        )?;
+        let r_trial = marker_residuals(setup, example, &x_trial);
+        let cost_trial = r_trial.iter().map(|v| v * v).sum::<f64>() + reg_cost(&q_trial);
+        if rep.converged() && cost_trial.is_finite() && cost_trial < cost {
+            let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
+            q = q_trial;
+            x = x_trial;
+            r = r_trial;
+            cost = cost_trial;
+            status = rep.status;
+            history.push(cost);
+            jac_valid = false;
+            mu_rel = (mu_rel / 3.0).max(1e-12);
+            if decrease < settings.relative_cost_tolerance {
+                break;
+            }
+        } else {
+            // Restore the model to the accepted parameters.
+            model.set_params(&params_from_q(&lambda_ref, &q))?;
+            mu_rel *= 4.0;
+            if mu_rel > 1e12 {
+                break;
+            }
+        }
+    }
+    let params = params_from_q(&lambda_ref, &q);
+    model.set_params(&params)?;
+    let strains = model.strains(&x);
+    Ok(ExampleFit {
+        params,
+        strains,
+        initial_rms_m,
+        rms_m: rms_of(&r),
+        positions_m: x,
+        cost_history: history,
+        iterations,
+        status,
+    })
+}
+
+/// Solves (J_mᵀJ_m + γLᵀL + μD) h = −g on the free variables by Jacobi-preconditioned CG.
+#[allow(clippy::too_many_arguments)]
+fn damped_step(
+    setup: &ProbingSetup,
+    jm: &[Vec<f64>],
+    grad: &[f64],
+    free: &[bool],
+    diag: &[f64],
+    mu: f64,
+    gam: &dyn Fn(usize) -> f64,
+    max_iter: usize,
+) -> Vec<f64> {
+    let n = grad.len();
+    let t = n / 2;
+    let apply = |v: &[f64], out: &mut [f64]| {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        for row in jm {
+            let s: f64 = row.iter().zip(v).map(|(a, b)| a * b).sum();
+            for i in 0..n {
+                out[i] += row[i] * s;
+            }
+        }
+        let mut lv = vec![0.0; t];
+        let mut llv = vec![0.0; t];
+        for block in [0, t] {
+            umbrella_apply(&setup.adjacency, &v[block..block + t], &mut lv);
+            umbrella_apply(&setup.adjacency, &lv, &mut llv);
+            for i in 0..t {
+                out[block + i] += gam(block + i) * llv[i];
+            }
+        }
+        for i in 0..n {
+            out[i] += mu * diag[i] * v[i];
+            if !free[i] {
+                out[i] = 0.0;
+            }
+        }
+    };
+    let precond: Vec<f64> = (0..n)
+        .map(|i| {
+            if free[i] {
+                1.0 / (diag[i] * (1.0 + mu) + 1e-300)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let mut h = vec![0.0; n];
+    let mut res: Vec<f64> = (0..n)
+        .map(|i| if free[i] { -grad[i] } else { 0.0 })
+        .collect();
+    let mut z: Vec<f64> = res.iter().zip(&precond).map(|(a, b)| a * b).collect();
+    let mut p = z.clone();
+    let mut rz: f64 = res.iter().zip(&z).map(|(a, b)| a * b).sum();
+    let r0 = rz.abs().sqrt();
+    let mut ap = vec![0.0; n];
+    for _ in 0..max_iter {
+        if rz.abs().sqrt() <= 1e-10 * r0 || r0 == 0.0 {
+            break;
+        }
+        apply(&p, &mut ap);
+        let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+        if pap <= 0.0 || !pap.is_finite() {
+            break;
+        }
+        let a = rz / pap;
+        for i in 0..n {
+            h[i] += a * p[i];
+            res[i] -= a * ap[i];
+        }
+        for i in 0..n {
+            z[i] = res[i] * precond[i];
+        }
+        let rz_new: f64 = res.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for i in 0..n {
+            p[i] = z[i] + beta * p[i];
+        }
+    }
+    h
+}
+
+/// Settings of [`fit_homogeneous`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct HomogeneousFitSettings {
+    /// Starting Young's modulus, Pa (rescaled by a first linear estimate).
+    pub initial_young_pa: f64,
+    /// Starting Poisson ratio.
+    pub initial_nu: f64,
+    /// Bounds on ν.
+    pub nu_bounds: (f64, f64),
+    /// LM settings.
+    pub lm: softcap_core::LevenbergMarquardtSettings,
+    /// Equilibrium settings.
+    pub equilibrium: EquilibriumSettings,
+    /// Patch of the force boundary condition.
+    pub patch: PatchSettings,
+}
+
+impl Default for HomogeneousFitSettings {
+    fn default() -> Self {
+        Self {
+            initial_young_pa: 3.0e4,
+            initial_nu: 0.4,
+            nu_bounds: (0.0, 0.49),
+            lm: softcap_core::LevenbergMarquardtSettings {
+                max_iterations: 20,
+                relative_cost_tolerance: 1e-6,
+                gradient_tolerance: 0.0,
+                ..Default::default()
+            },
+            equilibrium: ExampleFitSettings::default().equilibrium,
+            patch: PatchSettings::default(),
+        }
+    }
+}
+
+/// Result of [`fit_homogeneous`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HomogeneousFit {
+    /// The one (λ, α) of every tet.
+    pub params: LinearParams,
+    /// RMS marker error of each example, m.
+    pub example_rms_m: Vec<f64>,
+    /// RMS marker error over all examples, m.
+    pub rms_m: f64,
+    /// LM iterations.
+    pub iterations: usize,
+}
+
+struct HomogeneousProblem<'a> {
+    setup: &'a ProbingSetup,
+    examples: &'a [ProbeExample],
+    forces: Vec<Vec<Vector3<f64>>>,
+    warm: Vec<Vec<Vector3<f64>>>,
+    solver: StaticSolver,
+    model: CorotationalModel,
+    young_ref: f64,
+    settings: &'a HomogeneousFitSettings,
+    m: usize,
+}
+
+impl HomogeneousProblem<'_> {
+    fn params(&self, q: &[f64]) -> Option<LinearParams> {
+        LinearParams::from_young_poisson(self.young_ref * q[0].exp(), q[1]).ok()
+    }
+
+    fn run(&mut self, q: &[f64], r: &mut [f64], mut jac: Option<&mut nalgebra::DMatrix<f64>>) {
+        let Some(p) = self.params(q) else {
+            r.iter_mut().for_each(|v| *v = f64::NAN);
+            return;
+        };
+        let t = self.setup.num_elements();
+        let mut row0 = 0;
+        for (k, ex) in self.examples.iter().enumerate() {
+            let mut x = self.warm[k].clone();
+            let ok = simulate_params(
+                self.setup,
+                &mut self.solver,
+                &mut self.model,
+                &vec![p; t],
+                &self.forces[k],
+                &mut x,
+                &self.settings.equilibrium,
+            )
+            .map(|rep| rep.converged())
+            .unwrap_or(false);
+            let rk = marker_residuals(self.setup, ex, &x);
+            for (i, v) in rk.iter().enumerate() {
+                r[row0 + i] = if ok { *v } else { f64::NAN };
+            }
+            if let Some(j) = jac.as_deref_mut() {
+                let rows = marker_jacobian(
+                    self.setup,
+                    &mut self.solver,
+                    &self.model,
+                    ex,
+                    &x,
+                    StiffnessKind::Consistent,
+                );
+                if let Ok(rows) = rows {
+                    // (E, ν) ↦ (λ, α): λ = E/((1+ν)(1−2ν)), α = νλ; q0 = ln E/E_ref.
+                    let (e_pa, nu) = (self.young_ref * q[0].exp(), q[1]);
+                    let den = (1.0 + nu) * (1.0 - 2.0 * nu);
+                    let lam = e_pa / den;
+                    let dlam_dnu = e_pa * (1.0 + 4.0 * nu) / (den * den);
+                    let dalpha_dnu = lam + nu * dlam_dnu;
+                    for (i, row) in rows.iter().enumerate() {
+                        let (mut jl, mut ja) = (0.0, 0.0);
+                        for e in 0..t {
+                            jl += row[2 * e];
+                            ja += row[2 * e + 1];
+                        }
+                        // ∂/∂q0 = E ∂/∂E = λ ∂/∂λ + α ∂/∂α.
+                        j[(row0 + i, 0)] = lam * jl + nu * lam * ja;
+                        j[(row0 + i, 1)] = dlam_dnu * jl + dalpha_dnu * ja;
+                    }
+                }
+            }
+            if ok {
+                self.warm[k] = x;
+            }
+            row0 += rk.len();
+        }
+    }
+}
+
+impl softcap_core::LeastSquaresProblem for HomogeneousProblem<'_> {
+    fn num_params(&self) -> usize {
+        2
+    }
+    fn num_residuals(&self) -> usize {
+        self.m
+    }
+    fn residuals(&mut self, params: &[f64], residuals: &mut [f64]) {
+        self.run(params, residuals, None);
+    }
+    fn jacobian(&mut self, params: &[f64], jacobian: &mut nalgebra::DMatrix<f64>) -> bool {
+        let mut r = vec![0.0; self.m];
+        self.run(params, &mut r, Some(jacobian));
+        true
+    }
+}
+
+/// The average-fit homogeneous linear corotational model (bickel2009 §6, Fig. 8 baseline): one
+/// (E, ν) for every tet that best fits all examples' markers in the least-squares sense,
+/// by Levenberg–Marquardt over (ln E, ν) with the adjoint Jacobian summed over the tets. The
+/// start E is first rescaled by the linear estimate E ← E·(u_sim·u_sim)/(u_sim·u_meas).
+pub fn fit_homogeneous(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    settings: &HomogeneousFitSettings,
+) -> Result<HomogeneousFit, FemError> {
+    let t = setup.num_elements();
+    let p0 = LinearParams::from_young_poisson(settings.initial_young_pa, settings.initial_nu)?;
+    let model = CorotationalModel::homogeneous(&setup.mesh, p0)?;
+    let solver = setup.solver(&model)?;
+    let forces: Vec<_> = examples
+        .iter()
+        .map(|ex| setup.nodal_forces(ex, &setup.patch_nodes(ex, &settings.patch)))
+        .collect();
+    let m: usize = examples.iter().map(|e| 3 * e.observed.len()).sum();
+    let mut problem = HomogeneousProblem {
+        setup,
+        examples,
+        forces,
+        warm: vec![setup.mesh.vertices.clone(); examples.len()],
+        solver,
+        model,
+        young_ref: settings.initial_young_pa,
+        settings,
+        m,
+    };
+    // Linear rescaling of the start: displacements scale like 1/E.
+    let mut r = vec![0.0; m];
+    problem.run(&[0.0, settings.initial_nu], &mut r, None);
+    let (mut uu, mut um) = (0.0, 0.0);
+    let mut row = 0;
+    for ex in examples {
+        for o in &ex.observed {
+            let rest = setup.markers[o.marker].position(&setup.mesh.tets, &setup.mesh.vertices);
+            for c in 0..3 {
+                let meas = o.position_m[c] - rest[c];
+                let sim = r[row] + meas;
+                uu += sim * sim;
+                um += sim * meas;
+                row += 1;
+            }
+        }
+    }
+    if um > 0.0 && uu.is_finite() {
+        problem.young_ref *= uu / um;
+    }
+    problem.warm = vec![setup.mesh.vertices.clone(); examples.len()];
+    let bounds = softcap_core::Bounds::new(
+        vec![-5.0, settings.nu_bounds.0],
+        vec![5.0, settings.nu_bounds.1],
+    )
+    .map_err(|e| probing_error(e.to_string()))?;
+    let report = softcap_core::levenberg_marquardt(
+        &mut problem,
+        &[0.0, settings.initial_nu],
+        Some(&bounds),
+        &settings.lm,
+    )
+    .map_err(|e| probing_error(e.to_string()))?;
+    let params = problem
+        .params(&report.params)
+        .ok_or_else(|| probing_error("homogeneous fit left the valid parameter range"))?;
+    let mut example_rms_m = Vec::with_capacity(examples.len());
+    let mut row = 0;
+    let mut total = 0.0;
+    for ex in examples {
+        let k = 3 * ex.observed.len();
+        let rk = &report.residuals[row..row + k];
+        total += rk.iter().map(|v| v * v).sum::<f64>();
+        example_rms_m.push(rms_of(rk));
+        row += k;
+    }
+    let _ = t;
+    Ok(HomogeneousFit {
+        params,
+        example_rms_m,
+        rms_m: (total / (m / 3).max(1) as f64).sqrt(),
+        iterations: report.iterations,
+    })
+}
+
+/// One element's strain-space RBF (bickel2009 eq. 8): p(ε) = Σᵢ wᵢ ‖ε − εᵢ‖, wᵢ ∈ ℝ² (λ, α).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ElementRbf {
+    /// Sample indices of the centres (see [`StrainSpaceMaterial::fit`]).
+    pub center_samples: Vec<usize>,
+    /// Centres εᵢ (corotated Voigt strain).
+    pub centers: Vec<[f64; 6]>,
+    /// Weights wᵢ = (w_λ, w_α), Pa.
+    pub weights: Vec<[f64; 2]>,
+}
+
+impl ElementRbf {
+    /// p(ε) unclamped: (λ, α), Pa.
+    pub fn evaluate(&self, strain: &[f64; 6]) -> [f64; 2] {
+        let mut out = [0.0; 2];
+        for (c, w) in self.centers.iter().zip(&self.weights) {
+            let r = c
+                .iter()
+                .zip(strain)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt();
+            out[0] += w[0] * r;
+            out[1] += w[1] * r;
+        }
+        out
+    }
+}
+
+/// Settings of the strain-space basis (bickel2009 §4.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StrainBasisSettings {
+    /// Greedy stops when the RMS parameter error over the samples is below this fraction of the
+    /// element's mean λ.
+    pub relative_tolerance: f64,
+    /// At most this many centres per element.
+    pub max_centers: usize,
+    /// Evaluated parameters are clamped to λ ≥ this fraction of the element's smallest sample λ …
+    pub lambda_floor_fraction: f64,
+    /// … and ν = α/λ to these bounds.
+    pub nu_bounds: (f64, f64),
+}
+
+impl Default for StrainBasisSettings {
+    fn default() -> Self {
+        Self {
+            relative_tolerance: 0.02,
+            max_centers: 12,
+            lambda_floor_fraction: 0.5,
+            nu_bounds: (0.0, 0.49),
+        }
+    }
+}
+
+/// One greedy step summed over the elements: error against basis size (bickel2009 Fig. 5).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BasisErrorStep {
+    /// Basis size M.
+    pub num_centers: usize,
+    /// RMS over elements (those still growing use their error at M, finished ones their final
+    /// error) of the relative parameter error ‖p(εₖ) − pₖ‖/λ̄_e.
+    pub relative_rms_error: f64,
+}
+
+/// The strain-space material of bickel2009 §3.3: one RBF p_e(ε) per tet.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StrainSpaceMaterial {
+    /// Per-element RBFs.
+    pub elements: Vec<ElementRbf>,
+    /// Lower bound on λ per element, Pa (validity clamp).
+    pub lambda_floor_pa: Vec<f64>,
+    /// ν bounds of the validity clamp.
+    pub nu_bounds: (f64, f64),
+}
+
+/// A strain-space sample: one fitted example at one element.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StrainSample {
+    /// ε.
+    pub strain: [f64; 6],
+    /// p = (λ, α).
+    pub params: LinearParams,
+}
+
+impl StrainSpaceMaterial {
+    /// Builds the per-element RBFs from `samples[e]` (sample k of element e) by greedy selection
+    /// (bickel2009 §4.2 after Carr et al. 2001): start with sample 0 (by convention the
+    /// zero-strain sample with the average small-strain parameters), fit eq. 8 to all samples in
+    /// the least-squares sense ([`softcap_core::greedy_rbf`], φ(r) = r, no tail), add the worst
+    /// sample, until the RMS error is below `relative_tolerance` × mean λ.
+    /// Returns the material and the error-vs-basis-size curve.
+    pub fn fit(
+        samples: &[Vec<StrainSample>],
+        settings: &StrainBasisSettings,
+    ) -> Result<(Self, Vec<BasisErrorStep>), FemError> {
+        let mut elements = Vec::with_capacity(samples.len());
+        let mut floors = Vec::with_capacity(samples.len());
+        let mut histories: Vec<Vec<f64>> = Vec::with_capacity(samples.len());
+        for (e, s) in samples.iter().enumerate() {
+            if s.is_empty() {
+                return Err(probing_error(format!("element {e}: no strain samples")));
+            }
+            let mean_lambda = s.iter().map(|p| p.params.lambda).sum::<f64>() / s.len() as f64;
+            let points: Vec<f64> = s.iter().flat_map(|p| p.strain).collect();
+            let values: Vec<f64> = s
+                .iter()
+                .flat_map(|p| [p.params.lambda, p.params.alpha])
+                .collect();
+            let data = softcap_core::ScatteredData::new(&points, 6, &values, 2)
+                .map_err(|err| probing_error(format!("element {e}: {err}")))?;
+            let greedy = softcap_core::greedy_rbf(
+                &data,
+                &softcap_core::GreedyRbfSettings {
+                    rbf: softcap_core::RbfSettings {
+                        kernel: softcap_core::RbfKernel::Linear,
+                        tail: softcap_core::PolynomialTail::None,
+                        ..Default::default()
+                    },
+                    tolerance: settings.relative_tolerance * mean_lambda,
+                    measure: softcap_core::GreedyErrorMeasure::Rms,
+                    max_centers: settings.max_centers.min(s.len()),
+                    initial_centers: vec![0],
+                },
+            )
+            .map_err(|err| probing_error(format!("element {e}: {err}")))?;
+            let centers_flat = greedy.rbf.centers();
+            let weights_flat = greedy.rbf.weights();
+            let m = greedy.rbf.num_centers();
+            elements.push(ElementRbf {
+                center_samples: greedy.centers.clone(),
+                centers: (0..m)
+                    .map(|i| {
+                        let mut c = [0.0; 6];
+                        c.copy_from_slice(&centers_flat[6 * i..6 * i + 6]);
+                        c
+                    })
+                    .collect(),
+                weights: (0..m)
+                    .map(|i| [weights_flat[2 * i], weights_flat[2 * i + 1]])
+                    .collect(),
+            });
+            let min_lambda = s
+                .iter()
+                .map(|p| p.params.lambda)
+                .fold(f64::INFINITY, f64::min);
+            floors.push(settings.lambda_floor_fraction * min_lambda);
+            histories.push(
+                greedy
+                    .history
+                    .iter()
+                    .map(|h| h.rms_error / mean_lambda)
+                    .collect(),
+            );
+        }
+        let longest = histories.iter().map(Vec::len).max().unwrap_or(0);
+        let curve = (0..longest)
+            .map(|k| {
+                let sum2: f64 = histories
+                    .iter()
+                    .map(|h| {
+                        let v = h[k.min(h.len() - 1)];
+                        v * v
+                    })
+                    .sum();
+                BasisErrorStep {
+                    num_centers: k + 1,
+                    relative_rms_error: (sum2 / histories.len().max(1) as f64).sqrt(),
+                }
+            })
+            .collect();
+        Ok((
+            Self {
+                elements,
+                lambda_floor_pa: floors,
+                nu_bounds: settings.nu_bounds,
+            },
+            curve,
+        ))
+    }
+
+    /// p_e(ε) clamped to the valid region (λ ≥ floor, ν within bounds).
+    pub fn evaluate(&self, element: usize, strain: &Vector6<f64>) -> LinearParams {
+        let s = [
+            strain[0], strain[1], strain[2], strain[3], strain[4], strain[5],
+        ];
+        let [l, a] = self.elements[element].evaluate(&s);
+        let lambda = if l.is_finite() {
+            l.max(self.lambda_floor_pa[element])
+        } else {
+            self.lambda_floor_pa[element]
+        };
+        let nu = if a.is_finite() { a / lambda } else { 0.0 };
+        let nu = nu.clamp(self.nu_bounds.0, self.nu_bounds.1);
+        LinearParams {
+            lambda,
+            alpha: nu * lambda,
+        }
+    }
+
+    /// Mean number of centres per element.
+    pub fn mean_centers(&self) -> f64 {
+        self.elements.iter().map(|e| e.centers.len()).sum::<usize>() as f64
+            / self.elements.len().max(1) as f64
+    }
+
+    /// A corotational model over `mesh` whose parameters follow this material at every
+    /// equilibrium iteration (bickel2009 §3.4).
+    pub fn model(self: &Arc<Self>, mesh: &TetMesh) -> Result<CorotationalModel, FemError> {
+        let zero = Vector6::zeros();
+        let params = (0..mesh.tets.len())
+            .map(|e| self.evaluate(e, &zero))
+            .collect();
+        Ok(CorotationalModel::new(mesh, params)?
+            .with_strain_dependence(self.clone() as Arc<dyn StrainDependentParams>))
+    }
+}
+
+impl StrainDependentParams for StrainSpaceMaterial {
+    fn params(&self, element: usize, strain: &Vector6<f64>) -> LinearParams {
+        self.evaluate(element, strain)
+    }
+}
+
+/// Settings of [`simulate_probe_contact`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ContactSynthesisSettings {
+    /// Load increments of the first approach (bickel2009 §3.4 incremental loading).
+    pub steps: usize,
+    /// Secant iterations on the depth.
+    pub max_depth_iterations: usize,
+    /// Accept when |axial force − target| ≤ this × target.
+    pub force_tolerance_rel: f64,
+    /// First trial depth beyond the first surface contact, m.
+    pub initial_depth_m: f64,
+    /// Equilibrium settings per increment.
+    pub equilibrium: EquilibriumSettings,
+    /// Contact penalty.
+    pub contact: ContactSettings,
+}
+
+impl Default for ContactSynthesisSettings {
+    fn default() -> Self {
+        Self {
+            max_depth_iterations: 12,
+            force_tolerance_rel: 0.01,
+            initial_depth_m: 0.001,
+            // The active set is taken from the first iterations of each increment and then
+            // frozen: with small increments this is the set of nodes the probe reaches, and it
+            // keeps rim nodes from chattering in and out of the penalty field.
+            equilibrium: EquilibriumSettings {
+                max_iterations: 80,
+                displacement_tol_rel: 1e-8,
+                residual_tol_rel: 1e-6,
+                contact_freeze_after: 1,
+                ..EquilibriumSettings::default()
+            },
+            steps: 8,
+            contact: ContactSettings::default(),
+        }
+    }
+}
+
+/// Result of [`simulate_probe_contact`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactSynthesis {
+    /// Final node positions, m.
+    pub positions_m: Vec<Vector3<f64>>,
+    /// Depth of the probe beyond the first contact, m.
+    pub depth_m: f64,
+    /// Axial contact force reached, N.
+    pub axial_force_n: f64,
+    /// Positions after each load increment of the final approach.
+    pub steps_m: Vec<Vec<Vector3<f64>>>,
+    /// Equilibrium status of the last solve.
+    pub status: SolveStatus,
+    /// Depth iterations performed.
+    pub depth_iterations: usize,
+}
+
+/// Synthesis of a novel probe (bickel2009 §3.4): the rigid `tip` approaches along +z of
+/// `world_from_probe` (whose origin is placed on the surface, see below); the probe is advanced
+/// to depth d in `settings.steps` increments with contact (penalty linear force field per
+/// colliding node, [`ContactProblem`]) and the parameters refreshed from the strain at every
+/// iteration (strain-space material, [`ElasticModel::update_state`]); d is found by a secant
+/// search so that the axial contact force equals `axial_force_n`. The pose's origin is first
+/// moved back along the axis to the first boundary node it would touch, so the given pose may
+/// be anywhere on the approach line.
+pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
+    setup: &ProbingSetup,
+    model: &mut M,
+    tip: TipShape,
+    world_from_probe: Isometry3<f64>,
+    axial_force_n: f64,
+    settings: &ContactSynthesisSettings,
+) -> Result<ContactSynthesis, FemError> {
+    if !(axial_force_n.is_finite() && axial_force_n >= 0.0) {
+        return Err(probing_error(format!(
+            "probe force {axial_force_n} N must be finite and non-negative"
+        )));
+    }
+    let probe0 = Probe::new(tip, world_from_probe)?;
+    let axis = probe0.axis_world();
+    let origin = world_from_probe.translation.vector;
+    // Touch point: first boundary node along the approach line within the tip's footprint.
+    let footprint = footprint_radius(probe0.tip());
+    let first = setup
+        .boundary_nodes
+        .iter()
+        .filter_map(|&n| {
+            let d = setup.mesh.vertices[n] - origin;
+            let along = d.dot(&axis);
+            ((d - axis * along).norm() <= footprint).then_some(along)
+        })
+        .fold(f64::INFINITY, f64::min);
+    if !first.is_finite() {
+        return Err(probing_error(
+            "the probe's approach line does not meet the mesh surface",
+        ));
+    }
+    let touch = probe0.advanced(first);
+    let candidates = setup
+        .boundary_nodes
+        .iter()
+        .copied()
+        .filter(|n| setup.attached_nodes.binary_search(n).is_err())
+        .collect::<Vec<_>>();
+    let mut solver = setup.solver(&*model)?;
+    let zero = vec![Vector3::zeros(); setup.mesh.vertices.len()];
+    let bc = setup.dirichlet();
+    let contact_at = |d: f64| ContactProblem {
+        probe: touch.advanced(d),
+        candidate_nodes: candidates.clone(),
+        settings: settings.contact.clone(),
+    };
+    // Moves the probe from depth `from` to `to` in `steps` increments (warm-started from `x`);
+    // returns the axial force at `to` and the status; `path` receives every increment.
+    let mut advance = |x: &mut Vec<Vector3<f64>>,
+                       from: f64,
+                       to: f64,
+                       steps: usize,
+                       path: &mut Vec<Vec<Vector3<f64>>>|
+     -> (f64, SolveStatus) {
+        let mut force = 0.0;
+        for s in 1..=steps.max(1) {
+            let d = from + (to - from) * s as f64 / steps.max(1) as f64;
+            bc.apply(x);
+            let rep = solver.solve(model, x, &zero, Some(&contact_at(d)), &settings.equilibrium);
+            force = rep.contact.axial_force_n;
+            path.push(x.clone());
+            if !rep.converged() {
+                return (force, rep.status);
+            }
+        }
+        (force, SolveStatus::Converged)
+    };
+    let x = setup.mesh.vertices.clone();
+    if axial_force_n == 0.0 {
+        return Ok(ContactSynthesis {
+            positions_m: x,
+            depth_m: 0.0,
+            axial_force_n: 0.0,
+            steps_m: Vec::new(),
+            status: SolveStatus::Converged,
+            depth_iterations: 0,
+        });
+    }
+    // f(d): axial force after incremental loading from rest to depth d (§3.4); secant on d.
+    let mut eval = |d: f64| {
+        let mut xs = setup.mesh.vertices.clone();
+        let mut path = Vec::with_capacity(settings.steps);
+        let (f, st) = advance(&mut xs, 0.0, d, settings.steps, &mut path);
+        (f, st, xs, path)
+    };
+    let (mut d0, mut f0) = (0.0, 0.0);
+    let mut d1 = settings.initial_depth_m;
+    let mut best = eval(d1);
+    let mut iterations = 1;
+    while iterations < settings.max_depth_iterations
+        && (best.0 - axial_force_n).abs() > settings.force_tolerance_rel * axial_force_n
+        && best.1 == SolveStatus::Converged
+    {
+        // Secant on the monotone f(d), safeguarded to at most double / quarter the depth.
+        let f1 = best.0;
+        let slope = (f1 - f0) / (d1 - d0);
+        let d2 = if slope > 0.0 && slope.is_finite() {
+            d1 + (axial_force_n - f1) / slope
+        } else {
+            2.0 * d1
+        };
+        let d2 = d2.clamp(0.25 * d1, 2.0 * d1);
+        (d0, f0, d1) = (d1, f1, d2);
+        best = eval(d1);
+        iterations += 1;
+    }
+    let (force, status, xs, path) = best;
+    Ok(ContactSynthesis {
+        positions_m: xs,
+        depth_m: d1,
+        axial_force_n: force,
+        steps_m: path,
+        status,
+        depth_iterations: iterations,
+    })
+}
+
+/// Radius of the footprint of a tip (disk / sphere / cylinder radius, mesh extent ⟂ z).
+pub fn footprint_radius(tip: &TipShape) -> f64 {
+    match tip {
+        TipShape::Sphere { radius_m } | TipShape::Disk { radius_m, .. } => *radius_m,
+        TipShape::Cylinder {
+            radius_m,
+            half_length_m,
+        } => radius_m.max(*half_length_m),
+        TipShape::Mesh { vertices_m, .. } => vertices_m
+            .iter()
+            .map(|v| v.x.hypot(v.y))
+            .fold(0.0, f64::max),
+    }
+}
+
+/// The world pose of a probe whose leading tip point is `tip_m` and whose approach axis is
+/// `axis` (probe +z ↦ axis).
+pub fn probe_pose(tip_m: &Vector3<f64>, axis: &Vector3<f64>) -> Isometry3<f64> {
+    let rot =
+        nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), axis).unwrap_or_else(|| {
+            nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
+    Isometry3::from_parts(nalgebra::Translation3::from(*tip_m), rot)
+}

@@ -1,0 +1,357 @@
+//! `softcap_fem::probing`: marker Jacobian vs finite differences, recovery of a known homogeneous
+//! material, per-example fits that reduce the marker error on a non-linear (neo-Hookean) truth,
+//! the strain-space material reproducing its samples, and force-controlled contact synthesis.
+
+use softcap_fem::nalgebra::{Vector3, Vector6};
+use softcap_fem::probing::{
+    ContactSynthesisSettings, ExampleFitSettings, HomogeneousFitSettings, ObservedMarker,
+    ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
+    fit_example, fit_homogeneous, marker_jacobian, probe_pose, simulate_probe_contact,
+    support_nodes,
+};
+use softcap_fem::{
+    CorotationalModel, EquilibriumSettings, LinearParams, NeoHookeanModel, NeoHookeanParams,
+    StiffnessKind, TipShape,
+};
+use std::sync::Arc;
+
+/// 30 × 30 × 12 mm block, bottom attached, 7 × 7 markers on the top face.
+fn block() -> (ProbingSetup, Vec<Vector3<f64>>) {
+    block_with([5, 5, 2])
+}
+
+fn block_with(cells: [usize; 3]) -> (ProbingSetup, Vec<Vector3<f64>>) {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.03, 0.012], cells);
+    let mut markers = Vec::new();
+    for i in 0..7 {
+        for j in 0..7 {
+            markers.push(Vector3::new(
+                0.003 + 0.004 * i as f64,
+                0.003 + 0.004 * j as f64,
+                0.012,
+            ));
+        }
+    }
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    (ProbingSetup::new(mesh, &markers, fixed).unwrap(), markers)
+}
+
+fn example(
+    setup: &ProbingSetup,
+    x: &[Vector3<f64>],
+    tip: Vector3<f64>,
+    force_z: f64,
+) -> ProbeExample {
+    let pos = setup.marker_positions(x);
+    ProbeExample {
+        frame: 1,
+        time_s: 0.1,
+        tip_m: tip,
+        axis: -Vector3::z(),
+        force_n: Vector3::new(0.0, 0.0, force_z),
+        observed: pos
+            .iter()
+            .enumerate()
+            .map(|(marker, p)| ObservedMarker {
+                marker,
+                position_m: *p,
+            })
+            .collect(),
+    }
+}
+
+/// Simulates the force BC of `ex` (positions of `ex.observed` are ignored) with `model`.
+fn simulate<M: softcap_fem::ElasticModel>(
+    setup: &ProbingSetup,
+    model: &mut M,
+    ex: &ProbeExample,
+    settings: &EquilibriumSettings,
+) -> Vec<Vector3<f64>> {
+    let patch = setup.patch_nodes(ex, &Default::default());
+    let f = setup.nodal_forces(ex, &patch);
+    let mut solver = setup.solver(&*model).unwrap();
+    let mut x = setup.mesh.vertices.clone();
+    let rep = setup.simulate(&mut solver, model, &mut x, &f, settings);
+    assert!(rep.converged(), "{rep:?}");
+    x
+}
+
+#[test]
+fn marker_jacobian_matches_finite_differences() {
+    let (setup, _) = block();
+    let t = setup.num_elements();
+    let params: Vec<LinearParams> = (0..t)
+        .map(|e| {
+            LinearParams::from_young_poisson(2e4 * (1.0 + 0.3 * ((e * 7) % 5) as f64), 0.3).unwrap()
+        })
+        .collect();
+    let mut model = CorotationalModel::new(&setup.mesh, params.clone()).unwrap();
+    let tip = Vector3::new(0.015, 0.015, 0.012);
+    let probe = example(&setup, &setup.mesh.vertices, tip, -1.5);
+    let tight = EquilibriumSettings {
+        displacement_tol_rel: 1e-13,
+        residual_tol_rel: 1e-12,
+        max_iterations: 200,
+        ..EquilibriumSettings::newton()
+    };
+    let x = simulate(&setup, &mut model, &probe, &tight);
+    let mut solver = setup.solver(&model).unwrap();
+    let rows = marker_jacobian(
+        &setup,
+        &mut solver,
+        &model,
+        &probe,
+        &x,
+        StiffnessKind::Consistent,
+    )
+    .unwrap();
+    assert_eq!(rows.len(), 3 * probe.observed.len());
+    // Central differences on a few parameters (λ and α of tets under and away from the probe).
+    let mut worst: f64 = 0.0;
+    let mut scale: f64 = 0.0;
+    for &param in &[0usize, 1, 2 * (t / 2), 2 * (t / 2) + 1, 2 * (t - 1)] {
+        let h = 1e-4 * params[param / 2].lambda;
+        let mut pp = params.clone();
+        let mut pm = params.clone();
+        if param % 2 == 0 {
+            pp[param / 2].lambda += h;
+            pm[param / 2].lambda -= h;
+        } else {
+            pp[param / 2].alpha += h;
+            pm[param / 2].alpha -= h;
+        }
+        let mut mp = CorotationalModel::new(&setup.mesh, pp).unwrap();
+        let mut mm = CorotationalModel::new(&setup.mesh, pm).unwrap();
+        let xp = setup.marker_positions(&simulate(&setup, &mut mp, &probe, &tight));
+        let xm = setup.marker_positions(&simulate(&setup, &mut mm, &probe, &tight));
+        for (k, o) in probe.observed.iter().enumerate() {
+            for c in 0..3 {
+                let fd = (xp[o.marker][c] - xm[o.marker][c]) / (2.0 * h);
+                let adj = rows[3 * k + c][param];
+                worst = worst.max((fd - adj).abs());
+                scale = scale.max(fd.abs());
+            }
+        }
+    }
+    assert!(scale > 0.0);
+    // Agreement to 1e-5 relative to the largest entry (FD truncation ~ h² ≈ 1e-8).
+    assert!(
+        worst <= 1e-5 * scale,
+        "adjoint vs FD: worst {worst:e}, scale {scale:e}"
+    );
+}
+
+#[test]
+fn homogeneous_fit_recovers_a_known_material() {
+    let (setup, _) = block();
+    let truth = LinearParams::from_young_poisson(4.0e4, 0.35).unwrap();
+    let mut model = CorotationalModel::homogeneous(&setup.mesh, truth).unwrap();
+    let eq = EquilibriumSettings::default();
+    let examples: Vec<ProbeExample> = [(0.012, 0.015, -0.8), (0.018, 0.012, -1.6)]
+        .iter()
+        .map(|&(x, y, fz)| {
+            let tip = Vector3::new(x, y, 0.012);
+            let probe = example(&setup, &setup.mesh.vertices, tip, fz);
+            let xs = simulate(&setup, &mut model, &probe, &eq);
+            example(&setup, &xs, tip, fz)
+        })
+        .collect();
+    let fit = fit_homogeneous(&setup, &examples, &HomogeneousFitSettings::default()).unwrap();
+    let (e, nu) = fit.params.to_young_poisson().unwrap();
+    assert!((e / 4.0e4 - 1.0).abs() < 1e-3, "E = {e}");
+    assert!((nu - 0.35).abs() < 5e-3, "nu = {nu}");
+    assert!(fit.rms_m < 1e-7, "rms {}", fit.rms_m);
+}
+
+#[test]
+fn per_example_fit_of_a_neohookean_truth_beats_the_homogeneous_model() {
+    let (setup, _) = block();
+    // Two-layer non-linear truth: stiffer bottom half.
+    let params: Vec<NeoHookeanParams> = setup
+        .mesh
+        .tets
+        .iter()
+        .map(|t| {
+            let zc = t.iter().map(|&i| setup.mesh.vertices[i].z).sum::<f64>() / 4.0;
+            let e = if zc < 0.006 { 8e4 } else { 2.5e4 };
+            NeoHookeanParams::from_young_poisson(e, 0.4).unwrap()
+        })
+        .collect();
+    let mut truth = NeoHookeanModel::new(&setup.mesh, params).unwrap();
+    let newton = EquilibriumSettings::newton();
+    let tip = Vector3::new(0.015, 0.015, 0.012);
+    let probe = example(&setup, &setup.mesh.vertices, tip, -2.0);
+    let xt = simulate(&setup, &mut truth, &probe, &newton);
+    let ex = example(&setup, &xt, tip, -2.0);
+    let max_disp = setup
+        .marker_positions(&xt)
+        .iter()
+        .zip(&setup.marker_positions(&setup.mesh.vertices))
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(max_disp > 5e-4, "max displacement {max_disp}");
+    let homog = fit_homogeneous(
+        &setup,
+        std::slice::from_ref(&ex),
+        &HomogeneousFitSettings::default(),
+    )
+    .unwrap();
+    let t = setup.num_elements();
+    let fit = fit_example(
+        &setup,
+        &ex,
+        &vec![homog.params; t],
+        &ExampleFitSettings {
+            relative_cost_tolerance: 1e-6,
+            max_iterations: 30,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    eprintln!(
+        "homog {:e} E,nu {:?}; fit {:e} -> {:e} in {} it, costs {:?}",
+        homog.rms_m,
+        homog.params.to_young_poisson(),
+        fit.initial_rms_m,
+        fit.rms_m,
+        fit.iterations,
+        fit.cost_history
+    );
+    assert!(
+        fit.rms_m < 0.5 * homog.rms_m,
+        "fit {:e} vs homogeneous {:e}",
+        fit.rms_m,
+        homog.rms_m
+    );
+    assert!(fit.cost_history.windows(2).all(|w| w[1] < w[0]));
+    for (e, p) in fit.params.iter().enumerate() {
+        p.validate(e).unwrap();
+    }
+}
+
+#[test]
+fn strain_space_material_reproduces_its_samples_and_clamps() {
+    // Two elements with λ growing linearly in ‖ε‖ (a stiffening material).
+    let law = |s: f64| LinearParams {
+        lambda: 1e4 * (1.0 + 10.0 * s),
+        alpha: 3e3 * (1.0 + 10.0 * s),
+    };
+    let samples: Vec<Vec<StrainSample>> = (0..2)
+        .map(|e| {
+            (0..8)
+                .map(|k| {
+                    let s = 0.01 * k as f64 * (1.0 + e as f64);
+                    StrainSample {
+                        strain: [s, -0.4 * s, -0.4 * s, 0.0, 0.0, 0.0],
+                        params: law(s),
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let (mat, curve) = StrainSpaceMaterial::fit(
+        &samples,
+        &StrainBasisSettings {
+            relative_tolerance: 1e-3,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(!curve.is_empty());
+    assert!(curve.last().unwrap().relative_rms_error <= curve[0].relative_rms_error);
+    for (e, s) in samples.iter().enumerate() {
+        for smp in s {
+            let p = mat.evaluate(e, &Vector6::from_column_slice(&smp.strain));
+            assert!(
+                (p.lambda / smp.params.lambda - 1.0).abs() < 0.01,
+                "{p:?} vs {:?}",
+                smp.params
+            );
+        }
+    }
+    // Far outside the samples the clamp keeps the parameters physically valid.
+    let p = mat.evaluate(0, &Vector6::new(-5.0, 5.0, 1.0, 2.0, 0.0, 0.0));
+    p.validate(0).unwrap();
+}
+
+#[test]
+fn contact_synthesis_reaches_the_requested_force() {
+    let (setup, _) = block_with([10, 10, 3]);
+    let model = CorotationalModel::homogeneous(
+        &setup.mesh,
+        LinearParams::from_young_poisson(3e4, 0.4).unwrap(),
+    )
+    .unwrap();
+    let samples: Vec<Vec<StrainSample>> = (0..setup.num_elements())
+        .map(|_| {
+            vec![
+                StrainSample {
+                    strain: [0.0; 6],
+                    params: model.params()[0],
+                },
+                StrainSample {
+                    strain: [0.0, 0.0, -0.1, 0.0, 0.0, 0.0],
+                    params: LinearParams {
+                        lambda: 2.0 * model.params()[0].lambda,
+                        alpha: 2.0 * model.params()[0].alpha,
+                    },
+                },
+            ]
+        })
+        .collect();
+    let (mat, _) = StrainSpaceMaterial::fit(&samples, &StrainBasisSettings::default()).unwrap();
+    let mat = Arc::new(mat);
+    let mut nonlinear = mat.model(&setup.mesh).unwrap();
+    let pose = probe_pose(&Vector3::new(0.015, 0.015, 0.02), &-Vector3::z());
+    let settings = ContactSynthesisSettings::default();
+    let out = simulate_probe_contact(
+        &setup,
+        &mut nonlinear,
+        TipShape::Sphere { radius_m: 0.008 },
+        pose,
+        1.0,
+        &settings,
+    )
+    .unwrap();
+    eprintln!(
+        "contact: depth {} force {} it {} status {:?}",
+        out.depth_m, out.axial_force_n, out.depth_iterations, out.status
+    );
+    assert_eq!(out.status, softcap_fem::SolveStatus::Converged);
+    assert!(
+        (out.axial_force_n - 1.0).abs() <= 0.011,
+        "force {}",
+        out.axial_force_n
+    );
+    assert_eq!(out.steps_m.len(), settings.steps);
+    let mut linear = model.clone();
+    let lin = simulate_probe_contact(
+        &setup,
+        &mut linear,
+        TipShape::Sphere { radius_m: 0.008 },
+        pose,
+        1.0,
+        &settings,
+    )
+    .unwrap();
+    // The stiffening material needs less depth for the same force.
+    assert!(
+        out.depth_m < lin.depth_m,
+        "{} vs {}",
+        out.depth_m,
+        lin.depth_m
+    );
+}
+
+#[test]
+fn probe_pose_maps_z_to_the_axis() {
+    for axis in [
+        -Vector3::z(),
+        Vector3::z(),
+        Vector3::new(1.0, 2.0, -2.0).normalize(),
+    ] {
+        let pose = probe_pose(&Vector3::new(1.0, 2.0, 3.0), &axis);
+        let z = pose.rotation * Vector3::z();
+        assert!((z - axis).norm() < 1e-12, "{z:?} vs {axis:?}");
+    }
+}
