@@ -55,6 +55,9 @@ pub enum FaceError {
     /// An error from a softcap_core solver or interpolator (message kept).
     #[error("softcap_core: {0}")]
     Core(String),
+    /// The MCAP output could not be written.
+    #[error("MCAP output: {0}")]
+    Output(String),
     /// An image could not be written.
     #[error("{path}: {reason}")]
     Image {

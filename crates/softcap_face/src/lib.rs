@@ -13,6 +13,7 @@
 //! | [`render`] | ground-truth wrinkle video: Monte-Carlo ambient occlusion on a 3D height field | test renderer |
 //! | [`synth`] | 3D wrinkle synthesis: camera projection, valley offset, discrete-shell energy by Gauss–Newton | §3.3.1 eq. 3.6 |
 //! | [`removal`] | wrinkle removal preprocess: detail split, bi-Laplacian patch, details back | §3.3.2 |
+//! | [`output`] | stage MCAP: `/face/mesh` per frame, `/face/wrinkles`, `/viz` twins | |
 //! | [`classify`] | per-colour RBF-kernel SVM pixel classification (smartcore) | §4.3.1 |
 //! | [`morphology`] | erosion, dilation, opening, closing, connected components | §4.3.1 |
 //! | [`image`] | [`RgbImage`] (linear float RGB, PNG out) | |
@@ -35,6 +36,7 @@ pub mod image;
 pub mod landmarks;
 pub mod mocap;
 pub mod morphology;
+pub mod output;
 pub mod raster;
 pub mod removal;
 pub mod render;
@@ -53,6 +55,7 @@ pub use image::RgbImage;
 pub use landmarks::{Landmark, derive_landmarks, landmarks_csv, parse_landmarks_csv};
 pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
+pub use output::{FaceFrame, FrameWrinkles, WrinkleInput, wrinkles_message, write_face_mcap};
 pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use removal::{RemovalSettings, remove_wrinkles};
 pub use render::{AoRenderSettings, RenderedFrame, WrinkleScene, render_ambient_occlusion};

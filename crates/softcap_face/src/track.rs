@@ -104,6 +104,10 @@ pub struct TrackSettings {
     pub end_margin_px: f64,
     /// I_obs(m): mean gray of the slab's pixels above this quantile (the unshadowed bulge).
     pub ambient_quantile: f64,
+    /// Fit a scale c of the reference I_obs(m) with (d, w, p₀) (residual ratio − c·F): the
+    /// quantile estimate of I_obs(m) is biased high by image noise (the top of a noisy sample),
+    /// which a shallow wrinkle's small dip cannot absorb without a deeper, wider profile.
+    pub fit_reference_scale: bool,
     /// Horizon search of the 2.5D model.
     pub horizon: HorizonSettings,
     /// Gauss–Newton / LM settings.
@@ -118,6 +122,7 @@ impl Default for TrackSettings {
             section_half_thickness_px: 3.0,
             end_margin_px: 22.0,
             ambient_quantile: 0.9,
+            fit_reference_scale: true,
             horizon: HorizonSettings::default(),
             solver: LevenbergMarquardtSettings {
                 max_iterations: 50,
@@ -162,32 +167,39 @@ struct SectionProblem<'a> {
     p: &'a [f64],
     ratio: &'a [f64],
     horizon: HorizonSettings,
+    /// Whether params[3] is the reference scale c (else c = 1).
+    scale: bool,
 }
 
 impl LeastSquaresProblem for SectionProblem<'_> {
     fn num_params(&self) -> usize {
-        3
+        if self.scale { 4 } else { 3 }
     }
     fn num_residuals(&self) -> usize {
         self.p.len()
     }
     fn residuals(&mut self, params: &[f64], r: &mut [f64]) {
         let (d, w, p0) = (params[0], params[1], params[2]);
+        let c = if self.scale { params[3] } else { 1.0 };
         for k in 0..self.p.len() {
             let p = self.p[k] - p0;
             let h = UnitHorizons::new(p / w, &self.horizon);
-            r[k] = self.ratio[k] - wedge_shading(w, d, p, &h).ratio;
+            r[k] = self.ratio[k] - c * wedge_shading(w, d, p, &h).ratio;
         }
     }
     fn jacobian(&mut self, params: &[f64], j: &mut DMatrix<f64>) -> bool {
         let (d, w, p0) = (params[0], params[1], params[2]);
+        let c = if self.scale { params[3] } else { 1.0 };
         for k in 0..self.p.len() {
             let p = self.p[k] - p0;
             let h = UnitHorizons::new(p / w, &self.horizon);
             let s = wedge_shading(w, d, p, &h);
-            j[(k, 0)] = -s.d_depth;
-            j[(k, 1)] = -s.d_width;
-            j[(k, 2)] = s.d_p;
+            j[(k, 0)] = -c * s.d_depth;
+            j[(k, 1)] = -c * s.d_width;
+            j[(k, 2)] = c * s.d_p;
+            if self.scale {
+                j[(k, 3)] = -s.ratio;
+            }
         }
         true
     }
@@ -222,19 +234,21 @@ pub fn fit_cross_section(
         p,
         ratio,
         horizon: settings.horizon,
+        scale: settings.fit_reference_scale,
     };
-    let bounds = Bounds::new(
+    let (mut lo, mut hi, mut x0) = (
         vec![0.0, 0.3, -2.0],
         vec![f64::INFINITY, f64::INFINITY, 2.0],
-    )
-    .map_err(|e| FaceError::Core(e.to_string()))?;
-    let rep = levenberg_marquardt(
-        &mut problem,
-        &[a0 * w0, w0, 0.0],
-        Some(&bounds),
-        &settings.solver,
-    )
-    .map_err(|e| FaceError::Core(e.to_string()))?;
+        vec![a0 * w0, w0, 0.0],
+    );
+    if settings.fit_reference_scale {
+        lo.push(0.8);
+        hi.push(1.2);
+        x0.push(1.0);
+    }
+    let bounds = Bounds::new(lo, hi).map_err(|e| FaceError::Core(e.to_string()))?;
+    let rep = levenberg_marquardt(&mut problem, &x0, Some(&bounds), &settings.solver)
+        .map_err(|e| FaceError::Core(e.to_string()))?;
     let rms = (2.0 * rep.cost / p.len() as f64).sqrt();
     Ok((
         rep.params[0],

@@ -98,12 +98,12 @@ fn recovers_depth_width_and_valley_from_rendered_frames() {
             100.0 * (mean_d / d - 1.0),
             100.0 * (mean_w / w - 1.0)
         );
-        // Frame 0 (d/w = 0.75) meets the 5 % target; the shallow frame 1 (d/w = 0.4) does not yet
-        // (measured +8.2 % in d, +10.4 % in w: both biased high) and is held to 12 % so a
-        // regression still fails — see docs/face.md, "open items".
-        let tol = if k == 0 { 0.05 } else { 0.12 };
-        assert!((mean_d / d - 1.0).abs() < tol, "mean depth {mean_d}");
-        assert!((mean_w / w - 1.0).abs() < tol, "mean width {mean_w}");
+        // Frame 0 (d/w = 0.75) meets the 5 % target in d and w; the shallow frame 1 (d/w = 0.4)
+        // meets it in d (measured +3.5 %) but not in w (+6.6 %, held to 8 % so a regression still
+        // fails) — see docs/face.md and `tracking_bias.rs` for the causes.
+        let (tol_d, tol_w) = if k == 0 { (0.05, 0.05) } else { (0.05, 0.08) };
+        assert!((mean_d / d - 1.0).abs() < tol_d, "mean depth {mean_d}");
+        assert!((mean_w / w - 1.0).abs() < tol_w, "mean width {mean_w}");
         if k == 0 {
             assert!(worst_d < 0.10, "depth error {worst_d}");
             assert!(worst_w < 0.10, "width error {worst_w}");

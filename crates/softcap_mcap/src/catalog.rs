@@ -72,6 +72,7 @@ impl_softcap_message!(
     LocatedResidual,
     Diagnosis,
     ExtendedModel,
+    FaceWrinkles,
 );
 
 /// A typed channel name: writing or reading through a `Topic<M>` guarantees the channel carries
@@ -166,6 +167,10 @@ pub mod topics {
     pub const EXTENDED_MARKERS: Topic<SimulatedMarkers> = Topic::new("/diagnose/extended_markers");
     /// Diagnose stage report (time 0).
     pub const DIAGNOSE_REPORT: Topic<Report> = Topic::new("/diagnose/report");
+    /// Animated face surface, one message per mocap frame at its time (thesis §3.2), metres.
+    pub const FACE_MESH: Topic<TriMesh> = Topic::new("/face/mesh");
+    /// Wrinkle cross-sections (image and projected world (d, w)), one message per frame.
+    pub const FACE_WRINKLES: Topic<FaceWrinkles> = Topic::new("/face/wrinkles");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -284,5 +289,17 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.Report",
         is_static: true,
         units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/face/mesh",
+        schema: "softcap.TriMesh",
+        is_static: false,
+        units: "positions m",
+    },
+    ChannelInfo {
+        topic: "/face/wrinkles",
+        schema: "softcap.FaceWrinkles",
+        is_static: false,
+        units: "valley/d/w px; d, w, valley m",
     },
 ];

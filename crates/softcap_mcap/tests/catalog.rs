@@ -59,6 +59,11 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.SimulatedMarkers",
         ),
         (topics::DIAGNOSE_REPORT.name().to_string(), "softcap.Report"),
+        (topics::FACE_MESH.name().to_string(), "softcap.TriMesh"),
+        (
+            topics::FACE_WRINKLES.name().to_string(),
+            "softcap.FaceWrinkles",
+        ),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

@@ -1,16 +1,21 @@
 //! `softcap-face`: thin binary over the softcap_face library.
 //!
 //! - `softcap-face landmarks --mocap TAKE.csv --face NEUTRAL.obj -o TABLE.csv`
+//! - `softcap-face run --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv [--frames 0,150]
+//!   [--stride N] [--wrinkles WRINKLES.json] -o face.mcap` (the stage output, `docs/formats.md`)
 //! - `softcap-face animate --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv --frames 0,120,390 --out DIR`
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use softcap_face::{
     FaceAnimator, OrthoView, derive_landmarks, landmarks_csv, parse_landmarks_csv,
     read_animface_csv, render_mesh,
+};
+use softcap_face::{
+    FaceFrame, SynthesisSettings, WrinkleInput, synthesize_wrinkles, write_face_mcap,
 };
 use softcap_mesh::nalgebra::Vector3;
 use softcap_mesh::shell::ShellSettings;
@@ -39,6 +44,28 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Animate the scan with a mocap take (and synthesize tracked wrinkles) into face.mcap.
+    Run {
+        #[arg(long)]
+        mocap: PathBuf,
+        #[arg(long)]
+        face: PathBuf,
+        #[arg(long)]
+        landmarks: PathBuf,
+        /// Source frame numbers (default: every `stride`-th frame of the take).
+        #[arg(long, value_delimiter = ',')]
+        frames: Vec<u64>,
+        #[arg(long, default_value_t = 1)]
+        stride: usize,
+        /// Tracked wrinkles and camera (JSON, `softcap_face::WrinkleInput`).
+        #[arg(long)]
+        wrinkles: Option<PathBuf>,
+        /// Length of one scan unit in metres (ICT face: cm).
+        #[arg(long, default_value_t = 0.01)]
+        metres_per_unit: f64,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Animate the scan with a mocap take and render frames to PNG.
     Animate {
         #[arg(long)]
@@ -57,10 +84,49 @@ enum Command {
     },
 }
 
-fn read_face(path: &PathBuf) -> anyhow::Result<softcap_mesh::TriMesh> {
-    let obj =
-        softcap_mesh::read_obj(path).with_context(|| format!("reading {}", path.display()))?;
+/// Bad user input (exit code 2); the message names the file.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct BadInput(String);
+
+fn bad(msg: String) -> anyhow::Error {
+    BadInput(msg).into()
+}
+
+fn read_face(path: &Path) -> anyhow::Result<softcap_mesh::TriMesh> {
+    let obj = softcap_mesh::read_obj(path)
+        .map_err(|e| bad(format!("reading {}: {e}", path.display())))?;
     Ok(obj.to_tri_mesh())
+}
+
+/// The animator of a take, face and landmark table.
+fn animator(
+    mocap: &Path,
+    face: &Path,
+    landmarks: &Path,
+) -> anyhow::Result<(softcap_face::MocapTake, FaceAnimator)> {
+    let take = read_animface_csv(mocap)?;
+    let mesh = read_face(face)?;
+    let text = std::fs::read_to_string(landmarks)
+        .map_err(|e| bad(format!("reading {}: {e}", landmarks.display())))?;
+    let table = parse_landmarks_csv(&text, landmarks)?;
+    let mut handles = Vec::new();
+    for name in &take.names {
+        let Some(row) = table.iter().find(|r| &r.marker == name) else {
+            return Err(bad(format!(
+                "{}: no landmark for marker `{name}`",
+                landmarks.display()
+            )));
+        };
+        handles.push(row.vertex);
+    }
+    let animator = FaceAnimator::new(
+        mesh,
+        handles,
+        &take.positions_cm[0],
+        &ShellSettings::default(),
+    )?;
+    Ok((take, animator))
 }
 
 impl Command {
@@ -75,7 +141,7 @@ impl Command {
                 let take = read_animface_csv(mocap)?;
                 let mesh = read_face(face)?;
                 let Some(n) = take.marker_index(nose) else {
-                    bail!("{}: no marker `{nose}`", mocap.display())
+                    return Err(bad(format!("{}: no marker `{nose}`", mocap.display())));
                 };
                 let rows =
                     derive_landmarks(&take.names, &take.positions_cm[0], &mesh.vertices, n, 30)?;
@@ -83,6 +149,102 @@ impl Command {
                 std::fs::write(&tmp, landmarks_csv(&rows))
                     .with_context(|| format!("writing {}", tmp.display()))?;
                 std::fs::rename(&tmp, output)?;
+                Ok(())
+            }
+            Command::Run {
+                mocap,
+                face,
+                landmarks,
+                frames,
+                stride,
+                wrinkles,
+                metres_per_unit,
+                output,
+            } => {
+                if *stride == 0 {
+                    return Err(bad("--stride must be ≥ 1".into()));
+                }
+                if !(*metres_per_unit > 0.0 && metres_per_unit.is_finite()) {
+                    return Err(bad("--metres-per-unit must be positive".into()));
+                }
+                let input = match wrinkles {
+                    Some(p) => {
+                        let text = std::fs::read_to_string(p)
+                            .map_err(|e| bad(format!("reading {}: {e}", p.display())))?;
+                        let w: WrinkleInput = serde_json::from_str(&text)
+                            .map_err(|e| bad(format!("{}: {e}", p.display())))?;
+                        if w.camera.is_none() && !w.frames.is_empty() {
+                            return Err(bad(format!("{}: wrinkles without a camera", p.display())));
+                        }
+                        w
+                    }
+                    None => WrinkleInput::default(),
+                };
+                let (take, animator) = animator(mocap, face, landmarks)?;
+                let indices: Vec<usize> = if frames.is_empty() {
+                    (0..take.frames.len()).step_by(*stride).collect()
+                } else {
+                    let mut v = Vec::new();
+                    for f in frames {
+                        let Some(t) = take.frames.iter().position(|x| x == f) else {
+                            return Err(bad(format!("{}: no frame {f}", mocap.display())));
+                        };
+                        v.push(t);
+                    }
+                    v
+                };
+                for fw in &input.frames {
+                    if !take.frames.contains(&fw.frame) {
+                        let p = wrinkles.as_ref().map(|p| p.display().to_string());
+                        return Err(bad(format!(
+                            "{}: frame {} is not in {}",
+                            p.unwrap_or_default(),
+                            fw.frame,
+                            mocap.display()
+                        )));
+                    }
+                }
+                let t0 = take.times_s.first().copied().unwrap_or(0.0);
+                let mut out = Vec::with_capacity(indices.len());
+                for t in indices {
+                    let mut vertices = animator.frame(&take.positions_cm[t])?;
+                    let mut wr = Vec::new();
+                    if let (Some(cam), Some(fw)) = (
+                        &input.camera,
+                        input.frames.iter().find(|f| f.frame == take.frames[t]),
+                    ) {
+                        let res = synthesize_wrinkles(
+                            &animator.mesh,
+                            &vertices,
+                            cam,
+                            &fw.wrinkles,
+                            &SynthesisSettings::default(),
+                        )?;
+                        vertices = res.vertices;
+                        wr = fw
+                            .wrinkles
+                            .iter()
+                            .cloned()
+                            .zip(res.projected.into_iter().map(Some))
+                            .collect();
+                    }
+                    out.push(FaceFrame {
+                        frame: take.frames[t],
+                        t_s: take.times_s[t] - t0,
+                        vertices,
+                        wrinkles: wr,
+                    });
+                }
+                let mut provenance =
+                    softcap_mcap::Provenance::new("face", env!("CARGO_PKG_VERSION"))
+                        .with_arguments(std::env::args());
+                for p in [Some(mocap), Some(face), Some(landmarks), wrinkles.as_ref()]
+                    .into_iter()
+                    .flatten()
+                {
+                    provenance.add_input(p)?;
+                }
+                write_face_mcap(output, &provenance, &animator.mesh, &out, *metres_per_unit)?;
                 Ok(())
             }
             Command::Animate {
@@ -93,29 +255,12 @@ impl Command {
                 out,
                 width_px,
             } => {
-                let take = read_animface_csv(mocap)?;
-                let mesh = read_face(face)?;
-                let text = std::fs::read_to_string(landmarks)
-                    .with_context(|| format!("reading {}", landmarks.display()))?;
-                let table = parse_landmarks_csv(&text, landmarks)?;
-                let mut handles = Vec::new();
-                for name in &take.names {
-                    let Some(row) = table.iter().find(|r| &r.marker == name) else {
-                        bail!("{}: no landmark for marker `{name}`", landmarks.display())
-                    };
-                    handles.push(row.vertex);
-                }
-                let animator = FaceAnimator::new(
-                    mesh,
-                    handles,
-                    &take.positions_cm[0],
-                    &ShellSettings::default(),
-                )?;
+                let (take, animator) = animator(mocap, face, landmarks)?;
                 std::fs::create_dir_all(out)?;
                 let (view, h) = OrthoView::fit(&animator.mesh.vertices, *width_px);
                 for f in frames {
                     let Some(t) = take.frames.iter().position(|x| x == f) else {
-                        bail!("{}: no frame {f}", mocap.display())
+                        return Err(bad(format!("{}: no frame {f}", mocap.display())));
                     };
                     let verts = animator.frame(&take.positions_cm[t])?;
                     let img = render_mesh(
@@ -152,15 +297,16 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             let bad_input = e.chain().any(|c| {
-                c.downcast_ref::<softcap_face::FaceError>()
-                    .is_some_and(|f| {
-                        matches!(
-                            f,
-                            softcap_face::FaceError::Parse { .. }
-                                | softcap_face::FaceError::InvalidInput { .. }
-                                | softcap_face::FaceError::Io { .. }
-                        )
-                    })
+                c.is::<BadInput>()
+                    || c.downcast_ref::<softcap_face::FaceError>()
+                        .is_some_and(|f| {
+                            matches!(
+                                f,
+                                softcap_face::FaceError::Parse { .. }
+                                    | softcap_face::FaceError::InvalidInput { .. }
+                                    | softcap_face::FaceError::Io { .. }
+                            )
+                        })
             });
             ExitCode::from(if bad_input { 2 } else { 1 })
         }
