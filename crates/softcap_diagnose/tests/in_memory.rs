@@ -80,16 +80,27 @@ struct Session {
 }
 
 fn session(effect: Effect, oblique: bool) -> Session {
+    session_at(
+        effect,
+        oblique,
+        &[
+            (0.012, 0.012),
+            (0.028, 0.012),
+            (0.012, 0.028),
+            (0.028, 0.028),
+        ],
+    )
+}
+
+fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
     let mut truth_sim = match effect {
         Effect::Stiffer(s) => simulator(20e3 * s),
         _ => simulator(20e3),
     };
-    let locs = [
-        Vector3::new(0.012, 0.012, SIZE[2]),
-        Vector3::new(0.028, 0.012, SIZE[2]),
-        Vector3::new(0.012, 0.028, SIZE[2]),
-        Vector3::new(0.028, 0.028, SIZE[2]),
-    ];
+    let locs: Vec<Vector3<f64>> = xy
+        .iter()
+        .map(|&(x, y)| Vector3::new(x, y, SIZE[2]))
+        .collect();
     let axis = if oblique {
         Vector3::new(0.35, 0.0, -1.0).normalize()
     } else {
@@ -159,7 +170,7 @@ fn session(effect: Effect, oblique: bool) -> Session {
     let mut plastic = vec![Vector3::zeros(); rest_truth.len()];
     let mut slip_max = Vector3::zeros();
     let mut frames = Vec::with_capacity(n);
-    let mut loc_peak = [0.0f64; 4];
+    let mut loc_peak = vec![0.0f64; locs.len()];
     for k in 0..n {
         let probe = (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
             tip_m: tip[k],
@@ -572,4 +583,28 @@ fn write_docs_report() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/diagnose");
     softcap_diagnose::write_report(&dir, &s.rec, &run).unwrap();
     softcap_diagnose::write_json(&dir.join("diagnosis.json"), &run.diagnosis).unwrap();
+}
+
+/// Timing of the full catalog on a 10-location session (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn full_catalog_on_ten_locations_timing() {
+    let xy: Vec<(f64, f64)> = [0.008, 0.016, 0.024, 0.032]
+        .iter()
+        .flat_map(|&x| [0.010, 0.022, 0.032].map(|y| (x, y)))
+        .take(10)
+        .collect();
+    let s = session_at(Effect::SensorLag(0.12), false, &xy);
+    let mut sim = simulator(20e3);
+    let t0 = std::time::Instant::now();
+    let run = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).unwrap();
+    eprintln!(
+        "10 locations, {} frames: {:?}, verdict {}, locations found {}",
+        s.rec.frames.len(),
+        t0.elapsed(),
+        run.diagnosis.verdict,
+        run.segmentation.num_folds()
+    );
+    assert_eq!(run.segmentation.num_folds(), 10);
+    assert_eq!(run.diagnosis.verdict, "sensor-lag");
 }
