@@ -9,6 +9,7 @@
 //! | [`graph`] | handles (farthest points), feature graph, relative-stretch features, WPSD edge weights | §5.4.1, eq. 5.4 |
 //! | [`frames`] | topology, normals, per-vertex local frames (f32, parallel kernels) | §5.4.2, §5.5.2 |
 //! | [`rig`] | [`FaceRig`] (shell basis + graph on a rest face), training examples, run-time [`Animator`] | §5.3, §5.5.2 |
+//! | [`runtime`] | vertex-major f32 run-time layout: truncated basis rows, one-ring normals, fused detail pass | §5.5.2 |
 //! | [`detail`] | PSD / WPSD fits (interpolation, least squares), greedy pose selection, evaluation | eq. 5.2, 5.3, 5.5 |
 //! | [`blend`] | global and local blend-shape baselines | §5.5.1 |
 //! | [`transfer`] | detail transfer by dense correspondence | §5.4.4 |
@@ -42,6 +43,7 @@ pub mod plot;
 pub mod poses;
 pub mod render;
 pub mod rig;
+pub mod runtime;
 pub mod transfer;
 
 pub use blend::{global_blend, local_blend, project_simplex, simplex_least_squares};
@@ -55,8 +57,9 @@ pub use graph::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_ha
 pub use nalgebra;
 pub use poses::{PoseDeltas, PoseRecipe, random_combinations};
 pub use rig::{
-    Animator, FaceRig, RigSettings, large_scale_kernel, shell_for_mesh, subdivide_midpoint,
-    subdivide_rig,
+    Animator, FaceRig, RigSettings, large_scale_kernel, reference_frame, shell_for_mesh,
+    subdivide_midpoint, subdivide_rig,
 };
+pub use runtime::{RuntimeLayout, RuntimeSettings, TruncatedBasis};
 pub use softcap_mesh::{LinearShell, ShellBasis, ShellSettings};
 pub use transfer::{Correspondence, identity_correspondence, transfer_details};

@@ -3,10 +3,11 @@
 //! `d = example − large-scale(example)` in local frames), and the run-time [`Animator`]
 //! (thesis §5.5.2: large-scale kernel, normal update, fine-scale kernel, normal update).
 
-use crate::detail::{DetailModel, Examples};
+use crate::detail::{DetailModel, Examples, Metric};
 use crate::error::{PsdError, Result};
 use crate::frames::{self, BLOCK, Topology};
 use crate::graph::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_handles};
+use crate::runtime::{self, RuntimeLayout, RuntimeSettings};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -206,102 +207,132 @@ pub fn large_scale_kernel(
 }
 
 /// Run-time synthesis (thesis §5.5.2): handle positions → detailed positions and normals.
-/// Buffers are allocated once; each frame runs four parallel kernels.
+/// The vertex-major layout ([`RuntimeLayout`], truncated basis rows) and all buffers are built
+/// once; a frame runs three parallel passes (large scale; normal + frame + WPSD detail; normals)
+/// and allocates nothing.
 #[derive(Debug)]
 pub struct Animator<'a> {
     rig: &'a FaceRig,
     model: &'a DetailModel,
+    /// The run-time data.
+    pub layout: RuntimeLayout,
     /// Final positions of the last frame.
     pub positions: Vec<[f32; 3]>,
     /// Final unit normals of the last frame.
     pub normals: Vec<[f32; 3]>,
     large: Vec<[f32; 3]>,
-    face_normals: Vec<[f32; 3]>,
     features: Vec<f64>,
     g: Vec<f32>,
-    uh: Vec<[f32; 3]>,
+    global_r: Vec<f32>,
+    uh: Vec<f32>,
 }
 
 impl<'a> Animator<'a> {
-    /// Prepare buffers for `rig` with detail `model`.
+    /// Prepare buffers for `rig` with detail `model` and default [`RuntimeSettings`].
     pub fn new(rig: &'a FaceRig, model: &'a DetailModel) -> Result<Self> {
+        Self::with_settings(rig, model, &RuntimeSettings::default())
+    }
+
+    /// Prepare buffers with explicit run-time settings (basis truncation).
+    pub fn with_settings(
+        rig: &'a FaceRig,
+        model: &'a DetailModel,
+        settings: &RuntimeSettings,
+    ) -> Result<Self> {
+        let layout = RuntimeLayout::new(rig, model, settings)?;
         let n = rig.num_vertices();
-        if model.num_vertices() != n {
-            return Err(PsdError::SizeMismatch {
-                what: "detail-model vertices",
-                expected: n,
-                got: model.num_vertices(),
-            });
-        }
-        if model.num_features != rig.graph.len() {
-            return Err(PsdError::SizeMismatch {
-                what: "feature edges",
-                expected: rig.graph.len(),
-                got: model.num_features,
-            });
-        }
+        let p = model.num_poses();
         Ok(Self {
             rig,
             model,
+            layout,
             positions: vec![[0.0; 3]; n],
             normals: vec![[0.0; 3]; n],
             large: vec![[0.0; 3]; n],
-            face_normals: vec![[0.0; 3]; rig.topology.triangles.len()],
             features: vec![0.0; rig.graph.len()],
-            g: Vec::new(),
-            uh: vec![[0.0; 3]; rig.handles.len()],
+            g: Vec::with_capacity(rig.graph.len() * p),
+            global_r: vec![0.0; p],
+            uh: vec![0.0; 3 * rig.handles.len()],
         })
+    }
+
+    /// Large-scale positions of the last frame (before details).
+    pub fn large_scale_positions(&self) -> &[[f32; 3]] {
+        &self.large
     }
 
     /// Synthesize one frame from handle positions (`H` entries).
     pub fn frame(&mut self, handle_positions: &[Vector3<f64>]) -> Result<()> {
         let rig = self.rig;
-        if handle_positions.len() != rig.handles.len() {
+        let h = rig.handles.len();
+        if handle_positions.len() != h {
             return Err(PsdError::SizeMismatch {
                 what: "handle positions",
-                expected: rig.handles.len(),
+                expected: h,
                 got: handle_positions.len(),
             });
         }
-        for ((u, &v), p) in self.uh.iter_mut().zip(&rig.handles).zip(handle_positions) {
+        for (k, (&v, p)) in rig.handles.iter().zip(handle_positions).enumerate() {
             let d = p - rig.rest[v];
-            *u = [d.x as f32, d.y as f32, d.z as f32];
+            self.uh[k] = d.x as f32;
+            self.uh[h + k] = d.y as f32;
+            self.uh[2 * h + k] = d.z as f32;
         }
         rig.graph.features(handle_positions, &mut self.features);
         self.model
             .squared_feature_differences(&self.features, &mut self.g);
-        // 1. large-scale kernel
-        large_scale_kernel(&rig.basis, &rig.rest_f32, &self.uh, &mut self.large);
-        // 2. normals of the large-scale surface
-        frames::face_normals(&rig.topology, &self.large, &mut self.face_normals);
-        frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
-        // 3. fine-scale kernel: x = x_large + R_v d_v(f)
-        let (large, normals, g, model, topo) = (
+        let global = matches!(self.model.metric, Metric::Global);
+        if global {
+            let p = self.model.num_poses();
+            for (j, r) in self.global_r.iter_mut().enumerate() {
+                *r = (0..self.model.num_features)
+                    .map(|i| self.g[i * p + j])
+                    .sum::<f32>()
+                    .sqrt();
+            }
+        }
+        runtime::large_scale_pass(&self.layout, &self.uh, &mut self.large);
+        runtime::detail_pass(
+            &self.layout,
             &self.large,
-            &self.normals,
             &self.g,
-            self.model,
-            &rig.topology,
+            global.then_some(&self.global_r[..]),
+            &mut self.positions,
         );
-        self.positions
-            .par_chunks_mut(BLOCK)
-            .enumerate()
-            .for_each(|(b, chunk)| {
-                let first = b * BLOCK;
-                model.evaluate_rows(g, first, chunk);
-                for (k, o) in chunk.iter_mut().enumerate() {
-                    let v = first + k;
-                    let fr = frames::local_frame(topo, large, normals[v], v);
-                    let w = frames::to_world(&fr, *o);
-                    let x = large[v];
-                    *o = [x[0] + w[0], x[1] + w[1], x[2] + w[2]];
-                }
-            });
-        // 4. normals of the detailed surface
-        frames::face_normals(&rig.topology, &self.positions, &mut self.face_normals);
-        frames::vertex_normals(&rig.topology, &self.face_normals, &mut self.normals);
+        runtime::normal_pass(&self.layout, &self.positions, &mut self.normals);
         Ok(())
     }
+}
+
+/// Dense reference synthesis of one frame (thesis §5.5.2, no truncation): `x0 + B·u_H` with the
+/// full basis, face → vertex normals, local frames, details (eq. 5.3–5.5), final normals.
+/// Returns `(positions, normals)`; used to measure the run-time layout's error.
+pub fn reference_frame(
+    rig: &FaceRig,
+    model: &DetailModel,
+    handle_positions: &[Vector3<f64>],
+) -> Result<(Vec<[f32; 3]>, Vec<[f32; 3]>)> {
+    if handle_positions.len() != rig.handles.len() {
+        return Err(PsdError::SizeMismatch {
+            what: "handle positions",
+            expected: rig.handles.len(),
+            got: handle_positions.len(),
+        });
+    }
+    let (large, large_n) = rig.large_scale(handle_positions);
+    let d = model.evaluate(&rig.features(handle_positions));
+    let x: Vec<[f32; 3]> = (0..large.len())
+        .map(|v| {
+            let fr = frames::local_frame(&rig.topology, &large, large_n[v], v);
+            let w = frames::to_world(&fr, d[v]);
+            [large[v][0] + w[0], large[v][1] + w[1], large[v][2] + w[2]]
+        })
+        .collect();
+    let mut fnrm = vec![[0.0f32; 3]; rig.topology.triangles.len()];
+    frames::face_normals(&rig.topology, &x, &mut fnrm);
+    let mut nrm = vec![[0.0f32; 3]; x.len()];
+    frames::vertex_normals(&rig.topology, &fnrm, &mut nrm);
+    Ok((x, nrm))
 }
 
 /// One level of midpoint (1→4) subdivision; returns the new mesh and, per new vertex, its two
