@@ -1,6 +1,7 @@
 //! Hertz contact: a rigid sphere (R = 1) indenting a large elastic block (quarter model with
-//! symmetry planes x = 0, y = 0, block 16 × 16 × 16 with a clamped base, mesh h = 0.025 under the
-//! probe graded ×2 outwards) must follow F = (4/3) E* √R d^{3/2}, E* = E/(1 − ν²), within 5 % for
+//! symmetry planes x = 0, y = 0, block 16 × 16 × 16 with a clamped base; graded structured Kuhn-tet
+//! mesh, h = 0.025 up to 0.15 from the contact point in x, y and depth, then cells growing ×1.3 up
+//! to 2 and ×2 beyond, 63,888 tets) must follow F = (4/3) E* √R d^{3/2}, E* = E/(1 − ν²), within 5 % for
 //! d ≪ R (Johnson, Contact Mechanics, §4.2). The exact sphere (Sneddon) differs from the Hertz
 //! paraboloid by < 0.5 % up to a/R = 0.2, the deepest case here.
 //!
@@ -18,9 +19,32 @@ const R: f64 = 1.0;
 const E: f64 = 1.0;
 const NU: f64 = 0.3;
 
+/// Coordinates 0..=fine_len at spacing h0, then spacing growing ×ratio per cell up to `switch`,
+/// then ×ratio2 per cell up to ≥ total (clipped to total).
+fn two_rate_line(
+    h0: f64,
+    fine_len: f64,
+    ratio: f64,
+    switch: f64,
+    ratio2: f64,
+    total: f64,
+) -> Vec<f64> {
+    let n = (fine_len / h0).round() as usize;
+    let mut c: Vec<f64> = (0..=n).map(|i| i as f64 * h0).collect();
+    let mut h = h0;
+    let mut last = c[n];
+    while last < total - 1e-12 {
+        h *= if last < switch { ratio } else { ratio2 };
+        last = (last + h).min(total);
+        c.push(last);
+    }
+    c
+}
+
 #[test]
 fn sphere_indentation_follows_hertz() {
-    let xs = common::graded_line(0.025, 0.25, 2.0, 16.0);
+    let h0 = 0.025;
+    let xs = two_rate_line(h0, 0.15, 1.3, 2.0, 2.0, 16.0);
     let zs: Vec<f64> = xs.iter().rev().map(|z| -z).collect();
     let mesh = common::graded_box(&xs, &xs, &zs);
     let mut model =
@@ -45,7 +69,7 @@ fn sphere_indentation_follows_hertz() {
     let mut solver = StaticSolver::with_bc(&model, &bc).unwrap();
     let e_star = E / (1.0 - NU * NU);
     println!(
-        "Hertz, quarter model: {} tets, {} nodes, quarter block {} x {} x {}, h = 0.025 under the probe, R = {R}, E = {E}, nu = {NU}",
+        "Hertz, quarter model: {} tets, {} nodes, quarter block {} x {} x {}, h = {h0} under the probe, R = {R}, E = {E}, nu = {NU}",
         mesh.tets.len(),
         mesh.vertices.len(),
         xs.last().unwrap(),
@@ -60,7 +84,7 @@ fn sphere_indentation_follows_hertz() {
     let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
     let mut x = mesh.vertices.clone();
     let mut results = Vec::new();
-    for d in [0.01, 0.02, 0.04] {
+    for d in [0.01, 0.04] {
         let probe = Probe::new(
             TipShape::Sphere { radius_m: R },
             Isometry3::from_parts(Translation3::new(0.0, 0.0, -d), down),
@@ -99,7 +123,7 @@ fn sphere_indentation_follows_hertz() {
         let a = (R * d).sqrt();
         println!(
             "| {d} | {a:.3} | {:.1} | {force:.5e} | {hertz:.5e} | {:+.2} % | {} | {} |",
-            a / 0.025,
+            a / h0,
             100.0 * err,
             rep.contact.patch_nodes.len(),
             rep.iterations
@@ -108,7 +132,7 @@ fn sphere_indentation_follows_hertz() {
         assert!((rep.contact.probe_reaction_n + rep.contact.contact_force_n).norm() < 1e-15);
         results.push((d, force, err));
     }
-    let slope = (results[2].1 / results[0].1).ln() / (results[2].0 / results[0].0).ln();
+    let slope = (results[1].1 / results[0].1).ln() / (results[1].0 / results[0].0).ln();
     println!("log-log slope F(d) over d = 0.01 .. 0.04: {slope:.3} (Hertz 1.5)");
     for (_, _, err) in &results {
         assert!(err.abs() < 0.05, "Hertz error {err}");
