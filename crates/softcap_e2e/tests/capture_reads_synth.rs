@@ -166,8 +166,15 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
                 a.force_max_n
             );
         } else {
+            // Capture's force is the FSR magnitude along the shaft; under the anisotropic block the
+            // disk's rim also takes a lateral reaction, which that model cannot see.
+            let bound = if scenario.has(Effect::Anisotropy) {
+                0.08
+            } else {
+                0.03
+            };
             assert!(
-                a.force_rms_n < 0.03 * a.force_max_n,
+                a.force_rms_n < bound * a.force_max_n,
                 "{}: force RMS {:.4} N vs max {:.3} N",
                 scenario.name,
                 a.force_rms_n,

@@ -485,6 +485,10 @@ pub struct EffectSettings {
     pub clock_extra_offset_s: f64,
     /// gravity-preload: gravity, m/s² (world frame).
     pub gravity_m_s2: [f64; 3],
+    /// anisotropy: fibre direction (world).
+    pub anisotropy_fibre: [f64; 3],
+    /// anisotropy: fibre / transverse Young's modulus ratio.
+    pub anisotropy_fibre_ratio: f64,
     /// gravity-preload: Young's modulus used instead of `material.young_pa` (a softer object
     /// sags visibly), Pa.
     pub gravity_young_pa: f64,
@@ -498,6 +502,8 @@ impl Default for EffectSettings {
             clock_extra_offset_s: 0.137,
             gravity_m_s2: [0.0, 0.0, -9.81],
             gravity_young_pa: 4_000.0,
+            anisotropy_fibre: [1.0, 0.0, 0.0],
+            anisotropy_fibre_ratio: 5.0,
         }
     }
 }

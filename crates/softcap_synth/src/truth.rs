@@ -17,9 +17,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use softcap_fem::element::{Matrix12, StiffnessKind, TetGeometry};
 use softcap_fem::{
-    ContactProblem, ContactSettings, ElasticModel, EquilibriumSettings, NeoHookeanParams, Probe,
-    StaticSolver, TipShape, neohookean_energy, neohookean_forces, neohookean_tangent,
-    tet_geometries,
+    AnisotropicModel, ContactProblem, ContactSettings, ElasticModel, EquilibriumSettings,
+    NeoHookeanParams, Probe, StaticSolver, TipShape, TransverselyIsotropicParams,
+    neohookean_energy, neohookean_forces, neohookean_tangent, tet_geometries,
 };
 use softcap_mesh::{TetEmbedding, TetLocator, TetMesh, box_tet_mesh};
 
@@ -337,6 +337,24 @@ pub fn truth_model(s: &Scenario, mesh: &TetMesh) -> Result<TruthModel> {
     TruthModel::new(mesh, params, vec![c2; mesh.tets.len()])
 }
 
+/// Anisotropy truth: `softcap_fem::AnisotropicModel` (transversely isotropic corotational element,
+/// thesis eq. 8.5) with fibres along `effect_settings.anisotropy_fibre`; transverse modulus E and
+/// Poisson ratio ν_t = min(ν, 0.4), fibre modulus `anisotropy_fibre_ratio` · E, fibre Poisson
+/// ratio 0.1, fibre shear modulus E / (2 (1 + ν_t)).
+pub fn anisotropic_model(s: &Scenario, mesh: &TetMesh) -> Result<AnisotropicModel> {
+    let e = s.material.young_pa;
+    let nt = s.material.poisson.min(0.4);
+    let p = TransverselyIsotropicParams::from_engineering(
+        e,
+        s.effect_settings.anisotropy_fibre_ratio * e,
+        nt,
+        0.1,
+        e / (2.0 * (1.0 + nt)),
+    )?;
+    let fibre = nalgebra::Unit::new_normalize(Vector3::from(s.effect_settings.anisotropy_fibre));
+    Ok(AnisotropicModel::homogeneous(mesh, p, fibre)?)
+}
+
 /// Seeded probe locations on the top face (or the scenario's explicit list), m.
 pub fn probe_locations(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
     if !s.protocol.locations_mm.is_empty() {
@@ -488,14 +506,13 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             Effect::Viscoelasticity
                 | Effect::Plasticity
                 | Effect::SupportSlip
-                | Effect::Anisotropy
                 | Effect::InertiaDamping
                 | Effect::ProbeFriction
         ) {
             return Err(SynthError::Unsupported {
                 scenario: s.name.clone(),
                 message: format!(
-                    "effect {} needs softcap_fem support (femdyn / feminel APIs) that is not on main yet",
+                    "effect {} is not wired into the virtual rig yet (needs the softcap_fem dynamics / plasticity / friction / support APIs)",
                     e.name()
                 ),
             });
@@ -505,16 +522,25 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     let frames_spec = schedule(s, &block, rng);
     let probe_geom = ProbeGeometry::new(s);
     let mesh = &block.truth_mesh;
-    let mut model = truth_model(s, mesh)?;
+    let truth_nh = truth_model(s, mesh)?;
     let inclusion_elements = if s.has(Effect::StiffInclusion) {
-        let base = model
+        let base = truth_nh
             .params
             .iter()
             .map(|p| p.mu)
             .fold(f64::INFINITY, f64::min);
-        model.params.iter().filter(|p| p.mu > base * 1.0001).count()
+        truth_nh
+            .params
+            .iter()
+            .filter(|p| p.mu > base * 1.0001)
+            .count()
     } else {
         0
+    };
+    let mut model: Box<dyn ElasticModel> = if s.has(Effect::Anisotropy) {
+        Box::new(anisotropic_model(s, mesh)?)
+    } else {
+        Box::new(truth_nh)
     };
 
     // Support: the bottom face bonded to the table.
@@ -524,7 +550,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             bc.fix_node(i, *v);
         }
     }
-    let mut solver = StaticSolver::with_bc(&model, &bc)?;
+    let mut solver = StaticSolver::with_bc(&*model, &bc)?;
     let top = block.top_m();
     let candidates: Vec<usize> = (0..mesh.vertices.len())
         .filter(|&i| mesh.vertices[i].z >= top - 1e-12)
@@ -558,7 +584,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                 .iter()
                 .map(|f| f * (k as f64 / steps as f64))
                 .collect();
-            let rep = solver.solve(&mut model, &mut x, &f, None, &settings);
+            let rep = solver.solve(&mut *model, &mut x, &f, None, &settings);
             if !rep.converged() {
                 return Err(SynthError::Simulation {
                     frame: 0,
@@ -624,7 +650,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                         settings: contact_settings.clone(),
                     };
                     let mut rep =
-                        solver.solve(&mut model, &mut x, &f_ext, Some(&problem), &settings);
+                        solver.solve(&mut *model, &mut x, &f_ext, Some(&problem), &settings);
                     // The active set is frozen late in the iterations; re-solve from the
                     // converged state until no node of the patch is held in tension.
                     for _ in 0..4 {
@@ -637,7 +663,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                         {
                             break;
                         }
-                        rep = solver.solve(&mut model, &mut x, &f_ext, Some(&problem), &settings);
+                        rep = solver.solve(&mut *model, &mut x, &f_ext, Some(&problem), &settings);
                     }
                     if !rep.converged() {
                         ok = false;

@@ -398,6 +398,10 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
                 s.material.inclusion.stiffness_ratio,
                 truth.inclusion_elements
             ),
+            Effect::Anisotropy => format!(
+                "- anisotropy: transversely isotropic corotational truth (softcap_fem::AnisotropicModel, thesis eq. 8.5), fibres along {:?}, fibre/transverse modulus ratio {}.",
+                es.anisotropy_fibre, es.anisotropy_fibre_ratio
+            ),
             Effect::StrainStiffening => format!(
                 "- strain-stiffening: Yeoh term c2 (I_C - 3)^2 with c2 = {} mu.",
                 s.material.stiffening.c2_over_mu
