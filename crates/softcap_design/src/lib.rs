@@ -10,6 +10,7 @@
 //! | [`model`] | corotational composite model with per-element E(p(ε)) | §8.2 |
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
 //! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
+//! | [`output`] | design / target JSON, force–displacement PNG | |
 //! | [`rubber`] | the invariant model fitted to Treloar uniaxial + Kawabata biaxial rubber data at once | eq. 8.1–8.2, §8.3 |
 //! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |
 //!
@@ -35,6 +36,7 @@ pub mod experiment;
 pub mod fit;
 pub mod material;
 pub mod model;
+pub mod output;
 pub mod rubber;
 pub mod search;
 
@@ -56,6 +58,7 @@ pub use material::{
     strain_invariants, strain_tensor,
 };
 pub use model::CompositeModel;
+pub use output::{DesignTarget, plot_force_displacement, read_json, write_json};
 pub use rubber::{
     DataSetError, RubberFitReport, RubberFitSettings, RubberPoint, fit_rubber, nominal_stress,
     read_biaxial, read_uniaxial, rubber_errors,

@@ -1,0 +1,287 @@
+//! `softcap-design`: base-material library, targets, goal-based design search (thesis ch. 8).
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use softcap_design::*;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "softcap-design",
+    about = "Materials with desired deformation behaviour (thesis ch. 8)"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Write the reference library of nine known non-linear base materials (JSON).
+    Library {
+        /// Output JSON.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Fit the invariant material to uniaxial + biaxial rubber tables at once.
+    FitRubber {
+        /// Treloar-style CSV: stretch,nominal_stress_mpa.
+        #[arg(long)]
+        uniaxial: PathBuf,
+        /// Kawabata-style CSV: stretch1,stretch2,nominal_stress1_mpa,nominal_stress2_mpa.
+        #[arg(long)]
+        biaxial: PathBuf,
+        /// Output material JSON.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Simulate a layered design and write it as a target (force–displacement examples).
+    Target {
+        /// Base-material library JSON.
+        #[arg(long)]
+        materials: PathBuf,
+        /// Material per layer, bottom first, e.g. 0,3,5,1,2.
+        #[arg(long, value_delimiter = ',')]
+        design: Vec<usize>,
+        /// Output target JSON.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Branch-and-bound search for the design matching a target (thesis §8.4).
+    Search {
+        /// Base-material library JSON.
+        #[arg(long)]
+        materials: PathBuf,
+        /// Target JSON (from `target` or hand-made).
+        #[arg(long)]
+        target: PathBuf,
+        /// Output folder: design.json, curves.png.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Clusters K.
+        #[arg(long, default_value_t = 20)]
+        clusters: usize,
+    },
+}
+
+fn settings_for(forces: &[f64], layers: usize) -> CompositeSettings {
+    CompositeSettings {
+        layers,
+        forces_n: forces.to_vec(),
+        ..CompositeSettings::default()
+    }
+}
+
+impl Command {
+    fn run(&self) -> Result<()> {
+        match self {
+            Command::Library { output } => {
+                write_json(output, &reference_library())?;
+                eprintln!(
+                    "wrote {} base materials to {}",
+                    reference_library().len(),
+                    output.display()
+                );
+            }
+            Command::FitRubber {
+                uniaxial,
+                biaxial,
+                output,
+            } => {
+                let u = read_uniaxial(uniaxial)?;
+                let b = read_biaxial(biaxial)?;
+                let rep = fit_rubber(
+                    &[("uniaxial", u.as_slice()), ("biaxial", b.as_slice())],
+                    &RubberFitSettings::default(),
+                )?;
+                for e in &rep.errors {
+                    println!(
+                        "{}: {} values, RMS {:.4} MPa ({:.2} % of max)",
+                        e.name,
+                        e.count,
+                        e.rms_mpa,
+                        100.0 * e.relative
+                    );
+                }
+                write_json(output, &rep)?;
+            }
+            Command::Target {
+                materials,
+                design,
+                output,
+            } => {
+                let mats: Vec<BaseMaterial> = read_json(materials)?;
+                if let Some(&m) = design.iter().find(|&&m| m >= mats.len()) {
+                    return Err(DesignError::Invalid {
+                        field: "--design",
+                        reason: format!("material {m} but the library has {}", mats.len()),
+                    }
+                    .into());
+                }
+                let settings = settings_for(&CompositeSettings::default().forces_n, design.len());
+                let block = Arc::new(LayeredBlock::uniform(&settings)?);
+                let mut sim = CompositeSimulator::new(block, Arc::new(mats), &settings)?;
+                let r = sim.simulate(design)?;
+                write_json(
+                    output,
+                    &DesignTarget {
+                        layers: design.len(),
+                        forces_n: settings.forces_n.clone(),
+                        displacements_m: r.displacements_m,
+                        probe_displacement_m: r.probe_displacement_m,
+                    },
+                )?;
+            }
+            Command::Search {
+                materials,
+                target,
+                output,
+                clusters,
+            } => {
+                let mats: Arc<Vec<BaseMaterial>> = Arc::new(read_json(materials)?);
+                let target_path = target.clone();
+                let target: DesignTarget = read_json(target)?;
+                let settings = settings_for(&target.forces_n, target.layers);
+                let mut ev = ParallelEvaluator::new(mats.clone(), &settings)?;
+                let per_example = ev.block.top_nodes.len() * 3;
+                if target.displacements_m.len() != per_example * target.forces_n.len() {
+                    return Err(DesignError::File {
+                        path: target_path.clone(),
+                        reason: format!(
+                            "displacements_m has {} values, expected {} ({} examples × {} top-node components)",
+                            target.displacements_m.len(),
+                            per_example * target.forces_n.len(),
+                            target.forces_n.len(),
+                            per_example
+                        ),
+                    }
+                    .into());
+                }
+                let search = SearchSettings {
+                    clusters: *clusters,
+                    ..SearchSettings::default()
+                };
+                let t = std::time::Instant::now();
+                let rep = branch_and_bound(
+                    settings.layers,
+                    mats.len(),
+                    &target.displacements_m,
+                    &mut ev,
+                    &search,
+                )?;
+                let seconds = t.elapsed().as_secs_f64();
+                std::fs::create_dir_all(output)
+                    .with_context(|| format!("creating {}", output.display()))?;
+                let mut sim = CompositeSimulator::new(ev.block.clone(), mats, &settings)?;
+                let found = sim.simulate(&rep.design)?;
+                let rms = rms_displacement_error(&found.displacements_m, &target.displacements_m);
+                println!(
+                    "design {:?}: RMS displacement error {:.4} mm, {} designs simulated in {:.1} s",
+                    rep.design,
+                    rms * 1e3,
+                    rep.evaluations,
+                    seconds
+                );
+                #[derive(serde::Serialize)]
+                struct Out<'a> {
+                    design: &'a [usize],
+                    rms_error_m: f64,
+                    search: &'a SearchReport,
+                    predicted_probe_displacement_m: &'a [f64],
+                    seconds: f64,
+                }
+                write_json(
+                    &output.join("design.json"),
+                    &Out {
+                        design: &rep.design,
+                        rms_error_m: rms,
+                        search: &rep,
+                        predicted_probe_displacement_m: &found.probe_displacement_m,
+                        seconds,
+                    },
+                )?;
+                plot_force_displacement(
+                    &output.join("curves.png"),
+                    &format!("design {:?}: RMS {:.4} mm", rep.design, rms * 1e3),
+                    &target.forces_n,
+                    &[
+                        ("target".into(), target.probe_displacement_m.clone()),
+                        (
+                            "found design (predicted)".into(),
+                            found.probe_displacement_m.clone(),
+                        ),
+                    ],
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    match cli.command.run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            let bad_input = e.downcast_ref::<DesignError>().is_some_and(|d| {
+                matches!(
+                    d,
+                    DesignError::File { .. } | DesignError::Io { .. } | DesignError::Invalid { .. }
+                )
+            });
+            ExitCode::from(if bad_input { 2 } else { 1 })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cli_parses_search_and_rejects_missing_args() {
+        let c = Cli::try_parse_from([
+            "softcap-design",
+            "search",
+            "--materials",
+            "m.json",
+            "--target",
+            "t.json",
+            "-o",
+            "out",
+        ])
+        .unwrap();
+        assert!(matches!(c.command, Command::Search { clusters: 20, .. }));
+        let c = Cli::try_parse_from([
+            "softcap-design",
+            "target",
+            "--materials",
+            "m.json",
+            "--design",
+            "0,3,5",
+            "-o",
+            "t.json",
+        ])
+        .unwrap();
+        match c.command {
+            Command::Target { design, .. } => assert_eq!(design, vec![0, 3, 5]),
+            _ => panic!("wrong subcommand"),
+        }
+        assert!(
+            Cli::try_parse_from(["softcap-design", "search", "--materials", "m.json"]).is_err()
+        );
+    }
+}

@@ -1,0 +1,88 @@
+//! `softcap-design` end to end: library → target → search (design.json, curves.png); bad input
+//! exits with 2 naming the file.
+
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_softcap-design"))
+}
+
+#[test]
+fn library_target_search_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let lib = dir.path().join("lib.json");
+    assert!(
+        bin()
+            .args(["library", "-o"])
+            .arg(&lib)
+            .status()
+            .unwrap()
+            .success()
+    );
+    // A 3-material sub-library keeps the test fast (2 layers: 9 designs).
+    let all: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&lib).unwrap()).unwrap();
+    let small = dir.path().join("small.json");
+    std::fs::write(
+        &small,
+        serde_json::to_string(&vec![all[0].clone(), all[3].clone(), all[7].clone()]).unwrap(),
+    )
+    .unwrap();
+    let target = dir.path().join("target.json");
+    let st = bin()
+        .args(["target", "--materials"])
+        .arg(&small)
+        .args(["--design", "2,0", "-o"])
+        .arg(&target)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = dir.path().join("out");
+    let o = bin()
+        .args(["search", "--materials"])
+        .arg(&small)
+        .arg("--target")
+        .arg(&target)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let d: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("design.json")).unwrap()).unwrap();
+    assert_eq!(d["design"], serde_json::json!([2, 0]));
+    assert!(d["rms_error_m"].as_f64().unwrap() < 1e-12);
+    assert!(std::fs::metadata(out.join("curves.png")).unwrap().len() > 1000);
+}
+
+#[test]
+fn bad_target_exits_2_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let lib = dir.path().join("lib.json");
+    assert!(
+        bin()
+            .args(["library", "-o"])
+            .arg(&lib)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let target = dir.path().join("target.json");
+    std::fs::write(
+        &target,
+        "{\"layers\": 5, \"forces_n\": [1.0], \"displacements_m\": [0.0]",
+    )
+    .unwrap();
+    let o = bin()
+        .args(["search", "--materials"])
+        .arg(&lib)
+        .arg("--target")
+        .arg(&target)
+        .arg("-o")
+        .arg(dir.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("target.json"));
+    assert!(!dir.path().join("o").exists());
+}
