@@ -549,3 +549,77 @@ fn provenance_hashes_input_files_and_folders() {
     let err = Provenance::with_input(p, dir.path().join("missing")).unwrap_err();
     assert!(err.to_string().contains("missing"), "{err}");
 }
+
+/// The messages added by the diagnose and face stages (nested messages included) round-trip
+/// through a softcap file exactly.
+#[test]
+fn diagnose_and_face_messages_round_trip() {
+    let number = |key: &str, v: f64, unit: &str| KeyValue {
+        key: key.into(),
+        unit: unit.into(),
+        value: Some(key_value::Value::Number(v)),
+    };
+    let diagnosis = Diagnosis {
+        verdict: "clock-offset".into(),
+        ranked: vec![
+            HypothesisScore {
+                hypothesis: "clock-offset".into(),
+                score: -412.5,
+                heldout_rmse_before_m: 6.47e-5,
+                heldout_rmse_after_m: 8.6e-6,
+                params: vec![number("delta_s", 0.1, "s")],
+                evidence_json: r#"{"time_shift_s":0.1}"#.into(),
+            },
+            HypothesisScore {
+                hypothesis: "none".into(),
+                score: 0.0,
+                heldout_rmse_before_m: 6.47e-5,
+                heldout_rmse_after_m: 6.47e-5,
+                params: vec![],
+                evidence_json: "{}".into(),
+            },
+        ],
+        located: vec![LocatedResidual {
+            region: "probed".into(),
+            phase: "loading".into(),
+            component: "probe-axis".into(),
+            rmse_m: 7.1e-5,
+        }],
+    };
+    let extended = ExtendedModel {
+        hypothesis: "clock-offset".into(),
+        term: "t_force = t_camera - delta".into(),
+        params: vec![number("delta_s", 0.1, "s")],
+        base_material_sha256: "ab".repeat(32),
+    };
+    let wrinkles = FaceWrinkles {
+        frame: 390,
+        wrinkles: vec![Wrinkle {
+            sections: vec![WrinkleSection {
+                valley_u_px: 812.25,
+                valley_v_px: 401.5,
+                depth_px: 1.75,
+                width_px: 6.5,
+                depth_m: 8.0e-4,
+                width_m: 2.1e-3,
+                valley_m: v(0.01, 0.02, 0.1),
+            }],
+        }],
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("stages.mcap");
+    let mut w = Writer::create(&path, &provenance("2026-11-21T22:30:00Z")).unwrap();
+    w.write_static(&topics::DIAGNOSIS, &diagnosis).unwrap();
+    w.write_static(&topics::EXTENDED_MODEL, &extended).unwrap();
+    w.write(&topics::FACE_WRINKLES, 13 * FRAME_NS, &wrinkles)
+        .unwrap();
+    w.finish().unwrap();
+
+    let r = Recording::open(&path).unwrap();
+    assert_eq!(r.read_static(&topics::DIAGNOSIS).unwrap(), diagnosis);
+    assert_eq!(r.read_static(&topics::EXTENDED_MODEL).unwrap(), extended);
+    assert_eq!(
+        r.read(&topics::FACE_WRINKLES).unwrap(),
+        vec![(13 * FRAME_NS, wrinkles)]
+    );
+}
