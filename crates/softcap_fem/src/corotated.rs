@@ -10,10 +10,6 @@
 use crate::element::{Matrix12, TetGeometry};
 use nalgebra::{Matrix3, Vector3};
 
-fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
-}
-
 /// Rotation R, stretch S = sym(RᵀF) and strain ε = S − I of element `geom` at `x`.
 pub(crate) fn kinematics(
     geom: &TetGeometry,
@@ -73,7 +69,7 @@ pub(crate) fn tangent_from_stress(
             let a_mat = m - m.transpose();
             let axial = Vector3::new(a_mat[(2, 1)], a_mat[(0, 2)], a_mat[(1, 0)]);
             let w = sys_inv.map_or_else(Vector3::zeros, |inv| inv * axial);
-            let wm = skew(&w);
+            let wm = w.cross_matrix();
             let de = m - wm * s;
             let de = 0.5 * (de + de.transpose());
             let dp = (r * wm * sigma + r * dsigma(&de)) * geom.volume_m3;

@@ -219,10 +219,6 @@ pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3
     out
 }
 
-fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
-}
-
 /// Consistent tangent ∂f_e/∂x_e of the corotational element (parameters held fixed).
 ///
 /// With P(F) = R σ(ε), ε = sym(RᵀF) − I and F = RS: for a direction dF let M = RᵀdF and
@@ -239,36 +235,7 @@ pub fn corotational_tangent(geom: &TetGeometry, p: &LinearParams, x: &[Vector3<f
     let s = 0.5 * (rtf + rtf.transpose());
     let eps = s - Matrix3::identity();
     let sigma = linear_stress(p, &eps);
-    let sys = Matrix3::identity() * s.trace() - s;
-    let sys_inv = if sys.determinant().abs() > 1e-10 * (1.0 + s.norm().powi(3)) {
-        sys.try_inverse()
-    } else {
-        None
-    };
-    let mut out = Matrix12::zeros();
-    for b in 0..4 {
-        for j in 0..3 {
-            let mut df = Matrix3::zeros();
-            for k in 0..3 {
-                df[(j, k)] = geom.grads[b][k];
-            }
-            let m = r.transpose() * df;
-            let a_mat = m - m.transpose();
-            let axial = Vector3::new(a_mat[(2, 1)], a_mat[(0, 2)], a_mat[(1, 0)]);
-            let w = sys_inv.map_or_else(Vector3::zeros, |inv| inv * axial);
-            let wm = skew(&w);
-            let de = m - wm * s;
-            let de = 0.5 * (de + de.transpose());
-            let dp = (r * wm * sigma + r * linear_stress(p, &de)) * geom.volume_m3;
-            for a in 0..4 {
-                let col = dp * geom.grads[a];
-                for i in 0..3 {
-                    out[(3 * a + i, 3 * b + j)] = col[i];
-                }
-            }
-        }
-    }
-    out
+    crate::corotated::tangent_from_stress(geom, &r, &s, &sigma, |de| linear_stress(p, de), true)
 }
 
 /// ∂f_e/∂λ_e and ∂f_e/∂α_e at fixed rotation: R (V BᵀGB)(Rᵀx − X) and R (V BᵀHB)(Rᵀx − X)

@@ -28,10 +28,6 @@ fn cofactor(f: &Matrix3<f64>) -> Matrix3<f64> {
     Matrix3::from_columns(&[f1.cross(&f2), f2.cross(&f0), f0.cross(&f1)])
 }
 
-fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
-}
-
 /// Energy density Ψ(F) [J/m³].
 pub fn energy_density(p: &NeoHookeanParams, f: &Matrix3<f64>) -> f64 {
     let j = f.determinant();
@@ -58,7 +54,11 @@ pub fn pk1_derivative(p: &NeoHookeanParams, f: &Matrix3<f64>) -> Matrix9 {
         f.column(1).into_owned(),
         f.column(2).into_owned(),
     );
-    let blocks = [(0, 1, -skew(&f2)), (0, 2, skew(&f1)), (1, 2, -skew(&f0))];
+    let blocks = [
+        (0, 1, -f2.cross_matrix()),
+        (0, 2, f1.cross_matrix()),
+        (1, 2, -f0.cross_matrix()),
+    ];
     for (r, c, m) in blocks {
         let m = m * s;
         let mut v = d.fixed_view_mut::<3, 3>(3 * r, 3 * c);

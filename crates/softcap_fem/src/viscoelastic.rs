@@ -342,10 +342,6 @@ impl<M: ElasticModel> ViscoelasticModel<M> {
     }
 }
 
-fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
-}
-
 /// ∂(V R H g_a)/∂x for a fixed H: the rotation-derivative term (dR = R [w]×, w from
 /// (tr S I − S) w = axial(RᵀdF − dFᵀR), as in [`crate::corotational_tangent`]).
 fn rotated_stress_tangent(geom: &TetGeometry, x: &[Vector3<f64>], h: &Matrix3<f64>) -> Matrix12 {
@@ -372,7 +368,7 @@ fn rotated_stress_tangent(geom: &TetGeometry, x: &[Vector3<f64>], h: &Matrix3<f6
             let m = r.transpose() * df;
             let am = m - m.transpose();
             let w = sys_inv * Vector3::new(am[(2, 1)], am[(0, 2)], am[(1, 0)]);
-            let dp = r * skew(&w) * h * geom.volume_m3;
+            let dp = r * w.cross_matrix() * h * geom.volume_m3;
             for a in 0..4 {
                 let col = dp * geom.grads[a];
                 for i in 0..3 {
