@@ -108,6 +108,13 @@ pub struct TrackSettings {
     /// quantile estimate of I_obs(m) is biased high by image noise (the top of a noisy sample),
     /// which a shallow wrinkle's small dip cannot absorb without a deeper, wider profile.
     pub fit_reference_scale: bool,
+    /// σ_p: uncertainty of a sample's distance to the valley (pixels) in the effective-variance
+    /// weights (0 = unweighted, the thesis's plain least squares).
+    pub position_sigma_px: f64,
+    /// σ_I: noise of an intensity ratio in the effective-variance weights.
+    pub ratio_sigma: f64,
+    /// Gauss–Newton runs, the weights re-evaluated at the previous result before each.
+    pub reweight_passes: usize,
     /// Horizon search of the 2.5D model.
     pub horizon: HorizonSettings,
     /// Gauss–Newton / LM settings.
@@ -123,6 +130,9 @@ impl Default for TrackSettings {
             end_margin_px: 22.0,
             ambient_quantile: 0.9,
             fit_reference_scale: true,
+            position_sigma_px: 0.1,
+            ratio_sigma: 0.005,
+            reweight_passes: 2,
             horizon: HorizonSettings::default(),
             solver: LevenbergMarquardtSettings {
                 max_iterations: 50,
@@ -169,6 +179,30 @@ struct SectionProblem<'a> {
     horizon: HorizonSettings,
     /// Whether params[3] is the reference scale c (else c = 1).
     scale: bool,
+    /// Effective-variance weights 1/√(σ_I² + (c ∂F/∂p)² σ_p²), scaled by σ_I.
+    weight: Vec<f64>,
+}
+
+impl SectionProblem<'_> {
+    /// Effective-variance weights at `params` (errors in the abscissa, Orear 1982): a sample's
+    /// residual variance is σ_I² + (∂(cF)/∂p)² σ_p², with σ_p the uncertainty of its distance p
+    /// to the valley. Near the valley kink F rises like √|u| (∂F/∂p → ∞), so those samples
+    /// carry almost no weight: without this a handful of pixels within ~0.1 px of the valley pin
+    /// p₀ between their own positions (each is a cusp of the cost in p₀) and decide (d, w).
+    fn reweight(&mut self, params: &[f64], sigma_ratio: f64, sigma_p_px: f64) {
+        let (d, w, p0) = (params[0], params[1], params[2]);
+        let c = if self.scale { params[3] } else { 1.0 };
+        for k in 0..self.p.len() {
+            // at u = 0 exactly use the one-sided slope next to the kink
+            let mut p = self.p[k] - p0;
+            if p.abs() < 1e-6 * w {
+                p = 1e-6 * w;
+            }
+            let h = UnitHorizons::new(p / w, &self.horizon);
+            let slope = c * wedge_shading(w, d, p, &h).d_p;
+            self.weight[k] = 1.0 / (1.0 + (slope * sigma_p_px / sigma_ratio).powi(2)).sqrt();
+        }
+    }
 }
 
 impl LeastSquaresProblem for SectionProblem<'_> {
@@ -184,7 +218,7 @@ impl LeastSquaresProblem for SectionProblem<'_> {
         for k in 0..self.p.len() {
             let p = self.p[k] - p0;
             let h = UnitHorizons::new(p / w, &self.horizon);
-            r[k] = self.ratio[k] - c * wedge_shading(w, d, p, &h).ratio;
+            r[k] = self.weight[k] * (self.ratio[k] - c * wedge_shading(w, d, p, &h).ratio);
         }
     }
     fn jacobian(&mut self, params: &[f64], j: &mut DMatrix<f64>) -> bool {
@@ -194,11 +228,12 @@ impl LeastSquaresProblem for SectionProblem<'_> {
             let p = self.p[k] - p0;
             let h = UnitHorizons::new(p / w, &self.horizon);
             let s = wedge_shading(w, d, p, &h);
-            j[(k, 0)] = -c * s.d_depth;
-            j[(k, 1)] = -c * s.d_width;
-            j[(k, 2)] = c * s.d_p;
+            let wk = self.weight[k];
+            j[(k, 0)] = -wk * c * s.d_depth;
+            j[(k, 1)] = -wk * c * s.d_width;
+            j[(k, 2)] = wk * c * s.d_p;
             if self.scale {
-                j[(k, 3)] = -s.ratio;
+                j[(k, 3)] = -wk * s.ratio;
             }
         }
         true
@@ -214,27 +249,33 @@ pub fn fit_cross_section(
     ratio: &[f64],
     settings: &TrackSettings,
 ) -> Result<(f64, f64, f64, f64, bool)> {
-    // Start: w from the half-depth width of the dip, d from the darkest ratio via
-    // F(0⁺) = 1/(1 + 4a²).
-    let fmin = ratio
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min)
-        .clamp(0.05, 0.99);
-    let half = 0.5 * (1.0 + fmin);
-    let mut wide: f64 = 0.0;
-    for (&pk, &rk) in p.iter().zip(ratio) {
-        if rk < half {
-            wide = wide.max(pk.abs());
-        }
+    if p.len() != ratio.len() || p.len() < 4 {
+        return Err(FaceError::InvalidInput {
+            what: "cross-section",
+            reason: format!(
+                "{} positions, {} ratios (need ≥ 4 pairs)",
+                p.len(),
+                ratio.len()
+            ),
+        });
     }
-    let w0 = (wide / 0.7).max(1.0);
-    let a0 = ((1.0 / fmin - 1.0) / 4.0).sqrt();
+    if let Some(k) = p
+        .iter()
+        .zip(ratio)
+        .position(|(a, b)| !(a.is_finite() && b.is_finite()))
+    {
+        return Err(FaceError::InvalidInput {
+            what: "cross-section",
+            reason: format!("sample {k} is not finite"),
+        });
+    }
+    let (a0, w0, c0) = grid_start(p, ratio, settings);
     let mut problem = SectionProblem {
         p,
         ratio,
         horizon: settings.horizon,
         scale: settings.fit_reference_scale,
+        weight: vec![1.0; p.len()],
     };
     let (mut lo, mut hi, mut x0) = (
         vec![0.0, 0.3, -2.0],
@@ -244,12 +285,28 @@ pub fn fit_cross_section(
     if settings.fit_reference_scale {
         lo.push(0.8);
         hi.push(1.2);
-        x0.push(1.0);
+        x0.push(c0);
     }
     let bounds = Bounds::new(lo, hi).map_err(|e| FaceError::Core(e.to_string()))?;
-    let rep = levenberg_marquardt(&mut problem, &x0, Some(&bounds), &settings.solver)
-        .map_err(|e| FaceError::Core(e.to_string()))?;
-    let rms = (2.0 * rep.cost / p.len() as f64).sqrt();
+    let mut start = x0;
+    let mut rep = None;
+    for _ in 0..settings.reweight_passes.max(1) {
+        if settings.position_sigma_px > 0.0 {
+            problem.reweight(&start, settings.ratio_sigma, settings.position_sigma_px);
+        }
+        let r = levenberg_marquardt(&mut problem, &start, Some(&bounds), &settings.solver)
+            .map_err(|e| FaceError::Core(e.to_string()))?;
+        start.clone_from(&r.params);
+        rep = Some(r);
+    }
+    let Some(rep) = rep else {
+        return Err(FaceError::Core("no cross-section fit pass ran".into()));
+    };
+    // unweighted RMS of the ratio residuals
+    problem.weight.fill(1.0);
+    let mut res = vec![0.0; p.len()];
+    problem.residuals(&rep.params, &mut res);
+    let rms = (res.iter().map(|r| r * r).sum::<f64>() / p.len() as f64).sqrt();
     Ok((
         rep.params[0],
         rep.params[1],
@@ -257,6 +314,64 @@ pub fn fit_cross_section(
         rms,
         matches!(rep.status, SolverStatus::Converged { .. }),
     ))
+}
+
+/// Global start of the eq. 4.4 fit: the cost over (d, w, p₀, c) has spurious local minima —
+/// the model F(a, u) is not differentiable at the valley kink (u = 0: F jumps from
+/// cos(atan 2a) to 1/(1 + 4a²) and rises like √u), so a Gauss–Newton run from a poor start
+/// (the old half-depth-width guess gave w = 1 px for a shallow d/w = 0.4 wrinkle) stops on a
+/// cusp with 10–50× the cost of the true profile and w biased 3–30 % high. The start is the best
+/// point of a log grid in w × a linear grid in a = d/w at p₀ = 0, with the reference scale c in
+/// closed form (c = Σ r F / Σ F², clamped to its bounds). The horizons depend on u = p/w only
+/// (module docs of [`crate::cross_section`]), so they are searched once per (w, sample) on a
+/// coarse grid and reused for every a. Returns (a, w, c).
+fn grid_start(p: &[f64], ratio: &[f64], settings: &TrackSettings) -> (f64, f64, f64) {
+    const N_W: usize = 28;
+    const N_A: usize = 36;
+    const A_MAX: f64 = 3.5;
+    let coarse = HorizonSettings {
+        range_w: settings.horizon.range_w.min(10.0),
+        step_w: settings.horizon.step_w.max(0.1),
+    };
+    let p_max = p.iter().fold(0.0f64, |m, &x| m.max(x.abs()));
+    let (w_lo, w_hi) = (0.5f64, (p_max / 1.5).max(1.0));
+    let mut best = (f64::INFINITY, 0.0, 1.0, 1.0);
+    let mut model = vec![0.0; p.len()];
+    for iw in 0..N_W {
+        let w = w_lo * (w_hi / w_lo).powf(iw as f64 / (N_W - 1) as f64);
+        let horizons: Vec<UnitHorizons> = p
+            .iter()
+            .map(|&pk| UnitHorizons::new(pk / w, &coarse))
+            .collect();
+        for ia in 1..=N_A {
+            let a = A_MAX * ia as f64 / N_A as f64;
+            for (k, (&pk, h)) in p.iter().zip(&horizons).enumerate() {
+                model[k] = wedge_shading(w, a * w, pk, h).ratio;
+            }
+            let c = if settings.fit_reference_scale {
+                let (num, den) = model
+                    .iter()
+                    .zip(ratio)
+                    .fold((0.0, 0.0), |(n, d), (f, r)| (n + f * r, d + f * f));
+                if den > 0.0 {
+                    (num / den).clamp(0.8, 1.2)
+                } else {
+                    1.0
+                }
+            } else {
+                1.0
+            };
+            let cost: f64 = model
+                .iter()
+                .zip(ratio)
+                .map(|(f, r)| (r - c * f).powi(2))
+                .sum();
+            if cost < best.0 {
+                best = (cost, a, w, c);
+            }
+        }
+    }
+    (best.1, best.2, best.3)
 }
 
 /// Track one wrinkle patch (pixel indices into `image`): PCA, weighted valley spline,
