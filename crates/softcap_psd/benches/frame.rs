@@ -1,7 +1,9 @@
 //! Frame time of the run-time synthesis (thesis §5.5.2, Table 5.1): ICT face (9.4k vertices) and a
-//! midpoint-subdivided face (≈590k vertices), H = 89, F = 243, P = 6 (WPSD).
+//! midpoint-subdivided face (≈590k vertices), H = 89, F = 243, P = 6 (WPSD); and the three
+//! run-time passes of the subdivided face separately (`psd_pass`).
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use softcap_psd::runtime::{self, LANES};
 use softcap_psd::{
     Animator, EvaluationSettings, FitMode, IctData, RigSettings, fit_wpsd, pose_sets, subdivide_rig,
 };
@@ -70,6 +72,43 @@ fn bench(c: &mut Criterion) {
                 anim.frame(black_box(&frames[k])).expect("frame");
             })
         },
+    );
+    group.finish();
+
+    // the passes of one frame on the subdivided face (buffers of the last frame)
+    let mut group = c.benchmark_group("psd_pass");
+    group.sample_size(10);
+    let layout = &anim.layout;
+    let hp = &frames[0];
+    let uh: Vec<[f32; 3]> = fine_rig
+        .handles
+        .iter()
+        .zip(hp)
+        .map(|(&v, p)| {
+            let d = p - fine_rig.rest[v];
+            [d.x as f32, d.y as f32, d.z as f32]
+        })
+        .collect();
+    let n = fine_rig.num_vertices();
+    let mut large = vec![[0.0f32; 3]; n];
+    let mut positions = vec![[0.0f32; 3]; n];
+    let mut normals = vec![[0.0f32; 3]; n];
+    let mut table: Vec<[f32; LANES]> = Vec::new();
+    runtime::feature_table(&fine_model, &fine_rig.features(hp), &mut table);
+    group.bench_function("large_scale", |b| {
+        b.iter(|| runtime::large_scale_pass(layout, black_box(&uh), &mut large))
+    });
+    group.bench_function("normal_frame_detail", |b| {
+        b.iter(|| runtime::detail_pass(layout, black_box(&large), &table, None, &mut positions))
+    });
+    group.bench_function("normals", |b| {
+        b.iter(|| runtime::normal_pass(layout, black_box(&positions), &mut normals))
+    });
+    eprintln!(
+        "subdivided face: {n} vertices, low-rank basis mean rank {:.2} ({:.0} MB), {:.0} MB streamed per frame",
+        layout.basis.mean_rank(),
+        layout.basis.bytes() as f64 / 1e6,
+        layout.bytes_per_frame() as f64 / 1e6
     );
     group.finish();
 }

@@ -35,6 +35,36 @@ pub enum PsdError {
         /// what is wrong
         reason: String,
     },
+    /// An input MCAP recording cannot be opened (missing, truncated, corrupt).
+    #[error("{path}: {reason}")]
+    BadRecording {
+        /// the file
+        path: PathBuf,
+        /// what is wrong
+        reason: String,
+    },
+    /// A message of an input MCAP recording is missing or malformed.
+    #[error("{path}: topic `{topic}`, frame {frame}, field `{field}`: {reason}")]
+    BadMessage {
+        /// the file
+        path: PathBuf,
+        /// the channel
+        topic: String,
+        /// the frame (`-` when not tied to one)
+        frame: String,
+        /// the message field
+        field: String,
+        /// what is wrong
+        reason: String,
+    },
+    /// Writing an output recording failed.
+    #[error("{path}: writing: {reason}")]
+    Output {
+        /// the output
+        path: PathBuf,
+        /// why
+        reason: String,
+    },
     /// Array sizes disagree.
     #[error("{what}: expected {expected}, got {got}")]
     SizeMismatch {

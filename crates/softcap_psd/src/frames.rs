@@ -63,11 +63,11 @@ impl Topology {
 }
 
 #[inline]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 #[inline]
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
         a[2] * b[0] - a[0] * b[2],
@@ -75,11 +75,11 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     ]
 }
 #[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 #[inline]
-fn normalize(a: [f32; 3], fallback: [f32; 3]) -> [f32; 3] {
+pub(crate) fn normalize(a: [f32; 3], fallback: [f32; 3]) -> [f32; 3] {
     let l = dot(a, a).sqrt();
     if l > 1e-20 {
         [a[0] / l, a[1] / l, a[2] / l]
@@ -135,6 +135,14 @@ pub fn local_frame(
         positions[topo.reference_neighbour[v] as usize],
         positions[v],
     );
+    frame_from_edge(e, normal)
+}
+
+/// Orthonormal frame `[t, b, n]` from a unit normal `n` and an edge `e` to the reference
+/// neighbour: `t = normalize(e − (e·n) n)` (any axis not parallel to `n` if `e ∥ n` or `e = 0`),
+/// `b = n × t`. Shared by [`local_frame`] and the run-time detail pass.
+#[inline]
+pub(crate) fn frame_from_edge(e: [f32; 3], normal: [f32; 3]) -> [[f32; 3]; 3] {
     let d = dot(e, normal);
     let tp = [
         e[0] - d * normal[0],

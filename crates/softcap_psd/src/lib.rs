@@ -7,9 +7,10 @@
 //! | module | what | thesis |
 //! |---|---|---|
 //! | [`graph`] | handles (farthest points), feature graph, relative-stretch features, WPSD edge weights | §5.4.1, eq. 5.4 |
+//! | [`animate`] | stage MCAP: handle trajectory (`/capture/markers`) in, `/face/mesh` + `/psd/large_scale` out | §5.5.2 |
 //! | [`frames`] | topology, normals, per-vertex local frames (f32, parallel kernels) | §5.4.2, §5.5.2 |
 //! | [`rig`] | [`FaceRig`] (shell basis + graph on a rest face), training examples, run-time [`Animator`] | §5.3, §5.5.2 |
-//! | [`runtime`] | vertex-major f32 run-time layout: truncated basis rows, one-ring normals, fused detail pass | §5.5.2 |
+//! | [`runtime`] | vertex-major f32 run-time layout: block low-rank basis, one-ring fans, fused detail pass | §5.5.2 |
 //! | [`detail`] | PSD / WPSD fits (interpolation, least squares), greedy pose selection, evaluation | eq. 5.2, 5.3, 5.5 |
 //! | [`blend`] | global and local blend-shape baselines | §5.5.1 |
 //! | [`transfer`] | detail transfer by dense correspondence | §5.4.4 |
@@ -33,6 +34,7 @@
 //! assert_eq!(w.len(), 100);
 //! ```
 
+pub mod animate;
 pub mod blend;
 pub mod detail;
 pub mod error;
@@ -46,6 +48,10 @@ pub mod rig;
 pub mod runtime;
 pub mod transfer;
 
+pub use animate::{
+    AnimateSettings, AnimateSummary, HandleFrame, HandleTrajectory, animate_to_mcap,
+    read_handle_trajectory, write_handle_trajectory,
+};
 pub use blend::{global_blend, local_blend, project_simplex, simplex_least_squares};
 pub use detail::{
     DetailModel, Examples, FitMode, GreedyStep, Method, Metric, fit_psd, fit_wpsd, greedy_selection,
@@ -60,6 +66,6 @@ pub use rig::{
     Animator, FaceRig, RigSettings, large_scale_kernel, reference_frame, shell_for_mesh,
     subdivide_midpoint, subdivide_rig,
 };
-pub use runtime::{RuntimeLayout, RuntimeSettings, TruncatedBasis};
+pub use runtime::{Fans, LowRankBasis, RuntimeLayout, RuntimeSettings};
 pub use softcap_mesh::{LinearShell, ShellBasis, ShellSettings};
 pub use transfer::{Correspondence, identity_correspondence, transfer_details};

@@ -2,8 +2,10 @@
 //!
 //! - `softcap-psd evaluate` — the Fig. 5.5 comparison on the ICT fixture, plot, report, renders
 //!   (source face and detail transfer to the ICT identities).
-//! - `softcap-psd markers` — write a marker (handle) trajectory CSV from held-out poses.
-//! - `softcap-psd animate` — synthesize a detailed face per frame of a marker trajectory.
+//! - `softcap-psd markers` — write a marker (handle) trajectory from held-out poses (CSV, or MCAP
+//!   `/capture/markers` when the output ends in `.mcap`).
+//! - `softcap-psd animate` — synthesize a detailed face per frame of a marker trajectory (CSV or
+//!   MCAP in; OBJ frames or an MCAP with `/face/mesh` + `/psd/large_scale` out).
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -27,9 +29,11 @@ struct Cli {
 enum Command {
     /// Fig. 5.5 comparison (held-out error vs. basis size), renders and transfer.
     Evaluate(EvaluateArgs),
-    /// Write the handle trajectory of held-out poses, blended over time, as CSV.
+    /// Write the handle trajectory of held-out poses, blended over time (CSV, or MCAP if `--out`
+    /// ends in `.mcap`).
     Markers(MarkersArgs),
-    /// Animate the WPSD face over a marker trajectory CSV; writes one OBJ per frame.
+    /// Animate the WPSD face over a marker trajectory (CSV or `.mcap`); writes one OBJ per frame
+    /// or, if `--out` ends in `.mcap`, the stage MCAP.
     Animate(AnimateArgs),
 }
 
@@ -57,7 +61,8 @@ struct MarkersArgs {
     /// Frames between consecutive held-out poses.
     #[arg(long, default_value_t = 10)]
     frames_per_pose: usize,
-    /// Output CSV (frame,handle,x_cm,y_cm,z_cm).
+    /// Output: CSV (frame,handle,x_cm,y_cm,z_cm) or `.mcap` (`/capture/markers`, marker id =
+    /// handle index, metres, 30 frames/s).
     #[arg(long, short)]
     out: PathBuf,
 }
@@ -67,13 +72,14 @@ struct AnimateArgs {
     /// ICT fixture folder (the model is trained on it).
     #[arg(long, default_value = "fixtures/ict-face")]
     fixtures: PathBuf,
-    /// Marker trajectory CSV (frame,handle,x_cm,y_cm,z_cm), one row per handle and frame.
+    /// Marker trajectory: CSV (frame,handle,x_cm,y_cm,z_cm, one row per handle and frame) or
+    /// `.mcap` (`/capture/markers`, marker id = handle index, metres).
     #[arg(long)]
     markers: PathBuf,
     /// Basis size P of the WPSD model (greedy least squares).
     #[arg(long, default_value_t = 6)]
     poses: usize,
-    /// Output folder for frame_NNNN.obj.
+    /// Output: folder for frame_NNNN.obj, or a `.mcap` file (`/face/mesh`, `/psd/large_scale`).
     #[arg(long, short)]
     out: PathBuf,
 }
@@ -105,6 +111,8 @@ fn main() -> ExitCode {
                     Some(
                         PsdError::BadPoseFile { .. }
                             | PsdError::BadMarkerFile { .. }
+                            | PsdError::BadRecording { .. }
+                            | PsdError::BadMessage { .. }
                             | PsdError::Mesh(_)
                             | PsdError::Io { .. }
                     )
@@ -330,30 +338,67 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Frame rate of trajectories written by `markers` (log time = frame / rate).
+const FRAME_RATE_HZ: f64 = 30.0;
+
+fn is_mcap(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+}
+
+fn provenance(inputs: &[&Path], settings: String) -> Result<softcap_mcap::Provenance> {
+    let mut p = softcap_mcap::Provenance::new("psd", env!("CARGO_PKG_VERSION"))
+        .with_arguments(std::env::args())
+        .with_settings(settings);
+    for i in inputs {
+        p.add_input(i)
+            .with_context(|| format!("hashing input {}", i.display()))?;
+    }
+    Ok(p)
+}
+
 impl MarkersArgs {
     fn run(&self) -> Result<()> {
         let data = IctData::load(&self.fixtures)?;
         let settings = EvaluationSettings::default();
         let handles = farthest_point_handles(&data.mesh.vertices, settings.rig.handles);
         let (_, heldout) = pose_sets(&data, &settings);
-        let mut text = String::from("frame,handle,x_cm,y_cm,z_cm\n");
-        let mut frame = 0;
         let fpp = self.frames_per_pose.max(1);
+        let mut trajectory = HandleTrajectory::default();
         for w in heldout.windows(2) {
             let (a, b) = (data.pose(&w[0]), data.pose(&w[1]));
             for s in 0..fpp {
                 let t = s as f64 / fpp as f64;
-                for (k, &v) in handles.iter().enumerate() {
-                    let p = a[v] * (1.0 - t) + b[v] * t;
-                    text.push_str(&format!("{frame},{k},{:.6},{:.6},{:.6}\n", p.x, p.y, p.z));
-                }
-                frame += 1;
+                let frame = trajectory.frames.len() as u64;
+                trajectory.frames.push(HandleFrame {
+                    frame,
+                    log_time_ns: (frame as f64 / FRAME_RATE_HZ * 1e9).round() as u64,
+                    positions: handles
+                        .iter()
+                        .map(|&v| a[v] * (1.0 - t) + b[v] * t)
+                        .collect(),
+                });
             }
         }
-        write_atomic(&self.out, text.as_bytes())?;
+        if is_mcap(&self.out) {
+            let prov = provenance(&[], format!("frames_per_pose = {fpp}"))?;
+            write_handle_trajectory(&self.out, &prov, &trajectory, 0.01)?;
+        } else {
+            let mut text = String::from("frame,handle,x_cm,y_cm,z_cm\n");
+            for f in &trajectory.frames {
+                for (k, p) in f.positions.iter().enumerate() {
+                    text.push_str(&format!(
+                        "{},{k},{:.6},{:.6},{:.6}\n",
+                        f.frame, p.x, p.y, p.z
+                    ));
+                }
+            }
+            write_atomic(&self.out, text.as_bytes())?;
+        }
         eprintln!(
-            "{}: {frame} frames × {} handles",
+            "{}: {} frames × {} handles",
             self.out.display(),
+            trajectory.frames.len(),
             handles.len()
         );
         Ok(())
@@ -421,10 +466,27 @@ fn read_markers(path: &Path, handles: usize) -> Result<Vec<Vec<Vector3<f64>>>, P
 
 impl AnimateArgs {
     fn run(&self) -> Result<()> {
-        let data = IctData::load(&self.fixtures)?;
         let settings = EvaluationSettings::default();
+        let out_settings = AnimateSettings::default();
+        let h = settings.rig.handles;
+        // read and validate the whole input before any work or output
+        let trajectory = if is_mcap(&self.markers) {
+            read_handle_trajectory(&self.markers, h, out_settings.metres_per_unit)?
+        } else {
+            HandleTrajectory {
+                frames: read_markers(&self.markers, h)?
+                    .into_iter()
+                    .enumerate()
+                    .map(|(f, positions)| HandleFrame {
+                        frame: f as u64,
+                        log_time_ns: (f as f64 / FRAME_RATE_HZ * 1e9).round() as u64,
+                        positions,
+                    })
+                    .collect(),
+            }
+        };
+        let data = IctData::load(&self.fixtures)?;
         let rig = FaceRig::new(&data.mesh, &settings.rig)?;
-        let frames = read_markers(&self.markers, rig.handles.len())?;
         let (training, _) = pose_sets(&data, &settings);
         let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();
         let examples = rig.examples(&poses)?;
@@ -436,12 +498,38 @@ impl AnimateArgs {
             .unwrap_or_else(|| vec![0]);
         let model = method.fit(&examples, &basis)?;
         let mut anim = Animator::new(&rig, &model)?;
+        let frames = trajectory.frames.len();
+        let total_s = if is_mcap(&self.out) {
+            let prov = provenance(
+                &[&self.markers],
+                format!("poses = {}, basis = {basis:?}", self.poses),
+            )?;
+            animate_to_mcap(&mut anim, &trajectory, &self.out, &prov, &out_settings)?.synthesis_s
+        } else {
+            self.write_objs(&mut anim, &trajectory, &data.mesh.triangles)?
+        };
+        eprintln!(
+            "{}: {frames} frames, P = {}, mean synthesis time {:.2} ms/frame",
+            self.out.display(),
+            basis.len(),
+            1e3 * total_s / frames.max(1) as f64
+        );
+        Ok(())
+    }
+
+    /// One OBJ per frame into a temporary folder renamed when complete; returns synthesis time.
+    fn write_objs(
+        &self,
+        anim: &mut Animator<'_>,
+        trajectory: &HandleTrajectory,
+        triangles: &[[usize; 3]],
+    ) -> Result<f64> {
         let tmp = self.out.with_extension("partial");
         std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
         let mut total = std::time::Duration::ZERO;
-        for (f, hp) in frames.iter().enumerate() {
+        for (f, hp) in trajectory.frames.iter().enumerate() {
             let t = std::time::Instant::now();
-            anim.frame(hp)?;
+            anim.frame(&hp.positions)?;
             total += t.elapsed();
             let mesh = softcap_mesh::TriMesh {
                 vertices: anim
@@ -449,7 +537,7 @@ impl AnimateArgs {
                     .iter()
                     .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
                     .collect(),
-                triangles: data.mesh.triangles.clone(),
+                triangles: triangles.to_vec(),
             };
             softcap_mesh::write_tri_mesh_obj(tmp.join(format!("frame_{f:04}.obj")), &mesh)?;
         }
@@ -459,13 +547,7 @@ impl AnimateArgs {
         }
         std::fs::rename(&tmp, &self.out)
             .with_context(|| format!("renaming to {}", self.out.display()))?;
-        eprintln!(
-            "{} frames, P = {}, mean synthesis time {:.2} ms/frame",
-            frames.len(),
-            basis.len(),
-            1e3 * total.as_secs_f64() / frames.len().max(1) as f64
-        );
-        Ok(())
+        Ok(total.as_secs_f64())
     }
 }
 

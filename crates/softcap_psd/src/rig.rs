@@ -207,7 +207,7 @@ pub fn large_scale_kernel(
 }
 
 /// Run-time synthesis (thesis §5.5.2): handle positions → detailed positions and normals.
-/// The vertex-major layout ([`RuntimeLayout`], truncated basis rows) and all buffers are built
+/// The vertex-major layout ([`RuntimeLayout`], block low-rank basis) and all buffers are built
 /// once; a frame runs three parallel passes (large scale; normal + frame + WPSD detail; normals)
 /// and allocates nothing.
 #[derive(Debug)]
@@ -222,9 +222,9 @@ pub struct Animator<'a> {
     pub normals: Vec<[f32; 3]>,
     large: Vec<[f32; 3]>,
     features: Vec<f64>,
-    g: Vec<f32>,
+    table: Vec<[f32; runtime::LANES]>,
     global_r: Vec<f32>,
-    uh: Vec<f32>,
+    uh: Vec<[f32; 3]>,
 }
 
 impl<'a> Animator<'a> {
@@ -233,7 +233,7 @@ impl<'a> Animator<'a> {
         Self::with_settings(rig, model, &RuntimeSettings::default())
     }
 
-    /// Prepare buffers with explicit run-time settings (basis truncation).
+    /// Prepare buffers with explicit run-time settings (basis compression).
     pub fn with_settings(
         rig: &'a FaceRig,
         model: &'a DetailModel,
@@ -250,10 +250,20 @@ impl<'a> Animator<'a> {
             normals: vec![[0.0; 3]; n],
             large: vec![[0.0; 3]; n],
             features: vec![0.0; rig.graph.len()],
-            g: Vec::with_capacity(rig.graph.len() * p),
+            table: Vec::with_capacity(rig.graph.len() * p.div_ceil(runtime::LANES)),
             global_r: vec![0.0; p],
-            uh: vec![0.0; 3 * rig.handles.len()],
+            uh: vec![[0.0; 3]; rig.handles.len()],
         })
+    }
+
+    /// The rig this animator runs.
+    pub fn rig(&self) -> &'a FaceRig {
+        self.rig
+    }
+
+    /// The detail model this animator evaluates.
+    pub fn model(&self) -> &'a DetailModel {
+        self.model
     }
 
     /// Large-scale positions of the last frame (before details).
@@ -272,21 +282,18 @@ impl<'a> Animator<'a> {
                 got: handle_positions.len(),
             });
         }
-        for (k, (&v, p)) in rig.handles.iter().zip(handle_positions).enumerate() {
+        for ((&v, p), u) in rig.handles.iter().zip(handle_positions).zip(&mut self.uh) {
             let d = p - rig.rest[v];
-            self.uh[k] = d.x as f32;
-            self.uh[h + k] = d.y as f32;
-            self.uh[2 * h + k] = d.z as f32;
+            *u = [d.x as f32, d.y as f32, d.z as f32];
         }
         rig.graph.features(handle_positions, &mut self.features);
-        self.model
-            .squared_feature_differences(&self.features, &mut self.g);
+        runtime::feature_table(self.model, &self.features, &mut self.table);
         let global = matches!(self.model.metric, Metric::Global);
         if global {
-            let p = self.model.num_poses();
+            let nc = self.model.num_poses().div_ceil(runtime::LANES);
             for (j, r) in self.global_r.iter_mut().enumerate() {
                 *r = (0..self.model.num_features)
-                    .map(|i| self.g[i * p + j])
+                    .map(|i| self.table[i * nc + j / runtime::LANES][j % runtime::LANES])
                     .sum::<f32>()
                     .sqrt();
             }
@@ -295,7 +302,7 @@ impl<'a> Animator<'a> {
         runtime::detail_pass(
             &self.layout,
             &self.large,
-            &self.g,
+            &self.table,
             global.then_some(&self.global_r[..]),
             &mut self.positions,
         );
