@@ -127,6 +127,14 @@ impl DofMap {
     }
 }
 
+/// Reusable per-chunk buffers of [`SystemPattern::assemble_linearized`] (element forces and
+/// matrices), kept by the solvers so that iterations do not reallocate them.
+#[derive(Clone, Debug, Default)]
+pub struct AssemblyScratch {
+    forces: Vec<[Vector3<f64>; 4]>,
+    matrices: Vec<Matrix12>,
+}
+
 /// Lower-triangular CSC pattern of the reduced stiffness matrix with element scatter maps.
 #[derive(Clone, Debug)]
 pub struct SystemPattern {
@@ -298,6 +306,46 @@ impl SystemPattern {
         values
     }
 
+    /// One pass over the elements of `model` at `x` (chunks of elements evaluated by
+    /// [`ElasticModel::linearize_elements`], possibly in parallel, then scattered serially in
+    /// element order): the system matrix Σ_e (element matrix) into `values` (overwritten, pattern
+    /// order) and f_int(x) into `f_int` (overwritten, one per node). Returns the model energy if
+    /// the pass produced it. The same bits as [`Self::assemble`] + [`ElasticModel::internal_forces`].
+    pub fn assemble_linearized<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        scratch: &mut AssemblyScratch,
+        values: &mut Vec<f64>,
+        f_int: &mut Vec<Vector3<f64>>,
+    ) -> Option<f64> {
+        let n = model.elements().len();
+        values.clear();
+        values.resize(self.nnz(), 0.0);
+        f_int.clear();
+        f_int.resize(model.num_nodes(), Vector3::zeros());
+        let chunk = crate::model::ELEMENT_CHUNK.min(n.max(1));
+        scratch.forces.resize(chunk, [Vector3::zeros(); 4]);
+        scratch.matrices.resize(chunk, Matrix12::zeros());
+        let mut energy = Some(0.0);
+        for start in (0..n).step_by(chunk) {
+            let len = chunk.min(n - start);
+            let forces = &mut scratch.forces[..len];
+            let matrices = &mut scratch.matrices[..len];
+            let e = model.linearize_elements(start, x, kind, forces, matrices);
+            energy = energy.zip(e).map(|(a, b)| a + b);
+            let geoms = &model.elements()[start..start + len];
+            for (k, g) in geoms.iter().enumerate() {
+                self.add_element(start + k, &matrices[k], values);
+                for a in 0..4 {
+                    f_int[g.nodes[a]] += forces[k][a];
+                }
+            }
+        }
+        energy
+    }
+
     /// faer view of the lower triangle with the given values.
     pub fn matrix<'a>(&'a self, values: &'a [f64]) -> SparseColMatRef<'a, usize, f64> {
         SparseColMatRef::new(self.symbolic.as_ref(), values)
@@ -319,6 +367,50 @@ impl SystemPattern {
         }
         y
     }
+}
+
+/// What every solver builds once per (mesh, constraint set): the free-dof pattern with its
+/// scatter maps, the symbolic Cholesky factorization, and the length scale of the convergence
+/// test (diagonal of the rest bounding box [m]).
+pub(crate) fn solver_setup<M: ElasticModel + ?Sized>(
+    model: &M,
+    constrained_dofs: &[usize],
+) -> Result<(SystemPattern, SparseCholesky, f64), FemError> {
+    let n = model.num_nodes();
+    let dofs = DofMap::new(n, constrained_dofs)?;
+    let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
+    let pattern = SystemPattern::new(n, &tets, dofs)?;
+    let cholesky = SparseCholesky::new(&pattern)?;
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for p in model.rest_positions() {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    Ok((pattern, cholesky, (hi - lo).norm().max(f64::MIN_POSITIVE)))
+}
+
+/// Free-dof residual r = (f_ext − f_int) + f_b (f_b: boundary forces such as contact, one per node
+/// or empty) and its scale max(‖f_ext‖₂, ‖f_int‖₂, ‖f_b‖₂) for the relative tolerance of the
+/// equilibrium iterations.
+pub(crate) fn free_residual(
+    dofs: &DofMap,
+    f_ext: &[Vector3<f64>],
+    f_int: &[Vector3<f64>],
+    f_b: &[Vector3<f64>],
+) -> (Vec<f64>, f64) {
+    let r: Vec<Vector3<f64>> = if f_b.is_empty() {
+        f_ext.iter().zip(f_int).map(|(e, i)| e - i).collect()
+    } else {
+        (0..f_int.len())
+            .map(|i| (f_ext[i] - f_int[i]) + f_b[i])
+            .collect()
+    };
+    let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
+    let scale = norm(f_ext).max(norm(f_int)).max(norm(f_b));
+    (dofs.gather(&r), scale)
 }
 
 /// Which numeric factorization was used.

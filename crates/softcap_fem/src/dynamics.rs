@@ -25,7 +25,7 @@
 //! `set_time_step(h)` once, then `commit(x)` after each converged step.
 
 use crate::FemError;
-use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
+use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern, solver_setup};
 use crate::contact::{ContactProblem, ContactReport};
 use crate::element::StiffnessKind;
 use crate::model::ElasticModel;
@@ -198,23 +198,12 @@ impl DynamicSolver {
                 value: m,
             });
         }
-        let dofs = DofMap::new(n, constrained_dofs)?;
-        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
-        let pattern = SystemPattern::new(n, &tets, dofs)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for p in model.rest_positions() {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let (pattern, cholesky, length_scale_m) = solver_setup(model, constrained_dofs)?;
         Ok(Self {
             pattern,
             cholesky,
             masses_kg,
-            length_scale_m: (hi - lo).norm().max(f64::MIN_POSITIVE),
+            length_scale_m,
         })
     }
 

@@ -8,7 +8,8 @@
 //!
 //! f_e = R_e K_e (R_eᵀ x_e − X_e),
 //!
-//! with R_e the rotation of the polar decomposition F = R S ([`softcap_core::polar_decomposition`]).
+//! with R_e the rotation of the polar decomposition F = R S (scaled Newton iteration, falling back to
+//! [`softcap_core::polar_decomposition`] for inverted elements).
 //! Because R is the *polar* rotation, ∇(Rᵀx − X) = RᵀF − I = S − I is symmetric, so
 //! f_a = V R σ(ε) g_a with ε = sym(RᵀF) − I and σ = 2μ ε + λ_L tr(ε) I. This is the gradient of
 //! Ψ(F) = ½ ε : C : ε, i.e. the element is hyperelastic for fixed (λ, α).
@@ -164,14 +165,12 @@ pub fn linear_stress(p: &LinearParams, strain: &Matrix3<f64>) -> Matrix3<f64> {
     strain * (2.0 * mu) + Matrix3::identity() * (lame * strain.trace())
 }
 
-/// Corotated small strain ε = sym(RᵀF) − I and the rotation R of F = R S.
+/// Corotated small strain ε = sym(RᵀF) − I and the rotation R of F = R S (the polar rotation;
+/// scaled Newton iteration for non-inverted F, SVD with inversion handling otherwise — see
+/// `corotated::polar_rotation`).
 pub fn corotated_strain(f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
-    let polar = softcap_core::polar_decomposition(f);
-    let rtf = polar.rotation.transpose() * f;
-    (
-        polar.rotation,
-        0.5 * (rtf + rtf.transpose()) - Matrix3::identity(),
-    )
+    let (r, s) = crate::corotated::rotation_stretch(f);
+    (r, s - Matrix3::identity())
 }
 
 /// Voigt vector (ε_xx, ε_yy, ε_zz, γ_xy, γ_xz, γ_yz) of a symmetric strain tensor
@@ -207,16 +206,65 @@ pub fn corotational_forces(
 }
 
 /// The warped stiffness R K_e Rᵀ (bickel2009 §3.2, Müller & Gross 2004) for a given rotation.
+///
+/// Evaluated in closed form from the rotated gradients r_a = R g_a (R Rᵀ = I): with
+/// d = g_a·g_b = r_a·r_b, the node block (a, b) of [`stiffness_basis`] rotates to
+///
+/// (R K_e Rᵀ)_ab = λ V/2 (d I + r_b r_aᵀ) + α V (r_a r_bᵀ − r_b r_aᵀ − d I),
+///
+/// which is R K_e Rᵀ without forming K_e or the 16 triple products.
 pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3<f64>) -> Matrix12 {
-    let k = element_stiffness(geom, p);
+    let r = [
+        rotation * geom.grads[0],
+        rotation * geom.grads[1],
+        rotation * geom.grads[2],
+        rotation * geom.grads[3],
+    ];
+    let cg = 0.5 * p.lambda * geom.volume_m3;
+    let ch = p.alpha * geom.volume_m3;
     let mut out = Matrix12::zeros();
     for a in 0..4 {
-        for b in 0..4 {
-            let blk = rotation * k.fixed_view::<3, 3>(3 * a, 3 * b) * rotation.transpose();
-            out.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
+        for b in a..4 {
+            let d = geom.grads[a].dot(&geom.grads[b]);
+            let diag = (cg - ch) * d;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let ab = r[a][i] * r[b][j];
+                    let ba = r[b][i] * r[a][j];
+                    let mut v = cg * ba + ch * (ab - ba);
+                    if i == j {
+                        v += diag;
+                    }
+                    out[(3 * a + i, 3 * b + j)] = v;
+                    out[(3 * b + j, 3 * a + i)] = v;
+                }
+            }
         }
     }
     out
+}
+
+/// Forces, warped stiffness and elastic energy of one corotational element from a single polar
+/// decomposition: (f_a = V R σ g_a, R K_e Rᵀ, ½ V σ : ε) — [`corotational_forces`],
+/// [`warped_stiffness`] and the element term of the model energy, evaluated together (what the
+/// equilibrium iterations of bickel2009 §3.4 need at every iterate).
+pub fn corotational_linearization(
+    geom: &TetGeometry,
+    p: &LinearParams,
+    x: &[Vector3<f64>],
+) -> ([Vector3<f64>; 4], Matrix12, f64) {
+    let f = geom.deformation_gradient(x);
+    let (r, eps) = corotated_strain(&f);
+    let sigma = linear_stress(p, &eps);
+    let energy = 0.5 * geom.volume_m3 * sigma.component_mul(&eps).sum();
+    let p_mat = r * sigma * geom.volume_m3;
+    let forces = [
+        p_mat * geom.grads[0],
+        p_mat * geom.grads[1],
+        p_mat * geom.grads[2],
+        p_mat * geom.grads[3],
+    ];
+    (forces, warped_stiffness(geom, p, &r), energy)
 }
 
 /// Consistent tangent ∂f_e/∂x_e of the corotational element (parameters held fixed).
@@ -229,10 +277,7 @@ pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3
 /// term is dropped.
 pub fn corotational_tangent(geom: &TetGeometry, p: &LinearParams, x: &[Vector3<f64>]) -> Matrix12 {
     let f = geom.deformation_gradient(x);
-    let polar = softcap_core::polar_decomposition(&f);
-    let r = polar.rotation;
-    let rtf = r.transpose() * f;
-    let s = 0.5 * (rtf + rtf.transpose());
+    let (r, s) = crate::corotated::rotation_stretch(&f);
     let eps = s - Matrix3::identity();
     let sigma = linear_stress(p, &eps);
     crate::corotated::tangent_from_stress(geom, &r, &s, &sigma, |de| linear_stress(p, de), true)
@@ -281,6 +326,69 @@ mod tests {
         let kh_ref = b.transpose() * matrix_h() * b * g.volume_m3;
         assert!((kg - kg_ref).norm() < 1e-12 * kg_ref.norm());
         assert!((kh - kh_ref).norm() < 1e-12 * kh_ref.norm());
+    }
+
+    #[test]
+    fn closed_form_warped_stiffness_equals_r_k_rt() {
+        let (_, g) = sample();
+        let p = LinearParams::from_young_poisson(3.0e4, 0.35).unwrap();
+        let r = nalgebra::Rotation3::from_scaled_axis(Vector3::new(0.4, -0.7, 0.2)).into_inner();
+        let k = element_stiffness(&g, &p);
+        let mut reference = Matrix12::zeros();
+        for a in 0..4 {
+            for b in 0..4 {
+                let blk = r * k.fixed_view::<3, 3>(3 * a, 3 * b) * r.transpose();
+                reference
+                    .fixed_view_mut::<3, 3>(3 * a, 3 * b)
+                    .copy_from(&blk);
+            }
+        }
+        let w = warped_stiffness(&g, &p, &r);
+        assert!((w - reference).norm() < 1e-12 * reference.norm());
+        assert_eq!(w, w.transpose());
+    }
+
+    #[test]
+    fn newton_polar_matches_svd_polar_and_fused_linearization_matches_parts() {
+        let (rest, g) = sample();
+        let p = LinearParams::from_young_poisson(1.0e4, 0.3).unwrap();
+        let rot = nalgebra::Rotation3::from_scaled_axis(Vector3::new(1.1, 0.3, -2.0)).into_inner();
+        for (k, stretch) in [
+            Matrix3::identity(),
+            Matrix3::new(1.01, 0.002, 0.0, 0.002, 0.99, 0.001, 0.0, 0.001, 1.0),
+            Matrix3::new(1.6, 0.3, -0.2, 0.3, 0.4, 0.1, -0.2, 0.1, 1.1),
+            Matrix3::new(0.05, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0),
+            // inverted: SVD route
+            Matrix3::new(-0.2, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let f = rot * stretch;
+            let svd = softcap_core::polar_decomposition(&f);
+            let (r, s) = crate::corotated::rotation_stretch(&f);
+            assert!(
+                (r - svd.rotation).norm() < 1e-12,
+                "case {k}: {r} vs {}",
+                svd.rotation
+            );
+            assert!(
+                (s - svd.stretch).norm() < 1e-12 * (1.0 + f.norm()),
+                "case {k}"
+            );
+            assert!((r.determinant() - 1.0).abs() < 1e-13);
+            // Fused forces / warped matrix / energy = the separate kernels.
+            let x: Vec<Vector3<f64>> = rest.iter().map(|v| f * v).collect();
+            let (fo, km, en) = corotational_linearization(&g, &p, &x);
+            let fr = corotational_forces(&g, &p, &x);
+            for a in 0..4 {
+                assert!((fo[a] - fr[a]).norm() <= 1e-12 * (1.0 + fr[a].norm()));
+            }
+            let (rr, eps) = corotated_strain(&g.deformation_gradient(&x));
+            assert!((km - warped_stiffness(&g, &p, &rr)).norm() == 0.0);
+            let e_ref = 0.5 * g.volume_m3 * linear_stress(&p, &eps).component_mul(&eps).sum();
+            assert!((en - e_ref).abs() <= 1e-12 * e_ref.abs().max(1e-300));
+        }
     }
 
     #[test]

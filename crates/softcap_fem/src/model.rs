@@ -3,7 +3,8 @@
 
 use crate::element::{
     Matrix12, StiffnessKind, TetGeometry, corotated_strain, corotational_forces,
-    corotational_tangent, strain_voigt, tet_geometries, warped_stiffness,
+    corotational_linearization, corotational_tangent, strain_voigt, tet_geometries,
+    warped_stiffness,
 };
 use crate::neohookean::{neohookean_energy, neohookean_forces, neohookean_tangent};
 use crate::{FemError, LinearParams, NeoHookeanParams};
@@ -43,6 +44,81 @@ pub trait ElasticModel {
         }
         out
     }
+
+    /// Forces and element matrices of the elements `first .. first + forces.len()` at `x`, in
+    /// one pass (what every equilibrium iteration needs; `forces` and `matrices` have the same
+    /// length). Returns Σ Ψ_e of those elements when the model is hyperelastic and the pass
+    /// produced it, `None` otherwise (callers then use [`Self::energy`]).
+    ///
+    /// The default calls [`Self::element_forces`] and [`Self::element_matrix`]; models override
+    /// it to share the element kinematics (one polar decomposition per element) and to evaluate
+    /// elements in parallel. Each element's values must not depend on how the range is split, so
+    /// that assembly (serial, in element order) stays bitwise deterministic.
+    fn linearize_elements(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        matrices: &mut [Matrix12],
+    ) -> Option<f64> {
+        for (k, (f, m)) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
+            *f = self.element_forces(first + k, x);
+            *m = self.element_matrix(first + k, x, kind);
+        }
+        None
+    }
+}
+
+/// Elements per chunk of the parallel element loops: bounds the scratch memory (a chunk of 12×12
+/// element matrices is ≈ 4.7 MB) while keeping rayon's per-task overhead negligible.
+pub(crate) const ELEMENT_CHUNK: usize = 4096;
+
+/// Σ over elements of `per_element(e)` in element order, with the per-element values computed in
+/// parallel: bitwise the same as the serial sum for any number of threads.
+fn ordered_parallel_sum(n: usize, per_element: impl Fn(usize) -> f64 + Sync) -> f64 {
+    use rayon::prelude::*;
+    let mut buf = vec![0.0; ELEMENT_CHUNK.min(n)];
+    let mut total = 0.0;
+    for start in (0..n).step_by(ELEMENT_CHUNK) {
+        let len = ELEMENT_CHUNK.min(n - start);
+        buf[..len]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(k, v)| *v = per_element(start + k));
+        for v in &buf[..len] {
+            total += v;
+        }
+    }
+    total
+}
+
+/// f_int(x) = Σ_e (element forces) with the element forces computed in parallel and accumulated
+/// serially in element order (the same bits as the serial default of
+/// [`ElasticModel::internal_forces`]).
+fn ordered_parallel_forces(
+    geometry: &[TetGeometry],
+    num_nodes: usize,
+    element_forces: impl Fn(usize) -> [Vector3<f64>; 4] + Sync,
+) -> Vec<Vector3<f64>> {
+    use rayon::prelude::*;
+    let n = geometry.len();
+    let mut out = vec![Vector3::zeros(); num_nodes];
+    let mut buf = vec![[Vector3::zeros(); 4]; ELEMENT_CHUNK.min(n)];
+    for start in (0..n).step_by(ELEMENT_CHUNK) {
+        let len = ELEMENT_CHUNK.min(n - start);
+        buf[..len]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(k, f)| *f = element_forces(start + k));
+        for (k, f) in buf[..len].iter().enumerate() {
+            let nodes = geometry[start + k].nodes;
+            for a in 0..4 {
+                out[nodes[a]] += f[a];
+            }
+        }
+    }
+    out
 }
 
 /// Strain-dependent parameters p_e = p_e(ε_e) (bickel2009 eq. 8 is one such function: an RBF in
@@ -160,6 +236,39 @@ impl ElasticModel for CorotationalModel {
     fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
         corotational_forces(&self.geometry[e], &self.params[e], x)
     }
+    fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        ordered_parallel_forces(&self.geometry, self.rest.len(), |e| {
+            corotational_forces(&self.geometry[e], &self.params[e], x)
+        })
+    }
+    fn linearize_elements(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        matrices: &mut [Matrix12],
+    ) -> Option<f64> {
+        use rayon::prelude::*;
+        let mut energies = vec![0.0; forces.len()];
+        forces
+            .par_iter_mut()
+            .zip(matrices.par_iter_mut())
+            .zip(energies.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, ((f, m), w))| {
+                let (g, p) = (&self.geometry[first + k], &self.params[first + k]);
+                match kind {
+                    StiffnessKind::Warped => (*f, *m, *w) = corotational_linearization(g, p, x),
+                    StiffnessKind::Consistent => {
+                        *f = corotational_forces(g, p, x);
+                        *m = corotational_tangent(g, p, x);
+                    }
+                }
+            });
+        // Energy only for fixed parameters and when it came out of the pass.
+        (self.hook.is_none() && kind == StiffnessKind::Warped).then(|| energies.iter().sum())
+    }
     fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12 {
         let g = &self.geometry[e];
         match kind {
@@ -174,13 +283,12 @@ impl ElasticModel for CorotationalModel {
         if self.hook.is_some() {
             return None; // Cauchy-elastic only (thesis §7.4.3): no potential.
         }
-        let mut total = 0.0;
-        for (g, p) in self.geometry.iter().zip(&self.params) {
+        Some(ordered_parallel_sum(self.geometry.len(), |e| {
+            let g = &self.geometry[e];
             let (_, eps) = corotated_strain(&g.deformation_gradient(x));
-            let sigma = crate::element::linear_stress(p, &eps);
-            total += 0.5 * g.volume_m3 * (sigma.component_mul(&eps)).sum();
-        }
-        Some(total)
+            let sigma = crate::element::linear_stress(&self.params[e], &eps);
+            0.5 * g.volume_m3 * (sigma.component_mul(&eps)).sum()
+        }))
     }
     fn update_state(&mut self, x: &[Vector3<f64>]) {
         if let Some(hook) = self.hook.clone() {
@@ -198,6 +306,10 @@ pub struct NeoHookeanModel {
     rest: Vec<Vector3<f64>>,
     geometry: Vec<TetGeometry>,
     params: Vec<NeoHookeanParams>,
+    /// Geometry the elastic energy is evaluated on when it differs from the rest geometry: the
+    /// plastic configuration of [`crate::PlasticNeoHookeanModel`] (gradients F_p⁻ᵀ g_a, volume
+    /// V det F_p, so that F = F_e = F F_p⁻¹). `None`: the rest geometry.
+    material: Option<Vec<TetGeometry>>,
 }
 
 impl NeoHookeanModel {
@@ -215,6 +327,7 @@ impl NeoHookeanModel {
             rest: mesh.vertices.clone(),
             geometry,
             params,
+            material: None,
         })
     }
 
@@ -227,6 +340,16 @@ impl NeoHookeanModel {
     pub fn params(&self) -> &[NeoHookeanParams] {
         &self.params
     }
+
+    /// The geometry the element kernels use (rest geometry unless a plastic one is set).
+    pub(crate) fn material_geometry(&self) -> &[TetGeometry] {
+        self.material.as_deref().unwrap_or(&self.geometry)
+    }
+
+    /// Mutable material geometry (created from the rest geometry on first use).
+    pub(crate) fn material_geometry_mut(&mut self) -> &mut [TetGeometry] {
+        self.material.get_or_insert_with(|| self.geometry.clone())
+    }
 }
 
 impl ElasticModel for NeoHookeanModel {
@@ -237,18 +360,42 @@ impl ElasticModel for NeoHookeanModel {
         &self.geometry
     }
     fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
-        neohookean_forces(&self.geometry[e], &self.params[e], x)
+        neohookean_forces(&self.material_geometry()[e], &self.params[e], x)
     }
     fn element_matrix(&self, e: usize, x: &[Vector3<f64>], _kind: StiffnessKind) -> Matrix12 {
-        neohookean_tangent(&self.geometry[e], &self.params[e], x)
+        neohookean_tangent(&self.material_geometry()[e], &self.params[e], x)
     }
     fn energy(&self, x: &[Vector3<f64>]) -> Option<f64> {
-        Some(
-            self.geometry
-                .iter()
-                .zip(&self.params)
-                .map(|(g, p)| neohookean_energy(g, p, x))
-                .sum(),
-        )
+        let g = self.material_geometry();
+        Some(ordered_parallel_sum(g.len(), |e| {
+            neohookean_energy(&g[e], &self.params[e], x)
+        }))
+    }
+    fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let g = self.material_geometry();
+        ordered_parallel_forces(g, self.rest.len(), |e| {
+            neohookean_forces(&g[e], &self.params[e], x)
+        })
+    }
+    fn linearize_elements(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        _kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        matrices: &mut [Matrix12],
+    ) -> Option<f64> {
+        use rayon::prelude::*;
+        let g = self.material_geometry();
+        forces
+            .par_iter_mut()
+            .zip(matrices.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, (f, m))| {
+                let e = first + k;
+                *f = neohookean_forces(&g[e], &self.params[e], x);
+                *m = neohookean_tangent(&g[e], &self.params[e], x);
+            });
+        None
     }
 }

@@ -12,7 +12,9 @@
 //! anchors) once a load step has converged.
 
 use crate::FemError;
-use crate::assembly::{DofMap, SparseCholesky, SystemPattern};
+use crate::assembly::{
+    AssemblyScratch, DofMap, SparseCholesky, SystemPattern, free_residual, solver_setup,
+};
 use crate::model::ElasticModel;
 use crate::statics::{EquilibriumReport, EquilibriumSettings, SolveStatus};
 use nalgebra::{Matrix3, Vector3};
@@ -37,6 +39,7 @@ pub struct NodalSolver {
     pattern: SystemPattern,
     cholesky: SparseCholesky,
     length_scale_m: f64,
+    scratch: AssemblyScratch,
 }
 
 impl NodalSolver {
@@ -46,23 +49,12 @@ impl NodalSolver {
         model: &M,
         constrained_dofs: &[usize],
     ) -> Result<Self, FemError> {
-        let n = model.num_nodes();
-        let dofs = DofMap::new(n, constrained_dofs)?;
-        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
-        let pattern = SystemPattern::new(n, &tets, dofs)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for p in model.rest_positions() {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let (pattern, cholesky, length_scale_m) = solver_setup(model, constrained_dofs)?;
         Ok(Self {
             pattern,
             cholesky,
-            length_scale_m: (hi - lo).norm().max(f64::MIN_POSITIVE),
+            length_scale_m,
+            scratch: AssemblyScratch::default(),
         })
     }
 
@@ -71,22 +63,19 @@ impl NodalSolver {
         self.pattern.dofs()
     }
 
-    fn residual<M: ElasticModel + ?Sized>(
+    /// Free-dof residual f_ext + Σ f_b − f_int for the given f_int, and its tolerance scale.
+    fn residual_with(
         &self,
-        model: &M,
+        f_int: &[Vector3<f64>],
         x: &[Vector3<f64>],
         f_ext: &[Vector3<f64>],
         terms: &[&mut dyn NodalTerm],
     ) -> (Vec<f64>, f64) {
-        let f_int = model.internal_forces(x);
         let mut fb = vec![Vector3::zeros(); x.len()];
         for t in terms {
             t.add_forces(x, &mut fb);
         }
-        let r: Vec<Vector3<f64>> = (0..x.len()).map(|i| f_ext[i] + fb[i] - f_int[i]).collect();
-        let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
-        let scale = norm(f_ext).max(norm(&f_int)).max(norm(&fb));
-        (self.dofs().gather(&r), scale)
+        free_residual(self.dofs(), f_ext, f_int, &fb)
     }
 
     /// Solves f_int(x) = f_ext + Σ f_b(x) for the free dofs from `x` (constrained components hold
@@ -114,9 +103,17 @@ impl NodalSolver {
             return report;
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
+        let (mut values, mut f_int) = (Vec::new(), Vec::new());
         for it in 0..settings.max_iterations {
             model.update_state(x);
-            let mut values = self.pattern.assemble(&*model, x, settings.stiffness);
+            self.pattern.assemble_linearized(
+                &*model,
+                x,
+                settings.stiffness,
+                &mut self.scratch,
+                &mut values,
+                &mut f_int,
+            );
             {
                 let pat = &self.pattern;
                 let vals = &values;
@@ -147,7 +144,7 @@ impl NodalSolver {
                 };
                 return report;
             }
-            let (r, scale) = self.residual(&*model, x, f_ext, terms);
+            let (r, scale) = self.residual_with(&f_int, x, f_ext, terms);
             let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.residual_norm_n = rnorm;
             if !rnorm.is_finite() {
@@ -179,7 +176,8 @@ impl NodalSolver {
                 for _ in 0..=settings.max_halvings {
                     let mut xt = x.to_vec();
                     self.dofs().scatter_add(&dx, s, &mut xt);
-                    let (rt, _) = self.residual(&*model, &xt, f_ext, terms);
+                    let (rt, _) =
+                        self.residual_with(&model.internal_forces(&xt), &xt, f_ext, terms);
                     let rn = rt.iter().map(|v| v * v).sum::<f64>();
                     if rn.is_finite() && rn < r0 {
                         step = s;

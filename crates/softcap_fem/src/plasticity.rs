@@ -40,8 +40,8 @@
 
 use crate::corotated::{forces_from_stress, kinematics, tangent_from_stress};
 use crate::element::{Matrix12, StiffnessKind, TetGeometry, tet_geometries};
-use crate::model::ElasticModel;
-use crate::neohookean::{neohookean_energy, neohookean_forces, neohookean_tangent};
+use crate::model::{ElasticModel, NeoHookeanModel};
+use crate::neohookean::neohookean_forces;
 use crate::{FemError, LinearParams, NeoHookeanParams};
 use nalgebra::{Matrix3, SMatrix, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
@@ -394,15 +394,13 @@ pub fn plastic_to_vector(fp: &Matrix3<f64>) -> Vector6<f64> {
 }
 
 /// Stable neo-Hookean tet model with a per-tet plastic deformation gradient F_p (module docs,
-/// part (b); saito-barbic §3.2).
+/// part (b); saito-barbic §3.2): a [`NeoHookeanModel`] whose element kernels run on the plastic
+/// configuration (gradients F_p⁻ᵀ g_a, volume V det F_p), so F = F_e = F F_p⁻¹ and
+/// E_e = V det F_p Ψ(F_e).
 #[derive(Clone, Debug)]
 pub struct PlasticNeoHookeanModel {
-    rest: Vec<Vector3<f64>>,
-    geometry: Vec<TetGeometry>,
-    params: Vec<NeoHookeanParams>,
+    elastic: NeoHookeanModel,
     plastic: Vec<Matrix3<f64>>,
-    /// Geometry in the plastic configuration: gradients F_p⁻ᵀ g_a, volume V det F_p.
-    plastic_geometry: Vec<TetGeometry>,
 }
 
 fn plastic_geometry(e: usize, g: &TetGeometry, fp: &Matrix3<f64>) -> Result<TetGeometry, FemError> {
@@ -424,20 +422,10 @@ fn plastic_geometry(e: usize, g: &TetGeometry, fp: &Matrix3<f64>) -> Result<TetG
 impl PlasticNeoHookeanModel {
     /// Model over `mesh` with per-element parameters; F_p = I everywhere.
     pub fn new(mesh: &TetMesh, params: Vec<NeoHookeanParams>) -> Result<Self, FemError> {
-        let geometry = tet_geometries(&mesh.vertices, &mesh.tets)?;
-        if params.len() != geometry.len() {
-            return Err(FemError::LengthMismatch {
-                what: "per-element parameters",
-                expected: geometry.len(),
-                got: params.len(),
-            });
-        }
+        let elastic = NeoHookeanModel::new(mesh, params)?;
         Ok(Self {
-            rest: mesh.vertices.clone(),
-            plastic: vec![Matrix3::identity(); geometry.len()],
-            plastic_geometry: geometry.clone(),
-            geometry,
-            params,
+            plastic: vec![Matrix3::identity(); elastic.elements().len()],
+            elastic,
         })
     }
 
@@ -453,47 +441,48 @@ impl PlasticNeoHookeanModel {
 
     /// Sets every F_p (det F_p > 0 required; the first offending tet is named).
     pub fn set_plastic_gradients(&mut self, fp: &[Matrix3<f64>]) -> Result<(), FemError> {
-        if fp.len() != self.geometry.len() {
+        let geometry = self.elastic.elements();
+        if fp.len() != geometry.len() {
             return Err(FemError::LengthMismatch {
                 what: "plastic deformation gradients",
-                expected: self.geometry.len(),
+                expected: geometry.len(),
                 got: fp.len(),
             });
         }
-        let geo = self
-            .geometry
+        let geo = geometry
             .iter()
             .zip(fp)
             .enumerate()
             .map(|(e, (g, f))| plastic_geometry(e, g, f))
             .collect::<Result<Vec<_>, _>>()?;
-        self.plastic_geometry = geo;
+        self.elastic.material_geometry_mut().clone_from_slice(&geo);
         self.plastic.copy_from_slice(fp);
         Ok(())
     }
 
     /// Sets F_p of one element.
     pub fn set_plastic_gradient(&mut self, e: usize, fp: Matrix3<f64>) -> Result<(), FemError> {
-        let Some(g) = self.geometry.get(e) else {
+        let Some(g) = self.elastic.elements().get(e) else {
             return Err(FemError::LengthMismatch {
                 what: "element index",
-                expected: self.geometry.len(),
+                expected: self.elastic.elements().len(),
                 got: e,
             });
         };
-        self.plastic_geometry[e] = plastic_geometry(e, g, &fp)?;
+        let pg = plastic_geometry(e, g, &fp)?;
+        self.elastic.material_geometry_mut()[e] = pg;
         self.plastic[e] = fp;
         Ok(())
     }
 
     /// Per-element parameters.
     pub fn params(&self) -> &[NeoHookeanParams] {
-        &self.params
+        self.elastic.params()
     }
 
     /// Elastic deformation gradient F_e = F F_p⁻¹ of element `e`.
     pub fn elastic_gradient(&self, e: usize, x: &[Vector3<f64>]) -> Matrix3<f64> {
-        self.plastic_geometry[e].deformation_gradient(x)
+        self.elastic.material_geometry()[e].deformation_gradient(x)
     }
 
     /// ∂f_e/∂s (12×6) of element `e` with respect to the symmetric 6-vector of its F_p
@@ -506,7 +495,8 @@ impl PlasticNeoHookeanModel {
         h: f64,
     ) -> Result<SMatrix<f64, 12, 6>, FemError> {
         let fp = self.plastic[e];
-        let g = &self.geometry[e];
+        let g = &self.elastic.elements()[e];
+        let p = &self.elastic.params()[e];
         let mut out = SMatrix::<f64, 12, 6>::zeros();
         for k in 0..6 {
             let mut ds = Vector6::zeros();
@@ -514,8 +504,8 @@ impl PlasticNeoHookeanModel {
             let dfp = plastic_from_vector(&ds);
             let gp = plastic_geometry(e, g, &(fp + dfp))?;
             let gm = plastic_geometry(e, g, &(fp - dfp))?;
-            let fpl = neohookean_forces(&gp, &self.params[e], x);
-            let fmi = neohookean_forces(&gm, &self.params[e], x);
+            let fpl = neohookean_forces(&gp, p, x);
+            let fmi = neohookean_forces(&gm, p, x);
             for a in 0..4 {
                 let d = (fpl[a] - fmi[a]) / (2.0 * h);
                 for i in 0..3 {
@@ -527,27 +517,36 @@ impl PlasticNeoHookeanModel {
     }
 }
 
+/// The elastic part evaluated on the plastic configuration (see the type docs).
 impl ElasticModel for PlasticNeoHookeanModel {
     fn rest_positions(&self) -> &[Vector3<f64>] {
-        &self.rest
+        self.elastic.rest_positions()
     }
     fn elements(&self) -> &[TetGeometry] {
-        &self.geometry
+        self.elastic.elements()
     }
     fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
-        neohookean_forces(&self.plastic_geometry[e], &self.params[e], x)
+        self.elastic.element_forces(e, x)
     }
-    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], _kind: StiffnessKind) -> Matrix12 {
-        neohookean_tangent(&self.plastic_geometry[e], &self.params[e], x)
+    fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12 {
+        self.elastic.element_matrix(e, x, kind)
     }
     fn energy(&self, x: &[Vector3<f64>]) -> Option<f64> {
-        Some(
-            self.plastic_geometry
-                .iter()
-                .zip(&self.params)
-                .map(|(g, p)| neohookean_energy(g, p, x))
-                .sum(),
-        )
+        self.elastic.energy(x)
+    }
+    fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        self.elastic.internal_forces(x)
+    }
+    fn linearize_elements(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        matrices: &mut [Matrix12],
+    ) -> Option<f64> {
+        self.elastic
+            .linearize_elements(first, x, kind, forces, matrices)
     }
 }
 

@@ -16,7 +16,10 @@
 //! energy includes the contact penalty ½ Σ k_c depth² (see [`StaticSolver::solve`]).
 
 use crate::FemError;
-use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
+use crate::assembly::{
+    AssemblyScratch, DirichletBc, DofMap, SparseCholesky, SystemPattern, free_residual,
+    solver_setup,
+};
 use crate::contact::{ContactProblem, ContactReport, ContactSpring};
 use crate::element::StiffnessKind;
 use crate::model::ElasticModel;
@@ -114,6 +117,11 @@ pub struct StaticSolver {
     cholesky: SparseCholesky,
     length_scale_m: f64,
     values: Vec<f64>,
+    /// f_int at the last assembled iterate (same pass as the matrix).
+    f_int: Vec<Vector3<f64>>,
+    /// Model energy at the last assembled iterate, when the pass produced it.
+    energy: Option<f64>,
+    scratch: AssemblyScratch,
 }
 
 impl StaticSolver {
@@ -122,26 +130,15 @@ impl StaticSolver {
         model: &M,
         constrained_dofs: &[usize],
     ) -> Result<Self, FemError> {
-        let n = model.num_nodes();
-        let dofs = DofMap::new(n, constrained_dofs)?;
-        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
-        let pattern = SystemPattern::new(n, &tets, dofs)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let rest = model.rest_positions();
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for p in rest {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        let length_scale_m = (hi - lo).norm().max(f64::MIN_POSITIVE);
+        let (pattern, cholesky, length_scale_m) = solver_setup(model, constrained_dofs)?;
         Ok(Self {
             pattern,
             cholesky,
             length_scale_m,
             values: Vec::new(),
+            f_int: Vec::new(),
+            energy: None,
+            scratch: AssemblyScratch::default(),
         })
     }
 
@@ -221,7 +218,17 @@ impl StaticSolver {
         frozen: Option<&[ContactSpring]>,
         node_stiffness: Option<(&mut Vec<f64>, &[ContactSpring])>,
     ) -> Result<Vec<ContactSpring>, FemError> {
-        let mut values = self.pattern.assemble(model, x, kind);
+        let mut values = std::mem::take(&mut self.values);
+        let mut f_int = std::mem::take(&mut self.f_int);
+        self.energy = self.pattern.assemble_linearized(
+            model,
+            x,
+            kind,
+            &mut self.scratch,
+            &mut values,
+            &mut f_int,
+        );
+        self.f_int = f_int;
         let springs = match (contact, frozen) {
             (Some(_), Some(f)) => f.to_vec(),
             (Some(c), None) => {
@@ -248,9 +255,30 @@ impl StaticSolver {
             self.pattern
                 .add_node_block(s.node, &s.matrix(), &mut values);
         }
-        self.cholesky.factor(&self.pattern, &values)?;
+        let factored = self.cholesky.factor(&self.pattern, &values);
         self.values = values;
+        factored?;
         Ok(springs)
+    }
+
+    /// Free-dof residual f_ext + f_c − f_int(x) for the given f_int and its tolerance scale: the
+    /// largest of the external, internal (incl. reactions at constrained dofs) and contact force
+    /// norms.
+    fn residual_with(
+        &self,
+        f_int: &[Vector3<f64>],
+        x: &[Vector3<f64>],
+        f_ext: &[Vector3<f64>],
+        springs: &[ContactSpring],
+    ) -> (Vec<f64>, f64) {
+        let mut fc = Vec::new();
+        if !springs.is_empty() {
+            fc = vec![Vector3::zeros(); x.len()];
+            for s in springs {
+                fc[s.node] += s.force(&x[s.node]);
+            }
+        }
+        free_residual(self.dofs(), f_ext, f_int, &fc)
     }
 
     fn residual<M: ElasticModel + ?Sized>(
@@ -260,21 +288,7 @@ impl StaticSolver {
         f_ext: &[Vector3<f64>],
         springs: &[ContactSpring],
     ) -> (Vec<f64>, f64) {
-        let f_int = model.internal_forces(x);
-        let mut r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(e, i)| e - i).collect();
-        let mut fc = Vec::with_capacity(springs.len());
-        for s in springs {
-            let f = s.force(&x[s.node]);
-            r[s.node] += f;
-            fc.push(f);
-        }
-        let dofs = self.dofs();
-        let free = dofs.gather(&r);
-        // Scale: the largest of the external, internal (incl. reactions at constrained dofs) and
-        // contact force norms.
-        let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
-        let scale = norm(f_ext).max(norm(&f_int)).max(norm(&fc));
-        (free, scale)
+        self.residual_with(&model.internal_forces(x), x, f_ext, springs)
     }
 
     /// Solves f_int(x) = f_ext (+ contact) for the free dofs, starting from `x` (whose constrained
@@ -342,7 +356,7 @@ impl StaticSolver {
                     return report;
                 }
             };
-            let (r, scale) = self.residual(&*model, x, f_ext, &springs);
+            let (r, scale) = self.residual_with(&self.f_int, x, f_ext, &springs);
             let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.residual_norm_n = rnorm;
             if let Some(c) = contact {
@@ -378,7 +392,8 @@ impl StaticSolver {
                     springs: &springs,
                     frozen: freeze,
                 });
-                self.line_search(&*model, x, f_ext, merit, &dx, &r, settings)
+                let energy = self.energy;
+                self.line_search(&*model, x, energy, f_ext, merit, &dx, &r, settings)
             } else {
                 1.0
             };
@@ -395,6 +410,7 @@ impl StaticSolver {
         &self,
         model: &M,
         x: &[Vector3<f64>],
+        energy_at_x: Option<f64>,
         f_ext: &[Vector3<f64>],
         contact: Option<ContactMerit<'_>>,
         dx: &[f64],
@@ -408,14 +424,19 @@ impl StaticSolver {
             xt
         };
         // Frozen springs are a fixed linear force field: no potential of the probe to add.
-        let energy_merit = contact.as_ref().is_none_or(|c| !c.frozen) && model.energy(x).is_some();
-        if energy_merit {
-            let merit = |xs: &[Vector3<f64>]| {
+        let energy0 = if contact.as_ref().is_none_or(|c| !c.frozen) {
+            energy_at_x.or_else(|| model.energy(x))
+        } else {
+            None
+        };
+        if let Some(energy0) = energy0 {
+            let merit_with = |xs: &[Vector3<f64>], energy: f64| {
                 let ext = xs.iter().zip(f_ext).map(|(a, f)| a.dot(f)).sum::<f64>();
                 let penalty = contact.as_ref().map_or(0.0, |c| c.energy(xs));
-                model.energy(xs).unwrap_or(f64::NAN) - ext + penalty
+                energy - ext + penalty
             };
-            let e0 = merit(x);
+            let merit = |xs: &[Vector3<f64>]| merit_with(xs, model.energy(xs).unwrap_or(f64::NAN));
+            let e0 = merit_with(x, energy0);
             let slope = -dx.iter().zip(r).map(|(a, b)| a * b).sum::<f64>();
             if slope < 0.0 && e0.is_finite() {
                 let mut s = 1.0;
