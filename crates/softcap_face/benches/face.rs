@@ -1,48 +1,38 @@
 //! Criterion benches of the face stage: linear-shell prefactor and per-frame solve on the ICT
 //! face (41 marker handles) and on its 3× midpoint-subdivided version (≈600k vertices), the (d, w)
-//! cross-section fit of one rendered wrinkle frame, and the wrinkle synthesis (§3.3.1) of one
-//! forehead wrinkle on the jaw-open ICT frame.
+//! cross-section fit of one rendered wrinkle frame, and the wrinkle synthesis (§3.3.1) of eleven
+//! wrinkles on the jaw-open ICT frame (2× subdivided; 3× in the `subdivided` group, which runs
+//! only with SOFTCAP_FACE_BENCH_FINE=1).
 
 use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use softcap_face::morphology::connected_components;
-use softcap_face::nalgebra::{Isometry3, Vector3};
 use softcap_face::{
     AoRenderSettings, FaceAnimator, TrackSettings, WrinkleScene, factor_shell, parse_landmarks_csv,
-    read_animface_csv, render_ambient_occlusion, track_wrinkle,
+    read_animface_csv, render_ambient_occlusion, subdivide_midpoint, track_wrinkle,
 };
-use softcap_face::{
-    PinholeCamera, SynthesisSettings, WrinkleCurve, WrinkleSample, synthesize_wrinkles,
-};
+use softcap_face::{SynthesisSettings, synthesize_wrinkles};
+
+#[path = "../tests/common/face_scene.rs"]
+mod face_scene;
 use softcap_mesh::shell::ShellSettings;
 
 fn fixtures() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures")
 }
 
-/// One midpoint subdivision (each triangle → 4); original vertices keep their indices.
-fn subdivide(mesh: &softcap_mesh::TriMesh) -> softcap_mesh::TriMesh {
-    let mut vertices = mesh.vertices.clone();
-    let mut mid = std::collections::HashMap::new();
-    let mut triangles = Vec::with_capacity(4 * mesh.triangles.len());
-    for t in &mesh.triangles {
-        let mut m = [0usize; 3];
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                vertices.push((mesh.vertices[a] + mesh.vertices[b]) * 0.5);
-                vertices.len() - 1
-            });
-        }
-        triangles.push([t[0], m[0], m[2]]);
-        triangles.push([t[1], m[1], m[0]]);
-        triangles.push([t[2], m[2], m[1]]);
-        triangles.push(m);
+/// `levels` midpoint subdivisions (original vertices keep their indices, so the handles stay).
+fn subdivide(mesh: &softcap_mesh::TriMesh, levels: usize) -> softcap_mesh::TriMesh {
+    let (mut tris, mut verts) = (mesh.triangles.clone(), mesh.vertices.clone());
+    for _ in 0..levels {
+        let (t, mut f) = subdivide_midpoint(&tris, &[&verts]).expect("subdivide");
+        tris = t;
+        verts = f.pop().expect("field");
     }
     softcap_mesh::TriMesh {
-        vertices,
-        triangles,
+        vertices: verts,
+        triangles: tris,
     }
 }
 
@@ -70,48 +60,51 @@ fn bench(c: &mut Criterion) {
     c.bench_function("shell_frame_ict_9409v", |b| {
         b.iter(|| animator.frame(&take.positions_cm[t]).expect("frame"))
     });
-    // wrinkle synthesis: one horizontal forehead wrinkle seen by a frontal camera 50 cm away
-    let deformed = animator.frame(&take.positions_cm[t]).expect("frame");
-    let (lo, hi) = deformed.iter().fold(
-        (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        ),
-        |(a, b), v| (a.inf(v), b.sup(v)),
+    // wrinkle synthesis on a full face: eleven wrinkles (forehead, glabella, nasolabial folds,
+    // crow's feet; tests/common/face_scene.rs) on the jaw-open ICT frame subdivided twice
+    // (148k vertices; the thesis's scans have ≈700k, see the subdivided group below)
+    let (rest2, deformed2) = face_scene::face_scene_meshes(2);
+    let camera = face_scene::face_camera(&deformed2);
+    let wrinkles = face_scene::face_wrinkles(&camera, &deformed2);
+    let check = synthesize_wrinkles(
+        &rest2,
+        &deformed2,
+        &camera,
+        &wrinkles,
+        &SynthesisSettings::default(),
+    )
+    .expect("synthesis");
+    eprintln!(
+        "synthesis scene: {} vertices, {} wrinkles ({} samples, all on the face: {}), {} regions: {:?}",
+        rest2.vertices.len(),
+        wrinkles.len(),
+        wrinkles.iter().map(|w| w.samples.len()).sum::<usize>(),
+        check
+            .projected
+            .iter()
+            .zip(&wrinkles)
+            .all(|(p, w)| p.points.len() == w.samples.len()),
+        check.regions.len(),
+        check
+            .regions
+            .iter()
+            .map(|r| (
+                r.free_vertices,
+                r.valley_vertices,
+                r.iterations,
+                r.converged
+            ))
+            .collect::<Vec<_>>()
     );
-    let forehead_y = lo.y + 0.8 * (hi.y - lo.y);
-    let front = deformed
-        .iter()
-        .filter(|v| (v.y - forehead_y).abs() < 0.5)
-        .max_by(|a, b| a.z.total_cmp(&b.z))
-        .copied()
-        .expect("forehead vertex");
-    let camera = PinholeCamera {
-        world_from_camera: Isometry3::new(
-            Vector3::new(front.x, front.y, front.z + 50.0),
-            Vector3::new(std::f64::consts::PI, 0.0, 0.0),
-        ),
-        focal_px: 1000.0,
-        principal_px: [500.0, 500.0],
-    };
-    let curve = WrinkleCurve {
-        samples: (0..17)
-            .map(|k| WrinkleSample {
-                valley_px: [420.0 + 10.0 * k as f64, 500.0],
-                depth_px: 3.0,
-                width_px: 6.0,
-            })
-            .collect(),
-    };
     let mut group = c.benchmark_group("synthesis");
     group.sample_size(10);
-    group.bench_function("forehead_wrinkle_ict_frame", |b| {
+    group.bench_function(format!("face_11_wrinkles_{}v", rest2.vertices.len()), |b| {
         b.iter(|| {
             synthesize_wrinkles(
-                &animator.mesh,
-                &deformed,
+                &rest2,
+                &deformed2,
                 &camera,
-                std::slice::from_ref(&curve),
+                &wrinkles,
                 &SynthesisSettings::default(),
             )
             .expect("synthesis")
@@ -140,7 +133,7 @@ fn bench(c: &mut Criterion) {
     if std::env::var_os("SOFTCAP_FACE_BENCH_FINE").is_none() {
         return;
     }
-    let fine = subdivide(&subdivide(&subdivide(&mesh)));
+    let fine = subdivide(&mesh, 3);
     let mut group = c.benchmark_group("subdivided");
     group.sample_size(10);
     group.bench_function(format!("shell_prefactor_{}v", fine.vertices.len()), |b| {
@@ -156,6 +149,24 @@ fn bench(c: &mut Criterion) {
     group.bench_function(format!("shell_frame_{}v", fine.vertices.len()), |b| {
         b.iter(|| fine_animator.frame(&take.positions_cm[t]).expect("frame"))
     });
+    let (rest3, deformed3) = face_scene::face_scene_meshes(3);
+    let camera3 = face_scene::face_camera(&deformed3);
+    let wrinkles3 = face_scene::face_wrinkles(&camera3, &deformed3);
+    group.bench_function(
+        format!("synthesis_face_11_wrinkles_{}v", rest3.vertices.len()),
+        |b| {
+            b.iter(|| {
+                synthesize_wrinkles(
+                    &rest3,
+                    &deformed3,
+                    &camera3,
+                    &wrinkles3,
+                    &SynthesisSettings::default(),
+                )
+                .expect("synthesis")
+            })
+        },
+    );
     group.finish();
 }
 

@@ -83,3 +83,50 @@ pub fn factor_shell(
         reason: e.to_string(),
     })
 }
+
+/// One midpoint subdivision of a triangle mesh carrying several vertex fields with the same
+/// topology (e.g. the rest face and a deformed frame): every triangle becomes four, every edge
+/// gets its midpoint, and original vertices keep their indices (so marker handles stay valid).
+/// Returns the new triangles and the subdivided fields. Used to build the ≈600k-vertex face of
+/// the benches (the thesis's scans have ≈700k vertices, §4.4.1).
+///
+/// Triangles referencing a vertex outside a field are an error.
+pub fn subdivide_midpoint(
+    triangles: &[[usize; 3]],
+    fields: &[&[Vector3<f64>]],
+) -> Result<(Vec<[usize; 3]>, Vec<Vec<Vector3<f64>>>)> {
+    let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
+    if let Some(f) = fields.iter().find(|f| f.len() != n) {
+        return Err(FaceError::InvalidInput {
+            what: "subdivision fields",
+            reason: format!("fields of {} and {n} vertices", f.len()),
+        });
+    }
+    if let Some(t) = triangles.iter().position(|t| t.iter().any(|&v| v >= n)) {
+        return Err(FaceError::InvalidInput {
+            what: "subdivision triangles",
+            reason: format!("triangle {t} references a vertex ≥ {n}"),
+        });
+    }
+    let mut out: Vec<Vec<Vector3<f64>>> = fields.iter().map(|f| f.to_vec()).collect();
+    let mut mid = std::collections::HashMap::new();
+    let mut tris = Vec::with_capacity(4 * triangles.len());
+    for t in triangles {
+        let mut m = [0usize; 3];
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let next = n + mid.len();
+            m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                for (o, f) in out.iter_mut().zip(fields) {
+                    o.push((f[a] + f[b]) * 0.5);
+                }
+                next
+            });
+        }
+        tris.push([t[0], m[0], m[2]]);
+        tris.push([t[1], m[1], m[0]]);
+        tris.push([t[2], m[2], m[1]]);
+        tris.push(m);
+    }
+    Ok((tris, out))
+}

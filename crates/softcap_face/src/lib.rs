@@ -43,7 +43,7 @@ pub mod render;
 pub mod synth;
 pub mod track;
 
-pub use animate::{FaceAnimator, factor_shell};
+pub use animate::{FaceAnimator, factor_shell, subdivide_midpoint};
 pub use classify::{SvmSettings, classify_frames};
 pub use correspondence::Correspondence;
 pub use cross_section::{
