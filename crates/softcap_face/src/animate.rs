@@ -38,8 +38,25 @@ impl FaceAnimator {
                 reason: format!("vertex {h} out of range"),
             });
         }
+        let mut sorted = handles.clone();
+        sorted.sort_unstable();
+        if let Some(w) = sorted.windows(2).find(|w| w[0] == w[1]) {
+            return Err(FaceError::InvalidInput {
+                what: "handles",
+                reason: format!("vertex {} is the handle of two markers", w[0]),
+            });
+        }
         let face_points: Vec<Vector3<f64>> = handles.iter().map(|&h| mesh.vertices[h]).collect();
-        let correspondence = Correspondence::fit(mocap_neutral, &face_points)?;
+        // the neutral mocap frame comes from the user's take: a degenerate marker layout is bad
+        // input, not a failure of the stage
+        let correspondence =
+            Correspondence::fit(mocap_neutral, &face_points).map_err(|e| match e {
+                FaceError::Core(reason) => FaceError::InvalidInput {
+                    what: "neutral mocap frame (correspondence r³ warp)",
+                    reason,
+                },
+                other => other,
+            })?;
         let shell = factor_shell(&mesh, &handles, settings)?;
         Ok(Self {
             mesh,

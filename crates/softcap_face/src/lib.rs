@@ -62,7 +62,7 @@ pub use render::{AoRenderSettings, RenderedFrame, WrinkleScene, render_ambient_o
 pub use synth::{
     DiscreteShell, PinholeCamera, ProjectedWrinkle, RegionReport, SynthesisResult,
     SynthesisSettings, WrinkleCurve, WrinkleSample, project_wrinkle, smoothed_normals,
-    synthesize_wrinkles,
+    synthesize_wrinkles, validate_wrinkles,
 };
 pub use track::{
     CrossSection, TrackSettings, TrackedWrinkle, ValleySpline, fit_cross_section, track_wrinkle,

@@ -1,5 +1,8 @@
 //! Binary morphology and connected components on pixel masks (thesis §4.3.1: "morphological
 //! operations (e.g., erosion and dilation) to remove possible pixel classification errors").
+//!
+//! Masks are row-major `width × height`; a mask shorter than that is a caller bug and panics
+//! (the sizes come from the same image, never from a file).
 
 /// Erode with a (2r+1)² square: a pixel stays set iff its whole neighbourhood is set
 /// (outside the image counts as set, so borders do not eat the mask).
@@ -14,6 +17,9 @@ pub fn dilate(mask: &[bool], width: usize, height: usize, r: usize) -> Vec<bool>
 
 fn window(mask: &[bool], width: usize, height: usize, r: usize, all: bool) -> Vec<bool> {
     let mut out = vec![false; mask.len()];
+    if width == 0 || height == 0 {
+        return out;
+    }
     for y in 0..height {
         for x in 0..width {
             let mut acc = all;

@@ -23,6 +23,35 @@ pub struct WrinkleInput {
     pub frames: Vec<FrameWrinkles>,
 }
 
+impl WrinkleInput {
+    /// Check the camera and every wrinkle sample (finite, w > 0, d ≥ 0); the error names the
+    /// frame, wrinkle and sample.
+    pub fn validate(&self) -> crate::error::Result<()> {
+        let Some(camera) = &self.camera else {
+            return if self.frames.iter().all(|f| f.wrinkles.is_empty()) {
+                Ok(())
+            } else {
+                Err(crate::error::FaceError::InvalidInput {
+                    what: "wrinkles",
+                    reason: "wrinkles without a camera".into(),
+                })
+            };
+        };
+        for f in &self.frames {
+            crate::synth::validate_wrinkles(camera, &f.wrinkles).map_err(|e| match e {
+                crate::error::FaceError::InvalidInput { what, reason } => {
+                    crate::error::FaceError::InvalidInput {
+                        what,
+                        reason: format!("frame {}: {reason}", f.frame),
+                    }
+                }
+                other => other,
+            })?;
+        }
+        Ok(())
+    }
+}
+
 /// The image-space wrinkles of one source frame.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct FrameWrinkles {

@@ -91,6 +91,16 @@ pub fn remove_wrinkles(
             reason: format!("{} is not in (0, 1]", settings.detail_smoothing_step),
         });
     }
+    if let Some(t) = mesh
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v >= n))
+    {
+        return Err(FaceError::InvalidInput {
+            what: "mesh",
+            reason: format!("triangle {t} references a vertex ≥ {n}"),
+        });
+    }
     let rings = one_rings(n, &mesh.triangles);
     if let Some(&v) = region.iter().find(|&&v| rings[v].is_empty()) {
         return Err(FaceError::InvalidInput {

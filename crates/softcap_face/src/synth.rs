@@ -744,6 +744,47 @@ impl DiscreteShell {
     }
 }
 
+/// The camera and the wrinkle samples come from the user's `--wrinkles` file: a non-finite or
+/// non-positive focal length, a non-finite pose or sample, a non-positive width or a negative
+/// depth is bad input.
+pub fn validate_wrinkles(camera: &PinholeCamera, wrinkles: &[WrinkleCurve]) -> Result<()> {
+    let iso = &camera.world_from_camera;
+    let pose_ok = iso.translation.vector.iter().all(|v| v.is_finite())
+        && iso.rotation.coords.iter().all(|v| v.is_finite());
+    if !(camera.focal_px > 0.0
+        && camera.focal_px.is_finite()
+        && camera.principal_px.iter().all(|v| v.is_finite())
+        && pose_ok)
+    {
+        return Err(FaceError::InvalidInput {
+            what: "camera",
+            reason: format!(
+                "focal {} px, principal point {:?}, pose finite: {pose_ok}",
+                camera.focal_px, camera.principal_px
+            ),
+        });
+    }
+    for (k, w) in wrinkles.iter().enumerate() {
+        for (j, s) in w.samples.iter().enumerate() {
+            if !(s.valley_px.iter().all(|v| v.is_finite())
+                && s.width_px > 0.0
+                && s.width_px.is_finite()
+                && s.depth_px >= 0.0
+                && s.depth_px.is_finite())
+            {
+                return Err(FaceError::InvalidInput {
+                    what: "wrinkle sample",
+                    reason: format!(
+                        "wrinkle {k} sample {j}: valley {:?} px, d {} px, w {} px (need finite, w > 0, d ≥ 0)",
+                        s.valley_px, s.depth_px, s.width_px
+                    ),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Wrinkle synthesis (thesis §3.3.1) on the deformed face `deformed` (same topology as `rest`):
 /// project each wrinkle through `camera`, offset valley vertices (p ≤ w) along smoothed normals by
 /// S(w, d, p), segment the influence regions (p ≤ `influence_widths`·w, merged when they touch),
@@ -760,6 +801,17 @@ pub fn synthesize_wrinkles(
         return Err(FaceError::InvalidInput {
             what: "deformed vertices",
             reason: format!("{} positions for a {n}-vertex rest mesh", deformed.len()),
+        });
+    }
+    validate_wrinkles(camera, wrinkles)?;
+    if let Some(t) = rest
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v >= n))
+    {
+        return Err(FaceError::InvalidInput {
+            what: "rest mesh",
+            reason: format!("triangle {t} references a vertex ≥ {n}"),
         });
     }
     let projected: Vec<ProjectedWrinkle> = wrinkles

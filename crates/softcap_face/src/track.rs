@@ -387,6 +387,16 @@ pub fn track_wrinkle(
             reason: format!("{} pixels", patch.len()),
         });
     }
+    if let Some(&i) = patch.iter().find(|&&i| i >= image.data.len()) {
+        return Err(FaceError::InvalidInput {
+            what: "wrinkle patch",
+            reason: format!(
+                "pixel {i} outside the {}×{} image",
+                image.width,
+                image.data.len() / image.width.max(1)
+            ),
+        });
+    }
     let pts: Vec<Vector2<f64>> = patch
         .iter()
         .map(|&i| Vector2::new((i % image.width) as f64, (i / image.width) as f64))

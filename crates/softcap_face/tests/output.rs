@@ -136,6 +136,52 @@ fn run_writes_mcap_and_bad_input_exits_2_naming_the_file() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("bad_wrinkles.json"));
     assert!(!out.exists());
+    // a wrinkle sample with a negative width: exit 2 naming the file and the sample
+    let neg = dir.path().join("neg_width.json");
+    std::fs::write(
+        &neg,
+        r#"{ "camera": { "world_from_camera": { "rotation": [0.0, 0.0, 0.0, 1.0], "translation": [0.0, 0.0, 60.0] },
+             "focal_px": 1000.0, "principal_px": [500.0, 500.0] },
+           "frames": [ { "frame": 390, "wrinkles": [ { "samples": [
+               { "valley_px": [500.0, 400.0], "depth_px": 2.0, "width_px": 5.0 },
+               { "valley_px": [510.0, 400.0], "depth_px": 2.0, "width_px": -5.0 } ] } ] } ] }"#,
+    )
+    .unwrap();
+    let o = args(&["--wrinkles".as_ref(), neg.as_os_str()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("neg_width.json") && err.contains("sample 1"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // two markers on one vertex in the landmark table: exit 2 naming the table
+    let dup = dir.path().join("dup_landmarks.csv");
+    let table = std::fs::read_to_string(&landmarks).unwrap();
+    let mut lines: Vec<String> = table.lines().map(String::from).collect();
+    let first_vertex = lines[1].split(',').nth(1).unwrap().to_string();
+    let mut cols: Vec<String> = lines[2].split(',').map(String::from).collect();
+    cols[1] = first_vertex;
+    lines[2] = cols.join(",");
+    std::fs::write(&dup, lines.join("\n")).unwrap();
+    let o = std::process::Command::new(exe)
+        .arg("run")
+        .arg("--mocap")
+        .arg(&mocap)
+        .arg("--face")
+        .arg(&face)
+        .arg("--landmarks")
+        .arg(&dup)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("dup_landmarks.csv"), "{err}");
+    assert!(!out.exists());
     // missing frame: exit 2 naming the take
     let o = args(&["--frames".as_ref(), "999999".as_ref()])
         .output()

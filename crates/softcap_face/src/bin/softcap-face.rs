@@ -125,7 +125,15 @@ fn animator(
         handles,
         &take.positions_cm[0],
         &ShellSettings::default(),
-    )?;
+    )
+    .with_context(|| {
+        format!(
+            "rigging {} with {} and {}",
+            face.display(),
+            landmarks.display(),
+            mocap.display()
+        )
+    })?;
     Ok((take, animator))
 }
 
@@ -173,9 +181,8 @@ impl Command {
                             .map_err(|e| bad(format!("reading {}: {e}", p.display())))?;
                         let w: WrinkleInput = serde_json::from_str(&text)
                             .map_err(|e| bad(format!("{}: {e}", p.display())))?;
-                        if w.camera.is_none() && !w.frames.is_empty() {
-                            return Err(bad(format!("{}: wrinkles without a camera", p.display())));
-                        }
+                        w.validate()
+                            .map_err(|e| bad(format!("{}: {e}", p.display())))?;
                         w
                     }
                     None => WrinkleInput::default(),
