@@ -11,13 +11,14 @@ use crate::composite::{CompositeSettings, CompositeSimulator, LayeredBlock};
 use crate::error::{DesignError, Result};
 use crate::material::{BaseMaterial, InvariantMaterial, TransverseMaterial, TransverseParams};
 use crate::search::{
-    DesignEvaluator, Response, SearchSettings, TableEvaluator, branch_and_bound, design_from_index,
-    design_index, exhaustive_optimum, exhaustive_table,
+    BoundCheck, DesignEvaluator, Response, SearchSettings, TableEvaluator, bound_violations,
+    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -121,6 +122,9 @@ pub struct ExperimentSettings {
     pub thickness_jitter: f64,
     /// Also evaluate all M^N designs as the reference.
     pub exhaustive: bool,
+    /// Cache of the exhaustive table ([`write_table`] format): read if it exists and matches
+    /// (N, M, response length), otherwise computed and written there.
+    pub table_path: Option<PathBuf>,
 }
 
 impl Default for ExperimentSettings {
@@ -132,6 +136,7 @@ impl Default for ExperimentSettings {
             seed: 2010,
             thickness_jitter: 0.15,
             exhaustive: true,
+            table_path: None,
         }
     }
 }
@@ -153,6 +158,11 @@ pub struct TargetOutcome {
     pub exhaustive: Option<(Vec<usize>, f64)>,
     /// Found == exhaustive optimum.
     pub matches_exhaustive: Option<bool>,
+    /// Design found by the thesis' heuristic (only the K representatives split), when the
+    /// table is available.
+    pub heuristic_design: Option<Vec<usize>>,
+    /// Distinct designs the heuristic simulated.
+    pub heuristic_evaluations: Option<usize>,
     /// Wall time of the search [s] (simulations included when not table-backed).
     pub search_seconds: f64,
 }
@@ -170,6 +180,10 @@ pub struct ExperimentReport {
     pub exhaustive_seconds: f64,
     /// Designs in the exhaustive table that failed to converge.
     pub exhaustive_failures: usize,
+    /// Targets whose heuristic (K representatives only) design equals the exhaustive optimum.
+    pub heuristic_matches: usize,
+    /// The §8.4.2 bound assumption checked over the whole table (per level).
+    pub bound_checks: Vec<BoundCheck>,
 }
 
 /// Random layer thicknesses with relative jitter, summing to the block height.
@@ -212,8 +226,21 @@ pub fn run_experiment(
         .collect::<Result<_>>()?;
     let mut evaluator = ParallelEvaluator::new(materials.clone(), cs)?;
     let t0 = Instant::now();
-    let table = if settings.exhaustive {
-        Some(exhaustive_table(n, m, &mut evaluator, 2048))
+    let dim = evaluator.block.top_nodes.len() * 3 * cs.forces_n.len();
+    let cached = match (&settings.table_path, settings.exhaustive) {
+        (Some(p), true) if p.exists() => read_table(p)
+            .ok()
+            .filter(|t| t.cells == n && t.materials == m && t.dim == dim),
+        _ => None,
+    };
+    let table = if let Some(t) = cached {
+        Some(t.responses)
+    } else if settings.exhaustive {
+        let t = exhaustive_table(n, m, &mut evaluator, 4096);
+        if let Some(p) = &settings.table_path {
+            write_table(p, n, m, dim, &t)?;
+        }
+        Some(t)
     } else {
         None
     };
@@ -244,6 +271,20 @@ pub fn run_experiment(
         let matches_exhaustive = exhaustive
             .as_ref()
             .map(|(d, _)| design_index(d, m) == design_index(&rep.design, m));
+        let heuristic = match &table {
+            Some(tab) => {
+                let mut tev = TableEvaluator {
+                    table: tab,
+                    materials: m,
+                };
+                let hs = SearchSettings {
+                    exact: false,
+                    ..settings.search.clone()
+                };
+                Some(branch_and_bound(n, m, tx, &mut tev, &hs)?)
+            }
+            None => None,
+        };
         outcomes.push(TargetOutcome {
             target_design: design.clone(),
             target_thickness_m: thick.clone(),
@@ -252,6 +293,8 @@ pub fn run_experiment(
             evaluations: rep.evaluations,
             exhaustive,
             matches_exhaustive,
+            heuristic_design: heuristic.as_ref().map(|h| h.design.clone()),
+            heuristic_evaluations: heuristic.as_ref().map(|h| h.evaluations),
             search_seconds,
         });
     }
@@ -264,11 +307,132 @@ pub fn run_experiment(
     let exhaustive_failures = table
         .as_ref()
         .map_or(0, |t| t.iter().filter(|r| r.is_none()).count());
+    let heuristic_matches = outcomes
+        .iter()
+        .filter(
+            |o| matches!((&o.heuristic_design, &o.exhaustive), (Some(h), Some((d, _))) if h == d),
+        )
+        .count();
+    let bound_checks = table
+        .as_ref()
+        .map_or_else(Vec::new, |t| bound_violations(t, n, m, &target_x));
     Ok(ExperimentReport {
         outcomes,
         mean_found_rms_m,
         matches,
         exhaustive_seconds,
         exhaustive_failures,
+        heuristic_matches,
+        bound_checks,
+    })
+}
+
+/// A table of all M^N design responses (index order of [`design_from_index`]).
+#[derive(Clone, Debug)]
+pub struct ResponseTable {
+    /// Cells N.
+    pub cells: usize,
+    /// Materials M.
+    pub materials: usize,
+    /// Length of one response.
+    pub dim: usize,
+    /// Responses (`None`: simulation failed).
+    pub responses: Vec<Response>,
+}
+
+const TABLE_MAGIC: &[u8; 8] = b"SCDTAB01";
+
+/// Writes a response table: magic `SCDTAB01`, u64 LE N, M, dim, then per design one byte
+/// (1 = simulated) and dim f64 LE (zeros for a failed design). Atomic (tmp + rename).
+pub fn write_table(
+    path: &Path,
+    cells: usize,
+    materials: usize,
+    dim: usize,
+    table: &[Response],
+) -> Result<()> {
+    let mut bytes = Vec::with_capacity(32 + table.len() * (1 + 8 * dim));
+    bytes.extend_from_slice(TABLE_MAGIC);
+    for v in [cells, materials, dim] {
+        bytes.extend_from_slice(&(v as u64).to_le_bytes());
+    }
+    for r in table {
+        match r {
+            Some(x) if x.len() == dim => {
+                bytes.push(1);
+                for v in x.iter() {
+                    bytes.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+            _ => {
+                bytes.push(0);
+                bytes.extend(std::iter::repeat_n(0u8, 8 * dim));
+            }
+        }
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, &bytes).map_err(|source| DesignError::Io {
+        path: tmp.clone(),
+        source,
+    })?;
+    std::fs::rename(&tmp, path).map_err(|source| DesignError::Io {
+        path: path.into(),
+        source,
+    })
+}
+
+/// Reads a table written by [`write_table`]; a wrong magic, header or length is an error
+/// naming the file.
+pub fn read_table(path: &Path) -> Result<ResponseTable> {
+    let bytes = std::fs::read(path).map_err(|source| DesignError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let bad = |reason: String| DesignError::File {
+        path: path.into(),
+        reason,
+    };
+    if bytes.len() < 32 || &bytes[..8] != TABLE_MAGIC {
+        return Err(bad("not a softcap design table (magic SCDTAB01)".into()));
+    }
+    let word = |i: usize| {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&bytes[8 + 8 * i..16 + 8 * i]);
+        u64::from_le_bytes(b) as usize
+    };
+    let (cells, materials, dim) = (word(0), word(1), word(2));
+    let count = u32::try_from(cells)
+        .ok()
+        .and_then(|c| materials.checked_pow(c))
+        .ok_or_else(|| bad(format!("{materials}^{cells} designs overflow")))?;
+    let rec = 1 + 8 * dim;
+    if bytes.len() != 32 + count * rec {
+        return Err(bad(format!(
+            "{} bytes, expected {} for {count} designs × {dim} values",
+            bytes.len(),
+            32 + count * rec
+        )));
+    }
+    let responses = (0..count)
+        .map(|k| {
+            let o = 32 + k * rec;
+            (bytes[o] == 1).then(|| {
+                Arc::new(
+                    (0..dim)
+                        .map(|i| {
+                            let mut b = [0u8; 8];
+                            b.copy_from_slice(&bytes[o + 1 + 8 * i..o + 9 + 8 * i]);
+                            f64::from_le_bytes(b)
+                        })
+                        .collect(),
+                )
+            })
+        })
+        .collect();
+    Ok(ResponseTable {
+        cells,
+        materials,
+        dim,
+        responses,
     })
 }

@@ -11,6 +11,8 @@
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
 //! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
 //! | [`output`] | design / target JSON, force–displacement PNG | |
+//! | [`print`] | multi-material 3MF (one object per material) via `threemf` | §8.5 |
+//! | [`recording`] | capture.mcap of a probed base-material block → measurements | §8.3, §8.5 |
 //! | [`rubber`] | the invariant model fitted to Treloar uniaxial + Kawabata biaxial rubber data at once | eq. 8.1–8.2, §8.3 |
 //! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |
 //!
@@ -37,6 +39,8 @@ pub mod fit;
 pub mod material;
 pub mod model;
 pub mod output;
+pub mod print;
+pub mod recording;
 pub mod rubber;
 pub mod search;
 
@@ -45,8 +49,8 @@ pub use composite::{
 };
 pub use error::{DesignError, Result};
 pub use experiment::{
-    ExperimentReport, ExperimentSettings, ParallelEvaluator, TargetOutcome, reference_library,
-    run_experiment,
+    ExperimentReport, ExperimentSettings, ParallelEvaluator, ResponseTable, TargetOutcome,
+    read_table, reference_library, run_experiment, write_table,
 };
 pub use fit::{
     BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_isotropic,
@@ -59,14 +63,16 @@ pub use material::{
 };
 pub use model::CompositeModel;
 pub use output::{DesignTarget, plot_force_displacement, read_json, write_json};
+pub use print::{PrintPart, read_design_3mf, write_design_3mf};
+pub use recording::{CaptureMappingSettings, measurements_from_capture};
 pub use rubber::{
     DataSetError, RubberFitReport, RubberFitSettings, RubberPoint, fit_rubber, nominal_stress,
     read_biaxial, read_uniaxial, rubber_errors,
 };
 pub use search::{
-    DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings, TableEvaluator,
-    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
-    point_box_distance,
+    BoundCheck, DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings,
+    TableEvaluator, bound_violations, branch_and_bound, design_from_index, design_index,
+    exhaustive_optimum, exhaustive_table, point_box_distance,
 };
 
 pub use softcap_fem;

@@ -37,6 +37,25 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Fit one isotropic base material (eq. 8.1–8.3) per capture.mcap of a probed block and
+    /// write them as a library JSON (input of `target` / `search`).
+    FitBase {
+        /// capture.mcap files, one per base material (probe sessions on 4 × 5 × 2.5 cm blocks).
+        #[arg(required = true)]
+        captures: Vec<PathBuf>,
+        /// Starting Young's modulus of the linear pre-fit [Pa].
+        #[arg(long, default_value_t = 2.0e5)]
+        young_guess: f64,
+        /// RBF centres per material (thesis: 6).
+        #[arg(long, default_value_t = 6)]
+        centres: usize,
+        /// Optional TOML with `CaptureMappingSettings` (block size, mesh cells, snapping).
+        #[arg(long)]
+        mapping: Option<PathBuf>,
+        /// Output library JSON.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Simulate a layered design and write it as a target (force–displacement examples).
     Target {
         /// Base-material library JSON.
@@ -49,7 +68,8 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Branch-and-bound search for the design matching a target (thesis §8.4).
+    /// Branch-and-bound search for the design matching a target (thesis §8.4); exact mode
+    /// (K orders the work; see docs/design.md).
     Search {
         /// Base-material library JSON.
         #[arg(long)]
@@ -57,7 +77,7 @@ enum Command {
         /// Target JSON (from `target` or hand-made).
         #[arg(long)]
         target: PathBuf,
-        /// Output folder: design.json, curves.png.
+        /// Output folder: design.json, curves.png, design.3mf (one object per material).
         #[arg(short, long)]
         output: PathBuf,
         /// Clusters K.
@@ -106,6 +126,53 @@ impl Command {
                     );
                 }
                 write_json(output, &rep)?;
+            }
+            Command::FitBase {
+                captures,
+                young_guess,
+                centres,
+                mapping,
+                output,
+            } => {
+                let mapping: CaptureMappingSettings = match mapping {
+                    Some(p) => {
+                        let text =
+                            std::fs::read_to_string(p).map_err(|source| DesignError::Io {
+                                path: p.clone(),
+                                source,
+                            })?;
+                        toml::from_str(&text).map_err(|e| DesignError::File {
+                            path: p.clone(),
+                            reason: e.to_string(),
+                        })?
+                    }
+                    None => CaptureMappingSettings::default(),
+                };
+                let settings = BaseFitSettings {
+                    centres: *centres,
+                    ..BaseFitSettings::default()
+                };
+                let mut library = Vec::new();
+                for path in captures {
+                    let capture = softcap_mcap::capture::CaptureData::read(path).map_err(|e| {
+                        DesignError::File {
+                            path: path.clone(),
+                            reason: e.to_string(),
+                        }
+                    })?;
+                    let meas = measurements_from_capture(&capture, &mapping)?;
+                    let rep = fit_isotropic(&meas, *young_guess, &settings)?;
+                    println!(
+                        "{}: {} examples, linear pre-fit RMS {:.4} mm, fit RMS {:.4} mm ({})",
+                        path.display(),
+                        meas.examples.len(),
+                        rep.linear_rms_m * 1e3,
+                        rep.rms_m * 1e3,
+                        rep.status
+                    );
+                    library.push(rep.material);
+                }
+                write_json(output, &library)?;
             }
             Command::Target {
                 materials,
@@ -201,6 +268,16 @@ impl Command {
                         predicted_probe_displacement_m: &found.probe_displacement_m,
                         seconds,
                     },
+                )?;
+                let names: Vec<String> = (0..ev.materials.len())
+                    .map(|m| format!("base material {m}"))
+                    .collect();
+                write_design_3mf(
+                    &output.join("design.3mf"),
+                    &rep.design,
+                    &vec![settings.block_size_m[2] / settings.layers as f64; settings.layers],
+                    settings.block_size_m,
+                    &names,
                 )?;
                 plot_force_displacement(
                     &output.join("curves.png"),
