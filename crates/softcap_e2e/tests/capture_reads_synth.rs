@@ -104,6 +104,61 @@ fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
     }
 }
 
+/// Synthesizes `path`, captures it and measures capture against truth/.
+fn synth_and_capture(path: &Path, tmp: &Path) -> (Scenario, Accuracy, usize) {
+    let scenario = Scenario::load(path).unwrap();
+    let t0 = std::time::Instant::now();
+    let out = tmp.join(&scenario.name);
+    let report = synthesize(&scenario, &out).unwrap();
+    let t_synth = t0.elapsed().as_secs_f64();
+    let session = Session::load(&out).unwrap();
+    let r = capture(&session, &CaptureSettings::default()).unwrap();
+    let a = accuracy(&out, &r);
+    println!(
+        "{}: {} frames, synth {:.1} s, max force {:.3} N, max marker displacement {:.2} mm; {a:?}",
+        scenario.name,
+        report.frames,
+        t_synth,
+        report.max_axial_force_n,
+        report.max_marker_displacement_m * 1e3
+    );
+    assert_eq!(r.frames.len(), report.frames);
+    (scenario, a, report.frames)
+}
+
+#[test]
+fn capture_reads_the_robot_arm_session_and_recovers_tip_and_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = scenario_dir().join("../robot.toml");
+    let (scenario, a, _) = synth_and_capture(&path, tmp.path());
+    assert_eq!(scenario.kind, "probe-robot");
+    assert!(
+        a.frames_without_probe_pose.is_empty(),
+        "no probe pose in frames {:?}",
+        a.frames_without_probe_pose
+    );
+    assert_eq!(a.missing, 0);
+    assert!(
+        a.marker_rms_mm < 0.3,
+        "marker RMS {:.3} mm",
+        a.marker_rms_mm
+    );
+    // The tip comes from forward kinematics of the logged joints (URDF), the force from the F/T
+    // sensor rotated out of its frame; the clocks are aligned from the data (no trigger line).
+    assert!(a.tip_rms_mm < 0.2, "tip RMS {:.3} mm", a.tip_rms_mm);
+    assert!(
+        a.force_rms_n < 0.03 * a.force_max_n,
+        "force RMS {:.4} N vs max {:.3} N",
+        a.force_rms_n,
+        a.force_max_n
+    );
+    assert!(
+        a.clock_offset_error_ms < 5.0,
+        "clock {:.3} ms",
+        a.clock_offset_error_ms
+    );
+}
+
 #[test]
 fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
     let tmp = tempfile::tempdir().unwrap();
@@ -115,23 +170,7 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
     paths.sort();
     assert!(paths.len() >= 6, "{} suite scenarios", paths.len());
     for path in paths {
-        let scenario = Scenario::load(&path).unwrap();
-        let t0 = std::time::Instant::now();
-        let out = tmp.path().join(&scenario.name);
-        let report = synthesize(&scenario, &out).unwrap();
-        let t_synth = t0.elapsed().as_secs_f64();
-        let session = Session::load(&out).unwrap();
-        let r = capture(&session, &CaptureSettings::default()).unwrap();
-        let a = accuracy(&out, &r);
-        println!(
-            "{}: {} frames, synth {:.1} s, max force {:.3} N, max marker displacement {:.2} mm; {a:?}",
-            scenario.name,
-            report.frames,
-            t_synth,
-            report.max_axial_force_n,
-            report.max_marker_displacement_m * 1e3
-        );
-        assert_eq!(r.frames.len(), report.frames);
+        let (scenario, a, _) = synth_and_capture(&path, tmp.path());
         assert!(
             a.frames_without_probe_pose.is_empty(),
             "{}: no probe pose in frames {:?}",

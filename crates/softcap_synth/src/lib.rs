@@ -9,8 +9,10 @@
 //! |---|---|
 //! | [`scenario`] | scenario TOML (`fixtures/scenarios/*.toml`): object, material, probe, protocol, rig, FSR, clock, output, effects |
 //! | [`truth`] | ground truth: stable neo-Hookean (+ Yeoh c₂) on a finer mesh, rigid-probe contact, frame schedule |
+//! | `engine` | time stepping per physics: elastic, viscoelastic, plastic, nodal (friction / support), dynamic |
 //! | [`rig`] | cameras in a triangle (`softcap_core::camera`), visibility and occlusion, noisy detections |
 //! | [`render`] | PNG frames: anti-aliased painted discs, probe, textured background |
+//! | [`robot`] | 4-DOF arm (URDF), closed-form IK / FK, joint log and 6-axis F/T in the sensor frame (`robot.csv`) |
 //! | [`sensors`] | FSR power law + divider, DAQ clock (offset, drift), trigger line, sensor lag / hysteresis |
 //! | [`write`] | the session folder and `truth/` (atomic: temporary folder renamed into place) |
 //! | [`error`] | [`SynthError`] |
@@ -24,9 +26,11 @@
 //! # Ok::<(), softcap_synth::SynthError>(())
 //! ```
 
+pub(crate) mod engine;
 pub mod error;
 pub mod render;
 pub mod rig;
+pub mod robot;
 pub mod scenario;
 pub mod sensors;
 pub mod truth;
@@ -35,7 +39,7 @@ pub mod write;
 pub use error::{Result, SynthError};
 pub use scenario::{
     ClockSettings, Effect, EffectSettings, FsrSettings, MaterialSettings, ObjectSettings,
-    OutputSettings, ProbeSettings, ProtocolSettings, RigSettings, Scenario,
+    OutputSettings, ProbeSettings, ProtocolSettings, RigSettings, RobotSettings, Scenario,
 };
 pub use truth::{FrameSpec, FrameTruth, Phase, Truth, TruthModel, simulate};
 
@@ -73,6 +77,7 @@ mod streams {
     pub const TRUTH: u64 = 1;
     pub const FSR_CAL: u64 = 2;
     pub const DAQ: u64 = 3;
+    pub const ROBOT: u64 = 4;
     pub const DETECTIONS: u64 = 10;
 }
 
@@ -84,15 +89,27 @@ pub fn synthesize(scenario: &Scenario, out: &Path) -> Result<SynthReport> {
             path: PathBuf::from(format!("<scenario {}>", scenario.name)),
             message,
         })?;
-    if scenario.kind != "probe" {
-        return Err(SynthError::Unsupported {
-            scenario: scenario.name.clone(),
-            message: format!("kind {:?} is not produced by this version", scenario.kind),
-        });
-    }
+    write::SessionWriter::check_target(out)?;
     let truth = simulate(scenario, &mut truth::stream(scenario.seed, streams::TRUTH))?;
+    // Robot log before anything is written: an unreachable pose is a scenario error.
+    let robot = if scenario.kind == "probe-robot" {
+        let arm = robot::Arm::new(&scenario.robot);
+        let rec = robot::record(
+            scenario,
+            &arm,
+            &truth.frames,
+            &mut truth::stream(scenario.seed, streams::ROBOT),
+        )
+        .map_err(|message| SynthError::Unsupported {
+            scenario: scenario.name.clone(),
+            message,
+        })?;
+        Some((arm, rec))
+    } else {
+        None
+    };
     let writer = write::SessionWriter::begin(out)?;
-    match write_all(scenario, &truth, &writer) {
+    match write_all(scenario, &truth, robot.as_ref(), &writer) {
         Ok(mut report) => {
             report.path = writer.finish()?;
             Ok(report)
@@ -104,25 +121,40 @@ pub fn synthesize(scenario: &Scenario, out: &Path) -> Result<SynthReport> {
     }
 }
 
-fn write_all(s: &Scenario, truth: &Truth, w: &write::SessionWriter) -> Result<SynthReport> {
+fn write_all(
+    s: &Scenario,
+    truth: &Truth,
+    robot: Option<&(robot::Arm, robot::RobotRecord)>,
+    w: &write::SessionWriter,
+) -> Result<SynthReport> {
     let cams = rig::cameras(s, &truth.block.size_m)?;
     let o = &s.output;
     w.text(
         "session.toml",
-        &write::session_toml(s, o.images, o.detections, false),
+        &write::session_toml(s, o.images, o.detections, robot.is_some()),
     )?;
     w.text("rig/cameras.toml", &write::cameras_toml(&cams))?;
     w.text("rig/probe.toml", &write::probe_toml(s))?;
-    let cal = sensors::calibration(&s.fsr, &mut truth::stream(s.seed, streams::FSR_CAL));
-    w.text("rig/fsr.toml", &write::fsr_toml(s, &cal))?;
     w.text(
         "template/markers.csv",
         &write::markers_csv(truth, &s.object.marker_color),
     )?;
     write::write_template_meshes(w, &truth.template_fit_mesh)?;
     w.text("trigger.csv", &write::trigger_csv(truth))?;
-    let daq = sensors::record(s, &truth.frames, &mut truth::stream(s.seed, streams::DAQ));
-    w.text("fsr.csv", &write::fsr_csv(&daq))?;
+    let (offset_s, drift, daq) = match robot {
+        Some((arm, rec)) => {
+            w.text("rig/robot.urdf", &arm.urdf())?;
+            w.text("robot.csv", &robot::robot_csv(rec))?;
+            (rec.offset_s, rec.drift, None)
+        }
+        None => {
+            let cal = sensors::calibration(&s.fsr, &mut truth::stream(s.seed, streams::FSR_CAL));
+            w.text("rig/fsr.toml", &write::fsr_toml(s, &cal))?;
+            let daq = sensors::record(s, &truth.frames, &mut truth::stream(s.seed, streams::DAQ));
+            w.text("fsr.csv", &write::fsr_csv(&daq))?;
+            (daq.offset_s, daq.drift, Some(daq))
+        }
+    };
 
     let mut detections = 0;
     if o.detections {
@@ -170,10 +202,10 @@ fn write_all(s: &Scenario, truth: &Truth, w: &write::SessionWriter) -> Result<Sy
     w.text("truth/markers.csv", &write::truth_markers_csv(truth))?;
     w.text("truth/probe.csv", &write::truth_probe_csv(truth))?;
     w.text("truth/frames.csv", &write::truth_frames_csv(truth))?;
-    w.text("truth/clock.toml", &write::clock_toml(&daq))?;
+    w.text("truth/clock.toml", &write::clock_toml(offset_s, drift))?;
     w.text(
         "truth/README.md",
-        &write::truth_readme(s, truth, Some(&daq)),
+        &write::truth_readme(s, truth, daq.as_ref()),
     )?;
     w.text(
         "truth/scenario.toml",

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use crate::error::{Result, SynthError};
+pub use crate::robot::RobotSettings;
 
 /// One switchable effect. The names are the ones `softcap diagnose` reports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -107,6 +108,8 @@ pub struct Scenario {
     pub output: OutputSettings,
     /// Parameters of the effects (used only when the effect is switched on).
     pub effect_settings: EffectSettings,
+    /// The robot arm and F/T sensor (kind "probe-robot").
+    pub robot: RobotSettings,
 }
 
 impl Default for Scenario {
@@ -125,6 +128,7 @@ impl Default for Scenario {
             clock: ClockSettings::default(),
             output: OutputSettings::default(),
             effect_settings: EffectSettings::default(),
+            robot: RobotSettings::default(),
         }
     }
 }
@@ -492,6 +496,32 @@ pub struct EffectSettings {
     /// gravity-preload: Young's modulus used instead of `material.young_pa` (a softer object
     /// sags visibly), Pa.
     pub gravity_young_pa: f64,
+    /// viscoelasticity: Prony branch g (fraction of the long-term stiffness that relaxes).
+    pub viscoelastic_g: f64,
+    /// viscoelasticity: Prony branch relaxation time τ, s.
+    pub viscoelastic_tau_s: f64,
+    /// plasticity: J2 uniaxial yield stress σ_y, Pa.
+    pub plastic_yield_pa: f64,
+    /// plasticity: uniaxial hardening modulus H, Pa.
+    pub plastic_hardening_pa: f64,
+    /// probe-friction: Coulomb coefficient μ under the tip.
+    pub friction_mu: f64,
+    /// probe-friction: regularization slip ε of the Coulomb law, mm.
+    pub friction_slip_distance_mm: f64,
+    /// probe-friction: tangential travel of the tip per unit of indentation depth while in
+    /// contact (the path is oblique; the probe axis keeps `protocol.tilt_deg`).
+    pub friction_path_ratio: f64,
+    /// support-slip: total tangential stiffness of the mount under the bottom face, N/m
+    /// (spread evenly over the support nodes).
+    pub support_stiffness_n_per_m: f64,
+    /// support-slip: probe tilt from the surface normal (oblique probing), degrees.
+    pub support_tilt_deg: f64,
+    /// inertia-damping: Rayleigh mass-proportional damping α, 1/s.
+    pub rayleigh_alpha_per_s: f64,
+    /// inertia-damping: Rayleigh stiffness-proportional damping β, s.
+    pub rayleigh_beta_s: f64,
+    /// inertia-damping: implicit time steps per camera frame.
+    pub dynamics_substeps: usize,
 }
 
 impl Default for EffectSettings {
@@ -501,9 +531,21 @@ impl Default for EffectSettings {
             sensor_hysteresis_fraction: 0.08,
             clock_extra_offset_s: 0.137,
             gravity_m_s2: [0.0, 0.0, -9.81],
-            gravity_young_pa: 4_000.0,
+            gravity_young_pa: 2_200.0,
             anisotropy_fibre: [1.0, 0.0, 0.0],
             anisotropy_fibre_ratio: 5.0,
+            viscoelastic_g: 0.5,
+            viscoelastic_tau_s: 0.1,
+            plastic_yield_pa: 4_000.0,
+            plastic_hardening_pa: 2_000.0,
+            friction_mu: 0.6,
+            friction_slip_distance_mm: 0.01,
+            friction_path_ratio: 0.6,
+            support_stiffness_n_per_m: 800.0,
+            support_tilt_deg: 20.0,
+            rayleigh_alpha_per_s: 6.0,
+            rayleigh_beta_s: 1.0e-4,
+            dynamics_substeps: 4,
         }
     }
 }
@@ -518,12 +560,22 @@ impl Scenario {
         Self::parse(path, &text)
     }
 
-    /// Parses scenario TOML text (`path` is used in errors only).
+    /// Parses scenario TOML text (`path` is used in errors only). `name` is the one required
+    /// key; errors name the line and the field (`protocol.locations`).
     pub fn parse(path: &Path, text: &str) -> Result<Self> {
-        let s: Scenario = toml::from_str(text).map_err(|e| SynthError::Scenario {
+        let err = |message: String| SynthError::Scenario {
             path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
+            message,
+        };
+        let table: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| err(describe_toml_error(text, &e)))?;
+        if !table.contains_key("name") {
+            return Err(err(
+                "field `name` is missing (required: it names the session)".into(),
+            ));
+        }
+        let s: Scenario = toml::from_str(text).map_err(|e| err(describe_toml_error(text, &e)))?;
         s.validate().map_err(|message| SynthError::Scenario {
             path: path.to_path_buf(),
             message,
@@ -613,6 +665,22 @@ impl Scenario {
         if self.fsr.calibration_forces_n.len() < 2 {
             return Err("fsr.calibration_forces_n needs at least two forces".into());
         }
+        self.validate_effects()?;
+        if self.kind == "probe-robot" {
+            self.robot.validate()?;
+            if self.protocol.tilt_deg != 0.0 || self.has(Effect::SupportSlip) {
+                return Err(
+                    "kind \"probe-robot\": the 4-DOF arm probes vertically (protocol.tilt_deg = 0, no support-slip)"
+                        .into(),
+                );
+            }
+            if self.has(Effect::SensorLag) || self.has(Effect::ClockOffset) {
+                return Err(
+                    "kind \"probe-robot\": sensor-lag and clock-offset are FSR / trigger effects (robot sessions have neither)"
+                        .into(),
+                );
+            }
+        }
         if !(self.output.images || self.output.detections) {
             return Err("output: at least one of images / detections must be on".into());
         }
@@ -628,5 +696,140 @@ impl Scenario {
             }
         }
         Ok(())
+    }
+
+    /// Effect parameters and combinations the truth simulation can produce.
+    fn validate_effects(&self) -> std::result::Result<(), String> {
+        let es = &self.effect_settings;
+        let non_negative = |v: f64, field: &str| {
+            if v >= 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!(
+                    "effect_settings.{field} must be ≥ 0 and finite, got {v}"
+                ))
+            }
+        };
+        let positive = |v: f64, field: &str| {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!(
+                    "effect_settings.{field} must be positive and finite, got {v}"
+                ))
+            }
+        };
+        positive(es.sensor_lag_tau_s, "sensor_lag_tau_s")?;
+        non_negative(es.sensor_hysteresis_fraction, "sensor_hysteresis_fraction")?;
+        positive(es.gravity_young_pa, "gravity_young_pa")?;
+        positive(es.anisotropy_fibre_ratio, "anisotropy_fibre_ratio")?;
+        if es.anisotropy_fibre.iter().all(|v| *v == 0.0)
+            || es.anisotropy_fibre.iter().any(|v| !v.is_finite())
+        {
+            return Err("effect_settings.anisotropy_fibre must be a finite non-zero vector".into());
+        }
+        non_negative(es.viscoelastic_g, "viscoelastic_g")?;
+        positive(es.viscoelastic_tau_s, "viscoelastic_tau_s")?;
+        positive(es.plastic_yield_pa, "plastic_yield_pa")?;
+        non_negative(es.plastic_hardening_pa, "plastic_hardening_pa")?;
+        non_negative(es.friction_mu, "friction_mu")?;
+        positive(es.friction_slip_distance_mm, "friction_slip_distance_mm")?;
+        non_negative(es.friction_path_ratio, "friction_path_ratio")?;
+        positive(es.support_stiffness_n_per_m, "support_stiffness_n_per_m")?;
+        if !(0.0..60.0).contains(&es.support_tilt_deg) {
+            return Err(format!(
+                "effect_settings.support_tilt_deg must be in [0, 60), got {}",
+                es.support_tilt_deg
+            ));
+        }
+        non_negative(es.rayleigh_alpha_per_s, "rayleigh_alpha_per_s")?;
+        non_negative(es.rayleigh_beta_s, "rayleigh_beta_s")?;
+        if es.dynamics_substeps == 0 {
+            return Err("effect_settings.dynamics_substeps must be ≥ 1".into());
+        }
+        // One simulation engine per session: each of these groups changes how the truth is
+        // time-stepped (history, nodal terms, inertia, body force) and they are not combined.
+        let groups: [(&str, bool); 5] = [
+            ("viscoelasticity", self.has(Effect::Viscoelasticity)),
+            ("plasticity", self.has(Effect::Plasticity)),
+            ("inertia-damping", self.has(Effect::InertiaDamping)),
+            (
+                "probe-friction / support-slip",
+                self.has(Effect::ProbeFriction) || self.has(Effect::SupportSlip),
+            ),
+            ("gravity-preload", self.has(Effect::GravityPreload)),
+        ];
+        let on: Vec<&str> = groups.iter().filter(|g| g.1).map(|g| g.0).collect();
+        if on.len() > 1 {
+            return Err(format!(
+                "effects: {} cannot be combined in one session (one of them per scenario)",
+                on.join(" + ")
+            ));
+        }
+        let material: Vec<&str> = [
+            Effect::Anisotropy,
+            Effect::StiffInclusion,
+            Effect::StrainStiffening,
+        ]
+        .into_iter()
+        .filter(|e| self.has(*e))
+        .map(Effect::name)
+        .collect();
+        if self.has(Effect::Plasticity) && !material.is_empty() {
+            return Err(format!(
+                "effects: plasticity (J2 corotational truth) cannot be combined with {}",
+                material.join(", ")
+            ));
+        }
+        if self.has(Effect::Anisotropy)
+            && (self.has(Effect::Viscoelasticity)
+                || self.has(Effect::StiffInclusion)
+                || self.has(Effect::StrainStiffening))
+        {
+            return Err(
+                "effects: anisotropy replaces the neo-Hookean truth and cannot be combined with viscoelasticity, stiff-inclusion or strain-stiffening"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// "line L, field `table.key`: message" for a TOML (syntax or schema) error.
+fn describe_toml_error(text: &str, e: &toml::de::Error) -> String {
+    let message = e.message().trim().replace('\n', " ");
+    let Some(span) = e.span() else {
+        return message;
+    };
+    let start = span.start.min(text.len());
+    let line_no = text[..start].matches('\n').count() + 1;
+    let lines: Vec<&str> = text.lines().collect();
+    let mut table = String::new();
+    let mut key = None;
+    for (i, l) in lines.iter().enumerate().take(line_no).rev() {
+        let l = l.trim();
+        if key.is_none() && l.contains('=') && !l.starts_with('[') && !l.starts_with('#') {
+            key = l
+                .split('=')
+                .next()
+                .map(|k| k.trim().trim_matches('"').to_string());
+        }
+        if l.starts_with('[') {
+            table = l.trim_matches(|c| c == '[' || c == ']').trim().to_string();
+            break;
+        }
+        if i == 0 {
+            break;
+        }
+    }
+    let field = match key {
+        Some(k) if table.is_empty() => Some(k),
+        Some(k) => Some(format!("{table}.{k}")),
+        None if table.is_empty() => None,
+        None => Some(table),
+    };
+    match field {
+        Some(f) => format!("line {line_no}, field `{f}`: {message}"),
+        None => format!("line {line_no}: {message}"),
     }
 }

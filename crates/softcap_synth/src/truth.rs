@@ -17,12 +17,15 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use softcap_fem::element::{Matrix12, StiffnessKind, TetGeometry};
 use softcap_fem::{
-    AnisotropicModel, ContactProblem, ContactSettings, ElasticModel, EquilibriumSettings,
-    NeoHookeanParams, Probe, StaticSolver, TipShape, TransverselyIsotropicParams,
+    AnisotropicModel, ContactProblem, ContactSettings, DynamicsSettings, ElasticModel,
+    ElastoplasticModel, EquilibriumSettings, FrictionParams, FrictionalContact, Integrator,
+    J2PlasticityParams, LinearParams, NeoHookeanParams, Probe, PronySeries, RayleighDamping,
+    SupportPlane, SupportTangential, TipShape, TransverselyIsotropicParams, ViscoelasticModel,
     neohookean_energy, neohookean_forces, neohookean_tangent, tet_geometries,
 };
 use softcap_mesh::{TetEmbedding, TetLocator, TetMesh, box_tet_mesh};
 
+use crate::engine::{Engine, StepOutcome};
 use crate::error::{Result, SynthError};
 use crate::scenario::{Effect, Scenario};
 
@@ -178,6 +181,10 @@ pub struct FrameTruth {
     pub force_n: Vector3<f64>,
     /// Force along the probe axis (what the FSR reads), N (≥ 0 when pushing).
     pub axial_force_n: f64,
+    /// Friction (tangential) part of `force_n`, N (probe-friction; zero otherwise).
+    pub friction_force_n: Vector3<f64>,
+    /// Mean tangential slip of the bottom face on its mount, m (support-slip; zero otherwise).
+    pub support_slip_m: Vector3<f64>,
     /// Equilibrium iterations used.
     pub iterations: usize,
 }
@@ -401,13 +408,26 @@ fn probe_rotation(tilt_deg: f64, azimuth_rad: f64) -> UnitQuaternion<f64> {
 
 /// The frame schedule: frame 0 at rest with the probe hovering over the first location, then per
 /// location a ramp, a hold, a release and moves to the next location.
-pub fn schedule(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<FrameSpec> {
+///
+/// probe-friction moves the tip obliquely while it is below the surface: `friction_path_ratio` ×
+/// depth sideways (along the location's seeded azimuth) on top of the depth along the axis, and
+/// back on the way out. support-slip tilts the probe by `support_tilt_deg` (oblique push).
+pub fn schedule(
+    s: &Scenario,
+    block: &Block,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<[f64; 2]>, Vec<FrameSpec>) {
     let locations = probe_locations(s, block, rng);
     let p = &s.protocol;
-    let tilt = if s.has(Effect::ProbeFriction) {
-        p.tilt_deg.max(15.0)
+    let tilt = if s.has(Effect::SupportSlip) {
+        p.tilt_deg.max(s.effect_settings.support_tilt_deg)
     } else {
         p.tilt_deg
+    };
+    let drag = if s.has(Effect::ProbeFriction) {
+        s.effect_settings.friction_path_ratio
+    } else {
+        0.0
     };
     let depths: Vec<f64> = locations
         .iter()
@@ -422,7 +442,11 @@ pub fn schedule(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<FrameS
         let rot = probe_rotation(tilt, azimuths[loc]);
         let axis = rot * Vector3::z();
         let surface = Vector3::new(locations[loc][0], locations[loc][1], top);
-        Isometry3::from_parts(Translation3::from(surface + axis * depth_m), rot)
+        let sideways = Vector3::new(azimuths[loc].cos(), azimuths[loc].sin(), 0.0);
+        Isometry3::from_parts(
+            Translation3::from(surface + axis * depth_m + sideways * (drag * depth_m.max(0.0))),
+            rot,
+        )
     };
     let hover = -p.hover_mm * MM;
     let mut frames = Vec::new();
@@ -462,7 +486,7 @@ pub fn schedule(s: &Scenario, block: &Block, rng: &mut ChaCha8Rng) -> Vec<FrameS
             push(Phase::Released, next, iso, hover);
         }
     }
-    frames
+    (locations, frames)
 }
 
 /// Consistent body force of linear tets under gravity: f_a = Σ_e ρ V_e g / 4.
@@ -486,9 +510,11 @@ pub struct Truth {
     pub probe: ProbeGeometry,
     /// Per-frame truth.
     pub frames: Vec<FrameTruth>,
-    /// The observed template (frame-0 state): markers, m.
+    /// The template written to `template/`: markers, m. This is the frame-0 (observed) state,
+    /// except under gravity pre-load, where it is the UNLOADED (stress-free) shape and every
+    /// frame, frame 0 included, sees the block sagged (docs/synth.md).
     pub template_markers_m: Vec<Vector3<f64>>,
-    /// The observed template fit mesh (frame-0 state; sagged under gravity pre-load), m.
+    /// The template fit mesh (same convention as `template_markers_m`), m.
     pub template_fit_mesh: TetMesh,
     /// Probe locations on the top face, m.
     pub locations_m: Vec<[f64; 2]>,
@@ -496,61 +522,116 @@ pub struct Truth {
     pub inclusion_elements: usize,
     /// Largest equilibrium iteration count of any frame.
     pub max_iterations: usize,
+    /// Elements that ever yielded (plasticity; 0 otherwise).
+    pub yielded_elements: usize,
+}
+
+/// The simulation engine of the scenario's effects (see [`crate::engine`]).
+fn build_engine(
+    s: &Scenario,
+    mesh: &TetMesh,
+    bc: &softcap_fem::DirichletBc,
+    unloaded: &[Vector3<f64>],
+    contact: &ContactProblem,
+) -> Result<Engine> {
+    let es = &s.effect_settings;
+    let elastic = |s: &Scenario| -> Result<Box<dyn ElasticModel>> {
+        Ok(if s.has(Effect::Anisotropy) {
+            Box::new(anisotropic_model(s, mesh)?)
+        } else {
+            Box::new(truth_model(s, mesh)?)
+        })
+    };
+    if s.has(Effect::Viscoelasticity) {
+        let prony = PronySeries::standard_linear_solid(es.viscoelastic_g, es.viscoelastic_tau_s)?;
+        return Engine::viscoelastic(ViscoelasticModel::new(truth_model(s, mesh)?, prony)?, bc);
+    }
+    if s.has(Effect::Plasticity) {
+        let model = ElastoplasticModel::homogeneous(
+            mesh,
+            LinearParams::from_young_poisson(s.material.young_pa, s.material.poisson)?,
+            J2PlasticityParams {
+                yield_stress_pa: es.plastic_yield_pa,
+                hardening_modulus_pa: es.plastic_hardening_pa,
+            },
+        )?;
+        return Engine::plastic(model, bc);
+    }
+    if s.has(Effect::ProbeFriction) || s.has(Effect::SupportSlip) {
+        let friction = FrictionParams {
+            mu: if s.has(Effect::ProbeFriction) {
+                es.friction_mu
+            } else {
+                0.0
+            },
+            slip_distance_m: es.friction_slip_distance_mm * MM,
+        };
+        let support = if s.has(Effect::SupportSlip) {
+            let nodes: Vec<usize> = (0..mesh.vertices.len())
+                .filter(|&i| mesh.vertices[i].z <= 1e-12)
+                .collect();
+            let k_t = es.support_stiffness_n_per_m / nodes.len().max(1) as f64;
+            Some(SupportPlane::new(
+                nalgebra::Unit::new_normalize(Vector3::z()),
+                0.0,
+                nodes,
+                unloaded,
+                SupportTangential::Springs {
+                    stiffness_n_per_m: k_t,
+                },
+            )?)
+        } else {
+            None
+        };
+        let fc = FrictionalContact::new(contact.clone(), friction)?;
+        return Engine::nodal(elastic(s)?, bc, fc, support);
+    }
+    if s.has(Effect::InertiaDamping) {
+        let model = elastic(s)?;
+        let masses = softcap_fem::lumped_masses(&*model, s.object.density_kg_m3);
+        let settings = DynamicsSettings {
+            integrator: Integrator::NewmarkAverageAcceleration,
+            time_step_s: 1.0 / s.protocol.frame_rate_hz / es.dynamics_substeps as f64,
+            damping: RayleighDamping {
+                alpha_per_s: es.rayleigh_alpha_per_s,
+                beta_s: es.rayleigh_beta_s,
+            },
+            stiffness: StiffnessKind::Consistent,
+            max_iterations: 40,
+            displacement_tol_rel: 1e-9,
+            residual_tol_rel: 1e-7,
+            contact_freeze_after: 8,
+        };
+        return Engine::dynamic(model, masses, bc, unloaded.to_vec(), settings);
+    }
+    Engine::elastic(elastic(s)?, bc)
 }
 
 /// Runs the ground-truth simulation of a scenario.
 pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
-    for e in &s.effects {
-        if matches!(
-            e,
-            Effect::Viscoelasticity
-                | Effect::Plasticity
-                | Effect::SupportSlip
-                | Effect::InertiaDamping
-                | Effect::ProbeFriction
-        ) {
-            return Err(SynthError::Unsupported {
-                scenario: s.name.clone(),
-                message: format!(
-                    "effect {} is not wired into the virtual rig yet (needs the softcap_fem dynamics / plasticity / friction / support APIs)",
-                    e.name()
-                ),
-            });
-        }
-    }
+    s.validate().map_err(|message| SynthError::Scenario {
+        path: format!("<scenario {}>", s.name).into(),
+        message,
+    })?;
     let block = Block::new(s, rng);
-    let frames_spec = schedule(s, &block, rng);
+    let (locations_m, frames_spec) = schedule(s, &block, rng);
     let probe_geom = ProbeGeometry::new(s);
     let mesh = &block.truth_mesh;
-    let truth_nh = truth_model(s, mesh)?;
     let inclusion_elements = if s.has(Effect::StiffInclusion) {
-        let base = truth_nh
-            .params
-            .iter()
-            .map(|p| p.mu)
-            .fold(f64::INFINITY, f64::min);
-        truth_nh
-            .params
-            .iter()
-            .filter(|p| p.mu > base * 1.0001)
-            .count()
+        let nh = truth_model(s, mesh)?;
+        let base = nh.params.iter().map(|p| p.mu).fold(f64::INFINITY, f64::min);
+        nh.params.iter().filter(|p| p.mu > base * 1.0001).count()
     } else {
         0
     };
-    let mut model: Box<dyn ElasticModel> = if s.has(Effect::Anisotropy) {
-        Box::new(anisotropic_model(s, mesh)?)
-    } else {
-        Box::new(truth_nh)
-    };
 
-    // Support: the bottom face bonded to the table.
+    // Support: the bottom face bonded to the table (support-slip replaces it by a compliant mount).
     let mut bc = softcap_fem::DirichletBc::new();
     for (i, v) in mesh.vertices.iter().enumerate() {
         if v.z <= 1e-12 {
             bc.fix_node(i, *v);
         }
     }
-    let mut solver = StaticSolver::with_bc(&*model, &bc)?;
     let top = block.top_m();
     let candidates: Vec<usize> = (0..mesh.vertices.len())
         .filter(|&i| mesh.vertices[i].z >= top - 1e-12)
@@ -573,6 +654,13 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     let contact_settings = ContactSettings {
         penalty_factor: s.probe.penalty_factor,
     };
+    let first_contact = ContactProblem {
+        probe: Probe::new(probe_geom.tip.clone(), frames_spec[0].world_from_probe)?,
+        candidate_nodes: candidates.clone(),
+        settings: contact_settings.clone(),
+    };
+    let mut engine = build_engine(s, mesh, &bc, &mesh.vertices, &first_contact)?;
+
     // Unloaded state: rest, or sagged under gravity.
     let mut unloaded = mesh.vertices.clone();
     let mut max_iterations = 0;
@@ -584,14 +672,22 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                 .iter()
                 .map(|f| f * (k as f64 / steps as f64))
                 .collect();
-            let rep = solver.solve(&mut *model, &mut x, &f, None, &settings);
-            if !rep.converged() {
+            let out = engine.step(
+                &mut x,
+                &f,
+                None,
+                &candidates,
+                &contact_settings,
+                0.0,
+                &settings,
+            )?;
+            if !out.converged {
                 return Err(SynthError::Simulation {
                     frame: 0,
-                    message: format!("gravity pre-load step {k}: {:?}", rep.status),
+                    message: format!("gravity pre-load step {k}: {}", out.status),
                 });
             }
-            max_iterations = max_iterations.max(rep.iterations);
+            max_iterations = max_iterations.max(out.iterations);
         }
         unloaded = x;
     }
@@ -602,10 +698,14 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             .expect("a point of the block lies in or near its mesh")
     };
     let marker_embeddings: Vec<TetEmbedding> = block.markers_rest_m.iter().map(embed).collect();
-    let geometry = model.elements().to_vec();
+    let geometry = engine.model().elements().to_vec();
+    let base_substeps = if s.has(Effect::InertiaDamping) {
+        s.effect_settings.dynamics_substeps
+    } else {
+        1
+    };
 
     let mut x = unloaded.clone();
-    let mut prev_pose: Option<Isometry3<f64>> = None;
     let mut prev_spec: Option<FrameSpec> = None;
     let mut frames = Vec::with_capacity(frames_spec.len());
     for spec in &frames_spec {
@@ -613,84 +713,93 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
         let touches = candidates.iter().any(|&i| {
             probe.penetration(&unloaded[i]).is_some() || probe.penetration(&x[i]).is_some()
         });
-        let (force_n, axial, iterations) = if !touches {
-            x.clone_from(&unloaded);
-            (Vector3::zeros(), 0.0, 0)
-        } else {
-            let from = prev_pose.unwrap_or(spec.world_from_probe);
-            let mut result = None;
-            // Unloading: warm-start from the previous displacement scaled by the depth ratio, so
-            // the contact patch starts close to its final shape instead of inside the probe.
-            if let Some(prev) = prev_spec.as_ref().filter(|p| {
-                p.location == spec.location && spec.depth_m < p.depth_m && p.depth_m > 0.0
-            }) {
-                let ratio = (spec.depth_m / prev.depth_m).clamp(0.0, 1.0);
-                for (xi, ui) in x.iter_mut().zip(&unloaded) {
-                    *xi = ui + (*xi - ui) * ratio;
-                }
+        if !touches {
+            engine.lift_off();
+        }
+        let zero = StepOutcome {
+            converged: true,
+            status: String::new(),
+            iterations: 0,
+            force_n: Vector3::zeros(),
+            friction_force_n: Vector3::zeros(),
+            support_slip_m: Vector3::zeros(),
+        };
+        let outcome = match prev_spec.as_ref() {
+            None => {
+                x.clone_from(&unloaded);
+                zero
             }
-            let start = x.clone();
-            for substeps in [1usize, 4, 16] {
-                x.clone_from(&start);
-                let mut ok = true;
-                let mut last = None;
-                for k in 1..=substeps {
-                    let t = k as f64 / substeps as f64;
-                    let iso = Isometry3::from_parts(
-                        Translation3::from(
-                            from.translation
-                                .vector
-                                .lerp(&spec.world_from_probe.translation.vector, t),
-                        ),
-                        from.rotation.slerp(&spec.world_from_probe.rotation, t),
-                    );
-                    let problem = ContactProblem {
-                        probe: Probe::new(probe_geom.tip.clone(), iso)?,
-                        candidate_nodes: candidates.clone(),
-                        settings: contact_settings.clone(),
-                    };
-                    let mut rep =
-                        solver.solve(&mut *model, &mut x, &f_ext, Some(&problem), &settings);
-                    // The active set is frozen late in the iterations; re-solve from the
-                    // converged state until no node of the patch is held in tension.
-                    for _ in 0..4 {
-                        if !rep.converged()
-                            || rep
-                                .contact
-                                .patch_nodes
-                                .iter()
-                                .all(|&n| problem.probe.penetration(&x[n]).is_some())
-                        {
+            Some(_) if !touches && engine.memoryless() => {
+                x.clone_from(&unloaded);
+                zero
+            }
+            Some(prev) => {
+                let from = prev.world_from_probe;
+                let dt = spec.t_camera_s - prev.t_camera_s;
+                // Unloading: warm-start from the previous displacement scaled by the depth ratio,
+                // so the contact patch starts close to its final shape instead of inside the probe.
+                if touches
+                    && !matches!(engine, Engine::Dynamic { .. })
+                    && prev.location == spec.location
+                    && spec.depth_m < prev.depth_m
+                    && prev.depth_m > 0.0
+                {
+                    let ratio = (spec.depth_m / prev.depth_m).clamp(0.0, 1.0);
+                    for (xi, ui) in x.iter_mut().zip(&unloaded) {
+                        *xi = ui + (*xi - ui) * ratio;
+                    }
+                }
+                engine.save();
+                let start = x.clone();
+                let mut result = None;
+                for factor in [1usize, 4, 16] {
+                    let substeps = base_substeps * factor;
+                    engine.restore();
+                    x.clone_from(&start);
+                    let mut last: Option<StepOutcome> = None;
+                    for k in 1..=substeps {
+                        let t = k as f64 / substeps as f64;
+                        let iso = Isometry3::from_parts(
+                            Translation3::from(
+                                from.translation
+                                    .vector
+                                    .lerp(&spec.world_from_probe.translation.vector, t),
+                            ),
+                            from.rotation.slerp(&spec.world_from_probe.rotation, t),
+                        );
+                        let p = touches
+                            .then(|| Probe::new(probe_geom.tip.clone(), iso))
+                            .transpose()?;
+                        let out = engine.step(
+                            &mut x,
+                            &f_ext,
+                            p.as_ref(),
+                            &candidates,
+                            &contact_settings,
+                            dt / substeps as f64,
+                            &settings,
+                        )?;
+                        let ok = out.converged;
+                        last = Some(out);
+                        if !ok {
                             break;
                         }
-                        rep = solver.solve(&mut *model, &mut x, &f_ext, Some(&problem), &settings);
                     }
-                    if !rep.converged() {
-                        ok = false;
-                        last = Some(rep);
+                    let out = last.expect("at least one substep ran");
+                    if out.converged {
+                        result = Some(out);
                         break;
+                    } else if factor == 16 {
+                        return Err(SynthError::Simulation {
+                            frame: spec.frame,
+                            message: format!("{} after {substeps} substeps", out.status),
+                        });
                     }
-                    last = Some(rep);
                 }
-                let rep = last.expect("at least one substep ran");
-                if ok {
-                    result = Some((
-                        rep.contact.contact_force_n,
-                        rep.contact.axial_force_n,
-                        rep.iterations,
-                    ));
-                    break;
-                } else if substeps == 16 {
-                    return Err(SynthError::Simulation {
-                        frame: spec.frame,
-                        message: format!("{:?} after 16 substeps", rep.status),
-                    });
-                }
+                result.expect("converged or returned")
             }
-            result.expect("converged or returned")
         };
-        max_iterations = max_iterations.max(iterations);
-        prev_pose = Some(spec.world_from_probe);
+        max_iterations = max_iterations.max(outcome.iterations);
         prev_spec = Some(spec.clone());
         let markers_m = marker_embeddings
             .iter()
@@ -707,42 +816,44 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                 n.normalize()
             })
             .collect();
+        let axis = spec.world_from_probe.rotation * Vector3::z();
         frames.push(FrameTruth {
             spec: spec.clone(),
             markers_m,
             marker_normals,
-            force_n,
-            axial_force_n: axial,
-            iterations,
+            force_n: outcome.force_n,
+            axial_force_n: outcome.force_n.dot(&axis),
+            friction_force_n: outcome.friction_force_n,
+            support_slip_m: outcome.support_slip_m,
+            iterations: outcome.iterations,
         });
     }
+    let yielded_elements = match &engine {
+        Engine::Plastic { model, .. } => model
+            .plastic_states()
+            .iter()
+            .filter(|p| p.equivalent_plastic_strain > 0.0)
+            .count(),
+        _ => 0,
+    };
 
-    // The observed template: frame-0 state (sagged under gravity pre-load), carried to the fit
-    // mesh by embedding its vertices in the truth mesh.
+    // The template: the frame-0 state, carried to the fit mesh by embedding its vertices in the
+    // truth mesh — except under gravity pre-load, where it is the unloaded (stress-free) box
+    // (lead decision 2026-11-21 20:30: a template equal to the sagged frame 0 would make the
+    // effect unidentifiable by superposition).
+    let template_state = if s.has(Effect::GravityPreload) {
+        &mesh.vertices
+    } else {
+        &unloaded
+    };
     let template_markers_m = marker_embeddings
         .iter()
-        .map(|e| e.position(&mesh.tets, &unloaded))
+        .map(|e| e.position(&mesh.tets, template_state))
         .collect();
     let mut template_fit_mesh = block.fit_mesh.clone();
     for v in template_fit_mesh.vertices.iter_mut() {
-        *v = embed(v).position(&mesh.tets, &unloaded);
+        *v = embed(v).position(&mesh.tets, template_state);
     }
-    let locations_m = frames_spec
-        .iter()
-        .map(|f| f.location)
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .map(|l| {
-            let p = frames_spec
-                .iter()
-                .find(|f| f.location == l && f.phase == Phase::Hold)
-                .or_else(|| frames_spec.iter().find(|f| f.location == l))
-                .expect("location has frames");
-            let c = p.world_from_probe.translation.vector
-                - p.world_from_probe.rotation * Vector3::z() * p.depth_m;
-            [c.x, c.y]
-        })
-        .collect();
     Ok(Truth {
         block,
         probe: probe_geom,
@@ -752,6 +863,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
         locations_m,
         inclusion_elements,
         max_iterations,
+        yielded_elements,
     })
 }
 

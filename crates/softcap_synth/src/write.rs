@@ -25,6 +25,23 @@ pub struct SessionWriter {
 }
 
 impl SessionWriter {
+    /// Refuses a non-empty existing `target` (checked again by [`Self::begin`]; call it before a
+    /// long simulation so a bad output folder fails at once).
+    pub fn check_target(target: &Path) -> Result<()> {
+        if target.exists() {
+            let non_empty = std::fs::read_dir(target)
+                .map_err(io_err(target))?
+                .next()
+                .is_some();
+            if non_empty {
+                return Err(SynthError::OutputExists {
+                    path: target.to_path_buf(),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Starts writing into `<target>.synth-tmp`; refuses a non-empty existing `target`.
     pub fn begin(target: &Path) -> Result<Self> {
         if target.exists() {
@@ -356,10 +373,9 @@ pub fn truth_frames_csv(truth: &Truth) -> String {
 }
 
 /// truth/clock.toml.
-pub fn clock_toml(daq: &DaqRecord) -> String {
+pub fn clock_toml(offset_s: f64, drift: f64) -> String {
     format!(
-        "# t_daq = offset_s + (1 + drift) * t_camera\noffset_s = {:.9}\ndrift = {:e}\n",
-        daq.offset_s, daq.drift
+        "# t_daq = offset_s + (1 + drift) * t_camera\noffset_s = {offset_s:.9}\ndrift = {drift:e}\n"
     )
 }
 
@@ -388,8 +404,35 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
                 es.sensor_lag_tau_s, es.sensor_hysteresis_fraction
             ),
             Effect::GravityPreload => format!(
-                "- gravity-preload: gravity {:?} m/s^2, density {} kg/m^3, E = {} Pa; template/ holds the SAGGED frame-0 shape, the stress-free shape is the box.",
+                "- gravity-preload: gravity {:?} m/s^2, density {} kg/m^3, E = {} Pa; template/ holds the UNLOADED (stress-free) box, every frame (frame 0 included) sees the block sagged under gravity.",
                 es.gravity_m_s2, s.object.density_kg_m3, es.gravity_young_pa
+            ),
+            Effect::Viscoelasticity => format!(
+                "- viscoelasticity: Prony series on the neo-Hookean truth (softcap_fem::ViscoelasticModel, quasi-static), one branch g = {}, tau = {} s; the probe is position controlled, so the force relaxes during each hold.",
+                es.viscoelastic_g, es.viscoelastic_tau_s
+            ),
+            Effect::Plasticity => format!(
+                "- plasticity: J2 plasticity on the corotational element (softcap_fem::ElastoplasticModel), E = {} Pa, nu = {}, yield stress {} Pa, hardening {} Pa; {} truth elements yielded, the surface keeps a permanent set after each release.",
+                s.material.young_pa,
+                s.material.poisson,
+                es.plastic_yield_pa,
+                es.plastic_hardening_pa,
+                truth.yielded_elements
+            ),
+            Effect::ProbeFriction => format!(
+                "- probe-friction: regularized Coulomb friction under the tip (softcap_fem::FrictionalContact), mu = {}, slip distance {} mm; while in contact the tip also moves {} x depth sideways (oblique path), dragging the surface.",
+                es.friction_mu, es.friction_slip_distance_mm, es.friction_path_ratio
+            ),
+            Effect::SupportSlip => format!(
+                "- support-slip: the bottom face sits on a compliant mount (softcap_fem::SupportPlane, tangential springs, {} N/m in total) instead of being bonded; the probe is tilted {} deg (oblique push), so the block slides on its support.",
+                es.support_stiffness_n_per_m, es.support_tilt_deg
+            ),
+            Effect::InertiaDamping => format!(
+                "- inertia-damping: implicit dynamics (softcap_fem::DynamicSolver, Newmark average acceleration, {} steps per frame), density {} kg/m^3, Rayleigh damping alpha = {} 1/s, beta = {} s.",
+                es.dynamics_substeps,
+                s.object.density_kg_m3,
+                es.rayleigh_alpha_per_s,
+                es.rayleigh_beta_s
             ),
             Effect::StiffInclusion => format!(
                 "- stiff-inclusion: sphere centre {:?} mm, radius {} mm, {}x stiffer ({} truth elements).",
@@ -406,7 +449,6 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
                 "- strain-stiffening: Yeoh term c2 (I_C - 3)^2 with c2 = {} mu.",
                 s.material.stiffening.c2_over_mu
             ),
-            other => format!("- {}", other.name()),
         };
         let _ = writeln!(t, "{line}");
     }
@@ -441,12 +483,17 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
         .collect();
     let _ = write!(
         t,
-        "\nProbe\n- Rigid {} radius {} mm, frictionless penalty contact (softcap_fem), displacement controlled along the shaft.\n\
+        "\nProbe\n- Rigid {} radius {} mm, {} penalty contact (softcap_fem), displacement controlled.\n\
          - {} locations (x, y mm): {}.\n\
          - Per location: {} ramp frames, {} hold frames, {} release frames, {} move frames at {} Hz; frame 0 is the rest state.\n\
          - truth/frames.csv: location, phase, commanded depth and axial force per frame.\n",
         s.probe.tip,
         s.probe.radius_mm,
+        if s.has(Effect::ProbeFriction) {
+            "frictional"
+        } else {
+            "frictionless"
+        },
         truth.locations_m.len(),
         locs.join(", "),
         s.protocol.ramp_frames,
@@ -457,6 +504,16 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
     );
     let f = &s.fsr;
     let o = &s.output;
+    if s.kind == "probe-robot" {
+        let r = &s.robot;
+        let _ = write!(
+            t,
+            "\nRobot (kind probe-robot)\n- 4-DOF arm (rig/robot.urdf: yaw, shoulder, elbow, wrist), base at {:?} mm; tool link probe_tip (+z pushing), F/T link ft_sensor mounted with rpy {:?} rad.\n\
+             - robot.csv at {} Hz on the DAQ clock (no trigger line): joints from closed-form IK of the true probe pose + {} rad noise; force by the probe on the object and torque about the sensor origin in ft_sensor, + {} N / {} N m noise.\n\
+             - The FSR lines below do not apply (no fsr files).\n",
+            r.base_mm, r.ft_rpy, r.rate_hz, r.joint_noise_rad, r.force_noise_n, r.torque_noise_nm
+        );
+    }
     let _ = write!(
         t,
         "\nSensors and noise\n- FSR: R = {} F^-{} ohm capped at {:e} ohm; divider {} ohm, supply {} V; calibration voltages carry {}% noise.\n\

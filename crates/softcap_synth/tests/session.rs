@@ -134,11 +134,23 @@ fn clock_offset_removes_the_trigger_line_and_moves_the_daq_clock() {
 
 #[test]
 fn bad_scenarios_name_the_field_and_write_nothing() {
-    let e = Scenario::parse(Path::new("x.toml"), "[object]\nsize_mm = [40, 40, -1]\n").unwrap_err();
+    let e = Scenario::parse(
+        Path::new("x.toml"),
+        "name = \"x\"\n[object]\nsize_mm = [40, 40, -1]\n",
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("object.size_mm[2]"), "{e}");
-    let e = Scenario::parse(Path::new("x.toml"), "effects = [\"telepathy\"]\n").unwrap_err();
+    let e = Scenario::parse(
+        Path::new("x.toml"),
+        "name = \"x\"\neffects = [\"telepathy\"]\n",
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("x.toml"), "{e}");
-    let e = Scenario::parse(Path::new("x.toml"), "[protocol]\nloctions = 3\n").unwrap_err();
+    let e = Scenario::parse(
+        Path::new("x.toml"),
+        "name = \"x\"\n[protocol]\nloctions = 3\n",
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("loctions"), "{e}");
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("keep.txt"), "x").unwrap();
