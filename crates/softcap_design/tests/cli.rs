@@ -53,6 +53,29 @@ fn library_target_search_round_trip() {
     assert_eq!(d["design"], serde_json::json!([2, 0]));
     assert!(d["rms_error_m"].as_f64().unwrap() < 1e-12);
     assert!(std::fs::metadata(out.join("curves.png")).unwrap().len() > 1000);
+    // The print file: one object per material (2 layers of materials 2 and 0).
+    let parts = softcap_design::read_design_3mf(&out.join("design.3mf")).unwrap();
+    assert_eq!(parts.len(), 2);
+    let volume: f64 = parts.iter().map(|p| p.volume_mm3()).sum();
+    assert!((volume - 40.0 * 50.0 * 25.0).abs() < 1e-6, "{volume}");
+}
+
+#[test]
+fn fit_base_rejects_a_file_that_is_not_a_capture_with_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("capture.mcap");
+    std::fs::write(&bad, b"not an mcap file").unwrap();
+    let out = dir.path().join("lib.json");
+    let o = bin()
+        .arg("fit-base")
+        .arg(&bad)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("capture.mcap"));
+    assert!(!out.exists());
 }
 
 #[test]
