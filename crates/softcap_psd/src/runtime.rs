@@ -53,7 +53,7 @@ pub struct RuntimeSettings {
 impl Default for RuntimeSettings {
     fn default() -> Self {
         Self {
-            basis_tolerance: 1e-3,
+            basis_tolerance: 1e-5,
         }
     }
 }

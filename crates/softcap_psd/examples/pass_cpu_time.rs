@@ -1,0 +1,101 @@
+//! CPU time (not wall time) per run-time pass on the ICT face and the 3× subdivided face, for a
+//! loaded machine where criterion's wall-clock numbers measure the neighbours: user + system
+//! time of this process from `/proc/self/stat` over many repetitions (Linux only).
+//!
+//! `RAYON_NUM_THREADS=1 cargo run --release -p softcap_psd --example pass_cpu_time`
+
+use softcap_psd::runtime::{self, LANES};
+use softcap_psd::{
+    Animator, EvaluationSettings, FaceRig, FitMode, IctData, RigSettings, fit_wpsd, pose_sets,
+    subdivide_rig,
+};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// (user + system CPU seconds of the process, wall seconds)
+fn clocks() -> (f64, Instant) {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // fields after the parenthesised command name; utime, stime are fields 14, 15
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
+    ((ticks(11) + ticks(12)) / 100.0, Instant::now())
+}
+
+fn time(label: &str, reps: usize, mut f: impl FnMut()) {
+    f();
+    let (c0, w0) = clocks();
+    for _ in 0..reps {
+        f();
+    }
+    let (c1, _) = clocks();
+    println!(
+        "{label:40} cpu {:8.2} ms   wall {:8.2} ms",
+        1e3 * (c1 - c0) / reps as f64,
+        1e3 * w0.elapsed().as_secs_f64() / reps as f64
+    );
+}
+
+fn main() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/ict-face");
+    let data = IctData::load(&dir).expect("ICT fixture");
+    let settings = RigSettings::default();
+    let rig = FaceRig::new(&data.mesh, &settings).expect("rig");
+    let (training, heldout) = pose_sets(&data, &EvaluationSettings::default());
+    let poses: Vec<_> = training.iter().map(|r| data.pose(r)).collect();
+    let examples = rig.examples(&poses).expect("examples");
+    let model = fit_wpsd(
+        &examples,
+        &[0, 3, 6, 9, 12, 15],
+        FitMode::Interpolate,
+        &rig.edge_weights,
+    )
+    .expect("fit");
+    let hp = rig.handle_positions(&data.pose(&heldout[0]));
+    let levels: usize = std::env::var("PSD_LEVELS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3);
+    for level in [0, levels] {
+        let (r, m) = if level == 0 {
+            (rig.clone(), model.clone())
+        } else {
+            subdivide_rig(&rig, &model, level, &settings.edge_weights)
+        };
+        let t = Instant::now();
+        let mut anim = Animator::new(&r, &m).expect("animator");
+        let n = r.num_vertices();
+        println!(
+            "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame",
+            t.elapsed().as_secs_f64(),
+            anim.layout.basis.mean_rank(),
+            anim.layout.bytes_per_frame() as f64 / 1e6
+        );
+        let reps = if n > 100_000 { 10 } else { 200 };
+        time("frame", reps, || anim.frame(&hp).expect("frame"));
+        let layout = &anim.layout;
+        let uh: Vec<[f32; 3]> = r
+            .handles
+            .iter()
+            .zip(&hp)
+            .map(|(&v, p)| {
+                let d = p - r.rest[v];
+                [d.x as f32, d.y as f32, d.z as f32]
+            })
+            .collect();
+        let mut large = vec![[0.0f32; 3]; n];
+        let mut pos = vec![[0.0f32; 3]; n];
+        let mut nrm = vec![[0.0f32; 3]; n];
+        let mut table: Vec<[f32; LANES]> = Vec::new();
+        runtime::feature_table(&m, &r.features(&hp), &mut table);
+        time("  large_scale_pass", reps, || {
+            runtime::large_scale_pass(layout, &uh, &mut large)
+        });
+        time("  detail_pass (normal, frame, WPSD)", reps, || {
+            runtime::detail_pass(layout, &large, &table, None, &mut pos)
+        });
+        time("  normal_pass", reps, || {
+            runtime::normal_pass(layout, &pos, &mut nrm)
+        });
+    }
+}
