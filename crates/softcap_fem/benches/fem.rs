@@ -89,49 +89,73 @@ fn probe_loading(c: &mut Criterion) {
             ..Default::default()
         },
     };
-    let mut solver = StaticSolver::with_bc(&model, &bc).unwrap();
-    g.bench_function(BenchmarkId::new("full run", &id), |b| {
-        b.iter(|| {
-            let mut m = model.clone();
-            let mut x = mesh.vertices.clone();
-            let rep = incremental_loading(
-                &mut solver,
-                &mut m,
-                &mut x,
-                |t| LoadState {
-                    external_forces_n: vec![],
-                    prescribed: bc.clone(),
-                    contact: Some(ContactProblem {
-                        probe: probe.advanced(0.003 * t),
+    for (policy, tag) in [
+        (Refactorization::EveryIteration, ""),
+        (
+            Refactorization::WhenStale,
+            ", factor reuse (modified Newton)",
+        ),
+    ] {
+        let settings = IncrementalSettings {
+            equilibrium: EquilibriumSettings {
+                refactorization: policy,
+                ..settings.equilibrium.clone()
+            },
+            ..settings.clone()
+        };
+        let mut solver = StaticSolver::with_bc(&model, &bc).unwrap();
+        g.bench_function(BenchmarkId::new(format!("full run{tag}"), &id), |b| {
+            b.iter(|| {
+                let mut m = model.clone();
+                let mut x = mesh.vertices.clone();
+                let rep = incremental_loading(
+                    &mut solver,
+                    &mut m,
+                    &mut x,
+                    |t| LoadState {
+                        external_forces_n: vec![],
+                        prescribed: bc.clone(),
+                        contact: Some(ContactProblem {
+                            probe: probe.advanced(0.003 * t),
+                            candidate_nodes: top.clone(),
+                            settings: ContactSettings::default(),
+                        }),
+                    },
+                    &settings,
+                );
+                assert_eq!(rep.status, SolveStatus::Converged);
+                black_box(x)
+            })
+        });
+        // One interactive frame: advance the probe by 0.1 mm from the previous equilibrium.
+        let mut m = model.clone();
+        let mut x = mesh.vertices.clone();
+        let mut depth = 0.0;
+        g.bench_function(
+            BenchmarkId::new(
+                format!("one frame (0.1 mm increment, warm start){tag}"),
+                &id,
+            ),
+            |b| {
+                b.iter(|| {
+                    depth = if depth > 0.004 { 0.0 } else { depth + 1e-4 };
+                    let contact = ContactProblem {
+                        probe: probe.advanced(depth),
                         candidate_nodes: top.clone(),
                         settings: ContactSettings::default(),
-                    }),
-                },
-                &settings,
-            );
-            assert_eq!(rep.status, SolveStatus::Converged);
-            black_box(x)
-        })
-    });
-    // One interactive frame: advance the probe by 0.1 mm from the previous equilibrium.
-    let mut m = model.clone();
-    let mut x = mesh.vertices.clone();
-    let mut depth = 0.0;
-    g.bench_function(
-        BenchmarkId::new("one frame (0.1 mm increment, warm start)", &id),
-        |b| {
-            b.iter(|| {
-                depth = if depth > 0.004 { 0.0 } else { depth + 1e-4 };
-                let contact = ContactProblem {
-                    probe: probe.advanced(depth),
-                    candidate_nodes: top.clone(),
-                    settings: ContactSettings::default(),
-                };
-                let f = vec![Vector3::zeros(); x.len()];
-                black_box(solver.solve(&mut m, &mut x, &f, Some(&contact), &settings.equilibrium))
-            })
-        },
-    );
+                    };
+                    let f = vec![Vector3::zeros(); x.len()];
+                    black_box(solver.solve(
+                        &mut m,
+                        &mut x,
+                        &f,
+                        Some(&contact),
+                        &settings.equilibrium,
+                    ))
+                })
+            },
+        );
+    }
     g.finish();
 }
 

@@ -97,7 +97,7 @@ pub use probing::{
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,
-    SolveStatus, StaticSolver, StepReport, incremental_loading,
+    Refactorization, SolveStatus, StaticSolver, StepReport, incremental_loading,
 };
 pub use support::{SupportPlane, SupportReport, SupportTangential};
 

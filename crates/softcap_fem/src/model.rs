@@ -45,6 +45,12 @@ pub trait ElasticModel {
         out
     }
 
+    /// f_int(x) and the energy (as [`Self::energy`]) from one pass over the elements, for line
+    /// searches whose accepted trial point becomes the next iterate. Default: the two calls.
+    fn forces_and_energy(&self, x: &[Vector3<f64>]) -> (Vec<Vector3<f64>>, Option<f64>) {
+        (self.internal_forces(x), self.energy(x))
+    }
+
     /// Forces and element matrices of the elements `first .. first + forces.len()` at `x`, in
     /// one pass (what every equilibrium iteration needs; `forces` and `matrices` have the same
     /// length). Returns Σ Ψ_e of those elements when the model is hyperelastic and the pass
@@ -91,6 +97,35 @@ fn ordered_parallel_sum(n: usize, per_element: impl Fn(usize) -> f64 + Sync) -> 
         }
     }
     total
+}
+
+/// (f_int(x), Σ_e Ψ_e) from one parallel pass of `per_element(e) = (forces, energy)`, both
+/// accumulated serially in element order (the bits of the serial loops).
+fn ordered_parallel_forces_energy(
+    geometry: &[TetGeometry],
+    num_nodes: usize,
+    per_element: impl Fn(usize) -> ([Vector3<f64>; 4], f64) + Sync,
+) -> (Vec<Vector3<f64>>, f64) {
+    use rayon::prelude::*;
+    let n = geometry.len();
+    let mut out = vec![Vector3::zeros(); num_nodes];
+    let mut total = 0.0;
+    let mut buf = vec![([Vector3::zeros(); 4], 0.0); ELEMENT_CHUNK.min(n)];
+    for start in (0..n).step_by(ELEMENT_CHUNK) {
+        let len = ELEMENT_CHUNK.min(n - start);
+        buf[..len]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(k, v)| *v = per_element(start + k));
+        for (k, (f, w)) in buf[..len].iter().enumerate() {
+            let nodes = geometry[start + k].nodes;
+            for a in 0..4 {
+                out[nodes[a]] += f[a];
+            }
+            total += w;
+        }
+    }
+    (out, total)
 }
 
 /// f_int(x) = Σ_e (element forces) with the element forces computed in parallel and accumulated
@@ -241,6 +276,24 @@ impl ElasticModel for CorotationalModel {
             corotational_forces(&self.geometry[e], &self.params[e], x)
         })
     }
+    fn forces_and_energy(&self, x: &[Vector3<f64>]) -> (Vec<Vector3<f64>>, Option<f64>) {
+        let (f, energy) = ordered_parallel_forces_energy(&self.geometry, self.rest.len(), |e| {
+            let g = &self.geometry[e];
+            let (r, eps) = corotated_strain(&g.deformation_gradient(x));
+            let sigma = crate::element::linear_stress(&self.params[e], &eps);
+            let p = r * sigma * g.volume_m3;
+            (
+                [
+                    p * g.grads[0],
+                    p * g.grads[1],
+                    p * g.grads[2],
+                    p * g.grads[3],
+                ],
+                0.5 * g.volume_m3 * (sigma.component_mul(&eps)).sum(),
+            )
+        });
+        (f, self.hook.is_none().then_some(energy))
+    }
     fn linearize_elements(
         &self,
         first: usize,
@@ -376,6 +429,16 @@ impl ElasticModel for NeoHookeanModel {
         ordered_parallel_forces(g, self.rest.len(), |e| {
             neohookean_forces(&g[e], &self.params[e], x)
         })
+    }
+    fn forces_and_energy(&self, x: &[Vector3<f64>]) -> (Vec<Vector3<f64>>, Option<f64>) {
+        let g = self.material_geometry();
+        let (f, energy) = ordered_parallel_forces_energy(g, self.rest.len(), |e| {
+            (
+                neohookean_forces(&g[e], &self.params[e], x),
+                neohookean_energy(&g[e], &self.params[e], x),
+            )
+        });
+        (f, Some(energy))
     }
     fn linearize_elements(
         &self,

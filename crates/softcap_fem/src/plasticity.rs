@@ -537,6 +537,9 @@ impl ElasticModel for PlasticNeoHookeanModel {
     fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         self.elastic.internal_forces(x)
     }
+    fn forces_and_energy(&self, x: &[Vector3<f64>]) -> (Vec<Vector3<f64>>, Option<f64>) {
+        self.elastic.forces_and_energy(x)
+    }
     fn linearize_elements(
         &self,
         first: usize,

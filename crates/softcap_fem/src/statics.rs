@@ -45,6 +45,30 @@ pub struct EquilibriumSettings {
     /// iteration up to this many, then frozen, so that nodes at the rim of the contact patch cannot
     /// chatter in and out forever; the remaining iterations converge the frozen linear force field.
     pub contact_freeze_after: usize,
+    /// When the system matrix is refactored (default: at every iterate).
+    #[serde(default)]
+    pub refactorization: Refactorization,
+}
+
+/// When the equilibrium iterations assemble and factor the system matrix A.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Refactorization {
+    /// Assemble and factor A at every iterate; after a solve, [`StaticSolver::cholesky`] holds A at
+    /// the solution (what a tangent response ∂x/∂f needs).
+    #[default]
+    EveryIteration,
+    /// Modified Newton for interactive loops (many small load steps, e.g. a probe advancing a
+    /// fraction of a millimetre per frame): the numeric factor is kept across iterations *and
+    /// across solves* and reused while it still contracts. A is re-assembled and refactored only
+    /// when there is no factor, the contact active set (the set of spring nodes) differs from the
+    /// factored one, or the previous iteration reduced the residual norm by less than half. The
+    /// convergence test is the same, so the equilibrium is the same to the solver tolerance; each
+    /// reused iteration costs one force pass and one back-substitution instead of an assembly and
+    /// a factorization, and the accepted line-search point's forces (and energy) are carried into
+    /// the next iteration. The factor left in [`StaticSolver::cholesky`] may belong to an earlier
+    /// iterate or solve. Requires, like the energy line search, that a model with an energy keeps
+    /// its forces fixed in [`ElasticModel::update_state`].
+    WhenStale,
 }
 
 impl Default for EquilibriumSettings {
@@ -57,6 +81,7 @@ impl Default for EquilibriumSettings {
             line_search: true,
             max_halvings: 12,
             contact_freeze_after: 12,
+            refactorization: Refactorization::EveryIteration,
         }
     }
 }
@@ -122,6 +147,9 @@ pub struct StaticSolver {
     /// Model energy at the last assembled iterate, when the pass produced it.
     energy: Option<f64>,
     scratch: AssemblyScratch,
+    /// Contact springs of the matrix in the current factor when [`Refactorization::WhenStale`]
+    /// made it (`None`: unknown — any other path factored it, or nothing was factored).
+    factored_springs: Option<Vec<ContactSpring>>,
 }
 
 impl StaticSolver {
@@ -139,6 +167,7 @@ impl StaticSolver {
             f_int: Vec::new(),
             energy: None,
             scratch: AssemblyScratch::default(),
+            factored_springs: None,
         })
     }
 
@@ -218,6 +247,19 @@ impl StaticSolver {
         frozen: Option<&[ContactSpring]>,
         node_stiffness: Option<(&mut Vec<f64>, &[ContactSpring])>,
     ) -> Result<Vec<ContactSpring>, FemError> {
+        self.assemble_values(model, x, kind);
+        let springs = self.contact_springs(x, contact, frozen, node_stiffness);
+        self.factor_with_springs(&springs)?;
+        Ok(springs)
+    }
+
+    /// One fused pass at `x`: `values` (elements only), `f_int`, `energy`.
+    fn assemble_values<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+    ) {
         let mut values = std::mem::take(&mut self.values);
         let mut f_int = std::mem::take(&mut self.f_int);
         self.energy = self.pattern.assemble_linearized(
@@ -229,7 +271,20 @@ impl StaticSolver {
             &mut f_int,
         );
         self.f_int = f_int;
-        let springs = match (contact, frozen) {
+        self.values = values;
+    }
+
+    /// The contact springs at `x` (see [`Self::assemble_and_factor_impl`]); the penalty table is
+    /// filled from the element-only `values` of the last [`Self::assemble_values`].
+    fn contact_springs(
+        &self,
+        x: &[Vector3<f64>],
+        contact: Option<&ContactProblem>,
+        frozen: Option<&[ContactSpring]>,
+        node_stiffness: Option<(&mut Vec<f64>, &[ContactSpring])>,
+    ) -> Vec<ContactSpring> {
+        let values = &self.values;
+        match (contact, frozen) {
             (Some(_), Some(f)) => f.to_vec(),
             (Some(c), None) => {
                 let pat = &self.pattern;
@@ -250,15 +305,19 @@ impl StaticSolver {
                 }
             }
             (None, _) => Vec::new(),
-        };
-        for s in &springs {
-            self.pattern
-                .add_node_block(s.node, &s.matrix(), &mut values);
         }
-        let factored = self.cholesky.factor(&self.pattern, &values);
-        self.values = values;
-        factored?;
-        Ok(springs)
+    }
+
+    /// Adds the springs to the element-only `values` and factors the result.
+    fn factor_with_springs(&mut self, springs: &[ContactSpring]) -> Result<(), FemError> {
+        for s in springs {
+            self.pattern
+                .add_node_block(s.node, &s.matrix(), &mut self.values);
+        }
+        self.factored_springs = None;
+        self.cholesky
+            .factor(&self.pattern, &self.values)
+            .map(|_| ())
     }
 
     /// Free-dof residual f_ext + f_c − f_int(x) for the given f_int and its tolerance scale: the
@@ -328,6 +387,16 @@ impl StaticSolver {
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
         let mut last_springs: Option<Vec<ContactSpring>> = None;
         let mut node_stiffness: Vec<f64> = Vec::new();
+        let reuse = settings.refactorization == Refactorization::WhenStale;
+        // (f_int, energy) at the current x, carried over from the accepted line-search point.
+        let mut carried: Option<(Vec<Vector3<f64>>, Option<f64>)> = None;
+        let mut previous_rnorm = f64::INFINITY;
+        let failed = |e: FemError| match e {
+            FemError::NonFinite { .. } => SolveStatus::NonFinite,
+            e => SolveStatus::FactorizationFailed {
+                reason: e.to_string(),
+            },
+        };
         for it in 0..settings.max_iterations {
             model.update_state(x);
             let freeze = it >= settings.contact_freeze_after && it > 0;
@@ -336,25 +405,41 @@ impl StaticSolver {
             } else {
                 None
             };
-            let springs = match self.assemble_and_factor_impl(
-                &*model,
-                x,
-                settings.stiffness,
-                contact,
-                frozen_ref,
-                Some((&mut node_stiffness, last_springs.as_deref().unwrap_or(&[]))),
-            ) {
-                Ok(s) => s,
-                Err(FemError::NonFinite { .. }) => {
-                    report.status = SolveStatus::NonFinite;
-                    return report;
+            let previous = last_springs.as_deref().unwrap_or(&[]);
+            let mut assembled = !reuse;
+            let springs = if !reuse {
+                match self.assemble_and_factor_impl(
+                    &*model,
+                    x,
+                    settings.stiffness,
+                    contact,
+                    frozen_ref,
+                    Some((&mut node_stiffness, previous)),
+                ) {
+                    Ok(s) => s,
+                    Err(e) => {
+                        report.status = failed(e);
+                        return report;
+                    }
                 }
-                Err(e) => {
-                    report.status = SolveStatus::FactorizationFailed {
-                        reason: e.to_string(),
-                    };
-                    return report;
+            } else {
+                // Modified Newton: linearize only as far as this iterate needs.
+                let need_table = contact.is_some() && node_stiffness.len() != x.len();
+                let carried_in = carried.take();
+                if need_table || self.values.is_empty() {
+                    self.assemble_values(&*model, x, settings.stiffness);
+                    assembled = true;
+                } else if let Some((f, e)) = carried_in {
+                    (self.f_int, self.energy) = (f, e);
+                } else {
+                    (self.f_int, self.energy) = model.forces_and_energy(x);
                 }
+                self.contact_springs(
+                    x,
+                    contact,
+                    frozen_ref,
+                    Some((&mut node_stiffness, previous)),
+                )
             };
             let (r, scale) = self.residual_with(&self.f_int, x, f_ext, &springs);
             let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -373,6 +458,32 @@ impl StaticSolver {
                 report.status = SolveStatus::Converged;
                 return report;
             }
+            if reuse {
+                let penalty = contact.map_or(1.0, |c| c.settings.penalty_factor);
+                let stale = self.cholesky.kind().is_none()
+                    || self
+                        .factored_springs
+                        .as_deref()
+                        .is_none_or(|f| !springs_match(f, &springs, penalty))
+                    || rnorm > 0.25 * previous_rnorm;
+                if stale {
+                    if !assembled {
+                        self.assemble_values(&*model, x, settings.stiffness);
+                    }
+                    if let Err(e) = self.factor_with_springs(&springs) {
+                        report.status = failed(e);
+                        return report;
+                    }
+                    self.factored_springs = Some(springs.clone());
+                } else if assembled {
+                    // Keep `last_matrix_values` = A at the last assembled iterate.
+                    for s in &springs {
+                        self.pattern
+                            .add_node_block(s.node, &s.matrix(), &mut self.values);
+                    }
+                }
+            }
+            previous_rnorm = rnorm;
             let mut dx = r.clone();
             if let Err(e) = self.cholesky.solve_in_place(&mut dx) {
                 report.status = SolveStatus::FactorizationFailed {
@@ -393,7 +504,8 @@ impl StaticSolver {
                     frozen: freeze,
                 });
                 let energy = self.energy;
-                self.line_search(&*model, x, energy, f_ext, merit, &dx, &r, settings)
+                let carry = if reuse { Some(&mut carried) } else { None };
+                self.line_search(&*model, x, energy, f_ext, merit, &dx, &r, settings, carry)
             } else {
                 1.0
             };
@@ -416,6 +528,7 @@ impl StaticSolver {
         dx: &[f64],
         r: &[f64],
         settings: &EquilibriumSettings,
+        mut carry: Option<&mut Option<(Vec<Vector3<f64>>, Option<f64>)>>,
     ) -> f64 {
         let dofs = self.dofs();
         let trial = |s: f64| {
@@ -435,14 +548,26 @@ impl StaticSolver {
                 let penalty = contact.as_ref().map_or(0.0, |c| c.energy(xs));
                 energy - ext + penalty
             };
-            let merit = |xs: &[Vector3<f64>]| merit_with(xs, model.energy(xs).unwrap_or(f64::NAN));
             let e0 = merit_with(x, energy0);
             let slope = -dx.iter().zip(r).map(|(a, b)| a * b).sum::<f64>();
             if slope < 0.0 && e0.is_finite() {
                 let mut s = 1.0;
                 for _ in 0..=settings.max_halvings {
-                    let e = merit(&trial(s));
+                    let xt = trial(s);
+                    // With a carry slot, the forces of the trial come with its energy (one pass)
+                    // and, if accepted, serve the next iteration.
+                    let (forces, energy) = match carry {
+                        Some(_) => {
+                            let (f, e) = model.forces_and_energy(&xt);
+                            (Some(f), e)
+                        }
+                        None => (None, model.energy(&xt)),
+                    };
+                    let e = merit_with(&xt, energy.unwrap_or(f64::NAN));
                     if e.is_finite() && e <= e0 + 1e-4 * s * slope + 1e-14 * e0.abs() {
+                        if let (Some(slot), Some(f)) = (carry.as_deref_mut(), forces) {
+                            *slot = Some((f, energy));
+                        }
                         return s;
                     }
                     s *= 0.5;
@@ -501,6 +626,7 @@ impl StaticSolver {
                 f_int[g.nodes[a]] += r * fu.fixed_rows::<3>(3 * a);
             }
         }
+        self.factored_springs = None;
         self.cholesky.factor(&self.pattern, &values)?;
         self.values = values;
         let r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(a, b)| a - b).collect();
@@ -509,6 +635,21 @@ impl StaticSolver {
         self.dofs().scatter_add(&dx, 1.0, x);
         Ok(())
     }
+}
+
+/// Whether a factor made with springs `old` still serves springs `new` (modified Newton): the same
+/// nodes, penalty stiffness within 5 %, and normals within 0.05 / penalty_factor — a spring is
+/// `penalty_factor` times stiffer than the elements around its node, so a normal rotated by δ
+/// changes the matrix by ≈ penalty_factor · δ relative to the element stiffness in the tangential
+/// directions, and the stale factor contracts only while that stays small.
+fn springs_match(old: &[ContactSpring], new: &[ContactSpring], penalty_factor: f64) -> bool {
+    old.len() == new.len()
+        && old.iter().zip(new).all(|(a, b)| {
+            a.node == b.node
+                && (b.stiffness_n_per_m - a.stiffness_n_per_m).abs()
+                    <= 0.05 * a.stiffness_n_per_m.abs()
+                && (b.normal - a.normal).norm() <= 0.05 / penalty_factor.max(1.0)
+        })
 }
 
 /// The probe as the line search sees it: this iteration's springs (compressive part) plus the true
