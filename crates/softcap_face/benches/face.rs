@@ -60,6 +60,17 @@ fn bench(c: &mut Criterion) {
     c.bench_function("shell_frame_ict_9409v", |b| {
         b.iter(|| animator.frame(&take.positions_cm[t]).expect("frame"))
     });
+    let mut fast = FaceAnimator::new(
+        mesh.clone(),
+        handles.clone(),
+        &take.positions_cm[0],
+        &ShellSettings::default(),
+    )
+    .expect("animator");
+    fast.precompute_basis().expect("basis");
+    c.bench_function("shell_frame_basis_ict_9409v", |b| {
+        b.iter(|| fast.frame(&take.positions_cm[t]).expect("frame"))
+    });
     // wrinkle synthesis on a full face: eleven wrinkles (forehead, glabella, nasolabial folds,
     // crow's feet; tests/common/face_scene.rs) on the jaw-open ICT frame subdivided twice
     // (148k vertices; the thesis's scans have ≈700k, see the subdivided group below)
@@ -139,7 +150,7 @@ fn bench(c: &mut Criterion) {
     group.bench_function(format!("shell_prefactor_{}v", fine.vertices.len()), |b| {
         b.iter(|| factor_shell(&fine, &handles, &ShellSettings::default()).expect("factor"))
     });
-    let fine_animator = FaceAnimator::new(
+    let mut fine_animator = FaceAnimator::new(
         fine.clone(),
         handles.clone(),
         &take.positions_cm[0],
@@ -147,6 +158,10 @@ fn bench(c: &mut Criterion) {
     )
     .expect("animator");
     group.bench_function(format!("shell_frame_{}v", fine.vertices.len()), |b| {
+        b.iter(|| fine_animator.frame(&take.positions_cm[t]).expect("frame"))
+    });
+    fine_animator.precompute_basis().expect("basis");
+    group.bench_function(format!("shell_frame_basis_{}v", fine.vertices.len()), |b| {
         b.iter(|| fine_animator.frame(&take.positions_cm[t]).expect("frame"))
     });
     let (rest3, deformed3) = face_scene::face_scene_meshes(3);

@@ -5,9 +5,10 @@
 //! substitution per frame.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use softcap_mesh::TriMesh;
 use softcap_mesh::laplacian::{cotan_laplacian, voronoi_areas};
-use softcap_mesh::shell::{LinearShell, ShellSettings};
+use softcap_mesh::shell::{LinearShell, ShellBasis, ShellSettings};
 
 use crate::correspondence::Correspondence;
 use crate::error::{FaceError, Result};
@@ -21,6 +22,8 @@ pub struct FaceAnimator {
     /// The space warp c.
     pub correspondence: Correspondence,
     shell: LinearShell,
+    /// B = −A_FF⁻¹ A_FH (f32, thesis §5.3) once [`FaceAnimator::precompute_basis`] ran.
+    basis: Option<ShellBasis>,
 }
 
 impl FaceAnimator {
@@ -63,13 +66,85 @@ impl FaceAnimator {
             handles,
             correspondence,
             shell,
+            basis: None,
         })
+    }
+
+    /// Precompute the shell basis B = −A_FF⁻¹ A_FH (thesis §5.3: u = B u_H) so that every later
+    /// [`FaceAnimator::frame`] is one dense n × H product instead of two triangular solves with
+    /// the factor. The linear shell acts on x, y and z alike, so one solve with three
+    /// right-hand sides yields three columns (unit x on handle h, unit y on h + 1, unit z on
+    /// h + 2); the ⌈H/3⌉ solves run in parallel. B is stored in f32 (n × H × 4 bytes): its
+    /// entries are O(1) and rows sum to 1, so a frame is accurate to ~1e-7 of the handle
+    /// displacement; handles themselves are set exactly.
+    pub fn precompute_basis(&mut self) -> Result<()> {
+        let h = self.handles.len();
+        let n = self.mesh.vertices.len();
+        let groups: Vec<usize> = (0..h.div_ceil(3)).collect();
+        let columns: Vec<Vec<Vector3<f64>>> = groups
+            .par_iter()
+            .map(|&g| {
+                let mut u_h = vec![Vector3::zeros(); h];
+                for axis in 0..3 {
+                    if let Some(u) = u_h.get_mut(3 * g + axis) {
+                        u[axis] = 1.0;
+                    }
+                }
+                self.shell
+                    .solve(&u_h)
+                    .map_err(|e| FaceError::Factorization {
+                        what: "linear shell basis",
+                        reason: e.to_string(),
+                    })
+            })
+            .collect::<Result<_>>()?;
+        let mut weights = vec![0.0f32; n * h];
+        for (g, u) in columns.iter().enumerate() {
+            for axis in 0..3 {
+                let c = 3 * g + axis;
+                if c >= h {
+                    continue;
+                }
+                for (v, uv) in u.iter().enumerate() {
+                    weights[v * h + c] = uv[axis] as f32;
+                }
+            }
+        }
+        self.basis = Some(ShellBasis { n, h, weights });
+        Ok(())
+    }
+
+    /// Whether frames use the precomputed basis.
+    pub fn has_basis(&self) -> bool {
+        self.basis.is_some()
     }
 
     /// Deformed vertex positions for one mocap frame (thesis eq. 3.1: the shell interpolates
     /// u_{i,t} at the handles).
     pub fn frame(&self, mocap_frame: &[Vector3<f64>]) -> Result<Vec<Vector3<f64>>> {
         let u_h = self.correspondence.displacements(mocap_frame)?;
+        if let Some(basis) = &self.basis {
+            const BLOCK: usize = 4096;
+            let u32: Vec<[f32; 3]> = u_h
+                .iter()
+                .map(|u| [u.x as f32, u.y as f32, u.z as f32])
+                .collect();
+            let mut u = vec![[0.0f32; 3]; basis.n];
+            u.par_chunks_mut(BLOCK)
+                .enumerate()
+                .for_each(|(k, out)| basis.apply_rows(&u32, k * BLOCK, out));
+            let mut x: Vec<Vector3<f64>> = self
+                .mesh
+                .vertices
+                .iter()
+                .zip(&u)
+                .map(|(x, d)| x + Vector3::new(d[0] as f64, d[1] as f64, d[2] as f64))
+                .collect();
+            for (&v, d) in self.handles.iter().zip(&u_h) {
+                x[v] = self.mesh.vertices[v] + d;
+            }
+            return Ok(x);
+        }
         let u = self
             .shell
             .solve(&u_h)

@@ -181,9 +181,29 @@ struct SectionProblem<'a> {
     scale: bool,
     /// Effective-variance weights 1/√(σ_I² + (c ∂F/∂p)² σ_p²), scaled by σ_I.
     weight: Vec<f64>,
+    /// Horizons of the last evaluated (w, p₀): the Jacobian is requested at the point whose
+    /// residuals were just computed, and the horizon search is the expensive part.
+    cache: Option<(f64, f64, Vec<UnitHorizons>)>,
 }
 
 impl SectionProblem<'_> {
+    /// The unit horizons of every sample at (w, p₀), searched once per distinct (w, p₀).
+    fn horizons(&mut self, w: f64, p0: f64) -> &[UnitHorizons] {
+        let fresh = !matches!(&self.cache, Some((cw, cp, _)) if *cw == w && *cp == p0);
+        if fresh {
+            let h = self
+                .p
+                .iter()
+                .map(|&pk| UnitHorizons::new((pk - p0) / w, &self.horizon))
+                .collect();
+            self.cache = Some((w, p0, h));
+        }
+        match &self.cache {
+            Some((_, _, h)) => h,
+            None => &[],
+        }
+    }
+
     /// Effective-variance weights at `params` (errors in the abscissa, Orear 1982): a sample's
     /// residual variance is σ_I² + (∂(cF)/∂p)² σ_p², with σ_p the uncertainty of its distance p
     /// to the valley. Near the valley kink F rises like √|u| (∂F/∂p → ∞), so those samples
@@ -215,19 +235,19 @@ impl LeastSquaresProblem for SectionProblem<'_> {
     fn residuals(&mut self, params: &[f64], r: &mut [f64]) {
         let (d, w, p0) = (params[0], params[1], params[2]);
         let c = if self.scale { params[3] } else { 1.0 };
-        for k in 0..self.p.len() {
+        let hs = self.horizons(w, p0).to_vec();
+        for (k, h) in hs.iter().enumerate() {
             let p = self.p[k] - p0;
-            let h = UnitHorizons::new(p / w, &self.horizon);
-            r[k] = self.weight[k] * (self.ratio[k] - c * wedge_shading(w, d, p, &h).ratio);
+            r[k] = self.weight[k] * (self.ratio[k] - c * wedge_shading(w, d, p, h).ratio);
         }
     }
     fn jacobian(&mut self, params: &[f64], j: &mut DMatrix<f64>) -> bool {
         let (d, w, p0) = (params[0], params[1], params[2]);
         let c = if self.scale { params[3] } else { 1.0 };
-        for k in 0..self.p.len() {
+        let hs = self.horizons(w, p0).to_vec();
+        for (k, h) in hs.iter().enumerate() {
             let p = self.p[k] - p0;
-            let h = UnitHorizons::new(p / w, &self.horizon);
-            let s = wedge_shading(w, d, p, &h);
+            let s = wedge_shading(w, d, p, h);
             let wk = self.weight[k];
             j[(k, 0)] = -wk * c * s.d_depth;
             j[(k, 1)] = -wk * c * s.d_width;
@@ -276,6 +296,7 @@ pub fn fit_cross_section(
         horizon: settings.horizon,
         scale: settings.fit_reference_scale,
         weight: vec![1.0; p.len()],
+        cache: None,
     };
     let (mut lo, mut hi, mut x0) = (
         vec![0.0, 0.3, -2.0],

@@ -44,6 +44,30 @@ fn jaw_take_animates_ict_face_and_interpolates_handles() {
         &ShellSettings::default(),
     )
     .unwrap();
+    // The precomputed basis (thesis §5.3, f32) reproduces the factor's solution.
+    let mut fast = FaceAnimator::new(
+        mesh.clone(),
+        handles.clone(),
+        &take.positions_cm[0],
+        &ShellSettings::default(),
+    )
+    .unwrap();
+    fast.precompute_basis().unwrap();
+    let t390 = take.frames.iter().position(|&f| f == 390).unwrap();
+    let exact = animator.frame(&take.positions_cm[t390]).unwrap();
+    let via_basis = fast.frame(&take.positions_cm[t390]).unwrap();
+    let basis_err = exact
+        .iter()
+        .zip(&via_basis)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    let handle_err = handles
+        .iter()
+        .map(|&h| (exact[h] - via_basis[h]).norm())
+        .fold(0.0, f64::max);
+    println!("basis vs factor solve: max {basis_err:.2e} cm, handles {handle_err:.2e} cm");
+    assert!(basis_err < 1e-5, "basis {basis_err}");
+    assert!(handle_err < 1e-12, "handles {handle_err}");
     // Frame 0 is the correspondence frame: zero displacement everywhere.
     let rest = animator.frame(&take.positions_cm[0]).unwrap();
     let rest_err = rest
