@@ -89,17 +89,8 @@ impl NodalSolver {
         terms: &mut [&mut dyn NodalTerm],
         settings: &EquilibriumSettings,
     ) -> EquilibriumReport {
-        let mut report = EquilibriumReport {
-            status: SolveStatus::MaxIterations,
-            iterations: 0,
-            residual_norm_n: f64::NAN,
-            last_update_m: f64::NAN,
-            contact: Default::default(),
-        };
-        if x.len() != model.num_nodes() || f_ext.len() != model.num_nodes() {
-            report.status = SolveStatus::FactorizationFailed {
-                reason: "length mismatch of x / f_ext".into(),
-            };
+        let mut report = EquilibriumReport::begin(model.num_nodes(), x.len(), f_ext.len());
+        if report.status != SolveStatus::MaxIterations {
             return report;
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;

@@ -132,6 +132,24 @@ impl EquilibriumReport {
     pub fn converged(&self) -> bool {
         self.status == SolveStatus::Converged
     }
+
+    /// The report an equilibrium solve starts from (no iterations yet, status `MaxIterations`), or
+    /// the length-mismatch failure when `x` or `f_ext` does not have one entry per model node.
+    pub(crate) fn begin(num_nodes: usize, x_len: usize, f_ext_len: usize) -> Self {
+        let mut report = Self {
+            status: SolveStatus::MaxIterations,
+            iterations: 0,
+            residual_norm_n: f64::NAN,
+            last_update_m: f64::NAN,
+            contact: ContactReport::default(),
+        };
+        if x_len != num_nodes || f_ext_len != num_nodes {
+            report.status = SolveStatus::FactorizationFailed {
+                reason: "length mismatch of x / f_ext".into(),
+            };
+        }
+        report
+    }
 }
 
 /// Static solver bound to a mesh and a set of constrained dofs; owns the sparsity pattern and the
@@ -371,17 +389,8 @@ impl StaticSolver {
         contact: Option<&ContactProblem>,
         settings: &EquilibriumSettings,
     ) -> EquilibriumReport {
-        let mut report = EquilibriumReport {
-            status: SolveStatus::MaxIterations,
-            iterations: 0,
-            residual_norm_n: f64::NAN,
-            last_update_m: f64::NAN,
-            contact: ContactReport::default(),
-        };
-        if x.len() != model.num_nodes() || f_ext.len() != model.num_nodes() {
-            report.status = SolveStatus::FactorizationFailed {
-                reason: "length mismatch of x / f_ext".into(),
-            };
+        let mut report = EquilibriumReport::begin(model.num_nodes(), x.len(), f_ext.len());
+        if report.status != SolveStatus::MaxIterations {
             return report;
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
