@@ -181,6 +181,7 @@ pub fn prepare(
                     &SimLoad {
                         probe: Some(ProbeLoad {
                             tip_m: f.tip_m,
+                            axis: f.axis,
                             force_n: f.force_n,
                         }),
                         body_force_n_m3: Vector3::zeros(),
@@ -491,6 +492,7 @@ fn resimulate(
         }
         let probe = (forces[k].norm() > thr).then_some(ProbeLoad {
             tip_m: f.tip_m,
+            axis: f.axis,
             force_n: forces[k],
         });
         let o = sim.simulate(

@@ -1,13 +1,15 @@
 //! Reading the stage inputs: `capture.mcap` (through `softcap_mcap::capture::CaptureData`) into a
-//! [`Recording`], and `material.mcap` (`/mesh/volume` + `/tissue/basis` or
-//! `/tissue/element_material`) into the default model.
+//! [`Recording`], and `material.mcap` (through `softcap_mcap::material::MaterialData`:
+//! `/mesh/volume` + `/tissue/basis` or `/tissue/element_material`) into the default model.
 
 use crate::recording::{Frame, Recording, SupportPlane, surface_normals};
 use crate::{DiagnoseError, Result};
-use nalgebra::{Vector3, Vector6};
+use nalgebra::Vector3;
+use softcap_fem::probing::{ElementRbf, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mcap::capture::CaptureData;
-use softcap_mcap::{proto, topics};
+use softcap_mcap::material::MaterialData;
+use softcap_mcap::proto;
 use softcap_mesh::TetMesh;
 use std::path::Path;
 use std::sync::Arc;
@@ -83,49 +85,6 @@ pub fn recording_from_capture(cap: &CaptureData, mesh: &TetMesh) -> Result<Recor
     Ok(rec)
 }
 
-/// Per-element strain-space RBF read from `/tissue/basis` (bickel2009 eq. 8): p_e(ε) = Σᵢ wᵢ φ(‖ε −
-/// εᵢ‖), φ(r) = r or r³, no polynomial tail; evaluated parameters are kept valid (λ ≥ 1 % of the
-/// element's value at zero strain, ν = α/λ ∈ [0, 0.49]).
-#[derive(Clone, Debug)]
-pub struct StrainBasis {
-    cubic: bool,
-    m: usize,
-    centers: Vec<f64>,
-    weights: Vec<f64>,
-    lambda_floor_pa: Vec<f64>,
-}
-
-impl StrainBasis {
-    fn raw(&self, e: usize, strain: &[f64; 6]) -> [f64; 2] {
-        let mut out = [0.0; 2];
-        for i in 0..self.m {
-            let c = &self.centers[(e * self.m + i) * 6..(e * self.m + i) * 6 + 6];
-            let r = c
-                .iter()
-                .zip(strain)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum::<f64>()
-                .sqrt();
-            let phi = if self.cubic { r * r * r } else { r };
-            out[0] += self.weights[(e * self.m + i) * 2] * phi;
-            out[1] += self.weights[(e * self.m + i) * 2 + 1] * phi;
-        }
-        out
-    }
-}
-
-impl softcap_fem::StrainDependentParams for StrainBasis {
-    fn params(&self, element: usize, strain: &Vector6<f64>) -> LinearParams {
-        let s = [
-            strain[0], strain[1], strain[2], strain[3], strain[4], strain[5],
-        ];
-        let [l, a] = self.raw(element, &s);
-        let lambda = l.max(self.lambda_floor_pa[element]);
-        let alpha = a.clamp(0.0, 0.49 * lambda);
-        LinearParams { lambda, alpha }
-    }
-}
-
 /// The default model of a material.mcap.
 pub struct MaterialModel {
     /// The fitted mesh (SI).
@@ -136,155 +95,143 @@ pub struct MaterialModel {
     pub source: &'static str,
 }
 
-/// Reads `material.mcap`.
-pub fn read_material(path: &Path) -> Result<MaterialModel> {
-    let mcap = |source: softcap_mcap::Error| DiagnoseError::Mcap {
-        path: path.to_path_buf(),
-        source: Box::new(source),
-    };
-    let bad = |what: String| DiagnoseError::BadInput {
-        path: path.to_path_buf(),
-        what,
-    };
-    let r = softcap_mcap::Recording::open(path).map_err(mcap)?;
-    let vm: proto::TetMesh = r
-        .read_static(&topics::VOLUME_MESH)
-        .map_err(|e| bad(format!("/mesh/volume: {e}")))?;
-    if !vm.positions_m.len().is_multiple_of(3)
-        || !vm.tets.len().is_multiple_of(4)
-        || vm.tets.is_empty()
+/// The strain-space material of `/tissue/basis` (bickel2009 eq. 8, φ(r) = r, no tail) as a
+/// [`StrainSpaceMaterial`]: per tet the M centres εᵢ and weights wᵢ = (w_λ, w_α). The validity
+/// clamp follows `StrainBasisSettings::default()` of the fit: λ ≥ ½ of the element's smallest
+/// per-example λ (`/tissue/element_material`), else ½ of its λ at zero strain; ν ∈ [0, 0.49].
+pub fn strain_space_material(
+    data: &MaterialData,
+    basis: &proto::StrainSpaceBasis,
+) -> std::result::Result<StrainSpaceMaterial, String> {
+    let nt = data.tets.len();
+    let m = basis.center_examples.len();
+    if basis.elements as usize != nt
+        || basis.centers_strain.len() != nt * m * 6
+        || basis.weights.len() != nt * m * 2
     {
-        return Err(bad(
-            "/mesh/volume: positions/tets lengths are not multiples of 3/4".into(),
+        return Err(format!(
+            "{} elements, {} centres: array lengths {} / {} do not match {nt} tets",
+            basis.elements,
+            m,
+            basis.centers_strain.len(),
+            basis.weights.len()
         ));
     }
-    let nv = vm.positions_m.len() / 3;
-    let mesh = TetMesh {
-        vertices: vm
-            .positions_m
-            .chunks(3)
-            .map(|c| Vector3::new(c[0], c[1], c[2]))
-            .collect(),
-        tets: vm
-            .tets
-            .chunks(4)
-            .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize, c[3] as usize])
-            .collect(),
-    };
-    if let Some((t, _)) = mesh
-        .tets
-        .iter()
-        .enumerate()
-        .find(|(_, t)| t.iter().any(|&v| v >= nv))
-    {
-        return Err(bad(format!(
-            "/mesh/volume: tet {t} references a missing vertex"
-        )));
+    if !(basis.tail.is_empty() || basis.tail == "none") {
+        return Err(format!(
+            "tail '{}' is not supported (only none)",
+            basis.tail
+        ));
     }
-    if mesh
-        .vertices
+    if !(basis.kernel.is_empty() || basis.kernel == "r") {
+        return Err(format!(
+            "kernel '{}' is not supported (bickel2009 eq. 8 uses phi(r) = r)",
+            basis.kernel
+        ));
+    }
+    if let Some(i) = basis
+        .centers_strain
         .iter()
-        .any(|v| !v.iter().all(|c| c.is_finite()))
+        .chain(&basis.weights)
+        .position(|v| !v.is_finite())
     {
-        return Err(bad("/mesh/volume: non-finite vertex".into()));
+        return Err(format!("non-finite value at position {i}"));
+    }
+    let elements: Vec<ElementRbf> = (0..nt)
+        .map(|e| ElementRbf {
+            center_samples: basis.center_examples.iter().map(|&c| c as usize).collect(),
+            centers: (0..m)
+                .map(|i| {
+                    let c = &basis.centers_strain[(e * m + i) * 6..(e * m + i) * 6 + 6];
+                    [c[0], c[1], c[2], c[3], c[4], c[5]]
+                })
+                .collect(),
+            weights: (0..m)
+                .map(|i| {
+                    let w = &basis.weights[(e * m + i) * 2..(e * m + i) * 2 + 2];
+                    [w[0], w[1]]
+                })
+                .collect(),
+        })
+        .collect();
+    let lambda_floor_pa = (0..nt)
+        .map(|e| {
+            let min_sample = data
+                .element_materials
+                .iter()
+                .map(|(_, x)| x.lambda_pa[e])
+                .fold(f64::INFINITY, f64::min);
+            let l = if min_sample.is_finite() {
+                min_sample
+            } else {
+                elements[e].evaluate(&[0.0; 6])[0]
+            };
+            0.5 * l.max(1.0)
+        })
+        .collect();
+    Ok(StrainSpaceMaterial {
+        elements,
+        lambda_floor_pa,
+        nu_bounds: (0.0, 0.49),
+    })
+}
+
+/// Reads `material.mcap` through [`MaterialData::read`]: the strain-space basis when present
+/// (bickel2009 §3.3), else the mean of the per-example element parameters.
+pub fn read_material(path: &Path) -> Result<MaterialModel> {
+    let data = MaterialData::read(path).map_err(|source| DiagnoseError::Mcap {
+        path: path.to_path_buf(),
+        source: Box::new(source),
+    })?;
+    material_model(&data)
+}
+
+/// The default model of already-read material data.
+pub fn material_model(data: &MaterialData) -> Result<MaterialModel> {
+    let bad = |what: String| DiagnoseError::BadInput {
+        path: data.path.clone(),
+        what,
+    };
+    let mesh = TetMesh {
+        vertices: data.vertices_m.iter().map(|p| v3(*p)).collect(),
+        tets: data.tets.clone(),
+    };
+    if mesh.tets.is_empty() {
+        return Err(bad("/mesh/volume: no tets".into()));
     }
     let nt = mesh.tets.len();
-    let examples: Vec<proto::ElementMaterial> =
-        if r.channel(topics::ELEMENT_MATERIAL.name()).is_some() {
-            r.read(&topics::ELEMENT_MATERIAL)
-                .map_err(mcap)?
-                .into_iter()
-                .map(|x| x.1)
-                .collect()
-        } else {
-            Vec::new()
-        };
-    // mean per-example parameters: the fallback and the zero-strain reference of the clamp
-    let mut mean = vec![
-        LinearParams {
-            lambda: 0.0,
-            alpha: 0.0
-        };
-        nt
-    ];
-    let mut count = 0usize;
-    for ex in &examples {
-        if ex.lambda_pa.len() != nt || ex.alpha_pa.len() != nt {
-            return Err(bad(format!(
-                "/tissue/element_material example {}: {} λ for {nt} tets",
-                ex.example,
-                ex.lambda_pa.len()
-            )));
-        }
-        for e in 0..nt {
-            mean[e].lambda += ex.lambda_pa[e];
-            mean[e].alpha += ex.alpha_pa[e];
-        }
-        count += 1;
-    }
-    if r.channel(topics::STRAIN_SPACE_BASIS.name()).is_some() {
-        let b: proto::StrainSpaceBasis =
-            r.read_static(&topics::STRAIN_SPACE_BASIS).map_err(mcap)?;
-        let m = b.center_examples.len();
-        if b.elements as usize != nt
-            || b.centers_strain.len() != nt * m * 6
-            || b.weights.len() != nt * m * 2
-        {
-            return Err(bad(format!(
-                "/tissue/basis: {} elements, {} centres: array lengths do not match",
-                b.elements, m
-            )));
-        }
-        if !(b.tail.is_empty() || b.tail == "none") {
-            return Err(bad(format!(
-                "/tissue/basis: tail '{}' is not supported (only none)",
-                b.tail
-            )));
-        }
-        let cubic = match b.kernel.as_str() {
-            "r" | "" => false,
-            "r3" => true,
-            k => return Err(bad(format!("/tissue/basis: unknown kernel '{k}'"))),
-        };
-        let mut basis = StrainBasis {
-            cubic,
-            m,
-            centers: b.centers_strain,
-            weights: b.weights,
-            lambda_floor_pa: vec![0.0; nt],
-        };
-        let mut p0 = Vec::with_capacity(nt);
-        for e in 0..nt {
-            let [l, a] = basis.raw(e, &[0.0; 6]);
-            let l = if l > 0.0 {
-                l
-            } else {
-                mean[e].lambda / count.max(1) as f64
-            };
-            basis.lambda_floor_pa[e] = 0.01 * l.max(1.0);
-            p0.push(LinearParams {
-                lambda: l.max(1.0),
-                alpha: a.clamp(0.0, 0.49 * l.max(1.0)),
-            });
-        }
-        let model = CorotationalModel::new(&mesh, p0)
-            .map_err(|e| bad(format!("/tissue/basis: {e}")))?
-            .with_strain_dependence(Arc::new(basis));
+    if let Some(basis) = &data.basis {
+        let material =
+            strain_space_material(data, basis).map_err(|w| bad(format!("/tissue/basis: {w}")))?;
+        let model = Arc::new(material)
+            .model(&mesh)
+            .map_err(|e| bad(format!("/tissue/basis: {e}")))?;
         return Ok(MaterialModel {
             mesh,
             model,
             source: "strain-space basis",
         });
     }
-    if count == 0 {
+    if data.element_materials.is_empty() {
         return Err(bad(
             "neither /tissue/basis nor /tissue/element_material present".into(),
         ));
     }
-    for p in &mut mean {
-        p.lambda /= count as f64;
-        p.alpha /= count as f64;
-    }
+    let count = data.element_materials.len() as f64;
+    let mean: Vec<LinearParams> = (0..nt)
+        .map(|e| {
+            let (l, a) = data
+                .element_materials
+                .iter()
+                .fold((0.0, 0.0), |acc, (_, x)| {
+                    (acc.0 + x.lambda_pa[e], acc.1 + x.alpha_pa[e])
+                });
+            LinearParams {
+                lambda: l / count,
+                alpha: a / count,
+            }
+        })
+        .collect();
     let model = CorotationalModel::new(&mesh, mean)
         .map_err(|e| bad(format!("/tissue/element_material: {e}")))?;
     Ok(MaterialModel {

@@ -407,12 +407,24 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
         if near.is_empty() {
             continue;
         }
+        // The frames of this location: its contact frames plus the frame before and the
+        // released frame after each contact run, split into runs of consecutive frames — only
+        // consecutive samples of one location are connected (a location visited twice gives two
+        // polylines, never a jump between them).
         let mut frames: Vec<usize> = li.contact_frames.clone();
-        if let Some(&first) = frames.first()
-            && first > 0
-        {
-            frames.insert(0, first - 1);
+        for &k in &li.contact_frames {
+            if k > 0 && !li.contact_frames.contains(&(k - 1)) {
+                frames.push(k - 1);
+            }
+            if k + 1 < rec.frames.len()
+                && !li.contact_frames.contains(&(k + 1))
+                && seg.phases[k + 1] == crate::segment::Phase::Released
+            {
+                frames.push(k + 1);
+            }
         }
+        frames.sort_unstable();
+        frames.dedup();
         let disp = |x: &dyn Fn(usize, usize) -> Option<Vector3<f64>>, k: usize| {
             let (mut s, mut n) = (0.0, 0);
             for &m in &near {
@@ -421,36 +433,37 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
                     n += 1;
                 }
             }
-            if n > 0 { 1e3 * s / n as f64 } else { 0.0 }
+            (n > 0).then(|| 1e3 * s / n as f64)
         };
-        let meas: Vec<(f64, f64)> = frames
-            .iter()
-            .map(|&k| {
-                (
-                    disp(&|k, m| rec.frames[k].markers_m[m], k),
-                    rec.frames[k].force_n.norm(),
-                )
-            })
-            .collect();
-        let base: Vec<(f64, f64)> = frames
-            .iter()
-            .map(|&k| {
-                (
-                    disp(&|k, m| Some(run.baseline_m[k][m]), k),
-                    rec.frames[k].force_n.norm(),
-                )
-            })
-            .collect();
-        let ext: Option<Vec<(f64, f64)>> = run.extended_m.as_ref().map(|x| {
-            frames
-                .iter()
-                .map(|&k| (disp(&|k, m| Some(x[k][m]), k), rec.frames[k].force_n.norm()))
-                .collect()
-        });
+        // polylines: a new one starts at a frame gap or where no near marker is observed
+        let polylines = |x: &dyn Fn(usize, usize) -> Option<Vector3<f64>>| -> Vec<Vec<(f64, f64)>> {
+            let mut out: Vec<Vec<(f64, f64)>> = Vec::new();
+            let mut prev: Option<usize> = None;
+            for &k in &frames {
+                let Some(d) = disp(x, k) else {
+                    prev = None;
+                    continue;
+                };
+                let p = (d, rec.frames[k].force_n.norm());
+                match (prev, out.last_mut()) {
+                    (Some(j), Some(line)) if j + 1 == k => line.push(p),
+                    _ => out.push(vec![p]),
+                }
+                prev = Some(k);
+            }
+            out
+        };
+        let meas = polylines(&|k, m| rec.frames[k].markers_m[m]);
+        let base = polylines(&|k, m| Some(run.baseline_m[k][m]));
+        let ext: Option<Vec<Vec<(f64, f64)>>> = run
+            .extended_m
+            .as_ref()
+            .map(|x| polylines(&|k, m| Some(x[k][m])));
         let all = meas
             .iter()
             .chain(&base)
             .chain(ext.iter().flatten())
+            .flatten()
             .copied();
         let (x0, x1, y1) = all.fold((f64::INFINITY, f64::NEG_INFINITY, 1e-9f64), |a, p| {
             (a.0.min(p.0), a.1.max(p.0), a.2.max(p.1))
@@ -469,22 +482,22 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
             .y_desc("|force|, N")
             .draw()
             .map_err(|e| e.to_string())?;
-        chart
-            .draw_series(LineSeries::new(meas.clone(), BLACK.stroke_width(2)))
-            .map_err(|e| e.to_string())?
-            .label("measured")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
-        chart
-            .draw_series(LineSeries::new(base, RED.stroke_width(2)))
-            .map_err(|e| e.to_string())?
-            .label("default model")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
-        if let Some(ext) = ext {
-            chart
-                .draw_series(LineSeries::new(ext, BLUE.stroke_width(2)))
-                .map_err(|e| e.to_string())?
-                .label("extended")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+        let styles: [(&str, RGBColor, Vec<Vec<(f64, f64)>>); 3] = [
+            ("measured", BLACK, meas),
+            ("default model", RED, base),
+            ("extended", BLUE, ext.unwrap_or_default()),
+        ];
+        for (label, color, lines) in styles {
+            for (i, line) in lines.into_iter().enumerate() {
+                let series = chart
+                    .draw_series(LineSeries::new(line, color.stroke_width(2)))
+                    .map_err(|e| e.to_string())?;
+                if i == 0 {
+                    series
+                        .label(label)
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
+                }
+            }
         }
         chart
             .configure_series_labels()

@@ -4,15 +4,16 @@
 //! applied over the contact patch around the tip, bickel2009 §4.1 force boundary condition) plus an
 //! optional body force (gravity, wang2015 eq. 7), and the tangent response ∂x_markers/∂f of the
 //! converged state (three columns, one per force axis), which the hypothesis machinery uses for its
-//! linearised refits. [`FemProbeSimulator`] implements it on a `softcap_fem` corotational model.
+//! linearised refits. [`FemProbeSimulator`] implements it on a `softcap_fem` corotational model
+//! through the shared probing kernels of `softcap_fem::probing` (the ones the tissue fit uses):
+//! marker embedding, attached region, contact patch and area-weighted nodal forces.
 
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use softcap_fem::{
-    CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver, TetGeometry,
-};
-use softcap_mesh::{TetEmbedding, TetMesh};
+use softcap_fem::probing::{PatchSettings, ProbeExample, ProbingSetup, support_nodes};
+use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver};
+use softcap_mesh::TetMesh;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
 /// `tip_m`.
@@ -20,6 +21,8 @@ use softcap_mesh::{TetEmbedding, TetMesh};
 pub struct ProbeLoad {
     /// Tip position, m.
     pub tip_m: Vector3<f64>,
+    /// Unit probe axis (handle → tip), world frame.
+    pub axis: Vector3<f64>,
     /// Force on the object, N.
     pub force_n: Vector3<f64>,
 }
@@ -55,9 +58,10 @@ pub trait ProbeSimulator {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct FemSimSettings {
-    /// Radius of the contact patch the probe force is spread over, m (at least the closest
-    /// surface node is loaded).
-    pub patch_radius_m: f64,
+    /// The contact patch the probe force is spread over (`softcap_fem::probing::PatchSettings`:
+    /// boundary nodes within the footprint radius of the probe axis; the stage sets the radius
+    /// from the session's tip radius).
+    pub patch: PatchSettings,
     /// Equilibrium iterations.
     pub equilibrium: EquilibriumSettings,
 }
@@ -65,7 +69,7 @@ pub struct FemSimSettings {
 impl Default for FemSimSettings {
     fn default() -> Self {
         Self {
-            patch_radius_m: 0.003,
+            patch: PatchSettings::default(),
             // Newton (consistent tangent): quadratic convergence; 1e-8 of the bounding-box
             // diagonal is far below marker noise.
             equilibrium: EquilibriumSettings {
@@ -77,18 +81,15 @@ impl Default for FemSimSettings {
     }
 }
 
-/// [`ProbeSimulator`] on a corotational tet model (bickel2009 §3.2–3.4) with fixed support nodes,
-/// markers embedded barycentrically in the tets, and the probe force as a uniform traction over the
-/// surface nodes of the contact patch (bickel2009 §4.1).
+/// [`ProbeSimulator`] on a corotational tet model (bickel2009 §3.2–3.4) over a
+/// [`ProbingSetup`]: attached (support) nodes fixed, markers embedded barycentrically, the probe
+/// force spread over the contact patch in proportion to the nodes' boundary areas (bickel2009
+/// §4.1 force boundary condition, `ProbingSetup::{patch_nodes, nodal_forces}`).
 pub struct FemProbeSimulator {
+    setup: ProbingSetup,
     model: CorotationalModel,
     solver: StaticSolver,
-    tets: Vec<[usize; 4]>,
-    rest_m: Vec<Vector3<f64>>,
-    fixed: Vec<bool>,
-    surface_nodes: Vec<usize>,
     lumped_volume_m3: Vec<f64>,
-    embedding: Vec<TetEmbedding>,
     settings: FemSimSettings,
 }
 
@@ -102,132 +103,134 @@ impl FemProbeSimulator {
         settings: FemSimSettings,
     ) -> Result<Self> {
         let n = mesh.vertices.len();
-        let mut fixed = vec![false; n];
-        let mut dofs = Vec::new();
-        for &v in fixed_nodes {
-            if v >= n {
-                return Err(DiagnoseError::BadRecording {
-                    what: format!("fixed node {v} out of range ({n} nodes)"),
-                });
-            }
-            fixed[v] = true;
-            dofs.extend([3 * v, 3 * v + 1, 3 * v + 2]);
+        if let Some(&v) = fixed_nodes.iter().find(|&&v| v >= n) {
+            return Err(DiagnoseError::BadRecording {
+                what: format!("fixed node {v} out of range ({n} nodes)"),
+            });
         }
-        let solver = StaticSolver::new(&model, &dofs).map_err(Box::new)?;
-        let loc = softcap_mesh::TetLocator::new(mesh);
-        let embedding = markers_m
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                loc.locate(p).ok_or_else(|| DiagnoseError::BadRecording {
-                    what: format!("marker {i} cannot be embedded in the mesh"),
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let mut surface_nodes: Vec<usize> = mesh.boundary_faces().into_iter().flatten().collect();
-        surface_nodes.sort_unstable();
-        surface_nodes.dedup();
-        let mut lumped_volume_m3 = vec![0.0; n];
+        let setup =
+            ProbingSetup::new(mesh.clone(), markers_m, fixed_nodes.to_vec()).map_err(|e| {
+                DiagnoseError::BadRecording {
+                    what: format!("markers / mesh: {e}"),
+                }
+            })?;
+        Self::from_setup(setup, model, settings)
+    }
+
+    /// Builds the simulator over an existing probing setup (its attached nodes are the support).
+    pub fn from_setup(
+        setup: ProbingSetup,
+        model: CorotationalModel,
+        settings: FemSimSettings,
+    ) -> Result<Self> {
+        let solver = setup.solver(&model).map_err(Box::new)?;
+        let mut lumped_volume_m3 = vec![0.0; setup.mesh.vertices.len()];
         for g in model.elements() {
-            let g: &TetGeometry = g;
             for &v in &g.nodes {
                 lumped_volume_m3[v] += g.volume_m3 / 4.0;
             }
         }
         Ok(Self {
+            setup,
             model,
             solver,
-            tets: mesh.tets.clone(),
-            rest_m: mesh.vertices.clone(),
-            fixed,
-            surface_nodes,
             lumped_volume_m3,
-            embedding,
             settings,
         })
     }
 
-    /// Nodes within `tolerance_m` of the plane `normal · x = offset_m`.
+    /// Nodes within `tolerance_m` of the plane `normal · x = offset_m`
+    /// (`softcap_fem::probing::support_nodes`).
     pub fn nodes_on_plane(
         mesh: &TetMesh,
         normal: &Vector3<f64>,
         offset_m: f64,
         tolerance_m: f64,
     ) -> Vec<usize> {
-        (0..mesh.vertices.len())
-            .filter(|&i| (normal.dot(&mesh.vertices[i]) - offset_m).abs() <= tolerance_m)
-            .collect()
+        support_nodes(mesh, normal, offset_m, tolerance_m)
+    }
+
+    /// The probing setup (mesh, marker embedding, attached nodes).
+    pub fn setup(&self) -> &ProbingSetup {
+        &self.setup
+    }
+
+    /// The default model.
+    pub fn model(&self) -> &CorotationalModel {
+        &self.model
+    }
+
+    /// The simulator settings.
+    pub fn settings(&self) -> &FemSimSettings {
+        &self.settings
     }
 
     /// Marker positions of the unloaded model, m.
     pub fn rest_markers_m(&self) -> Vec<Vector3<f64>> {
-        self.markers_of(&self.rest_m)
+        self.setup.marker_positions(&self.setup.mesh.vertices)
     }
 
-    fn markers_of(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        self.embedding
-            .iter()
-            .map(|e| e.position(&self.tets, x))
-            .collect()
-    }
-
-    /// Free surface nodes the probe force is spread over: those within the patch radius of the
-    /// surface node closest to the tip (at least that node).
-    pub fn patch_nodes(&self, tip_m: &Vector3<f64>) -> Vec<usize> {
-        let free: Vec<usize> = self
-            .surface_nodes
-            .iter()
-            .copied()
-            .filter(|&v| !self.fixed[v])
-            .collect();
-        let Some(&c) = free.iter().min_by(|&&a, &&b| {
-            (self.rest_m[a] - tip_m)
-                .norm()
-                .total_cmp(&(self.rest_m[b] - tip_m).norm())
-        }) else {
-            return Vec::new();
-        };
-        let centre = self.rest_m[c];
-        let mut nodes: Vec<usize> = free
-            .into_iter()
-            .filter(|&v| (self.rest_m[v] - centre).norm() <= self.settings.patch_radius_m)
-            .collect();
-        if nodes.is_empty() {
-            nodes.push(c);
+    fn example(load: &ProbeLoad) -> ProbeExample {
+        ProbeExample {
+            frame: 0,
+            time_s: 0.0,
+            tip_m: load.tip_m,
+            axis: load
+                .axis
+                .try_normalize(1e-12)
+                .or_else(|| load.force_n.try_normalize(1e-12))
+                .unwrap_or_else(|| -Vector3::z()),
+            force_n: load.force_n,
+            observed: Vec::new(),
         }
-        nodes
+    }
+
+    /// Surface nodes of the contact patch of `load` (`ProbingSetup::patch_nodes`).
+    pub fn patch_nodes(&self, load: &ProbeLoad) -> Vec<usize> {
+        self.setup
+            .patch_nodes(&Self::example(load), &self.settings.patch)
+    }
+
+    /// Nodal forces of `load` over its patch (area-weighted, `ProbingSetup::nodal_forces`).
+    pub fn probe_forces(&self, load: &ProbeLoad) -> Vec<Vector3<f64>> {
+        let patch = self.patch_nodes(load);
+        self.setup.nodal_forces(&Self::example(load), &patch)
+    }
+
+    /// Body force of density ρ g (N/m³) lumped to the nodes (wang2015 §3, m_a = Σ ρ V_e / 4).
+    pub fn body_forces(&self, body_force_n_m3: &Vector3<f64>) -> Vec<Vector3<f64>> {
+        self.lumped_volume_m3
+            .iter()
+            .map(|v| body_force_n_m3 * *v)
+            .collect()
     }
 }
 
 impl ProbeSimulator for FemProbeSimulator {
     fn num_markers(&self) -> usize {
-        self.embedding.len()
+        self.setup.markers.len()
     }
 
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput> {
-        let n = self.rest_m.len();
-        let mut f = vec![Vector3::zeros(); n];
-        if load.body_force_n_m3 != Vector3::zeros() {
-            for v in 0..n {
-                f[v] += load.body_force_n_m3 * self.lumped_volume_m3[v];
-            }
-        }
-        let patch = load
-            .probe
-            .map(|p| self.patch_nodes(&p.tip_m))
-            .unwrap_or_default();
+        let n = self.setup.mesh.vertices.len();
+        let mut f = if load.body_force_n_m3 != Vector3::zeros() {
+            self.body_forces(&load.body_force_n_m3)
+        } else {
+            vec![Vector3::zeros(); n]
+        };
+        let patch = load.probe.map(|p| self.patch_nodes(&p)).unwrap_or_default();
         if let Some(p) = &load.probe {
-            let share = p.force_n / patch.len().max(1) as f64;
-            for &v in &patch {
-                f[v] += share;
+            let fp = self.setup.nodal_forces(&Self::example(p), &patch);
+            for (a, b) in f.iter_mut().zip(&fp) {
+                *a += b;
             }
         }
-        let mut x = self.rest_m.clone();
-        let report = self.solver.solve(
+        let mut x = self.setup.mesh.vertices.clone();
+        let report = self.setup.simulate(
+            &mut self.solver,
             &mut self.model,
             &mut x,
             &f,
-            None,
             &self.settings.equilibrium,
         );
         if !report.converged() {
@@ -236,30 +239,35 @@ impl ProbeSimulator for FemProbeSimulator {
                 reason: format!("{:?} after {} iterations", report.status, report.iterations),
             });
         }
-        let markers_m = self.markers_of(&x);
-        let force_response = if want_response && !patch.is_empty() {
-            let dofs = self.solver.dofs().clone();
-            let nf = dofs.num_free();
-            let mut rhs = vec![0.0; 3 * nf];
-            for k in 0..3 {
-                for &v in &patch {
-                    if let Some(i) = dofs.free_index(3 * v + k) {
-                        rhs[k * nf + i] += 1.0 / patch.len() as f64;
+        let markers_m = self.setup.marker_positions(&x);
+        let force_response = match (&load.probe, want_response && !patch.is_empty()) {
+            (Some(p), true) => {
+                let dofs = self.solver.dofs().clone();
+                let nf = dofs.num_free();
+                let mut rhs = vec![0.0; 3 * nf];
+                for k in 0..3 {
+                    let mut unit = *p;
+                    unit.force_n = Vector3::zeros();
+                    unit.force_n[k] = 1.0;
+                    let fu = self.setup.nodal_forces(&Self::example(&unit), &patch);
+                    for &v in &patch {
+                        if let Some(i) = dofs.free_index(3 * v + k) {
+                            rhs[k * nf + i] += fu[v][k];
+                        }
                     }
                 }
+                self.solver
+                    .cholesky()
+                    .solve_in_place(&mut rhs)
+                    .map_err(Box::new)?;
+                let cols = [0, 1, 2].map(|k| {
+                    let mut dx = vec![Vector3::zeros(); n];
+                    dofs.scatter_add(&rhs[k * nf..(k + 1) * nf], 1.0, &mut dx);
+                    self.setup.marker_positions(&dx)
+                });
+                Some(cols)
             }
-            self.solver
-                .cholesky()
-                .solve_in_place(&mut rhs)
-                .map_err(Box::new)?;
-            let cols = [0, 1, 2].map(|k| {
-                let mut dx = vec![Vector3::zeros(); n];
-                dofs.scatter_add(&rhs[k * nf..(k + 1) * nf], 1.0, &mut dx);
-                self.markers_of(&dx)
-            });
-            Some(cols)
-        } else {
-            None
+            _ => None,
         };
         Ok(SimOutput {
             markers_m,

@@ -174,6 +174,7 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
     for k in 0..n {
         let probe = (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
             tip_m: tip[k],
+            axis,
             force_n: f_obj[k],
         });
         let out = truth_sim
@@ -202,6 +203,7 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
                         &SimLoad {
                             probe: Some(ProbeLoad {
                                 tip_m: tip[k],
+                                axis,
                                 force_n: axis * excess_new,
                             }),
                             body_force_n_m3: Vector3::zeros(),
@@ -359,6 +361,7 @@ fn timing_probe() {
     let load = SimLoad {
         probe: Some(ProbeLoad {
             tip_m: Vector3::new(0.012, 0.012, 0.019),
+            axis: -Vector3::z(),
             force_n: -Vector3::z() * 0.25,
         }),
         body_force_n_m3: Vector3::zeros(),
