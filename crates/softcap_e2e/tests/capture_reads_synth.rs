@@ -207,13 +207,15 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
         } else {
             // Capture's force is the FSR magnitude along the shaft; under the anisotropic block the
             // disk's rim also takes a lateral reaction, which that model cannot see.
-            let bound = if scenario.has(Effect::Anisotropy) {
+            // The tilted disk of support-slip likewise. The FSR (calibration noise, ADC) has an
+            // absolute floor of ≈ 0.03 N RMS (clean: 0.029 N), which dominates on soft sessions.
+            let bound = if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
                 0.08
             } else {
                 0.03
             };
             assert!(
-                a.force_rms_n < bound * a.force_max_n,
+                a.force_rms_n < (bound * a.force_max_n).max(0.045),
                 "{}: force RMS {:.4} N vs max {:.3} N",
                 scenario.name,
                 a.force_rms_n,
