@@ -1250,6 +1250,13 @@ pub struct ContactSynthesis {
     pub axial_force_n: f64,
     /// Positions after each load increment of the final approach.
     pub steps_m: Vec<Vec<Vector3<f64>>>,
+    /// Probe depth beyond the first contact at each load increment of the final approach, m.
+    pub step_depths_m: Vec<f64>,
+    /// Axial contact force at each load increment of the final approach, N.
+    pub step_forces_n: Vec<f64>,
+    /// The probe pose (world from probe) at first contact (depth 0); increment k is this advanced by
+    /// `step_depths_m[k]` along the approach axis.
+    pub world_from_probe_at_touch: Isometry3<f64>,
     /// Equilibrium status of the last solve.
     pub status: SolveStatus,
     /// Depth iterations performed.
@@ -1317,7 +1324,8 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
                        from: f64,
                        to: f64,
                        steps: usize,
-                       path: &mut Vec<Vec<Vector3<f64>>>|
+                       path: &mut Vec<Vec<Vector3<f64>>>,
+                       trace: &mut Vec<(f64, f64)>|
      -> (f64, SolveStatus) {
         let mut force = 0.0;
         for s in 1..=steps.max(1) {
@@ -1326,6 +1334,7 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
             let rep = solver.solve(model, x, &zero, Some(&contact_at(d)), &settings.equilibrium);
             force = rep.contact.axial_force_n;
             path.push(x.clone());
+            trace.push((d, force));
             if !rep.converged() {
                 return (force, rep.status);
             }
@@ -1339,6 +1348,9 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
             depth_m: 0.0,
             axial_force_n: 0.0,
             steps_m: Vec::new(),
+            step_depths_m: Vec::new(),
+            step_forces_n: Vec::new(),
+            world_from_probe_at_touch: touch.world_from_probe,
             status: SolveStatus::Converged,
             depth_iterations: 0,
         });
@@ -1347,8 +1359,9 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
     let mut eval = |d: f64| {
         let mut xs = setup.mesh.vertices.clone();
         let mut path = Vec::with_capacity(settings.steps);
-        let (f, st) = advance(&mut xs, 0.0, d, settings.steps, &mut path);
-        (f, st, xs, path)
+        let mut trace = Vec::with_capacity(settings.steps);
+        let (f, st) = advance(&mut xs, 0.0, d, settings.steps, &mut path, &mut trace);
+        (f, st, xs, path, trace)
     };
     let (mut d0, mut f0) = (0.0, 0.0);
     let mut d1 = settings.initial_depth_m;
@@ -1371,12 +1384,15 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
         best = eval(d1);
         iterations += 1;
     }
-    let (force, status, xs, path) = best;
+    let (force, status, xs, path, trace) = best;
     Ok(ContactSynthesis {
         positions_m: xs,
         depth_m: d1,
         axial_force_n: force,
         steps_m: path,
+        step_depths_m: trace.iter().map(|t| t.0).collect(),
+        step_forces_n: trace.iter().map(|t| t.1).collect(),
+        world_from_probe_at_touch: touch.world_from_probe,
         status,
         depth_iterations: iterations,
     })

@@ -157,6 +157,11 @@ pub mod topics {
     pub const SIMULATED_MARKERS: Topic<SimulatedMarkers> = Topic::new("/tissue/simulated_markers");
     /// Tissue stage report (time 0).
     pub const TISSUE_REPORT: Topic<Report> = Topic::new("/tissue/report");
+    /// `softcap tissue simulate`: the probe (tip, axis, contact force on the object) at each
+    /// load step.
+    pub const SIMULATED_PROBE: Topic<ProbeSample> = Topic::new("/tissue/simulated_probe");
+    /// `softcap tissue simulate`: node positions at each load step (tets as `/mesh/volume`).
+    pub const DEFORMED_MESH: Topic<TetMesh> = Topic::new("/tissue/deformed_mesh");
     /// Diagnosis: verdict, ranked hypotheses, located residuals (static, time 0).
     pub const DIAGNOSIS: Topic<Diagnosis> = Topic::new("/diagnose/diagnosis");
     /// Extended model: the named term and its fitted parameters (static, time 0).
@@ -259,6 +264,18 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.Report",
         is_static: true,
         units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/tissue/simulated_probe",
+        schema: "softcap.ProbeSample",
+        is_static: false,
+        units: "tip m, axis unit vector, force N",
+    },
+    ChannelInfo {
+        topic: "/tissue/deformed_mesh",
+        schema: "softcap.TetMesh",
+        is_static: false,
+        units: "positions m",
     },
     ChannelInfo {
         topic: "/diagnose/diagnosis",

@@ -56,6 +56,7 @@ pub use catalog::{
     descriptor_pool, descriptor_set, message_names, topics, viz_topic,
 };
 pub use error::{Error, Result};
+pub use material::{BasisTet, MaterialData};
 pub use provenance::{InputFile, PROVENANCE_METADATA, Provenance, git_commit, sha256_file};
 pub use reader::{ChannelSummary, RawMessage, Recording};
 pub use viz::VizSettings;

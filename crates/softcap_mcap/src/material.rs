@@ -35,7 +35,113 @@ fn invalid(path: &Path, topic: &str, field: String, problem: &str) -> Error {
     }
 }
 
+/// One tet's strain-space RBF (bickel2009 eq. 8), trimmed to the centres it uses:
+/// [`MaterialData::basis_tet`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct BasisTet<'a> {
+    /// Centre strains εᵢ, 6 per centre (Voigt, `softcap_fem::strain_voigt` order).
+    pub centers_strain: &'a [f64],
+    /// Weights wᵢ = (w_λ, w_α), 2 per centre, Pa.
+    pub weights: &'a [f64],
+    /// Strain-space sample of each centre (0 = zero-strain reference, k = example k − 1), if known.
+    pub center_samples: &'a [u32],
+    /// λ floor of the validity clamp, Pa (0 = none).
+    pub lambda_floor_pa: f64,
+}
+
+/// Checks the array lengths of a `/tissue/basis` message against T tets (see docs/formats.md).
+fn validate_basis(path: &Path, b: &proto::StrainSpaceBasis, num_tets: usize) -> Result<()> {
+    let topic = "/tissue/basis";
+    let t = num_tets;
+    let m = b.center_examples.len();
+    let check = |ok: bool, field: &str, problem: &str| {
+        if ok {
+            Ok(())
+        } else {
+            Err(invalid(path, topic, field.into(), problem))
+        }
+    };
+    check(
+        b.elements as usize == t,
+        "elements",
+        "differs from the number of tets in /mesh/volume",
+    )?;
+    check(
+        b.centers_strain.len() == t * m * 6,
+        "centers_strain",
+        "length is not elements × M × 6 (M = length of center_examples)",
+    )?;
+    check(
+        b.weights.len() == t * m * 2,
+        "weights",
+        "length is not elements × M × 2",
+    )?;
+    check(
+        b.centers_per_tet.is_empty() || b.centers_per_tet.len() == t,
+        "centers_per_tet",
+        "length is neither 0 nor elements",
+    )?;
+    if let Some(i) = b.centers_per_tet.iter().position(|&c| c as usize > m) {
+        return Err(invalid(
+            path,
+            topic,
+            format!("centers_per_tet[{i}]"),
+            "larger than M (length of center_examples)",
+        ));
+    }
+    check(
+        b.center_samples.is_empty() || b.center_samples.len() == t * m,
+        "center_samples",
+        "length is neither 0 nor elements × M",
+    )?;
+    check(
+        b.lambda_floor_pa.is_empty() || b.lambda_floor_pa.len() == t,
+        "lambda_floor_pa",
+        "length is neither 0 nor elements",
+    )?;
+    if let Some(i) = b
+        .centers_strain
+        .iter()
+        .chain(&b.weights)
+        .chain(&b.lambda_floor_pa)
+        .position(|v| !v.is_finite())
+    {
+        return Err(invalid(
+            path,
+            topic,
+            format!("centers_strain / weights / lambda_floor_pa (value {i})"),
+            "not finite",
+        ));
+    }
+    check(
+        b.nu_min.is_finite() && b.nu_max.is_finite() && b.nu_min <= b.nu_max && b.nu_max < 0.5,
+        "nu_min / nu_max",
+        "must be finite with nu_min <= nu_max < 0.5",
+    )
+}
+
 impl MaterialData {
+    /// Tet `e` of the strain-space basis, trimmed to its `centers_per_tet[e]` centres (all M
+    /// when the counts are absent); `None` without a basis or for `e` out of range.
+    pub fn basis_tet(&self, e: usize) -> Option<BasisTet<'_>> {
+        let b = self.basis.as_ref()?;
+        if e >= b.elements as usize {
+            return None;
+        }
+        let m = b.center_examples.len();
+        let c = b.centers_per_tet.get(e).map_or(m, |&c| c as usize);
+        Some(BasisTet {
+            centers_strain: &b.centers_strain[e * m * 6..(e * m + c) * 6],
+            weights: &b.weights[e * m * 2..(e * m + c) * 2],
+            center_samples: if b.center_samples.is_empty() {
+                &[]
+            } else {
+                &b.center_samples[e * m..e * m + c]
+            },
+            lambda_floor_pa: b.lambda_floor_pa.get(e).copied().unwrap_or(0.0),
+        })
+    }
+
     /// Reads and validates a material file: `/mesh/volume` is required; per-example materials
     /// must have one λ and α per tet, positive λ and finite values.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
@@ -109,7 +215,9 @@ impl MaterialData {
             }
         }
         let basis = if r.channel(topics::STRAIN_SPACE_BASIS.name()).is_some() {
-            Some(r.read_static(&topics::STRAIN_SPACE_BASIS)?)
+            let b = r.read_static(&topics::STRAIN_SPACE_BASIS)?;
+            validate_basis(&path, &b, tets.len())?;
+            Some(b)
         } else {
             None
         };

@@ -45,6 +45,14 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.SimulatedMarkers",
         ),
         (topics::TISSUE_REPORT.name().to_string(), "softcap.Report"),
+        (
+            topics::SIMULATED_PROBE.name().to_string(),
+            "softcap.ProbeSample",
+        ),
+        (
+            topics::DEFORMED_MESH.name().to_string(),
+            "softcap.TetMesh",
+        ),
         (topics::DIAGNOSIS.name().to_string(), "softcap.Diagnosis"),
         (
             topics::EXTENDED_MODEL.name().to_string(),

@@ -99,6 +99,11 @@ fn basis() -> StrainSpaceBasis {
         centers_strain: (0..24).map(|i| 1e-3 * i as f64).collect(),
         weights: (0..8).map(|i| 100.0 * i as f64).collect(),
         tail_coefficients: (0..28).map(|i| i as f64).collect(),
+        centers_per_tet: vec![2, 1],
+        center_samples: vec![0, 3, 0, 0],
+        lambda_floor_pa: vec![1e4, 2e4],
+        nu_min: 0.0,
+        nu_max: 0.49,
     }
 }
 

@@ -1,0 +1,391 @@
+//! `softcap tissue fit capture.mcap --mesh volume.msh -o material.mcap`: the material capture
+//! of bickel2009 §4 on a recorded session.
+//!
+//! 1. the homogeneous linear corotational model that fits all examples best (bickel2009 §6,
+//!    Fig. 8 baseline; [`fit_homogeneous`]) — also the start of step 2;
+//! 2. per-example (λ_e, α_e) by Levenberg–Marquardt on eq. 9 with the adjoint Jacobian and
+//!    γ‖Lp‖² smoothing ([`fit_example`]), examples in parallel;
+//! 3. the strain-space material p_e(ε) of eq. 8 with greedy basis selection (§4.2,
+//!    [`StrainSpaceMaterial::fit`]) from the samples (ε_e, p_e) of every example plus the
+//!    zero-strain reference (the tet's mean fitted parameters);
+//! 4. the strain-space material re-simulates every example (force boundary condition, §4.1), so
+//!    the report states the error of the *model*, not only of the per-example fits;
+//! 5. material.mcap: `/mesh/volume`, `/tissue/element_material`, `/tissue/basis`, `/tissue/report`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use softcap_fem::probing::{
+    BasisErrorStep, ExampleFit, ExampleFitSettings, HomogeneousFit, HomogeneousFitSettings,
+    ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
+    fit_example, fit_homogeneous,
+};
+use softcap_fem::{EquilibriumSettings, LinearParams};
+use softcap_mcap::capture::CaptureData;
+
+use crate::error::{Result, TissueError};
+use crate::progress::Progress;
+use crate::session::{ExampleSelection, PreparedSession, SessionExample, prepare};
+
+/// Settings of the fit (TOML-loadable; written into the output's provenance).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FitSettings {
+    /// Which frames become examples (budget knob: `examples_per_location`).
+    pub examples: ExampleSelection,
+    /// Per-example fit (bickel2009 eq. 9; budget knob: `max_iterations`).
+    pub example_fit: ExampleFitSettings,
+    /// Homogeneous baseline.
+    pub homogeneous: HomogeneousFitSettings,
+    /// Strain-space basis (§4.2; budget knob: `max_centers`).
+    pub basis: StrainBasisSettings,
+    /// Equilibrium settings of the strain-space re-simulation of the examples.
+    pub evaluation: EquilibriumSettings,
+    /// Patch radius of the force boundary condition: the session's tip radius when > 0 and this
+    /// is `true`, else `example_fit.patch.radius_m`.
+    pub patch_from_session: bool,
+    /// Show progress bars (only ever drawn when stderr is a terminal).
+    pub progress: bool,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            examples: ExampleSelection::default(),
+            example_fit: ExampleFitSettings {
+                max_iterations: 8,
+                relative_cost_tolerance: 1e-3,
+                ..ExampleFitSettings::default()
+            },
+            homogeneous: HomogeneousFitSettings::default(),
+            basis: StrainBasisSettings {
+                max_centers: 8,
+                ..StrainBasisSettings::default()
+            },
+            evaluation: EquilibriumSettings {
+                max_iterations: 60,
+                displacement_tol_rel: 1e-9,
+                residual_tol_rel: 1e-7,
+                ..EquilibriumSettings::default()
+            },
+            patch_from_session: true,
+            progress: true,
+        }
+    }
+}
+
+/// What to run: the library form of `softcap tissue fit`.
+#[derive(Clone, Debug)]
+pub struct FitConfig {
+    /// capture.mcap.
+    pub capture: PathBuf,
+    /// Tet mesh (Gmsh 4.1) in the session's length unit. Required: softcap_mesh cannot
+    /// tetrahedralize a surface.
+    pub mesh: Option<PathBuf>,
+    /// material.mcap to write.
+    pub output: PathBuf,
+    /// Also write the fit report (report.md + PNG figures) into this folder.
+    pub report: Option<PathBuf>,
+    /// Settings.
+    pub settings: FitSettings,
+    /// Full argument list (provenance).
+    pub arguments: Vec<String>,
+}
+
+/// Error summary of one fitted example.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExampleSummary {
+    /// Capture frame.
+    pub frame: u64,
+    /// Probe location.
+    pub location: usize,
+    /// |F|, N.
+    pub force_n: f64,
+    /// Observed markers.
+    pub markers: usize,
+    /// RMS marker error of the homogeneous model, m.
+    pub homogeneous_rms_m: f64,
+    /// RMS marker error after the per-example fit (eq. 9), m.
+    pub example_rms_m: f64,
+    /// RMS marker error of the strain-space material re-simulating the example, m.
+    pub material_rms_m: f64,
+    /// RMS marker displacement from rest, m.
+    pub displacement_rms_m: f64,
+    /// LM iterations of the per-example fit.
+    pub iterations: usize,
+}
+
+/// Result of a fit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitOutcome {
+    /// Number of tets.
+    pub tets: usize,
+    /// Number of probe locations.
+    pub locations: usize,
+    /// The homogeneous baseline.
+    pub homogeneous: LinearParams,
+    /// Its Young's modulus and Poisson ratio.
+    pub homogeneous_young_pa: f64,
+    /// Poisson ratio of the baseline.
+    pub homogeneous_nu: f64,
+    /// Per example.
+    pub examples: Vec<ExampleSummary>,
+    /// RMS over examples of the homogeneous model's marker error, m.
+    pub homogeneous_rms_m: f64,
+    /// RMS over examples of the per-example fits' marker error, m.
+    pub example_rms_m: f64,
+    /// RMS over examples of the strain-space material's marker error, m.
+    pub material_rms_m: f64,
+    /// Mean (over examples) of the per-example mean marker error ‖x − x̄‖ of the material, m.
+    pub material_mean_error_m: f64,
+    /// … and of the homogeneous model, m.
+    pub homogeneous_mean_error_m: f64,
+    /// Error against basis size (bickel2009 Fig. 5).
+    pub basis_curve: Vec<BasisErrorStep>,
+    /// Mean centres per tet.
+    pub mean_centers: f64,
+}
+
+/// Everything a fit produces in memory (for [`crate::output::write_material`] and experiments).
+#[derive(Clone, Debug)]
+pub struct SessionFit {
+    /// The examples fitted.
+    pub examples: Vec<SessionExample>,
+    /// Homogeneous baseline.
+    pub homogeneous: HomogeneousFit,
+    /// Per-example fits, same order as `examples`.
+    pub fits: Vec<ExampleFit>,
+    /// The strain-space material.
+    pub material: Arc<StrainSpaceMaterial>,
+    /// Error against basis size (bickel2009 Fig. 5).
+    pub basis_curve: Vec<BasisErrorStep>,
+    /// Node positions of the strain-space material re-simulating each example (`None` when
+    /// the equilibrium iteration did not converge).
+    pub material_positions_m: Vec<Option<Vec<nalgebra::Vector3<f64>>>>,
+    /// The summary.
+    pub outcome: FitOutcome,
+}
+
+/// The settings actually used for `setup` (patch radius from the session's tip).
+pub fn effective_settings(settings: &FitSettings, tip_radius_m: f64) -> FitSettings {
+    let mut s = settings.clone();
+    if settings.patch_from_session && tip_radius_m > 0.0 {
+        s.example_fit.patch.radius_m = tip_radius_m;
+        s.homogeneous.patch.radius_m = tip_radius_m;
+    }
+    s
+}
+
+/// Per-example marker error statistics of node positions `x`: (RMS, mean ‖·‖), m.
+pub fn marker_errors(setup: &ProbingSetup, ex: &ProbeExample, x: &[nalgebra::Vector3<f64>]) -> (f64, f64) {
+    let pos = setup.marker_positions(x);
+    let n = ex.observed.len().max(1) as f64;
+    let (mut s2, mut s1) = (0.0, 0.0);
+    for o in &ex.observed {
+        let d = (pos[o.marker] - o.position_m).norm();
+        s2 += d * d;
+        s1 += d;
+    }
+    ((s2 / n).sqrt(), s1 / n)
+}
+
+/// Simulates `ex` under `model` with the force boundary condition (bickel2009 §4.1); `None`
+/// when the equilibrium iteration does not converge.
+pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
+    setup: &ProbingSetup,
+    model: &mut M,
+    ex: &ProbeExample,
+    patch: &softcap_fem::PatchSettings,
+    equilibrium: &EquilibriumSettings,
+) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
+    let nodes = setup.patch_nodes(ex, patch);
+    let f = setup.nodal_forces(ex, &nodes);
+    let mut solver = setup.solver(&*model)?;
+    let mut x = setup.mesh.vertices.clone();
+    let rep = setup.simulate(&mut solver, model, &mut x, &f, equilibrium);
+    Ok(rep.converged().then_some(x))
+}
+
+/// The strain-space samples of bickel2009 §4.2 per tet: sample 0 is the zero-strain reference
+/// with the tet's mean fitted parameters, sample k ≥ 1 is (ε_e, p_e) of example k − 1.
+pub fn strain_samples(fits: &[ExampleFit], tets: usize) -> Vec<Vec<StrainSample>> {
+    (0..tets)
+        .map(|e| {
+            let n = fits.len().max(1) as f64;
+            let mean = LinearParams {
+                lambda: fits.iter().map(|f| f.params[e].lambda).sum::<f64>() / n,
+                alpha: fits.iter().map(|f| f.params[e].alpha).sum::<f64>() / n,
+            };
+            std::iter::once(StrainSample {
+                strain: [0.0; 6],
+                params: mean,
+            })
+            .chain(fits.iter().map(|f| {
+                let s = &f.strains[e];
+                StrainSample {
+                    strain: [s[0], s[1], s[2], s[3], s[4], s[5]],
+                    params: f.params[e],
+                }
+            }))
+            .collect()
+        })
+        .collect()
+}
+
+/// Fits a prepared session in memory (steps 1–4 of the module doc).
+pub fn fit_session(
+    prepared: &PreparedSession,
+    settings: &FitSettings,
+    progress: &Progress,
+) -> Result<SessionFit> {
+    let setup = &prepared.setup;
+    let s = effective_settings(settings, prepared.tip_radius_m);
+    let examples = prepared.selected.clone();
+    if examples.is_empty() {
+        return Err(TissueError::BadSettings {
+            field: "examples".into(),
+            problem: "no example selected".into(),
+        });
+    }
+    let probe_examples: Vec<ProbeExample> = examples.iter().map(|e| e.example.clone()).collect();
+    let t = setup.num_elements();
+
+    let bar = progress.bar("homogeneous fit", 1);
+    let homogeneous = fit_homogeneous(setup, &probe_examples, &s.homogeneous)?;
+    bar.finish();
+
+    let bar = progress.bar("per-example fits (eq. 9)", probe_examples.len() as u64);
+    let initial = vec![homogeneous.params; t];
+    let fits = probe_examples
+        .par_iter()
+        .map(|ex| {
+            let r = fit_example(setup, ex, &initial, &s.example_fit);
+            bar.inc(1);
+            r
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    bar.finish();
+
+    let samples = strain_samples(&fits, t);
+    let (material, basis_curve) = StrainSpaceMaterial::fit(&samples, &s.basis)?;
+    let material = Arc::new(material);
+
+    let bar = progress.bar("strain-space re-simulation", probe_examples.len() as u64);
+    let model = material.model(&setup.mesh)?;
+    let evaluated = probe_examples
+        .par_iter()
+        .map(|ex| {
+            let mut m = model.clone();
+            let r = simulate_example(setup, &mut m, ex, &s.example_fit.patch, &s.evaluation);
+            bar.inc(1);
+            r
+        })
+        .collect::<Result<Vec<_>>>()?;
+    bar.finish();
+
+    // Homogeneous per-example errors (also the mean ‖·‖ measure) by re-simulation.
+    let homog_model =
+        softcap_fem::CorotationalModel::homogeneous(&setup.mesh, homogeneous.params)?;
+    let homog_eval = probe_examples
+        .par_iter()
+        .map(|ex| {
+            let mut m = homog_model.clone();
+            simulate_example(setup, &mut m, ex, &s.homogeneous.patch, &s.evaluation)
+        })
+        .collect::<Result<Vec<_>>>()?;
+
+    let rest = setup.marker_positions(&setup.mesh.vertices);
+    let mut summaries = Vec::with_capacity(examples.len());
+    for (k, ex) in examples.iter().enumerate() {
+        let e = &ex.example;
+        let (mat_rms, mat_mean) = match &evaluated[k] {
+            Some(x) => marker_errors(setup, e, x),
+            None => (f64::NAN, f64::NAN),
+        };
+        let (hom_rms, hom_mean) = match &homog_eval[k] {
+            Some(x) => marker_errors(setup, e, x),
+            None => (homogeneous.example_rms_m[k], homogeneous.example_rms_m[k]),
+        };
+        let disp = (e
+            .observed
+            .iter()
+            .map(|o| (o.position_m - rest[o.marker]).norm_squared())
+            .sum::<f64>()
+            / e.observed.len().max(1) as f64)
+            .sqrt();
+        summaries.push((
+            ExampleSummary {
+                frame: e.frame,
+                location: ex.location,
+                force_n: e.force_n.norm(),
+                markers: e.observed.len(),
+                homogeneous_rms_m: hom_rms,
+                example_rms_m: fits[k].rms_m,
+                material_rms_m: mat_rms,
+                displacement_rms_m: disp,
+                iterations: fits[k].iterations,
+            },
+            mat_mean,
+            hom_mean,
+        ));
+    }
+    let rms = |f: &dyn Fn(&ExampleSummary) -> f64| {
+        let v: Vec<f64> = summaries.iter().map(|s| f(&s.0)).collect();
+        (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+    };
+    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (young, nu) = homogeneous.params.to_young_poisson()?;
+    let outcome = FitOutcome {
+        tets: t,
+        locations: prepared.locations.len(),
+        homogeneous: homogeneous.params,
+        homogeneous_young_pa: young,
+        homogeneous_nu: nu,
+        homogeneous_rms_m: rms(&|s| s.homogeneous_rms_m),
+        example_rms_m: rms(&|s| s.example_rms_m),
+        material_rms_m: rms(&|s| s.material_rms_m),
+        material_mean_error_m: mean(summaries.iter().map(|s| s.1).collect()),
+        homogeneous_mean_error_m: mean(summaries.iter().map(|s| s.2).collect()),
+        examples: summaries.into_iter().map(|s| s.0).collect(),
+        basis_curve: basis_curve.clone(),
+        mean_centers: material.mean_centers(),
+    };
+    Ok(SessionFit {
+        examples,
+        homogeneous,
+        fits,
+        material,
+        basis_curve,
+        material_positions_m: evaluated,
+        outcome,
+    })
+}
+
+/// `softcap tissue fit`: reads and validates every input, fits, writes material.mcap
+/// atomically. Inputs are fully validated before any fitting starts; on error nothing is
+/// written.
+pub fn run(cfg: &FitConfig) -> Result<FitOutcome> {
+    let capture = CaptureData::read(&cfg.capture).map_err(|e| TissueError::ReadMcap {
+        path: cfg.capture.clone(),
+        source: Box::new(e),
+    })?;
+    let Some(mesh_path) = &cfg.mesh else {
+        return Err(TissueError::bad_input(
+            &cfg.capture,
+            "--mesh",
+            "no tet mesh given, and softcap_mesh cannot tetrahedralize the template surface: pass --mesh SESSION/template/volume.msh",
+        ));
+    };
+    let unit = crate::session::metres_per_unit(&capture)?;
+    let mesh = crate::session::read_volume_mesh(mesh_path, unit)?;
+    let prepared = prepare(&capture, mesh, mesh_path, &cfg.settings.examples)?;
+    let progress = Progress::new(cfg.settings.progress);
+    let fit = fit_session(&prepared, &cfg.settings, &progress)?;
+    crate::output::write_material(cfg, &prepared, &fit)?;
+    if let Some(dir) = &cfg.report {
+        crate::report::write_report(dir, &fit.outcome)?;
+    }
+    Ok(fit.outcome)
+}
