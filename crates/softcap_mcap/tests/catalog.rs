@@ -49,10 +49,7 @@ fn topic_constants_are_in_the_catalog() {
             topics::SIMULATED_PROBE.name().to_string(),
             "softcap.ProbeSample",
         ),
-        (
-            topics::DEFORMED_MESH.name().to_string(),
-            "softcap.TetMesh",
-        ),
+        (topics::DEFORMED_MESH.name().to_string(), "softcap.TetMesh"),
         (topics::DIAGNOSIS.name().to_string(), "softcap.Diagnosis"),
         (
             topics::EXTENDED_MODEL.name().to_string(),

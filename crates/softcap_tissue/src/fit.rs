@@ -43,11 +43,24 @@ pub struct FitSettings {
     pub basis: StrainBasisSettings,
     /// Equilibrium settings of the strain-space re-simulation of the examples.
     pub evaluation: EquilibriumSettings,
+    /// Load increments of that re-simulation (bickel2009 §3.4 incremental loading).
+    pub load_steps: usize,
     /// Patch radius of the force boundary condition: the session's tip radius when > 0 and this
     /// is `true`, else `example_fit.patch.radius_m`.
     pub patch_from_session: bool,
     /// Show progress bars (only ever drawn when stderr is a terminal).
     pub progress: bool,
+}
+
+/// Newton iterations (consistent corotational tangent, line search): a few factorizations per
+/// solve where the warped fixed-point iteration needs tens at millimetre deformations.
+fn newton(max_iterations: usize) -> EquilibriumSettings {
+    EquilibriumSettings {
+        max_iterations,
+        displacement_tol_rel: 1e-9,
+        residual_tol_rel: 1e-7,
+        ..EquilibriumSettings::newton()
+    }
 }
 
 impl Default for FitSettings {
@@ -57,19 +70,26 @@ impl Default for FitSettings {
             example_fit: ExampleFitSettings {
                 max_iterations: 8,
                 relative_cost_tolerance: 1e-3,
+                equilibrium: newton(40),
                 ..ExampleFitSettings::default()
             },
-            homogeneous: HomogeneousFitSettings::default(),
+            homogeneous: HomogeneousFitSettings {
+                equilibrium: newton(40),
+                ..HomogeneousFitSettings::default()
+            },
             basis: StrainBasisSettings {
                 max_centers: 8,
                 ..StrainBasisSettings::default()
             },
+            // The strain-dependent parameters change between iterations, so the consistent
+            // tangent is not exact; the warped (frozen-parameter) iteration is the robust one.
             evaluation: EquilibriumSettings {
-                max_iterations: 60,
-                displacement_tol_rel: 1e-9,
-                residual_tol_rel: 1e-7,
+                max_iterations: 300,
+                displacement_tol_rel: 1e-8,
+                residual_tol_rel: 1e-6,
                 ..EquilibriumSettings::default()
             },
+            load_steps: 4,
             patch_from_session: true,
             progress: true,
         }
@@ -136,8 +156,11 @@ pub struct FitOutcome {
     pub homogeneous_rms_m: f64,
     /// RMS over examples of the per-example fits' marker error, m.
     pub example_rms_m: f64,
-    /// RMS over examples of the strain-space material's marker error, m.
+    /// RMS over the examples the strain-space material re-simulated (converged), m.
     pub material_rms_m: f64,
+    /// Examples whose strain-space re-simulation did not converge (their `material_rms_m` is
+    /// NaN and they are left out of the aggregate).
+    pub material_failures: usize,
     /// Mean (over examples) of the per-example mean marker error ‖x − x̄‖ of the material, m.
     pub material_mean_error_m: f64,
     /// … and of the homogeneous model, m.
@@ -179,7 +202,11 @@ pub fn effective_settings(settings: &FitSettings, tip_radius_m: f64) -> FitSetti
 }
 
 /// Per-example marker error statistics of node positions `x`: (RMS, mean ‖·‖), m.
-pub fn marker_errors(setup: &ProbingSetup, ex: &ProbeExample, x: &[nalgebra::Vector3<f64>]) -> (f64, f64) {
+pub fn marker_errors(
+    setup: &ProbingSetup,
+    ex: &ProbeExample,
+    x: &[nalgebra::Vector3<f64>],
+) -> (f64, f64) {
     let pos = setup.marker_positions(x);
     let n = ex.observed.len().max(1) as f64;
     let (mut s2, mut s1) = (0.0, 0.0);
@@ -191,21 +218,31 @@ pub fn marker_errors(setup: &ProbingSetup, ex: &ProbeExample, x: &[nalgebra::Vec
     ((s2 / n).sqrt(), s1 / n)
 }
 
-/// Simulates `ex` under `model` with the force boundary condition (bickel2009 §4.1); `None`
-/// when the equilibrium iteration does not converge.
+/// Simulates `ex` under `model` with the force boundary condition (bickel2009 §4.1) by
+/// incremental loading (§3.4: the force is applied in `load_steps` equal increments, each
+/// equilibrium warm-started from the previous one, so a strain-dependent material follows its
+/// parameters along the path); `None` when an increment does not converge.
 pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
     setup: &ProbingSetup,
     model: &mut M,
     ex: &ProbeExample,
     patch: &softcap_fem::PatchSettings,
     equilibrium: &EquilibriumSettings,
+    load_steps: usize,
 ) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
     let nodes = setup.patch_nodes(ex, patch);
     let f = setup.nodal_forces(ex, &nodes);
     let mut solver = setup.solver(&*model)?;
     let mut x = setup.mesh.vertices.clone();
-    let rep = setup.simulate(&mut solver, model, &mut x, &f, equilibrium);
-    Ok(rep.converged().then_some(x))
+    let n = load_steps.max(1);
+    for k in 1..=n {
+        let fk: Vec<_> = f.iter().map(|v| v * (k as f64 / n as f64)).collect();
+        let rep = setup.simulate(&mut solver, model, &mut x, &fk, equilibrium);
+        if !rep.converged() {
+            return Ok(None);
+        }
+    }
+    Ok(Some(x))
 }
 
 /// The strain-space samples of bickel2009 §4.2 per tet: sample 0 is the zero-strain reference
@@ -278,7 +315,14 @@ pub fn fit_session(
         .par_iter()
         .map(|ex| {
             let mut m = model.clone();
-            let r = simulate_example(setup, &mut m, ex, &s.example_fit.patch, &s.evaluation);
+            let r = simulate_example(
+                setup,
+                &mut m,
+                ex,
+                &s.example_fit.patch,
+                &s.evaluation,
+                s.load_steps,
+            );
             bar.inc(1);
             r
         })
@@ -286,13 +330,12 @@ pub fn fit_session(
     bar.finish();
 
     // Homogeneous per-example errors (also the mean ‖·‖ measure) by re-simulation.
-    let homog_model =
-        softcap_fem::CorotationalModel::homogeneous(&setup.mesh, homogeneous.params)?;
+    let homog_model = softcap_fem::CorotationalModel::homogeneous(&setup.mesh, homogeneous.params)?;
     let homog_eval = probe_examples
         .par_iter()
         .map(|ex| {
             let mut m = homog_model.clone();
-            simulate_example(setup, &mut m, ex, &s.homogeneous.patch, &s.evaluation)
+            simulate_example(setup, &mut m, ex, &s.homogeneous.patch, &s.evaluation, 1)
         })
         .collect::<Result<Vec<_>>>()?;
 
@@ -332,10 +375,18 @@ pub fn fit_session(
         ));
     }
     let rms = |f: &dyn Fn(&ExampleSummary) -> f64| {
-        let v: Vec<f64> = summaries.iter().map(|s| f(&s.0)).collect();
+        let v: Vec<f64> = summaries
+            .iter()
+            .map(|s| f(&s.0))
+            .filter(|v| v.is_finite())
+            .collect();
         (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
     };
-    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let mean = |v: Vec<f64>| {
+        let v: Vec<f64> = v.into_iter().filter(|v| v.is_finite()).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let material_failures = evaluated.iter().filter(|x| x.is_none()).count();
     let (young, nu) = homogeneous.params.to_young_poisson()?;
     let outcome = FitOutcome {
         tets: t,
@@ -346,6 +397,7 @@ pub fn fit_session(
         homogeneous_rms_m: rms(&|s| s.homogeneous_rms_m),
         example_rms_m: rms(&|s| s.example_rms_m),
         material_rms_m: rms(&|s| s.material_rms_m),
+        material_failures,
         material_mean_error_m: mean(summaries.iter().map(|s| s.1).collect()),
         homogeneous_mean_error_m: mean(summaries.iter().map(|s| s.2).collect()),
         examples: summaries.into_iter().map(|s| s.0).collect(),

@@ -51,11 +51,11 @@ pub use fit::{
 pub use output::{LoadedMaterial, basis_message, read_material, report_message, write_material};
 pub use progress::Progress;
 pub use report::write_report;
-pub use simulate::{ProbeShape, ProbeSpec, SimulateConfig, SimulateOutcome, SimulateSettings};
 pub use session::{
     ExampleSelection, PreparedSession, SessionExample, examples_from_frames, prepare,
     read_volume_mesh, select_examples,
 };
+pub use simulate::{ProbeShape, ProbeSpec, SimulateConfig, SimulateOutcome, SimulateSettings};
 
 pub use softcap_fem;
 pub use softcap_mcap;

@@ -123,6 +123,7 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         number("rms.homogeneous", o.homogeneous_rms_m, "m"),
         number("rms.per_example", o.example_rms_m, "m"),
         number("rms.material", o.material_rms_m, "m"),
+        integer("material.failures", o.material_failures as i64),
         number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
         number("mean_error.material", o.material_mean_error_m, "m"),
         number("basis.mean_centers", o.mean_centers, ""),
@@ -139,8 +140,16 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         entries.push(integer(&format!("{p}.frame"), e.frame as i64));
         entries.push(integer(&format!("{p}.location"), e.location as i64));
         entries.push(number(&format!("{p}.force"), e.force_n, "N"));
-        entries.push(number(&format!("{p}.rms.homogeneous"), e.homogeneous_rms_m, "m"));
-        entries.push(number(&format!("{p}.rms.per_example"), e.example_rms_m, "m"));
+        entries.push(number(
+            &format!("{p}.rms.homogeneous"),
+            e.homogeneous_rms_m,
+            "m",
+        ));
+        entries.push(number(
+            &format!("{p}.rms.per_example"),
+            e.example_rms_m,
+            "m",
+        ));
         entries.push(number(&format!("{p}.rms.material"), e.material_rms_m, "m"));
     }
     proto::Report {
@@ -173,8 +182,11 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
         })?;
     }
     let mut w = Writer::create(path, &provenance).map_err(&err)?;
-    w.write_static(&topics::VOLUME_MESH, &tet_mesh_message(&prepared.setup.mesh))
-        .map_err(&err)?;
+    w.write_static(
+        &topics::VOLUME_MESH,
+        &tet_mesh_message(&prepared.setup.mesh),
+    )
+    .map_err(&err)?;
     for (k, (ex, f)) in fit.examples.iter().zip(&fit.fits).enumerate() {
         let msg = proto::ElementMaterial {
             example: k as u32,
@@ -189,7 +201,9 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
     }
     // Rest positions of every marker (frame 0), then the material's re-simulation of each
     // example beside the measured markers, at the example's time.
-    let rest = prepared.setup.marker_positions(&prepared.setup.mesh.vertices);
+    let rest = prepared
+        .setup
+        .marker_positions(&prepared.setup.mesh.vertices);
     let v = |p: &Vector3<f64>| proto::Vec3 {
         x: p.x,
         y: p.y,

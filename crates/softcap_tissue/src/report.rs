@@ -147,8 +147,9 @@ pub fn write_report(dir: &Path, o: &FitOutcome) -> Result<()> {
     );
     let _ = writeln!(
         md,
-        "| strain-space material (eq. 8, {:.2} centres/tet) | {:.4} | {:.4} |\n",
+        "| strain-space material (eq. 8, {:.2} centres/tet; {} examples not converged) | {:.4} | {:.4} |\n",
         o.mean_centers,
+        o.material_failures,
         1e3 * o.material_rms_m,
         1e3 * o.material_mean_error_m
     );

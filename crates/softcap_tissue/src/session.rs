@@ -80,11 +80,10 @@ pub fn read_volume_mesh(path: &Path, metres_per_unit: f64) -> Result<TetMesh> {
             format!("{metres_per_unit} is not a positive length unit"),
         ));
     }
-    let mut mesh =
-        softcap_mesh::read_msh_tet_mesh(path).map_err(|e| TissueError::ReadMesh {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })?;
+    let mut mesh = softcap_mesh::read_msh_tet_mesh(path).map_err(|e| TissueError::ReadMesh {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    })?;
     if mesh.tets.is_empty() {
         return Err(TissueError::bad_input(
             path,
@@ -202,7 +201,10 @@ pub fn prepare(
         .collect();
     let locator = softcap_mesh::TetLocator::new(&mesh);
     for (i, p) in rest.iter().enumerate() {
-        let d = locator.locate(p).map(|e| e.distance).unwrap_or(f64::INFINITY);
+        let d = locator
+            .locate(p)
+            .map(|e| e.distance)
+            .unwrap_or(f64::INFINITY);
         if d > selection.max_marker_offset_m {
             return Err(TissueError::bad_input(
                 mesh_path,

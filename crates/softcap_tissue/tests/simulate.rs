@@ -65,10 +65,7 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
     assert_eq!(probe.len(), o.load_steps);
     assert_eq!(meshes.len(), o.load_steps);
     // Probe force per step rises monotonically to the final force (along −z, on the object).
-    let fz: Vec<f64> = probe
-        .iter()
-        .map(|(_, p)| p.force_n.unwrap().z)
-        .collect();
+    let fz: Vec<f64> = probe.iter().map(|(_, p)| p.force_n.unwrap().z).collect();
     assert_eq!(fz[0], 0.0);
     assert!(fz.windows(2).all(|w| w[1] <= w[0] + 1e-12), "{fz:?}");
     assert!((fz.last().unwrap() + o.axial_force_n).abs() < 1e-12);
@@ -78,7 +75,10 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
     cfg_bad.output = bad.clone();
     cfg_bad.probe.radius_m = -1.0;
     let e = softcap_tissue::simulate::run(&cfg_bad).unwrap_err();
-    assert!(e.is_bad_input() && e.to_string().contains("--radius"), "{e}");
+    assert!(
+        e.is_bad_input() && e.to_string().contains("--radius"),
+        "{e}"
+    );
     // A probe line that misses the object.
     cfg_bad.probe.radius_m = 0.005;
     cfg_bad.probe.tip_m = [0.2, 0.2, 0.03];

@@ -8,7 +8,9 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
-use softcap_tissue::{FitConfig, FitSettings, ProbeShape, ProbeSpec, SimulateConfig, SimulateSettings};
+use softcap_tissue::{
+    FitConfig, FitSettings, ProbeShape, ProbeSpec, SimulateConfig, SimulateSettings,
+};
 
 /// Soft-tissue material capture and synthesis (bickel2009).
 #[derive(Debug, Parser)]
@@ -37,10 +39,21 @@ struct SimulateArgs {
     #[arg(long)]
     radius: f64,
     /// A point on the approach line, m: x,y,z.
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_negative_numbers = true
+    )]
     tip: Vec<f64>,
     /// Approach direction (handle → tip): x,y,z.
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true, default_value = "0,0,-1")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_negative_numbers = true,
+        default_value = "0,0,-1"
+    )]
     axis: Vec<f64>,
     /// Axial force on the object, N.
     #[arg(long)]
@@ -64,7 +77,9 @@ impl SimulateArgs {
         let settings: SimulateSettings = load_settings(&self.settings)?;
         let three = |v: &[f64], what: &str| -> Result<[f64; 3], Failure> {
             <[f64; 3]>::try_from(v).map_err(|_| {
-                Failure::BadInput(anyhow::anyhow!("--{what} needs three comma-separated numbers"))
+                Failure::BadInput(anyhow::anyhow!(
+                    "--{what} needs three comma-separated numbers"
+                ))
             })
         };
         let cfg = SimulateConfig {

@@ -126,7 +126,10 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
             let rep = setup.simulate(&mut solver, &mut truth, &mut x, &f, &newton);
             assert!(rep.converged(), "truth: {rep:?}");
             // The tip follows the mean displacement of the patch.
-            let dz = nodes.iter().map(|&n| x[n].z - mesh.vertices[n].z).sum::<f64>()
+            let dz = nodes
+                .iter()
+                .map(|&n| x[n].z - mesh.vertices[n].z)
+                .sum::<f64>()
                 / nodes.len() as f64;
             frames.push(F {
                 tip: surface + Vector3::new(0.0, 0.0, dz),
@@ -246,11 +249,7 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
     let mesh_path = dir.join("volume.msh");
     let mut mm = mesh.clone();
     mm.scale(1000.0);
-    softcap_mesh::write_msh(
-        &mesh_path,
-        &softcap_mesh::MshMesh::from_tet_mesh(&mm, None),
-    )
-    .unwrap();
+    softcap_mesh::write_msh(&mesh_path, &softcap_mesh::MshMesh::from_tet_mesh(&mm, None)).unwrap();
     VirtualSession {
         capture,
         mesh: mesh_path,
