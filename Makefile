@@ -1,26 +1,62 @@
 # softcap: the two commands of the README.
-#   make demo   run the main job on the embedded default
-#   make test   run the tests
-# Until the tissue and diagnose stages land, the demo runs the furthest stage that works:
-# capture on the committed example session fixtures/session-min.
-CARGO ?= cargo
+#   make demo     synthesize the embedded default session (a virtual-rig probing session with one
+#                 concealed physical effect), run the tissue pipeline over it (capture → tissue fit →
+#                 tissue simulate → diagnose) and print the diagnosis verdict and where every file is
+#   make test     run the tests (cargo test --workspace, then the workflow-engine smoke test)
+# and
+#   make verify   rerun the demo pipeline from scratch and compare `softcap inspect digest` of every
+#                 intermediate with the first run (determinism)
+CARGO      ?= cargo
 TARGET_DIR ?= $(or $(CARGO_TARGET_DIR),target)
-BIN := $(TARGET_DIR)/release
-OUT := out/demo
+# The demo binaries are built with Cargo's `test` profile (workspace opt-level 2, dependencies
+# opt-level 3): the same artifacts `make test` builds, so the demo after the tests (or the tests
+# after the demo) compiles only the binaries. PROFILE=release for fully optimized binaries.
+PROFILE    ?= test
+BIN        := $(TARGET_DIR)/$(if $(filter test dev,$(PROFILE)),debug,$(PROFILE))
+SOFTCAP    := $(BIN)/softcap
+SCENARIO   ?= fixtures/scenarios/demo.toml
+OUT        ?= out/demo
+# Only the packages the demo runs.
+DEMO_PACKAGES := -p softcap_cli -p softcap_synth -p softcap_capture -p softcap_tissue -p softcap_diagnose
 
-.PHONY: demo test build
+.PHONY: demo test verify build demo-pipeline clean
 build:
-	$(CARGO) build --release --workspace --bins
+	$(CARGO) build --profile $(PROFILE) $(DEMO_PACKAGES) --bins
 
 test:
 	$(CARGO) test --workspace
+	scripts/workflow-smoke
 
-demo: build
-	@mkdir -p $(OUT)
-	$(BIN)/softcap capture fixtures/session-min -o $(OUT)/capture.mcap
-	$(BIN)/softcap inspect summary $(OUT)/capture.mcap
-	$(BIN)/softcap inspect export $(OUT)/capture.mcap --what markers -o $(OUT)/markers.csv
-	$(BIN)/softcap inspect export $(OUT)/capture.mcap --what probe -o $(OUT)/probe.csv
-	@echo
-	@echo "demo: capture.mcap, markers.csv and probe.csv are in $(OUT)/"
-	@echo "      look inside with: $(BIN)/softcap inspect dump $(OUT)/capture.mcap | head"
+# The session is regenerated only when the scenario (or the synth binary) changes.
+$(OUT)/sessions/demo/session.toml: $(SCENARIO) | build
+	@rm -rf $(OUT)/sessions/demo
+	@mkdir -p $(OUT)/sessions
+	$(SOFTCAP) synth --scenario $(SCENARIO) --out $(OUT)/sessions/demo
+
+demo-pipeline: build $(OUT)/sessions/demo/session.toml
+	$(MAKE) --no-print-directory -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs all
+
+demo: demo-pipeline
+	@scripts/demo-summary $(SOFTCAP) $(OUT)
+
+# Rerun the whole pipeline from scratch in the same folders (same arguments) and compare the
+# `softcap inspect digest` of every intermediate, and a hash of every synthesized session file.
+verify: demo-pipeline
+	@$(MAKE) --no-print-directory -s -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs digests > $(OUT)/digests-first.txt
+	@cd $(OUT)/sessions && find . -type f | LC_ALL=C sort | xargs sha256sum >> ../digests-first.txt
+	rm -rf $(OUT)/sessions $(OUT)/runs
+	$(MAKE) --no-print-directory demo-pipeline
+	@$(MAKE) --no-print-directory -s -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs digests > $(OUT)/digests-rerun.txt
+	@cd $(OUT)/sessions && find . -type f | LC_ALL=C sort | xargs sha256sum >> ../digests-rerun.txt
+	@cat $(OUT)/digests-first.txt
+	@if diff -u $(OUT)/digests-first.txt $(OUT)/digests-rerun.txt; then \
+	    echo "verify: the rerun reproduced every session file and every intermediate's digest"; \
+	else \
+	    echo "verify: FAILED, the rerun differs (see above)" >&2; exit 1; \
+	fi
+
+clean:
+	rm -rf $(OUT)

@@ -1,0 +1,56 @@
+# pipelines/face.mk — facial performance capture, one stage binary per rule:
+#
+#   <TAKES>/<T>.csv (AnimFace-style mocap take) + FACE (scan .obj) + LANDMARKS (marker → vertex table)
+#     ──softcap face run──▶ <OUT>/<T>/face.mcap         animated face (/face/mesh), wrinkles (/face/wrinkles)
+#     ──softcap face animate──▶ <OUT>/<T>/renders/      PNG renders of selected frames
+#   <OUT>/landmarks.csv ◀──softcap face landmarks── first take + FACE   (only when LANDMARKS is unset)
+#
+# Every target is a file; `make -j` animates independent takes in parallel:
+#
+#   make -f pipelines/face.mk TAKES=fixtures/animface-mocap FACE=fixtures/ict-face/neutral.obj \
+#        LANDMARKS=fixtures/animface-mocap/ict_landmarks.csv OUT=out/face -j2
+#   make -f pipelines/face.mk ... digests           # one `softcap inspect digest` per face.mcap
+#
+# A take's optional wrinkle input (tracked curves + camera, `softcap_face::WrinkleInput` JSON) is
+# <TAKES>/<T>.wrinkles.json; when present it is passed with --wrinkles and those frames are synthesized.
+SOFTCAP   ?= target/release/softcap
+TAKES     ?= fixtures/animface-mocap
+FACE      ?= fixtures/ict-face/neutral.obj
+OUT       ?= out/face
+LANDMARKS ?= $(OUT)/landmarks.csv
+STRIDE    ?= 4
+RENDER_FRAMES ?= 0,150,390
+
+TAKE_NAMES := $(filter-out ict_landmarks,$(patsubst $(TAKES)/%.csv,%,$(wildcard $(TAKES)/*.csv)))
+FIRST_TAKE := $(firstword $(TAKE_NAMES))
+
+.PHONY: all renders digests clean-face
+.DELETE_ON_ERROR:
+.SECONDARY:
+.SECONDEXPANSION:
+
+all: $(foreach t,$(TAKE_NAMES),$(OUT)/$(t)/face.mcap)
+renders: $(foreach t,$(TAKE_NAMES),$(OUT)/$(t)/renders/.done)
+
+# Derived landmark table (ICP + closest vertex) when none is given.
+$(OUT)/landmarks.csv: $(TAKES)/$(FIRST_TAKE).csv $(FACE)
+	@mkdir -p $(@D)
+	$(SOFTCAP) face landmarks --mocap $< --face $(FACE) -o $@
+
+$(OUT)/%/face.mcap: $(TAKES)/%.csv $(FACE) $(LANDMARKS) $$(wildcard $(TAKES)/$$*.wrinkles.json)
+	@mkdir -p $(@D)
+	$(SOFTCAP) face run --mocap $< --face $(FACE) --landmarks $(LANDMARKS) --stride $(STRIDE) \
+	    $(if $(wildcard $(TAKES)/$*.wrinkles.json),--wrinkles $(TAKES)/$*.wrinkles.json) -o $@
+
+$(OUT)/%/renders/.done: $(TAKES)/%.csv $(FACE) $(LANDMARKS)
+	@mkdir -p $(@D)
+	$(SOFTCAP) face animate --mocap $< --face $(FACE) --landmarks $(LANDMARKS) \
+	    --frames $(RENDER_FRAMES) --out $(@D)
+	@touch $@
+
+digests: all
+	@for t in $(TAKE_NAMES); do \
+	    printf '%s/face.mcap %s\n' "$$t" "$$($(SOFTCAP) inspect digest $(OUT)/$$t/face.mcap)"; done
+
+clean-face:
+	rm -rf $(OUT)
