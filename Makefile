@@ -2,7 +2,8 @@
 #   make demo     synthesize the embedded default session (a virtual-rig probing session with one
 #                 concealed physical effect), run the tissue pipeline over it (capture → tissue fit →
 #                 tissue simulate → diagnose) and print the diagnosis verdict and where every file is
-#   make test     run the tests (cargo test --workspace, then the workflow-engine smoke test)
+#   make test     run the tests (cargo test --workspace)
+#   make smoke    the workflow-engine smoke test (Snakemake over one synthesized session)
 # and
 #   make verify   rerun the demo pipeline from scratch and compare `softcap inspect digest` of every
 #                 intermediate with the first run (determinism)
@@ -19,12 +20,16 @@ OUT        ?= out/demo
 # Only the packages the demo runs.
 DEMO_PACKAGES := -p softcap_cli -p softcap_synth -p softcap_capture -p softcap_tissue -p softcap_diagnose
 
-.PHONY: demo test verify build demo-pipeline clean
+.PHONY: demo test smoke verify build demo-pipeline clean
 build:
 	$(CARGO) build --profile $(PROFILE) $(DEMO_PACKAGES) --bins
 
 test:
 	$(CARGO) test --workspace
+
+# The workflow-engine smoke test: Snakemake (installed into .venv-workflow on first use) runs
+# workflow/Snakefile over one small synthesized session.
+smoke:
 	scripts/workflow-smoke
 
 # The session is regenerated only when the scenario (or the synth binary) changes.
