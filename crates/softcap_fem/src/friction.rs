@@ -123,6 +123,13 @@ pub struct FrictionalContact {
     pub contact: ContactProblem,
     /// Friction parameters.
     pub friction: FrictionParams,
+    /// Keep compressed rim nodes in the active set when re-querying (the hysteresis of
+    /// [`ContactProblem`]'s active-set update in [`crate::StaticSolver`]); default `false` (plain
+    /// re-query, the original behaviour). Switch it on for sharp-rimmed tips that move sideways
+    /// (a disk dragged over a coarse mesh): without it a rim node pushed out by the side wall
+    /// relaxes back in at the next iteration and the active set cycles until it is frozen, leaving
+    /// that node inside the tip.
+    pub active_set_hysteresis: bool,
     committed: BTreeMap<usize, Vector3<f64>>,
     working: BTreeMap<usize, Vector3<f64>>,
     springs: Vec<ContactSpring>,
@@ -136,6 +143,7 @@ impl FrictionalContact {
         Ok(Self {
             contact,
             friction,
+            active_set_hysteresis: false,
             committed: BTreeMap::new(),
             working: BTreeMap::new(),
             springs: Vec::new(),
@@ -226,7 +234,12 @@ impl NodalTerm for FrictionalContact {
         requery: bool,
     ) {
         if requery || self.springs.is_empty() {
-            self.springs = self.contact.springs(x, node_stiffness);
+            self.springs = if self.active_set_hysteresis && !self.springs.is_empty() {
+                self.contact
+                    .springs_with_hysteresis(x, node_stiffness, &self.springs)
+            } else {
+                self.contact.springs(x, node_stiffness)
+            };
             let mut working = BTreeMap::new();
             for s in &self.springs {
                 let a = self

@@ -524,6 +524,10 @@ pub struct Truth {
     pub max_iterations: usize,
     /// Elements that ever yielded (plasticity; 0 otherwise).
     pub yielded_elements: usize,
+    /// Largest element von Mises stress √(3/2 s:s) (s = dev σ) of any frame, Pa (plasticity; 0
+    /// otherwise). With the yield stress raised out of reach this is the elastic peak that
+    /// `plastic_yield_pa` is compared with (docs/synth.md).
+    pub peak_von_mises_pa: f64,
 }
 
 /// The simulation engine of the scenario's effects (see [`crate::engine`]).
@@ -583,7 +587,8 @@ fn build_engine(
         } else {
             None
         };
-        let fc = FrictionalContact::new(contact.clone(), friction)?;
+        let mut fc = FrictionalContact::new(contact.clone(), friction)?;
+        fc.active_set_hysteresis = s.has(Effect::ProbeFriction);
         return Engine::nodal(elastic(s)?, bc, fc, support);
     }
     if s.has(Effect::InertiaDamping) {
@@ -706,6 +711,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     };
 
     let mut x = unloaded.clone();
+    let mut peak_von_mises_pa: f64 = 0.0;
     let mut prev_spec: Option<FrameSpec> = None;
     let mut frames = Vec::with_capacity(frames_spec.len());
     for spec in &frames_spec {
@@ -800,6 +806,9 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             }
         };
         max_iterations = max_iterations.max(outcome.iterations);
+        if let Engine::Plastic { model, .. } = &engine {
+            peak_von_mises_pa = peak_von_mises_pa.max(max_von_mises_pa(model, &x));
+        }
         prev_spec = Some(spec.clone());
         let markers_m = marker_embeddings
             .iter()
@@ -864,7 +873,20 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
         inclusion_elements,
         max_iterations,
         yielded_elements,
+        peak_von_mises_pa,
     })
+}
+
+/// Largest element von Mises stress σ_vm = √(3/2 s:s), s = σ − tr(σ)/3 I, of the return-mapped
+/// (committed) stress at `x`, Pa.
+fn max_von_mises_pa(model: &ElastoplasticModel, x: &[Vector3<f64>]) -> f64 {
+    (0..model.elements().len())
+        .map(|e| {
+            let sigma = model.element_return(e, x).0.stress_pa;
+            let dev = sigma - Matrix3::identity() * (sigma.trace() / 3.0);
+            (1.5 * dev.norm_squared()).sqrt()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Seeded RNG of one purpose: every consumer gets its own stream so that switching one output on

@@ -116,6 +116,25 @@ fn plasticity_leaves_a_permanent_set_after_release() {
         set_after.push(set);
     }
     println!("{} truth elements yielded", t.yielded_elements);
+    // The same protocol with the yield stress out of reach: the elastic peak von Mises stress that
+    // σ_y is compared with (diagnose asked for yield ≈ 30–40 % of the peak).
+    let mut elastic = s.clone();
+    elastic.effect_settings.plastic_yield_pa = 1e12;
+    let te = run(&elastic);
+    assert_eq!(te.yielded_elements, 0);
+    let ratio = s.effect_settings.plastic_yield_pa / te.peak_von_mises_pa;
+    println!(
+        "elastic peak von Mises {:.0} Pa, plastic run peak {:.0} Pa; yield ratio σ_y / peak = {ratio:.3}",
+        te.peak_von_mises_pa, t.peak_von_mises_pa
+    );
+    assert!(
+        (0.1..0.5).contains(&ratio),
+        "yield ratio {ratio:.3} (σ_y {} Pa, elastic peak {:.0} Pa)",
+        s.effect_settings.plastic_yield_pa,
+        te.peak_von_mises_pa
+    );
+    // With hardening H the returned stress stays at σ_y + H ᾱ ≪ the elastic peak.
+    assert!(t.peak_von_mises_pa < te.peak_von_mises_pa);
     assert!(set_after[0] >= 0.5e-3, "set {:.3} mm", set_after[0] * 1e3);
     assert!(set_after.iter().all(|&v| v >= 0.5e-3));
 }
