@@ -5,6 +5,7 @@
 use crate::recording::{Frame, Recording, SupportPlane, surface_normals};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
 use softcap_fem::probing::{ElementRbf, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mcap::capture::CaptureData;
@@ -85,14 +86,48 @@ pub fn recording_from_capture(cap: &CaptureData, mesh: &TetMesh) -> Result<Recor
     Ok(rec)
 }
 
+/// Which of material.mcap's materials is the default model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MaterialSource {
+    /// The strain-space basis when the tissue fit's own report (`/tissue/report`) says it
+    /// reproduces the fitted examples at least as well as the homogeneous baseline and every
+    /// re-simulation converged (`rms.material ≤ rms.homogeneous`, `material.failures = 0`); else
+    /// the homogeneous baseline of the report; else the mean per-example parameters.
+    #[default]
+    Auto,
+    /// `/tissue/basis` (bickel2009 eq. 8), required.
+    Basis,
+    /// The homogeneous baseline (`homogeneous.lambda` / `homogeneous.alpha` of `/tissue/report`,
+    /// bickel2009 §6 Fig. 8), required.
+    Homogeneous,
+    /// The element-wise mean of the per-example parameters (`/tissue/element_material`).
+    ExampleMean,
+}
+
 /// The default model of a material.mcap.
 pub struct MaterialModel {
     /// The fitted mesh (SI).
     pub mesh: TetMesh,
     /// The corotational model (strain-dependent when a basis is present).
     pub model: CorotationalModel,
-    /// "strain-space basis" or "mean per-example parameters".
-    pub source: &'static str,
+    /// "strain-space basis", "homogeneous baseline" or "mean per-example parameters", with the
+    /// reason when `Auto` chose.
+    pub source: String,
+}
+
+fn report_number(data: &MaterialData, key: &str) -> Option<f64> {
+    use proto::key_value::Value;
+    data.report
+        .as_ref()?
+        .entries
+        .iter()
+        .find(|e| e.key == key)
+        .and_then(|e| match e.value {
+            Some(Value::Number(x)) => Some(x),
+            Some(Value::Integer(i)) => Some(i as f64),
+            _ => None,
+        })
 }
 
 /// The strain-space material of `/tissue/basis` (bickel2009 eq. 8, φ(r) = r, no tail) as a
@@ -176,18 +211,27 @@ pub fn strain_space_material(
     })
 }
 
-/// Reads `material.mcap` through [`MaterialData::read`]: the strain-space basis when present
-/// (bickel2009 §3.3), else the mean of the per-example element parameters.
+/// Reads `material.mcap` through [`MaterialData::read`] with [`MaterialSource::Auto`].
 pub fn read_material(path: &Path) -> Result<MaterialModel> {
+    read_material_from(path, MaterialSource::Auto)
+}
+
+/// Reads `material.mcap` through [`MaterialData::read`] and builds the default model from `source`.
+pub fn read_material_from(path: &Path, source: MaterialSource) -> Result<MaterialModel> {
     let data = MaterialData::read(path).map_err(|source| DiagnoseError::Mcap {
         path: path.to_path_buf(),
         source: Box::new(source),
     })?;
-    material_model(&data)
+    material_model_from(&data, source)
 }
 
-/// The default model of already-read material data.
+/// The default model of already-read material data ([`MaterialSource::Auto`]).
 pub fn material_model(data: &MaterialData) -> Result<MaterialModel> {
+    material_model_from(data, MaterialSource::Auto)
+}
+
+/// The default model of already-read material data from `source`.
+pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Result<MaterialModel> {
     let bad = |what: String| DiagnoseError::BadInput {
         path: data.path.clone(),
         what,
@@ -200,43 +244,118 @@ pub fn material_model(data: &MaterialData) -> Result<MaterialModel> {
         return Err(bad("/mesh/volume: no tets".into()));
     }
     let nt = mesh.tets.len();
-    if let Some(basis) = &data.basis {
-        let material =
-            strain_space_material(data, basis).map_err(|w| bad(format!("/tissue/basis: {w}")))?;
-        let model = Arc::new(material)
-            .model(&mesh)
-            .map_err(|e| bad(format!("/tissue/basis: {e}")))?;
-        return Ok(MaterialModel {
-            mesh,
-            model,
-            source: "strain-space basis",
-        });
-    }
-    if data.element_materials.is_empty() {
-        return Err(bad(
-            "neither /tissue/basis nor /tissue/element_material present".into(),
-        ));
-    }
-    let count = data.element_materials.len() as f64;
-    let mean: Vec<LinearParams> = (0..nt)
-        .map(|e| {
-            let (l, a) = data
-                .element_materials
-                .iter()
-                .fold((0.0, 0.0), |acc, (_, x)| {
-                    (acc.0 + x.lambda_pa[e], acc.1 + x.alpha_pa[e])
-                });
-            LinearParams {
-                lambda: l / count,
-                alpha: a / count,
+    let homogeneous = match (
+        report_number(data, "homogeneous.lambda"),
+        report_number(data, "homogeneous.alpha"),
+    ) {
+        (Some(l), Some(a)) if l.is_finite() && a.is_finite() && a > 0.0 => Some(LinearParams {
+            lambda: l,
+            alpha: a,
+        }),
+        _ => None,
+    };
+    let (use_source, why) = match source {
+        MaterialSource::Auto => {
+            let rms_m = report_number(data, "rms.material");
+            let rms_h = report_number(data, "rms.homogeneous");
+            let failures = report_number(data, "material.failures").unwrap_or(0.0);
+            match (&data.basis, rms_m, rms_h) {
+                (Some(_), Some(m), Some(h)) if m.is_finite() && m <= h && failures == 0.0 => (
+                    MaterialSource::Basis,
+                    format!(
+                        "auto: basis reproduces the examples to {:.4} mm <= homogeneous {:.4} mm",
+                        1e3 * m,
+                        1e3 * h
+                    ),
+                ),
+                (Some(_), None, _) | (Some(_), _, None) if homogeneous.is_none() => {
+                    (MaterialSource::Basis, "auto: basis (no fit report)".into())
+                }
+                _ if homogeneous.is_some() => (
+                    MaterialSource::Homogeneous,
+                    format!(
+                        "auto: homogeneous baseline (tissue report: basis rms {:.4} mm, homogeneous {:.4} mm, {} basis re-simulation failures)",
+                        1e3 * rms_m.unwrap_or(f64::NAN),
+                        1e3 * rms_h.unwrap_or(f64::NAN),
+                        failures
+                    ),
+                ),
+                _ => (
+                    MaterialSource::ExampleMean,
+                    "auto: mean per-example parameters (no usable basis or homogeneous fit)".into(),
+                ),
             }
-        })
-        .collect();
-    let model = CorotationalModel::new(&mesh, mean)
-        .map_err(|e| bad(format!("/tissue/element_material: {e}")))?;
-    Ok(MaterialModel {
-        mesh,
-        model,
-        source: "mean per-example parameters",
-    })
+        }
+        s => (s, String::new()),
+    };
+    let with_why = |name: &str| {
+        if why.is_empty() {
+            name.to_string()
+        } else {
+            format!("{name} ({why})")
+        }
+    };
+    match use_source {
+        MaterialSource::Basis => {
+            let Some(basis) = &data.basis else {
+                return Err(bad(
+                    "/tissue/basis: missing (material source `basis`)".into()
+                ));
+            };
+            let material = strain_space_material(data, basis)
+                .map_err(|w| bad(format!("/tissue/basis: {w}")))?;
+            let model = Arc::new(material)
+                .model(&mesh)
+                .map_err(|e| bad(format!("/tissue/basis: {e}")))?;
+            Ok(MaterialModel {
+                mesh,
+                model,
+                source: with_why("strain-space basis"),
+            })
+        }
+        MaterialSource::Homogeneous => {
+            let Some(p) = homogeneous else {
+                return Err(bad(
+                    "/tissue/report: no homogeneous.lambda / homogeneous.alpha (material source `homogeneous`)"
+                        .into(),
+                ));
+            };
+            let model = CorotationalModel::new(&mesh, vec![p; nt])
+                .map_err(|e| bad(format!("/tissue/report homogeneous: {e}")))?;
+            Ok(MaterialModel {
+                mesh,
+                model,
+                source: with_why("homogeneous baseline"),
+            })
+        }
+        MaterialSource::ExampleMean | MaterialSource::Auto => {
+            if data.element_materials.is_empty() {
+                return Err(bad(
+                    "neither /tissue/basis nor /tissue/element_material present".into(),
+                ));
+            }
+            let count = data.element_materials.len() as f64;
+            let mean: Vec<LinearParams> = (0..nt)
+                .map(|e| {
+                    let (l, a) = data
+                        .element_materials
+                        .iter()
+                        .fold((0.0, 0.0), |acc, (_, x)| {
+                            (acc.0 + x.lambda_pa[e], acc.1 + x.alpha_pa[e])
+                        });
+                    LinearParams {
+                        lambda: l / count,
+                        alpha: a / count,
+                    }
+                })
+                .collect();
+            let model = CorotationalModel::new(&mesh, mean)
+                .map_err(|e| bad(format!("/tissue/element_material: {e}")))?;
+            Ok(MaterialModel {
+                mesh,
+                model,
+                source: with_why("mean per-example parameters"),
+            })
+        }
+    }
 }

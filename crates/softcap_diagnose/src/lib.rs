@@ -65,7 +65,8 @@ pub use diagnose::{
 pub use error::{DiagnoseError, Result};
 pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
 pub use io::{
-    MaterialModel, material_model, read_material, recording_from_capture, strain_space_material,
+    MaterialModel, MaterialSource, material_model, material_model_from, read_material,
+    read_material_from, recording_from_capture, strain_space_material,
 };
 pub use output::{write_json, write_mcap, write_report};
 pub use recording::{Frame, Recording, SupportPlane, surface_normals};

@@ -2,7 +2,7 @@
 //! [--json FILE] [--report DIR]`.
 
 use crate::diagnose::{DiagnoseSettings, Diagnosis, diagnose};
-use crate::io::{read_material, recording_from_capture};
+use crate::io::{MaterialSource, read_material_from, recording_from_capture};
 use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
@@ -19,6 +19,8 @@ pub struct StageSettings {
     pub diagnose: DiagnoseSettings,
     /// Simulator (contact patch, equilibrium).
     pub simulator: FemSimSettings,
+    /// Which material of material.mcap is the default model.
+    pub material: MaterialSource,
 }
 
 /// What to run.
@@ -47,7 +49,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         path: cfg.capture.clone(),
         source: Box::new(e),
     })?;
-    let material = read_material(&cfg.material)?;
+    let material = read_material_from(&cfg.material, cfg.settings.material)?;
     let rec = recording_from_capture(&cap, &material.mesh)?;
     let Some(support) = rec.support else {
         return Err(DiagnoseError::BadInput {
@@ -75,7 +77,11 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         &rec.rest_markers_m,
         cfg.settings.simulator.clone(),
     )?;
-    let result = diagnose(&rec, &mut sim, &cfg.settings.diagnose)?;
+    let mut result = diagnose(&rec, &mut sim, &cfg.settings.diagnose)?;
+    for r in &mut result.diagnosis.ranked {
+        r.evidence
+            .insert("default_model".into(), material.source.clone().into());
+    }
     let sha = softcap_mcap::sha256_file(&cfg.material).map_err(|e| DiagnoseError::Mcap {
         path: cfg.material.clone(),
         source: Box::new(e),
