@@ -67,7 +67,11 @@ pub enum Refactorization {
     /// a factorization, and the accepted line-search point's forces (and energy) are carried into
     /// the next iteration. The factor left in [`StaticSolver::cholesky`] may belong to an earlier
     /// iterate or solve. Requires, like the energy line search, that a model with an energy keeps
-    /// its forces fixed in [`ElasticModel::update_state`].
+    /// its forces fixed in [`ElasticModel::update_state`]. With a probe, the per-node penalty
+    /// scale of a solve is the one of the matrix in the current factor (made by an earlier
+    /// WhenStale solve), so a frame that reuses the factor assembles nothing; for the corotational
+    /// model this is the scale a fresh assembly gives (the trace of R K Rᵀ does not depend on R),
+    /// for other models it is the scale at the factored iterate.
     WhenStale,
 }
 
@@ -168,6 +172,10 @@ pub struct StaticSolver {
     /// Contact springs of the matrix in the current factor when [`Refactorization::WhenStale`]
     /// made it (`None`: unknown — any other path factored it, or nothing was factored).
     factored_springs: Option<Vec<ContactSpring>>,
+    /// Per-node penalty scale (mean |diagonal| of the element-only matrix) of the current factor
+    /// when [`Refactorization::WhenStale`] made it (empty otherwise): the next WhenStale solve
+    /// takes its penalty table from here instead of assembling at its first iterate.
+    factored_node_stiffness: Vec<f64>,
 }
 
 impl StaticSolver {
@@ -186,6 +194,7 @@ impl StaticSolver {
             energy: None,
             scratch: AssemblyScratch::default(),
             factored_springs: None,
+            factored_node_stiffness: Vec::new(),
         })
     }
 
@@ -333,6 +342,7 @@ impl StaticSolver {
                 .add_node_block(s.node, &s.matrix(), &mut self.values);
         }
         self.factored_springs = None;
+        self.factored_node_stiffness.clear();
         self.cholesky
             .factor(&self.pattern, &self.values)
             .map(|_| ())
@@ -395,8 +405,20 @@ impl StaticSolver {
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
         let mut last_springs: Option<Vec<ContactSpring>> = None;
-        let mut node_stiffness: Vec<f64> = Vec::new();
         let reuse = settings.refactorization == Refactorization::WhenStale;
+        // WhenStale: the penalty scale of the matrix in the reused factor (the springs of this
+        // solve then match that factor; for the corotational model with free candidate nodes it
+        // is exactly the scale a fresh assembly would give, tr(R K Rᵀ) = tr K).
+        let mut node_stiffness: Vec<f64> = if reuse
+            && self.factored_springs.is_some()
+            && self.factored_node_stiffness.len() == x.len()
+        {
+            self.factored_node_stiffness.clone()
+        } else {
+            Vec::new()
+        };
+        // max |A_ij| of the current `values` (recomputed only when they change).
+        let mut values_abs_max: Option<f64> = None;
         // (f_int, energy) at the current x, carried over from the accepted line-search point.
         let mut carried: Option<(Vec<Vector3<f64>>, Option<f64>)> = None;
         let mut previous_rnorm = f64::INFINITY;
@@ -416,6 +438,9 @@ impl StaticSolver {
             };
             let previous = last_springs.as_deref().unwrap_or(&[]);
             let mut assembled = !reuse;
+            if !reuse {
+                values_abs_max = None;
+            }
             let springs = if !reuse {
                 match self.assemble_and_factor_impl(
                     &*model,
@@ -437,6 +462,7 @@ impl StaticSolver {
                 let carried_in = carried.take();
                 if need_table || self.values.is_empty() {
                     self.assemble_values(&*model, x, settings.stiffness);
+                    values_abs_max = None;
                     assembled = true;
                 } else if let Some((f, e)) = carried_in {
                     (self.f_int, self.energy) = (f, e);
@@ -461,7 +487,8 @@ impl StaticSolver {
                 return report;
             }
             // A residual below what a displacement of tol_x would cause is also accepted.
-            let diag_max = self.values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let diag_max = *values_abs_max
+                .get_or_insert_with(|| self.values.iter().fold(0.0f64, |m, v| m.max(v.abs())));
             let res_ok = rnorm <= settings.residual_tol_rel * scale || rnorm <= diag_max * tol_x;
             if it > 0 && res_ok && report.last_update_m <= tol_x {
                 report.status = SolveStatus::Converged;
@@ -479,12 +506,18 @@ impl StaticSolver {
                     if !assembled {
                         self.assemble_values(&*model, x, settings.stiffness);
                     }
+                    values_abs_max = None;
+                    let table: Vec<f64> = (0..x.len())
+                        .map(|n| Self::node_stiffness(&self.pattern, &self.values, n))
+                        .collect();
                     if let Err(e) = self.factor_with_springs(&springs) {
                         report.status = failed(e);
                         return report;
                     }
                     self.factored_springs = Some(springs.clone());
+                    self.factored_node_stiffness = table;
                 } else if assembled {
+                    values_abs_max = None;
                     // Keep `last_matrix_values` = A at the last assembled iterate.
                     for s in &springs {
                         self.pattern
@@ -636,6 +669,7 @@ impl StaticSolver {
             }
         }
         self.factored_springs = None;
+        self.factored_node_stiffness.clear();
         self.cholesky.factor(&self.pattern, &values)?;
         self.values = values;
         let r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(a, b)| a - b).collect();
