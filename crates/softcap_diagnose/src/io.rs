@@ -152,9 +152,11 @@ pub fn strain_space_material(
             basis.weights.len()
         ));
     }
-    if !(basis.tail.is_empty() || basis.tail == "none") {
+    // tail "constant" (softcap tissue fit since session 4): T × 1 × 2 coefficients.
+    let constant = basis.tail == "constant" && basis.tail_coefficients.len() == 2 * nt;
+    if !(basis.tail.is_empty() || basis.tail == "none" || constant) {
         return Err(format!(
-            "tail '{}' is not supported (only none)",
+            "tail '{}' is not supported (only none / constant)",
             basis.tail
         ));
     }
@@ -187,6 +189,14 @@ pub fn strain_space_material(
                     [w[0], w[1]]
                 })
                 .collect(),
+            constant: if constant {
+                [
+                    basis.tail_coefficients[2 * e],
+                    basis.tail_coefficients[2 * e + 1],
+                ]
+            } else {
+                [0.0; 2]
+            },
         })
         .collect();
     let lambda_floor_pa = (0..nt)
@@ -208,6 +218,7 @@ pub fn strain_space_material(
         elements,
         lambda_floor_pa,
         nu_bounds: (0.0, 0.49),
+        lambda_ceiling_pa: basis.lambda_ceiling_pa.clone(),
     })
 }
 

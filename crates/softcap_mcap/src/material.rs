@@ -99,17 +99,45 @@ fn validate_basis(path: &Path, b: &proto::StrainSpaceBasis, num_tets: usize) -> 
         "lambda_floor_pa",
         "length is neither 0 nor elements",
     )?;
+    check(
+        b.lambda_ceiling_pa.is_empty() || b.lambda_ceiling_pa.len() == t,
+        "lambda_ceiling_pa",
+        "length is neither 0 nor elements",
+    )?;
+    let k = match b.tail.as_str() {
+        "" | "none" => 0,
+        "constant" => 1,
+        "linear" => 7,
+        "quadratic" => 28,
+        other => {
+            return Err(invalid(
+                path,
+                topic,
+                "tail".into(),
+                &format!("'{other}' is not none / constant / linear / quadratic"),
+            ));
+        }
+    };
+    check(
+        b.tail_coefficients.is_empty() || b.tail_coefficients.len() == t * k * 2,
+        "tail_coefficients",
+        "length is neither 0 nor elements × K × 2 (K = 1 / 7 / 28 for constant / linear / quadratic)",
+    )?;
     if let Some(i) = b
         .centers_strain
         .iter()
         .chain(&b.weights)
         .chain(&b.lambda_floor_pa)
+        .chain(&b.lambda_ceiling_pa)
+        .chain(&b.tail_coefficients)
         .position(|v| !v.is_finite())
     {
         return Err(invalid(
             path,
             topic,
-            format!("centers_strain / weights / lambda_floor_pa (value {i})"),
+            format!(
+                "centers_strain / weights / lambda_floor_pa / lambda_ceiling_pa / tail_coefficients (value {i})"
+            ),
             "not finite",
         ));
     }

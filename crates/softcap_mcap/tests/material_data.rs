@@ -74,6 +74,7 @@ fn write_basis(path: &std::path::Path, centers_per_tet: Vec<u32>) {
         lambda_floor_pa: vec![5e4, 6e4],
         nu_min: 0.0,
         nu_max: 0.49,
+        lambda_ceiling_pa: vec![],
     };
     w.write_static(&topics::STRAIN_SPACE_BASIS, &basis).unwrap();
     w.finish().unwrap();

@@ -104,6 +104,7 @@ fn basis() -> StrainSpaceBasis {
         lambda_floor_pa: vec![1e4, 2e4],
         nu_min: 0.0,
         nu_max: 0.49,
+        lambda_ceiling_pa: vec![3e5, 4e5],
     }
 }
 

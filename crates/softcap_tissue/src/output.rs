@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use nalgebra::Vector3;
-use softcap_fem::probing::{ElementRbf, StrainSpaceMaterial};
+use softcap_fem::probing::StrainSpaceMaterial;
 use softcap_mcap::material::MaterialData;
 use softcap_mcap::proto::{self, KeyValue, key_value::Value};
 use softcap_mcap::{Provenance, Writer, topics};
@@ -45,7 +45,8 @@ pub fn tet_mesh_message(mesh: &TetMesh) -> proto::TetMesh {
 }
 
 /// The `/tissue/basis` message of a strain-space material: padded T × M layout with per-tet
-/// counts (docs/formats.md), φ(r) = r, no tail.
+/// counts (docs/formats.md), φ(r) = r, tail "constant" (T × 1 × 2 coefficients) when any
+/// element has a constant term, else "none"; validity clamp (floor, ceiling, ν bounds).
 pub fn basis_message(material: &StrainSpaceMaterial) -> proto::StrainSpaceBasis {
     let t = material.elements.len();
     let m = material
@@ -73,14 +74,19 @@ pub fn basis_message(material: &StrainSpaceMaterial) -> proto::StrainSpaceBasis 
             }
         }
     }
+    let constant = material.elements.iter().any(|e| e.constant != [0.0; 2]);
     proto::StrainSpaceBasis {
         elements: t as u32,
         kernel: "r".into(),
-        tail: "none".into(),
+        tail: if constant { "constant" } else { "none" }.into(),
         center_examples: (0..m as u32).collect(),
         centers_strain,
         weights,
-        tail_coefficients: Vec::new(),
+        tail_coefficients: if constant {
+            material.elements.iter().flat_map(|e| e.constant).collect()
+        } else {
+            Vec::new()
+        },
         centers_per_tet: material
             .elements
             .iter()
@@ -90,6 +96,7 @@ pub fn basis_message(material: &StrainSpaceMaterial) -> proto::StrainSpaceBasis 
         lambda_floor_pa: material.lambda_floor_pa.clone(),
         nu_min: material.nu_bounds.0,
         nu_max: material.nu_bounds.1,
+        lambda_ceiling_pa: material.lambda_ceiling_pa.clone(),
     }
 }
 
@@ -305,53 +312,37 @@ pub fn read_material(path: &Path) -> Result<LoadedMaterial> {
             "missing: the file holds no strain-space material",
         ));
     };
-    if !(b.kernel == "r" || b.kernel.is_empty()) || !(b.tail == "none" || b.tail.is_empty()) {
+    if !(b.kernel == "r" || b.kernel.is_empty())
+        || !(b.tail == "none" || b.tail.is_empty() || b.tail == "constant")
+    {
         return Err(TissueError::bad_input(
             path,
             "/tissue/basis kernel / tail",
             format!(
-                "'{}' / '{}' unsupported (bickel2009 eq. 8: r / none)",
+                "'{}' / '{}' unsupported (bickel2009 eq. 8: r / none or constant)",
                 b.kernel, b.tail
             ),
         ));
-    }
-    let t = data.tets.len();
-    let mut elements = Vec::with_capacity(t);
-    let mut floors = Vec::with_capacity(t);
-    for e in 0..t {
-        let bt = data.basis_tet(e).ok_or_else(|| {
-            TissueError::bad_input(path, "/tissue/basis elements", "fewer elements than tets")
-        })?;
-        let c = bt.weights.len() / 2;
-        elements.push(ElementRbf {
-            center_samples: if bt.center_samples.is_empty() {
-                (0..c).collect()
-            } else {
-                bt.center_samples.iter().map(|&s| s as usize).collect()
-            },
-            centers: bt
-                .centers_strain
-                .chunks_exact(6)
-                .map(|s| [s[0], s[1], s[2], s[3], s[4], s[5]])
-                .collect(),
-            weights: bt.weights.chunks_exact(2).map(|w| [w[0], w[1]]).collect(),
-        });
-        floors.push(if bt.lambda_floor_pa > 0.0 {
-            bt.lambda_floor_pa
-        } else {
-            1.0
-        });
     }
     let nu_bounds = if b.nu_min == 0.0 && b.nu_max == 0.0 {
         (0.0, 0.49)
     } else {
         (b.nu_min, b.nu_max)
     };
-    let material = Arc::new(StrainSpaceMaterial {
-        elements,
-        lambda_floor_pa: floors,
+    let material = StrainSpaceMaterial::from_flat(
+        data.tets.len(),
+        b.center_examples.len(),
+        &b.centers_strain,
+        &b.weights,
+        &b.tail_coefficients,
+        &b.centers_per_tet,
+        &b.center_samples,
+        &b.lambda_floor_pa,
+        &b.lambda_ceiling_pa,
         nu_bounds,
-    });
+    )
+    .map_err(|e| TissueError::bad_input(path, "/tissue/basis", e.to_string()))?;
+    let material = Arc::new(material);
     let rec = softcap_mcap::Recording::open(path).map_err(|e| TissueError::ReadMcap {
         path: path.to_path_buf(),
         source: Box::new(e),
