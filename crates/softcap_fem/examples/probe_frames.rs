@@ -1,7 +1,7 @@
 //! Interactive probe loop of the criterion bench (1,800-tet block, disk probe, +0.1 mm per frame
 //! from the previous equilibrium) with per-frame wall time and process CPU time (all threads, from
 //! /proc/self/task/*/schedstat), so that frame cost can be read on a loaded machine.
-//! `cargo run --release -p softcap_fem --example probe_frames -- [frames] [every|stale]`
+//! `cargo run --release -p softcap_fem --example probe_frames -- [frames] [every|stale] [predict]`
 
 use softcap_fem::nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use softcap_fem::*;
@@ -30,6 +30,8 @@ fn main() {
         Some("every") => Refactorization::EveryIteration,
         _ => Refactorization::WhenStale,
     };
+    // "predict": start each frame from x + (x − x_previous) (linear extrapolation of the motion).
+    let predict = args.get(3).map(String::as_str) == Some("predict");
     let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.1, 0.1, 0.03], [10, 10, 3]);
     let mut model = CorotationalModel::homogeneous(
         &mesh,
@@ -64,11 +66,22 @@ fn main() {
     let mut x = mesh.vertices.clone();
     let f = vec![Vector3::zeros(); x.len()];
     let mut depth = 0.0;
+    let mut previous = x.clone();
     let (mut iters, mut walls) = (0usize, Vec::new());
     let t0 = Instant::now();
     let c0 = cpu_ns();
     for _ in 0..frames {
-        depth = if depth > 0.004 { 0.0 } else { depth + 1e-4 };
+        let reset = depth > 0.004;
+        depth = if reset { 0.0 } else { depth + 1e-4 };
+        if predict {
+            let current = x.clone();
+            if !reset {
+                for (xi, (c, p)) in x.iter_mut().zip(current.iter().zip(&previous)) {
+                    *xi = c + (c - p);
+                }
+            }
+            previous = current;
+        }
         let contact = ContactProblem {
             probe: probe.advanced(depth),
             candidate_nodes: top.clone(),

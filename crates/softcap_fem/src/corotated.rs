@@ -27,48 +27,56 @@ pub(crate) fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
     let norm2 = f.norm_squared();
     let det = f.determinant();
     if norm2.is_finite() && det > 0.0 && det > 1e-6 * norm2 * norm2.sqrt() / 5.196_152_422_706_632 {
-        let mut x = *f;
+        // Column-major scalars (x[i + 3j] = X_ij): no index checks in the hot loop.
+        let mut x = [0.0; 9];
+        x.copy_from_slice(f.as_slice());
         let mut scaled = true;
         for _ in 0..40 {
             let c = cofactor(&x);
-            let d = x[(0, 0)] * c[(0, 0)] + x[(0, 1)] * c[(0, 1)] + x[(0, 2)] * c[(0, 2)];
+            let d = x[0] * c[0] + x[3] * c[3] + x[6] * c[6];
             if !(d > 0.0 && d.is_finite()) {
                 break;
             }
-            let next = if scaled {
-                let gamma = (c.norm() / (d * x.norm())).sqrt();
-                (x * gamma + c * (1.0 / (gamma * d))) * 0.5
+            let (gx, gc) = if scaled {
+                let nx: f64 = x.iter().map(|v| v * v).sum();
+                let nc: f64 = c.iter().map(|v| v * v).sum();
+                let gamma = (nc / (d * d * nx)).sqrt().sqrt();
+                (0.5 * gamma, 0.5 / (gamma * d))
             } else {
-                (x + c * (1.0 / d)) * 0.5
+                (0.5, 0.5 / d)
             };
-            let delta = (next - x).norm();
-            x = next;
-            if delta < 1e-2 {
+            let mut delta2 = 0.0;
+            for (xk, ck) in x.iter_mut().zip(&c) {
+                let next = gx * *xk + gc * ck;
+                delta2 += (next - *xk) * (next - *xk);
+                *xk = next;
+            }
+            if delta2 < 1e-4 {
                 scaled = false;
             }
-            if delta <= 1e-8 {
-                return x;
+            if delta2 <= 1e-16 {
+                return Matrix3::from_column_slice(&x);
             }
         }
     }
     softcap_core::polar_decomposition(f).rotation
 }
 
-/// Cofactor matrix of a 3×3 matrix: cof(X) = det(X) X⁻ᵀ.
+/// Cofactor matrix of a 3×3 matrix, both column-major: cof(X) = det(X) X⁻ᵀ.
 #[inline]
-fn cofactor(x: &Matrix3<f64>) -> Matrix3<f64> {
-    let m = |i: usize, j: usize| x[(i, j)];
-    Matrix3::new(
-        m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1),
-        m(1, 2) * m(2, 0) - m(1, 0) * m(2, 2),
-        m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0),
-        m(0, 2) * m(2, 1) - m(0, 1) * m(2, 2),
-        m(0, 0) * m(2, 2) - m(0, 2) * m(2, 0),
-        m(0, 1) * m(2, 0) - m(0, 0) * m(2, 1),
-        m(0, 1) * m(1, 2) - m(0, 2) * m(1, 1),
-        m(0, 2) * m(1, 0) - m(0, 0) * m(1, 2),
-        m(0, 0) * m(1, 1) - m(0, 1) * m(1, 0),
-    )
+fn cofactor(x: &[f64; 9]) -> [f64; 9] {
+    let [x00, x10, x20, x01, x11, x21, x02, x12, x22] = *x;
+    [
+        x11 * x22 - x12 * x21,
+        x02 * x21 - x01 * x22,
+        x01 * x12 - x02 * x11,
+        x12 * x20 - x10 * x22,
+        x00 * x22 - x02 * x20,
+        x02 * x10 - x00 * x12,
+        x10 * x21 - x11 * x20,
+        x01 * x20 - x00 * x21,
+        x00 * x11 - x01 * x10,
+    ]
 }
 
 /// Rotation R and stretch S = sym(RᵀF) of F = R S ([`polar_rotation`]).

@@ -28,6 +28,15 @@ pub trait ElasticModel {
     /// strain-dependent parameters updates them here (bickel2009 §3.4). Default: nothing.
     fn update_state(&mut self, _x: &[Vector3<f64>]) {}
 
+    /// Identity of the model's current elastic state, for caches of solvers: two calls that
+    /// return the same `Some(id)` — on this model or a clone of it — compute bitwise the same
+    /// forces and energy at the same positions. A model must hand out a new id whenever its
+    /// parameters (or anything else its forces depend on besides the positions) change. Default:
+    /// `None` (nothing is cached across calls).
+    fn state_id(&self) -> Option<u64> {
+        None
+    }
+
     /// Number of nodes.
     fn num_nodes(&self) -> usize {
         self.rest_positions().len()
@@ -74,6 +83,14 @@ pub trait ElasticModel {
         }
         None
     }
+}
+
+/// A process-wide fresh id for [`ElasticModel::state_id`] (ids are never reused, so a cache
+/// keyed on one cannot confuse two models, or two states of one model).
+pub(crate) fn fresh_state_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(1);
+    NEXT.fetch_add(1, Ordering::Relaxed)
 }
 
 /// Elements per chunk of the parallel element loops: bounds the scratch memory (a chunk of 12×12
@@ -180,6 +197,8 @@ pub struct CorotationalModel {
     geometry: Vec<TetGeometry>,
     params: Vec<LinearParams>,
     hook: Option<Arc<dyn StrainDependentParams>>,
+    /// [`ElasticModel::state_id`]: renewed by every change of `params` or `hook`.
+    state_id: u64,
 }
 
 impl std::fmt::Debug for CorotationalModel {
@@ -211,6 +230,7 @@ impl CorotationalModel {
             geometry,
             params,
             hook: None,
+            state_id: fresh_state_id(),
         })
     }
 
@@ -222,6 +242,7 @@ impl CorotationalModel {
     /// Attaches a strain-dependent parameter function, applied at every equilibrium iteration.
     pub fn with_strain_dependence(mut self, hook: Arc<dyn StrainDependentParams>) -> Self {
         self.hook = Some(hook);
+        self.state_id = fresh_state_id();
         self
     }
 
@@ -241,6 +262,7 @@ impl CorotationalModel {
             });
         }
         self.params.copy_from_slice(params);
+        self.state_id = fresh_state_id();
         Ok(())
     }
 
@@ -349,7 +371,11 @@ impl ElasticModel for CorotationalModel {
                 let eps = strain_voigt(&corotated_strain(&g.deformation_gradient(x)).1);
                 self.params[e] = hook.params(e, &eps);
             }
+            self.state_id = fresh_state_id();
         }
+    }
+    fn state_id(&self) -> Option<u64> {
+        Some(self.state_id)
     }
 }
 

@@ -1,9 +1,12 @@
 //! Hertz contact: a rigid sphere (R = 1) indenting a large elastic block (quarter model with
 //! symmetry planes x = 0, y = 0, block 16 × 16 × 16 with a clamped base; graded structured Kuhn-tet
-//! mesh, h = 0.025 up to 0.15 from the contact point in x, y and depth, then cells growing ×1.3 up
-//! to 2 and ×2 beyond, 63,888 tets) must follow F = (4/3) E* √R d^{3/2}, E* = E/(1 − ν²), within 5 % for
-//! d ≪ R (Johnson, Contact Mechanics, §4.2). The exact sphere (Sneddon) differs from the Hertz
-//! paraboloid by < 0.5 % up to a/R = 0.2, the deepest case here.
+//! mesh, h = 0.05 up to 0.25 from the contact point in x, y and depth, then cells growing ×1.3 up
+//! to 2 and ×2 beyond, 34,992 tets) must follow F = (4/3) E* √R d^{3/2}, E* = E/(1 − ν²), within 5 % for
+//! d ≪ R (Johnson, Contact Mechanics, §4.2), at d = 0.02 and 0.04 (a/h = 2.8 and 4). The exact
+//! sphere (Sneddon) differs from the Hertz paraboloid by < 0.5 % up to a/R = 0.2, the deepest case
+//! here. The solves use the modified Newton of `Refactorization::WhenStale` with residual /
+//! displacement tolerances 1e-7 / 1e-8 (the force to ≈ 1e-7): a test-time choice (mesh study in
+//! docs/validation.md; the finer 63,888-tet mesh of session 3 gave +3.5 % at 2–4× the cost).
 //!
 //! It is also the regression test of the contact active set: with a stiff penalty the linearized
 //! springs leave rim nodes on the tangent plane of their closest point, outside the sphere by more
@@ -43,8 +46,8 @@ fn two_rate_line(
 
 #[test]
 fn sphere_indentation_follows_hertz() {
-    let h0 = 0.025;
-    let xs = two_rate_line(h0, 0.15, 1.3, 2.0, 2.0, 16.0);
+    let h0 = 0.05;
+    let xs = two_rate_line(h0, 0.25, 1.3, 2.0, 2.0, 16.0);
     let zs: Vec<f64> = xs.iter().rev().map(|z| -z).collect();
     let mesh = common::graded_box(&xs, &xs, &zs);
     let mut model =
@@ -84,7 +87,13 @@ fn sphere_indentation_follows_hertz() {
     let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
     let mut x = mesh.vertices.clone();
     let mut results = Vec::new();
-    for d in [0.01, 0.04] {
+    let settings = EquilibriumSettings {
+        residual_tol_rel: 1e-7,
+        displacement_tol_rel: 1e-8,
+        refactorization: Refactorization::WhenStale,
+        ..Default::default()
+    };
+    for d in [0.02, 0.04] {
         let probe = Probe::new(
             TipShape::Sphere { radius_m: R },
             Isometry3::from_parts(Translation3::new(0.0, 0.0, -d), down),
@@ -96,13 +105,7 @@ fn sphere_indentation_follows_hertz() {
             settings: ContactSettings::default(),
         };
         let f = vec![Vector3::zeros(); x.len()];
-        let rep = solver.solve(
-            &mut model,
-            &mut x,
-            &f,
-            Some(&contact),
-            &EquilibriumSettings::default(),
-        );
+        let rep = solver.solve(&mut model, &mut x, &f, Some(&contact), &settings);
         assert!(
             rep.converged(),
             "{:?} after {} iterations, residual {}",
@@ -133,7 +136,7 @@ fn sphere_indentation_follows_hertz() {
         results.push((d, force, err));
     }
     let slope = (results[1].1 / results[0].1).ln() / (results[1].0 / results[0].0).ln();
-    println!("log-log slope F(d) over d = 0.01 .. 0.04: {slope:.3} (Hertz 1.5)");
+    println!("log-log slope F(d) over d = 0.02 .. 0.04: {slope:.3} (Hertz 1.5)");
     for (_, _, err) in &results {
         assert!(err.abs() < 0.05, "Hertz error {err}");
     }
