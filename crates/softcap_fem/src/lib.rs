@@ -92,8 +92,8 @@ pub use plasticity::{
 pub use probing::{
     ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, HomogeneousFit,
     HomogeneousFitSettings, ObservedMarker, PatchSettings, ProbeExample, ProbingSetup,
-    StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainTail, fit_example,
-    fit_homogeneous, simulate_probe_contact,
+    StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel, StrainTail,
+    fit_example, fit_homogeneous, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

@@ -355,3 +355,71 @@ fn probe_pose_maps_z_to_the_axis() {
         assert!((z - axis).norm() < 1e-12, "{z:?} vs {axis:?}");
     }
 }
+
+/// The constant term of Carr et al. 2001 (Σwᵢ = 0): constant data is reproduced exactly at any
+/// strain (eq. 8 without it extrapolates like a cone, slope 2λ/d for two samples d apart), and
+/// far outside the samples p stays within the measured range (bound |p − c| ≤ Σ|wᵢ|‖εᵢ‖, ceiling).
+#[test]
+fn constant_tail_reproduces_constants_and_bounds_extrapolation() {
+    let p = LinearParams {
+        lambda: 1e5,
+        alpha: 4e4,
+    };
+    let strains = [
+        [0.0; 6],
+        [-0.01, 0.004, 0.004, 0.0, 0.0, 0.0],
+        [-0.02, 0.008, 0.008, 0.001, 0.0, 0.0],
+    ];
+    let constant: Vec<Vec<StrainSample>> = vec![
+        strains
+            .iter()
+            .map(|s| StrainSample {
+                strain: *s,
+                params: p,
+            })
+            .collect(),
+    ];
+    let far = Vector6::new(-0.5, 0.2, 0.2, 0.1, 0.0, 0.0);
+    let (tail, _) = StrainSpaceMaterial::fit(&constant, &StrainBasisSettings::default()).unwrap();
+    let q = tail.evaluate(0, &far);
+    assert!((q.lambda - p.lambda).abs() < 1e-6 * p.lambda, "{q:?}");
+    assert!((q.alpha - p.alpha).abs() < 1e-6 * p.alpha, "{q:?}");
+    // Without the term (bickel2009 eq. 8 as printed) the same data interpolated exactly
+    // (tolerance 0, no ceiling) gives a far value many times λ.
+    let plain = StrainBasisSettings {
+        tail: softcap_fem::StrainTail::None,
+        relative_tolerance: 0.0,
+        lambda_ceiling_fraction: 0.0,
+        ..Default::default()
+    };
+    let (cone, _) = StrainSpaceMaterial::fit(&constant, &plain).unwrap();
+    let raw = cone.elements[0].evaluate(&[-0.5, 0.2, 0.2, 0.1, 0.0, 0.0]);
+    assert!(raw[0] > 5.0 * p.lambda, "{raw:?}");
+    // Stiffening samples: the constant-tail material never leaves [½ min λ, max λ].
+    let stiff: Vec<Vec<StrainSample>> = vec![
+        strains
+            .iter()
+            .enumerate()
+            .map(|(k, s)| StrainSample {
+                strain: *s,
+                params: LinearParams {
+                    lambda: p.lambda * (1.0 + k as f64),
+                    alpha: p.alpha * (1.0 + k as f64),
+                },
+            })
+            .collect(),
+    ];
+    let (m, _) = StrainSpaceMaterial::fit(&stiff, &StrainBasisSettings::default()).unwrap();
+    for s in &stiff[0] {
+        let q = m.evaluate(0, &Vector6::from_column_slice(&s.strain));
+        assert!((q.lambda / s.params.lambda - 1.0).abs() < 0.02, "{q:?}");
+    }
+    let q = m.evaluate(0, &far);
+    assert!(
+        q.lambda <= 3.0 * p.lambda + 1e-9 && q.lambda >= 0.5 * p.lambda,
+        "{q:?}"
+    );
+    q.validate(0).unwrap();
+    let w: f64 = m.elements[0].weights.iter().map(|w| w[0]).sum();
+    assert!(w.abs() < 1e-9 * p.lambda, "Σw = {w}");
+}

@@ -48,17 +48,28 @@ pub struct FitSettings {
     /// Patch radius of the force boundary condition: the session's tip radius when > 0 and this
     /// is `true`, else `example_fit.patch.radius_m`.
     pub patch_from_session: bool,
+    /// Relaxation ω of the strain-space parameter update in the re-simulation
+    /// ([`softcap_fem::StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).
+    pub relaxation: f64,
     /// Show progress bars (only ever drawn when stderr is a terminal).
     pub progress: bool,
 }
 
+/// Default relaxation ω of the strain-space parameter update (fit re-simulation and
+/// `softcap tissue simulate`): ½ halves every parameter jump, which stops the oscillation of
+/// the plain (ω = 1) iteration on the three-layer block (docs/tissue.md).
+pub const DEFAULT_RELAXATION: f64 = 0.5;
+
 /// Newton iterations (consistent corotational tangent, line search): a few factorizations per
-/// solve where the warped fixed-point iteration needs tens at millimetre deformations.
+/// solve where the warped fixed-point iteration needs tens at millimetre deformations. The
+/// factor is reused while it contracts (modified Newton, `Refactorization::WhenStale`): the fits
+/// never read the solver's factor after a solve (the adjoint Jacobian factors its own matrix).
 fn newton(max_iterations: usize) -> EquilibriumSettings {
     EquilibriumSettings {
         max_iterations,
         displacement_tol_rel: 1e-9,
         residual_tol_rel: 1e-7,
+        refactorization: softcap_fem::Refactorization::WhenStale,
         ..EquilibriumSettings::newton()
     }
 }
@@ -91,6 +102,7 @@ impl Default for FitSettings {
             },
             load_steps: 4,
             patch_from_session: true,
+            relaxation: DEFAULT_RELAXATION,
             progress: true,
         }
     }
@@ -310,7 +322,11 @@ pub fn fit_session(
     let material = Arc::new(material);
 
     let bar = progress.bar("strain-space re-simulation", probe_examples.len() as u64);
-    let model = material.model(&setup.mesh)?;
+    let model = softcap_fem::StrainSpaceModel::new(material.clone(), &setup.mesh, s.relaxation)
+        .map_err(|e| TissueError::BadSettings {
+            field: "relaxation".into(),
+            problem: e.to_string(),
+        })?;
     let evaluated = probe_examples
         .par_iter()
         .map(|ex| {

@@ -97,11 +97,22 @@ impl ProbeSpec {
 }
 
 /// Settings of a simulation.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SimulateSettings {
     /// Incremental loading, secant on the depth, contact penalty.
     pub contact: ContactSynthesisSettings,
+    /// Relaxation ω of the strain-space parameter update ([`softcap_fem::StrainSpaceModel`]).
+    pub relaxation: f64,
+}
+
+impl Default for SimulateSettings {
+    fn default() -> Self {
+        Self {
+            contact: ContactSynthesisSettings::default(),
+            relaxation: crate::fit::DEFAULT_RELAXATION,
+        }
+    }
 }
 
 /// What to run: the library form of `softcap tissue simulate`.
@@ -172,7 +183,15 @@ pub fn simulate(
     settings: &SimulateSettings,
 ) -> Result<ContactSynthesis> {
     let axis = probe.validate()?;
-    let mut model = loaded.material.model(&setup.mesh)?;
+    let mut model = softcap_fem::StrainSpaceModel::new(
+        loaded.material.clone(),
+        &setup.mesh,
+        settings.relaxation,
+    )
+    .map_err(|e| TissueError::BadSettings {
+        field: "relaxation".into(),
+        problem: e.to_string(),
+    })?;
     let pose = probe_pose(&Vector3::from(probe.tip_m), &axis);
     simulate_probe_contact(
         setup,

@@ -59,20 +59,16 @@ fn fit_writes_a_material_that_reads_back_and_beats_the_homogeneous_model() {
     assert_eq!(o.examples.len(), 6);
     assert_eq!(o.locations, 3);
     // The per-example fits beat the homogeneous model of the two-layer non-linear truth
-    // (noise-free data) by more than 2×; where the strain-space material's re-simulation
-    // converges it is at least as good as the homogeneous model (1 % slack). Non-converged
-    // re-simulations are counted, not hidden (known open issue at 1.5 N, docs/tissue.md).
+    // (noise-free data) by more than 2×. The strain-space material (constant tail, relaxed
+    // parameter updates) re-simulates every example (measured: 6 of 6 converge, RMS 0.106 mm
+    // vs homogeneous 0.257 mm) and beats the homogeneous model by 2× overall; per example it is
+    // within 10 % of the homogeneous error or better (the 0.5 N fits barely move from the start).
     assert!(o.example_rms_m < 0.5 * o.homogeneous_rms_m);
-    let converged: Vec<_> = o
-        .examples
-        .iter()
-        .filter(|e| e.material_rms_m.is_finite())
-        .collect();
-    assert_eq!(converged.len() + o.material_failures, o.examples.len());
-    assert!(!converged.is_empty());
-    for e in &converged {
+    assert_eq!(o.material_failures, 0);
+    assert!(o.material_rms_m < 0.5 * o.homogeneous_rms_m);
+    for e in &o.examples {
         assert!(
-            e.material_rms_m <= 1.01 * e.homogeneous_rms_m,
+            e.material_rms_m <= 1.1 * e.homogeneous_rms_m,
             "frame {}: {} vs {}",
             e.frame,
             e.material_rms_m,
