@@ -97,18 +97,31 @@ pub(crate) fn fresh_state_id() -> u64 {
 /// element matrices is ≈ 4.7 MB) while keeping rayon's per-task overhead negligible.
 pub(crate) const ELEMENT_CHUNK: usize = 4096;
 
+/// Element loops shorter than this run serially on the calling thread: handing a few hundred
+/// microseconds of work to the rayon pool costs more in wake-ups (a futex round trip per pass) than
+/// it saves — a 5-tet model spent most of its time in them. The values are the same bits either way.
+pub(crate) const PARALLEL_MIN_ELEMENTS: usize = 256;
+
+/// `f(k, &mut buf[k])` for every k, in parallel for long buffers (see [`PARALLEL_MIN_ELEMENTS`]).
+fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
+    if buf.len() < PARALLEL_MIN_ELEMENTS {
+        for (k, v) in buf.iter_mut().enumerate() {
+            f(k, v);
+        }
+    } else {
+        use rayon::prelude::*;
+        buf.par_iter_mut().enumerate().for_each(|(k, v)| f(k, v));
+    }
+}
+
 /// Σ over elements of `per_element(e)` in element order, with the per-element values computed in
 /// parallel: bitwise the same as the serial sum for any number of threads.
 fn ordered_parallel_sum(n: usize, per_element: impl Fn(usize) -> f64 + Sync) -> f64 {
-    use rayon::prelude::*;
     let mut buf = vec![0.0; ELEMENT_CHUNK.min(n)];
     let mut total = 0.0;
     for start in (0..n).step_by(ELEMENT_CHUNK) {
         let len = ELEMENT_CHUNK.min(n - start);
-        buf[..len]
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(k, v)| *v = per_element(start + k));
+        fill_elements(&mut buf[..len], |k, v| *v = per_element(start + k));
         for v in &buf[..len] {
             total += v;
         }
@@ -123,17 +136,13 @@ fn ordered_parallel_forces_energy(
     num_nodes: usize,
     per_element: impl Fn(usize) -> ([Vector3<f64>; 4], f64) + Sync,
 ) -> (Vec<Vector3<f64>>, f64) {
-    use rayon::prelude::*;
     let n = geometry.len();
     let mut out = vec![Vector3::zeros(); num_nodes];
     let mut total = 0.0;
     let mut buf = vec![([Vector3::zeros(); 4], 0.0); ELEMENT_CHUNK.min(n)];
     for start in (0..n).step_by(ELEMENT_CHUNK) {
         let len = ELEMENT_CHUNK.min(n - start);
-        buf[..len]
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(k, v)| *v = per_element(start + k));
+        fill_elements(&mut buf[..len], |k, v| *v = per_element(start + k));
         for (k, (f, w)) in buf[..len].iter().enumerate() {
             let nodes = geometry[start + k].nodes;
             for a in 0..4 {
@@ -153,16 +162,12 @@ fn ordered_parallel_forces(
     num_nodes: usize,
     element_forces: impl Fn(usize) -> [Vector3<f64>; 4] + Sync,
 ) -> Vec<Vector3<f64>> {
-    use rayon::prelude::*;
     let n = geometry.len();
     let mut out = vec![Vector3::zeros(); num_nodes];
     let mut buf = vec![[Vector3::zeros(); 4]; ELEMENT_CHUNK.min(n)];
     for start in (0..n).step_by(ELEMENT_CHUNK) {
         let len = ELEMENT_CHUNK.min(n - start);
-        buf[..len]
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(k, f)| *f = element_forces(start + k));
+        fill_elements(&mut buf[..len], |k, f| *f = element_forces(start + k));
         for (k, f) in buf[..len].iter().enumerate() {
             let nodes = geometry[start + k].nodes;
             for a in 0..4 {
@@ -326,12 +331,8 @@ impl ElasticModel for CorotationalModel {
     ) -> Option<f64> {
         use rayon::prelude::*;
         let mut energies = vec![0.0; forces.len()];
-        forces
-            .par_iter_mut()
-            .zip(matrices.par_iter_mut())
-            .zip(energies.par_iter_mut())
-            .enumerate()
-            .for_each(|(k, ((f, m), w))| {
+        let element =
+            |k: usize, ((f, m), w): ((&mut [Vector3<f64>; 4], &mut Matrix12), &mut f64)| {
                 let (g, p) = (&self.geometry[first + k], &self.params[first + k]);
                 match kind {
                     StiffnessKind::Warped => (*f, *m, *w) = corotational_linearization(g, p, x),
@@ -340,7 +341,24 @@ impl ElasticModel for CorotationalModel {
                         *m = corotational_tangent(g, p, x);
                     }
                 }
-            });
+            };
+        if forces.len() < PARALLEL_MIN_ELEMENTS {
+            for (k, item) in forces
+                .iter_mut()
+                .zip(matrices.iter_mut())
+                .zip(energies.iter_mut())
+                .enumerate()
+            {
+                element(k, item);
+            }
+        } else {
+            forces
+                .par_iter_mut()
+                .zip(matrices.par_iter_mut())
+                .zip(energies.par_iter_mut())
+                .enumerate()
+                .for_each(|(k, item)| element(k, item));
+        }
         // Energy only for fixed parameters and when it came out of the pass.
         (self.hook.is_none() && kind == StiffnessKind::Warped).then(|| energies.iter().sum())
     }
@@ -476,15 +494,22 @@ impl ElasticModel for NeoHookeanModel {
     ) -> Option<f64> {
         use rayon::prelude::*;
         let g = self.material_geometry();
-        forces
-            .par_iter_mut()
-            .zip(matrices.par_iter_mut())
-            .enumerate()
-            .for_each(|(k, (f, m))| {
-                let e = first + k;
-                *f = neohookean_forces(&g[e], &self.params[e], x);
-                *m = neohookean_tangent(&g[e], &self.params[e], x);
-            });
+        let element = |k: usize, (f, m): (&mut [Vector3<f64>; 4], &mut Matrix12)| {
+            let e = first + k;
+            *f = neohookean_forces(&g[e], &self.params[e], x);
+            *m = neohookean_tangent(&g[e], &self.params[e], x);
+        };
+        if forces.len() < PARALLEL_MIN_ELEMENTS {
+            for (k, item) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
+                element(k, item);
+            }
+        } else {
+            forces
+                .par_iter_mut()
+                .zip(matrices.par_iter_mut())
+                .enumerate()
+                .for_each(|(k, item)| element(k, item));
+        }
         None
     }
 }
