@@ -3,8 +3,10 @@
 //! look-alikes by their signatures, answer a verdict (or `none`), confirm the winner by
 //! re-simulation (DESIGN.md "Missing-physics diagnosis" 1–4; issue 8).
 
+use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{
-    Field, Hypothesis, Prepared, Refit, predict, refit, refit_variants, stiffness_scale_variant,
+    Field, Hypothesis, Prepared, Refit, predict, refit_scored, refit_variants_scored,
+    stiffness_scale_variant,
 };
 use crate::recording::Recording;
 use crate::residual::{Component, Located, Residuals, component, locate, noise_sigma_m, residuals};
@@ -35,6 +37,20 @@ pub struct DiagnoseSettings {
     pub confirm_with_resimulation: bool,
     /// Density of the gravity basis, kg/m³.
     pub reference_density_kg_m3: f64,
+    /// Score held-out errors on the affected cells only: the (region, phase) cells whose
+    /// baseline RMS is at least `focus_noise_factor` × the noise RMS √3σ and at least
+    /// `focus_fraction_of_max` × the largest cell's RMS (found by the locate step before any
+    /// hypothesis is fitted; the same cells for before, after and every hypothesis).
+    pub score_on_focus: bool,
+    /// See `score_on_focus`.
+    pub focus_noise_factor: f64,
+    /// See `score_on_focus`.
+    pub focus_fraction_of_max: f64,
+    /// Refit a displacement scale (the material's overall compliance) with every extended
+    /// model, on the training locations.
+    pub refit_compliance_scale: bool,
+    /// Confirm at most this many qualifying hypotheses with the extended FEM model.
+    pub max_confirmations: usize,
 }
 
 impl Default for DiagnoseSettings {
@@ -47,6 +63,11 @@ impl Default for DiagnoseSettings {
             lookalike_margin: 0.15,
             confirm_with_resimulation: true,
             reference_density_kg_m3: 1000.0,
+            score_on_focus: true,
+            focus_noise_factor: 2.0,
+            focus_fraction_of_max: 0.5,
+            refit_compliance_scale: true,
+            max_confirmations: 2,
         }
     }
 }
@@ -507,6 +528,366 @@ fn resimulate(
     Ok(Some(out))
 }
 
+/// The affected cells: (region, phase) cells over the location frames whose baseline RMS is at
+/// least `focus_noise_factor` × √3σ and `focus_fraction_of_max` × the largest cell's RMS. Empty
+/// when focus scoring is off or no cell stands out (then every observation is scored).
+pub fn focus_cells(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &Residuals,
+    noise_sigma_m: f64,
+    settings: &DiagnoseSettings,
+) -> Vec<(Region, Phase)> {
+    if !settings.score_on_focus {
+        return Vec::new();
+    }
+    let mut acc: BTreeMap<(Region, Phase), (f64, usize)> = BTreeMap::new();
+    for (k, row) in res.iter().enumerate() {
+        if seg.fold_of_frame[k].is_none() {
+            continue;
+        }
+        for (m, r) in row.iter().enumerate() {
+            if let Some(r) = r {
+                let e = acc
+                    .entry((seg.regions[m], seg.phases[k]))
+                    .or_insert((0.0, 0));
+                e.0 += r.norm_squared();
+                e.1 += 1;
+            }
+        }
+    }
+    let rms: Vec<((Region, Phase), f64)> = acc
+        .into_iter()
+        .map(|(c, (s, n))| (c, (s / n.max(1) as f64).sqrt()))
+        .collect();
+    let max = rms.iter().map(|x| x.1).fold(0.0, f64::max);
+    let floor = settings.focus_noise_factor * 3f64.sqrt() * noise_sigma_m;
+    let lim = floor.max(settings.focus_fraction_of_max * max);
+    let _ = rec;
+    rms.into_iter()
+        .filter(|(_, v)| *v >= lim && *v > 0.0)
+        .map(|(c, _)| c)
+        .collect()
+}
+
+/// Sums over observations of one bucket: a = Σ u·u, b = Σ u·v, c = Σ v·v with u the extended
+/// model's displacement from rest and v the measured one.
+#[derive(Clone, Copy, Default)]
+struct Sums {
+    a: f64,
+    b: f64,
+    c: f64,
+    n: usize,
+}
+
+impl Sums {
+    fn add(&mut self, o: &Sums) {
+        self.a += o.a;
+        self.b += o.b;
+        self.c += o.c;
+        self.n += o.n;
+    }
+    fn scale(&self, fit: bool) -> f64 {
+        if fit && self.a > 0.0 {
+            (self.b / self.a).clamp(0.2, 5.0)
+        } else {
+            1.0
+        }
+    }
+    fn rss(&self, d: f64) -> f64 {
+        (self.c - 2.0 * d * self.b + d * d * self.a).max(0.0)
+    }
+}
+
+/// An extended model confirmed by re-simulation with leave-one-location-out.
+struct Confirmed {
+    after_scored_m: f64,
+    after_all_m: f64,
+    params: Vec<(String, f64)>,
+    prediction: Field,
+    method: String,
+}
+
+fn sequence_frames(rec: &Recording, seg: &Segmentation) -> Vec<SequenceFrame> {
+    rec.frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: (seg.phases[k].in_contact() && f.force_n.norm() > 1e-9).then_some(
+                    ProbeLoad {
+                        tip_m: f.tip_m,
+                        axis: f.axis,
+                        force_n: f.force_n,
+                    },
+                ),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+/// The grid of extended FEM models of `h` (module docs of [`crate::extend`]); scales come from
+/// the recording: peak contact pressure p = max‖f‖/(π r_tip²), indentation stiffness
+/// K = max‖f‖ / max depth, median frame interval Δt.
+fn extension_grid(
+    h: Hypothesis,
+    rec: &Recording,
+    seg: &Segmentation,
+    refit: &Refit,
+) -> Vec<(Vec<(String, f64)>, Extension)> {
+    let peak_n = seg
+        .locations
+        .iter()
+        .map(|l| l.peak_force_n)
+        .fold(0.0, f64::max);
+    let r_tip = rec.tip_radius_m.max(1e-4);
+    let pressure_pa = peak_n / (std::f64::consts::PI * r_tip * r_tip);
+    let depth_m = seg
+        .locations
+        .iter()
+        .map(|l| (l.peak_tip_m - l.contact_tip_m).norm())
+        .fold(0.0, f64::max)
+        .max(1e-5);
+    let k_ind = peak_n / depth_m;
+    let dt = {
+        let t = rec.times_s();
+        let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+        d.sort_by(f64::total_cmp);
+        d.get(d.len() / 2).copied().unwrap_or(0.05).max(1e-3)
+    };
+    let p = |n: &str| {
+        refit
+            .params
+            .iter()
+            .find(|x| x.0 == n)
+            .map(|x| x.1)
+            .unwrap_or(0.0)
+    };
+    let mut out = Vec::new();
+    match h {
+        Hypothesis::Viscoelasticity => {
+            for g in [0.25, 0.5, 0.75, 1.0, 1.5] {
+                for m in [1.0, 2.0, 4.0, 8.0] {
+                    let tau_s = m * dt;
+                    out.push((
+                        vec![("prony_g".into(), g), ("prony_tau_s".into(), tau_s)],
+                        Extension::Viscoelastic { g, tau_s },
+                    ));
+                }
+            }
+        }
+        Hypothesis::Plasticity => {
+            for sy in [0.05, 0.1, 0.2, 0.4] {
+                for hh in [0.05, 0.2, 0.8] {
+                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                    out.push((
+                        vec![
+                            ("yield_stress_pa".into(), yield_stress_pa),
+                            ("hardening_modulus_pa".into(), hardening_pa),
+                        ],
+                        Extension::Plastic {
+                            yield_stress_pa,
+                            hardening_pa,
+                        },
+                    ));
+                }
+            }
+        }
+        Hypothesis::SupportSlip => {
+            for c in [0.03, 0.1, 0.3, 1.0, 3.0] {
+                let k = c * k_ind;
+                out.push((
+                    vec![("support_tangential_stiffness_n_per_m".into(), k)],
+                    Extension::SupportSprings {
+                        stiffness_n_per_m: k,
+                    },
+                ));
+            }
+        }
+        Hypothesis::Anisotropy => {
+            let a = Vector3::new(p("fibre_x"), p("fibre_y"), p("fibre_z"));
+            let a = a.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+            for ratio in [2.0, 4.0, 8.0] {
+                out.push((
+                    vec![
+                        ("fibre_x".into(), a.x),
+                        ("fibre_y".into(), a.y),
+                        ("fibre_z".into(), a.z),
+                        ("fibre_ratio".into(), ratio),
+                    ],
+                    Extension::Anisotropic { fibre: a, ratio },
+                ));
+            }
+        }
+        _ => {}
+    }
+    out
+}
+
+/// Re-simulates every grid point of `h`'s extended FEM model over the whole recording, then
+/// leave-one-location-out: per held-out location the grid point (and compliance scale) with the
+/// least error on the other locations (and the rest frames), scored on the held-out location.
+#[allow(clippy::too_many_arguments)]
+fn confirm_extended(
+    h: Hypothesis,
+    refit: &Refit,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &mut dyn ProbeSimulator,
+    settings: &DiagnoseSettings,
+    scored: &dyn Fn(usize, usize) -> bool,
+) -> Result<Option<Confirmed>> {
+    let grid = extension_grid(h, rec, seg, refit);
+    if grid.is_empty() {
+        return Ok(None);
+    }
+    let frames = sequence_frames(rec, seg);
+    let nf = seg.num_folds();
+    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
+    let mut preds = Vec::with_capacity(grid.len());
+    // [grid][bucket] sums over all observations and over scored ones
+    let mut all = Vec::with_capacity(grid.len());
+    let mut sc = Vec::with_capacity(grid.len());
+    let mut ok_grid = Vec::with_capacity(grid.len());
+    for (gi, (_, ext)) in grid.iter().enumerate() {
+        let pred = match sim.simulate_sequence(ext, &frames) {
+            Ok(x) => x,
+            Err(DiagnoseError::Simulation { .. }) => continue,
+            Err(e) => return Err(e),
+        };
+        let mut sa = vec![Sums::default(); nf + 1];
+        let mut ss = vec![Sums::default(); nf + 1];
+        for (k, f) in rec.frames.iter().enumerate() {
+            for (m, y) in f.markers_m.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let u = pred[k][m] - p.rest_model_m[m];
+                let v = y - p.rest_model_m[m];
+                let o = Sums {
+                    a: u.norm_squared(),
+                    b: u.dot(&v),
+                    c: v.norm_squared(),
+                    n: 1,
+                };
+                sa[bucket(k)].add(&o);
+                if seg.fold_of_frame[k].is_some() && scored(k, m) {
+                    ss[bucket(k)].add(&o);
+                }
+            }
+        }
+        preds.push(pred);
+        ok_grid.push(gi);
+        all.push(sa);
+        sc.push(ss);
+    }
+    if preds.is_empty() {
+        return Ok(None);
+    }
+    let fit = settings.refit_compliance_scale;
+    let train = |i: usize, skip: Option<usize>| {
+        let mut t = Sums::default();
+        for (b, x) in all[i].iter().enumerate() {
+            if Some(b) != skip {
+                t.add(x);
+            }
+        }
+        t
+    };
+    let best = |skip: Option<usize>| {
+        (0..preds.len())
+            .map(|i| {
+                let t = train(i, skip);
+                let d = t.scale(fit);
+                (i, d, t.rss(d))
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .unwrap_or((0, 1.0, f64::INFINITY))
+    };
+    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    for l in 0..nf {
+        let (i, d, _) = best(Some(l));
+        e_sc += sc[i][l].rss(d);
+        n_sc += sc[i][l].n;
+        e_all += all[i][l].rss(d);
+        n_all += all[i][l].n;
+    }
+    let (i, d, _) = best(None);
+    let mut params = grid[ok_grid[i]].0.clone();
+    params.push(("compliance_scale".into(), d));
+    let prediction: Field = preds[i]
+        .iter()
+        .map(|row| {
+            row.iter()
+                .zip(&p.rest_model_m)
+                .map(|(x, r)| r + (x - r) * d)
+                .collect()
+        })
+        .collect();
+    Ok(Some(Confirmed {
+        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
+        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
+        params,
+        prediction,
+        method: format!(
+            "re-simulated extended FEM model ({} grid points of {}), leave-one-location-out",
+            preds.len(),
+            grid.len()
+        ),
+    }))
+}
+
+/// Load extensions re-simulated with the default model: each fold's linearised parameters applied
+/// to its own frames (held-out), the full-data parameters for the prediction.
+#[allow(clippy::too_many_arguments)]
+fn confirm_load(
+    h: Hypothesis,
+    r: &Refit,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &mut dyn ProbeSimulator,
+    settings: &DiagnoseSettings,
+    scored: &dyn Fn(usize, usize) -> bool,
+) -> Result<Option<Confirmed>> {
+    let (mut e, mut n, mut ea, mut na) = (0.0, 0usize, 0.0, 0usize);
+    for (l, fp) in r.fold_params.iter().enumerate() {
+        let in_l = |k: usize| seg.fold_of_frame[k] == Some(l);
+        if let Some(pred) = resimulate(h, fp, rec, seg, p, sim, settings, &in_l)? {
+            for (k, row_res) in residuals(rec, &pred).iter().enumerate() {
+                if seg.fold_of_frame[k] == Some(l) {
+                    for (m, x) in row_res.iter().enumerate() {
+                        if let Some(x) = x {
+                            ea += x.norm_squared();
+                            na += 1;
+                            if scored(k, m) {
+                                e += x.norm_squared();
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if na == 0 {
+        return Ok(None);
+    }
+    let Some(prediction) = resimulate(h, &r.params, rec, seg, p, sim, settings, &|_| true)? else {
+        return Ok(None);
+    };
+    Ok(Some(Confirmed {
+        after_scored_m: (e / n.max(1) as f64).sqrt(),
+        after_all_m: (ea / na as f64).sqrt(),
+        params: r.params.clone(),
+        prediction,
+        method:
+            "re-simulated with the default model under the extended load, leave-one-location-out"
+                .into(),
+    }))
+}
+
 /// Diagnoses `rec` against the model behind `sim`.
 pub fn diagnose(
     rec: &Recording,
@@ -536,19 +917,29 @@ pub fn diagnose(
     let res_before = residuals(rec, &prepared.baseline_m);
     let located = locate(rec, &seg, &res_before);
     let sig = signatures(rec, &seg, &res_before);
+    let focus = focus_cells(rec, &seg, &res_before, sig.noise_sigma_m, settings);
+    let scored =
+        |k: usize, m: usize| focus.is_empty() || focus.contains(&(seg.regions[m], seg.phases[k]));
     let in_fold = |k: usize| seg.fold_of_frame[k].is_some();
     let (mut e0, mut n0, mut n_all, mut e_all) = (0.0, 0usize, 0usize, 0.0);
+    let (mut e0a, mut n0a) = (0.0, 0usize);
     for (k, row) in res_before.iter().enumerate() {
-        for r in row.iter().flatten() {
+        for (m, r) in row.iter().enumerate() {
+            let Some(r) = r else { continue };
             e_all += r.norm_squared();
             n_all += 1;
             if in_fold(k) {
-                e0 += r.norm_squared();
-                n0 += 1;
+                e0a += r.norm_squared();
+                n0a += 1;
+                if scored(k, m) {
+                    e0 += r.norm_squared();
+                    n0 += 1;
+                }
             }
         }
     }
     let before = (e0 / n0.max(1) as f64).sqrt();
+    let before_all = (e0a / n0a.max(1) as f64).sqrt();
     let n_scalar = (3 * n_all).max(1) as f64;
     let bic = |rss: f64, k: usize| {
         n_scalar * (rss.max(1e-300) / n_scalar).ln() + k as f64 * n_scalar.ln()
@@ -557,22 +948,24 @@ pub fn diagnose(
 
     let refits: Vec<Refit> = Hypothesis::ALL
         .into_iter()
-        .filter_map(|h| refit(h, rec, &seg, &prepared))
+        .filter_map(|h| refit_scored(h, rec, &seg, &prepared, &scored))
         .collect();
     let not_applicable: Vec<Hypothesis> = Hypothesis::ALL
         .into_iter()
         .filter(|h| refits.iter().all(|r| r.hypothesis != *h))
         .collect();
-    let scale_only = refit_variants(
+    let scale_only = refit_variants_scored(
         Hypothesis::Viscoelasticity,
         &[stiffness_scale_variant(&prepared)],
         rec,
         &seg,
         &prepared,
+        &scored,
     )
     .map(|r| (r.heldout_rss_m2 / r.heldout_n.max(1) as f64).sqrt())
     .unwrap_or(before)
     .min(before);
+    // The noise floor of the scored observations: 3σ² per 3-D observation.
     let noise_mse = 3.0 * sig.noise_sigma_m.powi(2);
     let explainable = before * before > settings.noise_floor_factor * noise_mse;
 
@@ -613,26 +1006,72 @@ pub fn diagnose(
         .collect();
     rows.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.h.cmp(&b.h)));
 
-    // Look-alikes: among qualifying hypotheses whose held-out MSE is within the margin of the best,
-    // the signatures decide (then the held-out score).
-    let verdict = {
+    // Candidates: qualifying hypotheses; look-alikes (held-out MSE within the margin of the best)
+    // ordered by their signatures, then held-out error. Each is confirmed with its extended FEM
+    // model (re-simulation, leave-one-location-out) until one keeps its gain.
+    let candidates: Vec<Hypothesis> = {
         let q: Vec<&Row> = rows.iter().filter(|r| r.qualifies).collect();
         match q.first() {
-            None => None,
+            None => Vec::new(),
             Some(best) => {
                 let lim = best.after * best.after * (1.0 + settings.lookalike_margin);
-                q.iter()
+                let mut look: Vec<&Row> = q
+                    .iter()
+                    .copied()
                     .filter(|r| r.after * r.after <= lim && r.support >= 0.0)
-                    .max_by(|a, b| {
-                        a.support
-                            .total_cmp(&b.support)
-                            .then(b.after.total_cmp(&a.after))
-                    })
-                    .or(Some(best))
-                    .map(|r| r.h)
+                    .collect();
+                look.sort_by(|a, b| {
+                    b.support
+                        .total_cmp(&a.support)
+                        .then(a.after.total_cmp(&b.after))
+                });
+                let mut c: Vec<Hypothesis> = look.iter().map(|r| r.h).collect();
+                for r in &q {
+                    if !c.contains(&r.h) {
+                        c.push(r.h);
+                    }
+                }
+                c
             }
         }
     };
+    let mut confirmed: BTreeMap<Hypothesis, std::result::Result<Confirmed, String>> =
+        BTreeMap::new();
+    let mut verdict = None;
+    for h in candidates.iter().take(settings.max_confirmations.max(1)) {
+        let Some(r) = refits.iter().find(|x| x.hypothesis == *h) else {
+            continue;
+        };
+        if !settings.confirm_with_resimulation {
+            verdict = Some(*h);
+            break;
+        }
+        // Creep is confirmed with the real Prony model, not its load form.
+        let c = if h.is_load_extension() && *h != Hypothesis::Viscoelasticity {
+            confirm_load(*h, r, rec, &seg, &prepared, sim, settings, &scored)
+        } else {
+            confirm_extended(*h, r, rec, &seg, &prepared, sim, settings, &scored)
+        };
+        match c {
+            Ok(Some(c)) => {
+                let gain = 1.0 - c.after_scored_m.powi(2) / before.powi(2).max(1e-300);
+                let keep = gain >= settings.min_heldout_gain;
+                confirmed.insert(*h, Ok(c));
+                if keep {
+                    verdict = Some(*h);
+                    break;
+                }
+            }
+            Ok(None) => {
+                // no extended FEM model for this hypothesis (inertia-damping): linearised only
+                verdict = Some(*h);
+                break;
+            }
+            Err(e) => {
+                confirmed.insert(*h, Err(e.to_string()));
+            }
+        }
+    }
     if let Some(v) = verdict
         && let Some(i) = rows.iter().position(|r| r.h == v)
     {
@@ -640,6 +1079,14 @@ pub fn diagnose(
         rows.insert(0, r);
     }
 
+    let focus_json: Vec<serde_json::Value> = if focus.is_empty() {
+        vec!["all".into()]
+    } else {
+        focus
+            .iter()
+            .map(|(r, ph)| format!("{}/{}", r.name(), ph.name()).into())
+            .collect()
+    };
     let mut ranked = Vec::new();
     let mut extended_m = None;
     for row in &rows {
@@ -654,53 +1101,33 @@ pub fn diagnose(
         evidence.insert("signature_support".into(), row.support.into());
         evidence.insert("qualifies".into(), row.qualifies.into());
         evidence.insert("num_params".into(), r.num_params.into());
+        evidence.insert("scored_cells".into(), focus_json.clone().into());
+        evidence.insert("heldout_rmse_all_before_m".into(), before_all.into());
         evidence.insert(
             "method".into(),
             "linearised refit (tangent response)".into(),
         );
+        evidence.insert("heldout_rmse_linearised_m".into(), row.after.into());
         let mut after = row.after;
-        if Some(row.h) == verdict {
-            let lin = predict(row.h, rec, &seg, &prepared, r);
-            let mut ext = lin;
-            if settings.confirm_with_resimulation && row.h.is_load_extension() {
-                // held-out by re-simulation: each fold's parameters applied to its own frames
-                let (mut e, mut n) = (0.0, 0usize);
-                for (l, fp) in r.fold_params.iter().enumerate() {
-                    let in_l = |k: usize| seg.fold_of_frame[k] == Some(l);
-                    if let Some(pred) =
-                        resimulate(row.h, fp, rec, &seg, &prepared, sim, settings, &in_l)?
-                    {
-                        for (k, row_res) in residuals(rec, &pred).iter().enumerate() {
-                            if seg.fold_of_frame[k] == Some(l) {
-                                for x in row_res.iter().flatten() {
-                                    e += x.norm_squared();
-                                    n += 1;
-                                }
-                            }
-                        }
-                    }
-                }
-                if n > 0 {
-                    let resim_after = (e / n as f64).sqrt();
-                    evidence.insert("heldout_rmse_linearised_m".into(), after.into());
-                    evidence.insert("heldout_rmse_resimulated_m".into(), resim_after.into());
-                    evidence.insert("method".into(), "re-simulated with the full model".into());
-                    after = resim_after;
-                }
-                if let Some(full) = resimulate(
-                    row.h,
-                    &r.params,
-                    rec,
-                    &seg,
-                    &prepared,
-                    sim,
-                    settings,
-                    &|_| true,
-                )? {
-                    ext = full;
+        let mut params: BTreeMap<String, f64> = r.params.iter().cloned().collect();
+        match confirmed.get(&row.h) {
+            Some(Ok(c)) => {
+                evidence.insert("heldout_rmse_resimulated_m".into(), c.after_scored_m.into());
+                evidence.insert("heldout_rmse_all_after_m".into(), c.after_all_m.into());
+                evidence.insert("method".into(), c.method.clone().into());
+                after = c.after_scored_m;
+                params = c.params.iter().cloned().collect();
+                if Some(row.h) == verdict {
+                    extended_m = Some(c.prediction.clone());
                 }
             }
-            extended_m = Some(ext);
+            Some(Err(e)) => {
+                evidence.insert("confirmation_failed".into(), e.clone().into());
+            }
+            None => {}
+        }
+        if Some(row.h) == verdict && extended_m.is_none() {
+            extended_m = Some(predict(row.h, rec, &seg, &prepared, r));
         }
         let score = if before > 0.0 {
             1.0 - (after * after) / (before * before)
@@ -712,7 +1139,7 @@ pub fn diagnose(
             score,
             heldout_rmse_before_m: before,
             heldout_rmse_after_m: after,
-            params: r.params.iter().cloned().collect(),
+            params,
             evidence,
         });
     }
@@ -746,6 +1173,8 @@ pub fn diagnose(
         "heldout_rmse_stiffness_scale_only_m".into(),
         scale_only.into(),
     );
+    none_ev.insert("scored_cells".into(), focus_json.clone().into());
+    none_ev.insert("heldout_rmse_all_before_m".into(), before_all.into());
     let none = RankedHypothesis {
         hypothesis: "none".into(),
         score: 0.0,

@@ -493,8 +493,18 @@ pub struct FrameStats {
 }
 
 impl FrameStats {
-    /// Builds the pieces.
+    /// Builds the pieces over every observed marker.
     pub fn new(rec: &Recording, p: &Prepared, v: &Variant) -> Self {
+        Self::masked(rec, p, v, &|_, _| true)
+    }
+
+    /// Builds the pieces over the observed markers (frame k, marker m) with `mask(k, m)`.
+    pub fn masked(
+        rec: &Recording,
+        p: &Prepared,
+        v: &Variant,
+        mask: &dyn Fn(usize, usize) -> bool,
+    ) -> Self {
         let nb = v.bases.len();
         let nt = rec.frames.len();
         let mut out = FrameStats {
@@ -510,6 +520,9 @@ impl FrameStats {
             let mut n = 0;
             for (m, y) in rec.frames[k].markers_m.iter().enumerate() {
                 let Some(y) = y else { continue };
+                if !mask(k, m) {
+                    continue;
+                }
                 let mut r = y - p.baseline_m[k][m];
                 if let Some(c) = &v.offset {
                     r -= c[k][m];
@@ -658,6 +671,19 @@ pub fn refit(h: Hypothesis, rec: &Recording, seg: &Segmentation, p: &Prepared) -
     refit_variants(h, &variants(h, rec, seg, p), rec, seg, p)
 }
 
+/// [`refit`] fitted on every observed marker of the training locations and scored on the
+/// held-out location's observations with `score(k, m)` (the affected cells the locate step
+/// found, see `DiagnoseSettings::focus_noise_factor`).
+pub fn refit_scored(
+    h: Hypothesis,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    score: &dyn Fn(usize, usize) -> bool,
+) -> Option<Refit> {
+    refit_variants_scored(h, &variants(h, rec, seg, p), rec, seg, p, score)
+}
+
 /// [`refit`] over an explicit variant list (also used for the nuisance models of the verdict).
 pub fn refit_variants(
     h: Hypothesis,
@@ -666,17 +692,33 @@ pub fn refit_variants(
     seg: &Segmentation,
     p: &Prepared,
 ) -> Option<Refit> {
+    refit_variants_scored(h, vars, rec, seg, p, &|_, _| true)
+}
+
+/// [`refit_variants`] scored on the held-out observations with `score(k, m)`.
+pub fn refit_variants_scored(
+    h: Hypothesis,
+    vars: &[Variant],
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    score: &dyn Fn(usize, usize) -> bool,
+) -> Option<Refit> {
     if vars.is_empty() {
         return None;
     }
     let stats: Vec<FrameStats> = vars.iter().map(|v| FrameStats::new(rec, p, v)).collect();
+    let scored: Vec<FrameStats> = vars
+        .iter()
+        .map(|v| FrameStats::masked(rec, p, v, score))
+        .collect();
     let (vi, theta, rss_m2) = fit_variants(&stats, vars, &|_| true);
     let mut heldout_rss_m2 = 0.0;
     let mut heldout_n = 0;
     let mut fold_params = Vec::new();
     for l in 0..seg.num_folds() {
         let (fi, ft, _) = fit_variants(&stats, vars, &|k| seg.fold_of_frame[k] != Some(l));
-        let (g, hh, e, n) = stats[fi].sum(|k| seg.fold_of_frame[k] == Some(l));
+        let (g, hh, e, n) = scored[fi].sum(|k| seg.fold_of_frame[k] == Some(l));
         heldout_rss_m2 += rss(&g, &hh, e, &ft);
         heldout_n += n;
         fold_params.push(named_params(&vars[fi], &ft));

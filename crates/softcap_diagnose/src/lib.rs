@@ -9,7 +9,8 @@
 //! | [`residual`] | residual components (normal, tangential, gravity, probe axis), the located table, noise σ |
 //! | [`sim`] | the [`ProbeSimulator`] contract and the corotational FEM implementation |
 //! | [`signal`] | low-pass, derivative, time shift on frame-time traces |
-//! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits |
+//! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits (screening) |
+//! | [`extend`] | the extended FEM models (Prony, J2 plasticity, support springs, transverse isotropy) re-simulated over the recording |
 //! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
 //! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
 //! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
@@ -48,6 +49,7 @@
 
 pub mod diagnose;
 mod error;
+pub mod extend;
 pub mod hypothesis;
 pub mod io;
 pub mod output;
@@ -63,6 +65,7 @@ pub use diagnose::{
     signature_support, signatures,
 };
 pub use error::{DiagnoseError, Result};
+pub use extend::{Extension, SequenceFrame, transverse_from_isotropic};
 pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
 pub use io::{
     MaterialModel, MaterialSource, material_model, material_model_from, read_material,

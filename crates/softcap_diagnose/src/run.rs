@@ -76,7 +76,8 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         &fixed,
         &rec.rest_markers_m,
         cfg.settings.simulator.clone(),
-    )?;
+    )?
+    .with_support_plane(&support.normal, support.offset_m);
     let mut result = diagnose(&rec, &mut sim, &cfg.settings.diagnose)?;
     for r in &mut result.diagnosis.ranked {
         r.evidence

@@ -8,8 +8,9 @@
 //! through the shared probing kernels of `softcap_fem::probing` (the ones the tissue fit uses):
 //! marker embedding, attached region, contact patch and area-weighted nodal forces.
 
+use crate::extend::{Extension, SequenceFrame};
 use crate::{DiagnoseError, Result};
-use nalgebra::Vector3;
+use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::{PatchSettings, ProbeExample, ProbingSetup, support_nodes};
 use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver};
@@ -52,6 +53,25 @@ pub trait ProbeSimulator {
     /// Marker positions under `load`; with `want_response`, also the tangent response to the probe
     /// force. Non-convergence is an error carrying the solver status.
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput>;
+
+    /// Marker positions of every frame (time order) under the model extended by `ext`
+    /// ([`crate::extend`]). The default handles [`Extension::Elastic`] frame by frame; other
+    /// extensions need a simulator that implements them (an error otherwise).
+    fn simulate_sequence(
+        &mut self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        match ext {
+            Extension::Elastic => frames
+                .iter()
+                .map(|f| self.simulate(&f.load, false).map(|o| o.markers_m))
+                .collect(),
+            other => Err(DiagnoseError::BadRecording {
+                what: format!("this simulator cannot simulate the extension {other:?}"),
+            }),
+        }
+    }
 }
 
 /// Settings of [`FemProbeSimulator`].
@@ -91,6 +111,7 @@ pub struct FemProbeSimulator {
     solver: StaticSolver,
     lumped_volume_m3: Vec<f64>,
     settings: FemSimSettings,
+    support_plane: Option<(Unit<Vector3<f64>>, f64)>,
 }
 
 impl FemProbeSimulator {
@@ -136,7 +157,21 @@ impl FemProbeSimulator {
             solver,
             lumped_volume_m3,
             settings,
+            support_plane: None,
         })
+    }
+
+    /// Records the support plane `normal · x = offset_m` (unit normal into the body) the attached
+    /// nodes lie on; the support-slip extension replaces their fixed boundary condition by
+    /// tangential springs on it.
+    pub fn with_support_plane(mut self, normal: &Vector3<f64>, offset_m: f64) -> Self {
+        self.support_plane = Unit::try_new(*normal, 1e-12).map(|n| (n, offset_m));
+        self
+    }
+
+    /// The support plane, if recorded.
+    pub fn support_plane(&self) -> Option<(Unit<Vector3<f64>>, f64)> {
+        self.support_plane
     }
 
     /// Nodes within `tolerance_m` of the plane `normal · x = offset_m`
@@ -209,6 +244,14 @@ impl FemProbeSimulator {
 impl ProbeSimulator for FemProbeSimulator {
     fn num_markers(&self) -> usize {
         self.setup.markers.len()
+    }
+
+    fn simulate_sequence(
+        &mut self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        FemProbeSimulator::simulate_sequence(self, ext, frames)
     }
 
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput> {

@@ -10,8 +10,8 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use softcap_diagnose::signal::low_pass;
 use softcap_diagnose::{
-    DiagnoseSettings, FemProbeSimulator, FemSimSettings, Frame, ProbeLoad, ProbeSimulator,
-    Recording, SimLoad, SupportPlane, diagnose, surface_normals,
+    DiagnoseSettings, Extension, FemProbeSimulator, FemSimSettings, Frame, ProbeLoad,
+    ProbeSimulator, Recording, SequenceFrame, SimLoad, SupportPlane, diagnose, surface_normals,
 };
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mesh::TetMesh;
@@ -53,7 +53,9 @@ fn simulator(young_pa: f64) -> FemProbeSimulator {
     )
     .unwrap();
     let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
-    FemProbeSimulator::new(&mesh, model, &fixed, &markers(), FemSimSettings::default()).unwrap()
+    FemProbeSimulator::new(&mesh, model, &fixed, &markers(), FemSimSettings::default())
+        .unwrap()
+        .with_support_plane(&Vector3::z(), 0.0)
 }
 
 /// The force profile of one location (fraction of peak) and its phases.
@@ -67,11 +69,19 @@ enum Effect {
     Clean,
     SensorLag(f64),
     ClockOffset(f64),
-    Creep { g: f64, tau_s: f64 },
+    Creep {
+        g: f64,
+        tau_s: f64,
+    },
     Gravity(f64),
     Friction(f64),
+    /// Total tangential support stiffness, N/m (`Extension::SupportSprings`).
     SupportSlip(f64),
-    Plastic { fraction: f64, yield_frac: f64 },
+    /// J2 plasticity (`Extension::Plastic`).
+    Plastic {
+        yield_pa: f64,
+        hardening_pa: f64,
+    },
     Stiffer(f64),
 }
 
@@ -146,12 +156,6 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
     };
     // force that deforms the object
     let f_obj: Vec<Vector3<f64>> = match effect {
-        Effect::Creep { g, tau_s } => {
-            let lp = low_pass(&t, &f_true, tau_s);
-            (0..n)
-                .map(|k| (f_true[k] + lp[k] * g) / (1.0 + 0.5 * g))
-                .collect()
-        }
         Effect::Friction(mu) => (0..n)
             .map(|k| f_true[k] + Vector3::x() * (mu * f_true[k].norm()))
             .collect(),
@@ -167,69 +171,48 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
         .simulate(&SimLoad::default(), false)
         .unwrap()
         .markers_m;
-    let mut plastic = vec![Vector3::zeros(); rest_truth.len()];
-    let mut slip_max = Vector3::zeros();
+    // History-dependent truths: the extended FEM models (Prony creep, J2 plasticity, support
+    // springs) over the whole sequence.
+    let ext = match effect {
+        Effect::Creep { g, tau_s } => Some(Extension::Viscoelastic { g, tau_s }),
+        Effect::Plastic {
+            yield_pa,
+            hardening_pa,
+        } => Some(Extension::Plastic {
+            yield_stress_pa: yield_pa,
+            hardening_pa,
+        }),
+        Effect::SupportSlip(k) => Some(Extension::SupportSprings {
+            stiffness_n_per_m: k,
+        }),
+        _ => None,
+    };
+    let loads: Vec<SimLoad> = (0..n)
+        .map(|k| SimLoad {
+            probe: (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
+                tip_m: tip[k],
+                axis,
+                force_n: f_obj[k],
+            }),
+            body_force_n_m3: body,
+        })
+        .collect();
+    let sequence = ext.map(|e| {
+        let frames: Vec<SequenceFrame> = (0..n)
+            .map(|k| SequenceFrame {
+                time_s: t[k],
+                load: loads[k],
+            })
+            .collect();
+        truth_sim.simulate_sequence(&e, &frames).unwrap()
+    });
+    let _ = rest_truth;
     let mut frames = Vec::with_capacity(n);
-    let mut loc_peak = vec![0.0f64; locs.len()];
     for k in 0..n {
-        let probe = (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
-            tip_m: tip[k],
-            axis,
-            force_n: f_obj[k],
-        });
-        let out = truth_sim
-            .simulate(
-                &SimLoad {
-                    probe,
-                    body_force_n_m3: body,
-                },
-                false,
-            )
-            .unwrap();
-        let mut x = out.markers_m;
-        if let Effect::Plastic {
-            fraction,
-            yield_frac,
-        } = effect
-            && let Some(l) = loc_of[k]
-        {
-            let fy = yield_frac * PEAK_N;
-            let fm = f_true[k].norm();
-            if fm > loc_peak[l].max(fy) {
-                // permanent set grows with the excess over the running maximum
-                let excess_new = fm - loc_peak[l].max(fy);
-                let unit = truth_sim
-                    .simulate(
-                        &SimLoad {
-                            probe: Some(ProbeLoad {
-                                tip_m: tip[k],
-                                axis,
-                                force_n: axis * excess_new,
-                            }),
-                            body_force_n_m3: Vector3::zeros(),
-                        },
-                        false,
-                    )
-                    .unwrap()
-                    .markers_m;
-                for m in 0..x.len() {
-                    plastic[m] += (unit[m] - rest_truth[m]) * fraction;
-                }
-                loc_peak[l] = fm;
-            }
-        }
-        if let Effect::SupportSlip(c) = effect {
-            let ft = Vector3::new(f_true[k].x, f_true[k].y, 0.0);
-            if ft.norm() > slip_max.norm() {
-                slip_max = ft;
-            }
-            for p in x.iter_mut() {
-                *p += ft * c + slip_max * (0.5 * c);
-            }
-        }
-        for m in 0..x.len() {
-            x[m] += plastic[m];
-        }
+        let x = match &sequence {
+            Some(seq) => seq[k].clone(),
+            None => truth_sim.simulate(&loads[k], false).unwrap().markers_m,
+        };
         let markers_m = x
             .iter()
             .map(|p| Some(p + Vector3::from_fn(|_, _| noise.sample(&mut rng))))
@@ -338,15 +321,15 @@ fn probe_friction_is_named() {
 
 #[test]
 fn support_slip_is_named() {
-    run(Effect::SupportSlip(4e-3), true, "support-slip");
+    run(Effect::SupportSlip(500.0), true, "support-slip");
 }
 
 #[test]
 fn plastic_set_is_named() {
     run(
         Effect::Plastic {
-            fraction: 0.3,
-            yield_frac: 0.4,
+            yield_pa: 2000.0,
+            hardening_pa: 1000.0,
         },
         false,
         "plasticity",

@@ -42,8 +42,10 @@ pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
     let t0 = Instant::now();
     let material_path = dir.path().join("material.mcap");
     let volume = session.volume.clone().expect("template/volume.msh");
-    let mut settings = FitSettings::default();
-    settings.progress = false;
+    let settings = FitSettings {
+        progress: false,
+        ..Default::default()
+    };
     softcap_tissue::fit::run(&FitConfig {
         capture: capture_path.clone(),
         mesh: Some(volume),

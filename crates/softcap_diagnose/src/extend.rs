@@ -1,0 +1,243 @@
+//! The extended models: the default model with one physical term added, from the FEM physics of
+//! `softcap_fem`, re-simulated over the whole recording in time order (history-dependent terms
+//! need the sequence: creep, plastic flow, stick of the support).
+//!
+//! | extension | `softcap_fem` model | parameters |
+//! |---|---|---|
+//! | [`Extension::Viscoelastic`] | `ViscoelasticModel` over the default corotational model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3), exact exponential recurrence between frames | g, τ |
+//! | [`Extension::Plastic`] | `ElastoplasticModel` (J2 radial return on the corotational element, Simo & Hughes 1998 Box 3.1–3.2), the default model's (λ, α) per element, state committed after every frame | σ_y, H |
+//! | [`Extension::SupportSprings`] | `SupportPlane` with tangential springs on the attached nodes instead of fixed nodes (bilateral normal penalty), `NodalSolver` | total tangential stiffness k |
+//! | [`Extension::Anisotropic`] | `AnisotropicModel`, transversely isotropic (thesis eq. 8.5) with the default model's isotropic (E, ν) across the fibre and E_a = r E along it | fibre a, ratio r |
+//! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
+//!
+//! The probe force of every frame is spread over its contact patch exactly as in the baseline
+//! (bickel2009 §4.1 force boundary condition, [`crate::FemProbeSimulator::probe_forces`]).
+
+use crate::sim::{FemProbeSimulator, SimLoad};
+use crate::{DiagnoseError, Result};
+use nalgebra::{Unit, Vector3};
+use serde::{Deserialize, Serialize};
+use softcap_fem::{
+    AnisotropicModel, ElasticModel, ElastoplasticModel, J2PlasticityParams, LinearParams,
+    NodalSolver, PronySeries, StaticSolver, SupportPlane, SupportTangential,
+    TransverselyIsotropicParams, ViscoelasticModel,
+};
+
+/// One extended model (see the module table).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Extension {
+    /// The default model (loads may carry the extension).
+    Elastic,
+    /// One Prony branch.
+    Viscoelastic {
+        /// Relaxing fraction g of the long-term stiffness.
+        g: f64,
+        /// Relaxation time, s.
+        tau_s: f64,
+    },
+    /// J2 plasticity with linear isotropic hardening.
+    Plastic {
+        /// Uniaxial yield stress, Pa.
+        yield_stress_pa: f64,
+        /// Hardening modulus, Pa.
+        hardening_pa: f64,
+    },
+    /// Tangential springs under the attached face.
+    SupportSprings {
+        /// Total tangential stiffness, N/m.
+        stiffness_n_per_m: f64,
+    },
+    /// Transversely isotropic stiffening along a fibre.
+    Anisotropic {
+        /// Fibre direction (world, unit).
+        fibre: Vector3<f64>,
+        /// Fibre / transverse Young's modulus.
+        ratio: f64,
+    },
+}
+
+/// One frame of a sequence: its time and load.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SequenceFrame {
+    /// Time, s.
+    pub time_s: f64,
+    /// Probe and body load.
+    pub load: SimLoad,
+}
+
+fn not_converged(k: usize, what: String) -> DiagnoseError {
+    DiagnoseError::Simulation {
+        frame: k as u64,
+        reason: what,
+    }
+}
+
+impl FemProbeSimulator {
+    fn nodal_load(&self, load: &SimLoad) -> Vec<Vector3<f64>> {
+        let n = self.setup().mesh.vertices.len();
+        let mut f = if load.body_force_n_m3 != Vector3::zeros() {
+            self.body_forces(&load.body_force_n_m3)
+        } else {
+            vec![Vector3::zeros(); n]
+        };
+        if let Some(p) = &load.probe {
+            for (a, b) in f.iter_mut().zip(self.probe_forces(p)) {
+                *a += b;
+            }
+        }
+        f
+    }
+
+    fn run_static<M: ElasticModel>(
+        &self,
+        mut model: M,
+        frames: &[SequenceFrame],
+        mut before: impl FnMut(&mut M, f64) -> Result<()>,
+        mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        let setup = self.setup();
+        let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
+        let mut x = setup.mesh.vertices.clone();
+        let mut out = Vec::with_capacity(frames.len());
+        let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
+        for (k, fr) in frames.iter().enumerate() {
+            before(&mut model, (fr.time_s - t_prev).max(0.0))?;
+            t_prev = fr.time_s;
+            let f = self.nodal_load(&fr.load);
+            let rep = setup.simulate(
+                &mut solver,
+                &mut model,
+                &mut x,
+                &f,
+                &self.settings().equilibrium,
+            );
+            if !rep.converged() {
+                return Err(not_converged(
+                    k,
+                    format!("{:?} after {} iterations", rep.status, rep.iterations),
+                ));
+            }
+            commit(&mut model, &x);
+            out.push(setup.marker_positions(&x));
+        }
+        Ok(out)
+    }
+
+    /// Marker positions of every frame of `frames` (time order) under the default model extended
+    /// by `ext`, each frame warm-started from the previous one and history committed after it.
+    pub fn simulate_sequence(
+        &self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        let base = self.model().clone();
+        let mesh = &self.setup().mesh;
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        match *ext {
+            Extension::Elastic => self.run_static(base, frames, |_, _| Ok(()), |_, _| {}),
+            Extension::Viscoelastic { g, tau_s } => {
+                let prony = PronySeries::standard_linear_solid(g, tau_s).map_err(fem)?;
+                let ve = ViscoelasticModel::new(base, prony).map_err(fem)?;
+                self.run_static(
+                    ve,
+                    frames,
+                    |m, dt| m.set_time_step(dt).map_err(fem),
+                    |m, x| m.commit(x),
+                )
+            }
+            Extension::Plastic {
+                yield_stress_pa,
+                hardening_pa,
+            } => {
+                let q = J2PlasticityParams {
+                    yield_stress_pa,
+                    hardening_modulus_pa: hardening_pa,
+                };
+                let nt = mesh.tets.len();
+                let ep = ElastoplasticModel::new(mesh, base.params().to_vec(), vec![q; nt])
+                    .map_err(fem)?;
+                self.run_static(
+                    ep,
+                    frames,
+                    |_, _| Ok(()),
+                    |m, x| {
+                        m.commit(x);
+                    },
+                )
+            }
+            Extension::Anisotropic { fibre, ratio } => {
+                let a = Unit::try_new(fibre, 1e-12).ok_or_else(|| DiagnoseError::BadRecording {
+                    what: "anisotropy: zero fibre direction".into(),
+                })?;
+                let params = base
+                    .params()
+                    .iter()
+                    .map(|p| transverse_from_isotropic(p, ratio))
+                    .collect::<std::result::Result<Vec<_>, _>>()
+                    .map_err(fem)?;
+                let nt = params.len();
+                let an = AnisotropicModel::new(mesh, params, vec![a; nt]).map_err(fem)?;
+                self.run_static(an, frames, |_, _| Ok(()), |_, _| {})
+            }
+            Extension::SupportSprings { stiffness_n_per_m } => {
+                let setup = self.setup();
+                let Some(plane) = self.support_plane() else {
+                    return Err(DiagnoseError::BadRecording {
+                        what: "support-slip: the simulator has no support plane".into(),
+                    });
+                };
+                let nodes = setup.attached_nodes.clone();
+                let k_node = stiffness_n_per_m / nodes.len().max(1) as f64;
+                let mut sup = SupportPlane::new(
+                    plane.0,
+                    plane.1,
+                    nodes,
+                    &mesh.vertices,
+                    SupportTangential::Springs {
+                        stiffness_n_per_m: k_node,
+                    },
+                )
+                .map_err(fem)?;
+                let mut model = base;
+                let mut solver = NodalSolver::new(&model, &[]).map_err(fem)?;
+                let mut x = mesh.vertices.clone();
+                let mut out = Vec::with_capacity(frames.len());
+                for (k, fr) in frames.iter().enumerate() {
+                    let f = self.nodal_load(&fr.load);
+                    let rep = solver.solve(
+                        &mut model,
+                        &mut x,
+                        &f,
+                        &mut [&mut sup],
+                        &self.settings().equilibrium,
+                    );
+                    if !rep.converged() {
+                        return Err(not_converged(
+                            k,
+                            format!("{:?} after {} iterations", rep.status, rep.iterations),
+                        ));
+                    }
+                    softcap_fem::NodalTerm::commit(&mut sup, &x);
+                    out.push(setup.marker_positions(&x));
+                }
+                Ok(out)
+            }
+        }
+    }
+}
+
+/// Transversely isotropic parameters with the isotropic (E, ν) of `p` across the fibre and
+/// E_a = `ratio` · E along it (thesis eq. 8.5 via `TransverselyIsotropicParams::from_engineering`):
+/// ν_t = ν, fibre Poisson ratio ν_a = ν (capped so the compliance stays positive definite),
+/// fibre shear G_a = E / (2(1 + ν)) (the isotropic shear modulus).
+pub fn transverse_from_isotropic(
+    p: &LinearParams,
+    ratio: f64,
+) -> std::result::Result<TransverselyIsotropicParams, softcap_fem::FemError> {
+    let (e, nu) = p.to_young_poisson()?;
+    let nu_t = nu.min(0.45);
+    // PD of the compliance needs 1 − ν_t − 2 ν_a² E_t/E_a > 0.
+    let nu_a_max = ((1.0 - nu_t) * ratio / 2.0).sqrt() * 0.95;
+    let nu_a = nu_t.min(nu_a_max);
+    TransverselyIsotropicParams::from_engineering(e, ratio * e, nu_t, nu_a, e / (2.0 * (1.0 + nu)))
+}
