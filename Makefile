@@ -16,13 +16,16 @@ PROFILE    ?= test
 BIN        := $(TARGET_DIR)/$(if $(filter test dev,$(PROFILE)),debug,$(PROFILE))
 SOFTCAP    := $(BIN)/softcap
 SCENARIO   ?= fixtures/scenarios/demo.toml
+# The novel probe the demo synthesizes with the fitted material: a 6 mm sphere pressing 0.03 N
+# (about half the session's largest probe force; the demo block is very soft) at the top centre.
+DEMO_SIMULATE_ARGS ?= --probe-shape sphere --radius 0.006 --tip 0.02 0.02 0.03 --axis 0 0 -1 --force 0.03
 OUT        ?= out/demo
 # Only the packages the demo runs.
 DEMO_PACKAGES := -p softcap_cli -p softcap_synth -p softcap_capture -p softcap_tissue -p softcap_diagnose
 
 .PHONY: demo test smoke verify build demo-pipeline clean
 build:
-	$(CARGO) build --profile $(PROFILE) $(DEMO_PACKAGES) --bins
+	$(CARGO) build --target-dir $(TARGET_DIR) --profile $(PROFILE) $(DEMO_PACKAGES) --bins
 
 test:
 	$(CARGO) test --workspace
@@ -40,7 +43,7 @@ $(OUT)/sessions/demo/session.toml: $(SCENARIO) | build
 
 demo-pipeline: build $(OUT)/sessions/demo/session.toml
 	$(MAKE) --no-print-directory -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
-	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs all
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs SIMULATE_ARGS='$(DEMO_SIMULATE_ARGS)' all
 
 demo: demo-pipeline
 	@scripts/demo-summary $(SOFTCAP) $(OUT)
@@ -49,12 +52,12 @@ demo: demo-pipeline
 # `softcap inspect digest` of every intermediate, and a hash of every synthesized session file.
 verify: demo-pipeline
 	@$(MAKE) --no-print-directory -s -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
-	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs digests > $(OUT)/digests-first.txt
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs SIMULATE_ARGS='$(DEMO_SIMULATE_ARGS)' digests > $(OUT)/digests-first.txt
 	@cd $(OUT)/sessions && find . -type f | LC_ALL=C sort | xargs sha256sum >> ../digests-first.txt
 	rm -rf $(OUT)/sessions $(OUT)/runs
 	$(MAKE) --no-print-directory demo-pipeline
 	@$(MAKE) --no-print-directory -s -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
-	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs digests > $(OUT)/digests-rerun.txt
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs SIMULATE_ARGS='$(DEMO_SIMULATE_ARGS)' digests > $(OUT)/digests-rerun.txt
 	@cd $(OUT)/sessions && find . -type f | LC_ALL=C sort | xargs sha256sum >> ../digests-rerun.txt
 	@cat $(OUT)/digests-first.txt
 	@if diff -u $(OUT)/digests-first.txt $(OUT)/digests-rerun.txt; then \

@@ -16,6 +16,9 @@ pub const PROVENANCE_METADATA: &str = "softcap.provenance";
 /// Key of the provenance field that the content digest ignores.
 pub const TIMESTAMP_KEY: &str = "timestamp";
 
+/// Key of the provenance field listing the input files (a JSON array of [`InputFile`]).
+pub const INPUTS_KEY: &str = "inputs";
+
 /// One input file and its SHA-256.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct InputFile {
@@ -23,6 +26,29 @@ pub struct InputFile {
     pub path: String,
     /// Lower-case hex SHA-256 of the file's bytes.
     pub sha256: String,
+    /// For an MCAP input, its content digest ([`crate::Recording::digest`]), which leaves out the
+    /// input's own provenance timestamp. The content digest of a file uses this instead of
+    /// `sha256`, so a rerun of a whole pipeline (where every intermediate carries a new
+    /// timestamp) gives the same digests downstream.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub content_digest: Option<String>,
+}
+
+impl InputFile {
+    /// `path` with its SHA-256, plus the content digest when it is an MCAP file.
+    fn hash(path: &Path) -> Result<Self> {
+        let sha256 = sha256_file(path)?;
+        let content_digest = if path.extension().is_some_and(|e| e == "mcap") {
+            Some(crate::Recording::open(path)?.digest()?)
+        } else {
+            None
+        };
+        Ok(Self {
+            path: path.display().to_string(),
+            sha256,
+            content_digest,
+        })
+    }
 }
 
 /// Where a file came from: stage, code version, arguments, inputs, seed and settings.
@@ -107,18 +133,10 @@ impl Provenance {
             collect_files(path, &mut files)?;
             files.sort();
             for f in files {
-                let sha256 = sha256_file(&f)?;
-                self.inputs.push(InputFile {
-                    path: f.display().to_string(),
-                    sha256,
-                });
+                self.inputs.push(InputFile::hash(&f)?);
             }
         } else {
-            let sha256 = sha256_file(path)?;
-            self.inputs.push(InputFile {
-                path: path.display().to_string(),
-                sha256,
-            });
+            self.inputs.push(InputFile::hash(path)?);
         }
         Ok(())
     }
@@ -134,7 +152,7 @@ impl Provenance {
             serde_json::to_string(&self.arguments).expect("strings serialize"),
         );
         m.insert(
-            "inputs".into(),
+            INPUTS_KEY.into(),
             serde_json::to_string(&self.inputs).expect("strings serialize"),
         );
         m.insert(

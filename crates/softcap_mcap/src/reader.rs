@@ -7,7 +7,7 @@ use sha2::{Digest, Sha256};
 
 use crate::catalog::{SoftcapMessage, Topic};
 use crate::error::{Error, Result};
-use crate::provenance::{PROVENANCE_METADATA, Provenance, TIMESTAMP_KEY};
+use crate::provenance::{INPUTS_KEY, InputFile, PROVENANCE_METADATA, Provenance, TIMESTAMP_KEY};
 
 /// One channel of a recording, as listed in its summary.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -294,7 +294,8 @@ impl Recording {
     /// Hashes, each field length-prefixed: every channel ordered by topic (topic, message
     /// encoding, schema name, encoding and data, channel metadata); every message in file order
     /// (topic, log time, data); every metadata record in file order (name, then its sorted
-    /// key/values, leaving out the `timestamp` of `softcap.provenance`); every attachment (name,
+    /// key/values, leaving out the `timestamp` of `softcap.provenance` and hashing each MCAP input
+    /// by its own content digest instead of its bytes); every attachment (name,
     /// media type, data). Chunking, compression, record offsets and the writer library do not
     /// enter, so two runs with the same inputs and arguments give the same digest.
     pub fn digest(&self) -> Result<String> {
@@ -333,6 +334,21 @@ impl Recording {
             put(b"D", name.as_bytes());
             for (k, v) in &map {
                 if name == PROVENANCE_METADATA && k == TIMESTAMP_KEY {
+                    continue;
+                }
+                if name == PROVENANCE_METADATA
+                    && k == INPUTS_KEY
+                    && let Ok(inputs) = serde_json::from_str::<Vec<InputFile>>(v)
+                {
+                    // An MCAP input enters by its content digest (its own timestamp left out).
+                    put(b"k", k.as_bytes());
+                    for i in &inputs {
+                        put(b"p", i.path.as_bytes());
+                        put(
+                            b"h",
+                            i.content_digest.as_ref().unwrap_or(&i.sha256).as_bytes(),
+                        );
+                    }
                     continue;
                 }
                 put(b"k", k.as_bytes());
