@@ -209,7 +209,12 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
             // disk's rim also takes a lateral reaction, which that model cannot see.
             // The tilted disk of support-slip likewise. The FSR (calibration noise, ADC) has an
             // absolute floor of ≈ 0.03 N RMS (clean: 0.029 N), which dominates on soft sessions.
-            let bound = if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
+            // probe-friction: the FSR reads only the force along the shaft; the friction
+            // traction under the dragged tip (up to ≈ 0.3 of the axial force in the truth) is
+            // the concealed part of the force vector.
+            let bound = if scenario.has(Effect::ProbeFriction) {
+                0.4
+            } else if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
                 0.08
             } else {
                 0.03

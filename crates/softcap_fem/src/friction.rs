@@ -96,6 +96,22 @@ pub fn regularized_coulomb(
     (f, k * p)
 }
 
+/// Where the friction law takes its normal forces f_n from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum NormalForceLag {
+    /// The penalty force of each spring at the current iterate, refreshed at every equilibrium
+    /// iteration (the original behaviour). A transient deep penetration of one iterate then
+    /// becomes a large friction force μ f_n with no tangential stiffness along the slip, which can
+    /// throw a sliding node far away.
+    #[default]
+    Iteration,
+    /// Held fixed during a solve at the values set by
+    /// [`FrictionalContact::lag_normal_forces`] (0 for nodes without one): each solve is a smooth
+    /// problem with a convex friction potential, and an outer loop re-lags f_n until it settles
+    /// (IPC's lagged iterations, Li et al. 2020 §5.2).
+    Solve,
+}
+
 /// Outcome of a frictional contact state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct FrictionReport {
@@ -130,6 +146,10 @@ pub struct FrictionalContact {
     /// relaxes back in at the next iteration and the active set cycles until it is frozen, leaving
     /// that node inside the tip.
     pub active_set_hysteresis: bool,
+    /// Where the normal forces f_n of the friction law come from (default
+    /// [`NormalForceLag::Iteration`], the original behaviour).
+    pub normal_force_lag: NormalForceLag,
+    lagged_normal_n: BTreeMap<usize, f64>,
     committed: BTreeMap<usize, Vector3<f64>>,
     working: BTreeMap<usize, Vector3<f64>>,
     springs: Vec<ContactSpring>,
@@ -144,6 +164,8 @@ impl FrictionalContact {
             contact,
             friction,
             active_set_hysteresis: false,
+            normal_force_lag: NormalForceLag::Iteration,
+            lagged_normal_n: BTreeMap::new(),
             committed: BTreeMap::new(),
             working: BTreeMap::new(),
             springs: Vec::new(),
@@ -156,9 +178,48 @@ impl FrictionalContact {
         self.contact.probe.world_from_probe = world_from_probe;
     }
 
+    /// Moves the lagged normal forces of [`NormalForceLag::Solve`] towards the penalty forces f of
+    /// the current springs at `x`, f_lag ← f_lag + ω (f − f_lag) (ω = `relaxation` ∈ (0, 1];
+    /// nodes no longer in contact have f = 0). Call after a converged solve, then solve again
+    /// (IPC's lagged iterations, Li et al. 2020 §5.2); ω < 1 damps the two-cycles of a rim node
+    /// that leaves and re-enters the patch between solves. Returns max_n |f − f_lag| / max(Σ f,
+    /// tiny) before the update, so a caller iterates until it is small.
+    pub fn lag_normal_forces(&mut self, x: &[Vector3<f64>], relaxation: f64) -> f64 {
+        let w = relaxation.clamp(f64::MIN_POSITIVE, 1.0);
+        let fresh: BTreeMap<usize, f64> = self
+            .springs
+            .iter()
+            .map(|s| (s.node, s.force(&x[s.node]).dot(&s.normal).max(0.0)))
+            .collect();
+        let total: f64 = fresh.values().sum();
+        let mut change: f64 = 0.0;
+        for (n, f) in &fresh {
+            change = change.max((f - self.lagged_normal_n.get(n).copied().unwrap_or(0.0)).abs());
+        }
+        for (n, f) in &self.lagged_normal_n {
+            if !fresh.contains_key(n) {
+                change = change.max(*f);
+            }
+        }
+        let mut next = BTreeMap::new();
+        for (n, old) in &self.lagged_normal_n {
+            let f = fresh.get(n).copied().unwrap_or(0.0);
+            let v = old + w * (f - old);
+            if v > 0.0 {
+                next.insert(*n, v);
+            }
+        }
+        for (n, f) in &fresh {
+            next.entry(*n).or_insert(w * f);
+        }
+        self.lagged_normal_n = next;
+        change / total.max(f64::MIN_POSITIVE)
+    }
+
     /// Forgets the stick history (all anchors), e.g. when the probe is lifted off between
     /// locations.
     pub fn reset_history(&mut self) {
+        self.lagged_normal_n.clear();
         self.committed.clear();
         self.working.clear();
         self.springs.clear();
@@ -252,11 +313,18 @@ impl NodalTerm for FrictionalContact {
             }
             self.working = working;
         }
-        self.normal_forces_n = self
-            .springs
-            .iter()
-            .map(|s| s.force(&x[s.node]).dot(&s.normal).max(0.0))
-            .collect();
+        self.normal_forces_n = match self.normal_force_lag {
+            NormalForceLag::Iteration => self
+                .springs
+                .iter()
+                .map(|s| s.force(&x[s.node]).dot(&s.normal).max(0.0))
+                .collect(),
+            NormalForceLag::Solve => self
+                .springs
+                .iter()
+                .map(|s| self.lagged_normal_n.get(&s.node).copied().unwrap_or(0.0))
+                .collect(),
+        };
     }
 
     fn add_forces(&self, x: &[Vector3<f64>], out: &mut [Vector3<f64>]) {

@@ -17,7 +17,7 @@ use nalgebra::Vector3;
 use softcap_fem::{
     ContactProblem, ContactSettings, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
     DynamicsSettings, ElasticModel, ElastoplasticModel, EquilibriumReport, EquilibriumSettings,
-    FrictionalContact, NodalSolver, NodalTerm, Probe, StaticSolver, SupportPlane,
+    FrictionalContact, NodalSolver, NodalTerm, NormalForceLag, Probe, StaticSolver, SupportPlane,
     ViscoelasticModel,
 };
 
@@ -39,6 +39,8 @@ pub(crate) struct StepOutcome {
     pub friction_force_n: Vector3<f64>,
     /// Mean tangential slip of the support nodes, m (support-slip only).
     pub support_slip_m: Vector3<f64>,
+    /// Lagged normal forces (probe-friction): the last outer iteration's max_n |Δf_n| / Σ f_n.
+    pub friction_lag_mismatch: f64,
 }
 
 impl StepOutcome {
@@ -53,6 +55,7 @@ impl StepOutcome {
             force_n: rep.contact.contact_force_n,
             friction_force_n: Vector3::zeros(),
             support_slip_m: Vector3::zeros(),
+            friction_lag_mismatch: 0.0,
         }
     }
 }
@@ -286,21 +289,16 @@ impl Engine {
                     residual_tol_rel: settings.residual_tol_rel.max(1e-6),
                     ..settings.clone()
                 };
-                let mu = contact.friction.mu;
-                // Continuation in μ (see `FRICTION_STAGES`): frictionless first, so the lagged
-                // normal forces are equilibrium values before any friction acts.
-                let stages: &[f64] = if probe.is_some() && mu > 0.0 {
-                    &FRICTION_STAGES
-                } else {
-                    &[1.0]
-                };
                 if let Some(p) = probe {
                     carry_patch(contact, x, &p.world_from_probe);
                     contact.set_pose(p.world_from_probe);
                 }
+                // Lagged normal forces (NormalForceLag::Solve): solve with f_n held, re-lag f_n
+                // from the converged springs, repeat until f_n settles (IPC's lagged iterations).
+                let lagged = probe.is_some() && contact.normal_force_lag == NormalForceLag::Solve;
                 let mut rep = None;
-                for &stage in stages {
-                    contact.friction.mu = mu * stage;
+                let mut lag_mismatch = 0.0;
+                for outer in 0..MAX_LAG_ITERATIONS {
                     let mut terms: Vec<&mut dyn NodalTerm> = Vec::with_capacity(2);
                     if probe.is_some() {
                         terms.push(&mut **contact);
@@ -308,20 +306,29 @@ impl Engine {
                     if let Some(s) = support.as_mut() {
                         terms.push(&mut **s);
                     }
-                    let r = solver.solve(&mut **model, x, f_ext, &mut terms, &nodal_settings);
-                    let ok = r.converged();
+                    let mut r = solver.solve(&mut **model, x, f_ext, &mut terms, &nodal_settings);
+                    if !r.converged() || !lagged {
+                        rep = Some(r);
+                        break;
+                    }
+                    let relaxation = if outer < 2 { 1.0 } else { LAG_RELAXATION };
+                    let change = contact.lag_normal_forces(x, relaxation);
+                    lag_mismatch = change;
+                    if change > LAG_ACCEPT && outer + 1 == MAX_LAG_ITERATIONS {
+                        r.status = softcap_fem::SolveStatus::MaxIterations;
+                    }
                     rep = Some(r);
-                    if !ok {
+                    if change <= LAG_TOLERANCE {
                         break;
                     }
                 }
-                contact.friction.mu = mu;
-                let rep = rep.expect("at least one stage");
+                let rep = rep.expect("at least one solve");
                 let mut out = StepOutcome::from_static(&rep);
                 if rep.converged() {
                     if probe.is_some() {
                         contact.commit(x);
                         let r = contact.report(x);
+                        out.friction_lag_mismatch = lag_mismatch;
                         out.force_n = r.contact_force_n;
                         out.friction_force_n = r.friction_force_n;
                     }
@@ -359,14 +366,25 @@ impl Engine {
                     force_n: rep.contact.contact_force_n,
                     friction_force_n: Vector3::zeros(),
                     support_slip_m: Vector3::zeros(),
+                    friction_lag_mismatch: 0.0,
                 }
             }
         })
     }
 }
 
-/// Fractions of μ solved in turn within one frictional step (continuation in μ).
-const FRICTION_STAGES: [f64; 4] = [0.0, 0.25, 0.5, 1.0];
+/// Outer iterations of the lagged normal forces per frictional step.
+const MAX_LAG_ITERATIONS: usize = 6;
+/// The lagged normal forces have settled when no node's f_n changes by more than this fraction of
+/// the total normal force.
+const LAG_TOLERANCE: f64 = 1e-2;
+/// Under-relaxation ω of the lagged normal forces from the third outer iteration on.
+const LAG_RELAXATION: f64 = 0.5;
+/// After [`MAX_LAG_ITERATIONS`] a step is accepted when the lagged normal forces are within this
+/// fraction of the total normal force: during unloading a rim node can leave and re-enter the
+/// patch between outer iterations (a two-cycle of the discrete active set); its share of the
+/// normal force is recorded as the frame's lag mismatch ([`crate::Truth::friction_lag_mismatch`]).
+const LAG_ACCEPT: f64 = 0.2;
 
 /// Predictor of a frictional step: the nodes that were in contact at the last committed step
 /// (they carry stick anchors) move rigidly with the probe increment T_new T_old⁻¹, so the

@@ -528,6 +528,9 @@ pub struct Truth {
     /// otherwise). With the yield stress raised out of reach this is the elastic peak that
     /// `plastic_yield_pa` is compared with (docs/synth.md).
     pub peak_von_mises_pa: f64,
+    /// probe-friction: largest mismatch of the lagged normal forces of the friction law at an
+    /// accepted step, max_n |Δf_n| / Σ f_n (0 otherwise; see `crate::engine`).
+    pub friction_lag_mismatch: f64,
 }
 
 /// The simulation engine of the scenario's effects (see [`crate::engine`]).
@@ -589,6 +592,9 @@ fn build_engine(
         };
         let mut fc = FrictionalContact::new(contact.clone(), friction)?;
         fc.active_set_hysteresis = s.has(Effect::ProbeFriction);
+        if s.has(Effect::ProbeFriction) {
+            fc.normal_force_lag = softcap_fem::NormalForceLag::Solve;
+        }
         return Engine::nodal(elastic(s)?, bc, fc, support);
     }
     if s.has(Effect::InertiaDamping) {
@@ -712,6 +718,16 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
 
     let mut x = unloaded.clone();
     let mut peak_von_mises_pa: f64 = 0.0;
+    let mut friction_lag_mismatch: f64 = 0.0;
+    let mut last_outcome = StepOutcome {
+        converged: true,
+        status: String::new(),
+        iterations: 0,
+        force_n: Vector3::zeros(),
+        friction_force_n: Vector3::zeros(),
+        support_slip_m: Vector3::zeros(),
+        friction_lag_mismatch: 0.0,
+    };
     let mut prev_spec: Option<FrameSpec> = None;
     let mut frames = Vec::with_capacity(frames_spec.len());
     for spec in &frames_spec {
@@ -729,6 +745,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             force_n: Vector3::zeros(),
             friction_force_n: Vector3::zeros(),
             support_slip_m: Vector3::zeros(),
+            friction_lag_mismatch: 0.0,
         };
         let outcome = match prev_spec.as_ref() {
             None => {
@@ -738,6 +755,15 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             Some(_) if !touches && engine.memoryless() => {
                 x.clone_from(&unloaded);
                 zero
+            }
+            // Rate-independent history (frictional stick anchors): the probe held still keeps the
+            // last equilibrium, which is a fixed point of the step (anchors already committed).
+            Some(prev)
+                if touches
+                    && matches!(engine, Engine::Nodal { .. })
+                    && prev.world_from_probe == spec.world_from_probe =>
+            {
+                last_outcome.clone()
             }
             Some(prev) => {
                 let from = prev.world_from_probe;
@@ -806,6 +832,8 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             }
         };
         max_iterations = max_iterations.max(outcome.iterations);
+        last_outcome = outcome.clone();
+        friction_lag_mismatch = friction_lag_mismatch.max(outcome.friction_lag_mismatch);
         if let Engine::Plastic { model, .. } = &engine {
             peak_von_mises_pa = peak_von_mises_pa.max(max_von_mises_pa(model, &x));
         }
@@ -874,6 +902,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
         max_iterations,
         yielded_elements,
         peak_von_mises_pa,
+        friction_lag_mismatch,
     })
 }
 

@@ -190,3 +190,53 @@ fn gravity_preload_sags_every_frame_below_the_unloaded_template() {
     );
     assert!(min >= 0.5e-3, "min sag {:.3} mm", min * 1e3);
 }
+
+#[test]
+fn probe_friction_drags_the_surface_beyond_the_frictionless_response() {
+    // The first two locations of the suite scenario (keeps the test short), against the same path
+    // with μ = 0: the difference at the markers is the surface drag friction causes.
+    let mut s = suite("probe-friction");
+    assert!(s.has(Effect::ProbeFriction));
+    s.protocol.locations = 2;
+    let t = run(&s);
+    let mut frictionless = s.clone();
+    frictionless.effect_settings.friction_mu = 0.0;
+    let t0 = run(&frictionless);
+    assert_eq!(t.frames.len(), t0.frames.len());
+    println!(
+        "largest lag mismatch of the friction normal forces: {:.3}",
+        t.friction_lag_mismatch
+    );
+    assert!(t.friction_lag_mismatch < 0.2);
+    for l in 0..t.locations_m.len() {
+        let hold = frames_of(&t, l, Phase::Hold);
+        let k = *hold.last().unwrap();
+        let (f, f0) = (&t.frames[k], &t0.frames[k]);
+        // Tangential probe travel is friction_path_ratio × depth.
+        let travel = s.effect_settings.friction_path_ratio * f.spec.depth_m;
+        let drag = f
+            .markers_m
+            .iter()
+            .zip(&f0.markers_m)
+            .map(|(a, b)| (a - b).xy().norm())
+            .fold(0.0, f64::max);
+        let ratio = f.friction_force_n.norm() / f.axial_force_n;
+        println!(
+            "location {l}: depth {:.2} mm, travel {:.2} mm, axial {:.3} N, friction {:.3} N (ratio {ratio:.2}), drag vs μ = 0 {:.3} mm",
+            f.spec.depth_m * 1e3,
+            travel * 1e3,
+            f.axial_force_n,
+            f.friction_force_n.norm(),
+            drag * 1e3
+        );
+        assert!(travel >= 0.5 * f.spec.depth_m);
+        // Coulomb: |f_t| ≤ μ Σ f_n (≈ μ × axial force for a near-vertical contact).
+        assert!(
+            ratio <= s.effect_settings.friction_mu * 1.05,
+            "ratio {ratio}"
+        );
+        assert!(ratio > 0.1, "ratio {ratio}");
+        assert!(drag >= 0.5e-3, "drag {:.3} mm", drag * 1e3);
+        assert!(f0.friction_force_n.norm() < 1e-12);
+    }
+}
