@@ -1,12 +1,13 @@
 //! The stage entry point: `softcap diagnose capture.mcap material.mcap -o diagnosis.mcap
 //! [--json FILE] [--report DIR]`.
 
-use crate::diagnose::{DiagnoseSettings, Diagnosis, diagnose};
+use crate::diagnose::{DiagnoseSettings, Diagnosis, DiagnosisRun, diagnose};
 use crate::io::{MaterialSource, read_material_from, recording_from_capture};
 use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
+use softcap_fem::CorotationalModel;
 use softcap_mcap::Provenance;
 use softcap_mcap::capture::CaptureData;
 use std::path::PathBuf;
@@ -49,7 +50,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         path: cfg.capture.clone(),
         source: Box::new(e),
     })?;
-    let material = read_material_from(&cfg.material, cfg.settings.material)?;
+    let mut material = read_material_from(&cfg.material, cfg.settings.material)?;
     let rec = recording_from_capture(&cap, &material.mesh)?;
     let Some(support) = rec.support else {
         return Err(DiagnoseError::BadInput {
@@ -70,15 +71,39 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             what: "no mesh node lies on the session's support plane".into(),
         });
     }
-    let mut sim = FemProbeSimulator::new(
-        &material.mesh,
-        material.model,
-        &fixed,
-        &rec.rest_markers_m,
-        cfg.settings.simulator.clone(),
-    )?
-    .with_support_plane(&support.normal, support.offset_m);
-    let mut result = diagnose(&rec, &mut sim, &cfg.settings.diagnose)?;
+    let attempt = |model: CorotationalModel| -> Result<DiagnosisRun> {
+        let mut sim = FemProbeSimulator::new(
+            &material.mesh,
+            model,
+            &fixed,
+            &rec.rest_markers_m,
+            cfg.settings.simulator.clone(),
+        )?
+        .with_support_plane(&support.normal, support.offset_m);
+        diagnose(&rec, &mut sim, &cfg.settings.diagnose)
+    };
+    let mut result = match attempt(material.model.clone()) {
+        // `Auto` picked the strain-space basis from the fit report, but the default model does
+        // not reach equilibrium on this recording: fall back to the homogeneous baseline and say
+        // so in the evidence (non-convergence is a reported status, not a failed run).
+        Err(DiagnoseError::Simulation { frame, reason })
+            if cfg.settings.material == MaterialSource::Auto
+                && material.source.starts_with("strain-space") =>
+        {
+            let fallback = read_material_from(&cfg.material, MaterialSource::Homogeneous)?;
+            let frame = if frame == u64::MAX {
+                "the unloaded state".to_string()
+            } else {
+                format!("frame {frame}")
+            };
+            material.source = format!(
+                "{} (auto fallback: the strain-space basis did not converge at {frame}: {reason})",
+                fallback.source
+            );
+            attempt(fallback.model)?
+        }
+        r => r?,
+    };
     for r in &mut result.diagnosis.ranked {
         r.evidence
             .insert("default_model".into(), material.source.clone().into());
