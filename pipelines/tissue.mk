@@ -25,13 +25,18 @@ SESSION_NAMES := $(patsubst $(SESSIONS)/%/session.toml,%,$(wildcard $(SESSIONS)/
 REPORTS       := $(foreach s,$(SESSION_NAMES),$(OUT)/$(s)/report/report.md)
 SIMULATIONS   := $(foreach s,$(SESSION_NAMES),$(OUT)/$(s)/sim.mcap)
 
-.PHONY: all digests clean-tissue
+.PHONY: all simulations digests clean-tissue
 .DELETE_ON_ERROR:
 # Keep every intermediate MCAP (they are the point: inspect them between stages).
 .SECONDARY:
 .SECONDEXPANSION:
 
-all: $(REPORTS) $(SIMULATIONS)
+all: $(REPORTS)
+
+# Novel-probe synthesis for every session (not part of `all`: with the current strain-space
+# material the synthesis does not reach equilibrium on very soft blocks, issue 7; run it with
+# `make -f pipelines/tissue.mk simulations`).
+simulations: $(SIMULATIONS)
 
 # capture reads the whole session folder except truth/ (which capture never reads).
 $(OUT)/%/capture.mcap: $$(shell find $(SESSIONS)/$$* -type f -not -path '*/truth/*' 2>/dev/null)
@@ -51,8 +56,8 @@ $(OUT)/%/diagnosis.mcap $(OUT)/%/diagnosis.json $(OUT)/%/report/report.md &: $(O
 	    -o $(OUT)/$*/diagnosis.mcap --json $(OUT)/$*/diagnosis.json --report $(OUT)/$*/report
 
 # `softcap inspect digest` of every intermediate, one line per file (what `make verify` compares).
-digests: $(REPORTS) $(SIMULATIONS)
-	@for s in $(SESSION_NAMES); do for f in capture material sim diagnosis; do \
+digests: $(REPORTS)
+	@for s in $(SESSION_NAMES); do for f in capture material diagnosis; do \
 	    printf '%s/%s.mcap %s\n' "$$s" "$$f" "$$($(SOFTCAP) inspect digest $(OUT)/$$s/$$f.mcap)"; \
 	done; done
 
