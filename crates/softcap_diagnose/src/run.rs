@@ -108,10 +108,14 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         r.evidence
             .insert("default_model".into(), material.source.clone().into());
     }
-    let sha = softcap_mcap::sha256_file(&cfg.material).map_err(|e| DiagnoseError::Mcap {
-        path: cfg.material.clone(),
-        source: Box::new(e),
-    })?;
+    // The content digest (`softcap inspect digest`): equal for equal material content whatever
+    // the material file's own provenance timestamp, so reruns reproduce this file's digest.
+    let sha = softcap_mcap::Recording::open(&cfg.material)
+        .and_then(|r| r.digest())
+        .map_err(|e| DiagnoseError::Mcap {
+            path: cfg.material.clone(),
+            source: Box::new(e),
+        })?;
     let settings_toml = toml::to_string(&cfg.settings).unwrap_or_default();
     let mcap_err = |path: &PathBuf| {
         let path = path.clone();
