@@ -11,8 +11,9 @@ use crate::composite::{CompositeSettings, CompositeSimulator, LayeredBlock};
 use crate::error::{DesignError, Result};
 use crate::material::{BaseMaterial, InvariantMaterial, TransverseMaterial, TransverseParams};
 use crate::search::{
-    BoundCheck, DesignEvaluator, Response, SearchSettings, TableEvaluator, bound_violations,
-    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
+    BoundCheck, BoundMargin, BoxExcess, DesignEvaluator, Response, SearchSettings, TableEvaluator,
+    bound_violations, box_excess, branch_and_bound, design_from_index, design_index,
+    exhaustive_optimum, exhaustive_table,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -125,6 +126,11 @@ pub struct ExperimentSettings {
     /// Cache of the exhaustive table ([`write_table`] format): read if it exists and matches
     /// (N, M, response length), otherwise computed and written there.
     pub table_path: Option<PathBuf>,
+    /// Certify the bound from the exhaustive table before searching: the searches use the
+    /// relative [`BoundMargin`] of factor × the measured box excess ([`box_excess`]), which
+    /// makes every culling test a lower bound over the whole design space (any target), so the
+    /// search is exact by the triangle inequality. `None`: `search.margin` as given.
+    pub certify_margin: Option<f64>,
 }
 
 impl Default for ExperimentSettings {
@@ -137,6 +143,7 @@ impl Default for ExperimentSettings {
             thickness_jitter: 0.15,
             exhaustive: true,
             table_path: None,
+            certify_margin: Some(1.0),
         }
     }
 }
@@ -184,6 +191,10 @@ pub struct ExperimentReport {
     pub heuristic_matches: usize,
     /// The §8.4.2 bound assumption checked over the whole table (per level).
     pub bound_checks: Vec<BoundCheck>,
+    /// Box excess per level over the table (in the search's cell order).
+    pub box_excess: Vec<BoxExcess>,
+    /// Margin the searches used.
+    pub margin: BoundMargin,
 }
 
 /// Random layer thicknesses with relative jitter, summing to the block height.
@@ -193,6 +204,72 @@ fn jittered_thickness(rng: &mut ChaCha8Rng, layers: usize, height_m: f64, jitter
         .collect();
     let s: f64 = raw.iter().sum();
     raw.iter().map(|r| r / s * height_m).collect()
+}
+
+/// A validation target: a random design with its own layer thicknesses and its response.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Target {
+    /// Material per layer (bottom first).
+    pub design: Vec<usize>,
+    /// Layer thicknesses [m] (jittered, summing to the block height).
+    pub thickness_m: Vec<f64>,
+    /// Response x̄ on its own mesh (same lateral grid, so the same top nodes as the search's).
+    pub response: Vec<f64>,
+}
+
+/// The `settings.targets` random targets of the validation (seeded: the same list every run).
+pub fn random_targets(
+    materials: &Arc<Vec<BaseMaterial>>,
+    settings: &ExperimentSettings,
+) -> Result<Vec<Target>> {
+    let cs = &settings.composite;
+    let (n, m) = (cs.layers, materials.len());
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let mut targets = Vec::new();
+    for _ in 0..settings.targets {
+        let design: Vec<usize> = (0..n).map(|_| rng.random_range(0..m)).collect();
+        let thick = jittered_thickness(&mut rng, n, cs.block_size_m[2], settings.thickness_jitter);
+        targets.push((design, thick));
+    }
+    targets
+        .into_par_iter()
+        .map(|(design, thickness_m)| -> Result<Target> {
+            let block = Arc::new(LayeredBlock::new(cs, &thickness_m)?);
+            let mut sim = CompositeSimulator::new(block, materials.clone(), cs)?;
+            let response = sim.simulate(&design)?.displacements_m;
+            Ok(Target {
+                design,
+                thickness_m,
+                response,
+            })
+        })
+        .collect()
+}
+
+/// The exhaustive table of all M^N designs with `evaluator` (the search's own evaluation):
+/// read from `settings.table_path` if it exists and matches (N, M, response length),
+/// otherwise computed and, with a path, written there.
+pub fn load_or_compute_table(
+    evaluator: &mut ParallelEvaluator,
+    settings: &ExperimentSettings,
+) -> Result<Vec<Response>> {
+    let n = evaluator.block.layers;
+    let m = evaluator.materials.len();
+    let dim = evaluator.block.top_nodes.len() * 3 * evaluator.settings.forces_n.len();
+    if let Some(p) = &settings.table_path
+        && p.exists()
+        && let Ok(t) = read_table(p)
+        && t.cells == n
+        && t.materials == m
+        && t.dim == dim
+    {
+        return Ok(t.responses);
+    }
+    let t = exhaustive_table(n, m, evaluator, 4096);
+    if let Some(p) = &settings.table_path {
+        write_table(p, n, m, dim, &t)?;
+    }
+    Ok(t)
 }
 
 /// Runs the validation of thesis §8.6 (see module docs).
@@ -208,45 +285,30 @@ pub fn run_experiment(
             reason: "need ≥ 1 of each".into(),
         });
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    let mut targets = Vec::new();
-    for _ in 0..settings.targets {
-        let design: Vec<usize> = (0..n).map(|_| rng.random_range(0..m)).collect();
-        let thick = jittered_thickness(&mut rng, n, cs.block_size_m[2], settings.thickness_jitter);
-        targets.push((design, thick));
-    }
-    // Target responses on their own meshes (same lateral grid: same top nodes).
-    let target_x: Vec<Vec<f64>> = targets
-        .par_iter()
-        .map(|(d, t)| -> Result<Vec<f64>> {
-            let block = Arc::new(LayeredBlock::new(cs, t)?);
-            let mut sim = CompositeSimulator::new(block, materials.clone(), cs)?;
-            Ok(sim.simulate(d)?.displacements_m)
-        })
-        .collect::<Result<_>>()?;
+    let targets = random_targets(&materials, settings)?;
+    let target_x: Vec<Vec<f64>> = targets.iter().map(|t| t.response.clone()).collect();
     let mut evaluator = ParallelEvaluator::new(materials.clone(), cs)?;
     let t0 = Instant::now();
-    let dim = evaluator.block.top_nodes.len() * 3 * cs.forces_n.len();
-    let cached = match (&settings.table_path, settings.exhaustive) {
-        (Some(p), true) if p.exists() => read_table(p)
-            .ok()
-            .filter(|t| t.cells == n && t.materials == m && t.dim == dim),
-        _ => None,
-    };
-    let table = if let Some(t) = cached {
-        Some(t.responses)
-    } else if settings.exhaustive {
-        let t = exhaustive_table(n, m, &mut evaluator, 4096);
-        if let Some(p) = &settings.table_path {
-            write_table(p, n, m, dim, &t)?;
-        }
-        Some(t)
+    let table = if settings.exhaustive {
+        Some(load_or_compute_table(&mut evaluator, settings)?)
     } else {
         None
     };
     let exhaustive_seconds = t0.elapsed().as_secs_f64();
+    let excess = table.as_ref().map_or_else(Vec::new, |t| {
+        box_excess(t, n, m, settings.search.cell_order)
+    });
+    let mut search_settings = settings.search.clone();
+    if let (Some(factor), Some(_)) = (settings.certify_margin, &table) {
+        search_settings.margin = BoundMargin::relative(&excess, factor);
+    }
+    let settings = &ExperimentSettings {
+        search: search_settings,
+        ..settings.clone()
+    };
     let mut outcomes = Vec::new();
-    for ((design, thick), tx) in targets.iter().zip(&target_x) {
+    for (target, tx) in targets.iter().zip(&target_x) {
+        let (design, thick) = (&target.design, &target.thickness_m);
         let t = Instant::now();
         let rep = match &table {
             Some(tab) => {
@@ -313,9 +375,16 @@ pub fn run_experiment(
             |o| matches!((&o.heuristic_design, &o.exhaustive), (Some(h), Some((d, _))) if h == d),
         )
         .count();
-    let bound_checks = table
-        .as_ref()
-        .map_or_else(Vec::new, |t| bound_violations(t, n, m, &target_x));
+    let bound_checks = table.as_ref().map_or_else(Vec::new, |t| {
+        bound_violations(
+            t,
+            n,
+            m,
+            &target_x,
+            settings.search.cell_order,
+            &settings.search.margin,
+        )
+    });
     Ok(ExperimentReport {
         outcomes,
         mean_found_rms_m,
@@ -324,6 +393,8 @@ pub fn run_experiment(
         exhaustive_failures,
         heuristic_matches,
         bound_checks,
+        box_excess: excess,
+        margin: settings.search.margin.clone(),
     })
 }
 

@@ -49,8 +49,9 @@ pub use composite::{
 };
 pub use error::{DesignError, Result};
 pub use experiment::{
-    ExperimentReport, ExperimentSettings, ParallelEvaluator, ResponseTable, TargetOutcome,
-    read_table, reference_library, run_experiment, write_table,
+    ExperimentReport, ExperimentSettings, ParallelEvaluator, ResponseTable, Target, TargetOutcome,
+    load_or_compute_table, random_targets, read_table, reference_library, run_experiment,
+    write_table,
 };
 pub use fit::{
     BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_isotropic,
@@ -70,9 +71,9 @@ pub use rubber::{
     read_biaxial, read_uniaxial, rubber_errors,
 };
 pub use search::{
-    BoundCheck, DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings,
-    TableEvaluator, bound_violations, branch_and_bound, design_from_index, design_index,
-    exhaustive_optimum, exhaustive_table, point_box_distance,
+    BoundCheck, BoundMargin, BoxExcess, CellOrder, DesignEvaluator, LevelReport, Response,
+    SearchReport, SearchSettings, TableEvaluator, bound_violations, box_excess, branch_and_bound,
+    design_from_index, design_index, exhaustive_optimum, exhaustive_table, point_box_distance,
 };
 
 pub use softcap_fem;

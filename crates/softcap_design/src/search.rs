@@ -34,8 +34,83 @@ pub struct SearchSettings {
     /// Exact search: cluster members other than the representatives are culled only by
     /// their (cluster's) bound, never by the breadth limit K (see [`branch_and_bound`]).
     pub exact: bool,
-    /// Slack subtracted from every box distance before culling [m] (0: the plain §8.4.2 bound).
-    pub bound_margin_m: f64,
+    /// Sweeps of coordinate descent from the best homogeneous design before the tree is
+    /// visited (0: none): a low incumbent d_min early (see `Search::descend`).
+    pub incumbent_sweeps: usize,
+    /// Order in which the tree levels decide the cells (see [`CellOrder`]).
+    pub cell_order: CellOrder,
+    /// Slack subtracted from every box distance before culling (zero: the plain §8.4.2
+    /// bound; see [`BoundMargin`]).
+    pub margin: BoundMargin,
+}
+
+/// Which cell each level of the decision tree decides. §8.4.2 does not fix the order; it
+/// decides how much of the response is still open below a node.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CellOrder {
+    /// Level 1 decides cell 0 (the bottom layer, on the table), level N the top layer.
+    BottomFirst,
+    /// Level 1 decides cell N − 1 (the top layer, under the probe), level N the bottom layer:
+    /// the undecided cells of a node are the deep ones, whose effect on the top surface is
+    /// small and smooth, so the uniform-fill boxes are tight (default).
+    #[default]
+    TopFirst,
+}
+
+impl CellOrder {
+    /// Cell decided at each level (index = level − 1) for `cells` cells.
+    pub fn cells(self, cells: usize) -> Vec<usize> {
+        match self {
+            CellOrder::BottomFirst => (0..cells).collect(),
+            CellOrder::TopFirst => (0..cells).rev().collect(),
+        }
+    }
+}
+
+/// Slack that makes the §8.4.2 box a lower bound. A node a at level l with box B_a (its M
+/// uniform fills) is culled when dist(x̄, B_a) − μ_a > d_min, with
+/// μ_a = `absolute_m`[l − 1] + `relative`[l − 1] · diag(B_a) (missing entries: 0).
+///
+/// Validity (triangle inequality): for a completion m of a, let q be the point of B_a nearest
+/// x(m); then ‖x(m) − x̄‖ ≥ ‖q − x̄‖ − ‖x(m) − q‖ ≥ dist(x̄, B_a) − dist(x(m), B_a). So if
+/// μ_a ≥ dist(x(m), B_a) for every completion m (the *box excess*, measured by [`box_excess`]),
+/// the culling test never removes a design closer to x̄ than d_min, for every target x̄,
+/// and branch-and-bound returns the exhaustive optimum. Level N − 1 boxes are exact (their
+/// fills are all the completions) and need no slack.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct BoundMargin {
+    /// Absolute slack per level [m].
+    pub absolute_m: Vec<f64>,
+    /// Slack per level relative to the box diagonal ‖hi − lo‖.
+    pub relative: Vec<f64>,
+}
+
+impl BoundMargin {
+    /// The slack μ of a node at `level` whose box has diagonal `diagonal_m`.
+    pub fn slack(&self, level: usize, diagonal_m: f64) -> f64 {
+        let i = level.saturating_sub(1);
+        self.absolute_m.get(i).copied().unwrap_or(0.0)
+            + self.relative.get(i).copied().unwrap_or(0.0) * diagonal_m
+    }
+
+    /// Absolute slack `factor` × the measured largest box excess per level ([`box_excess`]).
+    pub fn absolute(excess: &[BoxExcess], factor: f64) -> Self {
+        Self {
+            absolute_m: excess.iter().map(|e| factor * e.max_excess_m).collect(),
+            relative: Vec::new(),
+        }
+    }
+
+    /// Slack relative to the box diagonal: `factor` × the measured largest
+    /// dist(x(m), B)/diag(B) per level ([`box_excess`]).
+    pub fn relative(excess: &[BoxExcess], factor: f64) -> Self {
+        Self {
+            absolute_m: Vec::new(),
+            relative: excess.iter().map(|e| factor * e.max_relative).collect(),
+        }
+    }
 }
 
 impl Default for SearchSettings {
@@ -49,7 +124,9 @@ impl Default for SearchSettings {
                 restarts: 2,
             },
             exact: true,
-            bound_margin_m: 0.0,
+            incumbent_sweeps: 3,
+            cell_order: CellOrder::default(),
+            margin: BoundMargin::default(),
         }
     }
 }
@@ -161,18 +238,33 @@ impl Tracker<'_> {
     }
 }
 
+/// The design with the cells of `prefix` (tree order `order`) decided and every other cell
+/// filled with material `fill`.
+fn fill_design(prefix: &[usize], fill: usize, order: &[usize]) -> Vec<usize> {
+    let mut d = vec![fill; order.len()];
+    for (level, &m) in prefix.iter().enumerate() {
+        d[order[level]] = m;
+    }
+    d
+}
+
 /// A bounded node of the decision tree: a prefix (materials of the first cells) with the
 /// axis-aligned box of its uniform fills and its eq. 8.4 feature vector.
 struct Node {
+    /// Materials of the decided cells, in tree (level) order.
     prefix: Vec<usize>,
     lo: Vec<f64>,
     hi: Vec<f64>,
     features: Vec<f64>,
+    /// Slack μ of the node's box ([`BoundMargin`]).
+    slack: f64,
     bound: f64,
 }
 
 struct Search<'a, E: DesignEvaluator + ?Sized> {
     cells: usize,
+    /// Cell decided at each level.
+    order: Vec<usize>,
     materials: usize,
     settings: &'a SearchSettings,
     tracker: Tracker<'a>,
@@ -185,20 +277,13 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
     /// in one batch, and returns the nodes whose box is not already farther than d_min.
     fn bound(&mut self, prefixes: Vec<Vec<usize>>, level: usize) -> Vec<Node> {
         let m = self.materials;
-        let cells = self.cells;
+        let order = &self.order;
         let fills: Vec<Vec<usize>> = prefixes
             .iter()
-            .flat_map(|c| {
-                (0..m).map(move |j| {
-                    let mut d = c.clone();
-                    d.resize(cells, j);
-                    d
-                })
-            })
+            .flat_map(|c| (0..m).map(move |j| fill_design(c, j, order)))
             .collect();
         let responses = self.tracker.eval(self.evaluator, &fills);
         let d_min = self.tracker.d_min();
-        let margin = self.settings.bound_margin_m;
         let mut out = Vec::new();
         let mut culled = 0;
         for (ci, prefix) in prefixes.into_iter().enumerate() {
@@ -217,7 +302,11 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
                     hi[i] = hi[i].max(r[i]);
                 }
             }
-            let bound = (point_box_distance(self.tracker.target, &lo, &hi) - margin).max(0.0);
+            let slack = self
+                .settings
+                .margin
+                .slack(prefix.len(), sq_dist(&lo, &hi).sqrt());
+            let bound = (point_box_distance(self.tracker.target, &lo, &hi) - slack).max(0.0);
             if self.settings.cull && bound > d_min {
                 culled += 1;
                 continue;
@@ -236,6 +325,7 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
                 lo,
                 hi,
                 features,
+                slack,
                 bound,
             });
         }
@@ -243,6 +333,37 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
         rep.nodes += out.len() + culled;
         rep.culled += culled;
         out
+    }
+
+    /// Coordinate descent from the best design so far (the best homogeneous one): per sweep,
+    /// each cell in tree order takes the material that minimizes ‖x − x̄‖ with the others
+    /// fixed; stops after `sweeps` sweeps or when a sweep changes nothing. It only lowers the
+    /// incumbent d_min before the tree is visited (more culling from the start); it removes no
+    /// design from the tree, so exactness is unchanged.
+    fn descend(&mut self, sweeps: usize) {
+        for _ in 0..sweeps {
+            let Some((start, _)) = self.tracker.best.clone() else {
+                return;
+            };
+            let mut current = start.clone();
+            for level in 0..self.cells {
+                let cell = self.order[level];
+                let designs: Vec<Vec<usize>> = (0..self.materials)
+                    .map(|j| {
+                        let mut d = current.clone();
+                        d[cell] = j;
+                        d
+                    })
+                    .collect();
+                self.tracker.eval(self.evaluator, &designs);
+                if let Some((best, _)) = &self.tracker.best {
+                    current.clone_from(best);
+                }
+            }
+            if current == start {
+                return;
+            }
+        }
     }
 
     /// Children of `nodes` (one more cell decided), bounded.
@@ -337,15 +458,17 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
                 };
                 let mut lo = first.lo.clone();
                 let mut hi = first.hi.clone();
+                let mut slack = first.slack;
                 for n in &members[1..] {
                     for i in 0..lo.len() {
                         lo[i] = lo[i].min(n.lo[i]);
                         hi[i] = hi[i].max(n.hi[i]);
                     }
+                    slack = slack.max(n.slack);
                 }
-                let b = (point_box_distance(self.tracker.target, &lo, &hi)
-                    - self.settings.bound_margin_m)
-                    .max(0.0);
+                // dist(x̄, union) ≤ dist(x̄, B_a) for every member a, so subtracting the
+                // largest member slack keeps the cluster test a lower bound.
+                let b = (point_box_distance(self.tracker.target, &lo, &hi) - slack).max(0.0);
                 cluster_culled[c] = self.settings.cull && b > d_min;
             }
             let before = rest.len();
@@ -386,6 +509,7 @@ pub fn branch_and_bound<E: DesignEvaluator + ?Sized>(
     }
     let mut search = Search {
         cells,
+        order: settings.cell_order.cells(cells),
         materials,
         settings,
         tracker: Tracker {
@@ -408,6 +532,7 @@ pub fn branch_and_bound<E: DesignEvaluator + ?Sized>(
     let root = search.bound(vec![Vec::new()], 1);
     search.levels[0].nodes = 0;
     search.levels[0].culled = 0;
+    search.descend(settings.incumbent_sweeps);
     if cells == 1 {
         // The root's fills are all designs.
     } else {
@@ -432,80 +557,173 @@ pub fn branch_and_bound<E: DesignEvaluator + ?Sized>(
     })
 }
 
-/// Checks the §8.4.2 bound assumption over a complete table of responses: for every prefix of
-/// every length 1 … N − 1, do all completions lie in the box of its M uniform fills? Returns
-/// per level (prefixes checked, prefixes with a completion outside the box, largest excess
-/// [m] of a component outside its box, largest excess of the distance bound over the
-/// distance of the subtree's best design for the given targets [m]).
+/// Boxes of every level-`level` prefix (tree order `order`) over a complete table, indexed by
+/// the prefix key Σ m_{order[i]} M^{level−1−i}; `None` if every fill failed.
+fn prefix_boxes(
+    table: &[Response],
+    materials: usize,
+    order: &[usize],
+    level: usize,
+) -> Vec<Option<(Vec<f64>, Vec<f64>)>> {
+    let keys = materials.pow(level as u32);
+    (0..keys)
+        .map(|key| {
+            let mut prefix = vec![0; level];
+            let mut k = key;
+            for p in prefix.iter_mut().rev() {
+                *p = k % materials;
+                k /= materials;
+            }
+            let mut bx: Option<(Vec<f64>, Vec<f64>)> = None;
+            for j in 0..materials {
+                let d = fill_design(&prefix, j, order);
+                if let Some(r) = &table[design_index(&d, materials)] {
+                    let (lo, hi) = bx.get_or_insert_with(|| ((**r).clone(), (**r).clone()));
+                    for i in 0..r.len() {
+                        lo[i] = lo[i].min(r[i]);
+                        hi[i] = hi[i].max(r[i]);
+                    }
+                }
+            }
+            bx
+        })
+        .collect()
+}
+
+/// Prefix key (see [`prefix_boxes`]) of `design` at `level`.
+fn prefix_key(design: &[usize], materials: usize, order: &[usize], level: usize) -> usize {
+    order[..level]
+        .iter()
+        .fold(0, |acc, &c| acc * materials + design[c])
+}
+
+/// Checks the §8.4.2 bound over a complete table (tree order `order`): for every prefix of
+/// every length 1 … N − 1, do all completions lie in the box of its M uniform fills, and does
+/// the culling test (box distance minus the `margin` slack) ever exceed the best distance in
+/// the subtree for the given targets? Returns per level (prefixes checked, prefixes with a
+/// completion outside the box, largest excess [m] of a component outside its box, number and
+/// largest excess [m] of (prefix, target) pairs whose bound exceeds the subtree's best).
 pub fn bound_violations(
     table: &[Response],
     cells: usize,
     materials: usize,
     targets: &[Vec<f64>],
+    order: CellOrder,
+    margin: &BoundMargin,
 ) -> Vec<BoundCheck> {
+    let order = order.cells(cells);
     let mut out = Vec::new();
     for level in 1..cells {
-        let subtree = materials.pow((cells - level) as u32);
-        let prefixes = materials.pow(level as u32);
+        let boxes = prefix_boxes(table, materials, &order, level);
         let mut check = BoundCheck {
             level,
-            prefixes,
+            prefixes: boxes.len(),
             violating_prefixes: 0,
             max_component_excess_m: 0.0,
             max_bound_excess_m: 0.0,
             bound_failures: 0,
         };
-        for p in 0..prefixes {
-            let first = p * subtree;
-            let fills: Vec<&Arc<Vec<f64>>> = (0..materials)
-                .filter_map(|j| {
-                    // uniform fill j: every remaining digit = j
-                    let mut idx = first;
-                    let mut w = 1;
-                    for _ in 0..cells - level {
-                        idx += j * w;
-                        w *= materials;
-                    }
-                    table[idx].as_ref()
-                })
-                .collect();
-            let Some(f0) = fills.first() else { continue };
-            let n = f0.len();
-            let mut lo = vec![f64::INFINITY; n];
-            let mut hi = vec![f64::NEG_INFINITY; n];
-            for r in &fills {
-                for i in 0..n {
-                    lo[i] = lo[i].min(r[i]);
-                    hi[i] = hi[i].max(r[i]);
-                }
-            }
-            let mut violated = false;
-            for r in table[first..first + subtree].iter().flatten() {
-                for i in 0..n {
+        let mut violated = vec![false; boxes.len()];
+        let mut best = vec![f64::INFINITY; boxes.len() * targets.len()];
+        for (index, r) in table.iter().enumerate() {
+            let Some(r) = r else { continue };
+            let d = design_from_index(index, cells, materials);
+            let key = prefix_key(&d, materials, &order, level);
+            if let Some((lo, hi)) = &boxes[key] {
+                for i in 0..r.len() {
                     let ex = (lo[i] - r[i]).max(r[i] - hi[i]);
                     if ex > 0.0 {
-                        violated = true;
+                        violated[key] = true;
                         check.max_component_excess_m = check.max_component_excess_m.max(ex);
                     }
                 }
             }
-            check.violating_prefixes += usize::from(violated);
-            for t in targets {
-                let bound = point_box_distance(t, &lo, &hi);
-                let best = table[first..first + subtree]
-                    .iter()
-                    .flatten()
-                    .map(|r| sq_dist(r, t).sqrt())
-                    .fold(f64::INFINITY, f64::min);
-                if bound > best {
+            for (t, target) in targets.iter().enumerate() {
+                let b = &mut best[key * targets.len() + t];
+                *b = b.min(sq_dist(r, target).sqrt());
+            }
+        }
+        check.violating_prefixes = violated.iter().filter(|v| **v).count();
+        for (key, bx) in boxes.iter().enumerate() {
+            let Some((lo, hi)) = bx else { continue };
+            let slack = margin.slack(level, sq_dist(lo, hi).sqrt());
+            for (t, target) in targets.iter().enumerate() {
+                let bound = point_box_distance(target, lo, hi) - slack;
+                let b = best[key * targets.len() + t];
+                if bound > b {
                     check.bound_failures += 1;
-                    check.max_bound_excess_m = check.max_bound_excess_m.max(bound - best);
+                    check.max_bound_excess_m = check.max_bound_excess_m.max(bound - b);
                 }
             }
         }
         out.push(check);
     }
     out
+}
+
+/// How far the completions of a prefix leave its uniform-fill box, per level, over a complete
+/// table (tree order `order`): the quantity a [`BoundMargin`] must cover.
+pub fn box_excess(
+    table: &[Response],
+    cells: usize,
+    materials: usize,
+    order: CellOrder,
+) -> Vec<BoxExcess> {
+    let order = order.cells(cells);
+    let mut out = Vec::new();
+    for level in 1..cells {
+        let boxes = prefix_boxes(table, materials, &order, level);
+        let mut e = BoxExcess {
+            level,
+            prefixes: boxes.len(),
+            designs_outside: 0,
+            max_excess_m: 0.0,
+            max_relative: 0.0,
+            mean_diagonal_m: 0.0,
+        };
+        let mut n_diag = 0usize;
+        for (lo, hi) in boxes.iter().flatten() {
+            e.mean_diagonal_m += sq_dist(lo, hi).sqrt();
+            n_diag += 1;
+        }
+        e.mean_diagonal_m /= n_diag.max(1) as f64;
+        for (index, r) in table.iter().enumerate() {
+            let Some(r) = r else { continue };
+            let d = design_from_index(index, cells, materials);
+            let key = prefix_key(&d, materials, &order, level);
+            let Some((lo, hi)) = &boxes[key] else {
+                continue;
+            };
+            let ex = point_box_distance(r, lo, hi);
+            if ex > 0.0 {
+                e.designs_outside += 1;
+                e.max_excess_m = e.max_excess_m.max(ex);
+                let diag = sq_dist(lo, hi).sqrt();
+                e.max_relative =
+                    e.max_relative
+                        .max(if diag > 0.0 { ex / diag } else { f64::INFINITY });
+            }
+        }
+        out.push(e);
+    }
+    out
+}
+
+/// One level of [`box_excess`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BoxExcess {
+    /// Cells decided.
+    pub level: usize,
+    /// Prefixes at this level (M^level).
+    pub prefixes: usize,
+    /// Designs lying outside their level-`level` prefix's box.
+    pub designs_outside: usize,
+    /// Largest Euclidean distance dist(x(m), B) of a design from its prefix's box [m].
+    pub max_excess_m: f64,
+    /// Largest dist(x(m), B) / diag(B).
+    pub max_relative: f64,
+    /// Mean box diagonal ‖hi − lo‖ at this level [m].
+    pub mean_diagonal_m: f64,
 }
 
 /// One level of [`bound_violations`].
@@ -519,7 +737,7 @@ pub struct BoundCheck {
     pub violating_prefixes: usize,
     /// Largest distance of a response component outside its box [m].
     pub max_component_excess_m: f64,
-    /// (prefix, target) pairs whose box distance exceeds the subtree's true best distance.
+    /// (prefix, target) pairs whose culling bound exceeds the subtree's true best distance.
     pub bound_failures: usize,
     /// Largest such excess [m].
     pub max_bound_excess_m: f64,
@@ -669,13 +887,22 @@ mod tests {
             let clustered = SearchSettings {
                 clusters: k,
                 exact: false,
+                incumbent_sweeps: 0,
+                cell_order: CellOrder::BottomFirst,
                 ..SearchSettings::default()
             };
             let rep = branch_and_bound(cells, m, &target, &mut tev, &clustered).unwrap();
             assert!(rep.evaluations <= m + m * m + (cells - 2) * k * m * m);
             assert!(rep.levels.iter().all(|l| l.representatives <= k));
             // The monotone additive model satisfies the bound assumption everywhere.
-            let checks = bound_violations(&table, cells, m, std::slice::from_ref(&target));
+            let checks = bound_violations(
+                &table,
+                cells,
+                m,
+                std::slice::from_ref(&target),
+                CellOrder::BottomFirst,
+                &BoundMargin::default(),
+            );
             assert_eq!(checks.len(), cells - 1);
             assert!(
                 checks
