@@ -92,9 +92,9 @@ pub use plasticity::{
 };
 pub use probing::{
     ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, HomogeneousFit,
-    HomogeneousFitSettings, ObservedMarker, PatchSettings, ProbeExample, ProbingSetup,
+    HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample, ProbingSetup,
     StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel, StrainTail,
-    fit_example, fit_homogeneous, simulate_probe_contact,
+    fit_example, fit_examples_jointly, fit_homogeneous, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

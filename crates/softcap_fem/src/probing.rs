@@ -312,6 +312,17 @@ pub struct ExampleFitSettings {
     pub relative_cost_tolerance: f64,
     /// Initial damping μ relative to the largest diagonal of JᵀJ.
     pub initial_damping: f64,
+    /// Floor of the Marquardt scaling relative to its largest entry: D_i = max(diag_i,
+    /// `min_scaling` · max diag) (Moré 1978 §5: a scaling that vanishes in parameters the
+    /// markers barely see lets the damped step run off in them at any μ).
+    pub min_scaling: f64,
+    /// Largest trust radius ‖h‖∞ of a step in q = (ln λ, ν) units (Moré 1978 trust region on
+    /// top of the Marquardt damping); 0 disables the trust region.
+    pub max_step: f64,
+    /// γ_p: Tikhonov shrinkage of the fit toward its start `initial`, cost
+    /// γ_p · (1e-8 m²) · (rows / 2T) · ‖q − q₀‖²: with γ_p = 1, moving *every* tet by 1 in ln λ
+    /// (or ν) costs as much as 0.1 mm RMS marker error; 0 = eq. 9 as printed.
+    pub gamma_prior: f64,
     /// Matrix of the linearization: `Consistent` (exact ∂x/∂p of the corotational equilibrium)
     /// or `Warped` (bickel2009 eq. 11 with rotations held fixed).
     pub jacobian: StiffnessKind,
@@ -333,6 +344,9 @@ impl Default for ExampleFitSettings {
             max_iterations: 12,
             relative_cost_tolerance: 1e-3,
             initial_damping: 1e-3,
+            min_scaling: 1e-2,
+            max_step: 1.0,
+            gamma_prior: 0.0,
             jacobian: StiffnessKind::Consistent,
             equilibrium: EquilibriumSettings {
                 max_iterations: 60,
@@ -454,14 +468,80 @@ pub fn marker_jacobian(
 /// (Poisson's ratio stays in `nu_bounds`, so α = νλ is always physically valid). Each iteration
 /// simulates the example ([`ProbingSetup::simulate`]), builds the marker Jacobian by the adjoint
 /// method (appendix eq. 10–12, [`Sensitivity`], one factorization for all rows), and solves the
-/// damped normal equations (J_mᵀJ_m + γLᵀL + μD) h = −g matrix-free by preconditioned conjugate
-/// gradients (J_m is 3k × 2T and dense, L sparse). `initial` gives λ_ref and the start.
+/// damped normal equations (J_mᵀJ_m + γLᵀL + γ_p I + μD) h = −g matrix-free by preconditioned
+/// conjugate gradients (J_m is 3k × 2T and dense, L sparse). `initial` gives λ_ref and the start;
+/// γ_p (`gamma_prior`, default 0) shrinks the fit toward it.
+///
+/// Step control: the Marquardt scaling D is floored at `min_scaling` × its largest entry, and
+/// the step is cut to a trust radius ‖h‖∞ ≤ r (r ≤ `max_step`, ×2 after an accepted step, ×¼
+/// of the tried length after a rejected one; Moré 1978). Without it, parameters the markers
+/// barely see (tets far from the probe, deep tets) get steps of ≈ 6 in ln λ at any damping,
+/// are clamped at the bounds, and every step of a small-force example is rejected (measured,
+/// docs/tissue.md).
 pub fn fit_example(
     setup: &ProbingSetup,
     example: &ProbeExample,
     initial: &[LinearParams],
     settings: &ExampleFitSettings,
 ) -> Result<ExampleFit, FemError> {
+    let joint = fit_examples_jointly(setup, std::slice::from_ref(example), initial, settings)?;
+    let JointFit {
+        params,
+        mut positions_m,
+        mut strains,
+        mut initial_rms_m,
+        mut example_rms_m,
+        cost_history,
+        iterations,
+        status,
+        ..
+    } = joint;
+    Ok(ExampleFit {
+        params,
+        positions_m: positions_m.pop().unwrap_or_default(),
+        strains: strains.pop().unwrap_or_default(),
+        initial_rms_m: initial_rms_m.pop().unwrap_or(0.0),
+        rms_m: example_rms_m.pop().unwrap_or(0.0),
+        cost_history,
+        iterations,
+        status,
+    })
+}
+
+/// Result of [`fit_examples_jointly`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointFit {
+    /// Fitted (λ_e, α_e) per tet (one field for all examples).
+    pub params: Vec<LinearParams>,
+    /// Equilibrium node positions of each example under the fitted parameters, m.
+    pub positions_m: Vec<Vec<Vector3<f64>>>,
+    /// Corotated Voigt strains of each example at its equilibrium.
+    pub strains: Vec<Vec<Vector6<f64>>>,
+    /// RMS marker error of each example before fitting, m.
+    pub initial_rms_m: Vec<f64>,
+    /// RMS marker error of each example after fitting, m.
+    pub example_rms_m: Vec<f64>,
+    /// RMS marker error over all examples after fitting, m.
+    pub rms_m: f64,
+    /// Cost after each accepted step (first entry: initial).
+    pub cost_history: Vec<f64>,
+    /// LM iterations performed.
+    pub iterations: usize,
+    /// Worst equilibrium status of the final simulations.
+    pub status: SolveStatus,
+}
+
+/// Eq. 9 with the sum over the markers of *several* examples and one heterogeneous linear field
+/// p for all of them: the heterogeneous counterpart of the average-fit homogeneous model
+/// ([`fit_homogeneous`], bickel2009 Fig. 8). [`fit_example`] is the one-example case. Same
+/// parameterization, Jacobian (one adjoint factorization per example), regularization and step
+/// control as [`fit_example`].
+pub fn fit_examples_jointly(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    initial: &[LinearParams],
+    settings: &ExampleFitSettings,
+) -> Result<JointFit, FemError> {
     let t = setup.num_elements();
     if initial.len() != t {
         return Err(FemError::LengthMismatch {
@@ -497,6 +577,8 @@ pub fn fit_example(
     for i in 0..n {
         q[i] = q[i].clamp(lower[i], upper[i]);
     }
+    let q0 = q.clone();
+    let prior = settings.gamma_prior.max(0.0);
     let gam = |i: usize| {
         if i < t {
             settings.gamma_m2
@@ -507,11 +589,15 @@ pub fn fit_example(
 
     let mut model = CorotationalModel::new(&setup.mesh, params_from_q(&lambda_ref, &q))?;
     let mut solver = setup.solver(&model)?;
-    let patch = setup.patch_nodes(example, &settings.patch);
-    let forces = setup.nodal_forces(example, &patch);
-    let mut x = setup.mesh.vertices.clone();
+    let forces: Vec<Vec<Vector3<f64>>> = examples
+        .iter()
+        .map(|ex| setup.nodal_forces(ex, &setup.patch_nodes(ex, &settings.patch)))
+        .collect();
+    let mut xs: Vec<Vec<Vector3<f64>>> = vec![setup.mesh.vertices.clone(); examples.len()];
 
-    // Cost = ‖r_m‖² + γ‖L s‖² + γ_ν‖L ν‖².
+    // Cost = Σ‖r_m‖² + γ‖L s‖² + γ_ν‖L ν‖² + γ_p‖q − q₀‖² (scaled by the marker count).
+    let num_rows: usize = examples.iter().map(|e| 3 * e.observed.len()).sum();
+    let prior_scale = prior * 1e-8 * num_rows as f64 / n as f64;
     let reg_cost = |q: &[f64]| {
         let mut lq = vec![0.0; t];
         let mut c = 0.0;
@@ -519,48 +605,69 @@ pub fn fit_example(
             umbrella_apply(&setup.adjacency, &q[block..block + t], &mut lq);
             c += g * lq.iter().map(|v| v * v).sum::<f64>();
         }
-        c
+        c + prior_scale
+            * q.iter()
+                .zip(&q0)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
     };
-    let rep = simulate_params(
-        setup,
-        &mut solver,
-        &mut model,
-        &params_from_q(&lambda_ref, &q),
-        &forces,
-        &mut x,
-        &settings.equilibrium,
-    )?;
-    let mut status = rep.status.clone();
-    let mut r = marker_residuals(setup, example, &x);
-    let initial_rms_m = rms_of(&r);
-    let mut cost = r.iter().map(|v| v * v).sum::<f64>() + reg_cost(&q);
+    // Simulates every example with the parameters `q` warm-started from `xs`; residuals stacked.
+    let run_all = |model: &mut CorotationalModel,
+                   solver: &mut StaticSolver,
+                   q: &[f64],
+                   xs: &mut [Vec<Vector3<f64>>]|
+     -> Result<(Vec<Vec<f64>>, SolveStatus, bool), FemError> {
+        model.set_params(&params_from_q(&lambda_ref, q))?;
+        let mut rs = Vec::with_capacity(examples.len());
+        let mut status = SolveStatus::Converged;
+        let mut ok = true;
+        for (k, ex) in examples.iter().enumerate() {
+            let rep = setup.simulate(solver, model, &mut xs[k], &forces[k], &settings.equilibrium);
+            if !rep.converged() {
+                ok = false;
+                status = rep.status.clone();
+            }
+            rs.push(marker_residuals(setup, ex, &xs[k]));
+        }
+        Ok((rs, status, ok))
+    };
+    let (mut rs, mut status, _) = run_all(&mut model, &mut solver, &q, &mut xs)?;
+    let initial_rms_m: Vec<f64> = rs.iter().map(|r| rms_of(r)).collect();
+    let sq = |rs: &[Vec<f64>]| rs.iter().flatten().map(|v| v * v).sum::<f64>();
+    let mut cost = sq(&rs) + reg_cost(&q);
     let mut history = vec![cost];
     let mut iterations = 0;
     let mut mu_rel = settings.initial_damping;
+    let mut radius = if settings.max_step > 0.0 {
+        settings.max_step
+    } else {
+        f64::INFINITY
+    };
     let mut jac_valid = false;
     let mut jm: Vec<Vec<f64>> = Vec::new(); // rows in q-space
     let mut diag_max = vec![0.0f64; n];
     let mut grad = vec![0.0; n];
 
-    while iterations < settings.max_iterations && !r.is_empty() {
+    while iterations < settings.max_iterations && num_rows > 0 {
         iterations += 1;
         if !jac_valid {
-            let rows = marker_jacobian(setup, &mut solver, &model, example, &x, settings.jacobian)
-                .or_else(|_| {
-                    marker_jacobian(
-                        setup,
-                        &mut solver,
-                        &model,
-                        example,
-                        &x,
-                        StiffnessKind::Warped,
-                    )
-                })?;
             let params = model.params().to_vec();
-            // Chain rule to q: ∂/∂s_e = λ_e (∂/∂λ_e + ν_e ∂/∂α_e), ∂/∂ν_e = λ_e ∂/∂α_e.
-            jm = rows
-                .iter()
-                .map(|row| {
+            jm.clear();
+            for (k, ex) in examples.iter().enumerate() {
+                let rows =
+                    marker_jacobian(setup, &mut solver, &model, ex, &xs[k], settings.jacobian)
+                        .or_else(|_| {
+                            marker_jacobian(
+                                setup,
+                                &mut solver,
+                                &model,
+                                ex,
+                                &xs[k],
+                                StiffnessKind::Warped,
+                            )
+                        })?;
+                // Chain rule to q: ∂/∂s_e = λ_e (∂/∂λ_e + ν_e ∂/∂α_e), ∂/∂ν_e = λ_e ∂/∂α_e.
+                jm.extend(rows.iter().map(|row| {
                     let mut out = vec![0.0; n];
                     for e in 0..t {
                         let (jl, ja) = (row[2 * e], row[2 * e + 1]);
@@ -570,11 +677,11 @@ pub fn fit_example(
                         out[t + e] = lam * ja;
                     }
                     out
-                })
-                .collect();
-            // g = J_mᵀ r + γ Lᵀ L q (L symmetric).
+                }));
+            }
+            // g = J_mᵀ r + γ Lᵀ L q + γ_p (q − q₀) (L symmetric).
             grad.iter_mut().for_each(|g| *g = 0.0);
-            for (row, ri) in jm.iter().zip(&r) {
+            for (row, ri) in jm.iter().zip(rs.iter().flatten()) {
                 for i in 0..n {
                     grad[i] += row[i] * ri;
                 }
@@ -589,9 +696,11 @@ pub fn fit_example(
                 }
             }
             for i in 0..n {
+                grad[i] += prior_scale * (q[i] - q0[i]);
                 let deg = setup.adjacency[i % t].len() as f64;
-                let d =
-                    jm.iter().map(|row| row[i] * row[i]).sum::<f64>() + gam(i) * (deg * deg + deg);
+                let d = jm.iter().map(|row| row[i] * row[i]).sum::<f64>()
+                    + gam(i) * (deg * deg + deg)
+                    + prior_scale;
                 diag_max[i] = diag_max[i].max(d);
             }
             jac_valid = true;
@@ -602,42 +711,44 @@ pub fn fit_example(
             .collect();
         let dmax = diag_max.iter().copied().fold(0.0, f64::max).max(1e-300);
         let mu = mu_rel * dmax;
+        let floor = settings.min_scaling.max(0.0) * dmax;
+        let scaling: Vec<f64> = diag_max.iter().map(|d| d.max(floor)).collect();
         let h = damped_step(
             setup,
             &jm,
             &grad,
             &free,
-            &diag_max,
+            &scaling,
             mu,
+            prior_scale,
             &gam,
             settings.cg_iterations,
         );
-        let mut q_trial: Vec<f64> = (0..n).map(|i| q[i] + h[i]).collect();
+        // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
+        let h_inf = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let shrink = if h_inf > radius { radius / h_inf } else { 1.0 };
+        let mut q_trial: Vec<f64> = (0..n).map(|i| q[i] + shrink * h[i]).collect();
         for i in 0..n {
             q_trial[i] = q_trial[i].clamp(lower[i], upper[i]);
         }
-        let mut x_trial = x.clone();
-        let rep = simulate_params(
-            setup,
-            &mut solver,
-            &mut model,
-            &params_from_q(&lambda_ref, &q_trial),
-            &forces,
-            &mut x_trial,
-            &settings.equilibrium,
-        )?;
-        let r_trial = marker_residuals(setup, example, &x_trial);
-        let cost_trial = r_trial.iter().map(|v| v * v).sum::<f64>() + reg_cost(&q_trial);
-        if rep.converged() && cost_trial.is_finite() && cost_trial < cost {
+        let mut xs_trial = xs.clone();
+        let (rs_trial, st_trial, ok) = run_all(&mut model, &mut solver, &q_trial, &mut xs_trial)?;
+        let cost_trial = sq(&rs_trial) + reg_cost(&q_trial);
+        if ok && cost_trial.is_finite() && cost_trial < cost {
             let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
             q = q_trial;
-            x = x_trial;
-            r = r_trial;
+            xs = xs_trial;
+            rs = rs_trial;
             cost = cost_trial;
-            status = rep.status;
+            status = st_trial;
             history.push(cost);
             jac_valid = false;
             mu_rel = (mu_rel / 3.0).max(1e-12);
+            radius = (2.0 * radius).min(if settings.max_step > 0.0 {
+                settings.max_step
+            } else {
+                f64::INFINITY
+            });
             if decrease < settings.relative_cost_tolerance {
                 break;
             }
@@ -645,27 +756,33 @@ pub fn fit_example(
             // Restore the model to the accepted parameters.
             model.set_params(&params_from_q(&lambda_ref, &q))?;
             mu_rel *= 4.0;
-            if mu_rel > 1e12 {
+            if settings.max_step > 0.0 {
+                radius = 0.25 * radius.min(shrink * h_inf);
+            }
+            if mu_rel > 1e12 || radius < 1e-6 {
                 break;
             }
         }
     }
     let params = params_from_q(&lambda_ref, &q);
     model.set_params(&params)?;
-    let strains = model.strains(&x);
-    Ok(ExampleFit {
+    let strains = xs.iter().map(|x| model.strains(x)).collect();
+    let example_rms_m: Vec<f64> = rs.iter().map(|r| rms_of(r)).collect();
+    let rms_m = rms_of(&rs.concat());
+    Ok(JointFit {
         params,
+        positions_m: xs,
         strains,
         initial_rms_m,
-        rms_m: rms_of(&r),
-        positions_m: x,
+        example_rms_m,
+        rms_m,
         cost_history: history,
         iterations,
         status,
     })
 }
 
-/// Solves (J_mᵀJ_m + γLᵀL + μD) h = −g on the free variables by Jacobi-preconditioned CG.
+/// Solves (J_mᵀJ_m + γLᵀL + γ_p I + μD) h = −g on the free variables by Jacobi-preconditioned CG.
 #[allow(clippy::too_many_arguments)]
 fn damped_step(
     setup: &ProbingSetup,
@@ -674,6 +791,7 @@ fn damped_step(
     free: &[bool],
     diag: &[f64],
     mu: f64,
+    prior: f64,
     gam: &dyn Fn(usize) -> f64,
     max_iter: usize,
 ) -> Vec<f64> {
@@ -697,7 +815,7 @@ fn damped_step(
             }
         }
         for i in 0..n {
-            out[i] += mu * diag[i] * v[i];
+            out[i] += mu * diag[i] * v[i] + prior * v[i];
             if !free[i] {
                 out[i] = 0.0;
             }
@@ -1577,6 +1695,9 @@ pub struct ContactSynthesisSettings {
     pub equilibrium: EquilibriumSettings,
     /// Contact penalty.
     pub contact: ContactSettings,
+    /// Halvings of a load increment whose equilibrium does not converge before the synthesis
+    /// reports non-convergence (adaptive load stepping).
+    pub max_bisections: usize,
 }
 
 impl Default for ContactSynthesisSettings {
@@ -1597,6 +1718,7 @@ impl Default for ContactSynthesisSettings {
             },
             steps: 8,
             contact: ContactSettings::default(),
+            max_bisections: 6,
         }
     }
 }
@@ -1633,7 +1755,7 @@ pub struct ContactSynthesis {
 /// search so that the axial contact force equals `axial_force_n`. The pose's origin is first
 /// moved back along the axis to the first boundary node it would touch, so the given pose may
 /// be anywhere on the approach line.
-pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
+pub fn simulate_probe_contact<M: ElasticModel + Clone>(
     setup: &ProbingSetup,
     model: &mut M,
     tip: TipShape,
@@ -1681,24 +1803,53 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
         settings: settings.contact.clone(),
     };
     // Moves the probe from depth `from` to `to` in `steps` increments (warm-started from `x`);
-    // returns the axial force at `to` and the status; `path` receives every increment.
-    let mut advance = |x: &mut Vec<Vector3<f64>>,
+    // an increment whose equilibrium does not converge is undone (positions and model state)
+    // and retried at half the length, up to `max_bisections` halvings in a row; after a
+    // converged increment the length grows back (×2, at most the nominal one). Returns the
+    // axial force at the last converged depth and the status (not converged when the halvings
+    // are used up); `path` / `trace` receive every converged increment.
+    let max_bisections = settings.max_bisections;
+    let mut advance = |model: &mut M,
+                       x: &mut Vec<Vector3<f64>>,
                        from: f64,
                        to: f64,
                        steps: usize,
                        path: &mut Vec<Vec<Vector3<f64>>>,
                        trace: &mut Vec<(f64, f64)>|
      -> (f64, SolveStatus) {
+        let nominal = (to - from) / steps.max(1) as f64;
+        let mut h = nominal;
+        let mut d = from;
         let mut force = 0.0;
-        for s in 1..=steps.max(1) {
-            let d = from + (to - from) * s as f64 / steps.max(1) as f64;
+        let mut halvings = 0;
+        let end = to - 1e-9 * nominal.abs();
+        while d < end {
+            let next = if d + h >= end { to } else { d + h };
+            let saved_x = x.clone();
+            let saved_model = model.clone();
             bc.apply(x);
-            let rep = solver.solve(model, x, &zero, Some(&contact_at(d)), &settings.equilibrium);
-            force = rep.contact.axial_force_n;
-            path.push(x.clone());
-            trace.push((d, force));
-            if !rep.converged() {
-                return (force, rep.status);
+            let rep = solver.solve(
+                model,
+                x,
+                &zero,
+                Some(&contact_at(next)),
+                &settings.equilibrium,
+            );
+            if rep.converged() {
+                d = next;
+                force = rep.contact.axial_force_n;
+                path.push(x.clone());
+                trace.push((d, force));
+                halvings = 0;
+                h = (2.0 * h).min(nominal);
+            } else {
+                *x = saved_x;
+                *model = saved_model;
+                if halvings >= max_bisections {
+                    return (force, rep.status);
+                }
+                halvings += 1;
+                h *= 0.5;
             }
         }
         (force, SolveStatus::Converged)
@@ -1718,11 +1869,22 @@ pub fn simulate_probe_contact<M: ElasticModel + ?Sized>(
         });
     }
     // f(d): axial force after incremental loading from rest to depth d (§3.4); secant on d.
+    // Every evaluation starts from rest with the model's state at entry, so f is a function of d.
+    let model0 = model.clone();
     let mut eval = |d: f64| {
+        *model = model0.clone();
         let mut xs = setup.mesh.vertices.clone();
         let mut path = Vec::with_capacity(settings.steps);
         let mut trace = Vec::with_capacity(settings.steps);
-        let (f, st) = advance(&mut xs, 0.0, d, settings.steps, &mut path, &mut trace);
+        let (f, st) = advance(
+            model,
+            &mut xs,
+            0.0,
+            d,
+            settings.steps,
+            &mut path,
+            &mut trace,
+        );
         (f, st, xs, path, trace)
     };
     let (mut d0, mut f0) = (0.0, 0.0);

@@ -19,8 +19,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::{
     BasisErrorStep, ExampleFit, ExampleFitSettings, HomogeneousFit, HomogeneousFitSettings,
-    ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
-    fit_example, fit_homogeneous,
+    JointFit, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
+    fit_example, fit_examples_jointly, fit_homogeneous,
 };
 use softcap_fem::{EquilibriumSettings, LinearParams};
 use softcap_mcap::capture::CaptureData;
@@ -51,8 +51,27 @@ pub struct FitSettings {
     /// Relaxation ω of the strain-space parameter update in the re-simulation
     /// ([`softcap_fem::StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).
     pub relaxation: f64,
+    /// The reference field of the per-example fits: their start, the target of their shrinkage
+    /// `example_fit.gamma_prior`, and the zero-strain sample of the strain-space basis.
+    pub reference: ReferenceField,
+    /// LM settings of the joint heterogeneous fit (`reference = "joint"`).
+    pub joint_fit: ExampleFitSettings,
     /// Show progress bars (only ever drawn when stderr is a terminal).
     pub progress: bool,
+}
+
+/// Which per-tet field the per-example fits start from and shrink toward.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReferenceField {
+    /// bickel2009 as printed: the average-fit homogeneous model (Fig. 8) is the start, the
+    /// zero-strain sample is the tet's mean of the per-example parameters (§4.2).
+    #[default]
+    Homogeneous,
+    /// One heterogeneous linear field fitted to all examples at once (eq. 9 summed over the
+    /// examples, [`fit_examples_jointly`]) is the start, the shrinkage target and the
+    /// zero-strain sample.
+    Joint,
 }
 
 /// Default relaxation ω of the strain-space parameter update (fit re-simulation and
@@ -103,6 +122,13 @@ impl Default for FitSettings {
             load_steps: 4,
             patch_from_session: true,
             relaxation: DEFAULT_RELAXATION,
+            reference: ReferenceField::default(),
+            joint_fit: ExampleFitSettings {
+                max_iterations: 12,
+                relative_cost_tolerance: 1e-3,
+                equilibrium: newton(40),
+                ..ExampleFitSettings::default()
+            },
             progress: true,
         }
     }
@@ -190,6 +216,8 @@ pub struct SessionFit {
     pub examples: Vec<SessionExample>,
     /// Homogeneous baseline.
     pub homogeneous: HomogeneousFit,
+    /// Joint heterogeneous fit (`reference = "joint"`).
+    pub joint: Option<JointFit>,
     /// Per-example fits, same order as `examples`.
     pub fits: Vec<ExampleFit>,
     /// The strain-space material.
@@ -257,15 +285,65 @@ pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
     Ok(Some(x))
 }
 
+/// Halvings of the relaxation ω (with twice the load increments each time) tried by
+/// [`resimulate`] after a re-simulation that does not converge.
+pub const RELAXATION_RETRIES: usize = 2;
+
+/// Re-simulates `ex` with the strain-space material (incremental loading, §3.4); when the
+/// relaxed parameter iteration does not converge it is retried from rest with ω halved and the
+/// load increments doubled, [`RELAXATION_RETRIES`] times (a smaller ω contracts the parameter
+/// oscillation more, same fixed points). `None` when every attempt fails (reported as a
+/// material failure, never a panic).
+pub fn resimulate(
+    setup: &ProbingSetup,
+    model: &softcap_fem::StrainSpaceModel,
+    ex: &ProbeExample,
+    s: &FitSettings,
+) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
+    let mut relaxation = model.relaxation;
+    let mut steps = s.load_steps.max(1);
+    for _ in 0..=RELAXATION_RETRIES {
+        let mut m = model.clone();
+        m.reset();
+        m.relaxation = relaxation;
+        let r = simulate_example(
+            setup,
+            &mut m,
+            ex,
+            &s.example_fit.patch,
+            &s.evaluation,
+            steps,
+        )?;
+        if r.is_some() {
+            return Ok(r);
+        }
+        relaxation *= 0.5;
+        steps *= 2;
+    }
+    Ok(None)
+}
+
 /// The strain-space samples of bickel2009 §4.2 per tet: sample 0 is the zero-strain reference
 /// with the tet's mean fitted parameters, sample k ≥ 1 is (ε_e, p_e) of example k − 1.
 pub fn strain_samples(fits: &[ExampleFit], tets: usize) -> Vec<Vec<StrainSample>> {
+    strain_samples_with_reference(fits, None, tets)
+}
+
+/// [`strain_samples`] with the zero-strain sample taken from `reference` (per tet) when given.
+pub fn strain_samples_with_reference(
+    fits: &[ExampleFit],
+    reference: Option<&[LinearParams]>,
+    tets: usize,
+) -> Vec<Vec<StrainSample>> {
     (0..tets)
         .map(|e| {
             let n = fits.len().max(1) as f64;
-            let mean = LinearParams {
-                lambda: fits.iter().map(|f| f.params[e].lambda).sum::<f64>() / n,
-                alpha: fits.iter().map(|f| f.params[e].alpha).sum::<f64>() / n,
+            let mean = match reference {
+                Some(r) => r[e],
+                None => LinearParams {
+                    lambda: fits.iter().map(|f| f.params[e].lambda).sum::<f64>() / n,
+                    alpha: fits.iter().map(|f| f.params[e].alpha).sum::<f64>() / n,
+                },
             };
             std::iter::once(StrainSample {
                 strain: [0.0; 6],
@@ -305,8 +383,25 @@ pub fn fit_session(
     let homogeneous = fit_homogeneous(setup, &probe_examples, &s.homogeneous)?;
     bar.finish();
 
+    let joint = match s.reference {
+        ReferenceField::Homogeneous => None,
+        ReferenceField::Joint => {
+            let bar = progress.bar("joint heterogeneous fit (eq. 9 over all examples)", 1);
+            let j = fit_examples_jointly(
+                setup,
+                &probe_examples,
+                &vec![homogeneous.params; t],
+                &s.joint_fit,
+            )?;
+            bar.finish();
+            Some(j)
+        }
+    };
     let bar = progress.bar("per-example fits (eq. 9)", probe_examples.len() as u64);
-    let initial = vec![homogeneous.params; t];
+    let initial = match &joint {
+        Some(j) => j.params.clone(),
+        None => vec![homogeneous.params; t],
+    };
     let fits = probe_examples
         .par_iter()
         .map(|ex| {
@@ -317,7 +412,7 @@ pub fn fit_session(
         .collect::<Result<Vec<_>, _>>()?;
     bar.finish();
 
-    let samples = strain_samples(&fits, t);
+    let samples = strain_samples_with_reference(&fits, joint.as_ref().map(|j| &j.params[..]), t);
     let (material, basis_curve) = StrainSpaceMaterial::fit(&samples, &s.basis)?;
     let material = Arc::new(material);
 
@@ -330,15 +425,7 @@ pub fn fit_session(
     let evaluated = probe_examples
         .par_iter()
         .map(|ex| {
-            let mut m = model.clone();
-            let r = simulate_example(
-                setup,
-                &mut m,
-                ex,
-                &s.example_fit.patch,
-                &s.evaluation,
-                s.load_steps,
-            );
+            let r = resimulate(setup, &model, ex, &s);
             bar.inc(1);
             r
         })
@@ -423,6 +510,7 @@ pub fn fit_session(
     Ok(SessionFit {
         examples,
         homogeneous,
+        joint,
         fits,
         material,
         basis_curve,

@@ -119,10 +119,33 @@ fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSess
 }
 
 fn settings() -> FitSettings {
-    FitSettings {
+    let mut s = FitSettings {
         progress: false,
         ..FitSettings::default()
+    };
+    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
+    if let Some(v) = env("HO_REF") {
+        s.reference = if v > 0.0 {
+            softcap_tissue::ReferenceField::Joint
+        } else {
+            softcap_tissue::ReferenceField::Homogeneous
+        };
     }
+    if let Some(v) = env("HO_PRIOR") {
+        s.example_fit.gamma_prior = v;
+    }
+    if let Some(v) = env("HO_G") {
+        s.example_fit.gamma_m2 *= v;
+        s.example_fit.gamma_nu_m2 *= v;
+    }
+    if let Some(v) = env("HO_JG") {
+        s.joint_fit.gamma_m2 *= v;
+        s.joint_fit.gamma_nu_m2 *= v;
+    }
+    if let Some(v) = env("HO_JIT") {
+        s.joint_fit.max_iterations = v as usize;
+    }
+    s
 }
 
 /// Measured: held-out marker RMS material 0.302 mm (session 3: 0.474 mm), homogeneous 0.212 mm;
@@ -168,6 +191,31 @@ fn held_out_sphere_probe_stays_bounded() {
     let mut material = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).unwrap();
     let mat_x =
         simulate_probe_contact(&setup, &mut material, tip.clone(), pose, force, &cs).unwrap();
+    if let Some(j) = &fit.joint {
+        let mut jm = CorotationalModel::new(&setup.mesh, j.params.clone()).unwrap();
+        let jx = simulate_probe_contact(&setup, &mut jm, tip.clone(), pose, force, &cs).unwrap();
+        let a = setup.marker_positions(&jx.positions_m);
+        let b = setup.marker_positions(&truth_x.positions_m);
+        let e = (a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (p - q).norm_squared())
+            .sum::<f64>()
+            / a.len() as f64)
+            .sqrt();
+        eprintln!(
+            "joint linear field: held-out RMS {:.4} mm depth {:.3} mm; train RMS {:.4} mm",
+            1e3 * e,
+            1e3 * jx.depth_m,
+            1e3 * j.rms_m
+        );
+    }
+    eprintln!(
+        "train: hom {:.4} per-ex {:.4} mat {:.4} mm",
+        1e3 * fit.outcome.homogeneous_rms_m,
+        1e3 * fit.outcome.example_rms_m,
+        1e3 * fit.outcome.material_rms_m
+    );
     let mut homog = homog;
     let hom_x = simulate_probe_contact(&setup, &mut homog, tip, pose, force, &cs).unwrap();
     let rms = |x: &[Vector3<f64>]| {

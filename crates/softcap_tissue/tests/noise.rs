@@ -113,11 +113,20 @@ fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSess
     }
 }
 
-fn settings() -> FitSettings {
-    FitSettings {
+/// Fit settings for relative marker noise `p`: the smoothing γ (and γ_ν) of eq. 9 grows with the
+/// noise variance, γ = γ₀ (1 + 10 (p / 0.1)²) — the regularization "required to prevent
+/// overfitting due to noise" (bickel2009 §4.1) weighed like a Morozov/Tikhonov parameter
+/// (γ ∝ σ²). With γ₀ at 30 % noise the per-example fits follow the noise and one relaxed
+/// re-simulation has no equilibrium (session 4, measured).
+fn settings_for_noise(p: f64) -> FitSettings {
+    let mut s = FitSettings {
         progress: false,
         ..FitSettings::default()
-    }
+    };
+    let k = 1.0 + 10.0 * (p / 0.1).powi(2);
+    s.example_fit.gamma_m2 *= k;
+    s.example_fit.gamma_nu_m2 *= k;
+    s
 }
 
 /// bickel2009 §6: "Gaussian noise with a variance of 10 %, 20 % and 30 % to the input
@@ -163,7 +172,12 @@ fn noise_experiment(levels: &[f64]) -> Vec<f64> {
                 e
             })
             .collect();
-        let fit = fit_session(&prepared(&setup, noisy), &settings(), &Progress::hidden()).unwrap();
+        let fit = fit_session(
+            &prepared(&setup, noisy),
+            &settings_for_noise(p),
+            &Progress::hidden(),
+        )
+        .unwrap();
         let (mut s2, mut n) = (0.0, 0usize);
         for (k, x) in fit.material_positions_m.iter().enumerate() {
             let x = x.as_ref().expect("strain-space re-simulation converged");
@@ -191,25 +205,26 @@ fn noise_experiment(levels: &[f64]) -> Vec<f64> {
 const PAPER_PERCENT: [f64; 4] = [0.3, 2.1, 3.1, 4.4];
 
 /// Noise-free and 30 % noise (the light variant; the full table is the ignored test below).
-/// Measured (docs/tissue.md): 3.09 % and 6.20 % (paper 0.3 % and 4.4 %). Tolerances: the
-/// noise-free model error within 5 % of the maximum displacement, 30 % noise within 8 %,
-/// and noise makes it worse.
+/// Measured (docs/tissue.md, trust-region LM, γ grown with the noise variance): 1.45 % and
+/// 4.58 % (paper 0.3 % and 4.4 %; session 4 without the trust region: 3.09 % and 6.20 %).
+/// Tolerances: the noise-free model error within 2.5 % of the maximum displacement, 30 % noise
+/// within 6 %, and noise makes it worse.
 #[test]
 fn noise_experiment_zero_and_thirty_percent() {
     let e = noise_experiment(&[0.0, 0.3]);
-    assert!(e[0] < 5.0, "{e:?}");
-    assert!(e[1] < 8.0, "{e:?}");
+    assert!(e[0] < 2.5, "{e:?}");
+    assert!(e[1] < 6.0, "{e:?}");
     assert!(e[1] > e[0], "{e:?}");
 }
 
-/// The full table of bickel2009 §6 (0 / 10 / 20 / 30 %), ≈ 90 s in the test profile.
-/// Measured: 3.09 / 5.11 / 4.94 / 6.20 % (paper 0.3 / 2.1 / 3.1 / 4.4 %).
+/// The full table of bickel2009 §6 (0 / 10 / 20 / 30 %), ≈ 135 s in the test profile.
+/// Measured: 1.45 / 2.61 / 4.08 / 4.58 % (paper 0.3 / 2.1 / 3.1 / 4.4 %).
 #[test]
-#[ignore = "heavy (four fits, ≈ 90 s); the 0 % / 30 % variant runs by default"]
+#[ignore = "heavy (four fits, ≈ 2 min); the 0 % / 30 % variant runs by default"]
 fn noise_experiment_full_table() {
     let e = noise_experiment(&[0.0, 0.1, 0.2, 0.3]);
     for v in &e {
-        assert!(*v < 8.0, "{e:?}");
+        assert!(*v < 6.0, "{e:?}");
     }
     assert!(e[3] > e[0], "{e:?}");
 }
