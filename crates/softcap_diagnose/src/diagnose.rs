@@ -600,12 +600,12 @@ impl Sums {
 }
 
 /// An extended model confirmed by re-simulation with leave-one-location-out.
-struct Confirmed {
-    after_scored_m: f64,
-    after_all_m: f64,
-    params: Vec<(String, f64)>,
-    prediction: Field,
-    method: String,
+pub(crate) struct Confirmed {
+    pub(crate) after_scored_m: f64,
+    pub(crate) after_all_m: f64,
+    pub(crate) params: Vec<(String, f64)>,
+    pub(crate) prediction: Field,
+    pub(crate) method: String,
 }
 
 fn sequence_frames(rec: &Recording, seg: &Segmentation) -> Vec<SequenceFrame> {
@@ -1046,8 +1046,19 @@ pub fn diagnose(
             verdict = Some(*h);
             break;
         }
-        // Creep is confirmed with the real Prony model, not its load form.
-        let c = if h.is_load_extension() && *h != Hypothesis::Viscoelasticity {
+        // Temporal hypotheses (creep with the real Prony model, lag, time shift): crate::temporal.
+        let c = if crate::temporal::is_temporal(*h) {
+            crate::temporal::confirm_temporal(
+                *h,
+                r,
+                rec,
+                &seg,
+                &prepared,
+                sim,
+                settings.refit_compliance_scale,
+                &scored,
+            )
+        } else if h.is_load_extension() {
             confirm_load(*h, r, rec, &seg, &prepared, sim, settings, &scored)
         } else {
             confirm_extended(*h, r, rec, &seg, &prepared, sim, settings, &scored)

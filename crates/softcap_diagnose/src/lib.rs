@@ -10,6 +10,7 @@
 //! | [`sim`] | the [`ProbeSimulator`] contract and the corotational FEM implementation |
 //! | [`signal`] | low-pass, derivative, time shift on frame-time traces |
 //! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits (screening) |
+//! | [`temporal`] | viscoelasticity, sensor-lag, clock-offset: grids of extended models re-simulated in time order, leave-one-location-out with a compliance scale |
 //! | [`extend`] | the extended FEM models (Prony, J2 plasticity, support springs, transverse isotropy) re-simulated over the recording |
 //! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
 //! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
@@ -59,6 +60,7 @@ mod run;
 pub mod segment;
 pub mod signal;
 pub mod sim;
+pub mod temporal;
 
 pub use diagnose::{
     DiagnoseSettings, Diagnosis, DiagnosisRun, RankedHypothesis, Signatures, diagnose, prepare,

@@ -162,6 +162,15 @@ impl Segmentation {
                     i += 1;
                 }
                 runs.push((s, i));
+                // The run ended on a tip jump with the force still above the threshold: while the
+                // force keeps falling it trails the contact just left (a late or lagging force
+                // channel — clock offset, sensor lag), so those frames are released frames of
+                // that run, not a new location; a rising force starts the next run.
+                if i < n && contact[i] {
+                    while i < n && contact[i] && fmag[i] <= fmag[i - 1] {
+                        i += 1;
+                    }
+                }
             } else {
                 i += 1;
             }
@@ -334,6 +343,25 @@ mod tests {
             tip_radius_m: 0.002,
             frames,
         }
+    }
+
+    #[test]
+    fn a_force_trailing_after_the_tip_left_is_not_a_new_location() {
+        // The force channel runs two frames late: after the tip jumps to the next location the
+        // force is still falling; those frames are released frames of the location just left.
+        let mut rec = toy();
+        let f: Vec<Vector3<f64>> = rec.frames.iter().map(|x| x.force_n).collect();
+        for (k, fr) in rec.frames.iter_mut().enumerate() {
+            fr.force_n = if k >= 2 { f[k - 2] } else { Vector3::zeros() };
+        }
+        // make the tip leave while the late force is still high: shorten the release by moving
+        // the tip of frame 7 (second released frame) to the next location already
+        rec.frames[7].tip_m = rec.frames[10].tip_m;
+        rec.frames[8].tip_m = rec.frames[10].tip_m;
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        assert_eq!(seg.locations.len(), 2, "{:?}", seg.locations);
+        assert_eq!(seg.phases[7], Phase::Released);
+        assert_eq!(seg.fold_of_frame[8], Some(0));
     }
 
     #[test]

@@ -123,13 +123,13 @@ fn strain_stiffening_is_none() {
 }
 
 #[test]
-#[ignore = "measured 2026-11-22 03:25 (noise 0.2 px): verdict none, held-out 0.169 mm (= clean 0.167 mm): capture aligns the clocks from the data (no trigger line), the residual offset is below marker noise"]
+#[ignore = "measured 2026-11-22 06:55 (trigger present, FSR channel latency 0.12 s, 20 fps, ramp 6 / hold 4): verdict clock-offset, offset 0.116 s, held-out on probed loading/hold/unloading 0.215 -> 0.151 mm (1.4x, needs 3x; re-simulated shifted force + compliance scale 1.36: the tissue fit saw the shifted forces)"]
 fn clock_offset_is_named() {
     check("clock-offset");
 }
 
 #[test]
-#[ignore = "measured 2026-11-22 04:00 (noise 0.05 px): sensor-lag named, held-out on the affected cells 0.177 -> 0.108 mm (1.6x, needs 3x); clean control 0.109 mm"]
+#[ignore = "measured 2026-11-22 07:05 (tau 0.25 s, hysteresis 8 %, 10 fps): sensor-lag named, held-out on the affected cells 0.207 -> 0.123 mm (1.7x, needs 3x; re-simulated de-lagged force + compliance scale); clean control 0.109 mm"]
 fn sensor_lag_is_named() {
     check("sensor-lag");
 }

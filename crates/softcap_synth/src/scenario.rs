@@ -24,7 +24,9 @@ pub enum Effect {
     ProbeFriction,
     /// The attached face slides on its support plane.
     SupportSlip,
-    /// No trigger line: `fsr.csv` has no `trigger_v`, the clocks must be aligned from the data.
+    /// A time shift between force and geometry: without `clock_force_latency_s`, no trigger line
+    /// (`fsr.csv` has no `trigger_v`, the clocks must be aligned from the data); with it, the
+    /// trigger line is present and the force channel lags it by a constant latency.
     ClockOffset,
     /// FSR first-order lag and hysteresis.
     SensorLag,
@@ -487,6 +489,13 @@ pub struct EffectSettings {
     /// clock-offset: extra DAQ offset on top of `clock.offset_s`, s (the DAQ starts recording
     /// at an arbitrary time; without a trigger line nothing ties the clocks together).
     pub clock_extra_offset_s: f64,
+    /// clock-offset: constant latency of the FSR channel behind the trigger channel of the same
+    /// DAQ, s (e.g. the group delay of a delta-sigma ADC's decimation filter, which the digital
+    /// trigger input does not have). When > 0 the trigger line is kept (capture syncs the clocks
+    /// exactly from it) and the DAQ reads at time t the force of t − latency: a pure time shift
+    /// of force against geometry that the trigger cannot reveal. 0 (default): the no-trigger
+    /// variant with `clock_extra_offset_s`.
+    pub clock_force_latency_s: f64,
     /// gravity-preload: gravity, m/s² (world frame).
     pub gravity_m_s2: [f64; 3],
     /// anisotropy: fibre direction (world).
@@ -530,6 +539,7 @@ impl Default for EffectSettings {
             sensor_lag_tau_s: 0.25,
             sensor_hysteresis_fraction: 0.08,
             clock_extra_offset_s: 0.137,
+            clock_force_latency_s: 0.0,
             gravity_m_s2: [0.0, 0.0, -9.81],
             gravity_young_pa: 2_200.0,
             anisotropy_fibre: [1.0, 0.0, 0.0],
@@ -721,6 +731,7 @@ impl Scenario {
         };
         positive(es.sensor_lag_tau_s, "sensor_lag_tau_s")?;
         non_negative(es.sensor_hysteresis_fraction, "sensor_hysteresis_fraction")?;
+        non_negative(es.clock_force_latency_s, "clock_force_latency_s")?;
         positive(es.gravity_young_pa, "gravity_young_pa")?;
         positive(es.anisotropy_fibre_ratio, "anisotropy_fibre_ratio")?;
         if es.anisotropy_fibre.iter().all(|v| *v == 0.0)

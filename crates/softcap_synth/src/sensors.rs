@@ -9,6 +9,10 @@
 //! first-order lag, τ dF_l/dt = F − F_l (exact discretisation per DAQ step), then a play-type
 //! hysteresis whose half-width is proportional to the force: y ← clamp(y, F_l(1 − h), F_l(1 + h)),
 //! so it reads low while loading, high while unloading and returns to 0 at no load.
+//!
+//! clock-offset with `clock_force_latency_s` = δ > 0: the trigger line is recorded as usual, but the
+//! FSR channel reads at DAQ time t the force of camera time t − δ (a constant channel latency such
+//! as a delta-sigma ADC's filter group delay): a pure time shift of force against geometry.
 
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -80,7 +84,14 @@ pub struct DaqRecord {
 /// Samples the FSR and the trigger line on the DAQ clock.
 pub fn record(s: &Scenario, frames: &[FrameTruth], rng: &mut ChaCha8Rng) -> DaqRecord {
     let fsr = &s.fsr;
-    let clock_offset = s.has(Effect::ClockOffset);
+    // clock-offset with a latency: trigger kept, force channel delayed; otherwise no trigger line
+    // and an extra DAQ offset.
+    let latency_s = if s.has(Effect::ClockOffset) {
+        s.effect_settings.clock_force_latency_s
+    } else {
+        0.0
+    };
+    let clock_offset = s.has(Effect::ClockOffset) && latency_s <= 0.0;
     let offset_s = s.clock.offset_s
         + if clock_offset {
             s.effect_settings.clock_extra_offset_s
@@ -122,7 +133,7 @@ pub fn record(s: &Scenario, frames: &[FrameTruth], rng: &mut ChaCha8Rng) -> DaqR
     for k in 0..n {
         let t_daq = t0 + k as f64 * dt;
         let t_cam = to_cam(t_daq);
-        let f_true = axial_force_at(frames, t_cam).max(0.0);
+        let f_true = axial_force_at(frames, t_cam - latency_s).max(0.0);
         let f_sensed = if lag {
             if k == 0 {
                 lagged = f_true;

@@ -394,6 +394,12 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
     for e in &s.effects {
         let es = &s.effect_settings;
         let line = match e {
+            Effect::ClockOffset if es.clock_force_latency_s > 0.0 => format!(
+                "- clock-offset: trigger line present, but the FSR channel lags it by {:.3} s (the force read at camera time t is the force of t - {:.3} s); DAQ offset {:.6} s.",
+                es.clock_force_latency_s,
+                es.clock_force_latency_s,
+                daq.map_or(0.0, |d| d.offset_s)
+            ),
             Effect::ClockOffset => format!(
                 "- clock-offset: no trigger line (fsr.csv has no trigger_v); DAQ offset {:.6} s (extra {:.3} s).",
                 daq.map_or(0.0, |d| d.offset_s),

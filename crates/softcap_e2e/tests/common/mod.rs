@@ -24,8 +24,40 @@ pub struct Inputs {
 
 /// synth → capture (capture.mcap) → `softcap_tissue::fit::run` (material.mcap), each through the
 /// stage's library API exactly as the binaries call it.
+///
+/// Developer aid: with `SOFTCAP_SUITE_CACHE=DIR`, the capture.mcap / material.mcap of a scenario
+/// are kept in `DIR/<name>-<hash of the resolved scenario>/` and reused by later runs (for
+/// iterating on the diagnose stage only; stale when synth, capture or tissue code changes —
+/// delete DIR then). Unset (CI), every run makes fresh inputs.
 pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
     let dir = tempfile::tempdir().unwrap();
+    let cache = std::env::var_os("SOFTCAP_SUITE_CACHE").map(|d| {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        format!("{scenario:?}").hash(&mut h);
+        PathBuf::from(d).join(format!("{}-{:016x}", scenario.name, h.finish()))
+    });
+    if let Some(c) = &cache
+        && c.join("capture.mcap").is_file()
+        && c.join("material.mcap").is_file()
+    {
+        return Inputs {
+            capture: c.join("capture.mcap"),
+            material: c.join("material.mcap"),
+            dir,
+            seconds: [0.0; 3],
+        };
+    }
+    let inputs = prepare_fresh(scenario, dir);
+    if let Some(c) = &cache {
+        std::fs::create_dir_all(c).unwrap();
+        std::fs::copy(&inputs.capture, c.join("capture.mcap")).unwrap();
+        std::fs::copy(&inputs.material, c.join("material.mcap")).unwrap();
+    }
+    inputs
+}
+
+fn prepare_fresh(scenario: &Scenario, dir: tempfile::TempDir) -> Inputs {
     let session_dir = dir.path().join("session");
     let t0 = Instant::now();
     synthesize(scenario, &session_dir).unwrap();
