@@ -54,19 +54,52 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 e.mean_diagonal_m * 1e3
             );
         }
+        let add = additive_residual(&table, layers, m, order);
+        println!("  additive residual: level | max r [mm] | max r/s | mean s [mm]");
+        for e in &add {
+            println!(
+                "  {} | {:.5} | {:.4} | {:.4}",
+                e.level,
+                e.max_residual_m * 1e3,
+                e.max_relative,
+                e.mean_scale_m * 1e3
+            );
+            println!(
+                "    per reference r [mm]: {:?}",
+                e.per_reference_max_m
+                    .iter()
+                    .map(|v| (v * 1e6).round() / 1e3)
+                    .collect::<Vec<_>>()
+            );
+            println!(
+                "    per reference r/s: {:?}",
+                e.per_reference_relative
+                    .iter()
+                    .map(|v| (v * 1e3).round() / 1e3)
+                    .collect::<Vec<_>>()
+            );
+        }
+        let rel = BoundMargin::relative(&excess, 1.0);
         let margins = [
-            ("none", BoundMargin::default()),
-            ("absolute ×1", BoundMargin::absolute(&excess, 1.0)),
-            ("relative ×1", BoundMargin::relative(&excess, 1.0)),
-            ("relative ×1.5", BoundMargin::relative(&excess, 1.5)),
+            ("none", BoundMargin::default(), None),
+            ("relative ×1", rel.clone(), None),
+            (
+                "relative ×1 + additive abs ×1",
+                rel.clone(),
+                Some(AdditiveMargin::absolute(&add, 1.0)),
+            ),
+            (
+                "relative ×1 + additive rel ×1",
+                rel.clone(),
+                Some(AdditiveMargin::relative(&add, 1.0)),
+            ),
         ];
-        for ((name, margin), sweeps) in margins
-            .iter()
-            .flat_map(|m| [(m.clone(), 0), (m.clone(), 3)])
-        {
+        for (name, margin, additive) in margins {
+            let sweeps = 3;
             let s = SearchSettings {
                 cell_order: order,
                 margin: margin.clone(),
+                additive,
                 incumbent_sweeps: sweeps,
                 ..SearchSettings::default()
             };

@@ -107,6 +107,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             mm(c.max_bound_excess_m)
         );
     }
+    println!();
+    println!(
+        "| level | box excess max [mm] | excess / diag | additive residual max [mm] | residual / s |"
+    );
+    println!("|---|---|---|---|---|");
+    for e in &rep.box_excess {
+        let a = rep.additive_residual.iter().find(|a| a.level == e.level);
+        println!(
+            "| {} | {:.5} | {:.4} | {} | {} |",
+            e.level,
+            mm(e.max_excess_m),
+            e.max_relative,
+            a.map_or("exact".into(), |a| format!("{:.5}", mm(a.max_residual_m))),
+            a.map_or("exact".into(), |a| format!("{:.4}", a.max_relative)),
+        );
+    }
+    println!(
+        "margins: {}",
+        serde_json::to_string(&(&rep.margin, &rep.additive_margin))?
+    );
     if let Some(p) = args.get(2) {
         write_json(std::path::Path::new(p), &rep)?;
     }

@@ -11,9 +11,9 @@ use crate::composite::{CompositeSettings, CompositeSimulator, LayeredBlock};
 use crate::error::{DesignError, Result};
 use crate::material::{BaseMaterial, InvariantMaterial, TransverseMaterial, TransverseParams};
 use crate::search::{
-    BoundCheck, BoundMargin, BoxExcess, DesignEvaluator, Response, SearchSettings, TableEvaluator,
-    bound_violations, box_excess, branch_and_bound, design_from_index, design_index,
-    exhaustive_optimum, exhaustive_table,
+    AdditiveMargin, AdditiveResidual, BoundCheck, BoundMargin, BoxExcess, DesignEvaluator,
+    Response, SearchSettings, TableEvaluator, additive_residual, bound_violations, box_excess,
+    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -126,10 +126,12 @@ pub struct ExperimentSettings {
     /// Cache of the exhaustive table ([`write_table`] format): read if it exists and matches
     /// (N, M, response length), otherwise computed and written there.
     pub table_path: Option<PathBuf>,
-    /// Certify the bound from the exhaustive table before searching: the searches use the
-    /// relative [`BoundMargin`] of factor × the measured box excess ([`box_excess`]), which
-    /// makes every culling test a lower bound over the whole design space (any target), so the
-    /// search is exact by the triangle inequality. `None`: `search.margin` as given.
+    /// Certify the bounds from the exhaustive table before searching: the searches use the
+    /// relative [`BoundMargin`] of factor × the measured box excess ([`box_excess`]) and the
+    /// additive bound with factor × the measured residual per reference
+    /// ([`additive_residual`]), which makes every culling test a lower bound over the whole
+    /// design space (any target), so the search is exact by the triangle inequality (factor
+    /// ≥ 1). `None`: `search.margin` / `search.additive` as given.
     pub certify_margin: Option<f64>,
 }
 
@@ -193,8 +195,12 @@ pub struct ExperimentReport {
     pub bound_checks: Vec<BoundCheck>,
     /// Box excess per level over the table (in the search's cell order).
     pub box_excess: Vec<BoxExcess>,
-    /// Margin the searches used.
+    /// Additive-bound residual per level over the table.
+    pub additive_residual: Vec<AdditiveResidual>,
+    /// Box margin the searches used.
     pub margin: BoundMargin,
+    /// Additive-bound margin the searches used.
+    pub additive_margin: Option<AdditiveMargin>,
 }
 
 /// Random layer thicknesses with relative jitter, summing to the block height.
@@ -298,9 +304,13 @@ pub fn run_experiment(
     let excess = table.as_ref().map_or_else(Vec::new, |t| {
         box_excess(t, n, m, settings.search.cell_order)
     });
+    let residual = table.as_ref().map_or_else(Vec::new, |t| {
+        additive_residual(t, n, m, settings.search.cell_order)
+    });
     let mut search_settings = settings.search.clone();
     if let (Some(factor), Some(_)) = (settings.certify_margin, &table) {
         search_settings.margin = BoundMargin::relative(&excess, factor);
+        search_settings.additive = Some(AdditiveMargin::relative(&residual, factor));
     }
     let settings = &ExperimentSettings {
         search: search_settings,
@@ -394,7 +404,9 @@ pub fn run_experiment(
         heuristic_matches,
         bound_checks,
         box_excess: excess,
+        additive_residual: residual,
         margin: settings.search.margin.clone(),
+        additive_margin: settings.search.additive.clone(),
     })
 }
 

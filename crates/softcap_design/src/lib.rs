@@ -71,9 +71,10 @@ pub use rubber::{
     read_biaxial, read_uniaxial, rubber_errors,
 };
 pub use search::{
-    BoundCheck, BoundMargin, BoxExcess, CellOrder, DesignEvaluator, LevelReport, Response,
-    SearchReport, SearchSettings, TableEvaluator, bound_violations, box_excess, branch_and_bound,
-    design_from_index, design_index, exhaustive_optimum, exhaustive_table, point_box_distance,
+    AdditiveMargin, AdditiveResidual, BoundCheck, BoundMargin, BoxExcess, CellOrder,
+    DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings, TableEvaluator,
+    additive_residual, bound_violations, box_excess, branch_and_bound, design_from_index,
+    design_index, exhaustive_optimum, exhaustive_table, point_box_distance,
 };
 
 pub use softcap_fem;

@@ -37,6 +37,9 @@ pub struct SearchSettings {
     /// Sweeps of coordinate descent from the best homogeneous design before the tree is
     /// visited (0: none): a low incumbent d_min early (see `Search::descend`).
     pub incumbent_sweeps: usize,
+    /// Additive bound (see [`additive_residual`]) with this slack per level; `None`: only the
+    /// §8.4.2 box.
+    pub additive: Option<AdditiveMargin>,
     /// Order in which the tree levels decide the cells (see [`CellOrder`]).
     pub cell_order: CellOrder,
     /// Slack subtracted from every box distance before culling (zero: the plain §8.4.2
@@ -125,6 +128,7 @@ impl Default for SearchSettings {
             },
             exact: true,
             incumbent_sweeps: 3,
+            additive: None,
             cell_order: CellOrder::default(),
             margin: BoundMargin::default(),
         }
@@ -248,6 +252,23 @@ fn fill_design(prefix: &[usize], fill: usize, order: &[usize]) -> Vec<usize> {
     d
 }
 
+/// min over all choices (one entry per group of `deltas`) of ‖start + Σ_c deltas[c][j_c]‖²
+/// (depth-first enumeration, M^u · dim operations).
+fn additive_min(start: &[f64], deltas: &[Vec<Vec<f64>>]) -> f64 {
+    let Some((first, rest)) = deltas.split_first() else {
+        return start.iter().map(|v| v * v).sum();
+    };
+    let mut best = f64::INFINITY;
+    let mut buf = vec![0.0; start.len()];
+    for d in first {
+        for ((o, s), v) in buf.iter_mut().zip(start).zip(d) {
+            *o = s + v;
+        }
+        best = best.min(additive_min(&buf, rest));
+    }
+    best
+}
+
 /// A bounded node of the decision tree: a prefix (materials of the first cells) with the
 /// axis-aligned box of its uniform fills and its eq. 8.4 feature vector.
 struct Node {
@@ -259,6 +280,8 @@ struct Node {
     /// Slack μ of the node's box ([`BoundMargin`]).
     slack: f64,
     bound: f64,
+    /// Fill nearest x̄ (reference of the additive bound).
+    best_fill: Option<usize>,
 }
 
 struct Search<'a, E: DesignEvaluator + ?Sized> {
@@ -320,6 +343,12 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
                     None => features.extend(lo.iter().zip(&hi).map(|(a, b)| 0.5 * (a + b))),
                 }
             }
+            let best_fill = rs
+                .iter()
+                .enumerate()
+                .filter_map(|(j, r)| r.as_ref().map(|x| (sq_dist(x, self.tracker.target), j)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|p| p.1);
             out.push(Node {
                 prefix,
                 lo,
@@ -327,11 +356,88 @@ impl<E: DesignEvaluator + ?Sized> Search<'_, E> {
                 features,
                 slack,
                 bound,
+                best_fill,
             });
+        }
+        if let Some(additive) = self.settings.additive.clone() {
+            let before = out.len();
+            out = self.additive_bound(out, &additive);
+            culled += before - out.len();
         }
         let rep = &mut self.levels[level - 1];
         rep.nodes += out.len() + culled;
         rep.culled += culled;
+        out
+    }
+
+    /// The additive bound of `nodes` (see [`additive_residual`]): with the reference fill b
+    /// nearest x̄ and the single-cell variations x(a, b … j … b), every completion is
+    /// predicted as x_b + Σ_c δ_c(m_c), δ_c(j) = x(a, b … j at c … b) − x_b; the node's bound
+    /// becomes max(box bound, min over the M^u predictions of ‖x̂ − x̄‖ − μ). Evaluates the
+    /// variations of all nodes in one batch; culls those whose bound exceeds d_min.
+    fn additive_bound(&mut self, nodes: Vec<Node>, margin: &AdditiveMargin) -> Vec<Node> {
+        let (m, cells) = (self.materials, self.cells);
+        let mut designs = Vec::new();
+        for node in &nodes {
+            let (Some(b), true) = (node.best_fill, cells - node.prefix.len() >= 2) else {
+                continue;
+            };
+            let base = fill_design(&node.prefix, b, &self.order);
+            for &cell in &self.order[node.prefix.len()..] {
+                for j in (0..m).filter(|&j| j != b) {
+                    let mut d = base.clone();
+                    d[cell] = j;
+                    designs.push(d);
+                }
+            }
+        }
+        self.tracker.eval(self.evaluator, &designs);
+        let d_min = self.tracker.d_min();
+        let target = self.tracker.target;
+        let mut out = Vec::with_capacity(nodes.len());
+        for mut node in nodes {
+            let level = node.prefix.len();
+            if let (Some(b), true) = (node.best_fill, cells - level >= 2) {
+                let base = fill_design(&node.prefix, b, &self.order);
+                let xb = self.tracker.seen[&base].clone();
+                let mut deltas: Vec<Vec<Vec<f64>>> = Vec::new();
+                let mut complete = xb.is_some();
+                if let Some(xb) = &xb {
+                    for &cell in &self.order[level..] {
+                        let mut per = Vec::with_capacity(m);
+                        for j in 0..m {
+                            let mut d = base.clone();
+                            d[cell] = j;
+                            match &self.tracker.seen[&d] {
+                                Some(x) => {
+                                    per.push(x.iter().zip(xb.iter()).map(|(a, c)| a - c).collect())
+                                }
+                                None => complete = false,
+                            }
+                        }
+                        deltas.push(per);
+                    }
+                }
+                if let (true, Some(xb)) = (complete, xb) {
+                    let scale: f64 = deltas
+                        .iter()
+                        .map(|per| {
+                            per.iter()
+                                .map(|d| sq_dist(d, &vec![0.0; d.len()]).sqrt())
+                                .fold(0.0, f64::max)
+                        })
+                        .sum();
+                    let start: Vec<f64> = xb.iter().zip(target).map(|(a, t)| a - t).collect();
+                    let best = additive_min(&start, &deltas);
+                    let bound = best.sqrt() - margin.slack(level, b, scale);
+                    node.bound = node.bound.max(bound);
+                }
+            }
+            if self.settings.cull && node.bound > d_min {
+                continue;
+            }
+            out.push(node);
+        }
         out
     }
 
@@ -707,6 +813,200 @@ pub fn box_excess(
         out.push(e);
     }
     out
+}
+
+/// How far the completions of a prefix leave the additive prediction of the additive bound
+/// (`SearchSettings::additive`), per level, over a complete table, for *every* reference
+/// fill b (the search picks b by the target, so the certificate must hold for all b):
+/// r(m, b) = ‖x(m) − x_b − Σ_c (x(a, b … m_c at c … b) − x_b)‖, reported as the largest
+/// r (`max_excess_m`) and the largest r / s, s = Σ_c max_j ‖δ_c(j)‖ (`max_relative`).
+///
+/// Validity: ‖x(m) − x̄‖ ≥ ‖x̂(m) − x̄‖ − r(m, b) ≥ min over predictions − r, so a slack
+/// μ ≥ r over the table makes the additive test a lower bound for every target.
+/// Levels with a single undecided cell are exact (r = 0) and not listed.
+pub fn additive_residual(
+    table: &[Response],
+    cells: usize,
+    materials: usize,
+    order: CellOrder,
+) -> Vec<AdditiveResidual> {
+    use rayon::prelude::*;
+    let order = order.cells(cells);
+    let m = materials;
+    let mut out = Vec::new();
+    for level in 1..cells.saturating_sub(1) {
+        let keys = m.pow(level as u32);
+        let prefix_of = |key: usize| {
+            let mut prefix = vec![0; level];
+            let mut k = key;
+            for p in prefix.iter_mut().rev() {
+                *p = k % m;
+                k /= m;
+            }
+            prefix
+        };
+        // scale s(key, b)
+        let scales: Vec<f64> = (0..keys * m)
+            .into_par_iter()
+            .map(|kb| {
+                let (key, b) = (kb / m, kb % m);
+                let base = fill_design(&prefix_of(key), b, &order);
+                let Some(xb) = &table[design_index(&base, m)] else {
+                    return f64::NAN;
+                };
+                order[level..]
+                    .iter()
+                    .map(|&c| {
+                        (0..m)
+                            .filter_map(|j| {
+                                let mut d = base.clone();
+                                d[c] = j;
+                                table[design_index(&d, m)]
+                                    .as_ref()
+                                    .map(|x| sq_dist(x, xb).sqrt())
+                            })
+                            .fold(0.0, f64::max)
+                    })
+                    .sum()
+            })
+            .collect();
+        let (n_out, max_r, max_rel) = (0..table.len())
+            .into_par_iter()
+            .map(|index| {
+                let Some(x) = &table[index] else {
+                    return (0usize, vec![0.0f64; m], vec![0.0f64; m]);
+                };
+                let d = design_from_index(index, cells, m);
+                let key = prefix_key(&d, m, &order, level);
+                let prefix = prefix_of(key);
+                let mut acc = (0usize, vec![0.0f64; m], vec![0.0f64; m]);
+                for b in 0..m {
+                    let base = fill_design(&prefix, b, &order);
+                    let Some(xb) = &table[design_index(&base, m)] else {
+                        continue;
+                    };
+                    let mut pred: Vec<f64> = xb.to_vec();
+                    let mut ok = true;
+                    for &c in &order[level..] {
+                        let mut v = base.clone();
+                        v[c] = d[c];
+                        match &table[design_index(&v, m)] {
+                            Some(xv) => {
+                                for i in 0..pred.len() {
+                                    pred[i] += xv[i] - xb[i];
+                                }
+                            }
+                            None => ok = false,
+                        }
+                    }
+                    if !ok {
+                        continue;
+                    }
+                    let r = sq_dist(x, &pred).sqrt();
+                    if r > 0.0 {
+                        acc.0 += 1;
+                        acc.1[b] = acc.1[b].max(r);
+                        let sc = scales[key * m + b];
+                        acc.2[b] = acc.2[b].max(if sc > 0.0 { r / sc } else { f64::INFINITY });
+                    }
+                }
+                acc
+            })
+            .reduce(
+                || (0, vec![0.0; m], vec![0.0; m]),
+                |a, b| {
+                    let mx = |u: Vec<f64>, v: Vec<f64>| {
+                        u.iter().zip(&v).map(|(p, q)| p.max(*q)).collect()
+                    };
+                    (a.0 + b.0, mx(a.1, b.1), mx(a.2, b.2))
+                },
+            );
+        let valid: Vec<f64> = scales.iter().copied().filter(|v| v.is_finite()).collect();
+        out.push(AdditiveResidual {
+            level,
+            prefixes: keys,
+            residuals: n_out,
+            max_residual_m: max_r.iter().copied().fold(0.0, f64::max),
+            max_relative: max_rel.iter().copied().fold(0.0, f64::max),
+            mean_scale_m: valid.iter().sum::<f64>() / valid.len().max(1) as f64,
+            per_reference_max_m: max_r,
+            per_reference_relative: max_rel,
+        });
+    }
+    out
+}
+
+/// One level of [`additive_residual`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AdditiveResidual {
+    /// Cells decided.
+    pub level: usize,
+    /// Prefixes at this level (M^level).
+    pub prefixes: usize,
+    /// (design, reference) pairs with a non-zero residual.
+    pub residuals: usize,
+    /// Largest residual r over all references [m].
+    pub max_residual_m: f64,
+    /// Largest r / s over all references.
+    pub max_relative: f64,
+    /// Mean scale s over (prefix, reference) [m].
+    pub mean_scale_m: f64,
+    /// Largest r per reference material b [m].
+    pub per_reference_max_m: Vec<f64>,
+    /// Largest r / s per reference material b.
+    pub per_reference_relative: Vec<f64>,
+}
+
+/// Slack of the additive bound per level and reference material b:
+/// μ = `absolute_m`[l−1][b] plus `relative`[l−1][b] · s (missing entries: 0). Valid when it
+/// covers [`additive_residual`] (see there).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AdditiveMargin {
+    /// Absolute slack [m] per level, per reference.
+    pub absolute_m: Vec<Vec<f64>>,
+    /// Slack relative to s per level, per reference.
+    pub relative: Vec<Vec<f64>>,
+}
+
+impl AdditiveMargin {
+    /// The slack of a node at `level` with reference `b` and scale `scale_m`.
+    pub fn slack(&self, level: usize, b: usize, scale_m: f64) -> f64 {
+        let get = |v: &Vec<Vec<f64>>| {
+            v.get(level.saturating_sub(1))
+                .and_then(|r| r.get(b))
+                .copied()
+                .unwrap_or(0.0)
+        };
+        get(&self.absolute_m) + get(&self.relative) * scale_m
+    }
+
+    /// `factor` × the measured largest residual per level and reference.
+    pub fn absolute(residual: &[AdditiveResidual], factor: f64) -> Self {
+        Self {
+            absolute_m: residual
+                .iter()
+                .map(|r| r.per_reference_max_m.iter().map(|v| factor * v).collect())
+                .collect(),
+            relative: Vec::new(),
+        }
+    }
+
+    /// `factor` × the measured largest r / s per level and reference.
+    pub fn relative(residual: &[AdditiveResidual], factor: f64) -> Self {
+        Self {
+            absolute_m: Vec::new(),
+            relative: residual
+                .iter()
+                .map(|r| {
+                    r.per_reference_relative
+                        .iter()
+                        .map(|v| factor * v)
+                        .collect()
+                })
+                .collect(),
+        }
+    }
 }
 
 /// One level of [`box_excess`].
