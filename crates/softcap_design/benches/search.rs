@@ -1,5 +1,6 @@
 //! One goal-based design search at full size (thesis §8.4.2, §8.6): 5 layers × 9 base materials,
-//! 5 force–displacement examples, exact branch-and-bound with K = 20, every composite
+//! 5 force–displacement examples, exact branch-and-bound with K = 20 and the margins certified
+//! on the exhaustive table (fixtures/design/search-5x9-certified.json), every composite
 //! simulated on demand (no precomputed table; a fresh design cache per search). The target is
 //! a random design with jittered layer thicknesses (seed 2010, first target of the validation).
 //! bickel2010: "under an hour"; issue 11: ≤ 60 s on 2 cores.
@@ -10,20 +11,30 @@ use std::sync::Arc;
 use std::time::Duration;
 
 fn target() -> Vec<f64> {
-    // First target of `run_experiment` with seed 2010: design [7, 6, 2, 5, 1].
-    let settings = CompositeSettings::default();
-    let thickness = [0.00495, 0.00425, 0.00494, 0.00527, 0.00560];
-    let s: f64 = thickness.iter().sum();
-    let thickness: Vec<f64> = thickness.iter().map(|t| t / s * 0.025).collect();
-    let block = Arc::new(LayeredBlock::new(&settings, &thickness).unwrap());
-    let mut sim = CompositeSimulator::new(block, Arc::new(reference_library()), &settings).unwrap();
-    sim.simulate(&[7, 6, 2, 5, 1]).unwrap().displacements_m
+    // First target of `run_experiment` with seed 2010 (design [7, 6, 2, 5, 1], own thicknesses).
+    let settings = ExperimentSettings {
+        targets: 1,
+        ..ExperimentSettings::default()
+    };
+    random_targets(&Arc::new(reference_library()), &settings).unwrap()[0]
+        .response
+        .clone()
+}
+
+/// The search settings with the margins certified on the 5 × 9 exhaustive table
+/// (examples/validation.rs; docs/design.md).
+fn certified() -> SearchSettings {
+    serde_json::from_str(include_str!(
+        "../../../fixtures/design/search-5x9-certified.json"
+    ))
+    .unwrap()
 }
 
 fn bench_search(c: &mut Criterion) {
     let settings = CompositeSettings::default();
     let lib = Arc::new(reference_library());
     let x_bar = target();
+    let search = certified();
     let mut g = c.benchmark_group("design_search");
     g.sample_size(10);
     g.warm_up_time(Duration::from_millis(1));
@@ -31,7 +42,7 @@ fn bench_search(c: &mut Criterion) {
     g.bench_function("exact_b&b_5x9_live_simulation", |b| {
         b.iter(|| {
             let mut ev = ParallelEvaluator::new(lib.clone(), &settings).unwrap();
-            let rep = branch_and_bound(5, 9, &x_bar, &mut ev, &SearchSettings::default()).unwrap();
+            let rep = branch_and_bound(5, 9, &x_bar, &mut ev, &search).unwrap();
             assert!(rep.error_m.is_finite());
             rep.evaluations
         })

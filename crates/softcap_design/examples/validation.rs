@@ -4,10 +4,12 @@
 //! 9⁵ = 59,049 designs, plus the bound check over the whole table.
 //!
 //! ```sh
-//! cargo run --release -p softcap_design --example validation -- [TABLE.bin] [REPORT.json] [LAYERS]
+//! cargo run --profile test -p softcap_design --example validation -- [TABLE.bin] [REPORT.json] [LAYERS] [SETTINGS.json]
 //! ```
 //! TABLE.bin caches the exhaustive table (≈ 85 MB at 5 layers; computed and written if
 //! missing). LAYERS (default 5) runs the same experiment with fewer cells (9^LAYERS designs).
+//! SETTINGS.json receives the search settings with the margins certified on the table
+//! (committed as fixtures/design/search-5x9-certified.json for the live bench).
 //! Prints the markdown table of docs/design.md.
 
 use softcap_design::*;
@@ -127,6 +129,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "margins: {}",
         serde_json::to_string(&(&rep.margin, &rep.additive_margin))?
     );
+    if let Some(p) = args.get(4) {
+        // The certified search settings (fixtures/design/search-5x9-certified.json).
+        let certified = SearchSettings {
+            margin: rep.margin.clone(),
+            additive: rep.additive_margin.clone(),
+            ..settings.search.clone()
+        };
+        write_json(std::path::Path::new(p), &certified)?;
+    }
     if let Some(p) = args.get(2) {
         write_json(std::path::Path::new(p), &rep)?;
     }

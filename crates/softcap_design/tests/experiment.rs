@@ -68,7 +68,11 @@ fn search_matches_exhaustive_optimum_3_layers_9_materials_20_targets() {
 #[test]
 #[ignore = "full §8.6 experiment: 59,049 FEM solves (≈ minutes on 2 cores); numbers in docs/design.md"]
 fn search_matches_exhaustive_optimum_full() {
-    let settings = ExperimentSettings::default();
+    // SOFTCAP_DESIGN_TABLE=path caches the 85 MB exhaustive table between runs.
+    let settings = ExperimentSettings {
+        table_path: std::env::var_os("SOFTCAP_DESIGN_TABLE").map(Into::into),
+        ..ExperimentSettings::default()
+    };
     let rep = run_experiment(Arc::new(reference_library()), &settings).unwrap();
     print(&rep);
     println!("{}", serde_json::to_string(&rep).unwrap());
@@ -78,9 +82,14 @@ fn search_matches_exhaustive_optimum_full() {
 #[test]
 #[ignore = "one live search (5 layers × 9 materials, simulations included); wall time in docs/design.md"]
 fn one_live_search_full_size() {
+    let search: SearchSettings = serde_json::from_str(include_str!(
+        "../../../fixtures/design/search-5x9-certified.json"
+    ))
+    .unwrap();
     let settings = ExperimentSettings {
         targets: 1,
         exhaustive: false,
+        search,
         ..ExperimentSettings::default()
     };
     let t = std::time::Instant::now();
