@@ -79,6 +79,61 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .collect::<Vec<_>>()
             );
         }
+        // Calibration from a sample: SAMPLE random designs (seeded), their prefixes' fills
+        // and additive variations looked up; compared with the full-table maxima.
+        let sample_n: usize = args.get(3).map_or(Ok(0), |a| a.parse())?;
+        if sample_n > 0 {
+            let mut state = 0x9e37_79b9_7f4a_7c15u64;
+            let mut sample: Vec<usize> = (0..sample_n)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state % table.len() as u64) as usize
+                })
+                .collect();
+            sample.sort_unstable();
+            sample.dedup();
+            let se = box_excess_of(&table, layers, m, order, &sample);
+            let sa = additive_residual_of(&table, layers, m, order, &sample);
+            println!(
+                "  sample of {} designs: level | κ sample / full | additive r/s sample / full (max over b)",
+                sample.len()
+            );
+            for (l, e) in se.iter().enumerate() {
+                let a = sa.get(l).map_or((0.0, 0.0), |a| {
+                    (a.max_relative, add.get(l).map_or(0.0, |f| f.max_relative))
+                });
+                println!(
+                    "  {} | {:.4} / {:.4} | {:.4} / {:.4}",
+                    e.level, e.max_relative, excess[l].max_relative, a.0, a.1
+                );
+            }
+            for factor in [1.0, 1.5, 2.0] {
+                let s = SearchSettings {
+                    cell_order: order,
+                    margin: BoundMargin::relative(&se, factor),
+                    additive: Some(AdditiveMargin::relative(&sa, factor)),
+                    ..SearchSettings::default()
+                };
+                let mut matches = 0;
+                let mut evals = 0;
+                for (x, &opt) in xs.iter().zip(&optima) {
+                    let mut tev = TableEvaluator {
+                        table: &table,
+                        materials: m,
+                    };
+                    let rep = branch_and_bound(layers, m, x, &mut tev, &s)?;
+                    matches += usize::from(design_index(&rep.design, m) == opt);
+                    evals += rep.evaluations;
+                }
+                println!(
+                    "  sampled margins × {factor}: matches {matches}/{}, mean evaluations {:.0}",
+                    xs.len(),
+                    evals as f64 / xs.len() as f64
+                );
+            }
+        }
         let rel = BoundMargin::relative(&excess, 1.0);
         let margins = [
             ("none", BoundMargin::default(), None),

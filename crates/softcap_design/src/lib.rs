@@ -73,8 +73,9 @@ pub use rubber::{
 pub use search::{
     AdditiveMargin, AdditiveResidual, BoundCheck, BoundMargin, BoxExcess, CellOrder,
     DesignEvaluator, LevelReport, Response, SearchReport, SearchSettings, TableEvaluator,
-    additive_residual, bound_violations, box_excess, branch_and_bound, design_from_index,
-    design_index, exhaustive_optimum, exhaustive_table, point_box_distance,
+    additive_residual, additive_residual_of, bound_violations, box_excess, box_excess_of,
+    branch_and_bound, design_from_index, design_index, exhaustive_optimum, exhaustive_table,
+    point_box_distance,
 };
 
 pub use softcap_fem;

@@ -775,6 +775,19 @@ pub fn box_excess(
     materials: usize,
     order: CellOrder,
 ) -> Vec<BoxExcess> {
+    let all: Vec<usize> = (0..table.len()).collect();
+    box_excess_of(table, cells, materials, order, &all)
+}
+
+/// [`box_excess`] over the designs `sample` only (indices into the table): the estimate a
+/// calibration from a sample of designs (plus their prefixes' fills) would give.
+pub fn box_excess_of(
+    table: &[Response],
+    cells: usize,
+    materials: usize,
+    order: CellOrder,
+    sample: &[usize],
+) -> Vec<BoxExcess> {
     let order = order.cells(cells);
     let mut out = Vec::new();
     for level in 1..cells {
@@ -793,8 +806,8 @@ pub fn box_excess(
             n_diag += 1;
         }
         e.mean_diagonal_m /= n_diag.max(1) as f64;
-        for (index, r) in table.iter().enumerate() {
-            let Some(r) = r else { continue };
+        for &index in sample {
+            let Some(r) = &table[index] else { continue };
             let d = design_from_index(index, cells, materials);
             let key = prefix_key(&d, materials, &order, level);
             let Some((lo, hi)) = &boxes[key] else {
@@ -829,6 +842,18 @@ pub fn additive_residual(
     cells: usize,
     materials: usize,
     order: CellOrder,
+) -> Vec<AdditiveResidual> {
+    let all: Vec<usize> = (0..table.len()).collect();
+    additive_residual_of(table, cells, materials, order, &all)
+}
+
+/// [`additive_residual`] over the designs `sample` only (indices into the table).
+pub fn additive_residual_of(
+    table: &[Response],
+    cells: usize,
+    materials: usize,
+    order: CellOrder,
+    sample: &[usize],
 ) -> Vec<AdditiveResidual> {
     use rayon::prelude::*;
     let order = order.cells(cells);
@@ -870,9 +895,9 @@ pub fn additive_residual(
                     .sum()
             })
             .collect();
-        let (n_out, max_r, max_rel) = (0..table.len())
-            .into_par_iter()
-            .map(|index| {
+        let (n_out, max_r, max_rel) = sample
+            .par_iter()
+            .map(|&index| {
                 let Some(x) = &table[index] else {
                     return (0usize, vec![0.0f64; m], vec![0.0f64; m]);
                 };
