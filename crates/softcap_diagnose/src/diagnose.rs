@@ -601,10 +601,15 @@ impl Sums {
 
 /// An extended model confirmed by re-simulation with leave-one-location-out.
 pub(crate) struct Confirmed {
+    /// Held-out RMS on the scored observations, m.
     pub(crate) after_scored_m: f64,
+    /// Held-out RMS on every observation of the locations, m.
     pub(crate) after_all_m: f64,
+    /// Full-data parameters.
     pub(crate) params: Vec<(String, f64)>,
+    /// Full-data prediction, m.
     pub(crate) prediction: Field,
+    /// How it was confirmed.
     pub(crate) method: String,
 }
 
@@ -946,9 +951,38 @@ pub fn diagnose(
     };
     let bic0 = bic(e_all, 0);
 
+    // Hypotheses whose effect lives in known cells (crate::spatial::effect_mask) are scored
+    // there: their before / after / score / noise test / nuisance comparison use their mask;
+    // the others use the focus cells above.
+    let masks: BTreeMap<Hypothesis, Vec<Vec<bool>>> = Hypothesis::ALL
+        .into_iter()
+        .filter_map(|h| crate::spatial::effect_mask(h, rec, &seg).map(|m| (h, m)))
+        .collect();
+    let scored_h = |h: Hypothesis, k: usize, m: usize| match masks.get(&h) {
+        Some(mask) => mask[k][m],
+        None => scored(k, m),
+    };
+    let before_of = |h: Hypothesis| -> f64 {
+        if !masks.contains_key(&h) {
+            return before;
+        }
+        let (mut e, mut n) = (0.0, 0usize);
+        for (k, row) in res_before.iter().enumerate() {
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r
+                    && in_fold(k)
+                    && scored_h(h, k, m)
+                {
+                    e += r.norm_squared();
+                    n += 1;
+                }
+            }
+        }
+        (e / n.max(1) as f64).sqrt()
+    };
     let refits: Vec<Refit> = Hypothesis::ALL
         .into_iter()
-        .filter_map(|h| refit_scored(h, rec, &seg, &prepared, &scored))
+        .filter_map(|h| refit_scored(h, rec, &seg, &prepared, &|k, m| scored_h(h, k, m)))
         .collect();
     let not_applicable: Vec<Hypothesis> = Hypothesis::ALL
         .into_iter()
@@ -968,9 +1002,35 @@ pub fn diagnose(
     // The noise floor of the scored observations: 3σ² per 3-D observation.
     let noise_mse = 3.0 * sig.noise_sigma_m.powi(2);
     let explainable = before * before > settings.noise_floor_factor * noise_mse;
+    // Per hypothesis with its own effect cells: the nuisance model on those cells, and the
+    // cells must stand out of the noise as a focus cell must (≥ focus_noise_factor × √3σ).
+    let scale_only_of = |h: Hypothesis, before_h: f64| -> f64 {
+        if !masks.contains_key(&h) {
+            return scale_only;
+        }
+        refit_variants_scored(
+            Hypothesis::Viscoelasticity,
+            &[stiffness_scale_variant(&prepared)],
+            rec,
+            &seg,
+            &prepared,
+            &|k, m| scored_h(h, k, m),
+        )
+        .map(|r| (r.heldout_rss_m2 / r.heldout_n.max(1) as f64).sqrt())
+        .unwrap_or(before_h)
+        .min(before_h)
+    };
+    let explainable_of = |h: Hypothesis, before_h: f64| -> bool {
+        if !masks.contains_key(&h) {
+            return explainable;
+        }
+        before_h * before_h > settings.noise_floor_factor * noise_mse
+            && before_h >= settings.focus_noise_factor * noise_mse.sqrt()
+    };
 
     struct Row {
         h: Hypothesis,
+        before: f64,
         after: f64,
         score: f64,
         dbic: f64,
@@ -980,6 +1040,8 @@ pub fn diagnose(
     let mut rows: Vec<Row> = refits
         .iter()
         .map(|r| {
+            let before = before_of(r.hypothesis);
+            let scale_only = scale_only_of(r.hypothesis, before);
             let after = (r.heldout_rss_m2 / r.heldout_n.max(1) as f64).sqrt();
             let score = if before > 0.0 {
                 1.0 - (after * after) / (before * before)
@@ -990,12 +1052,13 @@ pub fn diagnose(
             let support = signature_support(r.hypothesis, &sig);
             let beats_scale =
                 after * after <= (1.0 - 0.5 * settings.min_heldout_gain) * scale_only * scale_only;
-            let qualifies = explainable
+            let qualifies = explainable_of(r.hypothesis, before)
                 && score >= settings.min_heldout_gain
                 && beats_scale
                 && dbic <= -settings.min_delta_bic;
             Row {
                 h: r.hypothesis,
+                before,
                 after,
                 score,
                 dbic,
@@ -1046,8 +1109,13 @@ pub fn diagnose(
             verdict = Some(*h);
             break;
         }
-        // Temporal hypotheses (creep with the real Prony model, lag, time shift): crate::temporal.
-        let c = if crate::temporal::is_temporal(*h) {
+        let scored_this = |k: usize, m: usize| scored_h(*h, k, m);
+        let before_h = before_of(*h);
+        // Spatial hypotheses on their effect cells (crate::spatial); temporal ones (creep with
+        // the real Prony model, lag, time shift): crate::temporal.
+        let c = if crate::spatial::is_spatial(*h) {
+            crate::spatial::confirm(*h, r, rec, &seg, &prepared, sim, &scored_this)
+        } else if crate::temporal::is_temporal(*h) {
             crate::temporal::confirm_temporal(
                 *h,
                 r,
@@ -1065,7 +1133,7 @@ pub fn diagnose(
         };
         match c {
             Ok(Some(c)) => {
-                let gain = 1.0 - c.after_scored_m.powi(2) / before.powi(2).max(1e-300);
+                let gain = 1.0 - c.after_scored_m.powi(2) / before_h.powi(2).max(1e-300);
                 let keep = gain >= settings.min_heldout_gain;
                 confirmed.insert(*h, Ok(c));
                 if keep {
@@ -1112,7 +1180,10 @@ pub fn diagnose(
         evidence.insert("signature_support".into(), row.support.into());
         evidence.insert("qualifies".into(), row.qualifies.into());
         evidence.insert("num_params".into(), r.num_params.into());
-        evidence.insert("scored_cells".into(), focus_json.clone().into());
+        match crate::spatial::effect_cells_name(row.h).filter(|_| masks.contains_key(&row.h)) {
+            Some(name) => evidence.insert("scored_cells".into(), vec![name].into()),
+            None => evidence.insert("scored_cells".into(), focus_json.clone().into()),
+        };
         evidence.insert("heldout_rmse_all_before_m".into(), before_all.into());
         evidence.insert(
             "method".into(),
@@ -1140,6 +1211,7 @@ pub fn diagnose(
         if Some(row.h) == verdict && extended_m.is_none() {
             extended_m = Some(predict(row.h, rec, &seg, &prepared, r));
         }
+        let before = row.before;
         let score = if before > 0.0 {
             1.0 - (after * after) / (before * before)
         } else {

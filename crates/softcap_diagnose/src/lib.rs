@@ -15,6 +15,7 @@
 //! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
 //! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
 //! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
+//! | [`spatial`] | plasticity, support-slip, anisotropy, probe-friction: effect cells and re-simulated confirmation |
 //! | [`diagnose`] | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
 //!
 //! ```
@@ -60,6 +61,7 @@ mod run;
 pub mod segment;
 pub mod signal;
 pub mod sim;
+pub mod spatial;
 pub mod temporal;
 
 pub use diagnose::{

@@ -1,0 +1,409 @@
+//! The spatial hypotheses — `plasticity`, `support-slip`, `anisotropy`, `probe-friction` — scored
+//! on the cells where their effect lives and confirmed by re-simulating the whole recording in
+//! time order with the extended `softcap_fem` model (not linearised).
+//!
+//! | hypothesis | effect cells (scored) | extended model re-simulated | grid |
+//! |---|---|---|---|
+//! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α) | σ_y, H |
+//! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
+//! | probe-friction | contact frames, markers under the active contact | default model + tangential traction μ‖f‖ŝ at the patch | μ |
+//! | anisotropy | contact frames | `AnisotropicModel` (thesis eq. 8.5), fibre from the screening | ratio |
+//!
+//! Leave-one-location-out: per held-out location the grid point (and the material's compliance
+//! scale) with the least error on the other locations, scored on the held-out location's effect
+//! cells.
+
+use crate::diagnose::Confirmed;
+use crate::extend::{Extension, SequenceFrame};
+use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
+use crate::recording::Recording;
+use crate::segment::{Phase, Segmentation};
+use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
+use crate::{DiagnoseError, Result};
+use nalgebra::Vector3;
+
+/// True for the hypotheses this module scores and confirms.
+pub fn is_spatial(h: Hypothesis) -> bool {
+    matches!(
+        h,
+        Hypothesis::Plasticity
+            | Hypothesis::SupportSlip
+            | Hypothesis::Anisotropy
+            | Hypothesis::ProbeFriction
+    )
+}
+
+/// Radius around a contact point within which a marker is "under the contact" for the
+/// effect cells, m: 2.5 tip radii, at least 5 mm.
+pub fn contact_radius_m(rec: &Recording) -> f64 {
+    (2.5 * rec.tip_radius_m).max(0.005)
+}
+
+/// The name of `h`'s effect cells (JSON `evidence.scored_cells`).
+pub fn effect_cells_name(h: Hypothesis) -> Option<&'static str> {
+    Some(match h {
+        Hypothesis::Plasticity => "released/near-touched",
+        Hypothesis::SupportSlip => "contact/away-from-probe",
+        Hypothesis::ProbeFriction => "contact/under-probe",
+        Hypothesis::Anisotropy => "contact/all",
+        _ => return None,
+    })
+}
+
+/// The observations (frame k, marker m) where `h`'s effect lives, or `None` for hypotheses
+/// scored on the shared focus cells. Only frames of a location fold are ever scored.
+pub fn effect_mask(h: Hypothesis, rec: &Recording, seg: &Segmentation) -> Option<Vec<Vec<bool>>> {
+    if !is_spatial(h) {
+        return None;
+    }
+    let nt = rec.frames.len();
+    let nm = rec.num_markers();
+    let r = contact_radius_m(rec);
+    let near = |k: usize, m: usize| (rec.frames[k].tip_m - rec.rest_markers_m[m]).norm() <= r;
+    let mut mask = vec![vec![false; nm]; nt];
+    // locations touched up to frame k
+    let mut touched: Vec<usize> = Vec::new();
+    for k in 0..nt {
+        if let Some(l) = seg.fold_of_frame[k]
+            && !touched.contains(&l)
+        {
+            touched.push(l);
+        }
+        let phase = seg.phases[k];
+        for m in 0..nm {
+            mask[k][m] = seg.fold_of_frame[k].is_some()
+                && match h {
+                    Hypothesis::Plasticity => {
+                        phase == Phase::Released
+                            && touched.iter().any(|&l| {
+                                (seg.locations[l].peak_tip_m - rec.rest_markers_m[m]).norm() <= r
+                            })
+                    }
+                    Hypothesis::SupportSlip => phase.in_contact() && !near(k, m),
+                    Hypothesis::ProbeFriction => phase.in_contact() && near(k, m),
+                    Hypothesis::Anisotropy => phase.in_contact(),
+                    _ => false,
+                };
+        }
+    }
+    Some(mask)
+}
+
+fn sequence_frames(
+    rec: &Recording,
+    seg: &Segmentation,
+    forces: &[Vector3<f64>],
+) -> Vec<SequenceFrame> {
+    rec.frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: (seg.phases[k].in_contact() && forces[k].norm() > 1e-9).then_some(
+                    ProbeLoad {
+                        tip_m: f.tip_m,
+                        axis: f.axis,
+                        force_n: forces[k],
+                    },
+                ),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+/// Sums over observations of one bucket: a = Σ u·u, b = Σ u·v, c = Σ v·v with u the extended
+/// model's displacement from the model rest and v the measured one.
+#[derive(Clone, Copy, Default, Debug)]
+struct Sums {
+    a: f64,
+    b: f64,
+    c: f64,
+    n: usize,
+}
+
+impl Sums {
+    fn add(&mut self, o: &Sums) {
+        self.a += o.a;
+        self.b += o.b;
+        self.c += o.c;
+        self.n += o.n;
+    }
+    fn scale(&self, fit: bool) -> f64 {
+        if fit && self.a > 0.0 {
+            (self.b / self.a).clamp(0.25, 4.0)
+        } else {
+            1.0
+        }
+    }
+    fn rss(&self, d: f64) -> f64 {
+        (self.c - 2.0 * d * self.b + d * d * self.a).max(0.0)
+    }
+}
+
+/// One simulated candidate of a grid.
+struct Candidate {
+    params: Vec<(String, f64)>,
+    prediction: Field,
+}
+
+/// Leave-one-location-out over simulated candidates: per held-out location the candidate and
+/// compliance scale with the least error on every other observation (training locations and
+/// rest frames), scored on the held-out location's `scored` observations.
+fn lolo(
+    cands: Vec<Candidate>,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    scored: &dyn Fn(usize, usize) -> bool,
+    fit_scale: bool,
+    method: String,
+) -> Option<Confirmed> {
+    if cands.is_empty() {
+        return None;
+    }
+    let nf = seg.num_folds();
+    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
+    let mut all = Vec::with_capacity(cands.len());
+    let mut sc = Vec::with_capacity(cands.len());
+    for c in &cands {
+        let mut sa = vec![Sums::default(); nf + 1];
+        let mut ss = vec![Sums::default(); nf + 1];
+        for (k, f) in rec.frames.iter().enumerate() {
+            for (m, y) in f.markers_m.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let u = c.prediction[k][m] - p.rest_model_m[m];
+                let v = y - p.rest_model_m[m];
+                let o = Sums {
+                    a: u.norm_squared(),
+                    b: u.dot(&v),
+                    c: v.norm_squared(),
+                    n: 1,
+                };
+                sa[bucket(k)].add(&o);
+                if seg.fold_of_frame[k].is_some() && scored(k, m) {
+                    ss[bucket(k)].add(&o);
+                }
+            }
+        }
+        all.push(sa);
+        sc.push(ss);
+    }
+    let best = |skip: Option<usize>| {
+        (0..cands.len())
+            .map(|i| {
+                let mut t = Sums::default();
+                for (b, x) in all[i].iter().enumerate() {
+                    if Some(b) != skip {
+                        t.add(x);
+                    }
+                }
+                let d = t.scale(fit_scale);
+                (i, d, t.rss(d))
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .unwrap_or((0, 1.0, f64::INFINITY))
+    };
+    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    for l in 0..nf {
+        let (i, d, _) = best(Some(l));
+        e_sc += sc[i][l].rss(d);
+        n_sc += sc[i][l].n;
+        e_all += all[i][l].rss(d);
+        n_all += all[i][l].n;
+    }
+    let (i, d, _) = best(None);
+    let mut params = cands[i].params.clone();
+    params.push(("compliance_scale".into(), d));
+    let prediction: Field = cands[i]
+        .prediction
+        .iter()
+        .map(|row| {
+            row.iter()
+                .zip(&p.rest_model_m)
+                .map(|(x, r)| r + (x - r) * d)
+                .collect()
+        })
+        .collect();
+    Some(Confirmed {
+        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
+        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
+        params,
+        prediction,
+        method,
+    })
+}
+
+fn param(refit: &Refit, name: &str) -> f64 {
+    refit
+        .params
+        .iter()
+        .find(|x| x.0 == name)
+        .map(|x| x.1)
+        .unwrap_or(0.0)
+}
+
+/// Probe force plus the Coulomb traction μ‖f‖ŝ_l of the tip's tangential travel at location l
+/// (`Prepared::friction_dir`), reversed while unloading when `reverse`.
+pub fn friction_forces(
+    seg: &Segmentation,
+    p: &Prepared,
+    mu: f64,
+    reverse: bool,
+) -> Vec<Vector3<f64>> {
+    p.force_n
+        .iter()
+        .enumerate()
+        .map(|(k, f)| match seg.fold_of_frame[k] {
+            Some(l) if seg.phases[k].in_contact() => {
+                let sign = if reverse && seg.phases[k] == Phase::Unloading {
+                    -1.0
+                } else {
+                    1.0
+                };
+                f + p.friction_dir[l] * (sign * mu * f.norm())
+            }
+            _ => *f,
+        })
+        .collect()
+}
+
+/// Simulates every grid point (skipping those that do not reach equilibrium).
+fn simulate_grid(
+    sim: &mut dyn ProbeSimulator,
+    grid: Vec<(Vec<(String, f64)>, Extension, Vec<Vector3<f64>>)>,
+    rec: &Recording,
+    seg: &Segmentation,
+) -> Result<(Vec<Candidate>, usize)> {
+    let total = grid.len();
+    let mut out = Vec::with_capacity(total);
+    for (params, ext, forces) in grid {
+        let frames = sequence_frames(rec, seg, &forces);
+        match sim.simulate_sequence(&ext, &frames) {
+            Ok(prediction) => out.push(Candidate { params, prediction }),
+            Err(DiagnoseError::Simulation { .. }) => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((out, total))
+}
+
+/// Confirms spatial hypothesis `h` with its extended FEM model re-simulated over the recording
+/// (see the module table), leave-one-location-out on `scored`.
+pub(crate) fn confirm(
+    h: Hypothesis,
+    refit: &Refit,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &mut dyn ProbeSimulator,
+    scored: &dyn Fn(usize, usize) -> bool,
+) -> Result<Option<Confirmed>> {
+    let peak_n = seg
+        .locations
+        .iter()
+        .map(|l| l.peak_force_n)
+        .fold(0.0, f64::max);
+    let r_tip = rec.tip_radius_m.max(1e-4);
+    let pressure_pa = peak_n / (std::f64::consts::PI * r_tip * r_tip);
+    let depth_m = seg
+        .locations
+        .iter()
+        .map(|l| (l.peak_tip_m - l.contact_tip_m).norm())
+        .fold(0.0, f64::max)
+        .max(1e-5);
+    let k_ind = peak_n / depth_m;
+    let f = p.force_n.clone();
+    let mut grid = Vec::new();
+    let (what, fit_scale) = match h {
+        Hypothesis::Plasticity => {
+            for sy in [0.1, 0.2, 0.4] {
+                for hh in [0.1, 0.5] {
+                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                    grid.push((
+                        vec![
+                            ("yield_stress_pa".into(), yield_stress_pa),
+                            ("hardening_modulus_pa".into(), hardening_pa),
+                        ],
+                        Extension::Plastic {
+                            yield_stress_pa,
+                            hardening_pa,
+                        },
+                        f.clone(),
+                    ));
+                }
+            }
+            ("ElastoplasticModel", true)
+        }
+        Hypothesis::SupportSlip => {
+            // Slip ≈ rigid translation F_t / k: a log grid in steps of √2 around the indentation
+            // stiffness; the compliance scale d makes the family (material stiffness / d, k / d).
+            for i in -6..=4 {
+                let k = k_ind * 2f64.powf(0.5 * i as f64);
+                grid.push((
+                    vec![("support_tangential_stiffness_n_per_m".into(), k)],
+                    Extension::SupportSprings {
+                        stiffness_n_per_m: k,
+                    },
+                    f.clone(),
+                ));
+            }
+            ("SupportPlane springs", true)
+        }
+        Hypothesis::Anisotropy => {
+            let a = Vector3::new(
+                param(refit, "fibre_x"),
+                param(refit, "fibre_y"),
+                param(refit, "fibre_z"),
+            );
+            let a = a.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+            for ratio in [2.0, 4.0, 8.0] {
+                grid.push((
+                    vec![
+                        ("fibre_x".into(), a.x),
+                        ("fibre_y".into(), a.y),
+                        ("fibre_z".into(), a.z),
+                        ("fibre_ratio".into(), ratio),
+                    ],
+                    Extension::Anisotropic { fibre: a, ratio },
+                    f.clone(),
+                ));
+            }
+            ("AnisotropicModel", true)
+        }
+        Hypothesis::ProbeFriction => {
+            // Coulomb traction μ‖f‖ along the tip's tangential travel ŝ while the probe advances
+            // or holds; while it retracts the surface slides back: −ŝ (`reverse`) or still +ŝ.
+            for reverse in [false, true] {
+                for mu in [0.15, 0.3, 0.45, 0.6, 0.8] {
+                    let forces = friction_forces(seg, p, mu, reverse);
+                    grid.push((
+                        vec![
+                            ("mu".into(), mu),
+                            ("reverse_on_unloading".into(), f64::from(u8::from(reverse))),
+                        ],
+                        Extension::Elastic,
+                        forces,
+                    ));
+                }
+            }
+            ("default model under Coulomb traction", true)
+        }
+        _ => return Ok(None),
+    };
+    let (cands, total) = simulate_grid(sim, grid, rec, seg)?;
+    let n = cands.len();
+    Ok(lolo(
+        cands,
+        rec,
+        seg,
+        p,
+        scored,
+        fit_scale,
+        format!(
+            "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {}",
+            effect_cells_name(h).unwrap_or("focus cells")
+        ),
+    ))
+}
