@@ -8,6 +8,7 @@
 //! | [`Extension::Plastic`] | `ElastoplasticModel` (J2 radial return on the corotational element, Simo & Hughes 1998 Box 3.1–3.2), the default model's (λ, α) per element, state committed after every frame | σ_y, H |
 //! | [`Extension::SupportSprings`] | `SupportPlane` with tangential springs on the attached nodes instead of fixed nodes (bilateral normal penalty), `NodalSolver` | total tangential stiffness k |
 //! | [`Extension::Anisotropic`] | `AnisotropicModel`, transversely isotropic (thesis eq. 8.5) with the default model's isotropic (E, ν) across the fibre and E_a = r E along it | fibre a, ratio r |
+//! | [`Extension::TransverselyIsotropic`] | `AnisotropicModel` as above with the Poisson ratios fitted too: ν_t across the fibre, ν_a fibre–transverse (thesis eq. 8.5, `TransverselyIsotropicParams::from_engineering`) | fibre a, ratio r, ν_t, ν_a |
 //! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
 //!
 //! The probe force of every frame is spread over its contact patch exactly as in the baseline
@@ -53,6 +54,17 @@ pub enum Extension {
         fibre: Vector3<f64>,
         /// Fibre / transverse Young's modulus.
         ratio: f64,
+    },
+    /// Transversely isotropic with the Poisson ratios as parameters.
+    TransverselyIsotropic {
+        /// Fibre direction (world, unit).
+        fibre: Vector3<f64>,
+        /// Fibre / transverse Young's modulus E_a / E_t.
+        ratio: f64,
+        /// Poisson ratio in the plane across the fibre ν_t.
+        nu_transverse: f64,
+        /// Poisson ratio ν_a (transverse contraction under fibre stress).
+        nu_fibre: f64,
     },
 }
 
@@ -165,16 +177,34 @@ impl FemProbeSimulator {
                     },
                 )
             }
-            Extension::Anisotropic { fibre, ratio } => {
+            Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
+                let (fibre, params) = match *ext {
+                    Extension::TransverselyIsotropic {
+                        fibre,
+                        ratio,
+                        nu_transverse,
+                        nu_fibre,
+                    } => (
+                        fibre,
+                        base.params()
+                            .iter()
+                            .map(|p| transverse_with_poisson(p, ratio, nu_transverse, nu_fibre))
+                            .collect::<std::result::Result<Vec<_>, _>>()
+                            .map_err(fem)?,
+                    ),
+                    Extension::Anisotropic { fibre, ratio } => (
+                        fibre,
+                        base.params()
+                            .iter()
+                            .map(|p| transverse_from_isotropic(p, ratio))
+                            .collect::<std::result::Result<Vec<_>, _>>()
+                            .map_err(fem)?,
+                    ),
+                    _ => unreachable!("matched above"),
+                };
                 let a = Unit::try_new(fibre, 1e-12).ok_or_else(|| DiagnoseError::BadRecording {
                     what: "anisotropy: zero fibre direction".into(),
                 })?;
-                let params = base
-                    .params()
-                    .iter()
-                    .map(|p| transverse_from_isotropic(p, ratio))
-                    .collect::<std::result::Result<Vec<_>, _>>()
-                    .map_err(fem)?;
                 let nt = params.len();
                 let an = AnisotropicModel::new(mesh, params, vec![a; nt]).map_err(fem)?;
                 self.run_static(an, frames, |_, _| Ok(()), |_, _| {})
@@ -240,4 +270,28 @@ pub fn transverse_from_isotropic(
     let nu_a_max = ((1.0 - nu_t) * ratio / 2.0).sqrt() * 0.95;
     let nu_a = nu_t.min(nu_a_max);
     TransverselyIsotropicParams::from_engineering(e, ratio * e, nu_t, nu_a, e / (2.0 * (1.0 + nu)))
+}
+
+/// Transversely isotropic parameters with the isotropic Young's modulus E of `p` across the fibre,
+/// E_a = `ratio` · E along it, in-plane Poisson ratio ν_t = `nu_transverse`, fibre Poisson ratio
+/// ν_a = `nu_fibre` (capped so the compliance stays positive definite, 1 − ν_t − 2ν_a² E_t/E_a > 0)
+/// and fibre shear modulus G_a = E / (2(1 + ν_t)) (thesis eq. 8.5 via
+/// `TransverselyIsotropicParams::from_engineering`).
+pub fn transverse_with_poisson(
+    p: &LinearParams,
+    ratio: f64,
+    nu_transverse: f64,
+    nu_fibre: f64,
+) -> std::result::Result<TransverselyIsotropicParams, softcap_fem::FemError> {
+    let (e, _) = p.to_young_poisson()?;
+    let nu_t = nu_transverse.clamp(0.0, 0.49);
+    let nu_a_max = ((1.0 - nu_t) * ratio / 2.0).sqrt() * 0.95;
+    let nu_a = nu_fibre.clamp(0.0, nu_a_max);
+    TransverselyIsotropicParams::from_engineering(
+        e,
+        ratio * e,
+        nu_t,
+        nu_a,
+        e / (2.0 * (1.0 + nu_t)),
+    )
 }

@@ -69,7 +69,7 @@ pub use diagnose::{
     signature_support, signatures,
 };
 pub use error::{DiagnoseError, Result};
-pub use extend::{Extension, SequenceFrame, transverse_from_isotropic};
+pub use extend::{Extension, SequenceFrame, transverse_from_isotropic, transverse_with_poisson};
 pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
 pub use io::{
     MaterialModel, MaterialSource, material_model, material_model_from, read_material,

@@ -269,19 +269,33 @@ pub fn friction_forces(
         .collect()
 }
 
-/// Simulates every grid point (skipping those that do not reach equilibrium).
+/// Simulates every grid point (skipping those that do not reach equilibrium). With
+/// `contact_only` (extensions without history), only the contact frames are solved and every
+/// other frame is the unloaded model.
 fn simulate_grid(
     sim: &mut dyn ProbeSimulator,
     grid: Vec<(Vec<(String, f64)>, Extension, Vec<Vector3<f64>>)>,
     rec: &Recording,
     seg: &Segmentation,
+    p: &Prepared,
+    contact_only: bool,
 ) -> Result<(Vec<Candidate>, usize)> {
     let total = grid.len();
     let mut out = Vec::with_capacity(total);
+    let solved: Vec<usize> = (0..rec.frames.len())
+        .filter(|&k| !contact_only || seg.phases[k].in_contact())
+        .collect();
     for (params, ext, forces) in grid {
-        let frames = sequence_frames(rec, seg, &forces);
+        let all = sequence_frames(rec, seg, &forces);
+        let frames: Vec<SequenceFrame> = solved.iter().map(|&k| all[k]).collect();
         match sim.simulate_sequence(&ext, &frames) {
-            Ok(prediction) => out.push(Candidate { params, prediction }),
+            Ok(x) => {
+                let mut prediction = vec![p.rest_model_m.clone(); rec.frames.len()];
+                for (row, &k) in x.into_iter().zip(&solved) {
+                    prediction[k] = row;
+                }
+                out.push(Candidate { params, prediction })
+            }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
         }
@@ -358,17 +372,29 @@ pub(crate) fn confirm(
                 param(refit, "fibre_z"),
             );
             let a = a.try_normalize(1e-9).unwrap_or_else(Vector3::x);
-            for ratio in [2.0, 4.0, 8.0] {
-                grid.push((
-                    vec![
-                        ("fibre_x".into(), a.x),
-                        ("fibre_y".into(), a.y),
-                        ("fibre_z".into(), a.z),
-                        ("fibre_ratio".into(), ratio),
-                    ],
-                    Extension::Anisotropic { fibre: a, ratio },
-                    f.clone(),
-                ));
+            // the fitted isotropic Poisson ratio is biased by the anisotropy: ν_t, ν_a refitted
+            for ratio in [3.0, 5.0, 8.0] {
+                for nu_transverse in [0.2, 0.35, 0.45] {
+                    for nu_fibre in [0.1, 0.3] {
+                        grid.push((
+                            vec![
+                                ("fibre_x".into(), a.x),
+                                ("fibre_y".into(), a.y),
+                                ("fibre_z".into(), a.z),
+                                ("fibre_ratio".into(), ratio),
+                                ("nu_transverse".into(), nu_transverse),
+                                ("nu_fibre".into(), nu_fibre),
+                            ],
+                            Extension::TransverselyIsotropic {
+                                fibre: a,
+                                ratio,
+                                nu_transverse,
+                                nu_fibre,
+                            },
+                            f.clone(),
+                        ));
+                    }
+                }
             }
             ("AnisotropicModel", true)
         }
@@ -392,7 +418,8 @@ pub(crate) fn confirm(
         }
         _ => return Ok(None),
     };
-    let (cands, total) = simulate_grid(sim, grid, rec, seg)?;
+    let contact_only = matches!(h, Hypothesis::Anisotropy | Hypothesis::ProbeFriction);
+    let (cands, total) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
     let n = cands.len();
     Ok(lolo(
         cands,
