@@ -176,6 +176,40 @@ impl Segmentation {
             }
         }
 
+        // Geometry leads a late force channel (clock offset, sensor lag): extend each run back over
+        // the frames where the tip was already pressing in at the same place — the approach frames
+        // whose depth along the probe axis rises monotonically into the run, after the shallowest
+        // frame of the approach (which stays out of contact). With an on-time force channel the
+        // frame before a run is that shallowest frame, so nothing changes.
+        for r in 0..runs.len() {
+            let (s, e) = runs[r];
+            let floor = if r > 0 { runs[r - 1].1 } else { 0 };
+            let Some(axis) = rec.frames[s].axis.try_normalize(1e-12) else {
+                continue;
+            };
+            let tip_s = rec.frames[s].tip_m;
+            let lateral = |k: usize| {
+                let d = rec.frames[k].tip_m - tip_s;
+                (d - axis * axis.dot(&d)).norm()
+            };
+            let depth = |k: usize| (rec.frames[k].tip_m - tip_s).dot(&axis);
+            // tolerance for the tracked tip's noise (a hold is flat up to it)
+            let tol = 0.1 * rec.tip_radius_m.max(1e-3);
+            let mut j = s;
+            while j > floor
+                && lateral(j - 1) < settings.same_location_radius_m
+                && depth(j - 1) <= depth(j) + tol
+            {
+                j -= 1;
+            }
+            let shallow = depth(j) + tol;
+            if let Some(first) = (j..s).find(|&k| depth(k) > shallow)
+                && first < s
+            {
+                runs[r] = (first, e);
+            }
+        }
+
         let mut phases = vec![Phase::Rest; n];
         let mut fold_of_frame = vec![None; n];
         let mut locations: Vec<Location> = Vec::new();
@@ -362,6 +396,29 @@ mod tests {
         assert_eq!(seg.locations.len(), 2, "{:?}", seg.locations);
         assert_eq!(seg.phases[7], Phase::Released);
         assert_eq!(seg.fold_of_frame[8], Some(0));
+    }
+
+    #[test]
+    fn a_late_force_channel_keeps_the_geometric_ramp_in_contact() {
+        // The force arrives three frames late (it starts at the hold): the ramp frames, where the
+        // tip already presses in, are still the location's loading frames.
+        let mut rec = toy();
+        let f: Vec<Vector3<f64>> = rec.frames.iter().map(|x| x.force_n).collect();
+        for (k, fr) in rec.frames.iter_mut().enumerate() {
+            fr.force_n = if k >= 1 { f[k - 1] } else { Vector3::zeros() };
+        }
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        assert_eq!(seg.locations.len(), 2);
+        // frame 2 is the first ramp frame (depth 1 mm) but reads no force yet
+        assert_eq!(rec.frames[2].force_n.norm(), 0.0);
+        assert_eq!(seg.phases[2], Phase::Loading);
+        assert_eq!(seg.fold_of_frame[2], Some(0));
+        assert_eq!(
+            seg.phases[1],
+            Phase::Rest,
+            "the approach frame stays out of contact"
+        );
+        // the on-time toy is unchanged (see the next test)
     }
 
     #[test]
