@@ -132,7 +132,7 @@ impl Sums {
     }
     fn scale(&self, fit: bool) -> f64 {
         if fit && self.a > 0.0 {
-            (self.b / self.a).clamp(0.25, 4.0)
+            (self.b / self.a).clamp(0.1, 10.0)
         } else {
             1.0
         }
