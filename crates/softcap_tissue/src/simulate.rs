@@ -104,6 +104,10 @@ pub struct SimulateSettings {
     pub contact: ContactSynthesisSettings,
     /// Relaxation ω of the strain-space parameter update ([`softcap_fem::StrainSpaceModel`]).
     pub relaxation: f64,
+    /// When the synthesis does not converge (after the load-increment halvings of
+    /// `contact.max_bisections`), retry this many times with ω halved and twice the equilibrium
+    /// iterations (a smaller ω contracts the parameter oscillation more; same fixed points).
+    pub relaxation_retries: usize,
 }
 
 impl Default for SimulateSettings {
@@ -111,6 +115,7 @@ impl Default for SimulateSettings {
         Self {
             contact: ContactSynthesisSettings::default(),
             relaxation: crate::fit::DEFAULT_RELAXATION,
+            relaxation_retries: 2,
         }
     }
 }
@@ -183,31 +188,39 @@ pub fn simulate(
     settings: &SimulateSettings,
 ) -> Result<ContactSynthesis> {
     let axis = probe.validate()?;
-    let mut model = softcap_fem::StrainSpaceModel::new(
-        loaded.material.clone(),
-        &setup.mesh,
-        settings.relaxation,
-    )
-    .map_err(|e| TissueError::BadSettings {
-        field: "relaxation".into(),
-        problem: e.to_string(),
-    })?;
     let pose = probe_pose(&Vector3::from(probe.tip_m), &axis);
-    simulate_probe_contact(
-        setup,
-        &mut model,
-        probe.tip_shape(),
-        pose,
-        probe.force_n,
-        &settings.contact,
-    )
-    .map_err(|e| match e {
-        softcap_fem::FemError::Probing { what } => TissueError::BadSettings {
-            field: "probe".into(),
-            problem: what,
-        },
-        e => e.into(),
-    })
+    let mut relaxation = settings.relaxation;
+    let mut contact = settings.contact.clone();
+    let mut attempt = 0;
+    loop {
+        let mut model =
+            softcap_fem::StrainSpaceModel::new(loaded.material.clone(), &setup.mesh, relaxation)
+                .map_err(|e| TissueError::BadSettings {
+                    field: "relaxation".into(),
+                    problem: e.to_string(),
+                })?;
+        let syn = simulate_probe_contact(
+            setup,
+            &mut model,
+            probe.tip_shape(),
+            pose,
+            probe.force_n,
+            &contact,
+        )
+        .map_err(|e| match e {
+            softcap_fem::FemError::Probing { what } => TissueError::BadSettings {
+                field: "probe".into(),
+                problem: what,
+            },
+            e => e.into(),
+        })?;
+        if syn.status == SolveStatus::Converged || attempt >= settings.relaxation_retries {
+            return Ok(syn);
+        }
+        attempt += 1;
+        relaxation *= 0.5;
+        contact.equilibrium.max_iterations *= 2;
+    }
 }
 
 /// Nominal time between load steps in sim.mcap, ns (0.1 s).

@@ -1,8 +1,7 @@
 //! Held-out probe on the three-layer block of tests/noise.rs: trained with a 4 mm disk (force
 //! boundary condition) at four locations × 0.5 / 1.0 N, predicted: a 6 mm sphere pressed by rigid
-//! contact (bickel2009 §3.4) to 0.8 N at a fifth location. Regression test of the session-4 fix of
-//! the strain-space material (docs/tissue.md, "Why the constant term"); the material does NOT
-//! yet beat the homogeneous model here (open, issue 7).
+//! contact (bickel2009 §3.4) to 0.8 N at a fifth location (issue 7: "a held-out probe — a location
+//! and tip shape not in training — is predicted better than by the homogeneous model").
 
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::probing::{
@@ -118,43 +117,26 @@ fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSess
     }
 }
 
+/// The default fit with the recommended shrinkage γ_p of the per-example fits toward the
+/// reference field (`softcap_tissue::fit::RECOMMENDED_GAMMA_PRIOR`).
 fn settings() -> FitSettings {
     let mut s = FitSettings {
         progress: false,
         ..FitSettings::default()
     };
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
-    if let Some(v) = env("HO_REF") {
-        s.reference = if v > 0.0 {
-            softcap_tissue::ReferenceField::Joint
-        } else {
-            softcap_tissue::ReferenceField::Homogeneous
-        };
-    }
-    if let Some(v) = env("HO_PRIOR") {
-        s.example_fit.gamma_prior = v;
-    }
-    if let Some(v) = env("HO_G") {
-        s.example_fit.gamma_m2 *= v;
-        s.example_fit.gamma_nu_m2 *= v;
-    }
-    if let Some(v) = env("HO_JG") {
-        s.joint_fit.gamma_m2 *= v;
-        s.joint_fit.gamma_nu_m2 *= v;
-    }
-    if let Some(v) = env("HO_JIT") {
-        s.joint_fit.max_iterations = v as usize;
-    }
+    s.example_fit.gamma_prior = softcap_tissue::fit::RECOMMENDED_GAMMA_PRIOR;
     s
 }
 
-/// Measured: held-out marker RMS material 0.302 mm (session 3: 0.474 mm), homogeneous 0.212 mm;
-/// at the truth's held-out strains the material's λ stays within 1.38× of the tet's mean sample
-/// λ (session 3: 13.5×). Tolerances: λ ratio ≤ 1.6 everywhere; the relaxed synthesis converges
-/// to the force within 1 %; material RMS ≤ 0.35 mm and ≤ 1.6× homogeneous (the remaining gap is
-/// the per-example heterogeneity, docs/tissue.md).
+/// Measured (docs/tissue.md): held-out marker RMS material 0.181 mm (depth 2.97 mm) vs
+/// homogeneous 0.212 mm (depth 2.72 mm), truth depth 3.68 mm — with the trust-region LM and the
+/// shrinkage γ_p = 1 of the per-example fits toward the reference field (session 4: 0.302 mm;
+/// trust region alone 0.255 mm; eq. 8 without tail, session 3: 0.474 mm). At the truth's
+/// held-out strains the material's λ stays within 1.22× of the tet's mean sample λ. Tolerances:
+/// λ ratio ≤ 1.6; the relaxed synthesis converges to the force within 1 %; the material predicts
+/// the held-out probe better than the homogeneous model (by ≥ 5 %).
 #[test]
-fn held_out_sphere_probe_stays_bounded() {
+fn held_out_sphere_probe_is_predicted_better_than_by_the_homogeneous_model() {
     let setup = setup();
     let mut truth = three_layer_truth(&setup.mesh);
     let train = [
@@ -191,27 +173,8 @@ fn held_out_sphere_probe_stays_bounded() {
     let mut material = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).unwrap();
     let mat_x =
         simulate_probe_contact(&setup, &mut material, tip.clone(), pose, force, &cs).unwrap();
-    if let Some(j) = &fit.joint {
-        let mut jm = CorotationalModel::new(&setup.mesh, j.params.clone()).unwrap();
-        let jx = simulate_probe_contact(&setup, &mut jm, tip.clone(), pose, force, &cs).unwrap();
-        let a = setup.marker_positions(&jx.positions_m);
-        let b = setup.marker_positions(&truth_x.positions_m);
-        let e = (a
-            .iter()
-            .zip(&b)
-            .map(|(p, q)| (p - q).norm_squared())
-            .sum::<f64>()
-            / a.len() as f64)
-            .sqrt();
-        eprintln!(
-            "joint linear field: held-out RMS {:.4} mm depth {:.3} mm; train RMS {:.4} mm",
-            1e3 * e,
-            1e3 * jx.depth_m,
-            1e3 * j.rms_m
-        );
-    }
     eprintln!(
-        "train: hom {:.4} per-ex {:.4} mat {:.4} mm",
+        "training examples: marker RMS homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm",
         1e3 * fit.outcome.homogeneous_rms_m,
         1e3 * fit.outcome.example_rms_m,
         1e3 * fit.outcome.material_rms_m
@@ -242,8 +205,5 @@ fn held_out_sphere_probe_stays_bounded() {
     assert!(worst <= 1.6, "{worst}");
     assert_eq!(mat_x.status, softcap_fem::SolveStatus::Converged);
     assert!((mat_x.axial_force_n - force).abs() <= 0.01 * force);
-    assert!(
-        e_mat <= 0.35e-3 && e_mat <= 1.6 * e_hom,
-        "{e_mat} vs {e_hom}"
-    );
+    assert!(e_mat <= 0.95 * e_hom, "{e_mat} vs {e_hom}");
 }

@@ -86,3 +86,97 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
     assert!(e.is_bad_input(), "{e}");
     assert!(!bad.exists());
 }
+
+/// Regression test for the soft demo block (issue 7: `softcap tissue simulate` on the 2.2 kPa
+/// demo material stopped at the first 1 mm depth increment with MaxIterations). A soft
+/// (2.2 kPa top / 3 kPa bottom neo-Hookean) block probed with a 4 mm disk at 0.02 / 0.04 N is
+/// fitted, then a novel probe — a 6 mm sphere at an untrained location, 0.04 N — is synthesized
+/// (adaptive load increments with bisection, relaxation retries) and compared with the truth's
+/// own synthesis of the same probe.
+#[test]
+fn simulate_converges_on_a_soft_block_with_a_novel_probe() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = SessionSpec {
+        locations: vec![[0.0105, 0.0105], [0.0195, 0.0195], [0.0105, 0.0195]],
+        forces_n: vec![0.02, 0.04],
+        young_pa: [3.0e3, 2.2e3],
+        ..SessionSpec::default()
+    };
+    let s = write_session(dir.path(), &spec);
+    let material = dir.path().join("material.mcap");
+    softcap_tissue::fit::run(&FitConfig {
+        capture: s.capture.clone(),
+        mesh: Some(s.mesh.clone()),
+        output: material.clone(),
+        report: None,
+        settings: FitSettings {
+            progress: false,
+            ..FitSettings::default()
+        },
+        arguments: vec![],
+    })
+    .unwrap();
+    let force = 0.04;
+    let probe = ProbeSpec {
+        shape: ProbeShape::Sphere,
+        radius_m: 0.006,
+        tip_m: [0.0175, 0.0125, 0.03],
+        axis: [0.0, 0.0, -1.0],
+        force_n: force,
+        disk_thickness_m: 0.002,
+        half_length_m: 0.0,
+    };
+    let out = dir.path().join("sim.mcap");
+    let o = softcap_tissue::simulate::run(&SimulateConfig {
+        material: material.clone(),
+        output: out.clone(),
+        probe: probe.clone(),
+        settings: SimulateSettings::default(),
+        arguments: vec![],
+    })
+    .unwrap();
+    // The truth (neo-Hookean layers) pressed by the same probe.
+    let fixed = softcap_fem::probing::support_nodes(
+        &s.mesh_m,
+        &softcap_fem::nalgebra::Vector3::z(),
+        0.0,
+        1e-9,
+    );
+    let setup =
+        softcap_fem::probing::ProbingSetup::new(s.mesh_m.clone(), &s.markers_m, fixed).unwrap();
+    let mut truth = common::truth_model(&s.mesh_m, spec.young_pa);
+    let pose = softcap_fem::probing::probe_pose(
+        &softcap_fem::nalgebra::Vector3::from(probe.tip_m),
+        &-softcap_fem::nalgebra::Vector3::z(),
+    );
+    let t = softcap_fem::probing::simulate_probe_contact(
+        &setup,
+        &mut truth,
+        probe.tip_shape(),
+        pose,
+        force,
+        &softcap_fem::ContactSynthesisSettings::default(),
+    )
+    .unwrap();
+    eprintln!(
+        "soft block, novel 6 mm sphere at 0.04 N: material depth {:.3} mm ({} load steps, {:.4} N), truth depth {:.3} mm ({:?})",
+        1e3 * o.depth_m,
+        o.load_steps,
+        o.axial_force_n,
+        1e3 * t.depth_m,
+        t.status
+    );
+    assert!(o.converged, "{o:?}");
+    assert!(
+        (o.axial_force_n - force).abs() <= 0.01 * force + 1e-12,
+        "{o:?}"
+    );
+    assert_eq!(t.status, softcap_fem::SolveStatus::Converged);
+    assert!(
+        (o.depth_m - t.depth_m).abs() <= 0.35 * t.depth_m,
+        "{} vs {}",
+        o.depth_m,
+        t.depth_m
+    );
+    assert!(Recording::open(&out).is_ok());
+}
