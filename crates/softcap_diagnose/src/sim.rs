@@ -12,7 +12,10 @@ use crate::extend::{Extension, SequenceFrame};
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{PatchSettings, ProbeExample, ProbingSetup, support_nodes};
+use softcap_fem::probing::{
+    HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, fit_homogeneous,
+    support_nodes,
+};
 use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver};
 use softcap_mesh::TetMesh;
 
@@ -57,6 +60,18 @@ pub trait ProbeSimulator {
     /// Marker positions of every frame (time order) under the model extended by `ext`
     /// ([`crate::extend`]). The default handles [`Extension::Elastic`] frame by frame; other
     /// extensions need a simulator that implements them (an error otherwise).
+    /// A simulator of the same setup whose material is a homogeneous (λ, α) refit to `examples`
+    /// (bickel2009 §6 average fit, `softcap_fem::probing::fit_homogeneous`) — used after a
+    /// temporal extension corrected the forces the material was fitted with. `None` (default)
+    /// when this simulator cannot refit its material or the fit fails.
+    fn refit_homogeneous(
+        &self,
+        examples: &[ProbeExample],
+    ) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        let _ = examples;
+        Ok(None)
+    }
+
     fn simulate_sequence(
         &mut self,
         ext: &Extension,
@@ -244,6 +259,31 @@ impl FemProbeSimulator {
 impl ProbeSimulator for FemProbeSimulator {
     fn num_markers(&self) -> usize {
         self.setup.markers.len()
+    }
+
+    fn refit_homogeneous(
+        &self,
+        examples: &[ProbeExample],
+    ) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let Some(p0) = self.model.params().first() else {
+            return Ok(None);
+        };
+        let (e0, nu0) = p0.to_young_poisson().map_err(fem)?;
+        let settings = HomogeneousFitSettings {
+            initial_young_pa: e0,
+            initial_nu: nu0.clamp(0.05, 0.45),
+            patch: self.settings.patch.clone(),
+            ..Default::default()
+        };
+        let Ok(fit) = fit_homogeneous(&self.setup, examples, &settings) else {
+            return Ok(None);
+        };
+        let model = CorotationalModel::homogeneous(&self.setup.mesh, fit.params).map_err(fem)?;
+        let mut sim =
+            FemProbeSimulator::from_setup(self.setup.clone(), model, self.settings.clone())?;
+        sim.support_plane = self.support_plane;
+        Ok(Some(Box::new(sim)))
     }
 
     fn simulate_sequence(

@@ -28,6 +28,7 @@ use crate::signal::{derivative, sample};
 use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
+use softcap_fem::probing::{ObservedMarker, ProbeExample};
 
 /// True for the hypotheses this module confirms.
 pub fn is_temporal(h: Hypothesis) -> bool {
@@ -321,6 +322,11 @@ pub(crate) fn confirm_temporal(
         }
     }
     let n = cands.len();
+    if matches!(h, Hypothesis::SensorLag | Hypothesis::ClockOffset)
+        && let Some(c) = confirm_with_material_refit(h, &grid, &cands, rec, seg, p, sim, scored)?
+    {
+        return Ok(Some(c));
+    }
     Ok(lolo_confirm(cands, rec, seg, p, fit_scale, scored).map(|mut c| {
         c.method = format!(
             "re-simulated extended model ({n} grid points of {}, {}), compliance scale, leave-one-location-out",
@@ -332,6 +338,183 @@ pub(crate) fn confirm_temporal(
             }
         );
         c
+    }))
+}
+
+/// Probe examples of location `l` (bickel2009 §4.1) under per-frame forces `forces`: its frame
+/// of largest force and the frame before it whose force is nearest half of that (the two force
+/// levels the tissue fit uses per location), with every observed marker.
+fn location_examples(
+    rec: &Recording,
+    seg: &Segmentation,
+    l: usize,
+    forces: &[Vector3<f64>],
+) -> Vec<ProbeExample> {
+    let cf = &seg.locations[l].contact_frames;
+    let Some(&pk) = cf
+        .iter()
+        .max_by(|&&a, &&b| forces[a].norm().total_cmp(&forces[b].norm()))
+    else {
+        return Vec::new();
+    };
+    let half = 0.5 * forces[pk].norm();
+    let mid = cf.iter().copied().filter(|&k| k < pk).min_by(|&a, &b| {
+        (forces[a].norm() - half)
+            .abs()
+            .total_cmp(&(forces[b].norm() - half).abs())
+    });
+    [mid, Some(pk)]
+        .into_iter()
+        .flatten()
+        .filter(|&k| forces[k].norm() > 0.0)
+        .map(|k| {
+            let f = &rec.frames[k];
+            ProbeExample {
+                frame: f.frame,
+                time_s: f.time_s,
+                tip_m: f.tip_m,
+                axis: f.axis,
+                force_n: forces[k],
+                observed: f
+                    .markers_m
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(m, y)| {
+                        y.map(|position_m| ObservedMarker {
+                            marker: m,
+                            position_m,
+                        })
+                    })
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+/// The complete extended model of a force-channel hypothesis (sensor-lag, clock-offset): the
+/// corrected forces AND the material refit to them (the tissue fit saw the distorted forces).
+/// Per held-out location: the grid point with the least error on the other locations (with a
+/// compliance scale, as in [`lolo_confirm`]), a homogeneous (λ, α) refit on the other locations'
+/// examples under that point's corrected forces (`ProbeSimulator::refit_homogeneous`), and the
+/// re-simulated sequence scored on the held-out location. `None` when the simulator cannot
+/// refit its material or a refit fails.
+#[allow(clippy::too_many_arguments)]
+fn confirm_with_material_refit(
+    h: Hypothesis,
+    grid: &[(Vec<(String, f64)>, Extension, Vec<SequenceFrame>)],
+    cands: &[(Vec<(String, f64)>, Field)],
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &mut dyn ProbeSimulator,
+    scored: &dyn Fn(usize, usize) -> bool,
+) -> Result<Option<Confirmed>> {
+    let nf = seg.num_folds();
+    // training error (with a compliance scale) of every candidate without fold `skip`
+    let choose = |skip: Option<usize>| -> Option<usize> {
+        (0..cands.len())
+            .map(|i| {
+                let mut t = Sums::default();
+                for (k, f) in rec.frames.iter().enumerate() {
+                    if skip.is_some() && seg.fold_of_frame[k] == skip {
+                        continue;
+                    }
+                    for (m, y) in f.markers_m.iter().enumerate() {
+                        let Some(y) = y else { continue };
+                        let u = cands[i].1[k][m] - p.rest_model_m[m];
+                        let v = y - p.rest_model_m[m];
+                        t.add(&Sums {
+                            a: u.norm_squared(),
+                            b: u.dot(&v),
+                            c: v.norm_squared(),
+                            n: 1,
+                        });
+                    }
+                }
+                (i, t.rss(t.scale(true)))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|x| x.0)
+    };
+    let forces_of = |i: usize| -> Vec<Vector3<f64>> {
+        grid.iter()
+            .find(|g| g.0 == cands[i].0)
+            .map(|g| {
+                g.2.iter()
+                    .map(|f| {
+                        f.load
+                            .probe
+                            .map(|q| q.force_n)
+                            .unwrap_or_else(Vector3::zeros)
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let frames_of = |i: usize| grid.iter().find(|g| g.0 == cands[i].0).map(|g| g.2.clone());
+    let run =
+        |sim: &mut dyn ProbeSimulator, i: usize, skip: Option<usize>| -> Result<Option<Field>> {
+            let forces = forces_of(i);
+            let Some(frames) = frames_of(i) else {
+                return Ok(None);
+            };
+            let examples: Vec<ProbeExample> = (0..nf)
+                .filter(|&l| Some(l) != skip)
+                .flat_map(|l| location_examples(rec, seg, l, &forces))
+                .collect();
+            let Some(mut refit) = sim.refit_homogeneous(&examples)? else {
+                return Ok(None);
+            };
+            match refit.simulate_sequence(&Extension::Elastic, &frames) {
+                Ok(x) => Ok(Some(x)),
+                Err(DiagnoseError::Simulation { .. }) => Ok(None),
+                Err(e) => Err(e),
+            }
+        };
+    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    for l in 0..nf {
+        let Some(i) = choose(Some(l)) else {
+            return Ok(None);
+        };
+        let Some(pred) = run(sim, i, Some(l))? else {
+            return Ok(None);
+        };
+        for (k, f) in rec.frames.iter().enumerate() {
+            if seg.fold_of_frame[k] != Some(l) {
+                continue;
+            }
+            for (m, y) in f.markers_m.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let r = (y - pred[k][m]).norm_squared();
+                e_all += r;
+                n_all += 1;
+                if scored(k, m) {
+                    e_sc += r;
+                    n_sc += 1;
+                }
+            }
+        }
+    }
+    let Some(i) = choose(None) else {
+        return Ok(None);
+    };
+    let Some(prediction) = run(sim, i, None)? else {
+        return Ok(None);
+    };
+    Ok(Some(Confirmed {
+        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
+        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
+        params: cands[i].0.clone(),
+        prediction,
+        method: format!(
+            "re-simulated: {} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {} points, leave-one-location-out",
+            if h == Hypothesis::SensorLag {
+                "de-lagged force f + tau df/dt"
+            } else {
+                "time-shifted force f(t + offset)"
+            },
+            cands.len()
+        ),
     }))
 }
 
