@@ -189,10 +189,11 @@ pub fn draw(series: &[Series], title: &str, x_label: &str, output: &Path) -> any
     let tmp = output.with_extension("tmp.png");
     let e = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing {}: {e}", output.display());
     {
+        softcap_figure::register_fonts();
         let root = BitMapBackend::new(&tmp, (1000, 600)).into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 22))
+            .caption(title, (softcap_figure::FONT_FAMILY, 22))
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(80)

@@ -60,6 +60,7 @@ pub fn plot_force_displacement(
     };
     let tmp = path.with_extension("tmp.png");
     {
+        softcap_figure::register_fonts();
         let root = BitMapBackend::new(&tmp, (800, 560)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let dmax = curves
@@ -69,7 +70,7 @@ pub fn plot_force_displacement(
             * 1e3;
         let fmax = forces_n.iter().copied().fold(0.0f64, f64::max);
         let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 20))
+            .caption(title, (softcap_figure::FONT_FAMILY, 20))
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(60)

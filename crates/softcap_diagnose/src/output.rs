@@ -268,6 +268,7 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
         |a, p| (a.0.min(p.0), a.1.max(p.0), a.2.min(p.1), a.3.max(p.1)),
     );
     let pad = 0.08 * (x1 - x0).max(y1 - y0).max(1.0);
+    softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (1200, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let halves = root.split_evenly((1, 2));
@@ -278,7 +279,7 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
                     "RMS marker residual {title} (max {:.3} mm)",
                     1e3 * vals.iter().cloned().fold(0.0, f64::max)
                 ),
-                ("sans-serif", 18),
+                (softcap_figure::FONT_FAMILY, 18),
             )
             .margin(10)
             .x_label_area_size(35)
@@ -325,11 +326,12 @@ fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawR
     let tmax = t.last().copied().unwrap_or(1.0).max(t[0] + 1e-6);
     let ymax = b.iter().chain(&a).cloned().fold(1e-9, f64::max) * 1.1;
     let fmax = f.iter().cloned().fold(1e-9, f64::max) * 1.1;
+    softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (1100, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (top, bottom) = root.split_vertically(460);
     let mut chart = ChartBuilder::on(&top)
-        .caption("RMS marker residual per frame", ("sans-serif", 18))
+        .caption("RMS marker residual per frame", (softcap_figure::FONT_FAMILY, 18))
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(60)
@@ -397,6 +399,7 @@ fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawR
 fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
     let seg = &run.segmentation;
     let nloc = seg.locations.len().min(6);
+    softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (1200, 420 * nloc.div_ceil(3) as u32)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let cells = root.split_evenly((nloc.div_ceil(3), 3));
@@ -470,7 +473,7 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
         });
         let px = 0.05 * (x1 - x0).max(1e-3);
         let mut chart = ChartBuilder::on(area)
-            .caption(format!("location {}", li.index), ("sans-serif", 16))
+            .caption(format!("location {}", li.index), (softcap_figure::FONT_FAMILY, 16))
             .margin(8)
             .x_label_area_size(35)
             .y_label_area_size(50)

@@ -13,6 +13,7 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
     };
     let tmp = path.with_extension("tmp.png");
     {
+        softcap_figure::register_fonts();
         let root = BitMapBackend::new(&tmp, (900, 600)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let pmax = report
@@ -34,7 +35,7 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
                     "L2 error vs. basis size (ICT face, {} held-out poses, H = {}, F = {})",
                     report.heldout_poses, report.handles, report.feature_edges
                 ),
-                ("sans-serif", 22),
+                (softcap_figure::FONT_FAMILY, 22),
             )
             .margin(12)
             .x_label_area_size(45)

@@ -29,12 +29,13 @@ pub fn draw_example_errors(path: &Path, o: &FitOutcome) -> Result<()> {
         .fold(1e-9, f64::max)
         * 1e3
         * 1.15;
+    softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (1100, 520)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "RMS marker error per example (bickel2009 eq. 9 / eq. 8)",
-            ("sans-serif", 18),
+            (softcap_figure::FONT_FAMILY, 18),
         )
         .margin(12)
         .x_label_area_size(40)
@@ -84,12 +85,13 @@ pub fn draw_basis_curve(path: &Path, o: &FitOutcome) -> Result<()> {
         .collect();
     let xmax = pts.last().map_or(2.0, |p| p.0.max(2.0)) + 0.5;
     let ymax = pts.iter().map(|p| p.1).fold(1e-9, f64::max) * 1.15;
+    softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (800, 520)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "strain-space fitting error vs basis size (bickel2009 §4.2, Fig. 5)",
-            ("sans-serif", 18),
+            (softcap_figure::FONT_FAMILY, 18),
         )
         .margin(12)
         .x_label_area_size(40)
