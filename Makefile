@@ -9,10 +9,11 @@
 #                 intermediate with the first run (determinism)
 CARGO      ?= cargo
 TARGET_DIR ?= $(or $(CARGO_TARGET_DIR),target)
-# The demo binaries are built with Cargo's `test` profile (workspace opt-level 2, dependencies
-# opt-level 3): the same artifacts `make test` builds, so the demo after the tests (or the tests
-# after the demo) compiles only the binaries. PROFILE=release for fully optimized binaries.
-PROFILE    ?= test
+# The demo binaries are built with Cargo's `demo` profile (Cargo.toml: the test profile's
+# optimization without debug info, build-time-only crates unoptimized), so a fresh clone builds
+# them in a few minutes. PROFILE=release for fully optimized binaries, PROFILE=test to reuse the
+# artifacts of a `cargo test` build.
+PROFILE    ?= demo
 BIN        := $(TARGET_DIR)/$(if $(filter test dev,$(PROFILE)),debug,$(PROFILE))
 SOFTCAP    := $(BIN)/softcap
 SCENARIO   ?= fixtures/scenarios/demo.toml
