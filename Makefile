@@ -17,7 +17,7 @@ PROFILE    ?= demo
 BIN        := $(TARGET_DIR)/$(if $(filter test dev,$(PROFILE)),debug,$(PROFILE))
 SOFTCAP    := $(BIN)/softcap
 SCENARIO   ?= fixtures/scenarios/demo.toml
-# The novel probe `make -f pipelines/tissue.mk simulations` synthesizes for the demo session: a
+# The novel probe `tissue simulate` synthesizes for the demo session (pipelines/tissue.mk): a
 # 6 mm sphere pressing 0.03 N (half the session's largest probe force; the block is very soft).
 DEMO_SIMULATE_ARGS ?= --probe-shape sphere --radius 0.006 --tip 0.02 0.02 0.03 --axis 0 0 -1 --force 0.03
 OUT        ?= out/demo
