@@ -331,7 +331,10 @@ fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawR
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (top, bottom) = root.split_vertically(460);
     let mut chart = ChartBuilder::on(&top)
-        .caption("RMS marker residual per frame", (softcap_figure::FONT_FAMILY, 18))
+        .caption(
+            "RMS marker residual per frame",
+            (softcap_figure::FONT_FAMILY, 18),
+        )
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(60)
@@ -473,7 +476,10 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
         });
         let px = 0.05 * (x1 - x0).max(1e-3);
         let mut chart = ChartBuilder::on(area)
-            .caption(format!("location {}", li.index), (softcap_figure::FONT_FAMILY, 16))
+            .caption(
+                format!("location {}", li.index),
+                (softcap_figure::FONT_FAMILY, 16),
+            )
             .margin(8)
             .x_label_area_size(35)
             .y_label_area_size(50)

@@ -64,8 +64,12 @@ mod tests {
         assert!(register_fonts());
         assert!(register_fonts(), "a second call is a no-op");
         let font: FontDesc<'_> = (FONT_FAMILY, 20.0).into();
-        let (wide, _) = font.box_size("MMMM").expect("layout with the embedded font");
-        let (narrow, _) = font.box_size("iiii").expect("layout with the embedded font");
+        let (wide, _) = font
+            .box_size("MMMM")
+            .expect("layout with the embedded font");
+        let (narrow, _) = font
+            .box_size("iiii")
+            .expect("layout with the embedded font");
         assert!(wide > 2 * narrow, "MMMM {wide} px vs iiii {narrow} px");
         // Bold and italic fall back to the one registered face.
         let bold = FontDesc::new(FontFamily::SansSerif, 20.0, FontStyle::Bold);
@@ -86,11 +90,18 @@ mod tests {
                 .y_label_area_size(40)
                 .build_cartesian_2d(0.0..1.0, 0.0..2.0)
                 .expect("chart");
-            chart.configure_mesh().x_desc("depth (mm)").draw().expect("mesh with labels");
+            chart
+                .configure_mesh()
+                .x_desc("depth (mm)")
+                .draw()
+                .expect("mesh with labels");
             root.present().expect("present");
         }
         // The caption band (top 20 rows) holds dark text pixels.
-        let caption_dark = pixels[..(20 * w * 3) as usize].iter().filter(|&&p| p < 100).count();
+        let caption_dark = pixels[..(20 * w * 3) as usize]
+            .iter()
+            .filter(|&&p| p < 100)
+            .count();
         assert!(caption_dark > 20, "caption pixels: {caption_dark}");
     }
 }
