@@ -3,11 +3,9 @@
 
 mod common;
 
-use common::{SessionSpec, write_session};
+use common::{SessionSpec, quiet_fit, write_session};
 use softcap_mcap::{Recording, topics};
-use softcap_tissue::{
-    FitConfig, FitSettings, ProbeShape, ProbeSpec, SimulateConfig, SimulateSettings,
-};
+use softcap_tissue::{ProbeShape, ProbeSpec, SimulateConfig, SimulateSettings};
 
 #[test]
 fn simulate_reaches_the_force_and_writes_every_load_step() {
@@ -21,18 +19,7 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
         },
     );
     let material = dir.path().join("material.mcap");
-    softcap_tissue::fit::run(&FitConfig {
-        capture: s.capture.clone(),
-        mesh: Some(s.mesh.clone()),
-        output: material.clone(),
-        report: None,
-        settings: FitSettings {
-            progress: false,
-            ..FitSettings::default()
-        },
-        arguments: vec![],
-    })
-    .unwrap();
+    quiet_fit(&s.capture, &s.mesh, &material);
     let out = dir.path().join("sim.mcap");
     let settings = SimulateSettings::default();
     let cfg = SimulateConfig {
@@ -104,18 +91,7 @@ fn simulate_converges_on_a_soft_block_with_a_novel_probe() {
     };
     let s = write_session(dir.path(), &spec);
     let material = dir.path().join("material.mcap");
-    softcap_tissue::fit::run(&FitConfig {
-        capture: s.capture.clone(),
-        mesh: Some(s.mesh.clone()),
-        output: material.clone(),
-        report: None,
-        settings: FitSettings {
-            progress: false,
-            ..FitSettings::default()
-        },
-        arguments: vec![],
-    })
-    .unwrap();
+    quiet_fit(&s.capture, &s.mesh, &material);
     let force = 0.04;
     let probe = ProbeSpec {
         shape: ProbeShape::Sphere,

@@ -258,3 +258,20 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
         examples,
     }
 }
+
+/// `softcap_tissue::fit::run` with the default settings and no progress bar or report: the fit
+/// every tissue test that is not about fit settings runs.
+pub fn quiet_fit(capture: &Path, mesh: &Path, output: &Path) -> softcap_tissue::FitOutcome {
+    softcap_tissue::fit::run(&softcap_tissue::FitConfig {
+        capture: capture.to_path_buf(),
+        mesh: Some(mesh.to_path_buf()),
+        output: output.to_path_buf(),
+        report: None,
+        settings: softcap_tissue::FitSettings {
+            progress: false,
+            ..softcap_tissue::FitSettings::default()
+        },
+        arguments: vec![],
+    })
+    .expect("the fit of a virtual session succeeds")
+}
