@@ -12,11 +12,13 @@
 //! accordingly. This is still the full non-linear FEM of the composite (no linearization);
 //! comparisons against the full block are in the tests and in docs/design.md.
 //!
-//! Equilibrium is solved by Newton's method on the free degrees of freedom with the
-//! material-consistent element tangent ([`CompositeModel::element_force_tangent`]), a dense LU
-//! of the (≈ 150-dof) system per iteration and a linear predictor from the previous two load
-//! levels. The converged state is the same fixed point as the §8.2 "refresh E, re-solve"
-//! iteration of `softcap_fem::StaticSolver` (tested to 1e-9 m), at a fraction of the iterations.
+//! Equilibrium is solved by Newton's method on the free degrees of freedom with the exact
+//! element tangent ([`CompositeModel::state_tangent`]: material-consistent C_t = ∂σ/∂ε in
+//! closed form, plus the rotation derivative), a band LU of the (≈ 150-dof) system per
+//! iteration, the residual checked before the tangent is built, and a linear predictor from the
+//! previous two load levels (the rest state included). The converged state is the same fixed
+//! point as the §8.2 "refresh E, re-solve" iteration of `softcap_fem::StaticSolver` (tested to
+//! 1e-9 m), at a fraction of the iterations.
 
 use crate::error::{DesignError, Result};
 use crate::material::BaseMaterial;
@@ -313,9 +315,16 @@ pub struct CompositeSimulator {
     length_scale_m: f64,
     /// Half-bandwidth of the free-dof system (max |i − j| of coupled free dofs).
     band: usize,
-    /// Row-major n_free × n_free tangent (only the band is touched).
+    /// Free-dof index of every element's 12 dofs (`usize::MAX`: Dirichlet).
+    element_dofs: Vec<[usize; 12]>,
+    /// Tangent in compact band storage: row i holds columns i − band … i + band
+    /// (`band_index`), n_free × (2 band + 1).
     matrix: Vec<f64>,
+    /// Copy of the assembled band (dense-LU fallback).
+    matrix_copy: Vec<f64>,
     rhs: Vec<f64>,
+    /// Per-element state of the current iterate.
+    states: Vec<crate::model::ElementState>,
 }
 
 impl std::fmt::Debug for CompositeSimulator {
@@ -377,27 +386,40 @@ impl CompositeSimulator {
             hi = hi.sup(v);
         }
         let mut band = 0;
+        let mut element_dofs = Vec::with_capacity(block.mesh.tets.len());
         for t in &block.mesh.tets {
-            let dofs: Vec<usize> = t
-                .iter()
-                .flat_map(|&v| (0..3).map(move |c| 3 * v + c))
-                .map(|d| free_index[d])
-                .filter(|&i| i != usize::MAX)
-                .collect();
-            if let (Some(a), Some(b)) = (dofs.iter().min(), dofs.iter().max()) {
+            let mut dofs = [usize::MAX; 12];
+            for (a, &v) in t.iter().enumerate() {
+                for c in 0..3 {
+                    dofs[3 * a + c] = free_index[3 * v + c];
+                }
+            }
+            let free = dofs.iter().copied().filter(|&i| i != usize::MAX);
+            if let (Some(a), Some(b)) = (free.clone().min(), free.max()) {
                 band = band.max(b - a);
             }
+            element_dofs.push(dofs);
         }
+        let width = 2 * band + 1;
+        let state = crate::model::ElementState {
+            rotation: nalgebra::Matrix3::identity(),
+            stretch: nalgebra::Matrix3::identity(),
+            sigma: nalgebra::Matrix3::zeros(),
+            tangent: nalgebra::Matrix6::zeros(),
+        };
         Ok(Self {
             block,
             settings: settings.clone(),
-            model,
             free_index,
             n_free,
             length_scale_m: (hi - lo).norm(),
             band,
-            matrix: vec![0.0; n_free * n_free],
+            element_dofs,
+            matrix: vec![0.0; n_free * width],
+            matrix_copy: vec![0.0; n_free * width],
             rhs: vec![0.0; n_free],
+            states: vec![state; model.num_elements()],
+            model,
         })
     }
 
@@ -434,7 +456,8 @@ impl CompositeSimulator {
         let mut prev = 0.0;
         let inc = self.settings.increments.max(1);
         // Previous two converged states and their loads (linear predictor).
-        let mut history: Vec<(f64, Vec<Vector3<f64>>)> = Vec::new();
+        // The rest state (zero load) is the first entry, so the second level is extrapolated too.
+        let mut history: Vec<(f64, Vec<Vector3<f64>>)> = vec![(0.0, x.clone())];
         let forces = self.settings.forces_n.clone();
         for &force in &forces {
             for s in 1..=inc {
@@ -483,21 +506,27 @@ impl CompositeSimulator {
 
 impl CompositeSimulator {
     /// Newton iterations to equilibrium f_int(x) = f_ext on the free dofs (see module docs);
-    /// converged when the update is ≤ `displacement_tol_rel` × the mesh diagonal and the
-    /// residual ≤ `residual_tol_rel` × ‖f_ext‖. Returns the iterations, or the failure status.
+    /// converged when the last update is ≤ `displacement_tol_rel` × the mesh diagonal and the
+    /// residual ≤ `residual_tol_rel` × ‖f_ext‖. Each iteration evaluates the element states and
+    /// the residual first and assembles the (exact) tangent only if not yet converged, so the
+    /// final check costs no tangent. Returns the Newton steps taken, or the failure status.
     fn equilibrium(
         &mut self,
         x: &mut [Vector3<f64>],
         f_ext: &[Vector3<f64>],
     ) -> std::result::Result<usize, String> {
         let eq = &self.settings.equilibrium;
-        let tol_x = eq.displacement_tol_rel * self.length_scale_m;
+        let (max_iterations, tol_x) = (
+            eq.max_iterations.max(1),
+            eq.displacement_tol_rel * self.length_scale_m,
+        );
         let f_norm = f_ext.iter().map(|f| f.norm_squared()).sum::<f64>().sqrt();
         let tol_r = eq.residual_tol_rel * f_norm.max(f64::MIN_POSITIVE);
         let mut last_dx = f64::INFINITY;
-        let n = self.n_free;
-        for it in 0..eq.max_iterations.max(1) {
-            self.matrix.fill(0.0);
+        let (n, band) = (self.n_free, self.band);
+        let width = 2 * band + 1;
+        for it in 0..max_iterations {
+            // Residual r = f_ext − f_int on the free dofs.
             self.rhs.fill(0.0);
             for (node, f) in f_ext.iter().enumerate() {
                 for c in 0..3 {
@@ -507,23 +536,16 @@ impl CompositeSimulator {
                     }
                 }
             }
-            for e in 0..self.model.num_elements() {
-                let (fe, ke) = self.model.element_force_tangent(e, x);
-                let nodes = self.model.element_nodes(e);
+            for e in 0..self.states.len() {
+                let st = self.model.element_state(e, x);
+                let fe = self.model.state_forces(e, &st);
+                self.states[e] = st;
+                let dofs = &self.element_dofs[e];
                 for a in 0..4 {
                     for c in 0..3 {
-                        let i = self.free_index[3 * nodes[a] + c];
-                        if i == usize::MAX {
-                            continue;
-                        }
-                        self.rhs[i] -= fe[a][c];
-                        for b in 0..4 {
-                            for d in 0..3 {
-                                let j = self.free_index[3 * nodes[b] + d];
-                                if j != usize::MAX {
-                                    self.matrix[i * n + j] += ke[(3 * a + c, 3 * b + d)];
-                                }
-                            }
+                        let i = dofs[3 * a + c];
+                        if i != usize::MAX {
+                            self.rhs[i] -= fe[a][c];
                         }
                     }
                 }
@@ -535,10 +557,35 @@ impl CompositeSimulator {
             if it > 0 && last_dx <= tol_x && r_norm <= tol_r.max(1e-12 * f_norm) {
                 return Ok(it);
             }
-            let mut dx = self.rhs.clone();
-            if !banded_solve(&mut self.matrix, &mut dx, n, self.band) {
+            // Tangent in band storage.
+            self.matrix.fill(0.0);
+            for e in 0..self.states.len() {
+                let ke = self.model.state_tangent(e, &self.states[e]);
+                let dofs = &self.element_dofs[e];
+                for p in 0..12 {
+                    let i = dofs[p];
+                    if i == usize::MAX {
+                        continue;
+                    }
+                    let row = i * width + band - i;
+                    for q in 0..12 {
+                        let j = dofs[q];
+                        if j != usize::MAX {
+                            self.matrix[row + j] += ke[(p, q)];
+                        }
+                    }
+                }
+            }
+            if !banded_solve(
+                &mut self.matrix,
+                &mut self.matrix_copy,
+                &mut self.rhs,
+                n,
+                band,
+            ) {
                 return Err(format!("singular tangent at iteration {it}"));
             }
+            let dx = &self.rhs;
             last_dx = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             if !last_dx.is_finite() {
                 return Err("non-finite update".into());
@@ -553,8 +600,7 @@ impl CompositeSimulator {
             }
         }
         Err(format!(
-            "no convergence in {} Newton iterations (last update {last_dx:.3e} m)",
-            eq.max_iterations
+            "no convergence in {max_iterations} Newton iterations (last update {last_dx:.3e} m)"
         ))
     }
 
@@ -564,50 +610,64 @@ impl CompositeSimulator {
     }
 }
 
-/// Solves A x = b in place for a row-major n × n matrix whose entries vanish outside the band
-/// |i − j| ≤ `band`: Gaussian elimination restricted to the band, n·band² operations. Partial
-/// pivoting would widen the upper band, so pivots are not exchanged: the composite tangent
-/// (warped stiffness plus the material term of a stable material) is close to symmetric positive
-/// definite, for which elimination without pivoting is stable. A pivot ≤ 1e-14 × the largest
-/// diagonal entry falls back to nalgebra's dense LU with partial pivoting on the original
-/// matrix (kept intact until then). Returns false if that is singular too.
-fn banded_solve(a: &mut [f64], b: &mut [f64], n: usize, band: usize) -> bool {
-    let diag_max = (0..n).fold(0.0f64, |m, i| m.max(a[i * n + i].abs()));
-    let original = a.to_vec();
-    let rhs = b.to_vec();
-    let mut ok = diag_max > 0.0;
-    'elim: for k in 0..n {
-        let pivot = a[k * n + k];
-        if !ok || pivot.abs() <= 1e-14 * diag_max || !pivot.is_finite() {
-            ok = false;
-            break 'elim;
-        }
-        let end = (k + band + 1).min(n);
-        for i in k + 1..end {
-            let l = a[i * n + k] / pivot;
-            if l == 0.0 {
-                continue;
+/// Solves A x = b in place for an n × n matrix in compact band storage (row i holds the
+/// columns i − band … i + band at `i·(2 band + 1) + (j + band − i)`): Gaussian elimination
+/// restricted to the band, n·band² operations on contiguous rows. Partial pivoting would widen
+/// the upper band, so pivots are not exchanged: the composite tangent is close to symmetric
+/// positive definite (stiffness of a stable material plus a small stress/rotation term), for
+/// which elimination without pivoting is stable. A pivot ≤ 1e-14 × the largest diagonal entry
+/// falls back to nalgebra's dense LU with partial pivoting on the original matrix (saved in
+/// `copy`). Returns false if that is singular too.
+fn banded_solve(a: &mut [f64], copy: &mut [f64], b: &mut [f64], n: usize, band: usize) -> bool {
+    let w = 2 * band + 1;
+    copy.copy_from_slice(a);
+    let diag_max = (0..n).fold(0.0f64, |m, i| m.max(a[i * w + band].abs()));
+    let mut ok = diag_max > 0.0 && diag_max.is_finite();
+    if ok {
+        'elim: for k in 0..n {
+            let pivot = a[k * w + band];
+            if pivot.abs() <= 1e-14 * diag_max || !pivot.is_finite() {
+                ok = false;
+                break 'elim;
             }
-            a[i * n + k] = l;
-            for j in k + 1..end {
-                a[i * n + j] -= l * a[k * n + j];
+            let end = (k + band + 1).min(n);
+            let len = end - k - 1;
+            let rk = k * w + band + 1; // row k, column k + 1
+            for i in k + 1..end {
+                let lik = i * w + k + band - i; // row i, column k
+                let l = a[lik] / pivot;
+                if l == 0.0 {
+                    continue;
+                }
+                a[lik] = l;
+                let (head, tail) = a.split_at_mut(lik + 1); // row i, columns k + 1 … start tail
+                let row_k = &head[rk..rk + len];
+                for (t, v) in tail[..len].iter_mut().zip(row_k) {
+                    *t -= l * v;
+                }
+                b[i] -= l * b[k];
             }
-            b[i] -= l * b[k];
         }
     }
     if ok {
         for k in (0..n).rev() {
             let end = (k + band + 1).min(n);
+            let rk = k * w + band + 1;
             let mut s = b[k];
-            for j in k + 1..end {
-                s -= a[k * n + j] * b[j];
+            for (v, bj) in a[rk..rk + (end - k - 1)].iter().zip(&b[k + 1..end]) {
+                s -= v * bj;
             }
-            b[k] = s / a[k * n + k];
+            b[k] = s / a[k * w + band];
         }
         return true;
     }
-    let m = DMatrix::from_row_slice(n, n, &original);
-    match m.lu().solve(&DVector::from_column_slice(&rhs)) {
+    let mut m = DMatrix::zeros(n, n);
+    for i in 0..n {
+        for j in i.saturating_sub(band)..(i + band + 1).min(n) {
+            m[(i, j)] = copy[i * w + j + band - i];
+        }
+    }
+    match m.lu().solve(&DVector::from_column_slice(b)) {
         Some(x) => {
             b.copy_from_slice(x.as_slice());
             true

@@ -35,6 +35,9 @@ pub struct ParallelEvaluator {
     pub settings: CompositeSettings,
     /// Designs simulated so far.
     pub simulations: usize,
+    /// Size of every batch handed to [`DesignEvaluator::evaluate`] (each batch is one parallel
+    /// map; the search waits for it before it continues).
+    pub batch_sizes: Vec<usize>,
 }
 
 impl ParallelEvaluator {
@@ -45,13 +48,32 @@ impl ParallelEvaluator {
             materials,
             settings: settings.clone(),
             simulations: 0,
+            batch_sizes: Vec::new(),
         })
+    }
+
+    /// Parallel efficiency of the batches on `workers` equal workers, assuming equal cost per
+    /// design: Σ b / (workers · Σ ⌈b / workers⌉) (1 = every batch splits evenly; a batch of
+    /// one design keeps one worker idle). CPU seconds / workers / this = the wall time on
+    /// `workers` idle cores.
+    pub fn parallel_efficiency(&self, workers: usize) -> f64 {
+        let w = workers.max(1);
+        let total: usize = self.batch_sizes.iter().sum();
+        let rounds: usize = self.batch_sizes.iter().map(|b| b.div_ceil(w)).sum();
+        if rounds == 0 {
+            1.0
+        } else {
+            total as f64 / (w * rounds) as f64
+        }
     }
 }
 
 impl DesignEvaluator for ParallelEvaluator {
     fn evaluate(&mut self, designs: &[Vec<usize>]) -> Vec<Response> {
         self.simulations += designs.len();
+        if !designs.is_empty() {
+            self.batch_sizes.push(designs.len());
+        }
         designs
             .par_iter()
             .map_init(

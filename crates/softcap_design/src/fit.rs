@@ -16,7 +16,7 @@
 //! known nodal forces in the optimization.
 
 use crate::error::{DesignError, Result};
-use crate::material::{BaseMaterial, InvariantMaterial};
+use crate::material::{BaseMaterial, InvariantMaterial, TransverseMaterial, TransverseParams};
 use crate::model::CompositeModel;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -95,6 +95,8 @@ impl Default for BaseFitSettings {
 pub struct BaseFitReport {
     /// Fitted material.
     pub material: BaseMaterial,
+    /// The homogeneous linear pre-fit (§8.3).
+    pub prefit: BaseMaterial,
     /// RMS marker error of the linear pre-fit [m].
     pub linear_rms_m: f64,
     /// RMS marker error of the final fit [m].
@@ -137,6 +139,26 @@ pub fn simulate_examples(
         }
     }
     Ok(out)
+}
+
+/// Simulates every example of `meas` with `material` (no extra forces); returns all node
+/// positions [m] per example (e.g. for the element strains the examples produce).
+pub fn simulate_positions(
+    meas: &BaseMeasurements,
+    material: &BaseMaterial,
+    settings: &BaseFitSettings,
+) -> Result<Vec<Vec<Vector3<f64>>>> {
+    let mats = Arc::new(vec![material.clone()]);
+    let mut model = CompositeModel::new(&meas.mesh, mats, vec![0; meas.mesh.tets.len()])?;
+    let mut bc = DirichletBc::new();
+    for &i in &meas.fixed_nodes {
+        bc.fix_node(i, meas.mesh.vertices[i]);
+    }
+    let mut solver = StaticSolver::new(&model, &bc.dofs())?;
+    meas.examples
+        .iter()
+        .map(|ex| solve_example(&mut solver, &mut model, meas, ex, None, None, settings))
+        .collect()
 }
 
 fn solve_example(
@@ -280,11 +302,43 @@ fn rms(r: &[f64]) -> f64 {
     (r.iter().map(|v| v * v).sum::<f64>() / (r.len() / 3).max(1) as f64).sqrt()
 }
 
-/// Fits an isotropic base material (thesis §8.3, see module docs), starting the pre-fit from
-/// Young's modulus `young_guess_pa`.
+/// Fits an isotropic base material (thesis §8.3, eq. 8.1–8.3, see module docs), starting the
+/// pre-fit from Young's modulus `young_guess_pa` (ν = 0.3).
 pub fn fit_isotropic(
     meas: &BaseMeasurements,
     young_guess_pa: f64,
+    settings: &BaseFitSettings,
+) -> Result<BaseFitReport> {
+    fit_base(
+        meas,
+        BaseMaterial::Isotropic(InvariantMaterial::from_young_poisson(young_guess_pa, 0.3)),
+        settings,
+    )
+}
+
+/// Fits a transversely isotropic base material (thesis §8.3 with the five parameters of eq. 8.5,
+/// tubes along z): p(ε) = (E11, E12, E13, E33, E44) as an RBF over the 6-D Voigt strain, every
+/// evaluation projected to a positive-definite transversely isotropic matrix
+/// ([`crate::project_transverse`], the Rebonato–Jäckel clipping §8.3 cites); linear pre-fit of
+/// the five constants from `start`, centres by k-means over the pre-fit's element strains
+/// (scaled per component), then LM over (p₀, w) on all examples together (eq. 8.3).
+pub fn fit_transverse(
+    meas: &BaseMeasurements,
+    start: TransverseParams,
+    settings: &BaseFitSettings,
+) -> Result<BaseFitReport> {
+    fit_base(
+        meas,
+        BaseMaterial::Transverse(TransverseMaterial::linear(start)),
+        settings,
+    )
+}
+
+/// The §8.3 fit of a base material of either kind starting from the linear material `start`
+/// (see module docs and [`fit_isotropic`], [`fit_transverse`]).
+pub fn fit_base(
+    meas: &BaseMeasurements,
+    start: BaseMaterial,
     settings: &BaseFitSettings,
 ) -> Result<BaseFitReport> {
     let obs = observed(meas);
@@ -294,32 +348,40 @@ pub fn fit_isotropic(
             reason: "no observed markers".into(),
         });
     }
-    let start = InvariantMaterial::from_young_poisson(young_guess_pa, 0.3);
-    let p0 = start.rbf.constant.clone();
+    let p0 = start.rbf().constant.clone();
+    let k_out = p0.len();
     let no_extra = vec![Vec::new(); meas.examples.len()];
-    // 1. Homogeneous linear pre-fit.
+    // 1. Homogeneous linear pre-fit (parameters relative to the start: O(1)).
+    let pre_scale: Vec<f64> = p0.iter().map(|v| v.abs().max(1.0)).collect();
+    let pre_init: Vec<f64> = p0.iter().zip(&pre_scale).map(|(v, s)| v / s).collect();
     let mut lin = FitProblem {
         meas,
-        material: BaseMaterial::Isotropic(start),
+        material: start,
         extra: no_extra.clone(),
         observed: obs.clone(),
         settings,
-        scale: p0.clone(),
+        scale: pre_scale.clone(),
         evaluations: 0,
     };
-    let rep = levenberg_marquardt(&mut lin, &[1.0, 1.0], None, &settings.lm)?;
-    let lin_theta: Vec<f64> = rep.params.iter().zip(&p0).map(|(p, s)| p * s).collect();
+    let rep = levenberg_marquardt(&mut lin, &pre_init, None, &settings.lm)?;
+    let lin_theta: Vec<f64> = rep
+        .params
+        .iter()
+        .zip(&pre_scale)
+        .map(|(p, s)| p * s)
+        .collect();
     lin.material.rbf_mut().set_parameters(&lin_theta);
     let linear_rms_m = rms(&rep.residuals);
     let mut evaluations = lin.evaluations;
     let mut material = lin.material.clone();
+    let prefit = material.clone();
     // 2. Missing tangential forces under the pre-fit material.
     let extra = if settings.tangential {
         tangential_forces(meas, &material, settings)?
     } else {
         no_extra
     };
-    // 3. Centres from the pre-fit strains.
+    // 3. Centres from the pre-fit strains (invariants or Voigt strain, scaled per component).
     let mats = Arc::new(vec![material.clone()]);
     let model = CompositeModel::new(&meas.mesh, mats, vec![0; meas.mesh.tets.len()])?;
     let mut bc = DirichletBc::new();
@@ -328,7 +390,7 @@ pub fn fit_isotropic(
     }
     let mut solver = StaticSolver::new(&model, &bc.dofs())?;
     let mut model = model;
-    let mut coords: Vec<[f64; 3]> = Vec::new();
+    let mut coords: Vec<Vec<f64>> = Vec::new();
     for (k, ex) in meas.examples.iter().enumerate() {
         let x = solve_example(
             &mut solver,
@@ -340,24 +402,28 @@ pub fn fit_isotropic(
             settings,
         )?;
         for e in model.strains(&x) {
-            coords.push(crate::material::strain_invariants(&e));
+            coords.push(material.coordinates(&e));
         }
     }
-    let mut scale = [0.0f64; 3];
+    let dim = coords.first().map_or(0, Vec::len);
+    let mut scale = vec![0.0f64; dim];
     for c in &coords {
-        for k in 0..3 {
+        for k in 0..dim {
             scale[k] = scale[k].max(c[k].abs());
         }
     }
-    let scale = scale.map(|s| if s > 0.0 { s } else { 1.0 });
+    let scale: Vec<f64> = scale
+        .into_iter()
+        .map(|s| if s > 0.0 { s } else { 1.0 })
+        .collect();
     let pts: Vec<f64> = coords
         .iter()
-        .flat_map(|c| (0..3).map(move |k| c[k] / scale[k]))
+        .flat_map(|c| c.iter().zip(&scale).map(|(v, s)| v / s))
         .collect();
     let p = settings.centres.min(coords.len()).max(1);
     let km = kmeans(
         &pts,
-        3,
+        dim,
         p,
         &KMeansSettings {
             seed: 83,
@@ -366,9 +432,9 @@ pub fn fit_isotropic(
     )?;
     {
         let rbf = material.rbf_mut();
-        rbf.scale = scale.to_vec();
-        rbf.centres = km.centroids.chunks(3).map(|c| c.to_vec()).collect();
-        rbf.weights = vec![vec![0.0, 0.0]; p];
+        rbf.scale = scale;
+        rbf.centres = km.centroids.chunks(dim).map(|c| c.to_vec()).collect();
+        rbf.weights = vec![vec![0.0; k_out]; p];
     }
     // 4. LM over (p₀, w) on all examples together (eq. 8.3).
     let pscale: Vec<f64> = (0..=p)
@@ -404,6 +470,7 @@ pub fn fit_isotropic(
     evaluations += full.evaluations;
     Ok(BaseFitReport {
         material: full.material,
+        prefit,
         linear_rms_m,
         rms_m: rms(&rep.residuals),
         status: format!("{:?}", rep.status),

@@ -6,7 +6,7 @@
 //! | module | what | thesis |
 //! |---|---|---|
 //! | [`material`] | isotropic RBF over strain invariants → (λ, μ); transversely isotropic RBF over strain → (E11, E12, E13, E33, E44) with PD projection | eq. 8.1, 8.2, 8.5; §8.3 |
-//! | [`fit`] | base-material fit: linear pre-fit, centres from its strains, LM over all examples, missing tangential forces | §8.3, eq. 8.3 |
+//! | [`fit`] | base-material fit (isotropic and transversely isotropic): linear pre-fit, centres from its strains, LM over all examples, missing tangential forces | §8.3, eq. 8.3, 8.5 |
 //! | [`model`] | corotational composite model with per-element E(p(ε)) | §8.2 |
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
 //! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
@@ -54,15 +54,16 @@ pub use experiment::{
     write_table,
 };
 pub use fit::{
-    BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_isotropic,
-    simulate_examples, synthesize_measurements, tangential_forces,
+    BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_base, fit_isotropic,
+    fit_transverse, simulate_examples, simulate_positions, synthesize_measurements,
+    tangential_forces,
 };
 pub use material::{
     BaseMaterial, InvariantMaterial, IsotropicBounds, StrainRbf, TransverseBounds,
-    TransverseMaterial, TransverseParams, isotropic_matrix, project_lame, project_transverse,
-    strain_invariants, strain_tensor,
+    TransverseMaterial, TransverseParams, isotropic_matrix, project_lame, project_lame_jacobian,
+    project_transverse, strain_invariant_gradient, strain_invariants, strain_tensor,
 };
-pub use model::CompositeModel;
+pub use model::{CompositeModel, ElementState};
 pub use output::{DesignTarget, plot_force_displacement, read_json, write_json};
 pub use print::{PrintPart, read_design_3mf, write_design_3mf};
 pub use recording::{CaptureMappingSettings, measurements_from_capture};

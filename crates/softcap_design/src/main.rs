@@ -37,7 +37,8 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Fit one isotropic base material (eq. 8.1–8.3) per capture.mcap of a probed block and
+    /// Fit one base material (isotropic eq. 8.1–8.3, or `--transverse` eq. 8.5) per
+    /// capture.mcap of a probed block and
     /// write them as a library JSON (input of `target` / `search`).
     FitBase {
         /// capture.mcap files, one per base material (probe sessions on 4 × 5 × 2.5 cm blocks).
@@ -46,9 +47,13 @@ enum Command {
         /// Starting Young's modulus of the linear pre-fit [Pa].
         #[arg(long, default_value_t = 2.0e5)]
         young_guess: f64,
-        /// RBF centres per material (thesis: 6).
+        /// RBF centres per material (thesis: 6 isotropic, up to 12 printed materials).
         #[arg(long, default_value_t = 6)]
         centres: usize,
+        /// Fit transversely isotropic materials (tubes along z; eq. 8.5, five parameters)
+        /// instead of isotropic ones.
+        #[arg(long)]
+        transverse: bool,
         /// Optional TOML with `CaptureMappingSettings` (block size, mesh cells, snapping).
         #[arg(long)]
         mapping: Option<PathBuf>,
@@ -131,6 +136,7 @@ impl Command {
                 captures,
                 young_guess,
                 centres,
+                transverse,
                 mapping,
                 output,
             } => {
@@ -161,7 +167,13 @@ impl Command {
                         }
                     })?;
                     let meas = measurements_from_capture(&capture, &mapping)?;
-                    let rep = fit_isotropic(&meas, *young_guess, &settings)?;
+                    let rep = if *transverse {
+                        let iso = InvariantMaterial::from_young_poisson(*young_guess, 0.3);
+                        let (l, mu) = (iso.rbf.constant[0], iso.rbf.constant[1]);
+                        fit_transverse(&meas, TransverseParams::isotropic(l, mu), &settings)?
+                    } else {
+                        fit_isotropic(&meas, *young_guess, &settings)?
+                    };
                     println!(
                         "{}: {} examples, linear pre-fit RMS {:.4} mm, fit RMS {:.4} mm ({})",
                         path.display(),

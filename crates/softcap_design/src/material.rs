@@ -166,6 +166,134 @@ impl StrainRbf {
     }
 }
 
+impl StrainRbf {
+    /// Evaluates p at raw coordinates together with its gradient ∂p_k/∂raw_d, written
+    /// row-major into `grad` (K × D): ∂p/∂raw = Σᵢ wᵢ (q − qᵢ)ᵀ / (‖q − qᵢ‖ s) for φ(r) = r
+    /// (thesis eq. 8.2). At a centre (r = 0) the kernel is not differentiable and the
+    /// subgradient 0 is used, as `softcap_core::RbfKernel` does.
+    pub fn evaluate_with_gradient(&self, raw: &[f64], out: &mut [f64], grad: &mut [f64]) {
+        let dim = raw.len();
+        out.copy_from_slice(&self.constant);
+        grad.fill(0.0);
+        let mut diff = [0.0f64; 6];
+        for (c, w) in self.centres.iter().zip(&self.weights) {
+            let mut r2 = 0.0;
+            for d in 0..dim {
+                let v = raw[d] / self.scale[d] - c[d];
+                diff[d] = v;
+                r2 += v * v;
+            }
+            let r = r2.sqrt();
+            let phi = RbfKernel::Linear.phi(r);
+            for (k, (o, wk)) in out.iter_mut().zip(w).enumerate() {
+                *o += wk * phi;
+                if r > 0.0 {
+                    for d in 0..dim {
+                        grad[k * dim + d] += wk * diff[d] / (r * self.scale[d]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Gradient of the invariants of [`strain_invariants`] with respect to the Voigt strain
+/// (ε_xx, ε_yy, ε_zz, γ_xy, γ_xz, γ_yz), rows I₁, I₂, I₃:
+/// ∂I₁ = (1, 1, 1, 0, 0, 0); with I₂ = ε_xx ε_yy + ε_yy ε_zz + ε_zz ε_xx − (γ_xy² + γ_xz² + γ_yz²)/4,
+/// ∂I₂ = (ε_yy + ε_zz, ε_xx + ε_zz, ε_xx + ε_yy, −γ_xy/2, −γ_xz/2, −γ_yz/2); ∂I₃ = the cofactors of ε
+/// (∂ det ε / ∂ε = cof ε; an engineering shear γ = 2ε_ij enters two entries with weight ½ each).
+pub fn strain_invariant_gradient(eps: &Vector6<f64>) -> [[f64; 6]; 3] {
+    let [xx, yy, zz, gxy, gxz, gyz] = [eps[0], eps[1], eps[2], eps[3], eps[4], eps[5]];
+    [
+        [1.0, 1.0, 1.0, 0.0, 0.0, 0.0],
+        [
+            yy + zz,
+            xx + zz,
+            xx + yy,
+            -0.5 * gxy,
+            -0.5 * gxz,
+            -0.5 * gyz,
+        ],
+        [
+            yy * zz - 0.25 * gyz * gyz,
+            xx * zz - 0.25 * gxz * gxz,
+            xx * yy - 0.25 * gxy * gxy,
+            0.25 * gxz * gyz - 0.5 * zz * gxy,
+            0.25 * gxy * gyz - 0.5 * yy * gxz,
+            0.25 * gxy * gxz - 0.5 * xx * gyz,
+        ],
+    ]
+}
+
+/// [`project_lame`] and its Jacobian ∂(λ′, μ′)/∂(λ, μ) (row-major 2×2), by the chain rule
+/// through (λ, μ) → (E, ν) → clamp → (λ′, μ′) of thesis §8.3: E = μ(3λ + 2μ)/(λ + μ),
+/// ν = λ/(2(λ + μ)); ∂E/∂λ = μ²/(λ + μ)², ∂E/∂μ = (3λ² + 4λμ + 2μ²)/(λ + μ)²,
+/// ∂ν/∂λ = μ/(2(λ + μ)²), ∂ν/∂μ = −λ/(2(λ + μ)²); an active clamp zeroes its row;
+/// λ′ = Eν/((1 + ν)(1 − 2ν)), μ′ = E/(2(1 + ν)) with ∂λ′/∂ν = E(1 + 2ν²)/((1 + ν)(1 − 2ν))².
+/// Inside the valid set the Jacobian is the identity (to rounding).
+pub fn project_lame_jacobian(
+    lame_lambda: f64,
+    mu: f64,
+    bounds: &IsotropicBounds,
+) -> ((f64, f64), [[f64; 2]; 2]) {
+    let e_min = bounds.young_min_pa;
+    // (E, ν) and their derivatives w.r.t. (λ, μ).
+    let (young, nu, d_young, d_nu) =
+        if mu > 0.0 && lame_lambda + mu > 0.0 && lame_lambda.is_finite() {
+            let s = lame_lambda + mu;
+            let (l, m) = (lame_lambda, mu);
+            (
+                m * (3.0 * l + 2.0 * m) / s,
+                l / (2.0 * s),
+                [
+                    m * m / (s * s),
+                    (3.0 * l * l + 4.0 * l * m + 2.0 * m * m) / (s * s),
+                ],
+                [m / (2.0 * s * s), -l / (2.0 * s * s)],
+            )
+        } else {
+            let (m, dm) = if mu.is_finite() && mu > 0.0 {
+                (mu, 1.0)
+            } else {
+                (0.0, 0.0)
+            };
+            let k = 2.0 * (1.0 + bounds.nu_min);
+            (k * m, bounds.nu_min, [0.0, k * dm], [0.0, 0.0])
+        };
+    let (nu, d_nu) = if nu < bounds.nu_min {
+        (bounds.nu_min, [0.0; 2])
+    } else if nu > bounds.nu_max {
+        (bounds.nu_max, [0.0; 2])
+    } else {
+        (nu, d_nu)
+    };
+    let (young, d_young) = if young.is_finite() && young >= e_min {
+        (young, d_young)
+    } else {
+        (
+            if young.is_finite() {
+                young.max(e_min)
+            } else {
+                e_min
+            },
+            [0.0; 2],
+        )
+    };
+    let g = (1.0 + nu) * (1.0 - 2.0 * nu);
+    let lambda_p = young * nu / g;
+    let mu_p = young / (2.0 * (1.0 + nu));
+    let dl_de = nu / g;
+    let dl_dnu = young * (1.0 + 2.0 * nu * nu) / (g * g);
+    let dm_de = 1.0 / (2.0 * (1.0 + nu));
+    let dm_dnu = -young / (2.0 * (1.0 + nu) * (1.0 + nu));
+    let mut jac = [[0.0; 2]; 2];
+    for c in 0..2 {
+        jac[0][c] = dl_de * d_young[c] + dl_dnu * d_nu[c];
+        jac[1][c] = dm_de * d_young[c] + dm_dnu * d_nu[c];
+    }
+    ((lambda_p, mu_p), jac)
+}
+
 /// Isotropic non-linear base material: (λ, μ) = p(I₁, I₂, I₃) (thesis eq. 8.1–8.2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct InvariantMaterial {
@@ -310,6 +438,74 @@ pub fn project_transverse(p: &TransverseParams, bounds: &TransverseBounds) -> Tr
     }
 }
 
+/// Unit parameter vectors (E11, E12, E13, E33, E44): E is linear in them (thesis eq. 8.5).
+const TRANSVERSE_UNITS: [[f64; 5]; 5] = [
+    [1.0, 0.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 0.0, 1.0, 0.0],
+    [0.0, 0.0, 0.0, 0.0, 1.0],
+];
+
+/// Jacobian ∂p′/∂p (row-major 5 × 5) of [`project_transverse`] at `raw` (projected: `projected`):
+/// the identity when no spectrum is clipped (then p′ = p on a neighbourhood), otherwise central
+/// differences of the projection (a closed form of five scalars and one 2×2 eigen-decomposition,
+/// so 10 cheap evaluations), step 10⁻⁷ × the largest parameter.
+fn transverse_projection_jacobian(
+    raw: &TransverseParams,
+    projected: &TransverseParams,
+    bounds: &TransverseBounds,
+) -> [[f64; 5]; 5] {
+    let v = [raw.e11, raw.e12, raw.e13, raw.e33, raw.e44];
+    let w = [
+        projected.e11,
+        projected.e12,
+        projected.e13,
+        projected.e33,
+        projected.e44,
+    ];
+    let scale = v.iter().fold(0.0f64, |m, x| m.max(x.abs())).max(1.0);
+    let mut jac = [[0.0; 5]; 5];
+    let unchanged = v
+        .iter()
+        .zip(&w)
+        .all(|(a, b)| (a - b).abs() <= 1e-12 * scale);
+    // Clipping is inactive with a margin: the projection is the identity around `raw`.
+    let d = bounds.eigen_min_pa;
+    let s2 = std::f64::consts::SQRT_2;
+    let b = Matrix2::new(raw.e11 + raw.e12, s2 * raw.e13, s2 * raw.e13, raw.e33);
+    let interior = unchanged
+        && raw.e11 - raw.e12 > d * (1.0 + 1e-6)
+        && raw.e44 > 0.5 * d * (1.0 + 1e-6)
+        && b.symmetric_eigen().eigenvalues.min() > d * (1.0 + 1e-6);
+    if interior {
+        for (k, row) in jac.iter_mut().enumerate() {
+            row[k] = 1.0;
+        }
+        return jac;
+    }
+    let h = 1e-7 * scale;
+    for j in 0..5 {
+        let mut plus = v;
+        let mut minus = v;
+        plus[j] += h;
+        minus[j] -= h;
+        let fp = project_transverse(&TransverseParams::from_slice(&plus), bounds);
+        let fm = project_transverse(&TransverseParams::from_slice(&minus), bounds);
+        let dp = [
+            fp.e11 - fm.e11,
+            fp.e12 - fm.e12,
+            fp.e13 - fm.e13,
+            fp.e33 - fm.e33,
+            fp.e44 - fm.e44,
+        ];
+        for k in 0..5 {
+            jac[k][j] = dp[k] / (2.0 * h);
+        }
+    }
+    jac
+}
+
 /// Transversely isotropic non-linear base material: (E11, E12, E13, E33, E44) = p(ε) over the
 /// 6-D strain (thesis eq. 8.2, 8.5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -372,6 +568,73 @@ impl BaseMaterial {
         match self {
             BaseMaterial::Isotropic(m) => &mut m.rbf,
             BaseMaterial::Transverse(m) => &mut m.rbf,
+        }
+    }
+
+    /// Stress σ = E(p(ε)) ε, the secant matrix E(p(ε)) and the material-consistent tangent
+    /// C_t = ∂σ/∂ε = E(p(ε)) + Σ_k (∂E/∂p_k ε) ⊗ ∂p_k/∂ε (thesis §8.2 with p(ε) of eq. 8.2),
+    /// analytically: E is linear in p (eq. 8.1, 8.5), ∂p/∂ε is the RBF gradient
+    /// ([`StrainRbf::evaluate_with_gradient`]) through the invariants
+    /// ([`strain_invariant_gradient`], isotropic) or directly (transversely isotropic), and
+    /// through the projection onto valid parameters ([`project_lame_jacobian`]; for the
+    /// transversely isotropic projection the identity where no eigenvalue is clipped, central
+    /// differences of [`project_transverse`] over the five parameters where one is). C_t is not
+    /// symmetric in general (Cauchy-elastic material, thesis §7.4.3).
+    pub fn stress_tangent(&self, eps: &Vector6<f64>) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>) {
+        match self {
+            BaseMaterial::Isotropic(m) => {
+                let inv = strain_invariants(eps);
+                let mut p = [0.0; 2];
+                let mut g = [0.0; 6];
+                m.rbf.evaluate_with_gradient(&inv, &mut p, &mut g);
+                let ((l, mu), jac) = project_lame_jacobian(p[0], p[1], &m.bounds);
+                let di = strain_invariant_gradient(eps);
+                // ∂(λ, μ)/∂ε = J · ∂p/∂I · ∂I/∂ε.
+                let mut dl = Vector6::zeros();
+                let mut dm = Vector6::zeros();
+                for c in 0..6 {
+                    let dp0 = (0..3).map(|d| g[d] * di[d][c]).sum::<f64>();
+                    let dp1 = (0..3).map(|d| g[3 + d] * di[d][c]).sum::<f64>();
+                    dl[c] = jac[0][0] * dp0 + jac[0][1] * dp1;
+                    dm[c] = jac[1][0] * dp0 + jac[1][1] * dp1;
+                }
+                let e = isotropic_matrix(l, mu);
+                let sigma = e * eps;
+                let tr = eps[0] + eps[1] + eps[2];
+                // ∂σ/∂λ = (tr ε, tr ε, tr ε, 0, 0, 0), ∂σ/∂μ = (2ε_xx, 2ε_yy, 2ε_zz, γ_xy, γ_xz, γ_yz).
+                let s_l = Vector6::new(tr, tr, tr, 0.0, 0.0, 0.0);
+                let s_m = Vector6::new(
+                    2.0 * eps[0],
+                    2.0 * eps[1],
+                    2.0 * eps[2],
+                    eps[3],
+                    eps[4],
+                    eps[5],
+                );
+                let ct = e + s_l * dl.transpose() + s_m * dm.transpose();
+                (sigma, e, ct)
+            }
+            BaseMaterial::Transverse(m) => {
+                let mut p = [0.0; 5];
+                let mut g = [0.0; 30];
+                m.rbf.evaluate_with_gradient(eps.as_slice(), &mut p, &mut g);
+                let raw = TransverseParams::from_slice(&p);
+                let q = project_transverse(&raw, &m.bounds);
+                let jac = transverse_projection_jacobian(&raw, &q, &m.bounds);
+                let e = q.matrix();
+                let sigma = e * eps;
+                let mut ct = e;
+                for (k, unit) in TRANSVERSE_UNITS.iter().enumerate() {
+                    let s_k = TransverseParams::from_slice(unit).matrix() * eps;
+                    // ∂p′_k/∂ε = Σ_j J_kj ∂p_j/∂ε.
+                    let mut dk = Vector6::zeros();
+                    for c in 0..6 {
+                        dk[c] = (0..5).map(|j| jac[k][j] * g[j * 6 + c]).sum::<f64>();
+                    }
+                    ct += s_k * dk.transpose();
+                }
+                (sigma, e, ct)
+            }
         }
     }
 
@@ -511,6 +774,84 @@ mod tests {
     fn isotropic_as_transverse_matches() {
         let t = TransverseParams::isotropic(1.0e5, 4.0e4);
         assert!((t.matrix() - isotropic_matrix(1.0e5, 4.0e4)).norm() < 1e-9);
+    }
+
+    /// The analytic C_t = ∂σ/∂ε of [`BaseMaterial::stress_tangent`] against central differences
+    /// of σ(ε) = E(p(ε)) ε, for the nine reference materials, an isotropic material whose
+    /// (E, ν) projection is active (ν clamped at 0.49, E at E_min) and a transversely isotropic
+    /// one whose eigenvalue clipping is active.
+    #[test]
+    fn analytic_stress_tangent_matches_finite_differences() {
+        let mut lib = crate::experiment::reference_library();
+        let stiffening = |w: [f64; 2]| {
+            let mut m = InvariantMaterial::from_young_poisson(2.0e5, 0.45);
+            m.rbf.scale = vec![0.1, 0.01, 0.001];
+            m.rbf.centres = vec![vec![0.0, 0.0, 0.0]];
+            let p0 = m.rbf.constant.clone();
+            m.rbf.weights = vec![vec![w[0] * p0[0], w[1] * p0[1]]];
+            BaseMaterial::Isotropic(m)
+        };
+        lib.push(stiffening([20.0, 0.0])); // 9: λ grows → ν clamped at 0.49
+        lib.push(stiffening([-3.0, -3.0])); // 10: (λ, μ) turn invalid → E_min at ν_min
+        // 11: transversely isotropic, E12 grows past E11 and E44 turns negative → clipped.
+        let mut ti = TransverseMaterial::linear(TransverseParams {
+            e11: 3.0e5,
+            e12: 1.0e5,
+            e13: 0.8e5,
+            e33: 6.0e5,
+            e44: 1.0e5,
+        });
+        ti.rbf.scale = vec![0.1; 6];
+        ti.rbf.centres = vec![vec![0.0; 6]];
+        ti.rbf.weights = vec![vec![0.0, 6.0e5, 2.0e5, -1.0e5, -3.0e5]];
+        lib.push(BaseMaterial::Transverse(ti));
+        let strains = [
+            Vector6::new(0.03, -0.01, -0.05, 0.02, -0.015, 0.01),
+            Vector6::new(-0.004, 0.002, -0.012, 0.001, 0.006, -0.003),
+            Vector6::new(0.08, 0.05, -0.1, -0.04, 0.03, 0.05),
+        ];
+        let mut worst = 0.0f64;
+        for (i, mat) in lib.iter().enumerate() {
+            for eps in &strains {
+                let (sigma, e, ct) = mat.stress_tangent(eps);
+                assert!((e - mat.stiffness(eps)).norm() <= 1e-12 * e.norm());
+                assert!((sigma - e * eps).norm() <= 1e-12 * sigma.norm().max(1.0));
+                let h = 1e-7;
+                let mut fd = Matrix6::zeros();
+                for k in 0..6 {
+                    let mut ep = *eps;
+                    let mut em = *eps;
+                    ep[k] += h;
+                    em[k] -= h;
+                    let col = (mat.stiffness(&ep) * ep - mat.stiffness(&em) * em) / (2.0 * h);
+                    fd.set_column(k, &col);
+                }
+                let err = (ct - fd).norm() / ct.norm();
+                worst = worst.max(err);
+                assert!(
+                    err < 1e-5,
+                    "material {i}, ε {eps:?}: |C_t − FD|/|C_t| = {err:e}"
+                );
+            }
+        }
+        // The added materials really exercise the projections.
+        let lame = |i: usize, k: usize| match &lib[i] {
+            BaseMaterial::Isotropic(m) => m.lame_at(&strains[k]),
+            BaseMaterial::Transverse(_) => unreachable!(),
+        };
+        let (l, mu) = lame(9, 0);
+        assert!((l / (2.0 * (l + mu)) - 0.49).abs() < 1e-9);
+        let (l, mu) = lame(10, 2);
+        assert!(l.abs() < 1e-9 && (mu - 50.0).abs() < 1e-9, "{l} {mu}");
+        let (_, mu) = lame(10, 1);
+        assert!(mu > 1.0e4, "{mu}");
+        if let BaseMaterial::Transverse(m) = &lib[11] {
+            let mut p = [0.0; 5];
+            m.rbf.evaluate(strains[0].as_slice(), &mut p);
+            let raw = TransverseParams::from_slice(&p);
+            assert!(raw.e11 < raw.e12 && raw.e44 < 0.0, "{raw:?}");
+        }
+        println!("max |C_t − FD| / |C_t| = {worst:.2e}");
     }
 
     #[test]
