@@ -180,6 +180,41 @@ impl<'s> Sensitivity<'s> {
         s
     }
 
+    /// J v = (∂x/∂p) v for a parameter direction `v` (2 × elements, (λ_e, α_e) interleaved):
+    /// the forward sensitivity of bickel2009 appendix eq. 11 along v, one solve
+    /// A (J v) = −Σᵢ vᵢ ∂f/∂pᵢ. Result over all dofs (3·nodes, constrained entries 0).
+    pub fn jacobian_times(&self, v: &[f64]) -> Result<Vec<f64>, FemError> {
+        if v.len() != self.num_params() {
+            return Err(FemError::LengthMismatch {
+                what: "parameter direction",
+                expected: self.num_params(),
+                got: v.len(),
+            });
+        }
+        let dofs = self.solver.dofs();
+        let mut rhs = vec![0.0; dofs.num_free()];
+        for (p, &vp) in v.iter().enumerate() {
+            if vp == 0.0 {
+                continue;
+            }
+            let nodes = self.nodes[p / 2];
+            let f = self.param_force(p);
+            for a in 0..4 {
+                for k in 0..3 {
+                    if let Some(fi) = dofs.free_index(3 * nodes[a] + k) {
+                        rhs[fi] -= vp * f[a][k];
+                    }
+                }
+            }
+        }
+        self.solver.cholesky().solve_in_place(&mut rhs)?;
+        let mut out = vec![0.0; dofs.num_dofs()];
+        for (fi, val) in rhs.iter().enumerate() {
+            out[dofs.dof(fi)] = *val;
+        }
+        Ok(out)
+    }
+
     /// Jᵀ r for a residual over all dofs (3·nodes; constrained entries ignored): one solve.
     pub fn jt_times(&self, r: &[f64]) -> Result<Vec<f64>, FemError> {
         let dofs = self.solver.dofs();

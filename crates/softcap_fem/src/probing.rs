@@ -330,6 +330,10 @@ pub struct ExampleFitSettings {
     pub equilibrium: EquilibriumSettings,
     /// Conjugate-gradient iterations per damped normal-equation solve.
     pub cg_iterations: usize,
+    /// Relative tolerance of that solve on the preconditioned residual (an inexact LM step,
+    /// Steihaug 1983 / Dembo et al. 1982 inexact Newton: the step need not be exact far from the
+    /// minimum).
+    pub cg_tolerance: f64,
     /// Force boundary-condition patch.
     pub patch: PatchSettings,
 }
@@ -355,6 +359,7 @@ impl Default for ExampleFitSettings {
                 ..EquilibriumSettings::default()
             },
             cg_iterations: 300,
+            cg_tolerance: 1e-10,
             patch: PatchSettings::default(),
         }
     }
@@ -485,27 +490,7 @@ pub fn fit_example(
     settings: &ExampleFitSettings,
 ) -> Result<ExampleFit, FemError> {
     let joint = fit_examples_jointly(setup, std::slice::from_ref(example), initial, settings)?;
-    let JointFit {
-        params,
-        mut positions_m,
-        mut strains,
-        mut initial_rms_m,
-        mut example_rms_m,
-        cost_history,
-        iterations,
-        status,
-        ..
-    } = joint;
-    Ok(ExampleFit {
-        params,
-        positions_m: positions_m.pop().unwrap_or_default(),
-        strains: strains.pop().unwrap_or_default(),
-        initial_rms_m: initial_rms_m.pop().unwrap_or(0.0),
-        rms_m: example_rms_m.pop().unwrap_or(0.0),
-        cost_history,
-        iterations,
-        status,
-    })
+    Ok(example_fit_of(joint))
 }
 
 /// Result of [`fit_examples_jointly`].
@@ -542,16 +527,77 @@ pub fn fit_examples_jointly(
     initial: &[LinearParams],
     settings: &ExampleFitSettings,
 ) -> Result<JointFit, FemError> {
-    let t = setup.num_elements();
-    if initial.len() != t {
-        return Err(FemError::LengthMismatch {
-            what: "initial per-element parameters",
-            expected: t,
-            got: initial.len(),
-        });
+    fit_examples_from(setup, examples, initial, initial, settings)
+}
+
+/// [`fit_example`] started from `start` instead of the reference field: `reference` is λ_ref of
+/// the parameterization and the target q₀ of the shrinkage γ_p, `start` only the first iterate
+/// (a warm start, e.g. the fit of the same example at a neighbouring γ_p).
+pub fn fit_example_from(
+    setup: &ProbingSetup,
+    example: &ProbeExample,
+    reference: &[LinearParams],
+    start: &[LinearParams],
+    settings: &ExampleFitSettings,
+) -> Result<ExampleFit, FemError> {
+    let joint = fit_examples_from(
+        setup,
+        std::slice::from_ref(example),
+        reference,
+        start,
+        settings,
+    )?;
+    Ok(example_fit_of(joint))
+}
+
+fn example_fit_of(joint: JointFit) -> ExampleFit {
+    let JointFit {
+        params,
+        mut positions_m,
+        mut strains,
+        mut initial_rms_m,
+        mut example_rms_m,
+        cost_history,
+        iterations,
+        status,
+        ..
+    } = joint;
+    ExampleFit {
+        params,
+        positions_m: positions_m.pop().unwrap_or_default(),
+        strains: strains.pop().unwrap_or_default(),
+        initial_rms_m: initial_rms_m.pop().unwrap_or(0.0),
+        rms_m: example_rms_m.pop().unwrap_or(0.0),
+        cost_history,
+        iterations,
+        status,
     }
-    for (e, p) in initial.iter().enumerate() {
-        p.validate(e)?;
+}
+
+/// [`fit_examples_jointly`] started from `start` (see [`fit_example_from`]).
+pub fn fit_examples_from(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    reference: &[LinearParams],
+    start: &[LinearParams],
+    settings: &ExampleFitSettings,
+) -> Result<JointFit, FemError> {
+    let t = setup.num_elements();
+    let initial = reference;
+    for (what, field) in [
+        ("initial per-element parameters", reference),
+        ("start per-element parameters", start),
+    ] {
+        if field.len() != t {
+            return Err(FemError::LengthMismatch {
+                what,
+                expected: t,
+                got: field.len(),
+            });
+        }
+        for (e, p) in field.iter().enumerate() {
+            p.validate(e)?;
+        }
     }
     let lambda_ref: Vec<f64> = initial.iter().map(|p| p.lambda).collect();
     let n = 2 * t;
@@ -578,6 +624,12 @@ pub fn fit_examples_jointly(
         q[i] = q[i].clamp(lower[i], upper[i]);
     }
     let q0 = q.clone();
+    // The first iterate: the start field in the same parameterization.
+    for e in 0..t {
+        let p = start[e];
+        q[e] = (p.lambda / lambda_ref[e]).ln().clamp(lower[e], upper[e]);
+        q[t + e] = (p.alpha / p.lambda).clamp(lower[t + e], upper[t + e]);
+    }
     let prior = settings.gamma_prior.max(0.0);
     let gam = |i: usize| {
         if i < t {
@@ -723,6 +775,7 @@ pub fn fit_examples_jointly(
             prior_scale,
             &gam,
             settings.cg_iterations,
+            settings.cg_tolerance,
         );
         // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
         let h_inf = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -794,17 +847,33 @@ fn damped_step(
     prior: f64,
     gam: &dyn Fn(usize) -> f64,
     max_iter: usize,
+    tolerance: f64,
 ) -> Vec<f64> {
     let n = grad.len();
     let t = n / 2;
-    let apply = |v: &[f64], out: &mut [f64]| {
-        out.iter_mut().for_each(|o| *o = 0.0);
-        for row in jm {
-            let s: f64 = row.iter().zip(v).map(|(a, b)| a * b).sum();
-            for i in 0..n {
-                out[i] += row[i] * s;
-            }
-        }
+    // J_m stored row by row = J_mᵀ column-major (n × m): J v and Jᵀ s as two dense products.
+    let m = jm.len();
+    let flat: Vec<f64> = jm.iter().flatten().copied().collect();
+    let jt = faer::MatRef::from_column_major_slice(&flat, n, m);
+    let mut jv = faer::Mat::<f64>::zeros(m, 1);
+    let mut apply = |v: &[f64], out: &mut [f64]| {
+        let vm = faer::MatRef::from_column_major_slice(v, n, 1);
+        faer::linalg::matmul::matmul(
+            jv.as_mut(),
+            faer::Accum::Replace,
+            jt.transpose(),
+            vm,
+            1.0,
+            faer::Par::Seq,
+        );
+        faer::linalg::matmul::matmul(
+            faer::MatMut::from_column_major_slice_mut(out, n, 1),
+            faer::Accum::Replace,
+            jt,
+            jv.as_ref(),
+            1.0,
+            faer::Par::Seq,
+        );
         let mut lv = vec![0.0; t];
         let mut llv = vec![0.0; t];
         for block in [0, t] {
@@ -840,7 +909,7 @@ fn damped_step(
     let r0 = rz.abs().sqrt();
     let mut ap = vec![0.0; n];
     for _ in 0..max_iter {
-        if rz.abs().sqrt() <= 1e-10 * r0 || r0 == 0.0 {
+        if rz.abs().sqrt() <= tolerance * r0 || r0 == 0.0 {
             break;
         }
         apply(&p, &mut ap);
@@ -957,30 +1026,45 @@ impl HomogeneousProblem<'_> {
                 r[row0 + i] = if ok { *v } else { f64::NAN };
             }
             if let Some(j) = jac.as_deref_mut() {
-                let rows = marker_jacobian(
-                    self.setup,
+                // Forward sensitivities (appendix eq. 11) along "every λ_e" and "every α_e": two
+                // solves per example instead of one adjoint solve per marker coordinate.
+                let columns = Sensitivity::new(
                     &mut self.solver,
                     &self.model,
-                    ex,
                     &x,
                     StiffnessKind::Consistent,
-                );
-                if let Ok(rows) = rows {
+                    None,
+                )
+                .and_then(|sens| {
+                    let mut v = vec![0.0; 2 * t];
+                    v.iter_mut().step_by(2).for_each(|a| *a = 1.0);
+                    let dl = sens.jacobian_times(&v)?;
+                    v.iter_mut().for_each(|a| *a = 1.0 - *a);
+                    let da = sens.jacobian_times(&v)?;
+                    Ok((dl, da))
+                });
+                if let Ok((dl, da)) = columns {
                     // (E, ν) ↦ (λ, α): λ = E/((1+ν)(1−2ν)), α = νλ; q0 = ln E/E_ref.
                     let (e_pa, nu) = (self.young_ref * q[0].exp(), q[1]);
                     let den = (1.0 + nu) * (1.0 - 2.0 * nu);
                     let lam = e_pa / den;
                     let dlam_dnu = e_pa * (1.0 + 4.0 * nu) / (den * den);
                     let dalpha_dnu = lam + nu * dlam_dnu;
-                    for (i, row) in rows.iter().enumerate() {
-                        let (mut jl, mut ja) = (0.0, 0.0);
-                        for e in 0..t {
-                            jl += row[2 * e];
-                            ja += row[2 * e + 1];
+                    let mut i = 0;
+                    for o in &ex.observed {
+                        let emb = &self.setup.markers[o.marker];
+                        let tet = self.setup.mesh.tets[emb.tet];
+                        for c in 0..3 {
+                            let (mut jl, mut ja) = (0.0, 0.0);
+                            for a in 0..4 {
+                                jl += emb.weights[a] * dl[3 * tet[a] + c];
+                                ja += emb.weights[a] * da[3 * tet[a] + c];
+                            }
+                            // ∂/∂q0 = E ∂/∂E = λ ∂/∂λ + α ∂/∂α.
+                            j[(row0 + i, 0)] = lam * jl + nu * lam * ja;
+                            j[(row0 + i, 1)] = dlam_dnu * jl + dalpha_dnu * ja;
+                            i += 1;
                         }
-                        // ∂/∂q0 = E ∂/∂E = λ ∂/∂λ + α ∂/∂α.
-                        j[(row0 + i, 0)] = lam * jl + nu * lam * ja;
-                        j[(row0 + i, 1)] = dlam_dnu * jl + dalpha_dnu * ja;
                     }
                 }
             }
@@ -1689,7 +1773,8 @@ pub struct ContactSynthesisSettings {
     pub max_depth_iterations: usize,
     /// Accept when |axial force − target| ≤ this × target.
     pub force_tolerance_rel: f64,
-    /// First trial depth beyond the first surface contact, m.
+    /// First trial depth beyond the first surface contact, m (the approach stops earlier, at the
+    /// first increment whose force reaches the target).
     pub initial_depth_m: f64,
     /// Equilibrium settings per increment.
     pub equilibrium: EquilibriumSettings,
@@ -1752,7 +1837,12 @@ pub struct ContactSynthesis {
 /// to depth d in `settings.steps` increments with contact (penalty linear force field per
 /// colliding node, [`ContactProblem`]) and the parameters refreshed from the strain at every
 /// iteration (strain-space material, [`ElasticModel::update_state`]); d is found by a secant
-/// search so that the axial contact force equals `axial_force_n`. The pose's origin is first
+/// search so that the axial contact force equals `axial_force_n`. Every approach stops at the
+/// first increment whose force reaches the target, so the depth is sized from the force (a stiff
+/// object is never pushed to `initial_depth_m` when a fraction of it gives the force), and the
+/// search is a regula falsi once the target is bracketed; a depth whose approach does not
+/// converge bounds the search from above. The status is `Converged` only when the force is
+/// within `force_tolerance_rel` of the target. The pose's origin is first
 /// moved back along the axis to the first boundary node it would touch, so the given pose may
 /// be anywhere on the approach line.
 pub fn simulate_probe_contact<M: ElasticModel + Clone>(
@@ -1805,15 +1895,17 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
     // Moves the probe from depth `from` to `to` in `steps` increments (warm-started from `x`);
     // an increment whose equilibrium does not converge is undone (positions and model state)
     // and retried at half the length, up to `max_bisections` halvings in a row; after a
-    // converged increment the length grows back (×2, at most the nominal one). Returns the
-    // axial force at the last converged depth and the status (not converged when the halvings
-    // are used up); `path` / `trace` receive every converged increment.
+    // converged increment the length grows back (×2, at most the nominal one). With `stop_n`,
+    // the approach stops after the first converged increment whose axial force reaches it.
+    // Returns the axial force at the last converged depth and the status (not converged when
+    // the halvings are used up); `path` / `trace` receive every converged increment.
     let max_bisections = settings.max_bisections;
     let mut advance = |model: &mut M,
                        x: &mut Vec<Vector3<f64>>,
                        from: f64,
                        to: f64,
                        steps: usize,
+                       stop_n: Option<f64>,
                        path: &mut Vec<Vec<Vector3<f64>>>,
                        trace: &mut Vec<(f64, f64)>|
      -> (f64, SolveStatus) {
@@ -1842,6 +1934,9 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
                 trace.push((d, force));
                 halvings = 0;
                 h = (2.0 * h).min(nominal);
+                if stop_n.is_some_and(|s| force >= s) {
+                    break;
+                }
             } else {
                 *x = saved_x;
                 *model = saved_model;
@@ -1868,54 +1963,156 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             depth_iterations: 0,
         });
     }
-    // f(d): axial force after incremental loading from rest to depth d (§3.4); secant on d.
-    // Every evaluation starts from rest with the model's state at entry, so f is a function of d.
+    // f(d): axial force after incremental loading from rest to depth d (§3.4). Every evaluation
+    // starts from rest with the model's state at entry, so f is a function of d; it stops at
+    // the first increment whose force reaches the target (the depth of a stiff object is then
+    // sized from the target force, not from `initial_depth_m`: a 0.5 N probe on a block that
+    // needs 0.2 mm is never pushed to 1 mm).
+    struct Eval {
+        force: f64,
+        depth: f64,
+        status: SolveStatus,
+        xs: Vec<Vector3<f64>>,
+        path: Vec<Vec<Vector3<f64>>>,
+        trace: Vec<(f64, f64)>,
+    }
     let model0 = model.clone();
-    let mut eval = |d: f64| {
+    let target = axial_force_n;
+    let tolerance = settings.force_tolerance_rel * target;
+    let mut eval = |d: f64, model: &mut M| {
         *model = model0.clone();
         let mut xs = setup.mesh.vertices.clone();
         let mut path = Vec::with_capacity(settings.steps);
         let mut trace = Vec::with_capacity(settings.steps);
-        let (f, st) = advance(
+        let (force, status) = advance(
             model,
             &mut xs,
             0.0,
             d,
             settings.steps,
+            Some(target - tolerance),
             &mut path,
             &mut trace,
         );
-        (f, st, xs, path, trace)
+        let depth = trace.last().map_or(0.0, |t| t.0);
+        Eval {
+            force,
+            depth,
+            status,
+            xs,
+            path,
+            trace,
+        }
     };
-    let (mut d0, mut f0) = (0.0, 0.0);
-    let mut d1 = settings.initial_depth_m;
-    let mut best = eval(d1);
-    let mut iterations = 1;
-    while iterations < settings.max_depth_iterations
-        && (best.0 - axial_force_n).abs() > settings.force_tolerance_rel * axial_force_n
-        && best.1 == SolveStatus::Converged
-    {
-        // Secant on the monotone f(d), safeguarded to at most double / quarter the depth.
-        let f1 = best.0;
-        let slope = (f1 - f0) / (d1 - d0);
-        let d2 = if slope > 0.0 && slope.is_finite() {
-            d1 + (axial_force_n - f1) / slope
-        } else {
-            2.0 * d1
-        };
-        let d2 = d2.clamp(0.25 * d1, 2.0 * d1);
-        (d0, f0, d1) = (d1, f1, d2);
-        best = eval(d1);
+    // Safeguarded secant (regula falsi once bracketed) on the monotone f(d): `lo` is the deepest
+    // converged depth below the target, `hi` the shallowest converged depth above it, `fail` the
+    // shallowest depth whose approach did not converge. Every converged increment of every
+    // evaluation updates them.
+    let mut lo = (0.0f64, 0.0f64);
+    let mut prev_lo: Option<(f64, f64)> = None;
+    let mut hi: Option<(f64, f64)> = None;
+    let mut fail: Option<f64> = None;
+    let mut d = settings.initial_depth_m;
+    let mut best: Option<Eval> = None;
+    let mut model_best = model0.clone();
+    let mut iterations = 0;
+    let mut failure_status = SolveStatus::Converged;
+    while iterations < settings.max_depth_iterations {
         iterations += 1;
+        let e = eval(d, model);
+        for &(dt, ft) in &e.trace {
+            if ft < target - tolerance {
+                if dt > lo.0 {
+                    prev_lo = Some(lo);
+                    lo = (dt, ft);
+                }
+            } else if ft > target + tolerance && hi.is_none_or(|h| dt < h.0) {
+                hi = Some((dt, ft));
+            }
+        }
+        if e.status != SolveStatus::Converged {
+            // The approach stopped short of `d`: deeper than its last converged depth there is no
+            // equilibrium along this path (within the halvings).
+            fail = Some(fail.map_or(d, |f: f64| f.min(d)));
+            failure_status = e.status.clone();
+        }
+        let closer = best
+            .as_ref()
+            .is_none_or(|b| (e.force - target).abs() < (b.force - target).abs());
+        let done = (e.force - target).abs() <= tolerance && !e.trace.is_empty();
+        if closer && !e.trace.is_empty() {
+            best = Some(e);
+            model_best = model.clone();
+        }
+        if done {
+            break;
+        }
+        // Next depth.
+        d = if let Some(h) = hi {
+            let w = h.0 - lo.0;
+            let t = lo.0 + (target - lo.1) * w / (h.1 - lo.1);
+            if t.is_finite() {
+                t.clamp(lo.0 + 0.1 * w, h.0 - 0.1 * w)
+            } else {
+                lo.0 + 0.5 * w
+            }
+        } else if let Some(f) = fail {
+            if f - lo.0 <= 1e-9 + 1e-6 * f {
+                break;
+            }
+            // The target lies beyond `lo`, and the failing depth bounds the search from above.
+            let slope = prev_lo.map(|p| (lo.1 - p.1) / (lo.0 - p.0));
+            let t = match slope {
+                Some(k) if k > 0.0 && k.is_finite() => lo.0 + (target - lo.1) / k,
+                _ => 0.5 * (lo.0 + f),
+            };
+            t.clamp(lo.0 + 0.05 * (f - lo.0), lo.0 + 0.95 * (f - lo.0))
+        } else {
+            // Not bracketed yet: extrapolate the secant through the last two points below the
+            // target, at most doubling the depth.
+            let slope = prev_lo.map(|p| (lo.1 - p.1) / (lo.0 - p.0));
+            let t = match slope {
+                Some(k) if k > 0.0 && k.is_finite() => lo.0 + (target - lo.1) / k,
+                _ => 2.0 * d.max(lo.0),
+            };
+            t.clamp(1.05 * lo.0, 2.0 * lo.0.max(d))
+        };
     }
-    let (force, status, xs, path, trace) = best;
+    *model = model_best;
+    let Some(best) = best else {
+        return Ok(ContactSynthesis {
+            positions_m: x,
+            depth_m: 0.0,
+            axial_force_n: 0.0,
+            steps_m: Vec::new(),
+            step_depths_m: Vec::new(),
+            step_forces_n: Vec::new(),
+            world_from_probe_at_touch: touch.world_from_probe,
+            status: if failure_status == SolveStatus::Converged {
+                SolveStatus::MaxIterations
+            } else {
+                failure_status
+            },
+            depth_iterations: iterations,
+        });
+    };
+    // The reported status: converged only when the force is within the tolerance.
+    let status = if (best.force - target).abs() <= tolerance {
+        SolveStatus::Converged
+    } else if best.status != SolveStatus::Converged {
+        best.status.clone()
+    } else if failure_status != SolveStatus::Converged {
+        failure_status
+    } else {
+        SolveStatus::MaxIterations
+    };
     Ok(ContactSynthesis {
-        positions_m: xs,
-        depth_m: d1,
-        axial_force_n: force,
-        steps_m: path,
-        step_depths_m: trace.iter().map(|t| t.0).collect(),
-        step_forces_n: trace.iter().map(|t| t.1).collect(),
+        positions_m: best.xs,
+        depth_m: best.depth,
+        axial_force_n: best.force,
+        step_depths_m: best.trace.iter().map(|t| t.0).collect(),
+        step_forces_n: best.trace.iter().map(|t| t.1).collect(),
+        steps_m: best.path,
         world_from_probe_at_touch: touch.world_from_probe,
         status,
         depth_iterations: iterations,

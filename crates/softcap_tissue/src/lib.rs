@@ -45,8 +45,9 @@ pub mod simulate;
 
 pub use error::{Result, TissueError};
 pub use fit::{
-    ExampleSummary, FitConfig, FitOutcome, FitSettings, ReferenceField, SessionFit, fit_session,
-    marker_errors, resimulate, simulate_example, strain_samples, strain_samples_with_reference,
+    ExampleSummary, FitConfig, FitOutcome, FitSettings, GammaPriorScore, ReferenceField,
+    SessionFit, fit_session, leave_one_location_out, marker_errors, resimulate, select_gamma_prior,
+    simulate_example, strain_samples, strain_samples_with_reference,
 };
 pub use output::{LoadedMaterial, basis_message, read_material, report_message, write_material};
 pub use progress::Progress;

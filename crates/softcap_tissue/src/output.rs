@@ -134,7 +134,18 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
         number("mean_error.material", o.material_mean_error_m, "m"),
         number("basis.mean_centers", o.mean_centers, ""),
+        number("gamma_prior", o.gamma_prior, ""),
     ];
+    for (k, g) in o.gamma_prior_scores.iter().enumerate() {
+        let p = format!("gamma_prior.candidate.{k}");
+        entries.push(number(&format!("{p}.gamma_prior"), g.gamma_prior, ""));
+        entries.push(number(&format!("{p}.heldout_rms"), g.heldout_rms_m, "m"));
+        entries.push(integer(
+            &format!("{p}.heldout_failures"),
+            g.heldout_failures as i64,
+        ));
+        entries.push(number(&format!("{p}.example_rms"), g.example_rms_m, "m"));
+    }
     for s in &o.basis_curve {
         entries.push(number(
             &format!("basis.error.m{}", s.num_centers),

@@ -155,6 +155,30 @@ pub fn write_report(dir: &Path, o: &FitOutcome) -> Result<()> {
         1e3 * o.material_rms_m,
         1e3 * o.material_mean_error_m
     );
+    if o.gamma_prior_scores.is_empty() {
+        let _ = writeln!(
+            md,
+            "Shrinkage of the per-example fits γ_p = {} (given).\n",
+            o.gamma_prior
+        );
+    } else {
+        let _ = writeln!(
+            md,
+            "Shrinkage of the per-example fits γ_p = {} (leave-one-location-out):\n\n| γ_p | held-out RMS (mm) | held-out not converged | per-example fit RMS (mm) |\n|---|---|---|---|",
+            o.gamma_prior
+        );
+        for g in &o.gamma_prior_scores {
+            let _ = writeln!(
+                md,
+                "| {} | {:.4} | {} | {:.4} |",
+                g.gamma_prior,
+                1e3 * g.heldout_rms_m,
+                g.heldout_failures,
+                1e3 * g.example_rms_m
+            );
+        }
+        let _ = writeln!(md);
+    }
     let _ = writeln!(md, "![per-example error](example-errors.png)\n");
     let _ = writeln!(md, "![error vs basis size](basis-error.png)\n");
     let _ = writeln!(

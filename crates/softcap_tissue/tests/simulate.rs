@@ -42,7 +42,8 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
     assert!(o.converged);
     // Force control: within the secant tolerance (1 %) of the request.
     assert!((o.axial_force_n - 0.8).abs() <= 0.01 * 0.8 + 1e-12, "{o:?}");
-    assert_eq!(o.load_steps, settings.contact.steps + 1);
+    // Rest + every increment of the final approach (it stops at the one that reaches the force).
+    assert!(o.load_steps >= 3, "{o:?}");
     assert!(o.depth_m > 0.0 && o.max_marker_displacement_m > 1e-4);
     let r = Recording::open(&out).unwrap();
     let markers = r.read(&topics::SIMULATED_MARKERS).unwrap();
@@ -155,4 +156,89 @@ fn simulate_converges_on_a_soft_block_with_a_novel_probe() {
         t.depth_m
     );
     assert!(Recording::open(&out).is_ok());
+}
+
+/// Regression test for the suite block (issue 7: on the 40 × 40 × 20 mm suite block the
+/// pipelines' default novel probe — a 6 mm sphere pressing 0.5 N at the top centre — overshot to
+/// 2.40 N inside the first 1 mm depth trial and stopped with MaxIterations). A suite-like block
+/// (40 × 40 × 20 mm, 648 tets, neo-Hookean E = 50 kPa, ν = 0.45 as synth's default material),
+/// trained with a 4 mm disk at 0.5 / 1.0 N at three locations, synthesizes that probe: every
+/// approach now stops at the first increment that reaches the force, so the depth is sized from
+/// the target. Compared with the truth's own synthesis of the same probe (within 35 %).
+#[test]
+fn simulate_sizes_the_depth_from_the_force_on_a_suite_like_block() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = SessionSpec {
+        locations: vec![[0.013, 0.013], [0.027, 0.02], [0.015, 0.028]],
+        forces_n: vec![0.5, 1.0],
+        young_pa: [5.0e4, 5.0e4],
+        size_m: [0.04, 0.04, 0.02],
+        poisson: 0.45,
+        ..SessionSpec::default()
+    };
+    let s = write_session(dir.path(), &spec);
+    let material = dir.path().join("material.mcap");
+    quiet_fit(&s.capture, &s.mesh, &material);
+    let force = 0.5;
+    let probe = ProbeSpec {
+        shape: ProbeShape::Sphere,
+        radius_m: 0.006,
+        tip_m: [0.02, 0.02, 0.03],
+        axis: [0.0, 0.0, -1.0],
+        force_n: force,
+        disk_thickness_m: 0.002,
+        half_length_m: 0.0,
+    };
+    let out = dir.path().join("sim.mcap");
+    let o = softcap_tissue::simulate::run(&SimulateConfig {
+        material: material.clone(),
+        output: out.clone(),
+        probe: probe.clone(),
+        settings: SimulateSettings::default(),
+        arguments: vec![],
+    })
+    .unwrap();
+    let fixed = softcap_fem::probing::support_nodes(
+        &s.mesh_m,
+        &softcap_fem::nalgebra::Vector3::z(),
+        0.0,
+        1e-9,
+    );
+    let setup =
+        softcap_fem::probing::ProbingSetup::new(s.mesh_m.clone(), &s.markers_m, fixed).unwrap();
+    let mut truth = common::truth_model_of(&s.mesh_m, spec.young_pa, spec.size_m[2], spec.poisson);
+    let pose = softcap_fem::probing::probe_pose(
+        &softcap_fem::nalgebra::Vector3::from(probe.tip_m),
+        &-softcap_fem::nalgebra::Vector3::z(),
+    );
+    let t = softcap_fem::probing::simulate_probe_contact(
+        &setup,
+        &mut truth,
+        probe.tip_shape(),
+        pose,
+        force,
+        &softcap_fem::ContactSynthesisSettings::default(),
+    )
+    .unwrap();
+    eprintln!(
+        "suite-like block, 6 mm sphere at 0.5 N: material depth {:.3} mm ({} load steps, {:.4} N), truth depth {:.3} mm ({:?}, {} depth iterations)",
+        1e3 * o.depth_m,
+        o.load_steps,
+        o.axial_force_n,
+        1e3 * t.depth_m,
+        t.status,
+        t.depth_iterations
+    );
+    assert!(o.converged, "{o:?}");
+    assert!(
+        (o.axial_force_n - force).abs() <= 0.01 * force + 1e-12,
+        "{o:?}"
+    );
+    assert_eq!(t.status, softcap_fem::SolveStatus::Converged);
+    assert!(
+        (o.depth_m - t.depth_m).abs() <= 0.35 * t.depth_m,
+        "{} vs {}",
+        o.depth_m,
+        t.depth_m
+    );
 }

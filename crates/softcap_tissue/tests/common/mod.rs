@@ -36,6 +36,10 @@ pub struct SessionSpec {
     pub forces_n: Vec<f64>,
     /// Young's moduli of the bottom / top layer, Pa.
     pub young_pa: [f64; 2],
+    /// Block size, m (markers: a 6 × 6 grid on the top, scaled with it).
+    pub size_m: [f64; 3],
+    /// Poisson ratio of the truth.
+    pub poisson: f64,
 }
 
 impl Default for SessionSpec {
@@ -45,18 +49,25 @@ impl Default for SessionSpec {
             locations: vec![[0.0105, 0.0105], [0.0195, 0.0150], [0.0120, 0.0195]],
             forces_n: vec![0.5, 1.0, 1.5],
             young_pa: [6.0e4, 2.0e4],
+            size_m: SIZE_M,
+            poisson: 0.4,
         }
     }
 }
 
 pub fn markers() -> Vec<Vector3<f64>> {
+    markers_on(SIZE_M)
+}
+
+/// A 6 × 6 marker grid on the top of a block of `size_m` (cell centres of a 6 × 6 grid).
+pub fn markers_on(size_m: [f64; 3]) -> Vec<Vector3<f64>> {
     let mut m = Vec::new();
     for i in 0..6 {
         for j in 0..6 {
             m.push(Vector3::new(
-                0.0025 + 0.005 * i as f64,
-                0.0025 + 0.005 * j as f64,
-                SIZE_M[2],
+                size_m[0] * (i as f64 + 0.5) / 6.0,
+                size_m[1] * (j as f64 + 0.5) / 6.0,
+                size_m[2],
             ));
         }
     }
@@ -64,17 +75,27 @@ pub fn markers() -> Vec<Vector3<f64>> {
 }
 
 pub fn truth_model(mesh: &TetMesh, young_pa: [f64; 2]) -> NeoHookeanModel {
+    truth_model_of(mesh, young_pa, SIZE_M[2], 0.4)
+}
+
+/// Two neo-Hookean layers split at half of `height_m`.
+pub fn truth_model_of(
+    mesh: &TetMesh,
+    young_pa: [f64; 2],
+    height_m: f64,
+    poisson: f64,
+) -> NeoHookeanModel {
     let params: Vec<NeoHookeanParams> = mesh
         .tets
         .iter()
         .map(|t| {
             let zc = t.iter().map(|&i| mesh.vertices[i].z).sum::<f64>() / 4.0;
-            let e = if zc < 0.5 * SIZE_M[2] {
+            let e = if zc < 0.5 * height_m {
                 young_pa[0]
             } else {
                 young_pa[1]
             };
-            NeoHookeanParams::from_young_poisson(e, 0.4).unwrap()
+            NeoHookeanParams::from_young_poisson(e, poisson).unwrap()
         })
         .collect();
     NeoHookeanModel::new(mesh, params).unwrap()
@@ -82,11 +103,12 @@ pub fn truth_model(mesh: &TetMesh, young_pa: [f64; 2]) -> NeoHookeanModel {
 
 /// Writes `dir/capture.mcap` and `dir/volume.msh` (mm).
 pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
-    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE_M, spec.cells);
-    let markers = markers();
+    let size = spec.size_m;
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], size, spec.cells);
+    let markers = markers_on(size);
     let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
     let setup = ProbingSetup::new(mesh.clone(), &markers, fixed).unwrap();
-    let mut truth = truth_model(&mesh, spec.young_pa);
+    let mut truth = truth_model_of(&mesh, spec.young_pa, size[2], spec.poisson);
     let patch = PatchSettings {
         radius_m: TIP_RADIUS_M,
         ..Default::default()
@@ -99,7 +121,7 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
         force: f64,
         x: Vec<Vector3<f64>>,
     }
-    let rest_tip = Vector3::new(0.015, 0.015, SIZE_M[2] + 0.01);
+    let rest_tip = Vector3::new(0.5 * size[0], 0.5 * size[1], size[2] + 0.01);
     let mut frames = vec![F {
         tip: rest_tip,
         force: 0.0,
@@ -112,7 +134,7 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
         let mut solver = setup.solver(&truth).unwrap();
         let mut x = mesh.vertices.clone();
         for &fz in &levels {
-            let surface = Vector3::new(loc[0], loc[1], SIZE_M[2]);
+            let surface = Vector3::new(loc[0], loc[1], size[2]);
             let ex = ProbeExample {
                 frame: 0,
                 time_s: 0.0,
@@ -138,7 +160,7 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
             });
         }
         frames.push(F {
-            tip: Vector3::new(loc[0], loc[1], SIZE_M[2] + 0.01),
+            tip: Vector3::new(loc[0], loc[1], size[2] + 0.01),
             force: 0.0,
             x: mesh.vertices.clone(),
         });

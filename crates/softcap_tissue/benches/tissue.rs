@@ -1,0 +1,174 @@
+//! Issue 7 benches: the fit of a 1.8k-tet, 48-example session (aim ≤ 60 s on 2 cores) and the
+//! synthesis rate of a novel probe with the fitted material.
+//!
+//! The session is built here, in memory (no other stage): a 40 × 40 × 20 mm block, 10 × 10 × 3
+//! cells = 1,800 tets, two stable neo-Hookean layers (E 60 / 20 kPa, ν 0.4), 7 × 7 markers on the
+//! top, a 4 mm disk probe (force boundary condition, bickel2009 §4.1) at 12 locations × 4 force
+//! levels (0.25 / 0.5 / 0.75 / 1.0 N) = 48 examples, all selected. `fit` runs `fit_session` with
+//! the default settings (homogeneous baseline, γ_p by leave-one-location-out, eq. 9 per-example
+//! fits, eq. 8 basis, re-simulation). `simulate` synthesizes a 6 mm sphere pressing 0.5 N at an
+//! untrained location with the fitted strain-space material (§3.4 incremental loading with
+//! contact, force control); its rate in Hz is 1 / median.
+//!
+//! `cargo bench -p softcap_tissue --bench tissue` (criterion: 10 samples of each; the fit alone is
+//! minutes). Before criterion starts, one fit is timed and printed (`single fit: … s`).
+
+use std::time::{Duration, Instant};
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use softcap_fem::nalgebra::Vector3;
+use softcap_fem::probing::{
+    ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, probe_pose,
+    simulate_probe_contact, support_nodes,
+};
+use softcap_fem::{
+    EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings, StrainSpaceModel,
+    TipShape,
+};
+use softcap_mcap::capture::{Phase, SupportPlane};
+use softcap_tissue::{FitSettings, PreparedSession, Progress, SessionExample, fit_session};
+
+const SIZE_M: [f64; 3] = [0.04, 0.04, 0.02];
+const CELLS: [usize; 3] = [10, 10, 3];
+const TIP_RADIUS_M: f64 = 0.004;
+const FORCES_N: [f64; 4] = [0.25, 0.5, 0.75, 1.0];
+
+fn session() -> PreparedSession {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE_M, CELLS);
+    let markers: Vec<Vector3<f64>> = (0..7)
+        .flat_map(|i| {
+            (0..7).map(move |j| {
+                Vector3::new(
+                    SIZE_M[0] * (i as f64 + 0.5) / 7.0,
+                    SIZE_M[1] * (j as f64 + 0.5) / 7.0,
+                    SIZE_M[2],
+                )
+            })
+        })
+        .collect();
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let setup = ProbingSetup::new(mesh, &markers, fixed).expect("setup");
+    let params = setup
+        .mesh
+        .tets
+        .iter()
+        .map(|t| {
+            let z = t.iter().map(|&i| setup.mesh.vertices[i].z).sum::<f64>() / 4.0;
+            let e = if z < 0.5 * SIZE_M[2] { 6.0e4 } else { 2.0e4 };
+            NeoHookeanParams::from_young_poisson(e, 0.4).expect("valid")
+        })
+        .collect();
+    let mut truth = NeoHookeanModel::new(&setup.mesh, params).expect("truth");
+    // 12 locations on a 4 × 3 grid inside the top face (away from the edges).
+    let locations: Vec<[f64; 2]> = (0..4)
+        .flat_map(|i| (0..3).map(move |j| [0.008 + 0.008 * i as f64, 0.010 + 0.010 * j as f64]))
+        .collect();
+    let patch = PatchSettings {
+        radius_m: TIP_RADIUS_M,
+        ..Default::default()
+    };
+    let mut examples = Vec::new();
+    for (li, loc) in locations.iter().enumerate() {
+        let mut solver = setup.solver(&truth).expect("solver");
+        let mut x = setup.mesh.vertices.clone();
+        for &f in &FORCES_N {
+            let k = examples.len() + 1;
+            let mut ex = ProbeExample {
+                frame: k as u64,
+                time_s: 0.05 * k as f64,
+                tip_m: Vector3::new(loc[0], loc[1], SIZE_M[2]),
+                axis: -Vector3::z(),
+                force_n: Vector3::new(0.0, 0.0, -f),
+                observed: Vec::new(),
+            };
+            let nodes = setup.patch_nodes(&ex, &patch);
+            let forces = setup.nodal_forces(&ex, &nodes);
+            let rep = setup.simulate(
+                &mut solver,
+                &mut truth,
+                &mut x,
+                &forces,
+                &EquilibriumSettings::newton(),
+            );
+            assert!(rep.converged(), "truth: {rep:?}");
+            ex.observed = setup
+                .marker_positions(&x)
+                .into_iter()
+                .enumerate()
+                .map(|(marker, position_m)| ObservedMarker { marker, position_m })
+                .collect();
+            examples.push(SessionExample {
+                example: ex,
+                location: li,
+                phase: Phase::Loading,
+                frame_index: k,
+                log_time_ns: 50_000_000 * k as u64,
+            });
+        }
+    }
+    PreparedSession {
+        setup,
+        locations: Vec::new(),
+        all_examples: examples.clone(),
+        selected: examples,
+        tip_radius_m: TIP_RADIUS_M,
+        support: SupportPlane {
+            normal: [0.0, 0.0, 1.0],
+            offset_m: 0.0,
+            tolerance_m: 1e-9,
+        },
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let prepared = session();
+    let settings = FitSettings {
+        progress: false,
+        ..FitSettings::default()
+    };
+    let t0 = Instant::now();
+    let fit = fit_session(&prepared, &settings, &Progress::hidden()).expect("fit");
+    eprintln!(
+        "single fit: {:.1} s wall ({} tets, {} examples; γ_p = {}; marker RMS homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm, {} re-simulations not converged)",
+        t0.elapsed().as_secs_f64(),
+        fit.outcome.tets,
+        fit.outcome.examples.len(),
+        fit.outcome.gamma_prior,
+        1e3 * fit.outcome.homogeneous_rms_m,
+        1e3 * fit.outcome.example_rms_m,
+        1e3 * fit.outcome.material_rms_m,
+        fit.outcome.material_failures
+    );
+    let setup = &prepared.setup;
+    let model = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).expect("model");
+    let pose = probe_pose(&Vector3::new(0.02, 0.015, 0.025), &-Vector3::z());
+    let tip = TipShape::Sphere { radius_m: 0.006 };
+    let cs = ContactSynthesisSettings::default();
+    let synth = || {
+        let mut m = model.clone();
+        let r =
+            simulate_probe_contact(setup, &mut m, tip.clone(), pose, 0.5, &cs).expect("synthesis");
+        assert_eq!(r.status, softcap_fem::SolveStatus::Converged);
+        r
+    };
+    let r = synth();
+    eprintln!(
+        "simulate: 6 mm sphere at 0.5 N, depth {:.3} mm, {} load steps, {} depth iterations",
+        1e3 * r.depth_m,
+        r.step_depths_m.len(),
+        r.depth_iterations
+    );
+
+    let mut g = c.benchmark_group("tissue");
+    g.sample_size(10);
+    g.warm_up_time(Duration::from_millis(1));
+    g.measurement_time(Duration::from_secs(1));
+    g.bench_function("simulate_sphere_0.5N_1800_tets", |b| b.iter(synth));
+    g.bench_function("fit_1800_tets_48_examples", |b| {
+        b.iter(|| fit_session(&prepared, &settings, &Progress::hidden()).expect("fit"))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
