@@ -4,6 +4,11 @@
 //! simulated on demand (no precomputed table; a fresh design cache per search). The target is
 //! a random design with jittered layer thicknesses (seed 2010, first target of the validation).
 //! bickel2010: "under an hour"; issue 11: ≤ 60 s on 2 cores.
+//!
+//! One search is ≈ 85 CPU-s (≈ 43 s on 2 cores), so the default 10 samples (+ warm-up) take
+//! ≈ 8 min on 2 idle cores; `cargo bench -p softcap_design --bench search -- --quick` stops
+//! after the warm-up and one sample of each benchmark (criterion's quick mode exits early when
+//! one iteration exceeds the 1 s measurement time): two searches, ≈ 1.5 min on 2 idle cores.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use softcap_design::*;
