@@ -116,6 +116,11 @@ pub struct Signatures {
     pub geometry_depth_hysteresis: f64,
     /// RMS baseline residual of probed markers after release, m (permanent offset).
     pub released_offset_m: f64,
+    /// RMS of (residual after release − the same marker's mean residual at rest) over probed
+    /// markers, m: the permanent set the probing left. A template that differs from the
+    /// observed rest shape (gravity pre-load) offsets rest and released frames alike and
+    /// cancels here; a plastic set exists only after release.
+    pub released_set_m: f64,
     /// RMS tangential baseline residual of probed markers in contact, m.
     pub contact_tangential_m: f64,
     /// RMS baseline residual of attached markers in contact, m.
@@ -384,6 +389,26 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
         &|r, _| r.norm(),
     );
+    // Mean residual of every marker over the rest frames (zero when never seen at rest).
+    let mut rest_mean = vec![(Vector3::zeros(), 0usize); rec.num_markers()];
+    for (k, row) in res.iter().enumerate() {
+        if seg.phases[k] == Phase::Rest {
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r {
+                    rest_mean[m].0 += r;
+                    rest_mean[m].1 += 1;
+                }
+            }
+        }
+    }
+    let rest_mean: Vec<Vector3<f64>> = rest_mean
+        .into_iter()
+        .map(|(a, n)| if n > 0 { a / n as f64 } else { a })
+        .collect();
+    s.released_set_m = rms(
+        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
+        &|r, m| (r - rest_mean[m]).norm(),
+    );
     s.contact_tangential_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
         &|r, m| {
@@ -450,7 +475,7 @@ pub fn signature_support(h: Hypothesis, s: &Signatures) -> f64 {
             }
         }
         Hypothesis::Plasticity => {
-            if s.released_offset_m > sig3 {
+            if s.released_set_m > sig3 {
                 1.0
             } else {
                 -1.0

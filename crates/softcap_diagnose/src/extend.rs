@@ -12,16 +12,22 @@
 //! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
 //!
 //! The probe force of every frame is spread over its contact patch exactly as in the baseline
-//! (bickel2009 §4.1 force boundary condition, [`crate::FemProbeSimulator::probe_forces`]).
+//! (bickel2009 §4.1 force boundary condition, [`crate::FemProbeSimulator::probe_forces`]), or —
+//! [`FemProbeSimulator::simulate_sequence_rigid_tip`] — the probe is replayed as the rigid tip of
+//! the session at each frame's measured pose (bickel2009 §3.4 rigid-probe contact, penalty
+//! springs of `softcap_fem::contact`): position control, so the stress under the tip rim is the
+//! one the tip's geometry imposes (a J2 material yields there as it did in the recording) rather
+//! than the uniform pressure of the force boundary condition.
 
 use crate::sim::{FemProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
-use nalgebra::{Unit, Vector3};
+use nalgebra::{Isometry3, Translation3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
+use softcap_fem::probing::probe_pose;
 use softcap_fem::{
-    AnisotropicModel, ElasticModel, ElastoplasticModel, J2PlasticityParams, LinearParams,
-    NodalSolver, PronySeries, StaticSolver, SupportPlane, SupportTangential,
-    TransverselyIsotropicParams, ViscoelasticModel,
+    AnisotropicModel, ContactProblem, ContactSettings, ElasticModel, ElastoplasticModel,
+    EquilibriumSettings, J2PlasticityParams, LinearParams, NodalSolver, Probe, PronySeries,
+    StaticSolver, SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel,
 };
 
 /// One extended model (see the module table).
@@ -135,6 +141,45 @@ impl FemProbeSimulator {
         Ok(out)
     }
 
+    /// The `AnisotropicModel` of an anisotropy extension over the default model's (λ, α).
+    fn anisotropic_model(&self, ext: &Extension) -> Result<AnisotropicModel> {
+        let base = self.model();
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let (fibre, params) = match *ext {
+            Extension::TransverselyIsotropic {
+                fibre,
+                ratio,
+                nu_transverse,
+                nu_fibre,
+            } => (
+                fibre,
+                base.params()
+                    .iter()
+                    .map(|p| transverse_with_poisson(p, ratio, nu_transverse, nu_fibre))
+                    .collect::<std::result::Result<Vec<_>, _>>()
+                    .map_err(fem)?,
+            ),
+            Extension::Anisotropic { fibre, ratio } => (
+                fibre,
+                base.params()
+                    .iter()
+                    .map(|p| transverse_from_isotropic(p, ratio))
+                    .collect::<std::result::Result<Vec<_>, _>>()
+                    .map_err(fem)?,
+            ),
+            other => {
+                return Err(DiagnoseError::BadRecording {
+                    what: format!("{other:?} is not an anisotropy extension"),
+                });
+            }
+        };
+        let a = Unit::try_new(fibre, 1e-12).ok_or_else(|| DiagnoseError::BadRecording {
+            what: "anisotropy: zero fibre direction".into(),
+        })?;
+        let nt = params.len();
+        AnisotropicModel::new(&self.setup().mesh, params, vec![a; nt]).map_err(fem)
+    }
+
     /// Marker positions of every frame of `frames` (time order) under the default model extended
     /// by `ext`, each frame warm-started from the previous one and history committed after it.
     pub fn simulate_sequence(
@@ -178,35 +223,7 @@ impl FemProbeSimulator {
                 )
             }
             Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
-                let (fibre, params) = match *ext {
-                    Extension::TransverselyIsotropic {
-                        fibre,
-                        ratio,
-                        nu_transverse,
-                        nu_fibre,
-                    } => (
-                        fibre,
-                        base.params()
-                            .iter()
-                            .map(|p| transverse_with_poisson(p, ratio, nu_transverse, nu_fibre))
-                            .collect::<std::result::Result<Vec<_>, _>>()
-                            .map_err(fem)?,
-                    ),
-                    Extension::Anisotropic { fibre, ratio } => (
-                        fibre,
-                        base.params()
-                            .iter()
-                            .map(|p| transverse_from_isotropic(p, ratio))
-                            .collect::<std::result::Result<Vec<_>, _>>()
-                            .map_err(fem)?,
-                    ),
-                    _ => unreachable!("matched above"),
-                };
-                let a = Unit::try_new(fibre, 1e-12).ok_or_else(|| DiagnoseError::BadRecording {
-                    what: "anisotropy: zero fibre direction".into(),
-                })?;
-                let nt = params.len();
-                let an = AnisotropicModel::new(mesh, params, vec![a; nt]).map_err(fem)?;
+                let an = self.anisotropic_model(ext)?;
                 self.run_static(an, frames, |_, _| Ok(()), |_, _| {})
             }
             Extension::SupportSprings { stiffness_n_per_m } => {
@@ -253,6 +270,170 @@ impl FemProbeSimulator {
                 Ok(out)
             }
         }
+    }
+}
+
+/// Rigid-tip replay: the settings of one frame's contact solve.
+const RIGID_MAX_ITERATIONS: usize = 80;
+
+impl FemProbeSimulator {
+    /// Rigid-tip replay of `frames` (time order) under `ext`: every frame whose probe pose
+    /// (`load.probe`: measured `tip_m` and `axis`; the force is not used) makes the session's tip
+    /// penetrate the surface is solved with the rigid probe as penalty contact (bickel2009 §3.4),
+    /// moved there from the previous frame's pose in 1, then 4, then 16 sub-steps (state restored
+    /// between attempts); other frames are solved without the probe. History (plastic strain,
+    /// Prony state) is committed after every converged frame. `Ok(None)` without a recorded tip
+    /// or for the support springs (a `NodalSolver` term, no rigid replay).
+    pub fn simulate_sequence_rigid_tip(
+        &self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
+        let Some(tip) = self.rigid_tip().cloned() else {
+            return Ok(None);
+        };
+        let base = self.model().clone();
+        let mesh = &self.setup().mesh;
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        Ok(Some(match *ext {
+            Extension::Elastic => self.run_rigid(base, &tip, frames, |_, _| Ok(()), |_, _| {})?,
+            Extension::Viscoelastic { g, tau_s } => {
+                let prony = PronySeries::standard_linear_solid(g, tau_s).map_err(fem)?;
+                let ve = ViscoelasticModel::new(base, prony).map_err(fem)?;
+                self.run_rigid(
+                    ve,
+                    &tip,
+                    frames,
+                    |m, dt| m.set_time_step(dt).map_err(fem),
+                    |m, x| m.commit(x),
+                )?
+            }
+            Extension::Plastic {
+                yield_stress_pa,
+                hardening_pa,
+            } => {
+                let q = J2PlasticityParams {
+                    yield_stress_pa,
+                    hardening_modulus_pa: hardening_pa,
+                };
+                let nt = mesh.tets.len();
+                let ep = ElastoplasticModel::new(mesh, base.params().to_vec(), vec![q; nt])
+                    .map_err(fem)?;
+                self.run_rigid(
+                    ep,
+                    &tip,
+                    frames,
+                    |_, _| Ok(()),
+                    |m, x| {
+                        m.commit(x);
+                    },
+                )?
+            }
+            Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
+                let an = self.anisotropic_model(ext)?;
+                self.run_rigid(an, &tip, frames, |_, _| Ok(()), |_, _| {})?
+            }
+            Extension::SupportSprings { .. } => return Ok(None),
+        }))
+    }
+
+    fn run_rigid<M: ElasticModel + Clone>(
+        &self,
+        mut model: M,
+        tip: &softcap_fem::TipShape,
+        frames: &[SequenceFrame],
+        mut before: impl FnMut(&mut M, f64) -> Result<()>,
+        mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        let setup = self.setup();
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let rest = setup.mesh.vertices.clone();
+        let candidates: Vec<usize> = setup
+            .boundary_nodes
+            .iter()
+            .copied()
+            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
+            .collect();
+        let settings = EquilibriumSettings {
+            max_iterations: self
+                .settings()
+                .equilibrium
+                .max_iterations
+                .max(RIGID_MAX_ITERATIONS),
+            ..self.settings().equilibrium.clone()
+        };
+        let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
+        let mut x = rest.clone();
+        let mut out = Vec::with_capacity(frames.len());
+        let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
+        let mut prev_pose: Option<Isometry3<f64>> = None;
+        for (k, fr) in frames.iter().enumerate() {
+            let f = self.nodal_load(&SimLoad {
+                probe: None,
+                body_force_n_m3: fr.load.body_force_n_m3,
+            });
+            let pose = fr.load.probe.map(|p| probe_pose(&p.tip_m, &p.axis));
+            let probe = pose
+                .map(|iso| Probe::new(tip.clone(), iso))
+                .transpose()
+                .map_err(fem)?;
+            let touches = probe.as_ref().is_some_and(|p| {
+                candidates
+                    .iter()
+                    .any(|&i| p.penetration(&rest[i]).is_some() || p.penetration(&x[i]).is_some())
+            });
+            let dt = (fr.time_s - t_prev).max(0.0);
+            t_prev = fr.time_s;
+            let (start_x, start_model) = (x.clone(), model.clone());
+            let mut ok = false;
+            let mut status = String::new();
+            for substeps in [1usize, 4, 16] {
+                x.clone_from(&start_x);
+                model = start_model.clone();
+                ok = true;
+                for s in 1..=substeps {
+                    let t = s as f64 / substeps as f64;
+                    before(&mut model, dt / substeps as f64)?;
+                    let problem = match (touches, pose) {
+                        (true, Some(to)) => {
+                            let from = prev_pose.unwrap_or(to);
+                            let iso = Isometry3::from_parts(
+                                Translation3::from(
+                                    from.translation.vector.lerp(&to.translation.vector, t),
+                                ),
+                                from.rotation.slerp(&to.rotation, t),
+                            );
+                            Some(ContactProblem {
+                                probe: Probe::new(tip.clone(), iso).map_err(fem)?,
+                                candidate_nodes: candidates.clone(),
+                                settings: ContactSettings::default(),
+                            })
+                        }
+                        _ => None,
+                    };
+                    setup.dirichlet().apply(&mut x);
+                    let rep = solver.solve(&mut model, &mut x, &f, problem.as_ref(), &settings);
+                    if !rep.converged() {
+                        status = format!(
+                            "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
+                            rep.status, rep.iterations
+                        );
+                        ok = false;
+                        break;
+                    }
+                    commit(&mut model, &x);
+                }
+                if ok {
+                    break;
+                }
+            }
+            if !ok {
+                return Err(not_converged(k, status));
+            }
+            prev_pose = pose;
+            out.push(setup.marker_positions(&x));
+        }
+        Ok(out)
     }
 }
 

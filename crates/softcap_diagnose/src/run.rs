@@ -7,7 +7,7 @@ use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
-use softcap_fem::CorotationalModel;
+use softcap_fem::{CorotationalModel, TipShape};
 use softcap_mcap::Provenance;
 use softcap_mcap::capture::CaptureData;
 use std::path::PathBuf;
@@ -41,6 +41,23 @@ pub struct RunConfig {
     pub settings: StageSettings,
     /// Full argument list (provenance).
     pub arguments: Vec<String>,
+}
+
+/// The rigid tip of the session (`/capture/session` `tip_shape`, `tip_radius_m`) for the
+/// rigid-tip replay: a sphere, or a disk (its thickness is not recorded; one radius, enough for
+/// the indentation depths of a probing session). `None` for a mesh tip or an unknown shape.
+fn session_tip(shape: &str, radius_m: f64) -> Option<TipShape> {
+    if !(radius_m > 0.0 && radius_m.is_finite()) {
+        return None;
+    }
+    match shape {
+        "sphere" => Some(TipShape::Sphere { radius_m }),
+        "disk" => Some(TipShape::Disk {
+            radius_m,
+            thickness_m: radius_m,
+        }),
+        _ => None,
+    }
 }
 
 /// Reads the inputs, diagnoses, writes every requested output. Inputs are read and validated
@@ -80,6 +97,9 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             cfg.settings.simulator.clone(),
         )?
         .with_support_plane(&support.normal, support.offset_m);
+        if let Some(tip) = session_tip(&cap.session.tip_shape, cap.session.tip_radius_m) {
+            sim = sim.with_rigid_tip(tip);
+        }
         diagnose(&rec, &mut sim, &cfg.settings.diagnose)
     };
     let mut result = match attempt(material.model.clone()) {

@@ -16,7 +16,7 @@ use softcap_fem::probing::{
     HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, fit_homogeneous,
     support_nodes,
 };
-use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver};
+use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver, TipShape};
 use softcap_mesh::TetMesh;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
@@ -57,9 +57,6 @@ pub trait ProbeSimulator {
     /// force. Non-convergence is an error carrying the solver status.
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput>;
 
-    /// Marker positions of every frame (time order) under the model extended by `ext`
-    /// ([`crate::extend`]). The default handles [`Extension::Elastic`] frame by frame; other
-    /// extensions need a simulator that implements them (an error otherwise).
     /// A simulator of the same setup whose material is a homogeneous (λ, α) refit to `examples`
     /// (bickel2009 §6 average fit, `softcap_fem::probing::fit_homogeneous`) — used after a
     /// temporal extension corrected the forces the material was fitted with. `None` (default)
@@ -72,6 +69,23 @@ pub trait ProbeSimulator {
         Ok(None)
     }
 
+    /// Marker positions of every frame (time order) under the model extended by `ext`, with the
+    /// probe replayed as a RIGID tip at each frame's measured pose (position control, bickel2009
+    /// §3.4 rigid-probe contact) instead of the measured force over the patch (§4.1). Only
+    /// `load.probe`'s `tip_m` / `axis` and `load.body_force_n_m3` of each frame are used.
+    /// `Ok(None)` (default) when the simulator knows no tip geometry or cannot replay `ext`.
+    fn simulate_sequence_rigid_tip(
+        &mut self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
+        let _ = (ext, frames);
+        Ok(None)
+    }
+
+    /// Marker positions of every frame (time order) under the model extended by `ext`
+    /// ([`crate::extend`]). The default handles [`Extension::Elastic`] frame by frame; other
+    /// extensions need a simulator that implements them (an error otherwise).
     fn simulate_sequence(
         &mut self,
         ext: &Extension,
@@ -127,6 +141,7 @@ pub struct FemProbeSimulator {
     lumped_volume_m3: Vec<f64>,
     settings: FemSimSettings,
     support_plane: Option<(Unit<Vector3<f64>>, f64)>,
+    rigid_tip: Option<TipShape>,
 }
 
 impl FemProbeSimulator {
@@ -173,6 +188,7 @@ impl FemProbeSimulator {
             lumped_volume_m3,
             settings,
             support_plane: None,
+            rigid_tip: None,
         })
     }
 
@@ -182,6 +198,18 @@ impl FemProbeSimulator {
     pub fn with_support_plane(mut self, normal: &Vector3<f64>, offset_m: f64) -> Self {
         self.support_plane = Unit::try_new(*normal, 1e-12).map(|n| (n, offset_m));
         self
+    }
+
+    /// Records the probe's tip geometry (the session's `tip_shape` / `tip_radius_m`), which enables
+    /// the rigid-tip replay of [`ProbeSimulator::simulate_sequence_rigid_tip`].
+    pub fn with_rigid_tip(mut self, tip: TipShape) -> Self {
+        self.rigid_tip = Some(tip);
+        self
+    }
+
+    /// The probe's tip geometry, if recorded.
+    pub fn rigid_tip(&self) -> Option<&TipShape> {
+        self.rigid_tip.as_ref()
     }
 
     /// The support plane, if recorded.
@@ -283,6 +311,7 @@ impl ProbeSimulator for FemProbeSimulator {
         let mut sim =
             FemProbeSimulator::from_setup(self.setup.clone(), model, self.settings.clone())?;
         sim.support_plane = self.support_plane;
+        sim.rigid_tip = self.rigid_tip.clone();
         Ok(Some(Box::new(sim)))
     }
 
@@ -292,6 +321,14 @@ impl ProbeSimulator for FemProbeSimulator {
         frames: &[SequenceFrame],
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         FemProbeSimulator::simulate_sequence(self, ext, frames)
+    }
+
+    fn simulate_sequence_rigid_tip(
+        &mut self,
+        ext: &Extension,
+        frames: &[SequenceFrame],
+    ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
+        FemProbeSimulator::simulate_sequence_rigid_tip(self, ext, frames)
     }
 
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput> {

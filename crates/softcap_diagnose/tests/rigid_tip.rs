@@ -1,0 +1,217 @@
+//! The rigid-tip replay (`ProbeSimulator::simulate_sequence_rigid_tip`, bickel2009 §3.4 rigid-probe
+//! contact under position control) and the plasticity signature `Signatures::released_set_m`.
+//!
+//! Block 40 × 40 × 20 mm, 6 × 6 × 3 cells (648 tets, node spacing 6.67 mm), E = 20 kPa, ν = 0.45,
+//! fixed base; a 5 mm sphere pressed straight down onto the top-centre node. At 2 mm depth the
+//! sphere's footprint radius is √(2·5·2 − 2²) = 4 mm < 6.67 mm, so exactly one node is in contact
+//! and position control must carry it to the tip: its displacement equals the commanded depth up to
+//! the penalty penetration (measured 0.4–4.9 % of the depth).
+
+use nalgebra::Vector3;
+use softcap_diagnose::{
+    Extension, FemProbeSimulator, FemSimSettings, Frame, ProbeLoad, ProbeSimulator, Recording,
+    SegmentSettings, Segmentation, SequenceFrame, SimLoad, residuals, signatures,
+};
+use softcap_fem::{CorotationalModel, LinearParams, TipShape};
+
+const SIZE: [f64; 3] = [0.04, 0.04, 0.02];
+const CENTRE: [f64; 3] = [0.02, 0.02, 0.02];
+
+fn markers() -> Vec<Vector3<f64>> {
+    vec![
+        Vector3::from(CENTRE),
+        Vector3::new(0.02 + 0.04 / 6.0, 0.02, 0.02),
+        Vector3::new(0.005, 0.005, 0.02),
+    ]
+}
+
+fn simulator(tip: Option<TipShape>) -> FemProbeSimulator {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
+    let model =
+        CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(2e4, 0.45).unwrap())
+            .unwrap();
+    let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let sim = FemProbeSimulator::new(&mesh, model, &fixed, &markers(), FemSimSettings::default())
+        .unwrap();
+    match tip {
+        Some(t) => sim.with_rigid_tip(t),
+        None => sim,
+    }
+}
+
+/// Tip depths below the top surface per frame (negative: hovering above it).
+const DEPTHS_MM: [f64; 9] = [-3.0, 0.5, 1.0, 1.5, 2.0, 2.0, 1.0, 0.0, -3.0];
+
+fn frames() -> Vec<SequenceFrame> {
+    DEPTHS_MM
+        .iter()
+        .enumerate()
+        .map(|(k, d)| SequenceFrame {
+            time_s: 0.05 * k as f64,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: Vector3::new(CENTRE[0], CENTRE[1], CENTRE[2] - 1e-3 * d),
+                    axis: -Vector3::z(),
+                    force_n: Vector3::zeros(),
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+fn sphere() -> TipShape {
+    TipShape::Sphere { radius_m: 0.005 }
+}
+
+#[test]
+fn rigid_replay_carries_the_contact_node_to_the_tip_and_back() {
+    let sim = simulator(Some(sphere()));
+    let x = sim
+        .simulate_sequence_rigid_tip(&Extension::Elastic, &frames())
+        .unwrap()
+        .expect("the simulator has a rigid tip");
+    let rest = markers();
+    for (k, d) in DEPTHS_MM.iter().enumerate() {
+        let dz = x[k][0].z - rest[0].z;
+        let want = -1e-3 * d.max(0.0);
+        // position control: the contact node follows the tip to 8 % of the depth (the penalty
+        // penetration of softcap_fem's contact, penalty factor 10⁴; measured 0.4 % at 0.5 mm,
+        // 1.1 % at 1 mm, 4.9 % at 2 mm)
+        assert!(
+            (dz - want).abs() <= 8e-2 * want.abs() + 1e-9,
+            "frame {k}: centre marker dz {dz:e} m, tip depth {want:e} m"
+        );
+    }
+    // the neighbour (one cell away, outside the footprint) is dragged down less than the tip
+    let dz_nb = x[4][1].z - rest[1].z;
+    assert!(dz_nb < -1e-4 && dz_nb > -2e-3, "neighbour dz {dz_nb:e} m");
+    // elastic: no history, every marker back at rest once the tip is lifted
+    for (m, r) in rest.iter().enumerate() {
+        assert!((x[8][m] - r).norm() < 1e-9, "marker {m} not back at rest");
+    }
+}
+
+#[test]
+fn rigid_replay_is_none_without_a_tip() {
+    let sim = simulator(None);
+    assert!(
+        sim.simulate_sequence_rigid_tip(&Extension::Elastic, &frames())
+            .unwrap()
+            .is_none()
+    );
+}
+
+#[test]
+fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_drops() {
+    let mut sim = simulator(Some(sphere()));
+    let elastic = sim
+        .simulate_sequence_rigid_tip(&Extension::Elastic, &frames())
+        .unwrap()
+        .unwrap();
+    let set = |sim: &mut FemProbeSimulator, yield_stress_pa: f64| {
+        let x = sim
+            .simulate_sequence_rigid_tip(
+                &Extension::Plastic {
+                    yield_stress_pa,
+                    hardening_pa: 200.0,
+                },
+                &frames(),
+            )
+            .unwrap()
+            .unwrap();
+        (x[8][0].z - markers()[0].z, x)
+    };
+    // a yield stress far above any stress reached: the elastic replay to round-off
+    let (s_hi, x_hi) = set(&mut sim, 1e9);
+    assert!(s_hi.abs() < 1e-12, "no yield, set {s_hi:e} m");
+    // the same equilibria as the elastic replay to 0.1 % of the 2 mm depth (measured 0.74 µm: the
+    // J2 element and the corotational one differ only in round-off and solver tolerance paths)
+    let max_diff = x_hi
+        .iter()
+        .zip(&elastic)
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+        .fold(0.0, f64::max);
+    assert!(
+        max_diff < 2e-6,
+        "J2 without yield vs elastic: {max_diff:e} m"
+    );
+    // yielding: a permanent dent under the tip after release (downward), larger for lower yield
+    let (s_mid, _) = set(&mut sim, 2000.0);
+    let (s_lo, _) = set(&mut sim, 500.0);
+    assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
+    assert!(
+        s_lo < s_mid,
+        "set at 0.5 kPa {s_lo:e} m vs 2 kPa {s_mid:e} m"
+    );
+    // and smaller than the deepest indentation (2 mm)
+    assert!(s_lo > -2e-3);
+}
+
+/// A recording whose every frame is offset by the same vector (template ≠ observed rest shape,
+/// as under gravity pre-load) has a released offset but no released SET; a dent that appears only
+/// after the probe left has both.
+#[test]
+fn released_set_signature_cancels_a_constant_rest_offset() {
+    let tip = |p: f64| Vector3::new(CENTRE[0], CENTRE[1], CENTRE[2] - 0.002 * p);
+    let profile = [0.0, 0.0, 0.5, 1.0, 1.0, 0.5, 0.0, 0.0, 0.0];
+    let rest = markers();
+    let make = |dent_m: f64, offset_m: f64| {
+        let frames = profile
+            .iter()
+            .enumerate()
+            .map(|(k, &p)| {
+                let released = k >= 6;
+                Frame {
+                    frame: k as u64,
+                    time_s: 0.05 * k as f64,
+                    tip_m: tip(p),
+                    axis: -Vector3::z(),
+                    force_n: -Vector3::z() * p,
+                    markers_m: rest
+                        .iter()
+                        .enumerate()
+                        .map(|(m, r)| {
+                            let mut y = r + Vector3::new(0.0, 0.0, -offset_m);
+                            if m == 0 && released {
+                                y.z -= dent_m;
+                            }
+                            Some(y)
+                        })
+                        .collect(),
+                }
+            })
+            .collect();
+        Recording {
+            marker_ids: vec!["a".into(), "b".into(), "c".into()],
+            rest_markers_m: rest.clone(),
+            normals: vec![Vector3::z(); 3],
+            gravity_m_s2: Vector3::new(0.0, 0.0, -9.81),
+            support: None,
+            tip_radius_m: 0.005,
+            frames,
+        }
+    };
+    let baseline = vec![rest.clone(); profile.len()];
+    let sig = |rec: &Recording| {
+        let seg = Segmentation::new(rec, &SegmentSettings::default());
+        signatures(rec, &seg, &residuals(rec, &baseline))
+    };
+    // constant 0.5 mm sag: released offset 0.5 mm, released set 0
+    let s = sig(&make(0.0, 5e-4));
+    assert!(
+        (s.released_offset_m - 5e-4).abs() < 1e-12,
+        "{}",
+        s.released_offset_m
+    );
+    assert!(s.released_set_m < 1e-12, "{}", s.released_set_m);
+    // plus a 0.3 mm dent of the probed marker after release: the set sees exactly the dent
+    let s = sig(&make(3e-4, 5e-4));
+    let probed = 2.0; // markers 0 and 1 are within the probed radius, marker 2 is not
+    let want = (3e-4f64.powi(2) / probed).sqrt();
+    assert!(
+        (s.released_set_m - want).abs() < 1e-12,
+        "released set {} m, want {want} m",
+        s.released_set_m
+    );
+}
