@@ -72,45 +72,13 @@ impl FaceAnimator {
 
     /// Precompute the shell basis B = −A_FF⁻¹ A_FH (thesis §5.3: u = B u_H) so that every later
     /// [`FaceAnimator::frame`] is one dense n × H product instead of two triangular solves with
-    /// the factor. The linear shell acts on x, y and z alike, so one solve with three
-    /// right-hand sides yields three columns (unit x on handle h, unit y on h + 1, unit z on
-    /// h + 2); the ⌈H/3⌉ solves run in parallel. B is stored in f32 (n × H × 4 bytes): its
-    /// entries are O(1) and rows sum to 1, so a frame is accurate to ~1e-7 of the handle
-    /// displacement; handles themselves are set exactly.
+    /// the factor. The shell acts on x, y and z alike, so B has one column per handle
+    /// ([`LinearShell::basis`]: all H = 41 columns of the marker handles in one block solve, one
+    /// pass over the factor). B is stored in f32 (n × H × 4 bytes): its entries are O(1) and
+    /// rows sum to 1, so a frame is accurate to ~1e-7 of the handle displacement; handles
+    /// themselves are set exactly.
     pub fn precompute_basis(&mut self) -> Result<()> {
-        let h = self.handles.len();
-        let n = self.mesh.vertices.len();
-        let groups: Vec<usize> = (0..h.div_ceil(3)).collect();
-        let columns: Vec<Vec<Vector3<f64>>> = groups
-            .par_iter()
-            .map(|&g| {
-                let mut u_h = vec![Vector3::zeros(); h];
-                for axis in 0..3 {
-                    if let Some(u) = u_h.get_mut(3 * g + axis) {
-                        u[axis] = 1.0;
-                    }
-                }
-                self.shell
-                    .solve(&u_h)
-                    .map_err(|e| FaceError::Factorization {
-                        what: "linear shell basis",
-                        reason: e.to_string(),
-                    })
-            })
-            .collect::<Result<_>>()?;
-        let mut weights = vec![0.0f32; n * h];
-        for (g, u) in columns.iter().enumerate() {
-            for axis in 0..3 {
-                let c = 3 * g + axis;
-                if c >= h {
-                    continue;
-                }
-                for (v, uv) in u.iter().enumerate() {
-                    weights[v * h + c] = uv[axis] as f32;
-                }
-            }
-        }
-        self.basis = Some(ShellBasis { n, h, weights });
+        self.basis = Some(self.shell.basis());
         Ok(())
     }
 

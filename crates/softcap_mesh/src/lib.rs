@@ -76,4 +76,4 @@ pub use triangulate::triangulate_polygon;
 pub use types::{TetMesh, TriMesh};
 pub use validate::{CM_TO_M, MM_TO_M, ValidationSettings};
 pub mod shell;
-pub use shell::{LinearShell, ShellBasis, ShellError, ShellSettings};
+pub use shell::{LinearShell, ShellBasis, ShellError, ShellOrdering, ShellSettings};

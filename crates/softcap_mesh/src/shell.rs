@@ -28,12 +28,10 @@
 //! thesis values for faces modelled in centimetres.
 
 use crate::types::TriMesh;
-use faer::linalg::solvers::Solve;
-use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
+use faer::sparse::{SparseColMat, SparseColMatRef};
 use faer::{Mat, Side};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 
 /// Errors of the linear shell.
 #[derive(Debug, thiserror::Error)]
@@ -131,7 +129,7 @@ pub struct LinearShell {
     free: Vec<usize>,
     /// `A_FH` as (free row, handle column, value), sorted by handle column
     a_fh: Vec<(usize, usize, f64)>,
-    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
+    llt: Factor,
 }
 
 impl std::fmt::Debug for LinearShell {
@@ -233,11 +231,29 @@ impl LinearShell {
     ///
     /// `laplacian` is the symmetric cotangent matrix with negative diagonal (see module docs),
     /// `vertex_areas` the Voronoi areas (diagonal of `M`), `handles` the constrained vertices.
+    /// The fill-reducing ordering is [`ShellOrdering::Auto`].
     pub fn new(
         laplacian: SparseColMatRef<'_, usize, f64>,
         vertex_areas: &[f64],
         handles: &[usize],
         settings: &ShellSettings,
+    ) -> Result<Self, ShellError> {
+        Self::with_ordering(
+            laplacian,
+            vertex_areas,
+            handles,
+            settings,
+            ShellOrdering::Auto,
+        )
+    }
+
+    /// [`LinearShell::new`] with an explicit fill-reducing ordering of the Cholesky factor.
+    pub fn with_ordering(
+        laplacian: SparseColMatRef<'_, usize, f64>,
+        vertex_areas: &[f64],
+        handles: &[usize],
+        settings: &ShellSettings,
+        ordering: ShellOrdering,
     ) -> Result<Self, ShellError> {
         let n = vertex_areas.len();
         if laplacian.nrows() != n || laplacian.ncols() != n {
@@ -288,50 +304,62 @@ impl LinearShell {
         }
         check_components(&rows, &free_index)?;
 
-        // A = −k_s L + k_b Σ_k L_ik L_kj / m_k, accumulated row by row.
-        let mut a_rows: Vec<BTreeMap<usize, f64>> = vec![BTreeMap::new(); n];
-        for i in 0..n {
-            let acc = &mut a_rows[i];
-            for &(k, l_ik) in &rows[i] {
-                *acc.entry(k).or_insert(0.0) -= k_s * l_ik;
-                if k_b != 0.0 {
-                    let s = k_b * l_ik / vertex_areas[k];
-                    for &(j, l_kj) in &rows[k] {
-                        *acc.entry(j).or_insert(0.0) += s * l_kj;
-                    }
-                }
-            }
-        }
-
+        // A = −k_s L + k_b Σ_k L_ik L_kj / m_k, accumulated row by row into a dense scatter
+        // accumulator (Gustavson's sparse product: every entry sums its terms in the order of
+        // k, as a per-row ordered map would, at a fraction of the cost on large meshes). Free
+        // row `fi` keeps its entries with free column `fj ≤ fi`: stored as column `fi` of the
+        // upper triangle (the same symmetric matrix), so A_FF is written directly in CSC.
         let nf = free.len();
-        let mut ff = Vec::new();
-        let mut a_fh = Vec::new();
         let mut handle_col = vec![usize::MAX; n];
         for (c, &v) in handles.iter().enumerate() {
             handle_col[v] = c;
         }
-        for (fi, &v) in free.iter().enumerate() {
-            for (&j, &val) in &a_rows[v] {
-                let fj = free_index[j];
-                if fj == usize::MAX {
-                    a_fh.push((fi, handle_col[j], val));
-                } else if fj <= fi {
-                    // lower triangle (row ≥ column) of the symmetric A_FF
-                    ff.push(Triplet::new(fi, fj, val));
+        let mut acc = vec![0.0f64; n];
+        let mut touched_at = vec![usize::MAX; n];
+        let mut touched: Vec<usize> = Vec::new();
+        let mut col_ptr: Vec<usize> = Vec::with_capacity(nf + 1);
+        col_ptr.push(0);
+        let mut row_idx: Vec<usize> = Vec::new();
+        let mut values: Vec<f64> = Vec::new();
+        let mut a_fh = Vec::new();
+        for (fi, &i) in free.iter().enumerate() {
+            touched.clear();
+            let mut touch = |j: usize, touched: &mut Vec<usize>, acc: &mut [f64]| {
+                if touched_at[j] != i {
+                    touched_at[j] = i;
+                    acc[j] = 0.0;
+                    touched.push(j);
+                }
+            };
+            for &(k, l_ik) in &rows[i] {
+                touch(k, &mut touched, &mut acc);
+                acc[k] -= k_s * l_ik;
+                if k_b != 0.0 {
+                    let s = k_b * l_ik / vertex_areas[k];
+                    for &(j, l_kj) in &rows[k] {
+                        touch(j, &mut touched, &mut acc);
+                        acc[j] += s * l_kj;
+                    }
                 }
             }
+            touched.sort_unstable();
+            for &j in &touched {
+                let fj = free_index[j];
+                if fj == usize::MAX {
+                    a_fh.push((fi, handle_col[j], acc[j]));
+                } else if fj <= fi {
+                    row_idx.push(fj);
+                    values.push(acc[j]);
+                }
+            }
+            col_ptr.push(row_idx.len());
         }
         a_fh.sort_by_key(|&(r, c, _)| (c, r));
-        let a_ff = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &ff).map_err(|e| {
-            ShellError::Factorization {
-                reason: format!("{e:?}"),
-            }
-        })?;
-        let llt = a_ff
-            .sp_cholesky(Side::Lower)
-            .map_err(|e| ShellError::Factorization {
-                reason: format!("{e:?}"),
-            })?;
+        let a_ff = SparseColMat::<usize, f64>::new(
+            faer::sparse::SymbolicSparseColMat::new_checked(nf, nf, col_ptr, None, row_idx),
+            values,
+        );
+        let llt = factor_upper(a_ff, ordering)?;
         Ok(Self {
             n,
             handles: handles.to_vec(),
@@ -395,14 +423,16 @@ impl LinearShell {
     }
 
     /// The basis `B = −A_FF⁻¹ A_FH` (thesis §5.3): one solve per handle column, computed in
-    /// column blocks so peak memory stays at `n_free × 16` doubles; handle rows are unit vectors.
+    /// column blocks of up to 48 right-hand sides (one pass over the factor serves a whole
+    /// block: the supernodal triangular solves become dense block operations), so peak memory
+    /// stays at `n_free × 48` doubles; handle rows are unit vectors.
     pub fn basis(&self) -> ShellBasis {
         let h = self.handles.len();
         let mut weights = vec![0.0f32; self.n * h];
         for (c, &v) in self.handles.iter().enumerate() {
             weights[v * h + c] = 1.0;
         }
-        const COLS: usize = 16;
+        const COLS: usize = 48;
         let mut start = 0;
         let mut entry = 0;
         while start < h {
@@ -428,10 +458,291 @@ impl LinearShell {
         }
     }
 
+    /// Nonzeros of the Cholesky factor `L` (fill of the chosen ordering).
+    pub fn factor_nonzeros(&self) -> usize {
+        self.llt.len()
+    }
+
     /// Whether vertex `v` is a handle.
     pub fn is_handle(&self, v: usize) -> bool {
         self.free_index[v] == usize::MAX
     }
+}
+
+/// With [`ShellOrdering::Auto`], systems with at least this many free vertices are ordered by
+/// [`nested_dissection`], smaller ones by faer's approximate minimum degree (AMD).
+pub const NESTED_DISSECTION_MIN_VERTICES: usize = 20_000;
+
+/// Fill-reducing ordering of the shell's sparse Cholesky factor.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ShellOrdering {
+    /// AMD below [`NESTED_DISSECTION_MIN_VERTICES`] free vertices, nested dissection above.
+    #[default]
+    Auto,
+    /// faer's approximate minimum degree.
+    Amd,
+    /// [`nested_dissection`] of the matrix graph.
+    NestedDissection,
+}
+
+/// Numeric sparse Cholesky factor `P A Pᵀ = L Lᵀ` (faer's low-level API, so that the
+/// fill-reducing ordering can be chosen).
+struct Factor {
+    symbolic: faer::sparse::linalg::cholesky::SymbolicCholesky<usize>,
+    values: Vec<f64>,
+}
+
+impl Factor {
+    /// `rhs ← A⁻¹ rhs` (forward and backward substitution, all columns in one pass).
+    fn solve_in_place(&self, rhs: faer::MatMut<'_, f64>) {
+        use faer::dyn_stack::{MemBuffer, MemStack};
+        let par = faer::get_global_parallelism();
+        let mut mem = MemBuffer::new(
+            self.symbolic
+                .solve_in_place_scratch::<f64>(rhs.ncols(), par),
+        );
+        faer::sparse::linalg::cholesky::LltRef::new(&self.symbolic, &self.values)
+            .solve_in_place_with_conj(faer::Conj::No, rhs, par, MemStack::new(&mut mem));
+    }
+
+    /// Nonzeros stored in `L`.
+    fn len(&self) -> usize {
+        self.values.len()
+    }
+}
+
+/// Sparse Cholesky of the symmetric matrix given by its upper triangle (CSC): AMD ordering for
+/// small systems, [`nested_dissection`] of the matrix graph for large ones (on the ≈600k-vertex
+/// face the nested-dissection factor has less fill and bigger dense supernodes than AMD's).
+fn factor_upper(
+    a_ff: SparseColMat<usize, f64>,
+    ordering: ShellOrdering,
+) -> Result<Factor, ShellError> {
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::sparse::linalg::cholesky::{SymmetricOrdering, factorize_symbolic_cholesky};
+    let err = |e: &dyn std::fmt::Debug| ShellError::Factorization {
+        reason: format!("{e:?}"),
+    };
+    let n = a_ff.nrows();
+    let nested = match ordering {
+        ShellOrdering::Auto => n >= NESTED_DISSECTION_MIN_VERTICES,
+        ShellOrdering::Amd => false,
+        ShellOrdering::NestedDissection => true,
+    };
+    let perm = if !nested {
+        None
+    } else {
+        let (col_ptr, row_idx) = (a_ff.symbolic().col_ptr(), a_ff.symbolic().row_idx());
+        // symmetric adjacency (both directions, no diagonal)
+        let mut xadj = vec![0usize; n + 1];
+        for j in 0..n {
+            for &i in &row_idx[col_ptr[j]..col_ptr[j + 1]] {
+                if i != j {
+                    xadj[i + 1] += 1;
+                    xadj[j + 1] += 1;
+                }
+            }
+        }
+        for v in 0..n {
+            xadj[v + 1] += xadj[v];
+        }
+        let mut fill = xadj.clone();
+        let mut adj = vec![0usize; xadj[n]];
+        for j in 0..n {
+            for &i in &row_idx[col_ptr[j]..col_ptr[j + 1]] {
+                if i != j {
+                    adj[fill[i]] = j;
+                    fill[i] += 1;
+                    adj[fill[j]] = i;
+                    fill[j] += 1;
+                }
+            }
+        }
+        let fwd = nested_dissection(&xadj, &adj);
+        let mut inv = vec![0usize; n];
+        for (new, &old) in fwd.iter().enumerate() {
+            inv[old] = new;
+        }
+        Some(faer::perm::Perm::new_checked(
+            fwd.into_boxed_slice(),
+            inv.into_boxed_slice(),
+            n,
+        ))
+    };
+    let ordering = match &perm {
+        Some(p) => SymmetricOrdering::Custom(p.as_ref()),
+        None => SymmetricOrdering::Amd,
+    };
+    let symbolic =
+        factorize_symbolic_cholesky(a_ff.symbolic(), Side::Upper, ordering, Default::default())
+            .map_err(|e| err(&e))?;
+    let mut values = Vec::new();
+    values
+        .try_reserve_exact(symbolic.len_val())
+        .map_err(|e| err(&e))?;
+    values.resize(symbolic.len_val(), 0.0);
+    let par = faer::get_global_parallelism();
+    let mut mem =
+        MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
+            .map_err(|e| err(&e))?;
+    symbolic
+        .factorize_numeric_llt::<f64>(
+            &mut values,
+            a_ff.as_ref(),
+            Side::Upper,
+            Default::default(),
+            par,
+            MemStack::new(&mut mem),
+            Default::default(),
+        )
+        .map_err(|e| err(&e))?;
+    Ok(Factor { symbolic, values })
+}
+
+/// Automatic nested dissection of a graph (George & Liu 1978, "An automatic nested dissection
+/// algorithm for irregular finite element problems"): a part is split by the middle level of
+/// a breadth-first level structure rooted at a pseudo-peripheral vertex (a level separates the
+/// levels before it from those after it), trimmed to the vertices that touch the far side; the
+/// two halves are ordered recursively, the separator last. Parts of at most 64 vertices and
+/// disconnected pieces are ordered by themselves. `xadj`/`adj` is the symmetric adjacency in
+/// CSR without self loops. Returns the elimination order (`order[k]` = vertex eliminated k-th).
+pub fn nested_dissection(xadj: &[usize], adj: &[usize]) -> Vec<usize> {
+    const LEAF: usize = 64;
+    let n = xadj.len().saturating_sub(1);
+    let mut order = Vec::with_capacity(n);
+    // part label of each vertex; a part is the set of vertices carrying its label
+    let mut label = vec![0u32; n];
+    let mut next_label = 1u32;
+    let mut level = vec![u32::MAX; n];
+    let mut queue: Vec<usize> = Vec::new();
+    // explicit stack: (vertices of the part, separator to append after the part)
+    enum Task {
+        Split(Vec<usize>),
+        Emit(Vec<usize>),
+    }
+    let mut stack = vec![Task::Split((0..n).collect())];
+    // BFS from `root` inside the part labelled `lab`; returns the visited vertices in BFS
+    // order (levels in `level`)
+    let bfs = |root: usize, lab: u32, label: &[u32], level: &mut [u32], queue: &mut Vec<usize>| {
+        queue.clear();
+        queue.push(root);
+        level[root] = 0;
+        let mut head = 0;
+        while head < queue.len() {
+            let v = queue[head];
+            head += 1;
+            for &w in &adj[xadj[v]..xadj[v + 1]] {
+                if label[w] == lab && level[w] == u32::MAX {
+                    level[w] = level[v] + 1;
+                    queue.push(w);
+                }
+            }
+        }
+    };
+    while let Some(task) = stack.pop() {
+        let part = match task {
+            Task::Emit(sep) => {
+                order.extend(sep);
+                continue;
+            }
+            Task::Split(part) => part,
+        };
+        if part.len() <= LEAF {
+            order.extend(part);
+            continue;
+        }
+        let lab = next_label;
+        next_label += 1;
+        for &v in &part {
+            label[v] = lab;
+        }
+        // pseudo-peripheral root: restart from a minimum-degree vertex of the last level while
+        // the eccentricity grows (at most 4 sweeps)
+        let mut root = part[0];
+        let mut ecc = 0u32;
+        for _ in 0..4 {
+            bfs(root, lab, &label, &mut level, &mut queue);
+            let last = queue.last().map_or(0, |&v| level[v]);
+            let cand = queue
+                .iter()
+                .copied()
+                .filter(|&v| level[v] == last)
+                .min_by_key(|&v| (xadj[v + 1] - xadj[v], v))
+                .unwrap_or(root);
+            for &v in &queue {
+                level[v] = u32::MAX;
+            }
+            if last <= ecc && ecc > 0 {
+                break;
+            }
+            ecc = last;
+            root = cand;
+        }
+        bfs(root, lab, &label, &mut level, &mut queue);
+        let reached = std::mem::take(&mut queue);
+        if reached.len() < part.len() {
+            // disconnected: the reached component and the rest are independent
+            let rest: Vec<usize> = part
+                .iter()
+                .copied()
+                .filter(|&v| level[v] == u32::MAX)
+                .collect();
+            for &v in &reached {
+                level[v] = u32::MAX;
+            }
+            stack.push(Task::Split(rest));
+            stack.push(Task::Split(reached));
+            continue;
+        }
+        let depth = reached.last().map_or(0, |&v| level[v]);
+        if depth < 2 {
+            // (nearly) a clique: no level separates it
+            for &v in &reached {
+                level[v] = u32::MAX;
+            }
+            order.extend(reached);
+            continue;
+        }
+        // middle level: the first whose cumulative size reaches half the part
+        let mut count = vec![0usize; depth as usize + 1];
+        for &v in &reached {
+            count[level[v] as usize] += 1;
+        }
+        let half = reached.len() / 2;
+        let (mut cum, mut mid) = (0usize, 1u32);
+        for (l, &c) in count.iter().enumerate() {
+            cum += c;
+            if cum >= half {
+                mid = (l as u32).clamp(1, depth - 1);
+                break;
+            }
+        }
+        let (mut first, mut second, mut sep) = (Vec::new(), Vec::new(), Vec::new());
+        for &v in &reached {
+            let l = level[v];
+            if l < mid {
+                first.push(v);
+            } else if l > mid {
+                second.push(v);
+            } else if adj[xadj[v]..xadj[v + 1]]
+                .iter()
+                .any(|&w| label[w] == lab && level[w] == mid + 1)
+            {
+                sep.push(v);
+            } else {
+                // touches no vertex of the far side: belongs to the near half
+                first.push(v);
+            }
+        }
+        for &v in &reached {
+            level[v] = u32::MAX;
+        }
+        queue = reached;
+        stack.push(Task::Emit(sep));
+        stack.push(Task::Split(second));
+        stack.push(Task::Split(first));
+    }
+    order
 }
 
 /// Every connected component of the Laplacian's graph must contain a handle.
@@ -466,6 +777,7 @@ fn check_components(rows: &[Vec<(usize, f64)>], free_index: &[usize]) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+    use faer::sparse::Triplet;
 
     /// Path graph with unit spacing: L = second difference (negative semidefinite), M = I.
     fn path_laplacian(n: usize) -> SparseColMat<usize, f64> {
@@ -688,5 +1000,100 @@ mod tests {
         let err = LinearShell::new(lap.as_ref(), &[1.0; 6], &[0, 0], &ShellSettings::default())
             .unwrap_err();
         assert!(matches!(err, ShellError::BadHandle { handle: 1, .. }));
+    }
+
+    /// Nested dissection is a permutation, and the part ordered last (the top separator)
+    /// disconnects the rest of a grid graph.
+    #[test]
+    fn nested_dissection_orders_separators_last() {
+        let n = 30;
+        let mut nbrs = vec![Vec::new(); n * n];
+        for j in 0..n {
+            for i in 0..n {
+                let v = j * n + i;
+                if i + 1 < n {
+                    nbrs[v].push(v + 1);
+                    nbrs[v + 1].push(v);
+                }
+                if j + 1 < n {
+                    nbrs[v].push(v + n);
+                    nbrs[v + n].push(v);
+                }
+            }
+        }
+        let mut xadj = vec![0];
+        let mut adj = Vec::new();
+        for l in &nbrs {
+            adj.extend(l);
+            xadj.push(adj.len());
+        }
+        let order = nested_dissection(&xadj, &adj);
+        let mut seen = vec![false; n * n];
+        for &v in &order {
+            assert!(!seen[v], "vertex {v} twice");
+            seen[v] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
+        // the top separator of a 30×30 grid is one grid line (≤ 2n vertices) and splits it
+        let mut pos = vec![0; n * n];
+        for (k, &v) in order.iter().enumerate() {
+            pos[v] = k;
+        }
+        let removed = |v: usize| pos[v] >= n * n - 2 * n;
+        let mut comp = vec![usize::MAX; n * n];
+        let mut components = 0;
+        for s0 in 0..n * n {
+            if removed(s0) || comp[s0] != usize::MAX {
+                continue;
+            }
+            let mut stack = vec![s0];
+            comp[s0] = components;
+            while let Some(v) = stack.pop() {
+                for &w in &nbrs[v] {
+                    if !removed(w) && comp[w] == usize::MAX {
+                        comp[w] = components;
+                        stack.push(w);
+                    }
+                }
+            }
+            components += 1;
+        }
+        assert!(
+            components >= 2,
+            "the last 2n vertices do not separate the grid"
+        );
+    }
+
+    /// AMD and nested dissection factor the same system: same deformation to round-off; the
+    /// nested-dissection fill is reported.
+    #[test]
+    fn orderings_give_the_same_shell() {
+        let (mesh, handles) = grid(40, 0.25);
+        let lap = crate::laplacian::cotan_laplacian(&mesh);
+        let areas = crate::laplacian::voronoi_areas(&mesh);
+        let uh: Vec<_> = handles
+            .iter()
+            .map(|&v| {
+                let p = mesh.vertices[v];
+                Vector3::new((3.0 * p.x).sin(), p.x * p.y, (2.0 * p.y).cos())
+            })
+            .collect();
+        let mut solutions = Vec::new();
+        for ordering in [ShellOrdering::Amd, ShellOrdering::NestedDissection] {
+            let s = LinearShell::with_ordering(
+                lap.as_ref(),
+                &areas,
+                &handles,
+                &ShellSettings::default(),
+                ordering,
+            )
+            .unwrap();
+            assert!(s.factor_nonzeros() > 0);
+            solutions.push(s.solve(&uh).unwrap());
+        }
+        let scale = solutions[0].iter().map(|u| u.norm()).fold(0.0, f64::max);
+        for (a, b) in solutions[0].iter().zip(&solutions[1]) {
+            assert!((a - b).norm() < 1e-9 * scale.max(1.0), "{a:?} vs {b:?}");
+        }
     }
 }

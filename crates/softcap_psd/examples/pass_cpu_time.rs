@@ -3,11 +3,14 @@
 //! time of this process from `/proc/self/stat` over many repetitions (Linux only).
 //!
 //! `RAYON_NUM_THREADS=1 cargo run --release -p softcap_psd --example pass_cpu_time`
+//! (`PSD_LEVELS` subdivision levels, default 3; `PSD_FRAMES` frames of the subdivided face,
+//! default 10; `PSD_ONLY_FRAMES=1` skips the per-pass timings, e.g. for `/usr/bin/time` over
+//! two frame counts).
 
 use softcap_psd::runtime::{self, LANES};
 use softcap_psd::{
-    Animator, EvaluationSettings, FaceRig, FitMode, IctData, RigSettings, fit_wpsd, pose_sets,
-    subdivide_rig,
+    Animator, EvaluationSettings, FaceRig, FitMode, IctData, RigSettings, RuntimeSettings,
+    fit_wpsd, pose_sets, subdivide_rig,
 };
 use std::path::PathBuf;
 use std::time::Instant;
@@ -63,7 +66,11 @@ fn main() {
             subdivide_rig(&rig, &model, level, &settings.edge_weights)
         };
         let t = Instant::now();
-        let mut anim = Animator::new(&r, &m).expect("animator");
+        let settings = RuntimeSettings {
+            reorder: std::env::var("PSD_REORDER").map_or(true, |v| v != "0"),
+            ..Default::default()
+        };
+        let mut anim = Animator::with_settings(&r, &m, &settings).expect("animator");
         let n = r.num_vertices();
         println!(
             "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame",
@@ -72,7 +79,14 @@ fn main() {
             anim.layout.bytes_per_frame() as f64 / 1e6
         );
         let reps = if n > 100_000 { 10 } else { 200 };
+        let reps = std::env::var("PSD_FRAMES")
+            .ok()
+            .and_then(|s| s.parse::<usize>().ok())
+            .map_or(reps, |f| if n > 100_000 { f } else { 20 * f });
         time("frame", reps, || anim.frame(&hp).expect("frame"));
+        if std::env::var_os("PSD_ONLY_FRAMES").is_some() {
+            continue;
+        }
         let layout = &anim.layout;
         let uh: Vec<[f32; 3]> = r
             .handles

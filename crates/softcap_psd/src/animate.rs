@@ -333,7 +333,7 @@ pub fn animate_to_mcap(
         if settings.large_scale {
             meshes.push((
                 &large_topic,
-                mesh_message("large_scale", animator.large_scale_positions(), tris, k),
+                mesh_message("large_scale", &animator.large_scale_positions(), tris, k),
             ));
         }
         for (topic, m) in &meshes {

@@ -62,11 +62,11 @@ impl Topology {
     }
 }
 
-#[inline]
+#[inline(always)]
 pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
-#[inline]
+#[inline(always)]
 pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
@@ -74,15 +74,16 @@ pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
         a[0] * b[1] - a[1] * b[0],
     ]
 }
-#[inline]
+#[inline(always)]
 pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
-#[inline]
+#[inline(always)]
 pub(crate) fn normalize(a: [f32; 3], fallback: [f32; 3]) -> [f32; 3] {
     let l = dot(a, a).sqrt();
     if l > 1e-20 {
-        [a[0] / l, a[1] / l, a[2] / l]
+        let inv = 1.0 / l;
+        [a[0] * inv, a[1] * inv, a[2] * inv]
     } else {
         fallback
     }
@@ -141,7 +142,7 @@ pub fn local_frame(
 /// Orthonormal frame `[t, b, n]` from a unit normal `n` and an edge `e` to the reference
 /// neighbour: `t = normalize(e − (e·n) n)` (any axis not parallel to `n` if `e ∥ n` or `e = 0`),
 /// `b = n × t`. Shared by [`local_frame`] and the run-time detail pass.
-#[inline]
+#[inline(always)]
 pub(crate) fn frame_from_edge(e: [f32; 3], normal: [f32; 3]) -> [[f32; 3]; 3] {
     let d = dot(e, normal);
     let tp = [

@@ -221,6 +221,7 @@ pub struct Animator<'a> {
     /// Final unit normals of the last frame.
     pub normals: Vec<[f32; 3]>,
     large: Vec<[f32; 3]>,
+    work: Vec<[f32; 3]>,
     features: Vec<f64>,
     table: Vec<[f32; runtime::LANES]>,
     global_r: Vec<f32>,
@@ -249,6 +250,7 @@ impl<'a> Animator<'a> {
             positions: vec![[0.0; 3]; n],
             normals: vec![[0.0; 3]; n],
             large: vec![[0.0; 3]; n],
+            work: vec![[0.0; 3]; n],
             features: vec![0.0; rig.graph.len()],
             table: Vec::with_capacity(rig.graph.len() * p.div_ceil(runtime::LANES)),
             global_r: vec![0.0; p],
@@ -266,9 +268,9 @@ impl<'a> Animator<'a> {
         self.model
     }
 
-    /// Large-scale positions of the last frame (before details).
-    pub fn large_scale_positions(&self) -> &[[f32; 3]] {
-        &self.large
+    /// Large-scale positions of the last frame (before details), in mesh order.
+    pub fn large_scale_positions(&self) -> Vec<[f32; 3]> {
+        runtime::to_mesh_order(&self.layout, &self.large)
     }
 
     /// Synthesize one frame from handle positions (`H` entries).
@@ -304,9 +306,14 @@ impl<'a> Animator<'a> {
             &self.large,
             &self.table,
             global.then_some(&self.global_r[..]),
-            &mut self.positions,
+            &mut self.work,
         );
-        runtime::normal_pass(&self.layout, &self.positions, &mut self.normals);
+        runtime::normal_pass_to_mesh_order(
+            &self.layout,
+            &self.work,
+            &mut self.positions,
+            &mut self.normals,
+        );
         Ok(())
     }
 }

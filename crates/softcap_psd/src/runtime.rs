@@ -48,14 +48,62 @@ pub struct RuntimeSettings {
     /// every vertex is at most `basis_tolerance · ‖u_H − ū‖₂` (Cauchy–Schwarz). `0` keeps full
     /// rank (exact up to f32 rounding).
     pub basis_tolerance: f64,
+    /// Store the run-time data in a locality order ([`morton_order`] of the rest positions)
+    /// instead of the mesh's vertex order: one-ring gathers then hit nearby memory and every
+    /// low-rank block is a compact surface patch (lower rank). Outputs stay in mesh order.
+    pub reorder: bool,
 }
 
 impl Default for RuntimeSettings {
     fn default() -> Self {
         Self {
             basis_tolerance: 1e-5,
+            reorder: true,
         }
     }
+}
+
+/// Vertex order along a Morton (Z-order) curve of the positions (10 bits per axis over the
+/// bounding box; ties by index): `order[k]` is the vertex stored `k`-th. Space-filling-curve
+/// orders keep surface neighbours close in memory.
+pub fn morton_order(positions: &[[f32; 3]]) -> Vec<u32> {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in positions {
+        for a in 0..3 {
+            if p[a].is_finite() {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+    }
+    let spread = |x: u32| -> u32 {
+        // insert two zero bits between the 10 low bits of x
+        let mut x = x & 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    let codes: Vec<u32> = positions
+        .iter()
+        .map(|p| {
+            let mut code = 0;
+            for a in 0..3 {
+                let extent = hi[a] - lo[a];
+                let t = if extent > 0.0 && p[a].is_finite() {
+                    ((p[a] - lo[a]) / extent * 1023.0).clamp(0.0, 1023.0) as u32
+                } else {
+                    0
+                };
+                code |= spread(t) << a;
+            }
+            code
+        })
+        .collect();
+    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+    order.sort_unstable_by_key(|&v| (codes[v as usize], v));
+    order
 }
 
 /// Block low-rank shell basis: per block of [`LOW_RANK_BLOCK`] vertices `B_b P ≈ U_b C_b`.
@@ -69,7 +117,8 @@ pub struct LowRankBasis {
     pub ranks: Vec<u32>,
     /// Start of each block's `C_b` (`k_b × H`, row-major) in `coeffs`; length blocks + 1.
     pub coeff_offsets: Vec<usize>,
-    /// Start of each block's `U_b` (`m_b × k_b`, vertex-major) in `factors`; length blocks + 1.
+    /// Start of each block's `U_b` (stored rank-major, `k_b × m_b`: column `q` of `U_b` is
+    /// contiguous) in `factors`; length blocks + 1.
     pub factor_offsets: Vec<usize>,
     /// All `C_b`.
     pub coeffs: Vec<f32>,
@@ -81,7 +130,14 @@ impl LowRankBasis {
     /// Compress `basis` block by block (see the module docs; `tolerance` as in
     /// [`RuntimeSettings::basis_tolerance`]).
     pub fn new(basis: &ShellBasis, tolerance: f64) -> Self {
+        Self::with_order(basis, tolerance, None)
+    }
+
+    /// [`LowRankBasis::new`] over the rows of `basis` taken in `order` (`order[k]` = the
+    /// vertex stored `k`-th; `None` = mesh order).
+    pub fn with_order(basis: &ShellBasis, tolerance: f64, order: Option<&[u32]>) -> Self {
         let (n, h) = (basis.n, basis.h);
+        let row_of = |k: usize| order.map_or(k, |o| o[k] as usize);
         let blocks = n.div_ceil(LOW_RANK_BLOCK);
         let parts: Vec<(u32, Vec<f32>, Vec<f32>)> = (0..blocks)
             .into_par_iter()
@@ -90,7 +146,7 @@ impl LowRankBasis {
                 let m = rows.len();
                 // translation-free part B_b P: subtract each row's mean
                 let block = DMatrix::<f64>::from_fn(m, h, |i, j| {
-                    let row = basis.row(rows.start + i);
+                    let row = basis.row(row_of(rows.start + i));
                     let mean = row.iter().map(|&w| w as f64).sum::<f64>() / h as f64;
                     row[j] as f64 - mean
                 });
@@ -134,8 +190,9 @@ impl LowRankBasis {
                     .flat_map(|j| (0..h).map(move |i| (i, j)))
                     .map(|(i, j)| vk[(i, j)] as f32)
                     .collect();
-                let factors: Vec<f32> = (0..m)
-                    .flat_map(|i| (0..k).map(move |j| (i, j)))
+                // rank-major (k × m): the run-time loop runs over vertices in SIMD lanes
+                let factors: Vec<f32> = (0..k)
+                    .flat_map(|j| (0..m).map(move |i| (i, j)))
                     .map(|(i, j)| u[(i, j)] as f32)
                     .collect();
                 (k as u32, coeffs, factors)
@@ -229,42 +286,41 @@ impl Fans {
         }
     }
 
+    /// The same fans stored in the locality order `order` (`order[k]` = old vertex stored
+    /// `k`-th, `rank` its inverse): rows moved, neighbour ids renumbered.
+    pub fn permuted(&self, order: &[u32], rank: &[u32]) -> Self {
+        let mut offsets = Vec::with_capacity(order.len() + 1);
+        offsets.push(0u32);
+        let mut neighbours = Vec::with_capacity(self.neighbours.len());
+        for &v in order {
+            let v = v as usize;
+            neighbours.extend(
+                self.neighbours[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+                    .iter()
+                    .map(|&w| rank[w as usize]),
+            );
+            offsets.push(neighbours.len() as u32);
+        }
+        Self {
+            offsets,
+            neighbours,
+            kinds: order.iter().map(|&v| self.kinds[v as usize]).collect(),
+            reference: order
+                .iter()
+                .map(|&v| rank[self.reference[v as usize] as usize])
+                .collect(),
+        }
+    }
+
     /// Unit normal of vertex `v` of `positions`: normalised area-weighted sum of the incident
     /// face normals (`[0, 0, 1]` if degenerate).
     #[inline]
     pub fn normal(&self, positions: &[[f32; 3]], v: usize) -> [f32; 3] {
-        let p = positions[v];
         let ids = &self.neighbours[self.offsets[v] as usize..self.offsets[v + 1] as usize];
-        let mut s = [0.0f32; 3];
-        let mut add = |a: [f32; 3], b: [f32; 3]| {
-            let c = cross(a, b);
-            s = [s[0] + c[0], s[1] + c[1], s[2] + c[2]];
-        };
-        match self.kinds[v] {
-            FanKind::Pairs => {
-                for ab in ids.chunks_exact(2) {
-                    add(
-                        sub(positions[ab[0] as usize], p),
-                        sub(positions[ab[1] as usize], p),
-                    );
-                }
-            }
-            kind => {
-                if let Some((&first, rest)) = ids.split_first() {
-                    let e0 = sub(positions[first as usize], p);
-                    let mut prev = e0;
-                    for &i in rest {
-                        let e = sub(positions[i as usize], p);
-                        add(prev, e);
-                        prev = e;
-                    }
-                    if kind == FanKind::Closed {
-                        add(prev, e0);
-                    }
-                }
-            }
-        }
-        normalize(s, [0.0, 0.0, 1.0])
+        normalize(
+            fan_normal_sum(positions, ids, self.kinds[v], positions[v]),
+            [0.0, 0.0, 1.0],
+        )
     }
 }
 
@@ -324,6 +380,11 @@ pub struct RuntimeLayout {
     pub alphas: Vec<f32>,
     /// `n × 3P` RBF weights (pose-major per vertex: `w[3j + axis]`).
     pub detail_weights: Vec<f32>,
+    /// Locality order (`order[k]` = mesh vertex stored `k`-th) when
+    /// [`RuntimeSettings::reorder`] is on; every per-vertex array above is in this order.
+    pub order: Option<Vec<u32>>,
+    /// Inverse of `order` (`rank[v]` = storage index of mesh vertex `v`).
+    pub rank: Option<Vec<u32>>,
 }
 
 impl RuntimeLayout {
@@ -354,15 +415,45 @@ impl RuntimeLayout {
             Metric::Weighted(ew) => (ew.width, ew.edges.clone(), ew.alphas.clone()),
             Metric::Global => (0, Vec::new(), Vec::new()),
         };
+        let p3 = 3 * model.num_poses();
+        let fans = Fans::new(&rig.topology);
+        if !settings.reorder {
+            return Ok(Self {
+                rest: rig.rest_f32.clone(),
+                basis: LowRankBasis::new(&rig.basis, settings.basis_tolerance),
+                fans,
+                poses: model.num_poses(),
+                width,
+                edges,
+                alphas,
+                detail_weights: model.weights.clone(),
+                order: None,
+                rank: None,
+            });
+        }
+        let order = morton_order(&rig.rest_f32);
+        let mut rank = vec![0u32; n];
+        for (k, &v) in order.iter().enumerate() {
+            rank[v as usize] = k as u32;
+        }
+        fn rows<T: Copy>(src: &[T], width: usize, order: &[u32]) -> Vec<T> {
+            order
+                .iter()
+                .flat_map(|&v| &src[v as usize * width..(v as usize + 1) * width])
+                .copied()
+                .collect()
+        }
         Ok(Self {
-            rest: rig.rest_f32.clone(),
-            basis: LowRankBasis::new(&rig.basis, settings.basis_tolerance),
-            fans: Fans::new(&rig.topology),
+            rest: rows(&rig.rest_f32, 1, &order),
+            basis: LowRankBasis::with_order(&rig.basis, settings.basis_tolerance, Some(&order)),
+            fans: fans.permuted(&order, &rank),
             poses: model.num_poses(),
             width,
-            edges,
-            alphas,
-            detail_weights: model.weights.clone(),
+            edges: rows(&edges, width, &order),
+            alphas: rows(&alphas, width, &order),
+            detail_weights: rows(&model.weights, p3, &order),
+            order: Some(order),
+            rank: Some(rank),
         })
     }
 
@@ -378,7 +469,8 @@ impl RuntimeLayout {
         let basis = self.basis.bytes() + n * 24; // rest in, large out
         let fans = 2 * (self.fans.neighbours.len() * 4 + n * 5) + n * 4; // + reference
         let detail = self.edges.len() * 2 + self.alphas.len() * 4 + self.detail_weights.len() * 4;
-        basis + fans + detail + n * 12 /* large in */ + n * 24 /* positions, normals out */
+        let unpermute = if self.rank.is_some() { n * 4 } else { 0 };
+        basis + fans + detail + unpermute + n * 12 /* large in */ + n * 24 /* positions, normals out */
     }
 }
 
@@ -398,11 +490,102 @@ pub fn feature_table(model: &DetailModel, features: &[f64], table: &mut Vec<[f32
     }
 }
 
+/// The three run-time kernels as [`pulp::WithSimd`] operations: `pulp::Arch::new().dispatch`
+/// runs them with the widest SIMD instruction set this CPU offers (AVX2 + FMA on x86-64,
+/// detected at run time; the portable baseline otherwise). `with_simd` and the kernel bodies
+/// are `#[inline(always)]`, so the plain-Rust loops over fixed-size arrays and contiguous
+/// slices are compiled — and vectorized — inside the target-feature function. No `mul_add`
+/// is used, so every path gives the same bits.
+enum Kernel<'a, const NC: usize> {
+    Large {
+        layout: &'a RuntimeLayout,
+        blk: usize,
+        centred: &'a [[f32; 4]],
+        mean: [f32; 3],
+        chunk: &'a mut [[f32; 3]],
+        scratch: &'a mut LargeScratch,
+    },
+    Detail {
+        layout: &'a RuntimeLayout,
+        large: &'a [[f32; 3]],
+        table: &'a [[f32; LANES]],
+        global_r: Option<&'a [f32]>,
+        first: usize,
+        chunk: &'a mut [[f32; 3]],
+    },
+    Normals {
+        layout: &'a RuntimeLayout,
+        positions: &'a [[f32; 3]],
+        first: usize,
+        chunk: &'a mut [[f32; 3]],
+    },
+    NormalsToMesh {
+        layout: &'a RuntimeLayout,
+        work: &'a [[f32; 3]],
+        rank: &'a [u32],
+        normals: &'a mut [[f32; 3]],
+        positions: &'a mut [[f32; 3]],
+    },
+}
+
+impl<const NC: usize> pulp::WithSimd for Kernel<'_, NC> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        match self {
+            Kernel::Large {
+                layout,
+                blk,
+                centred,
+                mean,
+                chunk,
+                scratch,
+            } => large_block(layout, blk, centred, mean, chunk, scratch),
+            Kernel::Detail {
+                layout,
+                large,
+                table,
+                global_r,
+                first,
+                chunk,
+            } => detail_block::<NC>(layout, large, table, global_r, first, chunk),
+            Kernel::Normals {
+                layout,
+                positions,
+                first,
+                chunk,
+            } => normals_block(layout, positions, first, chunk),
+            Kernel::NormalsToMesh {
+                layout,
+                work,
+                rank,
+                normals,
+                positions,
+            } => normals_to_mesh_block(layout, work, rank, normals, positions),
+        }
+    }
+}
+
+#[inline(always)]
+fn dispatch<const NC: usize>(kernel: Kernel<'_, NC>) {
+    pulp::Arch::new().dispatch(kernel)
+}
+
+/// Per-thread scratch of the large-scale pass: `c_b = C_b ũ` and the three coordinate
+/// accumulators of one block.
+#[derive(Default)]
+struct LargeScratch {
+    c: Vec<[f32; 4]>,
+    acc: [Vec<f32>; 3],
+}
+
 /// Pass 1 (thesis §5.3 large-scale kernel): `x_v = x0_v + ū + Σ_k U_b[v,k] (C_b ũ)_k` per
-/// low-rank block, `u_H` the handle displacements.
+/// low-rank block, `u_H` the handle displacements. `U_b` is rank-major, so the inner loop runs
+/// over the block's vertices in SIMD lanes (three multiply-adds per 8 vertices and rank).
 pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f32; 3]]) {
     let b = &layout.basis;
     assert_eq!(uh.len(), b.h, "one displacement per handle");
+    assert_eq!(large.len(), b.n, "one output per vertex");
     let mut mean = [0.0f64; 3];
     for u in uh {
         for a in 0..3 {
@@ -417,42 +600,65 @@ pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f
     large
         .par_chunks_mut(LOW_RANK_BLOCK)
         .enumerate()
-        .for_each_init(Vec::new, |c, (blk, chunk)| {
-            let k = b.ranks[blk] as usize;
-            let coeffs = &b.coeffs[b.coeff_offsets[blk]..b.coeff_offsets[blk + 1]];
-            c.clear();
-            c.extend(coeffs.chunks_exact(b.h).map(|row| {
-                let mut s = [0.0f32; 4];
-                for (&w, u) in row.iter().zip(&centred) {
-                    for a in 0..4 {
-                        s[a] += w * u[a];
-                    }
-                }
-                s
-            }));
-            let factors = &b.factors[b.factor_offsets[blk]..b.factor_offsets[blk + 1]];
-            let first = blk * LOW_RANK_BLOCK;
-            let rest = &layout.rest[first..first + chunk.len()];
-            if k == 0 {
-                for (o, x0) in chunk.iter_mut().zip(rest) {
-                    *o = [x0[0] + mean[0], x0[1] + mean[1], x0[2] + mean[2]];
-                }
-                return;
-            }
-            for ((o, x0), urow) in chunk.iter_mut().zip(rest).zip(factors.chunks_exact(k)) {
-                let mut s = [0.0f32; 4];
-                for (&w, ck) in urow.iter().zip(c.iter()) {
-                    for a in 0..4 {
-                        s[a] += w * ck[a];
-                    }
-                }
-                *o = [
-                    x0[0] + mean[0] + s[0],
-                    x0[1] + mean[1] + s[1],
-                    x0[2] + mean[2] + s[2],
-                ];
-            }
+        .for_each_init(LargeScratch::default, |s, (blk, chunk)| {
+            dispatch::<1>(Kernel::Large {
+                layout,
+                blk,
+                centred: &centred,
+                mean,
+                chunk,
+                scratch: s,
+            })
         });
+}
+
+#[inline(always)]
+fn large_block(
+    layout: &RuntimeLayout,
+    blk: usize,
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    chunk: &mut [[f32; 3]],
+    s: &mut LargeScratch,
+) {
+    let b = &layout.basis;
+    let m = chunk.len();
+    let first = blk * LOW_RANK_BLOCK;
+    let rest = &layout.rest[first..first + m];
+    let coeffs = &b.coeffs[b.coeff_offsets[blk]..b.coeff_offsets[blk + 1]];
+    s.c.clear();
+    s.c.extend(coeffs.chunks_exact(b.h).map(|row| {
+        let mut acc = [0.0f32; 4];
+        for (&w, u) in row.iter().zip(centred) {
+            for a in 0..4 {
+                acc[a] += w * u[a];
+            }
+        }
+        acc
+    }));
+    let [ax, ay, az] = &mut s.acc;
+    for acc in [&mut *ax, &mut *ay, &mut *az] {
+        acc.clear();
+        acc.resize(m, 0.0);
+    }
+    let (ax, ay, az) = (&mut ax[..m], &mut ay[..m], &mut az[..m]);
+    let factors = &b.factors[b.factor_offsets[blk]..b.factor_offsets[blk + 1]];
+    for (col, c) in factors.chunks_exact(m).zip(&s.c) {
+        let col = &col[..m];
+        let [cx, cy, cz, _] = *c;
+        for i in 0..m {
+            ax[i] += col[i] * cx;
+            ay[i] += col[i] * cy;
+            az[i] += col[i] * cz;
+        }
+    }
+    for (i, (o, x0)) in chunk.iter_mut().zip(rest).enumerate() {
+        *o = [
+            x0[0] + mean[0] + ax[i],
+            x0[1] + mean[1] + ay[i],
+            x0[2] + mean[2] + az[i],
+        ];
+    }
 }
 
 /// Pass 2 (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5): per vertex the large-scale normal and
@@ -475,6 +681,41 @@ pub fn detail_pass(
     }
 }
 
+/// Unnormalised normal of a one-ring fan around `p`: `Σ_i (p_i − p) × (p_{i+1} − p)`.
+#[inline(always)]
+fn fan_normal_sum(positions: &[[f32; 3]], ids: &[u32], kind: FanKind, p: [f32; 3]) -> [f32; 3] {
+    let mut s = [0.0f32; 3];
+    let mut add = |a: [f32; 3], b: [f32; 3]| {
+        let c = cross(a, b);
+        s = [s[0] + c[0], s[1] + c[1], s[2] + c[2]];
+    };
+    match kind {
+        FanKind::Pairs => {
+            for ab in ids.chunks_exact(2) {
+                add(
+                    sub(positions[ab[0] as usize], p),
+                    sub(positions[ab[1] as usize], p),
+                );
+            }
+        }
+        kind => {
+            if let Some((&first, rest)) = ids.split_first() {
+                let e0 = sub(positions[first as usize], p);
+                let mut prev = e0;
+                for &i in rest {
+                    let e = sub(positions[i as usize], p);
+                    add(prev, e);
+                    prev = e;
+                }
+                if kind == FanKind::Closed {
+                    add(prev, e0);
+                }
+            }
+        }
+    }
+    s
+}
+
 fn detail_pass_lanes<const NC: usize>(
     layout: &RuntimeLayout,
     large: &[[f32; 3]],
@@ -489,69 +730,221 @@ fn detail_pass_lanes<const NC: usize>(
         "at most {MAX_POSES} basis poses"
     );
     assert!(global_r.is_some() || table.len() >= layout.width.min(1) * nc);
-    let width = layout.width;
-    let fans = &layout.fans;
+    assert_eq!(
+        large.len(),
+        layout.num_vertices(),
+        "one large-scale position per vertex"
+    );
+    assert_eq!(
+        positions.len(),
+        layout.num_vertices(),
+        "one output per vertex"
+    );
     positions
         .par_chunks_mut(BLOCK)
         .enumerate()
         .for_each(|(blk, chunk)| {
-            let first = blk * BLOCK;
-            let mut r = [[0.0f32; LANES]; NC];
-            if let Some(gr) = global_r {
-                for (j, &x) in gr.iter().enumerate().take(p) {
-                    r[j / LANES][j % LANES] = x;
-                }
-            }
-            for (k, o) in chunk.iter_mut().enumerate() {
-                let v = first + k;
-                let xl = large[v];
-                let n = fans.normal(large, v);
-                let [t, bt, n] = frame_from_edge(sub(large[fans.reference[v] as usize], xl), n);
-                if global_r.is_none() {
-                    r = [[0.0; LANES]; NC];
-                    let ids = &layout.edges[v * width..(v + 1) * width];
-                    let al = &layout.alphas[v * width..(v + 1) * width];
-                    for (&i, &a) in ids.iter().zip(al) {
-                        let row = &table[i as usize * nc..i as usize * nc + nc];
-                        for (rc, gc) in r.iter_mut().zip(row) {
-                            for l in 0..LANES {
-                                rc[l] += a * gc[l];
-                            }
-                        }
-                    }
-                    for rc in r.iter_mut().take(nc) {
-                        for x in rc.iter_mut() {
-                            *x = x.sqrt();
-                        }
-                    }
-                }
-                let w = &layout.detail_weights[v * 3 * p..(v + 1) * 3 * p];
-                let mut d = [0.0f32; 3];
-                for (j, wj) in w.chunks_exact(3).enumerate() {
-                    let rj = r[j / LANES][j % LANES];
-                    d[0] += wj[0] * rj;
-                    d[1] += wj[1] * rj;
-                    d[2] += wj[2] * rj;
-                }
-                *o = [
-                    xl[0] + d[0] * t[0] + d[1] * bt[0] + d[2] * n[0],
-                    xl[1] + d[0] * t[1] + d[1] * bt[1] + d[2] * n[1],
-                    xl[2] + d[0] * t[2] + d[1] * bt[2] + d[2] * n[2],
-                ];
-            }
+            dispatch::<NC>(Kernel::Detail {
+                layout,
+                large,
+                table,
+                global_r,
+                first: blk * BLOCK,
+                chunk,
+            })
         });
+}
+
+#[inline(always)]
+fn detail_block<const NC: usize>(
+    layout: &RuntimeLayout,
+    large: &[[f32; 3]],
+    table: &[[f32; LANES]],
+    global_r: Option<&[f32]>,
+    first: usize,
+    chunk: &mut [[f32; 3]],
+) {
+    let p = layout.poses;
+    let nc = p.div_ceil(LANES);
+    let width = layout.width;
+    let fans = &layout.fans;
+    let m = chunk.len();
+    let mut r = [[0.0f32; LANES]; NC];
+    if let Some(gr) = global_r {
+        for (j, &x) in gr.iter().enumerate().take(p) {
+            r[j / LANES][j % LANES] = x;
+        }
+    }
+    let offsets = &fans.offsets[first..first + m + 1];
+    let kinds = &fans.kinds[first..first + m];
+    let reference = &fans.reference[first..first + m];
+    let xl_block = &large[first..first + m];
+    let weights = &layout.detail_weights[first * 3 * p..(first + m) * 3 * p];
+    let (edges, alphas) = if global_r.is_none() {
+        (
+            &layout.edges[first * width..(first + m) * width],
+            &layout.alphas[first * width..(first + m) * width],
+        )
+    } else {
+        (&layout.edges[..0], &layout.alphas[..0])
+    };
+    for (k, o) in chunk.iter_mut().enumerate() {
+        let xl = xl_block[k];
+        let ids = &fans.neighbours[offsets[k] as usize..offsets[k + 1] as usize];
+        let n = normalize(fan_normal_sum(large, ids, kinds[k], xl), [0.0, 0.0, 1.0]);
+        let [t, bt, n] = frame_from_edge(sub(large[reference[k] as usize], xl), n);
+        if global_r.is_none() && NC == 1 {
+            // P ≤ 8: one 8-lane accumulator in registers, one table row per edge
+            let ids = &edges[k * width..(k + 1) * width];
+            let al = &alphas[k * width..(k + 1) * width];
+            let mut acc = [0.0f32; LANES];
+            for (&i, &a) in ids.iter().zip(al) {
+                let g = table[i as usize];
+                for l in 0..LANES {
+                    acc[l] += a * g[l];
+                }
+            }
+            for l in 0..LANES {
+                r[0][l] = acc[l].sqrt();
+            }
+        } else if global_r.is_none() {
+            r = [[0.0; LANES]; NC];
+            let ids = &edges[k * width..(k + 1) * width];
+            let al = &alphas[k * width..(k + 1) * width];
+            for (&i, &a) in ids.iter().zip(al) {
+                let row = &table[i as usize * nc..i as usize * nc + nc];
+                for (rc, gc) in r.iter_mut().zip(row) {
+                    for l in 0..LANES {
+                        rc[l] += a * gc[l];
+                    }
+                }
+            }
+            for rc in r.iter_mut().take(nc) {
+                for x in rc.iter_mut() {
+                    *x = x.sqrt();
+                }
+            }
+        }
+        let w = &weights[k * 3 * p..(k + 1) * 3 * p];
+        let mut d = [0.0f32; 3];
+        for (j, wj) in w.chunks_exact(3).enumerate() {
+            let rj = r[j / LANES][j % LANES];
+            d[0] += wj[0] * rj;
+            d[1] += wj[1] * rj;
+            d[2] += wj[2] * rj;
+        }
+        *o = [
+            xl[0] + d[0] * t[0] + d[1] * bt[0] + d[2] * n[0],
+            xl[1] + d[0] * t[1] + d[1] * bt[1] + d[2] * n[1],
+            xl[2] + d[0] * t[2] + d[1] * bt[2] + d[2] * n[2],
+        ];
+    }
 }
 
 /// Pass 3: unit vertex normals of `positions` from the one-ring fans.
 pub fn normal_pass(layout: &RuntimeLayout, positions: &[[f32; 3]], normals: &mut [[f32; 3]]) {
+    assert_eq!(
+        positions.len(),
+        layout.num_vertices(),
+        "one position per vertex"
+    );
+    assert_eq!(
+        normals.len(),
+        layout.num_vertices(),
+        "one output per vertex"
+    );
     normals
         .par_chunks_mut(BLOCK)
         .enumerate()
         .for_each(|(blk, chunk)| {
-            for (k, o) in chunk.iter_mut().enumerate() {
-                *o = layout.fans.normal(positions, blk * BLOCK + k);
-            }
+            dispatch::<1>(Kernel::Normals {
+                layout,
+                positions,
+                first: blk * BLOCK,
+                chunk,
+            })
         });
+}
+
+#[inline(always)]
+fn normals_block(
+    layout: &RuntimeLayout,
+    positions: &[[f32; 3]],
+    first: usize,
+    chunk: &mut [[f32; 3]],
+) {
+    let fans = &layout.fans;
+    let m = chunk.len();
+    let offsets = &fans.offsets[first..first + m + 1];
+    let kinds = &fans.kinds[first..first + m];
+    let own = &positions[first..first + m];
+    for (k, o) in chunk.iter_mut().enumerate() {
+        let ids = &fans.neighbours[offsets[k] as usize..offsets[k + 1] as usize];
+        *o = normalize(
+            fan_normal_sum(positions, ids, kinds[k], own[k]),
+            [0.0, 0.0, 1.0],
+        );
+    }
+}
+
+/// Pass 3 with the layout's locality order undone: for every mesh vertex `v` (storage index
+/// `k = rank[v]`) `normals[v]` = the unit normal of `work` at `k` and `positions[v] = work[k]`.
+/// Without a reorder this is [`normal_pass`] plus a copy.
+pub fn normal_pass_to_mesh_order(
+    layout: &RuntimeLayout,
+    work: &[[f32; 3]],
+    positions: &mut [[f32; 3]],
+    normals: &mut [[f32; 3]],
+) {
+    let n = layout.num_vertices();
+    assert!(work.len() == n && positions.len() == n && normals.len() == n);
+    let Some(rank) = layout.rank.as_deref() else {
+        positions.copy_from_slice(work);
+        normal_pass(layout, work, normals);
+        return;
+    };
+    normals
+        .par_chunks_mut(BLOCK)
+        .zip(positions.par_chunks_mut(BLOCK))
+        .enumerate()
+        .for_each(|(blk, (nrm, pos))| {
+            let first = blk * BLOCK;
+            dispatch::<1>(Kernel::NormalsToMesh {
+                layout,
+                work,
+                rank: &rank[first..first + nrm.len()],
+                normals: nrm,
+                positions: pos,
+            })
+        });
+}
+
+#[inline(always)]
+fn normals_to_mesh_block(
+    layout: &RuntimeLayout,
+    work: &[[f32; 3]],
+    rank: &[u32],
+    normals: &mut [[f32; 3]],
+    positions: &mut [[f32; 3]],
+) {
+    let fans = &layout.fans;
+    for ((o, x), &k) in normals.iter_mut().zip(positions.iter_mut()).zip(rank) {
+        let k = k as usize;
+        let ids = &fans.neighbours[fans.offsets[k] as usize..fans.offsets[k + 1] as usize];
+        *o = normalize(
+            fan_normal_sum(work, ids, fans.kinds[k], work[k]),
+            [0.0, 0.0, 1.0],
+        );
+        *x = work[k];
+    }
+}
+
+/// `out[v] = stored[rank[v]]`: a per-vertex array of the layout back in mesh order.
+pub fn to_mesh_order(layout: &RuntimeLayout, stored: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    match layout.rank.as_deref() {
+        Some(rank) => rank.iter().map(|&k| stored[k as usize]).collect(),
+        None => stored.to_vec(),
+    }
 }
 
 #[cfg(test)]
@@ -575,8 +968,9 @@ mod tests {
                     let mut err = 0.0f64;
                     for j in 0..h {
                         let want = row[j] as f64 - mean;
+                        let m = u.len() / k.max(1);
                         let got: f64 = (0..k)
-                            .map(|q| u[i * k + q] as f64 * c[q * h + j] as f64)
+                            .map(|q| u[q * m + i] as f64 * c[q * h + j] as f64)
                             .sum();
                         err += (got - want).powi(2);
                     }
@@ -629,5 +1023,46 @@ mod tests {
         // two separate fans (non-manifold)
         let (k, s) = chain(&[[1, 2], [5, 6]], &mut used);
         assert_eq!((k, s), (FanKind::Pairs, vec![1, 2, 5, 6]));
+    }
+
+    #[test]
+    fn morton_order_is_a_permutation_and_fans_follow_it() {
+        // 12×12 bumpy grid
+        let n = 12;
+        let pos: Vec<[f32; 3]> = (0..n * n)
+            .map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)])
+            .collect();
+        let mut tris = Vec::new();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let a = j * n + i;
+                tris.push([a, a + 1, a + n + 1]);
+                tris.push([a, a + n + 1, a + n]);
+            }
+        }
+        let order = morton_order(&pos);
+        let mut seen = vec![false; n * n];
+        for &v in &order {
+            assert!(!seen[v as usize]);
+            seen[v as usize] = true;
+        }
+        assert!(seen.iter().all(|&x| x));
+        // on the flat grid the first 4 stored vertices are the 2×2 corner cell of the Z curve
+        let flat: Vec<[f32; 3]> = pos.iter().map(|p| [p[0], p[1], 0.0]).collect();
+        let mut first: Vec<u32> = morton_order(&flat)[..4].to_vec();
+        first.sort_unstable();
+        assert_eq!(first, vec![0, 1, n as u32, n as u32 + 1]);
+        let mut rank = vec![0u32; n * n];
+        for (k, &v) in order.iter().enumerate() {
+            rank[v as usize] = k as u32;
+        }
+        let fans = Fans::new(&Topology::new(n * n, &tris));
+        let moved = fans.permuted(&order, &rank);
+        let stored: Vec<[f32; 3]> = order.iter().map(|&v| pos[v as usize]).collect();
+        for v in 0..n * n {
+            let k = rank[v] as usize;
+            assert_eq!(fans.normal(&pos, v), moved.normal(&stored, k));
+            assert_eq!(order[moved.reference[k] as usize], fans.reference[v]);
+        }
     }
 }

@@ -52,12 +52,13 @@ struct Errors {
     rank: f64,
 }
 
-fn compare(c: &Case, tol: f64) -> Errors {
+fn compare(c: &Case, tol: f64, reorder: bool) -> Errors {
     let mut anim = Animator::with_settings(
         &c.rig,
         &c.model,
         &RuntimeSettings {
             basis_tolerance: tol,
+            reorder,
         },
     )
     .unwrap();
@@ -83,11 +84,12 @@ fn compare(c: &Case, tol: f64) -> Errors {
         centred_norm = centred_norm.max(10.0 * norm2.sqrt());
         let (x, nrm) = reference_frame(&c.rig, &c.model, hp).unwrap();
         let (large, _) = c.rig.large_scale(hp);
+        let fast_large = anim.large_scale_positions();
         for v in 0..x.len() {
             let d = dist(&anim.positions[v], &x[v]);
             sq += d * d;
             all.push(d);
-            large_max = large_max.max(dist(&anim.large_scale_positions()[v], &large[v]));
+            large_max = large_max.max(dist(&fast_large[v], &large[v]));
             let cs: f64 = (0..3)
                 .map(|a| (anim.normals[v][a] * nrm[v][a]) as f64)
                 .sum();
@@ -125,7 +127,7 @@ fn report(n: usize, tol: f64, e: &Errors) {
 fn runtime_layout_matches_dense_reference_and_low_rank_error_is_small() {
     let c = case();
     let n = c.rig.num_vertices();
-    let full = compare(&c, 0.0);
+    let full = compare(&c, 0.0, true);
     report(n, 0.0, &full);
     // full rank: every block keeps min(256, H) singular vectors
     assert!(full.rank > 88.0 && full.rank <= c.rig.handles.len() as f64);
@@ -134,7 +136,7 @@ fn runtime_layout_matches_dense_reference_and_low_rank_error_is_small() {
     assert!(full.angle < 1.0, "{full:?}");
     let mut prev = 0.0;
     for tol in [1e-5, 1e-4, 1e-3] {
-        let e = compare(&c, tol);
+        let e = compare(&c, tol, true);
         report(n, tol, &e);
         assert!(e.rms >= prev * 0.999, "error grows as rank is dropped");
         prev = e.rms;
@@ -155,6 +157,7 @@ fn low_rank_basis_translates_rigidly() {
     for tol in [1e-3, 0.2] {
         let settings = RuntimeSettings {
             basis_tolerance: tol,
+            ..Default::default()
         };
         let mut anim = Animator::with_settings(&c.rig, &c.model, &settings).unwrap();
         anim.frame(&hp).unwrap();
@@ -182,11 +185,32 @@ fn subdivided_face_runtime_error() {
     };
     let n = fine.rig.num_vertices();
     for tol in [0.0, 1e-5, 1e-4] {
-        let e = compare(&fine, tol);
+        let e = compare(&fine, tol, true);
         report(n, tol, &e);
         if tol == 1e-5 {
             // the default
             assert!(e.rms < 0.001 && e.p999 < 0.01 && e.max < 0.1, "{e:?}");
         }
+    }
+}
+
+/// The locality order (Morton) and the mesh order give the same frame: at full rank up to f32
+/// summation order, at the default tolerance within the same bound as the reference.
+#[test]
+fn locality_order_matches_mesh_order() {
+    let c = case();
+    for tol in [0.0, 1e-5] {
+        let ordered = compare(&c, tol, true);
+        let plain = compare(&c, tol, false);
+        report(c.rig.num_vertices(), tol, &plain);
+        assert!(plain.rms < 1e-3 && plain.max < 1e-2, "{plain:?}");
+        assert!(ordered.rms < 1e-3 && ordered.max < 1e-2, "{ordered:?}");
+        // Morton blocks are compact patches: the rank does not grow
+        assert!(
+            ordered.rank <= plain.rank + 1.0,
+            "{} vs {}",
+            ordered.rank,
+            plain.rank
+        );
     }
 }
