@@ -4,14 +4,16 @@
 //!
 //! | hypothesis | effect cells (scored) | extended model re-simulated | grid |
 //! |---|---|---|---|
-//! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α) | σ_y, H |
+//! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) | σ_y, H (× peak contact pressure) |
 //! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
 //! | probe-friction | contact frames, markers under the active contact | default model + tangential traction μ‖f‖ŝ at the patch | μ |
 //! | anisotropy | contact frames | `AnisotropicModel` (thesis eq. 8.5), fibre from the screening | ratio |
 //!
 //! Leave-one-location-out: per held-out location the grid point (and the material's compliance
 //! scale) with the least error on the other locations, scored on the held-out location's effect
-//! cells.
+//! cells. Plasticity picks them on the other locations' effect cells only (released frames): in a
+//! rigid-tip replay the contact frames carry the coarse mesh's contact error, which would otherwise
+//! decide the pick of a parameter that shows only after release.
 
 use crate::diagnose::Confirmed;
 use crate::extend::{Extension, SequenceFrame};
@@ -150,13 +152,16 @@ struct Candidate {
 
 /// Leave-one-location-out over simulated candidates: per held-out location the candidate and
 /// compliance scale with the least error on every other observation (training locations and
-/// rest frames), scored on the held-out location's `scored` observations.
+/// rest frames; with `train_on_scored` only the training locations' `scored` observations),
+/// scored on the held-out location's `scored` observations.
+#[allow(clippy::too_many_arguments)]
 fn lolo(
     cands: Vec<Candidate>,
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
     fit_scale: bool,
     method: String,
 ) -> Option<Confirmed> {
@@ -181,8 +186,11 @@ fn lolo(
                     c: v.norm_squared(),
                     n: 1,
                 };
-                sa[bucket(k)].add(&o);
-                if seg.fold_of_frame[k].is_some() && scored(k, m) {
+                let is_scored = seg.fold_of_frame[k].is_some() && scored(k, m);
+                if !train_on_scored || is_scored {
+                    sa[bucket(k)].add(&o);
+                }
+                if is_scored {
                     ss[bucket(k)].add(&o);
                 }
             }
@@ -303,6 +311,45 @@ fn simulate_grid(
     Ok((out, total))
 }
 
+/// Simulates every grid point with the rigid-tip replay
+/// ([`ProbeSimulator::simulate_sequence_rigid_tip`]: the probe at every frame's measured pose),
+/// skipping those that do not reach equilibrium; nothing when the simulator has no rigid tip.
+fn simulate_rigid_grid(
+    sim: &mut dyn ProbeSimulator,
+    grid: Vec<(Vec<(String, f64)>, Extension)>,
+    rec: &Recording,
+) -> Result<(Vec<Candidate>, usize)> {
+    let frames: Vec<SequenceFrame> = rec
+        .frames
+        .iter()
+        .map(|f| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: f.tip_m,
+                    axis: f.axis,
+                    force_n: f.force_n,
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect();
+    let mut out = Vec::with_capacity(grid.len());
+    let mut total = 0;
+    for (params, ext) in grid {
+        match sim.simulate_sequence_rigid_tip(&ext, &frames) {
+            Ok(Some(prediction)) => {
+                total += 1;
+                out.push(Candidate { params, prediction });
+            }
+            Ok(None) => break,
+            Err(DiagnoseError::Simulation { .. }) => total += 1,
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((out, total))
+}
+
 /// Confirms spatial hypothesis `h` with its extended FEM model re-simulated over the recording
 /// (see the module table), leave-one-location-out on `scored`.
 pub(crate) fn confirm(
@@ -330,6 +377,7 @@ pub(crate) fn confirm(
     let k_ind = peak_n / depth_m;
     let f = p.force_n.clone();
     let mut grid = Vec::new();
+    let mut rigid: Vec<(Vec<(String, f64)>, Extension)> = Vec::new();
     let (what, fit_scale) = match h {
         Hypothesis::Plasticity => {
             for sy in [0.1, 0.2, 0.4] {
@@ -345,6 +393,24 @@ pub(crate) fn confirm(
                             hardening_pa,
                         },
                         f.clone(),
+                    ));
+                }
+            }
+            // Rigid-tip replay (position control): the tip's geometry sets the stress under its
+            // rim, which the force boundary condition spreads out (module docs).
+            for sy in [0.2, 0.3, 0.4] {
+                for hh in [0.5, 1.0] {
+                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                    rigid.push((
+                        vec![
+                            ("yield_stress_pa".into(), yield_stress_pa),
+                            ("hardening_modulus_pa".into(), hardening_pa),
+                            ("rigid_tip_replay".into(), 1.0),
+                        ],
+                        Extension::Plastic {
+                            yield_stress_pa,
+                            hardening_pa,
+                        },
                     ));
                 }
             }
@@ -419,7 +485,10 @@ pub(crate) fn confirm(
         _ => return Ok(None),
     };
     let contact_only = matches!(h, Hypothesis::Anisotropy | Hypothesis::ProbeFriction);
-    let (cands, total) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+    let (mut cands, mut total) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+    let (rigid_cands, rigid_total) = simulate_rigid_grid(sim, rigid, rec)?;
+    cands.extend(rigid_cands);
+    total += rigid_total;
     let n = cands.len();
     Ok(lolo(
         cands,
@@ -427,6 +496,7 @@ pub(crate) fn confirm(
         seg,
         p,
         scored,
+        h == Hypothesis::Plasticity,
         fit_scale,
         format!(
             "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {}",
