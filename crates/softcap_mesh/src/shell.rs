@@ -469,14 +469,14 @@ impl LinearShell {
     }
 }
 
-/// With [`ShellOrdering::Auto`], systems with at least this many free vertices are ordered by
-/// [`nested_dissection`], smaller ones by faer's approximate minimum degree (AMD).
-pub const NESTED_DISSECTION_MIN_VERTICES: usize = 20_000;
-
 /// Fill-reducing ordering of the shell's sparse Cholesky factor.
+///
+/// Measured on the ≈600k-vertex face (ICT face 3× midpoint-subdivided, 41 handles, test
+/// profile, CPU seconds under load; docs/face.md): AMD 14.8 s prefactor with 156.5 M nonzeros
+/// in L, the level-structure nested dissection below 30.2 s — so `Auto` is AMD.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ShellOrdering {
-    /// AMD below [`NESTED_DISSECTION_MIN_VERTICES`] free vertices, nested dissection above.
+    /// The measured-fastest ordering (currently AMD).
     #[default]
     Auto,
     /// faer's approximate minimum degree.
@@ -511,9 +511,8 @@ impl Factor {
     }
 }
 
-/// Sparse Cholesky of the symmetric matrix given by its upper triangle (CSC): AMD ordering for
-/// small systems, [`nested_dissection`] of the matrix graph for large ones (on the ≈600k-vertex
-/// face the nested-dissection factor has less fill and bigger dense supernodes than AMD's).
+/// Sparse Cholesky of the symmetric matrix given by its upper triangle (CSC), faer's
+/// supernodal/simplicial factorization with the chosen fill-reducing ordering.
 fn factor_upper(
     a_ff: SparseColMat<usize, f64>,
     ordering: ShellOrdering,
@@ -525,7 +524,7 @@ fn factor_upper(
     };
     let n = a_ff.nrows();
     let nested = match ordering {
-        ShellOrdering::Auto => n >= NESTED_DISSECTION_MIN_VERTICES,
+        ShellOrdering::Auto => false,
         ShellOrdering::Amd => false,
         ShellOrdering::NestedDissection => true,
     };

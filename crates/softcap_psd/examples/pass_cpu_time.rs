@@ -5,7 +5,7 @@
 //! `RAYON_NUM_THREADS=1 cargo run --release -p softcap_psd --example pass_cpu_time`
 //! (`PSD_LEVELS` subdivision levels, default 3; `PSD_FRAMES` frames of the subdivided face,
 //! default 10; `PSD_ONLY_FRAMES=1` skips the per-pass timings, e.g. for `/usr/bin/time` over
-//! two frame counts).
+//! two frame counts; `PSD_REORDER=1` the Morton locality order).
 
 use softcap_psd::runtime::{self, LANES};
 use softcap_psd::{
@@ -67,7 +67,7 @@ fn main() {
         };
         let t = Instant::now();
         let settings = RuntimeSettings {
-            reorder: std::env::var("PSD_REORDER").map_or(true, |v| v != "0"),
+            reorder: std::env::var("PSD_REORDER").is_ok_and(|v| v == "1"),
             ..Default::default()
         };
         let mut anim = Animator::with_settings(&r, &m, &settings).expect("animator");
