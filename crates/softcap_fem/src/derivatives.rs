@@ -215,6 +215,72 @@ impl<'s> Sensitivity<'s> {
         Ok(out)
     }
 
+    /// Jᵀ wₖ for several sparse dof weightings wₖ = Σ (dof, weight) at once (the adjoint rows of
+    /// bickel2009 appendix eq. 12 for embedded markers): one multi-column solve A Y = W, then
+    /// (Jᵀ wₖ)_p = −yₖᵀ ∂f/∂p_p. Same values as [`Self::jt_times`] per row, with the triangular
+    /// solves blocked over the columns.
+    pub fn jt_times_sparse(&self, rows: &[Vec<(usize, f64)>]) -> Result<Vec<Vec<f64>>, FemError> {
+        let dofs = self.solver.dofs();
+        let nf = dofs.num_free();
+        let k = rows.len();
+        let mut rhs = vec![0.0; nf * k];
+        for (r, row) in rows.iter().enumerate() {
+            for &(d, w) in row {
+                if d >= dofs.num_dofs() {
+                    return Err(FemError::DofOutOfRange {
+                        dof: d,
+                        num_dofs: dofs.num_dofs(),
+                    });
+                }
+                if let Some(fi) = dofs.free_index(d) {
+                    rhs[r * nf + fi] += w;
+                }
+            }
+        }
+        if k > 0 {
+            self.solver.cholesky().solve_in_place(&mut rhs)?;
+        }
+        // Free index of each element dof once (usize::MAX = constrained).
+        let free: Vec<[usize; 12]> = self
+            .nodes
+            .iter()
+            .map(|nodes| {
+                let mut f = [usize::MAX; 12];
+                for a in 0..4 {
+                    for c in 0..3 {
+                        if let Some(fi) = dofs.free_index(3 * nodes[a] + c) {
+                            f[3 * a + c] = fi;
+                        }
+                    }
+                }
+                f
+            })
+            .collect();
+        let np = self.num_params();
+        Ok((0..k)
+            .map(|r| {
+                let y = &rhs[r * nf..(r + 1) * nf];
+                let mut out = vec![0.0; np];
+                for (e, fe) in free.iter().enumerate() {
+                    let (dl, da) = &self.dforce[e];
+                    let (mut sl, mut sa) = (0.0, 0.0);
+                    for a in 0..4 {
+                        for c in 0..3 {
+                            let fi = fe[3 * a + c];
+                            if fi != usize::MAX {
+                                sl += y[fi] * dl[a][c];
+                                sa += y[fi] * da[a][c];
+                            }
+                        }
+                    }
+                    out[2 * e] = -sl;
+                    out[2 * e + 1] = -sa;
+                }
+                out
+            })
+            .collect())
+    }
+
     /// Jᵀ r for a residual over all dofs (3·nodes; constrained entries ignored): one solve.
     pub fn jt_times(&self, r: &[f64]) -> Result<Vec<f64>, FemError> {
         let dofs = self.solver.dofs();

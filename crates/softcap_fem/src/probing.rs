@@ -427,29 +427,21 @@ fn simulate_params(
 
 /// Jᵀ w for every observed marker coordinate: the rows of J_m = ∂x_markers/∂p (3k × 2T,
 /// parameters interleaved (λ_e, α_e)) by the adjoint method of the appendix (eq. 11–12): one
-/// solve with the one factorization per row.
+/// multi-column solve with the one factorization for all rows.
 fn marker_jacobian_rows(
     setup: &ProbingSetup,
     example: &ProbeExample,
     sens: &Sensitivity<'_>,
 ) -> Result<Vec<Vec<f64>>, FemError> {
-    let ndof = 3 * setup.mesh.vertices.len();
-    let mut rows = Vec::with_capacity(3 * example.observed.len());
-    let mut w = vec![0.0; ndof];
+    let mut weights = Vec::with_capacity(3 * example.observed.len());
     for o in &example.observed {
         let emb = &setup.markers[o.marker];
         let tet = setup.mesh.tets[emb.tet];
         for c in 0..3 {
-            for a in 0..4 {
-                w[3 * tet[a] + c] = emb.weights[a];
-            }
-            rows.push(sens.jt_times(&w)?);
-            for a in 0..4 {
-                w[3 * tet[a] + c] = 0.0;
-            }
+            weights.push((0..4).map(|a| (3 * tet[a] + c, emb.weights[a])).collect());
         }
     }
-    Ok(rows)
+    sens.jt_times_sparse(&weights)
 }
 
 /// The rows of [`marker_jacobian_rows`] at the current equilibrium `x` of `model`.
