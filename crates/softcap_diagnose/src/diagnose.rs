@@ -3,7 +3,8 @@
 //! look-alikes by their signatures, answer a verdict (or `none`), confirm the winner by
 //! re-simulation (DESIGN.md "Missing-physics diagnosis" 1–4; issue 8).
 
-use crate::extend::{Extension, SequenceFrame};
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
+use crate::extend::Extension;
 use crate::hypothesis::{
     Field, Hypothesis, Prepared, Refit, predict, refit_scored, refit_variants_scored,
     stiffness_scale_variant,
@@ -595,69 +596,6 @@ pub fn focus_cells(
         .collect()
 }
 
-/// Sums over observations of one bucket: a = Σ u·u, b = Σ u·v, c = Σ v·v with u the extended
-/// model's displacement from rest and v the measured one.
-#[derive(Clone, Copy, Default)]
-struct Sums {
-    a: f64,
-    b: f64,
-    c: f64,
-    n: usize,
-}
-
-impl Sums {
-    fn add(&mut self, o: &Sums) {
-        self.a += o.a;
-        self.b += o.b;
-        self.c += o.c;
-        self.n += o.n;
-    }
-    fn scale(&self, fit: bool) -> f64 {
-        if fit && self.a > 0.0 {
-            (self.b / self.a).clamp(0.2, 5.0)
-        } else {
-            1.0
-        }
-    }
-    fn rss(&self, d: f64) -> f64 {
-        (self.c - 2.0 * d * self.b + d * d * self.a).max(0.0)
-    }
-}
-
-/// An extended model confirmed by re-simulation with leave-one-location-out.
-pub(crate) struct Confirmed {
-    /// Held-out RMS on the scored observations, m.
-    pub(crate) after_scored_m: f64,
-    /// Held-out RMS on every observation of the locations, m.
-    pub(crate) after_all_m: f64,
-    /// Full-data parameters.
-    pub(crate) params: Vec<(String, f64)>,
-    /// Full-data prediction, m.
-    pub(crate) prediction: Field,
-    /// How it was confirmed.
-    pub(crate) method: String,
-}
-
-fn sequence_frames(rec: &Recording, seg: &Segmentation) -> Vec<SequenceFrame> {
-    rec.frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: (seg.phases[k].in_contact() && f.force_n.norm() > 1e-9).then_some(
-                    ProbeLoad {
-                        tip_m: f.tip_m,
-                        axis: f.axis,
-                        force_n: f.force_n,
-                    },
-                ),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect()
-}
-
 /// The grid of extended FEM models of `h` (module docs of [`crate::extend`]); scales come from
 /// the recording: peak contact pressure p = max‖f‖/(π r_tip²), indentation stiffness
 /// K = max‖f‖ / max depth, median frame interval Δt.
@@ -757,8 +695,9 @@ fn extension_grid(
 }
 
 /// Re-simulates every grid point of `h`'s extended FEM model over the whole recording, then
-/// leave-one-location-out: per held-out location the grid point (and compliance scale) with the
-/// least error on the other locations (and the rest frames), scored on the held-out location.
+/// leave-one-location-out ([`crate::confirm::lolo_confirm`]): per held-out location the grid
+/// point (and compliance scale) with the least error on the other locations (and the rest
+/// frames), scored on the held-out location.
 #[allow(clippy::too_many_arguments)]
 fn confirm_extended(
     h: Hypothesis,
@@ -774,98 +713,31 @@ fn confirm_extended(
     if grid.is_empty() {
         return Ok(None);
     }
-    let frames = sequence_frames(rec, seg);
-    let nf = seg.num_folds();
-    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
-    let mut preds = Vec::with_capacity(grid.len());
-    // [grid][bucket] sums over all observations and over scored ones
-    let mut all = Vec::with_capacity(grid.len());
-    let mut sc = Vec::with_capacity(grid.len());
-    let mut ok_grid = Vec::with_capacity(grid.len());
-    for (gi, (_, ext)) in grid.iter().enumerate() {
-        let pred = match sim.simulate_sequence(ext, &frames) {
-            Ok(x) => x,
+    let frames = contact_sequence(rec, seg, &p.force_n);
+    let total = grid.len();
+    let mut cands = Vec::with_capacity(total);
+    for (params, ext) in grid {
+        match sim.simulate_sequence(&ext, &frames) {
+            Ok(prediction) => cands.push(Candidate { params, prediction }),
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
-        };
-        let mut sa = vec![Sums::default(); nf + 1];
-        let mut ss = vec![Sums::default(); nf + 1];
-        for (k, f) in rec.frames.iter().enumerate() {
-            for (m, y) in f.markers_m.iter().enumerate() {
-                let Some(y) = y else { continue };
-                let u = pred[k][m] - p.rest_model_m[m];
-                let v = y - p.rest_model_m[m];
-                let o = Sums {
-                    a: u.norm_squared(),
-                    b: u.dot(&v),
-                    c: v.norm_squared(),
-                    n: 1,
-                };
-                sa[bucket(k)].add(&o);
-                if seg.fold_of_frame[k].is_some() && scored(k, m) {
-                    ss[bucket(k)].add(&o);
-                }
-            }
         }
-        preds.push(pred);
-        ok_grid.push(gi);
-        all.push(sa);
-        sc.push(ss);
     }
-    if preds.is_empty() {
-        return Ok(None);
-    }
-    let fit = settings.refit_compliance_scale;
-    let train = |i: usize, skip: Option<usize>| {
-        let mut t = Sums::default();
-        for (b, x) in all[i].iter().enumerate() {
-            if Some(b) != skip {
-                t.add(x);
-            }
-        }
-        t
-    };
-    let best = |skip: Option<usize>| {
-        (0..preds.len())
-            .map(|i| {
-                let t = train(i, skip);
-                let d = t.scale(fit);
-                (i, d, t.rss(d))
-            })
-            .min_by(|a, b| a.2.total_cmp(&b.2))
-            .unwrap_or((0, 1.0, f64::INFINITY))
-    };
-    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
-    for l in 0..nf {
-        let (i, d, _) = best(Some(l));
-        e_sc += sc[i][l].rss(d);
-        n_sc += sc[i][l].n;
-        e_all += all[i][l].rss(d);
-        n_all += all[i][l].n;
-    }
-    let (i, d, _) = best(None);
-    let mut params = grid[ok_grid[i]].0.clone();
-    params.push(("compliance_scale".into(), d));
-    let prediction: Field = preds[i]
-        .iter()
-        .map(|row| {
-            row.iter()
-                .zip(&p.rest_model_m)
-                .map(|(x, r)| r + (x - r) * d)
-                .collect()
-        })
-        .collect();
-    Ok(Some(Confirmed {
-        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
-        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
-        params,
-        prediction,
-        method: format!(
-            "re-simulated extended FEM model ({} grid points of {}), leave-one-location-out",
-            preds.len(),
-            grid.len()
-        ),
-    }))
+    let method = format!(
+        "re-simulated extended FEM model ({} grid points of {total}), leave-one-location-out",
+        cands.len()
+    );
+    lolo_confirm(
+        &cands,
+        rec,
+        seg,
+        p,
+        ComplianceScale::new(settings.refit_compliance_scale, 0.2, 5.0),
+        scored,
+        false,
+        None,
+        method,
+    )
 }
 
 /// Load extensions re-simulated with the default model: each fold's linearised parameters applied

@@ -49,6 +49,7 @@
 //! assert_eq!(seg.phases[5], Phase::Released);
 //! ```
 
+mod confirm;
 pub mod diagnose;
 mod error;
 pub mod extend;

@@ -15,9 +15,9 @@
 //! rigid-tip replay the contact frames carry the coarse mesh's contact error, which would otherwise
 //! decide the pick of a parameter that shows only after release.
 
-use crate::diagnose::Confirmed;
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
 use crate::extend::{Extension, SequenceFrame};
-use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
+use crate::hypothesis::{Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
 use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
@@ -91,158 +91,6 @@ pub fn effect_mask(h: Hypothesis, rec: &Recording, seg: &Segmentation) -> Option
     Some(mask)
 }
 
-fn sequence_frames(
-    rec: &Recording,
-    seg: &Segmentation,
-    forces: &[Vector3<f64>],
-) -> Vec<SequenceFrame> {
-    rec.frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: (seg.phases[k].in_contact() && forces[k].norm() > 1e-9).then_some(
-                    ProbeLoad {
-                        tip_m: f.tip_m,
-                        axis: f.axis,
-                        force_n: forces[k],
-                    },
-                ),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect()
-}
-
-/// Sums over observations of one bucket: a = Σ u·u, b = Σ u·v, c = Σ v·v with u the extended
-/// model's displacement from the model rest and v the measured one.
-#[derive(Clone, Copy, Default, Debug)]
-struct Sums {
-    a: f64,
-    b: f64,
-    c: f64,
-    n: usize,
-}
-
-impl Sums {
-    fn add(&mut self, o: &Sums) {
-        self.a += o.a;
-        self.b += o.b;
-        self.c += o.c;
-        self.n += o.n;
-    }
-    fn scale(&self, fit: bool) -> f64 {
-        if fit && self.a > 0.0 {
-            (self.b / self.a).clamp(0.1, 10.0)
-        } else {
-            1.0
-        }
-    }
-    fn rss(&self, d: f64) -> f64 {
-        (self.c - 2.0 * d * self.b + d * d * self.a).max(0.0)
-    }
-}
-
-/// One simulated candidate of a grid.
-struct Candidate {
-    params: Vec<(String, f64)>,
-    prediction: Field,
-}
-
-/// Leave-one-location-out over simulated candidates: per held-out location the candidate and
-/// compliance scale with the least error on every other observation (training locations and
-/// rest frames; with `train_on_scored` only the training locations' `scored` observations),
-/// scored on the held-out location's `scored` observations.
-#[allow(clippy::too_many_arguments)]
-fn lolo(
-    cands: Vec<Candidate>,
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
-    fit_scale: bool,
-    method: String,
-) -> Option<Confirmed> {
-    if cands.is_empty() {
-        return None;
-    }
-    let nf = seg.num_folds();
-    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
-    let mut all = Vec::with_capacity(cands.len());
-    let mut sc = Vec::with_capacity(cands.len());
-    for c in &cands {
-        let mut sa = vec![Sums::default(); nf + 1];
-        let mut ss = vec![Sums::default(); nf + 1];
-        for (k, f) in rec.frames.iter().enumerate() {
-            for (m, y) in f.markers_m.iter().enumerate() {
-                let Some(y) = y else { continue };
-                let u = c.prediction[k][m] - p.rest_model_m[m];
-                let v = y - p.rest_model_m[m];
-                let o = Sums {
-                    a: u.norm_squared(),
-                    b: u.dot(&v),
-                    c: v.norm_squared(),
-                    n: 1,
-                };
-                let is_scored = seg.fold_of_frame[k].is_some() && scored(k, m);
-                if !train_on_scored || is_scored {
-                    sa[bucket(k)].add(&o);
-                }
-                if is_scored {
-                    ss[bucket(k)].add(&o);
-                }
-            }
-        }
-        all.push(sa);
-        sc.push(ss);
-    }
-    let best = |skip: Option<usize>| {
-        (0..cands.len())
-            .map(|i| {
-                let mut t = Sums::default();
-                for (b, x) in all[i].iter().enumerate() {
-                    if Some(b) != skip {
-                        t.add(x);
-                    }
-                }
-                let d = t.scale(fit_scale);
-                (i, d, t.rss(d))
-            })
-            .min_by(|a, b| a.2.total_cmp(&b.2))
-            .unwrap_or((0, 1.0, f64::INFINITY))
-    };
-    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
-    for l in 0..nf {
-        let (i, d, _) = best(Some(l));
-        e_sc += sc[i][l].rss(d);
-        n_sc += sc[i][l].n;
-        e_all += all[i][l].rss(d);
-        n_all += all[i][l].n;
-    }
-    let (i, d, _) = best(None);
-    let mut params = cands[i].params.clone();
-    params.push(("compliance_scale".into(), d));
-    let prediction: Field = cands[i]
-        .prediction
-        .iter()
-        .map(|row| {
-            row.iter()
-                .zip(&p.rest_model_m)
-                .map(|(x, r)| r + (x - r) * d)
-                .collect()
-        })
-        .collect();
-    Some(Confirmed {
-        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
-        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
-        params,
-        prediction,
-        method,
-    })
-}
-
 fn param(refit: &Refit, name: &str) -> f64 {
     refit
         .params
@@ -294,7 +142,7 @@ fn simulate_grid(
         .filter(|&k| !contact_only || seg.phases[k].in_contact())
         .collect();
     for (params, ext, forces) in grid {
-        let all = sequence_frames(rec, seg, &forces);
+        let all = contact_sequence(rec, seg, &forces);
         let frames: Vec<SequenceFrame> = solved.iter().map(|&k| all[k]).collect();
         match sim.simulate_sequence(&ext, &frames) {
             Ok(x) => {
@@ -490,17 +338,18 @@ pub(crate) fn confirm(
     cands.extend(rigid_cands);
     total += rigid_total;
     let n = cands.len();
-    Ok(lolo(
-        cands,
+    lolo_confirm(
+        &cands,
         rec,
         seg,
         p,
+        ComplianceScale::new(fit_scale, 0.1, 10.0),
         scored,
         h == Hypothesis::Plasticity,
-        fit_scale,
+        None,
         format!(
             "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {}",
             effect_cells_name(h).unwrap_or("focus cells")
         ),
-    ))
+    )
 }

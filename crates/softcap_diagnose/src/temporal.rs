@@ -19,7 +19,7 @@
 //! lagging, still rising in the holds → sensor-lag; equal force delays at 10 % and 50 % of the
 //! ramp → a pure time shift (clock-offset) — see [`crate::diagnose::signature_support`].
 
-use crate::diagnose::Confirmed;
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
 use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
@@ -103,7 +103,7 @@ pub fn temporal_grid(
         .map(|l| l.peak_force_n)
         .fold(0.0, f64::max);
     let thr = 1e-3 * peak_n.max(1e-9);
-    let measured = frames_with_contact(rec, seg);
+    let measured = contact_sequence(rec, seg, &p.force_n);
     let mut out = Vec::new();
     match h {
         Hypothesis::Viscoelasticity => {
@@ -160,147 +160,11 @@ pub fn temporal_grid(
     out
 }
 
-/// The recording's frames with the measured force on the contact frames (as the baseline).
-fn frames_with_contact(rec: &Recording, seg: &Segmentation) -> Vec<SequenceFrame> {
-    rec.frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: (seg.phases[k].in_contact() && f.force_n.norm() > 1e-9).then_some(
-                    ProbeLoad {
-                        tip_m: f.tip_m,
-                        axis: f.axis,
-                        force_n: f.force_n,
-                    },
-                ),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect()
-}
-
-/// Sums over observations of one bucket: a = Σ u·u, b = Σ u·v, c = Σ v·v with u the extended
-/// model's displacement from the model's rest markers and v the measured one; the compliance
-/// scale d minimises Σ‖d u − v‖² = c − 2 d b + d² a.
-#[derive(Clone, Copy, Default)]
-struct Sums {
-    a: f64,
-    b: f64,
-    c: f64,
-    n: usize,
-}
-
-impl Sums {
-    fn add(&mut self, o: &Sums) {
-        self.a += o.a;
-        self.b += o.b;
-        self.c += o.c;
-        self.n += o.n;
-    }
-    fn scale(&self, fit: bool) -> f64 {
-        if fit && self.a > 0.0 {
-            // a nuisance refit of the material's overall compliance (the tissue fit saw the
-            // distorted forces); bounded only against degenerate sums
-            (self.b / self.a).clamp(0.1, 10.0)
-        } else {
-            1.0
-        }
-    }
-    fn rss(&self, d: f64) -> f64 {
-        (self.c - 2.0 * d * self.b + d * d * self.a).max(0.0)
-    }
-}
-
-/// Leave-one-location-out over candidate predictions `cands` (named parameters, markers per
-/// frame): per held-out location the candidate and compliance scale (`fit_scale`) with the least
-/// error on every other frame (other locations and the rest frames), scored on the held-out
-/// location's observations with `scored(k, m)`; the full-data choice is the prediction.
-pub(crate) fn lolo_confirm(
-    cands: Vec<(Vec<(String, f64)>, Field)>,
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    fit_scale: bool,
-    scored: &dyn Fn(usize, usize) -> bool,
-) -> Option<Confirmed> {
-    if cands.is_empty() {
-        return None;
-    }
-    let nf = seg.num_folds();
-    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
-    let mut all = Vec::with_capacity(cands.len());
-    let mut sc = Vec::with_capacity(cands.len());
-    for (_, pred) in &cands {
-        let mut sa = vec![Sums::default(); nf + 1];
-        let mut ss = vec![Sums::default(); nf + 1];
-        for (k, f) in rec.frames.iter().enumerate() {
-            for (m, y) in f.markers_m.iter().enumerate() {
-                let Some(y) = y else { continue };
-                let u = pred[k][m] - p.rest_model_m[m];
-                let v = y - p.rest_model_m[m];
-                let o = Sums {
-                    a: u.norm_squared(),
-                    b: u.dot(&v),
-                    c: v.norm_squared(),
-                    n: 1,
-                };
-                sa[bucket(k)].add(&o);
-                if seg.fold_of_frame[k].is_some() && scored(k, m) {
-                    ss[bucket(k)].add(&o);
-                }
-            }
-        }
-        all.push(sa);
-        sc.push(ss);
-    }
-    let best = |skip: Option<usize>| {
-        (0..cands.len())
-            .map(|i| {
-                let mut t = Sums::default();
-                for (b, x) in all[i].iter().enumerate() {
-                    if Some(b) != skip {
-                        t.add(x);
-                    }
-                }
-                let d = t.scale(fit_scale);
-                (i, d, t.rss(d))
-            })
-            .min_by(|a, b| a.2.total_cmp(&b.2))
-            .unwrap_or((0, 1.0, f64::INFINITY))
-    };
-    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
-    for l in 0..nf {
-        let (i, d, _) = best(Some(l));
-        e_sc += sc[i][l].rss(d);
-        n_sc += sc[i][l].n;
-        e_all += all[i][l].rss(d);
-        n_all += all[i][l].n;
-    }
-    let (i, d, _) = best(None);
-    let (mut params, pred) = cands.into_iter().nth(i)?;
-    params.push(("compliance_scale".into(), d));
-    let prediction: Field = pred
-        .iter()
-        .map(|row| {
-            row.iter()
-                .zip(&p.rest_model_m)
-                .map(|(x, r)| r + (x - r) * d)
-                .collect()
-        })
-        .collect();
-    Some(Confirmed {
-        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
-        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
-        params,
-        prediction,
-        method: String::new(),
-    })
-}
-
 /// Confirms a temporal hypothesis by re-simulating its grid (module docs) with
-/// leave-one-location-out selection; `None` when `h` is not temporal or no grid point converged.
+/// leave-one-location-out selection ([`crate::confirm::lolo_confirm`]); `None` when `h` is not
+/// temporal or no grid point converged. Force-channel hypotheses (sensor-lag, clock-offset) are
+/// confirmed with the material refit on the corrected forces when the simulator can refit
+/// ([`material_refit`]), else with the compliance scale only.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn confirm_temporal(
     h: Hypothesis,
@@ -313,32 +177,65 @@ pub(crate) fn confirm_temporal(
     scored: &dyn Fn(usize, usize) -> bool,
 ) -> Result<Option<Confirmed>> {
     let grid = temporal_grid(h, rec, seg, p, refit);
-    let mut cands: Vec<(Vec<(String, f64)>, Field)> = Vec::with_capacity(grid.len());
-    for (params, ext, frames) in &grid {
-        match sim.simulate_sequence(ext, frames) {
-            Ok(pred) => cands.push((params.clone(), pred)),
+    let total = grid.len();
+    let mut cands = Vec::with_capacity(total);
+    let mut frames = Vec::with_capacity(total);
+    for (params, ext, seq) in grid {
+        match sim.simulate_sequence(&ext, &seq) {
+            Ok(prediction) => {
+                cands.push(Candidate { params, prediction });
+                frames.push(seq);
+            }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
         }
     }
     let n = cands.len();
-    if matches!(h, Hypothesis::SensorLag | Hypothesis::ClockOffset)
-        && let Some(c) = confirm_with_material_refit(h, &grid, &cands, rec, seg, p, sim, scored)?
-    {
-        return Ok(Some(c));
-    }
-    Ok(lolo_confirm(cands, rec, seg, p, fit_scale, scored).map(|mut c| {
-        c.method = format!(
-            "re-simulated extended model ({n} grid points of {}, {}), compliance scale, leave-one-location-out",
-            grid.len(),
-            match h {
-                Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch",
-                Hypothesis::SensorLag => "default model under the de-lagged force f + tau df/dt",
-                _ => "default model under the time-shifted force f(t + offset)",
-            }
+    let bounds = |fit| ComplianceScale::new(fit, 0.1, 10.0);
+    if matches!(h, Hypothesis::SensorLag | Hypothesis::ClockOffset) && n > 0 {
+        let method = format!(
+            "re-simulated: {} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {n} points, leave-one-location-out",
+            if h == Hypothesis::SensorLag {
+                "de-lagged force f + tau df/dt"
+            } else {
+                "time-shifted force f(t + offset)"
+            },
         );
-        c
-    }))
+        let mut run = material_refit(rec, seg, &frames, sim);
+        let c = lolo_confirm(
+            &cands,
+            rec,
+            seg,
+            p,
+            bounds(true),
+            scored,
+            false,
+            Some(&mut run),
+            method,
+        )?;
+        if c.is_some() {
+            return Ok(c);
+        }
+    }
+    let method = format!(
+        "re-simulated extended model ({n} grid points of {total}, {}), compliance scale, leave-one-location-out",
+        match h {
+            Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch",
+            Hypothesis::SensorLag => "default model under the de-lagged force f + tau df/dt",
+            _ => "default model under the time-shifted force f(t + offset)",
+        }
+    );
+    lolo_confirm(
+        &cands,
+        rec,
+        seg,
+        p,
+        bounds(fit_scale),
+        scored,
+        false,
+        None,
+        method,
+    )
 }
 
 /// Probe examples of location `l` (bickel2009 §4.1) under per-frame forces `forces`: its frame
@@ -391,131 +288,45 @@ fn location_examples(
         .collect()
 }
 
-/// The complete extended model of a force-channel hypothesis (sensor-lag, clock-offset): the
-/// corrected forces AND the material refit to them (the tissue fit saw the distorted forces).
-/// Per held-out location: the grid point with the least error on the other locations (with a
-/// compliance scale, as in [`lolo_confirm`]), a homogeneous (λ, α) refit on the other locations'
-/// examples under that point's corrected forces (`ProbeSimulator::refit_homogeneous`), and the
-/// re-simulated sequence scored on the held-out location. `None` when the simulator cannot
-/// refit its material or a refit fails.
-#[allow(clippy::too_many_arguments)]
-fn confirm_with_material_refit(
-    h: Hypothesis,
-    grid: &[(Vec<(String, f64)>, Extension, Vec<SequenceFrame>)],
-    cands: &[(Vec<(String, f64)>, Field)],
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    sim: &mut dyn ProbeSimulator,
-    scored: &dyn Fn(usize, usize) -> bool,
-) -> Result<Option<Confirmed>> {
-    let nf = seg.num_folds();
-    // training error (with a compliance scale) of every candidate without fold `skip`
-    let choose = |skip: Option<usize>| -> Option<usize> {
-        (0..cands.len())
-            .map(|i| {
-                let mut t = Sums::default();
-                for (k, f) in rec.frames.iter().enumerate() {
-                    if skip.is_some() && seg.fold_of_frame[k] == skip {
-                        continue;
-                    }
-                    for (m, y) in f.markers_m.iter().enumerate() {
-                        let Some(y) = y else { continue };
-                        let u = cands[i].1[k][m] - p.rest_model_m[m];
-                        let v = y - p.rest_model_m[m];
-                        t.add(&Sums {
-                            a: u.norm_squared(),
-                            b: u.dot(&v),
-                            c: v.norm_squared(),
-                            n: 1,
-                        });
-                    }
-                }
-                (i, t.rss(t.scale(true)))
-            })
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|x| x.0)
-    };
-    let forces_of = |i: usize| -> Vec<Vector3<f64>> {
-        grid.iter()
-            .find(|g| g.0 == cands[i].0)
-            .map(|g| {
-                g.2.iter()
-                    .map(|f| {
-                        f.load
-                            .probe
-                            .map(|q| q.force_n)
-                            .unwrap_or_else(Vector3::zeros)
-                    })
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
-    let frames_of = |i: usize| grid.iter().find(|g| g.0 == cands[i].0).map(|g| g.2.clone());
-    let run =
-        |sim: &mut dyn ProbeSimulator, i: usize, skip: Option<usize>| -> Result<Option<Field>> {
-            let forces = forces_of(i);
-            let Some(frames) = frames_of(i) else {
-                return Ok(None);
-            };
-            let examples: Vec<ProbeExample> = (0..nf)
-                .filter(|&l| Some(l) != skip)
-                .flat_map(|l| location_examples(rec, seg, l, &forces))
-                .collect();
-            let Some(mut refit) = sim.refit_homogeneous(&examples)? else {
-                return Ok(None);
-            };
-            match refit.simulate_sequence(&Extension::Elastic, &frames) {
-                Ok(x) => Ok(Some(x)),
-                Err(DiagnoseError::Simulation { .. }) => Ok(None),
-                Err(e) => Err(e),
-            }
-        };
-    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
-    for l in 0..nf {
-        let Some(i) = choose(Some(l)) else {
+/// The refit closure of a force-channel hypothesis (sensor-lag, clock-offset) for
+/// [`lolo_confirm`]: the complete extended model is the corrected forces AND the material refit
+/// to them (the tissue fit saw the distorted forces). For candidate i (re-simulated over
+/// `frames[i]`, which carry its corrected forces) without location `skip`: a homogeneous (λ, α)
+/// refit on the other locations' examples under those forces (`ProbeSimulator::refit_homogeneous`,
+/// bickel2009 §6), then the re-simulated sequence. `None` when the simulator cannot refit its
+/// material or a refit simulation fails.
+fn material_refit<'a>(
+    rec: &'a Recording,
+    seg: &'a Segmentation,
+    frames: &'a [Vec<SequenceFrame>],
+    sim: &'a mut dyn ProbeSimulator,
+) -> impl FnMut(usize, Option<usize>) -> Result<Option<Field>> + 'a {
+    move |i, skip| {
+        let Some(seq) = frames.get(i) else {
             return Ok(None);
         };
-        let Some(pred) = run(sim, i, Some(l))? else {
+        let forces: Vec<Vector3<f64>> = seq
+            .iter()
+            .map(|f| {
+                f.load
+                    .probe
+                    .map(|q| q.force_n)
+                    .unwrap_or_else(Vector3::zeros)
+            })
+            .collect();
+        let examples: Vec<ProbeExample> = (0..seg.num_folds())
+            .filter(|&l| Some(l) != skip)
+            .flat_map(|l| location_examples(rec, seg, l, &forces))
+            .collect();
+        let Some(mut refit) = sim.refit_homogeneous(&examples)? else {
             return Ok(None);
         };
-        for (k, f) in rec.frames.iter().enumerate() {
-            if seg.fold_of_frame[k] != Some(l) {
-                continue;
-            }
-            for (m, y) in f.markers_m.iter().enumerate() {
-                let Some(y) = y else { continue };
-                let r = (y - pred[k][m]).norm_squared();
-                e_all += r;
-                n_all += 1;
-                if scored(k, m) {
-                    e_sc += r;
-                    n_sc += 1;
-                }
-            }
+        match refit.simulate_sequence(&Extension::Elastic, seq) {
+            Ok(x) => Ok(Some(x)),
+            Err(DiagnoseError::Simulation { .. }) => Ok(None),
+            Err(e) => Err(e),
         }
     }
-    let Some(i) = choose(None) else {
-        return Ok(None);
-    };
-    let Some(prediction) = run(sim, i, None)? else {
-        return Ok(None);
-    };
-    Ok(Some(Confirmed {
-        after_scored_m: (e_sc / n_sc.max(1) as f64).sqrt(),
-        after_all_m: (e_all / n_all.max(1) as f64).sqrt(),
-        params: cands[i].0.clone(),
-        prediction,
-        method: format!(
-            "re-simulated: {} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {} points, leave-one-location-out",
-            if h == Hypothesis::SensorLag {
-                "de-lagged force f + tau df/dt"
-            } else {
-                "time-shifted force f(t + offset)"
-            },
-            cands.len()
-        ),
-    }))
 }
 
 #[cfg(test)]
