@@ -126,6 +126,23 @@ fn synth_and_capture(path: &Path, tmp: &Path) -> (Scenario, Accuracy, usize) {
     (scenario, a, report.frames)
 }
 
+/// Every probe frame has a pose, every marker is visible or filled, and markers (0.3 mm) and the
+/// probe tip (0.5 mm) are recovered against truth/.
+fn assert_geometry_recovered(name: &str, a: &Accuracy) {
+    assert!(
+        a.frames_without_probe_pose.is_empty(),
+        "{name}: no probe pose in frames {:?}",
+        a.frames_without_probe_pose
+    );
+    assert_eq!(a.missing, 0, "{name}: every marker visible or filled");
+    assert!(
+        a.marker_rms_mm < 0.3,
+        "{name}: marker RMS {:.3} mm",
+        a.marker_rms_mm
+    );
+    assert!(a.tip_rms_mm < 0.5, "{name}: tip RMS {:.3} mm", a.tip_rms_mm);
+}
+
 #[test]
 fn capture_reads_the_robot_arm_session_and_recovers_tip_and_force() {
     let tmp = tempfile::tempdir().unwrap();
@@ -180,29 +197,7 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
     }
     for path in paths {
         let (scenario, a, _) = synth_and_capture(&path, tmp.path());
-        assert!(
-            a.frames_without_probe_pose.is_empty(),
-            "{}: no probe pose in frames {:?}",
-            scenario.name,
-            a.frames_without_probe_pose
-        );
-        assert_eq!(
-            a.missing, 0,
-            "{}: every marker visible or filled",
-            scenario.name
-        );
-        assert!(
-            a.marker_rms_mm < 0.3,
-            "{}: marker RMS {:.3} mm",
-            scenario.name,
-            a.marker_rms_mm
-        );
-        assert!(
-            a.tip_rms_mm < 0.5,
-            "{}: tip RMS {:.3} mm",
-            scenario.name,
-            a.tip_rms_mm
-        );
+        assert_geometry_recovered(&scenario.name, &a);
         let force_latency = scenario.has(Effect::ClockOffset)
             && scenario.effect_settings.clock_force_latency_s > 0.0;
         if scenario.has(Effect::SensorLag) || force_latency {
@@ -262,29 +257,7 @@ fn capture_reads_the_standard_and_demo_scenarios() {
         let path = scenario_dir().join(format!("../{name}.toml"));
         let (scenario, a, frames) = synth_and_capture(&path, tmp.path());
         assert!(frames > 1, "{}: {frames} frames", scenario.name);
-        assert!(
-            a.frames_without_probe_pose.is_empty(),
-            "{}: no probe pose in frames {:?}",
-            scenario.name,
-            a.frames_without_probe_pose
-        );
-        assert_eq!(
-            a.missing, 0,
-            "{}: every marker visible or filled",
-            scenario.name
-        );
-        assert!(
-            a.marker_rms_mm < 0.3,
-            "{}: marker RMS {:.3} mm",
-            scenario.name,
-            a.marker_rms_mm
-        );
-        assert!(
-            a.tip_rms_mm < 0.5,
-            "{}: tip RMS {:.3} mm",
-            scenario.name,
-            a.tip_rms_mm
-        );
+        assert_geometry_recovered(&scenario.name, &a);
         // The FSR's calibration error grows at the top of its range: the standard session probes
         // to 1.77 N (measured 0.063 N RMS = 3.6 %, default detection noise), the suite to ≈ 1.3 N.
         assert!(
