@@ -14,51 +14,17 @@
 use softcap_design::*;
 use std::sync::Arc;
 
+/// The four probe loads on the top face (centre x, y [m]; force on the object [N]); two oblique.
+const LOADS: [([f64; 2], [f64; 3]); 4] = [
+    ([0.02, 0.025], [0.0, 0.0, -8.0]),
+    ([0.01, 0.0125], [1.5, 0.0, -6.0]),
+    ([0.03, 0.0375], [0.0, -1.5, -6.0]),
+    ([0.02, 0.0125], [1.2, 1.2, -5.0]),
+];
+
 fn measurements(truth: &BaseMaterial, settings: &BaseFitSettings) -> Result<BaseMeasurements> {
     let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.04, 0.05, 0.025], [4, 5, 2]);
-    let eps = 1e-9;
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - 0.025).abs() < eps)
-        .collect();
-    let fixed_nodes: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| mesh.vertices[i].z.abs() < eps)
-        .collect();
-    let loads = [
-        ([0.02, 0.025], [0.0, 0.0, -8.0]),
-        ([0.01, 0.0125], [1.5, 0.0, -6.0]),
-        ([0.03, 0.0375], [0.0, -1.5, -6.0]),
-        ([0.02, 0.0125], [1.2, 1.2, -5.0]),
-    ];
-    let examples = loads
-        .iter()
-        .map(|&(c, force_n)| ProbeExample {
-            patch_nodes: top
-                .iter()
-                .copied()
-                .filter(|&i| {
-                    let v = mesh.vertices[i];
-                    ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= 0.011
-                })
-                .collect(),
-            force_n,
-            marker_nodes: top.clone(),
-            displacements_m: vec![[0.0; 3]; top.len()],
-        })
-        .collect();
-    let mut meas = BaseMeasurements {
-        mesh,
-        fixed_nodes,
-        examples,
-    };
-    let x = simulate_examples(&meas, truth, &[], settings)?;
-    let n = top.len();
-    for (k, ex) in meas.examples.iter_mut().enumerate() {
-        for (a, d) in ex.displacements_m.iter_mut().enumerate() {
-            let o = 3 * (k * n + a);
-            *d = [x[o], x[o + 1], x[o + 2]];
-        }
-    }
-    Ok(meas)
+    simulate_block_probes(&mesh, truth, &LOADS, 0.011, settings)
 }
 
 fn main() -> std::result::Result<(), Box<dyn std::error::Error>> {

@@ -478,6 +478,71 @@ pub fn fit_base(
     })
 }
 
+/// Probe examples of a known base material on a block, simulated with the same composite FEM the
+/// §8.3 fit uses (so the full probe force is known: no missing tangential forces): the bottom
+/// face is fixed, every top-face node is an observed marker, and example k shares `loads[k].1`
+/// (force on the object [N], any direction) among the top nodes within `probe_radius_m` of
+/// `loads[k].0` (x, y [m]). The virtual measurements of the fitting tests and of the
+/// fitted-library example.
+pub fn simulate_block_probes(
+    mesh: &TetMesh,
+    truth: &BaseMaterial,
+    loads: &[([f64; 2], [f64; 3])],
+    probe_radius_m: f64,
+    settings: &BaseFitSettings,
+) -> Result<BaseMeasurements> {
+    let eps = 1e-9;
+    let (zmin, zmax) = mesh
+        .vertices
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v.z), hi.max(v.z))
+        });
+    let fixed_nodes: Vec<usize> = (0..mesh.vertices.len())
+        .filter(|&i| (mesh.vertices[i].z - zmin).abs() < eps)
+        .collect();
+    let top: Vec<usize> = (0..mesh.vertices.len())
+        .filter(|&i| (mesh.vertices[i].z - zmax).abs() < eps)
+        .collect();
+    let mut examples = Vec::with_capacity(loads.len());
+    for &(c, force_n) in loads {
+        let patch_nodes: Vec<usize> = top
+            .iter()
+            .copied()
+            .filter(|&i| {
+                let v = mesh.vertices[i];
+                ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= probe_radius_m + eps
+            })
+            .collect();
+        if patch_nodes.is_empty() {
+            return Err(DesignError::Invalid {
+                field: "probe centre",
+                reason: format!("no top node within {probe_radius_m} m of {c:?}"),
+            });
+        }
+        examples.push(ProbeExample {
+            patch_nodes,
+            force_n,
+            marker_nodes: top.clone(),
+            displacements_m: vec![[0.0; 3]; top.len()],
+        });
+    }
+    let mut meas = BaseMeasurements {
+        mesh: mesh.clone(),
+        fixed_nodes,
+        examples,
+    };
+    let x = simulate_examples(&meas, truth, &[], settings)?;
+    let n = top.len();
+    for (k, ex) in meas.examples.iter_mut().enumerate() {
+        for (a, d) in ex.displacements_m.iter_mut().enumerate() {
+            let o = 3 * (k * n + a);
+            *d = [x[o], x[o + 1], x[o + 2]];
+        }
+    }
+    Ok(meas)
+}
+
 /// Probe examples on a homogeneous block generated with softcap_fem directly (no recordings of
 /// base materials exist): ground truth is the stable neo-Hookean model (a known non-linear
 /// material) on `mesh`, the probe presses the top face with force `force_n` (−z) shared by the

@@ -55,8 +55,8 @@ pub use experiment::{
 };
 pub use fit::{
     BaseFitReport, BaseFitSettings, BaseMeasurements, ProbeExample, fit_base, fit_isotropic,
-    fit_transverse, simulate_examples, simulate_positions, synthesize_measurements,
-    tangential_forces,
+    fit_transverse, simulate_block_probes, simulate_examples, simulate_positions,
+    synthesize_measurements, tangential_forces,
 };
 pub use material::{
     BaseMaterial, InvariantMaterial, IsotropicBounds, StrainRbf, TransverseBounds,

@@ -8,60 +8,20 @@ use softcap_design::*;
 use softcap_mesh::TetMesh;
 
 /// Probe examples of `truth` on `mesh` (bottom fixed), simulated with the same composite FEM the
-/// fit uses (the probe force is known in full: no missing tangential forces).
+/// fit uses (the probe force is known in full: no missing tangential forces): one vertical and
+/// three oblique loads.
 fn measurements(
     mesh: &TetMesh,
     truth: &BaseMaterial,
     settings: &BaseFitSettings,
 ) -> BaseMeasurements {
-    let eps = 1e-9;
-    let zmax = mesh
-        .vertices
-        .iter()
-        .map(|v| v.z)
-        .fold(f64::NEG_INFINITY, f64::max);
-    let fixed_nodes: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| mesh.vertices[i].z.abs() < eps)
-        .collect();
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - zmax).abs() < eps)
-        .collect();
     let loads = [
         ([0.02, 0.025], [0.0, 0.0, -8.0]),
         ([0.01, 0.0125], [1.5, 0.0, -6.0]),
         ([0.03, 0.0375], [0.0, -1.5, -6.0]),
         ([0.02, 0.0125], [1.2, 1.2, -5.0]),
     ];
-    let examples = loads
-        .iter()
-        .map(|&(c, force_n)| ProbeExample {
-            patch_nodes: top
-                .iter()
-                .copied()
-                .filter(|&i| {
-                    let v = mesh.vertices[i];
-                    ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= 0.011
-                })
-                .collect(),
-            force_n,
-            marker_nodes: top.clone(),
-            displacements_m: vec![[0.0; 3]; top.len()],
-        })
-        .collect();
-    let mut meas = BaseMeasurements {
-        mesh: mesh.clone(),
-        fixed_nodes,
-        examples,
-    };
-    let x = simulate_examples(&meas, truth, &[], settings).unwrap();
-    let n = top.len();
-    for (k, ex) in meas.examples.iter_mut().enumerate() {
-        for (a, d) in ex.displacements_m.iter_mut().enumerate() {
-            let o = 3 * (k * n + a);
-            *d = [x[o], x[o + 1], x[o + 2]];
-        }
-    }
-    meas
+    simulate_block_probes(mesh, truth, &loads, 0.011, settings).expect("virtual probe examples")
 }
 
 fn max_displacement(meas: &BaseMeasurements) -> f64 {
