@@ -7,7 +7,7 @@
 //! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) | σ_y, H (× peak contact pressure) |
 //! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
 //! | probe-friction | contact frames, markers under the active contact | default model + tangential traction μ‖f‖ŝ at the patch | μ |
-//! | anisotropy | contact frames | `AnisotropicModel` (thesis eq. 8.5), fibre from the screening | ratio |
+//! | anisotropy | contact frames | `AnisotropicModel` (thesis eq. 8.5), the screened fibre and its mirror across the probe axis | fibre, ratio, ν_t, ν_a |
 //!
 //! Leave-one-location-out: per held-out location the grid point (and the material's compliance
 //! scale) with the least error on the other locations, scored on the held-out location's effect
@@ -123,6 +123,30 @@ pub fn friction_forces(
             _ => *f,
         })
         .collect()
+}
+
+/// Unit mean probe axis (handle → tip) over the contact frames of the location folds; −z when
+/// there is none.
+pub fn mean_probe_axis(rec: &Recording, seg: &Segmentation) -> Vector3<f64> {
+    rec.frames
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| seg.fold_of_frame[*k].is_some() && seg.phases[*k].in_contact())
+        .fold(Vector3::zeros(), |s, (_, f)| s + f.axis)
+        .try_normalize(1e-9)
+        .unwrap_or_else(|| -Vector3::z())
+}
+
+/// The fibre `a` and its mirror image in the plane across the unit probe axis `n`,
+/// a' = a − 2(a·n)n (a fibre is a line: a and −a are the same). Only `a` when the mirror is the
+/// same line (a ∥ n or a ⊥ n, within 1°).
+pub fn mirrored_fibres(a: &Vector3<f64>, n: &Vector3<f64>) -> Vec<Vector3<f64>> {
+    let mirror = a - n * (2.0 * a.dot(n));
+    if a.dot(&mirror).abs() >= 1.0_f64.to_radians().cos() * a.norm() * mirror.norm() {
+        vec![*a]
+    } else {
+        vec![*a, mirror]
+    }
 }
 
 /// Simulates every grid point (skipping those that do not reach equilibrium). With
@@ -286,27 +310,33 @@ pub(crate) fn confirm(
                 param(refit, "fibre_z"),
             );
             let a = a.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+            // The screened fibre AND its mirror in the plane across the mean probe axis: a
+            // press along n cannot tell a from a − 2(a·n)n in the linearised field (session 6:
+            // the screen returned the mirror of the truth's fibre), the re-simulation can.
+            let fibres = mirrored_fibres(&a, &mean_probe_axis(rec, seg));
             // the fitted isotropic Poisson ratio is biased by the anisotropy: ν_t, ν_a refitted
-            for ratio in [3.0, 5.0, 8.0] {
-                for nu_transverse in [0.2, 0.35, 0.45] {
-                    for nu_fibre in [0.1, 0.3] {
-                        grid.push((
-                            vec![
-                                ("fibre_x".into(), a.x),
-                                ("fibre_y".into(), a.y),
-                                ("fibre_z".into(), a.z),
-                                ("fibre_ratio".into(), ratio),
-                                ("nu_transverse".into(), nu_transverse),
-                                ("nu_fibre".into(), nu_fibre),
-                            ],
-                            Extension::TransverselyIsotropic {
-                                fibre: a,
-                                ratio,
-                                nu_transverse,
-                                nu_fibre,
-                            },
-                            f.clone(),
-                        ));
+            for a in fibres {
+                for ratio in [3.0, 5.0, 8.0] {
+                    for nu_transverse in [0.2, 0.35, 0.45] {
+                        for nu_fibre in [0.1, 0.3] {
+                            grid.push((
+                                vec![
+                                    ("fibre_x".into(), a.x),
+                                    ("fibre_y".into(), a.y),
+                                    ("fibre_z".into(), a.z),
+                                    ("fibre_ratio".into(), ratio),
+                                    ("nu_transverse".into(), nu_transverse),
+                                    ("nu_fibre".into(), nu_fibre),
+                                ],
+                                Extension::TransverselyIsotropic {
+                                    fibre: a,
+                                    ratio,
+                                    nu_transverse,
+                                    nu_fibre,
+                                },
+                                f.clone(),
+                            ));
+                        }
                     }
                 }
             }
@@ -352,4 +382,30 @@ pub(crate) fn confirm(
             effect_cells_name(h).unwrap_or("focus cells")
         ),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mirrored_fibres_recover_the_oblique_truth() {
+        // session 6: the screen's fibre [1, 0, −1]/√2 under a vertical press is the mirror of
+        // the suite truth's [1, 0, 1]/√2.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let down = -Vector3::z();
+        let f = mirrored_fibres(&Vector3::new(s, 0.0, -s), &down);
+        assert_eq!(f.len(), 2);
+        assert!((f[1] - Vector3::new(s, 0.0, s)).norm() < 1e-15);
+        // a tilted probe: the mirror lies in the plane across that axis, same angle to it
+        let n = Vector3::new(0.3, 0.0, -1.0).normalize();
+        let a = Vector3::new(0.2, 0.5, 0.8).normalize();
+        let m = &mirrored_fibres(&a, &n)[1];
+        assert!((m.norm() - 1.0).abs() < 1e-12);
+        assert!((m.dot(&n) + a.dot(&n)).abs() < 1e-12);
+        assert!(((m - n * m.dot(&n)) - (a - n * a.dot(&n))).norm() < 1e-12);
+        // in the surface plane or along the axis the mirror is the same line
+        assert_eq!(mirrored_fibres(&Vector3::x(), &down).len(), 1);
+        assert_eq!(mirrored_fibres(&Vector3::z(), &down).len(), 1);
+    }
 }
