@@ -10,12 +10,15 @@
 //! untrained location with the fitted strain-space material (§3.4 incremental loading with
 //! contact, force control); its rate in Hz is 1 / median.
 //!
-//! `cargo bench -p softcap_tissue --bench tissue` (criterion: 10 samples of each; the fit alone is
-//! minutes). Before criterion starts, one fit is timed and printed (`single fit: … s`).
+//! `scripts/bench softcap_tissue` (= `cargo bench -p softcap_tissue --bench tissue`; criterion,
+//! 10 one-call samples of each after one warm-up call). Before criterion starts, one fit and one
+//! synthesis are timed and printed with their process CPU time (`single fit: … s wall, … CPU-s`)
+//! and figures; `SOFTCAP_TISSUE_BENCH_ONCE=1` stops there (a quick timing, or a `perf record`
+//! target).
 
 use std::time::{Duration, Instant};
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::probing::{
     ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, probe_pose,
@@ -120,20 +123,48 @@ fn session() -> PreparedSession {
     }
 }
 
+/// Process CPU time (user + system, all threads), s; `None` where /proc is not available.
+fn cpu_time_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses): utime and stime are fields
+    // 14 and 15 of the whole line, i.e. 12 and 13 after the closing parenthesis.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0) // USER_HZ = 100 on Linux
+}
+
+fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
+    let (t0, c0) = (Instant::now(), cpu_time_s());
+    let r = f();
+    let cpu = match (c0, cpu_time_s()) {
+        (Some(a), Some(b)) => format!("{:.1} CPU-s", b - a),
+        _ => "CPU n/a".into(),
+    };
+    eprintln!("{what}: {:.2} s wall, {cpu}", t0.elapsed().as_secs_f64());
+    r
+}
+
 fn bench(c: &mut Criterion) {
     let prepared = session();
     let settings = FitSettings {
         progress: false,
         ..FitSettings::default()
     };
-    let t0 = Instant::now();
-    let fit = fit_session(&prepared, &settings, &Progress::hidden()).expect("fit");
+    let fit = timed("single fit", || {
+        fit_session(&prepared, &settings, &Progress::hidden()).expect("fit")
+    });
     eprintln!(
-        "single fit: {:.1} s wall ({} tets, {} examples; γ_p = {}; marker RMS homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm, {} re-simulations not converged)",
-        t0.elapsed().as_secs_f64(),
+        "  {} tets, {} examples; γ_p = {} (LOLO {}); marker RMS homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm, {} re-simulations not converged",
         fit.outcome.tets,
         fit.outcome.examples.len(),
         fit.outcome.gamma_prior,
+        fit.outcome
+            .gamma_prior_scores
+            .iter()
+            .map(|s| format!("{}: {:.4} mm", s.gamma_prior, 1e3 * s.heldout_rms_m))
+            .collect::<Vec<_>>()
+            .join(", "),
         1e3 * fit.outcome.homogeneous_rms_m,
         1e3 * fit.outcome.example_rms_m,
         1e3 * fit.outcome.material_rms_m,
@@ -151,16 +182,23 @@ fn bench(c: &mut Criterion) {
         assert_eq!(r.status, softcap_fem::SolveStatus::Converged);
         r
     };
-    let r = synth();
+    let r = timed("single synthesis", synth);
     eprintln!(
-        "simulate: 6 mm sphere at 0.5 N, depth {:.3} mm, {} load steps, {} depth iterations",
+        "  6 mm sphere at 0.5 N: depth {:.3} mm, {} load steps, {} depth iterations",
         1e3 * r.depth_m,
         r.step_depths_m.len(),
         r.depth_iterations
     );
+    if std::env::var_os("SOFTCAP_TISSUE_BENCH_ONCE").is_some() {
+        eprintln!("SOFTCAP_TISSUE_BENCH_ONCE set: single runs only, no criterion samples");
+        return;
+    }
 
+    // Each sample is one call (flat sampling): the fit is tens of seconds, so criterion's
+    // minimum of 10 samples (+ one warm-up call) is ≈ 11 fits.
     let mut g = c.benchmark_group("tissue");
     g.sample_size(10);
+    g.sampling_mode(SamplingMode::Flat);
     g.warm_up_time(Duration::from_millis(1));
     g.measurement_time(Duration::from_secs(1));
     g.bench_function("simulate_sphere_0.5N_1800_tets", |b| b.iter(synth));
