@@ -121,51 +121,41 @@ fn parses_inspect_verbs() {
     }
 }
 
+/// `softcap inspect export <file> --what <what> -o <out>`: (exit code, stderr).
+fn export(file: &std::path::Path, what: &str, out: &std::path::Path) -> (i32, String) {
+    let (code, _, err) = softcap(&[
+        "inspect",
+        "export",
+        file.to_str().unwrap(),
+        "--what",
+        what,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    (code, err)
+}
+
 #[test]
 fn export_csv_columns_are_exact() {
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("capture.mcap");
     write_capture(&f);
     let m = dir.path().join("m.csv");
-    let (code, _, err) = softcap(&[
-        "inspect",
-        "export",
-        f.to_str().unwrap(),
-        "--what",
-        "markers",
-        "-o",
-        m.to_str().unwrap(),
-    ]);
+    let (code, err) = export(&f, "markers", &m);
     assert_eq!(code, 0, "{err}");
     assert_eq!(
         std::fs::read_to_string(&m).unwrap(),
         "frame,id,x,y,z\n0,3,0.5,0.25,-0.125\n1,3,0.5,0.25,-0.125\n"
     );
     let p = dir.path().join("p.csv");
-    let (code, _, err) = softcap(&[
-        "inspect",
-        "export",
-        f.to_str().unwrap(),
-        "--what",
-        "probe",
-        "-o",
-        p.to_str().unwrap(),
-    ]);
+    let (code, err) = export(&f, "probe", &p);
     assert_eq!(code, 0, "{err}");
     assert_eq!(
         std::fs::read_to_string(&p).unwrap(),
         "frame,t_camera_s,fx,fy,fz,tip_x,tip_y,tip_z\n0,0,0,0.5,0,0.01,0.02,0.03\n1,0.5,0,0.5,-2,0.01,0.02,0.03\n"
     );
     let o = dir.path().join("s.obj");
-    let (code, _, err) = softcap(&[
-        "inspect",
-        "export",
-        f.to_str().unwrap(),
-        "--what",
-        "surface",
-        "-o",
-        o.to_str().unwrap(),
-    ]);
+    let (code, err) = export(&f, "surface", &o);
     assert_eq!(code, 0, "{err}");
     let obj = std::fs::read_to_string(&o).unwrap();
     assert!(
@@ -173,15 +163,7 @@ fn export_csv_columns_are_exact() {
         "{obj}"
     );
     // Missing channel: bad input.
-    let (code, _, err) = softcap(&[
-        "inspect",
-        "export",
-        f.to_str().unwrap(),
-        "--what",
-        "volume",
-        "-o",
-        o.to_str().unwrap(),
-    ]);
+    let (code, err) = export(&f, "volume", &o);
     assert_eq!(code, 2);
     assert!(err.contains("/mesh/volume"), "{err}");
 }
