@@ -478,6 +478,49 @@ pub fn fit_base(
     })
 }
 
+/// The bottom (fixed) and top (probed, observed) face nodes of a block mesh, within 1 nm of the
+/// lowest and highest z.
+fn block_faces(mesh: &TetMesh) -> (Vec<usize>, Vec<usize>) {
+    let eps = 1e-9;
+    let (zmin, zmax) = mesh
+        .vertices
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v.z), hi.max(v.z))
+        });
+    let on = |z: f64| -> Vec<usize> {
+        (0..mesh.vertices.len())
+            .filter(|&i| (mesh.vertices[i].z - z).abs() < eps)
+            .collect()
+    };
+    (on(zmin), on(zmax))
+}
+
+/// The `top` nodes within `probe_radius_m` (x, y distance) of the probe centre `c`; an error when
+/// there is none.
+fn probe_patch(
+    mesh: &TetMesh,
+    top: &[usize],
+    c: [f64; 2],
+    probe_radius_m: f64,
+) -> Result<Vec<usize>> {
+    let patch: Vec<usize> = top
+        .iter()
+        .copied()
+        .filter(|&i| {
+            let v = mesh.vertices[i];
+            ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= probe_radius_m + 1e-9
+        })
+        .collect();
+    if patch.is_empty() {
+        return Err(DesignError::Invalid {
+            field: "probe centre",
+            reason: format!("no top node within {probe_radius_m} m of {c:?}"),
+        });
+    }
+    Ok(patch)
+}
+
 /// Probe examples of a known base material on a block, simulated with the same composite FEM the
 /// §8.3 fit uses (so the full probe force is known: no missing tangential forces): the bottom
 /// face is fixed, every top-face node is an observed marker, and example k shares `loads[k].1`
@@ -491,35 +534,10 @@ pub fn simulate_block_probes(
     probe_radius_m: f64,
     settings: &BaseFitSettings,
 ) -> Result<BaseMeasurements> {
-    let eps = 1e-9;
-    let (zmin, zmax) = mesh
-        .vertices
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-            (lo.min(v.z), hi.max(v.z))
-        });
-    let fixed_nodes: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - zmin).abs() < eps)
-        .collect();
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - zmax).abs() < eps)
-        .collect();
+    let (fixed_nodes, top) = block_faces(mesh);
     let mut examples = Vec::with_capacity(loads.len());
     for &(c, force_n) in loads {
-        let patch_nodes: Vec<usize> = top
-            .iter()
-            .copied()
-            .filter(|&i| {
-                let v = mesh.vertices[i];
-                ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= probe_radius_m + eps
-            })
-            .collect();
-        if patch_nodes.is_empty() {
-            return Err(DesignError::Invalid {
-                field: "probe centre",
-                reason: format!("no top node within {probe_radius_m} m of {c:?}"),
-            });
-        }
+        let patch_nodes = probe_patch(mesh, &top, c, probe_radius_m)?;
         examples.push(ProbeExample {
             patch_nodes,
             force_n,
@@ -556,40 +574,11 @@ pub fn synthesize_measurements(
     probe_radius_m: f64,
     sticky: bool,
 ) -> Result<BaseMeasurements> {
-    let zmax = mesh
-        .vertices
-        .iter()
-        .map(|v| v.z)
-        .fold(f64::NEG_INFINITY, f64::max);
-    let zmin = mesh
-        .vertices
-        .iter()
-        .map(|v| v.z)
-        .fold(f64::INFINITY, f64::min);
-    let eps = 1e-9;
-    let fixed_nodes: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - zmin).abs() < eps)
-        .collect();
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| (mesh.vertices[i].z - zmax).abs() < eps)
-        .collect();
+    let (fixed_nodes, top) = block_faces(mesh);
     let mut model = softcap_fem::NeoHookeanModel::homogeneous(mesh, truth)?;
     let mut out = Vec::new();
     for &(c, force) in examples {
-        let patch: Vec<usize> = top
-            .iter()
-            .copied()
-            .filter(|&i| {
-                let v = mesh.vertices[i];
-                ((v.x - c[0]).powi(2) + (v.y - c[1]).powi(2)).sqrt() <= probe_radius_m + eps
-            })
-            .collect();
-        if patch.is_empty() {
-            return Err(DesignError::Invalid {
-                field: "probe centre",
-                reason: format!("no top node within {probe_radius_m} m of {c:?}"),
-            });
-        }
+        let patch = probe_patch(mesh, &top, c, probe_radius_m)?;
         let mut bc = DirichletBc::new();
         for &i in &fixed_nodes {
             bc.fix_node(i, mesh.vertices[i]);
