@@ -42,8 +42,14 @@ fn main() {
         vertices: verts,
         triangles: tris,
     };
+    let (c0, t0) = (cpu_s(), std::time::Instant::now());
     let lap = softcap_mesh::cotan_laplacian(&fine);
     let areas = softcap_mesh::voronoi_areas(&fine);
+    println!(
+        "cotangent Laplacian + Voronoi areas: CPU {:.2} s (wall {:.2} s)",
+        cpu_s() - c0,
+        t0.elapsed().as_secs_f64()
+    );
     let mut orderings = Vec::new();
     if which != "nd" {
         orderings.push(("AMD", ShellOrdering::Amd));

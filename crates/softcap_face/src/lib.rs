@@ -47,8 +47,8 @@ pub use animate::{FaceAnimator, factor_shell, subdivide_midpoint};
 pub use classify::{SvmSettings, classify_frames};
 pub use correspondence::Correspondence;
 pub use cross_section::{
-    HorizonSettings, Shading, UnitHorizons, ambient_ratio, wedge_shading, wrinkle_profile,
-    wrinkle_profile_slope,
+    HorizonSearch, HorizonSettings, Shading, UnitHorizons, ambient_ratio, wedge_shading,
+    wrinkle_profile, wrinkle_profile_slope,
 };
 pub use error::{FaceError, Result};
 pub use image::RgbImage;

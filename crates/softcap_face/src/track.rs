@@ -6,6 +6,7 @@
 //! bounded Levenberg–Marquardt, i.e. Gauss–Newton with a trust-region safeguard).
 
 use nalgebra::{DMatrix, Vector2};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_core::{
     BSplineFitSettings, Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, SolverStatus,
@@ -350,9 +351,11 @@ fn grid_start(p: &[f64], ratio: &[f64], settings: &TrackSettings) -> (f64, f64, 
     const N_W: usize = 28;
     const N_A: usize = 36;
     const A_MAX: f64 = 3.5;
+    // (only the grid search has a resolution to coarsen; the analytic search is exact)
     let coarse = HorizonSettings {
         range_w: settings.horizon.range_w.min(10.0),
         step_w: settings.horizon.step_w.max(0.1),
+        ..settings.horizon
     };
     let p_max = p.iter().fold(0.0f64, |m, &x| m.max(x.abs()));
     let (w_lo, w_hi) = (0.5f64, (p_max / 1.5).max(1.0));
@@ -460,7 +463,10 @@ pub fn track_wrinkle(
         let n = Vector2::new(-t.y, t.x);
         coords.push((xc, (q - spline.eval(xc)).dot(&n)));
     }
-    let mut sections = Vec::new();
+    // The slabs of every cross-section (sequential, cheap), then the eq. 4.4 fits in parallel:
+    // each fit depends on its own slab only and rayon's ordered collect keeps the section order,
+    // so the result does not depend on the thread count.
+    let mut slabs = Vec::new();
     let mut x = spline.x0 + settings.end_margin_px;
     while x <= spline.x1 - settings.end_margin_px {
         let mut ps = Vec::new();
@@ -481,20 +487,26 @@ pub fn track_wrinkle(
             let top = &sorted[from..];
             let i_m = top.iter().sum::<f64>() / top.len() as f64;
             let ratio: Vec<f64> = gs.iter().map(|g| g / i_m).collect();
-            let (d, w, p0, rms, converged) = fit_cross_section(&ps, &ratio, settings)?;
-            let t = spline.deriv(x).normalize();
-            let v = spline.eval(x) + p0 * Vector2::new(-t.y, t.x);
-            sections.push(CrossSection {
-                x,
+            slabs.push((x, ps, ratio));
+        }
+        x += settings.section_spacing_px;
+    }
+    let sections = slabs
+        .par_iter()
+        .map(|(x, ps, ratio)| {
+            let (d, w, p0, rms, converged) = fit_cross_section(ps, ratio, settings)?;
+            let t = spline.deriv(*x).normalize();
+            let v = spline.eval(*x) + p0 * Vector2::new(-t.y, t.x);
+            Ok(CrossSection {
+                x: *x,
                 valley_px: [v.x, v.y],
                 depth_px: d,
                 width_px: w,
                 rms,
                 converged,
-            });
-        }
-        x += settings.section_spacing_px;
-    }
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
     Ok(TrackedWrinkle {
         mean_px: [mean.x, mean.y],
         axis: [axis.x, axis.y],
