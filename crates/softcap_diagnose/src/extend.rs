@@ -6,6 +6,7 @@
 //! |---|---|---|
 //! | [`Extension::Viscoelastic`] | `ViscoelasticModel` over the default corotational model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3), exact exponential recurrence between frames | g, τ |
 //! | [`Extension::Plastic`] | `ElastoplasticModel` (J2 radial return on the corotational element, Simo & Hughes 1998 Box 3.1–3.2), the default model's (λ, α) per element, state committed after every frame | σ_y, H |
+//! | [`Extension::PlasticPoisson`] | as above with the Poisson ratio of every element replaced (Young's modulus kept) | σ_y, H, ν |
 //! | [`Extension::SupportSprings`] | `SupportPlane` with tangential springs on the attached nodes instead of fixed nodes (bilateral normal penalty), `NodalSolver` | total tangential stiffness k |
 //! | [`Extension::Anisotropic`] | `AnisotropicModel`, transversely isotropic (thesis eq. 8.5) with the default model's isotropic (E, ν) across the fibre and E_a = r E along it | fibre a, ratio r |
 //! | [`Extension::TransverselyIsotropic`] | `AnisotropicModel` as above with the Poisson ratios fitted too: ν_t across the fibre, ν_a fibre–transverse (thesis eq. 8.5, `TransverselyIsotropicParams::from_engineering`) | fibre a, ratio r, ν_t, ν_a |
@@ -48,6 +49,18 @@ pub enum Extension {
         yield_stress_pa: f64,
         /// Hardening modulus, Pa.
         hardening_pa: f64,
+    },
+    /// J2 plasticity as [`Extension::Plastic`] on the default model's Young's moduli with the
+    /// Poisson ratio set to `poisson`: the tissue fit's ν is biased by the unmodelled plastic
+    /// flow (suite plasticity session: fitted 0.48, truth 0.45), and under the rigid-tip replay
+    /// (position control) the displacements depend on σ_y/E, H/E and ν only.
+    PlasticPoisson {
+        /// Uniaxial yield stress, Pa.
+        yield_stress_pa: f64,
+        /// Hardening modulus, Pa.
+        hardening_pa: f64,
+        /// Poisson ratio ν of every element (Young's modulus kept).
+        poisson: f64,
     },
     /// Tangential springs under the attached face.
     SupportSprings {
@@ -180,6 +193,46 @@ impl FemProbeSimulator {
         AnisotropicModel::new(&self.setup().mesh, params, vec![a; nt]).map_err(fem)
     }
 
+    /// The `ElastoplasticModel` of a plasticity extension over the default model's (λ, α) — with
+    /// the Poisson ratio replaced for [`Extension::PlasticPoisson`].
+    fn plastic_model(&self, ext: &Extension) -> Result<ElastoplasticModel> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let base = self.model();
+        let (yield_stress_pa, hardening_pa, params) = match *ext {
+            Extension::Plastic {
+                yield_stress_pa,
+                hardening_pa,
+            } => (yield_stress_pa, hardening_pa, base.params().to_vec()),
+            Extension::PlasticPoisson {
+                yield_stress_pa,
+                hardening_pa,
+                poisson,
+            } => (
+                yield_stress_pa,
+                hardening_pa,
+                base.params()
+                    .iter()
+                    .map(|p| {
+                        let (e, _) = p.to_young_poisson()?;
+                        LinearParams::from_young_poisson(e, poisson)
+                    })
+                    .collect::<std::result::Result<Vec<_>, _>>()
+                    .map_err(fem)?,
+            ),
+            other => {
+                return Err(DiagnoseError::BadRecording {
+                    what: format!("{other:?} is not a plasticity extension"),
+                });
+            }
+        };
+        let q = J2PlasticityParams {
+            yield_stress_pa,
+            hardening_modulus_pa: hardening_pa,
+        };
+        let nt = self.setup().mesh.tets.len();
+        ElastoplasticModel::new(&self.setup().mesh, params, vec![q; nt]).map_err(fem)
+    }
+
     /// Marker positions of every frame of `frames` (time order) under the default model extended
     /// by `ext`, each frame warm-started from the previous one and history committed after it.
     pub fn simulate_sequence(
@@ -202,17 +255,8 @@ impl FemProbeSimulator {
                     |m, x| m.commit(x),
                 )
             }
-            Extension::Plastic {
-                yield_stress_pa,
-                hardening_pa,
-            } => {
-                let q = J2PlasticityParams {
-                    yield_stress_pa,
-                    hardening_modulus_pa: hardening_pa,
-                };
-                let nt = mesh.tets.len();
-                let ep = ElastoplasticModel::new(mesh, base.params().to_vec(), vec![q; nt])
-                    .map_err(fem)?;
+            Extension::Plastic { .. } | Extension::PlasticPoisson { .. } => {
+                let ep = self.plastic_model(ext)?;
                 self.run_static(
                     ep,
                     frames,
@@ -293,7 +337,6 @@ impl FemProbeSimulator {
             return Ok(None);
         };
         let base = self.model().clone();
-        let mesh = &self.setup().mesh;
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         Ok(Some(match *ext {
             Extension::Elastic => self.run_rigid(base, &tip, frames, |_, _| Ok(()), |_, _| {})?,
@@ -308,17 +351,8 @@ impl FemProbeSimulator {
                     |m, x| m.commit(x),
                 )?
             }
-            Extension::Plastic {
-                yield_stress_pa,
-                hardening_pa,
-            } => {
-                let q = J2PlasticityParams {
-                    yield_stress_pa,
-                    hardening_modulus_pa: hardening_pa,
-                };
-                let nt = mesh.tets.len();
-                let ep = ElastoplasticModel::new(mesh, base.params().to_vec(), vec![q; nt])
-                    .map_err(fem)?;
+            Extension::Plastic { .. } | Extension::PlasticPoisson { .. } => {
+                let ep = self.plastic_model(ext)?;
                 self.run_rigid(
                     ep,
                     &tip,

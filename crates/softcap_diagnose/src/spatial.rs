@@ -270,20 +270,34 @@ pub(crate) fn confirm(
             }
             // Rigid-tip replay (position control): the tip's geometry sets the stress under its
             // rim, which the force boundary condition spreads out (module docs).
-            for sy in [0.2, 0.3, 0.4] {
-                for hh in [0.5, 1.0] {
-                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
-                    rigid.push((
-                        vec![
+            // The Poisson ratio too (`Extension::PlasticPoisson`): the tissue fit's ν is biased
+            // by the plastic flow it did not model, and the coarse linear tets lock more than the
+            // object does; under position control E only scales σ_y and H.
+            for nu in [None, Some(0.45), Some(0.35)] {
+                for sy in [0.2, 0.3, 0.4] {
+                    for hh in [0.5, 1.0] {
+                        let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                        let mut params = vec![
                             ("yield_stress_pa".into(), yield_stress_pa),
                             ("hardening_modulus_pa".into(), hardening_pa),
                             ("rigid_tip_replay".into(), 1.0),
-                        ],
-                        Extension::Plastic {
-                            yield_stress_pa,
-                            hardening_pa,
-                        },
-                    ));
+                        ];
+                        let ext = match nu {
+                            None => Extension::Plastic {
+                                yield_stress_pa,
+                                hardening_pa,
+                            },
+                            Some(poisson) => {
+                                params.push(("poisson".into(), poisson));
+                                Extension::PlasticPoisson {
+                                    yield_stress_pa,
+                                    hardening_pa,
+                                    poisson,
+                                }
+                            }
+                        };
+                        rigid.push((params, ext));
+                    }
                 }
             }
             ("ElastoplasticModel", true)

@@ -152,7 +152,7 @@ fn viscoelasticity_is_named() {
 }
 
 #[test]
-#[ignore = "measured 2026-11-22 10:58 (dxs, released frames, markers within 2.5 tip radii of a touched location): verdict plasticity (was none), held-out 0.368 -> 0.226 mm (1.6x, needs 3x) with the rigid-tip J2 replay (sigma_y 4.39 kPa of 4, H 5.49 kPa of 2, compliance 2.40); finer sigma_y/H grids plateau at 0.225 mm: the 5 mm disk touches 1-4 nodes of the 6.7 mm fit mesh, so the dent shape at the markers stays coarse"]
+#[ignore = "measured 2026-11-22 14:18 (dxs; 14 mm flat indenter, 4 quadrant locations; released frames, markers within 2.5 tip radii of a touched location): verdict plasticity, held-out 0.629 -> 0.255 mm (2.47x, needs 3x) with the rigid-tip J2 replay (sigma_y 4.10 kPa of 4, H 10.2 kPa of 2, nu 0.45 of 0.45 (tissue fit 0.48), compliance 1.14); a 27-point grid reaching H 20 kPa gives 0.250 mm (2.51x) at 3x the cost. 5 mm disk (session 6): 0.368 -> 0.226 mm (1.6x)"]
 fn plasticity_is_named() {
     check("plasticity");
 }
