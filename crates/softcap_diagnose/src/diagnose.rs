@@ -124,6 +124,13 @@ pub struct Signatures {
     pub released_set_m: f64,
     /// RMS tangential baseline residual of probed markers in contact, m.
     pub contact_tangential_m: f64,
+    /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
+    /// of the markers within the contact radius of the tip (`crate::spatial::contact_radius_m`)
+    /// over the contact frames of locations where the tip travels along the surface, m: > 0 when
+    /// the surface is dragged along with the tip beyond the model (probe friction); 0 without
+    /// tangential travel.
+    #[serde(default)]
+    pub contact_drag_m: f64,
     /// RMS baseline residual of attached markers in contact, m.
     pub attached_motion_m: f64,
     /// Mean baseline residual along gravity at rest, m.
@@ -422,6 +429,7 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
             )
         },
     );
+    s.contact_drag_m = crate::friction::drag_signature_m(rec, seg, res);
     s.attached_motion_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
         &|r, _| r.norm(),
@@ -497,7 +505,10 @@ pub fn signature_support(h: Hypothesis, s: &Signatures) -> f64 {
             }
         }
         Hypothesis::ProbeFriction => {
-            if s.contact_tangential_m > sig3 {
+            // the surface dragged along with the tip (crate::friction::drag_signature_m)
+            if s.contact_drag_m > sig3 {
+                1.0
+            } else if s.contact_tangential_m > sig3 {
                 0.5
             } else {
                 0.0

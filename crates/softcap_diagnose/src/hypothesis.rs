@@ -16,7 +16,7 @@
 //! | viscoelasticity | creep (standard linear solid): f_eff = f + a f + g·LP_τ(f) | τ (grid), a, g ≥ 0 |
 //! | plasticity | permanent set ∝ elastic response at each location's peak, above a yield force | f_y (grid), β ≥ 0 |
 //! | gravity-preload | gravity body-force response of density ρ (wang2015 eq. 7) | ρ ≥ 0 |
-//! | probe-friction | tangential traction μ‖f‖ŝ at the contact patch, ŝ = tangential tip travel | μ |
+//! | probe-friction | tangential traction μ‖f‖ŝ at the contact patch, ŝ = tangential tip travel; or sliding along the travel, reversing when the tip slides back (`crate::friction`) | μ |
 //! | support-slip | rigid translation c·P_t f (elastic) + c_p·P_t f at the running max (stick-slip) | c, c_p ≥ 0 |
 //! | clock-offset | force trace shifted in time: f_eff(t) = f(t + δ) | δ (grid) |
 //! | sensor-lag | first-order sensor: f_true = f + τ ḟ | τ ≥ 0 |
@@ -382,7 +382,7 @@ pub fn variants(h: Hypothesis, rec: &Recording, seg: &Segmentation, p: &Prepared
             if df.iter().all(|v| *v == Vector3::zeros()) {
                 return vec![];
             }
-            vec![Variant {
+            let mut out = vec![Variant {
                 fixed: vec![],
                 offset: None,
                 bases: vec![Basis {
@@ -390,7 +390,29 @@ pub fn variants(h: Hypothesis, rec: &Recording, seg: &Segmentation, p: &Prepared
                     nonneg: false,
                     field: p.load_field(&df),
                 }],
-            }]
+            }];
+            // Sliding Coulomb traction μ f_n along the tip's travel, reversing when the tip
+            // slides back (crate::friction::sliding_direction), where the tip travels.
+            let k_ind = crate::friction::indentation_stiffness_n_per_m(seg);
+            let dir = crate::friction::sliding_direction(rec, seg, f, k_ind);
+            let slide: Vec<_> = (0..nt)
+                .map(|k| match seg.fold_of_frame[k] {
+                    Some(_) if seg.phases[k].in_contact() => dir[k] * f[k].norm(),
+                    _ => Vector3::zeros(),
+                })
+                .collect();
+            if slide.iter().any(|v| *v != Vector3::zeros()) {
+                out.push(Variant {
+                    fixed: vec![("sliding_reverses", 1.0)],
+                    offset: None,
+                    bases: vec![Basis {
+                        name: "mu",
+                        nonneg: false,
+                        field: p.load_field(&slide),
+                    }],
+                });
+            }
+            out
         }
         Hypothesis::SupportSlip => {
             let n = match (&rec.support, rec.gravity_dir()) {

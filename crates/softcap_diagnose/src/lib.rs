@@ -16,6 +16,7 @@
 //! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
 //! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
 //! | [`spatial`] | plasticity, support-slip, anisotropy, probe-friction: effect cells and re-simulated confirmation |
+//! | [`friction`] | probe-friction: the Coulomb traction of the tip's travel under the measured normal force (return mapping), its confirmation grid |
 //! | [`diagnose`] | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
 //!
 //! ```
@@ -53,6 +54,7 @@ mod confirm;
 pub mod diagnose;
 mod error;
 pub mod extend;
+pub mod friction;
 pub mod hypothesis;
 pub mod io;
 pub mod output;

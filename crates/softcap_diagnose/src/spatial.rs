@@ -6,7 +6,7 @@
 //! |---|---|---|---|
 //! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) | σ_y, H (× peak contact pressure) |
 //! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
-//! | probe-friction | contact frames, markers under the active contact | default model + tangential traction μ‖f‖ŝ at the patch | μ |
+//! | probe-friction | contact frames, markers under the active contact | default model + the Coulomb traction of the tip's travel at the patch ([`crate::friction`]: return mapping under the measured normal force, or constant sense μ‖f‖ŝ) | μ, k_t |
 //! | anisotropy | contact frames | `AnisotropicModel` (thesis eq. 8.5), the screened fibre and its mirror across the probe axis | fibre, ratio, ν_t, ν_a |
 //!
 //! Leave-one-location-out: per held-out location the grid point (and the material's compliance
@@ -100,29 +100,16 @@ fn param(refit: &Refit, name: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
-/// Probe force plus the Coulomb traction μ‖f‖ŝ_l of the tip's tangential travel at location l
-/// (`Prepared::friction_dir`), reversed while unloading when `reverse`.
+/// Probe force plus the constant-sense traction μ‖f‖ŝ_l of the tip's tangential travel at
+/// location l (`Prepared::friction_dir`), reversed while unloading when `reverse`
+/// ([`crate::friction::constant_sense_forces`]).
 pub fn friction_forces(
     seg: &Segmentation,
     p: &Prepared,
     mu: f64,
     reverse: bool,
 ) -> Vec<Vector3<f64>> {
-    p.force_n
-        .iter()
-        .enumerate()
-        .map(|(k, f)| match seg.fold_of_frame[k] {
-            Some(l) if seg.phases[k].in_contact() => {
-                let sign = if reverse && seg.phases[k] == Phase::Unloading {
-                    -1.0
-                } else {
-                    1.0
-                };
-                f + p.friction_dir[l] * (sign * mu * f.norm())
-            }
-            _ => *f,
-        })
-        .collect()
+    crate::friction::constant_sense_forces(seg, p, mu, reverse)
 }
 
 /// Unit mean probe axis (handle → tip) over the contact frames of the location folds; −z when
@@ -357,20 +344,10 @@ pub(crate) fn confirm(
             ("AnisotropicModel", true)
         }
         Hypothesis::ProbeFriction => {
-            // Coulomb traction μ‖f‖ along the tip's tangential travel ŝ while the probe advances
-            // or holds; while it retracts the surface slides back: −ŝ (`reverse`) or still +ŝ.
-            for reverse in [false, true] {
-                for mu in [0.15, 0.3, 0.45, 0.6, 0.8] {
-                    let forces = friction_forces(seg, p, mu, reverse);
-                    grid.push((
-                        vec![
-                            ("mu".into(), mu),
-                            ("reverse_on_unloading".into(), f64::from(u8::from(reverse))),
-                        ],
-                        Extension::Elastic,
-                        forces,
-                    ));
-                }
+            // The Coulomb return mapping of the tip's measured travel under the measured
+            // (lagged) normal force, and the constant-sense traction (crate::friction).
+            for (params, forces) in crate::friction::confirmation_grid(rec, seg, p) {
+                grid.push((params, Extension::Elastic, forces));
             }
             ("default model under Coulomb traction", true)
         }
