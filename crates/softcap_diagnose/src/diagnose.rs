@@ -1006,10 +1006,29 @@ pub fn diagnose(
             }
         }
     };
+    // Hypotheses whose signature alone is unambiguous (crate::temporal::confirmed_by_signature:
+    // a force relaxing in the holds) are confirmed first, even if their linearised screen does
+    // not qualify; the re-simulated held-out gain still decides.
+    let by_signature: Vec<Hypothesis> = Hypothesis::ALL
+        .into_iter()
+        .filter(|&h| {
+            crate::temporal::confirmed_by_signature(h, &sig)
+                && explainable_of(h, before_of(h))
+                && refits.iter().any(|r| r.hypothesis == h)
+        })
+        .collect();
+    let candidates: Vec<Hypothesis> = by_signature
+        .iter()
+        .copied()
+        .chain(candidates.into_iter().filter(|h| !by_signature.contains(h)))
+        .collect();
     let mut confirmed: BTreeMap<Hypothesis, std::result::Result<Confirmed, String>> =
         BTreeMap::new();
     let mut verdict = None;
-    for h in candidates.iter().take(settings.max_confirmations.max(1)) {
+    for h in candidates
+        .iter()
+        .take(settings.max_confirmations.max(1) + by_signature.len())
+    {
         let Some(r) = refits.iter().find(|x| x.hypothesis == *h) else {
             continue;
         };
@@ -1032,6 +1051,7 @@ pub fn diagnose(
                 &prepared,
                 sim,
                 settings.refit_compliance_scale,
+                &sig,
                 &scored,
             )
         } else if h.is_load_extension() {
@@ -1087,6 +1107,9 @@ pub fn diagnose(
         evidence.insert("delta_bic".into(), row.dbic.into());
         evidence.insert("signature_support".into(), row.support.into());
         evidence.insert("qualifies".into(), row.qualifies.into());
+        if by_signature.contains(&row.h) {
+            evidence.insert("confirmed_by_signature".into(), true.into());
+        }
         evidence.insert("num_params".into(), r.num_params.into());
         match crate::spatial::effect_cells_name(row.h).filter(|_| masks.contains_key(&row.h)) {
             Some(name) => evidence.insert("scored_cells".into(), vec![name].into()),

@@ -20,10 +20,11 @@
 //! ramp → a pure time shift (clock-offset) — see [`crate::diagnose::signature_support`].
 
 use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
+use crate::diagnose::Signatures;
 use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
-use crate::segment::Segmentation;
+use crate::segment::{Phase, Segmentation};
 use crate::signal::{derivative, sample};
 use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
@@ -36,6 +37,21 @@ pub fn is_temporal(h: Hypothesis) -> bool {
         h,
         Hypothesis::Viscoelasticity | Hypothesis::SensorLag | Hypothesis::ClockOffset
     )
+}
+
+/// Hold-force drift (the `hold_force_drift` signature: (last − first)/peak over the holds) at or
+/// below which the force relaxes beyond any elastic explanation. Then `viscoelasticity` is
+/// confirmed by re-simulation even when its linearised screen does not qualify — the linear creep
+/// field T(t)·δf around the baseline is a poor proxy once the relaxation is a large fraction of
+/// the force — with its grid centred on the hold relaxation fit ([`hold_relaxation`]). Issue 8's
+/// signature: force relaxing in the holds at fixed geometry means the material. The suite's other
+/// sessions drift by at most ±1.2 % (controls ≤ 0.5 %), sensor-lag and clock-offset upward.
+pub const RELAXATION_DRIFT: f64 = -0.10;
+
+/// True when the signatures alone send `h` to confirmation by re-simulation (see
+/// [`RELAXATION_DRIFT`]).
+pub fn confirmed_by_signature(h: Hypothesis, sig: &Signatures) -> bool {
+    h == Hypothesis::Viscoelasticity && sig.hold_force_drift <= RELAXATION_DRIFT
 }
 
 fn param(refit: &Refit, name: &str) -> Option<f64> {
@@ -59,6 +75,104 @@ pub fn delagged_forces(t: &[f64], f: &[Vector3<f64>], tau_s: f64) -> Vec<Vector3
 /// Force trace shifted in time, f_eff(t_k) = f(t_k + δ) (linear interpolation, held at the ends).
 pub fn shifted_forces(t: &[f64], f: &[Vector3<f64>], offset_s: f64) -> Vec<Vector3<f64>> {
     t.iter().map(|&tk| sample(t, f, tk + offset_s)).collect()
+}
+
+/// Force relaxation over the holds (position-controlled probing: the depth is held, the force
+/// relaxes) as a standard linear solid, or `None` when fewer than 3 hold frames per location or
+/// no relaxation (B ≤ 10⁻³ A) at most locations.
+///
+/// Per location l with ≥ 3 hold frames, ‖f(t)‖ = A_l + B_l e^{−(t − t_h)/τ} over its hold frames
+/// (t_h its first hold frame), one τ for the recording (log grid 0.01–10 s, 1.5 % steps; A_l, B_l
+/// by linear least squares). For G(t) = G∞ (1 + g e^{−t/τ}) (one Prony branch, Simo & Hughes
+/// 1998 §10.3) under a strain ramp of duration T_r then held, the hereditary integral gives
+/// A = G∞ ε̇ T_r and B = G∞ ε̇ g τ (1 − e^{−T_r/τ}), so
+///
+///   g = (B / A) · T_r / (τ (1 − e^{−T_r/τ})),
+///
+/// T_r = time from the location's last unloaded frame to its first hold frame. Returns (g, τ)
+/// with g the median over the locations.
+pub fn hold_relaxation(rec: &Recording, seg: &Segmentation) -> Option<(f64, f64)> {
+    let t = rec.times_s();
+    let dt = median_dt(&t);
+    // (hold times from t_h, normalised force magnitudes, ramp duration) per location
+    let mut holds: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
+    for l in &seg.locations {
+        let hold: Vec<usize> = l
+            .contact_frames
+            .iter()
+            .copied()
+            .filter(|&k| seg.phases[k] == Phase::Hold)
+            .collect();
+        let (Some(&h0), Some(&c0)) = (hold.first(), l.contact_frames.first()) else {
+            continue;
+        };
+        if hold.len() < 3 || l.peak_force_n <= 0.0 {
+            continue;
+        }
+        let ramp_s = t[h0] - t[c0] + dt;
+        holds.push((
+            hold.iter().map(|&k| t[k] - t[h0]).collect(),
+            hold.iter()
+                .map(|&k| rec.frames[k].force_n.norm() / l.peak_force_n)
+                .collect(),
+            ramp_s,
+        ));
+    }
+    if holds.is_empty() {
+        return None;
+    }
+    // per location: least squares of y ≈ A + B e^{−s/τ}; returns (A, B, rss)
+    let fit = |s: &[f64], y: &[f64], tau: f64| -> Option<(f64, f64, f64)> {
+        let (mut n, mut se, mut see, mut sy, mut sye) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (&si, &yi) in s.iter().zip(y) {
+            let e = (-si / tau).exp();
+            n += 1.0;
+            se += e;
+            see += e * e;
+            sy += yi;
+            sye += yi * e;
+        }
+        let det = n * see - se * se;
+        if det.abs() < 1e-12 * n * see.max(1e-300) {
+            return None;
+        }
+        let a = (see * sy - se * sye) / det;
+        let b = (n * sye - se * sy) / det;
+        let rss = s
+            .iter()
+            .zip(y)
+            .map(|(&si, &yi)| (yi - a - b * (-si / tau).exp()).powi(2))
+            .sum();
+        Some((a, b, rss))
+    };
+    let mut best: Option<(f64, f64)> = None; // (rss, tau)
+    let mut tau = 0.01;
+    while tau <= 10.0 {
+        let total: Option<f64> = holds
+            .iter()
+            .map(|(s, y, _)| fit(s, y, tau).map(|x| x.2))
+            .sum();
+        if let Some(r) = total
+            && best.is_none_or(|b| r < b.0)
+        {
+            best = Some((r, tau));
+        }
+        tau *= 1.015;
+    }
+    let (_, tau) = best?;
+    let mut g: Vec<f64> = holds
+        .iter()
+        .filter_map(|(s, y, ramp_s)| {
+            let (a, b, _) = fit(s, y, tau)?;
+            (a > 0.0 && b > 1e-3 * a)
+                .then(|| b / a * ramp_s / (tau * (1.0 - (-ramp_s / tau).exp())))
+        })
+        .collect();
+    if g.len() * 2 < holds.len().max(1) {
+        return None;
+    }
+    g.sort_by(f64::total_cmp);
+    Some((g[g.len() / 2], tau))
 }
 
 /// The sequence to simulate under per-frame probe forces `forces`: a frame carries a probe load
@@ -87,13 +201,15 @@ fn frames_with_forces(
 }
 
 /// The grid of extended models of a temporal hypothesis `h`, centred on the linearised estimate
-/// of `refit`: (named parameters, extension, frames with their loads).
+/// of `refit` (viscoelasticity with relaxing holds: on [`hold_relaxation`]): (named parameters,
+/// extension, frames with their loads).
 pub fn temporal_grid(
     h: Hypothesis,
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     refit: &Refit,
+    sig: &Signatures,
 ) -> Vec<(Vec<(String, f64)>, Extension, Vec<SequenceFrame>)> {
     let t = &p.times_s;
     let dt = median_dt(t);
@@ -119,6 +235,13 @@ pub fn temporal_grid(
                 1.0
             };
             let tau0 = (tau_c / (1.0 + g0)).max(0.5 * dt);
+            // a relaxing hold force is measured directly: centre the grid there
+            let (g0, tau0) = match hold_relaxation(rec, seg) {
+                Some((g, tau)) if confirmed_by_signature(h, sig) && g > 0.05 => {
+                    (g.min(20.0), tau.max(0.5 * dt))
+                }
+                _ => (g0, tau0),
+            };
             for gm in [0.5, 0.75, 1.0, 1.5, 2.0] {
                 for tm in [0.5, 1.0, 2.0] {
                     let (g, tau_s) = (g0 * gm, tau0 * tm);
@@ -174,9 +297,10 @@ pub(crate) fn confirm_temporal(
     p: &Prepared,
     sim: &mut dyn ProbeSimulator,
     fit_scale: bool,
+    sig: &Signatures,
     scored: &dyn Fn(usize, usize) -> bool,
 ) -> Result<Option<Confirmed>> {
-    let grid = temporal_grid(h, rec, seg, p, refit);
+    let grid = temporal_grid(h, rec, seg, p, refit, sig);
     let total = grid.len();
     let mut cands = Vec::with_capacity(total);
     let mut frames = Vec::with_capacity(total);
@@ -354,6 +478,62 @@ mod tests {
                 f[k].x
             );
         }
+    }
+
+    #[test]
+    fn hold_relaxation_recovers_a_standard_linear_solid() {
+        // Position-controlled ramp (4 frames) / hold (8) / unload (3) at two places of a block
+        // whose force is a standard linear solid in the depth d: F = k (d + g q),
+        // q̇ = ḋ − q/τ (one Prony branch), integrated exactly for the piecewise-linear depth.
+        use crate::recording::Frame;
+        use crate::segment::SegmentSettings;
+        let (g, tau, dt, k) = (1.5, 0.25, 0.05, 300.0);
+        let mut profile = vec![0.0, 0.0];
+        profile.extend((1..=4).map(|i| i as f64 / 4.0));
+        profile.extend([1.0; 7]);
+        profile.extend([0.66, 0.33, 0.0, 0.0, 0.0]);
+        let mut frames = Vec::new();
+        for tip in [Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)] {
+            let (mut q, mut prev) = (0.0, 0.0);
+            for &s in &profile {
+                let d = 0.002 * s;
+                let rate = (d - prev) / dt;
+                let decay = (-dt / tau).exp();
+                q = q * decay + rate * tau * (1.0 - decay);
+                prev = d;
+                let k_frame = frames.len();
+                frames.push(Frame {
+                    frame: k_frame as u64,
+                    time_s: k_frame as f64 * dt,
+                    tip_m: tip - Vector3::z() * d,
+                    axis: -Vector3::z(),
+                    force_n: -Vector3::z() * (k * (d + g * q)).max(0.0),
+                    markers_m: vec![None; 2],
+                });
+            }
+        }
+        let rec = Recording {
+            marker_ids: vec!["a".into(), "b".into()],
+            rest_markers_m: vec![Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)],
+            normals: vec![Vector3::z(); 2],
+            gravity_m_s2: Vector3::zeros(),
+            support: None,
+            tip_radius_m: 0.002,
+            frames,
+        };
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        assert_eq!(seg.num_folds(), 2);
+        let (g_fit, tau_fit) = hold_relaxation(&rec, &seg).expect("relaxing holds");
+        assert!((tau_fit / tau - 1.0).abs() < 0.02, "tau {tau_fit}");
+        assert!((g_fit / g - 1.0).abs() < 0.03, "g {g_fit}");
+        // an elastic block (g = 0) has nothing to fit
+        let mut elastic = rec.clone();
+        for (i, f) in elastic.frames.iter_mut().enumerate() {
+            let s = profile[i % profile.len()];
+            f.force_n = -Vector3::z() * k * 0.002 * s;
+        }
+        let seg = Segmentation::new(&elastic, &SegmentSettings::default());
+        assert!(hold_relaxation(&elastic, &seg).is_none());
     }
 
     #[test]
