@@ -5,12 +5,14 @@
 //! `RAYON_NUM_THREADS=1 cargo run --release -p softcap_psd --example pass_cpu_time`
 //! (`PSD_LEVELS` subdivision levels, default 3; `PSD_FRAMES` frames of the subdivided face,
 //! default 10; `PSD_ONLY_FRAMES=1` skips the per-pass timings, e.g. for `/usr/bin/time` over
-//! two frame counts; `PSD_REORDER=1` the Morton locality order).
+//! two frame counts; `PSD_REORDER=1` the Morton locality order inside the layout (outputs
+//! un-permuted every frame); `PSD_PERMUTE=1` the rig itself stored in Morton order,
+//! [`softcap_psd::permute_rig`]).
 
 use softcap_psd::runtime::{self, LANES};
 use softcap_psd::{
     Animator, EvaluationSettings, FaceRig, FitMode, IctData, RigSettings, RuntimeSettings,
-    fit_wpsd, pose_sets, subdivide_rig,
+    fit_wpsd, permute_rig, pose_sets, subdivide_rig,
 };
 use std::path::PathBuf;
 use std::time::Instant;
@@ -65,6 +67,11 @@ fn main() {
         } else {
             subdivide_rig(&rig, &model, level, &settings.edge_weights)
         };
+        let (r, m) = if std::env::var("PSD_PERMUTE").is_ok_and(|v| v == "1") {
+            permute_rig(&r, &m, &runtime::morton_order(&r.rest_f32))
+        } else {
+            (r, m)
+        };
         let t = Instant::now();
         let settings = RuntimeSettings {
             reorder: std::env::var("PSD_REORDER").is_ok_and(|v| v == "1"),
@@ -72,11 +79,18 @@ fn main() {
         };
         let mut anim = Animator::with_settings(&r, &m, &settings).expect("animator");
         let n = r.num_vertices();
+        let (dd, dn) = anim.layout.schedule.deferred_fractions();
         println!(
-            "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame",
+            "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame \
+             ({:.0} B/vertex), sweep blocks {} chunks {}, deferred detail {:.1} % normals {:.1} %",
             t.elapsed().as_secs_f64(),
             anim.layout.basis.mean_rank(),
-            anim.layout.bytes_per_frame() as f64 / 1e6
+            anim.layout.bytes_per_frame() as f64 / 1e6,
+            anim.layout.bytes_per_frame() as f64 / n as f64,
+            anim.layout.schedule.block,
+            anim.layout.schedule.chunk,
+            100.0 * dd,
+            100.0 * dn
         );
         let reps = if n > 100_000 { 10 } else { 200 };
         let reps = std::env::var("PSD_FRAMES")

@@ -63,9 +63,9 @@ pub use graph::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_ha
 pub use nalgebra;
 pub use poses::{PoseDeltas, PoseRecipe, random_combinations};
 pub use rig::{
-    Animator, FaceRig, RigSettings, large_scale_kernel, reference_frame, shell_for_mesh,
-    subdivide_midpoint, subdivide_rig,
+    Animator, FaceRig, RigSettings, large_scale_kernel, permute_rig, reference_frame,
+    shell_for_mesh, subdivide_midpoint, subdivide_rig,
 };
-pub use runtime::{Fans, LowRankBasis, RuntimeLayout, RuntimeSettings};
+pub use runtime::{Fans, LowRankBasis, RuntimeLayout, RuntimeSettings, Schedule};
 pub use softcap_mesh::{LinearShell, ShellBasis, ShellSettings};
 pub use transfer::{Correspondence, identity_correspondence, transfer_details};

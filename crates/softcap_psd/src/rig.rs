@@ -208,8 +208,8 @@ pub fn large_scale_kernel(
 
 /// Run-time synthesis (thesis §5.5.2): handle positions → detailed positions and normals.
 /// The vertex-major layout ([`RuntimeLayout`], block low-rank basis) and all buffers are built
-/// once; a frame runs three parallel passes (large scale; normal + frame + WPSD detail; normals)
-/// and allocates nothing.
+/// once; a frame is one fused parallel sweep ([`runtime::frame_pass`]: large scale; normal +
+/// frame + WPSD detail; normals) and allocates nothing.
 #[derive(Debug)]
 pub struct Animator<'a> {
     rig: &'a FaceRig,
@@ -222,6 +222,8 @@ pub struct Animator<'a> {
     pub normals: Vec<[f32; 3]>,
     large: Vec<[f32; 3]>,
     work: Vec<[f32; 3]>,
+    work_normals: Vec<[f32; 3]>,
+    centred: Vec<[f32; 4]>,
     features: Vec<f64>,
     table: Vec<[f32; runtime::LANES]>,
     global_r: Vec<f32>,
@@ -251,6 +253,8 @@ impl<'a> Animator<'a> {
             normals: vec![[0.0; 3]; n],
             large: vec![[0.0; 3]; n],
             work: vec![[0.0; 3]; n],
+            work_normals: vec![[0.0; 3]; n],
+            centred: Vec::with_capacity(rig.handles.len()),
             features: vec![0.0; rig.graph.len()],
             table: Vec::with_capacity(rig.graph.len() * p.div_ceil(runtime::LANES)),
             global_r: vec![0.0; p],
@@ -300,20 +304,38 @@ impl<'a> Animator<'a> {
                     .sqrt();
             }
         }
-        runtime::large_scale_pass(&self.layout, &self.uh, &mut self.large);
-        runtime::detail_pass(
-            &self.layout,
-            &self.large,
-            &self.table,
-            global.then_some(&self.global_r[..]),
-            &mut self.work,
-        );
-        runtime::normal_pass_to_mesh_order(
-            &self.layout,
-            &self.work,
-            &mut self.positions,
-            &mut self.normals,
-        );
+        let mean = runtime::centre_handles(&self.uh, &mut self.centred);
+        let global_r = global.then_some(&self.global_r[..]);
+        if self.layout.rank.is_none() {
+            runtime::frame_pass(
+                &self.layout,
+                &self.centred,
+                mean,
+                &self.table,
+                global_r,
+                &mut self.large,
+                &mut self.positions,
+                &mut self.normals,
+            );
+        } else {
+            runtime::frame_pass(
+                &self.layout,
+                &self.centred,
+                mean,
+                &self.table,
+                global_r,
+                &mut self.large,
+                &mut self.work,
+                &mut self.work_normals,
+            );
+            runtime::to_mesh_order_into(
+                &self.layout,
+                &self.work,
+                &self.work_normals,
+                &mut self.positions,
+                &mut self.normals,
+            );
+        }
         Ok(())
     }
 }
@@ -449,4 +471,75 @@ pub fn subdivide_rig(
         metric,
     };
     (fine_rig, fine_model)
+}
+
+/// The same rig and detail model with the vertices stored in `order` (`order[k]` = vertex
+/// stored `k`-th, e.g. [`runtime::morton_order`] of the rest positions): positions, triangles,
+/// handle ids, shell-basis rows, edge-weight rows and RBF-weight rows renumbered. A locality
+/// order applied once when the asset is built (as a renderer orders its vertex buffer): the
+/// run-time sweep ([`runtime::Schedule`]) then gathers nearby memory, its low-rank blocks are
+/// compact surface patches, and no per-frame un-permute is needed (unlike
+/// [`RuntimeSettings::reorder`], which keeps the caller's order). Frames are the same up to the
+/// renumbering (triangles keep their order, so fans and local frames are identical; the
+/// low-rank blocks differ).
+pub fn permute_rig(rig: &FaceRig, model: &DetailModel, order: &[u32]) -> (FaceRig, DetailModel) {
+    let n = rig.num_vertices();
+    assert_eq!(order.len(), n, "one entry per vertex");
+    let mut rank = vec![u32::MAX; n];
+    for (k, &v) in order.iter().enumerate() {
+        rank[v as usize] = k as u32;
+    }
+    assert!(
+        rank.iter().all(|&k| k != u32::MAX),
+        "order is a permutation"
+    );
+    fn rows<T: Copy>(src: &[T], width: usize, order: &[u32]) -> Vec<T> {
+        order
+            .iter()
+            .flat_map(|&v| &src[v as usize * width..(v as usize + 1) * width])
+            .copied()
+            .collect()
+    }
+    let triangles: Vec<[usize; 3]> = rig
+        .topology
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| rank[v as usize] as usize))
+        .collect();
+    let ew = &rig.edge_weights;
+    let edge_weights = EdgeWeights {
+        width: ew.width,
+        edges: rows(&ew.edges, ew.width, order),
+        alphas: rows(&ew.alphas, ew.width, order),
+    };
+    let h = rig.basis.h;
+    let fine = FaceRig {
+        rest: rows(&rig.rest, 1, order),
+        rest_f32: rows(&rig.rest_f32, 1, order),
+        topology: Topology::new(n, &triangles),
+        handles: rig.handles.iter().map(|&v| rank[v] as usize).collect(),
+        basis: ShellBasis {
+            n,
+            h,
+            weights: rows(&rig.basis.weights, h, order),
+        },
+        graph: rig.graph.clone(),
+        edge_weights: edge_weights.clone(),
+    };
+    let p3 = 3 * model.num_poses();
+    let metric = match &model.metric {
+        Metric::Global => Metric::Global,
+        Metric::Weighted(w) => Metric::Weighted(EdgeWeights {
+            width: w.width,
+            edges: rows(&w.edges, w.width, order),
+            alphas: rows(&w.alphas, w.width, order),
+        }),
+    };
+    let permuted = DetailModel {
+        num_features: model.num_features,
+        centers: model.centers.clone(),
+        weights: rows(&model.weights, p3, order),
+        metric,
+    };
+    (fine, permuted)
 }

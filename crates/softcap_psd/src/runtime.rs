@@ -1,5 +1,5 @@
 //! Run-time data layout of the synthesis (thesis §5.5.2): everything one frame reads, stored
-//! vertex-major in `f32` so each of the three per-frame passes streams memory once.
+//! vertex-major (f32 positions, fixed-point per-vertex weights) so a frame streams memory once.
 //!
 //! * **Large scale** `x = x0 + B u_H` (thesis §5.3) with a *block low-rank* `B`
 //!   ([`LowRankBasis`]). Rows of `B` sum to 1 (constants are in the null space of `L` and
@@ -16,14 +16,19 @@
 //! * **Normals** from a precomputed one-ring stored as ordered fans ([`Fans`]): per vertex its
 //!   neighbours in winding order, `n_v ∝ Σ_i (p_{i} − p_v) × (p_{i+1} − p_v)` — the area-weighted
 //!   sum of the incident face normals, without a face pass, with one gather per neighbour.
-//! * **Details** (eq. 5.3–5.5): per vertex the WPSD edge ids / weights `α_{v,i}` and the `3P`
-//!   RBF weights; the per-frame table `g[i][j] = (f_i − f_{j,i})²` is padded to lanes of 8 poses
-//!   (F × 8 floats for P ≤ 8, in L1) so `r_j² = Σ_i α_{v,i} g[i][j]` is a vector multiply-add
-//!   per edge.
+//! * **Details** (eq. 5.3–5.5): per vertex the WPSD edge ids (`u8` when F ≤ 256) and weights
+//!   `α_{v,i}` (`u16` fixed point, [`ALPHA_STEP`]) and the `3P` RBF weights (f32); the per-frame table `g[i][j] = (f_i − f_{j,i})²` is padded to lanes
+//!   of 8 poses (F × 8 floats for P ≤ 8, in L1) so `r_j² = Σ_i α_{v,i} g[i][j]` is a vector
+//!   multiply-add per edge. Everything that does not depend on the pose (edge selection, `α`,
+//!   RBF weights, fans, reference neighbours) is precomputed.
 //!
-//! Pass 1 writes the large-scale positions; pass 2 computes, per vertex, the large-scale normal
-//! and local frame, the detail `d_v(f)` and the final position; pass 3 the final normals. Each
-//! pass is a rayon loop over vertex blocks.
+//! A frame is one fused sweep ([`frame_pass`], order in [`Schedule`]): per chunk of vertices
+//! (one rayon task each) and block of 256–2048 vertices, the large-scale positions of block
+//! `s`, the large-scale normal, local frame, WPSD detail and final position of block `s − 1`
+//! and the final normals of block `s − 2`, so each vertex's data is read from memory once and
+//! the one-ring gathers hit cache; vertices whose one-ring leaves the window are finished after
+//! the sweep. The three passes also exist separately ([`large_scale_pass`], [`detail_pass`],
+//! [`normal_pass`]) with the same per-vertex arithmetic (bit-identical results).
 
 use crate::detail::{DetailModel, MAX_POSES, Metric};
 use crate::error::{PsdError, Result};
@@ -319,11 +324,13 @@ impl Fans {
     /// face normals (`[0, 0, 1]` if degenerate).
     #[inline]
     pub fn normal(&self, positions: &[[f32; 3]], v: usize) -> [f32; 3] {
-        let ids = &self.neighbours[self.offsets[v] as usize..self.offsets[v + 1] as usize];
-        normalize(
-            fan_normal_sum(positions, ids, self.kinds[v], positions[v]),
-            [0.0, 0.0, 1.0],
-        )
+        normal_vertex(self, v, positions, 0)
+    }
+
+    /// Neighbours of vertex `v` (see [`FanKind`]).
+    #[inline(always)]
+    pub fn ring(&self, v: usize) -> &[u32] {
+        &self.neighbours[self.offsets[v] as usize..self.offsets[v + 1] as usize]
     }
 }
 
@@ -364,6 +371,162 @@ fn chain(pairs: &[[u32; 2]], used: &mut Vec<bool>) -> (FanKind, Vec<u32>) {
     }
 }
 
+/// Edge ids of the WPSD rows ([`RuntimeLayout::edges`]): one byte per id when F ≤ 256 (the
+/// thesis' F = 243), two otherwise.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EdgeIds {
+    /// F ≤ 256.
+    U8(Vec<u8>),
+    /// F > 256.
+    U16(Vec<u16>),
+}
+
+impl EdgeIds {
+    /// Bytes stored.
+    pub fn bytes(&self) -> usize {
+        match self {
+            Self::U8(v) => v.len(),
+            Self::U16(v) => 2 * v.len(),
+        }
+    }
+}
+
+/// An id type of [`EdgeIds`].
+trait EdgeId: Copy + Send + Sync {
+    fn index(self) -> usize;
+}
+impl EdgeId for u8 {
+    #[inline(always)]
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+impl EdgeId for u16 {
+    #[inline(always)]
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Fixed-point step of the stored WPSD edge weights: `α_{v,i} = q_{v,i} · ALPHA_STEP`, `q` a
+/// `u16` (absolute error ≤ 7.7e-6 on weights that sum to 1).
+pub const ALPHA_STEP: f32 = 1.0 / 65535.0;
+
+/// Bit of [`Schedule::flags`]: the vertex's detail is computed after the sweep.
+pub const DEFER_DETAIL: u8 = 1;
+/// Bit of [`Schedule::flags`]: the vertex's final normal is computed after the sweep.
+pub const DEFER_NORMAL: u8 = 2;
+
+/// Order of the fused per-frame sweep ([`frame_pass`]). The stored vertices are cut into chunks
+/// of `chunk` consecutive vertices (one rayon task each), and a chunk is swept in blocks of
+/// `block` vertices: step `s` computes the large-scale positions of block `s`, the normal +
+/// frame + WPSD detail of block `s − 1` and the final normals of block `s − 2`. So every
+/// vertex's data is read from memory once per frame and each one-ring gather hits positions
+/// written one or two blocks earlier (in L1/L2) instead of a second and third pass over the
+/// whole mesh. A vertex whose one-ring (or reference neighbour) leaves its chunk or reaches
+/// past the next block is *deferred* ([`DEFER_DETAIL`]; its normal and its neighbours'
+/// normals too, [`DEFER_NORMAL`]): those are computed after all chunks, from the finished
+/// arrays. The result does not depend on the schedule (every vertex runs the same arithmetic).
+/// With a locality order (Morton, [`morton_order`]) few vertices are deferred; in an arbitrary
+/// vertex order most are, and the sweep degrades to three passes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Schedule {
+    /// Vertices per sweep block (a multiple of [`LOW_RANK_BLOCK`]).
+    pub block: usize,
+    /// Vertices per chunk (a multiple of `block`).
+    pub chunk: usize,
+    /// Per vertex: [`DEFER_DETAIL`] | [`DEFER_NORMAL`] bits.
+    pub flags: Vec<u8>,
+    /// Vertices whose detail is deferred, by chunk (`detail_offsets[c]..detail_offsets[c + 1]`).
+    pub deferred_detail: Vec<u32>,
+    /// Chunk offsets into `deferred_detail` (chunks + 1).
+    pub detail_offsets: Vec<usize>,
+    /// Vertices whose final normal is deferred, by chunk.
+    pub deferred_normal: Vec<u32>,
+    /// Chunk offsets into `deferred_normal` (chunks + 1).
+    pub normal_offsets: Vec<usize>,
+}
+
+impl Schedule {
+    /// Sweep shape for `n` vertices: ≥ 4 chunks of ≤ 64k vertices (so two threads share the
+    /// work and a chunk's blocks stay cache-resident), blocks of 256–2048 vertices.
+    pub fn shape(n: usize) -> (usize, usize) {
+        let chunks = n.div_ceil(65_536).max(4);
+        let per = n.div_ceil(chunks).max(1);
+        let block = LOW_RANK_BLOCK * (per / (8 * LOW_RANK_BLOCK)).clamp(1, 8);
+        (block, per.div_ceil(block) * block)
+    }
+
+    /// Flags and deferred lists of `fans` for sweep blocks of `block` and chunks of `chunk`
+    /// vertices (`chunk` a multiple of `block`, `block` of [`LOW_RANK_BLOCK`]).
+    pub fn new(fans: &Fans, block: usize, chunk: usize) -> Self {
+        assert!(
+            block > 0
+                && block.is_multiple_of(LOW_RANK_BLOCK)
+                && chunk.is_multiple_of(block)
+                && chunk > 0,
+            "sweep blocks of whole low-rank blocks, chunks of whole sweep blocks"
+        );
+        let n = fans.kinds.len();
+        // vertices of the chunk whose positions are complete when vertex v is processed
+        let window = |v: usize| -> std::ops::Range<usize> {
+            let c0 = v / chunk * chunk;
+            let c1 = (c0 + chunk).min(n);
+            c0..(c0 + ((v - c0) / block + 2) * block).min(c1)
+        };
+        let mut flags = vec![0u8; n];
+        for (v, f) in flags.iter_mut().enumerate() {
+            let w = window(v);
+            let inside = |u: &u32| w.contains(&(*u as usize));
+            if !(fans.ring(v).iter().all(inside) && inside(&fans.reference[v])) {
+                *f |= DEFER_DETAIL;
+            }
+        }
+        for v in 0..n {
+            let w = window(v);
+            let ready =
+                |u: &u32| w.contains(&(*u as usize)) && flags[*u as usize] & DEFER_DETAIL == 0;
+            if flags[v] & DEFER_DETAIL != 0 || !fans.ring(v).iter().all(ready) {
+                flags[v] |= DEFER_NORMAL;
+            }
+        }
+        let chunks = n.div_ceil(chunk).max(1);
+        let list = |bit: u8| -> (Vec<u32>, Vec<usize>) {
+            let mut ids = Vec::new();
+            let mut offsets = vec![0];
+            for c in 0..chunks {
+                ids.extend(
+                    (c * chunk..((c + 1) * chunk).min(n))
+                        .filter(|&v| flags[v] & bit != 0)
+                        .map(|v| v as u32),
+                );
+                offsets.push(ids.len());
+            }
+            (ids, offsets)
+        };
+        let (deferred_detail, detail_offsets) = list(DEFER_DETAIL);
+        let (deferred_normal, normal_offsets) = list(DEFER_NORMAL);
+        Self {
+            block,
+            chunk,
+            flags,
+            deferred_detail,
+            detail_offsets,
+            deferred_normal,
+            normal_offsets,
+        }
+    }
+
+    /// Fractions of vertices whose detail / final normal is deferred.
+    pub fn deferred_fractions(&self) -> (f64, f64) {
+        let n = self.flags.len().max(1) as f64;
+        (
+            self.deferred_detail.len() as f64 / n,
+            self.deferred_normal.len() as f64 / n,
+        )
+    }
+}
+
 /// Per-frame buffers and the vertex-major run-time data of a rig + detail model.
 #[derive(Clone, Debug)]
 pub struct RuntimeLayout {
@@ -378,11 +541,15 @@ pub struct RuntimeLayout {
     /// WPSD edges per vertex (0 for PSD).
     pub width: usize,
     /// `n × width` edge ids.
-    pub edges: Vec<u16>,
-    /// `n × width` edge weights `α_{v,i}`.
-    pub alphas: Vec<f32>,
-    /// `n × 3P` RBF weights (pose-major per vertex: `w[3j + axis]`).
+    pub edges: EdgeIds,
+    /// `n × width` edge weights `α_{v,i}` in steps of [`ALPHA_STEP`].
+    pub alphas: Vec<u16>,
+    /// `n × 3P` RBF weights (pose-major per vertex: `w[3j + axis]`). Kept in f32: the
+    /// linear-kernel interpolation weights cancel strongly (`Σ_j w_j r_j` ≪ `Σ_j |w_j| r_j`), and
+    /// `i16` with one step per vertex measured 0.23 mm max / 0.0017 mm RMS on the ICT face.
     pub detail_weights: Vec<f32>,
+    /// Order of the fused frame sweep.
+    pub schedule: Schedule,
     /// Locality order (`order[k]` = mesh vertex stored `k`-th) when
     /// [`RuntimeSettings::reorder`] is on; every per-vertex array above is in this order.
     pub order: Option<Vec<u32>>,
@@ -420,43 +587,55 @@ impl RuntimeLayout {
         };
         let p3 = 3 * model.num_poses();
         let fans = Fans::new(&rig.topology);
-        if !settings.reorder {
-            return Ok(Self {
-                rest: rig.rest_f32.clone(),
-                basis: LowRankBasis::new(&rig.basis, settings.basis_tolerance),
-                fans,
-                poses: model.num_poses(),
-                width,
-                edges,
-                alphas,
-                detail_weights: model.weights.clone(),
-                order: None,
-                rank: None,
-            });
+        let (order, rank) = if settings.reorder {
+            let order = morton_order(&rig.rest_f32);
+            let mut rank = vec![0u32; n];
+            for (k, &v) in order.iter().enumerate() {
+                rank[v as usize] = k as u32;
+            }
+            (Some(order), Some(rank))
+        } else {
+            (None, None)
+        };
+        fn rows<T: Copy>(src: &[T], width: usize, order: Option<&[u32]>) -> Vec<T> {
+            match order {
+                Some(order) => order
+                    .iter()
+                    .flat_map(|&v| &src[v as usize * width..(v as usize + 1) * width])
+                    .copied()
+                    .collect(),
+                None => src.to_vec(),
+            }
         }
-        let order = morton_order(&rig.rest_f32);
-        let mut rank = vec![0u32; n];
-        for (k, &v) in order.iter().enumerate() {
-            rank[v as usize] = k as u32;
-        }
-        fn rows<T: Copy>(src: &[T], width: usize, order: &[u32]) -> Vec<T> {
-            order
-                .iter()
-                .flat_map(|&v| &src[v as usize * width..(v as usize + 1) * width])
-                .copied()
-                .collect()
-        }
+        let o = order.as_deref();
+        let fans = match (o, rank.as_deref()) {
+            (Some(o), Some(r)) => fans.permuted(o, r),
+            _ => fans,
+        };
+        let edges = rows(&edges, width, o);
+        let edges = if model.num_features <= 256 {
+            EdgeIds::U8(edges.iter().map(|&i| i as u8).collect())
+        } else {
+            EdgeIds::U16(edges)
+        };
+        let alphas = rows(&alphas, width, o)
+            .iter()
+            .map(|&a| (a.clamp(0.0, 1.0) / ALPHA_STEP).round() as u16)
+            .collect();
+        let detail_weights = rows(&model.weights, p3, o);
+        let (block, chunk) = Schedule::shape(n);
         Ok(Self {
-            rest: rows(&rig.rest_f32, 1, &order),
-            basis: LowRankBasis::with_order(&rig.basis, settings.basis_tolerance, Some(&order)),
-            fans: fans.permuted(&order, &rank),
+            rest: rows(&rig.rest_f32, 1, o),
+            basis: LowRankBasis::with_order(&rig.basis, settings.basis_tolerance, o),
+            schedule: Schedule::new(&fans, block, chunk),
+            fans,
             poses: model.num_poses(),
             width,
-            edges: rows(&edges, width, &order),
-            alphas: rows(&alphas, width, &order),
-            detail_weights: rows(&model.weights, p3, &order),
-            order: Some(order),
-            rank: Some(rank),
+            edges,
+            alphas,
+            detail_weights,
+            order,
+            rank,
         })
     }
 
@@ -465,15 +644,17 @@ impl RuntimeLayout {
         self.rest.len()
     }
 
-    /// Bytes streamed per frame by the three passes (vertex-major arrays, excluding gathers of
-    /// neighbour positions) — the memory-bandwidth floor of a frame.
+    /// Bytes read from and written to memory per frame by the fused sweep ([`frame_pass`]):
+    /// every per-vertex array once (one-ring gathers and the second read of the fans hit
+    /// cache), plus the large-scale, final position and normal arrays written once — the
+    /// memory-traffic floor of a frame (the un-permute of [`RuntimeSettings::reorder`] adds
+    /// 4 + 2·24 bytes per vertex).
     pub fn bytes_per_frame(&self) -> usize {
         let n = self.num_vertices();
-        let basis = self.basis.bytes() + n * 24; // rest in, large out
-        let fans = 2 * (self.fans.neighbours.len() * 4 + n * 5) + n * 4; // + reference
-        let detail = self.edges.len() * 2 + self.alphas.len() * 4 + self.detail_weights.len() * 4;
-        let unpermute = if self.rank.is_some() { n * 4 } else { 0 };
-        basis + fans + detail + unpermute + n * 12 /* large in */ + n * 24 /* positions, normals out */
+        let fans = self.fans.neighbours.len() * 4 + n * (4 + 1 + 4 + 1); // ids, offsets, kind, reference, flags
+        let detail = self.edges.bytes() + self.alphas.len() * 2 + self.detail_weights.len() * 4;
+        let unpermute = if self.rank.is_some() { n * 52 } else { 0 };
+        self.basis.bytes() + n * 12 /* rest */ + fans + detail + n * 36 /* large, positions, normals out */ + unpermute
     }
 }
 
@@ -493,200 +674,187 @@ pub fn feature_table(model: &DetailModel, features: &[f64], table: &mut Vec<[f32
     }
 }
 
-/// The three run-time kernels as [`pulp::WithSimd`] operations: `pulp::Arch::new().dispatch`
-/// runs them with the widest SIMD instruction set this CPU offers (AVX2 + FMA on x86-64,
-/// detected at run time; the portable baseline otherwise). `with_simd` and the kernel bodies
-/// are `#[inline(always)]`, so the plain-Rust loops over fixed-size arrays and contiguous
-/// slices are compiled — and vectorized — inside the target-feature function. No `mul_add`
-/// is used, so every path gives the same bits.
-enum Kernel<'a, const NC: usize> {
-    Large {
-        layout: &'a RuntimeLayout,
-        blk: usize,
-        centred: &'a [[f32; 4]],
-        mean: [f32; 3],
-        chunk: &'a mut [[f32; 3]],
-        scratch: &'a mut LargeScratch,
-    },
-    Detail {
-        layout: &'a RuntimeLayout,
-        large: &'a [[f32; 3]],
-        table: &'a [[f32; LANES]],
-        global_r: Option<&'a [f32]>,
-        first: usize,
-        chunk: &'a mut [[f32; 3]],
-    },
-    Normals {
-        layout: &'a RuntimeLayout,
-        positions: &'a [[f32; 3]],
-        first: usize,
-        chunk: &'a mut [[f32; 3]],
-    },
-    NormalsToMesh {
-        layout: &'a RuntimeLayout,
-        work: &'a [[f32; 3]],
-        rank: &'a [u32],
-        normals: &'a mut [[f32; 3]],
-        positions: &'a mut [[f32; 3]],
-    },
-}
-
-impl<const NC: usize> pulp::WithSimd for Kernel<'_, NC> {
-    type Output = ();
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        match self {
-            Kernel::Large {
-                layout,
-                blk,
-                centred,
-                mean,
-                chunk,
-                scratch,
-            } => large_block(layout, blk, centred, mean, chunk, scratch),
-            Kernel::Detail {
-                layout,
-                large,
-                table,
-                global_r,
-                first,
-                chunk,
-            } => detail_block::<NC>(layout, large, table, global_r, first, chunk),
-            Kernel::Normals {
-                layout,
-                positions,
-                first,
-                chunk,
-            } => normals_block(layout, positions, first, chunk),
-            Kernel::NormalsToMesh {
-                layout,
-                work,
-                rank,
-                normals,
-                positions,
-            } => normals_to_mesh_block(layout, work, rank, normals, positions),
-        }
-    }
-}
-
-#[inline(always)]
-fn dispatch<const NC: usize>(kernel: Kernel<'_, NC>) {
-    pulp::Arch::new().dispatch(kernel)
-}
-
-/// Per-thread scratch of the large-scale pass: `c_b = C_b ũ` and the three coordinate
-/// accumulators of one block.
-#[derive(Default)]
-struct LargeScratch {
-    c: Vec<[f32; 4]>,
-    acc: [Vec<f32>; 3],
-}
-
-/// Pass 1 (thesis §5.3 large-scale kernel): `x_v = x0_v + ū + Σ_k U_b[v,k] (C_b ũ)_k` per
-/// low-rank block, `u_H` the handle displacements. `U_b` is rank-major, so the inner loop runs
-/// over the block's vertices in SIMD lanes (three multiply-adds per 8 vertices and rank).
-pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f32; 3]]) {
-    let b = &layout.basis;
-    assert_eq!(uh.len(), b.h, "one displacement per handle");
-    assert_eq!(large.len(), b.n, "one output per vertex");
+/// Handle mean `ū` and centred displacements `ũ = u_H − ū` (padded to 4 lanes) of pass 1.
+pub fn centre_handles(uh: &[[f32; 3]], centred: &mut Vec<[f32; 4]>) -> [f32; 3] {
     let mut mean = [0.0f64; 3];
     for u in uh {
         for a in 0..3 {
             mean[a] += u[a] as f64;
         }
     }
-    let mean = mean.map(|m| (m / b.h.max(1) as f64) as f32);
-    let centred: Vec<[f32; 4]> = uh
-        .iter()
-        .map(|u| [u[0] - mean[0], u[1] - mean[1], u[2] - mean[2], 0.0])
-        .collect();
-    large
-        .par_chunks_mut(LOW_RANK_BLOCK)
-        .enumerate()
-        .for_each_init(LargeScratch::default, |s, (blk, chunk)| {
-            dispatch::<1>(Kernel::Large {
-                layout,
-                blk,
-                centred: &centred,
-                mean,
-                chunk,
-                scratch: s,
-            })
-        });
+    let mean = mean.map(|m| (m / uh.len().max(1) as f64) as f32);
+    centred.clear();
+    centred.extend(
+        uh.iter()
+            .map(|u| [u[0] - mean[0], u[1] - mean[1], u[2] - mean[2], 0.0]),
+    );
+    mean
 }
 
-#[inline(always)]
-fn large_block(
-    layout: &RuntimeLayout,
-    blk: usize,
-    centred: &[[f32; 4]],
-    mean: [f32; 3],
-    chunk: &mut [[f32; 3]],
-    s: &mut LargeScratch,
-) {
-    let b = &layout.basis;
-    let m = chunk.len();
-    let first = blk * LOW_RANK_BLOCK;
-    let rest = &layout.rest[first..first + m];
-    let coeffs = &b.coeffs[b.coeff_offsets[blk]..b.coeff_offsets[blk + 1]];
-    s.c.clear();
-    s.c.extend(coeffs.chunks_exact(b.h).map(|row| {
-        let mut acc = [0.0f32; 4];
-        for (&w, u) in row.iter().zip(centred) {
-            for a in 0..4 {
-                acc[a] += w * u[a];
+/// Run `$body` with `$inputs: &DetailInputs<NC, E>` for the layout's lane count
+/// `NC ≥ ⌈P / 8⌉` and edge id type (monomorphized per case).
+macro_rules! with_inputs {
+    ($layout:expr, $table:expr, $global_r:expr, |$inputs:ident| $body:expr) => {{
+        let layout: &RuntimeLayout = $layout;
+        let (table, global_r): (&[[f32; LANES]], Option<&[f32]>) = ($table, $global_r);
+        match (&layout.edges, layout.poses.div_ceil(LANES)) {
+            (EdgeIds::U8(e), 1) => {
+                let $inputs = &DetailInputs::<1, u8>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U8(e), 2) => {
+                let $inputs = &DetailInputs::<2, u8>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U8(e), 3 | 4) => {
+                let $inputs = &DetailInputs::<4, u8>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U8(e), _) => {
+                let $inputs =
+                    &DetailInputs::<{ MAX_POSES / LANES }, u8>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U16(e), 1) => {
+                let $inputs = &DetailInputs::<1, u16>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U16(e), 2) => {
+                let $inputs = &DetailInputs::<2, u16>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U16(e), 3 | 4) => {
+                let $inputs = &DetailInputs::<4, u16>::new(layout, e, table, global_r);
+                $body
+            }
+            (EdgeIds::U16(e), _) => {
+                let $inputs =
+                    &DetailInputs::<{ MAX_POSES / LANES }, u16>::new(layout, e, table, global_r);
+                $body
             }
         }
-        acc
-    }));
-    let [ax, ay, az] = &mut s.acc;
-    for acc in [&mut *ax, &mut *ay, &mut *az] {
-        acc.clear();
-        acc.resize(m, 0.0);
-    }
-    let (ax, ay, az) = (&mut ax[..m], &mut ay[..m], &mut az[..m]);
-    let factors = &b.factors[b.factor_offsets[blk]..b.factor_offsets[blk + 1]];
-    for (col, c) in factors.chunks_exact(m).zip(&s.c) {
-        let col = &col[..m];
-        let [cx, cy, cz, _] = *c;
-        for i in 0..m {
-            ax[i] += col[i] * cx;
-            ay[i] += col[i] * cy;
-            az[i] += col[i] * cz;
+    }};
+}
+
+/// What the detail kernel reads besides positions (one frame).
+struct DetailInputs<'a, const NC: usize, E> {
+    layout: &'a RuntimeLayout,
+    edges: &'a [E],
+    table: &'a [[f32; LANES]],
+    /// PSD: the global distances `r_j` (same for every vertex).
+    global: Option<[[f32; LANES]; NC]>,
+}
+
+impl<'a, const NC: usize, E: EdgeId> DetailInputs<'a, NC, E> {
+    fn new(
+        layout: &'a RuntimeLayout,
+        edges: &'a [E],
+        table: &'a [[f32; LANES]],
+        global_r: Option<&[f32]>,
+    ) -> Self {
+        let p = layout.poses;
+        assert!(
+            p <= NC * LANES && p <= MAX_POSES,
+            "at most {MAX_POSES} basis poses"
+        );
+        assert!(
+            global_r.is_some() || layout.width == 0 || table.len() >= p.div_ceil(LANES),
+            "a feature table per frame"
+        );
+        let global = global_r.map(|g| {
+            let mut r = [[0.0f32; LANES]; NC];
+            for (j, &x) in g.iter().enumerate().take(p) {
+                r[j / LANES][j % LANES] = x;
+            }
+            r
+        });
+        Self {
+            layout,
+            edges,
+            table,
+            global,
         }
     }
-    for (i, (o, x0)) in chunk.iter_mut().zip(rest).enumerate() {
-        *o = [
-            x0[0] + mean[0] + ax[i],
-            x0[1] + mean[1] + ay[i],
-            x0[2] + mean[2] + az[i],
-        ];
+
+    /// Pass 2 of one vertex `v` (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5): large-scale
+    /// normal and local frame `[t, b, n]` from the one-ring of `large` (storage index `u` at
+    /// `large[u − base]`), distances `r_j = sqrt(Σ_i α_{v,i} g[i][j])` (or the global `r`
+    /// for PSD), detail `d = Σ_j w_{v,j} r_j` and `x = x_large + d_0 t + d_1 b + d_2 n`.
+    #[inline(always)]
+    fn vertex(&self, v: usize, large: &[[f32; 3]], base: usize) -> [f32; 3] {
+        let layout = self.layout;
+        let fans = &layout.fans;
+        let xl = large[v - base];
+        let ids = fans.ring(v);
+        let n = normalize(
+            fan_normal_sum(large, base, ids, fans.kinds[v], xl),
+            [0.0, 0.0, 1.0],
+        );
+        let [t, bt, n] = frame_from_edge(sub(large[fans.reference[v] as usize - base], xl), n);
+        let p = layout.poses;
+        let r = match self.global {
+            Some(r) => r,
+            None => {
+                let width = layout.width;
+                let ids = &self.edges[v * width..(v + 1) * width];
+                let al = &layout.alphas[v * width..(v + 1) * width];
+                let mut acc = [[0.0f32; LANES]; NC];
+                if NC == 1 {
+                    // P ≤ 8: one 8-lane accumulator in registers, one table row per edge
+                    for (&i, &a) in ids.iter().zip(al) {
+                        let g = self.table[i.index()];
+                        let a = a as f32;
+                        for l in 0..LANES {
+                            acc[0][l] += a * g[l];
+                        }
+                    }
+                } else {
+                    let nc = p.div_ceil(LANES);
+                    for (&i, &a) in ids.iter().zip(al) {
+                        let row = &self.table[i.index() * nc..i.index() * nc + nc];
+                        let a = a as f32;
+                        for (rc, gc) in acc.iter_mut().zip(row) {
+                            for l in 0..LANES {
+                                rc[l] += a * gc[l];
+                            }
+                        }
+                    }
+                }
+                for rc in acc.iter_mut() {
+                    for x in rc.iter_mut() {
+                        *x = (*x * ALPHA_STEP).sqrt();
+                    }
+                }
+                acc
+            }
+        };
+        let w = &layout.detail_weights[v * 3 * p..(v + 1) * 3 * p];
+        let mut d = [0.0f32; 3];
+        for (j, wj) in w.chunks_exact(3).enumerate() {
+            let rj = r[j / LANES][j % LANES];
+            d[0] += wj[0] * rj;
+            d[1] += wj[1] * rj;
+            d[2] += wj[2] * rj;
+        }
+        [
+            xl[0] + d[0] * t[0] + d[1] * bt[0] + d[2] * n[0],
+            xl[1] + d[0] * t[1] + d[1] * bt[1] + d[2] * n[1],
+            xl[2] + d[0] * t[2] + d[1] * bt[2] + d[2] * n[2],
+        ]
     }
 }
 
-/// Pass 2 (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5): per vertex the large-scale normal and
-/// local frame `[t, b, n]`, the distances `r_j = sqrt(Σ_i α_{v,i} g[i][j])` (or the global
-/// `r` for PSD), the detail `d = Σ_j w_{v,j} r_j` and `x = x_large + d_0 t + d_1 b + d_2 n`.
-/// `table` is [`feature_table`]'s.
-pub fn detail_pass(
-    layout: &RuntimeLayout,
-    large: &[[f32; 3]],
-    table: &[[f32; LANES]],
-    global_r: Option<&[f32]>,
-    positions: &mut [[f32; 3]],
-) {
-    let nc = layout.poses.div_ceil(LANES);
-    match nc {
-        1 => detail_pass_lanes::<1>(layout, large, table, global_r, positions),
-        2 => detail_pass_lanes::<2>(layout, large, table, global_r, positions),
-        3 | 4 => detail_pass_lanes::<4>(layout, large, table, global_r, positions),
-        _ => detail_pass_lanes::<{ MAX_POSES / LANES }>(layout, large, table, global_r, positions),
-    }
-}
-
-/// Unnormalised normal of a one-ring fan around `p`: `Σ_i (p_i − p) × (p_{i+1} − p)`.
+/// Unnormalised normal of a one-ring fan around `p`: `Σ_i (p_i − p) × (p_{i+1} − p)`
+/// (storage index `u` at `positions[u − base]`).
 #[inline(always)]
-fn fan_normal_sum(positions: &[[f32; 3]], ids: &[u32], kind: FanKind, p: [f32; 3]) -> [f32; 3] {
+fn fan_normal_sum(
+    positions: &[[f32; 3]],
+    base: usize,
+    ids: &[u32],
+    kind: FanKind,
+    p: [f32; 3],
+) -> [f32; 3] {
+    let at = |i: u32| sub(positions[i as usize - base], p);
     let mut s = [0.0f32; 3];
     let mut add = |a: [f32; 3], b: [f32; 3]| {
         let c = cross(a, b);
@@ -695,18 +863,15 @@ fn fan_normal_sum(positions: &[[f32; 3]], ids: &[u32], kind: FanKind, p: [f32; 3
     match kind {
         FanKind::Pairs => {
             for ab in ids.chunks_exact(2) {
-                add(
-                    sub(positions[ab[0] as usize], p),
-                    sub(positions[ab[1] as usize], p),
-                );
+                add(at(ab[0]), at(ab[1]));
             }
         }
         kind => {
             if let Some((&first, rest)) = ids.split_first() {
-                let e0 = sub(positions[first as usize], p);
+                let e0 = at(first);
                 let mut prev = e0;
                 for &i in rest {
-                    let e = sub(positions[i as usize], p);
+                    let e = at(i);
                     add(prev, e);
                     prev = e;
                 }
@@ -719,227 +884,422 @@ fn fan_normal_sum(positions: &[[f32; 3]], ids: &[u32], kind: FanKind, p: [f32; 3
     s
 }
 
-fn detail_pass_lanes<const NC: usize>(
-    layout: &RuntimeLayout,
-    large: &[[f32; 3]],
-    table: &[[f32; LANES]],
-    global_r: Option<&[f32]>,
-    positions: &mut [[f32; 3]],
-) {
-    let p = layout.poses;
-    let nc = p.div_ceil(LANES);
-    assert!(
-        nc <= NC && p <= MAX_POSES,
-        "at most {MAX_POSES} basis poses"
-    );
-    assert!(global_r.is_some() || table.len() >= layout.width.min(1) * nc);
-    assert_eq!(
-        large.len(),
-        layout.num_vertices(),
-        "one large-scale position per vertex"
-    );
-    assert_eq!(
-        positions.len(),
-        layout.num_vertices(),
-        "one output per vertex"
-    );
-    positions
-        .par_chunks_mut(BLOCK)
-        .enumerate()
-        .for_each(|(blk, chunk)| {
-            dispatch::<NC>(Kernel::Detail {
-                layout,
-                large,
-                table,
-                global_r,
-                first: blk * BLOCK,
-                chunk,
-            })
-        });
+/// Unit normal of stored vertex `v` from the one-ring of `positions` (index `u − base`).
+#[inline(always)]
+fn normal_vertex(fans: &Fans, v: usize, positions: &[[f32; 3]], base: usize) -> [f32; 3] {
+    normalize(
+        fan_normal_sum(
+            positions,
+            base,
+            fans.ring(v),
+            fans.kinds[v],
+            positions[v - base],
+        ),
+        [0.0, 0.0, 1.0],
+    )
 }
 
+/// Pass 1 of one low-rank block (thesis §5.3 large-scale kernel):
+/// `x_v = x0_v + ū + Σ_k U_b[v,k] (C_b ũ)_k`; `U_b` is rank-major, so the inner loop runs over
+/// the block's vertices in SIMD lanes (three multiply-adds per 8 vertices and rank).
 #[inline(always)]
-fn detail_block<const NC: usize>(
+fn large_block(
     layout: &RuntimeLayout,
-    large: &[[f32; 3]],
-    table: &[[f32; LANES]],
-    global_r: Option<&[f32]>,
-    first: usize,
-    chunk: &mut [[f32; 3]],
+    blk: usize,
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    out: &mut [[f32; 3]],
 ) {
-    let p = layout.poses;
-    let nc = p.div_ceil(LANES);
-    let width = layout.width;
-    let fans = &layout.fans;
-    let m = chunk.len();
-    let mut r = [[0.0f32; LANES]; NC];
-    if let Some(gr) = global_r {
-        for (j, &x) in gr.iter().enumerate().take(p) {
-            r[j / LANES][j % LANES] = x;
+    let b = &layout.basis;
+    let m = out.len();
+    assert!(m > 0 && m <= LOW_RANK_BLOCK);
+    let first = blk * LOW_RANK_BLOCK;
+    let rest = &layout.rest[first..first + m];
+    let coeffs = &b.coeffs[b.coeff_offsets[blk]..b.coeff_offsets[blk + 1]];
+    let factors = &b.factors[b.factor_offsets[blk]..b.factor_offsets[blk + 1]];
+    let mut acc = [[0.0f32; LOW_RANK_BLOCK]; 3];
+    let [ax, ay, az] = &mut acc;
+    let (ax, ay, az) = (&mut ax[..m], &mut ay[..m], &mut az[..m]);
+    for (row, col) in coeffs.chunks_exact(b.h).zip(factors.chunks_exact(m)) {
+        let mut c = [0.0f32; 4];
+        for (&w, u) in row.iter().zip(centred) {
+            for a in 0..4 {
+                c[a] += w * u[a];
+            }
+        }
+        let [cx, cy, cz, _] = c;
+        for i in 0..m {
+            ax[i] += col[i] * cx;
+            ay[i] += col[i] * cy;
+            az[i] += col[i] * cz;
         }
     }
-    let offsets = &fans.offsets[first..first + m + 1];
-    let kinds = &fans.kinds[first..first + m];
-    let reference = &fans.reference[first..first + m];
-    let xl_block = &large[first..first + m];
-    let weights = &layout.detail_weights[first * 3 * p..(first + m) * 3 * p];
-    let (edges, alphas) = if global_r.is_none() {
-        (
-            &layout.edges[first * width..(first + m) * width],
-            &layout.alphas[first * width..(first + m) * width],
-        )
-    } else {
-        (&layout.edges[..0], &layout.alphas[..0])
-    };
-    for (k, o) in chunk.iter_mut().enumerate() {
-        let xl = xl_block[k];
-        let ids = &fans.neighbours[offsets[k] as usize..offsets[k + 1] as usize];
-        let n = normalize(fan_normal_sum(large, ids, kinds[k], xl), [0.0, 0.0, 1.0]);
-        let [t, bt, n] = frame_from_edge(sub(large[reference[k] as usize], xl), n);
-        if global_r.is_none() && NC == 1 {
-            // P ≤ 8: one 8-lane accumulator in registers, one table row per edge
-            let ids = &edges[k * width..(k + 1) * width];
-            let al = &alphas[k * width..(k + 1) * width];
-            let mut acc = [0.0f32; LANES];
-            for (&i, &a) in ids.iter().zip(al) {
-                let g = table[i as usize];
-                for l in 0..LANES {
-                    acc[l] += a * g[l];
-                }
-            }
-            for l in 0..LANES {
-                r[0][l] = acc[l].sqrt();
-            }
-        } else if global_r.is_none() {
-            r = [[0.0; LANES]; NC];
-            let ids = &edges[k * width..(k + 1) * width];
-            let al = &alphas[k * width..(k + 1) * width];
-            for (&i, &a) in ids.iter().zip(al) {
-                let row = &table[i as usize * nc..i as usize * nc + nc];
-                for (rc, gc) in r.iter_mut().zip(row) {
-                    for l in 0..LANES {
-                        rc[l] += a * gc[l];
-                    }
-                }
-            }
-            for rc in r.iter_mut().take(nc) {
-                for x in rc.iter_mut() {
-                    *x = x.sqrt();
-                }
-            }
-        }
-        let w = &weights[k * 3 * p..(k + 1) * 3 * p];
-        let mut d = [0.0f32; 3];
-        for (j, wj) in w.chunks_exact(3).enumerate() {
-            let rj = r[j / LANES][j % LANES];
-            d[0] += wj[0] * rj;
-            d[1] += wj[1] * rj;
-            d[2] += wj[2] * rj;
-        }
+    for (i, (o, x0)) in out.iter_mut().zip(rest).enumerate() {
         *o = [
-            xl[0] + d[0] * t[0] + d[1] * bt[0] + d[2] * n[0],
-            xl[1] + d[0] * t[1] + d[1] * bt[1] + d[2] * n[1],
-            xl[2] + d[0] * t[2] + d[1] * bt[2] + d[2] * n[2],
+            x0[0] + mean[0] + ax[i],
+            x0[1] + mean[1] + ay[i],
+            x0[2] + mean[2] + az[i],
         ];
     }
 }
 
-/// Pass 3: unit vertex normals of `positions` from the one-ring fans.
-pub fn normal_pass(layout: &RuntimeLayout, positions: &[[f32; 3]], normals: &mut [[f32; 3]]) {
-    assert_eq!(
-        positions.len(),
-        layout.num_vertices(),
-        "one position per vertex"
-    );
-    assert_eq!(
-        normals.len(),
-        layout.num_vertices(),
-        "one output per vertex"
-    );
-    normals
-        .par_chunks_mut(BLOCK)
-        .enumerate()
-        .for_each(|(blk, chunk)| {
-            dispatch::<1>(Kernel::Normals {
-                layout,
-                positions,
-                first: blk * BLOCK,
-                chunk,
-            })
-        });
-}
-
+/// Pass 1 over the low-rank blocks covering stored vertices `first..first + out.len()`
+/// (`first` a multiple of [`LOW_RANK_BLOCK`]).
 #[inline(always)]
-fn normals_block(
+fn large_range(
     layout: &RuntimeLayout,
-    positions: &[[f32; 3]],
     first: usize,
-    chunk: &mut [[f32; 3]],
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    out: &mut [[f32; 3]],
 ) {
-    let fans = &layout.fans;
-    let m = chunk.len();
-    let offsets = &fans.offsets[first..first + m + 1];
-    let kinds = &fans.kinds[first..first + m];
-    let own = &positions[first..first + m];
-    for (k, o) in chunk.iter_mut().enumerate() {
-        let ids = &fans.neighbours[offsets[k] as usize..offsets[k + 1] as usize];
-        *o = normalize(
-            fan_normal_sum(positions, ids, kinds[k], own[k]),
-            [0.0, 0.0, 1.0],
-        );
+    for (k, o) in out.chunks_mut(LOW_RANK_BLOCK).enumerate() {
+        large_block(layout, first / LOW_RANK_BLOCK + k, centred, mean, o);
     }
 }
 
-/// Pass 3 with the layout's locality order undone: for every mesh vertex `v` (storage index
-/// `k = rank[v]`) `normals[v]` = the unit normal of `work` at `k` and `positions[v] = work[k]`.
-/// Without a reorder this is [`normal_pass`] plus a copy.
-pub fn normal_pass_to_mesh_order(
+/// The run-time kernels as one [`pulp::WithSimd`] operation: `pulp::Arch::new().dispatch`
+/// runs them with the widest SIMD instruction set this CPU offers (AVX2 + FMA on x86-64,
+/// detected at run time; the portable baseline otherwise). `with_simd` and the kernel bodies
+/// are `#[inline(always)]`, so the plain-Rust loops over fixed-size arrays and contiguous
+/// slices are compiled — and vectorized — inside the target-feature function. No `mul_add`
+/// is used, so every path gives the same bits.
+enum Kernel<'a, const NC: usize, E> {
+    /// The fused sweep of one chunk (see [`Schedule`]).
+    Sweep {
+        inputs: &'a DetailInputs<'a, NC, E>,
+        centred: &'a [[f32; 4]],
+        mean: [f32; 3],
+        first: usize,
+        large: &'a mut [[f32; 3]],
+        positions: &'a mut [[f32; 3]],
+        normals: &'a mut [[f32; 3]],
+    },
+    /// Pass 1 over a range of whole low-rank blocks.
+    Large {
+        layout: &'a RuntimeLayout,
+        centred: &'a [[f32; 4]],
+        mean: [f32; 3],
+        first: usize,
+        out: &'a mut [[f32; 3]],
+    },
+    /// Pass 2 of the stored vertices `ids` (or of `first..first + out.len()` if `None`) into
+    /// `out` (index `v − first`), one-rings from the complete `large`.
+    Detail {
+        inputs: &'a DetailInputs<'a, NC, E>,
+        large: &'a [[f32; 3]],
+        ids: Option<&'a [u32]>,
+        first: usize,
+        out: &'a mut [[f32; 3]],
+    },
+    /// Final normals, as `Detail`, from the complete `positions`.
+    Normals {
+        fans: &'a Fans,
+        positions: &'a [[f32; 3]],
+        ids: Option<&'a [u32]>,
+        first: usize,
+        out: &'a mut [[f32; 3]],
+    },
+}
+
+impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        match self {
+            Kernel::Sweep {
+                inputs,
+                centred,
+                mean,
+                first,
+                large,
+                positions,
+                normals,
+            } => sweep_chunk(inputs, centred, mean, first, large, positions, normals),
+            Kernel::Large {
+                layout,
+                centred,
+                mean,
+                first,
+                out,
+            } => large_range(layout, first, centred, mean, out),
+            Kernel::Detail {
+                inputs,
+                large,
+                ids,
+                first,
+                out,
+            } => match ids {
+                Some(ids) => {
+                    for &v in ids {
+                        let v = v as usize;
+                        out[v - first] = inputs.vertex(v, large, 0);
+                    }
+                }
+                None => {
+                    for (k, o) in out.iter_mut().enumerate() {
+                        *o = inputs.vertex(first + k, large, 0);
+                    }
+                }
+            },
+            Kernel::Normals {
+                fans,
+                positions,
+                ids,
+                first,
+                out,
+            } => match ids {
+                Some(ids) => {
+                    for &v in ids {
+                        let v = v as usize;
+                        out[v - first] = normal_vertex(fans, v, positions, 0);
+                    }
+                }
+                None => {
+                    for (k, o) in out.iter_mut().enumerate() {
+                        *o = normal_vertex(fans, first + k, positions, 0);
+                    }
+                }
+            },
+        }
+    }
+}
+
+#[inline(always)]
+fn dispatch<const NC: usize, E: EdgeId>(kernel: Kernel<'_, NC, E>) {
+    pulp::Arch::new().dispatch(kernel)
+}
+
+/// The fused sweep of one chunk (stored vertices `first..first + large.len()`); see
+/// [`Schedule`]. Deferred vertices are skipped (done by [`frame_pass`] afterwards).
+#[inline(always)]
+fn sweep_chunk<const NC: usize, E: EdgeId>(
+    inputs: &DetailInputs<'_, NC, E>,
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    first: usize,
+    large: &mut [[f32; 3]],
+    positions: &mut [[f32; 3]],
+    normals: &mut [[f32; 3]],
+) {
+    let layout = inputs.layout;
+    let sched = &layout.schedule;
+    let w = sched.block;
+    let m = large.len();
+    let blocks = m.div_ceil(w);
+    let span = |b: usize| b * w..((b + 1) * w).min(m);
+    for step in 0..blocks + 2 {
+        if step < blocks {
+            let r = span(step);
+            large_range(layout, first + r.start, centred, mean, &mut large[r]);
+        }
+        if (1..=blocks).contains(&step) {
+            let r = span(step - 1);
+            let flags = &sched.flags[first + r.start..first + r.end];
+            for ((k, o), &f) in positions[r.clone()].iter_mut().enumerate().zip(flags) {
+                if f & DEFER_DETAIL == 0 {
+                    *o = inputs.vertex(first + r.start + k, large, first);
+                }
+            }
+        }
+        if step >= 2 {
+            let r = span(step - 2);
+            let flags = &sched.flags[first + r.start..first + r.end];
+            for ((k, o), &f) in normals[r.clone()].iter_mut().enumerate().zip(flags) {
+                if f & DEFER_NORMAL == 0 {
+                    *o = normal_vertex(&layout.fans, first + r.start + k, positions, first);
+                }
+            }
+        }
+    }
+}
+
+/// One frame of the run-time synthesis (thesis §5.5.2) in one fused sweep ([`Schedule`]):
+/// large scale (`centred`, `mean` from [`centre_handles`]), normal + frame + WPSD detail
+/// (`table` from [`feature_table`]; `global_r` the PSD distances), final normals. Outputs are
+/// in storage order (see [`to_mesh_order_into`]). Same arithmetic per vertex as the three
+/// separate passes [`large_scale_pass`], [`detail_pass`], [`normal_pass`].
+#[allow(clippy::too_many_arguments)]
+pub fn frame_pass(
     layout: &RuntimeLayout,
-    work: &[[f32; 3]],
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    table: &[[f32; LANES]],
+    global_r: Option<&[f32]>,
+    large: &mut [[f32; 3]],
     positions: &mut [[f32; 3]],
     normals: &mut [[f32; 3]],
 ) {
     let n = layout.num_vertices();
-    assert!(work.len() == n && positions.len() == n && normals.len() == n);
-    let Some(rank) = layout.rank.as_deref() else {
-        positions.copy_from_slice(work);
-        normal_pass(layout, work, normals);
-        return;
-    };
+    assert!(
+        large.len() == n && positions.len() == n && normals.len() == n,
+        "one output per vertex"
+    );
+    assert_eq!(centred.len(), layout.basis.h, "one displacement per handle");
+    with_inputs!(layout, table, global_r, |inputs| frame_typed(
+        inputs, centred, mean, large, positions, normals
+    ));
+}
+
+fn frame_typed<const NC: usize, E: EdgeId>(
+    inputs: &DetailInputs<'_, NC, E>,
+    centred: &[[f32; 4]],
+    mean: [f32; 3],
+    large: &mut [[f32; 3]],
+    positions: &mut [[f32; 3]],
+    normals: &mut [[f32; 3]],
+) {
+    let sched = &inputs.layout.schedule;
+    let c = sched.chunk;
+    large
+        .par_chunks_mut(c)
+        .zip(positions.par_chunks_mut(c))
+        .zip(normals.par_chunks_mut(c))
+        .enumerate()
+        .for_each(|(k, ((large, positions), normals))| {
+            dispatch(Kernel::Sweep {
+                inputs,
+                centred,
+                mean,
+                first: k * c,
+                large,
+                positions,
+                normals,
+            })
+        });
+    let large = &*large;
+    if !sched.deferred_detail.is_empty() {
+        positions
+            .par_chunks_mut(c)
+            .enumerate()
+            .for_each(|(k, out)| {
+                let ids =
+                    &sched.deferred_detail[sched.detail_offsets[k]..sched.detail_offsets[k + 1]];
+                if !ids.is_empty() {
+                    dispatch(Kernel::Detail {
+                        inputs,
+                        large,
+                        ids: Some(ids),
+                        first: k * c,
+                        out,
+                    })
+                }
+            });
+    }
+    let positions = &*positions;
+    if !sched.deferred_normal.is_empty() {
+        normals.par_chunks_mut(c).enumerate().for_each(|(k, out)| {
+            let ids = &sched.deferred_normal[sched.normal_offsets[k]..sched.normal_offsets[k + 1]];
+            if !ids.is_empty() {
+                dispatch::<NC, E>(Kernel::Normals {
+                    fans: &inputs.layout.fans,
+                    positions,
+                    ids: Some(ids),
+                    first: k * c,
+                    out,
+                })
+            }
+        });
+    }
+}
+
+/// Pass 1 alone (thesis §5.3 large-scale kernel) over the whole mesh: `x_v = x0_v + ū +
+/// Σ_k U_b[v,k] (C_b ũ)_k` per low-rank block, `u_H` the handle displacements. Used to time
+/// the passes separately; a frame runs [`frame_pass`].
+pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f32; 3]]) {
+    assert_eq!(uh.len(), layout.basis.h, "one displacement per handle");
+    assert_eq!(large.len(), layout.num_vertices(), "one output per vertex");
+    let mut centred = Vec::new();
+    let mean = centre_handles(uh, &mut centred);
+    let span = 8 * LOW_RANK_BLOCK;
+    large.par_chunks_mut(span).enumerate().for_each(|(k, out)| {
+        dispatch::<1, u8>(Kernel::Large {
+            layout,
+            centred: &centred,
+            mean,
+            first: k * span,
+            out,
+        })
+    });
+}
+
+/// Pass 2 alone (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5) over the whole mesh: per vertex
+/// the large-scale normal and local frame `[t, b, n]`, the distances `r_j = sqrt(Σ_i α_{v,i}
+/// g[i][j])` (or the global `r` for PSD), the detail `d = Σ_j w_{v,j} r_j` and `x = x_large +
+/// d_0 t + d_1 b + d_2 n`. `table` is [`feature_table`]'s.
+pub fn detail_pass(
+    layout: &RuntimeLayout,
+    large: &[[f32; 3]],
+    table: &[[f32; LANES]],
+    global_r: Option<&[f32]>,
+    positions: &mut [[f32; 3]],
+) {
+    let n = layout.num_vertices();
+    assert!(
+        large.len() == n && positions.len() == n,
+        "one value per vertex"
+    );
+    with_inputs!(layout, table, global_r, |inputs| positions
+        .par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(k, out)| dispatch(Kernel::Detail {
+            inputs,
+            large,
+            ids: None,
+            first: k * BLOCK,
+            out,
+        })));
+}
+
+/// Pass 3 alone: unit vertex normals of `positions` from the one-ring fans.
+pub fn normal_pass(layout: &RuntimeLayout, positions: &[[f32; 3]], normals: &mut [[f32; 3]]) {
+    let n = layout.num_vertices();
+    assert!(
+        positions.len() == n && normals.len() == n,
+        "one value per vertex"
+    );
     normals
         .par_chunks_mut(BLOCK)
-        .zip(positions.par_chunks_mut(BLOCK))
         .enumerate()
-        .for_each(|(blk, (nrm, pos))| {
-            let first = blk * BLOCK;
-            dispatch::<1>(Kernel::NormalsToMesh {
-                layout,
-                work,
-                rank: &rank[first..first + nrm.len()],
-                normals: nrm,
-                positions: pos,
+        .for_each(|(k, out)| {
+            dispatch::<1, u8>(Kernel::Normals {
+                fans: &layout.fans,
+                positions,
+                ids: None,
+                first: k * BLOCK,
+                out,
             })
         });
 }
 
-#[inline(always)]
-fn normals_to_mesh_block(
+/// The layout's locality order undone: `positions[v] = work[rank[v]]`, `normals[v] =
+/// work_normals[rank[v]]` (a copy without [`RuntimeSettings::reorder`]).
+pub fn to_mesh_order_into(
     layout: &RuntimeLayout,
     work: &[[f32; 3]],
-    rank: &[u32],
-    normals: &mut [[f32; 3]],
+    work_normals: &[[f32; 3]],
     positions: &mut [[f32; 3]],
+    normals: &mut [[f32; 3]],
 ) {
-    let fans = &layout.fans;
-    for ((o, x), &k) in normals.iter_mut().zip(positions.iter_mut()).zip(rank) {
-        let k = k as usize;
-        let ids = &fans.neighbours[fans.offsets[k] as usize..fans.offsets[k + 1] as usize];
-        *o = normalize(
-            fan_normal_sum(work, ids, fans.kinds[k], work[k]),
-            [0.0, 0.0, 1.0],
-        );
-        *x = work[k];
-    }
+    let n = layout.num_vertices();
+    assert!(
+        work.len() == n && work_normals.len() == n && positions.len() == n && normals.len() == n
+    );
+    let Some(rank) = layout.rank.as_deref() else {
+        positions.copy_from_slice(work);
+        normals.copy_from_slice(work_normals);
+        return;
+    };
+    positions
+        .par_chunks_mut(BLOCK)
+        .zip(normals.par_chunks_mut(BLOCK))
+        .zip(rank.par_chunks(BLOCK))
+        .for_each(|((pos, nrm), rank)| {
+            for ((x, o), &k) in pos.iter_mut().zip(nrm.iter_mut()).zip(rank) {
+                *x = work[k as usize];
+                *o = work_normals[k as usize];
+            }
+        });
 }
 
 /// `out[v] = stored[rank[v]]`: a per-vertex array of the layout back in mesh order.
@@ -1066,6 +1426,138 @@ mod tests {
             let k = rank[v] as usize;
             assert_eq!(fans.normal(&pos, v), moved.normal(&stored, k));
             assert_eq!(order[moved.reference[k] as usize], fans.reference[v]);
+        }
+    }
+
+    /// A `k × k` bumpy grid layout with a smooth synthetic basis, random edge weights and RBF
+    /// weights, stored in `order` (Morton or not).
+    fn grid_layout(k: usize, p: usize, morton: bool) -> RuntimeLayout {
+        let n = k * k;
+        let mut pos: Vec<[f32; 3]> = (0..n)
+            .map(|v| {
+                let (x, y) = ((v % k) as f32, (v / k) as f32);
+                [x, y, 0.3 * (0.7 * x).sin() * (0.4 * y).cos()]
+            })
+            .collect();
+        let mut tris = Vec::new();
+        for j in 0..k - 1 {
+            for i in 0..k - 1 {
+                let a = j * k + i;
+                tris.push([a, a + 1, a + k + 1]);
+                tris.push([a, a + k + 1, a + k]);
+            }
+        }
+        if morton {
+            let order = morton_order(&pos);
+            let mut rank = vec![0usize; n];
+            for (s, &v) in order.iter().enumerate() {
+                rank[v as usize] = s;
+            }
+            pos = order.iter().map(|&v| pos[v as usize]).collect();
+            for t in &mut tris {
+                *t = t.map(|v| rank[v]);
+            }
+        }
+        let h = 9;
+        let mut weights = vec![0.0f32; n * h];
+        for (v, x) in pos.iter().enumerate() {
+            let row: Vec<f64> = (0..h)
+                .map(|j| {
+                    let (cx, cy) = (
+                        (j % 3) as f64 * k as f64 / 2.0,
+                        (j / 3) as f64 * k as f64 / 2.0,
+                    );
+                    (-((x[0] as f64 - cx).powi(2) + (x[1] as f64 - cy).powi(2)) / (k * k) as f64
+                        * 8.0)
+                        .exp()
+                })
+                .collect();
+            let s: f64 = row.iter().sum();
+            for j in 0..h {
+                weights[v * h + j] = (row[j] / s) as f32;
+            }
+        }
+        let basis = LowRankBasis::new(&ShellBasis { n, h, weights }, 1e-5);
+        let fans = Fans::new(&Topology::new(n, &tris));
+        let width = 4;
+        let mut seed = 12345u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) as f32 / (1u64 << 31) as f32
+        };
+        let edges: Vec<u8> = (0..n * width).map(|_| (rnd() * 20.0) as u8).collect();
+        let alphas: Vec<u16> = (0..n * width).map(|_| (rnd() * 16000.0) as u16).collect();
+        let detail_weights: Vec<f32> = (0..n * 3 * p).map(|_| rnd() - 0.5).collect();
+        let (block, chunk) = Schedule::shape(n);
+        RuntimeLayout {
+            rest: pos,
+            basis,
+            schedule: Schedule::new(&fans, block, chunk),
+            fans,
+            poses: p,
+            width,
+            edges: EdgeIds::U8(edges),
+            alphas,
+            detail_weights,
+            order: None,
+            rank: None,
+        }
+    }
+
+    #[test]
+    fn fused_sweep_equals_separate_passes_for_every_schedule() {
+        for (morton, p) in [(true, 6), (false, 6), (true, 11)] {
+            let mut layout = grid_layout(48, p, morton);
+            let n = layout.num_vertices();
+            let h = layout.basis.h;
+            let uh: Vec<[f32; 3]> = (0..h)
+                .map(|j| {
+                    [
+                        0.1 * j as f32,
+                        -0.05 * (j * j) as f32,
+                        0.3 - 0.02 * j as f32,
+                    ]
+                })
+                .collect();
+            let nc = p.div_ceil(LANES);
+            let table: Vec<[f32; LANES]> = (0..20 * nc)
+                .map(|i| std::array::from_fn(|l| 0.01 * ((i * 7 + l * 3) % 11) as f32))
+                .collect();
+            // reference: three separate passes
+            let mut large = vec![[0.0f32; 3]; n];
+            let mut pos = vec![[0.0f32; 3]; n];
+            let mut nrm = vec![[0.0f32; 3]; n];
+            large_scale_pass(&layout, &uh, &mut large);
+            detail_pass(&layout, &large, &table, None, &mut pos);
+            normal_pass(&layout, &pos, &mut nrm);
+            let mut centred = Vec::new();
+            let mean = centre_handles(&uh, &mut centred);
+            for (block, chunk) in [
+                (256, 256),
+                (256, 768),
+                (512, 1024),
+                (256, 4096),
+                (2048, 4096),
+            ] {
+                layout.schedule = Schedule::new(&layout.fans, block, chunk);
+                let (dd, dn) = layout.schedule.deferred_fractions();
+                assert!(dd <= dn && dn <= 1.0);
+                let mut l2 = vec![[9.0f32; 3]; n];
+                let mut p2 = vec![[9.0f32; 3]; n];
+                let mut n2 = vec![[9.0f32; 3]; n];
+                frame_pass(
+                    &layout, &centred, mean, &table, None, &mut l2, &mut p2, &mut n2,
+                );
+                // bit for bit: the schedule only changes when a vertex is computed
+                assert_eq!(l2, large, "large, {block}/{chunk}");
+                assert_eq!(p2, pos, "positions, {block}/{chunk}");
+                assert_eq!(n2, nrm, "normals, {block}/{chunk} (deferred {dd} {dn})");
+            }
+            // one chunk of one block: every one-ring is inside the window, nothing deferred
+            layout.schedule = Schedule::new(&layout.fans, 2560, 2560);
+            assert_eq!(layout.schedule.deferred_fractions(), (0.0, 0.0));
         }
     }
 }
