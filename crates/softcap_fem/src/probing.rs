@@ -401,6 +401,9 @@ pub struct ExampleFit {
     pub cost_history: Vec<f64>,
     /// LM iterations performed.
     pub iterations: usize,
+    /// Conjugate-gradient iterations of all damped steps (diagnostic).
+    #[serde(default)]
+    pub cg_iterations: usize,
     /// Equilibrium status of the final simulation.
     pub status: SolveStatus,
 }
@@ -523,6 +526,9 @@ pub struct JointFit {
     pub cost_history: Vec<f64>,
     /// LM iterations performed.
     pub iterations: usize,
+    /// Conjugate-gradient iterations of all damped steps (diagnostic).
+    #[serde(default)]
+    pub cg_iterations: usize,
     /// Worst equilibrium status of the final simulations.
     pub status: SolveStatus,
 }
@@ -570,6 +576,7 @@ fn example_fit_of(joint: JointFit) -> ExampleFit {
         mut example_rms_m,
         cost_history,
         iterations,
+        cg_iterations,
         status,
         ..
     } = joint;
@@ -581,8 +588,33 @@ fn example_fit_of(joint: JointFit) -> ExampleFit {
         rms_m: example_rms_m.pop().unwrap_or(0.0),
         cost_history,
         iterations,
+        cg_iterations,
         status,
     }
+}
+
+/// [`fit_example_from`] warm-started from an earlier fit of the same example (e.g. at a
+/// neighbouring γ_p): its parameters are the first iterate and its equilibrium positions the
+/// start of the first equilibrium solve (instead of the rest shape), so the first simulation
+/// costs a few Newton iterations. Same minimizer as [`fit_example_from`] with
+/// `start = &previous.params` (the equilibrium is the same to the solver tolerance).
+pub fn fit_example_warm(
+    setup: &ProbingSetup,
+    example: &ProbeExample,
+    reference: &[LinearParams],
+    previous: &ExampleFit,
+    settings: &ExampleFitSettings,
+) -> Result<ExampleFit, FemError> {
+    let positions = std::slice::from_ref(&previous.positions_m);
+    let joint = fit_examples_impl(
+        setup,
+        std::slice::from_ref(example),
+        reference,
+        &previous.params,
+        Some(positions),
+        settings,
+    )?;
+    Ok(example_fit_of(joint))
 }
 
 /// [`fit_examples_jointly`] started from `start` (see [`fit_example_from`]).
@@ -591,6 +623,19 @@ pub fn fit_examples_from(
     examples: &[ProbeExample],
     reference: &[LinearParams],
     start: &[LinearParams],
+    settings: &ExampleFitSettings,
+) -> Result<JointFit, FemError> {
+    fit_examples_impl(setup, examples, reference, start, None, settings)
+}
+
+/// [`fit_examples_from`] with optional start positions of the first equilibrium solves (one
+/// per example, node count of the mesh; the rest shape when `None` or mismatched).
+fn fit_examples_impl(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    reference: &[LinearParams],
+    start: &[LinearParams],
+    start_positions: Option<&[Vec<Vector3<f64>>]>,
     settings: &ExampleFitSettings,
 ) -> Result<JointFit, FemError> {
     let t = setup.num_elements();
@@ -656,7 +701,15 @@ pub fn fit_examples_from(
         .iter()
         .map(|ex| setup.nodal_forces(ex, &setup.patch_nodes(ex, &settings.patch)))
         .collect();
-    let mut xs: Vec<Vec<Vector3<f64>>> = vec![setup.mesh.vertices.clone(); examples.len()];
+    let mut xs: Vec<Vec<Vector3<f64>>> = match start_positions {
+        Some(p)
+            if p.len() == examples.len()
+                && p.iter().all(|x| x.len() == setup.mesh.vertices.len()) =>
+        {
+            p.to_vec()
+        }
+        _ => vec![setup.mesh.vertices.clone(); examples.len()],
+    };
 
     // Cost = Σ‖r_m‖² + γ‖L s‖² + γ_ν‖L ν‖² + γ_p‖q − q₀‖² (scaled by the marker count).
     let num_rows: usize = examples.iter().map(|e| 3 * e.observed.len()).sum();
@@ -707,6 +760,7 @@ pub fn fit_examples_from(
         f64::INFINITY
     };
     let mut jac_valid = false;
+    let mut cg_iterations = 0;
     let mut jm: Vec<Vec<f64>> = Vec::new(); // rows in q-space
     let mut diag_max = vec![0.0f64; n];
     let mut grad = vec![0.0; n];
@@ -776,7 +830,7 @@ pub fn fit_examples_from(
         let mu = mu_rel * dmax;
         let floor = settings.min_scaling.max(0.0) * dmax;
         let scaling: Vec<f64> = diag_max.iter().map(|d| d.max(floor)).collect();
-        let h = damped_step(
+        let (h, cg) = damped_step(
             setup,
             &jm,
             &grad,
@@ -789,6 +843,7 @@ pub fn fit_examples_from(
             settings.cg_tolerance,
             settings.preconditioner,
         );
+        cg_iterations += cg;
         // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
         let h_inf = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let shrink = if h_inf > radius { radius / h_inf } else { 1.0 };
@@ -843,6 +898,7 @@ pub fn fit_examples_from(
         rms_m,
         cost_history: history,
         iterations,
+        cg_iterations,
         status,
     })
 }
@@ -862,7 +918,7 @@ fn damped_step(
     max_iter: usize,
     tolerance: f64,
     preconditioner: StepPreconditioner,
-) -> Vec<f64> {
+) -> (Vec<f64>, usize) {
     let n = grad.len();
     let t = n / 2;
     // J_m stored row by row = J_mᵀ column-major (n × m): J v and Jᵀ s as two dense products.
@@ -922,7 +978,7 @@ fn damped_step(
             })
         }
         StepPreconditioner::Woodbury => {
-            woodbury_preconditioner(setup, jt, free, diag, mu, prior, gam)
+            woodbury_preconditioner(setup, &flat, free, diag, mu, prior, gam)
         }
     };
     let mut h = vec![0.0; n];
@@ -935,10 +991,12 @@ fn damped_step(
     let mut rz: f64 = res.iter().zip(&z).map(|(a, b)| a * b).sum();
     let r0 = rz.abs().sqrt();
     let mut ap = vec![0.0; n];
+    let mut iterations = 0;
     for _ in 0..max_iter {
         if rz.abs().sqrt() <= tolerance * r0 || r0 == 0.0 {
             break;
         }
+        iterations += 1;
         apply(&p, &mut ap);
         let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
         if pap <= 0.0 || !pap.is_finite() {
@@ -957,7 +1015,7 @@ fn damped_step(
             p[i] = z[i] + beta * p[i];
         }
     }
-    h
+    (h, iterations)
 }
 
 /// P⁻¹ of [`StepPreconditioner::Woodbury`] on the free variables: P = J_Fᵀ J_F + Δ with
@@ -966,15 +1024,17 @@ fn damped_step(
 /// step). Falls back to Δ⁻¹ (Jacobi) if S does not factor.
 fn woodbury_preconditioner<'a>(
     setup: &ProbingSetup,
-    jt: faer::MatRef<'a, f64>,
+    jt_flat: &'a [f64],
     free: &'a [bool],
     diag: &[f64],
     mu: f64,
     prior: f64,
     gam: &dyn Fn(usize) -> f64,
 ) -> Box<dyn FnMut(&[f64], &mut [f64]) + 'a> {
-    let (n, m) = (jt.nrows(), jt.ncols());
+    let n = free.len();
+    let m = jt_flat.len() / n.max(1);
     let t = n / 2;
+    let jt = faer::MatRef::from_column_major_slice(jt_flat, n, m);
     let inv_delta: Vec<f64> = (0..n)
         .map(|i| {
             if free[i] {
@@ -985,19 +1045,19 @@ fn woodbury_preconditioner<'a>(
             }
         })
         .collect();
-    // W = Δ^{-1/2} J_Fᵀ (n × m), S = I + WᵀW.
-    let mut w = faer::Mat::<f64>::zeros(n, m);
-    for r in 0..m {
-        for i in 0..n {
-            w[(i, r)] = jt[(i, r)] * inv_delta[i].sqrt();
-        }
-    }
+    // W = Δ^{-1/2} J_Fᵀ (n × m, column-major like `jt_flat`), S = I + WᵀW.
+    let sqrt_inv: Vec<f64> = inv_delta.iter().map(|v| v.sqrt()).collect();
+    let w: Vec<f64> = jt_flat
+        .chunks_exact(n)
+        .flat_map(|col| col.iter().zip(&sqrt_inv).map(|(j, s)| j * s))
+        .collect();
+    let w = faer::MatRef::from_column_major_slice(&w, n, m);
     let mut s = faer::Mat::<f64>::identity(m, m);
     faer::linalg::matmul::matmul(
         s.as_mut(),
         faer::Accum::Add,
         w.transpose(),
-        w.as_ref(),
+        w,
         1.0,
         faer::Par::Seq,
     );
@@ -1009,31 +1069,27 @@ fn woodbury_preconditioner<'a>(
             }
         });
     };
-    let mut y = faer::Mat::<f64>::zeros(m, 1);
+    let mut y = nalgebra::DVector::<f64>::zeros(m);
+    let mut jy = vec![0.0; n];
     Box::new(move |r: &[f64], z: &mut [f64]| {
         for i in 0..n {
             z[i] = r[i] * inv_delta[i];
         }
         faer::linalg::matmul::matmul(
-            y.as_mut(),
+            faer::MatMut::from_column_major_slice_mut(y.as_mut_slice(), m, 1),
             faer::Accum::Replace,
             jt.transpose(),
             faer::MatRef::from_column_major_slice(z, n, 1),
             1.0,
             faer::Par::Seq,
         );
-        let mut yv = nalgebra::DVector::<f64>::from_fn(m, |a, _| y[(a, 0)]);
-        chol.solve_mut(&mut yv);
-        for a in 0..m {
-            y[(a, 0)] = yv[a];
-        }
+        chol.solve_mut(&mut y);
         // z ← z − Δ⁻¹ J_Fᵀ S⁻¹ J_F Δ⁻¹ r (entries of constrained variables stay 0).
-        let mut jy = vec![0.0; n];
         faer::linalg::matmul::matmul(
             faer::MatMut::from_column_major_slice_mut(&mut jy, n, 1),
             faer::Accum::Replace,
             jt,
-            y.as_ref(),
+            faer::MatRef::from_column_major_slice(y.as_slice(), m, 1),
             1.0,
             faer::Par::Seq,
         );

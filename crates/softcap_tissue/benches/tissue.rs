@@ -21,8 +21,8 @@ use std::time::{Duration, Instant};
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::probing::{
-    ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, probe_pose,
-    simulate_probe_contact, support_nodes,
+    ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, StepPreconditioner,
+    probe_pose, simulate_probe_contact, support_nodes,
 };
 use softcap_fem::{
     EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings, StrainSpaceModel,
@@ -147,10 +147,20 @@ fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
 
 fn bench(c: &mut Criterion) {
     let prepared = session();
-    let settings = FitSettings {
+    let mut settings = FitSettings {
         progress: false,
         ..FitSettings::default()
     };
+    // A/B of the LM step's CG preconditioner (default: the fit's own).
+    match std::env::var("SOFTCAP_TISSUE_BENCH_PRECONDITIONER").as_deref() {
+        Ok("jacobi") => settings.example_fit.preconditioner = StepPreconditioner::Jacobi,
+        Ok("woodbury") => settings.example_fit.preconditioner = StepPreconditioner::Woodbury,
+        _ => {}
+    }
+    eprintln!(
+        "step preconditioner: {:?}",
+        settings.example_fit.preconditioner
+    );
     let fit = timed("single fit", || {
         fit_session(&prepared, &settings, &Progress::hidden()).expect("fit")
     });
@@ -169,6 +179,11 @@ fn bench(c: &mut Criterion) {
         1e3 * fit.outcome.example_rms_m,
         1e3 * fit.outcome.material_rms_m,
         fit.outcome.material_failures
+    );
+    eprintln!(
+        "  chosen γ_p's per-example fits: {} LM iterations, {} CG iterations in all",
+        fit.fits.iter().map(|f| f.iterations).sum::<usize>(),
+        fit.fits.iter().map(|f| f.cg_iterations).sum::<usize>()
     );
     let setup = &prepared.setup;
     let model = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).expect("model");

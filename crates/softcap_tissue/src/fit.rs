@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use softcap_fem::probing::{
     BasisErrorStep, ExampleFit, ExampleFitSettings, HomogeneousFit, HomogeneousFitSettings,
     JointFit, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
-    fit_example, fit_example_from, fit_examples_jointly, fit_homogeneous,
+    fit_example, fit_example_warm, fit_examples_jointly, fit_homogeneous,
 };
 use softcap_fem::{EquilibriumSettings, LinearParams};
 use softcap_mcap::capture::CaptureData;
@@ -375,6 +375,40 @@ pub fn resimulate(
     Ok(None)
 }
 
+/// [`resimulate`] warm-started from node positions `start` (a nearby equilibrium of the same
+/// example, e.g. under a neighbouring material): the strain-space parameters are set to p(ε) at
+/// `start` and the full force is applied in one step from there; when that does not converge
+/// the example is re-simulated from rest by [`resimulate`]. The fixed point (p = p(ε) at
+/// equilibrium) is the same; only the iterations to reach it are fewer — the incremental
+/// loading of §3.4 is the robust path from rest, not part of the model.
+pub fn resimulate_from(
+    setup: &ProbingSetup,
+    model: &softcap_fem::StrainSpaceModel,
+    ex: &ProbeExample,
+    s: &FitSettings,
+    start: Option<&[nalgebra::Vector3<f64>]>,
+) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
+    use softcap_fem::ElasticModel;
+    if let Some(start) = start.filter(|x| x.len() == setup.mesh.vertices.len()) {
+        let mut m = model.clone();
+        m.reset();
+        m.relaxation = 1.0;
+        m.update_state(start);
+        m.relaxation = model.relaxation;
+        let nodes = setup.patch_nodes(ex, &s.example_fit.patch);
+        let f = setup.nodal_forces(ex, &nodes);
+        let mut solver = setup.solver(&m)?;
+        let mut x = start.to_vec();
+        if setup
+            .simulate(&mut solver, &mut m, &mut x, &f, &s.evaluation)
+            .converged()
+        {
+            return Ok(Some(x));
+        }
+    }
+    resimulate(setup, model, ex, s)
+}
+
 /// The strain-space samples of bickel2009 §4.2 per tet: sample 0 is the zero-strain reference
 /// with the tet's mean fitted parameters, sample k ≥ 1 is (ε_e, p_e) of example k − 1.
 pub fn strain_samples(fits: &[ExampleFit], tets: usize) -> Vec<Vec<StrainSample>> {
@@ -441,7 +475,7 @@ fn fit_all(
         .enumerate()
         .map(|(k, ex)| {
             let r = match start {
-                Some(prev) => fit_example_from(setup, ex, reference, &prev[k].params, &fs),
+                Some(prev) => fit_example_warm(setup, ex, reference, &prev[k], &fs),
                 None => fit_example(setup, ex, reference, &fs),
             };
             bar.inc(1);
@@ -464,13 +498,42 @@ pub fn leave_one_location_out(
     reference_sample: Option<&[LinearParams]>,
     settings: &FitSettings,
 ) -> Result<(f64, usize)> {
+    let r = leave_one_location_out_from(setup, examples, fits, reference_sample, settings, None)?;
+    Ok((r.heldout_rms_m, r.heldout_failures))
+}
+
+/// Result of [`leave_one_location_out_from`].
+#[derive(Clone, Debug)]
+pub struct LeaveOneLocationOut {
+    /// RMS over the held-out examples of their marker RMS error, m.
+    pub heldout_rms_m: f64,
+    /// Held-out re-simulations that did not converge.
+    pub heldout_failures: usize,
+    /// Node positions of each example's held-out re-simulation (same order as the examples;
+    /// `None` when it did not converge).
+    pub positions_m: Vec<Option<Vec<nalgebra::Vector3<f64>>>>,
+}
+
+/// [`leave_one_location_out`] with optional warm starts of the held-out re-simulations
+/// ([`resimulate_from`]; one per example, e.g. the held-out equilibria of the previous γ_p
+/// candidate — never the example's own fit, so nothing of the held-out location's markers
+/// enters), returning the held-out equilibria too.
+pub fn leave_one_location_out_from(
+    setup: &ProbingSetup,
+    examples: &[SessionExample],
+    fits: &[ExampleFit],
+    reference_sample: Option<&[LinearParams]>,
+    settings: &FitSettings,
+    starts: Option<&[Option<Vec<nalgebra::Vector3<f64>>>]>,
+) -> Result<LeaveOneLocationOut> {
     let mut locations: Vec<usize> = examples.iter().map(|e| e.location).collect();
     locations.sort_unstable();
     locations.dedup();
     let t = setup.num_elements();
+    type HeldOut = (usize, Option<(f64, Vec<nalgebra::Vector3<f64>>)>);
     let per_location = locations
         .par_iter()
-        .map(|&l| -> Result<Vec<Option<f64>>> {
+        .map(|&l| -> Result<Vec<HeldOut>> {
             let train: Vec<&ExampleFit> = fits
                 .iter()
                 .zip(examples)
@@ -488,25 +551,40 @@ pub fn leave_one_location_out(
                 field: "relaxation".into(),
                 problem: e.to_string(),
             })?;
-            examples
-                .par_iter()
-                .filter(|e| e.location == l)
-                .map(|e| {
-                    Ok(resimulate(setup, &model, &e.example, settings)?
-                        .map(|x| marker_errors(setup, &e.example, &x).0))
+            let held: Vec<usize> = (0..examples.len())
+                .filter(|&k| examples[k].location == l)
+                .collect();
+            held.par_iter()
+                .map(|&k| {
+                    let e = &examples[k];
+                    let start = starts.and_then(|s| s.get(k)).and_then(|x| x.as_deref());
+                    let x = resimulate_from(setup, &model, &e.example, settings, start)?;
+                    Ok((k, x.map(|x| (marker_errors(setup, &e.example, &x).0, x))))
                 })
                 .collect()
         })
         .collect::<Result<Vec<_>>>()?;
-    let errors: Vec<Option<f64>> = per_location.into_iter().flatten().collect();
-    let ok: Vec<f64> = errors.iter().flatten().copied().collect();
-    let failures = errors.len() - ok.len();
+    let mut held: Vec<HeldOut> = per_location.into_iter().flatten().collect();
+    held.sort_by_key(|h| h.0);
+    let ok: Vec<f64> = held
+        .iter()
+        .filter_map(|h| h.1.as_ref().map(|v| v.0))
+        .collect();
+    let failures = held.len() - ok.len();
     let rms = if ok.is_empty() {
         f64::INFINITY
     } else {
         (ok.iter().map(|v| v * v).sum::<f64>() / ok.len() as f64).sqrt()
     };
-    Ok((rms, failures))
+    let mut positions_m = vec![None; examples.len()];
+    for (k, h) in held {
+        positions_m[k] = h.map(|v| v.1);
+    }
+    Ok(LeaveOneLocationOut {
+        heldout_rms_m: rms,
+        heldout_failures: failures,
+        positions_m,
+    })
 }
 
 /// Chooses the shrinkage γ_p of the per-example fits (eq. 9 + γ_p‖q − q₀‖²) by
@@ -530,6 +608,8 @@ pub fn select_gamma_prior(
     let probe_examples: Vec<ProbeExample> = examples.iter().map(|e| e.example.clone()).collect();
     let mut all: Vec<Vec<ExampleFit>> = Vec::with_capacity(candidates.len());
     let mut scores = Vec::with_capacity(candidates.len());
+    // The held-out equilibria of the previous candidate warm-start this candidate's.
+    let mut heldout_positions: Option<Vec<Option<Vec<nalgebra::Vector3<f64>>>>> = None;
     for &g in candidates {
         let bar = progress.bar(
             &format!("per-example fits (eq. 9), γ_p = {g}"),
@@ -546,8 +626,16 @@ pub fn select_gamma_prior(
         )?;
         bar.finish();
         let bar = progress.bar(&format!("leave-one-location-out, γ_p = {g}"), 1);
-        let (rms, failures) =
-            leave_one_location_out(setup, examples, &fits, reference_sample, settings)?;
+        let lolo = leave_one_location_out_from(
+            setup,
+            examples,
+            &fits,
+            reference_sample,
+            settings,
+            heldout_positions.as_deref(),
+        )?;
+        let (rms, failures) = (lolo.heldout_rms_m, lolo.heldout_failures);
+        heldout_positions = Some(lolo.positions_m);
         bar.finish();
         let example_rms =
             (fits.iter().map(|f| f.rms_m * f.rms_m).sum::<f64>() / fits.len().max(1) as f64).sqrt();
@@ -659,10 +747,12 @@ pub fn fit_session(
             field: "relaxation".into(),
             problem: e.to_string(),
         })?;
+    // Warm start: the per-example fit's equilibrium (this material was built from it).
     let evaluated = probe_examples
         .par_iter()
-        .map(|ex| {
-            let r = resimulate(setup, &model, ex, &s);
+        .zip(&fits)
+        .map(|(ex, fit)| {
+            let r = resimulate_from(setup, &model, ex, &s, Some(&fit.positions_m));
             bar.inc(1);
             r
         })
@@ -675,7 +765,16 @@ pub fn fit_session(
         .par_iter()
         .map(|ex| {
             let mut m = homog_model.clone();
-            simulate_example(setup, &mut m, ex, &s.homogeneous.patch, &s.evaluation, 1)
+            // Newton (consistent tangent): the same equilibrium as the warped iteration of
+            // `evaluation`, in a few factorizations instead of tens.
+            simulate_example(
+                setup,
+                &mut m,
+                ex,
+                &s.homogeneous.patch,
+                &s.homogeneous.equilibrium,
+                1,
+            )
         })
         .collect::<Result<Vec<_>>>()?;
 

@@ -45,9 +45,10 @@ pub mod simulate;
 
 pub use error::{Result, TissueError};
 pub use fit::{
-    ExampleSummary, FitConfig, FitOutcome, FitSettings, GammaPriorScore, ReferenceField,
-    SessionFit, fit_session, leave_one_location_out, marker_errors, resimulate, select_gamma_prior,
-    simulate_example, strain_samples, strain_samples_with_reference,
+    ExampleSummary, FitConfig, FitOutcome, FitSettings, GammaPriorScore, LeaveOneLocationOut,
+    ReferenceField, SessionFit, fit_session, leave_one_location_out, leave_one_location_out_from,
+    marker_errors, resimulate, resimulate_from, select_gamma_prior, simulate_example,
+    strain_samples, strain_samples_with_reference,
 };
 pub use output::{LoadedMaterial, basis_message, read_material, report_message, write_material};
 pub use progress::Progress;
