@@ -219,8 +219,13 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
             // probe-friction: the FSR reads only the force along the shaft; the friction
             // traction under the dragged tip (up to ≈ 0.3 of the axial force in the truth) is
             // the concealed part of the force vector.
+            // viscoelasticity (session 7 TOML: g 2, τ 0.3 s, the force relaxes by a third within
+            // every hold): measured 3.04 % RMS of the peak (0.114 of 3.75 N); the elastic sessions
+            // read ≤ 2.7 % (strain-stiffening 0.117 of 4.28 N).
             let bound = if scenario.has(Effect::ProbeFriction) {
                 0.4
+            } else if scenario.has(Effect::Viscoelasticity) {
+                0.04
             } else if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
                 0.08
             } else {
