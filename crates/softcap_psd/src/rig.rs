@@ -306,28 +306,25 @@ impl<'a> Animator<'a> {
         }
         let mean = runtime::centre_handles(&self.uh, &mut self.centred);
         let global_r = global.then_some(&self.global_r[..]);
-        if self.layout.rank.is_none() {
-            runtime::frame_pass(
-                &self.layout,
-                &self.centred,
-                mean,
-                &self.table,
-                global_r,
-                &mut self.large,
-                &mut self.positions,
-                &mut self.normals,
-            );
+        // Full-rank layouts are stored in mesh order and write straight into the outputs; the
+        // low-rank (permuted) layout sweeps into its work buffers and is un-permuted after.
+        let permuted = self.layout.rank.is_some();
+        let (positions, normals) = if permuted {
+            (&mut self.work, &mut self.work_normals)
         } else {
-            runtime::frame_pass(
-                &self.layout,
-                &self.centred,
-                mean,
-                &self.table,
-                global_r,
-                &mut self.large,
-                &mut self.work,
-                &mut self.work_normals,
-            );
+            (&mut self.positions, &mut self.normals)
+        };
+        runtime::frame_pass(
+            &self.layout,
+            &self.centred,
+            mean,
+            &self.table,
+            global_r,
+            &mut self.large,
+            positions,
+            normals,
+        );
+        if permuted {
             runtime::to_mesh_order_into(
                 &self.layout,
                 &self.work,
