@@ -302,15 +302,8 @@ mod tests {
                 u_true.push(u);
             }
         }
-        let rec = Recording {
-            marker_ids: vec!["a".into(), "b".into()],
-            rest_markers_m: rest.clone(),
-            normals: vec![Vector3::z(); 2],
-            gravity_m_s2: Vector3::zeros(),
-            support: None,
-            tip_radius_m: 0.002,
-            frames,
-        };
+        let rec = Recording::two_marker_toy(frames);
+        assert_eq!(rec.rest_markers_m, rest);
         let seg = Segmentation::new(&rec, &SegmentSettings::default());
         let p = Prepared {
             times_s: rec.times_s(),

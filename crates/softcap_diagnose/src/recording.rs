@@ -149,6 +149,21 @@ impl Recording {
             Vector3::zeros()
         }
     }
+
+    /// Test fixture: two markers at (0, 0, 10) mm and (30, 0, 10) mm on a surface facing +z, no
+    /// gravity or support, a 2 mm tip, the given frames.
+    #[cfg(test)]
+    pub(crate) fn two_marker_toy(frames: Vec<Frame>) -> Self {
+        Self {
+            marker_ids: vec!["a".into(), "b".into()],
+            rest_markers_m: vec![Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)],
+            normals: vec![Vector3::z(); 2],
+            gravity_m_s2: Vector3::zeros(),
+            support: None,
+            tip_radius_m: 0.002,
+            frames,
+        }
+    }
 }
 
 /// Outward unit normals at `points` from the closest boundary face of `mesh` (area-weighted vertex

@@ -512,15 +512,7 @@ mod tests {
                 });
             }
         }
-        let rec = Recording {
-            marker_ids: vec!["a".into(), "b".into()],
-            rest_markers_m: vec![Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)],
-            normals: vec![Vector3::z(); 2],
-            gravity_m_s2: Vector3::zeros(),
-            support: None,
-            tip_radius_m: 0.002,
-            frames,
-        };
+        let rec = Recording::two_marker_toy(frames);
         let seg = Segmentation::new(&rec, &SegmentSettings::default());
         assert_eq!(seg.num_folds(), 2);
         let (g_fit, tau_fit) = hold_relaxation(&rec, &seg).expect("relaxing holds");
