@@ -422,14 +422,94 @@ fn params_from_q(lambda_ref: &[f64], q: &[f64]) -> Vec<LinearParams> {
         .collect()
 }
 
-/// y = L v for the umbrella operator (Lv)_i = Σ_j (v_i − v_j) over `adjacency` (eq. 9).
-fn umbrella_apply(adjacency: &[Vec<usize>], v: &[f64], out: &mut [f64]) {
-    for (i, nb) in adjacency.iter().enumerate() {
-        let mut s = nb.len() as f64 * v[i];
-        for &j in nb {
-            s -= v[j];
+/// The umbrella operator L of eq. 9, (Lv)_i = Σ_j (v_i − v_j) over the tets j sharing a vertex
+/// with tet i, in compressed rows (one flat neighbour array). The LM steps apply LᵀL = LL to the
+/// log-stiffness and the Poisson-ratio blocks at every conjugate-gradient iteration, so both
+/// blocks are applied in one pass over the ≈ 60 neighbours of each tet.
+struct Umbrella {
+    offsets: Vec<usize>,
+    neighbours: Vec<usize>,
+}
+
+impl Umbrella {
+    fn new(adjacency: &[Vec<usize>]) -> Self {
+        let mut offsets = Vec::with_capacity(adjacency.len() + 1);
+        offsets.push(0);
+        let mut neighbours = Vec::with_capacity(adjacency.iter().map(Vec::len).sum());
+        for nb in adjacency {
+            neighbours.extend_from_slice(nb);
+            offsets.push(neighbours.len());
         }
-        out[i] = s;
+        Self {
+            offsets,
+            neighbours,
+        }
+    }
+
+    /// Number of neighbours of tet `i`.
+    fn degree(&self, i: usize) -> usize {
+        self.offsets[i + 1] - self.offsets[i]
+    }
+
+    /// (L a, L b) for the two parameter blocks at once.
+    fn apply_pair(&self, a: &[f64], b: &[f64], out_a: &mut [f64], out_b: &mut [f64]) {
+        for (i, w) in self.offsets.windows(2).enumerate() {
+            let nb = &self.neighbours[w[0]..w[1]];
+            let deg = nb.len() as f64;
+            let (mut sa, mut sb) = (deg * a[i], deg * b[i]);
+            for &j in nb {
+                sa -= a[j];
+                sb -= b[j];
+            }
+            out_a[i] = sa;
+            out_b[i] = sb;
+        }
+    }
+
+    /// γ_s LLv_s and γ_ν LLv_ν added to `out` for v = (v_s, v_ν) (blocks of length T).
+    fn add_smoothing(
+        &self,
+        v: &[f64],
+        gammas: [f64; 2],
+        scratch: &mut UmbrellaScratch,
+        out: &mut [f64],
+    ) {
+        let t = self.offsets.len() - 1;
+        let UmbrellaScratch { la, lb, lla, llb } = scratch;
+        self.apply_pair(&v[..t], &v[t..2 * t], la, lb);
+        self.apply_pair(la, lb, lla, llb);
+        for i in 0..t {
+            out[i] += gammas[0] * lla[i];
+            out[t + i] += gammas[1] * llb[i];
+        }
+    }
+
+    /// γ_s‖L v_s‖² + γ_ν‖L v_ν‖².
+    fn smoothing_cost(&self, v: &[f64], gammas: [f64; 2], scratch: &mut UmbrellaScratch) -> f64 {
+        let t = self.offsets.len() - 1;
+        let UmbrellaScratch { la, lb, .. } = scratch;
+        self.apply_pair(&v[..t], &v[t..2 * t], la, lb);
+        gammas[0] * la.iter().map(|v| v * v).sum::<f64>()
+            + gammas[1] * lb.iter().map(|v| v * v).sum::<f64>()
+    }
+}
+
+/// Work vectors of [`Umbrella`] (length T each).
+struct UmbrellaScratch {
+    la: Vec<f64>,
+    lb: Vec<f64>,
+    lla: Vec<f64>,
+    llb: Vec<f64>,
+}
+
+impl UmbrellaScratch {
+    fn new(t: usize) -> Self {
+        Self {
+            la: vec![0.0; t],
+            lb: vec![0.0; t],
+            lla: vec![0.0; t],
+            llb: vec![0.0; t],
+        }
     }
 }
 
@@ -687,13 +767,10 @@ fn fit_examples_impl(
         q[t + e] = (p.alpha / p.lambda).clamp(lower[t + e], upper[t + e]);
     }
     let prior = settings.gamma_prior.max(0.0);
-    let gam = |i: usize| {
-        if i < t {
-            settings.gamma_m2
-        } else {
-            settings.gamma_nu_m2
-        }
-    };
+    let gammas = [settings.gamma_m2, settings.gamma_nu_m2];
+    let gam = |i: usize| gammas[usize::from(i >= t)];
+    let umbrella = Umbrella::new(&setup.adjacency);
+    let mut scratch = UmbrellaScratch::new(t);
 
     let mut model = CorotationalModel::new(&setup.mesh, params_from_q(&lambda_ref, &q))?;
     let mut solver = setup.solver(&model)?;
@@ -714,18 +791,13 @@ fn fit_examples_impl(
     // Cost = Σ‖r_m‖² + γ‖L s‖² + γ_ν‖L ν‖² + γ_p‖q − q₀‖² (scaled by the marker count).
     let num_rows: usize = examples.iter().map(|e| 3 * e.observed.len()).sum();
     let prior_scale = prior * 1e-8 * num_rows as f64 / n as f64;
-    let reg_cost = |q: &[f64]| {
-        let mut lq = vec![0.0; t];
-        let mut c = 0.0;
-        for (block, g) in [(0, settings.gamma_m2), (t, settings.gamma_nu_m2)] {
-            umbrella_apply(&setup.adjacency, &q[block..block + t], &mut lq);
-            c += g * lq.iter().map(|v| v * v).sum::<f64>();
-        }
-        c + prior_scale
-            * q.iter()
-                .zip(&q0)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum::<f64>()
+    let reg_cost = |q: &[f64], scratch: &mut UmbrellaScratch| {
+        umbrella.smoothing_cost(q, gammas, scratch)
+            + prior_scale
+                * q.iter()
+                    .zip(&q0)
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum::<f64>()
     };
     // Simulates every example with the parameters `q` warm-started from `xs`; residuals stacked.
     let run_all = |model: &mut CorotationalModel,
@@ -750,7 +822,7 @@ fn fit_examples_impl(
     let (mut rs, mut status, _) = run_all(&mut model, &mut solver, &q, &mut xs)?;
     let initial_rms_m: Vec<f64> = rs.iter().map(|r| rms_of(r)).collect();
     let sq = |rs: &[Vec<f64>]| rs.iter().flatten().map(|v| v * v).sum::<f64>();
-    let mut cost = sq(&rs) + reg_cost(&q);
+    let mut cost = sq(&rs) + reg_cost(&q, &mut scratch);
     let mut history = vec![cost];
     let mut iterations = 0;
     let mut mu_rel = settings.initial_damping;
@@ -761,7 +833,8 @@ fn fit_examples_impl(
     };
     let mut jac_valid = false;
     let mut cg_iterations = 0;
-    let mut jm: Vec<Vec<f64>> = Vec::new(); // rows in q-space
+    // J_m in q-space, one row after the other (= J_mᵀ column-major, n × rows).
+    let mut jm: Vec<f64> = Vec::new();
     let mut diag_max = vec![0.0f64; n];
     let mut grad = vec![0.0; n];
 
@@ -784,8 +857,10 @@ fn fit_examples_impl(
                             )
                         })?;
                 // Chain rule to q: ∂/∂s_e = λ_e (∂/∂λ_e + ν_e ∂/∂α_e), ∂/∂ν_e = λ_e ∂/∂α_e.
-                jm.extend(rows.iter().map(|row| {
-                    let mut out = vec![0.0; n];
+                for row in &rows {
+                    let start = jm.len();
+                    jm.resize(start + n, 0.0);
+                    let out = &mut jm[start..];
                     for e in 0..t {
                         let (jl, ja) = (row[2 * e], row[2 * e + 1]);
                         let lam = params[e].lambda;
@@ -793,31 +868,22 @@ fn fit_examples_impl(
                         out[e] = lam * (jl + nu * ja);
                         out[t + e] = lam * ja;
                     }
-                    out
-                }));
+                }
             }
-            // g = J_mᵀ r + γ Lᵀ L q + γ_p (q − q₀) (L symmetric).
+            // g = J_mᵀ r + γ Lᵀ L q + γ_p (q − q₀) (L symmetric); Σ_rows J_m² per column.
             grad.iter_mut().for_each(|g| *g = 0.0);
-            for (row, ri) in jm.iter().zip(rs.iter().flatten()) {
+            let mut col_sq = vec![0.0; n];
+            for (row, ri) in jm.chunks_exact(n).zip(rs.iter().flatten()) {
                 for i in 0..n {
                     grad[i] += row[i] * ri;
+                    col_sq[i] += row[i] * row[i];
                 }
             }
-            let mut lq = vec![0.0; t];
-            let mut llq = vec![0.0; t];
-            for block in [0, t] {
-                umbrella_apply(&setup.adjacency, &q[block..block + t], &mut lq);
-                umbrella_apply(&setup.adjacency, &lq, &mut llq);
-                for i in 0..t {
-                    grad[block + i] += gam(block + i) * llq[i];
-                }
-            }
+            umbrella.add_smoothing(&q, gammas, &mut scratch, &mut grad);
             for i in 0..n {
                 grad[i] += prior_scale * (q[i] - q0[i]);
-                let deg = setup.adjacency[i % t].len() as f64;
-                let d = jm.iter().map(|row| row[i] * row[i]).sum::<f64>()
-                    + gam(i) * (deg * deg + deg)
-                    + prior_scale;
+                let deg = umbrella.degree(i % t) as f64;
+                let d = col_sq[i] + gam(i) * (deg * deg + deg) + prior_scale;
                 diag_max[i] = diag_max[i].max(d);
             }
             jac_valid = true;
@@ -831,14 +897,15 @@ fn fit_examples_impl(
         let floor = settings.min_scaling.max(0.0) * dmax;
         let scaling: Vec<f64> = diag_max.iter().map(|d| d.max(floor)).collect();
         let (h, cg) = damped_step(
-            setup,
+            &umbrella,
+            &mut scratch,
             &jm,
             &grad,
             &free,
             &scaling,
             mu,
             prior_scale,
-            &gam,
+            gammas,
             settings.cg_iterations,
             settings.cg_tolerance,
             settings.preconditioner,
@@ -853,7 +920,7 @@ fn fit_examples_impl(
         }
         let mut xs_trial = xs.clone();
         let (rs_trial, st_trial, ok) = run_all(&mut model, &mut solver, &q_trial, &mut xs_trial)?;
-        let cost_trial = sq(&rs_trial) + reg_cost(&q_trial);
+        let cost_trial = sq(&rs_trial) + reg_cost(&q_trial, &mut scratch);
         if ok && cost_trial.is_finite() && cost_trial < cost {
             let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
             q = q_trial;
@@ -907,24 +974,23 @@ fn fit_examples_impl(
 /// ([`StepPreconditioner`]).
 #[allow(clippy::too_many_arguments)]
 fn damped_step(
-    setup: &ProbingSetup,
-    jm: &[Vec<f64>],
+    umbrella: &Umbrella,
+    scratch: &mut UmbrellaScratch,
+    flat: &[f64],
     grad: &[f64],
     free: &[bool],
     diag: &[f64],
     mu: f64,
     prior: f64,
-    gam: &dyn Fn(usize) -> f64,
+    gammas: [f64; 2],
     max_iter: usize,
     tolerance: f64,
     preconditioner: StepPreconditioner,
 ) -> (Vec<f64>, usize) {
     let n = grad.len();
-    let t = n / 2;
     // J_m stored row by row = J_mᵀ column-major (n × m): J v and Jᵀ s as two dense products.
-    let m = jm.len();
-    let flat: Vec<f64> = jm.iter().flatten().copied().collect();
-    let jt = faer::MatRef::from_column_major_slice(&flat, n, m);
+    let m = flat.len() / n.max(1);
+    let jt = faer::MatRef::from_column_major_slice(flat, n, m);
     let mut jv = faer::Mat::<f64>::zeros(m, 1);
     let mut apply = |v: &[f64], out: &mut [f64]| {
         let vm = faer::MatRef::from_column_major_slice(v, n, 1);
@@ -944,15 +1010,7 @@ fn damped_step(
             1.0,
             faer::Par::Seq,
         );
-        let mut lv = vec![0.0; t];
-        let mut llv = vec![0.0; t];
-        for block in [0, t] {
-            umbrella_apply(&setup.adjacency, &v[block..block + t], &mut lv);
-            umbrella_apply(&setup.adjacency, &lv, &mut llv);
-            for i in 0..t {
-                out[block + i] += gam(block + i) * llv[i];
-            }
-        }
+        umbrella.add_smoothing(v, gammas, scratch, out);
         for i in 0..n {
             out[i] += mu * diag[i] * v[i] + prior * v[i];
             if !free[i] {
@@ -978,7 +1036,7 @@ fn damped_step(
             })
         }
         StepPreconditioner::Woodbury => {
-            woodbury_preconditioner(setup, &flat, free, diag, mu, prior, gam)
+            woodbury_preconditioner(umbrella, flat, free, diag, mu, prior, gammas)
         }
     };
     let mut h = vec![0.0; n];
@@ -1023,13 +1081,13 @@ fn damped_step(
 /// P⁻¹v = Δ⁻¹v − Δ⁻¹J_Fᵀ S⁻¹ J_F Δ⁻¹v with S = I + J_F Δ⁻¹ J_Fᵀ (k × k, Cholesky once per
 /// step). Falls back to Δ⁻¹ (Jacobi) if S does not factor.
 fn woodbury_preconditioner<'a>(
-    setup: &ProbingSetup,
+    umbrella: &Umbrella,
     jt_flat: &'a [f64],
     free: &'a [bool],
     diag: &[f64],
     mu: f64,
     prior: f64,
-    gam: &dyn Fn(usize) -> f64,
+    gammas: [f64; 2],
 ) -> Box<dyn FnMut(&[f64], &mut [f64]) + 'a> {
     let n = free.len();
     let m = jt_flat.len() / n.max(1);
@@ -1038,8 +1096,9 @@ fn woodbury_preconditioner<'a>(
     let inv_delta: Vec<f64> = (0..n)
         .map(|i| {
             if free[i] {
-                let deg = setup.adjacency[i % t].len() as f64;
-                1.0 / (mu * diag[i] + prior + gam(i) * (deg * deg + deg)).max(1e-300)
+                let deg = umbrella.degree(i % t) as f64;
+                let gam = gammas[usize::from(i >= t)];
+                1.0 / (mu * diag[i] + prior + gam * (deg * deg + deg)).max(1e-300)
             } else {
                 0.0
             }
