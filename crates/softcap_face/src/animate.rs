@@ -7,7 +7,6 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use softcap_mesh::TriMesh;
-use softcap_mesh::laplacian::{cotan_laplacian, voronoi_areas};
 use softcap_mesh::shell::{LinearShell, ShellBasis, ShellSettings};
 
 use crate::correspondence::Correspondence;
@@ -130,15 +129,14 @@ impl FaceAnimator {
     }
 }
 
-/// Assemble and factor the linear shell of `mesh` with the given handles (thesis eq. 3.3).
+/// Assemble and factor the linear shell of `mesh` with the given handles (thesis eq. 3.3;
+/// [`LinearShell::from_mesh`]: cotangent Laplacian, Voronoi areas, nested-dissection order).
 pub fn factor_shell(
     mesh: &TriMesh,
     handles: &[usize],
     settings: &ShellSettings,
 ) -> Result<LinearShell> {
-    let l = cotan_laplacian(mesh);
-    let areas = voronoi_areas(mesh);
-    LinearShell::new(l.as_ref(), &areas, handles, settings).map_err(|e| FaceError::Factorization {
+    LinearShell::from_mesh(mesh, handles, settings).map_err(|e| FaceError::Factorization {
         what: "linear shell",
         reason: e.to_string(),
     })

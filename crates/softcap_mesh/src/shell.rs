@@ -90,6 +90,17 @@ pub enum ShellError {
         /// bending stiffness
         k_b: f64,
     },
+    /// The vertex positions (for the nested-dissection ordering) do not match the vertices.
+    #[error("expected {expected} vertex positions, got {got}")]
+    PositionCount {
+        /// number of vertices
+        expected: usize,
+        /// number given
+        got: usize,
+    },
+    /// [`ShellOrdering::NestedDissection`] was asked for without vertex positions.
+    #[error("the nested-dissection ordering needs the vertex positions")]
+    MissingPositions,
     /// The free-vertex system is not numerically positive definite.
     #[error("sparse Cholesky of the free-vertex system failed: {reason}")]
     Factorization {
@@ -231,7 +242,8 @@ impl LinearShell {
     ///
     /// `laplacian` is the symmetric cotangent matrix with negative diagonal (see module docs),
     /// `vertex_areas` the Voronoi areas (diagonal of `M`), `handles` the constrained vertices.
-    /// The fill-reducing ordering is [`ShellOrdering::Auto`].
+    /// Without vertex positions the fill-reducing ordering is AMD; [`LinearShell::from_mesh`]
+    /// passes the positions and gets the (much cheaper) nested dissection.
     pub fn new(
         laplacian: SparseColMatRef<'_, usize, f64>,
         vertex_areas: &[f64],
@@ -241,21 +253,36 @@ impl LinearShell {
         Self::with_ordering(
             laplacian,
             vertex_areas,
+            None,
             handles,
             settings,
             ShellOrdering::Auto,
         )
     }
 
-    /// [`LinearShell::new`] with an explicit fill-reducing ordering of the Cholesky factor.
+    /// [`LinearShell::new`] with an explicit fill-reducing ordering of the Cholesky factor and,
+    /// for the nested dissection, the vertex positions (one per vertex).
     pub fn with_ordering(
         laplacian: SparseColMatRef<'_, usize, f64>,
         vertex_areas: &[f64],
+        positions: Option<&[Vector3<f64>]>,
         handles: &[usize],
         settings: &ShellSettings,
         ordering: ShellOrdering,
     ) -> Result<Self, ShellError> {
         let n = vertex_areas.len();
+        match positions {
+            Some(p) if p.len() != n => {
+                return Err(ShellError::PositionCount {
+                    expected: n,
+                    got: p.len(),
+                });
+            }
+            None if ordering == ShellOrdering::NestedDissection => {
+                return Err(ShellError::MissingPositions);
+            }
+            _ => {}
+        }
         if laplacian.nrows() != n || laplacian.ncols() != n {
             return Err(ShellError::ShapeMismatch {
                 rows: laplacian.nrows(),
@@ -359,7 +386,9 @@ impl LinearShell {
             faer::sparse::SymbolicSparseColMat::new_checked(nf, nf, col_ptr, None, row_idx),
             values,
         );
-        let llt = factor_upper(a_ff, ordering)?;
+        let free_positions =
+            positions.map(|p| free.iter().map(|&v| [p[v].x, p[v].y, p[v].z]).collect());
+        let llt = factor_upper(a_ff, ordering, free_positions)?;
         Ok(Self {
             n,
             handles: handles.to_vec(),
@@ -371,7 +400,8 @@ impl LinearShell {
     }
 
     /// [`LinearShell::new`] with the cotangent Laplacian and mixed Voronoi areas of `mesh`
-    /// ([`crate::laplacian`], thesis eq. 3.4–3.5).
+    /// ([`crate::laplacian`], thesis eq. 3.4–3.5), factored in the geometric nested-dissection
+    /// order of its vertex positions.
     pub fn from_mesh(
         mesh: &TriMesh,
         handles: &[usize],
@@ -379,7 +409,14 @@ impl LinearShell {
     ) -> Result<Self, ShellError> {
         let lap = crate::laplacian::cotan_laplacian(mesh);
         let areas = crate::laplacian::voronoi_areas(mesh);
-        Self::new(lap.as_ref(), &areas, handles, settings)
+        Self::with_ordering(
+            lap.as_ref(),
+            &areas,
+            Some(&mesh.vertices),
+            handles,
+            settings,
+            ShellOrdering::Auto,
+        )
     }
 
     /// Number of vertices.
@@ -443,10 +480,11 @@ impl LinearShell {
                 rhs[(r, c - start)] = -val;
                 entry += 1;
             }
-            self.llt.solve_sparse_rhs_in_place(rhs.as_mut());
+            self.llt.solve_sparse_rhs_in_place(&mut rhs);
+            let cols: Vec<&[f64]> = (0..end - start).map(|j| rhs.col_as_slice(j)).collect();
             for (fi, &v) in self.free.iter().enumerate() {
-                for c in start..end {
-                    weights[v * h + c] = rhs[(fi, c - start)] as f32;
+                for (w, col) in weights[v * h + start..v * h + end].iter_mut().zip(&cols) {
+                    *w = col[fi] as f32;
                 }
             }
             start = end;
@@ -463,6 +501,30 @@ impl LinearShell {
         self.llt.len()
     }
 
+    /// Multiply–add count of the numeric factorization, `Σ_j c_j²` over the columns of `L`
+    /// with `c_j` nonzeros each (the cost the ordering decides; the supernodal factor's
+    /// relaxed supernodes included).
+    pub fn factor_flops(&self) -> f64 {
+        use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+        match self.llt.symbolic.raw() {
+            SymbolicCholeskyRaw::Supernodal(sym) => {
+                let ptr = sym.col_ptr_for_row_idx();
+                (0..sym.n_supernodes())
+                    .map(|s| {
+                        let size = sym.supernode_end()[s] - sym.supernode_begin()[s];
+                        let below = (ptr[s + 1] - ptr[s]) as f64;
+                        (1..=size).map(|c| (c as f64 + below).powi(2)).sum::<f64>()
+                    })
+                    .sum()
+            }
+            SymbolicCholeskyRaw::Simplicial(sym) => sym
+                .col_ptr()
+                .windows(2)
+                .map(|w| ((w[1] - w[0]) as f64).powi(2))
+                .sum(),
+        }
+    }
+
     /// Whether vertex `v` is a handle.
     pub fn is_handle(&self, v: usize) -> bool {
         self.free_index[v] == usize::MAX
@@ -471,19 +533,24 @@ impl LinearShell {
 
 /// Fill-reducing ordering of the shell's sparse Cholesky factor.
 ///
-/// Measured on the ≈600k-vertex face (ICT face 3× midpoint-subdivided, 41 handles, test
-/// profile, CPU seconds under load; docs/face.md): AMD 14.8 s prefactor with 156.5 M nonzeros
-/// in L, the level-structure nested dissection below 30.2 s — so `Auto` is AMD.
+/// Measured on the ≈600k-vertex face (ICT face 3× midpoint-subdivided, 41 handles, test profile,
+/// CPU seconds under load; docs/face.md, Benchmarks): AMD nnz(L) 156.5 M, 138.5 G multiply-adds,
+/// numeric factor 8.7 s; the geometric nested dissection 138.1 M, 90.4 G, 6.4 s (its ordering
+/// and symbolic analysis cost 3.6 s against 1.5 s for AMD) — so `Auto` uses it whenever positions
+/// are given.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ShellOrdering {
-    /// The measured-fastest ordering (currently AMD).
+    /// [`ShellOrdering::NestedDissection`] when vertex positions are given, else AMD.
     #[default]
     Auto,
     /// faer's approximate minimum degree.
     Amd,
-    /// [`nested_dissection`] of the matrix graph.
+    /// [`geometric_nested_dissection`] of the matrix graph (needs vertex positions).
     NestedDissection,
 }
+
+/// Leaf size of the shell's [`geometric_nested_dissection`] (leaves ordered by AMD).
+pub const NESTED_DISSECTION_LEAF: usize = 256;
 
 /// Numeric sparse Cholesky factor `P A Pᵀ = L Lᵀ` (faer's low-level API, so that the
 /// fill-reducing ordering can be chosen).
@@ -512,28 +579,29 @@ impl Factor {
     /// are still all zero when its turn comes contributes nothing and is skipped. The backward
     /// substitution `Lᵀ x = y` is dense (every row of B is wanted). Same arithmetic as
     /// [`Factor::solve_in_place`] on the visited supernodes, so the result is identical.
-    fn solve_sparse_rhs_in_place(&self, mut rhs: faer::MatMut<'_, f64>) {
+    fn solve_sparse_rhs_in_place(&self, rhs: &mut Mat<f64>) {
         use faer::dyn_stack::{MemBuffer, MemStack};
         use faer::prelude::{Reborrow, ReborrowMut};
         use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
         use faer::sparse::linalg::cholesky::supernodal::SupernodalLltRef;
         let SymbolicCholeskyRaw::Supernodal(sym) = self.symbolic.raw() else {
-            return self.solve_in_place(rhs);
+            return self.solve_in_place(rhs.as_mut());
         };
         let (n, k) = (sym.nrows(), rhs.ncols());
         let par = faer::get_global_parallelism();
         // x = P rhs
         let mut x = Mat::<f64>::zeros(n, k);
-        match self.symbolic.perm() {
-            Some(perm) => {
-                let fwd = perm.arrays().0;
-                for j in 0..k {
-                    for (i, &f) in fwd.iter().enumerate() {
-                        x[(i, j)] = rhs[(f, j)];
+        let perm = self.symbolic.perm().map(|p| p.arrays());
+        for j in 0..k {
+            let (src, dst) = (rhs.col_as_slice(j), x.col_as_slice_mut(j));
+            match perm {
+                Some((fwd, _)) => {
+                    for (d, &f) in dst.iter_mut().zip(fwd) {
+                        *d = src[f];
                     }
                 }
+                None => dst.copy_from_slice(src),
             }
-            None => x.copy_from(rhs.rb()),
         }
         let ns = sym.n_supernodes();
         let mut supernode_of_row = vec![0usize; n];
@@ -544,8 +612,8 @@ impl Factor {
         }
         let mut live = vec![false; ns];
         for j in 0..k {
-            for i in 0..n {
-                if x[(i, j)] != 0.0 {
+            for (i, &xi) in x.col_as_slice(j).iter().enumerate() {
+                if xi != 0.0 {
                     live[supernode_of_row[i]] = true;
                 }
             }
@@ -582,9 +650,10 @@ impl Factor {
                 1.0,
                 par,
             );
-            for j in 0..k {
-                for (idx, &i) in pattern.iter().enumerate() {
-                    x[(i, j)] -= update[(idx, j)];
+            for (j, upd) in tmp.chunks_exact(pattern.len()).enumerate() {
+                let xj = x.col_as_slice_mut(j);
+                for (&i, &u) in pattern.iter().zip(upd) {
+                    xj[i] -= u;
                 }
             }
             for &i in pattern {
@@ -594,16 +663,16 @@ impl Factor {
         let mut mem = MemBuffer::new(sym.solve_in_place_scratch::<f64>(k, par));
         llt.l_transpose_solve_with_conj(faer::Conj::No, x.as_mut(), par, MemStack::new(&mut mem));
         // rhs = Pᵀ x
-        match self.symbolic.perm() {
-            Some(perm) => {
-                let inv = perm.arrays().1;
-                for j in 0..k {
-                    for (i, &f) in inv.iter().enumerate() {
-                        rhs[(i, j)] = x[(f, j)];
+        for j in 0..k {
+            let (src, dst) = (x.col_as_slice(j), rhs.col_as_slice_mut(j));
+            match perm {
+                Some((_, inv)) => {
+                    for (d, &f) in dst.iter_mut().zip(inv) {
+                        *d = src[f];
                     }
                 }
+                None => dst.copy_from_slice(src),
             }
-            None => rhs.copy_from(x.as_ref()),
         }
     }
 
@@ -618,6 +687,7 @@ impl Factor {
 fn factor_upper(
     a_ff: SparseColMat<usize, f64>,
     ordering: ShellOrdering,
+    positions: Option<Vec<[f64; 3]>>,
 ) -> Result<Factor, ShellError> {
     use faer::dyn_stack::{MemBuffer, MemStack};
     use faer::sparse::linalg::cholesky::{SymmetricOrdering, factorize_symbolic_cholesky};
@@ -625,14 +695,11 @@ fn factor_upper(
         reason: format!("{e:?}"),
     };
     let n = a_ff.nrows();
-    let nested = match ordering {
-        ShellOrdering::Auto => false,
-        ShellOrdering::Amd => false,
-        ShellOrdering::NestedDissection => true,
+    let positions = match ordering {
+        ShellOrdering::Amd => None,
+        ShellOrdering::Auto | ShellOrdering::NestedDissection => positions,
     };
-    let perm = if !nested {
-        None
-    } else {
+    let perm = if let Some(positions) = positions {
         let (col_ptr, row_idx) = (a_ff.symbolic().col_ptr(), a_ff.symbolic().row_idx());
         // symmetric adjacency (both directions, no diagonal)
         let mut xadj = vec![0usize; n + 1];
@@ -659,7 +726,7 @@ fn factor_upper(
                 }
             }
         }
-        let fwd = nested_dissection(&xadj, &adj);
+        let fwd = geometric_nested_dissection(&xadj, &adj, &positions, NESTED_DISSECTION_LEAF);
         let mut inv = vec![0usize; n];
         for (new, &old) in fwd.iter().enumerate() {
             inv[old] = new;
@@ -669,6 +736,8 @@ fn factor_upper(
             inv.into_boxed_slice(),
             n,
         ))
+    } else {
+        None
     };
     let ordering = match &perm {
         Some(p) => SymmetricOrdering::Custom(p.as_ref()),
@@ -700,150 +769,284 @@ fn factor_upper(
     Ok(Factor { symbolic, values })
 }
 
-/// Automatic nested dissection of a graph (George & Liu 1978, "An automatic nested dissection
-/// algorithm for irregular finite element problems"): a part is split by the middle level of
-/// a breadth-first level structure rooted at a pseudo-peripheral vertex (a level separates the
-/// levels before it from those after it), trimmed to the vertices that touch the far side; the
-/// two halves are ordered recursively, the separator last. Parts of at most 64 vertices and
-/// disconnected pieces are ordered by themselves. `xadj`/`adj` is the symmetric adjacency in
-/// CSR without self loops. Returns the elimination order (`order[k]` = vertex eliminated k-th).
-pub fn nested_dissection(xadj: &[usize], adj: &[usize]) -> Vec<usize> {
-    const LEAF: usize = 64;
+/// Geometric nested dissection of a graph whose vertices have positions (George 1973, "Nested
+/// dissection of a regular finite element mesh"; the coordinate-bisection variant of Heath &
+/// Raghavan 1995, with the cut position chosen for the smallest separator). A part is cut by a
+/// plane normal to a coordinate axis; the separator is the vertices on one side of the plane
+/// that have a neighbour on the other side (removing it disconnects the halves, so no fill
+/// crosses the cut). Of all planes normal to the three axes that leave at least
+/// [`NESTED_DISSECTION_BALANCE`] of the part on each side, the one with the smallest separator
+/// is taken: on a surface a plane meets the mesh in curves, and where the mesh is dense or
+/// strongly curved (nose, eyes, mouth of a face) a median cut is 1.5–2× longer than the best
+/// nearby one. The two halves are ordered recursively and the separator last. Parts of at most
+/// `leaf_size` vertices are ordered by faer's approximate minimum degree on their induced
+/// subgraph (they are eliminated before every separator around them, so their local order
+/// decides only their own fill). The vertex lists of a part are kept sorted along each axis
+/// (filtered, not re-sorted, when a part is split), so all cuts of a part cost one sweep per
+/// axis over its edges.
+///
+/// `xadj`/`adj` is the symmetric adjacency in CSR without self loops, `positions[v]` the
+/// position of vertex `v`. Deterministic (coordinates ordered by (value, index)). Returns the
+/// elimination order (`order[k]` = vertex eliminated k-th).
+pub fn geometric_nested_dissection(
+    xadj: &[usize],
+    adj: &[usize],
+    positions: &[[f64; 3]],
+    leaf_size: usize,
+) -> Vec<usize> {
     let n = xadj.len().saturating_sub(1);
+    assert_eq!(positions.len(), n, "one position per vertex");
+    let leaf_size = leaf_size.max(2);
     let mut order = Vec::with_capacity(n);
     // part label of each vertex; a part is the set of vertices carrying its label
     let mut label = vec![0u32; n];
     let mut next_label = 1u32;
-    let mut level = vec![u32::MAX; n];
-    let mut queue: Vec<usize> = Vec::new();
-    // explicit stack: (vertices of the part, separator to append after the part)
+    // side of the chosen cut (0, 1; 2 = separator), only meaningful inside the current part
+    let mut side = vec![0u8; n];
+    let mut local = vec![usize::MAX; n];
+    let mut counts = vec![[0u32; 2]; n];
+    let mut degree = vec![0u32; n];
     enum Task {
-        Split(Vec<usize>),
+        /// a part: its vertices sorted along x, y and z
+        Split([Vec<usize>; 3]),
         Emit(Vec<usize>),
     }
-    let mut stack = vec![Task::Split((0..n).collect())];
-    // BFS from `root` inside the part labelled `lab`; returns the visited vertices in BFS
-    // order (levels in `level`)
-    let bfs = |root: usize, lab: u32, label: &[u32], level: &mut [u32], queue: &mut Vec<usize>| {
-        queue.clear();
-        queue.push(root);
-        level[root] = 0;
-        let mut head = 0;
-        while head < queue.len() {
-            let v = queue[head];
-            head += 1;
-            for &w in &adj[xadj[v]..xadj[v + 1]] {
-                if label[w] == lab && level[w] == u32::MAX {
-                    level[w] = level[v] + 1;
-                    queue.push(w);
-                }
-            }
-        }
+    let sorted_along = |axis: usize| {
+        let mut all: Vec<usize> = (0..n).collect();
+        all.sort_unstable_by(|&a, &b| {
+            positions[a][axis]
+                .total_cmp(&positions[b][axis])
+                .then(a.cmp(&b))
+        });
+        all
     };
+    let mut stack = vec![Task::Split([
+        sorted_along(0),
+        sorted_along(1),
+        sorted_along(2),
+    ])];
     while let Some(task) = stack.pop() {
-        let part = match task {
+        let sorted = match task {
             Task::Emit(sep) => {
                 order.extend(sep);
                 continue;
             }
-            Task::Split(part) => part,
+            Task::Split(sorted) => sorted,
         };
-        if part.len() <= LEAF {
-            order.extend(part);
-            continue;
-        }
         let lab = next_label;
         next_label += 1;
-        for &v in &part {
+        for &v in &sorted[0] {
             label[v] = lab;
         }
-        // pseudo-peripheral root: restart from a minimum-degree vertex of the last level while
-        // the eccentricity grows (at most 4 sweeps)
-        let mut root = part[0];
-        let mut ecc = 0u32;
-        for _ in 0..4 {
-            bfs(root, lab, &label, &mut level, &mut queue);
-            let last = queue.last().map_or(0, |&v| level[v]);
-            let cand = queue
-                .iter()
-                .copied()
-                .filter(|&v| level[v] == last)
-                .min_by_key(|&v| (xadj[v + 1] - xadj[v], v))
-                .unwrap_or(root);
-            for &v in &queue {
-                level[v] = u32::MAX;
-            }
-            if last <= ecc && ecc > 0 {
-                break;
-            }
-            ecc = last;
-            root = cand;
-        }
-        bfs(root, lab, &label, &mut level, &mut queue);
-        let reached = std::mem::take(&mut queue);
-        if reached.len() < part.len() {
-            // disconnected: the reached component and the rest are independent
-            let rest: Vec<usize> = part
-                .iter()
-                .copied()
-                .filter(|&v| level[v] == u32::MAX)
-                .collect();
-            for &v in &reached {
-                level[v] = u32::MAX;
-            }
-            stack.push(Task::Split(rest));
-            stack.push(Task::Split(reached));
+        if sorted[0].len() <= leaf_size {
+            order_leaf_amd(xadj, adj, &sorted[0], lab, &label, &mut local, &mut order);
             continue;
         }
-        let depth = reached.last().map_or(0, |&v| level[v]);
-        if depth < 2 {
-            // (nearly) a clique: no level separates it
-            for &v in &reached {
-                level[v] = u32::MAX;
-            }
-            order.extend(reached);
+        for &v in &sorted[0] {
+            degree[v] = adj[xadj[v]..xadj[v + 1]]
+                .iter()
+                .filter(|&&w| label[w] == lab)
+                .count() as u32;
+        }
+        // large parts (where the separators decide most of the fill) try all three axes,
+        // smaller ones the axis of the longest extent
+        let extent = |a: usize| {
+            let (first, last) = (sorted[a][0], sorted[a][sorted[a].len() - 1]);
+            positions[last][a] - positions[first][a]
+        };
+        let axes: Vec<usize> = if sorted[0].len() > NESTED_DISSECTION_ALL_AXES {
+            vec![0, 1, 2]
+        } else {
+            vec![
+                (0..3)
+                    .max_by(|&a, &b| extent(a).total_cmp(&extent(b)))
+                    .unwrap_or(0),
+            ]
+        };
+        let (axis, rank, cut_side) = best_cut(
+            xadj,
+            adj,
+            &sorted,
+            &axes,
+            lab,
+            &label,
+            &degree,
+            &mut side,
+            &mut counts,
+        );
+        for (k, &v) in sorted[axis].iter().enumerate() {
+            side[v] = u8::from(k >= rank);
+        }
+        let sep: Vec<usize> = sorted[axis]
+            .iter()
+            .copied()
+            .filter(|&v| {
+                side[v] == cut_side
+                    && adj[xadj[v]..xadj[v + 1]]
+                        .iter()
+                        .any(|&w| label[w] == lab && side[w] != cut_side)
+            })
+            .collect();
+        for &v in &sep {
+            side[v] = 2;
+        }
+        let halves: [[Vec<usize>; 3]; 2] = [0u8, 1].map(|s| {
+            [0, 1, 2].map(|a| {
+                sorted[a]
+                    .iter()
+                    .copied()
+                    .filter(|&v| side[v] == s)
+                    .collect()
+            })
+        });
+        let [first, second] = halves;
+        if first[0].is_empty() || second[0].is_empty() {
+            // the cut separates nothing (a near-clique): order the part as a leaf
+            order_leaf_amd(xadj, adj, &sorted[0], lab, &label, &mut local, &mut order);
             continue;
         }
-        // middle level: the first whose cumulative size reaches half the part
-        let mut count = vec![0usize; depth as usize + 1];
-        for &v in &reached {
-            count[level[v] as usize] += 1;
-        }
-        let half = reached.len() / 2;
-        let (mut cum, mut mid) = (0usize, 1u32);
-        for (l, &c) in count.iter().enumerate() {
-            cum += c;
-            if cum >= half {
-                mid = (l as u32).clamp(1, depth - 1);
-                break;
-            }
-        }
-        let (mut first, mut second, mut sep) = (Vec::new(), Vec::new(), Vec::new());
-        for &v in &reached {
-            let l = level[v];
-            if l < mid {
-                first.push(v);
-            } else if l > mid {
-                second.push(v);
-            } else if adj[xadj[v]..xadj[v + 1]]
-                .iter()
-                .any(|&w| label[w] == lab && level[w] == mid + 1)
-            {
-                sep.push(v);
-            } else {
-                // touches no vertex of the far side: belongs to the near half
-                first.push(v);
-            }
-        }
-        for &v in &reached {
-            level[v] = u32::MAX;
-        }
-        queue = reached;
         stack.push(Task::Emit(sep));
         stack.push(Task::Split(second));
         stack.push(Task::Split(first));
     }
     order
+}
+
+/// Parts larger than this try cuts normal to all three axes in
+/// [`geometric_nested_dissection`], smaller ones only normal to their longest extent.
+pub const NESTED_DISSECTION_ALL_AXES: usize = 16_384;
+
+/// Least fraction of a part on each side of a [`geometric_nested_dissection`] cut.
+pub const NESTED_DISSECTION_BALANCE: f64 = 0.3;
+
+/// Smallest-separator cut of a part (all labelled `lab`; `sorted[a]` its vertices sorted along
+/// axis `a`) by a plane normal to a coordinate axis: returns (axis, rank, side) — the `rank`
+/// lowest vertices along `axis` form side 0, and the separator is the vertices of `side` with a
+/// neighbour on the other side. For each axis one sweep moves the vertices from side 1 to
+/// side 0 in coordinate order while counting, per vertex, its neighbours on either side, so
+/// the boundary sizes of all cut positions cost one pass over the part's edges. Only cuts with
+/// at least [`NESTED_DISSECTION_BALANCE`] of the part on each side are candidates (ties: the
+/// cut closest to the median, then the lower axis).
+fn best_cut(
+    xadj: &[usize],
+    adj: &[usize],
+    sorted: &[Vec<usize>; 3],
+    axes: &[usize],
+    lab: u32,
+    label: &[u32],
+    degree: &[u32],
+    side: &mut [u8],
+    counts: &mut [[u32; 2]],
+) -> (usize, usize, u8) {
+    let balance = NESTED_DISSECTION_BALANCE;
+    let m = sorted[0].len();
+    let (lo, hi) = (
+        ((m as f64 * balance).ceil() as usize).max(1),
+        ((m as f64 * (1.0 - balance)).floor() as usize).min(m - 1),
+    );
+    // (separator size, distance to the median, axis, rank, side)
+    let mut best = (usize::MAX, usize::MAX, 0, m / 2, 0u8);
+    for &axis in axes {
+        let part = &sorted[axis];
+        for &v in part {
+            side[v] = 1;
+            // [neighbours on side 0, neighbours on side 1]
+            counts[v] = [0, degree[v]];
+        }
+        // b[s] = vertices of side s with a neighbour on the other side
+        let mut b = [0usize; 2];
+        for (k, &v) in part.iter().enumerate() {
+            if k >= lo {
+                let (size, s) = if b[1] < b[0] { (b[1], 1) } else { (b[0], 0) };
+                let cand = (size, k.abs_diff(m / 2), axis, k, s);
+                if (cand.0, cand.1) < (best.0, best.1) {
+                    best = cand;
+                }
+            }
+            if k >= hi {
+                break;
+            }
+            // move v to side 0
+            if counts[v][0] > 0 {
+                b[1] -= 1;
+            }
+            side[v] = 0;
+            if counts[v][1] > 0 {
+                b[0] += 1;
+            }
+            for &w in &adj[xadj[v]..xadj[v + 1]] {
+                if label[w] != lab {
+                    continue;
+                }
+                counts[w][1] -= 1;
+                counts[w][0] += 1;
+                if side[w] == 0 && counts[w][1] == 0 {
+                    b[0] -= 1;
+                }
+                if side[w] == 1 && counts[w][0] == 1 {
+                    b[1] += 1;
+                }
+            }
+        }
+    }
+    (best.2, best.3, best.4)
+}
+
+/// Append the vertices of `part` (all labelled `lab`) to `order` in faer's approximate minimum
+/// degree order of the subgraph they induce (ties and failures: the given order).
+fn order_leaf_amd(
+    xadj: &[usize],
+    adj: &[usize],
+    part: &[usize],
+    lab: u32,
+    label: &[u32],
+    local: &mut [usize],
+    order: &mut Vec<usize>,
+) {
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::sparse::linalg::amd;
+    let m = part.len();
+    if m <= 2 {
+        order.extend_from_slice(part);
+        return;
+    }
+    for (i, &v) in part.iter().enumerate() {
+        local[v] = i;
+    }
+    let mut col_ptr = Vec::with_capacity(m + 1);
+    col_ptr.push(0usize);
+    let mut row_idx = Vec::new();
+    for &v in part {
+        let start = row_idx.len();
+        row_idx.extend(
+            adj[xadj[v]..xadj[v + 1]]
+                .iter()
+                .filter(|&&w| label[w] == lab)
+                .map(|&w| local[w]),
+        );
+        row_idx[start..].sort_unstable();
+        col_ptr.push(row_idx.len());
+    }
+    let (mut perm, mut perm_inv) = (vec![0usize; m], vec![0usize; m]);
+    let symbolic =
+        faer::sparse::SymbolicSparseColMatRef::new_checked(m, m, &col_ptr, None, &row_idx);
+    let mut mem = MemBuffer::new(amd::order_scratch::<usize>(m, row_idx.len()));
+    let ok = amd::order(
+        &mut perm,
+        &mut perm_inv,
+        symbolic,
+        amd::Control::default(),
+        MemStack::new(&mut mem),
+    )
+    .is_ok();
+    if ok {
+        order.extend(perm.iter().map(|&i| part[i]));
+    } else {
+        order.extend_from_slice(part);
+    }
+    for &v in part {
+        local[v] = usize::MAX;
+    }
 }
 
 /// Every connected component of the Laplacian's graph must contain a handle.
@@ -1138,15 +1341,17 @@ mod tests {
         assert!(matches!(err, ShellError::BadHandle { handle: 1, .. }));
     }
 
-    /// Nested dissection is a permutation, and the part ordered last (the top separator)
-    /// disconnects the rest of a grid graph.
+    /// Geometric nested dissection is a permutation, and the part ordered last (the top
+    /// separator) disconnects the rest of a grid graph.
     #[test]
     fn nested_dissection_orders_separators_last() {
         let n = 30;
         let mut nbrs = vec![Vec::new(); n * n];
+        let mut positions = Vec::new();
         for j in 0..n {
             for i in 0..n {
                 let v = j * n + i;
+                positions.push([i as f64, 1.3 * j as f64, 0.0]);
                 if i + 1 < n {
                     nbrs[v].push(v + 1);
                     nbrs[v + 1].push(v);
@@ -1163,45 +1368,60 @@ mod tests {
             adj.extend(l);
             xadj.push(adj.len());
         }
-        let order = nested_dissection(&xadj, &adj);
+        let order = geometric_nested_dissection(&xadj, &adj, &positions, 16);
         let mut seen = vec![false; n * n];
         for &v in &order {
             assert!(!seen[v], "vertex {v} twice");
             seen[v] = true;
         }
         assert!(seen.iter().all(|&s| s));
-        // the top separator of a 30×30 grid is one grid line (≤ 2n vertices) and splits it
+        // the longest extent is y: the top separator is one grid row (n vertices) and splits
+        // the grid into two halves
         let mut pos = vec![0; n * n];
         for (k, &v) in order.iter().enumerate() {
             pos[v] = k;
         }
-        let removed = |v: usize| pos[v] >= n * n - 2 * n;
+        let removed = |v: usize| pos[v] >= n * n - n;
+        let top: Vec<usize> = (0..n * n).filter(|&v| removed(v)).collect();
+        assert!(
+            top.iter().all(|&v| v / n == top[0] / n),
+            "top separator is not one row"
+        );
         let mut comp = vec![usize::MAX; n * n];
-        let mut components = 0;
+        let mut sizes = Vec::new();
         for s0 in 0..n * n {
             if removed(s0) || comp[s0] != usize::MAX {
                 continue;
             }
             let mut stack = vec![s0];
-            comp[s0] = components;
+            comp[s0] = sizes.len();
+            let mut size = 0;
             while let Some(v) = stack.pop() {
+                size += 1;
                 for &w in &nbrs[v] {
                     if !removed(w) && comp[w] == usize::MAX {
-                        comp[w] = components;
+                        comp[w] = sizes.len();
                         stack.push(w);
                     }
                 }
             }
-            components += 1;
+            sizes.push(size);
         }
-        assert!(
-            components >= 2,
-            "the last 2n vertices do not separate the grid"
+        assert_eq!(
+            sizes.len(),
+            2,
+            "the last n vertices do not split the grid in two"
+        );
+        assert!(sizes.iter().all(|&s| s >= (n * n - n) / 2 - n), "{sizes:?}");
+        // deterministic
+        assert_eq!(
+            order,
+            geometric_nested_dissection(&xadj, &adj, &positions, 16)
         );
     }
 
-    /// AMD and nested dissection factor the same system: same deformation to round-off; the
-    /// nested-dissection fill is reported.
+    /// AMD and nested dissection factor the same system: same deformation to round-off.
+    /// Nested dissection without positions is an error.
     #[test]
     fn orderings_give_the_same_shell() {
         let (mesh, handles) = grid(40, 0.25);
@@ -1219,14 +1439,25 @@ mod tests {
             let s = LinearShell::with_ordering(
                 lap.as_ref(),
                 &areas,
+                Some(&mesh.vertices),
                 &handles,
                 &ShellSettings::default(),
                 ordering,
             )
             .unwrap();
-            assert!(s.factor_nonzeros() > 0);
+            assert!(s.factor_nonzeros() > 0 && s.factor_flops() > 0.0);
             solutions.push(s.solve(&uh).unwrap());
         }
+        let err = LinearShell::with_ordering(
+            lap.as_ref(),
+            &areas,
+            None,
+            &handles,
+            &ShellSettings::default(),
+            ShellOrdering::NestedDissection,
+        )
+        .unwrap_err();
+        assert!(matches!(err, ShellError::MissingPositions), "{err}");
         let scale = solutions[0].iter().map(|u| u.norm()).fold(0.0, f64::max);
         for (a, b) in solutions[0].iter().zip(&solutions[1]) {
             assert!((a - b).norm() < 1e-9 * scale.max(1.0), "{a:?} vs {b:?}");

@@ -57,16 +57,14 @@ pub struct FaceRig {
     pub edge_weights: EdgeWeights,
 }
 
-/// Cotangent Laplacian and Voronoi areas of `mesh` (from `softcap_mesh`), then the factorised
-/// shell over `handles` (thesis eq. 5.1).
+/// The factorised shell of `mesh` over `handles` (thesis eq. 5.1;
+/// [`LinearShell::from_mesh`]: cotangent Laplacian, Voronoi areas, nested-dissection order).
 pub fn shell_for_mesh(
     mesh: &TriMesh,
     handles: &[usize],
     settings: &ShellSettings,
 ) -> Result<LinearShell> {
-    let lap = softcap_mesh::cotan_laplacian(mesh);
-    let areas = softcap_mesh::voronoi_areas(mesh);
-    Ok(LinearShell::new(lap.as_ref(), &areas, handles, settings)?)
+    Ok(LinearShell::from_mesh(mesh, handles, settings)?)
 }
 
 impl FaceRig {
