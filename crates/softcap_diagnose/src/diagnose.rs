@@ -133,6 +133,14 @@ pub struct Signatures {
     pub contact_drag_m: f64,
     /// RMS baseline residual of attached markers in contact, m.
     pub attached_motion_m: f64,
+    /// |mean over locations of the mean tangential residual (rest mean removed) of the probed
+    /// markers in contact|, m: a body-fixed lateral shift under every press (anisotropy,
+    /// [`crate::spatial::lateral_shift`]).
+    #[serde(default)]
+    pub lateral_shift_m: f64,
+    /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
+    #[serde(default)]
+    pub lateral_shift_consistency: f64,
     /// Mean baseline residual along gravity at rest, m.
     pub rest_gravity_m: f64,
     /// Marker noise σ per coordinate, m.
@@ -430,6 +438,7 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         },
     );
     s.contact_drag_m = crate::friction::drag_signature_m(rec, seg, res);
+    (s.lateral_shift_m, s.lateral_shift_consistency) = crate::spatial::lateral_shift(rec, seg, res);
     s.attached_motion_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
         &|r, _| r.norm(),
@@ -514,7 +523,14 @@ pub fn signature_support(h: Hypothesis, s: &Signatures) -> f64 {
                 0.0
             }
         }
-        Hypothesis::Anisotropy | Hypothesis::InertiaDamping => 0.0,
+        Hypothesis::Anisotropy => {
+            if crate::spatial::confirmed_by_signature(h, s) {
+                1.0
+            } else {
+                0.0
+            }
+        }
+        Hypothesis::InertiaDamping => 0.0,
     }
 }
 
@@ -1017,18 +1033,38 @@ pub fn diagnose(
                 && refits.iter().any(|r| r.hypothesis == h)
         })
         .collect();
+    // Spatial hypotheses with their signature (crate::spatial::confirmed_by_signature: a
+    // body-fixed lateral shift under every press) whose linearised screen did not qualify are
+    // confirmed after the qualifying ones: the screen's candidates keep precedence.
+    let after_screen: Vec<Hypothesis> = Hypothesis::ALL
+        .into_iter()
+        .filter(|&h| {
+            crate::spatial::confirmed_by_signature(h, &sig)
+                && !candidates.contains(&h)
+                && explainable_of(h, before_of(h))
+                && refits.iter().any(|r| r.hypothesis == h)
+        })
+        .collect();
+    let n_screened = candidates
+        .iter()
+        .filter(|h| !by_signature.contains(h))
+        .count()
+        .min(settings.max_confirmations.max(1));
     let candidates: Vec<Hypothesis> = by_signature
         .iter()
         .copied()
-        .chain(candidates.into_iter().filter(|h| !by_signature.contains(h)))
+        .chain(
+            candidates
+                .into_iter()
+                .filter(|h| !by_signature.contains(h))
+                .take(n_screened),
+        )
+        .chain(after_screen.iter().copied())
         .collect();
     let mut confirmed: BTreeMap<Hypothesis, std::result::Result<Confirmed, String>> =
         BTreeMap::new();
     let mut verdict = None;
-    for h in candidates
-        .iter()
-        .take(settings.max_confirmations.max(1) + by_signature.len())
-    {
+    for h in &candidates {
         let Some(r) = refits.iter().find(|x| x.hypothesis == *h) else {
             continue;
         };
@@ -1062,7 +1098,13 @@ pub fn diagnose(
         match c {
             Ok(Some(c)) => {
                 let gain = 1.0 - c.after_scored_m.powi(2) / before_h.powi(2).max(1e-300);
-                let keep = gain >= settings.min_heldout_gain;
+                // Confirmed past a screen that did not qualify: the re-simulation must also
+                // beat the stiffness-scale nuisance on the same cells, as the screen's rows must.
+                let beats_scale = !after_screen.contains(h) || {
+                    let s = scale_only_of(*h, before_h);
+                    c.after_scored_m.powi(2) <= (1.0 - 0.5 * settings.min_heldout_gain) * s * s
+                };
+                let keep = gain >= settings.min_heldout_gain && beats_scale;
                 confirmed.insert(*h, Ok(c));
                 if keep {
                     verdict = Some(*h);
@@ -1107,7 +1149,7 @@ pub fn diagnose(
         evidence.insert("delta_bic".into(), row.dbic.into());
         evidence.insert("signature_support".into(), row.support.into());
         evidence.insert("qualifies".into(), row.qualifies.into());
-        if by_signature.contains(&row.h) {
+        if by_signature.contains(&row.h) || after_screen.contains(&row.h) {
             evidence.insert("confirmed_by_signature".into(), true.into());
         }
         evidence.insert("num_params".into(), r.num_params.into());

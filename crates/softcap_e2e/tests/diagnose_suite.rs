@@ -140,7 +140,7 @@ fn gravity_preload_is_named() {
 }
 
 #[test]
-#[ignore = "measured 2026-11-22 07:27 (dxs, scored on all contact frames): verdict none; held-out 0.225 mm, linearised fibre refit 0.199 mm (22 %, does not qualify); offline, the re-simulated transversely isotropic model at truth-like parameters (fibre [1,0,1], ratio 5, nu_t 0.4, nu_a 0.1, compliance 1.21) reaches 0.130 mm (1.7x) on contact/all and 0.135 -> 0.062 mm (2.2x) away from the probe"]
+#[ignore = "measured 2026-11-26 13:31 (dxa, session 8; fibre [1,0,1]/sqrt2 ratio 5, load 8-10): verdict anisotropy (was none) via the lateral-shift signature (0.165 mm, consistency 0.96; controls 0.020-0.028 mm, 0.34-0.42) and the re-simulated transversely isotropic grid: held-out on contact frames away from the probe 0.1351 -> 0.0644 mm (2.10x, needs 3x), fibre [0.707,0,0.707] (the truth; the screen's is its mirror), ratio 5, nu_t 0.45, nu_a 0.1, compliance 1.21; all contact cells 0.181 -> 0.108 mm. Ratio 10 at 1.0-1.6 mm depth: 0.1124 -> 0.0555 (2.02x): the floor is the TI model on the 648-tet fit mesh, not the effect size"]
 fn anisotropy_is_named() {
     check("anisotropy");
 }
