@@ -406,21 +406,7 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         &|r, _| r.norm(),
     );
     // Mean residual of every marker over the rest frames (zero when never seen at rest).
-    let mut rest_mean = vec![(Vector3::zeros(), 0usize); rec.num_markers()];
-    for (k, row) in res.iter().enumerate() {
-        if seg.phases[k] == Phase::Rest {
-            for (m, r) in row.iter().enumerate() {
-                if let Some(r) = r {
-                    rest_mean[m].0 += r;
-                    rest_mean[m].1 += 1;
-                }
-            }
-        }
-    }
-    let rest_mean: Vec<Vector3<f64>> = rest_mean
-        .into_iter()
-        .map(|(a, n)| if n > 0 { a / n as f64 } else { a })
-        .collect();
+    let rest_mean = crate::residual::rest_mean(res, seg, rec.num_markers());
     s.released_set_m = rms(
         &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
         &|r, m| (r - rest_mean[m]).norm(),

@@ -11,6 +11,29 @@ use std::collections::BTreeMap;
 /// Residual r = measured − simulated per frame and marker (`None` where the marker is unobserved).
 pub type Residuals = Vec<Vec<Option<Vector3<f64>>>>;
 
+/// Mean residual of every marker over the rest frames (zero when never seen at rest): what a
+/// template that differs from the observed rest shape adds to every frame.
+pub fn rest_mean(
+    res: &[Vec<Option<Vector3<f64>>>],
+    seg: &Segmentation,
+    num_markers: usize,
+) -> Vec<Vector3<f64>> {
+    let mut acc = vec![(Vector3::zeros(), 0usize); num_markers];
+    for (k, row) in res.iter().enumerate() {
+        if seg.phases[k] == Phase::Rest {
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r {
+                    acc[m].0 += r;
+                    acc[m].1 += 1;
+                }
+            }
+        }
+    }
+    acc.into_iter()
+        .map(|(a, n)| if n > 0 { a / n as f64 } else { a })
+        .collect()
+}
+
 /// A residual component.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -163,21 +163,7 @@ pub fn lateral_shift(
     res: &[Vec<Option<Vector3<f64>>>],
 ) -> (f64, f64) {
     let nm = rec.num_markers();
-    let mut rest_mean = vec![(Vector3::zeros(), 0usize); nm];
-    for (k, row) in res.iter().enumerate() {
-        if seg.phases[k] == Phase::Rest {
-            for (m, r) in row.iter().enumerate() {
-                if let Some(r) = r {
-                    rest_mean[m].0 += r;
-                    rest_mean[m].1 += 1;
-                }
-            }
-        }
-    }
-    let rest_mean: Vec<Vector3<f64>> = rest_mean
-        .into_iter()
-        .map(|(a, n)| if n > 0 { a / n as f64 } else { a })
-        .collect();
+    let rest_mean = crate::residual::rest_mean(res, seg, nm);
     let mut shifts = Vec::new();
     for l in &seg.locations {
         let near: Vec<usize> = (0..nm)
