@@ -21,106 +21,50 @@ use std::time::{Duration, Instant};
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::probing::{
-    ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, StepPreconditioner,
-    probe_pose, simulate_probe_contact, support_nodes,
+    ContactSynthesisSettings, ProbingSetup, StepPreconditioner, probe_pose, simulate_probe_contact,
+    support_nodes,
 };
-use softcap_fem::{
-    EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings, StrainSpaceModel,
-    TipShape,
-};
-use softcap_mcap::capture::{Phase, SupportPlane};
-use softcap_tissue::{FitSettings, PreparedSession, Progress, SessionExample, fit_session};
+use softcap_fem::{StrainSpaceModel, TipShape};
+use softcap_tissue::{FitSettings, PreparedSession, Progress, fit_session};
+
+#[path = "../tests/common/mod.rs"]
+mod common;
 
 const SIZE_M: [f64; 3] = [0.04, 0.04, 0.02];
 const CELLS: [usize; 3] = [10, 10, 3];
-const TIP_RADIUS_M: f64 = 0.004;
 const FORCES_N: [f64; 4] = [0.25, 0.5, 0.75, 1.0];
 
 fn session() -> PreparedSession {
     let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE_M, CELLS);
-    let markers: Vec<Vector3<f64>> = (0..7)
-        .flat_map(|i| {
-            (0..7).map(move |j| {
-                Vector3::new(
-                    SIZE_M[0] * (i as f64 + 0.5) / 7.0,
-                    SIZE_M[1] * (j as f64 + 0.5) / 7.0,
-                    SIZE_M[2],
-                )
-            })
-        })
-        .collect();
+    let markers = common::marker_grid(SIZE_M, 7);
     let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
     let setup = ProbingSetup::new(mesh, &markers, fixed).expect("setup");
-    let params = setup
-        .mesh
-        .tets
-        .iter()
-        .map(|t| {
-            let z = t.iter().map(|&i| setup.mesh.vertices[i].z).sum::<f64>() / 4.0;
-            let e = if z < 0.5 * SIZE_M[2] { 6.0e4 } else { 2.0e4 };
-            NeoHookeanParams::from_young_poisson(e, 0.4).expect("valid")
-        })
-        .collect();
-    let mut truth = NeoHookeanModel::new(&setup.mesh, params).expect("truth");
-    // 12 locations on a 4 × 3 grid inside the top face (away from the edges).
+    let mut truth = common::truth_model_of(&setup.mesh, [6.0e4, 2.0e4], SIZE_M[2], 0.4);
+    // 12 locations on a 4 × 3 grid inside the top face (away from the edges); the force levels
+    // of one location are solved in turn, each from the previous equilibrium.
     let locations: Vec<[f64; 2]> = (0..4)
         .flat_map(|i| (0..3).map(move |j| [0.008 + 0.008 * i as f64, 0.010 + 0.010 * j as f64]))
         .collect();
-    let patch = PatchSettings {
-        radius_m: TIP_RADIUS_M,
-        ..Default::default()
-    };
     let mut examples = Vec::new();
     for (li, loc) in locations.iter().enumerate() {
         let mut solver = setup.solver(&truth).expect("solver");
         let mut x = setup.mesh.vertices.clone();
         for &f in &FORCES_N {
-            let k = examples.len() + 1;
-            let mut ex = ProbeExample {
-                frame: k as u64,
-                time_s: 0.05 * k as f64,
-                tip_m: Vector3::new(loc[0], loc[1], SIZE_M[2]),
-                axis: -Vector3::z(),
-                force_n: Vector3::new(0.0, 0.0, -f),
-                observed: Vec::new(),
-            };
-            let nodes = setup.patch_nodes(&ex, &patch);
-            let forces = setup.nodal_forces(&ex, &nodes);
-            let rep = setup.simulate(
-                &mut solver,
+            let index = examples.len() + 1;
+            examples.push(common::in_memory::truth_example(
+                &setup,
                 &mut truth,
+                &mut solver,
                 &mut x,
-                &forces,
-                &EquilibriumSettings::newton(),
-            );
-            assert!(rep.converged(), "truth: {rep:?}");
-            ex.observed = setup
-                .marker_positions(&x)
-                .into_iter()
-                .enumerate()
-                .map(|(marker, position_m)| ObservedMarker { marker, position_m })
-                .collect();
-            examples.push(SessionExample {
-                example: ex,
-                location: li,
-                phase: Phase::Loading,
-                frame_index: k,
-                log_time_ns: 50_000_000 * k as u64,
-            });
+                Vector3::new(loc[0], loc[1], SIZE_M[2]),
+                f,
+                common::TIP_RADIUS_M,
+                li,
+                index,
+            ));
         }
     }
-    PreparedSession {
-        setup,
-        locations: Vec::new(),
-        all_examples: examples.clone(),
-        selected: examples,
-        tip_radius_m: TIP_RADIUS_M,
-        support: SupportPlane {
-            normal: [0.0, 0.0, 1.0],
-            offset_m: 0.0,
-            tolerance_m: 1e-9,
-        },
-    }
+    common::in_memory::prepared(&setup, examples)
 }
 
 /// Process CPU time (user + system, all threads), s; `None` where /proc is not available.

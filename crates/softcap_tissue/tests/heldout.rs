@@ -3,119 +3,13 @@
 //! contact (bickel2009 §3.4) to 0.8 N at a fifth location (issue 7: "a held-out probe — a location
 //! and tip shape not in training — is predicted better than by the homogeneous model").
 
+mod common;
+
+use common::in_memory::{prepared, three_layer_setup, three_layer_truth, truth_examples};
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{
-    ContactSynthesisSettings, ObservedMarker, ProbeExample, ProbingSetup, probe_pose,
-    simulate_probe_contact, support_nodes,
-};
-use softcap_fem::{
-    CorotationalModel, EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings,
-    StrainSpaceModel, TipShape,
-};
-use softcap_mcap::capture::{Phase, SupportPlane};
-use softcap_tissue::{FitSettings, PreparedSession, Progress, SessionExample, fit_session};
-
-const SIZE_M: [f64; 3] = [0.03, 0.03, 0.015];
-const TIP_RADIUS_M: f64 = 0.004;
-
-/// Three layers (bottom → top) of stable neo-Hookean material, E in Pa.
-const LAYERS_PA: [f64; 3] = [6.0e4, 3.0e4, 1.5e4];
-
-fn three_layer_truth(mesh: &softcap_mesh::TetMesh) -> NeoHookeanModel {
-    let params = mesh
-        .tets
-        .iter()
-        .map(|t| {
-            let z = t.iter().map(|&i| mesh.vertices[i].z).sum::<f64>() / 4.0;
-            let layer = ((z / SIZE_M[2]) * 3.0).floor().clamp(0.0, 2.0) as usize;
-            NeoHookeanParams::from_young_poisson(LAYERS_PA[layer], 0.45).unwrap()
-        })
-        .collect();
-    NeoHookeanModel::new(mesh, params).unwrap()
-}
-
-fn setup() -> ProbingSetup {
-    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE_M, [6, 6, 3]);
-    let mut markers = Vec::new();
-    for i in 0..6 {
-        for j in 0..6 {
-            markers.push(Vector3::new(
-                0.0025 + 0.005 * i as f64,
-                0.0025 + 0.005 * j as f64,
-                SIZE_M[2],
-            ));
-        }
-    }
-    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
-    ProbingSetup::new(mesh, &markers, fixed).unwrap()
-}
-
-/// Truth examples under the force boundary condition of a disk probe (bickel2009 §4.1).
-fn truth_examples(
-    setup: &ProbingSetup,
-    truth: &mut NeoHookeanModel,
-    locations: &[[f64; 2]],
-    forces_n: &[f64],
-) -> Vec<SessionExample> {
-    let patch = PatchSettings {
-        radius_m: TIP_RADIUS_M,
-        ..Default::default()
-    };
-    let mut out = Vec::new();
-    for (li, loc) in locations.iter().enumerate() {
-        for &f in forces_n {
-            let mut ex = ProbeExample {
-                frame: out.len() as u64 + 1,
-                time_s: 0.1 * (out.len() + 1) as f64,
-                tip_m: Vector3::new(loc[0], loc[1], SIZE_M[2]),
-                axis: -Vector3::z(),
-                force_n: Vector3::new(0.0, 0.0, -f),
-                observed: Vec::new(),
-            };
-            let nodes = setup.patch_nodes(&ex, &patch);
-            let forces = setup.nodal_forces(&ex, &nodes);
-            let mut solver = setup.solver(&*truth).unwrap();
-            let mut x = setup.mesh.vertices.clone();
-            let rep = setup.simulate(
-                &mut solver,
-                truth,
-                &mut x,
-                &forces,
-                &EquilibriumSettings::newton(),
-            );
-            assert!(rep.converged(), "{rep:?}");
-            ex.observed = setup
-                .marker_positions(&x)
-                .into_iter()
-                .enumerate()
-                .map(|(marker, position_m)| ObservedMarker { marker, position_m })
-                .collect();
-            out.push(SessionExample {
-                example: ex,
-                location: li,
-                phase: Phase::Loading,
-                frame_index: out.len() + 1,
-                log_time_ns: 100_000_000 * (out.len() as u64 + 1),
-            });
-        }
-    }
-    out
-}
-
-fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSession {
-    PreparedSession {
-        setup: setup.clone(),
-        locations: Vec::new(),
-        all_examples: examples.clone(),
-        selected: examples,
-        tip_radius_m: TIP_RADIUS_M,
-        support: SupportPlane {
-            normal: [0.0, 0.0, 1.0],
-            offset_m: 0.0,
-            tolerance_m: 1e-9,
-        },
-    }
-}
+use softcap_fem::probing::{ContactSynthesisSettings, probe_pose, simulate_probe_contact};
+use softcap_fem::{CorotationalModel, StrainSpaceModel, TipShape};
+use softcap_tissue::{FitSettings, Progress, fit_session};
 
 /// The default fit: γ_p of the per-example fits chosen by leave-one-location-out
 /// cross-validation on the four training locations (the held-out sphere is never looked at).
@@ -135,7 +29,7 @@ fn settings() -> FitSettings {
 /// the held-out probe better than the homogeneous model (by ≥ 5 %).
 #[test]
 fn held_out_sphere_probe_is_predicted_better_than_by_the_homogeneous_model() {
-    let setup = setup();
+    let setup = three_layer_setup();
     let mut truth = three_layer_truth(&setup.mesh);
     let train = [
         [0.0105, 0.0105],

@@ -2,116 +2,14 @@
 //! truth (stable neo-Hookean layers E 60 / 30 / 15 kPa, ν 0.45). Figures are printed and copied
 //! into docs/tissue.md.
 
+mod common;
+
+use common::in_memory::{prepared, three_layer_setup, three_layer_truth, truth_examples};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
-use softcap_fem::{EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings};
-use softcap_mcap::capture::{Phase, SupportPlane};
-use softcap_tissue::{FitSettings, PreparedSession, Progress, SessionExample, fit_session};
-
-const SIZE_M: [f64; 3] = [0.03, 0.03, 0.015];
-const TIP_RADIUS_M: f64 = 0.004;
-
-/// Three layers (bottom → top) of stable neo-Hookean material, E in Pa.
-const LAYERS_PA: [f64; 3] = [6.0e4, 3.0e4, 1.5e4];
-
-fn three_layer_truth(mesh: &softcap_mesh::TetMesh) -> NeoHookeanModel {
-    let params = mesh
-        .tets
-        .iter()
-        .map(|t| {
-            let z = t.iter().map(|&i| mesh.vertices[i].z).sum::<f64>() / 4.0;
-            let layer = ((z / SIZE_M[2]) * 3.0).floor().clamp(0.0, 2.0) as usize;
-            NeoHookeanParams::from_young_poisson(LAYERS_PA[layer], 0.45).unwrap()
-        })
-        .collect();
-    NeoHookeanModel::new(mesh, params).unwrap()
-}
-
-fn setup() -> ProbingSetup {
-    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE_M, [6, 6, 3]);
-    let mut markers = Vec::new();
-    for i in 0..6 {
-        for j in 0..6 {
-            markers.push(Vector3::new(
-                0.0025 + 0.005 * i as f64,
-                0.0025 + 0.005 * j as f64,
-                SIZE_M[2],
-            ));
-        }
-    }
-    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
-    ProbingSetup::new(mesh, &markers, fixed).unwrap()
-}
-
-/// Truth examples under the force boundary condition of a disk probe (bickel2009 §4.1).
-fn truth_examples(
-    setup: &ProbingSetup,
-    truth: &mut NeoHookeanModel,
-    locations: &[[f64; 2]],
-    forces_n: &[f64],
-) -> Vec<SessionExample> {
-    let patch = PatchSettings {
-        radius_m: TIP_RADIUS_M,
-        ..Default::default()
-    };
-    let mut out = Vec::new();
-    for (li, loc) in locations.iter().enumerate() {
-        for &f in forces_n {
-            let mut ex = ProbeExample {
-                frame: out.len() as u64 + 1,
-                time_s: 0.1 * (out.len() + 1) as f64,
-                tip_m: Vector3::new(loc[0], loc[1], SIZE_M[2]),
-                axis: -Vector3::z(),
-                force_n: Vector3::new(0.0, 0.0, -f),
-                observed: Vec::new(),
-            };
-            let nodes = setup.patch_nodes(&ex, &patch);
-            let forces = setup.nodal_forces(&ex, &nodes);
-            let mut solver = setup.solver(&*truth).unwrap();
-            let mut x = setup.mesh.vertices.clone();
-            let rep = setup.simulate(
-                &mut solver,
-                truth,
-                &mut x,
-                &forces,
-                &EquilibriumSettings::newton(),
-            );
-            assert!(rep.converged(), "{rep:?}");
-            ex.observed = setup
-                .marker_positions(&x)
-                .into_iter()
-                .enumerate()
-                .map(|(marker, position_m)| ObservedMarker { marker, position_m })
-                .collect();
-            out.push(SessionExample {
-                example: ex,
-                location: li,
-                phase: Phase::Loading,
-                frame_index: out.len() + 1,
-                log_time_ns: 100_000_000 * (out.len() as u64 + 1),
-            });
-        }
-    }
-    out
-}
-
-fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSession {
-    PreparedSession {
-        setup: setup.clone(),
-        locations: Vec::new(),
-        all_examples: examples.clone(),
-        selected: examples,
-        tip_radius_m: TIP_RADIUS_M,
-        support: SupportPlane {
-            normal: [0.0, 0.0, 1.0],
-            offset_m: 0.0,
-            tolerance_m: 1e-9,
-        },
-    }
-}
+use softcap_tissue::{FitSettings, Progress, SessionExample, fit_session};
 
 /// Fit settings for relative marker noise `p`: the smoothing γ (and γ_ν) of eq. 9 grows with the
 /// noise variance, γ = γ₀ (1 + 10 (p / 0.1)²) — the regularization "required to prevent
@@ -139,7 +37,7 @@ fn settings_for_noise(p: f64) -> FitSettings {
 /// Runs the experiment at the noise `levels` (fractions); returns the L2 errors in % of the
 /// maximum marker displacement.
 fn noise_experiment(levels: &[f64]) -> Vec<f64> {
-    let setup = setup();
+    let setup = three_layer_setup();
     let mut truth = three_layer_truth(&setup.mesh);
     let locations = [[0.0105, 0.0105], [0.0195, 0.0150], [0.0120, 0.0195]];
     let clean = truth_examples(&setup, &mut truth, &locations, &[0.5, 1.0]);

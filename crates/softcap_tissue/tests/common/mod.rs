@@ -11,6 +11,8 @@ use softcap_fem::{EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchS
 use softcap_mcap::{Provenance, Writer, proto, topics};
 use softcap_mesh::TetMesh;
 
+pub mod in_memory;
+
 /// Block size, m.
 pub const SIZE_M: [f64; 3] = [0.03, 0.03, 0.015];
 /// Probe tip radius, m.
@@ -61,12 +63,17 @@ pub fn markers() -> Vec<Vector3<f64>> {
 
 /// A 6 × 6 marker grid on the top of a block of `size_m` (cell centres of a 6 × 6 grid).
 pub fn markers_on(size_m: [f64; 3]) -> Vec<Vector3<f64>> {
+    marker_grid(size_m, 6)
+}
+
+/// An n × n marker grid on the top of a block of `size_m` (cell centres of an n × n grid).
+pub fn marker_grid(size_m: [f64; 3], n: usize) -> Vec<Vector3<f64>> {
     let mut m = Vec::new();
-    for i in 0..6 {
-        for j in 0..6 {
+    for i in 0..n {
+        for j in 0..n {
             m.push(Vector3::new(
-                size_m[0] * (i as f64 + 0.5) / 6.0,
-                size_m[1] * (j as f64 + 0.5) / 6.0,
+                size_m[0] * (i as f64 + 0.5) / n as f64,
+                size_m[1] * (j as f64 + 0.5) / n as f64,
                 size_m[2],
             ));
         }
