@@ -781,7 +781,13 @@ impl<'a, const NC: usize, E: EdgeId> DetailInputs<'a, NC, E> {
     /// `large[u − base]`), distances `r_j = sqrt(Σ_i α_{v,i} g[i][j])` (or the global `r`
     /// for PSD), detail `d = Σ_j w_{v,j} r_j` and `x = x_large + d_0 t + d_1 b + d_2 n`.
     #[inline(always)]
-    fn vertex(&self, v: usize, large: &[[f32; 3]], base: usize) -> [f32; 3] {
+    fn vertex<S: pulp::Simd>(
+        &self,
+        simd: S,
+        v: usize,
+        large: &[[f32; 3]],
+        base: usize,
+    ) -> [f32; 3] {
         let layout = self.layout;
         let fans = &layout.fans;
         let xl = large[v - base];
@@ -800,12 +806,20 @@ impl<'a, const NC: usize, E: EdgeId> DetailInputs<'a, NC, E> {
                 let al = &layout.alphas[v * width..(v + 1) * width];
                 let mut acc = [[0.0f32; LANES]; NC];
                 if NC == 1 {
-                    // P ≤ 8: one 8-lane accumulator in registers, one table row per edge
+                    // P ≤ 8: one 8-lane accumulator, one table row per edge, in the dispatched
+                    // SIMD type (one 8-wide multiply and add per edge with AVX2; the compiler
+                    // kept the plain-array version in 8 scalar registers). Per lane the same
+                    // operations in the same order as the scalar path, so the same bits.
+                    let (acc_v, acc_t) = S::as_mut_simd_f32s(&mut acc[0]);
                     for (&i, &a) in ids.iter().zip(al) {
-                        let g = self.table[i.index()];
+                        let (g_v, g_t) = S::as_simd_f32s(&self.table[i.index()]);
                         let a = a as f32;
-                        for l in 0..LANES {
-                            acc[0][l] += a * g[l];
+                        let a_v = simd.splat_f32s(a);
+                        for (x, &g) in acc_v.iter_mut().zip(g_v) {
+                            *x = simd.add_f32s(*x, simd.mul_f32s(a_v, g));
+                        }
+                        for (x, &g) in acc_t.iter_mut().zip(g_t) {
+                            *x += a * g;
                         }
                     }
                 } else {
@@ -820,8 +834,13 @@ impl<'a, const NC: usize, E: EdgeId> DetailInputs<'a, NC, E> {
                         }
                     }
                 }
+                let step = simd.splat_f32s(ALPHA_STEP);
                 for rc in acc.iter_mut() {
-                    for x in rc.iter_mut() {
+                    let (x_v, x_t) = S::as_mut_simd_f32s(rc);
+                    for x in x_v {
+                        *x = simd.sqrt_f32s(simd.mul_f32s(*x, step));
+                    }
+                    for x in x_t {
                         *x = (*x * ALPHA_STEP).sqrt();
                     }
                 }
@@ -1005,7 +1024,7 @@ enum Kernel<'a, const NC: usize, E> {
 impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
     type Output = ();
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
         match self {
             Kernel::Sweep {
                 inputs,
@@ -1015,7 +1034,9 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
                 large,
                 positions,
                 normals,
-            } => sweep_chunk(inputs, centred, mean, first, large, positions, normals),
+            } => sweep_chunk(
+                simd, inputs, centred, mean, first, large, positions, normals,
+            ),
             Kernel::Large {
                 layout,
                 centred,
@@ -1033,12 +1054,12 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
                 Some(ids) => {
                     for &v in ids {
                         let v = v as usize;
-                        out[v - first] = inputs.vertex(v, large, 0);
+                        out[v - first] = inputs.vertex(simd, v, large, 0);
                     }
                 }
                 None => {
                     for (k, o) in out.iter_mut().enumerate() {
-                        *o = inputs.vertex(first + k, large, 0);
+                        *o = inputs.vertex(simd, first + k, large, 0);
                     }
                 }
             },
@@ -1073,7 +1094,8 @@ fn dispatch<const NC: usize, E: EdgeId>(kernel: Kernel<'_, NC, E>) {
 /// The fused sweep of one chunk (stored vertices `first..first + large.len()`); see
 /// [`Schedule`]. Deferred vertices are skipped (done by [`frame_pass`] afterwards).
 #[inline(always)]
-fn sweep_chunk<const NC: usize, E: EdgeId>(
+fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
+    simd: S,
     inputs: &DetailInputs<'_, NC, E>,
     centred: &[[f32; 4]],
     mean: [f32; 3],
@@ -1098,7 +1120,7 @@ fn sweep_chunk<const NC: usize, E: EdgeId>(
             let flags = &sched.flags[first + r.start..first + r.end];
             for ((k, o), &f) in positions[r.clone()].iter_mut().enumerate().zip(flags) {
                 if f & DEFER_DETAIL == 0 {
-                    *o = inputs.vertex(first + r.start + k, large, first);
+                    *o = inputs.vertex(simd, first + r.start + k, large, first);
                 }
             }
         }
