@@ -111,39 +111,19 @@ fn right_horizon(u: f64, s: &HorizonSettings) -> Horizon {
     let gu = unit_profile(u);
     let secant = |x: f64| (unit_profile(x) - gu) / (x - u);
     let dsecant = |x: f64| (secant(x) - unit_slope(u)) / (x - u);
-    // Tangent limit (the surface itself) and the far horizon (profile → 0 at infinity).
-    let mut best = Horizon {
+    let tangent = Horizon {
         slope: unit_slope(u),
         dslope_du: unit_curvature(u),
     };
-    if gu > 0.0 && 0.0 > best.slope {
-        best = Horizon {
-            slope: 0.0,
-            dslope_du: 0.0,
-        };
-    }
     let n = (s.range_w / s.step_w).ceil() as usize;
-    let mut arg = None;
-    let mut val = best.slope;
-    for k in 1..=n {
-        let x = u + k as f64 * s.step_w;
-        let v = secant(x);
-        if v > val {
-            val = v;
-            arg = Some(x);
-        }
-    }
-    if let Some(x0) = arg {
-        let x = golden_max(&secant, (x0 - s.step_w).max(u + 1e-9), x0 + s.step_w);
-        let v = secant(x);
-        if v > best.slope {
-            best = Horizon {
-                slope: v,
-                dslope_du: dsecant(x),
-            };
-        }
-    }
-    best
+    grid_horizon(
+        tangent,
+        gu,
+        &secant,
+        &dsecant,
+        (1..=n).map(|k| u + k as f64 * s.step_w),
+        |x0| ((x0 - s.step_w).max(u + 1e-9), x0 + s.step_w),
+    )
 }
 
 /// Left horizon from u ≥ 0 (directions towards −p): elevation slope
@@ -155,21 +135,43 @@ fn left_horizon(u: f64, s: &HorizonSettings) -> Horizon {
     let gu = unit_profile(u);
     let secant = |x: f64| (unit_profile(x) - gu) / (u - x);
     let dsecant = |x: f64| (-unit_slope(u) - secant(x)) / (u - x);
-    let mut best = Horizon {
+    let tangent = Horizon {
         slope: -unit_slope(u),
         dslope_du: -unit_curvature(u),
     };
+    let n = ((s.range_w + u) / s.step_w).ceil() as usize;
+    grid_horizon(
+        tangent,
+        gu,
+        &secant,
+        &dsecant,
+        (1..=n).map(|k| u - k as f64 * s.step_w),
+        |x0| (x0 - s.step_w, (x0 + s.step_w).min(u - 1e-9)),
+    )
+}
+
+/// The grid search of one horizon (the reference for the analytic one): the best of the
+/// tangent limit, the far horizon (slope 0 when the point is above the rest level) and the
+/// secant slopes at the grid `samples`, the best grid sample refined by golden section over
+/// `bracket(x0)`.
+fn grid_horizon(
+    tangent: Horizon,
+    gu: f64,
+    secant: &dyn Fn(f64) -> f64,
+    dsecant: &dyn Fn(f64) -> f64,
+    samples: impl Iterator<Item = f64>,
+    bracket: impl Fn(f64) -> (f64, f64),
+) -> Horizon {
+    let mut best = tangent;
     if gu > 0.0 && 0.0 > best.slope {
         best = Horizon {
             slope: 0.0,
             dslope_du: 0.0,
         };
     }
-    let n = ((s.range_w + u) / s.step_w).ceil() as usize;
     let mut arg = None;
     let mut val = best.slope;
-    for k in 1..=n {
-        let x = u - k as f64 * s.step_w;
+    for x in samples {
         let v = secant(x);
         if v > val {
             val = v;
@@ -177,7 +179,8 @@ fn left_horizon(u: f64, s: &HorizonSettings) -> Horizon {
         }
     }
     if let Some(x0) = arg {
-        let x = golden_max(&secant, x0 - s.step_w, (x0 + s.step_w).min(u - 1e-9));
+        let (lo, hi) = bracket(x0);
+        let x = golden_max(secant, lo, hi);
         let v = secant(x);
         if v > best.slope {
             best = Horizon {

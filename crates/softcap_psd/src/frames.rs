@@ -189,25 +189,32 @@ pub fn to_world(frame: &[[f32; 3]; 3], d: [f32; 3]) -> [f32; 3] {
     ]
 }
 
+/// Test mesh: an `n × n` grid of unit cells, two counter-clockwise triangles per cell, with
+/// heights 0.1 · ((7k) mod 5) so that normals and frames vary.
+#[cfg(test)]
+pub(crate) fn bumpy_grid(n: usize) -> (Vec<[f32; 3]>, Vec<[usize; 3]>) {
+    let pos = (0..n * n)
+        .map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)])
+        .collect();
+    let mut tris = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = j * n + i;
+            tris.push([a, a + 1, a + n + 1]);
+            tris.push([a, a + n + 1, a + n]);
+        }
+    }
+    (pos, tris)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn frames_are_orthonormal_and_rotate_with_the_mesh() {
-        // a bumpy 6×6 grid
         let n = 6;
-        let pos: Vec<[f32; 3]> = (0..n * n)
-            .map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)])
-            .collect();
-        let mut tris = Vec::new();
-        for j in 0..n - 1 {
-            for i in 0..n - 1 {
-                let a = j * n + i;
-                tris.push([a, a + 1, a + n + 1]);
-                tris.push([a, a + n + 1, a + n]);
-            }
-        }
+        let (pos, tris) = bumpy_grid(n);
         let topo = Topology::new(n * n, &tris);
         let normals_of = |p: &[[f32; 3]]| {
             let mut fnrm = vec![[0.0; 3]; tris.len()];

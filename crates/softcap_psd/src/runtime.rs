@@ -1412,19 +1412,8 @@ mod tests {
 
     #[test]
     fn morton_order_is_a_permutation_and_fans_follow_it() {
-        // 12×12 bumpy grid
         let n = 12;
-        let pos: Vec<[f32; 3]> = (0..n * n)
-            .map(|k| [(k % n) as f32, (k / n) as f32, 0.1 * ((k * 7 % 5) as f32)])
-            .collect();
-        let mut tris = Vec::new();
-        for j in 0..n - 1 {
-            for i in 0..n - 1 {
-                let a = j * n + i;
-                tris.push([a, a + 1, a + n + 1]);
-                tris.push([a, a + n + 1, a + n]);
-            }
-        }
+        let (pos, tris) = crate::frames::bumpy_grid(n);
         let order = morton_order(&pos);
         let mut seen = vec![false; n * n];
         for &v in &order {
@@ -1461,14 +1450,7 @@ mod tests {
                 [x, y, 0.3 * (0.7 * x).sin() * (0.4 * y).cos()]
             })
             .collect();
-        let mut tris = Vec::new();
-        for j in 0..k - 1 {
-            for i in 0..k - 1 {
-                let a = j * k + i;
-                tris.push([a, a + 1, a + k + 1]);
-                tris.push([a, a + k + 1, a + k]);
-            }
-        }
+        let (_, mut tris) = crate::frames::bumpy_grid(k);
         if morton {
             let order = morton_order(&pos);
             let mut rank = vec![0usize; n];
