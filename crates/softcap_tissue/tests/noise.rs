@@ -37,6 +37,11 @@ fn settings_for_noise(p: f64) -> FitSettings {
 /// Runs the experiment at the noise `levels` (fractions); returns the L2 errors in % of the
 /// maximum marker displacement.
 fn noise_experiment(levels: &[f64]) -> Vec<f64> {
+    noise_experiment_with(levels, settings_for_noise)
+}
+
+/// The experiment with the fit settings chosen per noise level by `settings`.
+fn noise_experiment_with(levels: &[f64], settings: impl Fn(f64) -> FitSettings) -> Vec<f64> {
     let setup = three_layer_setup();
     let mut truth = three_layer_truth(&setup.mesh);
     let locations = [[0.0105, 0.0105], [0.0195, 0.0150], [0.0120, 0.0195]];
@@ -70,12 +75,7 @@ fn noise_experiment(levels: &[f64]) -> Vec<f64> {
                 e
             })
             .collect();
-        let fit = fit_session(
-            &prepared(&setup, noisy),
-            &settings_for_noise(p),
-            &Progress::hidden(),
-        )
-        .unwrap();
+        let fit = fit_session(&prepared(&setup, noisy), &settings(p), &Progress::hidden()).unwrap();
         let (mut s2, mut n) = (0.0, 0usize);
         for (k, x) in fit.material_positions_m.iter().enumerate() {
             let x = x.as_ref().expect("strain-space re-simulation converged");
@@ -125,4 +125,30 @@ fn noise_experiment_full_table() {
         assert!(*v < 6.0, "{e:?}");
     }
     assert!(e[3] > e[0], "{e:?}");
+}
+
+/// Fit settings that minimize the *training* error, as the paper's noise-free figure measures it
+/// (docs/tissue.md, "Noise experiment at 0 %"): no shrinkage toward the homogeneous field
+/// (γ_p = 0, no leave-one-location-out choice), converged per-example fits (40 LM iterations,
+/// relative cost tolerance 1e-6) and an exactly interpolating strain-space basis (greedy
+/// tolerance 0, up to 64 centres). The defaults trade this training error for held-out prediction.
+fn paper_training_settings() -> FitSettings {
+    let mut s = settings_for_noise(0.0);
+    s.gamma_prior_candidates = vec![];
+    s.example_fit.gamma_prior = 0.0;
+    s.example_fit.max_iterations = 40;
+    s.example_fit.relative_cost_tolerance = 1e-6;
+    s.basis.relative_tolerance = 0.0;
+    s.basis.max_centers = 64;
+    s
+}
+
+/// bickel2009 §6's noise-free row with training-error settings: the linear corotational material
+/// with strain-dependent per-tet (λ, α) reproduces the three-layer neo-Hookean block to the
+/// paper's 0.3 % of the maximum displacement. Measured (session 8): 0.29 %. Tolerance 0.5 %
+/// (the default settings give 1.84 %, so the test separates the two).
+#[test]
+fn noise_free_row_with_training_settings_matches_the_paper() {
+    let e = noise_experiment_with(&[0.0], |_| paper_training_settings());
+    assert!(e[0] < 0.5, "{e:?}");
 }
