@@ -3,8 +3,7 @@
 //! look-alikes by their signatures, answer a verdict (or `none`), confirm the winner by
 //! re-simulation (DESIGN.md "Missing-physics diagnosis" 1–4; issue 8).
 
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
-use crate::extend::Extension;
+use crate::confirm::Confirmed;
 use crate::hypothesis::{
     Field, Hypothesis, Prepared, Refit, predict, refit_scored, refit_variants_scored,
     stiffness_scale_variant,
@@ -609,150 +608,6 @@ pub fn focus_cells(
         .collect()
 }
 
-/// The grid of extended FEM models of `h` (module docs of [`crate::extend`]); scales come from
-/// the recording: peak contact pressure p = max‖f‖/(π r_tip²), indentation stiffness
-/// K = max‖f‖ / max depth, median frame interval Δt.
-fn extension_grid(
-    h: Hypothesis,
-    rec: &Recording,
-    seg: &Segmentation,
-    refit: &Refit,
-) -> Vec<(Vec<(String, f64)>, Extension)> {
-    let peak_n = seg
-        .locations
-        .iter()
-        .map(|l| l.peak_force_n)
-        .fold(0.0, f64::max);
-    let r_tip = rec.tip_radius_m.max(1e-4);
-    let pressure_pa = peak_n / (std::f64::consts::PI * r_tip * r_tip);
-    let depth_m = seg
-        .locations
-        .iter()
-        .map(|l| (l.peak_tip_m - l.contact_tip_m).norm())
-        .fold(0.0, f64::max)
-        .max(1e-5);
-    let k_ind = peak_n / depth_m;
-    let dt = {
-        let t = rec.times_s();
-        let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-        d.sort_by(f64::total_cmp);
-        d.get(d.len() / 2).copied().unwrap_or(0.05).max(1e-3)
-    };
-    let p = |n: &str| {
-        refit
-            .params
-            .iter()
-            .find(|x| x.0 == n)
-            .map(|x| x.1)
-            .unwrap_or(0.0)
-    };
-    let mut out = Vec::new();
-    match h {
-        Hypothesis::Viscoelasticity => {
-            for g in [0.25, 0.5, 0.75, 1.0, 1.5] {
-                for m in [1.0, 2.0, 4.0, 8.0] {
-                    let tau_s = m * dt;
-                    out.push((
-                        vec![("prony_g".into(), g), ("prony_tau_s".into(), tau_s)],
-                        Extension::Viscoelastic { g, tau_s },
-                    ));
-                }
-            }
-        }
-        Hypothesis::Plasticity => {
-            for sy in [0.05, 0.1, 0.2, 0.4] {
-                for hh in [0.05, 0.2, 0.8] {
-                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
-                    out.push((
-                        vec![
-                            ("yield_stress_pa".into(), yield_stress_pa),
-                            ("hardening_modulus_pa".into(), hardening_pa),
-                        ],
-                        Extension::Plastic {
-                            yield_stress_pa,
-                            hardening_pa,
-                        },
-                    ));
-                }
-            }
-        }
-        Hypothesis::SupportSlip => {
-            for c in [0.03, 0.1, 0.3, 1.0, 3.0] {
-                let k = c * k_ind;
-                out.push((
-                    vec![("support_tangential_stiffness_n_per_m".into(), k)],
-                    Extension::SupportSprings {
-                        stiffness_n_per_m: k,
-                    },
-                ));
-            }
-        }
-        Hypothesis::Anisotropy => {
-            let a = Vector3::new(p("fibre_x"), p("fibre_y"), p("fibre_z"));
-            let a = a.try_normalize(1e-9).unwrap_or_else(Vector3::x);
-            for ratio in [2.0, 4.0, 8.0] {
-                out.push((
-                    vec![
-                        ("fibre_x".into(), a.x),
-                        ("fibre_y".into(), a.y),
-                        ("fibre_z".into(), a.z),
-                        ("fibre_ratio".into(), ratio),
-                    ],
-                    Extension::Anisotropic { fibre: a, ratio },
-                ));
-            }
-        }
-        _ => {}
-    }
-    out
-}
-
-/// Re-simulates every grid point of `h`'s extended FEM model over the whole recording, then
-/// leave-one-location-out ([`crate::confirm::lolo_confirm`]): per held-out location the grid
-/// point (and compliance scale) with the least error on the other locations (and the rest
-/// frames), scored on the held-out location.
-#[allow(clippy::too_many_arguments)]
-fn confirm_extended(
-    h: Hypothesis,
-    refit: &Refit,
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    sim: &mut dyn ProbeSimulator,
-    settings: &DiagnoseSettings,
-    scored: &dyn Fn(usize, usize) -> bool,
-) -> Result<Option<Confirmed>> {
-    let grid = extension_grid(h, rec, seg, refit);
-    if grid.is_empty() {
-        return Ok(None);
-    }
-    let frames = contact_sequence(rec, seg, &p.force_n);
-    let total = grid.len();
-    let mut cands = Vec::with_capacity(total);
-    for (params, ext) in grid {
-        match sim.simulate_sequence(&ext, &frames) {
-            Ok(prediction) => cands.push(Candidate { params, prediction }),
-            Err(DiagnoseError::Simulation { .. }) => continue,
-            Err(e) => return Err(e),
-        }
-    }
-    let method = format!(
-        "re-simulated extended FEM model ({} grid points of {total}), leave-one-location-out",
-        cands.len()
-    );
-    lolo_confirm(
-        &cands,
-        rec,
-        seg,
-        p,
-        ComplianceScale::new(settings.refit_compliance_scale, 0.2, 5.0),
-        scored,
-        false,
-        None,
-        method,
-    )
-}
-
 /// Load extensions re-simulated with the default model: each fold's linearised parameters applied
 /// to its own frames (held-out), the full-data parameters for the prediction.
 #[allow(clippy::too_many_arguments)]
@@ -1079,7 +934,8 @@ pub fn diagnose(
         } else if h.is_load_extension() {
             confirm_load(*h, r, rec, &seg, &prepared, sim, settings, &scored)
         } else {
-            confirm_extended(*h, r, rec, &seg, &prepared, sim, settings, &scored)
+            // inertia-damping: no extended FEM model, linearised only
+            Ok(None)
         };
         match c {
             Ok(Some(c)) => {

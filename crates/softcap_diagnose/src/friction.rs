@@ -187,11 +187,7 @@ pub fn sliding_direction(
 /// Indentation stiffness of the recording K = max‖f‖ / max depth along the probe axis from
 /// the first contact frame to the peak (N/m), the scale of the tangential stiffness grid.
 pub fn indentation_stiffness_n_per_m(seg: &Segmentation) -> f64 {
-    let peak_n = seg
-        .locations
-        .iter()
-        .map(|l| l.peak_force_n)
-        .fold(0.0, f64::max);
+    let peak_n = seg.peak_force_n();
     let depth_m = seg
         .locations
         .iter()

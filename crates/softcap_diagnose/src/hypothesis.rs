@@ -320,11 +320,7 @@ pub fn variants(h: Hypothesis, rec: &Recording, seg: &Segmentation, p: &Prepared
                 .collect()
         }
         Hypothesis::Plasticity => {
-            let peak = seg
-                .locations
-                .iter()
-                .map(|l| l.peak_force_n)
-                .fold(0.0, f64::max);
+            let peak = seg.peak_force_n();
             (0..8)
                 .map(|i| i as f64 * 0.1 * peak)
                 .map(|fy| {

@@ -138,6 +138,15 @@ pub struct Segmentation {
 }
 
 impl Segmentation {
+    /// The largest probe force of the session, N: the maximum of the locations' peak forces
+    /// (0 without locations).
+    pub fn peak_force_n(&self) -> f64 {
+        self.locations
+            .iter()
+            .map(|l| l.peak_force_n)
+            .fold(0.0, f64::max)
+    }
+
     /// Segments `rec` (see the module docs).
     pub fn new(rec: &Recording, settings: &SegmentSettings) -> Self {
         let n = rec.frames.len();

@@ -16,7 +16,9 @@ use softcap_fem::probing::{
     HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, fit_homogeneous,
     support_nodes,
 };
-use softcap_fem::{CorotationalModel, ElasticModel, EquilibriumSettings, StaticSolver, TipShape};
+use softcap_fem::{
+    CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams, StaticSolver, TipShape,
+};
 use softcap_mesh::TetMesh;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
@@ -66,6 +68,15 @@ pub trait ProbeSimulator {
         examples: &[ProbeExample],
     ) -> Result<Option<Box<dyn ProbeSimulator>>> {
         let _ = examples;
+        Ok(None)
+    }
+
+    /// The same object on a uniformly refined mesh: every tet split in eight
+    /// (`softcap_mesh::refine_tets`), each child with its parent's material, the markers
+    /// re-embedded, the same support, tip and settings. For extended models whose coarse
+    /// discretisation cannot form the recorded deformation (a plastic dent between a few
+    /// nodes); `None` (default) when this simulator has no mesh to refine.
+    fn refined(&self) -> Result<Option<Box<dyn ProbeSimulator>>> {
         Ok(None)
     }
 
@@ -248,6 +259,47 @@ impl FemProbeSimulator {
         self.setup.marker_positions(&self.setup.mesh.vertices)
     }
 
+    /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`): each child tet
+    /// carries its parent's (λ, α) — a strain-dependence hook of the default model is not carried
+    /// over (the extended models are built from the per-element parameters alone); the attached
+    /// nodes are the attached vertices and the midpoints of edges between two of them; the markers
+    /// are re-embedded at their rest positions; support plane, rigid tip and settings are kept.
+    pub fn refined(&self) -> Result<Self> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let r = softcap_mesh::refine_tets(&self.setup.mesh);
+        let n = self.setup.mesh.vertices.len();
+        let attached = |v: usize| self.setup.attached_nodes.binary_search(&v).is_ok();
+        let fixed: Vec<usize> = self
+            .setup
+            .attached_nodes
+            .iter()
+            .copied()
+            .chain(
+                r.midpoint_of
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, [a, b])| attached(*a) && attached(*b))
+                    .map(|(i, _)| n + i),
+            )
+            .collect();
+        let params: Vec<LinearParams> = r
+            .parent_tet
+            .iter()
+            .map(|&t| self.model.params()[t])
+            .collect();
+        let model = CorotationalModel::new(&r.mesh, params).map_err(fem)?;
+        let mut sim = FemProbeSimulator::new(
+            &r.mesh,
+            model,
+            &fixed,
+            &self.rest_markers_m(),
+            self.settings.clone(),
+        )?;
+        sim.support_plane = self.support_plane;
+        sim.rigid_tip = self.rigid_tip.clone();
+        Ok(sim)
+    }
+
     fn example(load: &ProbeLoad) -> ProbeExample {
         ProbeExample {
             frame: 0,
@@ -313,6 +365,10 @@ impl ProbeSimulator for FemProbeSimulator {
         sim.support_plane = self.support_plane;
         sim.rigid_tip = self.rigid_tip.clone();
         Ok(Some(Box::new(sim)))
+    }
+
+    fn refined(&self) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        Ok(Some(Box::new(FemProbeSimulator::refined(self)?)))
     }
 
     fn simulate_sequence(

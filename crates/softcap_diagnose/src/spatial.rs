@@ -4,7 +4,7 @@
 //!
 //! | hypothesis | effect cells (scored) | extended model re-simulated | grid |
 //! |---|---|---|---|
-//! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) | σ_y, H (× peak contact pressure) |
+//! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) on the fit mesh refined 1 → 8 ([`ProbeSimulator::refined`]: the coarse linear tets cannot form the dent between the markers) | σ_y, H (× peak contact pressure), ν |
 //! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
 //! | probe-friction | contact frames, markers under the active contact | default model + the Coulomb traction of the tip's travel at the patch ([`crate::friction`]: return mapping under the measured normal force, or constant sense μ‖f‖ŝ) | μ, k_t |
 //! | anisotropy | contact frames, markers away from the active contact (the fibre redirects the whole field; under the probe the default model's patch-force error dominates) | `AnisotropicModel` (thesis eq. 8.5), the screened fibre and its mirror across the probe axis | fibre, ratio, ν_t, ν_a |
@@ -291,11 +291,7 @@ pub(crate) fn confirm(
     sim: &mut dyn ProbeSimulator,
     scored: &dyn Fn(usize, usize) -> bool,
 ) -> Result<Option<Confirmed>> {
-    let peak_n = seg
-        .locations
-        .iter()
-        .map(|l| l.peak_force_n)
-        .fold(0.0, f64::max);
+    let peak_n = seg.peak_force_n();
     let r_tip = rec.tip_radius_m.max(1e-4);
     let pressure_pa = peak_n / (std::f64::consts::PI * r_tip * r_tip);
     let depth_m = seg
@@ -327,13 +323,14 @@ pub(crate) fn confirm(
                 }
             }
             // Rigid-tip replay (position control): the tip's geometry sets the stress under its
-            // rim, which the force boundary condition spreads out (module docs).
+            // rim, which the force boundary condition spreads out (module docs); on the refined
+            // mesh, where the dent can form between the markers.
             // The Poisson ratio too (`Extension::PlasticPoisson`): the tissue fit's ν is biased
-            // by the plastic flow it did not model, and the coarse linear tets lock more than the
-            // object does; under position control E only scales σ_y and H.
-            for nu in [None, Some(0.45), Some(0.35)] {
-                for sy in [0.2, 0.3, 0.4] {
-                    for hh in [0.5, 1.0] {
+            // by the plastic flow it did not model; under position control E only scales σ_y
+            // and H.
+            for nu in [None, Some(0.45)] {
+                for sy in [0.3, 0.4] {
+                    for hh in [0.2, 0.5] {
                         let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
                         let mut params = vec![
                             ("yield_stress_pa".into(), yield_stress_pa),
@@ -427,7 +424,21 @@ pub(crate) fn confirm(
     };
     let contact_only = matches!(h, Hypothesis::Anisotropy | Hypothesis::ProbeFriction);
     let (mut cands, mut total) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
-    let (rigid_cands, rigid_total) = simulate_rigid_grid(sim, rigid, rec)?;
+    // The rigid-tip replay on the refined mesh when the simulator has one (module docs).
+    let mut fine = if rigid.is_empty() {
+        None
+    } else {
+        sim.refined()?
+    };
+    let refined = fine.is_some();
+    let replay: &mut dyn ProbeSimulator = match fine.as_deref_mut() {
+        Some(f) => f,
+        None => sim,
+    };
+    for (params, _) in &mut rigid {
+        params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+    }
+    let (rigid_cands, rigid_total) = simulate_rigid_grid(replay, rigid, rec)?;
     cands.extend(rigid_cands);
     total += rigid_total;
     let n = cands.len();

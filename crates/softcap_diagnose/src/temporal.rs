@@ -213,11 +213,7 @@ pub fn temporal_grid(
 ) -> Vec<(Vec<(String, f64)>, Extension, Vec<SequenceFrame>)> {
     let t = &p.times_s;
     let dt = median_dt(t);
-    let peak_n = seg
-        .locations
-        .iter()
-        .map(|l| l.peak_force_n)
-        .fold(0.0, f64::max);
+    let peak_n = seg.peak_force_n();
     let thr = 1e-3 * peak_n.max(1e-9);
     let measured = contact_sequence(rec, seg, &p.force_n);
     let mut out = Vec::new();

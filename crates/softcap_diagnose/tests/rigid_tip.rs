@@ -215,3 +215,43 @@ fn released_set_signature_cancels_a_constant_rest_offset() {
         s.released_set_m
     );
 }
+
+/// `FemProbeSimulator::refined`: 8 × the tets, the same markers (re-embedded at the same rest
+/// positions), the support plane's nodes fixed, the tip kept; under gravity (lumped ρg V/4 is the
+/// consistent load of linear tets, the same load functional on both meshes) the nested, richer
+/// displacement space is softer: the top-centre marker sags more, and by little (mesh convergence).
+#[test]
+fn refined_simulator_keeps_markers_support_and_tip_and_is_softer() {
+    let coarse = simulator(Some(sphere()));
+    let fine = coarse.refined().unwrap();
+    assert_eq!(
+        fine.setup().mesh.tets.len(),
+        8 * coarse.setup().mesh.tets.len()
+    );
+    assert_eq!(fine.rigid_tip(), coarse.rigid_tip());
+    let (rc, rf) = (coarse.rest_markers_m(), fine.rest_markers_m());
+    assert_eq!(rc.len(), rf.len());
+    for (a, b) in rc.iter().zip(&rf) {
+        assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+    }
+    let on_base = FemProbeSimulator::nodes_on_plane(&fine.setup().mesh, &Vector3::z(), 0.0, 1e-9);
+    assert_eq!(fine.setup().attached_nodes, on_base);
+    let gravity = SimLoad {
+        probe: None,
+        body_force_n_m3: Vector3::new(0.0, 0.0, -1000.0 * 9.81),
+    };
+    let (mut coarse, mut fine) = (coarse, fine);
+    let sag = |s: &mut FemProbeSimulator| {
+        let out = s.simulate(&gravity, false).unwrap();
+        rc[0].z - out.markers_m[0].z
+    };
+    let (sc, sf) = (sag(&mut coarse), sag(&mut fine));
+    println!(
+        "top-centre sag under gravity: coarse {:.4} mm, refined {:.4} mm",
+        1e3 * sc,
+        1e3 * sf
+    );
+    assert!(sc > 0.0);
+    assert!(sf >= sc, "refined {sf} < coarse {sc}");
+    assert!(sf <= 1.25 * sc, "refined {sf} vs coarse {sc}");
+}

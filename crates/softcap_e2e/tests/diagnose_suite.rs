@@ -152,8 +152,9 @@ fn viscoelasticity_is_named() {
     check("viscoelasticity");
 }
 
+/// A 14 mm flat indenter at 4 quadrant locations (σ_y 4 kPa, H 2 kPa): confirmed by the rigid-tip
+/// J2 replay on the fit mesh refined 1 → 8 (`spatial::confirm`, `ProbeSimulator::refined`).
 #[test]
-#[ignore = "measured 2026-11-22 14:18 (dxs; on a 14 mm flat indenter / 4 quadrant locations variant of plasticity.toml, see docs/diagnose.md, not committed; released frames, markers within 2.5 tip radii of a touched location): verdict plasticity, held-out 0.629 -> 0.255 mm (2.47x, needs 3x) with the rigid-tip J2 replay (sigma_y 4.10 kPa of 4, H 10.2 kPa of 2, nu 0.45 of 0.45 (tissue fit 0.48), compliance 1.14); a 27-point grid reaching H 20 kPa gives 0.250 mm (2.51x) at 3x the cost. 5 mm disk (session 6): 0.368 -> 0.226 mm (1.6x)"]
 fn plasticity_is_named() {
     check("plasticity");
 }

@@ -5,6 +5,7 @@
 //! | [`types`] | [`TriMesh`], [`TetMesh`] |
 //! | [`structured`] | structured tet meshing of boxes |
 //! | [`io`] | OBJ, PLY (ASCII/binary), Gmsh 4.1 `.msh`, TetGen `.node`/`.ele` readers and writers |
+//! | [`refine`] | uniform 1 → 8 (red) refinement of tet meshes |
 //! | [`triangulate`] | ear-clipping of polygons |
 //! | [`adjacency`] | one-rings, vertex→elements, tet face/vertex adjacency, [`SurfaceMap`] |
 //! | [`laplacian`] | cotangent Laplacian + mixed Voronoi areas (thesis eq. 3.4–3.5), bi-Laplacian, umbrella graph Laplacian (bickel2009 eq. 9) |
@@ -42,6 +43,7 @@ pub mod embed;
 pub mod error;
 pub mod io;
 pub mod laplacian;
+pub mod refine;
 pub mod structured;
 pub mod triangulate;
 pub mod types;
@@ -71,6 +73,7 @@ pub use laplacian::{
     umbrella_laplacian, voronoi_areas,
 };
 pub use nalgebra;
+pub use refine::{RefinedTetMesh, refine_tets};
 pub use structured::{box_tet_mesh, icosphere};
 pub use triangulate::triangulate_polygon;
 pub use types::{TetMesh, TriMesh};
