@@ -93,7 +93,10 @@ mod tests {
         assert_eq!(r.parent_tet.len(), r.mesh.tets.len());
         // the refined box is the structured box with twice the cells: same vertex count
         assert_eq!(r.mesh.vertices.len(), 7 * 5 * 5);
-        assert_eq!(r.midpoint_of.len(), r.mesh.vertices.len() - mesh.vertices.len());
+        assert_eq!(
+            r.midpoint_of.len(),
+            r.mesh.vertices.len() - mesh.vertices.len()
+        );
         for t in 0..mesh.tets.len() {
             let v: f64 = (0..8).map(|c| r.mesh.tet_volume(8 * t + c)).sum();
             assert!((v - mesh.tet_volume(t)).abs() < 1e-12 * mesh.tet_volume(t).abs());
@@ -119,7 +122,10 @@ mod tests {
                 .sum()
         };
         assert!((area(&r.mesh) - area(&mesh)).abs() < 1e-12);
-        assert_eq!(r.mesh.boundary_faces().len(), 4 * mesh.boundary_faces().len());
+        assert_eq!(
+            r.mesh.boundary_faces().len(),
+            4 * mesh.boundary_faces().len()
+        );
         // a second refinement keeps working
         let rr = refine_tets(&r.mesh);
         assert!((rr.mesh.volume() - mesh.volume()).abs() < 1e-12 * mesh.volume());
