@@ -219,7 +219,8 @@ fn released_set_signature_cancels_a_constant_rest_offset() {
 /// `FemProbeSimulator::refined`: 8 × the tets, the same markers (re-embedded at the same rest
 /// positions), the support plane's nodes fixed, the tip kept; under gravity (lumped ρg V/4 is the
 /// consistent load of linear tets, the same load functional on both meshes) the nested, richer
-/// displacement space is softer: the top-centre marker sags more, and by little (mesh convergence).
+/// displacement space is softer: the top-centre marker sags more, and by little (mesh convergence;
+/// measured 0.0611 mm coarse, 0.0678 mm refined).
 #[test]
 fn refined_simulator_keeps_markers_support_and_tip_and_is_softer() {
     let coarse = simulator(Some(sphere()));

@@ -27,6 +27,8 @@ struct Accuracy {
     frames_without_probe_pose: Vec<usize>,
     force_rms_n: f64,
     force_max_n: f64,
+    /// RMS of the true force's component across the recovered (shaft) force direction, N.
+    force_off_axis_rms_n: f64,
     tip_rms_mm: f64,
     clock_offset_error_ms: f64,
 }
@@ -56,6 +58,7 @@ fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
         }
     }
     let (mut fs, mut fmax, mut ts, mut nt) = (0.0, 0.0f64, 0.0, 0usize);
+    let mut fl = 0.0;
     let mut no_pose = Vec::new();
     for row in csv_rows(&dir.join("truth/probe.csv")) {
         let frame: usize = row[0].parse().unwrap();
@@ -79,6 +82,10 @@ fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
             continue;
         };
         fs += (fe - ft).norm_squared();
+        // the part of the true force across the shaft (capture's force is along it)
+        if let Some(e) = fe.try_normalize(1e-12) {
+            fl += (ft - e * ft.dot(&e)).norm_squared();
+        }
         ts += (te - tip).norm_squared();
         nt += 1;
     }
@@ -99,6 +106,7 @@ fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
         frames_without_probe_pose: no_pose,
         force_rms_n: (fs / nt as f64).sqrt(),
         force_max_n: fmax,
+        force_off_axis_rms_n: (fl / nt as f64).sqrt(),
         tip_rms_mm: (ts / nt as f64).sqrt() * 1e3,
         clock_offset_error_ms: (r.sync.expect("sync").offset_s - offset).abs() * 1e3,
     }
@@ -222,9 +230,12 @@ fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
             // viscoelasticity (session 7 TOML: g 2, τ 0.3 s, the force relaxes by a third within
             // every hold): measured 3.04 % RMS of the peak (0.114 of 3.75 N); the elastic sessions
             // read ≤ 2.7 % (strain-stiffening 0.117 of 4.28 N).
+            // plasticity (session 8 TOML: a 14 mm flat punch into a yielding block): the rim takes
+            // a lateral reaction the shaft FSR cannot see — measured 0.0550 N RMS of 1.584 N
+            // (3.5 %), of which 0.0533 N across the shaft (`force_off_axis_rms_n`).
             let bound = if scenario.has(Effect::ProbeFriction) {
                 0.4
-            } else if scenario.has(Effect::Viscoelasticity) {
+            } else if scenario.has(Effect::Viscoelasticity) || scenario.has(Effect::Plasticity) {
                 0.04
             } else if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
                 0.08
