@@ -10,6 +10,7 @@
 //! | [`Extension::SupportSprings`] | `SupportPlane` with tangential springs on the attached nodes instead of fixed nodes (bilateral normal penalty), `NodalSolver` | total tangential stiffness k |
 //! | [`Extension::Anisotropic`] | `AnisotropicModel`, transversely isotropic (thesis eq. 8.5) with the default model's isotropic (E, ν) across the fibre and E_a = r E along it | fibre a, ratio r |
 //! | [`Extension::TransverselyIsotropic`] | `AnisotropicModel` as above with the Poisson ratios fitted too: ν_t across the fibre, ν_a fibre–transverse (thesis eq. 8.5, `TransverselyIsotropicParams::from_engineering`) | fibre a, ratio r, ν_t, ν_a |
+//! | [`Extension::ProbeFriction`] | the default model with regularized Coulomb friction between the rigid tip and the surface (`FrictionalContact`, IPC f₁ mollifier, stick anchors, normal forces lagged per solve and re-lagged until they settle, `softcap_fem::solve_lagged`), `NodalSolver`; rigid-tip replay only | μ |
 //! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
 //!
 //! The probe force of every frame is spread over its contact patch exactly as in the baseline
@@ -22,13 +23,14 @@
 
 use crate::sim::{FemProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
-use nalgebra::{Isometry3, Translation3, Unit, Vector3};
+use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::probe_pose;
 use softcap_fem::{
     AnisotropicModel, ContactProblem, ContactSettings, ElasticModel, ElastoplasticModel,
-    EquilibriumSettings, J2PlasticityParams, LinearParams, NodalSolver, Probe, PronySeries,
-    StaticSolver, SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel,
+    EquilibriumSettings, FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations,
+    LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver,
+    SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
 };
 
 /// One extended model (see the module table).
@@ -73,6 +75,15 @@ pub enum Extension {
         fibre: Vector3<f64>,
         /// Fibre / transverse Young's modulus.
         ratio: f64,
+    },
+    /// Coulomb friction between the rigid tip and the surface (bickel2009 §7: the shaft-axis
+    /// sensor does not measure it; thesis §6.4 models the indenter as a high-friction surface):
+    /// `softcap_fem::FrictionalContact` with normal forces lagged per solve, the same law and
+    /// iterations the synthetic ground truth uses. Only in the rigid-tip replay (a traction needs
+    /// the tip's pose and the patch's stick history; the force boundary condition has neither).
+    ProbeFriction {
+        /// Coulomb coefficient μ.
+        mu: f64,
     },
     /// Transversely isotropic with the Poisson ratios as parameters.
     TransverselyIsotropic {
@@ -270,6 +281,9 @@ impl FemProbeSimulator {
                 let an = self.anisotropic_model(ext)?;
                 self.run_static(an, frames, |_, _| Ok(()), |_, _| {})
             }
+            Extension::ProbeFriction { .. } => Err(DiagnoseError::BadRecording {
+                what: "probe friction is simulated only by the rigid-tip replay".into(),
+            }),
             Extension::SupportSprings { stiffness_n_per_m } => {
                 let setup = self.setup();
                 let Some(plane) = self.support_plane() else {
@@ -319,6 +333,18 @@ impl FemProbeSimulator {
 
 /// Rigid-tip replay: the settings of one frame's contact solve.
 const RIGID_MAX_ITERATIONS: usize = 80;
+/// Frictional rigid-tip replay: iterations of one solve (regularized Coulomb with lagged normal
+/// forces converges more slowly: stick stiffness 2μf_n/ε).
+const FRICTION_MAX_ITERATIONS: usize = 150;
+
+/// The solver of a rigid-tip replay: penalty contact, or penalty contact with friction.
+enum RigidSolver {
+    Frictionless(StaticSolver),
+    Frictional {
+        solver: NodalSolver,
+        contact: Box<FrictionalContact>,
+    },
+}
 
 impl FemProbeSimulator {
     /// Rigid-tip replay of `frames` (time order) under `ext`: every frame whose probe pose
@@ -326,8 +352,9 @@ impl FemProbeSimulator {
     /// penetrate the surface is solved with the rigid probe as penalty contact (bickel2009 §3.4),
     /// moved there from the previous frame's pose in 1, then 4, then 16 sub-steps (state restored
     /// between attempts); other frames are solved without the probe. History (plastic strain,
-    /// Prony state) is committed after every converged frame. `Ok(None)` without a recorded tip
-    /// or for the support springs (a `NodalSolver` term, no rigid replay).
+    /// Prony state, stick anchors) is committed after every converged frame; the stick history
+    /// is forgotten when the tip leaves the surface. `Ok(None)` without a recorded tip or for the
+    /// support springs (a `NodalSolver` term, no rigid replay).
     pub fn simulate_sequence_rigid_tip(
         &self,
         ext: &Extension,
@@ -339,13 +366,47 @@ impl FemProbeSimulator {
         let base = self.model().clone();
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         Ok(Some(match *ext {
-            Extension::Elastic => self.run_rigid(base, &tip, frames, |_, _| Ok(()), |_, _| {})?,
+            Extension::Elastic => {
+                self.run_rigid(base, &tip, None, frames, |_, _| Ok(()), |_, _| {})?
+            }
+            Extension::ProbeFriction { mu } => {
+                let friction = FrictionParams {
+                    mu,
+                    ..FrictionParams::default()
+                };
+                match friction_refinement(&self.setup().mesh, &tip) {
+                    0 => self.run_rigid(
+                        base,
+                        &tip,
+                        Some(friction),
+                        frames,
+                        |_, _| Ok(()),
+                        |_, _| {},
+                    )?,
+                    levels => {
+                        let mut fine = self.refined()?;
+                        for _ in 1..levels {
+                            fine = fine.refined()?;
+                        }
+                        let model = fine.model().clone();
+                        fine.run_rigid(
+                            model,
+                            &tip,
+                            Some(friction),
+                            frames,
+                            |_, _| Ok(()),
+                            |_, _| {},
+                        )?
+                    }
+                }
+            }
             Extension::Viscoelastic { g, tau_s } => {
                 let prony = PronySeries::standard_linear_solid(g, tau_s).map_err(fem)?;
                 let ve = ViscoelasticModel::new(base, prony).map_err(fem)?;
                 self.run_rigid(
                     ve,
                     &tip,
+                    None,
                     frames,
                     |m, dt| m.set_time_step(dt).map_err(fem),
                     |m, x| m.commit(x),
@@ -356,6 +417,7 @@ impl FemProbeSimulator {
                 self.run_rigid(
                     ep,
                     &tip,
+                    None,
                     frames,
                     |_, _| Ok(()),
                     |m, x| {
@@ -365,16 +427,20 @@ impl FemProbeSimulator {
             }
             Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
                 let an = self.anisotropic_model(ext)?;
-                self.run_rigid(an, &tip, frames, |_, _| Ok(()), |_, _| {})?
+                self.run_rigid(an, &tip, None, frames, |_, _| Ok(()), |_, _| {})?
             }
             Extension::SupportSprings { .. } => return Ok(None),
         }))
     }
 
+    /// The replay loop of [`Self::simulate_sequence_rigid_tip`]; with `friction`, the tip carries
+    /// regularized Coulomb friction (`FrictionalContact` with lagged normal forces and hysteresis
+    /// of the active set, solved by `softcap_fem::solve_lagged`).
     fn run_rigid<M: ElasticModel + Clone>(
         &self,
         mut model: M,
         tip: &softcap_fem::TipShape,
+        friction: Option<FrictionParams>,
         frames: &[SequenceFrame],
         mut before: impl FnMut(&mut M, f64) -> Result<()>,
         mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
@@ -388,25 +454,70 @@ impl FemProbeSimulator {
             .copied()
             .filter(|n| setup.attached_nodes.binary_search(n).is_err())
             .collect();
+        let max_iterations = if friction.is_some() {
+            FRICTION_MAX_ITERATIONS
+        } else {
+            RIGID_MAX_ITERATIONS
+        };
         let settings = EquilibriumSettings {
             max_iterations: self
                 .settings()
                 .equilibrium
                 .max_iterations
-                .max(RIGID_MAX_ITERATIONS),
+                .max(max_iterations),
             ..self.settings().equilibrium.clone()
         };
-        let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
+        let problem_at = |iso: Isometry3<f64>| -> Result<ContactProblem> {
+            Ok(ContactProblem {
+                probe: Probe::new(tip.clone(), iso).map_err(fem)?,
+                candidate_nodes: candidates.clone(),
+                settings: ContactSettings::default(),
+            })
+        };
+        let mut solver = match friction {
+            None => RigidSolver::Frictionless(setup.solver(&model).map_err(Box::new)?),
+            Some(params) => {
+                let mut contact =
+                    FrictionalContact::new(problem_at(Isometry3::identity())?, params)
+                        .map_err(fem)?;
+                contact.active_set_hysteresis = true;
+                contact.normal_force_lag = NormalForceLag::Solve;
+                RigidSolver::Frictional {
+                    solver: NodalSolver::new(&model, &setup.dirichlet().dofs()).map_err(fem)?,
+                    contact: Box::new(contact),
+                }
+            }
+        };
         let mut x = rest.clone();
         let mut out = Vec::with_capacity(frames.len());
         let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
         let mut prev_pose: Option<Isometry3<f64>> = None;
+        let mut last_rotation: Option<UnitQuaternion<f64>> = None;
         for (k, fr) in frames.iter().enumerate() {
             let f = self.nodal_load(&SimLoad {
                 probe: None,
                 body_force_n_m3: fr.load.body_force_n_m3,
             });
-            let pose = fr.load.probe.map(|p| probe_pose(&p.tip_m, &p.axis));
+            // The tip frame is carried from the last frame's by the smallest rotation that turns
+            // its axis onto the measured one (parallel transport). `probe_pose` alone fixes the
+            // rotation about the axis arbitrarily: near an axis pointing straight down, µrad jitter
+            // of the measured axis turns it by up to 180° between frames — invisible to a sphere
+            // or a disk, but the stick anchors of friction live in the tip frame and would be
+            // swung around the axis with it.
+            let pose = fr.load.probe.map(|p| {
+                let iso = probe_pose(&p.tip_m, &p.axis);
+                match (last_rotation, p.axis.try_normalize(1e-12)) {
+                    (Some(r), Some(axis)) => {
+                        let turn = UnitQuaternion::rotation_between(&(r * Vector3::z()), &axis)
+                            .unwrap_or_else(UnitQuaternion::identity);
+                        Isometry3::from_parts(iso.translation, turn * r)
+                    }
+                    _ => iso,
+                }
+            });
+            if let Some(p) = pose {
+                last_rotation = Some(p.rotation);
+            }
             let probe = pose
                 .map(|iso| Probe::new(tip.clone(), iso))
                 .transpose()
@@ -418,35 +529,70 @@ impl FemProbeSimulator {
             });
             let dt = (fr.time_s - t_prev).max(0.0);
             t_prev = fr.time_s;
+            if let RigidSolver::Frictional { contact, .. } = &mut solver
+                && !touches
+            {
+                // the tip left the surface: no stick history carries over to the next touch
+                contact.reset_history();
+            }
+            let start_contact = match &solver {
+                RigidSolver::Frictional { contact, .. } => Some(contact.clone()),
+                RigidSolver::Frictionless(_) => None,
+            };
             let (start_x, start_model) = (x.clone(), model.clone());
             let mut ok = false;
             let mut status = String::new();
             for substeps in [1usize, 4, 16] {
                 x.clone_from(&start_x);
                 model = start_model.clone();
+                if let (RigidSolver::Frictional { contact, .. }, Some(c)) =
+                    (&mut solver, &start_contact)
+                {
+                    contact.clone_from(c);
+                }
                 ok = true;
                 for s in 1..=substeps {
                     let t = s as f64 / substeps as f64;
                     before(&mut model, dt / substeps as f64)?;
-                    let problem = match (touches, pose) {
+                    let iso = match (touches, pose) {
                         (true, Some(to)) => {
                             let from = prev_pose.unwrap_or(to);
-                            let iso = Isometry3::from_parts(
+                            Some(Isometry3::from_parts(
                                 Translation3::from(
                                     from.translation.vector.lerp(&to.translation.vector, t),
                                 ),
                                 from.rotation.slerp(&to.rotation, t),
-                            );
-                            Some(ContactProblem {
-                                probe: Probe::new(tip.clone(), iso).map_err(fem)?,
-                                candidate_nodes: candidates.clone(),
-                                settings: ContactSettings::default(),
-                            })
+                            ))
                         }
                         _ => None,
                     };
                     setup.dirichlet().apply(&mut x);
-                    let rep = solver.solve(&mut model, &mut x, &f, problem.as_ref(), &settings);
+                    let rep = match &mut solver {
+                        RigidSolver::Frictionless(solver) => {
+                            let problem = iso.map(problem_at).transpose()?;
+                            solver.solve(&mut model, &mut x, &f, problem.as_ref(), &settings)
+                        }
+                        RigidSolver::Frictional { solver, contact } => {
+                            if let Some(iso) = iso {
+                                contact.move_probe(&mut x, iso);
+                            }
+                            let rep = solve_lagged(
+                                solver,
+                                &mut model,
+                                &mut x,
+                                &f,
+                                iso.is_some().then_some(&mut **contact),
+                                &mut [],
+                                &settings,
+                                &LaggedIterations::default(),
+                            )
+                            .equilibrium;
+                            if rep.converged() && iso.is_some() {
+                                NodalTerm::commit(&mut **contact, &x);
+                            }
+                            rep
+                        }
+                    };
                     if !rep.converged() {
                         status = format!(
                             "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
@@ -469,6 +615,36 @@ impl FemProbeSimulator {
         }
         Ok(out)
     }
+}
+
+/// Uniform 1 → 8 refinements ([`FemProbeSimulator::refined`]) of `mesh` for the frictional rigid-tip
+/// replay of `tip`: the fewest (at most 2) that bring the mean boundary edge length h to ≤ 0.8 r
+/// (r the tip radius; 0 for a mesh tip). Penalty contact and the stick anchors act at surface
+/// nodes only, so the stuck patch that drags the surface must span several of them: a 6 mm
+/// sphere pressed 2 mm deep (footprint radius ≈ 5 mm) between the nodes of a 6.7 mm fit mesh
+/// touches none or one (the suite's probe-friction session: no displacement at 3 of 5 locations).
+pub fn friction_refinement(mesh: &softcap_mesh::TetMesh, tip: &softcap_fem::TipShape) -> u32 {
+    use softcap_fem::TipShape;
+    let r = match tip {
+        TipShape::Sphere { radius_m }
+        | TipShape::Disk { radius_m, .. }
+        | TipShape::Cylinder { radius_m, .. } => *radius_m,
+        TipShape::Mesh { .. } => return 0,
+    };
+    let (mut sum, mut n) = (0.0, 0usize);
+    for f in mesh.boundary_faces() {
+        for i in 0..3 {
+            sum += (mesh.vertices[f[i]] - mesh.vertices[f[(i + 1) % 3]]).norm();
+            n += 1;
+        }
+    }
+    let mut h = if n > 0 { sum / n as f64 } else { return 0 };
+    let mut levels = 0;
+    while h > 0.8 * r && levels < 2 {
+        h *= 0.5;
+        levels += 1;
+    }
+    levels
 }
 
 /// Transversely isotropic parameters with the isotropic (E, ν) of `p` across the fibre and

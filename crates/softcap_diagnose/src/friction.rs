@@ -252,6 +252,10 @@ pub fn drag_signature_m(rec: &Recording, seg: &Segmentation, res: &crate::Residu
 /// Friction coefficients of the confirmation grid (rubber / skin-like contacts span 0.2–1;
 /// the material's compliance scale refitted with the traction lets the effective μ go higher).
 pub const MU_GRID: [f64; 8] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0, 1.25, 1.5];
+/// Friction coefficients of the frictional rigid-tip replay (`Extension::ProbeFriction`; each
+/// point re-simulates the recording with frictional contact on the refined fit mesh, ≈ 1.5 min in
+/// the test profile on the suite session, so the grid is coarse: rubber / skin 0.5–1).
+pub const RIGID_MU_GRID: [f64; 3] = [0.5, 0.8, 1.1];
 /// Tangential stiffness of the stuck patch as multiples of the indentation stiffness K.
 pub const STIFFNESS_GRID: [f64; 4] = [0.25, 0.5, 1.0, 2.0];
 

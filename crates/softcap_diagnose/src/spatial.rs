@@ -6,7 +6,7 @@
 //! |---|---|---|---|
 //! | plasticity | released frames, markers within the dent radius of a location touched before | `ElastoplasticModel` (J2 radial return, Simo & Hughes 1998 Box 3.1–3.2) on the default (λ, α), driven by the measured force over the patch (bickel2009 §4.1) AND by the rigid-tip replay (the session's tip at every frame's measured pose, §3.4 position control) on the fit mesh refined 1 → 8 ([`ProbeSimulator::refined`]: the coarse linear tets cannot form the dent between the markers) | σ_y, H (× peak contact pressure), ν |
 //! | support-slip | contact frames, markers away from the active contact | `SupportPlane` tangential springs instead of the bonded base | k |
-//! | probe-friction | contact frames, markers under the active contact | default model + the Coulomb traction of the tip's travel at the patch ([`crate::friction`]: return mapping under the measured normal force, or constant sense μ‖f‖ŝ) | μ, k_t |
+//! | probe-friction | contact frames, markers under the active contact | default model + the Coulomb traction of the tip's travel at the patch ([`crate::friction`]: return mapping under the measured normal force, or constant sense μ‖f‖ŝ) AND the rigid-tip replay with Coulomb friction at the tip (`FrictionalContact`, lagged normal forces; fit mesh refined until the tip spans several surface nodes, [`crate::extend::friction_refinement`]) | μ, k_t |
 //! | anisotropy | contact frames, markers away from the active contact (the fibre redirects the whole field; under the probe the default model's patch-force error dominates) | `AnisotropicModel` (thesis eq. 8.5), the screened fibre and its mirror across the probe axis | fibre, ratio, ν_t, ν_a |
 //!
 //! Leave-one-location-out: per held-out location the grid point (and the material's compliance
@@ -417,6 +417,18 @@ pub(crate) fn confirm(
             // (lagged) normal force, and the constant-sense traction (crate::friction).
             for (params, forces) in crate::friction::confirmation_grid(rec, seg, p) {
                 grid.push((params, Extension::Elastic, forces));
+            }
+            // The rigid tip replayed at its measured poses WITH Coulomb friction (the law and
+            // lagged iterations of the truth, `Extension::ProbeFriction`, on the fit mesh refined
+            // until the tip spans several surface nodes): the stuck patch drags the surface as in
+            // the recording, and under position control the depth is the measured one whatever
+            // stiffness the tissue fit gave the material (it was fitted on forces missing the
+            // traction).
+            for mu in crate::friction::RIGID_MU_GRID {
+                rigid.push((
+                    vec![("mu".into(), mu), ("rigid_tip_replay".into(), 1.0)],
+                    Extension::ProbeFriction { mu },
+                ));
             }
             ("default model under Coulomb traction", true)
         }

@@ -164,8 +164,10 @@ fn support_slip_is_named() {
     check("support-slip");
 }
 
+/// Press-and-drag (μ 0.8, travel 1.5 × depth): confirmed by the rigid-tip replay with Coulomb
+/// friction at the tip on the refined fit mesh (`Extension::ProbeFriction`).
 #[test]
-#[ignore = "measured 2026-11-22 14:25 (dxf; press-and-drag: mu 0.8, travel 1.5 x depth, 8 x 8 markers): verdict probe-friction (was none), held-out on contact frames, markers within 2.5 tip radii 0.509 -> 0.196 mm (2.6x, needs 3x) with the Coulomb return mapping of the tip travel under the measured normal force re-simulated as a patch traction (mu 1.0, k_t 342 N/m, compliance 0.63); drag signature 0.368 mm; widening the grid (mu to 1.5, k_t to 0.25 K) does not lower it: the floor is the force-BC default model near the probe"]
+#[ignore = "measured 2026-11-26 14:50 (dxf, session 8, inputs of main d7335a0 cached, load ~7): verdict probe-friction, held-out on contact frames / markers within 2.5 tip radii 0.509 -> 0.173 mm (2.94x, needs 3x) with the frictional rigid-tip replay (mu grid 0.5/0.8/1.1, full data mu 1.1, compliance 0.88) on the fit mesh refined by main's refine_tets; the same code on the wt/dxf refinement (other octahedron-diagonal tie-breaks on the structured mesh) gave 0.135 mm (3.78x, 14:28 and 14:40): the margin depends on the refined mesh. Patch-traction route: 0.196 mm (2.6x)"]
 fn probe_friction_is_named() {
     check("probe-friction");
 }

@@ -22,7 +22,9 @@
 
 use crate::FemError;
 use crate::contact::{ContactProblem, ContactSpring};
-use crate::nodal::NodalTerm;
+use crate::model::ElasticModel;
+use crate::nodal::{NodalSolver, NodalTerm};
+use crate::statics::{EquilibriumReport, EquilibriumSettings, SolveStatus};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -176,6 +178,26 @@ impl FrictionalContact {
     /// Moves the probe (anchors move with it: they live in the probe frame).
     pub fn set_pose(&mut self, world_from_probe: Isometry3<f64>) {
         self.contact.probe.world_from_probe = world_from_probe;
+    }
+
+    /// Moves the probe to `world_from_probe` and, with friction (μ > 0), carries the nodes that
+    /// hold a committed stick anchor rigidly with the probe increment T_new T_old⁻¹: the predictor
+    /// of a frictional step, so the iterations start with every stuck node on its anchor and at
+    /// its committed penetration.
+    ///
+    /// Without it, a probe increment of Δ along the axis leaves the patch nodes Δ deep inside the
+    /// tip; their penalty springs then carry f_n ≈ k_c Δ (10³ N per node for Δ = 0.6 mm, k_c =
+    /// 10⁴ × the node stiffness), the lagged Coulomb law takes that f_n, and a sliding node (zero
+    /// tangent stiffness along the slip) is pushed by μ f_n against the elastic stiffness only:
+    /// Newton steps of metres and divergence.
+    pub fn move_probe(&mut self, x: &mut [Vector3<f64>], world_from_probe: Isometry3<f64>) {
+        if self.friction.mu != 0.0 {
+            let increment = world_from_probe * self.contact.probe.world_from_probe.inverse();
+            for (n, _) in self.anchors_world() {
+                x[n] = increment.transform_point(&x[n].into()).coords;
+            }
+        }
+        self.set_pose(world_from_probe);
     }
 
     /// Moves the lagged normal forces of [`NormalForceLag::Solve`] towards the penalty forces f of
@@ -362,5 +384,99 @@ impl NodalTerm for FrictionalContact {
         }
         self.committed = committed.clone();
         self.working = committed;
+    }
+}
+
+/// Outer iterations of the lagged normal forces ([`NormalForceLag::Solve`], IPC's lagged
+/// iterations, Li et al. 2020 §5.2) of [`solve_lagged`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LaggedIterations {
+    /// Outer iterations (solve, re-lag f_n) per step.
+    pub max_outer: usize,
+    /// f_n has settled when no node's f_n changes by more than this fraction of Σ f_n.
+    pub tolerance: f64,
+    /// Under-relaxation ω of the lagged f_n from the third outer iteration on.
+    pub relaxation: f64,
+    /// After `max_outer` iterations the step is accepted when the last change is within this
+    /// fraction of Σ f_n: during unloading a rim node can leave and re-enter the patch between
+    /// outer iterations (a two-cycle of the discrete active set); its share is the reported
+    /// [`LaggedSolve::lag_mismatch`]. Above it the step reports `MaxIterations`.
+    pub accept: f64,
+}
+
+impl Default for LaggedIterations {
+    fn default() -> Self {
+        Self {
+            max_outer: 6,
+            tolerance: 1e-2,
+            relaxation: 0.5,
+            accept: 0.2,
+        }
+    }
+}
+
+/// Outcome of [`solve_lagged`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaggedSolve {
+    /// The last equilibrium solve (status `MaxIterations` when f_n did not settle within
+    /// [`LaggedIterations::accept`]).
+    pub equilibrium: EquilibriumReport,
+    /// The last outer iteration's max_n |Δf_n| / Σ f_n (0 without lagged friction).
+    pub lag_mismatch: f64,
+}
+
+/// One quasi-static step with node-level terms and frictional probe contact whose normal forces
+/// are lagged: solve with f_n held ([`NormalForceLag::Solve`]), re-lag f_n from the converged
+/// springs ([`FrictionalContact::lag_normal_forces`], ω = 1 for the first two re-lags, then
+/// [`LaggedIterations::relaxation`]), repeat until f_n settles (IPC's lagged iterations, Li et
+/// al. 2020 §5.2). With [`NormalForceLag::Iteration`] (or without `contact`) it is one
+/// [`NodalSolver::solve`]. Place the probe first ([`FrictionalContact::move_probe`]); nothing is
+/// committed (call [`NodalTerm::commit`] on every term after a converged step). Never panics.
+#[allow(clippy::too_many_arguments)]
+pub fn solve_lagged<M: ElasticModel + ?Sized>(
+    solver: &mut NodalSolver,
+    model: &mut M,
+    x: &mut [Vector3<f64>],
+    f_ext: &[Vector3<f64>],
+    mut contact: Option<&mut FrictionalContact>,
+    others: &mut [&mut dyn NodalTerm],
+    settings: &EquilibriumSettings,
+    lag: &LaggedIterations,
+) -> LaggedSolve {
+    let lagged = contact
+        .as_ref()
+        .is_some_and(|c| c.normal_force_lag == NormalForceLag::Solve);
+    let mut lag_mismatch = 0.0;
+    let mut outer = 0;
+    loop {
+        let mut rep = {
+            let mut terms: Vec<&mut dyn NodalTerm> = Vec::with_capacity(1 + others.len());
+            if let Some(c) = contact.as_deref_mut() {
+                terms.push(c);
+            }
+            for t in others.iter_mut() {
+                terms.push(&mut **t);
+            }
+            solver.solve(model, x, f_ext, &mut terms, settings)
+        };
+        let Some(c) = contact.as_deref_mut().filter(|_| lagged && rep.converged()) else {
+            return LaggedSolve {
+                equilibrium: rep,
+                lag_mismatch,
+            };
+        };
+        let relaxation = if outer < 2 { 1.0 } else { lag.relaxation };
+        lag_mismatch = c.lag_normal_forces(x, relaxation);
+        outer += 1;
+        let last = outer >= lag.max_outer.max(1);
+        if last && lag_mismatch > lag.accept {
+            rep.status = SolveStatus::MaxIterations;
+        }
+        if last || lag_mismatch <= lag.tolerance {
+            return LaggedSolve {
+                equilibrium: rep,
+                lag_mismatch,
+            };
+        }
     }
 }

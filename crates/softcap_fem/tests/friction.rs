@@ -90,13 +90,8 @@ fn pose(depth: f64, s: f64) -> Isometry3<f64> {
     )
 }
 
-/// Indents by `depth` then drags by `shifts`; returns (x after indentation, per-shift reports).
-fn drag(
-    rig: &mut Rig,
-    mu: f64,
-    depth: f64,
-    shifts: &[f64],
-) -> (Vec<Vector3<f64>>, Vec<(FrictionReport, Vec<Vector3<f64>>)>) {
+/// The disk probe (radius 0.3, thickness 0.1) at the top surface with friction μ, ε = 1e-5.
+fn disk_contact(rig: &Rig, mu: f64) -> FrictionalContact {
     let probe = Probe::new(
         TipShape::Disk {
             radius_m: 0.3,
@@ -110,14 +105,24 @@ fn drag(
         candidate_nodes: rig.top.clone(),
         settings: ContactSettings::default(),
     };
-    let mut fc = FrictionalContact::new(
+    FrictionalContact::new(
         contact,
         FrictionParams {
             mu,
             slip_distance_m: 1e-5,
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+/// Indents by `depth` then drags by `shifts`; returns (x after indentation, per-shift reports).
+fn drag(
+    rig: &mut Rig,
+    mu: f64,
+    depth: f64,
+    shifts: &[f64],
+) -> (Vec<Vector3<f64>>, Vec<(FrictionReport, Vec<Vector3<f64>>)>) {
+    let mut fc = disk_contact(rig, mu);
     let mut solver = NodalSolver::new(&rig.model, &rig.bc.dofs()).unwrap();
     let mut x = rig.mesh.vertices.clone();
     let zero = vec![Vector3::zeros(); x.len()];
@@ -269,4 +274,78 @@ fn frictionless_limit_matches_the_static_contact_solver() {
         srep.contact.axial_force_n,
         rep.normal_force_n
     );
+}
+
+#[test]
+fn lagged_normal_forces_settle_and_the_drag_slides_at_mu_n() {
+    // The same drag with f_n held per solve and re-lagged (`solve_lagged`, the iterations the
+    // synthetic truth and the diagnose replay use): the lag settles within its tolerance at every
+    // step, the probe is moved by `move_probe` (stuck nodes carried with it), and the sliding
+    // patch carries μ × the settled normal force.
+    let mut r = rig();
+    let mu = 0.3;
+    let mut fc = disk_contact(&r, mu);
+    fc.normal_force_lag = NormalForceLag::Solve;
+    let mut solver = NodalSolver::new(&r.model, &r.bc.dofs()).unwrap();
+    let mut x = r.mesh.vertices.clone();
+    let zero = vec![Vector3::zeros(); x.len()];
+    let settings = EquilibriumSettings::newton();
+    let lag = LaggedIterations::default();
+    let mut path: Vec<(f64, f64)> = (1..=4).map(|k| (0.01 * k as f64 / 4.0, 0.0)).collect();
+    path.extend((1..=8).map(|k| (0.01, 0.0025 * k as f64)));
+    let mut last = None;
+    for (k, &(depth, s)) in path.iter().enumerate() {
+        let before = fc.anchors_world();
+        let x_before = x.clone();
+        fc.move_probe(&mut x, pose(depth, s));
+        // the predictor: every anchored node moved with the probe increment, nothing else
+        let (dz, dx) = if k == 0 {
+            (0.0, 0.0)
+        } else {
+            (-(depth - path[k - 1].0), s - path[k - 1].1)
+        };
+        for (n, _) in &before {
+            let moved = x[*n] - x_before[*n];
+            assert!(
+                (moved - Vector3::new(dx, 0.0, dz)).norm() < 1e-12,
+                "{moved}"
+            );
+        }
+        let out = solve_lagged(
+            &mut solver,
+            &mut r.model,
+            &mut x,
+            &zero,
+            Some(&mut fc),
+            &mut [],
+            &settings,
+            &lag,
+        );
+        assert!(out.equilibrium.converged(), "step {k}: {out:?}");
+        assert!(out.lag_mismatch <= lag.tolerance, "step {k}: {out:?}");
+        fc.commit(&x);
+        last = Some(fc.report(&x));
+    }
+    let rep = last.unwrap();
+    assert_eq!(rep.sliding_nodes, rep.patch_nodes.len(), "{rep:?}");
+    let ratio = rep.probe_tangential_force_n.norm() / rep.normal_force_n;
+    // the friction bound uses the lagged f_n, within the lag tolerance of the settled one
+    assert!(
+        (ratio - mu).abs() < 2.0 * lag.tolerance * mu,
+        "F_t/N = {ratio}"
+    );
+    assert!(rep.probe_tangential_force_n.x < 0.0);
+    // without a contact term it is one plain nodal solve (unloading back to rest)
+    let mut x = r.mesh.vertices.clone();
+    let out = solve_lagged(
+        &mut solver,
+        &mut r.model,
+        &mut x,
+        &zero,
+        None,
+        &mut [],
+        &settings,
+        &lag,
+    );
+    assert!(out.equilibrium.converged() && out.lag_mismatch == 0.0);
 }

@@ -17,8 +17,8 @@ use nalgebra::Vector3;
 use softcap_fem::{
     ContactProblem, ContactSettings, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
     DynamicsSettings, ElasticModel, ElastoplasticModel, EquilibriumReport, EquilibriumSettings,
-    FrictionalContact, NodalSolver, NodalTerm, NormalForceLag, Probe, StaticSolver, SupportPlane,
-    ViscoelasticModel,
+    FrictionalContact, LaggedIterations, NodalSolver, NodalTerm, Probe, StaticSolver, SupportPlane,
+    ViscoelasticModel, solve_lagged,
 };
 
 use crate::error::Result;
@@ -290,39 +290,26 @@ impl Engine {
                     ..settings.clone()
                 };
                 if let Some(p) = probe {
-                    carry_patch(contact, x, &p.world_from_probe);
-                    contact.set_pose(p.world_from_probe);
+                    contact.move_probe(x, p.world_from_probe);
                 }
                 // Lagged normal forces (NormalForceLag::Solve): solve with f_n held, re-lag f_n
                 // from the converged springs, repeat until f_n settles (IPC's lagged iterations).
-                let lagged = probe.is_some() && contact.normal_force_lag == NormalForceLag::Solve;
-                let mut rep = None;
-                let mut lag_mismatch = 0.0;
-                for outer in 0..MAX_LAG_ITERATIONS {
-                    let mut terms: Vec<&mut dyn NodalTerm> = Vec::with_capacity(2);
-                    if probe.is_some() {
-                        terms.push(&mut **contact);
-                    }
-                    if let Some(s) = support.as_mut() {
-                        terms.push(&mut **s);
-                    }
-                    let mut r = solver.solve(&mut **model, x, f_ext, &mut terms, &nodal_settings);
-                    if !r.converged() || !lagged {
-                        rep = Some(r);
-                        break;
-                    }
-                    let relaxation = if outer < 2 { 1.0 } else { LAG_RELAXATION };
-                    let change = contact.lag_normal_forces(x, relaxation);
-                    lag_mismatch = change;
-                    if change > LAG_ACCEPT && outer + 1 == MAX_LAG_ITERATIONS {
-                        r.status = softcap_fem::SolveStatus::MaxIterations;
-                    }
-                    rep = Some(r);
-                    if change <= LAG_TOLERANCE {
-                        break;
-                    }
+                let mut others: Vec<&mut dyn NodalTerm> = Vec::with_capacity(1);
+                if let Some(s) = support.as_mut() {
+                    others.push(&mut **s);
                 }
-                let rep = rep.expect("at least one solve");
+                let lagged = solve_lagged(
+                    solver,
+                    &mut **model,
+                    x,
+                    f_ext,
+                    probe.is_some().then_some(&mut **contact),
+                    &mut others,
+                    &nodal_settings,
+                    &LaggedIterations::default(),
+                );
+                drop(others);
+                let (rep, lag_mismatch) = (lagged.equilibrium, lagged.lag_mismatch);
                 let mut out = StepOutcome::from_static(&rep);
                 if rep.converged() {
                     if probe.is_some() {
@@ -370,42 +357,6 @@ impl Engine {
                 }
             }
         })
-    }
-}
-
-/// Outer iterations of the lagged normal forces per frictional step.
-const MAX_LAG_ITERATIONS: usize = 6;
-/// The lagged normal forces have settled when no node's f_n changes by more than this fraction of
-/// the total normal force.
-const LAG_TOLERANCE: f64 = 1e-2;
-/// Under-relaxation ω of the lagged normal forces from the third outer iteration on.
-const LAG_RELAXATION: f64 = 0.5;
-/// After [`MAX_LAG_ITERATIONS`] a step is accepted when the lagged normal forces are within this
-/// fraction of the total normal force: during unloading a rim node can leave and re-enter the
-/// patch between outer iterations (a two-cycle of the discrete active set); its share of the
-/// normal force is recorded as the frame's lag mismatch ([`crate::Truth::friction_lag_mismatch`]).
-const LAG_ACCEPT: f64 = 0.2;
-
-/// Predictor of a frictional step: the nodes that were in contact at the last committed step
-/// (they carry stick anchors) move rigidly with the probe increment T_new T_old⁻¹, so the
-/// iterations start with every stuck node on its anchor and at its committed penetration.
-///
-/// Without it, a probe increment of Δ along the axis leaves the patch nodes Δ deep inside the tip;
-/// their penalty springs then carry f_n ≈ k_c Δ (10³ N per node for Δ = 0.6 mm, k_c = 10⁴ × the
-/// node stiffness), the regularized Coulomb law lags that f_n, and a sliding node (zero tangent
-/// stiffness along the slip) is pushed by μ f_n against the elastic stiffness only: Newton steps
-/// of metres and divergence (the 1.3e4 N residual of session 3).
-fn carry_patch(
-    contact: &FrictionalContact,
-    x: &mut [Vector3<f64>],
-    world_from_probe: &nalgebra::Isometry3<f64>,
-) {
-    if contact.friction.mu == 0.0 {
-        return;
-    }
-    let increment = world_from_probe * contact.contact.probe.world_from_probe.inverse();
-    for (n, _) in contact.anchors_world() {
-        x[n] = increment.transform_point(&x[n].into()).coords;
     }
 }
 
