@@ -593,15 +593,11 @@ impl Factor {
         let mut x = Mat::<f64>::zeros(n, k);
         let perm = self.symbolic.perm().map(|p| p.arrays());
         for j in 0..k {
-            let (src, dst) = (rhs.col_as_slice(j), x.col_as_slice_mut(j));
-            match perm {
-                Some((fwd, _)) => {
-                    for (d, &f) in dst.iter_mut().zip(fwd) {
-                        *d = src[f];
-                    }
-                }
-                None => dst.copy_from_slice(src),
-            }
+            gather(
+                rhs.col_as_slice(j),
+                x.col_as_slice_mut(j),
+                perm.map(|(fwd, _)| fwd),
+            );
         }
         let ns = sym.n_supernodes();
         let mut supernode_of_row = vec![0usize; n];
@@ -664,15 +660,11 @@ impl Factor {
         llt.l_transpose_solve_with_conj(faer::Conj::No, x.as_mut(), par, MemStack::new(&mut mem));
         // rhs = Pᵀ x
         for j in 0..k {
-            let (src, dst) = (x.col_as_slice(j), rhs.col_as_slice_mut(j));
-            match perm {
-                Some((_, inv)) => {
-                    for (d, &f) in dst.iter_mut().zip(inv) {
-                        *d = src[f];
-                    }
-                }
-                None => dst.copy_from_slice(src),
-            }
+            gather(
+                x.col_as_slice(j),
+                rhs.col_as_slice_mut(j),
+                perm.map(|(_, inv)| inv),
+            );
         }
     }
 
@@ -1076,6 +1068,18 @@ fn check_components(rows: &[Vec<(usize, f64)>], free_index: &[usize]) -> Result<
         }
     }
     Ok(())
+}
+
+/// `dst[i] = src[index[i]]` (a row permutation of one column), or a plain copy without `index`.
+fn gather(src: &[f64], dst: &mut [f64], index: Option<&[usize]>) {
+    match index {
+        Some(index) => {
+            for (d, &f) in dst.iter_mut().zip(index) {
+                *d = src[f];
+            }
+        }
+        None => dst.copy_from_slice(src),
+    }
 }
 
 #[cfg(test)]
