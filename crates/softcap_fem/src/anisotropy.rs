@@ -453,6 +453,11 @@ impl ElasticModel for AnisotropicModel {
             kind == StiffnessKind::Consistent,
         )
     }
+    fn tangent_is_symmetric(&self, kind: StiffnessKind) -> bool {
+        // The exact ∂f/∂x carries R W σ with σ not coaxial with the stretch: not symmetric. The
+        // warped R K Rᵀ is (K = V Bᵀ C B with C symmetric).
+        kind != StiffnessKind::Consistent
+    }
     fn energy(&self, _x: &[Vector3<f64>]) -> Option<f64> {
         // R σ(ε) is the gradient of ½ε:Cε only when σ and the stretch S are coaxial (isotropy):
         // for an anisotropic C the corotational force R K (Rᵀx − X) is not conservative.

@@ -17,6 +17,7 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::cholesky::{
     LdltRef, LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
 };
+use faer::sparse::linalg::lu::{LuRef, NumericLu, SymbolicLu, factorize_symbolic_lu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use faer::{Conj, MatMut, Par, Side};
 use nalgebra::{Matrix3, Vector3};
@@ -278,6 +279,22 @@ impl SystemPattern {
         }
     }
 
+    /// Scatter-adds the *transpose* of one element matrix: with [`Self::add_element`] into a second
+    /// value array this stores the strictly upper triangle of a non-symmetric system matrix in the
+    /// lower-triangle layout (`upper[slot of (i, j)] = A_ji`, i ≥ j), see [`SparseCholesky::factor_general`].
+    pub fn add_element_transposed(&self, e: usize, k: &Matrix12, upper: &mut [f64]) {
+        let range = self.element_offsets[e]..self.element_offsets[e + 1];
+        let k = k.as_slice();
+        for (&slot, &local) in self.element_slots[range.clone()]
+            .iter()
+            .zip(&self.element_local[range])
+        {
+            // local = li + 12 lj (column-major); the transposed entry is lj + 12 li.
+            let (li, lj) = (local as usize % 12, local as usize / 12);
+            upper[slot as usize] += k[lj + 12 * li];
+        }
+    }
+
     /// Adds a symmetric 3×3 block to the diagonal block of `node` (contact springs).
     pub fn add_node_block(&self, node: usize, m: &Matrix3<f64>, values: &mut [f64]) {
         let s = &self.node_slots[node];
@@ -324,6 +341,11 @@ impl SystemPattern {
     /// element order): the system matrix Σ_e (element matrix) into `values` (overwritten, pattern
     /// order) and f_int(x) into `f_int` (overwritten, one per node). Returns the model energy if
     /// the pass produced it. The same bits as [`Self::assemble`] + [`ElasticModel::internal_forces`].
+    /// With `upper` (a model whose element matrices are not symmetric,
+    /// [`ElasticModel::tangent_is_symmetric`]) the transposed element matrices are scattered into
+    /// it as well ([`Self::add_element_transposed`]): `values` and `upper` together hold the whole
+    /// matrix for [`SparseCholesky::factor_general`].
+    #[allow(clippy::too_many_arguments)]
     pub fn assemble_linearized<M: ElasticModel + ?Sized>(
         &self,
         model: &M,
@@ -331,11 +353,16 @@ impl SystemPattern {
         kind: StiffnessKind,
         scratch: &mut AssemblyScratch,
         values: &mut Vec<f64>,
+        mut upper: Option<&mut Vec<f64>>,
         f_int: &mut Vec<Vector3<f64>>,
     ) -> Option<f64> {
         let n = model.elements().len();
         values.clear();
         values.resize(self.nnz(), 0.0);
+        if let Some(u) = upper.as_deref_mut() {
+            u.clear();
+            u.resize(self.nnz(), 0.0);
+        }
         f_int.clear();
         f_int.resize(model.num_nodes(), Vector3::zeros());
         let chunk = crate::model::ELEMENT_CHUNK.min(n.max(1));
@@ -351,6 +378,9 @@ impl SystemPattern {
             let geoms = &model.elements()[start..start + len];
             for (k, g) in geoms.iter().enumerate() {
                 self.add_element(start + k, &matrices[k], values);
+                if let Some(u) = upper.as_deref_mut() {
+                    self.add_element_transposed(start + k, &matrices[k], u);
+                }
                 for a in 0..4 {
                     f_int[g.nodes[a]] += forces[k][a];
                 }
@@ -433,6 +463,68 @@ pub enum FactorKind {
     Llt,
     /// LDLᵀ fallback (symmetric indefinite, e.g. a consistent tangent under compression).
     Ldlt,
+    /// Sparse LU with partial pivoting of a non-symmetric matrix ([`SparseCholesky::factor_general`]:
+    /// the exact tangent of a model whose forces are not the gradient of an energy).
+    Lu,
+}
+
+/// The non-symmetric companion of [`SparseCholesky`]: the full (both triangles) structure of a
+/// [`SystemPattern`], where each of its entries comes from, and faer's sparse LU (COLAMD column
+/// ordering, partial pivoting). Built on the first non-symmetric factorization.
+#[derive(Debug)]
+struct GeneralLu {
+    full: SymbolicSparseColMat<usize>,
+    /// Per full entry: 2 × (slot in the lower-layout arrays) + 1 if it is read from the upper array.
+    source: Vec<u32>,
+    values: Vec<f64>,
+    symbolic: SymbolicLu<usize>,
+    numeric: NumericLu<usize, f64>,
+}
+
+impl GeneralLu {
+    fn new(pattern: &SystemPattern) -> Result<Self, FemError> {
+        let lower = &pattern.symbolic;
+        let n = lower.ncols();
+        let (cp, ri) = (lower.col_ptr(), lower.row_idx());
+        // Column c of the full matrix: rows r < c are the transposed lower entries (c, r) (upper
+        // array), rows r ≥ c the lower entries of column c. Both come out sorted by row.
+        let mut upper_rows: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n];
+        for j in 0..n {
+            for (k, &i) in ri.iter().enumerate().take(cp[j + 1]).skip(cp[j]) {
+                if i > j {
+                    upper_rows[i].push((j, k));
+                }
+            }
+        }
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::with_capacity(2 * ri.len());
+        let mut source = Vec::with_capacity(2 * ri.len());
+        col_ptr.push(0usize);
+        for (c, above) in upper_rows.iter().enumerate() {
+            for &(r, k) in above {
+                row_idx.push(r);
+                source.push(2 * k as u32 + 1);
+            }
+            for (k, &r) in ri.iter().enumerate().take(cp[c + 1]).skip(cp[c]) {
+                row_idx.push(r);
+                source.push(2 * k as u32);
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let full = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let symbolic = factorize_symbolic_lu(full.as_ref(), Default::default()).map_err(|e| {
+            FemError::Factorization {
+                reason: format!("symbolic LU: {e:?}"),
+            }
+        })?;
+        Ok(Self {
+            values: vec![0.0; source.len()],
+            full,
+            source,
+            symbolic,
+            numeric: NumericLu::new(),
+        })
+    }
 }
 
 /// Sparse Cholesky of a [`SystemPattern`]'s matrices: symbolic analysis once, numeric factorization
@@ -443,6 +535,8 @@ pub struct SparseCholesky {
     l_values: Vec<f64>,
     kind: Option<FactorKind>,
     par: Par,
+    /// The LU of [`Self::factor_general`] (built on first use).
+    lu: Option<Box<GeneralLu>>,
 }
 
 impl SparseCholesky {
@@ -463,7 +557,65 @@ impl SparseCholesky {
             l_values: vec![0.0; len],
             kind: None,
             par: Par::Seq,
+            lu: None,
         })
+    }
+
+    /// Numeric factorization of the matrix A held as `lower` (its lower triangle, pattern order)
+    /// and `upper` (`upper[slot of (i, j)] = A_ji`, [`SystemPattern::add_element_transposed`]).
+    /// `upper = None` is the symmetric case, [`Self::factor`]. Otherwise A is factored by sparse LU
+    /// with partial pivoting ([`FactorKind::Lu`]): a Newton step with the exact non-symmetric
+    /// tangent of a non-conservative model (the anisotropic corotational element,
+    /// [`crate::AnisotropicModel`]) needs A itself — a symmetric factorization of its lower
+    /// triangle solves with a different matrix (the upper triangle replaced by the lower one's
+    /// mirror), and Newton's iterations lose their convergence.
+    pub fn factor_general(
+        &mut self,
+        pattern: &SystemPattern,
+        lower: &[f64],
+        upper: Option<&[f64]>,
+    ) -> Result<FactorKind, FemError> {
+        let Some(upper) = upper else {
+            return self.factor(pattern, lower);
+        };
+        self.kind = None;
+        if !lower.iter().chain(upper).all(|v| v.is_finite()) {
+            return Err(FemError::NonFinite {
+                what: "stiffness matrix",
+            });
+        }
+        if self.lu.is_none() {
+            self.lu = Some(Box::new(GeneralLu::new(pattern)?));
+        }
+        let Some(lu) = self.lu.as_deref_mut() else {
+            unreachable!("set above");
+        };
+        for (v, &src) in lu.values.iter_mut().zip(&lu.source) {
+            let slot = (src / 2) as usize;
+            *v = if src % 2 == 1 {
+                upper[slot]
+            } else {
+                lower[slot]
+            };
+        }
+        let a = SparseColMatRef::new(lu.full.as_ref(), &lu.values);
+        let req = lu
+            .symbolic
+            .factorize_numeric_lu_scratch::<f64>(self.par, Default::default());
+        let mut buf = MemBuffer::new(req);
+        lu.symbolic
+            .factorize_numeric_lu(
+                &mut lu.numeric,
+                a,
+                self.par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .map_err(|e| FemError::Factorization {
+                reason: format!("LU: {e:?}"),
+            })?;
+        self.kind = Some(FactorKind::Lu);
+        Ok(FactorKind::Lu)
     }
 
     /// Numeric factorization of `values` (same pattern): LLᵀ, falling back to LDLᵀ if the matrix is
@@ -555,6 +707,21 @@ impl SparseCholesky {
             });
         };
         let mat = MatMut::from_column_major_slice_mut(rhs, n, k);
+        if kind == FactorKind::Lu {
+            let Some(lu) = self.lu.as_deref() else {
+                return Err(FemError::Factorization {
+                    reason: "LU solve without an LU factor".into(),
+                });
+            };
+            let mut buf = MemBuffer::new(lu.symbolic.solve_in_place_scratch::<f64>(k, self.par));
+            LuRef::new_unchecked(&lu.symbolic, &lu.numeric).solve_in_place_with_conj(
+                Conj::No,
+                mat,
+                self.par,
+                MemStack::new(&mut buf),
+            );
+            return Ok(());
+        }
         let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, self.par));
         let stack = MemStack::new(&mut buf);
         match kind {
@@ -562,6 +729,7 @@ impl SparseCholesky {
                 .solve_in_place_with_conj(Conj::No, mat, self.par, stack),
             FactorKind::Ldlt => LdltRef::new(&self.symbolic, &self.l_values)
                 .solve_in_place_with_conj(Conj::No, mat, self.par, stack),
+            FactorKind::Lu => unreachable!("handled above"),
         }
         Ok(())
     }
@@ -615,5 +783,85 @@ mod tests {
         for (a, b) in y.iter().zip(&reference) {
             assert!((a - b).abs() <= 1e-12 * scale, "{a} vs {b}");
         }
+    }
+
+    /// The two value arrays of a non-symmetric assembly (`add_element` + `add_element_transposed`)
+    /// hold the whole matrix, and its LU solves it: A (A⁻¹ b) = b with A = Σ_e (element matrix),
+    /// here the exact tangent of an anisotropic corotational model (not symmetric).
+    #[test]
+    fn general_lu_solves_the_unsymmetric_element_sum() {
+        use crate::{AnisotropicModel, ElasticModel, TransverselyIsotropicParams};
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.02, 0.02], [3, 2, 2]);
+        let p =
+            TransverselyIsotropicParams::from_engineering(2e4, 2e5, 0.4, 0.1, 7e3).expect("valid");
+        let fibre = nalgebra::Unit::new_normalize(Vector3::new(1.0, 0.3, 1.0));
+        let model = AnisotropicModel::homogeneous(&mesh, p, fibre).expect("valid mesh");
+        let fixed: Vec<usize> = (0..mesh.vertices.len())
+            .filter(|&i| mesh.vertices[i].z < 1e-12)
+            .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+            .collect();
+        let (pattern, mut factor, _) = solver_setup(&model, &fixed).expect("setup");
+        let x: Vec<Vector3<f64>> = mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + Vector3::new(1e-3 * (i as f64).sin(), 5e-4 * v.z, 2e-3 * v.x))
+            .collect();
+        let (mut lower, mut upper, mut f_int) = (Vec::new(), Vec::new(), Vec::new());
+        pattern.assemble_linearized(
+            &model,
+            &x,
+            StiffnessKind::Consistent,
+            &mut AssemblyScratch::default(),
+            &mut lower,
+            Some(&mut upper),
+            &mut f_int,
+        );
+        assert!(
+            lower
+                .iter()
+                .zip(&upper)
+                .any(|(a, b)| (a - b).abs() > 1e-6 * a.abs()),
+            "the tangent should not be symmetric"
+        );
+        let kind = factor
+            .factor_general(&pattern, &lower, Some(&upper))
+            .expect("LU");
+        assert_eq!(kind, FactorKind::Lu);
+        let dofs = pattern.dofs();
+        let b: Vec<f64> = (0..dofs.num_free())
+            .map(|i| (i as f64 * 0.37).cos())
+            .collect();
+        let mut v = b.clone();
+        factor.solve_in_place(&mut v).expect("solve");
+        let mut full = vec![Vector3::zeros(); x.len()];
+        dofs.scatter_add(&v, 1.0, &mut full);
+        let mut av = vec![Vector3::zeros(); x.len()];
+        for (e, g) in model.elements().iter().enumerate() {
+            let k = model.element_matrix(e, &x, StiffnessKind::Consistent);
+            let mut ue = nalgebra::SVector::<f64, 12>::zeros();
+            for a in 0..4 {
+                ue.fixed_rows_mut::<3>(3 * a).copy_from(&full[g.nodes[a]]);
+            }
+            let fe = k * ue;
+            for a in 0..4 {
+                av[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
+            }
+        }
+        let av = dofs.gather(&av);
+        let worst = av
+            .iter()
+            .zip(&b)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst < 1e-9, "max |A A⁻¹b − b| = {worst:e}");
+        // The symmetric factor of the lower triangle alone solves another matrix.
+        factor.factor(&pattern, &lower).expect("symmetric factor");
+        let mut w = b.clone();
+        factor.solve_in_place(&mut w).expect("solve");
+        let diff = w
+            .iter()
+            .zip(&v)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(diff > 1e-3 * v.iter().fold(0.0f64, |m, a| m.max(a.abs())));
     }
 }

@@ -24,6 +24,15 @@ pub trait ElasticModel {
     fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12;
     /// Total elastic energy if the model is hyperelastic with fixed parameters.
     fn energy(&self, x: &[Vector3<f64>]) -> Option<f64>;
+    /// Whether [`Self::element_matrix`] of this `kind` is symmetric. Default `true` (the element
+    /// matrices of a hyperelastic model are energy Hessians; the warped matrix R K Rᵀ is symmetric
+    /// for a symmetric K). A model answering `false` gets its system matrix assembled in full and
+    /// factored by sparse LU ([`crate::SparseCholesky::factor_general`]) instead of a symmetric
+    /// factorization of its lower triangle, which would solve with another matrix.
+    fn tangent_is_symmetric(&self, _kind: StiffnessKind) -> bool {
+        true
+    }
+
     /// Called at the start of every equilibrium iteration with the current positions; a model with
     /// strain-dependent parameters updates them here (bickel2009 §3.4). Default: nothing.
     fn update_state(&mut self, _x: &[Vector3<f64>]) {}

@@ -94,7 +94,8 @@ impl NodalSolver {
             return report;
         }
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
-        let (mut values, mut f_int) = (Vec::new(), Vec::new());
+        let (mut values, mut upper, mut f_int) = (Vec::new(), Vec::new(), Vec::new());
+        let unsymmetric = !model.tangent_is_symmetric(settings.stiffness);
         for it in 0..settings.max_iterations {
             model.update_state(x);
             self.pattern.assemble_linearized(
@@ -103,6 +104,7 @@ impl NodalSolver {
                 settings.stiffness,
                 &mut self.scratch,
                 &mut values,
+                unsymmetric.then_some(&mut upper),
                 &mut f_int,
             );
             {
@@ -124,9 +126,16 @@ impl NodalSolver {
             for t in terms.iter() {
                 for (n, m) in t.blocks(x) {
                     self.pattern.add_node_block(n, &m, &mut values);
+                    if unsymmetric {
+                        self.pattern.add_node_block(n, &m.transpose(), &mut upper);
+                    }
                 }
             }
-            if let Err(e) = self.cholesky.factor(&self.pattern, &values) {
+            let upper_ref = unsymmetric.then_some(upper.as_slice());
+            if let Err(e) = self
+                .cholesky
+                .factor_general(&self.pattern, &values, upper_ref)
+            {
                 report.status = match e {
                     FemError::NonFinite { .. } => SolveStatus::NonFinite,
                     e => SolveStatus::FactorizationFailed {

@@ -164,6 +164,10 @@ pub struct StaticSolver {
     cholesky: SparseCholesky,
     length_scale_m: f64,
     values: Vec<f64>,
+    /// Strictly upper triangle of the last assembled matrix in the lower-triangle layout
+    /// ([`SystemPattern::add_element_transposed`]) when the model's tangent is not symmetric
+    /// ([`ElasticModel::tangent_is_symmetric`]); empty otherwise.
+    upper: Vec<f64>,
     /// f_int at the last assembled iterate (same pass as the matrix).
     f_int: Vec<Vector3<f64>>,
     /// Model energy at the last assembled iterate, when the pass produced it.
@@ -194,6 +198,7 @@ impl StaticSolver {
             cholesky,
             length_scale_m,
             values: Vec::new(),
+            upper: Vec::new(),
             f_int: Vec::new(),
             energy: None,
             scratch: AssemblyScratch::default(),
@@ -226,7 +231,8 @@ impl StaticSolver {
         &self.cholesky
     }
 
-    /// Values of the last assembled system matrix (lower triangle, pattern order).
+    /// Values of the last assembled system matrix (lower triangle, pattern order; for a model with
+    /// a non-symmetric tangent the upper triangle is not in here, the factor has both).
     pub fn last_matrix_values(&self) -> &[f64] {
         &self.values
     }
@@ -294,17 +300,24 @@ impl StaticSolver {
     ) {
         self.converged_at = None;
         let mut values = std::mem::take(&mut self.values);
+        let mut upper = std::mem::take(&mut self.upper);
         let mut f_int = std::mem::take(&mut self.f_int);
+        let unsymmetric = !model.tangent_is_symmetric(kind);
         self.energy = self.pattern.assemble_linearized(
             model,
             x,
             kind,
             &mut self.scratch,
             &mut values,
+            unsymmetric.then_some(&mut upper),
             &mut f_int,
         );
+        if !unsymmetric {
+            upper.clear();
+        }
         self.f_int = f_int;
         self.values = values;
+        self.upper = upper;
     }
 
     /// The contact springs at `x` (see [`Self::assemble_and_factor_impl`]); the penalty table is
@@ -341,16 +354,26 @@ impl StaticSolver {
         }
     }
 
-    /// Adds the springs to the element-only `values` and factors the result.
+    /// Adds the springs to the element-only `values` (and `upper`, for a non-symmetric tangent) and
+    /// factors the result (sparse LU when `upper` is in use, [`SparseCholesky::factor_general`]).
     fn factor_with_springs(&mut self, springs: &[ContactSpring]) -> Result<(), FemError> {
+        let unsymmetric = !self.upper.is_empty();
         for s in springs {
-            self.pattern
-                .add_node_block(s.node, &s.matrix(), &mut self.values);
+            let m = s.matrix();
+            self.pattern.add_node_block(s.node, &m, &mut self.values);
+            if unsymmetric {
+                self.pattern
+                    .add_node_block(s.node, &m.transpose(), &mut self.upper);
+            }
         }
         self.factored_springs = None;
         self.factored_node_stiffness.clear();
         self.cholesky
-            .factor(&self.pattern, &self.values)
+            .factor_general(
+                &self.pattern,
+                &self.values,
+                unsymmetric.then_some(self.upper.as_slice()),
+            )
             .map(|_| ())
     }
 
@@ -692,6 +715,7 @@ impl StaticSolver {
         self.factored_node_stiffness.clear();
         self.cholesky.factor(&self.pattern, &values)?;
         self.values = values;
+        self.upper.clear();
         let r: Vec<Vector3<f64>> = f_ext.iter().zip(&f_int).map(|(a, b)| a - b).collect();
         let mut dx = self.dofs().gather(&r);
         self.cholesky.solve_in_place(&mut dx)?;

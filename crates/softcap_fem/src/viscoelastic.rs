@@ -384,6 +384,9 @@ impl<M: ElasticModel> ElasticModel for ViscoelasticModel<M> {
     fn rest_positions(&self) -> &[Vector3<f64>] {
         self.base.rest_positions()
     }
+    fn tangent_is_symmetric(&self, kind: StiffnessKind) -> bool {
+        self.base.tangent_is_symmetric(kind)
+    }
     fn elements(&self) -> &[TetGeometry] {
         self.base.elements()
     }
