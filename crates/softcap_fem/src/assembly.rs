@@ -740,6 +740,32 @@ mod tests {
     use super::*;
     use crate::{CorotationalModel, LinearParams};
 
+    /// (Σ_e element matrix of `model` at `x`) · v over the free dofs, element by element (the
+    /// reference every assembled matrix is checked against).
+    fn element_sum_times<M: ElasticModel>(
+        model: &M,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        dofs: &DofMap,
+        v: &[f64],
+    ) -> Vec<f64> {
+        let mut full = vec![Vector3::zeros(); x.len()];
+        dofs.scatter_add(v, 1.0, &mut full);
+        let mut out = vec![Vector3::zeros(); x.len()];
+        for (e, g) in model.elements().iter().enumerate() {
+            let k = model.element_matrix(e, x, kind);
+            let mut ue = nalgebra::SVector::<f64, 12>::zeros();
+            for a in 0..4 {
+                ue.fixed_rows_mut::<3>(3 * a).copy_from(&full[g.nodes[a]]);
+            }
+            let fe = k * ue;
+            for a in 0..4 {
+                out[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
+            }
+        }
+        dofs.gather(&out)
+    }
+
     /// The compact element scatter map adds exactly the stored lower-triangle entries: the
     /// assembled matrix times a vector equals the sum of the element matrices times it.
     #[test]
@@ -764,21 +790,7 @@ mod tests {
             .map(|i| (i as f64 * 0.37).cos())
             .collect();
         let y = pattern.mul_vec(&values, &v);
-        let mut full = vec![Vector3::zeros(); x.len()];
-        dofs.scatter_add(&v, 1.0, &mut full);
-        let mut reference = vec![Vector3::zeros(); x.len()];
-        for (e, g) in model.elements().iter().enumerate() {
-            let k = model.element_matrix(e, &x, StiffnessKind::Warped);
-            let mut ue = nalgebra::SVector::<f64, 12>::zeros();
-            for a in 0..4 {
-                ue.fixed_rows_mut::<3>(3 * a).copy_from(&full[g.nodes[a]]);
-            }
-            let fe = k * ue;
-            for a in 0..4 {
-                reference[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
-            }
-        }
-        let reference = dofs.gather(&reference);
+        let reference = element_sum_times(&model, &x, StiffnessKind::Warped, dofs, &v);
         let scale = reference.iter().fold(0.0f64, |m, r| m.max(r.abs()));
         for (a, b) in y.iter().zip(&reference) {
             assert!((a - b).abs() <= 1e-12 * scale, "{a} vs {b}");
@@ -790,7 +802,7 @@ mod tests {
     /// here the exact tangent of an anisotropic corotational model (not symmetric).
     #[test]
     fn general_lu_solves_the_unsymmetric_element_sum() {
-        use crate::{AnisotropicModel, ElasticModel, TransverselyIsotropicParams};
+        use crate::{AnisotropicModel, TransverselyIsotropicParams};
         let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.02, 0.02], [3, 2, 2]);
         let p =
             TransverselyIsotropicParams::from_engineering(2e4, 2e5, 0.4, 0.1, 7e3).expect("valid");
@@ -834,21 +846,7 @@ mod tests {
             .collect();
         let mut v = b.clone();
         factor.solve_in_place(&mut v).expect("solve");
-        let mut full = vec![Vector3::zeros(); x.len()];
-        dofs.scatter_add(&v, 1.0, &mut full);
-        let mut av = vec![Vector3::zeros(); x.len()];
-        for (e, g) in model.elements().iter().enumerate() {
-            let k = model.element_matrix(e, &x, StiffnessKind::Consistent);
-            let mut ue = nalgebra::SVector::<f64, 12>::zeros();
-            for a in 0..4 {
-                ue.fixed_rows_mut::<3>(3 * a).copy_from(&full[g.nodes[a]]);
-            }
-            let fe = k * ue;
-            for a in 0..4 {
-                av[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
-            }
-        }
-        let av = dofs.gather(&av);
+        let av = element_sum_times(&model, &x, StiffnessKind::Consistent, dofs, &v);
         let worst = av
             .iter()
             .zip(&b)
