@@ -82,7 +82,8 @@ fn main() {
         let (dd, dn) = anim.layout.schedule.deferred_fractions();
         println!(
             "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame \
-             ({:.0} B/vertex), sweep blocks {} chunks {}, deferred detail {:.1} % normals {:.1} %",
+             ({:.0} B/vertex), sweep blocks {} chunks {}, deferred detail {:.1} % normals {:.1} %, WPSD edges per \
+             8-vertex batch {:.1}",
             t.elapsed().as_secs_f64(),
             anim.layout.basis.mean_rank(),
             anim.layout.bytes_per_frame() as f64 / 1e6,
@@ -90,7 +91,8 @@ fn main() {
             anim.layout.schedule.block,
             anim.layout.schedule.chunk,
             100.0 * dd,
-            100.0 * dn
+            100.0 * dn,
+            anim.layout.details.mean_union()
         );
         let reps = if n > 100_000 { 10 } else { 200 };
         let reps = std::env::var("PSD_FRAMES")

@@ -16,16 +16,20 @@
 //! * **Normals** from a precomputed one-ring stored as ordered fans ([`Fans`]): per vertex its
 //!   neighbours in winding order, `n_v ∝ Σ_i (p_{i} − p_v) × (p_{i+1} − p_v)` — the area-weighted
 //!   sum of the incident face normals, without a face pass, with one gather per neighbour.
-//! * **Details** (eq. 5.3–5.5): per vertex the WPSD edge ids (`u8` when F ≤ 256) and weights
-//!   `α_{v,i}` (`u16` fixed point, [`ALPHA_STEP`]) and the `3P` RBF weights (f32); the per-frame table `g[i][j] = (f_i − f_{j,i})²` is padded to lanes
-//!   of 8 poses (F × 8 floats for P ≤ 8, in L1) so `r_j² = Σ_i α_{v,i} g[i][j]` is a vector
-//!   multiply-add per edge. Everything that does not depend on the pose (edge selection, `α`,
-//!   RBF weights, fans, reference neighbours) is precomputed.
+//! * **Details** (eq. 5.3–5.5), in batches of [`BATCH`] = 8 consecutive stored vertices, one
+//!   vertex per SIMD lane ([`BatchDetails`]): per batch the union of its vertices' WPSD edges
+//!   (ids `u8` when F ≤ 256) with one `α_{v,i}` lane per vertex (`u16` fixed point,
+//!   [`ALPHA_STEP`]), and the `3P` RBF weights (f32) as lanes; the per-frame table
+//!   `g[i][j] = (f_i − f_{j,i})²` is padded to lanes of 8 poses, so `r_j² = Σ_i α_{v,i} g[i][j]`
+//!   is one 8-vertex multiply-add per union edge and pose, and the normalisations, local frames
+//!   and the final `x = x_large + d_0 t + d_1 b + d_2 n` run 8 vertices wide (private `Lanes`).
+//!   Everything that does not depend on the pose (edge selection, `α`, RBF weights, fans,
+//!   reference neighbours) is precomputed.
 //!
 //! A frame is one fused sweep ([`frame_pass`], order in [`Schedule`]): per chunk of vertices
 //! (one rayon task each) and block of 256–2048 vertices, the large-scale positions of block
-//! `s`, the large-scale normal, local frame, WPSD detail and final position of block `s − 1`
-//! and the final normals of block `s − 2`, so each vertex's data is read from memory once and
+//! `s`, the large-scale normal, local frame, WPSD detail and final position of block `s − L`
+//! and the final normals of block `s − 2L` (`L` = [`SWEEP_LAG`] = 2), so each vertex's data is read from memory once and
 //! the one-ring gathers hit cache; vertices whose one-ring leaves the window are finished after
 //! the sweep. The three passes also exist separately ([`large_scale_pass`], [`detail_pass`],
 //! [`normal_pass`]) with the same per-vertex arithmetic (bit-identical results).
@@ -371,7 +375,7 @@ fn chain(pairs: &[[u32; 2]], used: &mut Vec<bool>) -> (FanKind, Vec<u32>) {
     }
 }
 
-/// Edge ids of the WPSD rows ([`RuntimeLayout::edges`]): one byte per id when F ≤ 256 (the
+/// Edge ids of the WPSD rows ([`BatchDetails::edges`]): one byte per id when F ≤ 256 (the
 /// thesis' F = 243), two otherwise.
 #[derive(Clone, Debug, PartialEq)]
 pub enum EdgeIds {
@@ -408,9 +412,120 @@ impl EdgeId for u16 {
     }
 }
 
+/// Vertices per batch of the across-vertex SIMD kernels (one vertex per lane).
+pub const BATCH: usize = 8;
+
+/// One value per vertex of a batch (structure of arrays).
+pub type Lane = [f32; BATCH];
+
+/// The WPSD inputs of the detail kernel (eq. 5.3–5.5) in batches of [`BATCH`] consecutive stored
+/// vertices, one vertex per SIMD lane: per batch the *union* of its vertices' edges, with one
+/// `α` lane per vertex (0 where the vertex does not use the edge), so
+/// `r_j² = Σ_i α_{v,i} g[i][j]` is one 8-vertex multiply-add per union edge and pose; and the RBF
+/// weights pose- and axis-major (`w[j][axis]` as a [`Lane`]), so `d = Σ_j w_j r_j` is one
+/// 8-vertex multiply-add per pose and axis. In a locality order (Morton) the 8 vertices of a
+/// batch are surface neighbours that mostly see the same edges, so the union is only a little
+/// longer than one vertex's list (the mean is reported by [`BatchDetails::mean_union`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchDetails {
+    /// Start of each batch's edges in `edges` (batches + 1).
+    pub offsets: Vec<u32>,
+    /// Union of the WPSD edges of each batch's vertices, ascending ids.
+    pub edges: EdgeIds,
+    /// Per batch edge, `α_{v,i}` of the batch's vertices in steps of [`ALPHA_STEP`].
+    pub alphas: Vec<[u16; BATCH]>,
+    /// Per batch, `3P` lanes of RBF weights (`weights[b·3P + 3j + axis][lane]`; lanes past the
+    /// last vertex are 0). Kept in f32: the linear-kernel interpolation weights cancel strongly
+    /// (`Σ_j w_j r_j` ≪ `Σ_j |w_j| r_j`), and `i16` with one step per vertex measured 0.23 mm
+    /// max / 0.0017 mm RMS on the ICT face.
+    pub weights: Vec<Lane>,
+}
+
+impl BatchDetails {
+    /// Batch the per-vertex rows: `edges`, `alphas` (`n × width`, `α` in steps of
+    /// [`ALPHA_STEP`]) and `weights` (`n × 3P`, pose-major per vertex: `w[3j + axis]`).
+    /// `width = 0` (PSD) stores no edges.
+    pub fn new(
+        poses: usize,
+        width: usize,
+        edges: &[u16],
+        alphas: &[u16],
+        weights: &[f32],
+        num_features: usize,
+    ) -> Self {
+        let p3 = 3 * poses;
+        let n = weights.len() / p3.max(1);
+        assert!(edges.len() == n * width && alphas.len() == n * width);
+        let batches = n.div_ceil(BATCH);
+        let mut offsets = Vec::with_capacity(batches + 1);
+        offsets.push(0u32);
+        let mut ids: Vec<u16> = Vec::new();
+        let mut lanes: Vec<[u16; BATCH]> = Vec::new();
+        let mut out_weights = vec![[0.0f32; BATCH]; batches * p3];
+        let mut union: Vec<u16> = Vec::new();
+        for b in 0..batches {
+            let vs = b * BATCH..((b + 1) * BATCH).min(n);
+            union.clear();
+            for v in vs.clone() {
+                for k in v * width..(v + 1) * width {
+                    if alphas[k] > 0 {
+                        union.push(edges[k]);
+                    }
+                }
+            }
+            union.sort_unstable();
+            union.dedup();
+            let first = lanes.len();
+            ids.extend_from_slice(&union);
+            lanes.resize(first + union.len(), [0; BATCH]);
+            for (l, v) in vs.clone().enumerate() {
+                for k in v * width..(v + 1) * width {
+                    if alphas[k] > 0 {
+                        let at = union.binary_search(&edges[k]).unwrap_or(0);
+                        let a = &mut lanes[first + at][l];
+                        *a = a.saturating_add(alphas[k]);
+                    }
+                }
+                for (c, &w) in weights[v * p3..(v + 1) * p3].iter().enumerate() {
+                    out_weights[b * p3 + c][l] = w;
+                }
+            }
+            offsets.push(ids.len() as u32);
+        }
+        let edges = if num_features <= 256 {
+            EdgeIds::U8(ids.iter().map(|&i| i as u8).collect())
+        } else {
+            EdgeIds::U16(ids)
+        };
+        Self {
+            offsets,
+            edges,
+            alphas: lanes,
+            weights: out_weights,
+        }
+    }
+
+    /// Mean number of union edges per batch.
+    pub fn mean_union(&self) -> f64 {
+        self.alphas.len() as f64 / (self.offsets.len() - 1).max(1) as f64
+    }
+
+    /// Bytes stored.
+    pub fn bytes(&self) -> usize {
+        4 * self.offsets.len()
+            + self.edges.bytes()
+            + 2 * BATCH * self.alphas.len()
+            + 4 * BATCH * self.weights.len()
+    }
+}
+
 /// Fixed-point step of the stored WPSD edge weights: `α_{v,i} = q_{v,i} · ALPHA_STEP`, `q` a
 /// `u16` (absolute error ≤ 7.7e-6 on weights that sum to 1).
 pub const ALPHA_STEP: f32 = 1.0 / 65535.0;
+
+/// Sweep blocks by which the large-scale positions run ahead of the detail, and the detail
+/// ahead of the final normals, in the fused sweep ([`Schedule`]).
+pub const SWEEP_LAG: usize = 2;
 
 /// Bit of [`Schedule::flags`]: the vertex's detail is computed after the sweep.
 pub const DEFER_DETAIL: u8 = 1;
@@ -420,11 +535,11 @@ pub const DEFER_NORMAL: u8 = 2;
 /// Order of the fused per-frame sweep ([`frame_pass`]). The stored vertices are cut into chunks
 /// of `chunk` consecutive vertices (one rayon task each), and a chunk is swept in blocks of
 /// `block` vertices: step `s` computes the large-scale positions of block `s`, the normal +
-/// frame + WPSD detail of block `s − 1` and the final normals of block `s − 2`. So every
+/// frame + WPSD detail of block `s − L` and the final normals of block `s − 2L` (`L` = [`SWEEP_LAG`]). So every
 /// vertex's data is read from memory once per frame and each one-ring gather hits positions
-/// written one or two blocks earlier (in L1/L2) instead of a second and third pass over the
+/// written a few blocks earlier (in L1/L2) instead of a second and third pass over the
 /// whole mesh. A vertex whose one-ring (or reference neighbour) leaves its chunk or reaches
-/// past the next block is *deferred* ([`DEFER_DETAIL`]; its normal and its neighbours'
+/// past `L` blocks ahead is *deferred* ([`DEFER_DETAIL`]; its normal and its neighbours'
 /// normals too, [`DEFER_NORMAL`]): those are computed after all chunks, from the finished
 /// arrays. The result does not depend on the schedule (every vertex runs the same arithmetic).
 /// With a locality order (Morton, [`morton_order`]) few vertices are deferred; in an arbitrary
@@ -472,7 +587,7 @@ impl Schedule {
         let window = |v: usize| -> std::ops::Range<usize> {
             let c0 = v / chunk * chunk;
             let c1 = (c0 + chunk).min(n);
-            c0..(c0 + ((v - c0) / block + 2) * block).min(c1)
+            c0..(c0 + ((v - c0) / block + 1 + SWEEP_LAG) * block).min(c1)
         };
         let mut flags = vec![0u8; n];
         for (v, f) in flags.iter_mut().enumerate() {
@@ -480,6 +595,13 @@ impl Schedule {
             let inside = |u: &u32| w.contains(&(*u as usize));
             if !(fans.ring(v).iter().all(inside) && inside(&fans.reference[v])) {
                 *f |= DEFER_DETAIL;
+            }
+        }
+        // the detail kernel runs on whole batches of BATCH vertices: defer a batch if any of
+        // its vertices must wait
+        for batch in flags.chunks_mut(BATCH) {
+            if batch.iter().any(|&f| f & DEFER_DETAIL != 0) {
+                batch.iter_mut().for_each(|f| *f |= DEFER_DETAIL);
             }
         }
         for v in 0..n {
@@ -538,16 +660,10 @@ pub struct RuntimeLayout {
     pub fans: Fans,
     /// Basis size P.
     pub poses: usize,
-    /// WPSD edges per vertex (0 for PSD).
+    /// WPSD edges per vertex of the model (0 for PSD).
     pub width: usize,
-    /// `n × width` edge ids.
-    pub edges: EdgeIds,
-    /// `n × width` edge weights `α_{v,i}` in steps of [`ALPHA_STEP`].
-    pub alphas: Vec<u16>,
-    /// `n × 3P` RBF weights (pose-major per vertex: `w[3j + axis]`). Kept in f32: the
-    /// linear-kernel interpolation weights cancel strongly (`Σ_j w_j r_j` ≪ `Σ_j |w_j| r_j`), and
-    /// `i16` with one step per vertex measured 0.23 mm max / 0.0017 mm RMS on the ICT face.
-    pub detail_weights: Vec<f32>,
+    /// Edge weights and RBF weights in batches of [`BATCH`] stored vertices.
+    pub details: BatchDetails,
     /// Order of the fused frame sweep.
     pub schedule: Schedule,
     /// Locality order (`order[k]` = mesh vertex stored `k`-th) when
@@ -612,17 +728,18 @@ impl RuntimeLayout {
             (Some(o), Some(r)) => fans.permuted(o, r),
             _ => fans,
         };
-        let edges = rows(&edges, width, o);
-        let edges = if model.num_features <= 256 {
-            EdgeIds::U8(edges.iter().map(|&i| i as u8).collect())
-        } else {
-            EdgeIds::U16(edges)
-        };
-        let alphas = rows(&alphas, width, o)
+        let alphas: Vec<u16> = rows(&alphas, width, o)
             .iter()
             .map(|&a| (a.clamp(0.0, 1.0) / ALPHA_STEP).round() as u16)
             .collect();
-        let detail_weights = rows(&model.weights, p3, o);
+        let details = BatchDetails::new(
+            model.num_poses(),
+            width,
+            &rows(&edges, width, o),
+            &alphas,
+            &rows(&model.weights, p3, o),
+            model.num_features,
+        );
         let (block, chunk) = Schedule::shape(n);
         Ok(Self {
             rest: rows(&rig.rest_f32, 1, o),
@@ -631,9 +748,7 @@ impl RuntimeLayout {
             fans,
             poses: model.num_poses(),
             width,
-            edges,
-            alphas,
-            detail_weights,
+            details,
             order,
             rank,
         })
@@ -652,7 +767,7 @@ impl RuntimeLayout {
     pub fn bytes_per_frame(&self) -> usize {
         let n = self.num_vertices();
         let fans = self.fans.neighbours.len() * 4 + n * (4 + 1 + 4 + 1); // ids, offsets, kind, reference, flags
-        let detail = self.edges.bytes() + self.alphas.len() * 2 + self.detail_weights.len() * 4;
+        let detail = self.details.bytes();
         let unpermute = if self.rank.is_some() { n * 52 } else { 0 };
         self.basis.bytes() + n * 12 /* rest */ + fans + detail + n * 36 /* large, positions, normals out */ + unpermute
     }
@@ -697,7 +812,7 @@ macro_rules! with_inputs {
     ($layout:expr, $table:expr, $global_r:expr, |$inputs:ident| $body:expr) => {{
         let layout: &RuntimeLayout = $layout;
         let (table, global_r): (&[[f32; LANES]], Option<&[f32]>) = ($table, $global_r);
-        match (&layout.edges, layout.poses.div_ceil(LANES)) {
+        match (&layout.details.edges, layout.poses.div_ceil(LANES)) {
             (EdgeIds::U8(e), 1) => {
                 let $inputs = &DetailInputs::<1, u8>::new(layout, e, table, global_r);
                 $body
@@ -776,95 +891,344 @@ impl<'a, const NC: usize, E: EdgeId> DetailInputs<'a, NC, E> {
         }
     }
 
-    /// Pass 2 of one vertex `v` (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5): large-scale
-    /// normal and local frame `[t, b, n]` from the one-ring of `large` (storage index `u` at
-    /// `large[u − base]`), distances `r_j = sqrt(Σ_i α_{v,i} g[i][j])` (or the global `r`
-    /// for PSD), detail `d = Σ_j w_{v,j} r_j` and `x = x_large + d_0 t + d_1 b + d_2 n`.
+    /// Pass 2 of the batch `b` of stored vertices `BATCH·b ..` (thesis §5.5.2 fine-scale kernel,
+    /// eq. 5.3–5.5), one vertex per SIMD lane ([`Lanes`]): large-scale normal and local frame
+    /// `[t, b, n]` from the one-ring of `large` (storage index `u` at `large[u − base]`), WPSD
+    /// distances `r_j = sqrt(Σ_i α_{v,i} g[i][j])` over the batch's union edges
+    /// ([`BatchDetails`]; the global `r` for PSD), detail `d = Σ_j w_{v,j} r_j` and
+    /// `x = x_large + d_0 t + d_1 b + d_2 n`. Returns the batch's vertex count and positions
+    /// (lanes past the last vertex of the mesh repeat it and are not returned).
     #[inline(always)]
-    fn vertex<S: pulp::Simd>(
+    fn batch<S: pulp::Simd>(
         &self,
         simd: S,
-        v: usize,
+        b: usize,
         large: &[[f32; 3]],
         base: usize,
-    ) -> [f32; 3] {
+    ) -> (usize, [[f32; 3]; BATCH]) {
+        let o = Lanes(simd);
         let layout = self.layout;
         let fans = &layout.fans;
-        let xl = large[v - base];
-        let ids = fans.ring(v);
-        let n = normalize(
-            fan_normal_sum(large, base, ids, fans.kinds[v], xl),
-            [0.0, 0.0, 1.0],
-        );
-        let [t, bt, n] = frame_from_edge(sub(large[fans.reference[v] as usize - base], xl), n);
+        let details = &layout.details;
+        let first = b * BATCH;
+        let count = (layout.num_vertices() - first).min(BATCH);
+        let mut vs = [0usize; BATCH];
+        let mut at = [0usize; BATCH];
+        for l in 0..BATCH {
+            vs[l] = first + l.min(count - 1);
+            at[l] = vs[l] - base;
+        }
+        let xl = gather(large, &at);
+        let n = o.normalize(&fan_sums(fans, &vs, large, base, &xl), [0.0, 0.0, 1.0]);
+        for l in 0..BATCH {
+            at[l] = fans.reference[vs[l]] as usize - base;
+        }
+        let e = o.sub3(&gather(large, &at), &xl);
+        let [t, bt] = o.tangents(&e, &n, count);
+        // r[c][k]: distance to pose c·LANES + k of every vertex of the batch
         let p = layout.poses;
-        let r = match self.global {
-            Some(r) => r,
-            None => {
-                let width = layout.width;
-                let ids = &self.edges[v * width..(v + 1) * width];
-                let al = &layout.alphas[v * width..(v + 1) * width];
-                let mut acc = [[0.0f32; LANES]; NC];
-                if NC == 1 {
-                    // P ≤ 8: one 8-lane accumulator, one table row per edge, in the dispatched
-                    // SIMD type (one 8-wide multiply and add per edge with AVX2; the compiler
-                    // kept the plain-array version in 8 scalar registers). Per lane the same
-                    // operations in the same order as the scalar path, so the same bits.
-                    let (acc_v, acc_t) = S::as_mut_simd_f32s(&mut acc[0]);
-                    for (&i, &a) in ids.iter().zip(al) {
-                        let (g_v, g_t) = S::as_simd_f32s(&self.table[i.index()]);
-                        let a = a as f32;
-                        let a_v = simd.splat_f32s(a);
-                        for (x, &g) in acc_v.iter_mut().zip(g_v) {
-                            *x = simd.add_f32s(*x, simd.mul_f32s(a_v, g));
-                        }
-                        for (x, &g) in acc_t.iter_mut().zip(g_t) {
-                            *x += a * g;
-                        }
+        let nc = p.div_ceil(LANES);
+        let mut r = [[[0.0f32; BATCH]; LANES]; NC];
+        match self.global {
+            Some(g) => {
+                for c in 0..NC {
+                    for k in 0..LANES {
+                        r[c][k] = [g[c][k]; BATCH];
                     }
-                } else {
-                    let nc = p.div_ceil(LANES);
-                    for (&i, &a) in ids.iter().zip(al) {
-                        let row = &self.table[i.index() * nc..i.index() * nc + nc];
-                        let a = a as f32;
-                        for (rc, gc) in acc.iter_mut().zip(row) {
-                            for l in 0..LANES {
-                                rc[l] += a * gc[l];
+                }
+            }
+            None => {
+                let edges = details.offsets[b] as usize..details.offsets[b + 1] as usize;
+                for (&i, al) in self.edges[edges.clone()].iter().zip(&details.alphas[edges]) {
+                    let mut a = [0.0f32; BATCH];
+                    for l in 0..BATCH {
+                        a[l] = al[l] as f32;
+                    }
+                    for c in 0..nc.min(NC) {
+                        let g = &self.table[i.index() * nc + c];
+                        for k in 0..LANES {
+                            if c * LANES + k < p {
+                                r[c][k] = o.add(&r[c][k], &o.mul(&a, &[g[k]; BATCH]));
                             }
                         }
                     }
                 }
-                let step = simd.splat_f32s(ALPHA_STEP);
-                for rc in acc.iter_mut() {
-                    let (x_v, x_t) = S::as_mut_simd_f32s(rc);
-                    for x in x_v {
-                        *x = simd.sqrt_f32s(simd.mul_f32s(*x, step));
-                    }
-                    for x in x_t {
-                        *x = (*x * ALPHA_STEP).sqrt();
-                    }
+                let step = [ALPHA_STEP; BATCH];
+                for j in 0..p {
+                    let rj = &mut r[j / LANES][j % LANES];
+                    *rj = o.sqrt(&o.mul(rj, &step));
                 }
-                acc
             }
-        };
-        let w = &layout.detail_weights[v * 3 * p..(v + 1) * 3 * p];
-        let mut d = [0.0f32; 3];
-        for (j, wj) in w.chunks_exact(3).enumerate() {
-            let rj = r[j / LANES][j % LANES];
-            d[0] += wj[0] * rj;
-            d[1] += wj[1] * rj;
-            d[2] += wj[2] * rj;
         }
-        [
-            xl[0] + d[0] * t[0] + d[1] * bt[0] + d[2] * n[0],
-            xl[1] + d[0] * t[1] + d[1] * bt[1] + d[2] * n[1],
-            xl[2] + d[0] * t[2] + d[1] * bt[2] + d[2] * n[2],
-        ]
+        let w = &details.weights[b * 3 * p..(b + 1) * 3 * p];
+        let mut d = [[0.0f32; BATCH]; 3];
+        for j in 0..p {
+            let rj = &r[j / LANES][j % LANES];
+            for a in 0..3 {
+                d[a] = o.add(&d[a], &o.mul(&w[3 * j + a], rj));
+            }
+        }
+        // x = x_l + d_0 t + d_1 b + d_2 n, summed left to right
+        let mut x = [[0.0f32; BATCH]; 3];
+        for a in 0..3 {
+            let s = o.add(&xl[a], &o.mul(&d[0], &t[a]));
+            let s = o.add(&s, &o.mul(&d[1], &bt[a]));
+            x[a] = o.add(&s, &o.mul(&d[2], &n[a]));
+        }
+        (count, transpose(&x))
     }
 }
 
-/// Unnormalised normal of a one-ring fan around `p`: `Σ_i (p_i − p) × (p_{i+1} − p)`
-/// (storage index `u` at `positions[u − base]`).
+/// Element-wise arithmetic on [`BATCH`] lanes (one vertex per lane) in the dispatched SIMD type
+/// `S` (one AVX2 instruction per operation; the scalar tail of `S::as_simd_f32s` covers SIMD
+/// types of other widths). Plain IEEE operations, no `mul_add`: each lane gets exactly the bits
+/// of the scalar expression written in the comment of each method.
+#[derive(Clone, Copy)]
+struct Lanes<S>(S);
+
+/// `Lanes::$name(a, b)`: `a $op b` per lane.
+macro_rules! lanes_binop {
+    ($name:ident, $simd:ident, $op:tt) => {
+        #[doc = concat!("`a ", stringify!($op), " b` per lane")]
+        #[inline(always)]
+        fn $name(self, a: &Lane, b: &Lane) -> Lane {
+            let mut out = [0.0f32; BATCH];
+            let (o_v, o_t) = S::as_mut_simd_f32s(&mut out);
+            let (a_v, a_t) = S::as_simd_f32s(a);
+            let (b_v, b_t) = S::as_simd_f32s(b);
+            for ((o, &x), &y) in o_v.iter_mut().zip(a_v).zip(b_v) {
+                *o = self.0.$simd(x, y);
+            }
+            for ((o, &x), &y) in o_t.iter_mut().zip(a_t).zip(b_t) {
+                *o = x $op y;
+            }
+            out
+        }
+    };
+}
+
+// No closures in here: a closure is compiled as its own function, outside the
+// target-feature context of `pulp::Arch::dispatch`, and its SIMD intrinsics become calls.
+impl<S: pulp::Simd> Lanes<S> {
+    lanes_binop!(add, add_f32s, +);
+    lanes_binop!(sub, sub_f32s, -);
+    lanes_binop!(mul, mul_f32s, *);
+    lanes_binop!(div, div_f32s, /);
+
+    /// `sqrt(a)` per lane (correctly rounded)
+    #[inline(always)]
+    fn sqrt(self, a: &Lane) -> Lane {
+        let mut l = *a;
+        let (l_v, l_t) = S::as_mut_simd_f32s(&mut l);
+        for x in l_v {
+            *x = self.0.sqrt_f32s(*x);
+        }
+        for x in l_t {
+            *x = x.sqrt();
+        }
+        l
+    }
+
+    /// `(sqrt(a), 1 / sqrt(a))` as `l = a.sqrt(); 1.0 / l` (two correctly rounded operations)
+    #[inline(always)]
+    fn inv_sqrt(self, a: &Lane) -> (Lane, Lane) {
+        let l = self.sqrt(a);
+        let inv = self.div(&[1.0f32; BATCH], &l);
+        (l, inv)
+    }
+
+    /// `if test > threshold { a } else { b }` per lane (false for NaN, as the scalar `>`)
+    #[inline(always)]
+    fn select_gt(self, test: &Lane, threshold: f32, a: &Lane, b: &Lane) -> Lane {
+        let mut out = [0.0f32; BATCH];
+        let th = self.0.splat_f32s(threshold);
+        let (o_v, o_t) = S::as_mut_simd_f32s(&mut out);
+        let (t_v, t_t) = S::as_simd_f32s(test);
+        let (a_v, a_t) = S::as_simd_f32s(a);
+        let (b_v, b_t) = S::as_simd_f32s(b);
+        for (((o, &t), &x), &y) in o_v.iter_mut().zip(t_v).zip(a_v).zip(b_v) {
+            // `select_u32s`, not the trait's `select_f32s` (only `#[inline]`: compiled outside
+            // the dispatch, its blend became a call)
+            let keep = self.0.greater_than_f32s(t, th);
+            *o = pulp::cast(self.0.select_u32s(keep, pulp::cast(x), pulp::cast(y)));
+        }
+        for (((o, &t), &x), &y) in o_t.iter_mut().zip(t_t).zip(a_t).zip(b_t) {
+            *o = if t > threshold { x } else { y };
+        }
+        out
+    }
+
+    /// `a − b` per coordinate
+    #[inline(always)]
+    fn sub3(self, a: &[Lane; 3], b: &[Lane; 3]) -> [Lane; 3] {
+        [
+            self.sub(&a[0], &b[0]),
+            self.sub(&a[1], &b[1]),
+            self.sub(&a[2], &b[2]),
+        ]
+    }
+
+    /// `a · b` as [`dot`]: `(a_0 b_0 + a_1 b_1) + a_2 b_2`
+    #[inline(always)]
+    fn dot(self, a: &[Lane; 3], b: &[Lane; 3]) -> Lane {
+        let s = self.add(&self.mul(&a[0], &b[0]), &self.mul(&a[1], &b[1]));
+        self.add(&s, &self.mul(&a[2], &b[2]))
+    }
+
+    /// `a × b` as [`cross`]
+    #[inline(always)]
+    fn cross(self, a: &[Lane; 3], b: &[Lane; 3]) -> [Lane; 3] {
+        [
+            self.sub(&self.mul(&a[1], &b[2]), &self.mul(&a[2], &b[1])),
+            self.sub(&self.mul(&a[2], &b[0]), &self.mul(&a[0], &b[2])),
+            self.sub(&self.mul(&a[0], &b[1]), &self.mul(&a[1], &b[0])),
+        ]
+    }
+
+    /// [`normalize`] per lane: `a · (1 / ‖a‖)` if `‖a‖ > 1e-20`, else `fallback`.
+    #[inline(always)]
+    fn normalize(self, a: &[Lane; 3], fallback: [f32; 3]) -> [Lane; 3] {
+        let (l, inv) = self.inv_sqrt(&self.dot(a, a));
+        let mut out = [[0.0f32; BATCH]; 3];
+        for k in 0..3 {
+            out[k] = self.select_gt(&l, 1e-20, &self.mul(&a[k], &inv), &[fallback[k]; BATCH]);
+        }
+        out
+    }
+
+    /// Tangent and bitangent of [`frame_from_edge`] per lane: `t = normalize(e − (e·n) n)`,
+    /// `b = n × t`; the (rare) lanes `< count` whose projected edge vanishes take the scalar
+    /// axis fallback of [`frame_from_edge`].
+    #[inline(always)]
+    fn tangents(self, e: &[Lane; 3], n: &[Lane; 3], count: usize) -> [[Lane; 3]; 2] {
+        let d = self.dot(e, n);
+        let mut tp = [[0.0f32; BATCH]; 3];
+        for k in 0..3 {
+            tp[k] = self.sub(&e[k], &self.mul(&d, &n[k]));
+        }
+        let mut t = self.normalize(&tp, [0.0; 3]);
+        for l in 0..count {
+            if [t[0][l], t[1][l], t[2][l]] == [0.0; 3] {
+                let [tl, _, _] =
+                    frame_from_edge([e[0][l], e[1][l], e[2][l]], [n[0][l], n[1][l], n[2][l]]);
+                for k in 0..3 {
+                    t[k][l] = tl[k];
+                }
+            }
+        }
+        let b = self.cross(n, &t);
+        [t, b]
+    }
+}
+
+/// Positions `positions[at[l]]` of the lanes of a batch, structure of arrays.
+#[inline(always)]
+fn gather(positions: &[[f32; 3]], at: &[usize; BATCH]) -> [Lane; 3] {
+    let mut out = [[0.0f32; BATCH]; 3];
+    for l in 0..BATCH {
+        let p = positions[at[l]];
+        out[0][l] = p[0];
+        out[1][l] = p[1];
+        out[2][l] = p[2];
+    }
+    out
+}
+
+/// Structure of arrays back to one `[x, y, z]` per lane.
+#[inline(always)]
+fn transpose(x: &[Lane; 3]) -> [[f32; 3]; BATCH] {
+    let mut out = [[0.0f32; 3]; BATCH];
+    for l in 0..BATCH {
+        out[l] = [x[0][l], x[1][l], x[2][l]];
+    }
+    out
+}
+
+/// [`fan_normal_sum`] of each vertex of the batch `vs` (centres `p`), into one lane per
+/// vertex. The fans are summed one vertex at a time: their points are stored vertex-major
+/// (`[x, y, z]`), and moving every fan point into lanes costs as many instructions as the
+/// cross products it would share (measured: the across-vertex fan walk was no faster); what
+/// the lanes pay off for is the square-root / division chain that follows.
+#[inline(always)]
+fn fan_sums(
+    fans: &Fans,
+    vs: &[usize; BATCH],
+    positions: &[[f32; 3]],
+    base: usize,
+    p: &[Lane; 3],
+) -> [Lane; 3] {
+    let mut s = [[0.0f32; BATCH]; 3];
+    for l in 0..BATCH {
+        let v = vs[l];
+        let c = fan_normal_sum(
+            positions,
+            base,
+            fans.ring(v),
+            fans.kinds[v],
+            [p[0][l], p[1][l], p[2][l]],
+        );
+        s[0][l] = c[0];
+        s[1][l] = c[1];
+        s[2][l] = c[2];
+    }
+    s
+}
+
+/// Unit normals of the stored vertices `vs` from the one-ring of `positions` (index `u − base`),
+/// one vertex per lane ([`normal_vertex`] per lane, bit for bit).
+#[inline(always)]
+fn normal_batch<S: pulp::Simd>(
+    simd: S,
+    fans: &Fans,
+    vs: &[usize; BATCH],
+    positions: &[[f32; 3]],
+    base: usize,
+) -> [[f32; 3]; BATCH] {
+    let o = Lanes(simd);
+    let mut at = [0usize; BATCH];
+    for l in 0..BATCH {
+        at[l] = vs[l] - base;
+    }
+    let p = gather(positions, &at);
+    let n = o.normalize(&fan_sums(fans, vs, positions, base, &p), [0.0, 0.0, 1.0]);
+    transpose(&n)
+}
+
+/// `ids` in batches of [`BATCH`]: `(batch, count)`, the last batch padded by repeating its
+/// last id (`count` = the valid lanes). An iterator, not a callback: the caller's loop body
+/// stays inside the SIMD dispatch (see [`Lanes`]).
+struct Batches<I>(I);
+
+impl<I: Iterator<Item = usize>> Iterator for Batches<I> {
+    type Item = ([usize; BATCH], usize);
+    #[inline(always)]
+    fn next(&mut self) -> Option<Self::Item> {
+        let mut batch = [0usize; BATCH];
+        let mut k = 0;
+        while k < BATCH {
+            match self.0.next() {
+                Some(v) => {
+                    batch[k] = v;
+                    k += 1;
+                }
+                None => break,
+            }
+        }
+        if k == 0 {
+            return None;
+        }
+        let last = batch[k - 1];
+        batch[k..].fill(last);
+        Some((batch, k))
+    }
+}
+
+/// Unnormalised normal of a one-ring fan around `p`: `Σ_i e_i × e_{i+1}` with
+/// `e_i = p_i − p` — the area-weighted sum of the incident face normals (times 2). Along a
+/// chain (closed or open fan) two consecutive terms share their middle point,
+/// `e_{i−1} × e_i + e_i × e_{i+1} = e_i × (p_{i+1} − p_{i−1})` (`p` cancels in the difference),
+/// so the sum takes one cross product per two faces (a chain of odd length ends with one plain
+/// term). Storage index `u` at `positions[u − base]`.
 #[inline(always)]
 fn fan_normal_sum(
     positions: &[[f32; 3]],
@@ -873,30 +1237,32 @@ fn fan_normal_sum(
     kind: FanKind,
     p: [f32; 3],
 ) -> [f32; 3] {
-    let at = |i: u32| sub(positions[i as usize - base], p);
+    let point = |i: u32| positions[i as usize - base];
     let mut s = [0.0f32; 3];
-    let mut add = |a: [f32; 3], b: [f32; 3]| {
-        let c = cross(a, b);
+    let mut add = |c: [f32; 3]| {
         s = [s[0] + c[0], s[1] + c[1], s[2] + c[2]];
     };
     match kind {
         FanKind::Pairs => {
             for ab in ids.chunks_exact(2) {
-                add(at(ab[0]), at(ab[1]));
+                add(cross(sub(point(ab[0]), p), sub(point(ab[1]), p)));
             }
         }
         kind => {
-            if let Some((&first, rest)) = ids.split_first() {
-                let e0 = at(first);
-                let mut prev = e0;
-                for &i in rest {
-                    let e = at(i);
-                    add(prev, e);
-                    prev = e;
-                }
-                if kind == FanKind::Closed {
-                    add(prev, e0);
-                }
+            // chain points q_0 .. q_terms (a closed fan returns to q_0)
+            let m = ids.len();
+            let terms = if kind == FanKind::Closed { m } else { m - 1 };
+            let q = |k: usize| point(ids[if k == m { 0 } else { k }]);
+            let mut before = q(0);
+            let mut k = 1;
+            while k < terms {
+                let next = q(k + 1);
+                add(cross(sub(q(k), p), sub(next, before)));
+                before = next;
+                k += 2;
+            }
+            if k == terms {
+                add(cross(sub(before, p), sub(q(k), p)));
             }
         }
     }
@@ -940,11 +1306,25 @@ fn large_block(
     let [ax, ay, az] = &mut acc;
     let (ax, ay, az) = (&mut ax[..m], &mut ay[..m], &mut az[..m]);
     for (row, col) in coeffs.chunks_exact(b.h).zip(factors.chunks_exact(m)) {
-        let mut c = [0.0f32; 4];
-        for (&w, u) in row.iter().zip(centred) {
-            for a in 0..4 {
-                c[a] += w * u[a];
+        // c = C_b[q,:] · ũ in four interleaved partial sums (handles h ≡ 0..3 mod 4), so the
+        // additions do not wait on one another
+        let mut part = [[0.0f32; 4]; 4];
+        let (rows4, rest4) = row.split_at(row.len() / 4 * 4);
+        for (w4, u4) in rows4.chunks_exact(4).zip(centred.chunks_exact(4)) {
+            for k in 0..4 {
+                for a in 0..4 {
+                    part[k][a] += w4[k] * u4[k][a];
+                }
             }
+        }
+        for (&w, u) in rest4.iter().zip(&centred[rows4.len()..]) {
+            for a in 0..4 {
+                part[0][a] += w * u[a];
+            }
+        }
+        let mut c = [0.0f32; 4];
+        for a in 0..4 {
+            c[a] = (part[0][a] + part[1][a]) + (part[2][a] + part[3][a]);
         }
         let [cx, cy, cz, _] = c;
         for i in 0..m {
@@ -1050,38 +1430,41 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
                 ids,
                 first,
                 out,
-            } => match ids {
-                Some(ids) => {
-                    for &v in ids {
-                        let v = v as usize;
-                        out[v - first] = inputs.vertex(simd, v, large, 0);
+            } => {
+                // whole batches: `first` is a multiple of BATCH, deferred lists hold whole
+                // batches (Schedule::new)
+                let all = first / BATCH..(first + out.len()).div_ceil(BATCH);
+                let listed = ids.unwrap_or_default().iter().map(|&v| v as usize / BATCH);
+                let mut last = usize::MAX;
+                for b in listed.chain(all.filter(|_| ids.is_none())) {
+                    if b == last {
+                        continue;
+                    }
+                    last = b;
+                    let (count, x) = inputs.batch(simd, b, large, 0);
+                    for l in 0..count {
+                        out[b * BATCH + l - first] = x[l];
                     }
                 }
-                None => {
-                    for (k, o) in out.iter_mut().enumerate() {
-                        *o = inputs.vertex(simd, first + k, large, 0);
-                    }
-                }
-            },
+            }
             Kernel::Normals {
                 fans,
                 positions,
                 ids,
                 first,
                 out,
-            } => match ids {
-                Some(ids) => {
-                    for &v in ids {
-                        let v = v as usize;
-                        out[v - first] = normal_vertex(fans, v, positions, 0);
+            } => {
+                let len = out.len();
+                let all = first..first + len;
+                let listed = ids.unwrap_or_default().iter().map(|&v| v as usize);
+                let batches = Batches(listed.chain(all.filter(|_| ids.is_none())));
+                for (vs, count) in batches {
+                    let n = normal_batch(simd, fans, &vs, positions, 0);
+                    for l in 0..count {
+                        out[vs[l] - first] = n[l];
                     }
                 }
-                None => {
-                    for (k, o) in out.iter_mut().enumerate() {
-                        *o = normal_vertex(fans, first + k, positions, 0);
-                    }
-                }
-            },
+            }
         }
     }
 }
@@ -1110,26 +1493,33 @@ fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
     let m = large.len();
     let blocks = m.div_ceil(w);
     let span = |b: usize| b * w..((b + 1) * w).min(m);
-    for step in 0..blocks + 2 {
+    const L: usize = SWEEP_LAG;
+    for step in 0..blocks + 2 * L {
         if step < blocks {
             let r = span(step);
             large_range(layout, first + r.start, centred, mean, &mut large[r]);
         }
-        if (1..=blocks).contains(&step) {
-            let r = span(step - 1);
-            let flags = &sched.flags[first + r.start..first + r.end];
-            for ((k, o), &f) in positions[r.clone()].iter_mut().enumerate().zip(flags) {
-                if f & DEFER_DETAIL == 0 {
-                    *o = inputs.vertex(simd, first + r.start + k, large, first);
+        if (L..blocks + L).contains(&step) {
+            let r = span(step - L);
+            // batches never straddle a sweep block (blocks are whole low-rank blocks) and
+            // are deferred whole (Schedule::new)
+            for b in (first + r.start) / BATCH..(first + r.end).div_ceil(BATCH) {
+                if sched.flags[b * BATCH] & DEFER_DETAIL == 0 {
+                    let (count, x) = inputs.batch(simd, b, large, first);
+                    for l in 0..count {
+                        positions[b * BATCH + l - first] = x[l];
+                    }
                 }
             }
         }
-        if step >= 2 {
-            let r = span(step - 2);
-            let flags = &sched.flags[first + r.start..first + r.end];
-            for ((k, o), &f) in normals[r.clone()].iter_mut().enumerate().zip(flags) {
-                if f & DEFER_NORMAL == 0 {
-                    *o = normal_vertex(&layout.fans, first + r.start + k, positions, first);
+        if (2 * L..blocks + 2 * L).contains(&step) {
+            let r = span(step - 2 * L);
+            let ids =
+                (first + r.start..first + r.end).filter(|&v| sched.flags[v] & DEFER_NORMAL == 0);
+            for (vs, count) in Batches(ids) {
+                let n = normal_batch(simd, &layout.fans, &vs, positions, first);
+                for l in 0..count {
+                    normals[vs[l] - first] = n[l];
                 }
             }
         }
@@ -1397,6 +1787,102 @@ mod tests {
     }
 
     #[test]
+    fn batch_details_keep_every_vertex_edge_weight_and_rbf_weight() {
+        // 19 vertices (2 full batches + 3), 4 edge slots, P = 2; vertex v uses edges v % 7 ..
+        let (n, width, p) = (19, 4, 2);
+        let edges: Vec<u16> = (0..n * width)
+            .map(|k| ((k / width) % 7 + 3 * (k % width)) as u16)
+            .collect();
+        let alphas: Vec<u16> = (0..n * width)
+            .map(|k| if k % 5 == 0 { 0 } else { 100 + k as u16 })
+            .collect();
+        let weights: Vec<f32> = (0..n * 3 * p).map(|k| k as f32 - 20.5).collect();
+        let d = BatchDetails::new(p, width, &edges, &alphas, &weights, 300);
+        let EdgeIds::U16(ids) = &d.edges else {
+            panic!("F = 300 > 256 needs u16 ids")
+        };
+        assert_eq!(d.offsets.len(), n.div_ceil(BATCH) + 1);
+        for v in 0..n {
+            let (b, l) = (v / BATCH, v % BATCH);
+            let range = d.offsets[b] as usize..d.offsets[b + 1] as usize;
+            assert!(
+                ids[range.clone()].windows(2).all(|w| w[0] < w[1]),
+                "ascending union"
+            );
+            // every (edge, α > 0) of the vertex is in its lane, and nothing else
+            let mut want: Vec<(u16, u16)> = (v * width..(v + 1) * width)
+                .filter(|&k| alphas[k] > 0)
+                .map(|k| (edges[k], alphas[k]))
+                .collect();
+            want.sort_unstable();
+            let got: Vec<(u16, u16)> = range
+                .filter(|&k| d.alphas[k][l] > 0)
+                .map(|k| (ids[k], d.alphas[k][l]))
+                .collect();
+            assert_eq!(got, want, "vertex {v}");
+            for c in 0..3 * p {
+                assert_eq!(d.weights[b * 3 * p + c][l], weights[v * 3 * p + c]);
+            }
+        }
+        // lanes past the last vertex are zero
+        let last = n / BATCH;
+        for l in n % BATCH..BATCH {
+            for c in 0..3 * p {
+                assert_eq!(d.weights[last * 3 * p + c][l], 0.0);
+            }
+        }
+        let small = BatchDetails::new(p, width, &edges, &alphas, &weights, 256);
+        assert!(matches!(small.edges, EdgeIds::U8(_)), "F ≤ 256: u8 ids");
+    }
+
+    #[test]
+    fn fan_sum_pairs_terms_and_matches_face_normals() {
+        // the paired sum equals the plain Σ e_i × e_{i+1} up to rounding, for closed and open
+        // fans of odd and even length, and the batched unit normals equal the scalar ones
+        let n = 7;
+        let (pos, tris) = crate::frames::bumpy_grid(n);
+        let topo = Topology::new(n * n, &tris);
+        let fans = Fans::new(&topo);
+        let mut lens = std::collections::BTreeSet::new();
+        for v in 0..n * n {
+            let ring = fans.ring(v);
+            lens.insert((fans.kinds[v] as u8, ring.len() % 2));
+            let p = pos[v];
+            let e = |i: u32| sub(pos[i as usize], p);
+            let closed = fans.kinds[v] == FanKind::Closed;
+            let mut want = [0.0f64; 3];
+            let terms = if closed { ring.len() } else { ring.len() - 1 };
+            for k in 0..terms {
+                let c = cross(e(ring[k]), e(ring[(k + 1) % ring.len()]));
+                for a in 0..3 {
+                    want[a] += c[a] as f64;
+                }
+            }
+            let got = fan_normal_sum(&pos, 0, ring, fans.kinds[v], p);
+            for a in 0..3 {
+                assert!((got[a] as f64 - want[a]).abs() < 1e-5, "vertex {v}");
+            }
+        }
+        assert!(lens.len() >= 3, "fan kinds and parities covered: {lens:?}");
+        struct Normals<'a>(&'a Fans, &'a [[f32; 3]]);
+        impl pulp::WithSimd for Normals<'_> {
+            type Output = Vec<[f32; 3]>;
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, simd: S) -> Vec<[f32; 3]> {
+                let mut out = Vec::new();
+                for (vs, count) in Batches(0..self.1.len()) {
+                    out.extend_from_slice(&normal_batch(simd, self.0, &vs, self.1, 0)[..count]);
+                }
+                out
+            }
+        }
+        let batched = pulp::Arch::new().dispatch(Normals(&fans, &pos));
+        for v in 0..n * n {
+            assert_eq!(batched[v], fans.normal(&pos, v), "vertex {v}");
+        }
+    }
+
+    #[test]
     fn fans_chain_closed_open_and_fall_back_to_pairs() {
         let mut used = Vec::new();
         // interior vertex with 4 triangles given out of order
@@ -1491,7 +1977,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (seed >> 33) as f32 / (1u64 << 31) as f32
         };
-        let edges: Vec<u8> = (0..n * width).map(|_| (rnd() * 20.0) as u8).collect();
+        let edges: Vec<u16> = (0..n * width).map(|_| (rnd() * 20.0) as u16).collect();
         let alphas: Vec<u16> = (0..n * width).map(|_| (rnd() * 16000.0) as u16).collect();
         let detail_weights: Vec<f32> = (0..n * 3 * p).map(|_| rnd() - 0.5).collect();
         let (block, chunk) = Schedule::shape(n);
@@ -1502,9 +1988,7 @@ mod tests {
             fans,
             poses: p,
             width,
-            edges: EdgeIds::U8(edges),
-            alphas,
-            detail_weights,
+            details: BatchDetails::new(p, width, &edges, &alphas, &detail_weights, 20),
             order: None,
             rank: None,
         }
