@@ -100,6 +100,109 @@ impl Sums {
 /// when it cannot refit (then the confirmation gives `None`).
 pub(crate) type RefitFn<'a> = dyn FnMut(usize, Option<usize>) -> Result<Option<Field>> + 'a;
 
+/// Which candidates a selection may choose: `eligible(candidate, held-out fold)` (`None`: the
+/// full-data choice). A candidate whose very existence was decided with the data of a fold (a
+/// refined re-simulation of another fold's choice, [`crate::spatial`]) must not be offered to
+/// that fold.
+pub(crate) type EligibleFn<'a> = dyn Fn(usize, Option<usize>) -> bool + 'a;
+
+/// Per (candidate, fold bucket) sums of the observations of a recording (module docs): `all`
+/// over the training observations (every one, or with `train_on_scored` only the scored ones),
+/// `sc` over the scored ones; bucket `num_folds` holds the frames of no fold (rest).
+struct Tally {
+    all: Vec<Vec<Sums>>,
+    sc: Vec<Vec<Sums>>,
+}
+
+impl Tally {
+    fn new(
+        cands: &[Candidate],
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+        scored: &dyn Fn(usize, usize) -> bool,
+        train_on_scored: bool,
+    ) -> Self {
+        let nf = seg.num_folds();
+        let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
+        let mut all = Vec::with_capacity(cands.len());
+        let mut sc = Vec::with_capacity(cands.len());
+        for c in cands {
+            let mut sa = vec![Sums::default(); nf + 1];
+            let mut ss = vec![Sums::default(); nf + 1];
+            for (k, f) in rec.frames.iter().enumerate() {
+                for (m, y) in f.markers_m.iter().enumerate() {
+                    let Some(y) = y else { continue };
+                    let u = c.prediction[k][m] - p.rest_model_m[m];
+                    let v = y - p.rest_model_m[m];
+                    let o = Sums {
+                        a: u.norm_squared(),
+                        b: u.dot(&v),
+                        c: v.norm_squared(),
+                        n: 1,
+                    };
+                    let is_scored = seg.fold_of_frame[k].is_some() && scored(k, m);
+                    if !train_on_scored || is_scored {
+                        sa[bucket(k)].add(&o);
+                    }
+                    if is_scored {
+                        ss[bucket(k)].add(&o);
+                    }
+                }
+            }
+            all.push(sa);
+            sc.push(ss);
+        }
+        Self { all, sc }
+    }
+
+    /// The eligible candidate and compliance scale with the least training error without bucket
+    /// `skip` (`None`: every bucket): (candidate, scale, residual sum of squares).
+    fn best(
+        &self,
+        skip: Option<usize>,
+        scale: ComplianceScale,
+        eligible: Option<&EligibleFn<'_>>,
+    ) -> (usize, f64, f64) {
+        (0..self.all.len())
+            .filter(|&i| eligible.is_none_or(|e| e(i, skip)))
+            .map(|i| {
+                let mut t = Sums::default();
+                for (b, x) in self.all[i].iter().enumerate() {
+                    if Some(b) != skip {
+                        t.add(x);
+                    }
+                }
+                let d = t.scale(scale);
+                (i, d, t.rss(d))
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .unwrap_or((0, 1.0, f64::INFINITY))
+    }
+}
+
+/// The candidate [`lolo_confirm`] chooses for each held-out location (index l of the result) and,
+/// last, for the full data (nothing held out); empty without candidates.
+pub(crate) fn lolo_choices(
+    cands: &[Candidate],
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    scale: ComplianceScale,
+    scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
+) -> Vec<usize> {
+    if cands.is_empty() {
+        return Vec::new();
+    }
+    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
+    (0..seg.num_folds())
+        .map(Some)
+        .chain([None])
+        .map(|skip| t.best(skip, scale, None).0)
+        .collect()
+}
+
 /// Leave-one-location-out over simulated candidates (module docs): per held-out location the
 /// candidate and compliance scale with the least error on every other observation (with
 /// `train_on_scored`: only the other locations' `scored` observations, and the held-out "all"
@@ -117,6 +220,34 @@ pub(crate) fn lolo_confirm(
     scale: ComplianceScale,
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
+    refit: Option<&mut RefitFn<'_>>,
+    method: String,
+) -> Result<Option<Confirmed>> {
+    lolo_confirm_among(
+        cands,
+        None,
+        rec,
+        seg,
+        p,
+        scale,
+        scored,
+        train_on_scored,
+        refit,
+        method,
+    )
+}
+
+/// [`lolo_confirm`] with each selection restricted to the `eligible` candidates.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn lolo_confirm_among(
+    cands: &[Candidate],
+    eligible: Option<&EligibleFn<'_>>,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    scale: ComplianceScale,
+    scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
     mut refit: Option<&mut RefitFn<'_>>,
     method: String,
 ) -> Result<Option<Confirmed>> {
@@ -124,51 +255,9 @@ pub(crate) fn lolo_confirm(
         return Ok(None);
     }
     let nf = seg.num_folds();
-    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
-    // [candidate][bucket] sums over all observations and over the scored ones
-    let mut all = Vec::with_capacity(cands.len());
-    let mut sc = Vec::with_capacity(cands.len());
-    for c in cands {
-        let mut sa = vec![Sums::default(); nf + 1];
-        let mut ss = vec![Sums::default(); nf + 1];
-        for (k, f) in rec.frames.iter().enumerate() {
-            for (m, y) in f.markers_m.iter().enumerate() {
-                let Some(y) = y else { continue };
-                let u = c.prediction[k][m] - p.rest_model_m[m];
-                let v = y - p.rest_model_m[m];
-                let o = Sums {
-                    a: u.norm_squared(),
-                    b: u.dot(&v),
-                    c: v.norm_squared(),
-                    n: 1,
-                };
-                let is_scored = seg.fold_of_frame[k].is_some() && scored(k, m);
-                if !train_on_scored || is_scored {
-                    sa[bucket(k)].add(&o);
-                }
-                if is_scored {
-                    ss[bucket(k)].add(&o);
-                }
-            }
-        }
-        all.push(sa);
-        sc.push(ss);
-    }
-    let best = |skip: Option<usize>| {
-        (0..cands.len())
-            .map(|i| {
-                let mut t = Sums::default();
-                for (b, x) in all[i].iter().enumerate() {
-                    if Some(b) != skip {
-                        t.add(x);
-                    }
-                }
-                let d = t.scale(scale);
-                (i, d, t.rss(d))
-            })
-            .min_by(|a, b| a.2.total_cmp(&b.2))
-            .unwrap_or((0, 1.0, f64::INFINITY))
-    };
+    let tally = Tally::new(cands, rec, seg, p, scored, train_on_scored);
+    let (all, sc) = (&tally.all, &tally.sc);
+    let best = |skip: Option<usize>| tally.best(skip, scale, eligible);
     let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
     for l in 0..nf {
         let (i, d, _) = best(Some(l));

@@ -15,7 +15,9 @@
 //! rigid-tip replay the contact frames carry the coarse mesh's contact error, which would otherwise
 //! decide the pick of a parameter that shows only after release.
 
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
+use crate::confirm::{
+    Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_choices, lolo_confirm_among,
+};
 use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
@@ -207,19 +209,25 @@ pub fn confirmed_by_signature(h: Hypothesis, sig: &crate::diagnose::Signatures) 
         && sig.lateral_shift_consistency >= LATERAL_CONSISTENCY
 }
 
-/// Simulates every grid point (skipping those that do not reach equilibrium). With
+/// A grid point of a force-driven confirmation: named parameters, the extension, the per-frame
+/// probe forces.
+type GridPoint = (Vec<(String, f64)>, Extension, Vec<Vector3<f64>>);
+
+/// Simulates every grid point (skipping those that do not reach equilibrium); returns the
+/// candidates, the grid size and, aligned with the candidates, the grid point each came from. With
 /// `contact_only` (extensions without history), only the contact frames are solved and every
 /// other frame is the unloaded model.
 fn simulate_grid(
     sim: &mut dyn ProbeSimulator,
-    grid: Vec<(Vec<(String, f64)>, Extension, Vec<Vector3<f64>>)>,
+    grid: Vec<GridPoint>,
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     contact_only: bool,
-) -> Result<(Vec<Candidate>, usize)> {
+) -> Result<(Vec<Candidate>, usize, Vec<GridPoint>)> {
     let total = grid.len();
     let mut out = Vec::with_capacity(total);
+    let mut sources = Vec::with_capacity(total);
     let solved: Vec<usize> = (0..rec.frames.len())
         .filter(|&k| !contact_only || seg.phases[k].in_contact())
         .collect();
@@ -232,13 +240,17 @@ fn simulate_grid(
                 for (row, &k) in x.into_iter().zip(&solved) {
                     prediction[k] = row;
                 }
-                out.push(Candidate { params, prediction })
+                out.push(Candidate {
+                    params: params.clone(),
+                    prediction,
+                });
+                sources.push((params, ext, forces));
             }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
         }
     }
-    Ok((out, total))
+    Ok((out, total, sources))
 }
 
 /// Simulates every grid point with the rigid-tip replay
@@ -435,7 +447,39 @@ pub(crate) fn confirm(
         _ => return Ok(None),
     };
     let contact_only = matches!(h, Hypothesis::Anisotropy | Hypothesis::ProbeFriction);
-    let (mut cands, mut total) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+    let scale = ComplianceScale::new(fit_scale, 0.1, 10.0);
+    let train_on_scored = h == Hypothesis::Plasticity;
+    let (mut cands, mut total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+    // Anisotropy: the coarse grid's choices re-simulated on the refined fit mesh (module docs).
+    let mut refined_from: Vec<usize> = Vec::new();
+    let mut choices: Vec<usize> = Vec::new();
+    if h == Hypothesis::Anisotropy
+        && let Some(mut fine) = sim.refined()?
+    {
+        choices = lolo_choices(&cands, rec, seg, p, scale, scored, train_on_scored);
+        let mut chosen = choices.clone();
+        chosen.sort_unstable();
+        chosen.dedup();
+        let grid: Vec<GridPoint> = chosen
+            .iter()
+            .map(|&i| {
+                let (mut params, ext, forces) = sources[i].clone();
+                params.push(("refined_mesh".into(), 1.0));
+                (params, ext, forces)
+            })
+            .collect();
+        let (fine_cands, fine_total, fine_sources) =
+            simulate_grid(fine.as_mut(), grid, rec, seg, p, contact_only)?;
+        // Which coarse candidate each converged refined one refines (the grid points are unique).
+        for (params, _, _) in &fine_sources {
+            let name = &params[..params.len() - 1];
+            if let Some(&i) = chosen.iter().find(|&&i| sources[i].0 == name) {
+                refined_from.push(i);
+            }
+        }
+        total += fine_total;
+        cands.extend(fine_cands);
+    }
     // The rigid-tip replay on the refined mesh when the simulator has one (module docs).
     let mut fine = if rigid.is_empty() {
         None
@@ -454,14 +498,25 @@ pub(crate) fn confirm(
     cands.extend(rigid_cands);
     total += rigid_total;
     let n = cands.len();
-    lolo_confirm(
+    // A refined candidate is offered only to the fold (or the full data) whose coarse choice it
+    // refines: which grid points get refined was decided with the other folds' data.
+    let n_coarse = sources.len();
+    let nf = seg.num_folds();
+    let eligible = |i: usize, fold: Option<usize>| match i.checked_sub(n_coarse) {
+        Some(j) if j < refined_from.len() => {
+            choices.get(fold.unwrap_or(nf)) == Some(&refined_from[j])
+        }
+        _ => true,
+    };
+    lolo_confirm_among(
         &cands,
+        Some(&eligible),
         rec,
         seg,
         p,
-        ComplianceScale::new(fit_scale, 0.1, 10.0),
+        scale,
         scored,
-        h == Hypothesis::Plasticity,
+        train_on_scored,
         None,
         format!(
             "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {}",
