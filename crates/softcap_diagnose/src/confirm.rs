@@ -453,6 +453,41 @@ mod tests {
         }
     }
 
+    /// `lolo_choices` names the per-fold and full-data choice, and an eligibility restriction
+    /// that withholds the exact candidate from fold 0 only makes fold 0 (and nothing else) fall
+    /// back to the other one.
+    #[test]
+    fn choices_and_eligibility_restrict_each_fold() {
+        let (rec, seg, p, cands) = toy();
+        let scored = |_: usize, _: usize| true;
+        let scale = ComplianceScale::new(true, 0.1, 10.0);
+        let choices = lolo_choices(&cands, &rec, &seg, &p, scale, &scored, false);
+        assert_eq!(choices, vec![0, 0, 0]);
+        let run = |eligible: Option<&EligibleFn<'_>>| {
+            lolo_confirm_among(
+                &cands,
+                eligible,
+                &rec,
+                &seg,
+                &p,
+                scale,
+                &scored,
+                false,
+                None,
+                "toy".into(),
+            )
+            .unwrap()
+            .unwrap()
+        };
+        let all = run(None);
+        assert!(all.after_scored_m < 1e-12);
+        let not_in_fold_0 = |i: usize, fold: Option<usize>| !(i == 0 && fold == Some(0));
+        let restricted = run(Some(&not_in_fold_0));
+        assert!(restricted.after_scored_m > 1e-6, "{}", restricted.after_scored_m);
+        // The full-data choice is still the exact candidate.
+        assert_eq!(restricted.params[0], ("a".to_string(), 1.0));
+    }
+
     #[test]
     fn clamped_scale_leaves_the_analytic_remainder() {
         // d clamped at 1.5: the held-out residual is 0.5 u on every observation, so the held-out

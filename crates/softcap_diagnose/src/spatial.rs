@@ -213,6 +213,47 @@ pub fn confirmed_by_signature(h: Hypothesis, sig: &crate::diagnose::Signatures) 
 /// probe forces.
 type GridPoint = (Vec<(String, f64)>, Extension, Vec<Vector3<f64>>);
 
+/// Grid point `i` and its neighbours along the fibre ratio (the grid points that differ from it
+/// in `fibre_ratio` only, the next lower and higher ratio), in grid order.
+fn ratio_neighbourhood(points: &[GridPoint], i: usize) -> Vec<usize> {
+    let ratio_of = |j: usize| {
+        points[j]
+            .0
+            .iter()
+            .find(|(n, _)| n == "fibre_ratio")
+            .map(|&(_, v)| v)
+    };
+    let Some(r0) = ratio_of(i) else {
+        return vec![i];
+    };
+    let others = |j: usize| {
+        points[j]
+            .0
+            .iter()
+            .filter(|(n, _)| n != "fibre_ratio")
+            .eq(points[i].0.iter().filter(|(n, _)| n != "fibre_ratio"))
+    };
+    let (mut below, mut above): (Option<(usize, f64)>, Option<(usize, f64)>) = (None, None);
+    for j in 0..points.len() {
+        let Some(r) = ratio_of(j) else { continue };
+        if j == i || !others(j) {
+            continue;
+        }
+        if r < r0 && below.is_none_or(|(_, b)| r > b) {
+            below = Some((j, r));
+        }
+        if r > r0 && above.is_none_or(|(_, a)| r < a) {
+            above = Some((j, r));
+        }
+    }
+    let mut out: Vec<usize> = [below.map(|b| b.0), Some(i), above.map(|a| a.0)]
+        .into_iter()
+        .flatten()
+        .collect();
+    out.sort_unstable();
+    out
+}
+
 /// Simulates every grid point (skipping those that do not reach equilibrium); returns the
 /// candidates, the grid size and, aligned with the candidates, the grid point each came from. With
 /// `contact_only` (extensions without history), only the contact frames are solved and every
@@ -450,14 +491,19 @@ pub(crate) fn confirm(
     let scale = ComplianceScale::new(fit_scale, 0.1, 10.0);
     let train_on_scored = h == Hypothesis::Plasticity;
     let (mut cands, mut total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
-    // Anisotropy: the coarse grid's choices re-simulated on the refined fit mesh (module docs).
+    // Anisotropy: the coarse grid's choices and their neighbours along the fibre ratio
+    // re-simulated on the refined fit mesh (module docs).
     let mut refined_from: Vec<usize> = Vec::new();
-    let mut choices: Vec<usize> = Vec::new();
+    let mut neighbourhoods: Vec<Vec<usize>> = Vec::new();
     if h == Hypothesis::Anisotropy
         && let Some(mut fine) = sim.refined()?
     {
-        choices = lolo_choices(&cands, rec, seg, p, scale, scored, train_on_scored);
-        let mut chosen = choices.clone();
+        let choices = lolo_choices(&cands, rec, seg, p, scale, scored, train_on_scored);
+        neighbourhoods = choices
+            .iter()
+            .map(|&i| ratio_neighbourhood(&sources, i))
+            .collect();
+        let mut chosen: Vec<usize> = neighbourhoods.concat();
         chosen.sort_unstable();
         chosen.dedup();
         let grid: Vec<GridPoint> = chosen
@@ -498,14 +544,15 @@ pub(crate) fn confirm(
     cands.extend(rigid_cands);
     total += rigid_total;
     let n = cands.len();
-    // A refined candidate is offered only to the fold (or the full data) whose coarse choice it
-    // refines: which grid points get refined was decided with the other folds' data.
+    // A refined candidate is offered only to the fold (or the full data) whose coarse choice's
+    // neighbourhood it belongs to: which grid points get refined was decided with the other
+    // folds' data, which include this fold's.
     let n_coarse = sources.len();
     let nf = seg.num_folds();
     let eligible = |i: usize, fold: Option<usize>| match i.checked_sub(n_coarse) {
-        Some(j) if j < refined_from.len() => {
-            choices.get(fold.unwrap_or(nf)) == Some(&refined_from[j])
-        }
+        Some(j) if j < refined_from.len() => neighbourhoods
+            .get(fold.unwrap_or(nf))
+            .is_some_and(|nb| nb.contains(&refined_from[j])),
         _ => true,
     };
     lolo_confirm_among(
@@ -643,6 +690,25 @@ mod tests {
         sig.lateral_shift_consistency = 0.96;
         sig.lateral_shift_m = 2e-5;
         assert!(!confirmed_by_signature(Hypothesis::Anisotropy, &sig));
+    }
+
+    /// The ratio neighbourhood of a grid point: the same fibre and Poisson ratios at the next
+    /// lower and higher fibre ratio (none below the grid's first, none above its last).
+    #[test]
+    fn ratio_neighbourhood_spans_the_adjacent_fibre_ratios() {
+        let mut points: Vec<GridPoint> = Vec::new();
+        for nu in [0.2, 0.45] {
+            for ratio in [2.5, 5.0, 10.0, 20.0] {
+                points.push((
+                    vec![("fibre_ratio".into(), ratio), ("nu_transverse".into(), nu)],
+                    Extension::Elastic,
+                    Vec::new(),
+                ));
+            }
+        }
+        assert_eq!(ratio_neighbourhood(&points, 2), vec![1, 2, 3]);
+        assert_eq!(ratio_neighbourhood(&points, 4), vec![4, 5]);
+        assert_eq!(ratio_neighbourhood(&points, 7), vec![6, 7]);
     }
 
     #[test]
