@@ -483,7 +483,11 @@ mod tests {
         assert!(all.after_scored_m < 1e-12);
         let not_in_fold_0 = |i: usize, fold: Option<usize>| !(i == 0 && fold == Some(0));
         let restricted = run(Some(&not_in_fold_0));
-        assert!(restricted.after_scored_m > 1e-6, "{}", restricted.after_scored_m);
+        assert!(
+            restricted.after_scored_m > 1e-6,
+            "{}",
+            restricted.after_scored_m
+        );
         // The full-data choice is still the exact candidate.
         assert_eq!(restricted.params[0], ("a".to_string(), 1.0));
     }

@@ -140,7 +140,7 @@ fn gravity_preload_is_named() {
 }
 
 #[test]
-#[ignore = "measured 2026-11-26 13:31 (dxa, session 8; fibre [1,0,1]/sqrt2 ratio 5, load 8-10): verdict anisotropy (was none) via the lateral-shift signature (0.165 mm, consistency 0.96; controls 0.020-0.028 mm, 0.34-0.42) and the re-simulated transversely isotropic grid: held-out on contact frames away from the probe 0.1351 -> 0.0644 mm (2.10x, needs 3x), fibre [0.707,0,0.707] (the truth; the screen's is its mirror), ratio 5, nu_t 0.45, nu_a 0.1, compliance 1.21; all contact cells 0.181 -> 0.108 mm. Ratio 10 at 1.0-1.6 mm depth: 0.1124 -> 0.0555 (2.02x): the floor is the TI model on the 648-tet fit mesh, not the effect size"]
+#[ignore = "measured 2026-11-26 16:47 (dxa, session 9; fibre [1,0,1]/sqrt2 ratio 5, fresh inputs on main 0bcf12b, load 9-17): verdict anisotropy via the lateral-shift signature and the re-simulated transversely isotropic grid, each fold's coarse choice and its fibre-ratio neighbours re-simulated on the fit mesh refined 1 -> 8: held-out on contact frames away from the probe 0.1351 -> 0.0571 mm (2.37x, needs 3x; coarse only 0.0644, 2.10x), fibre = the truth, ratio 5, nu_t 0.45, nu_a 0.1, compliance 1.29. The after equals the clean control's floor on these cells (0.057 mm, noise 0.035 of it). Ratio 20 at the default depth (synth converges since the LU Newton): 0.1876 -> 0.0771 (2.43x)"]
 fn anisotropy_is_named() {
     check("anisotropy");
 }
