@@ -127,7 +127,8 @@ pub struct LowRankBasis {
     pub h: usize,
     /// Rank `k_b` of each block.
     pub ranks: Vec<u32>,
-    /// Start of each block's `C_b` (`k_b × H`, row-major) in `coeffs`; length blocks + 1.
+    /// Start of each block's `C_b` (`k_b × H`, row-major, rows padded with zeros to
+    /// [`LowRankBasis::padded_handles`]) in `coeffs`; length blocks + 1.
     pub coeff_offsets: Vec<usize>,
     /// Start of each block's `U_b` (stored rank-major, `k_b × m_b`: column `q` of `U_b` is
     /// contiguous) in `factors`; length blocks + 1.
@@ -198,9 +199,11 @@ impl LowRankBasis {
                 };
                 let vk = v_sorted.columns(0, k).into_owned();
                 let u = u_full.columns(0, k).into_owned(); // m × k
+                // rows padded with zeros to whole SIMD lanes (`padded_handles`)
+                let hp = h.div_ceil(BATCH) * BATCH;
                 let coeffs: Vec<f32> = (0..k)
-                    .flat_map(|j| (0..h).map(move |i| (i, j)))
-                    .map(|(i, j)| vk[(i, j)] as f32)
+                    .flat_map(|j| (0..hp).map(move |i| (i, j)))
+                    .map(|(i, j)| if i < h { vk[(i, j)] as f32 } else { 0.0 })
                     .collect();
                 // rank-major (k × m): the run-time loop runs over vertices in SIMD lanes
                 let factors: Vec<f32> = (0..k)
@@ -227,6 +230,11 @@ impl LowRankBasis {
             out.factor_offsets.push(out.factors.len());
         }
         out
+    }
+
+    /// Length of a stored row of `C_b`: H rounded up to whole SIMD lanes ([`BATCH`]).
+    pub fn padded_handles(&self) -> usize {
+        self.h.div_ceil(BATCH) * BATCH
     }
 
     /// Mean rank per vertex (multiply-adds per vertex and coordinate of the per-vertex step).
@@ -789,8 +797,9 @@ pub fn feature_table(model: &DetailModel, features: &[f64], table: &mut Vec<[f32
     }
 }
 
-/// Handle mean `ū` and centred displacements `ũ = u_H − ū` (padded to 4 lanes) of pass 1.
-pub fn centre_handles(uh: &[[f32; 3]], centred: &mut Vec<[f32; 4]>) -> [f32; 3] {
+/// Handle mean `ū` and centred displacements `ũ = u_H − ū` of pass 1, stored by axis
+/// (`[ũ_x | ũ_y | ũ_z]`, each padded with zeros to [`LowRankBasis::padded_handles`] entries).
+pub fn centre_handles(uh: &[[f32; 3]], centred: &mut Vec<f32>) -> [f32; 3] {
     let mut mean = [0.0f64; 3];
     for u in uh {
         for a in 0..3 {
@@ -798,11 +807,14 @@ pub fn centre_handles(uh: &[[f32; 3]], centred: &mut Vec<[f32; 4]>) -> [f32; 3] 
         }
     }
     let mean = mean.map(|m| (m / uh.len().max(1) as f64) as f32);
+    let hp = uh.len().div_ceil(BATCH) * BATCH;
     centred.clear();
-    centred.extend(
-        uh.iter()
-            .map(|u| [u[0] - mean[0], u[1] - mean[1], u[2] - mean[2], 0.0]),
-    );
+    centred.resize(3 * hp, 0.0);
+    for (h, u) in uh.iter().enumerate() {
+        for a in 0..3 {
+            centred[a * hp + h] = u[a] - mean[a];
+        }
+    }
     mean
 }
 
@@ -1288,10 +1300,11 @@ fn normal_vertex(fans: &Fans, v: usize, positions: &[[f32; 3]], base: usize) -> 
 /// `x_v = x0_v + ū + Σ_k U_b[v,k] (C_b ũ)_k`; `U_b` is rank-major, so the inner loop runs over
 /// the block's vertices in SIMD lanes (three multiply-adds per 8 vertices and rank).
 #[inline(always)]
-fn large_block(
+fn large_block<S: pulp::Simd>(
+    o: Lanes<S>,
     layout: &RuntimeLayout,
     blk: usize,
-    centred: &[[f32; 4]],
+    centred: &[f32],
     mean: [f32; 3],
     out: &mut [[f32; 3]],
 ) {
@@ -1305,28 +1318,30 @@ fn large_block(
     let mut acc = [[0.0f32; LOW_RANK_BLOCK]; 3];
     let [ax, ay, az] = &mut acc;
     let (ax, ay, az) = (&mut ax[..m], &mut ay[..m], &mut az[..m]);
-    for (row, col) in coeffs.chunks_exact(b.h).zip(factors.chunks_exact(m)) {
-        // c = C_b[q,:] · ũ in four interleaved partial sums (handles h ≡ 0..3 mod 4), so the
-        // additions do not wait on one another
-        let mut part = [[0.0f32; 4]; 4];
-        let (rows4, rest4) = row.split_at(row.len() / 4 * 4);
-        for (w4, u4) in rows4.chunks_exact(4).zip(centred.chunks_exact(4)) {
-            for k in 0..4 {
-                for a in 0..4 {
-                    part[k][a] += w4[k] * u4[k][a];
-                }
+    let hp = b.padded_handles();
+    let (ux, rest_u) = centred.split_at(hp);
+    let (uy, uz) = rest_u.split_at(hp);
+    for (row, col) in coeffs.chunks_exact(hp).zip(factors.chunks_exact(m)) {
+        // c = C_b[q,:] · ũ: 8 partial sums per axis (handles h ≡ 0..7 mod 8) in SIMD lanes,
+        // then added in a fixed order (the same bits for every SIMD width)
+        let mut part = [[0.0f32; BATCH]; 3];
+        for (k, w) in row.chunks_exact(BATCH).enumerate() {
+            let w: &Lane = w.try_into().expect("rows padded to whole lanes");
+            let at = k * BATCH..(k + 1) * BATCH;
+            for (p, u) in part
+                .iter_mut()
+                .zip([&ux[at.clone()], &uy[at.clone()], &uz[at]])
+            {
+                let u: &Lane = u.try_into().expect("ũ padded to whole lanes");
+                *p = o.add(p, &o.mul(w, u));
             }
         }
-        for (&w, u) in rest4.iter().zip(&centred[rows4.len()..]) {
-            for a in 0..4 {
-                part[0][a] += w * u[a];
-            }
+        let mut c = [0.0f32; 3];
+        for a in 0..3 {
+            let p = &part[a];
+            c[a] = ((p[0] + p[1]) + (p[2] + p[3])) + ((p[4] + p[5]) + (p[6] + p[7]));
         }
-        let mut c = [0.0f32; 4];
-        for a in 0..4 {
-            c[a] = (part[0][a] + part[1][a]) + (part[2][a] + part[3][a]);
-        }
-        let [cx, cy, cz, _] = c;
+        let [cx, cy, cz] = c;
         for i in 0..m {
             ax[i] += col[i] * cx;
             ay[i] += col[i] * cy;
@@ -1345,15 +1360,16 @@ fn large_block(
 /// Pass 1 over the low-rank blocks covering stored vertices `first..first + out.len()`
 /// (`first` a multiple of [`LOW_RANK_BLOCK`]).
 #[inline(always)]
-fn large_range(
+fn large_range<S: pulp::Simd>(
+    lanes: Lanes<S>,
     layout: &RuntimeLayout,
     first: usize,
-    centred: &[[f32; 4]],
+    centred: &[f32],
     mean: [f32; 3],
     out: &mut [[f32; 3]],
 ) {
     for (k, o) in out.chunks_mut(LOW_RANK_BLOCK).enumerate() {
-        large_block(layout, first / LOW_RANK_BLOCK + k, centred, mean, o);
+        large_block(lanes, layout, first / LOW_RANK_BLOCK + k, centred, mean, o);
     }
 }
 
@@ -1367,7 +1383,7 @@ enum Kernel<'a, const NC: usize, E> {
     /// The fused sweep of one chunk (see [`Schedule`]).
     Sweep {
         inputs: &'a DetailInputs<'a, NC, E>,
-        centred: &'a [[f32; 4]],
+        centred: &'a [f32],
         mean: [f32; 3],
         first: usize,
         large: &'a mut [[f32; 3]],
@@ -1377,7 +1393,7 @@ enum Kernel<'a, const NC: usize, E> {
     /// Pass 1 over a range of whole low-rank blocks.
     Large {
         layout: &'a RuntimeLayout,
-        centred: &'a [[f32; 4]],
+        centred: &'a [f32],
         mean: [f32; 3],
         first: usize,
         out: &'a mut [[f32; 3]],
@@ -1423,7 +1439,7 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
                 mean,
                 first,
                 out,
-            } => large_range(layout, first, centred, mean, out),
+            } => large_range(Lanes(simd), layout, first, centred, mean, out),
             Kernel::Detail {
                 inputs,
                 large,
@@ -1480,7 +1496,7 @@ fn dispatch<const NC: usize, E: EdgeId>(kernel: Kernel<'_, NC, E>) {
 fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
     simd: S,
     inputs: &DetailInputs<'_, NC, E>,
-    centred: &[[f32; 4]],
+    centred: &[f32],
     mean: [f32; 3],
     first: usize,
     large: &mut [[f32; 3]],
@@ -1497,7 +1513,14 @@ fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
     for step in 0..blocks + 2 * L {
         if step < blocks {
             let r = span(step);
-            large_range(layout, first + r.start, centred, mean, &mut large[r]);
+            large_range(
+                Lanes(simd),
+                layout,
+                first + r.start,
+                centred,
+                mean,
+                &mut large[r],
+            );
         }
         if (L..blocks + L).contains(&step) {
             let r = span(step - L);
@@ -1534,7 +1557,7 @@ fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
 #[allow(clippy::too_many_arguments)]
 pub fn frame_pass(
     layout: &RuntimeLayout,
-    centred: &[[f32; 4]],
+    centred: &[f32],
     mean: [f32; 3],
     table: &[[f32; LANES]],
     global_r: Option<&[f32]>,
@@ -1547,7 +1570,11 @@ pub fn frame_pass(
         large.len() == n && positions.len() == n && normals.len() == n,
         "one output per vertex"
     );
-    assert_eq!(centred.len(), layout.basis.h, "one displacement per handle");
+    assert_eq!(
+        centred.len(),
+        3 * layout.basis.padded_handles(),
+        "one displacement per handle and axis (centre_handles)"
+    );
     with_inputs!(layout, table, global_r, |inputs| frame_typed(
         inputs, centred, mean, large, positions, normals
     ));
@@ -1555,7 +1582,7 @@ pub fn frame_pass(
 
 fn frame_typed<const NC: usize, E: EdgeId>(
     inputs: &DetailInputs<'_, NC, E>,
-    centred: &[[f32; 4]],
+    centred: &[f32],
     mean: [f32; 3],
     large: &mut [[f32; 3]],
     positions: &mut [[f32; 3]],
@@ -1745,7 +1772,7 @@ mod tests {
                         let want = row[j] as f64 - mean;
                         let m = u.len() / k.max(1);
                         let got: f64 = (0..k)
-                            .map(|q| u[q * m + i] as f64 * c[q * h + j] as f64)
+                            .map(|q| u[q * m + i] as f64 * c[q * lr.padded_handles() + j] as f64)
                             .sum();
                         err += (got - want).powi(2);
                     }
