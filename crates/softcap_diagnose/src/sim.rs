@@ -118,9 +118,9 @@ pub trait ProbeSimulator {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct FemSimSettings {
-    /// The contact patch the probe force is spread over (`softcap_fem::probing::PatchSettings`:
-    /// boundary nodes within the footprint radius of the probe axis; the stage sets the radius
-    /// from the session's tip radius).
+    /// The contact patch the probe force is spread over (`softcap_fem::probing::PatchSettings`,
+    /// `ProbingSetup::load_weights`: lumped on the boundary nodes inside the footprint, or the
+    /// consistent loads of a uniform pressure over it). Must match the tissue fit's.
     pub patch: PatchSettings,
     /// Equilibrium iterations.
     pub equilibrium: EquilibriumSettings,
@@ -143,8 +143,8 @@ impl Default for FemSimSettings {
 
 /// [`ProbeSimulator`] on a corotational tet model (bickel2009 §3.2–3.4) over a
 /// [`ProbingSetup`]: attached (support) nodes fixed, markers embedded barycentrically, the probe
-/// force spread over the contact patch in proportion to the nodes' boundary areas (bickel2009
-/// §4.1 force boundary condition, `ProbingSetup::{patch_nodes, nodal_forces}`).
+/// force spread over the footprint (bickel2009 §4.1 force boundary condition,
+/// `ProbingSetup::{load_weights, nodal_forces}`).
 pub struct FemProbeSimulator {
     setup: ProbingSetup,
     model: CorotationalModel,
@@ -315,16 +315,16 @@ impl FemProbeSimulator {
         }
     }
 
-    /// Surface nodes of the contact patch of `load` (`ProbingSetup::patch_nodes`).
-    pub fn patch_nodes(&self, load: &ProbeLoad) -> Vec<usize> {
+    /// Share of the probe force of `load` per loaded surface node (`ProbingSetup::load_weights`).
+    pub fn load_weights(&self, load: &ProbeLoad) -> Vec<(usize, f64)> {
         self.setup
-            .patch_nodes(&Self::example(load), &self.settings.patch)
+            .load_weights(&Self::example(load), &self.settings.patch)
     }
 
-    /// Nodal forces of `load` over its patch (area-weighted, `ProbingSetup::nodal_forces`).
+    /// Nodal forces of `load` over its footprint (consistent loads, `ProbingSetup::nodal_forces`).
     pub fn probe_forces(&self, load: &ProbeLoad) -> Vec<Vector3<f64>> {
-        let patch = self.patch_nodes(load);
-        self.setup.nodal_forces(&Self::example(load), &patch)
+        self.setup
+            .nodal_forces(&Self::example(load), &self.settings.patch)
     }
 
     /// Body force of density ρ g (N/m³) lumped to the nodes (wang2015 §3, m_a = Σ ρ V_e / 4).
@@ -394,11 +394,13 @@ impl ProbeSimulator for FemProbeSimulator {
         } else {
             vec![Vector3::zeros(); n]
         };
-        let patch = load.probe.map(|p| self.patch_nodes(&p)).unwrap_or_default();
+        let weights = load
+            .probe
+            .map(|p| self.load_weights(&p))
+            .unwrap_or_default();
         if let Some(p) = &load.probe {
-            let fp = self.setup.nodal_forces(&Self::example(p), &patch);
-            for (a, b) in f.iter_mut().zip(&fp) {
-                *a += b;
+            for &(v, w) in &weights {
+                f[v] += p.force_n * w;
             }
         }
         let mut x = self.setup.mesh.vertices.clone();
@@ -416,19 +418,17 @@ impl ProbeSimulator for FemProbeSimulator {
             });
         }
         let markers_m = self.setup.marker_positions(&x);
-        let force_response = match (&load.probe, want_response && !patch.is_empty()) {
-            (Some(p), true) => {
+        // T = ∂x/∂f: the right-hand side of unit force k is the load's share on every loaded
+        // node (the same weights as the load itself, so T·f reproduces the load's response).
+        let force_response = match (&load.probe, want_response && !weights.is_empty()) {
+            (Some(_), true) => {
                 let dofs = self.solver.dofs().clone();
                 let nf = dofs.num_free();
                 let mut rhs = vec![0.0; 3 * nf];
                 for k in 0..3 {
-                    let mut unit = *p;
-                    unit.force_n = Vector3::zeros();
-                    unit.force_n[k] = 1.0;
-                    let fu = self.setup.nodal_forces(&Self::example(&unit), &patch);
-                    for &v in &patch {
+                    for &(v, w) in &weights {
                         if let Some(i) = dofs.free_index(3 * v + k) {
-                            rhs[k * nf + i] += fu[v][k];
+                            rhs[k * nf + i] += w;
                         }
                     }
                 }

@@ -194,28 +194,12 @@ pub struct SynthesisResult {
     pub projected: Vec<ProjectedWrinkle>,
 }
 
-/// Ray–triangle intersection (Möller–Trumbore, two-sided): ray parameter of the hit.
+/// Ray–triangle intersection (Möller–Trumbore, two-sided, [`softcap_mesh::line_triangle`]):
+/// ray parameter of a hit in front of the origin.
 fn ray_triangle(o: &Vector3<f64>, d: &Vector3<f64>, tri: [Vector3<f64>; 3]) -> Option<f64> {
-    let e1 = tri[1] - tri[0];
-    let e2 = tri[2] - tri[0];
-    let p = d.cross(&e2);
-    let det = e1.dot(&p);
-    if det.abs() < 1e-14 * e1.norm() * e2.norm() {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = o - tri[0];
-    let u = s.dot(&p) * inv;
-    if !(-1e-12..=1.0 + 1e-12).contains(&u) {
-        return None;
-    }
-    let q = s.cross(&e1);
-    let v = d.dot(&q) * inv;
-    if v < -1e-12 || u + v > 1.0 + 1e-12 {
-        return None;
-    }
-    let t = e2.dot(&q) * inv;
-    (t > 0.0).then_some(t)
+    softcap_mesh::line_triangle(o, d, &tri)
+        .map(|(t, _)| t)
+        .filter(|&t| t > 0.0)
 }
 
 /// First surface point hit by the ray through pixel `px`.

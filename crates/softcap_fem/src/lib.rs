@@ -91,11 +91,11 @@ pub use plasticity::{
     plastic_from_vector, plastic_to_vector, radial_return,
 };
 pub use probing::{
-    ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, HomogeneousFit,
-    HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample, ProbingSetup,
-    StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel, StrainTail,
-    fit_example, fit_example_from, fit_examples_from, fit_examples_jointly, fit_homogeneous,
-    simulate_probe_contact,
+    ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, FootprintLoad,
+    HomogeneousFit, HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample,
+    ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel,
+    StrainTail, fit_example, fit_example_from, fit_examples_from, fit_examples_jointly,
+    fit_homogeneous, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

@@ -4,10 +4,10 @@
 
 use softcap_fem::nalgebra::{Vector3, Vector6};
 use softcap_fem::probing::{
-    ContactSynthesisSettings, ExampleFitSettings, HomogeneousFitSettings, ObservedMarker,
-    ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
-    fit_example, fit_homogeneous, marker_jacobian, probe_pose, simulate_probe_contact,
-    support_nodes,
+    ContactSynthesisSettings, ExampleFitSettings, FootprintLoad, HomogeneousFitSettings,
+    ObservedMarker, PatchSettings, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample,
+    StrainSpaceMaterial, fit_example, fit_homogeneous, marker_jacobian, probe_pose,
+    simulate_probe_contact, support_nodes,
 };
 use softcap_fem::{
     CorotationalModel, EquilibriumSettings, LinearParams, NeoHookeanModel, NeoHookeanParams,
@@ -67,13 +67,86 @@ fn simulate<M: softcap_fem::ElasticModel>(
     ex: &ProbeExample,
     settings: &EquilibriumSettings,
 ) -> Vec<Vector3<f64>> {
-    let patch = setup.patch_nodes(ex, &Default::default());
-    let f = setup.nodal_forces(ex, &patch);
+    let f = setup.nodal_forces(ex, &Default::default());
     let mut solver = setup.solver(&*model).unwrap();
     let mut x = setup.mesh.vertices.clone();
     let rep = setup.simulate(&mut solver, model, &mut x, &f, settings);
     assert!(rep.converged(), "{rep:?}");
     x
+}
+
+/// Regression guard of the consistent footprint loads (bickel2009 §4.1): on the flat top face
+/// of the 6 mm-spaced block a 5 mm footprint anywhere carries the whole force AND its first
+/// moment sits on the probe axis (Σ w_n x_n = the tip), whatever the nodes near the tip — the
+/// area-lumped load on the nodes inside the footprint missed the axis by up to half a spacing.
+#[test]
+fn footprint_loads_carry_the_force_centred_on_the_probe_axis() {
+    let (setup, _) = block();
+    let patch = PatchSettings {
+        load: FootprintLoad::Consistent,
+        ..PatchSettings::default()
+    };
+    let top = 0.012;
+    for (i, (x, y)) in [
+        (0.0137, 0.0161),
+        (0.015, 0.015),
+        (0.0071, 0.0222),
+        (0.012, 0.018),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let ex = ProbeExample {
+            frame: i as u64,
+            time_s: 0.0,
+            // Pressed 1.5 mm in: the footprint is cast back onto the rest surface.
+            tip_m: Vector3::new(x, y, top - 0.0015),
+            axis: -Vector3::z(),
+            force_n: Vector3::new(0.05, -0.02, -1.0),
+            observed: Vec::new(),
+        };
+        let w = setup.load_weights(&ex, &patch);
+        let sum: f64 = w.iter().map(|e| e.1).sum();
+        assert!((sum - 1.0).abs() < 1e-14, "Σw = {sum}");
+        assert!(w.len() >= 4, "{w:?}");
+        let mut moment = Vector3::zeros();
+        for &(n, wn) in &w {
+            let xn = setup.mesh.vertices[n];
+            assert!(wn > 0.0 && (xn.z - top).abs() < 1e-12, "node {n} at {xn:?}");
+            moment += xn * wn;
+        }
+        assert!(
+            (moment.x - x).abs() < 1e-12 && (moment.y - y).abs() < 1e-12,
+            "load centre {moment:?} vs tip ({x}, {y})"
+        );
+        let f = setup.nodal_forces(&ex, &patch);
+        let total: Vector3<f64> = f.iter().sum();
+        assert!((total - ex.force_n).norm() < 1e-14, "{total:?}");
+    }
+    // A footprint over the block's edge: the part in contact carries the whole force, its
+    // centre moves inwards; a tip beside the block loads the closest surface point.
+    for (tip, inside) in [
+        (Vector3::new(0.028, 0.015, top), true),
+        (Vector3::new(0.045, 0.015, top), false),
+    ] {
+        let ex = ProbeExample {
+            frame: 0,
+            time_s: 0.0,
+            tip_m: tip,
+            axis: -Vector3::z(),
+            force_n: Vector3::new(0.0, 0.0, -1.0),
+            observed: Vec::new(),
+        };
+        let w = setup.load_weights(&ex, &patch);
+        let sum: f64 = w.iter().map(|e| e.1).sum();
+        assert!((sum - 1.0).abs() < 1e-14, "Σw = {sum}");
+        let cx: f64 = w.iter().map(|&(n, wn)| setup.mesh.vertices[n].x * wn).sum();
+        if inside {
+            assert!(cx < 0.028 && cx > 0.024, "centre x {cx}");
+        } else {
+            assert!((cx - 0.03).abs() < 1e-12, "centre x {cx}");
+        }
+    }
 }
 
 #[test]

@@ -104,6 +104,37 @@ pub fn closest_point_on_triangle(
     [1.0 - v - w, v, w]
 }
 
+/// Intersection of the line `o + t·d` with triangle `tri` (Möller & Trumbore 1997,
+/// two-sided): the line parameter t (any sign) and the barycentric weights of the hit
+/// `[1 − u − v, u, v]`. Points up to 1e-12 (barycentric) outside an edge count as hits, so a
+/// line through a shared edge is never lost between its two triangles (the weights can then
+/// be off [0, 1] by that much). `None` when the line misses or is parallel to the plane.
+pub fn line_triangle(
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    tri: &[Vector3<f64>; 3],
+) -> Option<(f64, [f64; 3])> {
+    let e1 = tri[1] - tri[0];
+    let e2 = tri[2] - tri[0];
+    let p = d.cross(&e2);
+    let det = e1.dot(&p);
+    if det.abs() < 1e-14 * e1.norm() * e2.norm() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - tri[0];
+    let u = s.dot(&p) * inv;
+    if !(-1e-12..=1.0 + 1e-12).contains(&u) {
+        return None;
+    }
+    let q = s.cross(&e1);
+    let v = d.dot(&q) * inv;
+    if v < -1e-12 || u + v > 1.0 + 1e-12 {
+        return None;
+    }
+    Some((e2.dot(&q) * inv, [1.0 - u - v, u, v]))
+}
+
 fn bounds<const N: usize>(x: [Vector3<f64>; N]) -> (Vector3<f64>, Vector3<f64>) {
     let mut lo = x[0];
     let mut hi = x[0];

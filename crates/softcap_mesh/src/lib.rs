@@ -56,7 +56,7 @@ pub use adjacency::{
 pub use bvh::Bvh;
 pub use embed::{
     TetEmbedding, TetLocator, TriEmbedding, TriLocator, closest_point_on_triangle, embed_in_tets,
-    embed_on_triangles, tet_barycentric,
+    embed_on_triangles, line_triangle, tet_barycentric,
 };
 pub use error::{MeshError, Result};
 pub use faer;

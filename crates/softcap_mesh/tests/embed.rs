@@ -131,3 +131,38 @@ fn closest_points_on_sphere_surface() {
         assert!((e.distance - (p.norm() - 1.0).abs()).abs() < 0.02);
     }
 }
+
+#[test]
+fn line_triangle_hits_reproduce_the_point_and_misses_are_none() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let tri = [
+        Vector3::new(0.1, -0.2, 0.3),
+        Vector3::new(1.2, 0.1, -0.1),
+        Vector3::new(-0.3, 0.9, 0.2),
+    ];
+    let d = Vector3::new(0.2, -0.3, 1.0).normalize();
+    let (mut hits, mut misses) = (0, 0);
+    for _ in 0..200 {
+        // A random point of the triangle's plane, inside or outside.
+        let (u, v): (f64, f64) = (rng.random_range(-0.5..1.5), rng.random_range(-0.5..1.5));
+        let p = tri[0] * (1.0 - u - v) + tri[1] * u + tri[2] * v;
+        let t0: f64 = rng.random_range(-2.0..2.0);
+        let o = p - d * t0;
+        match line_triangle(&o, &d, &tri) {
+            Some((t, w)) => {
+                hits += 1;
+                assert!(u >= -1e-12 && v >= -1e-12 && u + v <= 1.0 + 1e-12);
+                assert!((t - t0).abs() < 1e-12, "{t} vs {t0}");
+                let q = tri[0] * w[0] + tri[1] * w[1] + tri[2] * w[2];
+                assert!((q - p).norm() < 1e-12);
+            }
+            None => {
+                misses += 1;
+                assert!(u < 0.0 || v < 0.0 || u + v > 1.0, "({u}, {v}) missed");
+            }
+        }
+    }
+    assert!(hits > 20 && misses > 20, "{hits} hits, {misses} misses");
+    // A line in the triangle's plane is parallel to it.
+    assert!(line_triangle(&tri[0], &(tri[1] - tri[0]), &tri).is_none());
+}

@@ -322,8 +322,7 @@ pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
     equilibrium: &EquilibriumSettings,
     load_steps: usize,
 ) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
-    let nodes = setup.patch_nodes(ex, patch);
-    let f = setup.nodal_forces(ex, &nodes);
+    let f = setup.nodal_forces(ex, patch);
     let mut solver = setup.solver(&*model)?;
     let mut x = setup.mesh.vertices.clone();
     let n = load_steps.max(1);
@@ -395,8 +394,7 @@ pub fn resimulate_from(
         m.relaxation = 1.0;
         m.update_state(start);
         m.relaxation = model.relaxation;
-        let nodes = setup.patch_nodes(ex, &s.example_fit.patch);
-        let f = setup.nodal_forces(ex, &nodes);
+        let f = setup.nodal_forces(ex, &s.example_fit.patch);
         let mut solver = setup.solver(&m)?;
         let mut x = start.to_vec();
         if setup

@@ -43,7 +43,7 @@ fn marker_jacobian_of_a_prepared_session_matches_finite_differences() {
         radius_m: prepared.tip_radius_m,
         ..PatchSettings::default()
     };
-    let forces = setup.nodal_forces(ex, &setup.patch_nodes(ex, &patch));
+    let forces = setup.nodal_forces(ex, &patch);
     let tight = EquilibriumSettings {
         max_iterations: 100,
         displacement_tol_rel: 1e-13,

@@ -79,8 +79,7 @@ pub fn truth_example<M: ElasticModel>(
         force_n: Vector3::new(0.0, 0.0, -force_n),
         observed: Vec::new(),
     };
-    let nodes = setup.patch_nodes(&ex, &patch);
-    let forces = setup.nodal_forces(&ex, &nodes);
+    let forces = setup.nodal_forces(&ex, &patch);
     let rep = setup.simulate(solver, truth, x, &forces, &EquilibriumSettings::newton());
     assert!(rep.converged(), "truth: {rep:?}");
     ex.observed = setup
