@@ -533,7 +533,7 @@ pub const ALPHA_STEP: f32 = 1.0 / 65535.0;
 
 /// Sweep blocks by which the large-scale positions run ahead of the detail, and the detail
 /// ahead of the final normals, in the fused sweep ([`Schedule`]).
-pub const SWEEP_LAG: usize = 2;
+pub const SWEEP_LAG: usize = 3;
 
 /// Bit of [`Schedule::flags`]: the vertex's detail is computed after the sweep.
 pub const DEFER_DETAIL: u8 = 1;
@@ -571,10 +571,13 @@ pub struct Schedule {
 }
 
 impl Schedule {
-    /// Sweep shape for `n` vertices: ≥ 4 chunks of ≤ 64k vertices (so two threads share the
-    /// work and a chunk's blocks stay cache-resident), blocks of 256–2048 vertices.
+    /// Sweep shape for `n` vertices: ≥ 4 chunks (so two threads share the work evenly) of
+    /// ≤ 150k vertices, blocks of 256–2048 vertices. Only a few blocks of a chunk are live at a
+    /// time, so the chunk size does not matter for the cache; larger chunks have fewer vertices
+    /// whose one-ring crosses a chunk boundary (deferred): on the Morton-ordered 592k face
+    /// 9.1 % of the detail batches with 4 chunks of 148k, 13.5 % with 10 of 59k.
     pub fn shape(n: usize) -> (usize, usize) {
-        let chunks = n.div_ceil(65_536).max(4);
+        let chunks = n.div_ceil(150_000).max(4);
         let per = n.div_ceil(chunks).max(1);
         let block = LOW_RANK_BLOCK * (per / (8 * LOW_RANK_BLOCK)).clamp(1, 8);
         (block, per.div_ceil(block) * block)
@@ -1249,7 +1252,8 @@ fn fan_normal_sum(
     kind: FanKind,
     p: [f32; 3],
 ) -> [f32; 3] {
-    let point = |i: u32| positions[i as usize - base];
+    // (a wrapped index fails the bounds check like an overflowing one)
+    let point = |i: u32| positions[(i as usize).wrapping_sub(base)];
     let mut s = [0.0f32; 3];
     let mut add = |c: [f32; 3]| {
         s = [s[0] + c[0], s[1] + c[1], s[2] + c[2]];
@@ -1261,20 +1265,26 @@ fn fan_normal_sum(
             }
         }
         kind => {
-            // chain points q_0 .. q_terms (a closed fan returns to q_0)
-            let m = ids.len();
-            let terms = if kind == FanKind::Closed { m } else { m - 1 };
-            let q = |k: usize| point(ids[if k == m { 0 } else { k }]);
-            let mut before = q(0);
-            let mut k = 1;
-            while k < terms {
-                let next = q(k + 1);
-                add(cross(sub(q(k), p), sub(next, before)));
+            // chain q_0, q_1, … (a closed fan returns to q_0): pairs (q_k, q_{k+1}) for odd k
+            let Some((&first, rest)) = ids.split_first() else {
+                return s;
+            };
+            let q0 = point(first);
+            let mut before = q0;
+            let mut pairs = rest.chunks_exact(2);
+            for pair in &mut pairs {
+                let next = point(pair[1]);
+                add(cross(sub(point(pair[0]), p), sub(next, before)));
                 before = next;
-                k += 2;
             }
-            if k == terms {
-                add(cross(sub(before, p), sub(q(k), p)));
+            match (pairs.remainder(), kind == FanKind::Closed) {
+                // closed, odd neighbour count left: q_{m−1} pairs with the closing q_0
+                ([last], true) => add(cross(sub(point(*last), p), sub(q0, before))),
+                // open: one plain last term
+                ([last], false) => add(cross(sub(before, p), sub(point(*last), p))),
+                // closed, even: the closing term alone
+                ([], true) => add(cross(sub(before, p), sub(q0, p))),
+                _ => {}
             }
         }
     }
