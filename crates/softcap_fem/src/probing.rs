@@ -1516,9 +1516,22 @@ pub fn fit_homogeneous(
         settings,
         m,
     };
-    // Linear rescaling of the start: displacements scale like 1/E.
+    // The start must reach equilibrium on every example: otherwise its residuals are NaN, the
+    // linear rescaling below is skipped and Levenberg–Marquardt cannot leave the start, so the
+    // "fit" is the initial guess (measured: a relaxing soft block under the lumped patch force,
+    // 30 kPa start, marker RMS 1.6 mm). A stiffer material deforms less, so E is doubled until
+    // every example converges (at most `START_DOUBLINGS` times; the rescaling then undoes it).
+    const START_DOUBLINGS: usize = 16;
     let mut r = vec![0.0; m];
-    problem.run(&[0.0, settings.initial_nu], &mut r, None);
+    for doubling in 0..=START_DOUBLINGS {
+        problem.run(&[0.0, settings.initial_nu], &mut r, None);
+        if r.iter().all(|v| v.is_finite()) || doubling == START_DOUBLINGS {
+            break;
+        }
+        problem.young_ref *= 2.0;
+        problem.warm = vec![setup.mesh.vertices.clone(); examples.len()];
+    }
+    // Linear rescaling of the start: displacements scale like 1/E.
     let (mut uu, mut um) = (0.0, 0.0);
     let mut row = 0;
     for ex in examples {
@@ -1549,6 +1562,11 @@ pub fn fit_homogeneous(
         &settings.lm,
     )
     .map_err(|e| probing_error(e.to_string()))?;
+    if !report.residuals.iter().all(|v| v.is_finite()) {
+        return Err(probing_error(
+            "homogeneous fit: an example does not reach equilibrium at the fitted material",
+        ));
+    }
     let params = problem
         .params(&report.params)
         .ok_or_else(|| probing_error("homogeneous fit left the valid parameter range"))?;

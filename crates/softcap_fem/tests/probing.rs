@@ -216,6 +216,35 @@ fn marker_jacobian_matches_finite_differences() {
 
 #[test]
 fn homogeneous_fit_recovers_a_known_material() {
+    homogeneous_fit_recovers_from_start(HomogeneousFitSettings::default());
+}
+
+/// Regression guard: a start so soft that the examples have no equilibrium at it (NaN
+/// residuals) used to be returned unchanged as the "fit"; the start is now stiffened until
+/// every example converges, and the fit recovers the material as from the default start.
+#[test]
+fn homogeneous_fit_recovers_from_a_start_without_equilibrium() {
+    let (setup, _) = block();
+    let start = LinearParams::from_young_poisson(300.0, 0.4).unwrap();
+    let mut soft = CorotationalModel::homogeneous(&setup.mesh, start).unwrap();
+    let tip = Vector3::new(0.018, 0.012, 0.012);
+    let probe = example(&setup, &setup.mesh.vertices, tip, -1.6);
+    let f = setup.nodal_forces(&probe, &Default::default());
+    let mut solver = setup.solver(&soft).unwrap();
+    let mut x = setup.mesh.vertices.clone();
+    let settings = HomogeneousFitSettings::default();
+    let rep = setup.simulate(&mut solver, &mut soft, &mut x, &f, &settings.equilibrium);
+    assert!(
+        !rep.converged(),
+        "the 300 Pa start must not converge: {rep:?}"
+    );
+    homogeneous_fit_recovers_from_start(HomogeneousFitSettings {
+        initial_young_pa: 300.0,
+        ..settings
+    });
+}
+
+fn homogeneous_fit_recovers_from_start(settings: HomogeneousFitSettings) {
     let (setup, _) = block();
     let truth = LinearParams::from_young_poisson(4.0e4, 0.35).unwrap();
     let mut model = CorotationalModel::homogeneous(&setup.mesh, truth).unwrap();
@@ -229,7 +258,7 @@ fn homogeneous_fit_recovers_a_known_material() {
             example(&setup, &xs, tip, fz)
         })
         .collect();
-    let fit = fit_homogeneous(&setup, &examples, &HomogeneousFitSettings::default()).unwrap();
+    let fit = fit_homogeneous(&setup, &examples, &settings).unwrap();
     let (e, nu) = fit.params.to_young_poisson().unwrap();
     assert!((e / 4.0e4 - 1.0).abs() < 1e-3, "E = {e}");
     assert!((nu - 0.35).abs() < 5e-3, "nu = {nu}");
