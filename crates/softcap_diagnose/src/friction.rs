@@ -252,10 +252,18 @@ pub fn drag_signature_m(rec: &Recording, seg: &Segmentation, res: &crate::Residu
 /// Friction coefficients of the confirmation grid (rubber / skin-like contacts span 0.2–1;
 /// the material's compliance scale refitted with the traction lets the effective μ go higher).
 pub const MU_GRID: [f64; 8] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0, 1.25, 1.5];
-/// Friction coefficients of the frictional rigid-tip replay (`Extension::ProbeFriction`; each
-/// point re-simulates the recording with frictional contact on the refined fit mesh, ≈ 1.5 min in
-/// the test profile on the suite session, so the grid is coarse: rubber / skin 0.5–1).
-pub const RIGID_MU_GRID: [f64; 3] = [0.5, 0.8, 1.1];
+/// Friction coefficients the frictional rigid-tip replay starts from (`Extension::ProbeFriction`;
+/// each point re-simulates the recording with frictional contact on the refined fit mesh, ≈ 1 min
+/// in the test profile on the suite session, so the grid is coarse): log-spaced by
+/// [`RIGID_MU_STEP`] across rubber on skin, μ 0.5–1. `spatial::confirm` extends it by the same
+/// step until the optimum is bracketed (`spatial::bracket_friction`).
+pub const RIGID_MU_GRID: [f64; 3] = [0.5, 0.5 * std::f64::consts::SQRT_2, 1.0];
+/// Ratio between neighbouring μ of the frictional rigid-tip replay.
+pub const RIGID_MU_STEP: f64 = std::f64::consts::SQRT_2;
+/// At most this many μ added beyond the ends of [`RIGID_MU_GRID`] (down to 0.18, up to 2.8).
+pub const RIGID_MU_EXTENSIONS: usize = 3;
+/// μ the bracketing search stays within: a near-frictionless tip to a tacky one.
+pub const RIGID_MU_RANGE: (f64, f64) = (0.1, 3.0);
 /// Tangential stiffness of the stuck patch as multiples of the indentation stiffness K.
 pub const STIFFNESS_GRID: [f64; 4] = [0.25, 0.5, 1.0, 2.0];
 
