@@ -168,7 +168,7 @@ fn support_slip_is_named() {
 /// Press-and-drag (μ 0.8, travel 1.5 × depth): confirmed by the rigid-tip replay with Coulomb
 /// friction at the tip on the refined fit mesh (`Extension::ProbeFriction`).
 #[test]
-#[ignore = "measured 2026-11-26 14:50 (dxf, session 8, inputs of main d7335a0 cached, load ~7): verdict probe-friction, held-out on contact frames / markers within 2.5 tip radii 0.509 -> 0.173 mm (2.94x, needs 3x) with the frictional rigid-tip replay (mu grid 0.5/0.8/1.1, full data mu 1.1, compliance 0.88) on the fit mesh refined by main's refine_tets; the same code on the wt/dxf refinement (other octahedron-diagonal tie-breaks on the structured mesh) gave 0.135 mm (3.78x, 14:28 and 14:40): the margin depends on the refined mesh. Patch-traction route: 0.196 mm (2.6x)"]
+#[ignore = "measured 2026-11-26 17:24 (dxf, session 9, fresh inputs, load ~9): verdict probe-friction, held-out on contact frames / markers within 2.5 tip radii 0.5091 -> 0.1683 mm (3.02x) with the frictional rigid-tip replay on the refined fit mesh, mu on the sqrt2 grid 0.5/0.71/1.0 extended until it brackets the full-data choice (0.71, truth 0.8, compliance 1.08), picked on the effect cells. Passes, but not with a margin: the replay's per-location error is a bumpy function of mu (a handful of patch nodes switch stick/slip), so the same replays give 2.94x with the grid 0.5/0.8/1.1 and 3.24x with 0.5/0.65/0.8/1.1, and another refinement tie-break gave 3.78x (docs/diagnose.md session 9)"]
 fn probe_friction_is_named() {
     check("probe-friction");
 }
