@@ -17,7 +17,7 @@
 //! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
 //! | [`spatial`] | plasticity, support-slip, anisotropy, probe-friction: effect cells and re-simulated confirmation |
 //! | [`friction`] | probe-friction: the Coulomb traction of the tip's travel under the measured normal force (return mapping), its confirmation grid |
-//! | [`diagnose`] | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
+//! | [`diagnose`](mod@diagnose) | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
 //!
 //! ```
 //! use softcap_diagnose::{Phase, Recording, Frame, SegmentSettings, Segmentation};
