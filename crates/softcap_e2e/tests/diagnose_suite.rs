@@ -168,7 +168,7 @@ fn support_slip_is_named() {
 /// Press-and-drag (μ 0.8, travel 1.5 × depth): confirmed by the rigid-tip replay with Coulomb
 /// friction at the tip on the refined fit mesh (`Extension::ProbeFriction`).
 #[test]
-#[ignore = "measured 2026-11-26 17:24 (dxf, session 9, fresh inputs, load ~9): verdict probe-friction, held-out on contact frames / markers within 2.5 tip radii 0.5091 -> 0.1683 mm (3.02x) with the frictional rigid-tip replay on the refined fit mesh, mu on the sqrt2 grid 0.5/0.71/1.0 extended until it brackets the full-data choice (0.71, truth 0.8, compliance 1.08), picked on the effect cells. Passes, but not with a margin: the replay's per-location error is a bumpy function of mu (a handful of patch nodes switch stick/slip), so the same replays give 2.94x with the grid 0.5/0.8/1.1 and 3.24x with 0.5/0.65/0.8/1.1, and another refinement tie-break gave 3.78x (docs/diagnose.md session 9)"]
+#[ignore = "measured 2026-11-26 17:44 (dxf, session 9, fresh inputs on main f29a1cf, load ~2, diagnose 196 s; identical at 17:24 on dbb9d8b): verdict probe-friction, held-out on contact frames / markers within 2.5 tip radii 0.5091 -> 0.1683 mm (3.02x) with the frictional rigid-tip replay on the refined fit mesh, mu on the sqrt2 grid 0.5/0.71/1.0 extended until it brackets the full-data choice (0.71, truth 0.8, compliance 1.08), picked on the effect cells. Passes, but not with a margin: the replay's per-location error is a bumpy function of mu (a handful of patch nodes switch stick/slip), so the same replays give 2.94x with the grid 0.5/0.8/1.1 and 3.24x with 0.5/0.65/0.8/1.1, and another refinement tie-break gave 3.78x (docs/diagnose.md session 9)"]
 fn probe_friction_is_named() {
     check("probe-friction");
 }
