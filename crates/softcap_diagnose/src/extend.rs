@@ -374,31 +374,27 @@ impl FemProbeSimulator {
                     mu,
                     ..FrictionParams::default()
                 };
-                match friction_refinement(&self.setup().mesh, &tip) {
-                    0 => self.run_rigid(
-                        base,
-                        &tip,
-                        Some(friction),
-                        frames,
-                        |_, _| Ok(()),
-                        |_, _| {},
-                    )?,
+                // the simulator itself, or its copy on the fit mesh refined `levels` times
+                let fine;
+                let (sim, model) = match friction_refinement(&self.setup().mesh, &tip) {
+                    0 => (self, base),
                     levels => {
-                        let mut fine = self.refined()?;
+                        let mut f = self.refined()?;
                         for _ in 1..levels {
-                            fine = fine.refined()?;
+                            f = f.refined()?;
                         }
-                        let model = fine.model().clone();
-                        fine.run_rigid(
-                            model,
-                            &tip,
-                            Some(friction),
-                            frames,
-                            |_, _| Ok(()),
-                            |_, _| {},
-                        )?
+                        fine = f;
+                        (&fine, fine.model().clone())
                     }
-                }
+                };
+                sim.run_rigid(
+                    model,
+                    &tip,
+                    Some(friction),
+                    frames,
+                    |_, _| Ok(()),
+                    |_, _| {},
+                )?
             }
             Extension::Viscoelastic { g, tau_s } => {
                 let prony = PronySeries::standard_linear_solid(g, tau_s).map_err(fem)?;
