@@ -165,6 +165,48 @@ impl FemProbeSimulator {
         Ok(out)
     }
 
+    /// The default model's sequence when it is the strain-space basis: every frame solved by
+    /// `StrainSpaceModel::solve_continued`, loaded incrementally from the previous frame's
+    /// equilibrium (from rest for a jump or when that does not converge), starting at rest.
+    fn run_strain_space(
+        &self,
+        mut model: softcap_fem::StrainSpaceModel,
+        frames: &[SequenceFrame],
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        let setup = self.setup();
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
+        let mut x = setup.mesh.vertices.clone();
+        let mut previous = vec![Vector3::zeros(); x.len()];
+        let mut out = Vec::with_capacity(frames.len());
+        for (k, fr) in frames.iter().enumerate() {
+            let f = self.nodal_load(&fr.load);
+            let solve = model
+                .solve_continued(
+                    setup,
+                    &mut solver,
+                    &mut x,
+                    &previous,
+                    &f,
+                    &self.settings().equilibrium,
+                    &self.settings().strain_space,
+                )
+                .map_err(fem)?;
+            if !solve.converged() {
+                return Err(not_converged(
+                    k,
+                    format!(
+                        "strain-space basis: {:?} after {} iterations",
+                        solve.report.status, solve.iterations
+                    ),
+                ));
+            }
+            previous = f;
+            out.push(setup.marker_positions(&x));
+        }
+        Ok(out)
+    }
+
     /// The `AnisotropicModel` of an anisotropy extension over the default model's (λ, α).
     fn anisotropic_model(&self, ext: &Extension) -> Result<AnisotropicModel> {
         let base = self.model();
@@ -255,16 +297,28 @@ impl FemProbeSimulator {
         let mesh = &self.setup().mesh;
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         match *ext {
-            Extension::Elastic => self.run_static(base, frames, |_, _| Ok(()), |_, _| {}),
+            Extension::Elastic => match self.strain_space_model() {
+                Some(model) => self.run_strain_space(model, frames),
+                None => self.run_static(base, frames, |_, _| Ok(()), |_, _| {}),
+            },
             Extension::Viscoelastic { g, tau_s } => {
                 let prony = PronySeries::standard_linear_solid(g, tau_s).map_err(fem)?;
-                let ve = ViscoelasticModel::new(base, prony).map_err(fem)?;
-                self.run_static(
-                    ve,
-                    frames,
-                    |m, dt| m.set_time_step(dt).map_err(fem),
-                    |m, x| m.commit(x),
-                )
+                // the Prony branch over the default model: the strain-space basis when it is
+                // the default (its parameters follow the strain in every iteration)
+                match self.strain_space_model() {
+                    Some(m) => self.run_static(
+                        ViscoelasticModel::new(m, prony).map_err(fem)?,
+                        frames,
+                        |m, dt| m.set_time_step(dt).map_err(fem),
+                        |m, x| m.commit(x),
+                    ),
+                    None => self.run_static(
+                        ViscoelasticModel::new(base, prony).map_err(fem)?,
+                        frames,
+                        |m, dt| m.set_time_step(dt).map_err(fem),
+                        |m, x| m.commit(x),
+                    ),
+                }
             }
             Extension::Plastic { .. } | Extension::PlasticPoisson { .. } => {
                 let ep = self.plastic_model(ext)?;

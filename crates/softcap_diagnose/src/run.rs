@@ -7,10 +7,12 @@ use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
+use softcap_fem::probing::StrainSpaceMaterial;
 use softcap_fem::{CorotationalModel, TipShape};
 use softcap_mcap::Provenance;
 use softcap_mcap::capture::CaptureData;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// Settings of the stage (loadable from TOML).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -88,7 +90,9 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             what: "no mesh node lies on the session's support plane".into(),
         });
     }
-    let attempt = |model: CorotationalModel| -> Result<DiagnosisRun> {
+    let attempt = |model: CorotationalModel,
+                   basis: Option<Arc<StrainSpaceMaterial>>|
+     -> Result<DiagnosisRun> {
         let mut sim = FemProbeSimulator::new(
             &material.mesh,
             model,
@@ -97,12 +101,15 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             cfg.settings.simulator.clone(),
         )?
         .with_support_plane(&support.normal, support.offset_m);
+        if let Some(b) = basis {
+            sim = sim.with_strain_space(b)?;
+        }
         if let Some(tip) = session_tip(&cap.session.tip_shape, cap.session.tip_radius_m) {
             sim = sim.with_rigid_tip(tip);
         }
         diagnose(&rec, &mut sim, &cfg.settings.diagnose)
     };
-    let mut result = match attempt(material.model.clone()) {
+    let mut result = match attempt(material.model.clone(), material.basis.clone()) {
         // `Auto` picked the strain-space basis from the fit report, but the default model does
         // not reach equilibrium on this recording: fall back to the homogeneous baseline and say
         // so in the evidence (non-convergence is a reported status, not a failed run).
@@ -120,7 +127,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
                 "{} (auto fallback: the strain-space basis did not converge at {frame}: {reason})",
                 fallback.source
             );
-            attempt(fallback.model)?
+            attempt(fallback.model, None)?
         }
         r => r?,
     };

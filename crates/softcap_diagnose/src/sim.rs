@@ -13,13 +13,14 @@ use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::{
-    HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, fit_homogeneous,
-    support_nodes,
+    HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, StrainSpaceMaterial,
+    StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
 };
 use softcap_fem::{
     CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams, StaticSolver, TipShape,
 };
 use softcap_mesh::TetMesh;
+use std::sync::Arc;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
 /// `tip_m`.
@@ -124,6 +125,9 @@ pub struct FemSimSettings {
     pub patch: PatchSettings,
     /// Equilibrium iterations.
     pub equilibrium: EquilibriumSettings,
+    /// The strain-space default model's parameter iteration (relaxation ω, incremental loading
+    /// from rest as the fallback; `softcap_fem::StrainSpaceModel::solve_continued`).
+    pub strain_space: StrainSpaceSolveSettings,
 }
 
 impl Default for FemSimSettings {
@@ -137,8 +141,19 @@ impl Default for FemSimSettings {
                 residual_tol_rel: 1e-6,
                 ..EquilibriumSettings::newton()
             },
+            strain_space: StrainSpaceSolveSettings::default(),
         }
     }
+}
+
+/// The strain-space default model and the equilibrium its next solve continues from.
+#[derive(Clone)]
+struct StrainSpaceState {
+    model: StrainSpaceModel,
+    /// Node positions of the last equilibrium (the rest shape before the first solve).
+    x: Vec<Vector3<f64>>,
+    /// The nodal forces of that equilibrium.
+    forces: Vec<Vector3<f64>>,
 }
 
 /// [`ProbeSimulator`] on a corotational tet model (bickel2009 §3.2–3.4) over a
@@ -153,6 +168,7 @@ pub struct FemProbeSimulator {
     settings: FemSimSettings,
     support_plane: Option<(Unit<Vector3<f64>>, f64)>,
     rigid_tip: Option<TipShape>,
+    strain_space: Option<StrainSpaceState>,
 }
 
 impl FemProbeSimulator {
@@ -200,6 +216,49 @@ impl FemProbeSimulator {
             settings,
             support_plane: None,
             rigid_tip: None,
+            strain_space: None,
+        })
+    }
+
+    /// Makes the default model the strain-space material `material` (bickel2009 eq. 8 and §3.4:
+    /// the parameters of every element follow its strain, p_e = p_e(ε_e) at equilibrium), one
+    /// element per tet of the mesh. [`ProbeSimulator::simulate`] then solves it with the relaxed
+    /// parameter iteration continued from the previous simulation's equilibrium
+    /// (`softcap_fem::StrainSpaceModel::solve_continued`: the material is elastic, so the
+    /// previous equilibrium is only the start of the iterations; when that does not converge the
+    /// load is applied from rest in increments). The per-element parameters [`Self::model`]
+    /// becomes p(0): the extended models built from constant per-element parameters
+    /// (plasticity, anisotropy, support springs, probe friction, the refined mesh) take the
+    /// basis at zero strain; the elastic and viscoelastic sequences keep the strain dependence.
+    pub fn with_strain_space(mut self, material: Arc<StrainSpaceMaterial>) -> Result<Self> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let model = StrainSpaceModel::new(
+            material,
+            &self.setup.mesh,
+            self.settings.strain_space.relaxation,
+        )
+        .map_err(fem)?;
+        self.model.set_params(model.params()).map_err(fem)?;
+        self.strain_space = Some(StrainSpaceState {
+            model,
+            x: self.setup.mesh.vertices.clone(),
+            forces: vec![Vector3::zeros(); self.setup.mesh.vertices.len()],
+        });
+        Ok(self)
+    }
+
+    /// The strain-space material when the default model is the basis.
+    pub fn strain_space_material(&self) -> Option<&Arc<StrainSpaceMaterial>> {
+        self.strain_space.as_ref().map(|s| s.model.material())
+    }
+
+    /// A fresh strain-space model (zero-strain parameters) for a sequence of its own, when the
+    /// default model is the basis.
+    pub(crate) fn strain_space_model(&self) -> Option<StrainSpaceModel> {
+        self.strain_space.as_ref().map(|s| {
+            let mut m = s.model.clone();
+            m.reset();
+            m
         })
     }
 
@@ -403,23 +462,63 @@ impl ProbeSimulator for FemProbeSimulator {
                 f[v] += p.force_n * w;
             }
         }
-        let mut x = self.setup.mesh.vertices.clone();
-        let report = self.setup.simulate(
-            &mut self.solver,
-            &mut self.model,
-            &mut x,
-            &f,
-            &self.settings.equilibrium,
-        );
-        if !report.converged() {
-            return Err(DiagnoseError::Simulation {
-                frame: u64::MAX,
-                reason: format!("{:?} after {} iterations", report.status, report.iterations),
-            });
-        }
+        let x = match &mut self.strain_space {
+            Some(state) => {
+                let solve = state
+                    .model
+                    .solve_continued(
+                        &self.setup,
+                        &mut self.solver,
+                        &mut state.x,
+                        &state.forces,
+                        &f,
+                        &self.settings.equilibrium,
+                        &self.settings.strain_space,
+                    )
+                    .map_err(|e| DiagnoseError::Fem(Box::new(e)))?;
+                if solve.converged() {
+                    state.forces.clone_from(&f);
+                } else {
+                    return Err(DiagnoseError::Simulation {
+                        frame: u64::MAX,
+                        reason: format!(
+                            "strain-space basis: {:?} after {} iterations (incremental loading from the previous equilibrium, then from rest with ω down to {})",
+                            solve.report.status,
+                            solve.iterations,
+                            self.settings.strain_space.relaxation
+                                * 0.5f64.powi(self.settings.strain_space.relaxation_retries as i32)
+                        ),
+                    });
+                }
+                state.x.clone()
+            }
+            None => {
+                let mut x = self.setup.mesh.vertices.clone();
+                let report = self.setup.simulate(
+                    &mut self.solver,
+                    &mut self.model,
+                    &mut x,
+                    &f,
+                    &self.settings.equilibrium,
+                );
+                if !report.converged() {
+                    return Err(DiagnoseError::Simulation {
+                        frame: u64::MAX,
+                        reason: format!(
+                            "{:?} after {} iterations",
+                            report.status, report.iterations
+                        ),
+                    });
+                }
+                x
+            }
+        };
         let markers_m = self.setup.marker_positions(&x);
         // T = ∂x/∂f: the right-hand side of unit force k is the load's share on every loaded
         // node (the same weights as the load itself, so T·f reproduces the load's response).
+        // The factor is the consistent tangent of the last equilibrium iteration; for the
+        // strain-space basis its parameters are frozen at p(ε) of the equilibrium (the response
+        // leaves out ∂p/∂ε — a secant-in-parameters tangent, used by the linearised refits only).
         let force_response = match (&load.probe, want_response && !weights.is_empty()) {
             (Some(_), true) => {
                 let dofs = self.solver.dofs().clone();

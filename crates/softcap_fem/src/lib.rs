@@ -94,8 +94,8 @@ pub use probing::{
     ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, FootprintLoad,
     HomogeneousFit, HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample,
     ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel,
-    StrainTail, fit_example, fit_example_from, fit_examples_from, fit_examples_jointly,
-    fit_homogeneous, simulate_probe_contact,
+    StrainSpaceSolve, StrainSpaceSolveSettings, StrainTail, fit_example, fit_example_from,
+    fit_examples_from, fit_examples_jointly, fit_homogeneous, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

@@ -525,3 +525,190 @@ fn constant_tail_reproduces_constants_and_bounds_extrapolation() {
     let w: f64 = m.elements[0].weights.iter().map(|w| w[0]).sum();
     assert!(w.abs() < 1e-9 * p.lambda, "Σw = {w}");
 }
+
+/// A material whose λ and α double between zero strain and ε_zz = −0.1 (a stiffening tissue
+/// under a press), on every tet of `setup`.
+fn stiffening_material(setup: &ProbingSetup, p: LinearParams) -> Arc<StrainSpaceMaterial> {
+    let samples: Vec<Vec<StrainSample>> = (0..setup.num_elements())
+        .map(|_| {
+            vec![
+                StrainSample {
+                    strain: [0.0; 6],
+                    params: p,
+                },
+                StrainSample {
+                    strain: [0.0, 0.0, -0.1, 0.0, 0.0, 0.0],
+                    params: LinearParams {
+                        lambda: 2.0 * p.lambda,
+                        alpha: 2.0 * p.alpha,
+                    },
+                },
+            ]
+        })
+        .collect();
+    Arc::new(
+        StrainSpaceMaterial::fit(&samples, &StrainBasisSettings::default())
+            .unwrap()
+            .0,
+    )
+}
+
+/// Regression guard of the diagnose stage's strain-space default model: the equilibrium of
+/// `StrainSpaceModel::solve_continued` along a recording-like sequence of loads (a ramp at one
+/// location, a jump to another, back) equals the equilibrium loaded from rest for every load to
+/// the solver tolerance — the material is elastic, the previous equilibrium only starts the
+/// iterations — the small steps of the ramp are continued (not reloaded from rest), and at
+/// the equilibrium the parameters are the material's p(ε).
+#[test]
+fn strain_space_equilibrium_does_not_depend_on_the_load_path() {
+    use softcap_fem::probing::{StrainSpaceModel, StrainSpaceSolveSettings};
+    let (setup, _) = block_with([10, 10, 3]);
+    let p = LinearParams::from_young_poisson(3e4, 0.4).unwrap();
+    let material = stiffening_material(&setup, p);
+    let eq = EquilibriumSettings {
+        displacement_tol_rel: 1e-8,
+        residual_tol_rel: 1e-6,
+        ..EquilibriumSettings::newton()
+    };
+    let settings = StrainSpaceSolveSettings::default();
+    let rest = setup.mesh.vertices.clone();
+    let forces_at = |tip: Vector3<f64>, f: f64| {
+        setup.nodal_forces(&example(&setup, &rest, tip, -f), &PatchSettings::default())
+    };
+    let a = Vector3::new(0.015, 0.015, 0.012);
+    let b = Vector3::new(0.009, 0.021, 0.012);
+    let loads: Vec<(Vector3<f64>, f64)> = vec![
+        (a, 0.4),
+        (a, 0.8),
+        (a, 1.2),
+        (a, 1.5),
+        (a, 1.5),
+        (b, 1.5),
+        (a, 1.2),
+    ];
+    let mut model = StrainSpaceModel::new(material.clone(), &setup.mesh, 0.5).unwrap();
+    let mut solver = setup.solver(&model).unwrap();
+    let mut x = rest.clone();
+    let mut previous = vec![Vector3::zeros(); rest.len()];
+    let mut continued = 0;
+    let length = (Vector3::new(0.03, 0.03, 0.012)).norm();
+    for (k, (tip, f)) in loads.iter().enumerate() {
+        let forces = forces_at(*tip, *f);
+        let s = model
+            .solve_continued(
+                &setup,
+                &mut solver,
+                &mut x,
+                &previous,
+                &forces,
+                &eq,
+                &settings,
+            )
+            .unwrap();
+        assert!(s.converged(), "load {k}: {s:?}");
+        continued += usize::from(s.from_rest_attempt.is_none());
+        previous = forces.clone();
+        // the same load from rest, fresh model
+        let mut fresh = StrainSpaceModel::new(material.clone(), &setup.mesh, 0.5).unwrap();
+        let mut fresh_solver = setup.solver(&fresh).unwrap();
+        let mut y = rest.clone();
+        let zero = vec![Vector3::zeros(); rest.len()];
+        let r = fresh
+            .solve_continued(
+                &setup,
+                &mut fresh_solver,
+                &mut y,
+                &zero,
+                &forces,
+                &eq,
+                &settings,
+            )
+            .unwrap();
+        assert!(r.converged(), "load {k} from rest: {r:?}");
+        let diff = x
+            .iter()
+            .zip(&y)
+            .map(|(u, v)| (u - v).norm())
+            .fold(0.0, f64::max);
+        let umax = x
+            .iter()
+            .zip(&rest)
+            .map(|(u, v)| (u - v).norm())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "load {k}: {} it, continued {}, path difference {diff:.2e} m of {umax:.2e} m",
+            s.iterations,
+            s.from_rest_attempt.is_none()
+        );
+        assert!(
+            umax > 1e-4,
+            "load {k}: displacement {umax} too small to test"
+        );
+        // 100 × the displacement tolerance of one solve: the linear convergence of the relaxed
+        // parameter iteration stops each path within a few tolerances of the fixed point.
+        assert!(
+            diff <= 100.0 * 1e-8 * length,
+            "load {k}: paths differ by {diff} m"
+        );
+        // p = p(ε) at the equilibrium (to the parameters' share of the solver tolerance)
+        let strains = softcap_fem::CorotationalModel::new(&setup.mesh, model.params().to_vec())
+            .unwrap()
+            .strains(&x);
+        for (e, eps) in strains.iter().enumerate() {
+            let want = material.evaluate(e, eps);
+            let got = model.params()[e];
+            assert!(
+                (got.lambda / want.lambda - 1.0).abs() < 1e-4,
+                "load {k}, tet {e}: λ {} vs p(ε) {}",
+                got.lambda,
+                want.lambda
+            );
+        }
+    }
+    // the ramp's second to fourth loads and the repeated load are continued
+    assert!(continued >= 4, "only {continued} loads continued");
+}
+
+/// Non-convergence of the strain-space solve is a reported status, and the model and positions
+/// are left at the last equilibrium so a later solve continues from there.
+#[test]
+fn strain_space_non_convergence_is_reported_and_keeps_the_last_equilibrium() {
+    use softcap_fem::probing::{StrainSpaceModel, StrainSpaceSolveSettings};
+    let (setup, _) = block_with([10, 10, 3]);
+    let p = LinearParams::from_young_poisson(3e4, 0.4).unwrap();
+    let material = stiffening_material(&setup, p);
+    let eq = EquilibriumSettings::newton();
+    let rest = setup.mesh.vertices.clone();
+    let forces = setup.nodal_forces(
+        &example(&setup, &rest, Vector3::new(0.015, 0.015, 0.012), -1.5),
+        &PatchSettings::default(),
+    );
+    let mut model = StrainSpaceModel::new(material, &setup.mesh, 0.5).unwrap();
+    let mut solver = setup.solver(&model).unwrap();
+    let mut x = rest.clone();
+    let zero = vec![Vector3::zeros(); rest.len()];
+    let starved = StrainSpaceSolveSettings {
+        max_iterations: 2,
+        ..StrainSpaceSolveSettings::default()
+    };
+    let params = model.params().to_vec();
+    let s = model
+        .solve_continued(&setup, &mut solver, &mut x, &zero, &forces, &eq, &starved)
+        .unwrap();
+    assert!(!s.converged(), "{s:?}");
+    assert_eq!(s.from_rest_attempt, Some(starved.relaxation_retries));
+    assert_eq!(x, rest);
+    assert_eq!(model.params(), &params[..]);
+    let ok = model
+        .solve_continued(
+            &setup,
+            &mut solver,
+            &mut x,
+            &zero,
+            &forces,
+            &eq,
+            &StrainSpaceSolveSettings::default(),
+        )
+        .unwrap();
+    assert!(ok.converged(), "{ok:?}");
+}
