@@ -606,23 +606,18 @@ fn full_catalog_on_ten_locations_timing() {
 fn strain_space_default_model_does_not_depend_on_the_frame_order() {
     use softcap_fem::probing::{StrainBasisSettings, StrainSample, StrainSpaceMaterial};
     let p = LinearParams::from_young_poisson(20e3, 0.45).unwrap();
-    let samples: Vec<Vec<StrainSample>> = (0..mesh().tets.len())
-        .map(|_| {
-            vec![
-                StrainSample {
-                    strain: [0.0; 6],
-                    params: p,
-                },
-                StrainSample {
-                    strain: [0.0, 0.0, -0.05, 0.0, 0.0, 0.0],
-                    params: LinearParams {
-                        lambda: 2.0 * p.lambda,
-                        alpha: 2.0 * p.alpha,
-                    },
-                },
-            ]
+    // λ and α double between zero strain and ε_zz = −0.05 in every tet (a stiffening tissue)
+    let stiffening: Vec<StrainSample> = [(0.0, 1.0), (-0.05, 2.0)]
+        .into_iter()
+        .map(|(eps_zz, scale)| StrainSample {
+            strain: [0.0, 0.0, eps_zz, 0.0, 0.0, 0.0],
+            params: LinearParams {
+                lambda: scale * p.lambda,
+                alpha: scale * p.alpha,
+            },
         })
         .collect();
+    let samples = vec![stiffening; mesh().tets.len()];
     let material = std::sync::Arc::new(
         StrainSpaceMaterial::fit(&samples, &StrainBasisSettings::default())
             .unwrap()

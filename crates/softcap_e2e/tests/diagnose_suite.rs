@@ -6,9 +6,9 @@
 //! error after modeling at least 3× lower than before on every effect session.
 //!
 //! The material is `softcap_tissue::fit::run` (tests/common); the diagnosis reads it with
-//! `MaterialSource::Auto` (the basis only when the tissue report says it reproduces the examples
-//! at least as well as the homogeneous baseline). Cases that do not pass yet are `#[ignore]`d
-//! with the measured numbers in the reason.
+//! `MaterialSource::Auto` (the tissue report's homogeneous baseline; the strain-space basis
+//! absorbs support slip and anisotropy, docs/diagnose.md session 10). Cases that do not pass yet
+//! are `#[ignore]`d with the measured numbers in the reason.
 //!
 //! One `#[test]` per case. Each prints one `SUITE` row (case, expected, verdict, held-out RMSE
 //! before / after in mm, seconds per stage) that docs/diagnose.md's confusion table is built from.

@@ -2194,7 +2194,8 @@ pub struct StrainSpaceSolveSettings {
     /// rate |1 − ω (1 − μ)| of the relaxed fixed point p ← p + ω (p(ε) − p) (μ the eigenvalues
     /// of ∂p(ε(p))/∂p): measured on the diagnose suite's clean control (648 tets, 1.4 N
     /// presses, ω ½, Newton, displacement tolerance 10⁻⁸ of the bounding-box diagonal), the
-    /// deepest frames need 100–110 iterations from the previous equilibrium.
+    /// deepest frames need 100–110 iterations with the whole load in one solve, so 100 (the
+    /// equilibrium default) stopped them just short of the tolerance.
     pub max_iterations: usize,
 }
 
