@@ -677,7 +677,10 @@ fn strain_space_default_model_does_not_depend_on_the_frame_order() {
         let order = max_diff(&forward[k], &backward[k]);
         let seq = max_diff(&forward[k], &sequence[k]);
         eprintln!("load {k}: order {order:.2e} m, sequence {seq:.2e} m");
-        assert!(order <= 6e-8, "load {k}: frame order moves markers {order} m");
+        assert!(
+            order <= 6e-8,
+            "load {k}: frame order moves markers {order} m"
+        );
         assert!(seq <= 6e-8, "load {k}: sequence vs frames {seq} m");
     }
     let lin = linear.simulate(&loads[3], false).unwrap().markers_m;
