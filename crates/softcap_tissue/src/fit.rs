@@ -340,38 +340,40 @@ pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
 /// [`resimulate`] after a re-simulation that does not converge.
 pub const RELAXATION_RETRIES: usize = 2;
 
-/// Re-simulates `ex` with the strain-space material (incremental loading, §3.4); when the
-/// relaxed parameter iteration does not converge it is retried from rest with ω halved and the
-/// load increments doubled, [`RELAXATION_RETRIES`] times (a smaller ω contracts the parameter
-/// oscillation more, same fixed points). `None` when every attempt fails (reported as a
-/// material failure, never a panic).
+/// Re-simulates `ex` with the strain-space material from rest by incremental loading (§3.4,
+/// `s.load_steps` increments); when the relaxed parameter iteration does not converge it is
+/// retried from rest with ω halved and the load increments doubled, [`RELAXATION_RETRIES`] times
+/// (a smaller ω contracts the parameter oscillation more, same fixed points) — the kernel
+/// `softcap_fem::StrainSpaceModel::solve_continued` from the unloaded state, the one the
+/// diagnose stage's default model uses. `None` when every attempt fails (reported as a material
+/// failure, never a panic).
 pub fn resimulate(
     setup: &ProbingSetup,
     model: &softcap_fem::StrainSpaceModel,
     ex: &ProbeExample,
     s: &FitSettings,
 ) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
-    let mut relaxation = model.relaxation;
-    let mut steps = s.load_steps.max(1);
-    for _ in 0..=RELAXATION_RETRIES {
-        let mut m = model.clone();
-        m.reset();
-        m.relaxation = relaxation;
-        let r = simulate_example(
-            setup,
-            &mut m,
-            ex,
-            &s.example_fit.patch,
-            &s.evaluation,
-            steps,
-        )?;
-        if r.is_some() {
-            return Ok(r);
-        }
-        relaxation *= 0.5;
-        steps *= 2;
-    }
-    Ok(None)
+    let mut m = model.clone();
+    m.reset();
+    let f = setup.nodal_forces(ex, &s.example_fit.patch);
+    let mut solver = setup.solver(&m)?;
+    let mut x = setup.mesh.vertices.clone();
+    let unloaded = vec![nalgebra::Vector3::zeros(); x.len()];
+    let solve = m.solve_continued(
+        setup,
+        &mut solver,
+        &mut x,
+        &unloaded,
+        &f,
+        &s.evaluation,
+        &softcap_fem::StrainSpaceSolveSettings {
+            relaxation: model.relaxation,
+            load_steps: s.load_steps.max(1),
+            relaxation_retries: RELAXATION_RETRIES,
+            max_iterations: s.evaluation.max_iterations,
+        },
+    )?;
+    Ok(solve.converged().then_some(x))
 }
 
 /// [`resimulate`] warm-started from node positions `start` (a nearby equilibrium of the same
