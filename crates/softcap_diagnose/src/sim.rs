@@ -319,8 +319,9 @@ impl FemProbeSimulator {
     }
 
     /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`): each child tet
-    /// carries its parent's (λ, α) — a strain-dependence hook of the default model is not carried
-    /// over (the extended models are built from the per-element parameters alone); the attached
+    /// carries its parent's (λ, α) — for the strain-space basis its zero-strain p(0); the strain
+    /// dependence is not carried over (the extended models are built from the per-element
+    /// parameters alone); the attached
     /// nodes are the attached vertices and the midpoints of edges between two of them; the markers
     /// are re-embedded at their rest positions; support plane, rigid tip and settings are kept.
     pub fn refined(&self) -> Result<Self> {
