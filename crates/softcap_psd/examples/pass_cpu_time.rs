@@ -5,7 +5,8 @@
 //! `RAYON_NUM_THREADS=1 cargo run --release -p softcap_psd --example pass_cpu_time`
 //! (`PSD_LEVELS` subdivision levels, default 3; `PSD_FRAMES` frames of the subdivided face,
 //! default 10; `PSD_ONLY_FRAMES=1` skips the per-pass timings, e.g. for `/usr/bin/time` over
-//! two frame counts; `PSD_REORDER=1` the Morton locality order inside the layout (outputs
+//! two frame counts; `PSD_ONLY_PASS=large|detail|normal` times one pass alone, e.g. under
+//! `perf record`; `PSD_REORDER=1` the Morton locality order inside the layout (outputs
 //! un-permuted every frame); `PSD_PERMUTE=1` the rig itself stored in Morton order,
 //! [`softcap_psd::permute_rig`]).
 
@@ -99,7 +100,16 @@ fn main() {
             .ok()
             .and_then(|s| s.parse::<usize>().ok())
             .map_or(reps, |f| if n > 100_000 { f } else { 20 * f });
-        time("frame", reps, || anim.frame(&hp).expect("frame"));
+        let only = std::env::var("PSD_ONLY_PASS").unwrap_or_default();
+        if only.is_empty() {
+            time("frame", reps, || anim.frame(&hp).expect("frame"));
+            // FNV-1a of the output bits: kernels that must not change results print the same
+            let mut hash = 0xcbf2_9ce4_8422_2325u64;
+            for x in anim.positions.iter().chain(&anim.normals).flatten() {
+                hash = (hash ^ x.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+            }
+            println!("frame output bits: {hash:016x}");
+        }
         if std::env::var_os("PSD_ONLY_FRAMES").is_some() {
             continue;
         }
@@ -118,14 +128,24 @@ fn main() {
         let mut nrm = vec![[0.0f32; 3]; n];
         let mut table: Vec<[f32; LANES]> = Vec::new();
         runtime::feature_table(&m, &r.features(&hp), &mut table);
-        time("  large_scale_pass", reps, || {
-            runtime::large_scale_pass(layout, &uh, &mut large)
-        });
-        time("  detail_pass (normal, frame, WPSD)", reps, || {
-            runtime::detail_pass(layout, &large, &table, None, &mut pos)
-        });
-        time("  normal_pass", reps, || {
-            runtime::normal_pass(layout, &pos, &mut nrm)
-        });
+        // PSD_ONLY_PASS=large|detail|normal times that pass alone (the earlier ones run once)
+        let run = |name: &str| only.is_empty() || only == name;
+        runtime::large_scale_pass(layout, &uh, &mut large);
+        if run("large") {
+            time("  large_scale_pass", reps, || {
+                runtime::large_scale_pass(layout, &uh, &mut large)
+            });
+        }
+        runtime::detail_pass(layout, &large, &table, None, &mut pos);
+        if run("detail") {
+            time("  detail_pass (normal, frame, WPSD)", reps, || {
+                runtime::detail_pass(layout, &large, &table, None, &mut pos)
+            });
+        }
+        if run("normal") {
+            time("  normal_pass", reps, || {
+                runtime::normal_pass(layout, &pos, &mut nrm)
+            });
+        }
     }
 }

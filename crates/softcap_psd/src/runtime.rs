@@ -36,7 +36,9 @@
 
 use crate::detail::{DetailModel, MAX_POSES, Metric};
 use crate::error::{PsdError, Result};
-use crate::frames::{BLOCK, Topology, cross, frame_from_edge, normalize, sub};
+use crate::frames::{BLOCK, Topology, frame_from_edge, normalize};
+#[cfg(test)]
+use crate::frames::{cross, sub};
 use crate::rig::FaceRig;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
@@ -1090,7 +1092,7 @@ impl<S: pulp::Simd> Lanes<S> {
         self.add(&s, &self.mul(&a[2], &b[2]))
     }
 
-    /// `a × b` as [`cross`]
+    /// `a × b` as [`cross`](crate::frames::cross)
     #[inline(always)]
     fn cross(self, a: &[Lane; 3], b: &[Lane; 3]) -> [Lane; 3] {
         [
@@ -1121,13 +1123,27 @@ impl<S: pulp::Simd> Lanes<S> {
         for k in 0..3 {
             tp[k] = self.sub(&e[k], &self.mul(&d, &n[k]));
         }
-        let mut t = self.normalize(&tp, [0.0; 3]);
-        for l in 0..count {
-            if [t[0][l], t[1][l], t[2][l]] == [0.0; 3] {
-                let [tl, _, _] =
-                    frame_from_edge([e[0][l], e[1][l], e[2][l]], [n[0][l], n[1][l], n[2][l]]);
-                for k in 0..3 {
-                    t[k][l] = tl[k];
+        // normalize(tp, [0, 0, 0]), keeping the length to find the degenerate lanes (t = 0
+        // exactly when ‖tp‖ ≤ 1e-20 or NaN: otherwise some |tp_k / ‖tp‖| ≥ 1/√3)
+        let (len, inv) = self.inv_sqrt(&self.dot(&tp, &tp));
+        let mut t = [[0.0f32; BATCH]; 3];
+        for k in 0..3 {
+            t[k] = self.select_gt(&len, 1e-20, &self.mul(&tp[k], &inv), &[0.0; BATCH]);
+        }
+        let mut degenerate = false;
+        for l in 0..BATCH {
+            let regular = len[l] > 1e-20;
+            degenerate |= !regular;
+        }
+        if degenerate {
+            for l in 0..count {
+                let regular = len[l] > 1e-20;
+                if !regular {
+                    let [tl, _, _] =
+                        frame_from_edge([e[0][l], e[1][l], e[2][l]], [n[0][l], n[1][l], n[2][l]]);
+                    for k in 0..3 {
+                        t[k][l] = tl[k];
+                    }
                 }
             }
         }
@@ -1139,14 +1155,11 @@ impl<S: pulp::Simd> Lanes<S> {
 /// Positions `positions[at[l]]` of the lanes of a batch, structure of arrays.
 #[inline(always)]
 fn gather(positions: &[[f32; 3]], at: &[usize; BATCH]) -> [Lane; 3] {
-    let mut out = [[0.0f32; BATCH]; 3];
+    let mut q = [[0.0f32; 4]; BATCH];
     for l in 0..BATCH {
-        let p = positions[at[l]];
-        out[0][l] = p[0];
-        out[1][l] = p[1];
-        out[2][l] = p[2];
+        q[l] = quad(positions[at[l]]);
     }
-    out
+    lanes_of_quads(&q)
 }
 
 /// Structure of arrays back to one `[x, y, z]` per lane.
@@ -1172,21 +1185,33 @@ fn fan_sums(
     base: usize,
     p: &[Lane; 3],
 ) -> [Lane; 3] {
-    let mut s = [[0.0f32; BATCH]; 3];
+    // whole [x, y, z, 0] sums per vertex, then lanes by constant indices: scattering scalars
+    // into the lane arrays and reading them back as vectors stalls on store forwarding
+    let mut q = [[0.0f32; 4]; BATCH];
     for l in 0..BATCH {
         let v = vs[l];
-        let c = fan_normal_sum(
+        q[l] = fan_quad(
             positions,
             base,
             fans.ring(v),
             fans.kinds[v],
             [p[0][l], p[1][l], p[2][l]],
         );
-        s[0][l] = c[0];
-        s[1][l] = c[1];
-        s[2][l] = c[2];
     }
-    s
+    lanes_of_quads(&q)
+}
+
+/// `[x, y, z]` lanes of 8 quads `[x, y, z, _]` (constant indices).
+#[inline(always)]
+fn lanes_of_quads(q: &[[f32; 4]; BATCH]) -> [Lane; 3] {
+    macro_rules! lane {
+        ($a:expr) => {
+            [
+                q[0][$a], q[1][$a], q[2][$a], q[3][$a], q[4][$a], q[5][$a], q[6][$a], q[7][$a],
+            ]
+        };
+    }
+    [lane!(0), lane!(1), lane!(2)]
 }
 
 /// Unit normals of the stored vertices `vs` from the one-ring of `positions` (index `u − base`),
@@ -1252,16 +1277,27 @@ fn fan_normal_sum(
     kind: FanKind,
     p: [f32; 3],
 ) -> [f32; 3] {
+    let s = fan_quad(positions, base, ids, kind, p);
+    [s[0], s[1], s[2]]
+}
+
+/// [`fan_normal_sum`] as `[x, y, z, 0]`.
+#[inline(always)]
+fn fan_quad(
+    positions: &[[f32; 3]],
+    base: usize,
+    ids: &[u32],
+    kind: FanKind,
+    p: [f32; 3],
+) -> [f32; 4] {
     // (a wrapped index fails the bounds check like an overflowing one)
-    let point = |i: u32| positions[(i as usize).wrapping_sub(base)];
-    let mut s = [0.0f32; 3];
-    let mut add = |c: [f32; 3]| {
-        s = [s[0] + c[0], s[1] + c[1], s[2] + c[2]];
-    };
+    let point = |i: u32| quad(positions[(i as usize).wrapping_sub(base)]);
+    let p = quad(p);
+    let mut s = [0.0f32; 4];
     match kind {
         FanKind::Pairs => {
             for ab in ids.chunks_exact(2) {
-                add(cross(sub(point(ab[0]), p), sub(point(ab[1]), p)));
+                s = add4(s, cross4(sub4(point(ab[0]), p), sub4(point(ab[1]), p)));
             }
         }
         kind => {
@@ -1274,21 +1310,57 @@ fn fan_normal_sum(
             let mut pairs = rest.chunks_exact(2);
             for pair in &mut pairs {
                 let next = point(pair[1]);
-                add(cross(sub(point(pair[0]), p), sub(next, before)));
+                s = add4(s, cross4(sub4(point(pair[0]), p), sub4(next, before)));
                 before = next;
             }
-            match (pairs.remainder(), kind == FanKind::Closed) {
+            let last = match (pairs.remainder(), kind == FanKind::Closed) {
                 // closed, odd neighbour count left: q_{m−1} pairs with the closing q_0
-                ([last], true) => add(cross(sub(point(*last), p), sub(q0, before))),
+                ([last], true) => cross4(sub4(point(*last), p), sub4(q0, before)),
                 // open: one plain last term
-                ([last], false) => add(cross(sub(before, p), sub(point(*last), p))),
+                ([last], false) => cross4(sub4(before, p), sub4(point(*last), p)),
                 // closed, even: the closing term alone
-                ([], true) => add(cross(sub(before, p), sub(q0, p))),
-                _ => {}
-            }
+                ([], true) => cross4(sub4(before, p), sub4(q0, p)),
+                _ => [0.0; 4],
+            };
+            s = add4(s, last);
         }
     }
     s
+}
+
+/// `[x, y, z, 0]`: a point in the 4 lanes of one SSE register, so the fan walk's
+/// differences, cross products and sums are one 4-wide operation each ([`cross4`]) — per
+/// coordinate the same IEEE operations as [`sub`](crate::frames::sub) / [`cross`](crate::frames::cross) on `[x, y, z]` (same bits).
+#[inline(always)]
+fn quad(a: [f32; 3]) -> [f32; 4] {
+    [a[0], a[1], a[2], 0.0]
+}
+
+/// `a − b` per lane.
+#[inline(always)]
+fn sub4(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3]]
+}
+
+/// `a + b` per lane.
+#[inline(always)]
+fn add4(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]]
+}
+
+/// [`cross`](crate::frames::cross) of the first three lanes as `a.yzx · b.zxy − a.zxy · b.yzx` (lane 3: `a_3 b_3 −
+/// a_3 b_3`, 0 for the zero-padded [`quad`]s): two lane permutations per operand, two
+/// multiplies, one subtraction.
+#[inline(always)]
+fn cross4(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
+    let (a1, b2) = ([a[1], a[2], a[0], a[3]], [b[2], b[0], b[1], b[3]]);
+    let (a2, b1) = ([a[2], a[0], a[1], a[3]], [b[1], b[2], b[0], b[3]]);
+    [
+        a1[0] * b2[0] - a2[0] * b1[0],
+        a1[1] * b2[1] - a2[1] * b1[1],
+        a1[2] * b2[2] - a2[2] * b1[2],
+        a1[3] * b2[3] - a2[3] * b1[3],
+    ]
 }
 
 /// Unit normal of stored vertex `v` from the one-ring of `positions` (index `u − base`).
@@ -1547,9 +1619,31 @@ fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
         }
         if (2 * L..blocks + 2 * L).contains(&step) {
             let r = span(step - 2 * L);
-            let ids =
-                (first + r.start..first + r.end).filter(|&v| sched.flags[v] & DEFER_NORMAL == 0);
-            for (vs, count) in Batches(ids) {
+            // aligned batches (blocks are whole low-rank blocks); a batch with deferred
+            // vertices computes the others
+            for v0 in (first + r.start..first + r.end).step_by(BATCH) {
+                let end = (v0 + BATCH).min(first + r.end);
+                let flags = &sched.flags[v0..end];
+                let mut vs = [end - 1; BATCH];
+                let mut count = 0;
+                if flags.iter().all(|&f| f & DEFER_NORMAL == 0) {
+                    for (l, v) in (v0..end).enumerate() {
+                        vs[l] = v;
+                    }
+                    count = end - v0;
+                } else {
+                    for (v, &f) in (v0..end).zip(flags) {
+                        if f & DEFER_NORMAL == 0 {
+                            vs[count] = v;
+                            count += 1;
+                        }
+                    }
+                    if count == 0 {
+                        continue;
+                    }
+                    let last = vs[count - 1];
+                    vs[count..].fill(last);
+                }
                 let n = normal_batch(simd, &layout.fans, &vs, positions, first);
                 for l in 0..count {
                     normals[vs[l] - first] = n[l];
