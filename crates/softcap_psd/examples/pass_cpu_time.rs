@@ -95,6 +95,42 @@ fn main() {
             100.0 * dn,
             anim.layout.details.mean_union()
         );
+        if std::env::var_os("PSD_SPARSITY").is_some() {
+            // per-frame bound of the detail: r_j ≤ R_j = sqrt(max_i g_ij) (α sums to 1), so
+            // ‖d_v‖ ≤ Σ_j ‖w_vj‖ R_j
+            let p = m.num_poses();
+            let f = r.features(&hp);
+            let rj: Vec<f64> = (0..p)
+                .map(|j| {
+                    (0..m.num_features)
+                        .map(|i| (f[i] - m.centers[j * m.num_features + i]).powi(2))
+                        .fold(0.0, f64::max)
+                        .sqrt()
+                })
+                .collect();
+            let bound: Vec<f64> = (0..n)
+                .map(|v| {
+                    (0..p)
+                        .map(|j| {
+                            let w = &m.weights[v * 3 * p + 3 * j..v * 3 * p + 3 * j + 3];
+                            (w.iter().map(|&x| (x as f64).powi(2)).sum::<f64>()).sqrt() * rj[j]
+                        })
+                        .sum()
+                })
+                .collect();
+            for tol in [1e-7, 1e-6, 1e-5, 1e-4, 1e-3] {
+                let below = bound.iter().filter(|&&b| b <= tol).count();
+                let batches = bound
+                    .chunks(8)
+                    .filter(|c| c.iter().all(|&b| b <= tol))
+                    .count();
+                println!(
+                    "detail bound ≤ {tol:e} cm: {:.1} % of vertices, {:.1} % of 8-vertex batches",
+                    100.0 * below as f64 / n as f64,
+                    100.0 * batches as f64 / n.div_ceil(8) as f64
+                );
+            }
+        }
         let reps = if n > 100_000 { 10 } else { 200 };
         let reps = std::env::var("PSD_FRAMES")
             .ok()
