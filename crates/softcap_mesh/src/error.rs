@@ -94,6 +94,13 @@ pub enum MeshError {
     /// A mesh has no elements where some are required.
     #[error("mesh has no elements")]
     Empty,
+    /// A refinement target that cannot be met: a target edge length that is not positive and
+    /// finite, a ball that is not finite, or more tets than the caller's limit.
+    #[error("local refinement: {message}")]
+    Refinement {
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// Result alias for this crate.

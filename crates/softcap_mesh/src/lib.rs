@@ -6,6 +6,7 @@
 //! | [`structured`] | structured tet meshing of boxes |
 //! | [`io`] | OBJ, PLY (ASCII/binary), Gmsh 4.1 `.msh`, TetGen `.node`/`.ele` readers and writers |
 //! | [`refine`] | uniform 1 → 8 (red) refinement of tet meshes |
+//! | [`refine_local`] | conforming local refinement inside balls by longest-edge bisection (Rivara 1991) |
 //! | [`triangulate`] | ear-clipping of polygons |
 //! | [`adjacency`] | one-rings, vertex→elements, tet face/vertex adjacency, [`SurfaceMap`] |
 //! | [`laplacian`] | cotangent Laplacian + mixed Voronoi areas (thesis eq. 3.4–3.5), bi-Laplacian, umbrella graph Laplacian (bickel2009 eq. 9) |
@@ -44,6 +45,7 @@ pub mod error;
 pub mod io;
 pub mod laplacian;
 pub mod refine;
+pub mod refine_local;
 pub mod structured;
 pub mod triangulate;
 pub mod types;
@@ -74,6 +76,7 @@ pub use laplacian::{
 };
 pub use nalgebra;
 pub use refine::{RefinedTetMesh, refine_tets};
+pub use refine_local::{RefineBall, refine_near};
 pub use structured::{box_tet_mesh, icosphere};
 pub use triangulate::triangulate_polygon;
 pub use types::{TetMesh, TriMesh};

@@ -15,10 +15,13 @@ pub struct RefinedTetMesh {
     /// The refined mesh. Vertices `0..n` are the input's vertices (same indices, same
     /// positions); the rest are edge midpoints. Tets are positively oriented.
     pub mesh: TetMesh,
-    /// For every refined tet, the index of the input tet it lies in (eight children each,
-    /// `8 t .. 8 t + 8`).
+    /// For every refined tet, the index of the input tet it lies in ([`refine_tets`]: eight
+    /// children each, `8 t .. 8 t + 8`).
     pub parent_tet: Vec<usize>,
-    /// For every vertex from index n on, the input edge [a, b] (a < b) whose midpoint it is.
+    /// For every vertex `n + k` (n input vertices), the edge [a, b] (a < b) whose midpoint it is.
+    /// [`refine_tets`]: both are input vertices; [`crate::refine_near`]: either may be an
+    /// earlier midpoint (a, b < n + k), so a property defined by "both endpoints" can be
+    /// propagated in index order.
     pub midpoint_of: Vec<[usize; 2]>,
 }
 
