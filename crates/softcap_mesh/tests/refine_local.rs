@@ -141,12 +141,13 @@ fn local_refinement_is_conforming_volume_preserving_and_keeps_its_shape() {
         }
     }
     assert!(refined_near > 100, "{refined_near}");
-    // Shape: longest-edge bisection of Kuhn tets (min dihedral 45°) stays within a few classes;
-    // measured 35.26° (the angle of the Kuhn tet's bisected children).
+    // Shape: longest-edge bisection of a Kuhn tet (minimum dihedral 45°) gives Kuhn tets again
+    // (Freudenthal's subdivision in three bisections), so the minimum dihedral angle must not
+    // drop at all (measured 45.0° in, 45.0° out; 3622 tets, 794 vertices).
     let (d_in, d_out) = (min_dihedral_deg(&mesh), min_dihedral_deg(&r.mesh));
     assert!((d_in - 45.0).abs() < 1e-9, "{d_in}");
     assert!(
-        d_out >= 0.75 * d_in,
+        d_out >= d_in - 1e-9,
         "min dihedral {d_out}° vs input {d_in}°"
     );
     // fewer tets than uniform refinement to the same h (two uniform levels: 64 ×)
@@ -183,10 +184,11 @@ fn tets_away_from_the_balls_are_untouched() {
             farthest_touched = farthest_touched.max(distance(t));
         }
     }
-    // The propagation path only climbs to longer edges, so it stays within a couple of input
-    // edges of the ball (measured: see the message).
+    // The propagation path only climbs to longer edges, so it stays within about one input edge
+    // of the ball (measured: 168 of 648 input tets touched, the farthest centroid 17.8 mm from
+    // the centre = radius + 1.02 × the longest input edge of 11.5 mm).
     assert!(
-        farthest_touched <= balls[0].radius_m + 2.0 * h_in,
+        farthest_touched <= balls[0].radius_m + 1.5 * h_in,
         "touched tets up to {farthest_touched} m from the centre (radius {}, edge {h_in})",
         balls[0].radius_m
     );
