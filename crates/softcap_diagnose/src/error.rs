@@ -30,6 +30,9 @@ pub enum DiagnoseError {
     /// The FEM layer reported an error.
     #[error(transparent)]
     Fem(#[from] Box<softcap_fem::FemError>),
+    /// The mesh layer reported an error (a refinement target it cannot meet).
+    #[error(transparent)]
+    Mesh(#[from] Box<softcap_mesh::MeshError>),
     /// Reading or writing an MCAP file failed.
     #[error("{path}: {source}")]
     Mcap {

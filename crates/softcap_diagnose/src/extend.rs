@@ -429,8 +429,12 @@ impl FemProbeSimulator {
                     ..FrictionParams::default()
                 };
                 // the simulator itself, or its copy on the fit mesh refined `levels` times
+                let tips: Vec<Vector3<f64>> = frames
+                    .iter()
+                    .filter_map(|f| f.load.probe.map(|p| p.tip_m))
+                    .collect();
                 let fine;
-                let (sim, model) = match friction_refinement(&self.setup().mesh, &tip) {
+                let (sim, model) = match friction_refinement(&self.setup().mesh, &tip, &tips) {
                     0 => (self, base),
                     levels => {
                         let mut f = self.refined()?;
@@ -673,7 +677,14 @@ impl FemProbeSimulator {
 /// nodes only, so the stuck patch that drags the surface must span several of them: a 6 mm
 /// sphere pressed 2 mm deep (footprint radius ≈ 5 mm) between the nodes of a 6.7 mm fit mesh
 /// touches none or one (the suite's probe-friction session: no displacement at 3 of 5 locations).
-pub fn friction_refinement(mesh: &softcap_mesh::TetMesh, tip: &softcap_fem::TipShape) -> u32 {
+/// h is measured over the boundary faces with a vertex within 2 r of one of `tips_m` (the tip
+/// positions of the replay; a locally refined mesh is fine only there), over the whole surface
+/// when there is none.
+pub fn friction_refinement(
+    mesh: &softcap_mesh::TetMesh,
+    tip: &softcap_fem::TipShape,
+    tips_m: &[Vector3<f64>],
+) -> u32 {
     use softcap_fem::TipShape;
     let r = match tip {
         TipShape::Sphere { radius_m }
@@ -681,8 +692,18 @@ pub fn friction_refinement(mesh: &softcap_mesh::TetMesh, tip: &softcap_fem::TipS
         | TipShape::Cylinder { radius_m, .. } => *radius_m,
         TipShape::Mesh { .. } => return 0,
     };
+    let faces = mesh.boundary_faces();
+    let near = |f: &[usize; 3]| {
+        f.iter().any(|&v| {
+            tips_m
+                .iter()
+                .any(|t| (mesh.vertices[v] - t).norm() <= 2.0 * r)
+        })
+    };
+    let touched: Vec<[usize; 3]> = faces.iter().copied().filter(near).collect();
+    let faces = if touched.is_empty() { faces } else { touched };
     let (mut sum, mut n) = (0.0, 0usize);
-    for f in mesh.boundary_faces() {
+    for f in faces {
         for i in 0..3 {
             sum += (mesh.vertices[f[i]] - mesh.vertices[f[(i + 1) % 3]]).norm();
             n += 1;

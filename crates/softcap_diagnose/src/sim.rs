@@ -19,7 +19,7 @@ use softcap_fem::probing::{
 use softcap_fem::{
     CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams, StaticSolver, TipShape,
 };
-use softcap_mesh::TetMesh;
+use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use std::sync::Arc;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
@@ -72,12 +72,15 @@ pub trait ProbeSimulator {
         Ok(None)
     }
 
-    /// The same object on a uniformly refined mesh: every tet split in eight
-    /// (`softcap_mesh::refine_tets`), each child with its parent's material, the markers
-    /// re-embedded, the same support, tip and settings. For extended models whose coarse
-    /// discretisation cannot form the recorded deformation (a plastic dent between a few
-    /// nodes); `None` (default) when this simulator has no mesh to refine.
-    fn refined(&self) -> Result<Option<Box<dyn ProbeSimulator>>> {
+    /// The same object on a refined mesh, each child tet with its parent's material, the markers
+    /// re-embedded, the same support, tip and settings: refined uniformly (every tet split in
+    /// eight, `softcap_mesh::refine_tets`) or only inside the balls `touched` (the recording's
+    /// tip positions with the contact radius; `softcap_mesh::refine_near`), as the simulator's
+    /// settings say. For extended models whose coarse discretisation cannot form the recorded
+    /// deformation (a plastic dent between a few nodes, a stuck contact patch); `None` (default)
+    /// when this simulator has no mesh to refine.
+    fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        let _ = touched;
         Ok(None)
     }
 
@@ -128,6 +131,32 @@ pub struct FemSimSettings {
     /// The strain-space default model's parameter iteration (relaxation ω, incremental loading
     /// from rest as the fallback; `softcap_fem::StrainSpaceModel::solve_continued`).
     pub strain_space: StrainSpaceSolveSettings,
+    /// How [`ProbeSimulator::refined`] refines the fit mesh.
+    pub refinement: RefinementSettings,
+}
+
+/// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RefinementSettings {
+    /// Refine only inside the touched balls (`softcap_mesh::refine_near`, longest-edge
+    /// bisection) instead of every tet 1 → 8 (`softcap_mesh::refine_tets`).
+    pub local: bool,
+    /// Local: the target longest edge inside the balls as a fraction of the fit mesh's longest
+    /// edge (½: the uniform refinement's edge length; ¼: a second uniform level's).
+    pub edge_fraction: f64,
+    /// Local: at most this many tets (an error beyond).
+    pub max_tets: usize,
+}
+
+impl Default for RefinementSettings {
+    fn default() -> Self {
+        Self {
+            local: false,
+            edge_fraction: 0.5,
+            max_tets: 200_000,
+        }
+    }
 }
 
 impl Default for FemSimSettings {
@@ -142,6 +171,7 @@ impl Default for FemSimSettings {
                 ..EquilibriumSettings::newton()
             },
             strain_space: StrainSpaceSolveSettings::default(),
+            refinement: RefinementSettings::default(),
         }
     }
 }
@@ -318,30 +348,54 @@ impl FemProbeSimulator {
         self.setup.marker_positions(&self.setup.mesh.vertices)
     }
 
-    /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`): each child tet
-    /// carries its parent's (λ, α) — for the strain-space basis its zero-strain p(0); the strain
-    /// dependence is not carried over (the extended models are built from the per-element
-    /// parameters alone); the attached
-    /// nodes are the attached vertices and the midpoints of edges between two of them; the markers
-    /// are re-embedded at their rest positions; support plane, rigid tip and settings are kept.
+    /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`; the rest as in
+    /// [`Self::refined_from`]).
     pub fn refined(&self) -> Result<Self> {
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
-        let r = softcap_mesh::refine_tets(&self.setup.mesh);
-        let n = self.setup.mesh.vertices.len();
-        let attached = |v: usize| self.setup.attached_nodes.binary_search(&v).is_ok();
-        let fixed: Vec<usize> = self
-            .setup
-            .attached_nodes
+        self.refined_from(softcap_mesh::refine_tets(&self.setup.mesh))
+    }
+
+    /// This simulator on the mesh refined inside `balls` until the longest edge there is at most
+    /// `max_edge_m` (`softcap_mesh::refine_near`, conforming longest-edge bisection; the rest as
+    /// in [`Self::refined_from`]); at most `max_tets` tets.
+    pub fn refined_near(
+        &self,
+        balls: &[RefineBall],
+        max_edge_m: f64,
+        max_tets: usize,
+    ) -> Result<Self> {
+        let r = softcap_mesh::refine_near(&self.setup.mesh, balls, max_edge_m, max_tets)
+            .map_err(|e| DiagnoseError::Mesh(Box::new(e)))?;
+        self.refined_from(r)
+    }
+
+    /// The longest edge of the mesh, m.
+    pub fn longest_edge_m(&self) -> f64 {
+        let m = &self.setup.mesh;
+        m.tets
             .iter()
-            .copied()
-            .chain(
-                r.midpoint_of
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, [a, b])| attached(*a) && attached(*b))
-                    .map(|(i, _)| n + i),
-            )
-            .collect();
+            .flat_map(|t| (0..4).flat_map(move |i| (i + 1..4).map(move |j| (t[i], t[j]))))
+            .map(|(a, b)| (m.vertices[a] - m.vertices[b]).norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// This simulator on a refinement `r` of its mesh: each child tet carries its parent's
+    /// (λ, α) — for the strain-space basis its zero-strain p(0); the strain dependence is not
+    /// carried over (the extended models are built from the per-element parameters alone); the
+    /// attached nodes are the attached vertices and every new vertex both of whose endpoints are
+    /// attached (in creation order, so nested midpoints of local refinement follow their
+    /// endpoints); the markers are re-embedded at their rest positions; support plane, rigid tip
+    /// and settings are kept.
+    fn refined_from(&self, r: RefinedTetMesh) -> Result<Self> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let n = self.setup.mesh.vertices.len();
+        let mut attached = vec![false; r.mesh.vertices.len()];
+        for &v in &self.setup.attached_nodes {
+            attached[v] = true;
+        }
+        for (k, &[a, b]) in r.midpoint_of.iter().enumerate() {
+            attached[n + k] = attached[a] && attached[b];
+        }
+        let fixed: Vec<usize> = (0..attached.len()).filter(|&v| attached[v]).collect();
         let params: Vec<LinearParams> = r
             .parent_tet
             .iter()
@@ -427,8 +481,13 @@ impl ProbeSimulator for FemProbeSimulator {
         Ok(Some(Box::new(sim)))
     }
 
-    fn refined(&self) -> Result<Option<Box<dyn ProbeSimulator>>> {
-        Ok(Some(Box::new(FemProbeSimulator::refined(self)?)))
+    fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        let r = &self.settings.refinement;
+        Ok(Some(Box::new(if r.local {
+            self.refined_near(touched, r.edge_fraction * self.longest_edge_m(), r.max_tets)?
+        } else {
+            FemProbeSimulator::refined(self)?
+        })))
     }
 
     fn simulate_sequence(

@@ -48,6 +48,22 @@ pub fn contact_radius_m(rec: &Recording) -> f64 {
     (2.5 * rec.tip_radius_m).max(0.005)
 }
 
+/// Where the replays need the finer mesh ([`ProbeSimulator::refined`]): a ball of
+/// [`contact_radius_m`] around the tip of every contact frame of every location. Beyond ≈ 2.5 tip
+/// radii the field depends on the resultant only (Saint-Venant), which the coarse mesh carries;
+/// inside, the footprint, the stuck patch and the plastic dent must span several nodes.
+pub fn touched_balls(rec: &Recording, seg: &Segmentation) -> Vec<softcap_mesh::RefineBall> {
+    let radius_m = contact_radius_m(rec);
+    seg.locations
+        .iter()
+        .flat_map(|l| &l.contact_frames)
+        .map(|&f| softcap_mesh::RefineBall {
+            centre_m: rec.frames[f].tip_m,
+            radius_m,
+        })
+        .collect()
+}
+
 /// The name of `h`'s effect cells (JSON `evidence.scored_cells`).
 pub fn effect_cells_name(h: Hypothesis) -> Option<&'static str> {
     Some(match h {
@@ -571,7 +587,7 @@ pub(crate) fn confirm(
     let mut refined_from: Vec<usize> = Vec::new();
     let mut neighbourhoods: Vec<Vec<usize>> = Vec::new();
     if h == Hypothesis::Anisotropy
-        && let Some(mut fine) = sim.refined()?
+        && let Some(mut fine) = sim.refined(&touched_balls(rec, seg))?
     {
         let choices = lolo_choices(&cands, rec, seg, p, scale, scored, train_on_scored);
         neighbourhoods = choices
@@ -605,7 +621,7 @@ pub(crate) fn confirm(
     let mut fine = if rigid.is_empty() {
         None
     } else {
-        sim.refined()?
+        sim.refined(&touched_balls(rec, seg))?
     };
     let refined = fine.is_some();
     let replay: &mut dyn ProbeSimulator = match fine.as_deref_mut() {

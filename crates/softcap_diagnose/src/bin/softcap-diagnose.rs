@@ -77,7 +77,8 @@ fn main_inner() -> Result<(), Failure> {
             e @ (DiagnoseError::BadInput { .. }
             | DiagnoseError::Mcap { .. }
             | DiagnoseError::BadRecording { .. }
-            | DiagnoseError::NonFinite { .. }),
+            | DiagnoseError::NonFinite { .. }
+            | DiagnoseError::Mesh(_)),
         ) => Err(Failure::BadInput(e.into())),
         Err(e) => Err(Failure::Run(e.into())),
     }
