@@ -145,6 +145,9 @@ pub struct RefinementSettings {
     /// Local: the target longest edge inside the balls as a fraction of the fit mesh's longest
     /// edge (½: the uniform refinement's edge length; ¼: a second uniform level's).
     pub edge_fraction: f64,
+    /// Local: the touched balls' radii (the contact radius, `spatial::contact_radius_m`) scaled
+    /// by this.
+    pub radius_scale: f64,
     /// Local: at most this many tets (an error beyond).
     pub max_tets: usize,
 }
@@ -154,6 +157,7 @@ impl Default for RefinementSettings {
         Self {
             local: false,
             edge_fraction: 0.5,
+            radius_scale: 1.0,
             max_tets: 200_000,
         }
     }
@@ -484,7 +488,14 @@ impl ProbeSimulator for FemProbeSimulator {
     fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {
         let r = &self.settings.refinement;
         Ok(Some(Box::new(if r.local {
-            self.refined_near(touched, r.edge_fraction * self.longest_edge_m(), r.max_tets)?
+            let balls: Vec<RefineBall> = touched
+                .iter()
+                .map(|b| RefineBall {
+                    radius_m: b.radius_m * r.radius_scale,
+                    ..*b
+                })
+                .collect();
+            self.refined_near(&balls, r.edge_fraction * self.longest_edge_m(), r.max_tets)?
         } else {
             FemProbeSimulator::refined(self)?
         })))

@@ -36,8 +36,30 @@ fn expected(name: &str) -> &'static str {
     CATALOG.into_iter().find(|c| *c == name).unwrap_or("none")
 }
 
+/// The simulator's fit-mesh refinement for the spatial replays from `SOFTCAP_SUITE_REFINE`
+/// (`uniform`, or `local:F[:S]` — `softcap_mesh::refine_near` inside the touched balls, radii
+/// scaled by S, to F × the longest edge); unset: the default.
+fn stage_settings() -> StageSettings {
+    let mut settings = StageSettings::default();
+    if let Ok(v) = std::env::var("SOFTCAP_SUITE_REFINE") {
+        let r = &mut settings.simulator.refinement;
+        match v.split_once(':') {
+            Some(("local", f)) => {
+                let (f, scale) = f.split_once(':').unwrap_or((f, "1"));
+                r.local = true;
+                r.edge_fraction = f.parse().expect("SOFTCAP_SUITE_REFINE=local:FRACTION");
+                r.radius_scale = scale.parse().expect("SOFTCAP_SUITE_REFINE=local:F:SCALE");
+            }
+            _ if v == "uniform" => r.local = false,
+            _ => panic!("SOFTCAP_SUITE_REFINE={v}: expected uniform or local:FRACTION[:SCALE]"),
+        }
+    }
+    settings
+}
+
 /// Runs the chain on `fixtures/scenarios/suite/<name>.toml` and checks the diagnosis; with
-/// `SOFTCAP_SUITE_REPORT=DIR` the diagnose report (figures) of the case is written to `DIR/<name>/`.
+/// `SOFTCAP_SUITE_REPORT=DIR` the diagnose report (figures) of the case is written to `DIR/<name>/`;
+/// `SOFTCAP_SUITE_REFINE` sets the fit-mesh refinement ([`stage_settings`]).
 fn check(name: &str) {
     let scenario = Scenario::load(&common::suite_dir().join(format!("{name}.toml"))).unwrap();
     let inputs = common::prepare_inputs(&scenario);
@@ -49,7 +71,7 @@ fn check(name: &str) {
         output: inputs.dir.path().join("diagnosis.mcap"),
         json: Some(inputs.dir.path().join("diagnosis.json")),
         report,
-        settings: StageSettings::default(),
+        settings: stage_settings(),
         arguments: vec![],
     })
     .unwrap();
