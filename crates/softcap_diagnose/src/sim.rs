@@ -374,12 +374,7 @@ impl FemProbeSimulator {
 
     /// The longest edge of the mesh, m.
     pub fn longest_edge_m(&self) -> f64 {
-        let m = &self.setup.mesh;
-        m.tets
-            .iter()
-            .flat_map(|t| (0..4).flat_map(move |i| (i + 1..4).map(move |j| (t[i], t[j]))))
-            .map(|(a, b)| (m.vertices[a] - m.vertices[b]).norm())
-            .fold(0.0, f64::max)
+        self.setup.mesh.longest_edge()
     }
 
     /// This simulator on a refinement `r` of its mesh: each child tet carries its parent's

@@ -216,6 +216,17 @@ fn released_set_signature_cancels_a_constant_rest_offset() {
     );
 }
 
+/// How far the top-centre marker sags under gravity (ρ 1000 kg/m³), m.
+fn gravity_sag(mut sim: FemProbeSimulator) -> f64 {
+    let gravity = SimLoad {
+        probe: None,
+        body_force_n_m3: Vector3::new(0.0, 0.0, -1000.0 * 9.81),
+    };
+    let rest = sim.rest_markers_m()[0];
+    let out = sim.simulate(&gravity, false).unwrap();
+    rest.z - out.markers_m[0].z
+}
+
 /// `FemProbeSimulator::refined`: 8 × the tets, the same markers (re-embedded at the same rest
 /// positions), the support plane's nodes fixed, the tip kept; under gravity (lumped ρg V/4 is the
 /// consistent load of linear tets, the same load functional on both meshes) the nested, richer
@@ -237,16 +248,7 @@ fn refined_simulator_keeps_markers_support_and_tip_and_is_softer() {
     }
     let on_base = FemProbeSimulator::nodes_on_plane(&fine.setup().mesh, &Vector3::z(), 0.0, 1e-9);
     assert_eq!(fine.setup().attached_nodes, on_base);
-    let gravity = SimLoad {
-        probe: None,
-        body_force_n_m3: Vector3::new(0.0, 0.0, -1000.0 * 9.81),
-    };
-    let (mut coarse, mut fine) = (coarse, fine);
-    let sag = |s: &mut FemProbeSimulator| {
-        let out = s.simulate(&gravity, false).unwrap();
-        rc[0].z - out.markers_m[0].z
-    };
-    let (sc, sf) = (sag(&mut coarse), sag(&mut fine));
+    let (sc, sf) = (gravity_sag(coarse), gravity_sag(fine));
     println!(
         "top-centre sag under gravity: coarse {:.4} mm, refined {:.4} mm",
         1e3 * sc,
@@ -295,20 +297,11 @@ fn locally_refined_simulator_fixes_nested_midpoints_on_the_support_and_is_softer
         on_base.len()
     );
     assert_eq!(fine.setup().attached_nodes, on_base);
-    let gravity = SimLoad {
-        probe: None,
-        body_force_n_m3: Vector3::new(0.0, 0.0, -1000.0 * 9.81),
-    };
-    let (mut coarse, mut fine) = (coarse, fine);
-    let sag = |s: &mut FemProbeSimulator| {
-        let out = s.simulate(&gravity, false).unwrap();
-        rc[0].z - out.markers_m[0].z
-    };
-    let (sc, sf) = (sag(&mut coarse), sag(&mut fine));
+    let n_fine = fine.setup().mesh.tets.len();
+    let (sc, sf) = (gravity_sag(coarse), gravity_sag(fine));
     println!(
-        "top-centre sag under gravity: coarse {:.4} mm, locally refined ({} tets) {:.4} mm",
+        "top-centre sag under gravity: coarse {:.4} mm, locally refined ({n_fine} tets) {:.4} mm",
         1e3 * sc,
-        fine.setup().mesh.tets.len(),
         1e3 * sf
     );
     assert!(sc > 0.0);

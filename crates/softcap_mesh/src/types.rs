@@ -41,6 +41,18 @@ impl TetMesh {
         (b - a).dot(&(c - a).cross(&(d - a))) / 6.0
     }
 
+    /// Longest edge of tet `t`.
+    pub fn tet_longest_edge(&self, t: usize) -> f64 {
+        crate::validate::longest_edge(&self.tets[t].map(|i| self.vertices[i]))
+    }
+
+    /// Longest edge of any tet (0 without tets).
+    pub fn longest_edge(&self) -> f64 {
+        (0..self.tets.len())
+            .map(|t| self.tet_longest_edge(t))
+            .fold(0.0, f64::max)
+    }
+
     /// Total (signed) volume.
     pub fn volume(&self) -> f64 {
         (0..self.tets.len()).map(|t| self.tet_volume(t)).sum()

@@ -79,7 +79,7 @@ fn check_unused(used: &[bool], settings: &ValidationSettings) -> Result<()> {
     Ok(())
 }
 
-fn longest_edge<const N: usize>(x: &[Vector3<f64>; N]) -> f64 {
+pub(crate) fn longest_edge<const N: usize>(x: &[Vector3<f64>; N]) -> f64 {
     let mut l: f64 = 0.0;
     for a in 0..N {
         for b in a + 1..N {

@@ -3,28 +3,10 @@
 
 use softcap_mesh::nalgebra::Vector3;
 use softcap_mesh::{
-    MeshError, RefineBall, TetMesh, ValidationSettings, box_tet_mesh, refine_near, refine_tets,
+    MeshError, RefineBall, TetMesh, TriMesh, ValidationSettings, box_tet_mesh, refine_near,
+    refine_tets,
 };
 use std::collections::BTreeMap;
-
-fn longest_edge(m: &TetMesh) -> f64 {
-    m.tets
-        .iter()
-        .flat_map(|t| (0..4).flat_map(move |i| (i + 1..4).map(move |j| (t[i], t[j]))))
-        .map(|(a, b)| (m.vertices[a] - m.vertices[b]).norm())
-        .fold(0.0, f64::max)
-}
-
-fn tet_longest_edge(m: &TetMesh, t: usize) -> f64 {
-    let x = m.tets[t].map(|i| m.vertices[i]);
-    let mut l: f64 = 0.0;
-    for i in 0..4 {
-        for j in i + 1..4 {
-            l = l.max((x[i] - x[j]).norm());
-        }
-    }
-    l
-}
 
 /// Smallest dihedral angle of any tet, degrees.
 fn min_dihedral_deg(m: &TetMesh) -> f64 {
@@ -49,13 +31,11 @@ fn min_dihedral_deg(m: &TetMesh) -> f64 {
 }
 
 fn boundary_area(m: &TetMesh) -> f64 {
-    m.boundary_faces()
-        .iter()
-        .map(|f| {
-            let [a, b, c] = f.map(|i| m.vertices[i]);
-            0.5 * (b - a).cross(&(c - a)).norm()
-        })
-        .sum()
+    TriMesh {
+        vertices: m.vertices.clone(),
+        triangles: m.boundary_faces(),
+    }
+    .area()
 }
 
 /// Every sorted face used by at most two tets, and the boundary's area the input's: with a hanging
@@ -97,7 +77,7 @@ fn ball(x: f64, y: f64, z: f64, r: f64) -> RefineBall {
 #[test]
 fn local_refinement_is_conforming_volume_preserving_and_keeps_its_shape() {
     let mesh = box_mesh();
-    let h_in = longest_edge(&mesh);
+    let h_in = mesh.longest_edge();
     let balls = [
         ball(0.012, 0.02, 0.02, 0.006),
         ball(0.03, 0.025, 0.02, 0.004),
@@ -136,7 +116,7 @@ fn local_refinement_is_conforming_volume_preserving_and_keeps_its_shape() {
     let mut refined_near = 0;
     for t in 0..r.mesh.tets.len() {
         if near(t) {
-            assert!(tet_longest_edge(&r.mesh, t) <= h * (1.0 + 1e-12));
+            assert!(r.mesh.tet_longest_edge(t) <= h * (1.0 + 1e-12));
             refined_near += 1;
         }
     }
@@ -161,7 +141,7 @@ fn local_refinement_is_conforming_volume_preserving_and_keeps_its_shape() {
 #[test]
 fn tets_away_from_the_balls_are_untouched() {
     let mesh = box_mesh();
-    let h_in = longest_edge(&mesh);
+    let h_in = mesh.longest_edge();
     let balls = [ball(0.012, 0.02, 0.02, 0.006)];
     let r = refine_near(&mesh, &balls, 0.25 * h_in, 1_000_000).unwrap();
     // an input tet is untouched when its slot keeps its corners and no other tet descends from it
@@ -216,7 +196,7 @@ fn a_ball_over_everything_with_half_the_edge_matches_uniform_refinement() {
     // 3 longest-edge bisections of a Kuhn tet give the 8 Kuhn tets of the halved cell: the same
     // vertices and tet count as the red refinement (cubic cells: every body diagonal the longest).
     let mesh = box_tet_mesh([0.0, 0.0, 0.0], [0.03, 0.02, 0.02], [3, 2, 2]);
-    let h_in = longest_edge(&mesh);
+    let h_in = mesh.longest_edge();
     let r = refine_near(
         &mesh,
         &[ball(0.02, 0.015, 0.01, 1.0)],
@@ -227,7 +207,7 @@ fn a_ball_over_everything_with_half_the_edge_matches_uniform_refinement() {
     let u = refine_tets(&mesh);
     assert_eq!(r.mesh.tets.len(), u.mesh.tets.len());
     assert_eq!(r.mesh.vertices.len(), u.mesh.vertices.len());
-    assert!((longest_edge(&r.mesh) - 0.5 * h_in).abs() < 1e-12);
+    assert!((r.mesh.longest_edge() - 0.5 * h_in).abs() < 1e-12);
     assert_conforming(&r.mesh, &mesh);
 }
 
