@@ -80,6 +80,13 @@ fn main() {
         };
         let mut anim = Animator::with_settings(&r, &m, &settings).expect("animator");
         let n = r.num_vertices();
+        // PSD_SCHEDULE=block,chunk overrides the sweep shape (vertices, multiples of 256)
+        if let Some((b, c)) = std::env::var("PSD_SCHEDULE").ok().and_then(|s| {
+            let (b, c) = s.split_once(',')?;
+            Some((b.parse::<usize>().ok()?, c.parse::<usize>().ok()?))
+        }) {
+            anim.layout.schedule = runtime::Schedule::new(&anim.layout.fans, b, c);
+        }
         let (dd, dn) = anim.layout.schedule.deferred_fractions();
         println!(
             "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame \
@@ -180,6 +187,13 @@ fn main() {
         }
         if run("normal") {
             time("  normal_pass", reps, || {
+                runtime::normal_pass(layout, &pos, &mut nrm)
+            });
+        }
+        if run("three") {
+            time("  three passes", reps, || {
+                runtime::large_scale_pass(layout, &uh, &mut large);
+                runtime::detail_pass(layout, &large, &table, None, &mut pos);
                 runtime::normal_pass(layout, &pos, &mut nrm)
             });
         }
