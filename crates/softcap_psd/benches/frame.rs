@@ -109,16 +109,13 @@ fn bench(c: &mut Criterion) {
     group.bench_function(format!("normals_t{threads}"), |b| {
         b.iter(|| runtime::normal_pass(layout, black_box(&positions), &mut normals))
     });
-    let (dd, dn) = layout.schedule.deferred_fractions();
     eprintln!(
         "subdivided face (Morton order): {n} vertices, low-rank basis mean rank {:.2} ({:.0} MB), \
-         {:.0} MB ({:.0} B/vertex) streamed per frame, deferred detail {:.1} % normals {:.1} %",
+         {:.0} MB ({:.0} B/vertex) streamed per frame",
         layout.basis.mean_rank(),
         layout.basis.bytes() as f64 / 1e6,
         layout.bytes_per_frame() as f64 / 1e6,
         layout.bytes_per_frame() as f64 / n as f64,
-        100.0 * dd,
-        100.0 * dn
     );
     group.finish();
 }

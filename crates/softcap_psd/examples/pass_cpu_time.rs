@@ -80,26 +80,13 @@ fn main() {
         };
         let mut anim = Animator::with_settings(&r, &m, &settings).expect("animator");
         let n = r.num_vertices();
-        // PSD_SCHEDULE=block,chunk overrides the sweep shape (vertices, multiples of 256)
-        if let Some((b, c)) = std::env::var("PSD_SCHEDULE").ok().and_then(|s| {
-            let (b, c) = s.split_once(',')?;
-            Some((b.parse::<usize>().ok()?, c.parse::<usize>().ok()?))
-        }) {
-            anim.layout.schedule = runtime::Schedule::new(&anim.layout.fans, b, c);
-        }
-        let (dd, dn) = anim.layout.schedule.deferred_fractions();
         println!(
             "{n} vertices: layout built in {:.1} s, mean rank {:.2}, {:.0} MB streamed per frame \
-             ({:.0} B/vertex), sweep blocks {} chunks {}, deferred detail {:.1} % normals {:.1} %, WPSD edges per \
-             8-vertex batch {:.1}",
+             ({:.0} B/vertex), WPSD edges per 8-vertex batch {:.1}",
             t.elapsed().as_secs_f64(),
             anim.layout.basis.mean_rank(),
             anim.layout.bytes_per_frame() as f64 / 1e6,
             anim.layout.bytes_per_frame() as f64 / n as f64,
-            anim.layout.schedule.block,
-            anim.layout.schedule.chunk,
-            100.0 * dd,
-            100.0 * dn,
             anim.layout.details.mean_union()
         );
         if std::env::var_os("PSD_SPARSITY").is_some() {

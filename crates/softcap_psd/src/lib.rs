@@ -10,7 +10,7 @@
 //! | [`animate`] | stage MCAP: handle trajectory (`/capture/markers`) in, `/face/mesh` + `/psd/large_scale` out | §5.5.2 |
 //! | [`frames`] | topology, normals, per-vertex local frames (f32, parallel kernels) | §5.4.2, §5.5.2 |
 //! | [`rig`] | [`FaceRig`] (shell basis + graph on a rest face), training examples, run-time [`Animator`] | §5.3, §5.5.2 |
-//! | [`runtime`] | vertex-major f32 run-time layout: block low-rank basis, one-ring fans, fused detail pass | §5.5.2 |
+//! | [`runtime`] | vertex-major f32 run-time layout: block low-rank basis, one-ring fans, batched detail kernel, three parallel passes | §5.5.2 |
 //! | [`detail`] | PSD / WPSD fits (interpolation, least squares), greedy pose selection, evaluation | eq. 5.2, 5.3, 5.5 |
 //! | [`blend`] | global and local blend-shape baselines | §5.5.1 |
 //! | [`transfer`] | detail transfer by dense correspondence | §5.4.4 |
@@ -66,6 +66,6 @@ pub use rig::{
     Animator, FaceRig, RigSettings, large_scale_kernel, permute_rig, reference_frame,
     shell_for_mesh, subdivide_midpoint, subdivide_rig,
 };
-pub use runtime::{Fans, LowRankBasis, RuntimeLayout, RuntimeSettings, Schedule};
+pub use runtime::{Fans, LowRankBasis, RuntimeLayout, RuntimeSettings};
 pub use softcap_mesh::{LinearShell, ShellBasis, ShellSettings};
 pub use transfer::{Correspondence, identity_correspondence, transfer_details};

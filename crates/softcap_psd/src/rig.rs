@@ -206,7 +206,7 @@ pub fn large_scale_kernel(
 
 /// Run-time synthesis (thesis §5.5.2): handle positions → detailed positions and normals.
 /// The vertex-major layout ([`RuntimeLayout`], block low-rank basis) and all buffers are built
-/// once; a frame is one fused parallel sweep ([`runtime::frame_pass`]: large scale; normal +
+/// once; a frame is three parallel passes ([`runtime::frame_pass`]: large scale; normal +
 /// frame + WPSD detail; normals) and allocates nothing.
 #[derive(Debug)]
 pub struct Animator<'a> {
@@ -307,7 +307,7 @@ impl<'a> Animator<'a> {
         let mean = runtime::centre_handles(&self.uh, &mut self.centred);
         let global_r = global.then_some(&self.global_r[..]);
         // Full-rank layouts are stored in mesh order and write straight into the outputs; the
-        // low-rank (permuted) layout sweeps into its work buffers and is un-permuted after.
+        // low-rank (permuted) layout runs into its work buffers and is un-permuted after.
         let permuted = self.layout.rank.is_some();
         let (positions, normals) = if permuted {
             (&mut self.work, &mut self.work_normals)
@@ -474,7 +474,7 @@ pub fn subdivide_rig(
 /// stored `k`-th, e.g. [`runtime::morton_order`] of the rest positions): positions, triangles,
 /// handle ids, shell-basis rows, edge-weight rows and RBF-weight rows renumbered. A locality
 /// order applied once when the asset is built (as a renderer orders its vertex buffer): the
-/// run-time sweep ([`runtime::Schedule`]) then gathers nearby memory, its low-rank blocks are
+/// run-time passes ([`runtime::frame_pass`]) then gather nearby memory, its low-rank blocks are
 /// compact surface patches, and no per-frame un-permute is needed (unlike
 /// [`RuntimeSettings::reorder`], which keeps the caller's order). Frames are the same up to the
 /// renumbering (triangles keep their order, so fans and local frames are identical; the

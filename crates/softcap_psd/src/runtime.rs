@@ -26,13 +26,15 @@
 //!   Everything that does not depend on the pose (edge selection, `α`, RBF weights, fans,
 //!   reference neighbours) is precomputed.
 //!
-//! A frame is one fused sweep ([`frame_pass`], order in [`Schedule`]): per chunk of vertices
-//! (one rayon task each) and block of 256–2048 vertices, the large-scale positions of block
-//! `s`, the large-scale normal, local frame, WPSD detail and final position of block `s − L`
-//! and the final normals of block `s − 2L` (`L` = [`SWEEP_LAG`] = 2), so each vertex's data is read from memory once and
-//! the one-ring gathers hit cache; vertices whose one-ring leaves the window are finished after
-//! the sweep. The three passes also exist separately ([`large_scale_pass`], [`detail_pass`],
-//! [`normal_pass`]) with the same per-vertex arithmetic (bit-identical results).
+//! A frame ([`frame_pass`]) is the three passes over the whole mesh, each split into
+//! independent chunks of stored vertices run in parallel (rayon): large scale
+//! ([`large_scale_pass`]), normal + frame + WPSD detail ([`detail_pass`], one-rings from the
+//! complete large-scale positions), final normals ([`normal_pass`]). Every vertex runs the same
+//! arithmetic whatever the chunking or thread count (bit-identical results). (Sessions 7–9 fused
+//! the passes into one sweep per chunk with the one-ring gathers hitting cache, but the vertices
+//! whose one-ring left the sweep window — 9 % of the detail batches, 18 % of the normals on the
+//! Morton-ordered 592k face — had to be finished after the sweep from memory, and that cost more
+//! than the fusion saved: 29.2 vs 31.4–33.9 CPU-ms per frame, docs/psd.md session 10.)
 
 use crate::detail::{DetailModel, MAX_POSES, Metric};
 use crate::error::{PsdError, Result};
@@ -533,135 +535,6 @@ impl BatchDetails {
 /// `u16` (absolute error ≤ 7.7e-6 on weights that sum to 1).
 pub const ALPHA_STEP: f32 = 1.0 / 65535.0;
 
-/// Sweep blocks by which the large-scale positions run ahead of the detail, and the detail
-/// ahead of the final normals, in the fused sweep ([`Schedule`]).
-pub const SWEEP_LAG: usize = 3;
-
-/// Bit of [`Schedule::flags`]: the vertex's detail is computed after the sweep.
-pub const DEFER_DETAIL: u8 = 1;
-/// Bit of [`Schedule::flags`]: the vertex's final normal is computed after the sweep.
-pub const DEFER_NORMAL: u8 = 2;
-
-/// Order of the fused per-frame sweep ([`frame_pass`]). The stored vertices are cut into chunks
-/// of `chunk` consecutive vertices (one rayon task each), and a chunk is swept in blocks of
-/// `block` vertices: step `s` computes the large-scale positions of block `s`, the normal +
-/// frame + WPSD detail of block `s − L` and the final normals of block `s − 2L` (`L` = [`SWEEP_LAG`]). So every
-/// vertex's data is read from memory once per frame and each one-ring gather hits positions
-/// written a few blocks earlier (in L1/L2) instead of a second and third pass over the
-/// whole mesh. A vertex whose one-ring (or reference neighbour) leaves its chunk or reaches
-/// past `L` blocks ahead is *deferred* ([`DEFER_DETAIL`]; its normal and its neighbours'
-/// normals too, [`DEFER_NORMAL`]): those are computed after all chunks, from the finished
-/// arrays. The result does not depend on the schedule (every vertex runs the same arithmetic).
-/// With a locality order (Morton, [`morton_order`]) few vertices are deferred; in an arbitrary
-/// vertex order most are, and the sweep degrades to three passes.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Schedule {
-    /// Vertices per sweep block (a multiple of [`LOW_RANK_BLOCK`]).
-    pub block: usize,
-    /// Vertices per chunk (a multiple of `block`).
-    pub chunk: usize,
-    /// Per vertex: [`DEFER_DETAIL`] | [`DEFER_NORMAL`] bits.
-    pub flags: Vec<u8>,
-    /// Vertices whose detail is deferred, by chunk (`detail_offsets[c]..detail_offsets[c + 1]`).
-    pub deferred_detail: Vec<u32>,
-    /// Chunk offsets into `deferred_detail` (chunks + 1).
-    pub detail_offsets: Vec<usize>,
-    /// Vertices whose final normal is deferred, by chunk.
-    pub deferred_normal: Vec<u32>,
-    /// Chunk offsets into `deferred_normal` (chunks + 1).
-    pub normal_offsets: Vec<usize>,
-}
-
-impl Schedule {
-    /// Sweep shape for `n` vertices: ≥ 4 chunks (so two threads share the work evenly) of
-    /// ≤ 150k vertices, blocks of 256–2048 vertices. Only a few blocks of a chunk are live at a
-    /// time, so the chunk size does not matter for the cache; larger chunks have fewer vertices
-    /// whose one-ring crosses a chunk boundary (deferred): on the Morton-ordered 592k face
-    /// 9.1 % of the detail batches with 4 chunks of 148k, 13.5 % with 10 of 59k.
-    pub fn shape(n: usize) -> (usize, usize) {
-        let chunks = n.div_ceil(150_000).max(4);
-        let per = n.div_ceil(chunks).max(1);
-        let block = LOW_RANK_BLOCK * (per / (8 * LOW_RANK_BLOCK)).clamp(1, 8);
-        (block, per.div_ceil(block) * block)
-    }
-
-    /// Flags and deferred lists of `fans` for sweep blocks of `block` and chunks of `chunk`
-    /// vertices (`chunk` a multiple of `block`, `block` of [`LOW_RANK_BLOCK`]).
-    pub fn new(fans: &Fans, block: usize, chunk: usize) -> Self {
-        assert!(
-            block > 0
-                && block.is_multiple_of(LOW_RANK_BLOCK)
-                && chunk.is_multiple_of(block)
-                && chunk > 0,
-            "sweep blocks of whole low-rank blocks, chunks of whole sweep blocks"
-        );
-        let n = fans.kinds.len();
-        // vertices of the chunk whose positions are complete when vertex v is processed
-        let window = |v: usize| -> std::ops::Range<usize> {
-            let c0 = v / chunk * chunk;
-            let c1 = (c0 + chunk).min(n);
-            c0..(c0 + ((v - c0) / block + 1 + SWEEP_LAG) * block).min(c1)
-        };
-        let mut flags = vec![0u8; n];
-        for (v, f) in flags.iter_mut().enumerate() {
-            let w = window(v);
-            let inside = |u: &u32| w.contains(&(*u as usize));
-            if !(fans.ring(v).iter().all(inside) && inside(&fans.reference[v])) {
-                *f |= DEFER_DETAIL;
-            }
-        }
-        // the detail kernel runs on whole batches of BATCH vertices: defer a batch if any of
-        // its vertices must wait
-        for batch in flags.chunks_mut(BATCH) {
-            if batch.iter().any(|&f| f & DEFER_DETAIL != 0) {
-                batch.iter_mut().for_each(|f| *f |= DEFER_DETAIL);
-            }
-        }
-        for v in 0..n {
-            let w = window(v);
-            let ready =
-                |u: &u32| w.contains(&(*u as usize)) && flags[*u as usize] & DEFER_DETAIL == 0;
-            if flags[v] & DEFER_DETAIL != 0 || !fans.ring(v).iter().all(ready) {
-                flags[v] |= DEFER_NORMAL;
-            }
-        }
-        let chunks = n.div_ceil(chunk).max(1);
-        let list = |bit: u8| -> (Vec<u32>, Vec<usize>) {
-            let mut ids = Vec::new();
-            let mut offsets = vec![0];
-            for c in 0..chunks {
-                ids.extend(
-                    (c * chunk..((c + 1) * chunk).min(n))
-                        .filter(|&v| flags[v] & bit != 0)
-                        .map(|v| v as u32),
-                );
-                offsets.push(ids.len());
-            }
-            (ids, offsets)
-        };
-        let (deferred_detail, detail_offsets) = list(DEFER_DETAIL);
-        let (deferred_normal, normal_offsets) = list(DEFER_NORMAL);
-        Self {
-            block,
-            chunk,
-            flags,
-            deferred_detail,
-            detail_offsets,
-            deferred_normal,
-            normal_offsets,
-        }
-    }
-
-    /// Fractions of vertices whose detail / final normal is deferred.
-    pub fn deferred_fractions(&self) -> (f64, f64) {
-        let n = self.flags.len().max(1) as f64;
-        (
-            self.deferred_detail.len() as f64 / n,
-            self.deferred_normal.len() as f64 / n,
-        )
-    }
-}
-
 /// Per-frame buffers and the vertex-major run-time data of a rig + detail model.
 #[derive(Clone, Debug)]
 pub struct RuntimeLayout {
@@ -677,8 +550,6 @@ pub struct RuntimeLayout {
     pub width: usize,
     /// Edge weights and RBF weights in batches of [`BATCH`] stored vertices.
     pub details: BatchDetails,
-    /// Order of the fused frame sweep.
-    pub schedule: Schedule,
     /// Locality order (`order[k]` = mesh vertex stored `k`-th) when
     /// [`RuntimeSettings::reorder`] is on; every per-vertex array above is in this order.
     pub order: Option<Vec<u32>>,
@@ -753,11 +624,9 @@ impl RuntimeLayout {
             &rows(&model.weights, p3, o),
             model.num_features,
         );
-        let (block, chunk) = Schedule::shape(n);
         Ok(Self {
             rest: rows(&rig.rest_f32, 1, o),
             basis: LowRankBasis::with_order(&rig.basis, settings.basis_tolerance, o),
-            schedule: Schedule::new(&fans, block, chunk),
             fans,
             poses: model.num_poses(),
             width,
@@ -772,17 +641,17 @@ impl RuntimeLayout {
         self.rest.len()
     }
 
-    /// Bytes read from and written to memory per frame by the fused sweep ([`frame_pass`]):
-    /// every per-vertex array once (one-ring gathers and the second read of the fans hit
-    /// cache), plus the large-scale, final position and normal arrays written once — the
-    /// memory-traffic floor of a frame (the un-permute of [`RuntimeSettings::reorder`] adds
+    /// Bytes read from and written to memory per frame by the three passes ([`frame_pass`]):
+    /// every per-vertex array of a pass once (one-ring gathers hit cache), the fans twice
+    /// (detail and normal pass), the large-scale and final positions written and read back
+    /// once, the normals written (the un-permute of [`RuntimeSettings::reorder`] adds
     /// 4 + 2·24 bytes per vertex).
     pub fn bytes_per_frame(&self) -> usize {
         let n = self.num_vertices();
-        let fans = self.fans.neighbours.len() * 4 + n * (4 + 1 + 4 + 1); // ids, offsets, kind, reference, flags
-        let detail = self.details.bytes();
+        let fans = self.fans.neighbours.len() * 4 + n * (4 + 1); // ids, offsets, kind
+        let detail = self.details.bytes() + n * 4; // + reference neighbours
         let unpermute = if self.rank.is_some() { n * 52 } else { 0 };
-        self.basis.bytes() + n * 12 /* rest */ + fans + detail + n * 36 /* large, positions, normals out */ + unpermute
+        self.basis.bytes() + n * 12 /* rest */ + 2 * fans + detail + n * 60 /* large, positions: write + read; normals */ + unpermute
     }
 }
 
@@ -1462,16 +1331,6 @@ fn large_range<S: pulp::Simd>(
 /// slices are compiled — and vectorized — inside the target-feature function. No `mul_add`
 /// is used, so every path gives the same bits.
 enum Kernel<'a, const NC: usize, E> {
-    /// The fused sweep of one chunk (see [`Schedule`]).
-    Sweep {
-        inputs: &'a DetailInputs<'a, NC, E>,
-        centred: &'a [f32],
-        mean: [f32; 3],
-        first: usize,
-        large: &'a mut [[f32; 3]],
-        positions: &'a mut [[f32; 3]],
-        normals: &'a mut [[f32; 3]],
-    },
     /// Pass 1 over a range of whole low-rank blocks.
     Large {
         layout: &'a RuntimeLayout,
@@ -1480,12 +1339,11 @@ enum Kernel<'a, const NC: usize, E> {
         first: usize,
         out: &'a mut [[f32; 3]],
     },
-    /// Pass 2 of the stored vertices `ids` (or of `first..first + out.len()` if `None`) into
-    /// `out` (index `v − first`), one-rings from the complete `large`.
+    /// Pass 2 of the stored vertices `first..first + out.len()` (`first` a multiple of
+    /// [`BATCH`]) into `out`, one-rings from the complete `large`.
     Detail {
         inputs: &'a DetailInputs<'a, NC, E>,
         large: &'a [[f32; 3]],
-        ids: Option<&'a [u32]>,
         first: usize,
         out: &'a mut [[f32; 3]],
     },
@@ -1493,7 +1351,6 @@ enum Kernel<'a, const NC: usize, E> {
     Normals {
         fans: &'a Fans,
         positions: &'a [[f32; 3]],
-        ids: Option<&'a [u32]>,
         first: usize,
         out: &'a mut [[f32; 3]],
     },
@@ -1504,17 +1361,6 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
         match self {
-            Kernel::Sweep {
-                inputs,
-                centred,
-                mean,
-                first,
-                large,
-                positions,
-                normals,
-            } => sweep_chunk(
-                simd, inputs, centred, mean, first, large, positions, normals,
-            ),
             Kernel::Large {
                 layout,
                 centred,
@@ -1525,42 +1371,23 @@ impl<const NC: usize, E: EdgeId> pulp::WithSimd for Kernel<'_, NC, E> {
             Kernel::Detail {
                 inputs,
                 large,
-                ids,
                 first,
                 out,
             } => {
-                // whole batches: `first` is a multiple of BATCH, deferred lists hold whole
-                // batches (Schedule::new)
-                let all = first / BATCH..(first + out.len()).div_ceil(BATCH);
-                let listed = ids.unwrap_or_default().iter().map(|&v| v as usize / BATCH);
-                let mut last = usize::MAX;
-                for b in listed.chain(all.filter(|_| ids.is_none())) {
-                    if b == last {
-                        continue;
-                    }
-                    last = b;
+                for b in first / BATCH..(first + out.len()).div_ceil(BATCH) {
                     let (count, x) = inputs.batch(simd, b, large, 0);
-                    for l in 0..count {
-                        out[b * BATCH + l - first] = x[l];
-                    }
+                    out[b * BATCH - first..][..count].copy_from_slice(&x[..count]);
                 }
             }
             Kernel::Normals {
                 fans,
                 positions,
-                ids,
                 first,
                 out,
             } => {
-                let len = out.len();
-                let all = first..first + len;
-                let listed = ids.unwrap_or_default().iter().map(|&v| v as usize);
-                let batches = Batches(listed.chain(all.filter(|_| ids.is_none())));
-                for (vs, count) in batches {
+                for (vs, count) in Batches(first..first + out.len()) {
                     let n = normal_batch(simd, fans, &vs, positions, 0);
-                    for l in 0..count {
-                        out[vs[l] - first] = n[l];
-                    }
+                    out[vs[0] - first..][..count].copy_from_slice(&n[..count]);
                 }
             }
         }
@@ -1572,92 +1399,12 @@ fn dispatch<const NC: usize, E: EdgeId>(kernel: Kernel<'_, NC, E>) {
     pulp::Arch::new().dispatch(kernel)
 }
 
-/// The fused sweep of one chunk (stored vertices `first..first + large.len()`); see
-/// [`Schedule`]. Deferred vertices are skipped (done by [`frame_pass`] afterwards).
-#[inline(always)]
-fn sweep_chunk<S: pulp::Simd, const NC: usize, E: EdgeId>(
-    simd: S,
-    inputs: &DetailInputs<'_, NC, E>,
-    centred: &[f32],
-    mean: [f32; 3],
-    first: usize,
-    large: &mut [[f32; 3]],
-    positions: &mut [[f32; 3]],
-    normals: &mut [[f32; 3]],
-) {
-    let layout = inputs.layout;
-    let sched = &layout.schedule;
-    let w = sched.block;
-    let m = large.len();
-    let blocks = m.div_ceil(w);
-    let span = |b: usize| b * w..((b + 1) * w).min(m);
-    const L: usize = SWEEP_LAG;
-    for step in 0..blocks + 2 * L {
-        if step < blocks {
-            let r = span(step);
-            large_range(
-                Lanes(simd),
-                layout,
-                first + r.start,
-                centred,
-                mean,
-                &mut large[r],
-            );
-        }
-        if (L..blocks + L).contains(&step) {
-            let r = span(step - L);
-            // batches never straddle a sweep block (blocks are whole low-rank blocks) and
-            // are deferred whole (Schedule::new)
-            for b in (first + r.start) / BATCH..(first + r.end).div_ceil(BATCH) {
-                if sched.flags[b * BATCH] & DEFER_DETAIL == 0 {
-                    let (count, x) = inputs.batch(simd, b, large, first);
-                    for l in 0..count {
-                        positions[b * BATCH + l - first] = x[l];
-                    }
-                }
-            }
-        }
-        if (2 * L..blocks + 2 * L).contains(&step) {
-            let r = span(step - 2 * L);
-            // aligned batches (blocks are whole low-rank blocks); a batch with deferred
-            // vertices computes the others
-            for v0 in (first + r.start..first + r.end).step_by(BATCH) {
-                let end = (v0 + BATCH).min(first + r.end);
-                let flags = &sched.flags[v0..end];
-                let mut vs = [end - 1; BATCH];
-                let mut count = 0;
-                if flags.iter().all(|&f| f & DEFER_NORMAL == 0) {
-                    for (l, v) in (v0..end).enumerate() {
-                        vs[l] = v;
-                    }
-                    count = end - v0;
-                } else {
-                    for (v, &f) in (v0..end).zip(flags) {
-                        if f & DEFER_NORMAL == 0 {
-                            vs[count] = v;
-                            count += 1;
-                        }
-                    }
-                    if count == 0 {
-                        continue;
-                    }
-                    let last = vs[count - 1];
-                    vs[count..].fill(last);
-                }
-                let n = normal_batch(simd, &layout.fans, &vs, positions, first);
-                for l in 0..count {
-                    normals[vs[l] - first] = n[l];
-                }
-            }
-        }
-    }
-}
-
-/// One frame of the run-time synthesis (thesis §5.5.2) in one fused sweep ([`Schedule`]):
-/// large scale (`centred`, `mean` from [`centre_handles`]), normal + frame + WPSD detail
-/// (`table` from [`feature_table`]; `global_r` the PSD distances), final normals. Outputs are
-/// in storage order (see [`to_mesh_order_into`]). Same arithmetic per vertex as the three
-/// separate passes [`large_scale_pass`], [`detail_pass`], [`normal_pass`].
+/// One frame of the run-time synthesis (thesis §5.5.2): large scale (`centred`, `mean` from
+/// [`centre_handles`]; [`large_scale_pass`]), then normal + frame + WPSD detail (`table` from
+/// [`feature_table`]; `global_r` the PSD distances; [`detail_pass`]), then final normals
+/// ([`normal_pass`]) — three parallel passes over independent chunks of stored vertices, two
+/// synchronisation points, no allocation. Outputs are in storage order (see
+/// [`to_mesh_order_into`]).
 #[allow(clippy::too_many_arguments)]
 pub fn frame_pass(
     layout: &RuntimeLayout,
@@ -1674,96 +1421,39 @@ pub fn frame_pass(
         large.len() == n && positions.len() == n && normals.len() == n,
         "one output per vertex"
     );
+    large_pass(layout, centred, mean, large);
+    detail_pass(layout, large, table, global_r, positions);
+    normal_pass(layout, positions, normals);
+}
+
+/// Pass 1 over the whole mesh from the centred handle displacements ([`centre_handles`]).
+fn large_pass(layout: &RuntimeLayout, centred: &[f32], mean: [f32; 3], large: &mut [[f32; 3]]) {
     assert_eq!(
         centred.len(),
         3 * layout.basis.padded_handles(),
         "one displacement per handle and axis (centre_handles)"
     );
-    with_inputs!(layout, table, global_r, |inputs| frame_typed(
-        inputs, centred, mean, large, positions, normals
-    ));
-}
-
-fn frame_typed<const NC: usize, E: EdgeId>(
-    inputs: &DetailInputs<'_, NC, E>,
-    centred: &[f32],
-    mean: [f32; 3],
-    large: &mut [[f32; 3]],
-    positions: &mut [[f32; 3]],
-    normals: &mut [[f32; 3]],
-) {
-    let sched = &inputs.layout.schedule;
-    let c = sched.chunk;
-    large
-        .par_chunks_mut(c)
-        .zip(positions.par_chunks_mut(c))
-        .zip(normals.par_chunks_mut(c))
-        .enumerate()
-        .for_each(|(k, ((large, positions), normals))| {
-            dispatch(Kernel::Sweep {
-                inputs,
-                centred,
-                mean,
-                first: k * c,
-                large,
-                positions,
-                normals,
-            })
-        });
-    let large = &*large;
-    if !sched.deferred_detail.is_empty() {
-        positions
-            .par_chunks_mut(c)
-            .enumerate()
-            .for_each(|(k, out)| {
-                let ids =
-                    &sched.deferred_detail[sched.detail_offsets[k]..sched.detail_offsets[k + 1]];
-                if !ids.is_empty() {
-                    dispatch(Kernel::Detail {
-                        inputs,
-                        large,
-                        ids: Some(ids),
-                        first: k * c,
-                        out,
-                    })
-                }
-            });
-    }
-    let positions = &*positions;
-    if !sched.deferred_normal.is_empty() {
-        normals.par_chunks_mut(c).enumerate().for_each(|(k, out)| {
-            let ids = &sched.deferred_normal[sched.normal_offsets[k]..sched.normal_offsets[k + 1]];
-            if !ids.is_empty() {
-                dispatch::<NC, E>(Kernel::Normals {
-                    fans: &inputs.layout.fans,
-                    positions,
-                    ids: Some(ids),
-                    first: k * c,
-                    out,
-                })
-            }
-        });
-    }
-}
-
-/// Pass 1 alone (thesis §5.3 large-scale kernel) over the whole mesh: `x_v = x0_v + ū +
-/// Σ_k U_b[v,k] (C_b ũ)_k` per low-rank block, `u_H` the handle displacements. Used to time
-/// the passes separately; a frame runs [`frame_pass`].
-pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f32; 3]]) {
-    assert_eq!(uh.len(), layout.basis.h, "one displacement per handle");
     assert_eq!(large.len(), layout.num_vertices(), "one output per vertex");
-    let mut centred = Vec::new();
-    let mean = centre_handles(uh, &mut centred);
     let span = 8 * LOW_RANK_BLOCK;
     large.par_chunks_mut(span).enumerate().for_each(|(k, out)| {
         dispatch::<1, u8>(Kernel::Large {
             layout,
-            centred: &centred,
+            centred,
             mean,
             first: k * span,
             out,
         })
     });
+}
+
+/// Pass 1 alone (thesis §5.3 large-scale kernel) over the whole mesh: `x_v = x0_v + ū +
+/// Σ_k U_b[v,k] (C_b ũ)_k` per low-rank block, `u_H` the handle displacements (allocates the
+/// centred displacements; a frame runs [`frame_pass`]).
+pub fn large_scale_pass(layout: &RuntimeLayout, uh: &[[f32; 3]], large: &mut [[f32; 3]]) {
+    assert_eq!(uh.len(), layout.basis.h, "one displacement per handle");
+    let mut centred = Vec::new();
+    let mean = centre_handles(uh, &mut centred);
+    large_pass(layout, &centred, mean, large);
 }
 
 /// Pass 2 alone (thesis §5.5.2 fine-scale kernel, eq. 5.3–5.5) over the whole mesh: per vertex
@@ -1788,7 +1478,6 @@ pub fn detail_pass(
         .for_each(|(k, out)| dispatch(Kernel::Detail {
             inputs,
             large,
-            ids: None,
             first: k * BLOCK,
             out,
         })));
@@ -1808,7 +1497,6 @@ pub fn normal_pass(layout: &RuntimeLayout, positions: &[[f32; 3]], normals: &mut
             dispatch::<1, u8>(Kernel::Normals {
                 fans: &layout.fans,
                 positions,
-                ids: None,
                 first: k * BLOCK,
                 out,
             })
@@ -2111,11 +1799,9 @@ mod tests {
         let edges: Vec<u16> = (0..n * width).map(|_| (rnd() * 20.0) as u16).collect();
         let alphas: Vec<u16> = (0..n * width).map(|_| (rnd() * 16000.0) as u16).collect();
         let detail_weights: Vec<f32> = (0..n * 3 * p).map(|_| rnd() - 0.5).collect();
-        let (block, chunk) = Schedule::shape(n);
         RuntimeLayout {
             rest: pos,
             basis,
-            schedule: Schedule::new(&fans, block, chunk),
             fans,
             poses: p,
             width,
@@ -2126,9 +1812,10 @@ mod tests {
     }
 
     #[test]
-    fn fused_sweep_equals_separate_passes_for_every_schedule() {
+    fn frame_is_bit_identical_for_every_thread_count() {
+        // 99 × 99 = 9801 vertices: 5 parallel chunks of BLOCK, a partial last batch
         for (morton, p) in [(true, 6), (false, 6), (true, 11)] {
-            let mut layout = grid_layout(48, p, morton);
+            let layout = grid_layout(99, p, morton);
             let n = layout.num_vertices();
             let h = layout.basis.h;
             let uh: Vec<[f32; 3]> = (0..h)
@@ -2144,39 +1831,35 @@ mod tests {
             let table: Vec<[f32; LANES]> = (0..20 * nc)
                 .map(|i| std::array::from_fn(|l| 0.01 * ((i * 7 + l * 3) % 11) as f32))
                 .collect();
-            // reference: three separate passes
-            let mut large = vec![[0.0f32; 3]; n];
-            let mut pos = vec![[0.0f32; 3]; n];
-            let mut nrm = vec![[0.0f32; 3]; n];
-            large_scale_pass(&layout, &uh, &mut large);
-            detail_pass(&layout, &large, &table, None, &mut pos);
-            normal_pass(&layout, &pos, &mut nrm);
             let mut centred = Vec::new();
             let mean = centre_handles(&uh, &mut centred);
-            for (block, chunk) in [
-                (256, 256),
-                (256, 768),
-                (512, 1024),
-                (256, 4096),
-                (2048, 4096),
-            ] {
-                layout.schedule = Schedule::new(&layout.fans, block, chunk);
-                let (dd, dn) = layout.schedule.deferred_fractions();
-                assert!(dd <= dn && dn <= 1.0);
-                let mut l2 = vec![[9.0f32; 3]; n];
-                let mut p2 = vec![[9.0f32; 3]; n];
-                let mut n2 = vec![[9.0f32; 3]; n];
-                frame_pass(
-                    &layout, &centred, mean, &table, None, &mut l2, &mut p2, &mut n2,
-                );
-                // bit for bit: the schedule only changes when a vertex is computed
-                assert_eq!(l2, large, "large, {block}/{chunk}");
-                assert_eq!(p2, pos, "positions, {block}/{chunk}");
-                assert_eq!(n2, nrm, "normals, {block}/{chunk} (deferred {dd} {dn})");
+            let run = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut large = vec![[9.0f32; 3]; n];
+                let mut pos = vec![[9.0f32; 3]; n];
+                let mut nrm = vec![[9.0f32; 3]; n];
+                pool.install(|| {
+                    frame_pass(
+                        &layout, &centred, mean, &table, None, &mut large, &mut pos, &mut nrm,
+                    )
+                });
+                (large, pos, nrm)
+            };
+            let (large, pos, nrm) = run(1);
+            for threads in [2, 3] {
+                assert!(run(threads) == (large.clone(), pos.clone(), nrm.clone()));
             }
-            // one chunk of one block: every one-ring is inside the window, nothing deferred
-            layout.schedule = Schedule::new(&layout.fans, 2560, 2560);
-            assert_eq!(layout.schedule.deferred_fractions(), (0.0, 0.0));
+            // the passes alone give the same bits; the batched normals are the scalar ones
+            let mut l2 = vec![[0.0f32; 3]; n];
+            large_scale_pass(&layout, &uh, &mut l2);
+            assert_eq!(l2, large);
+            for v in 0..n {
+                assert_eq!(nrm[v], layout.fans.normal(&pos, v), "vertex {v}");
+                assert!(pos[v] != large[v], "vertex {v} has a detail");
+            }
         }
     }
 }
