@@ -352,15 +352,21 @@ impl FemProbeSimulator {
         self.setup.marker_positions(&self.setup.mesh.vertices)
     }
 
-    /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`; the rest as in
-    /// [`Self::refined_from`]).
+    /// This simulator on the mesh refined 1 → 8 (`softcap_mesh::refine_tets`): each child tet
+    /// carries its parent's (λ, α) — for the strain-space basis its zero-strain p(0); the strain
+    /// dependence is not carried over (the extended models are built from the per-element
+    /// parameters alone); the attached nodes are the attached vertices and every new vertex both
+    /// of whose endpoints are attached (in creation order, so nested midpoints of a local
+    /// refinement follow their endpoints); the markers are re-embedded at their rest positions;
+    /// support plane, rigid tip and settings are kept.
     pub fn refined(&self) -> Result<Self> {
         self.refined_from(softcap_mesh::refine_tets(&self.setup.mesh))
     }
 
     /// This simulator on the mesh refined inside `balls` until the longest edge there is at most
-    /// `max_edge_m` (`softcap_mesh::refine_near`, conforming longest-edge bisection; the rest as
-    /// in [`Self::refined_from`]); at most `max_tets` tets.
+    /// `max_edge_m` (`softcap_mesh::refine_near`, conforming longest-edge bisection; material,
+    /// attached nodes, markers, support, tip and settings as in [`Self::refined`]); at most
+    /// `max_tets` tets.
     pub fn refined_near(
         &self,
         balls: &[RefineBall],
@@ -377,13 +383,8 @@ impl FemProbeSimulator {
         self.setup.mesh.longest_edge()
     }
 
-    /// This simulator on a refinement `r` of its mesh: each child tet carries its parent's
-    /// (λ, α) — for the strain-space basis its zero-strain p(0); the strain dependence is not
-    /// carried over (the extended models are built from the per-element parameters alone); the
-    /// attached nodes are the attached vertices and every new vertex both of whose endpoints are
-    /// attached (in creation order, so nested midpoints of local refinement follow their
-    /// endpoints); the markers are re-embedded at their rest positions; support plane, rigid tip
-    /// and settings are kept.
+    /// This simulator on a refinement `r` of its mesh (material, attached nodes, markers,
+    /// support, tip and settings as [`Self::refined`] says).
     fn refined_from(&self, r: RefinedTetMesh) -> Result<Self> {
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         let n = self.setup.mesh.vertices.len();
