@@ -37,7 +37,7 @@ smoke:
 	scripts/workflow-smoke
 
 # The session is regenerated only when the scenario (or the synth binary) changes.
-$(OUT)/sessions/demo/session.toml: $(SCENARIO) | build
+$(OUT)/sessions/demo/session.toml: $(SCENARIO) $(wildcard $(dir $(SOFTCAP))softcap-synth) | build
 	@rm -rf $(OUT)/sessions/demo
 	@mkdir -p $(OUT)/sessions
 	$(SOFTCAP) synth --scenario $(SCENARIO) --out $(OUT)/sessions/demo

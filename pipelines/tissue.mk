@@ -20,6 +20,10 @@ OUT      ?= out/tissue
 # `simulate.args` file in its folder.
 SIMULATE_ARGS ?= --probe-shape sphere --radius 0.006 --tip 0.02 0.02 0.03 --axis 0 0 -1 --force 0.5
 
+# The stage binaries next to SOFTCAP are prerequisites of their rules, so a rebuilt stage reruns
+# its step and everything downstream (a SOFTCAP found on PATH adds none: $(wildcard) drops it).
+STAGE_BIN = $(wildcard $(dir $(SOFTCAP))softcap-$(1))
+
 # A session is any folder of $(SESSIONS) with a session.toml.
 SESSION_NAMES := $(patsubst $(SESSIONS)/%/session.toml,%,$(wildcard $(SESSIONS)/*/session.toml))
 REPORTS       := $(foreach s,$(SESSION_NAMES),$(OUT)/$(s)/report/report.md)
@@ -37,19 +41,19 @@ all: $(REPORTS) $(SIMULATIONS)
 simulations: $(SIMULATIONS)
 
 # capture reads the whole session folder except truth/ (which capture never reads).
-$(OUT)/%/capture.mcap: $$(shell find $(SESSIONS)/$$* -type f -not -path '*/truth/*' 2>/dev/null)
+$(OUT)/%/capture.mcap: $$(shell find $(SESSIONS)/$$* -type f -not -path '*/truth/*' 2>/dev/null) $(call STAGE_BIN,capture)
 	@mkdir -p $(@D)
 	$(SOFTCAP) capture $(SESSIONS)/$* -o $@
 
-$(OUT)/%/material.mcap: $(OUT)/%/capture.mcap $(SESSIONS)/%/template/volume.msh
+$(OUT)/%/material.mcap: $(OUT)/%/capture.mcap $(SESSIONS)/%/template/volume.msh $(call STAGE_BIN,tissue)
 	$(SOFTCAP) tissue fit $< --mesh $(SESSIONS)/$*/template/volume.msh -o $@
 
 # Synthesis with the fitted material (bickel2009 §3.4): a probe not in the session.
-$(OUT)/%/sim.mcap: $(OUT)/%/material.mcap $$(wildcard $(SESSIONS)/$$*/simulate.args)
+$(OUT)/%/sim.mcap: $(OUT)/%/material.mcap $$(wildcard $(SESSIONS)/$$*/simulate.args) $(call STAGE_BIN,tissue)
 	$(SOFTCAP) tissue simulate $< $$(cat $(SESSIONS)/$*/simulate.args 2>/dev/null || echo '$(SIMULATE_ARGS)') -o $@
 
 # One rule writes the three diagnosis outputs (GNU make ≥ 4.3 grouped target).
-$(OUT)/%/diagnosis.mcap $(OUT)/%/diagnosis.json $(OUT)/%/report/report.md &: $(OUT)/%/capture.mcap $(OUT)/%/material.mcap
+$(OUT)/%/diagnosis.mcap $(OUT)/%/diagnosis.json $(OUT)/%/report/report.md &: $(OUT)/%/capture.mcap $(OUT)/%/material.mcap $(call STAGE_BIN,diagnose)
 	$(SOFTCAP) diagnose $(OUT)/$*/capture.mcap $(OUT)/$*/material.mcap \
 	    -o $(OUT)/$*/diagnosis.mcap --json $(OUT)/$*/diagnosis.json --report $(OUT)/$*/report
 
