@@ -1041,7 +1041,7 @@ fn transpose(x: &[Lane; 3]) -> [[f32; 3]; BATCH] {
     out
 }
 
-/// [`fan_normal_sum`] of each vertex of the batch `vs` (centres `p`), into one lane per
+/// [`fan_quad`] of each vertex of the batch `vs` (centres `p`), into one lane per
 /// vertex. The fans are summed one vertex at a time: their points are stored vertex-major
 /// (`[x, y, z]`), and moving every fan point into lanes costs as many instructions as the
 /// cross products it would share (measured: the across-vertex fan walk was no faster); what
@@ -1137,20 +1137,8 @@ impl<I: Iterator<Item = usize>> Iterator for Batches<I> {
 /// chain (closed or open fan) two consecutive terms share their middle point,
 /// `e_{i−1} × e_i + e_i × e_{i+1} = e_i × (p_{i+1} − p_{i−1})` (`p` cancels in the difference),
 /// so the sum takes one cross product per two faces (a chain of odd length ends with one plain
-/// term). Storage index `u` at `positions[u − base]`.
-#[inline(always)]
-fn fan_normal_sum(
-    positions: &[[f32; 3]],
-    base: usize,
-    ids: &[u32],
-    kind: FanKind,
-    p: [f32; 3],
-) -> [f32; 3] {
-    let s = fan_quad(positions, base, ids, kind, p);
-    [s[0], s[1], s[2]]
-}
-
-/// [`fan_normal_sum`] as `[x, y, z, 0]`.
+/// term). Storage index `u` at `positions[u − base]`. Returned as `[x, y, z, 0]` (the lanes
+/// are built from whole quads).
 #[inline(always)]
 fn fan_quad(
     positions: &[[f32; 3]],
@@ -1235,16 +1223,14 @@ fn cross4(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
 /// Unit normal of stored vertex `v` from the one-ring of `positions` (index `u − base`).
 #[inline(always)]
 fn normal_vertex(fans: &Fans, v: usize, positions: &[[f32; 3]], base: usize) -> [f32; 3] {
-    normalize(
-        fan_normal_sum(
-            positions,
-            base,
-            fans.ring(v),
-            fans.kinds[v],
-            positions[v - base],
-        ),
-        [0.0, 0.0, 1.0],
-    )
+    let s = fan_quad(
+        positions,
+        base,
+        fans.ring(v),
+        fans.kinds[v],
+        positions[v - base],
+    );
+    normalize([s[0], s[1], s[2]], [0.0, 0.0, 1.0])
 }
 
 /// Pass 1 of one low-rank block (thesis §5.3 large-scale kernel):
@@ -1677,7 +1663,7 @@ mod tests {
                     want[a] += c[a] as f64;
                 }
             }
-            let got = fan_normal_sum(&pos, 0, ring, fans.kinds[v], p);
+            let got = fan_quad(&pos, 0, ring, fans.kinds[v], p);
             for a in 0..3 {
                 assert!((got[a] as f64 - want[a]).abs() < 1e-5, "vertex {v}");
             }
