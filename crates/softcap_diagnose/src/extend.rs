@@ -403,7 +403,8 @@ enum RigidSolver {
 impl FemProbeSimulator {
     /// Rigid-tip replay of `frames` (time order) under `ext`: every frame whose probe pose
     /// (`load.probe`: measured `tip_m` and `axis`; the force is not used) makes the session's tip
-    /// penetrate the surface is solved with the rigid probe as penalty contact (bickel2009 §3.4),
+    /// penetrate the surface is solved with the rigid probe as penalty contact (bickel2009 §3.4;
+    /// a disk as a flat punch, `softcap_fem::Probe::with_punch_face`),
     /// moved there from the previous frame's pose in 1, then 4, then 16 sub-steps (state restored
     /// between attempts); other frames are solved without the probe. History (plastic strain,
     /// Prony state, stick anchors) is committed after every converged frame; the stick history
@@ -521,9 +522,13 @@ impl FemProbeSimulator {
                 .max(max_iterations),
             ..self.settings().equilibrium.clone()
         };
+        // A disk is replayed as a flat punch: penetrations leave through its face, never its rim
+        // (`Probe::with_punch_face`; the closest-feature projection pushed a node just inside the
+        // rim out sideways and the replay jumped to a second equilibrium mid-hold).
+        let punch = |p: Probe| p.with_punch_face();
         let problem_at = |iso: Isometry3<f64>| -> Result<ContactProblem> {
             Ok(ContactProblem {
-                probe: Probe::new(tip.clone(), iso).map_err(fem)?,
+                probe: punch(Probe::new(tip.clone(), iso).map_err(fem)?),
                 candidate_nodes: candidates.clone(),
                 settings: ContactSettings::default(),
             })
@@ -573,7 +578,7 @@ impl FemProbeSimulator {
                 last_rotation = Some(p.rotation);
             }
             let probe = pose
-                .map(|iso| Probe::new(tip.clone(), iso))
+                .map(|iso| Probe::new(tip.clone(), iso).map(punch))
                 .transpose()
                 .map_err(fem)?;
             let touches = probe.as_ref().is_some_and(|p| {

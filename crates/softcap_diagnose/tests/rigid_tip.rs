@@ -407,3 +407,60 @@ fn frictional_rigid_replay_drags_the_surface_along_and_lets_go_after_lift_off() 
         .is_err()
     );
 }
+
+/// A 5 mm disk pressed straight down with a top node 0.2 mm inside its rim (disk centre 1.87 mm
+/// beside the top-centre node, the next node along x 4.8 mm from the axis): as a flat punch
+/// (`softcap_fem::Probe::with_punch_face`) the replay carries that node down with the face. The
+/// closest-feature projection pushed it out through the rim instead (measured: 0.20 mm sideways,
+/// 0.09 of the 0.5 mm depth down), the failure behind replays that jumped to a second equilibrium
+/// in the middle of a hold.
+#[test]
+fn disk_replay_presses_a_node_under_its_rim_down_not_sideways() {
+    let centre = Vector3::new(CENTRE[0] + 0.00187, CENTRE[1], CENTRE[2]);
+    let rim_node = Vector3::new(0.02 + 0.04 / 6.0, 0.02, 0.02);
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
+    let model =
+        CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(2e4, 0.45).unwrap())
+            .unwrap();
+    let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let markers = vec![Vector3::from(CENTRE), rim_node];
+    let sim = FemProbeSimulator::new(&mesh, model, &fixed, &markers, FemSimSettings::default())
+        .unwrap()
+        .with_rigid_tip(TipShape::Disk {
+            radius_m: 0.005,
+            thickness_m: 0.005,
+        });
+    let depths_mm = [-3.0, 0.5, 1.0, 1.5, 1.5, 1.0, -3.0];
+    let frames: Vec<SequenceFrame> = depths_mm
+        .iter()
+        .enumerate()
+        .map(|(k, d)| SequenceFrame {
+            time_s: 0.05 * k as f64,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: centre - Vector3::z() * (1e-3 * d),
+                    axis: -Vector3::z(),
+                    force_n: Vector3::zeros(),
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect();
+    let x = sim
+        .simulate_sequence_rigid_tip(&Extension::Elastic, &frames)
+        .unwrap()
+        .expect("the simulator has a rigid tip");
+    for (k, d) in depths_mm.iter().enumerate() {
+        let want = 1e-3 * d.max(0.0);
+        for (m, name) in [(0, "centre"), (1, "rim")] {
+            let u = x[k][m] - markers[m];
+            // both nodes lie under the punch: carried down to its face (penalty penetration
+            // ≤ 8 % of the depth, as above), not pushed out through the rim
+            assert!(
+                (u.z + want).abs() <= 8e-2 * want + 1e-9,
+                "frame {k}: {name} node dz {:e} m, depth {want:e} m",
+                u.z
+            );
+        }
+    }
+}

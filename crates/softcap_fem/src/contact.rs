@@ -82,6 +82,9 @@ pub struct Probe {
     probe_from_shape: Isometry3<f64>,
     /// Pose of the probe in the world.
     pub world_from_probe: Isometry3<f64>,
+    /// A disk tip resolves every penetration through its leading face (flat punch), see
+    /// [`Probe::with_punch_face`].
+    punch_face: bool,
 }
 
 impl std::fmt::Debug for Probe {
@@ -99,6 +102,7 @@ impl Clone for Probe {
         let mut p =
             Probe::new(self.tip.clone(), self.world_from_probe).expect("validated tip shape");
         p.world_from_probe = self.world_from_probe;
+        p.punch_face = self.punch_face;
         p
     }
 }
@@ -188,7 +192,52 @@ impl Probe {
             shape,
             probe_from_shape,
             world_from_probe,
+            punch_face: false,
         })
+    }
+
+    /// A disk tip as a flat punch: a point inside the disk is pushed out through the leading face
+    /// (along the axis), never through the rim. The closest-feature projection pushes a point
+    /// that a pressed punch has carried within `depth` of its rim out sideways instead — a
+    /// lateral force the flat-ended indenter cannot exert on the material under it, which in a
+    /// replay of measured poses drags the whole surface (and a node pushed past the rim stays
+    /// there: a second equilibrium). No effect on other tip shapes.
+    pub fn with_punch_face(mut self) -> Self {
+        self.punch_face = true;
+        self
+    }
+
+    /// The flat-punch projection of a point inside a disk tip ([`Self::with_punch_face`]):
+    /// (depth behind the leading face, outward normal, point on the face), world frame.
+    fn punch_projection(
+        &self,
+        point_world: &Vector3<f64>,
+    ) -> Option<Option<(f64, Vector3<f64>, Vector3<f64>)>> {
+        let TipShape::Disk {
+            radius_m,
+            thickness_m,
+        } = &self.tip
+        else {
+            return None;
+        };
+        if !self.punch_face {
+            return None;
+        }
+        let local = self
+            .world_from_probe
+            .inverse_transform_point(&Point3::from(*point_world));
+        let inside = local.z <= 0.0
+            && local.z >= -thickness_m
+            && local.x * local.x + local.y * local.y <= radius_m * radius_m;
+        if !inside || local.z == 0.0 {
+            return Some(None);
+        }
+        let n = self.world_from_probe.rotation * Vector3::z();
+        let c = self
+            .world_from_probe
+            .transform_point(&Point3::new(local.x, local.y, 0.0))
+            .coords;
+        Some(Some((-local.z, n, c)))
     }
 
     /// The tip description.
@@ -214,6 +263,9 @@ impl Probe {
         &self,
         point_world: &Vector3<f64>,
     ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+        if let Some(p) = self.punch_projection(point_world) {
+            return p;
+        }
         let world_from_shape = self.world_from_probe * self.probe_from_shape;
         let local = world_from_shape.inverse_transform_point(&Point3::from(*point_world));
         let q = to_parry(&local.coords);
@@ -244,6 +296,9 @@ impl Probe {
         &self,
         point_world: &Vector3<f64>,
     ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+        if let Some(Some((depth, n, c))) = self.punch_projection(point_world) {
+            return Some((-depth, n, c));
+        }
         let world_from_shape = self.world_from_probe * self.probe_from_shape;
         let local = world_from_shape.inverse_transform_point(&Point3::from(*point_world));
         let q = to_parry(&local.coords);

@@ -43,6 +43,24 @@ fn penetration_of_each_tip_matches_geometry() {
         "{d} {n}"
     );
     assert!(disk.penetration(&Vector3::new(0.16, 0.2, 0.31)).is_none());
+    // As a flat punch the same rim point leaves through the leading face: 0.01 behind it, along
+    // the approach normal (world −z), its closest point straight below it on the face.
+    let punch = disk.clone().with_punch_face();
+    let (d, n, c) = punch.penetration(&Vector3::new(0.148, 0.2, 0.31)).unwrap();
+    assert!((d - 0.01).abs() < tol && (n - Vector3::new(0.0, 0.0, -1.0)).norm() < tol);
+    assert!((c - Vector3::new(0.148, 0.2, 0.3)).norm() < tol, "{c}");
+    // the clone keeps the punch, the face points are untouched, outside stays outside
+    let (d, ..) = punch
+        .clone()
+        .penetration(&Vector3::new(0.13, 0.2, 0.303))
+        .unwrap();
+    assert!((d - 0.003).abs() < tol);
+    for outside in [[0.16, 0.2, 0.31], [0.13, 0.2, 0.299], [0.13, 0.2, 0.321]] {
+        assert!(
+            punch.penetration(&Vector3::from(outside)).is_none(),
+            "{outside:?}"
+        );
+    }
     // Cylinder r = 0.05 lying along probe x (world x), axis at world z = 0.35.
     let cyl = Probe::new(
         TipShape::Cylinder {
