@@ -97,8 +97,10 @@ impl Sums {
 
 /// The refit closure of [`lolo_confirm`]: `(candidate index, held-out location or None for the
 /// full data) -> prediction of that candidate refitted without the held-out location`; `Ok(None)`
-/// when it cannot refit (then the confirmation gives `None`).
-pub(crate) type RefitFn<'a> = dyn FnMut(usize, Option<usize>) -> Result<Option<Field>> + 'a;
+/// when it cannot refit (then the confirmation gives `None`). The refits of the held-out
+/// locations and of the full data are independent: [`lolo_confirm`] runs them in parallel
+/// (hence `Fn + Sync`).
+pub(crate) type RefitFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Field>> + Sync + 'a;
 
 /// Which candidates a selection may choose: `eligible(candidate, held-out fold)` (`None`: the
 /// full-data choice). A candidate whose very existence was decided with the data of a fold (a
@@ -220,7 +222,7 @@ pub(crate) fn lolo_confirm(
     scale: ComplianceScale,
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
-    refit: Option<&mut RefitFn<'_>>,
+    refit: Option<&RefitFn<'_>>,
     method: String,
 ) -> Result<Option<Confirmed>> {
     lolo_confirm_among(
@@ -248,9 +250,10 @@ pub(crate) fn lolo_confirm_among(
     scale: ComplianceScale,
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
-    mut refit: Option<&mut RefitFn<'_>>,
+    refit: Option<&RefitFn<'_>>,
     method: String,
 ) -> Result<Option<Confirmed>> {
+    use rayon::prelude::*;
     if cands.is_empty() {
         return Ok(None);
     }
@@ -258,18 +261,36 @@ pub(crate) fn lolo_confirm_among(
     let tally = Tally::new(cands, rec, seg, p, scored, train_on_scored);
     let (all, sc) = (&tally.all, &tally.sc);
     let best = |skip: Option<usize>| tally.best(skip, scale, eligible);
+    // per held-out location, then the full data: the chosen candidate and compliance scale
+    let choices: Vec<(Option<usize>, usize, f64)> = (0..nf)
+        .map(Some)
+        .chain([None])
+        .map(|skip| {
+            let (i, d, _) = best(skip);
+            (skip, i, d)
+        })
+        .collect();
+    // With a refit closure, its independent refits run in parallel; taken in this order below
+    // (the first error or declined refit decides, as one after another).
+    let mut refits = refit.map(|refit| {
+        choices
+            .par_iter()
+            .map(|&(skip, i, _)| refit(i, skip))
+            .collect::<Vec<_>>()
+            .into_iter()
+    });
     let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
-    for l in 0..nf {
-        let (i, d, _) = best(Some(l));
-        match refit.as_deref_mut() {
+    for &(skip, i, d) in &choices[..nf] {
+        let l = skip.unwrap_or(nf);
+        match refits.as_mut() {
             None => {
                 e_sc += sc[i][l].rss(d);
                 n_sc += sc[i][l].n;
                 e_all += all[i][l].rss(d);
                 n_all += all[i][l].n;
             }
-            Some(refit) => {
-                let Some(pred) = refit(i, Some(l))? else {
+            Some(refits) => {
+                let Some(pred) = refits.next().unwrap_or(Ok(None))? else {
                     return Ok(None);
                 };
                 for (k, f) in rec.frames.iter().enumerate() {
@@ -290,8 +311,8 @@ pub(crate) fn lolo_confirm_among(
             }
         }
     }
-    let (i, d, _) = best(None);
-    let (params, prediction) = match refit {
+    let (_, i, d) = choices[nf];
+    let (params, prediction) = match refits.as_mut() {
         None => {
             let mut params = cands[i].params.clone();
             params.push(("compliance_scale".into(), d));
@@ -307,8 +328,8 @@ pub(crate) fn lolo_confirm_among(
                 .collect();
             (params, prediction)
         }
-        Some(refit) => {
-            let Some(prediction) = refit(i, None)? else {
+        Some(refits) => {
+            let Some(prediction) = refits.next().unwrap_or(Ok(None))? else {
                 return Ok(None);
             };
             (cands[i].params.clone(), prediction)
@@ -534,9 +555,9 @@ mod tests {
             .iter()
             .map(|f| f.markers_m.iter().map(|y| y.unwrap()).collect())
             .collect();
-        let mut calls = Vec::new();
-        let mut refit = |i: usize, skip: Option<usize>| -> Result<Option<Field>> {
-            calls.push((i, skip));
+        let calls = std::sync::Mutex::new(Vec::new());
+        let refit = |i: usize, skip: Option<usize>| -> Result<Option<Field>> {
+            calls.lock().unwrap().push((i, skip));
             // a refit that is off by 0.1 mm along x everywhere
             Ok(Some(
                 measured
@@ -554,12 +575,15 @@ mod tests {
             ComplianceScale::new(true, 0.1, 10.0),
             &scored,
             false,
-            Some(&mut refit),
+            Some(&refit),
             "toy".into(),
         )
         .unwrap()
         .unwrap();
-        assert_eq!(calls, vec![(0, Some(0)), (0, Some(1)), (0, None)]);
+        // one refit per held-out location and one on the full data (run in parallel)
+        let mut calls = calls.into_inner().unwrap();
+        calls.sort_unstable();
+        assert_eq!(calls, vec![(0, None), (0, Some(0)), (0, Some(1))]);
         assert!((c.after_scored_m - 1e-4).abs() < 1e-15);
         assert!((c.after_all_m - 1e-4).abs() < 1e-15);
         assert_eq!(
@@ -568,7 +592,7 @@ mod tests {
             "no compliance scale with a refit"
         );
         // a refit that declines gives no confirmation
-        let mut no = |_: usize, _: Option<usize>| -> Result<Option<Field>> { Ok(None) };
+        let no = |_: usize, _: Option<usize>| -> Result<Option<Field>> { Ok(None) };
         assert!(
             lolo_confirm(
                 &cands,
@@ -578,7 +602,7 @@ mod tests {
                 ComplianceScale::new(true, 0.1, 10.0),
                 &scored,
                 false,
-                Some(&mut no),
+                Some(&no),
                 String::new(),
             )
             .unwrap()

@@ -415,40 +415,90 @@ impl FemProbeSimulator {
         ext: &Extension,
         frames: &[SequenceFrame],
     ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
+        self.simulate_sequences_rigid_tip(std::slice::from_ref(ext), frames)
+            .pop()
+            .unwrap_or(Ok(None))
+    }
+
+    /// [`Self::simulate_sequence_rigid_tip`] of every extension of `exts` over the same `frames`,
+    /// in parallel (rayon; every replay has its own model state, solver and contact history, so
+    /// each result is the one replay's bit for bit), results in the order of `exts`. The
+    /// frictional replays share one copy of the fit mesh refined [`friction_refinement`] times,
+    /// built once for all of them.
+    pub fn simulate_sequences_rigid_tip(
+        &self,
+        exts: &[Extension],
+        frames: &[SequenceFrame],
+    ) -> Vec<Result<Option<Vec<Vec<Vector3<f64>>>>>> {
+        use rayon::prelude::*;
         let Some(tip) = self.rigid_tip().cloned() else {
-            return Ok(None);
+            return exts.iter().map(|_| Ok(None)).collect();
         };
+        let frictional = |e: &Extension| matches!(e, Extension::ProbeFriction { .. });
+        // the simulator itself (None), or its copy on the fit mesh refined `levels` times
+        let fine = if exts.iter().any(frictional) {
+            let tips: Vec<Vector3<f64>> = frames
+                .iter()
+                .filter_map(|f| f.load.probe.map(|p| p.tip_m))
+                .collect();
+            (0..friction_refinement(&self.setup().mesh, &tip, &tips))
+                .try_fold(None, |f: Option<Self>, _| {
+                    f.as_ref().unwrap_or(self).refined().map(Some)
+                })
+        } else {
+            Ok(None)
+        };
+        let (fine, fine_error) = match fine {
+            Ok(f) => (f, None),
+            Err(e) => (None, Some(e)),
+        };
+        let failed = fine_error.as_ref().map(|e| e.to_string());
+        let mut out: Vec<_> = exts
+            .par_iter()
+            .map(|ext| match &failed {
+                Some(_) if frictional(ext) => Ok(None), // replaced by the error below
+                _ => self.replay_rigid(ext, &tip, frames, fine.as_ref()),
+            })
+            .collect();
+        // Every frictional replay fails with the refinement's error (the first with the error
+        // itself, as that replay alone would).
+        if let (Some(e), Some(what)) = (fine_error, failed) {
+            let mut first = Some(e);
+            for (r, ext) in out.iter_mut().zip(exts) {
+                if frictional(ext) {
+                    *r = Err(first
+                        .take()
+                        .unwrap_or_else(|| DiagnoseError::BadRecording { what: what.clone() }));
+                }
+            }
+        }
+        out
+    }
+
+    /// One rigid-tip replay of [`Self::simulate_sequences_rigid_tip`]; `fine` is the simulator
+    /// the frictional replay runs on (`None`: this one).
+    fn replay_rigid(
+        &self,
+        ext: &Extension,
+        tip: &softcap_fem::TipShape,
+        frames: &[SequenceFrame],
+        fine: Option<&Self>,
+    ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
         let base = self.model().clone();
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         Ok(Some(match *ext {
             Extension::Elastic => {
-                self.run_rigid(base, &tip, None, frames, |_, _| Ok(()), |_, _| {})?
+                self.run_rigid(base, tip, None, frames, |_, _| Ok(()), |_, _| {})?
             }
             Extension::ProbeFriction { mu } => {
                 let friction = FrictionParams {
                     mu,
                     ..FrictionParams::default()
                 };
-                // the simulator itself, or its copy on the fit mesh refined `levels` times
-                let tips: Vec<Vector3<f64>> = frames
-                    .iter()
-                    .filter_map(|f| f.load.probe.map(|p| p.tip_m))
-                    .collect();
-                let fine;
-                let (sim, model) = match friction_refinement(&self.setup().mesh, &tip, &tips) {
-                    0 => (self, base),
-                    levels => {
-                        let mut f = self.refined()?;
-                        for _ in 1..levels {
-                            f = f.refined()?;
-                        }
-                        fine = f;
-                        (&fine, fine.model().clone())
-                    }
-                };
+                let sim = fine.unwrap_or(self);
                 sim.run_rigid(
-                    model,
-                    &tip,
+                    sim.model().clone(),
+                    tip,
                     Some(friction),
                     frames,
                     |_, _| Ok(()),
@@ -460,7 +510,7 @@ impl FemProbeSimulator {
                 let ve = ViscoelasticModel::new(base, prony).map_err(fem)?;
                 self.run_rigid(
                     ve,
-                    &tip,
+                    tip,
                     None,
                     frames,
                     |m, dt| m.set_time_step(dt).map_err(fem),
@@ -471,7 +521,7 @@ impl FemProbeSimulator {
                 let ep = self.plastic_model(ext)?;
                 self.run_rigid(
                     ep,
-                    &tip,
+                    tip,
                     None,
                     frames,
                     |_, _| Ok(()),
@@ -482,7 +532,7 @@ impl FemProbeSimulator {
             }
             Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
                 let an = self.anisotropic_model(ext)?;
-                self.run_rigid(an, &tip, None, frames, |_, _| Ok(()), |_, _| {})?
+                self.run_rigid(an, tip, None, frames, |_, _| Ok(()), |_, _| {})?
             }
             Extension::SupportSprings { .. } => return Ok(None),
         }))

@@ -9,6 +9,7 @@
 //! marker embedding, attached region, contact patch and area-weighted nodal forces.
 
 use crate::extend::{Extension, SequenceFrame};
+use crate::hypothesis::Field;
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
@@ -52,8 +53,13 @@ pub struct SimOutput {
     pub force_response: Option<[Vec<Vector3<f64>>; 3]>,
 }
 
-/// A model that can simulate a probing frame.
-pub trait ProbeSimulator {
+/// One re-simulation of a grid: the extension and the frames of its sequence
+/// ([`ProbeSimulator::simulate_sequences`]).
+pub type SequenceJob = (Extension, Vec<SequenceFrame>);
+
+/// A model that can simulate a probing frame. `Send + Sync`: the diagnosis runs independent
+/// re-simulations of one simulator on several threads ([`Self::simulate_sequences`]).
+pub trait ProbeSimulator: Send + Sync {
     /// Number of markers.
     fn num_markers(&self) -> usize;
     /// Marker positions under `load`; with `want_response`, also the tangent response to the probe
@@ -96,6 +102,30 @@ pub trait ProbeSimulator {
     ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
         let _ = (ext, frames);
         Ok(None)
+    }
+
+    /// [`Self::simulate_sequence_rigid_tip`] of every extension of `exts` over the same `frames`,
+    /// results in the order of `exts`. The default runs them one after another;
+    /// [`FemProbeSimulator`] runs them in parallel (each replay is independent: its own model
+    /// state, solver and contact history), so the results are the serial ones bit for bit.
+    fn simulate_sequences_rigid_tip(
+        &mut self,
+        exts: &[Extension],
+        frames: &[SequenceFrame],
+    ) -> Vec<Result<Option<Field>>> {
+        exts.iter()
+            .map(|e| self.simulate_sequence_rigid_tip(e, frames))
+            .collect()
+    }
+
+    /// [`Self::simulate_sequence`] of every job, results in job order. The default runs them one
+    /// after another; [`FemProbeSimulator`] runs them in parallel (each sequence is independent:
+    /// its own model state and solver, started at rest), so the results are the serial ones bit
+    /// for bit.
+    fn simulate_sequences(&mut self, jobs: &[SequenceJob]) -> Vec<Result<Field>> {
+        jobs.iter()
+            .map(|(e, f)| self.simulate_sequence(e, f))
+            .collect()
     }
 
     /// Marker positions of every frame (time order) under the model extended by `ext`
@@ -511,6 +541,21 @@ impl ProbeSimulator for FemProbeSimulator {
         frames: &[SequenceFrame],
     ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
         FemProbeSimulator::simulate_sequence_rigid_tip(self, ext, frames)
+    }
+
+    fn simulate_sequences_rigid_tip(
+        &mut self,
+        exts: &[Extension],
+        frames: &[SequenceFrame],
+    ) -> Vec<Result<Option<Field>>> {
+        FemProbeSimulator::simulate_sequences_rigid_tip(self, exts, frames)
+    }
+
+    fn simulate_sequences(&mut self, jobs: &[SequenceJob]) -> Vec<Result<Field>> {
+        use rayon::prelude::*;
+        jobs.par_iter()
+            .map(|(e, f)| FemProbeSimulator::simulate_sequence(self, e, f))
+            .collect()
     }
 
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput> {

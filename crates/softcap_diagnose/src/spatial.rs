@@ -27,7 +27,7 @@ use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
-use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
+use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 
@@ -293,20 +293,26 @@ fn simulate_grid(
     let solved: Vec<usize> = (0..rec.frames.len())
         .filter(|&k| !contact_only || seg.phases[k].in_contact())
         .collect();
-    for (params, ext, forces) in grid {
-        let all = contact_sequence(rec, seg, &forces);
-        let frames: Vec<SequenceFrame> = solved.iter().map(|&k| all[k]).collect();
-        match sim.simulate_sequence(&ext, &frames) {
+    let jobs: Vec<SequenceJob> = grid
+        .iter()
+        .map(|(_, ext, forces)| {
+            let all = contact_sequence(rec, seg, forces);
+            (*ext, solved.iter().map(|&k| all[k]).collect())
+        })
+        .collect();
+    // independent sequences, simulated in parallel by the simulator; taken in grid order
+    for (point, result) in grid.into_iter().zip(sim.simulate_sequences(&jobs)) {
+        match result {
             Ok(x) => {
                 let mut prediction = vec![p.rest_model_m.clone(); rec.frames.len()];
                 for (row, &k) in x.into_iter().zip(&solved) {
                     prediction[k] = row;
                 }
                 out.push(Candidate {
-                    params: params.clone(),
+                    params: point.0.clone(),
                     prediction,
                 });
-                sources.push((params, ext, forces));
+                sources.push(point);
             }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
@@ -407,10 +413,15 @@ fn simulate_rigid_grid(
             },
         })
         .collect();
+    let exts: Vec<Extension> = grid.iter().map(|(_, e)| *e).collect();
     let mut out = Vec::with_capacity(grid.len());
     let mut total = 0;
-    for (params, ext) in grid {
-        match sim.simulate_sequence_rigid_tip(&ext, &frames) {
+    // independent replays, simulated in parallel by the simulator; taken in grid order
+    for ((params, _), result) in grid
+        .into_iter()
+        .zip(sim.simulate_sequences_rigid_tip(&exts, &frames))
+    {
+        match result {
             Ok(Some(prediction)) => {
                 total += 1;
                 out.push(Candidate { params, prediction });
@@ -581,7 +592,31 @@ pub(crate) fn confirm(
     let scale = ComplianceScale::new(fit_scale, 0.1, 10.0);
     // Where the effect lives, the parameters are picked (module docs).
     let train_on_scored = matches!(h, Hypothesis::Plasticity | Hypothesis::ProbeFriction);
-    let (mut cands, mut total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+    // The rigid-tip replay on the refined mesh when the simulator has one (module docs); it does
+    // not depend on the force-driven grid, so the two run side by side on a refined copy.
+    let mut fine = if rigid.is_empty() {
+        Ok(None)
+    } else {
+        sim.refined(&touched_balls(rec, seg))
+    };
+    let refined = matches!(fine, Ok(Some(_)));
+    for (params, _) in &mut rigid {
+        params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+    }
+    let (coarse, rigid_side) = match fine.as_mut() {
+        Ok(Some(f)) => {
+            let replay = f.as_mut();
+            let rigid = std::mem::take(&mut rigid);
+            let (coarse, side) = rayon::join(
+                || simulate_grid(sim, grid, rec, seg, p, contact_only),
+                || simulate_rigid_grid(replay, rigid, rec),
+            );
+            (coarse, Some(side))
+        }
+        _ => (simulate_grid(sim, grid, rec, seg, p, contact_only), None),
+    };
+    // errors in the serial order: the force-driven grid's, the refinement's, the replays'
+    let (mut cands, mut total, sources) = coarse?;
     // Anisotropy: the coarse grid's choices and their neighbours along the fibre ratio
     // re-simulated on the refined fit mesh (module docs).
     let mut refined_from: Vec<usize> = Vec::new();
@@ -617,21 +652,15 @@ pub(crate) fn confirm(
         total += fine_total;
         cands.extend(fine_cands);
     }
-    // The rigid-tip replay on the refined mesh when the simulator has one (module docs).
-    let mut fine = if rigid.is_empty() {
-        None
-    } else {
-        sim.refined(&touched_balls(rec, seg))?
-    };
-    let refined = fine.is_some();
+    let mut fine = fine?;
     let replay: &mut dyn ProbeSimulator = match fine.as_deref_mut() {
         Some(f) => f,
         None => sim,
     };
-    for (params, _) in &mut rigid {
-        params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
-    }
-    let (mut rigid_cands, mut rigid_total) = simulate_rigid_grid(replay, rigid, rec)?;
+    let (mut rigid_cands, mut rigid_total) = match rigid_side {
+        Some(side) => side?,
+        None => simulate_rigid_grid(replay, rigid, rec)?,
+    };
     if h == Hypothesis::ProbeFriction {
         rigid_total += bracket_friction(replay, &mut rigid_cands, rec, seg, p, scored, refined)?;
     }

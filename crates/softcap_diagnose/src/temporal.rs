@@ -26,7 +26,7 @@ use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
 use crate::signal::{derivative, sample};
-use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
+use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use softcap_fem::probing::{ObservedMarker, ProbeExample};
@@ -300,8 +300,12 @@ pub(crate) fn confirm_temporal(
     let total = grid.len();
     let mut cands = Vec::with_capacity(total);
     let mut frames = Vec::with_capacity(total);
-    for (params, ext, seq) in grid {
-        match sim.simulate_sequence(&ext, &seq) {
+    let (params, jobs): (Vec<_>, Vec<SequenceJob>) =
+        grid.into_iter().map(|(q, e, seq)| (q, (e, seq))).unzip();
+    // independent sequences, simulated in parallel by the simulator; taken in grid order
+    let results = sim.simulate_sequences(&jobs);
+    for ((params, (_, seq)), result) in params.into_iter().zip(jobs).zip(results) {
+        match result {
             Ok(prediction) => {
                 cands.push(Candidate { params, prediction });
                 frames.push(seq);
@@ -321,7 +325,7 @@ pub(crate) fn confirm_temporal(
                 "time-shifted force f(t + offset)"
             },
         );
-        let mut run = material_refit(rec, seg, &frames, sim);
+        let run = material_refit(rec, seg, &frames, sim);
         let c = lolo_confirm(
             &cands,
             rec,
@@ -330,7 +334,7 @@ pub(crate) fn confirm_temporal(
             bounds(true),
             scored,
             false,
-            Some(&mut run),
+            Some(&run),
             method,
         )?;
         if c.is_some() {
@@ -419,8 +423,8 @@ fn material_refit<'a>(
     rec: &'a Recording,
     seg: &'a Segmentation,
     frames: &'a [Vec<SequenceFrame>],
-    sim: &'a mut dyn ProbeSimulator,
-) -> impl FnMut(usize, Option<usize>) -> Result<Option<Field>> + 'a {
+    sim: &'a dyn ProbeSimulator,
+) -> impl Fn(usize, Option<usize>) -> Result<Option<Field>> + Sync + 'a {
     move |i, skip| {
         let Some(seq) = frames.get(i) else {
             return Ok(None);

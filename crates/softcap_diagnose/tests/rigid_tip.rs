@@ -464,3 +464,61 @@ fn disk_replay_presses_a_node_under_its_rim_down_not_sideways() {
         }
     }
 }
+
+/// The batched re-simulations (`ProbeSimulator::simulate_sequences_rigid_tip` /
+/// `simulate_sequences`, run in parallel by `FemProbeSimulator`) give every sequence bit for bit
+/// as it comes alone, in the order of the jobs — the frictional replays sharing one refined mesh,
+/// the history-carrying models their own state.
+#[test]
+fn batched_replays_equal_the_replays_one_at_a_time() {
+    let mut sim = simulator(Some(sphere()));
+    let exts = [
+        Extension::ProbeFriction { mu: 0.8 },
+        Extension::Elastic,
+        Extension::Plastic {
+            yield_stress_pa: 2e3,
+            hardening_pa: 1e3,
+        },
+        Extension::ProbeFriction { mu: 0.4 },
+    ];
+    let frames = drag_frames();
+    let batch = ProbeSimulator::simulate_sequences_rigid_tip(&mut sim, &exts, &frames);
+    assert_eq!(batch.len(), exts.len());
+    let alone: Vec<_> = exts
+        .iter()
+        .map(|ext| sim.simulate_sequence_rigid_tip(ext, &frames).unwrap())
+        .collect();
+    for ((ext, got), alone) in exts.iter().zip(batch).zip(&alone) {
+        assert_eq!(&got.unwrap(), alone, "{ext:?}");
+    }
+    // the two frictional replays differ (the jobs are not mixed up)
+    assert_ne!(alone[0], alone[3]);
+    // force-driven sequences under the measured force over the patch
+    let pressed: Vec<SequenceFrame> = frames
+        .iter()
+        .map(|f| {
+            let mut f = *f;
+            if let Some(p) = &mut f.load.probe {
+                p.force_n = Vector3::new(0.0, 0.0, 0.05 * (p.tip_m.z - CENTRE[2]).min(0.0) / 1e-3);
+            }
+            f
+        })
+        .collect();
+    let jobs: Vec<(Extension, Vec<SequenceFrame>)> = [
+        Extension::Elastic,
+        Extension::Viscoelastic { g: 1.0, tau_s: 0.1 },
+        Extension::Plastic {
+            yield_stress_pa: 2e3,
+            hardening_pa: 1e3,
+        },
+    ]
+    .into_iter()
+    .map(|e| (e, pressed.clone()))
+    .collect();
+    let batch = ProbeSimulator::simulate_sequences(&mut sim, &jobs);
+    assert_eq!(batch.len(), jobs.len());
+    for ((ext, f), got) in jobs.iter().zip(batch) {
+        let alone = sim.simulate_sequence(ext, f).unwrap();
+        assert_eq!(got.unwrap(), alone, "{ext:?}");
+    }
+}

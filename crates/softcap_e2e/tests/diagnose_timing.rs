@@ -1,0 +1,77 @@
+//! Issue 8 timing: "the full catalog on a 10-location session takes ≤ 5 minutes on 2 cores".
+//! The catalog bench (benches/diagnose_catalog.rs) runs on the clean `standard` session, where no
+//! re-simulation grid runs; the expensive sessions are the effect sessions that trigger the
+//! refined rigid-tip replays. This test times `softcap_diagnose::run` on the suite's
+//! probe-friction scenario (`fixtures/scenarios/suite/probe-friction.toml`) with
+//! `protocol.locations` raised from 5 to 10 in code, and prints the diagnose wall time, the
+//! process CPU time it used, the verdict and every ranked hypothesis at full precision (so two
+//! builds can be compared bit for bit). Synth, capture and tissue fit run once outside the
+//! timed call (`SOFTCAP_SUITE_CACHE` reuses them, tests/common); with `SOFTCAP_TIMING_JSON=FILE`
+//! the diagnosis JSON is copied to FILE.
+//!
+//! `cargo test -p softcap_e2e --test diagnose_timing -- --ignored --nocapture`
+
+mod common;
+
+use softcap_diagnose::{RunConfig, StageSettings};
+use softcap_synth::Scenario;
+use std::time::Instant;
+
+/// User + system CPU seconds of this process so far (Linux `/proc/self/stat`, clock ticks of
+/// 1/100 s); `None` where that file is not available.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
+#[test]
+#[ignore = "timing (minutes): run with --ignored --nocapture; numbers in docs/diagnose.md (Timing)"]
+fn probe_friction_ten_locations_timing() {
+    let mut scenario =
+        Scenario::load(&common::suite_dir().join("probe-friction.toml")).expect("suite scenario");
+    scenario.protocol.locations = 10;
+    let inputs = common::prepare_inputs(&scenario);
+    let json = inputs.dir.path().join("diagnosis.json");
+    let cpu0 = cpu_seconds();
+    let t0 = Instant::now();
+    let d = softcap_diagnose::run(&RunConfig {
+        capture: inputs.capture.clone(),
+        material: inputs.material.clone(),
+        output: inputs.dir.path().join("diagnosis.mcap"),
+        json: Some(json.clone()),
+        report: None,
+        settings: StageSettings::default(),
+        arguments: vec![],
+    })
+    .expect("diagnosis");
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+    if let Some(out) = std::env::var_os("SOFTCAP_TIMING_JSON") {
+        std::fs::copy(&json, out).expect("copy diagnosis.json");
+    }
+    let s = inputs.seconds;
+    println!(
+        "TIMING | probe-friction, 10 locations | diagnose {wall:.1} s wall, {} CPU | synth {:.1} s, capture {:.1} s, tissue {:.1} s (0 = cached)",
+        cpu.map_or("n/a".to_string(), |c| format!("{c:.1} s")),
+        s[0],
+        s[1],
+        s[2]
+    );
+    println!("verdict {}", d.verdict);
+    for r in &d.ranked {
+        println!(
+            "{} before {:?} after {:?} params {:?}",
+            r.hypothesis, r.heldout_rmse_before_m, r.heldout_rmse_after_m, r.params
+        );
+    }
+    assert!(
+        d.ranked.iter().any(|r| r.hypothesis == d.verdict) || d.verdict == "none",
+        "verdict {} is not among the ranked hypotheses",
+        d.verdict
+    );
+}
