@@ -19,6 +19,14 @@
 //! scale trade against it (suite session, session 9: μ 1.1 of the truth's 0.8 with scale 0.88, a
 //! worse held-out error on the patch than μ 0.8's). The frictional replay's μ grid is extended
 //! until it brackets the optimum (`bracket_friction`).
+//!
+//! The grid points are independent sequences: `simulate_grid` and `simulate_rigid_grid` hand them
+//! to the simulator as one batch ([`ProbeSimulator::simulate_sequences`],
+//! [`ProbeSimulator::simulate_sequences_rigid_tip`]: in parallel in `FemProbeSimulator`), and the
+//! rigid-tip replays on the refined copy run beside the force-driven grid (`rayon::join`). The
+//! results are taken in grid order with the serial loop's first-error rule, so every choice is
+//! the one-after-another one bit for bit; only `bracket_friction`'s steps, each decided by the
+//! previous, stay serial.
 
 use crate::confirm::{
     Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_choices, lolo_confirm_among,

@@ -9,7 +9,9 @@
 //!
 //! The linearised screen ([`crate::hypothesis`]) proposes the parameters; every grid point is
 //! simulated over all frames (`ProbeSimulator::simulate_sequence`, warm-started frame to frame,
-//! history committed after each frame), then leave-one-location-out: per held-out location the
+//! history committed after each frame; the grid's independent sequences as one batch,
+//! `ProbeSimulator::simulate_sequences`, in parallel in `FemProbeSimulator`, taken in grid order),
+//! then leave-one-location-out: per held-out location the
 //! grid point and the material compliance scale with the least error on the other locations (the
 //! tissue fit saw the distorted forces, so its overall stiffness is biased by the same effect),
 //! scored on the held-out location's affected cells ([`crate::diagnose::focus_cells`]).
