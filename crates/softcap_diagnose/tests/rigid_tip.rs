@@ -26,13 +26,17 @@ fn markers() -> Vec<Vector3<f64>> {
 }
 
 fn simulator(tip: Option<TipShape>) -> FemProbeSimulator {
+    simulator_with(&markers(), tip)
+}
+
+fn simulator_with(markers: &[Vector3<f64>], tip: Option<TipShape>) -> FemProbeSimulator {
     let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
     let model =
         CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(2e4, 0.45).unwrap())
             .unwrap();
     let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
-    let sim = FemProbeSimulator::new(&mesh, model, &fixed, &markers(), FemSimSettings::default())
-        .unwrap();
+    let sim =
+        FemProbeSimulator::new(&mesh, model, &fixed, markers, FemSimSettings::default()).unwrap();
     match tip {
         Some(t) => sim.with_rigid_tip(t),
         None => sim,
@@ -43,14 +47,19 @@ fn simulator(tip: Option<TipShape>) -> FemProbeSimulator {
 const DEPTHS_MM: [f64; 9] = [-3.0, 0.5, 1.0, 1.5, 2.0, 2.0, 1.0, 0.0, -3.0];
 
 fn frames() -> Vec<SequenceFrame> {
-    DEPTHS_MM
+    press_frames(&Vector3::from(CENTRE), &DEPTHS_MM)
+}
+
+/// A straight press down onto `centre`: one frame per depth below the top surface (mm).
+fn press_frames(centre: &Vector3<f64>, depths_mm: &[f64]) -> Vec<SequenceFrame> {
+    depths_mm
         .iter()
         .enumerate()
         .map(|(k, d)| SequenceFrame {
             time_s: 0.05 * k as f64,
             load: SimLoad {
                 probe: Some(ProbeLoad {
-                    tip_m: Vector3::new(CENTRE[0], CENTRE[1], CENTRE[2] - 1e-3 * d),
+                    tip_m: centre - Vector3::z() * (1e-3 * d),
                     axis: -Vector3::z(),
                     force_n: Vector3::zeros(),
                 }),
@@ -418,34 +427,16 @@ fn frictional_rigid_replay_drags_the_surface_along_and_lets_go_after_lift_off() 
 fn disk_replay_presses_a_node_under_its_rim_down_not_sideways() {
     let centre = Vector3::new(CENTRE[0] + 0.00187, CENTRE[1], CENTRE[2]);
     let rim_node = Vector3::new(0.02 + 0.04 / 6.0, 0.02, 0.02);
-    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
-    let model =
-        CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(2e4, 0.45).unwrap())
-            .unwrap();
-    let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
     let markers = vec![Vector3::from(CENTRE), rim_node];
-    let sim = FemProbeSimulator::new(&mesh, model, &fixed, &markers, FemSimSettings::default())
-        .unwrap()
-        .with_rigid_tip(TipShape::Disk {
+    let sim = simulator_with(
+        &markers,
+        Some(TipShape::Disk {
             radius_m: 0.005,
             thickness_m: 0.005,
-        });
+        }),
+    );
     let depths_mm = [-3.0, 0.5, 1.0, 1.5, 1.5, 1.0, -3.0];
-    let frames: Vec<SequenceFrame> = depths_mm
-        .iter()
-        .enumerate()
-        .map(|(k, d)| SequenceFrame {
-            time_s: 0.05 * k as f64,
-            load: SimLoad {
-                probe: Some(ProbeLoad {
-                    tip_m: centre - Vector3::z() * (1e-3 * d),
-                    axis: -Vector3::z(),
-                    force_n: Vector3::zeros(),
-                }),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect();
+    let frames = press_frames(&centre, &depths_mm);
     let x = sim
         .simulate_sequence_rigid_tip(&Extension::Elastic, &frames)
         .unwrap()

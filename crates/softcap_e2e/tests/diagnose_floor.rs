@@ -1,0 +1,181 @@
+//! Where the default model's floor comes from (docs/diagnose.md, "Session 11 (lead)"): a suite
+//! session's recording against several models of it, each model's residual RMS on the probed
+//! markers per phase and on the contact frames' markers near / away from the tip (2.5 tip radii,
+//! the anisotropy / support-slip cells). A measuring harness, not a check: `#[ignore]`d, nothing
+//! asserted beyond the chain running.
+//!
+//! `cargo test -p softcap_e2e --test diagnose_floor -- --ignored --nocapture`, with
+//! - `FLOOR_CASE=NAME` (a suite scenario, default `clean`) or `FLOOR_TOML=PATH` (any scenario, e.g.
+//!   a copy of clean.toml with another `fit_cells`);
+//! - `FLOOR_MATERIAL=E_PA,NU` a homogeneous material instead of the tissue fit's;
+//! - `FLOOR_LOAD=consistent` the footprint-consistent loads instead of the lumped patch;
+//! - `FLOOR_LEVELS=N` 1 → 8 refinements of the template for the refined models (default 1);
+//! - `FLOOR_WHICH` a subset of `abcd` (a: force BC, b: rigid-tip replay, c / d: the same on the
+//!   refined template; default all);
+//! - `FLOOR_TRUTH=DIR/truth/markers.csv` also scores the synthetic truth's own marker tracks
+//!   (the capture's error: `softcap synth` the same scenario to DIR first);
+//! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
+
+mod common;
+
+use softcap_diagnose::nalgebra::Vector3;
+use softcap_diagnose::{
+    Extension, FemProbeSimulator, FemSimSettings, MaterialSource, Phase, ProbeLoad, Region,
+    SegmentSettings, Segmentation, SequenceFrame, SimLoad, read_material_from,
+    recording_from_capture, residuals,
+};
+use softcap_fem::{CorotationalModel, LinearParams, TipShape};
+use softcap_mcap::capture::CaptureData;
+use softcap_synth::Scenario;
+use std::time::Instant;
+
+#[test]
+#[ignore = "measuring harness (docs/diagnose.md, session 11 floor table); run with --ignored --nocapture"]
+fn default_model_floor() {
+    let env = |k: &str| std::env::var(k).ok();
+    let name = env("FLOOR_CASE").unwrap_or_else(|| "clean".into());
+    let path = env("FLOOR_TOML")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| common::suite_dir().join(format!("{name}.toml")));
+    let scenario = Scenario::load(&path).unwrap();
+    let inputs = common::prepare_inputs(&scenario);
+    let cap = CaptureData::read(&inputs.capture).unwrap();
+    let material = read_material_from(&inputs.material, MaterialSource::Homogeneous).unwrap();
+    let rec = recording_from_capture(&cap, &material.mesh).unwrap();
+    let support = rec.support.expect("a support plane");
+    let fixed = FemProbeSimulator::nodes_on_plane(
+        &material.mesh,
+        &support.normal,
+        support.offset_m,
+        support.tolerance_m.max(1e-9),
+    );
+    let mut settings = FemSimSettings::default();
+    if env("FLOOR_LOAD").as_deref() == Some("consistent") {
+        settings.patch.load = softcap_fem::probing::FootprintLoad::Consistent;
+    }
+    let mut model = material.model.clone();
+    println!(
+        "FLOOR {} tets, tissue fit (E, nu) = {:?}",
+        material.mesh.tets.len(),
+        model.params()[0].to_young_poisson()
+    );
+    if let Some(v) = env("FLOOR_MATERIAL") {
+        let (e, nu) = v.split_once(',').expect("FLOOR_MATERIAL=E_PA,NU");
+        let p = LinearParams::from_young_poisson(e.parse().unwrap(), nu.parse().unwrap()).unwrap();
+        model = CorotationalModel::homogeneous(&material.mesh, p).unwrap();
+    }
+    let r = cap.session.tip_radius_m;
+    let tip = match cap.session.tip_shape.as_str() {
+        "sphere" => TipShape::Sphere { radius_m: r },
+        _ => TipShape::Disk {
+            radius_m: r,
+            thickness_m: r,
+        },
+    };
+    let sim = FemProbeSimulator::new(&material.mesh, model, &fixed, &rec.rest_markers_m, settings)
+        .unwrap()
+        .with_support_plane(&support.normal, support.offset_m)
+        .with_rigid_tip(tip);
+    let seg = Segmentation::new(&rec, &SegmentSettings::default());
+    // Force BC: the measured force on the contact frames; rigid tip: every frame's measured pose
+    // (as the diagnosis replays them).
+    let frames = |every_pose: bool| -> Vec<SequenceFrame> {
+        rec.frames
+            .iter()
+            .enumerate()
+            .map(|(k, f)| SequenceFrame {
+                time_s: f.time_s,
+                load: SimLoad {
+                    probe: (every_pose || seg.phases[k].in_contact()).then_some(ProbeLoad {
+                        tip_m: f.tip_m,
+                        axis: f.axis,
+                        force_n: f.force_n,
+                    }),
+                    body_force_n_m3: Vector3::zeros(),
+                },
+            })
+            .collect()
+    };
+    let report = |label: &str, x: &[Vec<Vector3<f64>>]| {
+        let res = residuals(&rec, x);
+        let rms = |keep: &dyn Fn(usize, usize) -> bool| {
+            let (mut s, mut n) = (0.0, 0usize);
+            for (k, row) in res.iter().enumerate() {
+                for (m, r) in row.iter().enumerate() {
+                    if let Some(r) = r
+                        && keep(k, m)
+                    {
+                        s += r.norm_squared();
+                        n += 1;
+                    }
+                }
+            }
+            1e3 * (s / n.max(1) as f64).sqrt()
+        };
+        let probed = |p: Phase| rms(&|k, m| seg.phases[k] == p && seg.regions[m] == Region::Probed);
+        let near = |k: usize, m: usize| {
+            (rec.rest_markers_m[m] - rec.frames[k].tip_m).norm() <= 2.5 * rec.tip_radius_m
+        };
+        let contact = |k: usize| seg.phases[k].in_contact();
+        println!(
+            "FLOOR {name} {label}: probed loading {:.4} hold {:.4} unloading {:.4} released {:.4} | contact near {:.4} away {:.4} mm",
+            probed(Phase::Loading),
+            probed(Phase::Hold),
+            probed(Phase::Unloading),
+            probed(Phase::Released),
+            rms(&|k, m| contact(k) && near(k, m)),
+            rms(&|k, m| contact(k) && !near(k, m)),
+        );
+    };
+    if let Some(path) = env("FLOOR_TRUTH") {
+        let text = std::fs::read_to_string(path).unwrap();
+        let mut truth = vec![sim.rest_markers_m(); rec.frames.len()];
+        for line in text.lines().skip(1) {
+            let v: Vec<&str> = line.split(',').collect();
+            let frame: u64 = v[0].parse().unwrap();
+            let k = rec.frames.iter().position(|f| f.frame == frame);
+            let m = rec.marker_ids.iter().position(|id| id == v[1]);
+            if let (Some(k), Some(m)) = (k, m) {
+                let c = |i: usize| v[i].parse::<f64>().unwrap() * 1e-3;
+                truth[k][m] = Vector3::new(c(2), c(3), c(4));
+            }
+        }
+        report("synthetic truth's markers", &truth);
+    }
+    report(
+        "rest markers (no model)",
+        &vec![sim.rest_markers_m(); rec.frames.len()],
+    );
+    let which = env("FLOOR_WHICH").unwrap_or_else(|| "abcd".into());
+    let run = |label: &str, s: &FemProbeSimulator, rigid: bool| {
+        let t = Instant::now();
+        let x = if rigid {
+            s.simulate_sequence_rigid_tip(&Extension::Elastic, &frames(true))
+                .unwrap()
+                .expect("a rigid tip")
+        } else {
+            s.simulate_sequence(&Extension::Elastic, &frames(false))
+                .unwrap()
+        };
+        report(&format!("{label} ({:.1} s)", t.elapsed().as_secs_f64()), &x);
+    };
+    if which.contains('a') {
+        run("template, force BC", &sim, false);
+    }
+    if which.contains('b') {
+        run("template, rigid-tip replay", &sim, true);
+    }
+    if which.contains('c') || which.contains('d') {
+        let levels: usize = env("FLOOR_LEVELS").map_or(1, |v| v.parse().unwrap());
+        let mut fine = sim.refined().unwrap();
+        for _ in 1..levels {
+            fine = fine.refined().unwrap();
+        }
+        if which.contains('c') {
+            run(&format!("refined x{levels}, force BC"), &fine, false);
+        }
+        if which.contains('d') {
+            run(&format!("refined x{levels}, rigid-tip replay"), &fine, true);
+        }
+    }
+}
