@@ -344,10 +344,29 @@ pub(crate) fn lolo_confirm_among(
     }))
 }
 
+/// The recording as a rigid-tip replay's input: every frame carries its measured probe pose (and
+/// force, which a position-controlled replay does not use).
+pub fn pose_sequence(rec: &Recording) -> Vec<SequenceFrame> {
+    rec.frames
+        .iter()
+        .map(|f| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: f.tip_m,
+                    axis: f.axis,
+                    force_n: f.force_n,
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
 /// The recording as a sequence to re-simulate under per-frame probe forces `forces`: a contact
 /// frame (segmentation) with a non-zero force carries the probe load at its tip and axis, every
 /// other frame is unloaded.
-pub(crate) fn contact_sequence(
+pub fn contact_sequence(
     rec: &Recording,
     seg: &Segmentation,
     forces: &[Vector3<f64>],

@@ -67,6 +67,7 @@ pub mod sim;
 pub mod spatial;
 pub mod temporal;
 
+pub use confirm::{contact_sequence, pose_sequence};
 pub use diagnose::{
     DiagnoseSettings, Diagnosis, DiagnosisRun, RankedHypothesis, Signatures, diagnose, prepare,
     signature_support, signatures,

@@ -30,12 +30,13 @@
 
 use crate::confirm::{
     Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_choices, lolo_confirm_among,
+    pose_sequence,
 };
-use crate::extend::{Extension, SequenceFrame};
+use crate::extend::Extension;
 use crate::hypothesis::{Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
-use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
+use crate::sim::{ProbeSimulator, SequenceJob};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 
@@ -406,21 +407,7 @@ fn simulate_rigid_grid(
     grid: Vec<(Vec<(String, f64)>, Extension)>,
     rec: &Recording,
 ) -> Result<(Vec<Candidate>, usize)> {
-    let frames: Vec<SequenceFrame> = rec
-        .frames
-        .iter()
-        .map(|f| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: Some(ProbeLoad {
-                    tip_m: f.tip_m,
-                    axis: f.axis,
-                    force_n: f.force_n,
-                }),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect();
+    let frames = pose_sequence(rec);
     let exts: Vec<Extension> = grid.iter().map(|(_, e)| *e).collect();
     let mut out = Vec::with_capacity(grid.len());
     let mut total = 0;

@@ -20,8 +20,8 @@ mod common;
 
 use softcap_diagnose::nalgebra::Vector3;
 use softcap_diagnose::{
-    Extension, FemProbeSimulator, FemSimSettings, MaterialSource, Phase, ProbeLoad, Region,
-    SegmentSettings, Segmentation, SequenceFrame, SimLoad, read_material_from,
+    Extension, FemProbeSimulator, FemSimSettings, MaterialSource, Phase, Region, SegmentSettings,
+    Segmentation, SequenceFrame, contact_sequence, pose_sequence, read_material_from,
     recording_from_capture, residuals,
 };
 use softcap_fem::{CorotationalModel, LinearParams, TipShape};
@@ -78,23 +78,14 @@ fn default_model_floor() {
         .with_rigid_tip(tip);
     let seg = Segmentation::new(&rec, &SegmentSettings::default());
     // Force BC: the measured force on the contact frames; rigid tip: every frame's measured pose
-    // (as the diagnosis replays them).
+    // (the diagnosis' own sequences).
+    let forces: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
     let frames = |every_pose: bool| -> Vec<SequenceFrame> {
-        rec.frames
-            .iter()
-            .enumerate()
-            .map(|(k, f)| SequenceFrame {
-                time_s: f.time_s,
-                load: SimLoad {
-                    probe: (every_pose || seg.phases[k].in_contact()).then_some(ProbeLoad {
-                        tip_m: f.tip_m,
-                        axis: f.axis,
-                        force_n: f.force_n,
-                    }),
-                    body_force_n_m3: Vector3::zeros(),
-                },
-            })
-            .collect()
+        if every_pose {
+            pose_sequence(&rec)
+        } else {
+            contact_sequence(&rec, &seg, &forces)
+        }
     };
     let report = |label: &str, x: &[Vec<Vector3<f64>>]| {
         let res = residuals(&rec, x);
