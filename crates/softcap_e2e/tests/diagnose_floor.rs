@@ -14,15 +14,21 @@
 //!   refined template; default all);
 //! - `FLOOR_TRUTH=DIR/truth/markers.csv` also scores the synthetic truth's own marker tracks
 //!   (the capture's error: `softcap synth` the same scenario to DIR first);
+//! - `FLOOR_MU=0.5,0.8,...` instead of the above, the frictional rigid-tip replay
+//!   (`Extension::ProbeFriction`) at each μ on the refined template (`FLOOR_LOCAL=F[:S]`: locally,
+//!   as `SOFTCAP_SUITE_REFINE=local:F:S`), each location's RMS on the probe-friction effect cells
+//!   (`spatial::effect_mask`) at compliance 1, split by phase and normal / tangential component
+//!   (docs/diagnose.md, "Session 12 (fric)"); `FLOOR_FRAMES=1` adds per contact frame the scored
+//!   markers' mean measured and simulated displacement along the location's tangential travel;
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
 
 mod common;
 
 use softcap_diagnose::nalgebra::Vector3;
 use softcap_diagnose::{
-    Extension, FemProbeSimulator, FemSimSettings, MaterialSource, Phase, Region, SegmentSettings,
-    Segmentation, SequenceFrame, contact_sequence, pose_sequence, read_material_from,
-    recording_from_capture, residuals,
+    Extension, FemProbeSimulator, FemSimSettings, Hypothesis, MaterialSource, Phase, Region,
+    SegmentSettings, Segmentation, SequenceFrame, contact_sequence, pose_sequence,
+    read_material_from, recording_from_capture, residuals,
 };
 use softcap_fem::{CorotationalModel, LinearParams, TipShape};
 use softcap_mcap::capture::CaptureData;
@@ -52,6 +58,12 @@ fn default_model_floor() {
     let mut settings = FemSimSettings::default();
     if env("FLOOR_LOAD").as_deref() == Some("consistent") {
         settings.patch.load = softcap_fem::probing::FootprintLoad::Consistent;
+    }
+    if let Some(l) = env("FLOOR_LOCAL") {
+        let (f, s) = l.split_once(':').unwrap_or((&l, "1"));
+        settings.refinement.local = true;
+        settings.refinement.edge_fraction = f.parse().unwrap();
+        settings.refinement.radius_scale = s.parse().unwrap();
     }
     let mut model = material.model.clone();
     println!(
@@ -137,6 +149,10 @@ fn default_model_floor() {
         "rest markers (no model)",
         &vec![sim.rest_markers_m(); rec.frames.len()],
     );
+    if let Some(list) = env("FLOOR_MU") {
+        friction_profile(&rec, &seg, &sim, &list);
+        return;
+    }
     let which = env("FLOOR_WHICH").unwrap_or_else(|| "abcd".into());
     let run = |label: &str, s: &FemProbeSimulator, rigid: bool| {
         let t = Instant::now();
@@ -167,6 +183,133 @@ fn default_model_floor() {
         }
         if which.contains('d') {
             run(&format!("refined x{levels}, rigid-tip replay"), &fine, true);
+        }
+    }
+}
+
+/// The frictional replay's per-location error on the probe-friction effect cells for every μ of
+/// `list` (`FLOOR_MU`), compliance 1.
+fn friction_profile(
+    rec: &softcap_diagnose::Recording,
+    seg: &Segmentation,
+    sim: &FemProbeSimulator,
+    list: &str,
+) {
+    use softcap_diagnose::ProbeSimulator;
+    let mus: Vec<f64> = list.split(',').map(|v| v.parse().unwrap()).collect();
+    let balls = softcap_diagnose::spatial::touched_balls(rec, seg);
+    let mut fine = ProbeSimulator::refined(sim, &balls).unwrap().unwrap();
+    let mask = softcap_diagnose::spatial::effect_mask(Hypothesis::ProbeFriction, rec, seg).unwrap();
+    let exts: Vec<Extension> = mus
+        .iter()
+        .map(|&mu| Extension::ProbeFriction { mu })
+        .collect();
+    let frames = pose_sequence(rec);
+    let t = Instant::now();
+    let out = fine.simulate_sequences_rigid_tip(&exts, &frames);
+    println!(
+        "MU {} replays {:.1} s",
+        mus.len(),
+        t.elapsed().as_secs_f64()
+    );
+    let nl = seg.locations.len();
+    for (mu, x) in mus.iter().zip(out) {
+        let Ok(Some(x)) = x else {
+            println!("MU {mu:.4} failed: {:?}", x.err());
+            continue;
+        };
+        let res = residuals(rec, &x);
+        let (mut s, mut n) = (vec![0.0; nl + 1], vec![0usize; nl + 1]);
+        for (k, row) in res.iter().enumerate() {
+            let Some(l) = seg.fold_of_frame[k] else {
+                continue;
+            };
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r
+                    && mask[k][m]
+                {
+                    for i in [l, nl] {
+                        s[i] += r.norm_squared();
+                        n[i] += 1;
+                    }
+                }
+            }
+        }
+        let rms: Vec<String> = (0..=nl)
+            .map(|i| format!("{:.4}", 1e3 * (s[i] / n[i].max(1) as f64).sqrt()))
+            .collect();
+        println!("MU {mu:.4} per location / all (mm): {}", rms.join(" "));
+        // the same cells split by phase and by component (surface normal = +z on the top face)
+        let split = |keep: &dyn Fn(usize) -> bool, comp: usize| {
+            let (mut s, mut n) = (0.0, 0usize);
+            for (k, row) in res.iter().enumerate() {
+                if seg.fold_of_frame[k].is_none() || !keep(k) {
+                    continue;
+                }
+                for (m, r) in row.iter().enumerate() {
+                    if let Some(r) = r
+                        && mask[k][m]
+                    {
+                        s += match comp {
+                            0 => r.norm_squared(),
+                            1 => r.z * r.z,
+                            _ => r.x * r.x + r.y * r.y,
+                        };
+                        n += 1;
+                    }
+                }
+            }
+            1e3 * (s / n.max(1) as f64).sqrt()
+        };
+        // per contact frame: the measured and simulated displacement of the scored markers along
+        // the location's tangential travel (mean), and the residual RMS
+        if std::env::var_os("FLOOR_FRAMES").is_some() {
+            let sim_disp = |k: usize, m: usize| x[k][m] - rec.rest_markers_m[m];
+            for (k, fr) in rec.frames.iter().enumerate() {
+                let Some(l) = seg.fold_of_frame[k] else {
+                    continue;
+                };
+                let loc = &seg.locations[l];
+                let mut d = loc.peak_tip_m - loc.contact_tip_m;
+                d.z = 0.0;
+                let s_hat = d.normalize();
+                let (mut meas, mut simd, mut rr, mut n) = (0.0, 0.0, 0.0, 0usize);
+                for m in 0..rec.num_markers() {
+                    if let Some(p) = fr.markers_m[m]
+                        && mask[k][m]
+                    {
+                        meas += (p - rec.rest_markers_m[m]).dot(&s_hat);
+                        simd += sim_disp(k, m).dot(&s_hat);
+                        rr += (p - x[k][m]).norm_squared();
+                        n += 1;
+                    }
+                }
+                if n == 0 {
+                    continue;
+                }
+                let nf = n as f64;
+                println!(
+                    "MU {mu:.4} frame {k} loc {l} {:?} depth {:.3} along travel measured {:.4} simulated {:.4} rms {:.4} (n {n})",
+                    seg.phases[k],
+                    1e3 * (fr.tip_m - loc.contact_tip_m).z,
+                    1e3 * meas / nf,
+                    1e3 * simd / nf,
+                    1e3 * (rr / nf).sqrt()
+                );
+            }
+        }
+        for (name, ph) in [
+            ("loading", Phase::Loading),
+            ("hold", Phase::Hold),
+            ("unloading", Phase::Unloading),
+        ] {
+            let keep = |k: usize| seg.phases[k] == ph;
+            println!(
+                "MU {mu:.4} {name}: total {:.4} normal {:.4} tangential {:.4}",
+                split(&keep, 0),
+                split(&keep, 1),
+                split(&keep, 2)
+            );
         }
     }
 }
