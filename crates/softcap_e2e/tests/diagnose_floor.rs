@@ -12,6 +12,14 @@
 //! - `FLOOR_LEVELS=N` 1 → 8 refinements of the template for the refined models (default 1);
 //! - `FLOOR_WHICH` a subset of `abcd` (a: force BC, b: rigid-tip replay, c / d: the same on the
 //!   refined template; default all);
+//! - `FLOOR_PRONY=G,TAU_S` every model extended by one Prony branch
+//!   (`Extension::Viscoelastic`: the viscoelasticity oracle with the truth's g, τ);
+//! - `FLOOR_SCALE=1` also prints each model with the compliance scale d = Σu·v / Σu·u fitted on
+//!   every observation (the material's overall stiffness refit, in-sample);
+//! - `FLOOR_FRAMES=1` also prints, per frame of a location: its phase, the measured force, the
+//!   force's share across the probe axis, the measured and simulated mean displacement along the
+//!   axis, the residual RMS (all components, and along the axis) — over the markers within 2.5
+//!   tip radii of the location's axis — and the measured tip (docs/diagnose.md, session 12);
 //! - `FLOOR_TRUTH=DIR/truth/markers.csv` also scores the synthetic truth's own marker tracks
 //!   (the capture's error: `softcap synth` the same scenario to DIR first);
 //! - `FLOOR_MU=0.5,0.8,...` instead of the above, the frictional rigid-tip replay
@@ -99,7 +107,8 @@ fn default_model_floor() {
             contact_sequence(&rec, &seg, &forces)
         }
     };
-    let report = |label: &str, x: &[Vec<Vector3<f64>>]| {
+    let rest = sim.rest_markers_m();
+    let report_one = |label: &str, x: &[Vec<Vector3<f64>>]| {
         let res = residuals(&rec, x);
         let rms = |keep: &dyn Fn(usize, usize) -> bool| {
             let (mut s, mut n) = (0.0, 0usize);
@@ -130,6 +139,77 @@ fn default_model_floor() {
             rms(&|k, m| contact(k) && !near(k, m)),
         );
     };
+    let scale = env("FLOOR_SCALE").is_some();
+    let per_frame = env("FLOOR_FRAMES").is_some();
+    let frame_table = |label: &str, x: &[Vec<Vector3<f64>>]| {
+        println!(
+            "FRAMES {label}: k t_s phase force_n lateral_force_fraction measured_mm simulated_mm rms_mm axial_rms_mm (markers near the location, along the probe axis)"
+        );
+        for (k, f) in rec.frames.iter().enumerate() {
+            let Some(l) = seg.fold_of_frame[k] else {
+                continue;
+            };
+            let loc = &seg.locations[l];
+            let (mut dm, mut ds, mut e, mut ea, mut n) = (0.0, 0.0, 0.0, 0.0, 0usize);
+            for (m, y) in f.markers_m.iter().enumerate() {
+                let lateral = (rest[m] - loc.peak_tip_m).cross(&loc.axis).norm();
+                if let Some(y) = y
+                    && lateral <= 2.5 * rec.tip_radius_m
+                {
+                    dm += (y - rest[m]).dot(&loc.axis);
+                    ds += (x[k][m] - rest[m]).dot(&loc.axis);
+                    e += (y - x[k][m]).norm_squared();
+                    ea += (y - x[k][m]).dot(&loc.axis).powi(2);
+                    n += 1;
+                }
+            }
+            let n = n.max(1) as f64;
+            println!(
+                "FRAMES {k:3} {:.3} {:9} {:.4} {:.3} {:+.4} {:+.4} {:.4} {:.4} tip_mm {:.3} {:.3} {:.3}",
+                f.time_s,
+                seg.phases[k].name(),
+                f.force_n.norm(),
+                f.force_n.cross(&f.axis).norm() / f.force_n.norm().max(1e-12),
+                1e3 * dm / n,
+                1e3 * ds / n,
+                1e3 * (e / n).sqrt(),
+                1e3 * (ea / n).sqrt(),
+                1e3 * f.tip_m.x,
+                1e3 * f.tip_m.y,
+                1e3 * f.tip_m.z
+            );
+        }
+    };
+    let report = |label: &str, x: &[Vec<Vector3<f64>>]| {
+        report_one(label, x);
+        if per_frame {
+            frame_table(label, x);
+        }
+        if !scale {
+            return;
+        }
+        // d = Σ u·v / Σ u·u over every observation (u simulated, v measured, from rest)
+        let (mut uu, mut uv) = (0.0, 0.0);
+        for (f, row) in rec.frames.iter().zip(x) {
+            for ((y, xm), r) in f.markers_m.iter().zip(row).zip(&rest) {
+                if let Some(y) = y {
+                    uu += (xm - r).norm_squared();
+                    uv += (xm - r).dot(&(y - r));
+                }
+            }
+        }
+        let d = if uu > 0.0 { uv / uu } else { 1.0 };
+        let scaled: Vec<Vec<Vector3<f64>>> = x
+            .iter()
+            .map(|row| {
+                row.iter()
+                    .zip(&rest)
+                    .map(|(xm, r)| r + (xm - r) * d)
+                    .collect()
+            })
+            .collect();
+        report_one(&format!("{label}, compliance x{d:.3}"), &scaled);
+    };
     if let Some(path) = env("FLOOR_TRUTH") {
         let text = std::fs::read_to_string(path).unwrap();
         let mut truth = vec![sim.rest_markers_m(); rec.frames.len()];
@@ -154,16 +234,23 @@ fn default_model_floor() {
         return;
     }
     let which = env("FLOOR_WHICH").unwrap_or_else(|| "abcd".into());
+    let force_ext = env("FLOOR_PRONY").map_or(Extension::Elastic, |v| {
+        let (g, tau) = v.split_once(',').expect("FLOOR_PRONY=G,TAU_S");
+        Extension::Viscoelastic {
+            g: g.parse().unwrap(),
+            tau_s: tau.parse().unwrap(),
+        }
+    });
     let run = |label: &str, s: &FemProbeSimulator, rigid: bool| {
         let t = Instant::now();
         let x = if rigid {
-            s.simulate_sequence_rigid_tip(&Extension::Elastic, &frames(true))
+            s.simulate_sequence_rigid_tip(&force_ext, &frames(true))
                 .unwrap()
                 .expect("a rigid tip")
         } else {
-            s.simulate_sequence(&Extension::Elastic, &frames(false))
-                .unwrap()
+            s.simulate_sequence(&force_ext, &frames(false)).unwrap()
         };
+        let label = format!("{label} {force_ext:?}");
         report(&format!("{label} ({:.1} s)", t.elapsed().as_secs_f64()), &x);
     };
     if which.contains('a') {
