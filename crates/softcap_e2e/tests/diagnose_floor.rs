@@ -140,7 +140,8 @@ fn default_model_floor() {
         );
     };
     let scale = env("FLOOR_SCALE").is_some();
-    let per_frame = env("FLOOR_FRAMES").is_some();
+    // (with FLOOR_MU, FLOOR_FRAMES is the friction profile's per-frame table instead)
+    let per_frame = env("FLOOR_FRAMES").is_some() && env("FLOOR_MU").is_none();
     let frame_table = |label: &str, x: &[Vec<Vector3<f64>>]| {
         println!(
             "FRAMES {label}: k t_s phase force_n lateral_force_fraction measured_mm simulated_mm rms_mm axial_rms_mm (markers near the location, along the probe axis)"
