@@ -90,6 +90,16 @@ pub trait ProbeSimulator: Send + Sync {
         Ok(None)
     }
 
+    /// True when the fit mesh already resolves a tip of radius `tip_radius_m` at the tip
+    /// positions `tips_m`: its boundary nodes there are spaced ≤ 0.8 tip radii, the rule of
+    /// [`crate::extend::friction_refinement`] (which then adds no refinement level). A model
+    /// re-simulated on such a mesh gains nothing from [`Self::refined`] but its cost (8× the
+    /// tets). `false` (default) when this simulator has no mesh to measure.
+    fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
+        let _ = (tip_radius_m, tips_m);
+        false
+    }
+
     /// Marker positions of every frame (time order) under the model extended by `ext`, with the
     /// probe replayed as a RIGID tip at each frame's measured pose (position control, bickel2009
     /// §3.4 rigid-probe contact) instead of the measured force over the patch (§4.1). Only
@@ -509,6 +519,13 @@ impl ProbeSimulator for FemProbeSimulator {
         sim.support_plane = self.support_plane;
         sim.rigid_tip = self.rigid_tip.clone();
         Ok(Some(Box::new(sim)))
+    }
+
+    fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
+        let tip = TipShape::Sphere {
+            radius_m: tip_radius_m,
+        };
+        crate::extend::friction_refinement(&self.setup.mesh, &tip, tips_m) == 0
     }
 
     fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {

@@ -616,8 +616,13 @@ pub(crate) fn confirm(
     // re-simulated on the refined fit mesh (module docs).
     let mut refined_from: Vec<usize> = Vec::new();
     let mut neighbourhoods: Vec<Vec<usize>> = Vec::new();
+    // Only where the template does not already resolve the tip ([`ProbeSimulator::resolves_footprint`]):
+    // there the refined mesh changes the field under the footprint and nothing else.
+    let balls = touched_balls(rec, seg);
+    let tips: Vec<Vector3<f64>> = balls.iter().map(|b| b.centre_m).collect();
     if h == Hypothesis::Anisotropy
-        && let Some(mut fine) = sim.refined(&touched_balls(rec, seg))?
+        && !sim.resolves_footprint(rec.tip_radius_m, &tips)
+        && let Some(mut fine) = sim.refined(&balls)?
     {
         let choices = lolo_choices(&cands, rec, seg, p, scale, scored, train_on_scored);
         neighbourhoods = choices

@@ -513,3 +513,20 @@ fn batched_replays_equal_the_replays_one_at_a_time() {
         assert_eq!(got.unwrap(), alone, "{ext:?}");
     }
 }
+
+/// The anisotropy re-simulation refines the fit mesh only where it does not resolve the tip
+/// (`ProbeSimulator::resolves_footprint`, the ≤ 0.8 tip-radius node spacing of
+/// `extend::friction_refinement`): the 6.7 mm block does not resolve a 5 mm tip, the block refined
+/// once (3.3 mm) does, and the 6.7 mm block resolves a 20 mm tip.
+#[test]
+fn footprint_resolution_follows_the_friction_refinement_rule() {
+    let sim = simulator(None);
+    let tips = [Vector3::from(CENTRE)];
+    assert!(!ProbeSimulator::resolves_footprint(&sim, 0.005, &tips));
+    assert!(ProbeSimulator::resolves_footprint(
+        &sim.refined().unwrap(),
+        0.005,
+        &tips
+    ));
+    assert!(ProbeSimulator::resolves_footprint(&sim, 0.02, &tips));
+}

@@ -28,6 +28,9 @@
 //!   (`spatial::effect_mask`) at compliance 1, split by phase and normal / tangential component
 //!   (docs/diagnose.md, "Session 12 (fric)"); `FLOOR_FRAMES=1` adds per contact frame the scored
 //!   markers' mean measured and simulated displacement along the location's tangential travel;
+//! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
+//!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
+//!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
 
 mod common;
@@ -235,13 +238,30 @@ fn default_model_floor() {
         return;
     }
     let which = env("FLOOR_WHICH").unwrap_or_else(|| "abcd".into());
-    let force_ext = env("FLOOR_PRONY").map_or(Extension::Elastic, |v| {
+    let prony = env("FLOOR_PRONY").map_or(Extension::Elastic, |v| {
         let (g, tau) = v.split_once(',').expect("FLOOR_PRONY=G,TAU_S");
         Extension::Viscoelastic {
             g: g.parse().unwrap(),
             tau_s: tau.parse().unwrap(),
         }
     });
+    let force_ext = match env("FLOOR_EXT") {
+        None => prony,
+        Some(v) => {
+            let v: Vec<f64> = v
+                .strip_prefix("ti:")
+                .expect("FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A")
+                .split(',')
+                .map(|x| x.parse().unwrap())
+                .collect();
+            Extension::TransverselyIsotropic {
+                fibre: Vector3::new(v[0], v[1], v[2]).normalize(),
+                ratio: v[3],
+                nu_transverse: v[4],
+                nu_fibre: v[5],
+            }
+        }
+    };
     let run = |label: &str, s: &FemProbeSimulator, rigid: bool| {
         let t = Instant::now();
         let x = if rigid {
