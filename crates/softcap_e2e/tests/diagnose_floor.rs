@@ -31,6 +31,8 @@
 //! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
 //!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
+//! - `FLOOR_LAT=C,DX,DY,DZ` adds a lateral traction C‖f‖ along (DX, DY, DZ) to every measured
+//!   force (force BC only: the reaction an axial force sensor does not see);
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
 
 mod common;
@@ -102,7 +104,17 @@ fn default_model_floor() {
     let seg = Segmentation::new(&rec, &SegmentSettings::default());
     // Force BC: the measured force on the contact frames; rigid tip: every frame's measured pose
     // (the diagnosis' own sequences).
-    let forces: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
+    // FLOOR_LAT=C,DX,DY,DZ: a lateral traction C·‖f‖ along the unit (DX, DY, DZ) added to every
+    // frame's measured force (what an axial force sensor does not see).
+    let lateral = env("FLOOR_LAT").map(|v| {
+        let v: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
+        v[0] * Vector3::new(v[1], v[2], v[3]).normalize()
+    });
+    let forces: Vec<Vector3<f64>> = rec
+        .frames
+        .iter()
+        .map(|f| f.force_n + lateral.map_or(Vector3::zeros(), |l| l * f.force_n.norm()))
+        .collect();
     let frames = |every_pose: bool| -> Vec<SequenceFrame> {
         if every_pose {
             pose_sequence(&rec)
