@@ -33,6 +33,8 @@
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
 //! - `FLOOR_LAT=C,DX,DY,DZ` adds a lateral traction C‖f‖ along (DX, DY, DZ) to every measured
 //!   force (force BC only: the reaction an axial force sensor does not see);
+//! - `FLOOR_TRUTH_TIP=DIR/truth/probe.csv` replays the rigid tip at the synthetic truth's tip
+//!   positions instead of the captured ones;
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
 
 mod common;
@@ -115,9 +117,21 @@ fn default_model_floor() {
         .iter()
         .map(|f| f.force_n + lateral.map_or(Vector3::zeros(), |l| l * f.force_n.norm()))
         .collect();
+    // FLOOR_TRUTH_TIP=DIR/truth/probe.csv: the rigid-tip replays at the synthetic truth's tip
+    // positions instead of the captured ones (separates the capture's pose error from the model).
+    let mut replayed = rec.clone();
+    if let Some(path) = env("FLOOR_TRUTH_TIP") {
+        let text = std::fs::read_to_string(path).unwrap();
+        for line in text.lines().skip(1) {
+            let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+            if let Some(f) = replayed.frames.iter_mut().find(|f| f.frame == v[0] as u64) {
+                f.tip_m = Vector3::new(v[5], v[6], v[7]) * 1e-3;
+            }
+        }
+    }
     let frames = |every_pose: bool| -> Vec<SequenceFrame> {
         if every_pose {
-            pose_sequence(&rec)
+            pose_sequence(&replayed)
         } else {
             contact_sequence(&rec, &seg, &forces)
         }
