@@ -529,7 +529,8 @@ fn resimulate(
     settings: &DiagnoseSettings,
     keep: &dyn Fn(usize) -> bool,
 ) -> Result<Option<Field>> {
-    let Some(forces) = p.effective_forces(h, params, &seg.fold_of_frame) else {
+    let axes: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.axis).collect();
+    let Some(forces) = p.effective_forces(h, params, &seg.fold_of_frame, &axes) else {
         return Ok(None);
     };
     let body = if h == Hypothesis::GravityPreload {

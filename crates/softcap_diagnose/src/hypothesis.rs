@@ -19,7 +19,7 @@
 //! | probe-friction | tangential traction μ‖f‖ŝ at the contact patch, ŝ = tangential tip travel; or sliding along the travel, reversing when the tip slides back (`crate::friction`) | μ |
 //! | support-slip | rigid translation c·P_t f (elastic) + c_p·P_t f at the running max (stick-slip) | c, c_p ≥ 0 |
 //! | clock-offset | force trace shifted in time: f_eff(t) = f(t + δ) | δ (grid) |
-//! | sensor-lag | first-order sensor: f_true = f + τ ḟ | τ ≥ 0 |
+//! | sensor-lag | FSR chain, first order: f_true = f + τ ḟ + h sgn(ḟ) f | τ, h ≥ 0 |
 //! | anisotropy | displacement along a fibre direction a scaled: −κ a (a·u₀) | a (13 directions), κ |
 //! | inertia-damping | M ü + C u̇: x = x₀ − c u̇₀ − m ü₀ | c ≥ 0, m ≥ 0 |
 
@@ -101,7 +101,9 @@ impl Hypothesis {
                 "rigid support translation slip_compliance P_t f + stick_slip_compliance P_t f_max"
             }
             Hypothesis::ClockOffset => "force time base shifted: f_eff(t) = f(t + offset_s)",
-            Hypothesis::SensorLag => "first-order force sensor: f_true = f + tau_s df/dt",
+            Hypothesis::SensorLag => {
+                "FSR chain: first-order lag tau_s then play hysteresis of half-width hysteresis * f (f_true = f + tau_s df/dt + hysteresis sgn(df/dt) f to first order)"
+            }
             Hypothesis::Anisotropy => "displacement along fibre a scaled by (1 - kappa)",
             Hypothesis::InertiaDamping => "x = x0 - damping_s dx0/dt - mass_s2 d2x0/dt2",
         }
@@ -181,12 +183,14 @@ impl Prepared {
     }
 
     /// The effective per-frame probe force of a load extension with full-data parameters
-    /// `params` (names as in the bases / grid), or None for a non-load extension.
+    /// `params` (names as in the bases / grid), or None for a non-load extension; `axes` are the
+    /// probe axes per frame (the FSR reads along them).
     pub fn effective_forces(
         &self,
         h: Hypothesis,
         params: &[(String, f64)],
         fold_of_frame: &[Option<usize>],
+        axes: &[Vector3<f64>],
     ) -> Option<Vec<Vector3<f64>>> {
         let p = |n: &str| {
             params
@@ -205,8 +209,7 @@ impl Prepared {
                     .collect()
             }
             Hypothesis::SensorLag => {
-                let d = derivative(t, f);
-                (0..f.len()).map(|k| f[k] + d[k] * p("tau_s")).collect()
+                crate::sensor::true_forces(t, f, axes, p("tau_s"), p("hysteresis"))
             }
             Hypothesis::ClockOffset => t
                 .iter()
@@ -289,15 +292,33 @@ pub fn variants(h: Hypothesis, rec: &Recording, seg: &Segmentation, p: &Prepared
                 })
                 .collect()
         }
-        Hypothesis::SensorLag => vec![Variant {
-            fixed: vec![],
-            offset: None,
-            bases: vec![Basis {
-                name: "tau_s",
-                nonneg: true,
-                field: p.load_field(&derivative(t, f)),
-            }],
-        }],
+        Hypothesis::SensorLag => {
+            // The FSR chain of crate::sensor to first order in (τ, h): the reading r lags the
+            // force by τ ṙ and its play reads low by h r while the force rises, high while it
+            // falls, so f_true ≈ f + τ ḟ + h sgn(ḟ) f (ḟ along the force).
+            let d = derivative(t, f);
+            let play: Vec<Vector3<f64>> = f
+                .iter()
+                .zip(&d)
+                .map(|(f, d)| f * d.dot(f).signum())
+                .collect();
+            vec![Variant {
+                fixed: vec![],
+                offset: None,
+                bases: vec![
+                    Basis {
+                        name: "tau_s",
+                        nonneg: true,
+                        field: p.load_field(&d),
+                    },
+                    Basis {
+                        name: "hysteresis",
+                        nonneg: true,
+                        field: p.load_field(&play),
+                    },
+                ],
+            }]
+        }
         Hypothesis::ClockOffset => {
             let dt_med = {
                 let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();

@@ -62,6 +62,7 @@ pub mod recording;
 pub mod residual;
 mod run;
 pub mod segment;
+pub mod sensor;
 pub mod signal;
 pub mod sim;
 pub mod spatial;

@@ -3,8 +3,21 @@
 
 use nalgebra::Vector3;
 
+/// Weights of the exact first-order lag over one interval: y' = (f − y)/τ started at y₀ under
+/// the linear input f(σ) = f₀ + (f₁ − f₀) σ/Δ has, at σ = s ∈ [0, Δ],
+/// y(s) = w₀ f₀ + w₁ f₁ + w_y y₀ with (slope c = (f₁ − f₀)/Δ, E = e^{−s/τ})
+/// y(s) = f₀ + c s − cτ + (y₀ − f₀ + cτ) E, i.e.
+/// w₀ = 1 − (s − τ)/Δ − (1 + τ/Δ) E, w₁ = (s − τ)/Δ + (τ/Δ) E, w_y = E (they sum to 1).
+/// The one kernel of the lag: [`low_pass`] and the FSR chain ([`crate::sensor`]) both use it.
+pub fn lag_weights(dt: f64, tau_s: f64, s: f64) -> [f64; 3] {
+    let dt = dt.max(1e-12);
+    let e = (-s / tau_s).exp();
+    let w1 = (s - tau_s) / dt + tau_s / dt * e;
+    [1.0 - w1 - e, w1, e]
+}
+
 /// First-order low-pass y' = (f − y)/τ with y(t₀) = f(t₀), integrated exactly for a piecewise
-/// linear input: with slope s = (f_k − f_{k−1})/Δ,
+/// linear input ([`lag_weights`] at s = Δ): with slope s = (f_k − f_{k−1})/Δ,
 /// y_k = f_k − sτ + (y_{k−1} − f_{k−1} + sτ) e^{−Δ/τ}.
 pub fn low_pass(t: &[f64], f: &[Vector3<f64>], tau_s: f64) -> Vec<Vector3<f64>> {
     let mut y = Vec::with_capacity(f.len());
@@ -13,22 +26,27 @@ pub fn low_pass(t: &[f64], f: &[Vector3<f64>], tau_s: f64) -> Vec<Vector3<f64>> 
     }
     y.push(f[0]);
     for k in 1..f.len() {
-        let dt = (t[k] - t[k - 1]).max(1e-12);
-        let s = (f[k] - f[k - 1]) / dt;
-        let e = (-dt / tau_s).exp();
+        let dt = t[k] - t[k - 1];
+        let [w0, w1, wy] = lag_weights(dt, tau_s, dt.max(1e-12));
         let prev = y[k - 1];
-        y.push(f[k] - s * tau_s + (prev - f[k - 1] + s * tau_s) * e);
+        y.push(f[k - 1] * w0 + f[k] * w1 + prev * wy);
     }
     y
 }
 
-/// Time derivative by central differences (one-sided at the ends).
-pub fn derivative(t: &[f64], f: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+/// Time derivative by central differences (one-sided at the ends), of vectors or scalars.
+pub fn derivative<V>(t: &[f64], f: &[V]) -> Vec<V>
+where
+    V: Copy
+        + std::ops::Sub<Output = V>
+        + std::ops::Mul<f64, Output = V>
+        + std::ops::Div<f64, Output = V>,
+{
     let n = f.len();
     (0..n)
         .map(|k| {
             if n < 2 {
-                return Vector3::zeros();
+                return f[k] * 0.0;
             }
             let (a, b) = if k == 0 {
                 (0, 1)

@@ -4,7 +4,7 @@
 //! | hypothesis | extended model re-simulated | grid |
 //! |---|---|---|
 //! | viscoelasticity | `softcap_fem::ViscoelasticModel` over the default model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3, exact exponential recurrence), driven by the measured force | g, τ around the linearised creep estimate |
-//! | sensor-lag | default model under the de-lagged force of a first-order sensor, τ ḟ_m = f − f_m ⇒ f = f_m + τ ḟ_m | τ around the linearised estimate |
+//! | sensor-lag | default model under the true force behind the reading of the FSR chain — first-order lag τ then a play hysteresis of half-width h·F ([`crate::sensor`], inverted by a regularised forward fit) | τ around the linearised estimate × h ∈ {0, 2.5, 5, 10 %, the estimate} |
 //! | clock-offset | default model under the time-shifted force f_eff(t) = f_m(t + δ) | δ around the linearised estimate |
 //!
 //! The linearised screen ([`crate::hypothesis`]) proposes the parameters; every grid point is
@@ -27,7 +27,7 @@ use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
-use crate::signal::{derivative, sample};
+use crate::signal::sample;
 use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
@@ -64,14 +64,6 @@ fn median_dt(t: &[f64]) -> f64 {
     let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
     d.sort_by(f64::total_cmp);
     d.get(d.len() / 2).copied().unwrap_or(0.05).max(1e-3)
-}
-
-/// De-lagged force of a first-order sensor with time constant `tau_s`: the sensor obeys
-/// τ ḟ_m = f − f_m, so the force on it is f = f_m + τ ḟ_m (ḟ_m by central differences over the
-/// frames).
-pub fn delagged_forces(t: &[f64], f: &[Vector3<f64>], tau_s: f64) -> Vec<Vector3<f64>> {
-    let d = derivative(t, f);
-    f.iter().zip(&d).map(|(a, b)| a + b * tau_s).collect()
 }
 
 /// Force trace shifted in time, f_eff(t_k) = f(t_k + δ) (linear interpolation, held at the ends).
@@ -252,15 +244,26 @@ pub fn temporal_grid(
             }
         }
         Hypothesis::SensorLag => {
+            // The FSR chain (crate::sensor): lag τ around the screen's estimate × play fraction h
+            // from none to 10 % — the hysteresis FSR data sheets quote (Interlink FSR 400
+            // series: ±10 % average, (R_F+ − R_F−)/R_F+) — and the screen's own estimate.
             let tau0 = param(refit, "tau_s").unwrap_or(dt).max(0.25 * dt);
-            for m in [0.6, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2.0] {
-                let tau_s = tau0 * m;
-                let f = delagged_forces(t, &p.force_n, tau_s);
-                out.push((
-                    vec![("tau_s".into(), tau_s)],
-                    Extension::Elastic,
-                    frames_with_forces(rec, &f, thr),
-                ));
+            let h0 = param(refit, "hysteresis").unwrap_or(0.0);
+            let axes: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.axis).collect();
+            let mut hs = vec![0.0, 0.025, 0.05, 0.1];
+            if h0 > 0.0 && h0 < 0.5 && !hs.contains(&h0) {
+                hs.push(h0);
+            }
+            for m in [0.8, 0.9, 1.0, 1.1, 1.25] {
+                for &h in &hs {
+                    let tau_s = tau0 * m;
+                    let f = crate::sensor::true_forces(t, &p.force_n, &axes, tau_s, h);
+                    out.push((
+                        vec![("tau_s".into(), tau_s), ("hysteresis".into(), h)],
+                        Extension::Elastic,
+                        frames_with_forces(rec, &f, thr),
+                    ));
+                }
             }
         }
         Hypothesis::ClockOffset => {
@@ -322,7 +325,7 @@ pub(crate) fn confirm_temporal(
         let method = format!(
             "re-simulated: {} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {n} points, leave-one-location-out",
             if h == Hypothesis::SensorLag {
-                "de-lagged force f + tau df/dt"
+                "true force through the inverse FSR chain (lag tau, play hysteresis)"
             } else {
                 "time-shifted force f(t + offset)"
             },
@@ -347,7 +350,9 @@ pub(crate) fn confirm_temporal(
         "re-simulated extended model ({n} grid points of {total}, {}), compliance scale, leave-one-location-out",
         match h {
             Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch",
-            Hypothesis::SensorLag => "default model under the de-lagged force f + tau df/dt",
+            Hypothesis::SensorLag => {
+                "default model under the true force through the inverse FSR chain (lag tau, play hysteresis)"
+            }
             _ => "default model under the time-shifted force f(t + offset)",
         }
     );
@@ -461,18 +466,17 @@ mod tests {
 
     #[test]
     fn delagging_inverts_a_first_order_sensor_on_a_smooth_signal() {
-        // f(t) = sin(2π t): the lagged reading f_m solves τ ḟ_m = f − f_m; f_m + τ ḟ_m recovers
-        // f up to the central-difference error O(Δt²).
+        // f(t) = 1 + ½ sin(2π t) along the axis: the lagged reading f_m solves τ ḟ_m = f − f_m;
+        // the sensor inverse (no play) recovers f.
         let tau = 0.2;
         let t: Vec<f64> = (0..400).map(|k| 0.005 * k as f64).collect();
         let f: Vec<_> = t
             .iter()
-            .map(|&x| Vector3::new((std::f64::consts::TAU * x).sin(), 0.0, 0.0))
+            .map(|&x| Vector3::new(1.0 + 0.5 * (std::f64::consts::TAU * x).sin(), 0.0, 0.0))
             .collect();
         let m = crate::signal::low_pass(&t, &f, tau);
-        let back = delagged_forces(&t, &m, tau);
-        // skip the start-up transient of the filter (y(0) = f(0) ≠ steady state)
-        for k in 200..399 {
+        let back = crate::sensor::true_forces(&t, &m, &vec![Vector3::x(); t.len()], tau, 0.0);
+        for k in 0..400 {
             assert!(
                 (back[k].x - f[k].x).abs() < 2e-3,
                 "{k}: {} vs {}",

@@ -35,6 +35,9 @@
 //!   force (force BC only: the reaction an axial force sensor does not see);
 //! - `FLOOR_TRUTH_TIP=DIR/truth/probe.csv` replays the rigid tip at the synthetic truth's tip
 //!   positions instead of the captured ones;
+//! - `FLOOR_FORCE=DIR/truth/probe.csv` drives the force-BC models with the synthetic truth's probe
+//!   force instead of the measured one (a force-channel effect — sensor-lag, clock-offset —
+//!   undone exactly: the best any model of the sensor can reach);
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
 
 mod common;
@@ -112,7 +115,7 @@ fn default_model_floor() {
         let v: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
         v[0] * Vector3::new(v[1], v[2], v[3]).normalize()
     });
-    let forces: Vec<Vector3<f64>> = rec
+    let mut forces: Vec<Vector3<f64>> = rec
         .frames
         .iter()
         .map(|f| f.force_n + lateral.map_or(Vector3::zeros(), |l| l * f.force_n.norm()))
@@ -128,6 +131,18 @@ fn default_model_floor() {
                 f.tip_m = Vector3::new(v[5], v[6], v[7]) * 1e-3;
             }
         }
+    }
+    if let Some(path) = env("FLOOR_FORCE") {
+        let text = std::fs::read_to_string(path).unwrap();
+        let mut replaced = 0;
+        for line in text.lines().skip(1) {
+            let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+            if let Some(k) = rec.frames.iter().position(|f| f.frame == v[0] as u64) {
+                forces[k] = Vector3::new(v[2], v[3], v[4]);
+                replaced += 1;
+            }
+        }
+        println!("FLOOR force: the truth's probe force on {replaced} frames");
     }
     let frames = |every_pose: bool| -> Vec<SequenceFrame> {
         if every_pose {
