@@ -9,7 +9,9 @@ use crate::hypothesis::{
     stiffness_scale_variant,
 };
 use crate::recording::Recording;
-use crate::residual::{Component, Located, Residuals, component, locate, noise_sigma_m, residuals};
+use crate::residual::{
+    Component, Located, Residuals, component, locate, noise_sigma_m, residuals, rms_where_m,
+};
 use crate::segment::{Phase, Region, SegmentSettings, Segmentation};
 use crate::signal::crossing_time;
 use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
@@ -1107,20 +1109,7 @@ pub fn diagnose(
     for region in Region::ALL {
         for phase in Phase::ALL {
             let sel = |k: usize, m: usize| seg.phases[k] == phase && seg.regions[m] == region;
-            let rms = |res: &Residuals| {
-                let (mut a, mut n) = (0.0, 0);
-                for (k, row) in res.iter().enumerate() {
-                    for (m, r) in row.iter().enumerate() {
-                        if let Some(r) = r
-                            && sel(k, m)
-                        {
-                            a += r.norm_squared();
-                            n += 1;
-                        }
-                    }
-                }
-                (n > 0).then(|| (a / n as f64).sqrt())
-            };
+            let rms = |res: &Residuals| rms_where_m(res, sel);
             if let (Some(b), Some(a)) = (rms(&res_before), rms(&residuals_after)) {
                 table.push((region.name().to_string(), phase.name().to_string(), b, a));
             }

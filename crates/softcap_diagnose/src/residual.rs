@@ -175,21 +175,25 @@ pub fn locate(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Vec<Locat
 
 /// RMS of the 3-D residual norm over the frames selected by `keep`, m (NaN without samples).
 pub fn rmse_m(res: &Residuals, keep: impl Fn(usize) -> bool) -> f64 {
+    rms_where_m(res, |k, _| keep(k)).unwrap_or(f64::NAN)
+}
+
+/// RMS of the 3-D residual norm over the observed (frame `k`, marker `m`) samples selected by
+/// `keep(k, m)`, m; `None` without samples. The one masked residual RMS: [`rmse_m`] (frames),
+/// the diagnosis's (region, phase) before/after table and the floor harness use it.
+pub fn rms_where_m(res: &Residuals, keep: impl Fn(usize, usize) -> bool) -> Option<f64> {
     let (mut s, mut n) = (0.0, 0usize);
     for (k, row) in res.iter().enumerate() {
-        if !keep(k) {
-            continue;
-        }
-        for r in row.iter().flatten() {
-            s += r.norm_squared();
-            n += 1;
+        for (m, r) in row.iter().enumerate() {
+            if let Some(r) = r
+                && keep(k, m)
+            {
+                s += r.norm_squared();
+                n += 1;
+            }
         }
     }
-    if n == 0 {
-        f64::NAN
-    } else {
-        (s / n as f64).sqrt()
-    }
+    (n > 0).then(|| (s / n as f64).sqrt())
 }
 
 /// Marker-noise estimate σ (per coordinate, m) from second differences of marker trajectories
@@ -239,5 +243,24 @@ mod tests {
         assert_eq!(component(&r, Component::Gravity, &n, &g, &a), -12.0);
         assert_eq!(component(&r, Component::Axis, &n, &g, &a), 3.0);
         assert_eq!(component(&r, Component::Total, &n, &g, &a), 13.0);
+    }
+
+    #[test]
+    fn masked_rms_counts_only_selected_observed_samples() {
+        // frame 0: markers (3,4,0) [norm 5] and unobserved; frame 1: (0,0,1) and (0,0,2)
+        let res: Residuals = vec![
+            vec![Some(Vector3::new(3.0, 4.0, 0.0)), None],
+            vec![
+                Some(Vector3::new(0.0, 0.0, 1.0)),
+                Some(Vector3::new(0.0, 0.0, 2.0)),
+            ],
+        ];
+        let all = rms_where_m(&res, |_, _| true).unwrap();
+        assert!((all - ((25.0 + 1.0 + 4.0) / 3.0f64).sqrt()).abs() < 1e-15);
+        let marker1 = rms_where_m(&res, |_, m| m == 1).unwrap();
+        assert!((marker1 - 2.0).abs() < 1e-15);
+        assert_eq!(rms_where_m(&res, |k, m| k == 0 && m == 1), None);
+        assert!((rmse_m(&res, |k| k == 1) - 2.5f64.sqrt()).abs() < 1e-15);
+        assert!(rmse_m(&res, |_| false).is_nan());
     }
 }

@@ -155,18 +155,7 @@ fn default_model_floor() {
     let report_one = |label: &str, x: &[Vec<Vector3<f64>>]| {
         let res = residuals(&rec, x);
         let rms = |keep: &dyn Fn(usize, usize) -> bool| {
-            let (mut s, mut n) = (0.0, 0usize);
-            for (k, row) in res.iter().enumerate() {
-                for (m, r) in row.iter().enumerate() {
-                    if let Some(r) = r
-                        && keep(k, m)
-                    {
-                        s += r.norm_squared();
-                        n += 1;
-                    }
-                }
-            }
-            1e3 * (s / n.max(1) as f64).sqrt()
+            1e3 * softcap_diagnose::residual::rms_where_m(&res, keep).unwrap_or(0.0)
         };
         let probed = |p: Phase| rms(&|k, m| seg.phases[k] == p && seg.regions[m] == Region::Probed);
         let near = |k: usize, m: usize| {
