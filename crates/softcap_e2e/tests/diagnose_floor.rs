@@ -8,7 +8,9 @@
 //! - `FLOOR_CASE=NAME` (a suite scenario, default `clean`) or `FLOOR_TOML=PATH` (any scenario, e.g.
 //!   a copy of clean.toml with another `fit_cells`);
 //! - `FLOOR_MATERIAL=E_PA,NU` a homogeneous material instead of the tissue fit's;
-//! - `FLOOR_LOAD=consistent` the footprint-consistent loads instead of the lumped patch;
+//! - `FLOOR_LOAD=consistent | flat-punch | hertz` the footprint-consistent loads of a uniform,
+//!   a rigid flat punch's (Sneddon) or a rigid sphere's (Hertz) pressure instead of the default
+//!   (`softcap_fem::probing::FootprintLoad`; the tissue fit in material.mcap is not redone);
 //! - `FLOOR_LEVELS=N` 1 → 8 refinements of the template for the refined models (default 1);
 //! - `FLOOR_WHICH` a subset of `abcd` (a: force BC, b: rigid-tip replay, c / d: the same on the
 //!   refined template; default all);
@@ -74,8 +76,15 @@ fn default_model_floor() {
         support.tolerance_m.max(1e-9),
     );
     let mut settings = FemSimSettings::default();
-    if env("FLOOR_LOAD").as_deref() == Some("consistent") {
-        settings.patch.load = softcap_fem::probing::FootprintLoad::Consistent;
+    if let Some(load) = env("FLOOR_LOAD") {
+        use softcap_fem::probing::FootprintLoad;
+        settings.patch.load = match load.as_str() {
+            "lumped" => FootprintLoad::Lumped,
+            "consistent" => FootprintLoad::Consistent,
+            "flat-punch" => FootprintLoad::FlatPunch,
+            "hertz" => FootprintLoad::Hertz,
+            other => panic!("FLOOR_LOAD={other}: lumped | consistent | flat-punch | hertz"),
+        };
     }
     if let Some(l) = env("FLOOR_LOCAL") {
         let (f, s) = l.split_once(':').unwrap_or((&l, "1"));

@@ -79,6 +79,47 @@ pub enum FootprintLoad {
     /// The consistent nodal loads of a uniform pressure over the footprint disk
     /// ([`ProbingSetup::load_weights`]): centred on the probe axis whatever the mesh.
     Consistent,
+    /// The consistent nodal loads of the contact pressure of a rigid flat punch of radius a
+    /// (a disk tip) on an elastic half-space, p(r) = F / (2πa·√(a² − r²)) (Boussinesq; Sneddon
+    /// 1946; Johnson, *Contact Mechanics* 1985, ch. 3, axisymmetric pressures): rim-concentrated,
+    /// the pressure under which the surface displacement is uniform over the footprint — the
+    /// flat dent a rigid disk makes. Sampled with rings of equal load
+    /// ([`Self::load_fraction_inside`]).
+    FlatPunch,
+    /// The consistent nodal loads of the Hertz pressure of a rigid sphere with contact radius a,
+    /// p(r) = 3F / (2πa²) · √(1 − r²/a²) (Hertz 1882; Johnson, *Contact Mechanics* 1985, §4.2):
+    /// centre-concentrated, vanishing at the rim — the sphere tip's
+    /// analogue of [`Self::FlatPunch`].
+    Hertz,
+}
+
+impl FootprintLoad {
+    /// Share of the probe force inside radius ρ·a of the footprint centre, ρ ∈ [0, 1], for the
+    /// pressure distributions over a disk (`Lumped` counts as uniform pressure):
+    /// uniform ρ²; flat punch 1 − √(1 − ρ²); Hertz 1 − (1 − ρ²)^{3/2} (the integrals
+    /// ∫₀^{ρa} p(r) 2πr dr / F of the pressures of [`Self::Consistent`], [`Self::FlatPunch`],
+    /// [`Self::Hertz`]).
+    pub fn load_fraction_inside(self, rho: f64) -> f64 {
+        let rho2 = rho.clamp(0.0, 1.0).powi(2);
+        match self {
+            Self::Lumped | Self::Consistent => rho2,
+            Self::FlatPunch => 1.0 - (1.0 - rho2).sqrt(),
+            Self::Hertz => 1.0 - (1.0 - rho2).powf(1.5),
+        }
+    }
+
+    /// The radius fraction ρ ∈ [0, 1] inside which the share `u` ∈ [0, 1] of the force lies:
+    /// the inverse of [`Self::load_fraction_inside`] — uniform √u; flat punch √(u(2 − u));
+    /// Hertz √(1 − (1 − u)^{2/3}). Ring k of R sits at ρ(u = (k + ½)/R), the midpoint in load
+    /// of its share 1/R, so every sample carries the same load.
+    pub fn ring_radius_fraction(self, u: f64) -> f64 {
+        let u = u.clamp(0.0, 1.0);
+        match self {
+            Self::Lumped | Self::Consistent => u.sqrt(),
+            Self::FlatPunch => (u * (2.0 - u)).sqrt(),
+            Self::Hertz => (1.0 - (1.0 - u).powf(2.0 / 3.0)).max(0.0).sqrt(),
+        }
+    }
 }
 
 /// Settings of the contact patch of a force boundary condition.
@@ -92,7 +133,9 @@ pub struct PatchSettings {
     pub depth_window: f64,
     /// The load distribution.
     pub load: FootprintLoad,
-    /// Rings of equal area the footprint disk is sampled with ([`FootprintLoad::Consistent`]).
+    /// Rings of equal load the footprint disk is sampled with (every load but
+    /// [`FootprintLoad::Lumped`]; of equal area under the uniform pressure of
+    /// [`FootprintLoad::Consistent`]).
     pub rings: usize,
     /// Samples per ring (equally spaced in angle, every other ring turned by half a step).
     pub samples_per_ring: usize,
@@ -280,11 +323,14 @@ impl ProbingSetup {
     /// The share of the probe force each surface node carries (node, weight; increasing
     /// nodes, weights sum to 1) under `patch.load`: [`FootprintLoad::Lumped`] — the patch
     /// nodes ([`Self::patch_nodes`]) in proportion to their lumped boundary areas (uniform
-    /// pressure, bickel2009 §4.1 / Fig. 7); [`FootprintLoad::Consistent`] — below.
+    /// pressure, bickel2009 §4.1 / Fig. 7); [`FootprintLoad::Consistent`],
+    /// [`FootprintLoad::FlatPunch`], [`FootprintLoad::Hertz`] — below.
     ///
     /// Consistent: the nodal loads of a uniform pressure over the probe's footprint disk, the
     /// probed region of bickel2009 §4.1 (Fig. 7: the measured force "distributed uniformly"
-    /// over the contact area).
+    /// over the contact area). FlatPunch / Hertz: the same with the rigid flat punch's
+    /// (Sneddon) or the rigid sphere's (Hertz) axisymmetric pressure in place of the uniform
+    /// one; only the ring radii differ.
     ///
     /// For a pressure p over the footprint D on the surface S the consistent load of node i is
     /// f_i = ∫_D N_i p dA (N_i the linear surface shape functions), so Σ_i f_i = F and
@@ -295,9 +341,11 @@ impl ProbingSetup {
     /// then compensates; against a rigid-tip truth (the e2e suite) it is most of the elastic
     /// default model's error near the probe (docs/diagnose.md, "footprint loads").
     ///
-    /// Quadrature: `rings` × `samples_per_ring` points of equal area on the disk of radius
-    /// `radius_m` around the tip in the plane normal to the axis (ring k at radius
-    /// a·√((k + ½)/R)); each is cast along the probe axis onto the outward-facing
+    /// Quadrature: `rings` × `samples_per_ring` points of equal load on the disk of radius
+    /// `radius_m` around the tip in the plane normal to the axis: ring k of R at radius
+    /// a·ρ((k + ½)/R), ρ the inverse cumulative load of the pressure
+    /// ([`FootprintLoad::ring_radius_fraction`]; a·√((k + ½)/R), equal area, for the uniform
+    /// pressure). Each is cast along the probe axis onto the outward-facing
     /// (n·axis < 0) load triangle whose hit lies nearest the tip (the surface the tip presses,
     /// also on a curved or folded surface), and its share 1/(R·S) goes to that triangle's three
     /// vertices by the hit's barycentric weights. Samples that miss the surface (a footprint
@@ -360,7 +408,10 @@ impl ProbingSetup {
         let mut acc: std::collections::BTreeMap<usize, f64> = std::collections::BTreeMap::new();
         let mut hit_samples = 0usize;
         for k in 0..rings {
-            let r = radius * ((k as f64 + 0.5) / rings as f64).sqrt();
+            let r = radius
+                * patch
+                    .load
+                    .ring_radius_fraction((k as f64 + 0.5) / rings as f64);
             let turn = if k % 2 == 1 { 0.5 } else { 0.0 };
             for j in 0..per_ring {
                 let phi = std::f64::consts::TAU * (j as f64 + turn) / per_ring as f64;

@@ -149,6 +149,167 @@ fn footprint_loads_carry_the_force_centred_on_the_probe_axis() {
     }
 }
 
+/// The equal-load ring radii of the axisymmetric footprint pressures invert their cumulative
+/// loads, and R rings sampled at the load midpoints put the share C(½) of the force inside
+/// half the footprint radius to within 1/(2R): the flat punch (Sneddon) 1 − √¾ ≈ 0.134 (rim
+/// heavy), uniform ¼, Hertz 1 − (¾)^{3/2} ≈ 0.350 (centre heavy).
+#[test]
+fn footprint_pressures_put_their_analytic_share_inside_half_the_radius() {
+    for (load, inside_half) in [
+        (FootprintLoad::FlatPunch, 1.0 - 0.75f64.sqrt()),
+        (FootprintLoad::Consistent, 0.25),
+        (FootprintLoad::Hertz, 1.0 - 0.75f64.powf(1.5)),
+    ] {
+        assert!((load.load_fraction_inside(0.5) - inside_half).abs() < 1e-15);
+        for k in 0..=100 {
+            let u = k as f64 / 100.0;
+            let rho = load.ring_radius_fraction(u);
+            assert!((0.0..=1.0).contains(&rho), "{load:?}: ρ({u}) = {rho}");
+            let back = load.load_fraction_inside(rho);
+            assert!((back - u).abs() < 1e-12, "{load:?}: C(ρ({u})) = {back}");
+        }
+        for rings in [8usize, 64, 501] {
+            let share = (0..rings)
+                .filter(|&k| load.ring_radius_fraction((k as f64 + 0.5) / rings as f64) < 0.5)
+                .count() as f64
+                / rings as f64;
+            assert!(
+                (share - inside_half).abs() <= 0.5 / rings as f64 + 1e-15,
+                "{load:?}, {rings} rings: {share} inside r = a/2 vs {inside_half}"
+            );
+        }
+    }
+}
+
+/// The consistent nodal loads of every footprint pressure on a flat face carry the force and
+/// its first moment exactly (on the probe axis), and their second moment Σ w_n |x_n − tip|²
+/// is the pressure's ∫ r² p dA / F — flat punch ⅔a², uniform ½a², Hertz ⅖a² — plus the excess
+/// of the linear interpolation of r² over the surface triangles: Σ λ_i |x_i − x|² at a point of
+/// barycentric λ, whose mean over a right triangle with legs h (the box face's) is
+/// (Σ edge²)/12 = h²/3 (h = 1 mm, a = 5 mm: 0.0133 a²). Tolerance 0.002 a² (32 × 48 samples).
+#[test]
+fn footprint_loads_have_the_pressures_first_and_second_moments() {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.03, 0.004], [30, 30, 1]);
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let setup = ProbingSetup::new(mesh, &[Vector3::new(0.015, 0.015, 0.004)], fixed).unwrap();
+    let a = 0.005;
+    let excess = 0.001f64.powi(2) / 3.0 / (a * a);
+    for (load, second) in [
+        (FootprintLoad::FlatPunch, 2.0 / 3.0),
+        (FootprintLoad::Consistent, 0.5),
+        (FootprintLoad::Hertz, 0.4),
+    ] {
+        let patch = PatchSettings {
+            load,
+            radius_m: a,
+            rings: 32,
+            samples_per_ring: 48,
+            ..PatchSettings::default()
+        };
+        for (x, y) in [(0.015, 0.015), (0.0137, 0.0161)] {
+            let ex = ProbeExample {
+                frame: 0,
+                time_s: 0.0,
+                tip_m: Vector3::new(x, y, 0.004),
+                axis: -Vector3::z(),
+                force_n: Vector3::new(0.0, 0.0, -1.0),
+                observed: Vec::new(),
+            };
+            let w = setup.load_weights(&ex, &patch);
+            let sum: f64 = w.iter().map(|e| e.1).sum();
+            assert!((sum - 1.0).abs() < 1e-13, "{load:?}: Σw = {sum}");
+            let mut first = Vector3::zeros();
+            let mut m2 = 0.0;
+            for &(n, wn) in &w {
+                let d = setup.mesh.vertices[n] - ex.tip_m;
+                first += d * wn;
+                m2 += wn * (d.x * d.x + d.y * d.y);
+            }
+            assert!(
+                first.x.abs() < 1e-12 && first.y.abs() < 1e-12,
+                "{load:?}: load centre off the axis by {first:?}"
+            );
+            let m2 = m2 / (a * a);
+            assert!(
+                (m2 - second - excess).abs() < 0.002,
+                "{load:?} at ({x}, {y}): second moment {m2:.4} a² vs {second:.4} + {excess:.4} a²"
+            );
+        }
+    }
+}
+
+/// A rigid flat punch's surface displacement is uniform over its footprint (Sneddon 1946);
+/// the uniform pressure's dent is rounded, its rim displacement (2/π)·E(r/a) of the centre's on
+/// a half-space (0.64 at the rim). On a 40 × 40 × 20 mm block (2 mm tets, bottom attached) the
+/// flat-punch nodal loads of a 6 mm footprint make a markedly flatter dent than the uniform
+/// pressure's: the mean axial displacement of the top nodes at 0.7a ≤ r ≤ a over that of the
+/// centre node is closer to 1.
+#[test]
+fn flat_punch_load_makes_a_flatter_dent_than_uniform_pressure() {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.04, 0.04, 0.02], [20, 20, 10]);
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let setup = ProbingSetup::new(mesh, &[Vector3::new(0.02, 0.02, 0.02)], fixed).unwrap();
+    let a = 0.006;
+    let params = LinearParams::from_young_poisson(2.0e4, 0.45).unwrap();
+    let tip = Vector3::new(0.02, 0.02, 0.02);
+    let ex = ProbeExample {
+        frame: 0,
+        time_s: 0.0,
+        tip_m: tip,
+        axis: -Vector3::z(),
+        // ≈ 0.1 % strain under the tip: the linear regime the half-space solutions describe.
+        force_n: Vector3::new(0.0, 0.0, -0.002),
+        observed: Vec::new(),
+    };
+    let centre = setup
+        .boundary_nodes
+        .iter()
+        .copied()
+        .find(|&n| (setup.mesh.vertices[n] - tip).norm() < 1e-9)
+        .unwrap();
+    let rim: Vec<usize> = setup
+        .boundary_nodes
+        .iter()
+        .copied()
+        .filter(|&n| {
+            let d = setup.mesh.vertices[n] - tip;
+            let r = (d.x * d.x + d.y * d.y).sqrt();
+            d.z.abs() < 1e-9 && (0.7 * a..=a + 1e-9).contains(&r)
+        })
+        .collect();
+    assert!(rim.len() >= 8, "{rim:?}");
+    let ratio = |load: FootprintLoad| {
+        let patch = PatchSettings {
+            load,
+            radius_m: a,
+            ..PatchSettings::default()
+        };
+        let mut model = CorotationalModel::homogeneous(&setup.mesh, params).unwrap();
+        let f = setup.nodal_forces(&ex, &patch);
+        let mut solver = setup.solver(&model).unwrap();
+        let mut x = setup.mesh.vertices.clone();
+        let rep = setup.simulate(
+            &mut solver,
+            &mut model,
+            &mut x,
+            &f,
+            &EquilibriumSettings::default(),
+        );
+        assert!(rep.converged(), "{load:?}: {rep:?}");
+        let uz = |n: usize| x[n].z - setup.mesh.vertices[n].z;
+        let rim_mean = rim.iter().map(|&n| uz(n)).sum::<f64>() / rim.len() as f64;
+        assert!(uz(centre) < 0.0, "{load:?}: centre moved up");
+        rim_mean / uz(centre)
+    };
+    let punch = ratio(FootprintLoad::FlatPunch);
+    let uniform = ratio(FootprintLoad::Consistent);
+    eprintln!("rim/centre displacement: flat punch {punch:.4}, uniform {uniform:.4}");
+    assert!(
+        (1.0 - punch).abs() < 0.5 * (1.0 - uniform).abs(),
+        "flat punch {punch:.4} vs uniform {uniform:.4}"
+    );
+}
+
 #[test]
 fn marker_jacobian_matches_finite_differences() {
     let (setup, _) = block();
