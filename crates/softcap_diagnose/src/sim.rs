@@ -164,7 +164,8 @@ pub trait ProbeSimulator: Send + Sync {
 pub struct FemSimSettings {
     /// The contact patch the probe force is spread over (`softcap_fem::probing::PatchSettings`,
     /// `ProbingSetup::load_weights`: lumped on the boundary nodes inside the footprint, or the
-    /// consistent loads of a uniform pressure over it). Must match the tissue fit's.
+    /// consistent loads of a uniform, a rigid flat punch's (Sneddon) or a rigid sphere's (Hertz)
+    /// pressure over it). Must match the tissue fit's.
     pub patch: PatchSettings,
     /// Equilibrium iterations.
     pub equilibrium: EquilibriumSettings,
