@@ -95,7 +95,8 @@ pub use probing::{
     HomogeneousFit, HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample,
     ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel,
     StrainSpaceSolve, StrainSpaceSolveSettings, StrainTail, fit_example, fit_example_from,
-    fit_examples_from, fit_examples_jointly, fit_homogeneous, simulate_probe_contact,
+    fit_examples_from, fit_examples_jointly, fit_homogeneous, normal_product,
+    simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

@@ -1210,28 +1210,12 @@ fn damped_step(
     preconditioner: StepPreconditioner,
 ) -> (Vec<f64>, usize) {
     let n = grad.len();
-    // J_m stored row by row = J_mᵀ column-major (n × m): J v and Jᵀ s as two dense products.
+    // J_m stored row by row = J_mᵀ column-major (n × m): J_mᵀ(J_m v) by `normal_product`.
     let m = flat.len() / n.max(1);
     let jt = faer::MatRef::from_column_major_slice(flat, n, m);
-    let mut jv = faer::Mat::<f64>::zeros(m, 1);
+    let mut jv = vec![0.0; m];
     let mut apply = |v: &[f64], out: &mut [f64]| {
-        let vm = faer::MatRef::from_column_major_slice(v, n, 1);
-        faer::linalg::matmul::matmul(
-            jv.as_mut(),
-            faer::Accum::Replace,
-            jt.transpose(),
-            vm,
-            1.0,
-            faer::Par::Seq,
-        );
-        faer::linalg::matmul::matmul(
-            faer::MatMut::from_column_major_slice_mut(out, n, 1),
-            faer::Accum::Replace,
-            jt,
-            jv.as_ref(),
-            1.0,
-            faer::Par::Seq,
-        );
+        normal_product(jt, v, &mut jv, out);
         umbrella.add_smoothing(v, gammas, scratch, out);
         for i in 0..n {
             out[i] += mu * diag[i] * v[i] + prior * v[i];
@@ -1296,6 +1280,59 @@ fn damped_step(
         }
     }
     (h, iterations)
+}
+
+/// Bytes of J_m rows [`normal_product`] multiplies per block: small enough that a block read
+/// from memory for J_m v is still in the core's L2 cache (≥ 512 KiB on current x86-64 and
+/// AArch64 cores, together with v and the output of length n) when J_mᵀ reads it again.
+const NORMAL_PRODUCT_BLOCK_BYTES: usize = 256 * 1024;
+
+/// out = J_mᵀ (J_m v) for J_m stored row by row (`jt` = J_mᵀ, n × m column-major; `jv`: m
+/// scratch), the dense part of the normal operator of the LM step (bickel2009 eq. 9's
+/// Gauss–Newton matrix J_mᵀJ_m, applied at every CG iteration).
+///
+/// Blocked over the rows of J_m so that each row is read from memory once (J_m is 3k × 2T: 37 MB
+/// on the 5,184-tet suite template, so two whole products stream it twice). Bit-identical to the
+/// two whole products `J_m v` then `J_mᵀ (J_m v)`, which the fit's results depend on (docs/tissue.md,
+/// "Rounding sensitivity"): faer's row-major product computes each entry of J_m v as one dot
+/// product of one row, and its column-major product accumulates the columns of J_mᵀ in order
+/// (`dst ← x_j · s_j + dst`, j = 0, 1, …), so continuing it block after block (`Accum::Add`)
+/// performs the same operations in the same order (tested:
+/// `normal_product_is_bitwise_the_two_products`). Bench: `lm_normal_product` in benches/fem.rs.
+pub fn normal_product(jt: faer::MatRef<'_, f64>, v: &[f64], jv: &mut [f64], out: &mut [f64]) {
+    let (n, m) = (jt.nrows(), jt.ncols());
+    if m == 0 {
+        out.fill(0.0);
+        return;
+    }
+    let block = (NORMAL_PRODUCT_BLOCK_BYTES / (8 * n.max(1))).clamp(1, m);
+    let vm = faer::MatRef::from_column_major_slice(v, n, 1);
+    let mut outm = faer::MatMut::from_column_major_slice_mut(out, n, 1);
+    for start in (0..m).step_by(block) {
+        let len = block.min(m - start);
+        let rows = jt.subcols(start, len);
+        let s = &mut jv[start..start + len];
+        faer::linalg::matmul::matmul(
+            faer::MatMut::from_column_major_slice_mut(s, len, 1),
+            faer::Accum::Replace,
+            rows.transpose(),
+            vm,
+            1.0,
+            faer::Par::Seq,
+        );
+        faer::linalg::matmul::matmul(
+            outm.as_mut(),
+            if start == 0 {
+                faer::Accum::Replace
+            } else {
+                faer::Accum::Add
+            },
+            rows,
+            faer::MatRef::from_column_major_slice(s, len, 1),
+            1.0,
+            faer::Par::Seq,
+        );
+    }
 }
 
 /// P⁻¹ of [`StepPreconditioner::Woodbury`] on the free variables: P = J_Fᵀ J_F + Δ with
@@ -2814,4 +2851,68 @@ pub fn probe_pose(tip_m: &Vector3<f64>, axis: &Vector3<f64>) -> Isometry3<f64> {
             nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
         });
     Isometry3::from_parts(nalgebra::Translation3::from(*tip_m), rot)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::normal_product;
+
+    /// Deterministic entries of mixed sign and magnitude (a fixed hash of the index, no RNG).
+    fn entries(len: usize, salt: u64) -> Vec<f64> {
+        (0..len as u64)
+            .map(|i| {
+                let h = (i.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ salt)
+                    .wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                let unit = (h >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                unit * 10f64.powi((h % 7) as i32 - 3)
+            })
+            .collect()
+    }
+
+    /// The blocked J_mᵀ(J_m v) of the LM step is bit for bit the two whole faer products it
+    /// replaces (the fit's results depend on the last bit, docs/tissue.md): one block, several
+    /// blocks with a partial last one, one row per block, and no rows.
+    #[test]
+    fn normal_product_is_bitwise_the_two_products() {
+        for (n, m) in [(1000, 20), (1000, 75), (40_000, 5), (333, 1), (500, 0)] {
+            let flat = entries(n * m, 1);
+            let v = entries(n, 2);
+            let jt = faer::MatRef::from_column_major_slice(&flat, n, m);
+            let mut jv = faer::Mat::<f64>::zeros(m, 1);
+            faer::linalg::matmul::matmul(
+                jv.as_mut(),
+                faer::Accum::Replace,
+                jt.transpose(),
+                faer::MatRef::from_column_major_slice(&v, n, 1),
+                1.0,
+                faer::Par::Seq,
+            );
+            let mut want = vec![f64::NAN; n];
+            faer::linalg::matmul::matmul(
+                faer::MatMut::from_column_major_slice_mut(&mut want, n, 1),
+                faer::Accum::Replace,
+                jt,
+                jv.as_ref(),
+                1.0,
+                faer::Par::Seq,
+            );
+            let mut got = vec![f64::NAN; n];
+            let mut scratch = vec![0.0; m];
+            normal_product(jt, &v, &mut scratch, &mut got);
+            for i in 0..n {
+                assert_eq!(
+                    got[i].to_bits(),
+                    want[i].to_bits(),
+                    "n {n}, m {m}, entry {i}"
+                );
+            }
+            for r in 0..m {
+                assert_eq!(
+                    scratch[r].to_bits(),
+                    jv[(r, 0)].to_bits(),
+                    "n {n}, m {m}, row {r}"
+                );
+            }
+        }
+    }
 }
