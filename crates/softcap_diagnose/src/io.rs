@@ -6,7 +6,7 @@ use crate::recording::{Frame, Recording, SupportPlane, surface_normals};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{ElementRbf, StrainSpaceMaterial};
+use softcap_fem::probing::{ElementRbf, FootprintLoad, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mcap::capture::CaptureData;
 use softcap_mcap::material::MaterialData;
@@ -129,6 +129,41 @@ pub struct MaterialModel {
     /// "strain-space basis", "homogeneous baseline" or "mean per-example parameters", with the
     /// reason when `Auto` chose.
     pub source: String,
+    /// The footprint load the model was fitted under (`/tissue/report`
+    /// `homogeneous.patch.load` for the homogeneous baseline, `examples.patch.load` for the
+    /// per-example parameters and their basis); `None` in files that predate the entry (fitted
+    /// under the then only load, `FootprintLoad::Lumped`). The force boundary condition of the
+    /// replay must be the fit's (`FemSimSettings::patch`, [`crate::run`]).
+    pub footprint_load: Option<FootprintLoad>,
+}
+
+/// The footprint load named by the text entry `key` of `/tissue/report` (`None` when absent).
+fn report_footprint_load(data: &MaterialData, key: &str) -> Result<Option<FootprintLoad>> {
+    use proto::key_value::Value;
+    let Some(entry) = data
+        .report
+        .as_ref()
+        .and_then(|r| r.entries.iter().find(|e| e.key == key))
+    else {
+        return Ok(None);
+    };
+    match &entry.value {
+        Some(Value::Text(name)) => {
+            FootprintLoad::from_name(name)
+                .map(Some)
+                .ok_or_else(|| DiagnoseError::BadInput {
+                    path: data.path.clone(),
+                    what: format!(
+                        "/tissue/report {key}: unknown footprint load {name:?} (one of {})",
+                        FootprintLoad::ALL.map(FootprintLoad::name).join(", ")
+                    ),
+                })
+        }
+        _ => Err(DiagnoseError::BadInput {
+            path: data.path.clone(),
+            what: format!("/tissue/report {key}: not a text entry"),
+        }),
+    }
 }
 
 fn report_number(data: &MaterialData, key: &str) -> Option<f64> {
@@ -308,6 +343,14 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
         }
         s => (s, String::new()),
     };
+    let footprint_load = report_footprint_load(
+        data,
+        if use_source == MaterialSource::Homogeneous {
+            "homogeneous.patch.load"
+        } else {
+            "examples.patch.load"
+        },
+    )?;
     let with_why = |name: &str| {
         if why.is_empty() {
             name.to_string()
@@ -333,6 +376,7 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                 model,
                 basis: Some(Arc::new(material)),
                 source: with_why("strain-space basis"),
+                footprint_load,
             })
         }
         MaterialSource::Homogeneous => {
@@ -349,6 +393,7 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                 model,
                 basis: None,
                 source: with_why("homogeneous baseline"),
+                footprint_load,
             })
         }
         MaterialSource::ExampleMean | MaterialSource::Auto => {
@@ -379,6 +424,7 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                 model,
                 basis: None,
                 source: with_why("mean per-example parameters"),
+                footprint_load,
             })
         }
     }

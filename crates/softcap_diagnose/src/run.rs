@@ -7,7 +7,7 @@ use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::StrainSpaceMaterial;
+use softcap_fem::probing::{FootprintLoad, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, TipShape};
 use softcap_mcap::Provenance;
 use softcap_mcap::capture::CaptureData;
@@ -90,17 +90,19 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             what: "no mesh node lies on the session's support plane".into(),
         });
     }
+    // The force boundary condition replays the load the material was fitted under (recorded in
+    // material.mcap; files without the entry keep the settings' load).
     let attempt = |model: CorotationalModel,
-                   basis: Option<Arc<StrainSpaceMaterial>>|
+                   basis: Option<Arc<StrainSpaceMaterial>>,
+                   load: Option<FootprintLoad>|
      -> Result<DiagnosisRun> {
-        let mut sim = FemProbeSimulator::new(
-            &material.mesh,
-            model,
-            &fixed,
-            &rec.rest_markers_m,
-            cfg.settings.simulator.clone(),
-        )?
-        .with_support_plane(&support.normal, support.offset_m);
+        let mut settings = cfg.settings.simulator.clone();
+        if let Some(load) = load {
+            settings.patch.load = load;
+        }
+        let mut sim =
+            FemProbeSimulator::new(&material.mesh, model, &fixed, &rec.rest_markers_m, settings)?
+                .with_support_plane(&support.normal, support.offset_m);
         if let Some(b) = basis {
             sim = sim.with_strain_space(b)?;
         }
@@ -109,7 +111,11 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         }
         diagnose(&rec, &mut sim, &cfg.settings.diagnose)
     };
-    let mut result = match attempt(material.model.clone(), material.basis.clone()) {
+    let mut result = match attempt(
+        material.model.clone(),
+        material.basis.clone(),
+        material.footprint_load,
+    ) {
         // `Auto` picked the strain-space basis from the fit report, but the default model does
         // not reach equilibrium on this recording: fall back to the homogeneous baseline and say
         // so in the evidence (non-convergence is a reported status, not a failed run).
@@ -127,7 +133,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
                 "{} (auto fallback: the strain-space basis did not converge at {frame}: {reason})",
                 fallback.source
             );
-            attempt(fallback.model, None)?
+            attempt(fallback.model, None, fallback.footprint_load)?
         }
         r => r?,
     };

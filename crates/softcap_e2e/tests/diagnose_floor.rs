@@ -10,7 +10,8 @@
 //! - `FLOOR_MATERIAL=E_PA,NU` a homogeneous material instead of the tissue fit's;
 //! - `FLOOR_LOAD=consistent | flat-punch | hertz` the footprint-consistent loads of a uniform,
 //!   a rigid flat punch's (Sneddon) or a rigid sphere's (Hertz) pressure instead of the default
-//!   (`softcap_fem::probing::FootprintLoad`; the tissue fit in material.mcap is not redone);
+//!   (`softcap_fem::probing::FootprintLoad`; default: the load material.mcap was fitted under,
+//!   which this does not refit);
 //! - `FLOOR_LEVELS=N` 1 → 8 refinements of the template for the refined models (default 1);
 //! - `FLOOR_WHICH` a subset of `abcd` (a: force BC, b: rigid-tip replay, c / d: the same on the
 //!   refined template; default all);
@@ -76,15 +77,15 @@ fn default_model_floor() {
         support.tolerance_m.max(1e-9),
     );
     let mut settings = FemSimSettings::default();
+    // The load the material was fitted under (material.mcap), as the diagnosis replays it.
+    if let Some(load) = material.footprint_load {
+        settings.patch.load = load;
+    }
     if let Some(load) = env("FLOOR_LOAD") {
-        use softcap_fem::probing::FootprintLoad;
-        settings.patch.load = match load.as_str() {
-            "lumped" => FootprintLoad::Lumped,
-            "consistent" => FootprintLoad::Consistent,
-            "flat-punch" => FootprintLoad::FlatPunch,
-            "hertz" => FootprintLoad::Hertz,
-            other => panic!("FLOOR_LOAD={other}: lumped | consistent | flat-punch | hertz"),
-        };
+        settings.patch.load =
+            softcap_fem::probing::FootprintLoad::from_name(&load).unwrap_or_else(|| {
+                panic!("FLOOR_LOAD={load}: lumped | consistent | flat-punch | hertz")
+            });
     }
     if let Some(l) = env("FLOOR_LOCAL") {
         let (f, s) = l.split_once(':').unwrap_or((&l, "1"));
@@ -94,9 +95,11 @@ fn default_model_floor() {
     }
     let mut model = material.model.clone();
     println!(
-        "FLOOR {} tets, tissue fit (E, nu) = {:?}",
+        "FLOOR {} tets, tissue fit (E, nu) = {:?} under {:?} loads, replayed under {}",
         material.mesh.tets.len(),
-        model.params()[0].to_young_poisson()
+        model.params()[0].to_young_poisson(),
+        material.footprint_load,
+        settings.patch.load.name()
     );
     if let Some(v) = env("FLOOR_MATERIAL") {
         let (e, nu) = v.split_once(',').expect("FLOOR_MATERIAL=E_PA,NU");

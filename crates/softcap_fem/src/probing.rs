@@ -94,6 +94,24 @@ pub enum FootprintLoad {
 }
 
 impl FootprintLoad {
+    /// Every load, in declaration order.
+    pub const ALL: [Self; 4] = [Self::Lumped, Self::Consistent, Self::FlatPunch, Self::Hertz];
+
+    /// The name of the load in settings files (serde's kebab-case name) and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Lumped => "lumped",
+            Self::Consistent => "consistent",
+            Self::FlatPunch => "flat-punch",
+            Self::Hertz => "hertz",
+        }
+    }
+
+    /// The load named `name` ([`Self::name`]), `None` for an unknown name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|l| l.name() == name)
+    }
+
     /// Share of the probe force inside radius ρ·a of the footprint centre, ρ ∈ [0, 1], for the
     /// pressure distributions over a disk (`Lumped` counts as uniform pressure):
     /// uniform ρ²; flat punch 1 − √(1 − ρ²); Hertz 1 − (1 − ρ²)^{3/2} (the integrals

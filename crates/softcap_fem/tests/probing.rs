@@ -181,6 +181,20 @@ fn footprint_pressures_put_their_analytic_share_inside_half_the_radius() {
     }
 }
 
+/// The footprint loads' report names are their settings (serde) names and read back.
+#[test]
+fn footprint_load_names_are_the_settings_names() {
+    use serde::Deserialize;
+    use serde::de::IntoDeserializer;
+    for load in FootprintLoad::ALL {
+        let de: serde::de::value::StrDeserializer<'_, serde::de::value::Error> =
+            load.name().into_deserializer();
+        assert_eq!(FootprintLoad::deserialize(de).unwrap(), load);
+        assert_eq!(FootprintLoad::from_name(load.name()), Some(load));
+    }
+    assert_eq!(FootprintLoad::from_name("punch"), None);
+}
+
 /// The consistent nodal loads of every footprint pressure on a flat face carry the force and
 /// its first moment exactly (on the probe axis), and their second moment Σ w_n |x_n − tip|²
 /// is the pressure's ∫ r² p dA / F — flat punch ⅔a², uniform ½a², Hertz ⅖a² — plus the excess

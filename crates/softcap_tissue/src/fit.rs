@@ -50,6 +50,11 @@ pub struct FitSettings {
     /// Patch radius of the force boundary condition: the session's tip radius when > 0 and this
     /// is `true`, else `example_fit.patch.radius_m`.
     pub patch_from_session: bool,
+    /// With `patch_from_session`, the footprint load of a disk tip (session `tip_shape =
+    /// "disk"`) in every fit (`example_fit`, `homogeneous`, `joint_fit`); other tips keep their
+    /// `patch.load`. Recorded in material.mcap (`homogeneous.patch.load`,
+    /// `examples.patch.load` of `/tissue/report`) so the diagnosis replays the fit's load.
+    pub disk_tip_load: softcap_fem::FootprintLoad,
     /// Relaxation ω of the strain-space parameter update in the re-simulation
     /// ([`softcap_fem::StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).
     pub relaxation: f64,
@@ -153,6 +158,7 @@ impl Default for FitSettings {
             },
             load_steps: 4,
             patch_from_session: true,
+            disk_tip_load: softcap_fem::FootprintLoad::FlatPunch,
             relaxation: DEFAULT_RELAXATION,
             reference: ReferenceField::default(),
             joint_fit: ExampleFitSettings {
@@ -283,12 +289,24 @@ pub struct SessionFit {
     pub outcome: FitOutcome,
 }
 
-/// The settings actually used for `setup` (patch radius from the session's tip).
-pub fn effective_settings(settings: &FitSettings, tip_radius_m: f64) -> FitSettings {
+/// The settings actually used for `setup` (patch radius from the session's tip; a disk tip's
+/// load, [`FitSettings::disk_tip_load`]).
+pub fn effective_settings(
+    settings: &FitSettings,
+    tip_shape: &str,
+    tip_radius_m: f64,
+) -> FitSettings {
     let mut s = settings.clone();
     if settings.patch_from_session && tip_radius_m > 0.0 {
         s.example_fit.patch.radius_m = tip_radius_m;
         s.homogeneous.patch.radius_m = tip_radius_m;
+        s.joint_fit.patch.radius_m = tip_radius_m;
+    }
+    if settings.patch_from_session && tip_shape == "disk" {
+        let load = settings.disk_tip_load;
+        s.example_fit.patch.load = load;
+        s.homogeneous.patch.load = load;
+        s.joint_fit.patch.load = load;
     }
     s
 }
@@ -666,7 +684,7 @@ pub fn fit_session(
     progress: &Progress,
 ) -> Result<SessionFit> {
     let setup = &prepared.setup;
-    let s = effective_settings(settings, prepared.tip_radius_m);
+    let s = effective_settings(settings, &prepared.tip_shape, prepared.tip_radius_m);
     let examples = prepared.selected.clone();
     if examples.is_empty() {
         return Err(TissueError::BadSettings {

@@ -108,6 +108,14 @@ fn number(key: &str, v: f64, unit: &str) -> KeyValue {
     }
 }
 
+fn text(key: &str, v: &str) -> KeyValue {
+    KeyValue {
+        key: key.into(),
+        value: Some(Value::Text(v.into())),
+        unit: String::new(),
+    }
+}
+
 fn integer(key: &str, v: i64) -> KeyValue {
     KeyValue {
         key: key.into(),
@@ -266,6 +274,8 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
     w.write_static(&topics::STRAIN_SPACE_BASIS, &basis_message(&fit.material))
         .map_err(&err)?;
     let mut report = report_message(fit);
+    let used =
+        crate::fit::effective_settings(&cfg.settings, &prepared.tip_shape, prepared.tip_radius_m);
     let sp = prepared.support;
     report.entries.extend([
         number("support.normal.x", sp.normal[0], ""),
@@ -274,6 +284,10 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
         number("support.offset", sp.offset_m, "m"),
         number("support.tolerance", sp.tolerance_m, "m"),
         number("tip.radius", prepared.tip_radius_m, "m"),
+        // The footprint loads the fits used (`softcap_fem::FootprintLoad::name`): the diagnosis
+        // replays its default model with the load it was fitted under.
+        text("homogeneous.patch.load", used.homogeneous.patch.load.name()),
+        text("examples.patch.load", used.example_fit.patch.load.name()),
     ]);
     w.write_static(&topics::TISSUE_REPORT, &report)
         .map_err(&err)?;

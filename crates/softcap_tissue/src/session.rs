@@ -65,6 +65,8 @@ pub struct PreparedSession {
     pub all_examples: Vec<SessionExample>,
     /// The examples selected for fitting (a subset of `all_examples`), by frame.
     pub selected: Vec<SessionExample>,
+    /// Tip shape of the session's probe (`/capture/session` `tip_shape`: "sphere", "disk", …).
+    pub tip_shape: String,
     /// Tip radius of the session's probe, m (0 if unknown).
     pub tip_radius_m: f64,
     /// The session's support plane (attached region).
@@ -235,6 +237,7 @@ pub fn prepare(
         locations,
         all_examples,
         selected,
+        tip_shape: session.tip_shape.clone(),
         tip_radius_m: session.tip_radius_m,
         support,
     })

@@ -29,6 +29,12 @@ pub struct Inputs {
 /// are kept in `DIR/<name>-<hash of the resolved scenario>/` and reused by later runs (for
 /// iterating on the diagnose stage only; stale when synth, capture or tissue code changes —
 /// delete DIR then). Unset (CI), every run makes fresh inputs.
+///
+/// Measuring aid: `SOFTCAP_SUITE_DISK_TIP_LOAD=NAME` (a `softcap_fem::FootprintLoad` name:
+/// lumped, consistent, flat-punch, hertz) fits the material with that footprint load for a disk
+/// tip (`FitSettings::disk_tip_load`) instead of the default; cached as `material-NAME.mcap`
+/// beside the scenario's capture.mcap, refitted from the cached capture (and the template's
+/// volume.msh, cached with the synthetic truth's `truth/` folder) without re-running capture.
 pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
     let dir = tempfile::tempdir().unwrap();
     let cache = std::env::var_os("SOFTCAP_SUITE_CACHE").map(|d| {
@@ -37,27 +43,94 @@ pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
         format!("{scenario:?}").hash(&mut h);
         PathBuf::from(d).join(format!("{}-{:016x}", scenario.name, h.finish()))
     });
+    let load = std::env::var("SOFTCAP_SUITE_DISK_TIP_LOAD").ok().map(|n| {
+        softcap_fem::FootprintLoad::from_name(&n).unwrap_or_else(|| {
+            panic!("SOFTCAP_SUITE_DISK_TIP_LOAD={n}: lumped | consistent | flat-punch | hertz")
+        })
+    });
+    let mut settings = FitSettings {
+        progress: false,
+        ..Default::default()
+    };
+    let material_name = match load {
+        Some(l) => {
+            settings.disk_tip_load = l;
+            format!("material-{}.mcap", l.name())
+        }
+        None => "material.mcap".to_string(),
+    };
     if let Some(c) = &cache
         && c.join("capture.mcap").is_file()
-        && c.join("material.mcap").is_file()
     {
-        return Inputs {
-            capture: c.join("capture.mcap"),
-            material: c.join("material.mcap"),
-            dir,
-            seconds: [0.0; 3],
-        };
+        if load.is_some() {
+            cache_synth_files(scenario, c, dir.path());
+        }
+        if c.join(&material_name).is_file() {
+            return Inputs {
+                capture: c.join("capture.mcap"),
+                material: c.join(&material_name),
+                dir,
+                seconds: [0.0; 3],
+            };
+        }
+        if load.is_some() {
+            // Refit from the cached capture on the template's cached volume mesh.
+            let t0 = Instant::now();
+            let material = dir.path().join("material.mcap");
+            let volume = c.join("volume.msh");
+            fit_material(&c.join("capture.mcap"), &volume, &material, &settings);
+            let t_tissue = t0.elapsed().as_secs_f64();
+            std::fs::copy(&material, c.join(&material_name)).unwrap();
+            return Inputs {
+                capture: c.join("capture.mcap"),
+                material: c.join(&material_name),
+                dir,
+                seconds: [0.0, 0.0, t_tissue],
+            };
+        }
     }
-    let inputs = prepare_fresh(scenario, dir);
+    let inputs = prepare_fresh(scenario, dir, &settings);
     if let Some(c) = &cache {
         std::fs::create_dir_all(c).unwrap();
         std::fs::copy(&inputs.capture, c.join("capture.mcap")).unwrap();
-        std::fs::copy(&inputs.material, c.join("material.mcap")).unwrap();
+        std::fs::copy(&inputs.material, c.join(&material_name)).unwrap();
     }
     inputs
 }
 
-fn prepare_fresh(scenario: &Scenario, dir: tempfile::TempDir) -> Inputs {
+/// Synthesizes `scenario` into `scratch` when the cache folder `c` lacks the template's
+/// volume.msh or the synthetic truth (`truth/`: diagnose_floor's FLOOR_FORCE / FLOOR_TRUTH
+/// inputs), and copies them there.
+fn cache_synth_files(scenario: &Scenario, c: &Path, scratch: &Path) {
+    let volume = c.join("volume.msh");
+    let truth = c.join("truth");
+    if volume.is_file() && truth.join("probe.csv").is_file() {
+        return;
+    }
+    let session_dir = scratch.join("session");
+    synthesize(scenario, &session_dir).unwrap();
+    let session = Session::load(&session_dir).unwrap();
+    std::fs::copy(session.volume.expect("template/volume.msh"), &volume).unwrap();
+    std::fs::create_dir_all(&truth).unwrap();
+    for e in std::fs::read_dir(session_dir.join("truth")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), truth.join(e.file_name())).unwrap();
+    }
+}
+
+fn fit_material(capture: &Path, volume: &Path, output: &Path, settings: &FitSettings) {
+    softcap_tissue::fit::run(&FitConfig {
+        capture: capture.to_path_buf(),
+        mesh: Some(volume.to_path_buf()),
+        output: output.to_path_buf(),
+        report: None,
+        settings: settings.clone(),
+        arguments: vec![],
+    })
+    .expect("softcap_tissue::fit::run");
+}
+
+fn prepare_fresh(scenario: &Scenario, dir: tempfile::TempDir, settings: &FitSettings) -> Inputs {
     let session_dir = dir.path().join("session");
     let t0 = Instant::now();
     synthesize(scenario, &session_dir).unwrap();
@@ -65,28 +138,16 @@ fn prepare_fresh(scenario: &Scenario, dir: tempfile::TempDir) -> Inputs {
 
     let t0 = Instant::now();
     let session = Session::load(&session_dir).unwrap();
-    let settings = CaptureSettings::default();
-    let result = capture(&session, &settings).unwrap();
+    let capture_settings = CaptureSettings::default();
+    let result = capture(&session, &capture_settings).unwrap();
     let capture_path = dir.path().join("capture.mcap");
-    write_capture_mcap(&capture_path, &session, &result, &settings, &[]).unwrap();
+    write_capture_mcap(&capture_path, &session, &result, &capture_settings, &[]).unwrap();
     let t_capture = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
     let material_path = dir.path().join("material.mcap");
     let volume = session.volume.clone().expect("template/volume.msh");
-    let settings = FitSettings {
-        progress: false,
-        ..Default::default()
-    };
-    softcap_tissue::fit::run(&FitConfig {
-        capture: capture_path.clone(),
-        mesh: Some(volume),
-        output: material_path.clone(),
-        report: None,
-        settings,
-        arguments: vec![],
-    })
-    .expect("softcap_tissue::fit::run");
+    fit_material(&capture_path, &volume, &material_path, settings);
     let t_tissue = t0.elapsed().as_secs_f64();
     Inputs {
         dir,

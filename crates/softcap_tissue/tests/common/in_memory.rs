@@ -51,8 +51,8 @@ pub fn three_layer_setup() -> ProbingSetup {
     ProbingSetup::new(mesh, &markers, fixed).unwrap()
 }
 
-/// One truth example: `truth` under the force boundary condition of a disk of `tip_radius_m`
-/// (bickel2009 §4.1) pressing `force_n` down at `tip_m`, equilibrium by Newton from `x` (the rest
+/// One truth example: `truth` under the (lumped) force boundary condition of a footprint of
+/// `tip_radius_m` (bickel2009 §4.1) pressing `force_n` down at `tip_m`, equilibrium by Newton from `x` (the rest
 /// shape or a warm start; it holds the equilibrium afterwards); the markers are observed exactly.
 /// `index` ≥ 1 numbers the example (frame, 0.1 s apart).
 #[allow(clippy::too_many_arguments)]
@@ -128,14 +128,17 @@ pub fn truth_examples(
     out
 }
 
-/// A prepared session of `examples` (all selected) on `setup`: the 4 mm disk
-/// ([`super::TIP_RADIUS_M`]), support plane z = 0.
+/// A prepared session of `examples` (all selected) on `setup`: the 4 mm footprint
+/// ([`super::TIP_RADIUS_M`]), support plane z = 0. No rigid tip (empty `tip_shape`): the truth
+/// of [`truth_example`] IS the patch force `PatchSettings::default()` (lumped), so the fit keeps
+/// that load (`FitSettings::disk_tip_load` applies to disk tips only).
 pub fn prepared(setup: &ProbingSetup, examples: Vec<SessionExample>) -> PreparedSession {
     PreparedSession {
         setup: setup.clone(),
         locations: Vec::new(),
         all_examples: examples.clone(),
         selected: examples,
+        tip_shape: String::new(),
         tip_radius_m: super::TIP_RADIUS_M,
         support: SupportPlane {
             normal: [0.0, 0.0, 1.0],

@@ -116,8 +116,10 @@ pub fn write_session(dir: &Path, spec: &SessionSpec) -> VirtualSession {
     let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
     let setup = ProbingSetup::new(mesh.clone(), &markers, fixed).unwrap();
     let mut truth = truth_model_of(&mesh, spec.young_pa, size[2], spec.poisson);
+    // The truth's force boundary condition is the default fit's for this disk tip.
     let patch = PatchSettings {
         radius_m: TIP_RADIUS_M,
+        load: softcap_tissue::FitSettings::default().disk_tip_load,
         ..Default::default()
     };
     let newton = EquilibriumSettings::newton();
