@@ -429,3 +429,77 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::key_value::Value;
+
+    /// One tet with a homogeneous baseline and `extra` report entries.
+    fn material(extra: Vec<proto::KeyValue>) -> MaterialData {
+        let number = |key: &str, x: f64| proto::KeyValue {
+            key: key.into(),
+            value: Some(Value::Number(x)),
+            unit: "Pa".into(),
+        };
+        let mut entries = vec![
+            number("homogeneous.lambda", 1.0e5),
+            number("homogeneous.alpha", 2.0e4),
+        ];
+        entries.extend(extra);
+        MaterialData {
+            path: "material.mcap".into(),
+            vertices_m: vec![
+                [0.0; 3],
+                [0.01, 0.0, 0.0],
+                [0.0, 0.01, 0.0],
+                [0.0, 0.0, 0.01],
+            ],
+            tets: vec![[0, 1, 2, 3]],
+            element_materials: Vec::new(),
+            basis: None,
+            report: Some(proto::Report {
+                title: "test".into(),
+                entries,
+            }),
+        }
+    }
+
+    fn text(key: &str, v: Value) -> proto::KeyValue {
+        proto::KeyValue {
+            key: key.into(),
+            value: Some(v),
+            unit: String::new(),
+        }
+    }
+
+    /// The replay's footprint load is the one the tissue fit recorded; files without the entry
+    /// give `None` (the settings' load); an unknown name or a non-text entry is bad input.
+    #[test]
+    fn footprint_load_is_read_from_the_fit_report() {
+        let read = |extra| material_model_from(&material(extra), MaterialSource::Homogeneous);
+        let m = read(vec![text(
+            "homogeneous.patch.load",
+            Value::Text("flat-punch".into()),
+        )])
+        .unwrap();
+        assert_eq!(m.footprint_load, Some(FootprintLoad::FlatPunch));
+        assert_eq!(read(Vec::new()).unwrap().footprint_load, None);
+        // The per-example entry belongs to the other default models.
+        let m = read(vec![text(
+            "examples.patch.load",
+            Value::Text("consistent".into()),
+        )])
+        .unwrap();
+        assert_eq!(m.footprint_load, None);
+        for bad in [Value::Text("punch".into()), Value::Number(1.0)] {
+            let e = read(vec![text("homogeneous.patch.load", bad)])
+                .err()
+                .unwrap();
+            assert!(
+                matches!(&e, DiagnoseError::BadInput { what, .. } if what.contains("homogeneous.patch.load")),
+                "{e}"
+            );
+        }
+    }
+}

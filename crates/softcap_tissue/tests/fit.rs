@@ -83,6 +83,17 @@ fn fit_writes_a_material_that_reads_back_and_beats_the_homogeneous_model() {
     assert_eq!(b.centers_per_tet.len(), 648);
     let report = m.report.as_ref().unwrap();
     assert!(report.entries.iter().any(|e| e.key == "rms.material"));
+    // The disk tip's footprint load the fits used, for the diagnosis to replay.
+    for key in ["homogeneous.patch.load", "examples.patch.load"] {
+        let e = report.entries.iter().find(|e| e.key == key).unwrap();
+        assert_eq!(
+            e.value,
+            Some(softcap_mcap::proto::key_value::Value::Text(
+                "flat-punch".into()
+            )),
+            "{key}"
+        );
+    }
     for (k, (_, em)) in m.element_materials.iter().enumerate() {
         assert_eq!(em.frame, o.examples[k].frame);
         assert!((em.residual_m - o.examples[k].example_rms_m).abs() < 1e-15);
