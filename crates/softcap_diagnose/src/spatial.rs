@@ -402,7 +402,7 @@ fn bracket_friction(
 /// Simulates every grid point with the rigid-tip replay
 /// ([`ProbeSimulator::simulate_sequence_rigid_tip`]: the probe at every frame's measured pose),
 /// skipping those that do not reach equilibrium; nothing when the simulator has no rigid tip.
-fn simulate_rigid_grid(
+pub(crate) fn simulate_rigid_grid(
     sim: &mut dyn ProbeSimulator,
     grid: Vec<(Vec<(String, f64)>, Extension)>,
     rec: &Recording,

@@ -75,16 +75,21 @@ pub fn shifted_forces(t: &[f64], f: &[Vector3<f64>], offset_s: f64) -> Vec<Vecto
 /// relaxes) as a standard linear solid, or `None` when fewer than 3 hold frames per location or
 /// no relaxation (B ≤ 10⁻³ A) at most locations.
 ///
-/// Per location l with ≥ 3 hold frames, ‖f(t)‖ = A_l + B_l e^{−(t − t_h)/τ} over its hold frames
-/// (t_h its first hold frame), one τ for the recording (log grid 0.01–10 s, 1.5 % steps; A_l, B_l
-/// by linear least squares). For G(t) = G∞ (1 + g e^{−t/τ}) (one Prony branch, Simo & Hughes
+/// Per location l with ≥ 3 hold frames, ‖f(t)‖ = A_l + B_l e^{−(t − t_h)/τ_l} over its hold
+/// frames (t_h its first hold frame), τ_l of the location (log grid 0.01–10 s, 1.5 % steps; A_l,
+/// B_l by linear least squares). For G(t) = G∞ (1 + g e^{−t/τ}) (one Prony branch, Simo & Hughes
 /// 1998 §10.3) under a strain ramp of duration T_r then held, the hereditary integral gives
 /// A = G∞ ε̇ T_r and B = G∞ ε̇ g τ (1 − e^{−T_r/τ}), so
 ///
 ///   g = (B / A) · T_r / (τ (1 − e^{−T_r/τ})),
 ///
-/// T_r = time from the location's last unloaded frame to its first hold frame. Returns (g, τ)
-/// with g the median over the locations.
+/// T_r = time from the location's last unloaded frame to its first hold frame. Returns the
+/// medians of g_l and of τ_l over the locations that relax (A_l > 0, B_l > 10⁻³ A_l).
+///
+/// Per location, not one τ for the recording: one location whose hold force jumps (a change of
+/// the contact state mid-hold) dragged a common τ — in the suite's viscoelasticity session
+/// (truth g 2, τ 0.3 s) to 0.57 s and g to 14; per location that hold gives A_l < 0 and drops
+/// out, the others give τ_l 0.36–0.44 s, g_l 2.5–4.1 (docs/diagnose.md, session 13 (visco)).
 pub fn hold_relaxation(rec: &Recording, seg: &Segmentation) -> Option<(f64, f64)> {
     let t = rec.times_s();
     let dt = median_dt(&t);
@@ -139,34 +144,36 @@ pub fn hold_relaxation(rec: &Recording, seg: &Segmentation) -> Option<(f64, f64)
             .sum();
         Some((a, b, rss))
     };
-    let mut best: Option<(f64, f64)> = None; // (rss, tau)
-    let mut tau = 0.01;
-    while tau <= 10.0 {
-        let total: Option<f64> = holds
-            .iter()
-            .map(|(s, y, _)| fit(s, y, tau).map(|x| x.2))
-            .sum();
-        if let Some(r) = total
-            && best.is_none_or(|b| r < b.0)
-        {
-            best = Some((r, tau));
-        }
-        tau *= 1.015;
-    }
-    let (_, tau) = best?;
-    let mut g: Vec<f64> = holds
+    // per location: its best τ_l, then (g_l, τ_l) when it relaxes
+    let mut fits: Vec<(f64, f64)> = holds
         .iter()
         .filter_map(|(s, y, ramp_s)| {
+            let mut best: Option<(f64, f64)> = None; // (rss, tau)
+            let mut tau = 0.01;
+            while tau <= 10.0 {
+                if let Some((_, _, r)) = fit(s, y, tau)
+                    && best.is_none_or(|b| r < b.0)
+                {
+                    best = Some((r, tau));
+                }
+                tau *= 1.015;
+            }
+            let (_, tau) = best?;
             let (a, b, _) = fit(s, y, tau)?;
-            (a > 0.0 && b > 1e-3 * a)
-                .then(|| b / a * ramp_s / (tau * (1.0 - (-ramp_s / tau).exp())))
+            (a > 0.0 && b > 1e-3 * a).then(|| {
+                let g = b / a * ramp_s / (tau * (1.0 - (-ramp_s / tau).exp()));
+                (g, tau)
+            })
         })
         .collect();
-    if g.len() * 2 < holds.len().max(1) {
+    if fits.len() * 2 < holds.len().max(1) {
         return None;
     }
-    g.sort_by(f64::total_cmp);
-    Some((g[g.len() / 2], tau))
+    let mid = fits.len() / 2;
+    fits.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let g = fits[mid].0;
+    fits.sort_by(|x, y| x.1.total_cmp(&y.1));
+    Some((g, fits[mid].1))
 }
 
 /// The sequence to simulate under per-frame probe forces `forces`: a frame carries a probe load
@@ -194,6 +201,80 @@ fn frames_with_forces(
         .collect()
 }
 
+/// The centre (g, τ) of the viscoelasticity grids: the linearised creep estimate of `refit`, or,
+/// when the holds relax beyond any elastic explanation ([`confirmed_by_signature`]), the hold
+/// relaxation fit ([`hold_relaxation`]: under position control the held force measures G(t)
+/// directly).
+fn prony_centre(
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    refit: &Refit,
+    sig: &Signatures,
+) -> (f64, f64) {
+    let dt = median_dt(&p.times_s);
+    // Linearised creep f_eff = (1 + a) f + c LP_τc(f): for a standard linear solid the creep
+    // compliances give J∞/J0 = 1 + g = (1 + a + c)/(1 + a) and the creep time τc = (1 + g) τ of
+    // the relaxation time τ.
+    let a = param(refit, "instant_scale").unwrap_or(0.0);
+    let c = param(refit, "creep_g").unwrap_or(0.0);
+    let tau_c = param(refit, "tau_s").unwrap_or(4.0 * dt);
+    let g0 = if 1.0 + a > 0.05 {
+        (c / (1.0 + a)).clamp(0.1, 5.0)
+    } else {
+        1.0
+    };
+    let tau0 = (tau_c / (1.0 + g0)).max(0.5 * dt);
+    // a relaxing hold force is measured directly: centre the grid there
+    match hold_relaxation(rec, seg) {
+        Some((g, tau)) if confirmed_by_signature(Hypothesis::Viscoelasticity, sig) && g > 0.05 => {
+            (g.min(20.0), tau.max(0.5 * dt))
+        }
+        _ => (g0, tau0),
+    }
+}
+
+/// Relative steps of the rigid-tip Prony replay's grid around [`prony_centre`], in g and in τ.
+/// Under position control with the tip in full contact the markers do not depend on (g, τ) at
+/// all (quasi-linear viscoelasticity relaxes the whole stress with one function, so by the
+/// correspondence principle the displacement problem's solution is the elastic one at every
+/// instant); g and τ act only where the contact changes — the surface trailing the retreating
+/// tip in the unloading frames, the creep recovery after release, the earlier locations still
+/// recovering while the next is pressed. The centre comes from the held force, which measures
+/// G(t) directly; the steps span that fit's uncertainty (a factor 1.5 either way).
+pub const RIGID_PRONY_STEPS: [f64; 3] = [2.0 / 3.0, 1.0, 1.5];
+
+/// The rigid-tip replays of viscoelasticity: one Prony branch at (g, τ) = [`prony_centre`] ×
+/// [`RIGID_PRONY_STEPS`] each (named parameters, extension), replayed at the measured probe poses
+/// (`ProbeSimulator::simulate_sequences_rigid_tip`, bickel2009 §3.4 position control). The
+/// force-driven Prony model loads the measured force over a patch, which dents the surface
+/// deeper than the flat punch that pressed it (docs/diagnose.md, session 12 (visco): 0.14–0.18 mm
+/// in the holds); the replay presses the tip's own geometry to its measured depth.
+fn rigid_prony_grid(
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    refit: &Refit,
+    sig: &Signatures,
+) -> Vec<(Vec<(String, f64)>, Extension)> {
+    let (g0, tau0) = prony_centre(rec, seg, p, refit, sig);
+    let mut out = Vec::new();
+    for gm in RIGID_PRONY_STEPS {
+        for tm in RIGID_PRONY_STEPS {
+            let (g, tau_s) = (g0 * gm, tau0 * tm);
+            out.push((
+                vec![
+                    ("prony_g".into(), g),
+                    ("prony_tau_s".into(), tau_s),
+                    ("rigid_tip_replay".into(), 1.0),
+                ],
+                Extension::Viscoelastic { g, tau_s },
+            ));
+        }
+    }
+    out
+}
+
 /// The grid of extended models of a temporal hypothesis `h`, centred on the linearised estimate
 /// of `refit` (viscoelasticity with relaxing holds: on [`hold_relaxation`]): (named parameters,
 /// extension, frames with their loads).
@@ -213,25 +294,7 @@ pub fn temporal_grid(
     let mut out = Vec::new();
     match h {
         Hypothesis::Viscoelasticity => {
-            // Linearised creep f_eff = (1 + a) f + c LP_τc(f): for a standard linear solid the
-            // creep compliances give J∞/J0 = 1 + g = (1 + a + c)/(1 + a) and the creep time
-            // τc = (1 + g) τ of the relaxation time τ.
-            let a = param(refit, "instant_scale").unwrap_or(0.0);
-            let c = param(refit, "creep_g").unwrap_or(0.0);
-            let tau_c = param(refit, "tau_s").unwrap_or(4.0 * dt);
-            let g0 = if 1.0 + a > 0.05 {
-                (c / (1.0 + a)).clamp(0.1, 5.0)
-            } else {
-                1.0
-            };
-            let tau0 = (tau_c / (1.0 + g0)).max(0.5 * dt);
-            // a relaxing hold force is measured directly: centre the grid there
-            let (g0, tau0) = match hold_relaxation(rec, seg) {
-                Some((g, tau)) if confirmed_by_signature(h, sig) && g > 0.05 => {
-                    (g.min(20.0), tau.max(0.5 * dt))
-                }
-                _ => (g0, tau0),
-            };
+            let (g0, tau0) = prony_centre(rec, seg, p, refit, sig);
             for gm in [0.5, 0.75, 1.0, 1.5, 2.0] {
                 for tm in [0.5, 1.0, 2.0] {
                     let (g, tau_s) = (g0 * gm, tau0 * tm);
@@ -302,13 +365,47 @@ pub(crate) fn confirm_temporal(
     scored: &dyn Fn(usize, usize) -> bool,
 ) -> Result<Option<Confirmed>> {
     let grid = temporal_grid(h, rec, seg, p, refit, sig);
-    let total = grid.len();
+    let mut total = grid.len();
     let mut cands = Vec::with_capacity(total);
     let mut frames = Vec::with_capacity(total);
     let (params, jobs): (Vec<_>, Vec<SequenceJob>) =
         grid.into_iter().map(|(q, e, seq)| (q, (e, seq))).unzip();
+    // Viscoelasticity is also replayed with the rigid tip at its measured poses
+    // ([`rigid_prony_grid`]) on the fit mesh refined around the touched locations — unless the
+    // template already resolves the footprint — beside the force-driven grid.
+    let rigid = if h == Hypothesis::Viscoelasticity {
+        rigid_prony_grid(rec, seg, p, refit, sig)
+    } else {
+        Vec::new()
+    };
+    let balls = crate::spatial::touched_balls(rec, seg);
+    let tips: Vec<Vector3<f64>> = balls.iter().map(|b| b.centre_m).collect();
+    let mut fine = if rigid.is_empty() || sim.resolves_footprint(rec.tip_radius_m, &tips) {
+        Ok(None)
+    } else {
+        sim.refined(&balls)
+    };
+    let refined = matches!(fine, Ok(Some(_)));
+    let rigid: Vec<(Vec<(String, f64)>, Extension)> = rigid
+        .into_iter()
+        .map(|(mut params, ext)| {
+            params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+            (params, ext)
+        })
+        .collect();
     // independent sequences, simulated in parallel by the simulator; taken in grid order
-    let results = sim.simulate_sequences(&jobs);
+    let (results, rigid_side) = match fine.as_mut() {
+        Ok(Some(f)) if !rigid.is_empty() => {
+            let replay = f.as_mut();
+            let rigid = rigid.clone();
+            let (results, side) = rayon::join(
+                || sim.simulate_sequences(&jobs),
+                || crate::spatial::simulate_rigid_grid(replay, rigid, rec),
+            );
+            (results, Some(side))
+        }
+        _ => (sim.simulate_sequences(&jobs), None),
+    };
     for ((params, (_, seq)), result) in params.into_iter().zip(jobs).zip(results) {
         match result {
             Ok(prediction) => {
@@ -319,6 +416,18 @@ pub(crate) fn confirm_temporal(
             Err(e) => return Err(e),
         }
     }
+    // errors in the serial order: the force-driven grid's, the refinement's, the replays'
+    let fine = fine?;
+    let (rigid_cands, rigid_total) = match rigid_side {
+        Some(side) => side?,
+        None if rigid.is_empty() => (Vec::new(), 0),
+        // the template resolves the footprint (or the simulator cannot refine): replay on it
+        None => crate::spatial::simulate_rigid_grid(sim, rigid, rec)?,
+    };
+    drop(fine);
+    let n_rigid = rigid_cands.len();
+    cands.extend(rigid_cands);
+    total += rigid_total;
     let n = cands.len();
     let bounds = |fit| ComplianceScale::new(fit, 0.1, 10.0);
     if matches!(h, Hypothesis::SensorLag | Hypothesis::ClockOffset) && n > 0 {
@@ -349,11 +458,15 @@ pub(crate) fn confirm_temporal(
     let method = format!(
         "re-simulated extended model ({n} grid points of {total}, {}), compliance scale, leave-one-location-out",
         match h {
-            Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch",
+            Hypothesis::Viscoelasticity if n_rigid > 0 => format!(
+                "ViscoelasticModel, one Prony branch, driven by the measured force and ({n_rigid} of them) replayed as the rigid tip at its measured poses{}",
+                if refined { " on the refined fit mesh" } else { "" }
+            ),
+            Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch".into(),
             Hypothesis::SensorLag => {
-                "default model under the true force through the inverse FSR chain (lag tau, play hysteresis)"
+                "default model under the true force through the inverse FSR chain (lag tau, play hysteresis)".into()
             }
-            _ => "default model under the time-shifted force f(t + offset)",
+            _ => "default model under the time-shifted force f(t + offset)".into(),
         }
     );
     lolo_confirm(

@@ -119,6 +119,11 @@ fn default_model_floor() {
         .with_support_plane(&support.normal, support.offset_m)
         .with_rigid_tip(tip);
     let seg = Segmentation::new(&rec, &SegmentSettings::default());
+    // the held force's standard-linear-solid fit (position control: it measures G(t) directly)
+    println!(
+        "FLOOR hold relaxation (g, tau_s) = {:?}",
+        softcap_diagnose::temporal::hold_relaxation(&rec, &seg)
+    );
     // Force BC: the measured force on the contact frames; rigid tip: every frame's measured pose
     // (the diagnosis' own sequences).
     // FLOOR_LAT=C,DX,DY,DZ: a lateral traction C·‖f‖ along the unit (DX, DY, DZ) added to every
