@@ -463,7 +463,11 @@ pub(crate) fn confirm_temporal(
         match h {
             Hypothesis::Viscoelasticity if n_rigid > 0 => format!(
                 "ViscoelasticModel, one Prony branch, driven by the measured force and ({n_rigid} of them) replayed as the rigid tip at its measured poses{}",
-                if refined { " on the refined fit mesh" } else { "" }
+                if refined {
+                    " on the refined fit mesh"
+                } else {
+                    ""
+                }
             ),
             Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch".into(),
             Hypothesis::SensorLag => {

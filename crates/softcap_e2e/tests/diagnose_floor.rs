@@ -42,6 +42,8 @@
 //!   force instead of the measured one (a force-channel effect — sensor-lag, clock-offset —
 //!   undone exactly: the best any model of the sensor can reach);
 //! - `SOFTCAP_SUITE_CACHE=DIR` reuses synth / capture / tissue fit (tests/common).
+//!
+//! Always printed: the hold fit (`temporal::hold_relaxation`, the Prony grids' centre).
 
 mod common;
 

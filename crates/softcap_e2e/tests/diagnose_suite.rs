@@ -175,10 +175,17 @@ fn anisotropy_is_named() {
     check("anisotropy");
 }
 
-/// g 2, τ 0.3 s, hold 6 frames @ 20 fps: the hold force relaxes by a third, so viscoelasticity
-/// is confirmed by its signature (`temporal::RELAXATION_DRIFT`) with the re-simulated Prony model.
+/// g 3, τ 0.3 s, hold 6 frames @ 20 fps: the hold force relaxes, so viscoelasticity is confirmed
+/// by its signature (`temporal::RELAXATION_DRIFT`) with the re-simulated Prony model — driven by
+/// the measured force, and replayed as the rigid tip at its measured poses on the refined fit
+/// mesh (`temporal::rigid_prony_grid`, 3 replays along the hold fit's g–τ ridge).
 #[test]
-#[ignore = "measured 2026-11-27 01:18 (session 12, lead; fresh inputs, the truth's disk as a flat punch, load ~2): verdict viscoelasticity, held-out on probed loading/hold/unloading/released 0.2500 -> 0.1678 mm (1.49x, needs 3x; Prony g 6.99, tau 1.15 s, compliance 7.28 - the grid's edge). Before the flat-punch truth (session 12, visco; cached inputs of main 35aed12): 0.2285 -> 0.1383 (1.65x; g 3.03, tau 0.204 s, compliance 2.37), the same as the oracle with the truth's g, tau and material (0.126/0.164/0.153/0.105 mm per phase on 648 tets); with a flat-punch truth the force-driven Prony oracle's hold excess is axial (the patch force dents 0.14-0.18 mm deeper than the punch) and the rigid-tip Prony replay oracle on 5184 tets reaches 1.7-4.4x per phase - see docs/diagnose.md session 12 (visco)"]
+// Session 13 (visco; cached inputs made fresh on main e95631f's stages, load ~11 on 2 cores):
+// 0.3020 -> 0.0950 mm (3.18x; g 3.18 of 3, tau 0.252 s of 0.3, compliance 0.958, the rigid-tip
+// replay on the refined mesh); whole chain 172.8 s at that load (synth 21.7, capture 0.5, tissue
+// 11.2, diagnose 139.3 s). With g 2 (the design until session 13) the same code gave 0.2500 ->
+// 0.0887 (2.82x): below 3x the best model's floor; g 4 0.3487 -> 0.1127 (3.09x) (docs/diagnose.md
+// session 13 (visco)).
 fn viscoelasticity_is_named() {
     check("viscoelasticity");
 }
