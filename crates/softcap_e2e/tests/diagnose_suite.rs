@@ -180,10 +180,10 @@ fn anisotropy_is_named() {
 /// the measured force, and replayed as the rigid tip at its measured poses on the refined fit
 /// mesh (`temporal::rigid_prony_grid`, 3 replays along the hold fit's g–τ ridge).
 #[test]
-// Session 13 (visco; cached inputs made fresh on main e95631f's stages, load ~11 on 2 cores):
-// 0.3020 -> 0.0950 mm (3.18x; g 3.18 of 3, tau 0.252 s of 0.3, compliance 0.958, the rigid-tip
-// replay on the refined mesh); whole chain 172.8 s at that load (synth 21.7, capture 0.5, tissue
-// 11.2, diagnose 139.3 s). With g 2 (the design until session 13) the same code gave 0.2500 ->
+// Session 13 (visco; fresh inputs, no cache, main b2727f4 + this change, load ~10-11 on the 2
+// cores from other runs): 0.3020 -> 0.0950 mm (3.18x; g 3.18 of 3, tau 0.252 s of 0.3,
+// compliance 0.958, the rigid-tip replay on the refined mesh); whole chain 192.3 s at that load
+// (synth 24.8, capture 0.5, tissue 10.0, diagnose 157.0 s; 172.8 s in an earlier run at load 11.5). With g 2 (the design until session 13) the same code gave 0.2500 ->
 // 0.0887 (2.82x): below 3x the best model's floor; g 4 0.3487 -> 0.1127 (3.09x) (docs/diagnose.md
 // session 13 (visco)).
 fn viscoelasticity_is_named() {
