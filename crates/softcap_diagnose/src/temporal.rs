@@ -374,8 +374,9 @@ pub(crate) fn confirm_temporal(
     let (params, jobs): (Vec<_>, Vec<SequenceJob>) =
         grid.into_iter().map(|(q, e, seq)| (q, (e, seq))).unzip();
     // Viscoelasticity is also replayed with the rigid tip at its measured poses
-    // ([`rigid_prony_grid`]) on the fit mesh refined around the touched locations — unless the
-    // template already resolves the footprint — beside the force-driven grid.
+    // ([`rigid_prony_grid`]) on the refined fit mesh (`ProbeSimulator::refined`: 1 → 8, or
+    // around the touched locations with `refinement.local`) — unless the template already
+    // resolves the footprint — beside the force-driven grid.
     let rigid = if h == Hypothesis::Viscoelasticity {
         rigid_prony_grid(rec, seg, p, refit, sig)
     } else {
