@@ -183,25 +183,10 @@ fn lm_normal_product(c: &mut Criterion) {
     let jt = faer::MatRef::from_column_major_slice(&flat, n, m);
     let id = format!("{m} x {n}");
     g.bench_function(BenchmarkId::new("two whole products", &id), |b| {
-        let mut jv = faer::Mat::<f64>::zeros(m, 1);
+        let mut jv = vec![0.0; m];
         let mut out = vec![0.0; n];
         b.iter(|| {
-            faer::linalg::matmul::matmul(
-                jv.as_mut(),
-                faer::Accum::Replace,
-                jt.transpose(),
-                faer::MatRef::from_column_major_slice(&v, n, 1),
-                1.0,
-                faer::Par::Seq,
-            );
-            faer::linalg::matmul::matmul(
-                faer::MatMut::from_column_major_slice_mut(&mut out, n, 1),
-                faer::Accum::Replace,
-                jt,
-                jv.as_ref(),
-                1.0,
-                faer::Par::Seq,
-            );
+            normal_product_unblocked(jt, &v, &mut jv, &mut out);
             black_box(out[0])
         })
     });

@@ -96,7 +96,7 @@ pub use probing::{
     ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel,
     StrainSpaceSolve, StrainSpaceSolveSettings, StrainTail, fit_example, fit_example_from,
     fit_examples_from, fit_examples_jointly, fit_homogeneous, normal_product,
-    simulate_probe_contact,
+    normal_product_unblocked, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,
