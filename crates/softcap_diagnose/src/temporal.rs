@@ -234,7 +234,7 @@ fn prony_centre(
     }
 }
 
-/// Relative steps of the rigid-tip Prony replay's grid around [`prony_centre`], applied to g and
+/// Relative steps of the refined Prony models' grid around [`prony_centre`], applied to g and
 /// τ together. Under position control with the tip in full contact the markers do not depend on
 /// (g, τ) (quasi-linear viscoelasticity relaxes the whole stress with one function, so by the
 /// correspondence principle the displacement problem's solution is the elastic one at every
@@ -244,38 +244,58 @@ fn prony_centre(
 /// G(t) directly, but over a hold of about τ the fit of A + B e^{−s/τ} trades τ against B/A: a
 /// longer τ puts the asymptote A lower, so g and τ err together (suite viscoelasticity session,
 /// per location τ_l / g_l 0.356 / 2.47, 0.397 / 2.68, 0.409 / 3.22, 0.444 / 4.11 for the truth's
-/// 0.3 / 2). The steps follow that ridge, a factor 1.5 either way: three replays, each on the
-/// refined fit mesh (8× the tets).
+/// 0.3 / 2). The steps follow that ridge, a factor 1.5 either way: three points, each
+/// re-simulated on the refined fit mesh (8× the tets).
 pub const RIGID_PRONY_STEPS: [f64; 3] = [2.0 / 3.0, 1.0, 1.5];
 
-/// The rigid-tip replays of viscoelasticity: one Prony branch at (g, τ) = [`prony_centre`] ×
-/// each of [`RIGID_PRONY_STEPS`] (named parameters, extension), replayed at the measured probe poses
-/// (`ProbeSimulator::simulate_sequences_rigid_tip`, bickel2009 §3.4 position control). The
-/// force-driven Prony model loads the measured force over a patch, which dents the surface
-/// deeper than the flat punch that pressed it (docs/diagnose.md, session 12 (visco): 0.14–0.18 mm
-/// in the holds); the replay presses the tip's own geometry to its measured depth.
-fn rigid_prony_grid(
+/// The points (g, τ) = [`prony_centre`] × each of [`RIGID_PRONY_STEPS`] of the refined Prony
+/// models ([`refined_prony_grid`]).
+fn prony_ridge(
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     refit: &Refit,
     sig: &Signatures,
-) -> Vec<(Vec<(String, f64)>, Extension)> {
+) -> Vec<(f64, f64)> {
     let (g0, tau0) = prony_centre(rec, seg, p, refit, sig);
     RIGID_PRONY_STEPS
         .iter()
-        .map(|m| {
-            let (g, tau_s) = (g0 * m, tau0 * m);
-            (
-                vec![
-                    ("prony_g".into(), g),
-                    ("prony_tau_s".into(), tau_s),
-                    ("rigid_tip_replay".into(), 1.0),
-                ],
-                Extension::Viscoelastic { g, tau_s },
-            )
-        })
+        .map(|m| (g0 * m, tau0 * m))
         .collect()
+}
+
+/// The Prony models of viscoelasticity re-simulated on the refined fit mesh, one Prony branch at
+/// each point of [`prony_ridge`] (named parameters, extension), two ways:
+///
+/// - driven by the measured force (bickel2009 §4.1 force boundary condition), spread over the
+///   footprint by the simulator's load — for a disk tip the rigid flat punch's pressure
+///   p(r) = F / (2πa√(a² − r²)) (Sneddon 1946; `softcap_fem::probing::FootprintLoad::FlatPunch`),
+///   which the refined mesh resolves (the 648-tet template puts a 5 mm disk on 1–3 nodes);
+/// - replayed as the rigid tip at the measured probe poses
+///   (`ProbeSimulator::simulate_sequences_rigid_tip`, bickel2009 §3.4 position control): the
+///   tip's own geometry pressed to its measured depth.
+///
+/// Returned as (force-driven, rigid-tip replays). Neither needs the other: under position control
+/// the relaxation shows only where the contact changes, under force control it is the creep
+/// itself; the leave-one-location-out picks between them per fold with the compliance scale.
+#[allow(clippy::type_complexity)]
+fn refined_prony_grid(
+    ridge: &[(f64, f64)],
+) -> (
+    Vec<(Vec<(String, f64)>, Extension)>,
+    Vec<(Vec<(String, f64)>, Extension)>,
+) {
+    let point = |g: f64, tau_s: f64, rigid: bool| {
+        let mut params = vec![("prony_g".into(), g), ("prony_tau_s".into(), tau_s)];
+        if rigid {
+            params.push(("rigid_tip_replay".into(), 1.0));
+        }
+        (params, Extension::Viscoelastic { g, tau_s })
+    };
+    (
+        ridge.iter().map(|&(g, t)| point(g, t, false)).collect(),
+        ridge.iter().map(|&(g, t)| point(g, t, true)).collect(),
+    )
 }
 
 /// The grid of extended models of a temporal hypothesis `h`, centred on the linearised estimate
@@ -373,15 +393,18 @@ pub(crate) fn confirm_temporal(
     let mut frames = Vec::with_capacity(total);
     let (params, jobs): (Vec<_>, Vec<SequenceJob>) =
         grid.into_iter().map(|(q, e, seq)| (q, (e, seq))).unzip();
-    // Viscoelasticity is also replayed with the rigid tip at its measured poses
-    // ([`rigid_prony_grid`]) on the refined fit mesh (`ProbeSimulator::refined`: 1 → 8, or
-    // around the touched locations with `refinement.local`) — unless the template already
-    // resolves the footprint — beside the force-driven grid.
-    let rigid = if h == Hypothesis::Viscoelasticity {
-        rigid_prony_grid(rec, seg, p, refit, sig)
+    // Viscoelasticity is also re-simulated along the hold fit's g–τ ridge ([`prony_ridge`]) on
+    // the refined fit mesh (`ProbeSimulator::refined`: 1 → 8, or around the touched locations
+    // with `refinement.local`), driven by the measured force and replayed as the rigid tip at its
+    // measured poses ([`refined_prony_grid`]) — unless the template already resolves the
+    // footprint: then the rigid-tip replays run on it and the force-driven grid above is the
+    // force-driven model.
+    let ridge = if h == Hypothesis::Viscoelasticity {
+        prony_ridge(rec, seg, p, refit, sig)
     } else {
         Vec::new()
     };
+    let (fine_force, rigid) = refined_prony_grid(&ridge);
     let balls = crate::spatial::touched_balls(rec, seg);
     let tips: Vec<Vector3<f64>> = balls.iter().map(|b| b.centre_m).collect();
     let mut fine = if rigid.is_empty() || sim.resolves_footprint(rec.tip_radius_m, &tips) {
@@ -390,21 +413,39 @@ pub(crate) fn confirm_temporal(
         sim.refined(&balls)
     };
     let refined = matches!(fine, Ok(Some(_)));
-    let rigid: Vec<(Vec<(String, f64)>, Extension)> = rigid
-        .into_iter()
-        .map(|(mut params, ext)| {
-            params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
-            (params, ext)
-        })
-        .collect();
+    let on_fine = |grid: Vec<(Vec<(String, f64)>, Extension)>| -> Vec<_> {
+        grid.into_iter()
+            .map(|(mut params, ext)| {
+                params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+                (params, ext)
+            })
+            .collect()
+    };
+    let rigid = on_fine(rigid);
+    let fine_force = if refined {
+        on_fine(fine_force)
+    } else {
+        Vec::new()
+    };
     // independent sequences, simulated in parallel by the simulator; taken in grid order
-    let (results, rigid_side) = match fine.as_mut() {
+    let (results, fine_side) = match fine.as_mut() {
         Ok(Some(f)) if !rigid.is_empty() => {
             let replay = f.as_mut();
             let rigid = rigid.clone();
+            let measured = contact_sequence(rec, seg, &p.force_n);
+            let force_jobs: Vec<SequenceJob> = fine_force
+                .iter()
+                .map(|(_, e)| (*e, measured.clone()))
+                .collect();
             let (results, side) = rayon::join(
                 || sim.simulate_sequences(&jobs),
-                || crate::spatial::simulate_rigid_grid(replay, rigid, rec),
+                || {
+                    let force = replay.simulate_sequences(&force_jobs);
+                    (
+                        force,
+                        crate::spatial::simulate_rigid_grid(replay, rigid, rec),
+                    )
+                },
             );
             (results, Some(side))
         }
@@ -420,8 +461,24 @@ pub(crate) fn confirm_temporal(
             Err(e) => return Err(e),
         }
     }
-    // errors in the serial order: the force-driven grid's, the refinement's, the replays'
+    // errors in the serial order: the force-driven grid's, the refinement's, the refined models'
     let fine = fine?;
+    let (fine_force_results, rigid_side) = match fine_side {
+        Some((force, rigid)) => (force, Some(rigid)),
+        None => (Vec::new(), None),
+    };
+    total += fine_force.len();
+    let mut n_fine_force = 0;
+    for ((params, _), result) in fine_force.into_iter().zip(fine_force_results) {
+        match result {
+            Ok(prediction) => {
+                n_fine_force += 1;
+                cands.push(Candidate { params, prediction });
+            }
+            Err(DiagnoseError::Simulation { .. }) => continue,
+            Err(e) => return Err(e),
+        }
+    }
     let (rigid_cands, rigid_total) = match rigid_side {
         Some(side) => side?,
         None if rigid.is_empty() => (Vec::new(), 0),
@@ -462,8 +519,13 @@ pub(crate) fn confirm_temporal(
     let method = format!(
         "re-simulated extended model ({n} grid points of {total}, {}), compliance scale, leave-one-location-out",
         match h {
-            Hypothesis::Viscoelasticity if n_rigid > 0 => format!(
-                "ViscoelasticModel, one Prony branch, driven by the measured force and ({n_rigid} of them) replayed as the rigid tip at its measured poses{}",
+            Hypothesis::Viscoelasticity if n_rigid + n_fine_force > 0 => format!(
+                "ViscoelasticModel, one Prony branch, driven by the measured force{} and ({n_rigid} of them) replayed as the rigid tip at its measured poses{}",
+                if n_fine_force > 0 {
+                    format!(" ({n_fine_force} of them on the refined fit mesh)")
+                } else {
+                    String::new()
+                },
                 if refined {
                     " on the refined fit mesh"
                 } else {

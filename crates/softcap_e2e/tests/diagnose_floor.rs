@@ -182,11 +182,18 @@ fn default_model_floor() {
         };
         let contact = |k: usize| seg.phases[k].in_contact();
         println!(
-            "FLOOR {name} {label}: probed loading {:.4} hold {:.4} unloading {:.4} released {:.4} | contact near {:.4} away {:.4} mm",
+            "FLOOR {name} {label}: probed loading {:.4} hold {:.4} unloading {:.4} released {:.4} (loading+hold+released {:.4}) | contact near {:.4} away {:.4} mm",
             probed(Phase::Loading),
             probed(Phase::Hold),
             probed(Phase::Unloading),
             probed(Phase::Released),
+            rms(&|k, m| {
+                matches!(
+                    seg.phases[k],
+                    Phase::Loading | Phase::Hold | Phase::Released
+                ) && seg.fold_of_frame[k].is_some()
+                    && seg.regions[m] == Region::Probed
+            }),
             rms(&|k, m| contact(k) && near(k, m)),
             rms(&|k, m| contact(k) && !near(k, m)),
         );
