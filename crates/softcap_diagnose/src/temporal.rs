@@ -234,67 +234,45 @@ fn prony_centre(
     }
 }
 
-/// Relative steps of the refined Prony models' grid around [`prony_centre`], applied to g and
-/// τ together. Under position control with the tip in full contact the markers do not depend on
-/// (g, τ) (quasi-linear viscoelasticity relaxes the whole stress with one function, so by the
-/// correspondence principle the displacement problem's solution is the elastic one at every
-/// instant); g and τ act where the contact changes — the surface trailing the retreating tip in
-/// the unloading frames, the creep recovery after release, the earlier locations still
-/// recovering while the next is pressed. The centre comes from the held force, which measures
-/// G(t) directly, but over a hold of about τ the fit of A + B e^{−s/τ} trades τ against B/A: a
-/// longer τ puts the asymptote A lower, so g and τ err together (suite viscoelasticity session,
-/// per location τ_l / g_l 0.356 / 2.47, 0.397 / 2.68, 0.409 / 3.22, 0.444 / 4.11 for the truth's
-/// 0.3 / 2). The steps follow that ridge, a factor 1.5 either way: three points, each
-/// re-simulated on the refined fit mesh (8× the tets).
-pub const RIGID_PRONY_STEPS: [f64; 3] = [2.0 / 3.0, 1.0, 1.5];
+/// Relative steps of the refined Prony models along the hold fit's g–τ ridge around
+/// [`prony_centre`], applied to g and τ together. The centre comes from the held force, which
+/// measures G(t) directly, but over a hold of about τ the fit of A + B e^{−s/τ} trades τ against
+/// B/A: a longer τ puts the asymptote A lower, so g and τ err together (suite viscoelasticity
+/// session, per location τ_l / g_l 0.356 / 2.47, 0.397 / 2.68, 0.409 / 3.22, 0.444 / 4.11 for the
+/// truth's 0.3 / 2; on the g 3 session the centre is (4.77, 0.378 s) for the truth's (3, 0.3 s)).
+/// The steps follow that ridge, a factor [`PRONY_RIDGE_STEP`] either way: three points, each
+/// re-simulated on the refined fit mesh (8× the tets), then extended until they bracket the
+/// choice ([`PRONY_RIDGE_EXTENSIONS`]).
+pub const PRONY_RIDGE_STEPS: [f64; 3] = [1.0 / PRONY_RIDGE_STEP, 1.0, PRONY_RIDGE_STEP];
 
-/// The points (g, τ) = [`prony_centre`] × each of [`RIGID_PRONY_STEPS`] of the refined Prony
-/// models ([`refined_prony_grid`]).
-fn prony_ridge(
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    refit: &Refit,
-    sig: &Signatures,
-) -> Vec<(f64, f64)> {
-    let (g0, tau0) = prony_centre(rec, seg, p, refit, sig);
-    RIGID_PRONY_STEPS
-        .iter()
-        .map(|m| (g0 * m, tau0 * m))
-        .collect()
-}
+/// The factor between neighbouring points of the refined Prony ridge ([`PRONY_RIDGE_STEPS`]).
+pub const PRONY_RIDGE_STEP: f64 = 1.5;
 
-/// The Prony models of viscoelasticity re-simulated on the refined fit mesh, one Prony branch at
-/// each point of [`prony_ridge`] (named parameters, extension), two ways:
+/// At most this many points are added to the refined Prony ridge beyond [`PRONY_RIDGE_STEPS`]:
+/// while the full-data choice is the ridge's smallest or largest point, the next one beyond it
+/// (÷ or × [`PRONY_RIDGE_STEP`]) is simulated — a factor 1.5³ ≈ 3.4 either way of the hold fit.
+pub const PRONY_RIDGE_EXTENSIONS: usize = 2;
+
+/// One force-driven Prony model of viscoelasticity on the refined fit mesh at the point
+/// (g, τ) = `centre` × `step` of the hold fit's ridge (named parameters, extension): one Prony
+/// branch G(t)/G∞ = 1 + g e^{−t/τ} over the default model (Simo & Hughes 1998 §10.3), driven by
+/// the measured force (bickel2009 §4.1 force boundary condition) spread over the footprint by the
+/// simulator's load — for a disk tip the rigid flat punch's pressure
+/// p(r) = F / (2πa√(a² − r²)) (Sneddon 1946; `softcap_fem::probing::FootprintLoad::FlatPunch`),
+/// which the refined mesh resolves where the 648-tet template puts a 5 mm disk on 1–3 nodes.
 ///
-/// - driven by the measured force (bickel2009 §4.1 force boundary condition), spread over the
-///   footprint by the simulator's load — for a disk tip the rigid flat punch's pressure
-///   p(r) = F / (2πa√(a² − r²)) (Sneddon 1946; `softcap_fem::probing::FootprintLoad::FlatPunch`),
-///   which the refined mesh resolves (the 648-tet template puts a 5 mm disk on 1–3 nodes);
-/// - replayed as the rigid tip at the measured probe poses
-///   (`ProbeSimulator::simulate_sequences_rigid_tip`, bickel2009 §3.4 position control): the
-///   tip's own geometry pressed to its measured depth.
-///
-/// Returned as (force-driven, rigid-tip replays). Neither needs the other: under position control
-/// the relaxation shows only where the contact changes, under force control it is the creep
-/// itself; the leave-one-location-out picks between them per fold with the compliance scale.
-#[allow(clippy::type_complexity)]
-fn refined_prony_grid(
-    ridge: &[(f64, f64)],
-) -> (
-    Vec<(Vec<(String, f64)>, Extension)>,
-    Vec<(Vec<(String, f64)>, Extension)>,
-) {
-    let point = |g: f64, tau_s: f64, rigid: bool| {
-        let mut params = vec![("prony_g".into(), g), ("prony_tau_s".into(), tau_s)];
-        if rigid {
-            params.push(("rigid_tip_replay".into(), 1.0));
-        }
-        (params, Extension::Viscoelastic { g, tau_s })
-    };
+/// It replaces session 13's rigid-tip Prony replays (position control at the measured poses): on
+/// the suite's g 3 session every fold chose the force-driven model over them (held-out 0.0892 mm
+/// either way; the replays cost 2× a force-driven sequence; docs/diagnose.md, session 14 (visco)).
+fn refined_prony_point(centre: (f64, f64), step: f64) -> (Vec<(String, f64)>, Extension) {
+    let (g, tau_s) = (centre.0 * step, centre.1 * step);
     (
-        ridge.iter().map(|&(g, t)| point(g, t, false)).collect(),
-        ridge.iter().map(|&(g, t)| point(g, t, true)).collect(),
+        vec![
+            ("prony_g".into(), g),
+            ("prony_tau_s".into(), tau_s),
+            ("refined_mesh".into(), 1.0),
+        ],
+        Extension::Viscoelastic { g, tau_s },
     )
 }
 
@@ -374,7 +352,12 @@ pub fn temporal_grid(
 /// leave-one-location-out selection ([`crate::confirm::lolo_confirm`]); `None` when `h` is not
 /// temporal or no grid point converged. Force-channel hypotheses (sensor-lag, clock-offset) are
 /// confirmed with the material refit on the corrected forces when the simulator can refit
-/// ([`material_refit`]), else with the compliance scale only.
+/// ([`material_refit`]), else with the compliance scale only. Viscoelasticity is also
+/// re-simulated along the hold fit's g–τ ridge on the refined fit mesh
+/// ([`refined_prony_point`], [`PRONY_RIDGE_STEPS`]) unless the template already resolves the
+/// footprint, the ridge extended until it brackets the full-data choice
+/// ([`PRONY_RIDGE_EXTENSIONS`]); every fold still picks among all simulated candidates on its
+/// training locations only.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn confirm_temporal(
     h: Hypothesis,
@@ -393,63 +376,38 @@ pub(crate) fn confirm_temporal(
     let mut frames = Vec::with_capacity(total);
     let (params, jobs): (Vec<_>, Vec<SequenceJob>) =
         grid.into_iter().map(|(q, e, seq)| (q, (e, seq))).unzip();
-    // Viscoelasticity is also re-simulated along the hold fit's g–τ ridge ([`prony_ridge`]) on
-    // the refined fit mesh (`ProbeSimulator::refined`: 1 → 8, or around the touched locations
-    // with `refinement.local`), driven by the measured force and replayed as the rigid tip at its
-    // measured poses ([`refined_prony_grid`]) — unless the template already resolves the
-    // footprint: then the rigid-tip replays run on it and the force-driven grid above is the
-    // force-driven model.
-    let ridge = if h == Hypothesis::Viscoelasticity {
-        prony_ridge(rec, seg, p, refit, sig)
-    } else {
-        Vec::new()
-    };
-    let (fine_force, rigid) = refined_prony_grid(&ridge);
+    let bounds = |fit| ComplianceScale::new(fit, 0.1, 10.0);
+    // Viscoelasticity on the refined fit mesh (`ProbeSimulator::refined`: 1 → 8, or around the
+    // touched locations with `refinement.local`) — unless the template already resolves the
+    // footprint: then the grid above is that model.
     let balls = crate::spatial::touched_balls(rec, seg);
     let tips: Vec<Vector3<f64>> = balls.iter().map(|b| b.centre_m).collect();
-    let mut fine = if rigid.is_empty() || sim.resolves_footprint(rec.tip_radius_m, &tips) {
-        Ok(None)
+    let mut fine =
+        if h != Hypothesis::Viscoelasticity || sim.resolves_footprint(rec.tip_radius_m, &tips) {
+            Ok(None)
+        } else {
+            sim.refined(&balls)
+        };
+    let centre = if h == Hypothesis::Viscoelasticity {
+        prony_centre(rec, seg, p, refit, sig)
     } else {
-        sim.refined(&balls)
+        (0.0, 0.0)
     };
-    let refined = matches!(fine, Ok(Some(_)));
-    let on_fine = |grid: Vec<(Vec<(String, f64)>, Extension)>| -> Vec<_> {
-        grid.into_iter()
-            .map(|(mut params, ext)| {
-                params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
-                (params, ext)
-            })
-            .collect()
-    };
-    let rigid = on_fine(rigid);
-    let fine_force = if refined {
-        on_fine(fine_force)
-    } else {
-        Vec::new()
-    };
+    let measured = contact_sequence(rec, seg, &p.force_n);
     // independent sequences, simulated in parallel by the simulator; taken in grid order
-    let (results, fine_side) = match fine.as_mut() {
-        Ok(Some(f)) if !rigid.is_empty() => {
-            let replay = f.as_mut();
-            let rigid = rigid.clone();
-            let measured = contact_sequence(rec, seg, &p.force_n);
-            let force_jobs: Vec<SequenceJob> = fine_force
+    let (results, fine_results) = match fine.as_mut() {
+        Ok(Some(f)) => {
+            let fine = f.as_mut();
+            let ridge_jobs: Vec<SequenceJob> = PRONY_RIDGE_STEPS
                 .iter()
-                .map(|(_, e)| (*e, measured.clone()))
+                .map(|&m| (refined_prony_point(centre, m).1, measured.clone()))
                 .collect();
-            let (results, side) = rayon::join(
+            rayon::join(
                 || sim.simulate_sequences(&jobs),
-                || {
-                    let force = replay.simulate_sequences(&force_jobs);
-                    (
-                        force,
-                        crate::spatial::simulate_rigid_grid(replay, rigid, rec),
-                    )
-                },
-            );
-            (results, Some(side))
+                || fine.simulate_sequences(&ridge_jobs),
+            )
         }
-        _ => (sim.simulate_sequences(&jobs), None),
+        _ => (sim.simulate_sequences(&jobs), Vec::new()),
     };
     for ((params, (_, seq)), result) in params.into_iter().zip(jobs).zip(results) {
         match result {
@@ -461,36 +419,58 @@ pub(crate) fn confirm_temporal(
             Err(e) => return Err(e),
         }
     }
-    // errors in the serial order: the force-driven grid's, the refinement's, the refined models'
-    let fine = fine?;
-    let (fine_force_results, rigid_side) = match fine_side {
-        Some((force, rigid)) => (force, Some(rigid)),
-        None => (Vec::new(), None),
-    };
-    total += fine_force.len();
-    let mut n_fine_force = 0;
-    for ((params, _), result) in fine_force.into_iter().zip(fine_force_results) {
+    // errors in the serial order: the force-driven grid's, the refinement's, the ridge's
+    let mut fine = fine?;
+    // (ridge step, candidate index) of the refined Prony models
+    let mut ridge: Vec<(f64, usize)> = Vec::new();
+    for (&m, result) in PRONY_RIDGE_STEPS.iter().zip(fine_results) {
+        total += 1;
         match result {
             Ok(prediction) => {
-                n_fine_force += 1;
+                ridge.push((m, cands.len()));
+                let params = refined_prony_point(centre, m).0;
                 cands.push(Candidate { params, prediction });
             }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
         }
     }
-    let (rigid_cands, rigid_total) = match rigid_side {
-        Some(side) => side?,
-        None if rigid.is_empty() => (Vec::new(), 0),
-        // the template resolves the footprint (or the simulator cannot refine): replay on it
-        None => crate::spatial::simulate_rigid_grid(sim, rigid, rec)?,
-    };
+    if let Some(f) = fine.as_deref_mut() {
+        for _ in 0..PRONY_RIDGE_EXTENSIONS {
+            let steps = ridge.iter().map(|r| r.0);
+            let (Some(lo), Some(hi)) = (steps.clone().reduce(f64::min), steps.reduce(f64::max))
+            else {
+                break;
+            };
+            let choices =
+                crate::confirm::lolo_choices(&cands, rec, seg, p, bounds(fit_scale), scored, false);
+            let Some(&(m, _)) = choices
+                .last()
+                .and_then(|&best| ridge.iter().find(|r| r.1 == best))
+            else {
+                break;
+            };
+            let next = if m <= lo {
+                lo / PRONY_RIDGE_STEP
+            } else if m >= hi {
+                hi * PRONY_RIDGE_STEP
+            } else {
+                break;
+            };
+            total += 1;
+            let (params, ext) = refined_prony_point(centre, next);
+            match f.simulate_sequence(&ext, &measured) {
+                Ok(prediction) => {
+                    ridge.push((next, cands.len()));
+                    cands.push(Candidate { params, prediction });
+                }
+                Err(DiagnoseError::Simulation { .. }) => break,
+                Err(e) => return Err(e),
+            }
+        }
+    }
     drop(fine);
-    let n_rigid = rigid_cands.len();
-    cands.extend(rigid_cands);
-    total += rigid_total;
     let n = cands.len();
-    let bounds = |fit| ComplianceScale::new(fit, 0.1, 10.0);
     if matches!(h, Hypothesis::SensorLag | Hypothesis::ClockOffset) && n > 0 {
         let method = format!(
             "re-simulated: {} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {n} points, leave-one-location-out",
@@ -519,18 +499,9 @@ pub(crate) fn confirm_temporal(
     let method = format!(
         "re-simulated extended model ({n} grid points of {total}, {}), compliance scale, leave-one-location-out",
         match h {
-            Hypothesis::Viscoelasticity if n_rigid + n_fine_force > 0 => format!(
-                "ViscoelasticModel, one Prony branch, driven by the measured force{} and ({n_rigid} of them) replayed as the rigid tip at its measured poses{}",
-                if n_fine_force > 0 {
-                    format!(" ({n_fine_force} of them on the refined fit mesh)")
-                } else {
-                    String::new()
-                },
-                if refined {
-                    " on the refined fit mesh"
-                } else {
-                    ""
-                }
+            Hypothesis::Viscoelasticity if !ridge.is_empty() => format!(
+                "ViscoelasticModel, one Prony branch, driven by the measured force ({} of them along the hold fit's g-tau ridge on the refined fit mesh)",
+                ridge.len()
             ),
             Hypothesis::Viscoelasticity => "ViscoelasticModel, one Prony branch".into(),
             Hypothesis::SensorLag => {

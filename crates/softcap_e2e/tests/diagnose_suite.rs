@@ -180,11 +180,12 @@ fn anisotropy_is_named() {
 }
 
 /// g 3, τ 0.3 s, hold 6 frames @ 20 fps: the hold force relaxes, so viscoelasticity is confirmed
-/// by its signature (`temporal::RELAXATION_DRIFT`) with the re-simulated Prony model — driven by
-/// the measured force, and replayed as the rigid tip at its measured poses on the refined fit
-/// mesh (`temporal::rigid_prony_grid`, 3 replays along the hold fit's g–τ ridge).
+/// by its signature (`temporal::RELAXATION_DRIFT`) with the re-simulated Prony model driven by the
+/// measured force — on the template (15-point grid) and along the hold fit's g–τ ridge on the
+/// refined fit mesh under the disk's flat-punch load (`temporal::refined_prony_point`, 3 points
+/// extended until they bracket the choice). Session 14 (visco): 0.2841 -> 0.0892 mm (3.18x) on
+/// fresh inputs of main 2813a76 (docs/diagnose.md).
 #[test]
-#[ignore = "measured 2026-11-27 04:14 (session 13, visco; fresh inputs, main df18d7d - the disk's flat-punch load in tissue fit and diagnose - plus the rigid-tip Prony replay, load ~10): verdict viscoelasticity, held-out on probed loading/hold/released 0.2841 -> 0.1038 mm (2.74x, needs 3x; g 3.18 of 3, tau 0.252 s of 0.3, compliance 0.98, the rigid-tip replay on the refined mesh; chain 143 s: synth 21.1, capture 0.5, tissue 7.8, diagnose 113.9 s). The design's g 2 on the same code: 0.2305 -> 0.0953 (2.42x). On main b2727f4's lumped-patch default the same code passed: g 3 0.3020 -> 0.0950 (3.18x, unloading scored too), g 2 0.2500 -> 0.0887 (2.82x), g 4 0.3487 -> 0.1127 (3.09x). Session 12 (lead): 0.2500 -> 0.1678 (1.49x) - see docs/diagnose.md session 13 (visco)"]
 fn viscoelasticity_is_named() {
     check("viscoelasticity");
 }
