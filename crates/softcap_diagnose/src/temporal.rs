@@ -3,7 +3,7 @@
 //!
 //! | hypothesis | extended model re-simulated | grid |
 //! |---|---|---|
-//! | viscoelasticity | `softcap_fem::ViscoelasticModel` over the default model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3, exact exponential recurrence), driven by the measured force | g, τ around the linearised creep estimate |
+//! | viscoelasticity | `softcap_fem::ViscoelasticModel` over the default model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3, exact exponential recurrence), driven by the measured force; also on the refined fit mesh under the footprint load (a disk: the flat punch's pressure) | g, τ around the linearised creep estimate or the hold fit; on the refined mesh 3 points along the hold fit's g–τ ridge, extended until they bracket the choice |
 //! | sensor-lag | default model under the true force behind the reading of the FSR chain — first-order lag τ then a play hysteresis of half-width h·F ([`crate::sensor`], inverted by a regularised forward fit) | τ around the linearised estimate × h ∈ {0, 2.5, 5, 10 %, the estimate} |
 //! | clock-offset | default model under the time-shifted force f_eff(t) = f_m(t + δ) | δ around the linearised estimate |
 //!
@@ -234,8 +234,8 @@ fn prony_centre(
     }
 }
 
-/// Relative steps of the refined Prony models along the hold fit's g–τ ridge around
-/// [`prony_centre`], applied to g and τ together. The centre comes from the held force, which
+/// Relative steps of the refined Prony models along the hold fit's g–τ ridge around the
+/// viscoelasticity grids' centre ([`hold_relaxation`] when the holds relax), applied to g and τ together. The centre comes from the held force, which
 /// measures G(t) directly, but over a hold of about τ the fit of A + B e^{−s/τ} trades τ against
 /// B/A: a longer τ puts the asymptote A lower, so g and τ err together (suite viscoelasticity
 /// session, per location τ_l / g_l 0.356 / 2.47, 0.397 / 2.68, 0.409 / 3.22, 0.444 / 4.11 for the
