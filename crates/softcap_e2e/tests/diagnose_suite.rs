@@ -5,10 +5,12 @@
 //! (or `none` for the controls clean / stiff-inclusion / strain-stiffening), with the held-out
 //! error after modeling at least 3× lower than before on every effect session.
 //!
-//! The material is `softcap_tissue::fit::run` (tests/common); the diagnosis reads it with
-//! `MaterialSource::Auto` (the tissue report's homogeneous baseline; the strain-space basis
-//! absorbs support slip and anisotropy, docs/diagnose.md session 10). Cases that do not pass yet
-//! are `#[ignore]`d with the measured numbers in the reason.
+//! The material is `softcap_tissue::fit::run` with `common::suite_fit_settings` (the stage's
+//! defaults with the shrinkage γ_p fixed instead of chosen by leave-one-location-out: the
+//! diagnosis does not read what γ_p shapes); the diagnosis reads it with `MaterialSource::Auto`
+//! (the tissue report's homogeneous baseline; the strain-space basis absorbs support slip and
+//! anisotropy, docs/diagnose.md session 10). Cases that do not pass yet are `#[ignore]`d with the
+//! measured numbers in the reason.
 //!
 //! One `#[test]` per case. Each prints one `SUITE` row (case, expected, verdict, held-out RMSE
 //! before / after in mm, seconds per stage) that docs/diagnose.md's confusion table is built from.

@@ -5,7 +5,7 @@
 
 use softcap_capture::{CaptureSettings, Session, capture, write_capture_mcap};
 use softcap_synth::{Scenario, synthesize};
-use softcap_tissue::fit::{FitConfig, FitSettings};
+use softcap_tissue::fit::{FitConfig, FitSettings, RECOMMENDED_GAMMA_PRIOR};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -22,8 +22,34 @@ pub struct Inputs {
     pub seconds: [f64; 3],
 }
 
-/// synth → capture (capture.mcap) → `softcap_tissue::fit::run` (material.mcap), each through the
-/// stage's library API exactly as the binaries call it.
+/// The tissue-fit settings of the suite's material: the stage's defaults (`FitSettings::default`,
+/// what `softcap tissue fit` runs) except that the shrinkage γ_p of the per-example fits is the
+/// fixed [`RECOMMENDED_GAMMA_PRIOR`] instead of the leave-one-location-out choice among
+/// `DEFAULT_GAMMA_PRIOR_CANDIDATES` (`gamma_prior_candidates = []`, a documented setting).
+///
+/// Why: the diagnosis reads the material with `MaterialSource::Auto`, whose default model is the
+/// homogeneous baseline of `/tissue/report` (`homogeneous.lambda` / `homogeneous.alpha`, its
+/// `homogeneous.patch.load`) on `/mesh/volume` — step 1 of the fit, computed before and
+/// independently of γ_p. γ_p shapes only the per-example parameters and the strain-space basis
+/// (and the report's `rms.material`, quoted in the diagnosis's material note), which the
+/// diagnosis does not simulate. The selection is the expensive part of the fit on the
+/// 5,184-tet template: three candidates' per-example fits, each scored by re-simulating every
+/// example with a basis built without its location (docs/tissue.md, session 14). Measured:
+/// the same homogeneous baseline bit for bit and the same verdicts and held-out numbers
+/// (docs/diagnose.md, "Session 14 (speed)"). If the default model ever reads the basis or the
+/// per-example parameters, this must go back to `FitSettings::default()`.
+pub fn suite_fit_settings() -> FitSettings {
+    let mut s = FitSettings {
+        progress: false,
+        gamma_prior_candidates: Vec::new(),
+        ..Default::default()
+    };
+    s.example_fit.gamma_prior = RECOMMENDED_GAMMA_PRIOR;
+    s
+}
+
+/// synth → capture (capture.mcap) → `softcap_tissue::fit::run` (material.mcap) with
+/// [`suite_fit_settings`], each through the stage's library API as the binaries call it.
 ///
 /// Developer aid: with `SOFTCAP_SUITE_CACHE=DIR`, the capture.mcap / material.mcap of a scenario
 /// are kept in `DIR/<name>-<hash of the resolved scenario>/` and reused by later runs (for
@@ -48,10 +74,7 @@ pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
             panic!("SOFTCAP_SUITE_DISK_TIP_LOAD={n}: lumped | consistent | flat-punch | hertz")
         })
     });
-    let mut settings = FitSettings {
-        progress: false,
-        ..Default::default()
-    };
+    let mut settings = suite_fit_settings();
     let material_name = match load {
         Some(l) => {
             settings.disk_tip_load = l;
