@@ -181,6 +181,13 @@ fn anisotropy_is_named() {
     check("anisotropy");
 }
 
+/// The paired control of viscoelasticity: its seed, template and protocol (6-frame holds at
+/// 20 fps), an elastic truth.
+#[test]
+fn clean_visco_is_none() {
+    check("clean-visco");
+}
+
 /// g 3, τ 0.3 s, hold 6 frames @ 20 fps: the hold force relaxes, so viscoelasticity is confirmed
 /// by its signature (`temporal::RELAXATION_DRIFT`) with the re-simulated Prony model driven by the
 /// measured force — on the template (15-point grid) and along the hold fit's g–τ ridge on the
