@@ -588,6 +588,13 @@ impl FemProbeSimulator {
             Some(params) => {
                 let mut contact =
                     FrictionalContact::new(problem_at(Isometry3::identity())?, params)
+                        .and_then(|c| {
+                            c.with_discretisation(
+                                self.settings().friction_contact,
+                                &setup.mesh.boundary_faces(),
+                                &rest,
+                            )
+                        })
                         .map_err(fem)?;
                 contact.active_set_hysteresis = true;
                 contact.normal_force_lag = NormalForceLag::Solve;

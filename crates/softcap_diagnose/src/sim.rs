@@ -18,7 +18,8 @@ use softcap_fem::probing::{
     StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
 };
 use softcap_fem::{
-    CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams, StaticSolver, TipShape,
+    ContactDiscretisation, CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams,
+    StaticSolver, TipShape,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use std::sync::Arc;
@@ -174,6 +175,10 @@ pub struct FemSimSettings {
     pub strain_space: StrainSpaceSolveSettings,
     /// How [`ProbeSimulator::refined`] refines the fit mesh.
     pub refinement: RefinementSettings,
+    /// How the frictional rigid-tip replay (`Extension::ProbeFriction`) samples the surface: at
+    /// the boundary nodes, or at quadrature points on the boundary triangles
+    /// (`softcap_fem::ContactDiscretisation`; docs/diagnose.md session 14 (fric)).
+    pub friction_contact: ContactDiscretisation,
 }
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
@@ -217,6 +222,7 @@ impl Default for FemSimSettings {
             },
             strain_space: StrainSpaceSolveSettings::default(),
             refinement: RefinementSettings::default(),
+            friction_contact: ContactDiscretisation::Nodes,
         }
     }
 }

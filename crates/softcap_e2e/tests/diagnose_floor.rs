@@ -31,6 +31,9 @@
 //!   (`spatial::effect_mask`) at compliance 1, split by phase and normal / tangential component
 //!   (docs/diagnose.md, "Session 12 (fric)"); `FLOOR_FRAMES=1` adds per contact frame the scored
 //!   markers' mean measured and simulated displacement along the location's tangential travel;
+//! - `FLOOR_QUAD=K` the frictional replay's contact at quadrature points, K² sub-triangles of
+//!   3 points per boundary triangle (`softcap_fem::ContactDiscretisation::Quadrature`; 0: at the
+//!   nodes, the default; docs/diagnose.md session 14 (fric));
 //! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
 //!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
@@ -88,6 +91,12 @@ fn default_model_floor() {
             softcap_fem::probing::FootprintLoad::from_name(&load).unwrap_or_else(|| {
                 panic!("FLOOR_LOAD={load}: lumped | consistent | flat-punch | hertz")
             });
+    }
+    if let Some(k) = env("FLOOR_QUAD") {
+        settings.friction_contact = match k.parse::<usize>().expect("FLOOR_QUAD=K") {
+            0 => softcap_fem::ContactDiscretisation::Nodes,
+            k => softcap_fem::ContactDiscretisation::Quadrature { subdivisions: k },
+        };
     }
     if let Some(l) = env("FLOOR_LOCAL") {
         let (f, s) = l.split_once(':').unwrap_or((&l, "1"));

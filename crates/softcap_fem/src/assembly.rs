@@ -136,6 +136,18 @@ pub struct AssemblyScratch {
     matrices: Vec<Matrix12>,
 }
 
+/// Slot of the stored lower entry of free dofs (i, j), either order, in a lower-triangular CSC
+/// pattern with sorted row indices (NONE outside the pattern).
+fn lower_slot(symbolic: &SymbolicSparseColMat<usize>, i: usize, j: usize) -> u32 {
+    let (r, c) = if i >= j { (i, j) } else { (j, i) };
+    let cp = symbolic.col_ptr();
+    let rows = &symbolic.row_idx()[cp[c]..cp[c + 1]];
+    match rows.binary_search(&r) {
+        Ok(k) => (cp[c] + k) as u32,
+        Err(_) => NONE,
+    }
+}
+
 /// Lower-triangular CSC pattern of the reduced stiffness matrix with element scatter maps.
 #[derive(Clone, Debug)]
 pub struct SystemPattern {
@@ -193,15 +205,7 @@ impl SystemPattern {
             col_ptr.push(row_idx.len());
         }
         let symbolic = SymbolicSparseColMat::new_checked(nf, nf, col_ptr, None, row_idx);
-        let slot = |i: usize, j: usize| -> u32 {
-            let (r, c) = if i >= j { (i, j) } else { (j, i) };
-            let cp = symbolic.col_ptr();
-            let rows = &symbolic.row_idx()[cp[c]..cp[c + 1]];
-            match rows.binary_search(&r) {
-                Ok(k) => (cp[c] + k) as u32,
-                Err(_) => NONE,
-            }
-        };
+        let slot = |i: usize, j: usize| lower_slot(&symbolic, i, j);
         let mut element_offsets = Vec::with_capacity(tets.len() + 1);
         let mut element_slots = Vec::with_capacity(78 * tets.len());
         let mut element_local = Vec::with_capacity(78 * tets.len());
@@ -306,6 +310,38 @@ impl SystemPattern {
                 }
             }
         }
+    }
+
+    /// Adds the off-diagonal block pair of two distinct nodes a ≠ b of a symmetric coupling: `m` is
+    /// the block A_ab (rows of a's dofs, columns of b's) and A_ba = mᵀ is implied, so each stored
+    /// lower entry receives its one value. Serves the symmetric and the transposed (`upper`)
+    /// value arrays of [`SparseCholesky::factor_general`] alike (for a symmetric coupling both get
+    /// the same entries). Constrained dofs are skipped; a free pair outside the pattern (nodes
+    /// that share no element) is a broken invariant of the caller (debug assertion), its entries
+    /// are dropped in release builds.
+    pub fn add_pair_block(&self, a: usize, b: usize, m: &Matrix3<f64>, values: &mut [f64]) {
+        debug_assert_ne!(a, b, "add_pair_block of a node with itself");
+        for r in 0..3 {
+            let Some(fi) = self.dofs.free_index(3 * a + r) else {
+                continue;
+            };
+            for c in 0..3 {
+                let Some(fj) = self.dofs.free_index(3 * b + c) else {
+                    continue;
+                };
+                let slot = self.slot(fi, fj);
+                debug_assert!(slot != NONE, "nodes {a}, {b} share no element");
+                if slot != NONE {
+                    values[slot as usize] += m[(r, c)];
+                }
+            }
+        }
+    }
+
+    /// Slot of the stored lower entry of free dofs (i, j) in either order (NONE outside the
+    /// pattern).
+    fn slot(&self, i: usize, j: usize) -> u32 {
+        lower_slot(&self.symbolic, i, j)
     }
 
     /// Diagonal entries of `node`'s free dofs (NaN where constrained).

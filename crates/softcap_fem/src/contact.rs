@@ -395,48 +395,88 @@ impl ContactProblem {
         x: &[Vector3<f64>],
         node_stiffness: impl Fn(usize) -> f64,
     ) -> Vec<ContactSpring> {
-        self.candidate_nodes
-            .iter()
-            .filter_map(|&n| {
-                let (_, normal, target_m) = self.probe.penetration(&x[n])?;
-                Some(ContactSpring {
-                    node: n,
-                    normal,
-                    target_m,
-                    stiffness_n_per_m: self.settings.penalty_factor * node_stiffness(n),
-                })
-            })
-            .collect()
+        let points: Vec<(usize, Vector3<f64>)> =
+            self.candidate_nodes.iter().map(|&n| (n, x[n])).collect();
+        self.point_springs(
+            &points,
+            |n| self.settings.penalty_factor * node_stiffness(n),
+            &[],
+        )
     }
 
-    /// Springs at `x` with hysteresis (the active-set update of the equilibrium iterations). Every
-    /// candidate inside the tip gets a spring at its closest point. A node that had a spring in
-    /// `previous` but is no longer inside stays in the set while it is still compressed against
-    /// that spring's plane, n·(c − x) > 0, re-linearized at its current closest surface point (so
-    /// the next iteration pulls it back onto the tip). Without this, a rim node that the last
-    /// iteration placed on the tangent plane of its closest point — outside a curved tip by
-    /// ≈ s²/2R for a tangential slip s, more than the penalty penetration ≈ f/k_c — drops out,
-    /// springs back in at the next iteration, and the active set cycles. A node whose contact is
-    /// really tensile ends outside its plane and leaves at the next update. Sorted by node.
+    /// Springs at `x` with hysteresis (the active-set update of the equilibrium iterations), see
+    /// [`Self::point_springs`]. Sorted by node.
     pub(crate) fn springs_with_hysteresis(
         &self,
         x: &[Vector3<f64>],
         node_stiffness: impl Fn(usize) -> f64,
         previous: &[ContactSpring],
     ) -> Vec<ContactSpring> {
-        let mut springs = self.springs(x, &node_stiffness);
+        let points: Vec<(usize, Vector3<f64>)> =
+            self.candidate_nodes.iter().map(|&n| (n, x[n])).collect();
+        self.point_springs(
+            &points,
+            |n| self.settings.penalty_factor * node_stiffness(n),
+            previous,
+        )
+    }
+
+    /// The one spring builder of the node and the quadrature-point contact
+    /// ([`crate::ContactDiscretisation`]): `points` are contact points (key, current position),
+    /// sorted by key; `stiffness(key)` is the point's penalty stiffness k_c [N/m]. Every point
+    /// inside the tip gets a spring at its closest point. With hysteresis (`previous` non-empty):
+    /// a point that had a spring in `previous` but is no longer inside stays in the set while it
+    /// is still compressed against that spring's plane, n·(c − x) > 0, re-linearized at its
+    /// current closest surface point (so the next iteration pulls it back onto the tip). Without
+    /// this, a rim point that the last iteration placed on the tangent plane of its closest point
+    /// — outside a curved tip by ≈ s²/2R for a tangential slip s, more than the penalty
+    /// penetration ≈ f/k_c — drops out, springs back in at the next iteration, and the active set
+    /// cycles. A point whose contact is really tensile ends outside its plane and leaves at the
+    /// next update. Result sorted by key (`ContactSpring::node` holds the key).
+    pub(crate) fn point_springs(
+        &self,
+        points: &[(usize, Vector3<f64>)],
+        stiffness: impl Fn(usize) -> f64,
+        previous: &[ContactSpring],
+    ) -> Vec<ContactSpring> {
+        let mut springs: Vec<ContactSpring> = points
+            .iter()
+            .filter_map(|&(key, p)| {
+                let (_, normal, target_m) = self.probe.penetration(&p)?;
+                Some(ContactSpring {
+                    node: key,
+                    normal,
+                    target_m,
+                    stiffness_n_per_m: stiffness(key),
+                })
+            })
+            .collect();
+        if previous.is_empty() {
+            return springs;
+        }
         let fresh: std::collections::BTreeSet<usize> = springs.iter().map(|s| s.node).collect();
         let before = springs.len();
         for s in previous {
-            if fresh.contains(&s.node) || s.normal.dot(&(s.target_m - x[s.node])) <= 0.0 {
+            if fresh.contains(&s.node) {
                 continue;
             }
-            if let Some((_, normal, target_m)) = self.probe.closest(&x[s.node]) {
+            // sorted keys (the documented order) by bisection, any other order by a scan
+            let found = match points.binary_search_by_key(&s.node, |p| p.0) {
+                Ok(k) => Some(points[k].1),
+                Err(_) => points.iter().find(|p| p.0 == s.node).map(|p| p.1),
+            };
+            let Some(p) = found else {
+                continue;
+            };
+            if s.normal.dot(&(s.target_m - p)) <= 0.0 {
+                continue;
+            }
+            if let Some((_, normal, target_m)) = self.probe.closest(&p) {
                 springs.push(ContactSpring {
                     node: s.node,
                     normal,
                     target_m,
-                    stiffness_n_per_m: self.settings.penalty_factor * node_stiffness(s.node),
+                    stiffness_n_per_m: stiffness(s.node),
                 });
             }
         }

@@ -139,6 +139,15 @@ pub enum FemError {
         /// regularization slip
         slip_distance_m: f64,
     },
+    /// A contact surface triangle that cannot carry surface quadrature (a vertex out of range, a
+    /// degenerate triangle).
+    #[error("contact surface triangle {triangle}: {reason}")]
+    InvalidContactSurface {
+        /// triangle index
+        triangle: usize,
+        /// explanation
+        reason: String,
+    },
     /// Probing-example input or fit problem (marker embedding, samples, probe placement).
     #[error("probing: {what}")]
     Probing {

@@ -27,7 +27,7 @@ use crate::nodal::{NodalSolver, NodalTerm};
 use crate::statics::{EquilibriumReport, EquilibriumSettings, SolveStatus};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// Regularized Coulomb parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -133,15 +133,181 @@ pub struct FrictionReport {
     pub sticking_nodes: usize,
 }
 
+/// How the frictional probe contact samples the body's surface.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ContactDiscretisation {
+    /// One contact point per candidate node (node-to-rigid-surface): penalty and friction forces
+    /// lumped at the nodes (the original behaviour). A patch of a few nodes in partial slip
+    /// switches its drag with the node that sticks or slides: the friction force is a jumping
+    /// function of μ and of the tip's position (docs/diagnose.md, session 12 (fric)).
+    #[default]
+    Nodes,
+    /// Quadrature points on the surface triangles (Gauss-point-to-rigid-surface; Wriggers,
+    /// *Computational Contact Mechanics*, 2nd ed., §9 — the rigid master is analytic, so each
+    /// point is projected onto the tip directly). Every triangle is cut into k² similar
+    /// sub-triangles (k = `subdivisions`), each carrying the symmetric 3-point rule of degree 2
+    /// (barycentric (2/3, 1/6, 1/6) and permutations, weight ⅓ of the sub-triangle's area;
+    /// Strang & Fix 1973, table 4.1). A point q at barycentric N_i(q) of triangle T has position
+    /// x_q = Σ_i N_i x_i, its own gap, penalty spring, lagged normal force, stick anchor and
+    /// regularized-Coulomb slip (the law of this module), and its force f_q is distributed as
+    /// N_i f_q; the stiffness is N_i N_j K_q over all node pairs of T (the off-diagonal pairs
+    /// through [`NodalTerm::pair_blocks`]). The penalty stays scale-free: with κ_i = p k_i / A_i
+    /// the penalty per unit area at node i (p the contact's `penalty_factor`, k_i the node's mean
+    /// diagonal stiffness, A_i its tributary rest area ⅓ Σ_T∋i A_T over the contact triangles),
+    /// k_q = w_q A_T Σ_i N_i(q) κ_i, so a fully pressed flat patch gets the nodal springs'
+    /// stiffness p k_i at every node. The traction is integrated over the footprint instead of
+    /// lumped at the 2–5 nodes a small tip touches, so the stick/slip boundary moves through the
+    /// rule's points continuously as k grows.
+    Quadrature {
+        /// k ≥ 1: each surface triangle is cut into k² sub-triangles of 3 points each.
+        subdivisions: usize,
+    },
+}
+
+/// The points of [`ContactDiscretisation::Quadrature`] on the contact triangles.
+#[derive(Clone, Debug)]
+struct SurfaceQuadrature {
+    /// Contact triangles (every vertex a contact candidate).
+    triangles: Vec<[usize; 3]>,
+    /// The rule on one triangle: barycentric coordinates and weight (fractions of its area, Σ = 1).
+    rule: Vec<([f64; 3], f64)>,
+    /// Rest area of each triangle [m²].
+    area_m2: Vec<f64>,
+    /// Tributary rest area ⅓ Σ_T∋i A_T of every node of the triangles [m²].
+    node_area_m2: BTreeMap<usize, f64>,
+}
+
+impl SurfaceQuadrature {
+    /// The rule of `subdivisions` = k on `triangles` whose vertices are all `candidates` (sorted).
+    fn new(
+        triangles: &[[usize; 3]],
+        candidates: &[usize],
+        rest_m: &[Vector3<f64>],
+        subdivisions: usize,
+    ) -> Result<Self, FemError> {
+        if subdivisions == 0 {
+            return Err(FemError::InvalidSetting {
+                what: "contact quadrature subdivisions",
+                value: 0.0,
+            });
+        }
+        let k = subdivisions;
+        let kf = k as f64;
+        // sub-triangles of the reference triangle in grid units (i, j) ↦ (1 − (i+j)/k, i/k, j/k)
+        let bary = |i: usize, j: usize| [1.0 - (i + j) as f64 / kf, i as f64 / kf, j as f64 / kf];
+        let mut subs = Vec::with_capacity(k * k);
+        for i in 0..k {
+            for j in 0..k - i {
+                subs.push([bary(i, j), bary(i + 1, j), bary(i, j + 1)]);
+                if j + 1 < k - i {
+                    subs.push([bary(i + 1, j), bary(i + 1, j + 1), bary(i, j + 1)]);
+                }
+            }
+        }
+        let mut rule = Vec::with_capacity(3 * subs.len());
+        let w = 1.0 / (3.0 * subs.len() as f64);
+        for v in &subs {
+            for a in 0..3 {
+                let l = |b: usize| if a == b { 2.0 / 3.0 } else { 1.0 / 6.0 };
+                let n: [f64; 3] =
+                    std::array::from_fn(|c| l(0) * v[0][c] + l(1) * v[1][c] + l(2) * v[2][c]);
+                rule.push((n, w));
+            }
+        }
+        let is_candidate = |n: usize| candidates.binary_search(&n).is_ok();
+        let mut kept = Vec::new();
+        let mut area_m2 = Vec::new();
+        let mut node_area_m2 = BTreeMap::new();
+        for (t, tri) in triangles.iter().enumerate() {
+            if let Some(&v) = tri.iter().find(|&&v| v >= rest_m.len()) {
+                return Err(FemError::InvalidContactSurface {
+                    triangle: t,
+                    reason: format!("vertex {v} out of range ({} nodes)", rest_m.len()),
+                });
+            }
+            if !tri.iter().all(|&v| is_candidate(v)) {
+                continue;
+            }
+            let [a, b, c] = tri.map(|v| rest_m[v]);
+            let area = 0.5 * (b - a).cross(&(c - a)).norm();
+            let scale = (b - a).norm().max((c - a).norm()).max((c - b).norm());
+            if !(area > 1e-12 * scale * scale && area.is_finite()) {
+                return Err(FemError::InvalidContactSurface {
+                    triangle: t,
+                    reason: format!("degenerate (rest area {area:e} m²)"),
+                });
+            }
+            for &v in tri {
+                *node_area_m2.entry(v).or_insert(0.0) += area / 3.0;
+            }
+            kept.push(*tri);
+            area_m2.push(area);
+        }
+        Ok(Self {
+            triangles: kept,
+            rule,
+            area_m2,
+            node_area_m2,
+        })
+    }
+
+    /// Nodes and shape-function values of point `key` = triangle × rule length + rule index.
+    fn support(&self, key: usize) -> ([usize; 3], [f64; 3]) {
+        let nr = self.rule.len();
+        (self.triangles[key / nr], self.rule[key % nr].0)
+    }
+
+    /// Penalty stiffness k_q = w_q A_T Σ_i N_i p k_i / A_i of point `key` [N/m].
+    fn stiffness(&self, key: usize, penalty_factor: f64, node_k: &dyn Fn(usize) -> f64) -> f64 {
+        let nr = self.rule.len();
+        let (t, (n, w)) = (key / nr, self.rule[key % nr]);
+        let kappa: f64 = (0..3)
+            .map(|i| {
+                let v = self.triangles[t][i];
+                n[i] * penalty_factor * node_k(v) / self.node_area_m2[&v]
+            })
+            .sum();
+        w * self.area_m2[t] * kappa
+    }
+
+    /// (key, position) of every point of the triangles the tip may touch at `x`, sorted by key:
+    /// a triangle is skipped when its current centroid lies farther from the tip than its
+    /// farthest vertex (then no point of it is inside), unless it is in `keep`.
+    fn points(
+        &self,
+        x: &[Vector3<f64>],
+        probe: &crate::contact::Probe,
+        keep: &BTreeSet<usize>,
+    ) -> Vec<(usize, Vector3<f64>)> {
+        let nr = self.rule.len();
+        let mut out = Vec::new();
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let v = tri.map(|i| x[i]);
+            let c = (v[0] + v[1] + v[2]) / 3.0;
+            let r = v.iter().map(|p| (p - c).norm()).fold(0.0, f64::max);
+            let far = probe.closest(&c).is_some_and(|(d, _, _)| d > r);
+            if far && !keep.contains(&t) {
+                continue;
+            }
+            for (q, (n, _)) in self.rule.iter().enumerate() {
+                out.push((t * nr + q, v[0] * n[0] + v[1] * n[1] + v[2] * n[2]));
+            }
+        }
+        out
+    }
+}
+
 /// Probe contact (normal penalty of [`crate::contact`]) plus regularized Coulomb friction; a
-/// [`NodalTerm`] for [`crate::NodalSolver`].
+/// [`NodalTerm`] for [`crate::NodalSolver`]. Its contact points are the candidate nodes
+/// ([`ContactDiscretisation::Nodes`], the default) or quadrature points on the surface triangles
+/// ([`Self::with_discretisation`]); every point carries the law of this module.
 #[derive(Clone, Debug)]
 pub struct FrictionalContact {
     /// The probe contact (normal part).
     pub contact: ContactProblem,
     /// Friction parameters.
     pub friction: FrictionParams,
-    /// Keep compressed rim nodes in the active set when re-querying (the hysteresis of
+    /// Keep compressed rim points in the active set when re-querying (the hysteresis of
     /// [`ContactProblem`]'s active-set update in [`crate::StaticSolver`]); default `false` (plain
     /// re-query, the original behaviour). Switch it on for sharp-rimmed tips that move sideways
     /// (a disk dragged over a coarse mesh): without it a rim node pushed out by the side wall
@@ -151,15 +317,26 @@ pub struct FrictionalContact {
     /// Where the normal forces f_n of the friction law come from (default
     /// [`NormalForceLag::Iteration`], the original behaviour).
     pub normal_force_lag: NormalForceLag,
+    discretisation: ContactDiscretisation,
+    quadrature: Option<SurfaceQuadrature>,
     lagged_normal_n: BTreeMap<usize, f64>,
     committed: BTreeMap<usize, Vector3<f64>>,
     working: BTreeMap<usize, Vector3<f64>>,
+    /// Active springs; `ContactSpring::node` is the contact point's key (the node, or triangle ×
+    /// rule length + rule index).
     springs: Vec<ContactSpring>,
     normal_forces_n: Vec<f64>,
 }
 
+/// Nodes and shape-function values of one contact point (`len` of them used).
+struct Support {
+    nodes: [usize; 3],
+    weights: [f64; 3],
+    len: usize,
+}
+
 impl FrictionalContact {
-    /// New frictional contact with no stick history.
+    /// New frictional contact with no stick history, contact points at the candidate nodes.
     pub fn new(contact: ContactProblem, friction: FrictionParams) -> Result<Self, FemError> {
         friction.validate()?;
         Ok(Self {
@@ -167,6 +344,8 @@ impl FrictionalContact {
             friction,
             active_set_hysteresis: false,
             normal_force_lag: NormalForceLag::Iteration,
+            discretisation: ContactDiscretisation::Nodes,
+            quadrature: None,
             lagged_normal_n: BTreeMap::new(),
             committed: BTreeMap::new(),
             working: BTreeMap::new(),
@@ -175,15 +354,77 @@ impl FrictionalContact {
         })
     }
 
+    /// The contact points of `discretisation`: for [`ContactDiscretisation::Quadrature`] the
+    /// surface `triangles` (e.g. the mesh's boundary faces; each must be a face of an element,
+    /// whose node pairs the system pattern holds) whose three vertices are all contact
+    /// candidates, with areas at the rest positions `rest_m`; for
+    /// [`ContactDiscretisation::Nodes`] the candidate nodes (`triangles` unused). Forgets the
+    /// stick history. Errors on k = 0, a vertex out of range or a degenerate triangle.
+    pub fn with_discretisation(
+        mut self,
+        discretisation: ContactDiscretisation,
+        triangles: &[[usize; 3]],
+        rest_m: &[Vector3<f64>],
+    ) -> Result<Self, FemError> {
+        self.quadrature = match discretisation {
+            ContactDiscretisation::Nodes => None,
+            ContactDiscretisation::Quadrature { subdivisions } => {
+                let mut candidates = self.contact.candidate_nodes.clone();
+                candidates.sort_unstable();
+                Some(SurfaceQuadrature::new(
+                    triangles,
+                    &candidates,
+                    rest_m,
+                    subdivisions,
+                )?)
+            }
+        };
+        self.discretisation = discretisation;
+        self.reset_history();
+        Ok(self)
+    }
+
+    /// The contact discretisation.
+    pub fn discretisation(&self) -> ContactDiscretisation {
+        self.discretisation
+    }
+
+    fn support(&self, key: usize) -> Support {
+        match &self.quadrature {
+            None => Support {
+                nodes: [key; 3],
+                weights: [1.0, 0.0, 0.0],
+                len: 1,
+            },
+            Some(q) => {
+                let (nodes, weights) = q.support(key);
+                Support {
+                    nodes,
+                    weights,
+                    len: 3,
+                }
+            }
+        }
+    }
+
+    /// Current position of contact point `key`: x_key (nodes) or Σ_i N_i x_i (quadrature).
+    fn position(&self, key: usize, x: &[Vector3<f64>]) -> Vector3<f64> {
+        let s = self.support(key);
+        if s.len == 1 {
+            return x[s.nodes[0]];
+        }
+        (0..s.len).fold(Vector3::zeros(), |p, a| p + x[s.nodes[a]] * s.weights[a])
+    }
+
     /// Moves the probe (anchors move with it: they live in the probe frame).
     pub fn set_pose(&mut self, world_from_probe: Isometry3<f64>) {
         self.contact.probe.world_from_probe = world_from_probe;
     }
 
-    /// Moves the probe to `world_from_probe` and, with friction (μ > 0), carries the nodes that
-    /// hold a committed stick anchor rigidly with the probe increment T_new T_old⁻¹: the predictor
-    /// of a frictional step, so the iterations start with every stuck node on its anchor and at
-    /// its committed penetration.
+    /// Moves the probe to `world_from_probe` and, with friction (μ > 0), carries the nodes of the
+    /// contact points that hold a committed stick anchor rigidly with the probe increment
+    /// T_new T_old⁻¹: the predictor of a frictional step, so the iterations start with every
+    /// stuck point on its anchor and at its committed penetration.
     ///
     /// Without it, a probe increment of Δ along the axis leaves the patch nodes Δ deep inside the
     /// tip; their penalty springs then carry f_n ≈ k_c Δ (10³ N per node for Δ = 0.6 mm, k_c =
@@ -193,7 +434,12 @@ impl FrictionalContact {
     pub fn move_probe(&mut self, x: &mut [Vector3<f64>], world_from_probe: Isometry3<f64>) {
         if self.friction.mu != 0.0 {
             let increment = world_from_probe * self.contact.probe.world_from_probe.inverse();
-            for (n, _) in self.anchors_world() {
+            let mut nodes = BTreeSet::new();
+            for &key in self.committed.keys() {
+                let s = self.support(key);
+                nodes.extend((0..s.len).map(|a| s.nodes[a]));
+            }
+            for n in nodes {
                 x[n] = increment.transform_point(&x[n].into()).coords;
             }
         }
@@ -202,16 +448,19 @@ impl FrictionalContact {
 
     /// Moves the lagged normal forces of [`NormalForceLag::Solve`] towards the penalty forces f of
     /// the current springs at `x`, f_lag ← f_lag + ω (f − f_lag) (ω = `relaxation` ∈ (0, 1];
-    /// nodes no longer in contact have f = 0). Call after a converged solve, then solve again
-    /// (IPC's lagged iterations, Li et al. 2020 §5.2); ω < 1 damps the two-cycles of a rim node
-    /// that leaves and re-enters the patch between solves. Returns max_n |f − f_lag| / max(Σ f,
+    /// points no longer in contact have f = 0). Call after a converged solve, then solve again
+    /// (IPC's lagged iterations, Li et al. 2020 §5.2); ω < 1 damps the two-cycles of a rim point
+    /// that leaves and re-enters the patch between solves. Returns max_q |f − f_lag| / max(Σ f,
     /// tiny) before the update, so a caller iterates until it is small.
     pub fn lag_normal_forces(&mut self, x: &[Vector3<f64>], relaxation: f64) -> f64 {
         let w = relaxation.clamp(f64::MIN_POSITIVE, 1.0);
         let fresh: BTreeMap<usize, f64> = self
             .springs
             .iter()
-            .map(|s| (s.node, s.force(&x[s.node]).dot(&s.normal).max(0.0)))
+            .map(|s| {
+                let p = self.position(s.node, x);
+                (s.node, s.force(&p).dot(&s.normal).max(0.0))
+            })
             .collect();
         let total: f64 = fresh.values().sum();
         let mut change: f64 = 0.0;
@@ -248,7 +497,8 @@ impl FrictionalContact {
         self.normal_forces_n.clear();
     }
 
-    /// Committed stick anchors of the contact nodes, world frame.
+    /// Committed stick anchors of the contact points (key: the node, or the quadrature point's
+    /// index), world frame.
     pub fn anchors_world(&self) -> Vec<(usize, Vector3<f64>)> {
         self.committed
             .iter()
@@ -275,11 +525,9 @@ impl FrictionalContact {
     fn slip(&self, i: usize, x: &[Vector3<f64>]) -> (Vector3<f64>, Matrix3<f64>) {
         let s = &self.springs[i];
         let p = Matrix3::identity() - s.normal * s.normal.transpose();
-        let a = self
-            .working
-            .get(&s.node)
-            .map_or(x[s.node], |a| self.to_world(a));
-        (p * (x[s.node] - a), p)
+        let xq = self.position(s.node, x);
+        let a = self.working.get(&s.node).map_or(xq, |a| self.to_world(a));
+        (p * (xq - a), p)
     }
 
     fn friction_at(&self, i: usize, x: &[Vector3<f64>]) -> (Vector3<f64>, Matrix3<f64>) {
@@ -287,13 +535,17 @@ impl FrictionalContact {
         regularized_coulomb(&self.friction, self.normal_forces_n[i], &delta, &p)
     }
 
-    /// Report at positions `x` (after a solve).
+    /// Report at positions `x` (after a solve). `patch_nodes` are the nodes that carry contact
+    /// force (for quadrature: the vertices of the triangles with an active point);
+    /// `sliding_nodes` / `sticking_nodes` count contact points.
     pub fn report(&self, x: &[Vector3<f64>]) -> FrictionReport {
         let mut r = FrictionReport::default();
+        let mut patch = BTreeSet::new();
         for (i, s) in self.springs.iter().enumerate() {
-            let fnv = s.force(&x[s.node]);
+            let fnv = s.force(&self.position(s.node, x));
             let (ft, _) = self.friction_at(i, x);
-            r.patch_nodes.push(s.node);
+            let sup = self.support(s.node);
+            patch.extend((0..sup.len).map(|a| sup.nodes[a]));
             r.normal_force_n += fnv.dot(&s.normal).max(0.0);
             r.contact_force_n += fnv + ft;
             r.friction_force_n += ft;
@@ -304,8 +556,16 @@ impl FrictionalContact {
                 r.sticking_nodes += 1;
             }
         }
+        r.patch_nodes = patch.into_iter().collect();
         r.probe_tangential_force_n = -r.friction_force_n;
         r
+    }
+
+    /// Each active point's stiffness −∂f_q/∂x_q (penalty + friction).
+    fn point_matrices(&self, x: &[Vector3<f64>]) -> Vec<Matrix3<f64>> {
+        (0..self.springs.len())
+            .map(|i| self.springs[i].matrix() + self.friction_at(i, x).1)
+            .collect()
     }
 }
 
@@ -317,12 +577,29 @@ impl NodalTerm for FrictionalContact {
         requery: bool,
     ) {
         if requery || self.springs.is_empty() {
-            self.springs = if self.active_set_hysteresis && !self.springs.is_empty() {
-                self.contact
-                    .springs_with_hysteresis(x, node_stiffness, &self.springs)
+            let previous: &[ContactSpring] = if self.active_set_hysteresis {
+                &self.springs
             } else {
-                self.contact.springs(x, node_stiffness)
+                &[]
             };
+            let springs = match &self.quadrature {
+                None if previous.is_empty() => self.contact.springs(x, node_stiffness),
+                None => self
+                    .contact
+                    .springs_with_hysteresis(x, node_stiffness, previous),
+                Some(q) => {
+                    let nr = q.rule.len();
+                    let keep: BTreeSet<usize> = previous.iter().map(|s| s.node / nr).collect();
+                    let points = q.points(x, &self.contact.probe, &keep);
+                    let pf = self.contact.settings.penalty_factor;
+                    self.contact.point_springs(
+                        &points,
+                        |key| q.stiffness(key, pf, node_stiffness),
+                        previous,
+                    )
+                }
+            };
+            self.springs = springs;
             let mut working = BTreeMap::new();
             for s in &self.springs {
                 let a = self
@@ -330,7 +607,7 @@ impl NodalTerm for FrictionalContact {
                     .get(&s.node)
                     .or_else(|| self.committed.get(&s.node))
                     .copied()
-                    .unwrap_or_else(|| self.to_probe(&x[s.node]));
+                    .unwrap_or_else(|| self.to_probe(&self.position(s.node, x)));
                 working.insert(s.node, a);
             }
             self.working = working;
@@ -339,7 +616,7 @@ impl NodalTerm for FrictionalContact {
             NormalForceLag::Iteration => self
                 .springs
                 .iter()
-                .map(|s| s.force(&x[s.node]).dot(&s.normal).max(0.0))
+                .map(|s| s.force(&self.position(s.node, x)).dot(&s.normal).max(0.0))
                 .collect(),
             NormalForceLag::Solve => self
                 .springs
@@ -352,35 +629,68 @@ impl NodalTerm for FrictionalContact {
     fn add_forces(&self, x: &[Vector3<f64>], out: &mut [Vector3<f64>]) {
         for (i, s) in self.springs.iter().enumerate() {
             let (ft, _) = self.friction_at(i, x);
-            out[s.node] += s.force(&x[s.node]) + ft;
+            let f = s.force(&self.position(s.node, x)) + ft;
+            let sup = self.support(s.node);
+            if sup.len == 1 {
+                out[sup.nodes[0]] += f;
+            } else {
+                for a in 0..sup.len {
+                    out[sup.nodes[a]] += f * sup.weights[a];
+                }
+            }
         }
     }
 
     fn blocks(&self, x: &[Vector3<f64>]) -> Vec<(usize, Matrix3<f64>)> {
-        self.springs
-            .iter()
-            .enumerate()
-            .map(|(i, s)| (s.node, s.matrix() + self.friction_at(i, x).1))
-            .collect()
+        let mut out = Vec::with_capacity(self.springs.len());
+        for (s, k) in self.springs.iter().zip(self.point_matrices(x)) {
+            let sup = self.support(s.node);
+            if sup.len == 1 {
+                out.push((sup.nodes[0], k));
+            } else {
+                for a in 0..sup.len {
+                    out.push((sup.nodes[a], k * (sup.weights[a] * sup.weights[a])));
+                }
+            }
+        }
+        out
+    }
+
+    fn pair_blocks(&self, x: &[Vector3<f64>]) -> Vec<(usize, usize, Matrix3<f64>)> {
+        if self.quadrature.is_none() {
+            return Vec::new();
+        }
+        let mut out = Vec::with_capacity(3 * self.springs.len());
+        for (s, k) in self.springs.iter().zip(self.point_matrices(x)) {
+            let sup = self.support(s.node);
+            for a in 0..sup.len {
+                for b in a + 1..sup.len {
+                    out.push((
+                        sup.nodes[a],
+                        sup.nodes[b],
+                        k * (sup.weights[a] * sup.weights[b]),
+                    ));
+                }
+            }
+        }
+        out
     }
 
     fn commit(&mut self, x: &[Vector3<f64>]) {
         let eps = self.friction.slip_distance_m;
         let mut committed = BTreeMap::new();
         for i in 0..self.springs.len() {
-            let node = self.springs[i].node;
+            let key = self.springs[i].node;
             let (delta, _) = self.slip(i, x);
             let d = delta.norm();
-            let a_world = self
-                .working
-                .get(&node)
-                .map_or(x[node], |a| self.to_world(a));
+            let xq = self.position(key, x);
+            let a_world = self.working.get(&key).map_or(xq, |a| self.to_world(a));
             let a_world = if d > eps {
                 a_world + delta * (1.0 - eps / d)
             } else {
                 a_world
             };
-            committed.insert(node, self.to_probe(&a_world));
+            committed.insert(key, self.to_probe(&a_world));
         }
         self.committed = committed.clone();
         self.working = committed;

@@ -77,8 +77,8 @@ pub use element::{
 };
 pub use error::FemError;
 pub use friction::{
-    FrictionParams, FrictionReport, FrictionalContact, LaggedIterations, LaggedSolve,
-    NormalForceLag, mollifier, regularized_coulomb, solve_lagged,
+    ContactDiscretisation, FrictionParams, FrictionReport, FrictionalContact, LaggedIterations,
+    LaggedSolve, NormalForceLag, mollifier, regularized_coulomb, solve_lagged,
 };
 pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
 pub use model::{CorotationalModel, ElasticModel, NeoHookeanModel, StrainDependentParams};

@@ -29,6 +29,14 @@ pub trait NodalTerm {
     fn add_forces(&self, x: &[Vector3<f64>], out: &mut [Vector3<f64>]);
     /// The blocks (node, −∂f/∂x) added to the system matrix (symmetric PSD).
     fn blocks(&self, x: &[Vector3<f64>]) -> Vec<(usize, Matrix3<f64>)>;
+    /// Off-diagonal blocks (a, b, −∂f_a/∂x_b) of a term that couples two distinct nodes a ≠ b
+    /// (the quadrature-point contact of [`crate::ContactDiscretisation::Quadrature`], whose
+    /// point force N_a f_q depends on every node of its triangle); −∂f_b/∂x_a is the transpose,
+    /// implied. Together with [`Self::blocks`] the term's matrix is symmetric PSD; a and b must
+    /// share an element (the system pattern). Default: none (node-local terms).
+    fn pair_blocks(&self, _x: &[Vector3<f64>]) -> Vec<(usize, usize, Matrix3<f64>)> {
+        Vec::new()
+    }
     /// History update after a converged load step (default: nothing).
     fn commit(&mut self, _x: &[Vector3<f64>]) {}
 }
@@ -128,6 +136,12 @@ impl NodalSolver {
                     self.pattern.add_node_block(n, &m, &mut values);
                     if unsymmetric {
                         self.pattern.add_node_block(n, &m.transpose(), &mut upper);
+                    }
+                }
+                for (a, b, m) in t.pair_blocks(x) {
+                    self.pattern.add_pair_block(a, b, &m, &mut values);
+                    if unsymmetric {
+                        self.pattern.add_pair_block(a, b, &m, &mut upper);
                     }
                 }
             }

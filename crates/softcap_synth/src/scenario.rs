@@ -520,6 +520,11 @@ pub struct EffectSettings {
     /// probe-friction: tangential travel of the tip per unit of indentation depth while in
     /// contact (the path is oblique; the probe axis keeps `protocol.tilt_deg`).
     pub friction_path_ratio: f64,
+    /// probe-friction: how the truth's frictional contact samples the surface: 0 = at the top
+    /// nodes (node-to-rigid-surface, the original truth); k ≥ 1 = quadrature points on the top
+    /// triangles, each cut into k² sub-triangles of 3 points
+    /// (`softcap_fem::ContactDiscretisation::Quadrature`; docs/diagnose.md session 14 (fric)).
+    pub friction_contact_subdivisions: usize,
     /// support-slip: total tangential stiffness of the mount under the bottom face, N/m
     /// (spread evenly over the support nodes).
     pub support_stiffness_n_per_m: f64,
@@ -551,6 +556,7 @@ impl Default for EffectSettings {
             friction_mu: 0.6,
             friction_slip_distance_mm: 0.01,
             friction_path_ratio: 0.6,
+            friction_contact_subdivisions: 0,
             support_stiffness_n_per_m: 800.0,
             support_tilt_deg: 20.0,
             rayleigh_alpha_per_s: 6.0,

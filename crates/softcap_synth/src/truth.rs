@@ -17,11 +17,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use softcap_fem::element::{Matrix12, StiffnessKind, TetGeometry};
 use softcap_fem::{
-    AnisotropicModel, ContactProblem, ContactSettings, DynamicsSettings, ElasticModel,
-    ElastoplasticModel, EquilibriumSettings, FrictionParams, FrictionalContact, Integrator,
-    J2PlasticityParams, LinearParams, NeoHookeanParams, Probe, PronySeries, RayleighDamping,
-    SupportPlane, SupportTangential, TipShape, TransverselyIsotropicParams, ViscoelasticModel,
-    neohookean_energy, neohookean_forces, neohookean_tangent, tet_geometries,
+    AnisotropicModel, ContactDiscretisation, ContactProblem, ContactSettings, DynamicsSettings,
+    ElasticModel, ElastoplasticModel, EquilibriumSettings, FrictionParams, FrictionalContact,
+    Integrator, J2PlasticityParams, LinearParams, NeoHookeanParams, Probe, PronySeries,
+    RayleighDamping, SupportPlane, SupportTangential, TipShape, TransverselyIsotropicParams,
+    ViscoelasticModel, neohookean_energy, neohookean_forces, neohookean_tangent, tet_geometries,
 };
 use softcap_mesh::{TetEmbedding, TetLocator, TetMesh, box_tet_mesh};
 
@@ -590,7 +590,15 @@ fn build_engine(
         } else {
             None
         };
-        let mut fc = FrictionalContact::new(contact.clone(), friction)?;
+        let discretisation = match es.friction_contact_subdivisions {
+            0 => ContactDiscretisation::Nodes,
+            k => ContactDiscretisation::Quadrature { subdivisions: k },
+        };
+        let mut fc = FrictionalContact::new(contact.clone(), friction)?.with_discretisation(
+            discretisation,
+            &mesh.boundary_faces(),
+            &mesh.vertices,
+        )?;
         fc.active_set_hysteresis = s.has(Effect::ProbeFriction);
         if s.has(Effect::ProbeFriction) {
             fc.normal_force_lag = softcap_fem::NormalForceLag::Solve;
