@@ -51,6 +51,27 @@ fn sphere_contact(
     fc
 }
 
+/// One `solve_lagged` step of the frictional contact alone (no other nodal terms).
+fn lagged_step(
+    solver: &mut NodalSolver,
+    model: &mut CorotationalModel,
+    x: &mut [Vector3<f64>],
+    fc: &mut FrictionalContact,
+    settings: &EquilibriumSettings,
+) -> LaggedSolve {
+    let zero = vec![Vector3::zeros(); x.len()];
+    solve_lagged(
+        solver,
+        model,
+        x,
+        &zero,
+        Some(fc),
+        &mut [],
+        settings,
+        &LaggedIterations::default(),
+    )
+}
+
 struct Block {
     mesh: softcap_mesh::TetMesh,
     model: CorotationalModel,
@@ -64,16 +85,7 @@ fn block(cells: [usize; 3]) -> Block {
     let model =
         CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(1.0, 0.3).unwrap())
             .unwrap();
-    let mut bc = DirichletBc::new();
-    let mut top = Vec::new();
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        if v.z.abs() < 1e-12 {
-            bc.fix_node(i, *v);
-        }
-        if (v.z - 0.5).abs() < 1e-12 {
-            top.push(i);
-        }
-    }
+    let (bc, top) = common::block_supports(&mesh, 0.0, 0.5, false);
     Block {
         mesh,
         model,
@@ -99,27 +111,16 @@ fn press_and_drag(
     let mut fc = sphere_contact(&b.mesh, &b.top, radius, mu, disc);
     let mut solver = NodalSolver::new(&b.model, &b.bc.dofs()).unwrap();
     let mut x = b.mesh.vertices.clone();
-    let zero = vec![Vector3::zeros(); x.len()];
     let settings = EquilibriumSettings {
         max_iterations: 150,
         ..EquilibriumSettings::newton()
     };
-    let lag = LaggedIterations::default();
     let mut path: Vec<(f64, f64)> = (1..=4).map(|k| (depth * k as f64 / 4.0, 0.0)).collect();
     path.extend((1..=drag_steps).map(|k| (depth, travel * k as f64 / drag_steps as f64)));
     let mut reps = Vec::new();
     for (k, &(d, s)) in path.iter().enumerate() {
         fc.move_probe(&mut x, down_pose(centre.0 + s, centre.1, 0.5 - d));
-        let out = solve_lagged(
-            &mut solver,
-            &mut b.model,
-            &mut x,
-            &zero,
-            Some(&mut fc),
-            &mut [],
-            &settings,
-            &lag,
-        );
+        let out = lagged_step(&mut solver, &mut b.model, &mut x, &mut fc, &settings);
         assert!(
             out.equilibrium.converged(),
             "{disc:?} μ {mu} step {k}: {out:?}"
@@ -142,7 +143,6 @@ fn quadrature_pair_blocks_match_finite_differences() {
     let mut fc = sphere_contact(&b.mesh, &b.top, 1.0, 0.5, disc);
     let mut solver = NodalSolver::new(&b.model, &b.bc.dofs()).unwrap();
     let mut x = b.mesh.vertices.clone();
-    let zero = vec![Vector3::zeros(); x.len()];
     let settings = EquilibriumSettings::newton();
     for (d, s) in [
         (0.01, 0.0),
@@ -152,16 +152,7 @@ fn quadrature_pair_blocks_match_finite_differences() {
         (0.04, 0.01),
     ] {
         fc.move_probe(&mut x, down_pose(0.45, 0.55, 0.5 - d));
-        let out = solve_lagged(
-            &mut solver,
-            &mut b.model,
-            &mut x,
-            &zero,
-            Some(&mut fc),
-            &mut [],
-            &settings,
-            &LaggedIterations::default(),
-        );
+        let out = lagged_step(&mut solver, &mut b.model, &mut x, &mut fc, &settings);
         // the last (dragged) state only has to be a partial-slip one; its lag may two-cycle
         assert!(s > 0.0 || out.equilibrium.converged(), "{out:?}");
         if s == 0.0 {
@@ -233,40 +224,22 @@ fn quarter_hertz(h0: f64, ds: &[f64], disc: ContactDiscretisation) -> Vec<f64> {
     let xs = common::graded_line(h0, 0.4, 1.5, 8.0);
     let zs: Vec<f64> = xs.iter().rev().map(|z| -z).collect();
     let mesh = common::graded_box(&xs, &xs, &zs);
-    let mut bc = DirichletBc::new();
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        if (v.z - zs[0]).abs() < 1e-12 {
-            bc.fix_node(i, *v);
-        }
-        if v.x.abs() < 1e-12 {
-            bc.fix_dof(3 * i, 0.0);
-        }
-        if v.y.abs() < 1e-12 {
-            bc.fix_dof(3 * i + 1, 0.0);
-        }
-    }
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| mesh.vertices[i].z.abs() < 1e-12)
-        .collect();
+    let (bc, top) = common::block_supports(&mesh, zs[0], 0.0, true);
     let mut model =
         CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(1.0, 0.3).unwrap())
             .unwrap();
     let mut fc = sphere_contact(&mesh, &top, 1.0, 0.0, disc);
     let mut solver = NodalSolver::new(&model, &bc.dofs()).unwrap();
     let mut x = mesh.vertices.clone();
-    let zero = vec![Vector3::zeros(); x.len()];
     ds.iter()
         .map(|&d| {
             fc.move_probe(&mut x, down_pose(0.0, 0.0, -d));
-            let out = solve_lagged(
+            let out = lagged_step(
                 &mut solver,
                 &mut model,
                 &mut x,
-                &zero,
-                Some(&mut fc),
-                &mut [],
+                &mut fc,
                 &EquilibriumSettings::newton(),
-                &LaggedIterations::default(),
             );
             assert!(
                 out.equilibrium.converged(),

@@ -9,6 +9,7 @@
 //! continuous pole s = −ζω + iω√(1 − ζ²) with ζ = α/(2ω) + βω/2, mapped by the integrator
 //! (backward Euler z = 1/(1 − hs), average acceleration = trapezoidal rule z = (1 + hs/2)/(1 − hs/2)).
 
+mod common;
 use softcap_fem::nalgebra::{Complex, Vector3};
 use softcap_fem::*;
 
@@ -131,16 +132,7 @@ fn probe_contact_dynamics_settle_on_static_solution() {
     let mut model =
         CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(1e4, 0.3).unwrap())
             .unwrap();
-    let mut bc = DirichletBc::new();
-    let mut top = Vec::new();
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        if v.z.abs() < 1e-12 {
-            bc.fix_node(i, *v);
-        }
-        if (v.z - 0.5).abs() < 1e-12 {
-            top.push(i);
-        }
-    }
+    let (bc, top) = common::block_supports(&mesh, 0.0, 0.5, false);
     let contact_at = |t: f64| ContactProblem {
         probe: Probe::new(
             TipShape::Disk {

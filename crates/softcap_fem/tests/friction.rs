@@ -2,6 +2,7 @@
 //! FD) and a probe pressed on a block and dragged sideways: the tangential force on the probe
 //! matches a bonded probe while sticking, stays ≤ μN on the way, and equals μN when sliding.
 
+mod common;
 use softcap_fem::nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use softcap_fem::*;
 
@@ -64,16 +65,7 @@ fn rig() -> Rig {
         LinearParams::from_young_poisson(1.0e4, 0.3).unwrap(),
     )
     .unwrap();
-    let mut bc = DirichletBc::new();
-    let mut top = Vec::new();
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        if v.z.abs() < 1e-12 {
-            bc.fix_node(i, *v);
-        }
-        if (v.z - 0.5).abs() < 1e-12 {
-            top.push(i);
-        }
-    }
+    let (bc, top) = common::block_supports(&mesh, 0.0, 0.5, false);
     Rig {
         mesh,
         model,

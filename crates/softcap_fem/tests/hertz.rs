@@ -53,22 +53,7 @@ fn sphere_indentation_follows_hertz() {
     let mut model =
         CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(E, NU).unwrap())
             .unwrap();
-    let mut bc = DirichletBc::new();
-    let bottom = zs[0];
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        if (v.z - bottom).abs() < 1e-12 {
-            bc.fix_node(i, *v);
-        }
-        if v.x.abs() < 1e-12 {
-            bc.fix_dof(3 * i, 0.0);
-        }
-        if v.y.abs() < 1e-12 {
-            bc.fix_dof(3 * i + 1, 0.0);
-        }
-    }
-    let top: Vec<usize> = (0..mesh.vertices.len())
-        .filter(|&i| mesh.vertices[i].z.abs() < 1e-12)
-        .collect();
+    let (bc, top) = common::block_supports(&mesh, zs[0], 0.0, true);
     let mut solver = StaticSolver::with_bc(&model, &bc).unwrap();
     let e_star = E / (1.0 - NU * NU);
     println!(

@@ -1,6 +1,7 @@
 //! Shared helpers of the analytic benchmark tests.
 #![allow(dead_code)]
 
+use softcap_fem::DirichletBc;
 use softcap_fem::nalgebra::Vector3;
 use softcap_mesh::TetMesh;
 
@@ -62,4 +63,32 @@ pub fn traction_forces(
         }
     }
     f
+}
+
+/// The supports of the block tests: every node at z = `base` clamped and, for a quarter model
+/// (`symmetry`), the normal dof of the nodes on the planes x = 0 and y = 0 fixed; with the nodes
+/// at z = `top` (the contact candidates).
+pub fn block_supports(
+    mesh: &TetMesh,
+    base: f64,
+    top: f64,
+    symmetry: bool,
+) -> (DirichletBc, Vec<usize>) {
+    let mut bc = DirichletBc::new();
+    let mut top_nodes = Vec::new();
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        if (v.z - base).abs() < 1e-12 {
+            bc.fix_node(i, *v);
+        }
+        if symmetry && v.x.abs() < 1e-12 {
+            bc.fix_dof(3 * i, 0.0);
+        }
+        if symmetry && v.y.abs() < 1e-12 {
+            bc.fix_dof(3 * i + 1, 0.0);
+        }
+        if (v.z - top).abs() < 1e-12 {
+            top_nodes.push(i);
+        }
+    }
+    (bc, top_nodes)
 }
