@@ -27,7 +27,7 @@ use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::probe_pose;
 use softcap_fem::{
-    AnisotropicModel, ContactProblem, ContactSettings, ElasticModel, ElastoplasticModel,
+    AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel,
     EquilibriumSettings, FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations,
     LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver,
     SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
@@ -580,7 +580,7 @@ impl FemProbeSimulator {
             Ok(ContactProblem {
                 probe: punch(Probe::new(tip.clone(), iso).map_err(fem)?),
                 candidate_nodes: candidates.clone(),
-                settings: ContactSettings::default(),
+                settings: self.settings().rigid_tip_contact.clone(),
             })
         };
         let mut solver = match friction {

@@ -18,7 +18,7 @@ use softcap_fem::probing::{
     StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
 };
 use softcap_fem::{
-    ContactDiscretisation, CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams,
+    ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams,
     StaticSolver, TipShape,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
@@ -179,6 +179,12 @@ pub struct FemSimSettings {
     /// the boundary nodes, or at quadrature points on the boundary triangles
     /// (`softcap_fem::ContactDiscretisation`; docs/diagnose.md session 14 (fric)).
     pub friction_contact: ContactDiscretisation,
+    /// The rigid-tip replays' penalty contact (`softcap_fem::ContactSettings`: the penalty
+    /// stiffness as a multiple of a contact node's mean diagonal stiffness, bickel2009 §3.4),
+    /// frictionless and frictional alike. The default factor 10⁴ makes the tip rigid (the
+    /// penetration is a few % of the depth on the suite's meshes); a soft factor stands for a
+    /// compliant tip (a rubber cap) — the measurement of docs/diagnose.md "Session 14 (fric2)".
+    pub rigid_tip_contact: ContactSettings,
 }
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
@@ -223,6 +229,7 @@ impl Default for FemSimSettings {
             strain_space: StrainSpaceSolveSettings::default(),
             refinement: RefinementSettings::default(),
             friction_contact: ContactDiscretisation::Nodes,
+            rigid_tip_contact: ContactSettings::default(),
         }
     }
 }

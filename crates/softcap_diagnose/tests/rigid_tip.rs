@@ -101,6 +101,51 @@ fn rigid_replay_carries_the_contact_node_to_the_tip_and_back() {
     }
 }
 
+/// `FemSimSettings::rigid_tip_contact` reaches the replay: with a soft penalty (factor 100, the
+/// suite's probe-friction truth; docs/diagnose.md session 14 (fric2)) the one contact node lags
+/// the tip by the spring's penetration, which for springs in series — penalty k_p in series with
+/// the body's stiffness at the node k_b — is d · k_b / (k_p + k_b): 100 × softer penalty, ≈ 100 ×
+/// the lag while k_b ≪ k_p. Asserted: at every contact frame at least 10 × the default's lag, and
+/// still below the depth (the node is pressed, not left behind).
+#[test]
+fn soft_rigid_tip_penalty_lets_the_contact_node_lag_the_tip() {
+    let lags = |penalty_factor: f64| {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
+        let model = CorotationalModel::homogeneous(
+            &mesh,
+            LinearParams::from_young_poisson(2e4, 0.45).unwrap(),
+        )
+        .unwrap();
+        let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
+        let mut settings = FemSimSettings::default();
+        settings.rigid_tip_contact.penalty_factor = penalty_factor;
+        let sim = FemProbeSimulator::new(&mesh, model, &fixed, &markers(), settings)
+            .unwrap()
+            .with_rigid_tip(sphere());
+        let x = sim
+            .simulate_sequence_rigid_tip(&Extension::Elastic, &frames())
+            .unwrap()
+            .expect("the simulator has a rigid tip");
+        DEPTHS_MM
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| **d > 0.0)
+            .map(|(k, d)| (1e-3 * d, 1e-3 * d + (x[k][0].z - CENTRE[2])))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        FemSimSettings::default().rigid_tip_contact.penalty_factor,
+        1e4
+    );
+    for ((d, stiff), (_, soft)) in lags(1e4).into_iter().zip(lags(100.0)) {
+        eprintln!("depth {d:e} m: lag {stiff:e} m (penalty 1e4), {soft:e} m (penalty 100)");
+        assert!(
+            soft >= 10.0 * stiff && soft < d,
+            "depth {d:e} m: lag {soft:e} m at penalty 100 vs {stiff:e} m at 1e4"
+        );
+    }
+}
+
 #[test]
 fn rigid_replay_is_none_without_a_tip() {
     let sim = simulator(None);

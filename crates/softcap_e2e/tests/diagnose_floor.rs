@@ -34,6 +34,10 @@
 //! - `FLOOR_QUAD=K` the frictional replay's contact at quadrature points, K² sub-triangles of
 //!   3 points per boundary triangle (`softcap_fem::ContactDiscretisation::Quadrature`; 0: at the
 //!   nodes, the default; docs/diagnose.md session 14 (fric));
+//! - `FLOOR_PENALTY=P` the rigid-tip replays' contact penalty factor (`FemSimSettings::
+//!   rigid_tip_contact`, a multiple of a contact node's mean diagonal stiffness; default 10⁴, the
+//!   diagnosis' rigid tip; the suite's probe-friction truth uses 100) — for the frictional replay
+//!   of `FLOOR_MU` and the rigid-tip models b / d alike (docs/diagnose.md session 14 (fric2));
 //! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
 //!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
@@ -98,6 +102,9 @@ fn default_model_floor() {
             k => softcap_fem::ContactDiscretisation::Quadrature { subdivisions: k },
         };
     }
+    if let Some(p) = env("FLOOR_PENALTY") {
+        settings.rigid_tip_contact.penalty_factor = p.parse().expect("FLOOR_PENALTY=P");
+    }
     if let Some(l) = env("FLOOR_LOCAL") {
         let (f, s) = l.split_once(':').unwrap_or((&l, "1"));
         settings.refinement.local = true;
@@ -106,11 +113,13 @@ fn default_model_floor() {
     }
     let mut model = material.model.clone();
     println!(
-        "FLOOR {} tets, tissue fit (E, nu) = {:?} under {:?} loads, replayed under {}",
+        "FLOOR {} tets, tissue fit (E, nu) = {:?} under {:?} loads, replayed under {}; rigid tip: penalty factor {:e}, friction contact {:?}",
         material.mesh.tets.len(),
         model.params()[0].to_young_poisson(),
         material.footprint_load,
-        settings.patch.load.name()
+        settings.patch.load.name(),
+        settings.rigid_tip_contact.penalty_factor,
+        settings.friction_contact
     );
     if let Some(v) = env("FLOOR_MATERIAL") {
         let (e, nu) = v.split_once(',').expect("FLOOR_MATERIAL=E_PA,NU");
