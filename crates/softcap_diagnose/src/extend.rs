@@ -27,10 +27,10 @@ use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::probing::probe_pose;
 use softcap_fem::{
-    AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel,
-    EquilibriumSettings, FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations,
-    LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver,
-    SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
+    AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel, EquilibriumSettings,
+    FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations, LinearParams,
+    NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver, SupportPlane,
+    SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
 };
 
 /// One extended model (see the module table).

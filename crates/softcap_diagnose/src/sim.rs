@@ -18,8 +18,8 @@ use softcap_fem::probing::{
     StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
 };
 use softcap_fem::{
-    ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings, LinearParams,
-    StaticSolver, TipShape,
+    ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings,
+    LinearParams, StaticSolver, TipShape,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use std::sync::Arc;

@@ -101,12 +101,15 @@ fn rigid_replay_carries_the_contact_node_to_the_tip_and_back() {
     }
 }
 
-/// `FemSimSettings::rigid_tip_contact` reaches the replay: with a soft penalty (factor 100, the
+/// `FemSimSettings::rigid_tip_contact` reaches the replay: with a soft penalty (factor p = 100, the
 /// suite's probe-friction truth; docs/diagnose.md session 14 (fric2)) the one contact node lags
-/// the tip by the spring's penetration, which for springs in series — penalty k_p in series with
-/// the body's stiffness at the node k_b — is d · k_b / (k_p + k_b): 100 × softer penalty, ≈ 100 ×
-/// the lag while k_b ≪ k_p. Asserted: at every contact frame at least 10 × the default's lag, and
-/// still below the depth (the node is pressed, not left behind).
+/// the tip by the spring's penetration. Penalty k_p = p k̄ (k̄ the node's mean diagonal stiffness)
+/// in series with the body's stiffness at the node k_b: penetration d · k_b / (k_p + k_b) ≈
+/// (d / p) · k_b / k̄, and k_b (the Schur complement at the node) is at most the normal diagonal
+/// entry, of the order of k̄. At p = 10⁴ the penetration is 100 × smaller, so the extra lag of
+/// p = 100 over the default is the penetration: asserted between 0.1 d / p and d / p at every
+/// contact frame (measured 0.27–0.35 d / p; the default's own lag, 0.4–4.9 % of the depth, is the
+/// sphere's geometry, not the penalty).
 #[test]
 fn soft_rigid_tip_penalty_lets_the_contact_node_lag_the_tip() {
     let lags = |penalty_factor: f64| {
@@ -139,9 +142,10 @@ fn soft_rigid_tip_penalty_lets_the_contact_node_lag_the_tip() {
     );
     for ((d, stiff), (_, soft)) in lags(1e4).into_iter().zip(lags(100.0)) {
         eprintln!("depth {d:e} m: lag {stiff:e} m (penalty 1e4), {soft:e} m (penalty 100)");
+        let ratio = (soft - stiff) * 100.0 / d;
         assert!(
-            soft >= 10.0 * stiff && soft < d,
-            "depth {d:e} m: lag {soft:e} m at penalty 100 vs {stiff:e} m at 1e4"
+            (0.1..1.0).contains(&ratio),
+            "depth {d:e} m: lag {soft:e} m at penalty 100 vs {stiff:e} m at 1e4: extra {ratio} d / p"
         );
     }
 }
