@@ -420,7 +420,12 @@ fn friction_profile(
         let rms: Vec<String> = (0..=nl)
             .map(|i| format!("{:.4}", 1e3 * (s[i] / n[i].max(1) as f64).sqrt()))
             .collect();
-        println!("MU {mu:.4} per location / all (mm): {}", rms.join(" "));
+        let counts: Vec<String> = n.iter().map(|c| c.to_string()).collect();
+        println!(
+            "MU {mu:.4} per location / all (mm): {} (cells {})",
+            rms.join(" "),
+            counts.join(" ")
+        );
         // the same cells split by phase and by component (surface normal = +z on the top face)
         let split = |keep: &dyn Fn(usize) -> bool, comp: usize| {
             let (mut s, mut n) = (0.0, 0usize);
