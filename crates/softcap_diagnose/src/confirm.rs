@@ -10,7 +10,10 @@
 //!    d = argmin Σ‖d u − v‖² = (Σ u·v)/(Σ u·u), clamped to the [`ComplianceScale`] bounds, with
 //!    u = x_i − x_rest the candidate's displacement from the model's unloaded markers and
 //!    v = y − x_rest the measured one (a nuisance refit of the overall stiffness: the tissue fit
-//!    saw the unmodelled effect, so its stiffness is biased by it);
+//!    saw the unmodelled effect, so its stiffness is biased by it) — d = 1 for a
+//!    [`Candidate::position_controlled`] one (a rigid-tip replay: the measured tip pose sets the
+//!    surface under the tip, and a uniform scale of the displacement field would move that surface
+//!    off the tip);
 //! 2. the held-out prediction of l is x_rest + d u_i — or, with a refit closure, the closure's
 //!    prediction of candidate i refitted without l (e.g. the material refit on the corrected
 //!    forces of a force-channel hypothesis, [`crate::temporal`]);
@@ -32,6 +35,11 @@ pub(crate) struct Candidate {
     pub(crate) params: Vec<(String, f64)>,
     /// Markers per frame, m.
     pub(crate) prediction: Field,
+    /// Simulated under position control (the rigid tip replayed at its measured poses): the
+    /// compliance scale stays 1 (module docs). A force-driven candidate's displacements scale
+    /// with the material's compliance, so its scale is refitted; a position-controlled one's
+    /// depth is the measured one whatever the material's stiffness.
+    pub(crate) position_controlled: bool,
 }
 
 /// An extended model confirmed by re-simulation with leave-one-location-out.
@@ -114,6 +122,8 @@ pub(crate) type EligibleFn<'a> = dyn Fn(usize, Option<usize>) -> bool + 'a;
 struct Tally {
     all: Vec<Vec<Sums>>,
     sc: Vec<Vec<Sums>>,
+    /// Per candidate: its compliance scale is 1 ([`Candidate::position_controlled`]).
+    unscaled: Vec<bool>,
 }
 
 impl Tally {
@@ -155,7 +165,8 @@ impl Tally {
             all.push(sa);
             sc.push(ss);
         }
-        Self { all, sc }
+        let unscaled = cands.iter().map(|c| c.position_controlled).collect();
+        Self { all, sc, unscaled }
     }
 
     /// The eligible candidate and compliance scale with the least training error without bucket
@@ -175,7 +186,11 @@ impl Tally {
                         t.add(x);
                     }
                 }
-                let d = t.scale(scale);
+                let d = if self.unscaled[i] {
+                    1.0
+                } else {
+                    t.scale(scale)
+                };
                 (i, d, t.rss(d))
             })
             .min_by(|a, b| a.2.total_cmp(&b.2))
@@ -453,10 +468,12 @@ mod tests {
             Candidate {
                 params: vec![("a".into(), 1.0)],
                 prediction: field(&|u| *u),
+                position_controlled: false,
             },
             Candidate {
                 params: vec![("a".into(), 2.0)],
                 prediction: field(&|u| Vector3::new(-u.x, 0.0, u.z)),
+                position_controlled: false,
             },
         ];
         (rec, seg, p, cands)
@@ -491,6 +508,49 @@ mod tests {
                 assert!((c.prediction[k][m] - f.markers_m[m].unwrap()).norm() < 1e-15);
             }
         }
+    }
+
+    /// A position-controlled candidate keeps d = 1: the toy data are candidate 0's displacement
+    /// × 2, which the force-driven candidate 0 reproduces exactly with d = 2; marked as a rigid-tip
+    /// replay it is scored unscaled (held-out RMS = the RMS of u, not 0) and reports d = 1.
+    #[test]
+    fn a_position_controlled_candidate_is_not_scaled() {
+        let (rec, seg, p, mut cands) = toy();
+        cands.truncate(1);
+        cands[0].position_controlled = true;
+        let scored = |_: usize, _: usize| true;
+        let c = lolo_confirm(
+            &cands,
+            &rec,
+            &seg,
+            &p,
+            ComplianceScale::new(true, 0.1, 10.0),
+            &scored,
+            false,
+            None,
+            "toy".into(),
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(c.params[1], ("compliance_scale".to_string(), 1.0));
+        // data = rest + 2u, prediction = rest + u: the residual is u on every observation
+        let (mut e, mut n) = (0.0, 0usize);
+        for (k, f) in rec.frames.iter().enumerate() {
+            if seg.fold_of_frame[k].is_none() {
+                continue;
+            }
+            for m in 0..2 {
+                e += (f.markers_m[m].unwrap() - cands[0].prediction[k][m]).norm_squared();
+                n += 1;
+            }
+        }
+        let want = (e / n as f64).sqrt();
+        assert!(want > 1e-4, "{want}");
+        assert!(
+            (c.after_all_m - want).abs() < 1e-12 * want.max(1.0),
+            "{} vs {want}",
+            c.after_all_m
+        );
     }
 
     /// `lolo_choices` names the per-fold and full-data choice, and an eligibility restriction

@@ -185,6 +185,11 @@ pub struct FemSimSettings {
     /// penetration is a few % of the depth on the suite's meshes); a soft factor stands for a
     /// compliant tip (a rubber cap) — the measurement of docs/diagnose.md "Session 14 (fric2)".
     pub rigid_tip_contact: ContactSettings,
+    /// The frictional replay's regularization slip ε (`softcap_fem::FrictionParams::
+    /// slip_distance_m`, the slip below which a contact node sticks elastically) as a fraction of
+    /// the replayed mesh's surface node spacing near the tips
+    /// (`crate::extend::friction_slip_distance_m`: why; never below `FrictionParams`' 10 µm).
+    pub friction_slip_fraction: f64,
 }
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
@@ -230,6 +235,7 @@ impl Default for FemSimSettings {
             refinement: RefinementSettings::default(),
             friction_contact: ContactDiscretisation::Nodes,
             rigid_tip_contact: ContactSettings::default(),
+            friction_slip_fraction: 0.1,
         }
     }
 }

@@ -320,6 +320,7 @@ fn simulate_grid(
                 out.push(Candidate {
                     params: point.0.clone(),
                     prediction,
+                    position_controlled: false,
                 });
                 sources.push(point);
             }
@@ -419,7 +420,11 @@ pub(crate) fn simulate_rigid_grid(
         match result {
             Ok(Some(prediction)) => {
                 total += 1;
-                out.push(Candidate { params, prediction });
+                out.push(Candidate {
+                    params,
+                    prediction,
+                    position_controlled: true,
+                });
             }
             Ok(None) => break,
             Err(DiagnoseError::Simulation { .. }) => total += 1,

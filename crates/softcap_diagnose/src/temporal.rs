@@ -412,7 +412,11 @@ pub(crate) fn confirm_temporal(
     for ((params, (_, seq)), result) in params.into_iter().zip(jobs).zip(results) {
         match result {
             Ok(prediction) => {
-                cands.push(Candidate { params, prediction });
+                cands.push(Candidate {
+                    params,
+                    prediction,
+                    position_controlled: false,
+                });
                 frames.push(seq);
             }
             Err(DiagnoseError::Simulation { .. }) => continue,
@@ -429,7 +433,11 @@ pub(crate) fn confirm_temporal(
             Ok(prediction) => {
                 ridge.push((m, cands.len()));
                 let params = refined_prony_point(centre, m).0;
-                cands.push(Candidate { params, prediction });
+                cands.push(Candidate {
+                    params,
+                    prediction,
+                    position_controlled: false,
+                });
             }
             Err(DiagnoseError::Simulation { .. }) => continue,
             Err(e) => return Err(e),
@@ -462,7 +470,11 @@ pub(crate) fn confirm_temporal(
             match f.simulate_sequence(&ext, &measured) {
                 Ok(prediction) => {
                     ridge.push((next, cands.len()));
-                    cands.push(Candidate { params, prediction });
+                    cands.push(Candidate {
+                        params,
+                        prediction,
+                        position_controlled: false,
+                    });
                 }
                 Err(DiagnoseError::Simulation { .. }) => break,
                 Err(e) => return Err(e),

@@ -105,6 +105,9 @@ fn default_model_floor() {
     if let Some(p) = env("FLOOR_PENALTY") {
         settings.rigid_tip_contact.penalty_factor = p.parse().expect("FLOOR_PENALTY=P");
     }
+    if let Some(e) = env("FLOOR_SLIP") {
+        settings.friction_slip_fraction = e.parse().expect("FLOOR_SLIP=FRACTION");
+    }
     if let Some(l) = env("FLOOR_LOCAL") {
         let (f, s) = l.split_once(':').unwrap_or((&l, "1"));
         settings.refinement.local = true;
@@ -157,6 +160,24 @@ fn default_model_floor() {
         .iter()
         .map(|f| f.force_n + lateral.map_or(Vector3::zeros(), |l| l * f.force_n.norm()))
         .collect();
+    // FLOOR_TRACTION=MU,C: the Coulomb return-mapping traction of `friction::traction_history`
+    // (μ, tangential stiffness C × the indentation stiffness K) added to every measured force
+    // (force BC only: the force-driven probe-friction model of the confirmation grid).
+    if let Some(v) = env("FLOOR_TRACTION") {
+        let (mu, c) = v.split_once(',').expect("FLOOR_TRACTION=MU,C");
+        let k_ind = softcap_diagnose::friction::indentation_stiffness_n_per_m(&seg);
+        let t = softcap_diagnose::friction::traction_history(
+            &rec,
+            &seg,
+            &forces,
+            mu.parse().unwrap(),
+            c.parse::<f64>().unwrap() * k_ind,
+        );
+        for (f, t) in forces.iter_mut().zip(&t) {
+            *f += t;
+        }
+        println!("FLOOR traction mu {mu}, k_t {c} x K = {k_ind:.1} N/m");
+    }
     // FLOOR_TRUTH_TIP=DIR/truth/probe.csv: the rigid-tip replays at the synthetic truth's tip
     // positions instead of the captured ones (separates the capture's pose error from the model).
     let mut replayed = rec.clone();
@@ -214,6 +235,18 @@ fn default_model_floor() {
             }),
             rms(&|k, m| contact(k) && near(k, m)),
             rms(&|k, m| contact(k) && !near(k, m)),
+        );
+        let per: Vec<String> = (0..seg.locations.len())
+            .map(|l| {
+                format!(
+                    "{:.4}",
+                    rms(&|k, m| contact(k) && near(k, m) && seg.fold_of_frame[k] == Some(l))
+                )
+            })
+            .collect();
+        println!(
+            "FLOOR {name} {label}: contact near per location {}",
+            per.join(" ")
         );
     };
     let scale = env("FLOOR_SCALE").is_some();
@@ -387,6 +420,26 @@ fn friction_profile(
         .map(|&mu| Extension::ProbeFriction { mu })
         .collect();
     let frames = pose_sequence(rec);
+    // the regularization slip of the replay on the uniformly refined mesh (the default)
+    let tips: Vec<Vector3<f64>> = frames
+        .iter()
+        .filter_map(|f| f.load.probe.map(|p| p.tip_m))
+        .collect();
+    if let Ok(red) = sim.refined() {
+        let mesh = &red.setup().mesh;
+        let r = rec.tip_radius_m;
+        println!(
+            "MU surface spacing near the tips on the refined mesh h = {:.3} mm, slip distance {:.3} mm (fraction {})",
+            1e3 * softcap_diagnose::extend::surface_spacing_near(mesh, r, &tips).unwrap_or(0.0),
+            1e3 * softcap_diagnose::extend::friction_slip_distance_m(
+                mesh,
+                r,
+                &tips,
+                sim.settings().friction_slip_fraction
+            ),
+            sim.settings().friction_slip_fraction
+        );
+    }
     let t = Instant::now();
     let out = fine.simulate_sequences_rigid_tip(&exts, &frames);
     println!(
