@@ -145,6 +145,13 @@ pub struct ObjectSettings {
     pub fit_cells: [usize; 3],
     /// Structured cells of the finer ground-truth mesh (6 tets per cell).
     pub truth_cells: [usize; 3],
+    /// Local refinement of the truth mesh along the probe's contact paths, mm: every truth tet
+    /// within reach of a contact patch is bisected (conforming longest-edge bisection,
+    /// `softcap_mesh::refine_near`) until its longest edge is ≤ this; 0 (the default) keeps the
+    /// structured `truth_cells` mesh. For contact whose footprint is smaller than the truth's
+    /// node spacing (a stuck frictional patch carried by a few nodes; docs/diagnose.md
+    /// "Session 15 (resolve)"); the balls are [`crate::truth::contact_refinement_balls`].
+    pub truth_refine_edge_mm: f64,
     /// Density, kg/m³ (session.toml `[object]`, gravity pre-load).
     pub density_kg_m3: f64,
     /// Painted markers on the top face: grid columns × rows.
@@ -165,6 +172,7 @@ impl Default for ObjectSettings {
             size_mm: [40.0, 40.0, 20.0],
             fit_cells: [8, 8, 4],
             truth_cells: [12, 12, 6],
+            truth_refine_edge_mm: 0.0,
             density_kg_m3: 1050.0,
             marker_grid: [6, 6],
             marker_margin_mm: 3.5,
@@ -635,6 +643,12 @@ impl Scenario {
             if c.contains(&0) {
                 return Err(format!("{name} must be ≥ 1 in every direction"));
             }
+        }
+        let h = self.object.truth_refine_edge_mm;
+        if !(h.is_finite() && h >= 0.0) {
+            return Err(format!(
+                "object.truth_refine_edge_mm must be ≥ 0 and finite (0 = off), got {h}"
+            ));
         }
         pos(self.object.marker_radius_mm, "object.marker_radius_mm")?;
         if self.object.marker_grid.iter().any(|&n| n < 2) {

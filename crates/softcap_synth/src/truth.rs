@@ -23,7 +23,7 @@ use softcap_fem::{
     RayleighDamping, SupportPlane, SupportTangential, TipShape, TransverselyIsotropicParams,
     ViscoelasticModel, neohookean_energy, neohookean_forces, neohookean_tangent, tet_geometries,
 };
-use softcap_mesh::{TetEmbedding, TetLocator, TetMesh, box_tet_mesh};
+use softcap_mesh::{RefineBall, TetEmbedding, TetLocator, TetMesh, box_tet_mesh, refine_near};
 
 use crate::engine::{Engine, StepOutcome};
 use crate::error::{Result, SynthError};
@@ -265,7 +265,8 @@ pub struct Block {
     pub size_m: Vector3<f64>,
     /// Template (fit) mesh at rest, m.
     pub fit_mesh: TetMesh,
-    /// Ground-truth mesh at rest, m.
+    /// Ground-truth mesh at rest, m: the structured `truth_cells` mesh; in [`Truth::block`] the
+    /// one the simulation ran on ([`refined_truth_mesh`]).
     pub truth_mesh: TetMesh,
     /// Marker ids.
     pub marker_ids: Vec<String>,
@@ -489,6 +490,62 @@ pub fn schedule(
     (locations, frames)
 }
 
+/// Most tets the truth's local refinement may make (`object.truth_refine_edge_mm`); more is a
+/// scenario error (an edge too small for the block), not a silent cap.
+pub const MAX_TRUTH_TETS: usize = 400_000;
+
+/// Contact radius of the tip pressed `depth_m` into a flat surface, m: √(R d) for a sphere (Hertz;
+/// Johnson, *Contact Mechanics* §4.2), capped at R; the radius of a flat punch for a disk.
+fn contact_radius_m(probe: &ProbeGeometry, depth_m: f64) -> f64 {
+    match probe.tip {
+        TipShape::Sphere { radius_m } => (radius_m * depth_m.max(0.0)).sqrt().min(radius_m),
+        _ => probe.radius_m,
+    }
+}
+
+/// The balls of the truth's local refinement along the probe's contact paths
+/// (`object.truth_refine_edge_mm`): one per frame whose tip is below the surface (consecutive
+/// equal ones once), centred on the tip apex's projection onto the top face, radius 2 a with a
+/// the contact radius at the frame's depth ([`contact_radius_m`]). Physical reason for 2 a: the
+/// patch itself is a; beyond it the surface displacement of its normal and tangential tractions
+/// (Boussinesq / Cerruti) decays as 1 / r, so its steepest gradients — and the stick/slip annulus
+/// of a dragged patch (Mindlin; Johnson §7.2) at the patch's rim — lie within r ≤ 2 a. The
+/// frames sample an oblique stroke every travel / `ramp_frames` (≈ 0.6 mm at the suite's 1.5 mm
+/// depths, ≪ a), so the union of the balls covers the swept footprint. Every session gets the
+/// same rule from its own schedule.
+pub fn contact_refinement_balls(
+    probe: &ProbeGeometry,
+    top_m: f64,
+    frames: &[FrameSpec],
+) -> Vec<RefineBall> {
+    let mut balls: Vec<RefineBall> = Vec::new();
+    for f in frames.iter().filter(|f| f.depth_m > 0.0) {
+        let t = f.world_from_probe.translation.vector;
+        let ball = RefineBall {
+            centre_m: Vector3::new(t.x, t.y, top_m),
+            radius_m: 2.0 * contact_radius_m(probe, f.depth_m),
+        };
+        if balls.last() != Some(&ball) {
+            balls.push(ball);
+        }
+    }
+    balls
+}
+
+/// The truth mesh the simulation runs on: `block.truth_mesh` (structured `truth_cells`), refined
+/// along the contact paths of `frames` to longest edges ≤ `object.truth_refine_edge_mm` when that
+/// is set ([`contact_refinement_balls`]; `softcap_mesh::refine_near`, conforming, so every
+/// vertex of the structured mesh keeps its index and the new ones are edge midpoints — the
+/// bottom and top faces stay planes at z = 0 and z = top).
+pub fn refined_truth_mesh(s: &Scenario, block: &Block, frames: &[FrameSpec]) -> Result<TetMesh> {
+    let h = s.object.truth_refine_edge_mm;
+    if h <= 0.0 {
+        return Ok(block.truth_mesh.clone());
+    }
+    let balls = contact_refinement_balls(&ProbeGeometry::new(s), block.top_m(), frames);
+    Ok(refine_near(&block.truth_mesh, &balls, h * MM, MAX_TRUTH_TETS)?.mesh)
+}
+
 /// Consistent body force of linear tets under gravity: f_a = Σ_e ρ V_e g / 4.
 pub fn gravity_forces(mesh: &TetMesh, density_kg_m3: f64, g: Vector3<f64>) -> Vec<Vector3<f64>> {
     let mut f = vec![Vector3::zeros(); mesh.vertices.len()];
@@ -645,8 +702,9 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
         path: format!("<scenario {}>", s.name).into(),
         message,
     })?;
-    let block = Block::new(s, rng);
+    let mut block = Block::new(s, rng);
     let (locations_m, frames_spec) = schedule(s, &block, rng);
+    block.truth_mesh = refined_truth_mesh(s, &block, &frames_spec)?;
     let probe_geom = ProbeGeometry::new(s);
     let mesh = &block.truth_mesh;
     let inclusion_elements = if s.has(Effect::StiffInclusion) {
