@@ -847,6 +847,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
             Some(prev) => {
                 let from = prev.world_from_probe;
                 let dt = spec.t_camera_s - prev.t_camera_s;
+                let previous = x.clone();
                 // Unloading: warm-start from the previous displacement scaled by the depth ratio,
                 // so the contact patch starts close to its final shape instead of inside the probe.
                 if touches
@@ -863,10 +864,24 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                 engine.save();
                 let start = x.clone();
                 let mut result = None;
-                for factor in [1usize, 4, 16] {
+                // 1, 4, 16 sub-steps from the warm start; then (reached only when those failed,
+                // which was an error before) 16 and 64 from the previous equilibrium itself: the
+                // depth-ratio warm start is the frame's END state, while a sub-step's tip is still
+                // near the previous pose — on a frictional patch finer than the 4 mm meshes (the
+                // locally refined truth, `object.truth_refine_edge_mm`) that mismatch made every
+                // sub-step count diverge at the first unloading frame (measured: docs/diagnose.md
+                // "Session 15 (resolve)").
+                let attempts = [
+                    (1usize, true),
+                    (4, true),
+                    (16, true),
+                    (16, false),
+                    (64, false),
+                ];
+                for (attempt, &(factor, warm)) in attempts.iter().enumerate() {
                     let substeps = base_substeps * factor;
                     engine.restore();
-                    x.clone_from(&start);
+                    x.clone_from(if warm { &start } else { &previous });
                     let mut last: Option<StepOutcome> = None;
                     for k in 1..=substeps {
                         let t = k as f64 / substeps as f64;
@@ -898,7 +913,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                     if out.converged {
                         result = Some(out);
                         break;
-                    } else if factor == 16 {
+                    } else if attempt + 1 == attempts.len() {
                         return Err(SynthError::Simulation {
                             frame: spec.frame,
                             message: format!("{} after {substeps} substeps", out.status),

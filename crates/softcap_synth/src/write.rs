@@ -462,7 +462,7 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
     let _ = write!(
         t,
         "\nObject and material\n- Block {} x {} x {} mm occupying [0, size] in the world; bottom face (z = 0) bonded to the table.\n\
-         - Stable neo-Hookean (Smith, de Goes & Kim 2018) E = {} Pa, nu = {} on a {} x {} x {}-cell structured mesh ({} tets); \
+         - Stable neo-Hookean (Smith, de Goes & Kim 2018) E = {} Pa, nu = {} on a {} x {} x {}-cell structured mesh{} ({} tets); \
          the template volume.msh has {} x {} x {} cells ({} tets).\n",
         s.object.size_mm[0],
         s.object.size_mm[1],
@@ -476,6 +476,14 @@ pub fn truth_readme(s: &Scenario, truth: &Truth, daq: Option<&DaqRecord>) -> Str
         s.object.truth_cells[0],
         s.object.truth_cells[1],
         s.object.truth_cells[2],
+        if s.object.truth_refine_edge_mm > 0.0 {
+            format!(
+                " refined to edges <= {} mm within twice the contact radius of every loaded tip pose",
+                s.object.truth_refine_edge_mm
+            )
+        } else {
+            String::new()
+        },
         truth.block.truth_mesh.tets.len(),
         s.object.fit_cells[0],
         s.object.fit_cells[1],
