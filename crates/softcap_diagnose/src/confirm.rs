@@ -479,24 +479,35 @@ mod tests {
         (rec, seg, p, cands)
     }
 
-    #[test]
-    fn picks_the_right_candidate_and_compliance_scale() {
-        let (rec, seg, p, cands) = toy();
-        assert_eq!(seg.num_folds(), 2);
+    /// [`lolo_confirm`] of the toy with every observation scored and the compliance scale fitted.
+    fn confirm_all_scored(
+        cands: &[Candidate],
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+    ) -> Confirmed {
         let scored = |_: usize, _: usize| true;
-        let c = lolo_confirm(
-            &cands,
-            &rec,
-            &seg,
-            &p,
-            ComplianceScale::new(true, 0.1, 10.0),
+        let scale = ComplianceScale::new(true, 0.1, 10.0);
+        lolo_confirm(
+            cands,
+            rec,
+            seg,
+            p,
+            scale,
             &scored,
             false,
             None,
             "toy".into(),
         )
         .unwrap()
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn picks_the_right_candidate_and_compliance_scale() {
+        let (rec, seg, p, cands) = toy();
+        assert_eq!(seg.num_folds(), 2);
+        let c = confirm_all_scored(&cands, &rec, &seg, &p);
         // candidate 0 scaled by d = 2 reproduces the data exactly
         assert!(c.after_scored_m < 1e-12, "{}", c.after_scored_m);
         assert!(c.after_all_m < 1e-12);
@@ -518,20 +529,7 @@ mod tests {
         let (rec, seg, p, mut cands) = toy();
         cands.truncate(1);
         cands[0].position_controlled = true;
-        let scored = |_: usize, _: usize| true;
-        let c = lolo_confirm(
-            &cands,
-            &rec,
-            &seg,
-            &p,
-            ComplianceScale::new(true, 0.1, 10.0),
-            &scored,
-            false,
-            None,
-            "toy".into(),
-        )
-        .unwrap()
-        .unwrap();
+        let c = confirm_all_scored(&cands, &rec, &seg, &p);
         assert_eq!(c.params[1], ("compliance_scale".to_string(), 1.0));
         // data = rest + 2u, prediction = rest + u: the residual is u on every observation
         let (mut e, mut n) = (0.0, 0usize);
