@@ -38,6 +38,12 @@
 //!   rigid_tip_contact`, a multiple of a contact node's mean diagonal stiffness; default 10⁴, the
 //!   diagnosis' rigid tip; the suite's probe-friction truth uses 100) — for the frictional replay
 //!   of `FLOOR_MU` and the rigid-tip models b / d alike (docs/diagnose.md session 14 (fric2));
+//! - `FLOOR_SLIP=F` the frictional replay's regularization slip as a fraction of the surface node
+//!   spacing near the tips (`FemSimSettings::friction_slip_fraction`, default 0.1; 0 = the law's
+//!   10 µm; docs/diagnose.md session 15 (lead));
+//! - `FLOOR_TRACTION=MU,C` adds the Coulomb return-mapping traction (`friction::traction_history`,
+//!   μ, tangential stiffness C × the indentation stiffness) to every measured force (force BC only);
+//!   every model also prints its "contact near" RMS per location;
 //! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
 //!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
