@@ -1,4 +1,4 @@
-//! softcap capture stage: a raw session folder (`SESSION_FORMAT.md`) → per-frame markers, probe
+//! softcap capture stage: a raw session folder (`docs/session-format.md`) → per-frame markers, probe
 //! pose and force, and the camera↔DAQ clock relation (bickel2009 §5, thesis §6.2–6.3).
 //!
 //! | module | what |

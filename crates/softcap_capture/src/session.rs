@@ -1,4 +1,4 @@
-//! Reading a raw session folder (`SESSION_FORMAT.md`, version 1): `session.toml`, `rig/*.toml` and
+//! Reading a raw session folder (`docs/session-format.md`, version 1): `session.toml`, `rig/*.toml` and
 //! the CSV files. Every length is converted to SI metres on reading; errors name file, line and field.
 
 use std::collections::BTreeMap;

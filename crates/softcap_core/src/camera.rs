@@ -1,4 +1,4 @@
-//! Pinhole camera with OpenCV Brown–Conrady distortion, exactly as in `SESSION_FORMAT.md`
+//! Pinhole camera with OpenCV Brown–Conrady distortion, exactly as in `docs/session-format.md`
 //! (pure math, no I/O: parsing `rig/cameras.toml` is the capture stage's job, writing it the
 //! virtual rig's):
 //!

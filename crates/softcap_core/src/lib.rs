@@ -2,7 +2,7 @@
 //!
 //! | module | what | paper |
 //! |---|---|---|
-//! | [`camera`] | pinhole camera with OpenCV Brown–Conrady distortion: project, Jacobian, undistort, rays | SESSION_FORMAT.md |
+//! | [`camera`] | pinhole camera with OpenCV Brown–Conrady distortion: project, Jacobian, undistort, rays | docs/session-format.md |
 //! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
 //! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
 //! | [`levenberg_marquardt`](mod@levenberg_marquardt) | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |

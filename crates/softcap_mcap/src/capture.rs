@@ -149,7 +149,7 @@ impl CaptureFrame {
     }
 }
 
-/// Loading phase of a frame within its probe location (HEART.md conventions).
+/// Loading phase of a frame within its probe location.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Phase {
     /// Before the first contact of the session.

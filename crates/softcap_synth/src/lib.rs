@@ -1,6 +1,6 @@
 //! # softcap_synth — the virtual rig
 //!
-//! Writes raw probing sessions that conform to `SESSION_FORMAT.md` from a scenario file, with a
+//! Writes raw probing sessions that conform to `docs/session-format.md` from a scenario file, with a
 //! ground truth known exactly (`truth/`) and physical or sensor effects switched on per scenario,
 //! so that every stage can be tested end to end and `softcap diagnose` can be proven on data where
 //! an effect is concealed. See `docs/synth.md`.

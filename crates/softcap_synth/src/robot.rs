@@ -1,8 +1,7 @@
 //! Robot-arm probing (session kind `probe-robot`, bickel2010 thesis §6.3): a 4-DOF arm (base yaw,
 //! shoulder, elbow and wrist pitch) carries a 6-axis force/torque sensor and the probe. The rig
 //! writes the arm as URDF (`rig/robot.urdf`), the joint log and F/T readings on the DAQ clock
-//! (`robot.csv`), following the conventions softcap_capture's `robot` module reads (HEART.md
-//! 2026-11-21 22:15):
+//! (`robot.csv`), following the conventions softcap_capture's `robot` module reads:
 //!
 //! - the URDF root link (`world`) is the world frame, lengths in metres; a fixed joint places the
 //!   arm's base;

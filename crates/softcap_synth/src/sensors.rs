@@ -2,7 +2,7 @@
 //!
 //! FSR (bickel2009 §5): R(F) = min(k F^(−γ), R_max), read through a divider,
 //! v = V_s · R_d / (R_d + R(F)). The DAQ samples v on its own clock,
-//! t_daq = offset + (1 + drift) · t_camera (SESSION_FORMAT.md truth/clock.toml), adds Gaussian noise and
+//! t_daq = offset + (1 + drift) · t_camera (docs/session-format.md truth/clock.toml), adds Gaussian noise and
 //! quantises to `adc_bits` over 0..V_s. The trigger line is high during each frame's exposure.
 //!
 //! sensor-lag: the force the FSR element reports follows the true axial force F through a

@@ -122,7 +122,7 @@ impl ElasticModel for TruthModel {
     }
 }
 
-/// Phase of a frame (HEART.md conventions).
+/// Phase of a frame within its probe location.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Phase {
     /// Before the first contact.

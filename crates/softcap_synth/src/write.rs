@@ -1,4 +1,4 @@
-//! Writing the session folder exactly as `SESSION_FORMAT.md` says (length unit mm), plus
+//! Writing the session folder exactly as `docs/session-format.md` says (length unit mm), plus
 //! `truth/`. Files are written into a temporary sibling folder that is renamed into place at the
 //! end, so a failed run never leaves a folder that looks like a finished session.
 

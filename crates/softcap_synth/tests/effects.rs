@@ -1,5 +1,5 @@
 //! The physical effects of the diagnose-suite scenarios (fixtures/scenarios/suite/) are present in
-//! the ground truth with the magnitudes diagnose asked for (HEART.md, 2026-11-21 20:50): force
+//! the ground truth with the magnitudes the diagnosis needs to see them: force
 //! relaxation in the holds, permanent set, surface drag by friction, support slip, inertial
 //! overshoot, gravity sag. Each test simulates the committed suite scenario (no files written).
 

@@ -607,7 +607,7 @@ pub fn leave_one_location_out_from(
 
 /// Chooses the shrinkage γ_p of the per-example fits (eq. 9 + γ_p‖q − q₀‖²) by
 /// leave-one-location-out cross-validation over `candidates` (the held-out protocol of the
-/// session: HEART.md conventions; bickel2009 §4.2 judges the basis by its error on examples it
+/// session: probe locations are held out; bickel2009 §4.2 judges the basis by its error on examples it
 /// was not built from): every candidate's per-example fits are scored by
 /// [`leave_one_location_out`], and the one with the fewest non-converged held-out
 /// re-simulations, then the lowest held-out RMS, wins (ties → the earlier, stronger one).

@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::Parser;
 use softcap_synth::{Scenario, SynthError, synthesize};
 
-/// The virtual rig: simulate a scenario and write a raw session folder (SESSION_FORMAT.md).
+/// The virtual rig: simulate a scenario and write a raw session folder (docs/session-format.md).
 #[derive(Parser, Debug)]
 #[command(name = "softcap-synth", version)]
 struct Args {
