@@ -1,4 +1,5 @@
-//! Where the shallow-wrinkle (d, w) bias came from (docs/face.md). All ignored (minutes):
+//! Where the shallow-wrinkle (d, w) bias came from
+//! (docs/notes/2026-11-22-wrinkle-cross-section-fit.md). All ignored (minutes):
 //! - `model_only`: the eq. 4.4 fit on Monte-Carlo AO pixels with the *true* distance p to the
 //!   valley (no tracking, no noise, 16²–64² rays);
 //! - `seeds`: the full tracking pipeline on six renders (different MC/noise seeds) per wrinkle;

@@ -534,7 +534,7 @@ impl LinearShell {
 /// Fill-reducing ordering of the shell's sparse Cholesky factor.
 ///
 /// Measured on the ≈600k-vertex face (ICT face 3× midpoint-subdivided, 41 handles, test profile,
-/// CPU seconds under load; docs/face.md, Benchmarks): AMD nnz(L) 156.5 M, 138.5 G multiply-adds,
+/// CPU seconds under load; docs/notes/2026-11-26-shell-nested-dissection.md): AMD nnz(L) 156.5 M, 138.5 G multiply-adds,
 /// numeric factor 8.7 s; the geometric nested dissection 138.1 M, 90.4 G, 6.4 s (its ordering
 /// and symbolic analysis cost 3.6 s against 1.5 s for AMD) — so `Auto` uses it whenever positions
 /// are given.

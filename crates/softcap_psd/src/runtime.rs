@@ -34,7 +34,8 @@
 //! the passes into one sweep per chunk with the one-ring gathers hitting cache, but the vertices
 //! whose one-ring left the sweep window — 9 % of the detail batches, 18 % of the normals on the
 //! Morton-ordered 592k face — had to be finished after the sweep from memory, and that cost more
-//! than the fusion saved: 28.5–30.2 vs 33.1–36.6 CPU-ms per frame, docs/psd.md session 10.)
+//! than the fusion saved: 28.5–30.2 vs 33.1–36.6 CPU-ms per frame,
+//! docs/notes/2026-11-26-psd-frame-passes.md.)
 
 use crate::detail::{DetailModel, MAX_POSES, Metric};
 use crate::error::{PsdError, Result};

@@ -149,8 +149,8 @@ pub struct ObjectSettings {
     /// within reach of a contact patch is bisected (conforming longest-edge bisection,
     /// `softcap_mesh::refine_near`) until its longest edge is ≤ this; 0 (the default) keeps the
     /// structured `truth_cells` mesh. For contact whose footprint is smaller than the truth's
-    /// node spacing (a stuck frictional patch carried by a few nodes; docs/diagnose.md
-    /// "Session 15 (resolve)"); the balls are [`crate::truth::contact_refinement_balls`].
+    /// node spacing (a stuck frictional patch carried by a few nodes;
+    /// docs/notes/2026-11-27-probe-friction-truth-resolution.md); the balls are [`crate::truth::contact_refinement_balls`].
     pub truth_refine_edge_mm: f64,
     /// Density, kg/m³ (session.toml `[object]`, gravity pre-load).
     pub density_kg_m3: f64,
@@ -531,7 +531,7 @@ pub struct EffectSettings {
     /// probe-friction: how the truth's frictional contact samples the surface: 0 = at the top
     /// nodes (node-to-rigid-surface, the original truth); k ≥ 1 = quadrature points on the top
     /// triangles, each cut into k² sub-triangles of 3 points
-    /// (`softcap_fem::ContactDiscretisation::Quadrature`; docs/diagnose.md session 14 (fric)).
+    /// (`softcap_fem::ContactDiscretisation::Quadrature`).
     pub friction_contact_subdivisions: usize,
     /// support-slip: total tangential stiffness of the mount under the bottom face, N/m
     /// (spread evenly over the support nodes).

@@ -112,7 +112,8 @@ pub const INEXACT_STEP_TOLERANCE: f64 = 1e-2;
 
 /// Default relaxation ω of the strain-space parameter update (fit re-simulation and
 /// `softcap tissue simulate`): ½ halves every parameter jump, which stops the oscillation of
-/// the plain (ω = 1) iteration on the three-layer block (docs/tissue.md).
+/// the plain (ω = 1) iteration on the three-layer block
+/// (docs/notes/2026-11-22-strain-space-constant-term.md).
 pub const DEFAULT_RELAXATION: f64 = 0.5;
 
 /// Newton iterations (consistent corotational tangent, line search): a few factorizations per

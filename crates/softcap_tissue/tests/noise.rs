@@ -128,7 +128,7 @@ fn noise_experiment_full_table() {
 }
 
 /// Fit settings that minimize the *training* error, as the paper's noise-free figure measures it
-/// (docs/tissue.md, "Noise experiment at 0 %"): no shrinkage toward the homogeneous field
+/// (docs/notes/2026-11-26-tissue-fit-defaults.md): no shrinkage toward the homogeneous field
 /// (γ_p = 0, no leave-one-location-out choice), converged per-example fits (40 LM iterations,
 /// relative cost tolerance 1e-6) and an exactly interpolating strain-space basis (greedy
 /// tolerance 0, up to 64 centres). The defaults trade this training error for held-out prediction.
