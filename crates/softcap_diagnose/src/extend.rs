@@ -25,13 +25,13 @@ use crate::sim::{FemProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::probe_pose;
 use softcap_fem::{
     AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel, EquilibriumSettings,
     FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations, LinearParams,
     NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver, SupportPlane,
     SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
 };
+use softcap_probing::probe_pose;
 
 /// One extended model (see the module table).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -170,7 +170,7 @@ impl FemProbeSimulator {
     /// equilibrium (from rest for a jump or when that does not converge), starting at rest.
     fn run_strain_space(
         &self,
-        mut model: softcap_fem::StrainSpaceModel,
+        mut model: softcap_probing::StrainSpaceModel,
         frames: &[SequenceFrame],
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let setup = self.setup();

@@ -6,12 +6,12 @@ use crate::recording::{Frame, Recording, SupportPlane, surface_normals};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{ElementRbf, FootprintLoad, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mcap::capture::CaptureData;
 use softcap_mcap::material::MaterialData;
 use softcap_mcap::proto;
 use softcap_mesh::TetMesh;
+use softcap_probing::{ElementRbf, FootprintLoad, StrainSpaceMaterial};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -97,7 +97,7 @@ pub enum MaterialSource {
     /// the fitted examples better: the basis is fitted to every location the diagnosis holds
     /// out, and its per-element freedom absorbs effects that act everywhere. Measured on the
     /// diagnose suite (docs/diagnose.md, session 10; the basis solved to convergence by
-    /// `softcap_fem::StrainSpaceModel::solve_continued`): with the basis as the default model
+    /// `softcap_probing::StrainSpaceModel::solve_continued`): with the basis as the default model
     /// support-slip and anisotropy are answered `none` (the basis reproduces their examples to
     /// 0.244 / 0.094 mm against the homogeneous 0.496 / 0.235 mm), and the tissue fit's own
     /// leave-one-location-out RMS of the basis (`gamma_prior.candidate.*.heldout_rms`) is above
@@ -124,7 +124,7 @@ pub struct MaterialModel {
     pub model: CorotationalModel,
     /// The strain-space material (bickel2009 eq. 8) when the default model is the basis: the
     /// simulator solves it with the relaxed, continued parameter iteration
-    /// (`softcap_fem::StrainSpaceModel::solve_continued`).
+    /// (`softcap_probing::StrainSpaceModel::solve_continued`).
     pub basis: Option<Arc<StrainSpaceMaterial>>,
     /// "strain-space basis", "homogeneous baseline" or "mean per-example parameters", with the
     /// reason when `Auto` chose.

@@ -7,10 +7,10 @@ use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{FootprintLoad, StrainSpaceMaterial};
 use softcap_fem::{CorotationalModel, TipShape};
 use softcap_mcap::Provenance;
 use softcap_mcap::capture::CaptureData;
+use softcap_probing::{FootprintLoad, StrainSpaceMaterial};
 use std::path::PathBuf;
 use std::sync::Arc;
 

@@ -13,15 +13,15 @@ use crate::hypothesis::Field;
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{
-    HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, StrainSpaceMaterial,
-    StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
-};
 use softcap_fem::{
     ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings,
     LinearParams, StaticSolver, TipShape,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
+use softcap_probing::{
+    HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, StrainSpaceMaterial,
+    StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
+};
 use std::sync::Arc;
 
 /// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
@@ -68,7 +68,7 @@ pub trait ProbeSimulator: Send + Sync {
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput>;
 
     /// A simulator of the same setup whose material is a homogeneous (λ, α) refit to `examples`
-    /// (bickel2009 §6 average fit, `softcap_fem::probing::fit_homogeneous`) — used after a
+    /// (bickel2009 §6 average fit, `softcap_probing::fit_homogeneous`) — used after a
     /// temporal extension corrected the forces the material was fitted with. `None` (default)
     /// when this simulator cannot refit its material or the fit fails.
     fn refit_homogeneous(
@@ -163,7 +163,7 @@ pub trait ProbeSimulator: Send + Sync {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct FemSimSettings {
-    /// The contact patch the probe force is spread over (`softcap_fem::probing::PatchSettings`,
+    /// The contact patch the probe force is spread over (`softcap_probing::PatchSettings`,
     /// `ProbingSetup::load_weights`: lumped on the boundary nodes inside the footprint, or the
     /// consistent loads of a uniform, a rigid flat punch's (Sneddon) or a rigid sphere's (Hertz)
     /// pressure over it). Must match the tissue fit's.
@@ -171,7 +171,7 @@ pub struct FemSimSettings {
     /// Equilibrium iterations.
     pub equilibrium: EquilibriumSettings,
     /// The strain-space default model's parameter iteration (relaxation ω, incremental loading
-    /// from rest as the fallback; `softcap_fem::StrainSpaceModel::solve_continued`).
+    /// from rest as the fallback; `softcap_probing::StrainSpaceModel::solve_continued`).
     pub strain_space: StrainSpaceSolveSettings,
     /// How [`ProbeSimulator::refined`] refines the fit mesh.
     pub refinement: RefinementSettings,
@@ -318,7 +318,7 @@ impl FemProbeSimulator {
     /// the parameters of every element follow its strain, p_e = p_e(ε_e) at equilibrium), one
     /// element per tet of the mesh. [`ProbeSimulator::simulate`] then solves it with the relaxed
     /// parameter iteration continued from the previous simulation's equilibrium
-    /// (`softcap_fem::StrainSpaceModel::solve_continued`: the material is elastic, so the
+    /// (`softcap_probing::StrainSpaceModel::solve_continued`: the material is elastic, so the
     /// previous equilibrium is only the start of the iterations; when that does not converge the
     /// load is applied from rest in increments). The per-element parameters [`Self::model`]
     /// becomes p(0): the extended models built from constant per-element parameters
@@ -382,7 +382,7 @@ impl FemProbeSimulator {
     }
 
     /// Nodes within `tolerance_m` of the plane `normal · x = offset_m`
-    /// (`softcap_fem::probing::support_nodes`).
+    /// (`softcap_probing::support_nodes`).
     pub fn nodes_on_plane(
         mesh: &TetMesh,
         normal: &Vector3<f64>,

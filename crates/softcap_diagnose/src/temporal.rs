@@ -31,7 +31,7 @@ use crate::signal::sample;
 use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
-use softcap_fem::probing::{ObservedMarker, ProbeExample};
+use softcap_probing::{ObservedMarker, ProbeExample};
 
 /// True for the hypotheses this module confirms.
 pub fn is_temporal(h: Hypothesis) -> bool {
@@ -258,7 +258,7 @@ pub const PRONY_RIDGE_EXTENSIONS: usize = 2;
 /// branch G(t)/G∞ = 1 + g e^{−t/τ} over the default model (Simo & Hughes 1998 §10.3), driven by
 /// the measured force (bickel2009 §4.1 force boundary condition) spread over the footprint by the
 /// simulator's load — for a disk tip the rigid flat punch's pressure
-/// p(r) = F / (2πa√(a² − r²)) (Sneddon 1946; `softcap_fem::probing::FootprintLoad::FlatPunch`),
+/// p(r) = F / (2πa√(a² − r²)) (Sneddon 1946; `softcap_probing::FootprintLoad::FlatPunch`),
 /// which the refined mesh resolves where the 648-tet template puts a 5 mm disk on 1–3 nodes.
 ///
 /// It replaces session 13's rigid-tip Prony replays (position control at the measured poses): on

@@ -604,7 +604,7 @@ fn full_catalog_on_ten_locations_timing() {
 /// (the markers differ from the zero-strain parameters' linear response).
 #[test]
 fn strain_space_default_model_does_not_depend_on_the_frame_order() {
-    use softcap_fem::probing::{StrainBasisSettings, StrainSample, StrainSpaceMaterial};
+    use softcap_probing::{StrainBasisSettings, StrainSample, StrainSpaceMaterial};
     let p = LinearParams::from_young_poisson(20e3, 0.45).unwrap();
     // λ and α double between zero strain and ε_zz = −0.05 in every tet (a stiffening tissue)
     let stiffening: Vec<StrainSample> = [(0.0, 1.0), (-0.05, 2.0)]

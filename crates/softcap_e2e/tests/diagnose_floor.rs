@@ -10,7 +10,7 @@
 //! - `FLOOR_MATERIAL=E_PA,NU` a homogeneous material instead of the tissue fit's;
 //! - `FLOOR_LOAD=consistent | flat-punch | hertz` the footprint-consistent loads of a uniform,
 //!   a rigid flat punch's (Sneddon) or a rigid sphere's (Hertz) pressure instead of the default
-//!   (`softcap_fem::probing::FootprintLoad`; default: the load material.mcap was fitted under,
+//!   (`softcap_probing::FootprintLoad`; default: the load material.mcap was fitted under,
 //!   which this does not refit);
 //! - `FLOOR_LEVELS=N` 1 → 8 refinements of the template for the refined models (default 1);
 //! - `FLOOR_WHICH` a subset of `abcd` (a: force BC, b: rigid-tip replay, c / d: the same on the
@@ -98,7 +98,7 @@ fn default_model_floor() {
     }
     if let Some(load) = env("FLOOR_LOAD") {
         settings.patch.load =
-            softcap_fem::probing::FootprintLoad::from_name(&load).unwrap_or_else(|| {
+            softcap_probing::FootprintLoad::from_name(&load).unwrap_or_else(|| {
                 panic!("FLOOR_LOAD={load}: lumped | consistent | flat-punch | hertz")
             });
     }

@@ -15,7 +15,6 @@
 //! | [`viscoelastic`] | Prony series G(t)/G_∞ = 1 + Σ g_i e^{−t/τ_i} as QLV on the element stress in the unrotated frame, P = R(T + Σh_i), exact exponential recurrence h ← a h + b ΔT | Simo & Hughes 1998 §10.3; Puso & Weiss 1998 |
 //! | [`dynamics`] | M ẍ + D ẋ + f_int(x) = f_ext, lumped M, Rayleigh D = αM + βK; implicit Euler (A = M/h² + D/h + K) and Newmark average acceleration (A = 4M/h² + 2D/h + K), Newton per step, probe contact | wang2015 eq. 3 |
 //! | [`modal`] | smallest K φ = λ M φ: dense M^{-1/2} K M^{-1/2} eigen; shift-invert Lanczos on (K − σM)⁻¹M with locking/restarts for repeated (rigid-body) modes | wang2015 §7 |
-//! | [`probing`] | marker embedding, surface regions, probe examples, per-example (λ, α) LM fit with adjoint Jacobian and umbrella smoothing, homogeneous baseline, strain-space RBF material, probe-contact synthesis | bickel2009 §3.3–4.2, eq. 8–12 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
 //! | [`anisotropy`] | transversely isotropic E with five parameters {E11, E12, E13, E33, E44} and a per-element fibre, σ = C ε on the corotated strain; E_a = E33 − 2E13²/(E11+E12); PD check and Mandel eigenvalue clipping | thesis §8.5 eq. 8.5; Rebonato & Jäckel 1999 |
 //! | [`friction`] | regularized Coulomb at the probe: f_t = −μ f_n s(‖δ‖/ε) δ/‖δ‖, s(r) = 2r − r² (r < 1), 1 after; stick anchors in the probe frame, dragged to ε on commit | Li et al. 2020 (IPC) §5.1 f₁ mollifier; bickel2009 §3.4 contact |
@@ -59,7 +58,6 @@ pub mod model;
 pub mod neohookean;
 pub mod nodal;
 pub mod plasticity;
-pub mod probing;
 pub mod statics;
 pub mod support;
 pub mod viscoelastic;
@@ -89,14 +87,6 @@ pub use nodal::{NodalSolver, NodalTerm};
 pub use plasticity::{
     ElastoplasticModel, J2PlasticityParams, PlasticNeoHookeanModel, PlasticState, ReturnMapping,
     plastic_from_vector, plastic_to_vector, radial_return,
-};
-pub use probing::{
-    ContactSynthesis, ContactSynthesisSettings, ExampleFit, ExampleFitSettings, FootprintLoad,
-    HomogeneousFit, HomogeneousFitSettings, JointFit, ObservedMarker, PatchSettings, ProbeExample,
-    ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial, StrainSpaceModel,
-    StrainSpaceSolve, StrainSpaceSolveSettings, StrainTail, fit_example, fit_example_from,
-    fit_examples_from, fit_examples_jointly, fit_homogeneous, normal_product,
-    normal_product_unblocked, simulate_probe_contact,
 };
 pub use statics::{
     EquilibriumReport, EquilibriumSettings, IncrementalReport, IncrementalSettings, LoadState,

@@ -139,7 +139,7 @@ impl EquilibriumReport {
 
     /// The report an equilibrium solve starts from (no iterations yet, status `MaxIterations`), or
     /// the length-mismatch failure when `x` or `f_ext` does not have one entry per model node.
-    pub(crate) fn begin(num_nodes: usize, x_len: usize, f_ext_len: usize) -> Self {
+    pub fn begin(num_nodes: usize, x_len: usize, f_ext_len: usize) -> Self {
         let mut report = Self {
             status: SolveStatus::MaxIterations,
             iterations: 0,

@@ -19,12 +19,13 @@
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+use softcap_fem::TipShape;
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{
+use softcap_probing::StrainSpaceModel;
+use softcap_probing::{
     ContactSynthesisSettings, ProbingSetup, StepPreconditioner, probe_pose, simulate_probe_contact,
     support_nodes,
 };
-use softcap_fem::{StrainSpaceModel, TipShape};
 use softcap_tissue::{FitSettings, PreparedSession, Progress, fit_session};
 
 #[path = "../tests/common/mod.rs"]

@@ -19,13 +19,13 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{
+use softcap_fem::{EquilibriumSettings, LinearParams};
+use softcap_mcap::capture::CaptureData;
+use softcap_probing::{
     BasisErrorStep, ExampleFit, ExampleFitSettings, HomogeneousFit, HomogeneousFitSettings,
     JointFit, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
     fit_example, fit_example_warm, fit_examples_jointly, fit_homogeneous,
 };
-use softcap_fem::{EquilibriumSettings, LinearParams};
-use softcap_mcap::capture::CaptureData;
 
 use crate::error::{Result, TissueError};
 use crate::progress::Progress;
@@ -54,9 +54,9 @@ pub struct FitSettings {
     /// "disk"`) in every fit (`example_fit`, `homogeneous`, `joint_fit`); other tips keep their
     /// `patch.load`. Recorded in material.mcap (`homogeneous.patch.load`,
     /// `examples.patch.load` of `/tissue/report`) so the diagnosis replays the fit's load.
-    pub disk_tip_load: softcap_fem::FootprintLoad,
+    pub disk_tip_load: softcap_probing::FootprintLoad,
     /// Relaxation ω of the strain-space parameter update in the re-simulation
-    /// ([`softcap_fem::StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).
+    /// ([`softcap_probing::StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).
     pub relaxation: f64,
     /// The reference field of the per-example fits: their start, the target of their shrinkage
     /// `example_fit.gamma_prior`, and the zero-strain sample of the strain-space basis.
@@ -159,7 +159,7 @@ impl Default for FitSettings {
             },
             load_steps: 4,
             patch_from_session: true,
-            disk_tip_load: softcap_fem::FootprintLoad::FlatPunch,
+            disk_tip_load: softcap_probing::FootprintLoad::FlatPunch,
             relaxation: DEFAULT_RELAXATION,
             reference: ReferenceField::default(),
             joint_fit: ExampleFitSettings {
@@ -337,7 +337,7 @@ pub fn simulate_example<M: softcap_fem::ElasticModel + ?Sized>(
     setup: &ProbingSetup,
     model: &mut M,
     ex: &ProbeExample,
-    patch: &softcap_fem::PatchSettings,
+    patch: &softcap_probing::PatchSettings,
     equilibrium: &EquilibriumSettings,
     load_steps: usize,
 ) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
@@ -363,12 +363,12 @@ pub const RELAXATION_RETRIES: usize = 2;
 /// `s.load_steps` increments); when the relaxed parameter iteration does not converge it is
 /// retried from rest with ω halved and the load increments doubled, [`RELAXATION_RETRIES`] times
 /// (a smaller ω contracts the parameter oscillation more, same fixed points) — the kernel
-/// `softcap_fem::StrainSpaceModel::solve_continued` from the unloaded state, the one the
+/// `softcap_probing::StrainSpaceModel::solve_continued` from the unloaded state, the one the
 /// diagnose stage's default model uses. `None` when every attempt fails (reported as a material
 /// failure, never a panic).
 pub fn resimulate(
     setup: &ProbingSetup,
-    model: &softcap_fem::StrainSpaceModel,
+    model: &softcap_probing::StrainSpaceModel,
     ex: &ProbeExample,
     s: &FitSettings,
 ) -> Result<Option<Vec<nalgebra::Vector3<f64>>>> {
@@ -385,7 +385,7 @@ pub fn resimulate(
         &unloaded,
         &f,
         &s.evaluation,
-        &softcap_fem::StrainSpaceSolveSettings {
+        &softcap_probing::StrainSpaceSolveSettings {
             relaxation: model.relaxation,
             load_steps: s.load_steps.max(1),
             relaxation_retries: RELAXATION_RETRIES,
@@ -403,7 +403,7 @@ pub fn resimulate(
 /// loading of §3.4 is the robust path from rest, not part of the model.
 pub fn resimulate_from(
     setup: &ProbingSetup,
-    model: &softcap_fem::StrainSpaceModel,
+    model: &softcap_probing::StrainSpaceModel,
     ex: &ProbeExample,
     s: &FitSettings,
     start: Option<&[nalgebra::Vector3<f64>]>,
@@ -561,7 +561,7 @@ pub fn leave_one_location_out_from(
                 .collect();
             let samples = samples_of(&train, reference_sample, t);
             let (material, _) = StrainSpaceMaterial::fit(&samples, &settings.basis)?;
-            let model = softcap_fem::StrainSpaceModel::new(
+            let model = softcap_probing::StrainSpaceModel::new(
                 Arc::new(material),
                 &setup.mesh,
                 settings.relaxation,
@@ -761,7 +761,7 @@ pub fn fit_session(
     let material = Arc::new(material);
 
     let bar = progress.bar("strain-space re-simulation", probe_examples.len() as u64);
-    let model = softcap_fem::StrainSpaceModel::new(material.clone(), &setup.mesh, s.relaxation)
+    let model = softcap_probing::StrainSpaceModel::new(material.clone(), &setup.mesh, s.relaxation)
         .map_err(|e| TissueError::BadSettings {
             field: "relaxation".into(),
             problem: e.to_string(),

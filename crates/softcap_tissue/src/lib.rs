@@ -18,7 +18,7 @@
 //!
 //! ```
 //! use softcap_tissue::{FitSettings, basis_message};
-//! use softcap_fem::probing::{StrainBasisSettings, StrainSample, StrainSpaceMaterial};
+//! use softcap_probing::{StrainBasisSettings, StrainSample, StrainSpaceMaterial};
 //! use softcap_fem::LinearParams;
 //! // The fit's budget knobs: examples per probe location, LM iterations, basis size.
 //! let s = FitSettings::default();

@@ -11,11 +11,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use nalgebra::Vector3;
-use softcap_fem::probing::StrainSpaceMaterial;
 use softcap_mcap::material::MaterialData;
 use softcap_mcap::proto::{self, KeyValue, key_value::Value};
 use softcap_mcap::{Provenance, Writer, topics};
 use softcap_mesh::TetMesh;
+use softcap_probing::StrainSpaceMaterial;
 
 use crate::error::{Result, TissueError};
 use crate::fit::{FitConfig, SessionFit};
@@ -284,7 +284,7 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
         number("support.offset", sp.offset_m, "m"),
         number("support.tolerance", sp.tolerance_m, "m"),
         number("tip.radius", prepared.tip_radius_m, "m"),
-        // The footprint loads the fits used (`softcap_fem::FootprintLoad::name`): the diagnosis
+        // The footprint loads the fits used (`softcap_probing::FootprintLoad::name`): the diagnosis
         // replays its default model with the load it was fitted under.
         text("homogeneous.patch.load", used.homogeneous.patch.load.name()),
         text("examples.patch.load", used.example_fit.patch.load.name()),

@@ -6,9 +6,9 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 use softcap_mcap::capture::{CaptureData, Phase, ProbeLocation, ProbeLocationSettings};
 use softcap_mesh::TetMesh;
+use softcap_probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 
 use crate::error::{Result, TissueError};
 

@@ -10,12 +10,12 @@ use std::path::PathBuf;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use softcap_fem::probing::{
+use softcap_fem::{SolveStatus, TipShape};
+use softcap_mcap::{Provenance, Writer, proto, topics};
+use softcap_probing::{
     ContactSynthesis, ContactSynthesisSettings, ProbingSetup, probe_pose, simulate_probe_contact,
     support_nodes,
 };
-use softcap_fem::{SolveStatus, TipShape};
-use softcap_mcap::{Provenance, Writer, proto, topics};
 
 use crate::error::{Result, TissueError};
 use crate::output::{LoadedMaterial, read_material, tet_mesh_message};
@@ -102,7 +102,7 @@ impl ProbeSpec {
 pub struct SimulateSettings {
     /// Incremental loading, secant on the depth, contact penalty.
     pub contact: ContactSynthesisSettings,
-    /// Relaxation ω of the strain-space parameter update ([`softcap_fem::StrainSpaceModel`]).
+    /// Relaxation ω of the strain-space parameter update ([`softcap_probing::StrainSpaceModel`]).
     pub relaxation: f64,
     /// When the synthesis does not converge (after the load-increment halvings of
     /// `contact.max_bisections`), retry this many times with ω halved and twice the equilibrium
@@ -193,12 +193,15 @@ pub fn simulate(
     let mut contact = settings.contact.clone();
     let mut attempt = 0;
     loop {
-        let mut model =
-            softcap_fem::StrainSpaceModel::new(loaded.material.clone(), &setup.mesh, relaxation)
-                .map_err(|e| TissueError::BadSettings {
-                    field: "relaxation".into(),
-                    problem: e.to_string(),
-                })?;
+        let mut model = softcap_probing::StrainSpaceModel::new(
+            loaded.material.clone(),
+            &setup.mesh,
+            relaxation,
+        )
+        .map_err(|e| TissueError::BadSettings {
+            field: "relaxation".into(),
+            problem: e.to_string(),
+        })?;
         let syn = simulate_probe_contact(
             setup,
             &mut model,

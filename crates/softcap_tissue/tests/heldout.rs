@@ -7,8 +7,9 @@ mod common;
 
 use common::in_memory::{prepared, three_layer_setup, three_layer_truth, truth_examples};
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{ContactSynthesisSettings, probe_pose, simulate_probe_contact};
-use softcap_fem::{CorotationalModel, StrainSpaceModel, TipShape};
+use softcap_fem::{CorotationalModel, TipShape};
+use softcap_probing::StrainSpaceModel;
+use softcap_probing::{ContactSynthesisSettings, probe_pose, simulate_probe_contact};
 use softcap_tissue::{FitSettings, Progress, fit_session};
 
 /// The default fit: γ_p of the per-example fits chosen by leave-one-location-out

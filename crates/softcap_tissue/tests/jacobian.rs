@@ -8,9 +8,9 @@
 mod common;
 
 use common::{SessionSpec, write_session};
-use softcap_fem::probing::{PatchSettings, marker_jacobian};
 use softcap_fem::{CorotationalModel, EquilibriumSettings, LinearParams, StiffnessKind};
 use softcap_mcap::capture::CaptureData;
+use softcap_probing::{PatchSettings, marker_jacobian};
 use softcap_tissue::{ExampleSelection, prepare, read_volume_mesh};
 
 #[test]

@@ -79,7 +79,7 @@ fn simulate_reaches_the_force_and_writes_every_load_step() {
 /// truth's converged too, and the depths agree within 35 % of the truth's.
 fn assert_force_and_depth_match_the_truth(
     o: &softcap_tissue::SimulateOutcome,
-    t: &softcap_fem::ContactSynthesis,
+    t: &softcap_probing::ContactSynthesis,
     force: f64,
 ) {
     assert!(o.converged, "{o:?}");
@@ -105,7 +105,7 @@ fn sphere_with_material_and_truth(
     force: f64,
 ) -> (
     softcap_tissue::SimulateOutcome,
-    softcap_fem::ContactSynthesis,
+    softcap_probing::ContactSynthesis,
     tempfile::TempDir,
 ) {
     let dir = tempfile::tempdir().unwrap();
@@ -129,26 +129,21 @@ fn sphere_with_material_and_truth(
         arguments: vec![],
     })
     .unwrap();
-    let fixed = softcap_fem::probing::support_nodes(
-        &s.mesh_m,
-        &softcap_fem::nalgebra::Vector3::z(),
-        0.0,
-        1e-9,
-    );
-    let setup =
-        softcap_fem::probing::ProbingSetup::new(s.mesh_m.clone(), &s.markers_m, fixed).unwrap();
+    let fixed =
+        softcap_probing::support_nodes(&s.mesh_m, &softcap_fem::nalgebra::Vector3::z(), 0.0, 1e-9);
+    let setup = softcap_probing::ProbingSetup::new(s.mesh_m.clone(), &s.markers_m, fixed).unwrap();
     let mut truth = common::truth_model_of(&s.mesh_m, spec.young_pa, spec.size_m[2], spec.poisson);
-    let pose = softcap_fem::probing::probe_pose(
+    let pose = softcap_probing::probe_pose(
         &softcap_fem::nalgebra::Vector3::from(probe.tip_m),
         &-softcap_fem::nalgebra::Vector3::z(),
     );
-    let t = softcap_fem::probing::simulate_probe_contact(
+    let t = softcap_probing::simulate_probe_contact(
         &setup,
         &mut truth,
         probe.tip_shape(),
         pose,
         force,
-        &softcap_fem::ContactSynthesisSettings::default(),
+        &softcap_probing::ContactSynthesisSettings::default(),
     )
     .unwrap();
     (o, t, dir)

@@ -56,7 +56,7 @@ pub fn suite_fit_settings() -> FitSettings {
 /// iterating on the diagnose stage only; stale when synth, capture or tissue code changes —
 /// delete DIR then). Unset (CI), every run makes fresh inputs.
 ///
-/// Measuring aid: `SOFTCAP_SUITE_DISK_TIP_LOAD=NAME` (a `softcap_fem::FootprintLoad` name:
+/// Measuring aid: `SOFTCAP_SUITE_DISK_TIP_LOAD=NAME` (a `softcap_probing::FootprintLoad` name:
 /// lumped, consistent, flat-punch, hertz) fits the material with that footprint load for a disk
 /// tip (`FitSettings::disk_tip_load`) instead of the default; cached as `material-NAME.mcap`
 /// beside the scenario's capture.mcap, refitted from the cached capture (and the template's
@@ -70,7 +70,7 @@ pub fn prepare_inputs(scenario: &Scenario) -> Inputs {
         PathBuf::from(d).join(format!("{}-{:016x}", scenario.name, h.finish()))
     });
     let load = std::env::var("SOFTCAP_SUITE_DISK_TIP_LOAD").ok().map(|n| {
-        softcap_fem::FootprintLoad::from_name(&n).unwrap_or_else(|| {
+        softcap_probing::FootprintLoad::from_name(&n).unwrap_or_else(|| {
             panic!("SOFTCAP_SUITE_DISK_TIP_LOAD={n}: lumped | consistent | flat-punch | hertz")
         })
     });

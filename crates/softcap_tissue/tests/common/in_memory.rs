@@ -3,12 +3,12 @@
 //! truth examples of the benches (benches/tissue.rs).
 
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 use softcap_fem::{
-    ElasticModel, EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings,
-    StaticSolver,
+    ElasticModel, EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, StaticSolver,
 };
 use softcap_mcap::capture::{Phase, SupportPlane};
+use softcap_probing::PatchSettings;
+use softcap_probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 use softcap_tissue::{PreparedSession, SessionExample};
 
 /// The three-layer block, m (the block of the module above: [`super::SIZE_M`]).

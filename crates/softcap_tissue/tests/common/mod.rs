@@ -6,10 +6,11 @@
 use std::path::{Path, PathBuf};
 
 use softcap_fem::nalgebra::Vector3;
-use softcap_fem::probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
-use softcap_fem::{EquilibriumSettings, NeoHookeanModel, NeoHookeanParams, PatchSettings};
+use softcap_fem::{EquilibriumSettings, NeoHookeanModel, NeoHookeanParams};
 use softcap_mcap::{Provenance, Writer, proto, topics};
 use softcap_mesh::TetMesh;
+use softcap_probing::PatchSettings;
+use softcap_probing::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 
 pub mod in_memory;
 

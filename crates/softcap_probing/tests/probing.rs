@@ -3,15 +3,15 @@
 //! the strain-space material reproducing its samples, and force-controlled contact synthesis.
 
 use softcap_fem::nalgebra::{Vector3, Vector6};
-use softcap_fem::probing::{
+use softcap_fem::{
+    CorotationalModel, EquilibriumSettings, LinearParams, NeoHookeanModel, NeoHookeanParams,
+    StiffnessKind, TipShape,
+};
+use softcap_probing::{
     ContactSynthesisSettings, ExampleFitSettings, FootprintLoad, HomogeneousFitSettings,
     ObservedMarker, PatchSettings, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample,
     StrainSpaceMaterial, fit_example, fit_homogeneous, marker_jacobian, probe_pose,
     simulate_probe_contact, support_nodes,
-};
-use softcap_fem::{
-    CorotationalModel, EquilibriumSettings, LinearParams, NeoHookeanModel, NeoHookeanParams,
-    StiffnessKind, TipShape,
 };
 use std::sync::Arc;
 
@@ -664,7 +664,7 @@ fn constant_tail_reproduces_constants_and_bounds_extrapolation() {
     // Without the term (bickel2009 eq. 8 as printed) the same data interpolated exactly
     // (tolerance 0, no ceiling) gives a far value many times λ.
     let plain = StrainBasisSettings {
-        tail: softcap_fem::StrainTail::None,
+        tail: softcap_probing::StrainTail::None,
         relative_tolerance: 0.0,
         lambda_ceiling_fraction: 0.0,
         ..Default::default()
@@ -736,7 +736,7 @@ fn stiffening_material(setup: &ProbingSetup, p: LinearParams) -> Arc<StrainSpace
 /// the equilibrium the parameters are the material's p(ε).
 #[test]
 fn strain_space_equilibrium_does_not_depend_on_the_load_path() {
-    use softcap_fem::probing::{StrainSpaceModel, StrainSpaceSolveSettings};
+    use softcap_probing::{StrainSpaceModel, StrainSpaceSolveSettings};
     let (setup, _) = block_with([10, 10, 3]);
     let p = LinearParams::from_young_poisson(3e4, 0.4).unwrap();
     let material = stiffening_material(&setup, p);
@@ -848,7 +848,7 @@ fn strain_space_equilibrium_does_not_depend_on_the_load_path() {
 /// are left at the last equilibrium so a later solve continues from there.
 #[test]
 fn strain_space_non_convergence_is_reported_and_keeps_the_last_equilibrium() {
-    use softcap_fem::probing::{StrainSpaceModel, StrainSpaceSolveSettings};
+    use softcap_probing::{StrainSpaceModel, StrainSpaceSolveSettings};
     let (setup, _) = block_with([10, 10, 3]);
     let p = LinearParams::from_young_poisson(3e4, 0.4).unwrap();
     let material = stiffening_material(&setup, p);

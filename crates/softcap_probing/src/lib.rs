@@ -1,4 +1,7 @@
-//! Probing examples: the one simulator and fitter of bickel2009 §3–4 that every stage uses.
+//! # softcap_probing — the probing layer the stages share
+//!
+//! Probing examples: the one simulator and fitter of bickel2009 §3–4 that every stage uses
+//! (tissue, diagnose), between the FEM kernels of `softcap_fem` and the stage crates.
 //!
 //! * [`ProbingSetup`] — a tet mesh with embedded markers (barycentric, [`softcap_mesh::TetLocator`]),
 //!   its surface regions (bickel2009 §4.1: *attached* nodes from the support plane, the
@@ -29,13 +32,11 @@ use nalgebra::{Isometry3, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 use softcap_mesh::{TetEmbedding, TetLocator, TetMesh};
 
-use crate::assembly::DirichletBc;
-use crate::contact::{ContactProblem, ContactSettings, Probe, TipShape};
-use crate::derivatives::Sensitivity;
-use crate::element::StiffnessKind;
-use crate::model::{CorotationalModel, ElasticModel, StrainDependentParams};
-use crate::statics::{EquilibriumReport, EquilibriumSettings, SolveStatus, StaticSolver};
-use crate::{FemError, LinearParams};
+use softcap_fem::{
+    ContactProblem, ContactSettings, CorotationalModel, DirichletBc, ElasticModel,
+    EquilibriumReport, EquilibriumSettings, FemError, LinearParams, Probe, Sensitivity,
+    SolveStatus, StaticSolver, StiffnessKind, StrainDependentParams, TipShape,
+};
 
 fn probing_error(what: impl Into<String>) -> FemError {
     FemError::Probing { what: what.into() }
@@ -221,7 +222,7 @@ impl ProbingSetup {
         attached_nodes: Vec<usize>,
     ) -> Result<Self, FemError> {
         // Validate the mesh (degenerate / inverted tets) through the element geometry.
-        crate::element::tet_geometries(&mesh.vertices, &mesh.tets)?;
+        softcap_fem::tet_geometries(&mesh.vertices, &mesh.tets)?;
         let locator = TetLocator::new(&mesh);
         let markers = marker_rest_m
             .iter()
@@ -2251,7 +2252,7 @@ impl ElasticModel for StrainSpaceModel {
     fn rest_positions(&self) -> &[Vector3<f64>] {
         self.inner.rest_positions()
     }
-    fn elements(&self) -> &[crate::element::TetGeometry] {
+    fn elements(&self) -> &[softcap_fem::TetGeometry] {
         self.inner.elements()
     }
     fn element_forces(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
@@ -2262,7 +2263,7 @@ impl ElasticModel for StrainSpaceModel {
         e: usize,
         x: &[Vector3<f64>],
         kind: StiffnessKind,
-    ) -> crate::element::Matrix12 {
+    ) -> softcap_fem::Matrix12 {
         self.inner.element_matrix(e, x, kind)
     }
     fn energy(&self, _x: &[Vector3<f64>]) -> Option<f64> {
@@ -2280,7 +2281,7 @@ impl ElasticModel for StrainSpaceModel {
         x: &[Vector3<f64>],
         kind: StiffnessKind,
         forces: &mut [[Vector3<f64>; 4]],
-        matrices: &mut [crate::element::Matrix12],
+        matrices: &mut [softcap_fem::Matrix12],
     ) -> Option<f64> {
         self.inner
             .linearize_elements(first, x, kind, forces, matrices);
@@ -2441,11 +2442,11 @@ impl StrainSpaceModel {
                         from: &[Vector3<f64>],
                         increments: usize,
                         iterations: &mut usize| {
-            let run = crate::statics::incremental_loading(
+            let run = softcap_fem::incremental_loading(
                 solver,
                 m,
                 x,
-                |t| crate::statics::LoadState {
+                |t| softcap_fem::LoadState {
                     external_forces_n: from
                         .iter()
                         .zip(forces)
@@ -2454,7 +2455,7 @@ impl StrainSpaceModel {
                     prescribed: setup.dirichlet(),
                     contact: None,
                 },
-                &crate::statics::IncrementalSettings {
+                &softcap_fem::IncrementalSettings {
                     steps: increments,
                     equilibrium: equilibrium.clone(),
                 },
