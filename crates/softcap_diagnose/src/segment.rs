@@ -6,46 +6,7 @@ use crate::recording::Recording;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-/// Phase of one frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Phase {
-    /// Before the first contact.
-    Rest,
-    /// In contact, probe advancing.
-    Loading,
-    /// In contact, probe (nearly) still at its deepest.
-    Hold,
-    /// In contact, probe retracting.
-    Unloading,
-    /// After a contact, probe off the object.
-    Released,
-}
-
-impl Phase {
-    /// All phases in time order.
-    pub const ALL: [Phase; 5] = [
-        Phase::Rest,
-        Phase::Loading,
-        Phase::Hold,
-        Phase::Unloading,
-        Phase::Released,
-    ];
-    /// The name used in reports and JSON.
-    pub fn name(self) -> &'static str {
-        match self {
-            Phase::Rest => "rest",
-            Phase::Loading => "loading",
-            Phase::Hold => "hold",
-            Phase::Unloading => "unloading",
-            Phase::Released => "released",
-        }
-    }
-    /// True while the probe touches the object.
-    pub fn in_contact(self) -> bool {
-        matches!(self, Phase::Loading | Phase::Hold | Phase::Unloading)
-    }
-}
+pub use softcap_mcap::Phase;
 
 /// Region of a marker.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]

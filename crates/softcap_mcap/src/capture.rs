@@ -149,19 +149,59 @@ impl CaptureFrame {
     }
 }
 
-/// Loading phase of a frame within its probe location.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+/// Phase of a frame in the probing protocol: rest, then per probe location a loading ramp, a
+/// hold at the deepest point and an unloading ramp, then released until the next contact.
+///
+/// The one definition every stage uses: the virtual rig schedules its frames by it (the truth;
+/// `truth/frames.csv` of a synthesized session), [`CaptureData::phases`] classifies a capture's
+/// frames from the force trace, the diagnosis segments its recording by it and writes
+/// [`Phase::name`] into diagnosis.mcap. It lives in the format crate, where the stages meet:
+/// the shared probing layer (`softcap_probing`) sits on the FEM crates, which a format must not
+/// depend on, and the rig depends on this crate for it. Serialized by its lowercase
+/// [`Phase::name`].
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Phase {
     /// Before the first contact of the session.
     Rest,
-    /// Force rising.
+    /// In contact, probe advancing: force rising.
     Loading,
-    /// Force about constant at its peak.
+    /// In contact, probe (nearly) still at its deepest: force about constant at its peak.
     Hold,
-    /// Force falling.
+    /// In contact, probe retracting: force falling.
     Unloading,
-    /// Out of contact after some contact.
+    /// Out of contact after some contact (probe lifted, moving to the next location).
     Released,
+}
+
+impl Phase {
+    /// All phases in time order.
+    pub const ALL: [Phase; 5] = [
+        Phase::Rest,
+        Phase::Loading,
+        Phase::Hold,
+        Phase::Unloading,
+        Phase::Released,
+    ];
+
+    /// The lowercase name used in reports, JSON and CSV (`rest`, `loading`, `hold`,
+    /// `unloading`, `released`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Rest => "rest",
+            Phase::Loading => "loading",
+            Phase::Hold => "hold",
+            Phase::Unloading => "unloading",
+            Phase::Released => "released",
+        }
+    }
+
+    /// True while the probe touches the object.
+    pub fn in_contact(self) -> bool {
+        matches!(self, Phase::Loading | Phase::Hold | Phase::Unloading)
+    }
 }
 
 /// Settings of the grouping of frames into probe locations.
