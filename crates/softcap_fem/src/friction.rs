@@ -139,7 +139,7 @@ pub enum ContactDiscretisation {
     /// One contact point per candidate node (node-to-rigid-surface): penalty and friction forces
     /// lumped at the nodes (the original behaviour). A patch of a few nodes in partial slip
     /// switches its drag with the node that sticks or slides: the friction force is a jumping
-    /// function of μ and of the tip's position (docs/diagnose.md, session 12 (fric)).
+    /// function of μ and of the tip's position (docs/notes/2026-11-27-frictional-replay-slip.md).
     #[default]
     Nodes,
     /// Quadrature points on the surface triangles (Gauss-point-to-rigid-surface; Wriggers,

@@ -5,7 +5,8 @@
 //! - a sphere pressed into a block (quarter model): total normal force against Hertz
 //!   F = (4/3) E* √R d^{3/2} (Johnson, *Contact Mechanics* §4.2) and against the node contact;
 //! - a sphere pressed and dragged over a coarse block whose footprint spans one or two nodes (the
-//!   suite's probe-friction regime, docs/diagnose.md session 12): the drag as a function of μ.
+//!   suite's probe-friction regime, docs/notes/2026-11-27-frictional-replay-slip.md): the drag as
+//!   a function of μ.
 
 mod common;
 use softcap_fem::nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};

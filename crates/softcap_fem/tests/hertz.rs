@@ -6,7 +6,7 @@
 //! sphere (Sneddon) differs from the Hertz paraboloid by < 0.5 % up to a/R = 0.2, the deepest case
 //! here. The solves use the modified Newton of `Refactorization::WhenStale` with residual /
 //! displacement tolerances 1e-7 / 1e-8 (the force to ≈ 1e-7): a test-time choice (mesh study in
-//! docs/validation.md; the finer 63,888-tet mesh of session 3 gave +3.5 % at 2–4× the cost).
+//! docs/validation.md; a finer 63,888-tet mesh gave +3.5 % at 2–4× the cost).
 //!
 //! It is also the regression test of the contact active set: with a stiff penalty the linearized
 //! springs leave rim nodes on the tangent plane of their closest point, outside the sphere by more

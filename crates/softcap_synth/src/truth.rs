@@ -660,8 +660,8 @@ fn build_engine(
 /// every penetration through its leading face ([`Probe::with_punch_face`]), so a frictionless
 /// punch pushes the material under it along its axis only, as a rigid flat punch does. Resolved by
 /// the closest feature (parry's projection) instead, a node the face carries down within `depth`
-/// of the rim was pushed out sideways through the rim: measured on the suite sessions (session
-/// 12, docs/diagnose.md) a lateral force of 4–28 % of the axial one at some locations that no
+/// of the rim was pushed out sideways through the rim: measured on the suite sessions
+/// (docs/notes/2026-11-27-flat-punch-footprint-load.md) a lateral force of 4–28 % of the axial one at some locations that no
 /// recorded channel sees (the probe's force sensor reads along its shaft), which capped every
 /// diagnosis of those sessions at the rim artefact rather than the physics. Spheres and meshes
 /// are unchanged.
@@ -842,8 +842,8 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
                 // depth-ratio warm start is the frame's END state, while a sub-step's tip is still
                 // near the previous pose — on a frictional patch finer than the 4 mm meshes (the
                 // locally refined truth, `object.truth_refine_edge_mm`) that mismatch made every
-                // sub-step count diverge at the first unloading frame (measured: docs/diagnose.md
-                // "Session 15 (resolve)").
+                // sub-step count diverge at the first unloading frame (measured:
+                // docs/notes/2026-11-27-probe-friction-truth-resolution.md).
                 let attempts = [
                     (1usize, true),
                     (4, true),
