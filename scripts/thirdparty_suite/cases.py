@@ -60,10 +60,10 @@ def cases():
              "Maxwell branches (Shutov et al. 2013): mu_1 = 0.010 MPa, tau_1 = 0.3 s; mu_2 = 0.008 MPa, tau_2 = 2.0 s.",
              material={"kind": "viscoelastic", "mu": MU, "bulk": 20 * MU, "branches": [[0.010, 0.3], [0.008, 2.0]]},
              effect="viscoelasticity", pair="clean"),
-        case("plasticity", 202, "Effect plasticity: finite-strain J2 plasticity (return map on the Green-Lagrange strain, total Lagrange), "
+        case("plasticity", 202, "Effect plasticity: J2 plasticity (small-strain kinematics, radial return), "
              "E = 50 kPa, nu = 0.45, yield 4.5 kPa, linear isotropic hardening 4 kPa.",
              material=j2, effect="plasticity", pair="plasticity-pair"),
-        case("plasticity-pair", 203, "Paired control of plasticity: the same total-Lagrange linear elastic (St. Venant-Kirchhoff) material without yield.",
+        case("plasticity-pair", 203, "Paired control of plasticity: the same small-strain linear elastic material without yield.",
              material=dict(j2, **{"yield": None})),
         case("support-slip", 204, "Effect support-slip: the base rests on the table with Coulomb friction mu = 0.25 "
              "(regularized: tangential stiffness 0.2 MPa/mm per area, smoothly capped at mu (p + rho g H)).",

@@ -57,10 +57,11 @@ def mesh_object(shape, size_mm, h_top_mm, h_bottom_mm, inclusion=None):
         tets, tags = [], []
         for v in vols:
             etypes, _, enodes = gmsh.model.mesh.getElements(3, v)
-            com = gmsh.model.occ.getCenterOfMass(3, v)
             is_inc = 0
             if inclusion is not None:
-                is_inc = int(np.linalg.norm(np.array(com) - np.array(inclusion[0])) < 1e-3 * lz + 0.5 * inclusion[1])
+                # the inclusion is the fragment whose volume is the sphere's
+                sphere = 4.0 / 3.0 * np.pi * inclusion[1] ** 3
+                is_inc = int(abs(gmsh.model.occ.getMass(3, v) - sphere) < 1e-3 * sphere)
             for et, en in zip(etypes, enodes):
                 if et != 4:
                     continue

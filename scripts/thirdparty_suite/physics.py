@@ -68,18 +68,19 @@ def materials(spec, ncells, tags, dtime):
             fem.Volumetric(bulk=spec["bulk"]),
         ]
     if kind == "j2":
-        # Finite-strain J2 plasticity: the return map on the Green–Lagrange strain (FElupe
-        # MaterialStrain, framework "total-lagrange": additive split of E, S = C:(E − E_p)).
+        # J2 plasticity with linear isotropic hardening, small-strain kinematics (FElupe
+        # MaterialStrain; the total-Lagrange variant is St. Venant–Kirchhoff-based and loses
+        # stability under the punch edge's compression).
         E, nu = spec["E"], spec["nu"]
         lmbda = E * nu / ((1 + nu) * (1 - 2 * nu))
         mu = E / (2 * (1 + nu))
         if spec.get("yield") is None:
-            return [fem.MaterialStrain(fem.linear_elastic, μ=mu, λ=lmbda, framework="total-lagrange")]
+            return [fem.MaterialStrain(fem.linear_elastic, μ=mu, λ=lmbda, framework="small-strain")]
         return [
             fem.MaterialStrain(
                 fem.linear_elastic_plastic_isotropic_hardening,
                 λ=lmbda, μ=mu, σy=spec["yield"], K=spec["hardening"],
-                dim=3, statevars=(1, (3, 3)), framework="total-lagrange",
+                dim=3, statevars=(1, (3, 3)), framework="small-strain",
             )
         ]
     raise ValueError(f"unknown material {kind}")
@@ -239,7 +240,7 @@ class Model:
             u[bz] = 0.0
         # the friction limit uses the base pressure of the last converged state (staggered)
         pressure = self.last_pressure if friction else None
-        du, halvings = None, 0
+        du, halvings, last_norm = None, 0, np.inf
         for it in range(max_iter):
             r, K = self._assemble()
             if not np.all(np.isfinite(r)) and du is not None and halvings < 8:
@@ -262,6 +263,13 @@ class Model:
                 if rows:
                     K = K + sp.csr_matrix((v, (rows, cols)), shape=K.shape)
             rf = r[free]
+            if du is not None and halvings < 8 and np.linalg.norm(rf) > 4.0 * last_norm:
+                # backtracking: the residual grew, halve the step
+                du *= 0.5
+                u[free] -= du
+                halvings += 1
+                continue
+            last_norm = np.linalg.norm(rf)
             scale = max(1.0, np.abs(r).max())
             if os.environ.get("TP_DEBUG"):
                 print(f"    it {it} |r| {np.linalg.norm(rf):.3e}", file=sys.stderr)

@@ -178,6 +178,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         or support["kind"] == "friction" or punch.friction == "stick"
     )
     cache = {}
+    history = []
     markers, tips, forces = [], [], []
     prev = None
     for fi, fr in enumerate(frames):
@@ -190,6 +191,8 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             punch.active = set()
             punch.anchor = {}
         same = prev == key
+        if fr["depth"] > 0 and not same:
+            predict(model, history, fr["loc"], fr["depth"])
         if rate_dependent or (path_dependent and not same):
             force = punch.step(tip, axis, fixed_support) if fr["depth"] > 0 else free_step(model, punch, fixed_support)
         elif path_dependent:
@@ -205,6 +208,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
                 force = np.zeros(3)
             cache[key] = (model.u.copy(), force.copy())
         prev = key
+        history = (history + [(fr["loc"], fr["depth"], model.u.copy())])[-2:]
         markers.append(m_pos_markers(model, cells10, marker_cells, marker_lams))
         tips.append(tip)
         forces.append(force)
@@ -220,6 +224,17 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         "template_markers": template_markers,
         "rest_u": rest_u,
     }
+
+
+def predict(model, history, loc, depth):
+    """Newton's starting point: the displacements extrapolated linearly in depth from the last two
+    frames when both pressed at the same location (the punch's step alone is a jump)."""
+    if len(history) < 2:
+        return
+    (l1, d1, u1), (l2, d2, u2) = history
+    if l1 != loc or l2 != loc or d1 <= 0 or d2 <= 0 or abs(d2 - d1) < 1e-12:
+        return
+    model.field[0].values[:] = u2 + (depth - d2) / (d2 - d1) * (u2 - u1)
 
 
 def free_step(model, punch, fixed_support):

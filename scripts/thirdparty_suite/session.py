@@ -84,6 +84,10 @@ def write_session(out_dir, case, sim, mesh_lin, marker_ids, versions):
             r += f",{trig[i]:.3f}"
         rows.append(r)
     w("fsr.csv", "\n".join(rows) + "\n")
+    # what the FSR element responded to, against the true axial force, at the frames' DAQ times
+    sensed_at = np.interp(clock["offset_s"] + (1 + clock["drift"]) * t_frames, t_daq, sensed)
+    sim = dict(sim, sensor_rms_n=float(np.sqrt(np.mean((sensed_at - np.maximum(axial, 0.0)) ** 2))),
+               peak_axial_n=float(axial.max()))
     w("trigger.csv", "frame,t_camera_s\n" + "".join(f"{k},{t:.6f}\n" for k, t in enumerate(t_frames)))
 
     # template
@@ -151,7 +155,8 @@ Effect switched on: **{eff}**.{f" Paired control: `{case['pair']}`." if case['pa
 - Gravity in the simulation: {case['gravity_n_mm3'] or 'not applied'}.
 - Sensors: FSR R = k F^-n (k = {fsr['k_ohm']:.1f} ohm, n = {fsr['n']:.3f}), divider 10 kOhm at 5 V, DAQ
   {fsr['rate_hz']} Hz, 2 mV noise, 12 bit; trigger line {'absent' if case['effects'].get('no_trigger') else '3.3 V during each 6 ms exposure'};
-  sensor lag: {case['effects'].get('sensor_lag') or 'none'}.
+  sensor lag: {case['effects'].get('sensor_lag') or 'none'} (force the FSR element responds to minus the
+  true axial force at the frames: RMS {sim['sensor_rms_n']:.4f} N = {100 * sim['sensor_rms_n'] / max(sim['peak_axial_n'], 1e-12):.1f} % of the peak).
 - Clock: offset {clock['offset_s']:.6f} s, drift {clock['drift'] * 1e6:.2f} ppm.
 - Detections: {n_markers} blue markers + 2 shaft markers, unlabeled, 0.2 px noise, 1.5 % dropouts,
   markers hidden by the probe disk and shaft removed; spurious blue blobs: one persistent speck per

@@ -33,6 +33,13 @@ pub struct CorrespondenceSettings {
     pub max_rms_px: f64,
     /// Gate between a tracked object marker's prediction and a candidate, m.
     pub marker_gate_m: f64,
+    /// Gate of a candidate seen in only two views when the rig has three or more cameras, m. Two
+    /// rays always meet within the epipolar tolerance, so a spurious blob in one view and a marker
+    /// in another make a consistent-looking 3D point displaced along the epipolar line; a marker
+    /// missing from a view is the moment such a ghost can take its label, and then its prediction,
+    /// for as long as the spurious blob persists. The tighter gate (against one frame's motion)
+    /// keeps it off.
+    pub two_view_gate_m: f64,
     /// Gate between a shaft marker's previous position and a candidate, m.
     pub shaft_gate_m: f64,
     /// Tolerance on the distance between two shaft markers, m.
@@ -46,6 +53,7 @@ impl Default for CorrespondenceSettings {
             support_tolerance_px: 3.0,
             max_rms_px: 2.0,
             marker_gate_m: 3e-3,
+            two_view_gate_m: 1e-3,
             shaft_gate_m: 25e-3,
             shaft_spacing_tolerance_m: 2e-3,
         }
@@ -185,11 +193,15 @@ pub struct MarkerPrediction {
     pub position_m: Option<Point3<f64>>,
     /// Gate radius around the prediction, m.
     pub gate_m: f64,
+    /// Gate radius for candidates seen in exactly two views, m (≤ `gate_m`).
+    pub two_view_gate_m: f64,
 }
 
-/// Assigns candidates to markers: all (marker, candidate) pairs within the marker's gate, taken
-/// greedily by increasing distance (ties: more views first), each blob used at most once.
-/// Returns, per marker, the index of its candidate.
+/// Assigns candidates to markers: all (marker, candidate) pairs within the marker's gate
+/// (`two_view_gate_m` for a two-view candidate), candidates seen in three or more views first —
+/// a ghost of a spurious blob is a two-view candidate, and a marker seen in three views must not
+/// lose its label to one — then, within each group, greedily by increasing distance (ties: more
+/// views first), each blob used at most once. Returns, per marker, the index of its candidate.
 pub fn label_candidates(
     markers: &[MarkerPrediction],
     candidates: &[Candidate],
@@ -203,19 +215,26 @@ pub fn label_candidates(
                 continue;
             }
             let d = (cand.point.position_m - p).norm();
-            if d <= pred.gate_m {
-                pairs.push((d, usize::MAX - cand.point.views, m, c));
+            let two_view = cand.point.views <= 2;
+            let gate = if two_view {
+                pred.two_view_gate_m.min(pred.gate_m)
+            } else {
+                pred.gate_m
+            };
+            if d <= gate {
+                pairs.push((two_view, d, usize::MAX - cand.point.views, m, c));
             }
         }
     }
     pairs.sort_by(|x, y| {
-        x.0.total_cmp(&y.0)
-            .then(x.1.cmp(&y.1))
+        x.0.cmp(&y.0)
+            .then(x.1.total_cmp(&y.1))
             .then(x.2.cmp(&y.2))
             .then(x.3.cmp(&y.3))
+            .then(x.4.cmp(&y.4))
     });
     let mut out = vec![None; markers.len()];
-    for (_, _, m, c) in pairs {
+    for (_, _, _, m, c) in pairs {
         if out[m].is_some() || candidates[c].blobs.iter().any(|b| used_blobs.contains(b)) {
             continue;
         }

@@ -66,6 +66,11 @@ pub struct CaptureSettings {
     /// Bound on the relative clock drift fitted by the data-driven sync (crystal tolerance;
     /// 1e-4 = 100 ppm).
     pub data_sync_max_drift: f64,
+    /// Longest run of frames without a probe pose (a shaft marker missing from all but one
+    /// view) that is bridged by interpolating tip and axis between the frames around it; the
+    /// FSR still reads the force in those frames, and without an axis downstream stages would
+    /// read no force at all.
+    pub probe_gap_frames: usize,
 }
 
 impl Default for CaptureSettings {
@@ -83,6 +88,7 @@ impl Default for CaptureSettings {
             data_sync_step_s: 0.002,
             force_data_sync: false,
             data_sync_max_drift: 1e-4,
+            probe_gap_frames: 5,
         }
     }
 }
@@ -115,7 +121,9 @@ pub struct MarkerSample {
 /// Probe state in one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProbeSample {
-    /// Tip centre, m (None when the shaft markers were not both reconstructed).
+    /// Tip centre, m (None when the shaft markers were not both reconstructed and the frame is
+    /// not inside a short gap between frames that show the probe, see
+    /// [`CaptureSettings::probe_gap_frames`]).
     pub tip_m: Option<Point3<f64>>,
     /// Unit pushing direction (from the shaft markers toward the tip).
     pub axis: Option<Vector3<f64>>,
@@ -127,6 +135,9 @@ pub struct ProbeSample {
     pub voltage_v: f64,
     /// Frame mid-exposure on the DAQ clock, s.
     pub t_daq_s: f64,
+    /// True when tip and axis were interpolated from the neighbouring frames (a shaft marker was
+    /// not reconstructed in this one).
+    pub pose_interpolated: bool,
 }
 
 /// One reconstructed frame.
@@ -330,6 +341,12 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                     color: infos[m].color,
                     position_m: prediction[m],
                     gate_m: settings.correspondence.marker_gate_m,
+                    // With two cameras every candidate is a two-view one.
+                    two_view_gate_m: if cams.len() >= 3 {
+                        settings.correspondence.two_view_gate_m
+                    } else {
+                        settings.correspondence.marker_gate_m
+                    },
                 })
                 .collect();
             let mut used = BTreeSet::new();
@@ -480,9 +497,13 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                 force_magnitude_n: 0.0,
                 voltage_v: f64::NAN,
                 t_daq_s: f64::NAN,
+                pose_interpolated: false,
             }),
             registration,
         });
+    }
+    if session.probe.is_some() {
+        bridge_probe_gaps(&mut frames, settings.probe_gap_frames);
     }
 
     // A marker never seen in two views can only come from the fill-in; without it, it is bad input.
@@ -544,6 +565,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                     force_magnitude_n: 0.0,
                     voltage_v: f64::NAN,
                     t_daq_s: f64::NAN,
+                    pose_interpolated: false,
                 });
                 p.t_daq_s = t_daq;
                 p.voltage_v = v;
@@ -594,6 +616,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
                         force_magnitude_n: st.force_n.dot(&st.axis),
                         voltage_v: f64::NAN,
                         t_daq_s: t,
+                        pose_interpolated: false,
                     });
                 }
             }
@@ -697,6 +720,54 @@ pub fn capture_mocap(session: &Session, c3d_path: &std::path::Path) -> Result<Ca
     })
 }
 
+/// Bridges runs of at most `max_gap` frames without a probe pose that lie between two frames with
+/// one: the tip linearly in camera time, the axis by normalized linear interpolation. The probe
+/// is a rigid body moving smoothly at the frame rate, so a frame in which a shaft marker dropped
+/// out of all but one view keeps its pose (and so its force vector) instead of losing it.
+pub fn bridge_probe_gaps(frames: &mut [FrameResult], max_gap: usize) {
+    let pose = |f: &FrameResult| f.probe.as_ref().and_then(|p| Some((p.tip_m?, p.axis?)));
+    let mut k = 0;
+    while k < frames.len() {
+        if pose(&frames[k]).is_some() {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < frames.len() && pose(&frames[k]).is_none() {
+            k += 1;
+        }
+        if start == 0 || k == frames.len() || k - start > max_gap {
+            continue;
+        }
+        let (Some((tip0, axis0)), Some((tip1, axis1))) =
+            (pose(&frames[start - 1]), pose(&frames[k]))
+        else {
+            continue;
+        };
+        let (t0, t1) = (frames[start - 1].t_camera_s, frames[k].t_camera_s);
+        for f in &mut frames[start..k] {
+            let s = if t1 > t0 {
+                ((f.t_camera_s - t0) / (t1 - t0)).clamp(0.0, 1.0)
+            } else {
+                0.5
+            };
+            let axis = (axis0 * (1.0 - s) + axis1 * s).try_normalize(1e-12);
+            let p = f.probe.get_or_insert(ProbeSample {
+                tip_m: None,
+                axis: None,
+                force_n: None,
+                force_magnitude_n: 0.0,
+                voltage_v: f64::NAN,
+                t_daq_s: f64::NAN,
+                pose_interpolated: false,
+            });
+            p.tip_m = Some(tip0 + (tip1 - tip0) * s);
+            p.axis = axis;
+            p.pose_interpolated = axis.is_some();
+        }
+    }
+}
+
 /// Probe depth below the rest surface per frame, the camera-side signal of the data-driven clock
 /// sync: with the tip `p` and pushing axis `a`, the largest `(p − m)·a` over the rest template
 /// markers `m` laterally within twice the third-nearest marker's distance from the probe axis
@@ -777,5 +848,56 @@ pub fn median_sorted(v: &[f64]) -> f64 {
         0 => f64::NAN,
         n if n % 2 == 1 => v[n / 2],
         n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(k: usize, tip_z: Option<f64>) -> FrameResult {
+        FrameResult {
+            frame: k,
+            t_camera_s: 0.1 * k as f64,
+            markers: Vec::new(),
+            probe: tip_z.map(|z| ProbeSample {
+                tip_m: Some(Point3::new(0.0, 0.0, z)),
+                axis: Some(-Vector3::z()),
+                force_n: None,
+                force_magnitude_n: 0.0,
+                voltage_v: f64::NAN,
+                t_daq_s: f64::NAN,
+                pose_interpolated: false,
+            }),
+            registration: Isometry3::identity(),
+        }
+    }
+
+    #[test]
+    fn a_frame_without_shaft_markers_gets_the_interpolated_pose() {
+        let mut frames = vec![
+            frame(0, Some(0.02)),
+            frame(1, None),
+            frame(2, Some(0.018)),
+            frame(3, None),
+            frame(4, None),
+            frame(5, None),
+        ];
+        bridge_probe_gaps(&mut frames, 5);
+        let p = frames[1].probe.as_ref().unwrap();
+        assert!(p.pose_interpolated);
+        assert!((p.tip_m.unwrap().z - 0.019).abs() < 1e-12);
+        assert!((p.axis.unwrap() + Vector3::z()).norm() < 1e-12);
+        // A gap at the end has no frame after it: left without a pose.
+        assert!(frames[3..].iter().all(|f| f.probe.is_none()));
+        // Longer gaps than the setting are not bridged.
+        let mut frames = vec![
+            frame(0, Some(0.02)),
+            frame(1, None),
+            frame(2, None),
+            frame(3, Some(0.02)),
+        ];
+        bridge_probe_gaps(&mut frames, 1);
+        assert!(frames[1].probe.is_none() && frames[2].probe.is_none());
     }
 }
