@@ -77,9 +77,9 @@ def cases():
         case("gravity-preload", 206, "Effect gravity-preload: a soft tall block (mu = 3.5 kPa, 28 mm) sagged under its "
              "weight; the template is the sagged shape.",
              geometry=gravity_block, material=soft, gravity_n_mm3=[0.0, 0.0, -1.03e-5],
-             depths_mm=[2.4, 2.8, 2.2, 3.0, 2.4, 2.6], effect="gravity-preload", pair="gravity-preload-pair"),
+             depths_mm=[1.8, 2.1, 1.7, 2.2, 1.8, 2.0], effect="gravity-preload", pair="gravity-preload-pair"),
         case("gravity-preload-pair", 207, "Paired control of gravity-preload: the same soft tall block without gravity.",
-             geometry=gravity_block, material=soft, depths_mm=[2.4, 2.8, 2.2, 3.0, 2.4, 2.6]),
+             geometry=gravity_block, material=soft, depths_mm=[1.8, 2.1, 1.7, 2.2, 1.8, 2.0]),
         case("probe-friction", 208, "Effect probe-friction: shaft tilted 20 degrees from the vertical, the disk sticks "
              "to the surface where it touches (full friction).",
              probe_axis=tilt, probe=dict(PROBE, friction="stick"), effect="probe-friction", pair="probe-friction-pair"),

@@ -43,6 +43,8 @@ def main(argv):
     print("| case | paired control | marker displacement difference RMS / max (mm) | axial force difference RMS (% of max) |")
     print("|---|---|---|---|")
     for case, effect, pair in effect_and_pair(root):
+        if not all(os.path.isdir(os.path.join(root, c)) for c in (case, pair)):
+            continue
         a, fa = load(os.path.join(root, case))
         b, fb = load(os.path.join(root, pair))
         n = min(len(a), len(b))

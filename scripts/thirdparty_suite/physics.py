@@ -279,7 +279,10 @@ class Model:
                 # the smooth Coulomb cap of nodes at (almost) zero pressure flips its direction
                 # from one iterate to the next: a residual of 1e-3 of the largest force is kept
                 break
-            du = spla.spsolve(K[free][:, free].tocsc(), -rf)
+            try:
+                du = spla.spsolve(K[free][:, free].tocsc(), -rf)
+            except RuntimeError as e:  # SuperLU: a non-finite or singular tangent
+                raise NotConverged(str(e)) from e
             if not np.all(np.isfinite(du)):
                 raise NotConverged("singular tangent")
             u[free] += du

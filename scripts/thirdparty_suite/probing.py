@@ -194,7 +194,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         if fr["depth"] > 0 and not same:
             predict(model, history, fr["loc"], fr["depth"])
         if rate_dependent or (path_dependent and not same):
-            force = punch.step(tip, axis, fixed_support) if fr["depth"] > 0 else free_step(model, punch, fixed_support)
+            force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], not rate_dependent)
         elif path_dependent:
             force = forces[-1].copy()
         elif key in cache:
@@ -202,7 +202,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             force = cache[key][1].copy()
         else:
             if fr["depth"] > 0:
-                force = punch.step(tip, axis, fixed_support)
+                force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], True)
             else:
                 model.field[0].values[:] = rest_u
                 force = np.zeros(3)
@@ -224,6 +224,39 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         "template_markers": template_markers,
         "rest_u": rest_u,
     }
+
+
+def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_substep):
+    """One frame's equilibrium; when Newton fails, again from the last converged state without
+    the predictor, then (rate-independent materials only) in four substeps of the punch motion."""
+    from .physics import NotConverged
+
+    def once(t, d):
+        return punch.step(t, axis, fixed_support) if d > 0 else free_step(model, punch, fixed_support)
+
+    active, anchor = set(punch.active), dict(punch.anchor)
+    try:
+        return once(tip, depth)
+    except NotConverged:
+        pass
+    if not history:
+        raise NotConverged("first frame")
+    _, d_prev, u_prev = history[-1]
+    model.field[0].values[:] = u_prev
+    punch.active, punch.anchor = set(active), dict(anchor)
+    try:
+        return once(tip, depth)
+    except NotConverged:
+        if not may_substep:
+            raise
+    model.field[0].values[:] = u_prev
+    punch.active, punch.anchor = set(active), dict(anchor)
+    start = tip - (depth - d_prev) * axis
+    force = None
+    for k in range(1, 5):
+        d = d_prev + (depth - d_prev) * k / 4
+        force = once(start + (d - d_prev) * axis, d)
+    return force
 
 
 def predict(model, history, loc, depth):

@@ -55,5 +55,9 @@ macro_rules! cases {
 
 cases! {
     clean => "clean",
+    stiff_inclusion => "stiff-inclusion",
     strain_stiffening => "strain-stiffening",
+    cylinder => "cylinder",
+    anisotropy => "anisotropy",
+    plasticity_pair => "plasticity-pair",
 }
