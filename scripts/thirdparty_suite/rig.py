@@ -1,6 +1,6 @@
 """The recording rig: pinhole cameras with Brown–Conrady distortion, unlabeled blob detections
 with noise, dropouts, occlusion by the probe and spurious blobs; the FSR divider on the DAQ clock
-with its trigger line. Written from SESSION_FORMAT.md alone."""
+with its trigger line. Written from docs/session-format.md alone."""
 import numpy as np
 
 

@@ -1,4 +1,4 @@
-"""Writes one raw session (SESSION_FORMAT.md, length unit mm) with its truth/ folder."""
+"""Writes one raw session (docs/session-format.md, length unit mm) with its truth/ folder."""
 import os
 import shutil
 
