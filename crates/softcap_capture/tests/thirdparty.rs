@@ -60,4 +60,6 @@ cases! {
     cylinder => "cylinder",
     anisotropy => "anisotropy",
     plasticity_pair => "plasticity-pair",
+    plasticity => "plasticity",
+    probe_friction => "probe-friction",
 }
