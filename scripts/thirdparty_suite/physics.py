@@ -226,8 +226,9 @@ class Model:
     # --- one quasi-static step -----------------------------------------------------------------
     def solve(self, fixed, penalty=None, tol=1e-7, max_iter=30):
         """Newton iteration to equilibrium with prescribed displacements `fixed` (dict dof → value)
-        and an optional penalty callback (u → (force (3n), (rows, cols, vals))). Returns the
-        internal force vector (reactions at the fixed dofs)."""
+        and an optional penalty callback (u → (force (3n), (rows, cols, vals))), starting from the
+        last committed inelastic state (see `commit`). Returns the internal force vector
+        (reactions at the fixed dofs)."""
         u = self.u.reshape(-1)
         dofs = np.array(sorted(fixed), dtype=int)
         vals = np.array([fixed[d] for d in dofs])
@@ -290,12 +291,18 @@ class Model:
                 break
         else:
             raise NotConverged(f"no equilibrium after {max_iter} Newton iterations (|r| = {np.linalg.norm(rf):.3g} N)")
+        return r
+
+    def commit(self):
+        """Ends a load step at the current (converged) state: the inelastic state variables
+        (Maxwell branches, plastic strain) and the base's slip move on. Called once per frame (per
+        substep), never between the active-set iterations of one frame: each commit advances the
+        viscous branches by one time step."""
         for b in self.bodies:
             b.results.update_statevars()
-        if friction:
-            self._friction(self.u, pressure, commit=True)
+        if self.support["kind"] == "friction":
+            self._friction(self.u, self.last_pressure, commit=True)
             self.last_pressure = self._base_pressure()
-        return r
 
     def base_fixed(self):
         """Dirichlet dofs of the support: bonded base → all dofs of base nodes (friction base: the

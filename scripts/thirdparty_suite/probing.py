@@ -165,6 +165,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     if case.get("gravity_n_mm3") is not None:
         model.set_gravity(case["gravity_n_mm3"])
         model.solve(fixed_support)
+        model.commit()
         log("  gravity pre-load solved")
     rest_u = model.u.copy()
     template_markers = m_pos_markers(model, cells10, marker_cells, marker_lams)
@@ -227,12 +228,15 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
 
 
 def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_substep):
-    """One frame's equilibrium; when Newton fails, again from the last converged state without
-    the predictor, then (rate-independent materials only) in four substeps of the punch motion."""
+    """One frame's equilibrium, committed (one time step of the inelastic state); when Newton
+    fails, again from the last converged state without the predictor, then (rate-independent
+    materials only) in four committed substeps of the punch motion."""
     from .physics import NotConverged
 
     def once(t, d):
-        return punch.step(t, axis, fixed_support) if d > 0 else free_step(model, punch, fixed_support)
+        force = punch.step(t, axis, fixed_support) if d > 0 else free_step(model, punch, fixed_support)
+        model.commit()
+        return force
 
     active, anchor = set(punch.active), dict(punch.anchor)
     try:
