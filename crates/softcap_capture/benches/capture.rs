@@ -1,6 +1,9 @@
 //! Capture benches (issue 6): triangulation throughput (points/s) on a synthetic 4-camera ring and
-//! on the real 12-camera aniposelib rig (fixtures/aniposelib), and per-frame marker detection
-//! time for 3 × 1920×1280 images. Run: `cargo bench -p softcap_capture --bench capture`.
+//! on the real 12-camera aniposelib rig (fixtures/aniposelib), per-frame marker detection time for
+//! 3 × 1920×1280 images, and `softcap capture calibrate`'s bundle adjustment of the real rig from
+//! the 2,998 fixture points (issue 34; aniposelib's `bundle_adjust_iter` on the same points:
+//! fixtures/aniposelib/bundle_adjust_reference.toml). Run:
+//! `cargo bench -p softcap_capture --bench capture`.
 
 use std::path::PathBuf;
 
@@ -154,5 +157,32 @@ fn bench_detection(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_triangulation, bench_detection);
+fn bench_calibration(c: &mut Criterion) {
+    use softcap_capture::calibrate::{CalibrateSettings, calibrate, read_calibration_input};
+    let mut g = c.benchmark_group("calibrate");
+    g.sample_size(10);
+    let fixtures = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/aniposelib");
+    let input = read_calibration_input(
+        &fixtures.join("points.csv"),
+        Some(&fixtures.join("calibration.toml")),
+    )
+    .expect("fixture points and calibration");
+    let settings = CalibrateSettings::default();
+    g.bench_function("aniposelib12_2998pts", |b| {
+        b.iter(|| {
+            calibrate(&input, &settings, &mut |_| {})
+                .expect("the fixture calibrates")
+                .after
+                .median_point_error_px
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_triangulation,
+    bench_detection,
+    bench_calibration
+);
 criterion_main!(benches);

@@ -2,7 +2,8 @@
 //! `aniposelib.cameras.CameraGroup.dump` (`[cam_N]` tables with `name`, `size = [w, h]`,
 //! `matrix` (3×3 K), `distortions` (OpenCV k1, k2, p1, p2, k3), `rotation` (Rodrigues vector,
 //! world→camera) and `translation` (world→camera)) and labeled 2D points as
-//! `point,camera,u,v` CSV rows, so multi-view triangulation can be run on real rigs.
+//! `point,camera,u,v` CSV rows or the `p2d` array of an `.npz` archive, so multi-view
+//! triangulation and calibration can be run on real rigs.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -131,6 +132,158 @@ pub fn read_labeled_points(path: &Path, cameras: &[Camera]) -> Result<Vec<Vec<Pi
     Ok(points.into_values().collect())
 }
 
+/// Reads aniposelib's labeled 2D points from an `.npz` archive (`numpy.savez[_compressed]`): the
+/// array `p2d`, float64 of shape (cameras, points, 2) with the camera axis in the order of
+/// `cameras` (aniposelib's numeric `cam_N` order), NaN where a camera does not see a point.
+/// Returns every point's observations (possibly fewer than two), in point order.
+///
+/// The `.npy` header (a fixed-form Python dict literal with `descr`, `fortran_order`, `shape`) is
+/// parsed here rather than by `npyz`, whose literal parser (py_literal, pest) and zip 0.6 would add
+/// a parser generator and a second zip crate to every fresh build; the archive itself is read with
+/// `zip`, the version the workspace already builds.
+pub fn read_npz_points(path: &Path, cameras: &[Camera]) -> Result<Vec<Vec<PixelObservation>>> {
+    let format = |message: String| CaptureError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|source| CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file))
+        .map_err(|e| format(format!("not an .npz (zip) archive: {e}")))?;
+    let mut bytes = Vec::new();
+    {
+        use std::io::Read as _;
+        let mut entry = archive
+            .by_name("p2d.npy")
+            .map_err(|_| format("no array `p2d` (p2d.npy) in the archive".into()))?;
+        entry
+            .read_to_end(&mut bytes)
+            .map_err(|e| format(format!("p2d.npy: cannot decompress: {e}")))?;
+    }
+    let npy = NpyHeader::parse(&bytes).map_err(|m| format(format!("p2d.npy: {m}")))?;
+    let [n_cameras, n_points, two] =
+        <[usize; 3]>::try_from(npy.shape.as_slice()).map_err(|_| {
+            format(format!(
+                "p2d has shape {:?}; expected (cameras, points, 2)",
+                npy.shape
+            ))
+        })?;
+    if two != 2 {
+        return Err(format(format!(
+            "p2d has shape {:?}; expected (cameras, points, 2)",
+            npy.shape
+        )));
+    }
+    if n_cameras != cameras.len() {
+        return Err(format(format!(
+            "p2d has {n_cameras} cameras, the calibration {}",
+            cameras.len()
+        )));
+    }
+    let data = &bytes[npy.data_offset..];
+    if data.len() != 8 * n_cameras * n_points * 2 {
+        return Err(format(format!(
+            "p2d.npy holds {} data bytes; shape {:?} of float64 needs {}",
+            data.len(),
+            npy.shape,
+            8 * n_cameras * n_points * 2
+        )));
+    }
+    let at = |c: usize, p: usize, k: usize| {
+        let i = if npy.fortran_order {
+            c + n_cameras * (p + n_points * k)
+        } else {
+            (c * n_points + p) * 2 + k
+        };
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&data[8 * i..8 * i + 8]);
+        f64::from_le_bytes(b)
+    };
+    let mut points = vec![Vec::new(); n_points];
+    for (p, obs) in points.iter_mut().enumerate() {
+        for c in 0..n_cameras {
+            let uv = Vector2::new(at(c, p, 0), at(c, p, 1));
+            if uv.x.is_nan() || uv.y.is_nan() {
+                continue;
+            }
+            if !(uv.x.is_finite() && uv.y.is_finite()) {
+                return Err(format(format!(
+                    "p2d[{c}, {p}] = ({}, {}) is not finite",
+                    uv.x, uv.y
+                )));
+            }
+            obs.push(PixelObservation { camera: c, uv });
+        }
+    }
+    Ok(points)
+}
+
+/// The header of a `.npy` array (NumPy format 1.0–3.0) of little-endian float64.
+struct NpyHeader {
+    shape: Vec<usize>,
+    fortran_order: bool,
+    data_offset: usize,
+}
+
+impl NpyHeader {
+    fn parse(bytes: &[u8]) -> std::result::Result<Self, String> {
+        if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+            return Err("not a .npy array (bad magic)".into());
+        }
+        let (len, start) = match bytes[6] {
+            1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+            2 | 3 if bytes.len() >= 12 => (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            ),
+            v => return Err(format!("unsupported .npy format version {v}")),
+        };
+        let header = bytes
+            .get(start..start + len)
+            .and_then(|h| std::str::from_utf8(h).ok())
+            .ok_or("truncated or non-text header")?;
+        let value = |key: &str| -> std::result::Result<&str, String> {
+            let at = header
+                .find(&format!("'{key}':"))
+                .ok_or(format!("header has no `{key}`"))?;
+            Ok(header[at + key.len() + 3..].trim_start())
+        };
+        let descr = value("descr")?;
+        if !(descr.starts_with("'<f8'") || descr.starts_with("'float64'")) {
+            let shown: String = descr.chars().take(8).collect();
+            return Err(format!(
+                "dtype {shown}…: expected little-endian float64 ('<f8')"
+            ));
+        }
+        let fortran_order = match value("fortran_order")? {
+            v if v.starts_with("True") => true,
+            v if v.starts_with("False") => false,
+            _ => return Err("fortran_order is neither True nor False".into()),
+        };
+        let shape_text = value("shape")?;
+        let inner = shape_text
+            .strip_prefix('(')
+            .and_then(|t| t.split(')').next())
+            .ok_or("shape is not a tuple")?;
+        let shape = inner
+            .split(',')
+            .map(str::trim)
+            .filter(|t| !t.is_empty())
+            .map(|t| {
+                t.parse::<usize>()
+                    .map_err(|_| format!("shape entry `{t}` is not a size"))
+            })
+            .collect::<std::result::Result<Vec<_>, _>>()?;
+        Ok(NpyHeader {
+            shape,
+            fortran_order,
+            data_offset: start + len,
+        })
+    }
+}
+
 /// `(R|t)` of a camera as the Rodrigues vector aniposelib stores (for round trips and tests).
 pub fn rodrigues(rotation: &Matrix3<f64>) -> Vector3<f64> {
     Rotation3::from_matrix_unchecked(*rotation).scaled_axis()
@@ -139,6 +292,107 @@ pub fn rodrigues(rotation: &Matrix3<f64>) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `.npz` written the way numpy does (stored and deflated members, C and Fortran order).
+    fn write_npz(path: &Path, header: &str, values: &[f64], compress: bool) {
+        let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+        let mut h = header.to_string();
+        while !(10 + h.len() + 1).is_multiple_of(64) {
+            h.push(' ');
+        }
+        h.push('\n');
+        npy.extend_from_slice(&(h.len() as u16).to_le_bytes());
+        npy.extend_from_slice(h.as_bytes());
+        for v in values {
+            npy.extend_from_slice(&v.to_le_bytes());
+        }
+        let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+        let method = if compress {
+            zip::CompressionMethod::Deflated
+        } else {
+            zip::CompressionMethod::Stored
+        };
+        let options = zip::write::SimpleFileOptions::default().compression_method(method);
+        zip.start_file("p2d.npy", options).unwrap();
+        std::io::Write::write_all(&mut zip, &npy).unwrap();
+        zip.finish().unwrap();
+    }
+
+    #[test]
+    fn npz_points_in_c_and_fortran_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let cams: Vec<Camera> = (0..2)
+            .map(|i| {
+                Camera::new(
+                    format!("cam_{i}"),
+                    640,
+                    480,
+                    [500.0, 500.0, 320.0, 240.0],
+                    [0.0; 5],
+                    Matrix3::identity(),
+                    Vector3::new(i as f64, 0.0, 1.0),
+                )
+                .unwrap()
+            })
+            .collect();
+        // p2d[c, p, k] for 2 cameras × 3 points; camera 1 misses point 2.
+        let p2d = |c: usize, p: usize, k: usize| {
+            if c == 1 && p == 2 {
+                f64::NAN
+            } else {
+                100.0 * c as f64 + 10.0 * p as f64 + k as f64
+            }
+        };
+        let c_order: Vec<f64> = (0..2)
+            .flat_map(|c| (0..3).flat_map(move |p| (0..2).map(move |k| p2d(c, p, k))))
+            .collect();
+        let f_order: Vec<f64> = (0..2)
+            .flat_map(|k| (0..3).flat_map(move |p| (0..2).map(move |c| p2d(c, p, k))))
+            .collect();
+        for (name, header, values, compress) in [
+            (
+                "c.npz",
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3, 2), }",
+                &c_order,
+                true,
+            ),
+            (
+                "f.npz",
+                "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 3, 2), }",
+                &f_order,
+                false,
+            ),
+        ] {
+            let path = dir.path().join(name);
+            write_npz(&path, header, values, compress);
+            let points = read_npz_points(&path, &cams).unwrap();
+            assert_eq!(points.len(), 3, "{name}");
+            assert_eq!(points[2].len(), 1, "{name}: camera 1 misses point 2");
+            assert_eq!(points[1][1].camera, 1);
+            assert_eq!(points[1][1].uv, Vector2::new(110.0, 111.0), "{name}");
+        }
+        // Bad input names the problem.
+        let path = dir.path().join("bad.npz");
+        write_npz(
+            &path,
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3, 2), }",
+            &c_order,
+            true,
+        );
+        let e = read_npz_points(&path, &cams).unwrap_err().to_string();
+        assert!(e.contains("bad.npz") && e.contains("float64"), "{e}");
+        write_npz(
+            &path,
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (3, 2, 2), }",
+            &c_order,
+            true,
+        );
+        let e = read_npz_points(&path, &cams).unwrap_err().to_string();
+        assert!(e.contains("3 cameras, the calibration 2"), "{e}");
+        std::fs::write(&path, "not a zip").unwrap();
+        let e = read_npz_points(&path, &cams).unwrap_err().to_string();
+        assert!(e.contains("not an .npz"), "{e}");
+    }
 
     #[test]
     fn rodrigues_round_trip_and_table_order() {

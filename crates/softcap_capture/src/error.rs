@@ -73,6 +73,15 @@ pub enum CaptureError {
         /// What is wrong.
         message: String,
     },
+    /// Calibration input that cannot determine a rig (a camera no point sees, cameras that share
+    /// no points, points on a line, a zero-length scale baseline).
+    #[error("{path}: degenerate calibration input: {message}")]
+    Degenerate {
+        /// The input (points file, session or calibration).
+        path: PathBuf,
+        /// What is wrong, naming the camera.
+        message: String,
+    },
     /// The output could not be written.
     #[error("{path}: cannot write output: {message}")]
     Output {

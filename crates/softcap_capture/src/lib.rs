@@ -5,6 +5,8 @@
 //! |---|---|
 //! | [`session`] | reading `session.toml`, `rig/*.toml`, CSV files (errors name file, line, field) |
 //! | [`aniposelib`] | aniposelib calibration TOML and labeled 2D points (real multi-camera rigs) |
+//! | [`bundle`] | sparse bundle adjustment: robust LM on the Schur complement, explicit gauge |
+//! | [`calibrate`] | `softcap capture calibrate`: outlier rounds around [`bundle`], refined rig, report |
 //! | [`c3d`] | C3D takes (kind `mocap`): POINT trajectories in metres, ANALOG channels |
 //! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
@@ -33,7 +35,9 @@
 //! ```
 
 pub mod aniposelib;
+pub mod bundle;
 pub mod c3d;
+pub mod calibrate;
 pub mod camera;
 pub mod correspond;
 pub mod detect;
@@ -49,7 +53,7 @@ pub mod session;
 pub mod sync;
 pub mod triangulate;
 
-pub use aniposelib::{read_aniposelib_calibration, read_labeled_points};
+pub use aniposelib::{read_aniposelib_calibration, read_labeled_points, read_npz_points};
 pub use c3d::{AnalogChannels, C3dTake, read_c3d};
 pub use camera::Camera;
 pub use correspond::{Blob, Candidate, CorrespondenceSettings, find_candidates, label_candidates};
@@ -59,8 +63,8 @@ pub use fill::{FillSettings, FillShell};
 pub use nalgebra;
 pub use output::{report, write_capture_mcap};
 pub use pipeline::{
-    CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerSample, MarkerSource,
-    MarkerState, ProbeSample, capture, capture_mocap,
+    CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerObservations, MarkerSample,
+    MarkerSource, MarkerState, ProbeSample, capture, capture_mocap,
 };
 pub use probe::{FsrConversion, FsrModel, ProbePose, probe_pose};
 pub use register::{horn_weighted, weight_away_from_probe};

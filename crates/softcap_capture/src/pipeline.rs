@@ -193,6 +193,20 @@ pub struct CaptureResult {
     pub source: MarkerSource,
     /// Analog channels of a C3D take (kind `mocap`), on the take's clock.
     pub analog: Option<crate::c3d::AnalogChannels>,
+    /// The labeled 2D observations each marker was triangulated from, per frame (what
+    /// `softcap capture calibrate` refines a rig from); empty for C3D takes.
+    pub observations: Vec<MarkerObservations>,
+}
+
+/// The 2D observations of one marker in one frame that capture labeled (given or found).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerObservations {
+    /// Frame index.
+    pub frame: usize,
+    /// Index into [`CaptureResult::marker_ids`].
+    pub marker: usize,
+    /// One pixel position per camera that saw it (two or more).
+    pub observations: Vec<PixelObservation>,
 }
 
 struct MarkerInfo {
@@ -285,6 +299,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
     let mut frames = Vec::with_capacity(n_frames);
     let mut blob_counts = vec![0usize; cams.len()];
     let mut residuals: Vec<Vec<f64>> = vec![Vec::new(); cams.len()];
+    let mut marker_observations = Vec::new();
 
     for frame in 0..n_frames {
         let blobs: Vec<Vec<Blob>> = match (&grouped, &session.images) {
@@ -402,6 +417,11 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
             .collect();
         for (m, obs) in chosen.iter().enumerate() {
             let Some(obs) = obs else { continue };
+            marker_observations.push(MarkerObservations {
+                frame,
+                marker: m,
+                observations: obs.clone(),
+            });
             if let Some(t) = triangulate(cams, obs, &settings.triangulation) {
                 for o in obs {
                     if let Some(uv) = cams[o.camera].project(&t.position_m) {
@@ -651,6 +671,7 @@ pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureR
         cameras,
         source,
         analog: None,
+        observations: marker_observations,
     })
 }
 
@@ -717,6 +738,7 @@ pub fn capture_mocap(session: &Session, c3d_path: &std::path::Path) -> Result<Ca
         cameras: Vec::new(),
         source: MarkerSource::Auto,
         analog: Some(take.analog),
+        observations: Vec::new(),
     })
 }
 

@@ -657,6 +657,17 @@ pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera
     Ok(out)
 }
 
+/// Reads a rig in either format: `rig/cameras.toml` (`[[camera]]` tables) or an aniposelib
+/// calibration (`[cam_N]` tables); translations are in units of `metres_per_unit` metres.
+pub fn read_rig(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera>> {
+    let table: toml::Table = parse_toml(path)?;
+    if table.contains_key("camera") {
+        read_cameras_toml(path, metres_per_unit)
+    } else {
+        crate::aniposelib::read_aniposelib_calibration(path, metres_per_unit)
+    }
+}
+
 /// Reads `rig/fsr.toml`, checking the calibration table increases in both columns.
 pub fn read_fsr_toml(path: &Path) -> Result<FsrConfig> {
     let cfg: FsrConfig = parse_toml(path)?;
@@ -954,6 +965,32 @@ impl Session {
             support,
             density_kg_m3,
         })
+    }
+
+    /// Replaces the session's rig by the one in `path` ([`read_rig`], the session's length unit),
+    /// e.g. one refined by `softcap capture calibrate`. Every camera of the session must be in it
+    /// (matched by id; the session's camera order is kept).
+    pub fn use_cameras(&mut self, path: &Path) -> Result<()> {
+        let rig = read_rig(path, self.metres_per_unit)?;
+        if self.cameras.is_empty() {
+            self.cameras = rig;
+        } else {
+            self.cameras =
+                self.cameras
+                    .iter()
+                    .map(|c| {
+                        rig.iter().find(|r| r.id == c.id).cloned().ok_or_else(|| {
+                            CaptureError::Camera {
+                                path: path.to_path_buf(),
+                                camera: c.id.clone(),
+                                message: "the session's camera is not in this rig".into(),
+                            }
+                        })
+                    })
+                    .collect::<Result<_>>()?;
+        }
+        self.cameras_path = Some(path.to_path_buf());
+        Ok(())
     }
 
     /// Reads `detections/<camera>.csv` for every camera, in camera order.

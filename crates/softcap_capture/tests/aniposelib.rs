@@ -92,3 +92,57 @@ fn mouse_outdoor_median_reprojection_error_is_no_worse_than_aniposelib() {
     );
     assert!(median_obs <= reference.subset.median_observation_error_px);
 }
+
+#[derive(serde::Deserialize)]
+struct BundleAdjustReference {
+    points: usize,
+    median_point_error_before_px: f64,
+    median_point_error_after_px: f64,
+    bundle_adjust_iter_seconds: f64,
+}
+
+/// `softcap capture calibrate` on the fixture subset (2,998 points): the median per-point error
+/// (softcap's triangulation, each point from all its views) falls ≥ 3× below the initial rig's
+/// and is no worse than with the rig refined by aniposelib's own `bundle_adjust_iter`
+/// (fixtures/aniposelib/bundle_adjust_calibration.toml, written by
+/// scripts/aniposelib-bundle-adjust), measured the same way.
+#[test]
+fn mouse_outdoor_calibration_is_no_worse_than_aniposelib_bundle_adjustment() {
+    use softcap_capture::calibrate::{
+        CalibrateSettings, calibrate, read_calibration_input, reprojection_summary,
+    };
+    let dir = common::fixture("aniposelib");
+    let input =
+        read_calibration_input(&dir.join("points.csv"), Some(&dir.join("calibration.toml")))
+            .unwrap();
+    let start = std::time::Instant::now();
+    let cal = calibrate(&input, &CalibrateSettings::default(), &mut |l| {
+        eprintln!("{l}")
+    })
+    .unwrap();
+    let seconds = start.elapsed().as_secs_f64();
+    let text = std::fs::read_to_string(dir.join("bundle_adjust_reference.toml")).unwrap();
+    let reference: BundleAdjustReference = toml::from_str(&text).unwrap();
+    let anipose_rig =
+        read_aniposelib_calibration(&dir.join("bundle_adjust_calibration.toml"), 1.0).unwrap();
+    let anipose = reprojection_summary(&anipose_rig, &input.points);
+    println!(
+        "median per-point error (softcap triangulation): initial rig {:.3} px, softcap calibrate \
+         {:.3} px ({seconds:.2} s, test profile), aniposelib bundle_adjust_iter {:.3} px",
+        cal.before.median_point_error_px,
+        cal.after.median_point_error_px,
+        anipose.median_point_error_px
+    );
+    println!(
+        "aniposelib's own figures ({} points): {:.3} → {:.3} px in {:.1} s; status: {}",
+        reference.points,
+        reference.median_point_error_before_px,
+        reference.median_point_error_after_px,
+        reference.bundle_adjust_iter_seconds,
+        cal.status_description()
+    );
+    assert_eq!(cal.before.points, reference.points);
+    assert!((cal.before.median_point_error_px - 35.37).abs() < 0.01);
+    assert!(cal.after.median_point_error_px <= cal.before.median_point_error_px / 3.0);
+    assert!(cal.after.median_point_error_px <= anipose.median_point_error_px);
+}

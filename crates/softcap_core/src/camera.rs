@@ -6,7 +6,7 @@
 //! `xd = x(1+k1 r²+k2 r⁴+k3 r⁶) + 2 p1 x y + p2 (r²+2x²)`,
 //! `yd = y(1+k1 r²+k2 r⁴+k3 r⁶) + p1 (r²+2y²) + 2 p2 x y`, `u = fx·xd + cx`, `v = fy·yd + cy`.
 
-use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point3, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point3, SMatrix, Vector2, Vector3};
 
 use crate::error::{CoreError, Result};
 
@@ -28,6 +28,21 @@ pub struct Camera {
     /// Translation world→camera, m.
     pub translation_m: Vector3<f64>,
 }
+
+/// [`Camera::project_camera_point`]: pixel position and its derivatives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraPointProjection {
+    /// Pixel position `(u, v)`.
+    pub uv: Vector2<f64>,
+    /// `∂(u,v)/∂Xc`, the camera-frame point.
+    pub d_camera_point: Matrix2x3<f64>,
+    /// `∂(u,v)/∂(fx, fy, cx, cy, k1, k2, p1, p2, k3)` (the order of [`INTRINSIC_NAMES`]).
+    pub d_intrinsics: SMatrix<f64, 2, 9>,
+}
+
+/// Names of the intrinsic parameters in the column order of
+/// [`CameraPointProjection::d_intrinsics`].
+pub const INTRINSIC_NAMES: [&str; 9] = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"];
 
 impl Camera {
     /// Builds a camera, rejecting singular intrinsics, non-finite values and improper rotations.
@@ -131,7 +146,14 @@ impl Camera {
         &self,
         x_world: &Point3<f64>,
     ) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
-        let xc = self.to_camera(x_world);
+        let p = self.project_camera_point(&self.to_camera(x_world))?;
+        Some((p.uv, p.d_camera_point * self.rotation))
+    }
+
+    /// Projection of a camera-frame point `Xc` with its Jacobians with respect to `Xc` and to the
+    /// intrinsics `(fx, fy, cx, cy, k1, k2, p1, p2, k3)` (bundle adjustment refines them);
+    /// `None` behind the camera.
+    pub fn project_camera_point(&self, xc: &Vector3<f64>) -> Option<CameraPointProjection> {
         if xc.z <= 1e-12 {
             return None;
         }
@@ -140,8 +162,31 @@ impl Camera {
         let (xd, yd) = self.distort(x, y);
         let [fx, fy, cx, cy] = self.intrinsics;
         let dn = Matrix2x3::new(iz, 0.0, -x * iz, 0.0, iz, -y * iz);
-        let j = Matrix2::new(fx, 0.0, 0.0, fy) * self.distort_jacobian(x, y) * dn * self.rotation;
-        Some((Vector2::new(fx * xd + cx, fy * yd + cy), j))
+        let d_camera_point = Matrix2::new(fx, 0.0, 0.0, fy) * self.distort_jacobian(x, y) * dn;
+        // ∂(xd, yd)/∂(k1, k2, p1, p2, k3), scaled by (fx, fy) per row.
+        let r2 = x * x + y * y;
+        let (r4, xy) = (r2 * r2, x * y);
+        let d_distortion = [
+            (x * r2, y * r2),
+            (x * r4, y * r4),
+            (2.0 * xy, r2 + 2.0 * y * y),
+            (r2 + 2.0 * x * x, 2.0 * xy),
+            (x * r4 * r2, y * r4 * r2),
+        ];
+        let mut d_intrinsics = SMatrix::<f64, 2, 9>::zeros();
+        d_intrinsics[(0, 0)] = xd;
+        d_intrinsics[(1, 1)] = yd;
+        d_intrinsics[(0, 2)] = 1.0;
+        d_intrinsics[(1, 3)] = 1.0;
+        for (k, (dx, dy)) in d_distortion.into_iter().enumerate() {
+            d_intrinsics[(0, 4 + k)] = fx * dx;
+            d_intrinsics[(1, 4 + k)] = fy * dy;
+        }
+        Some(CameraPointProjection {
+            uv: Vector2::new(fx * xd + cx, fy * yd + cy),
+            d_camera_point,
+            d_intrinsics,
+        })
     }
 
     /// Pixel → undistorted normalized image coordinates, inverting the distortion by fixed-point
@@ -197,6 +242,35 @@ impl Camera {
     }
 }
 
+/// The cameras as `rig/cameras.toml` tables (`SESSION_FORMAT.md`), translations multiplied by
+/// `units_per_metre` (the session's `length_unit`: 1000 for mm, 1 for m). Text formatting only; the
+/// virtual rig and `softcap capture calibrate` write it, capture parses it.
+pub fn cameras_toml(cameras: &[Camera], units_per_metre: f64) -> String {
+    use std::fmt::Write as _;
+    let mut t = String::new();
+    for c in cameras {
+        let [fx, fy, cx, cy] = c.intrinsics;
+        let [k1, k2, p1, p2, k3] = c.distortion;
+        let r = c.rotation;
+        let tr = c.translation_m * units_per_metre;
+        let _ = writeln!(t, "[[camera]]");
+        let _ = writeln!(t, "id = \"{}\"", c.id);
+        let _ = writeln!(t, "width = {}\nheight = {}", c.width, c.height);
+        let _ = writeln!(t, "fx = {fx:.6}\nfy = {fy:.6}\ncx = {cx:.6}\ncy = {cy:.6}");
+        let _ = writeln!(
+            t,
+            "k1 = {k1:e}\nk2 = {k2:e}\np1 = {p1:e}\np2 = {p2:e}\nk3 = {k3:e}"
+        );
+        let rows: Vec<String> = (0..3)
+            .flat_map(|i| (0..3).map(move |j| (i, j)))
+            .map(|(i, j)| format!("{:.15}", r[(i, j)]))
+            .collect();
+        let _ = writeln!(t, "rotation = [{}]", rows.join(", "));
+        let _ = writeln!(t, "translation = [{:.9}, {:.9}, {:.9}]\n", tr.x, tr.y, tr.z);
+    }
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -243,6 +317,42 @@ mod tests {
                 "column {k}: {fd} vs {}",
                 j.column(k)
             );
+        }
+    }
+
+    #[test]
+    fn intrinsic_jacobian_matches_finite_differences() {
+        let c = cam();
+        let xc = c.to_camera(&Point3::new(0.03, -0.02, 0.015));
+        let p = c.project_camera_point(&xc).unwrap();
+        let h = 1e-7;
+        let perturbed = |k: usize, d: f64| {
+            let mut q = c.clone();
+            if k < 4 {
+                q.intrinsics[k] += d;
+            } else {
+                q.distortion[k - 4] += d;
+            }
+            q.project_camera_point(&xc).unwrap().uv
+        };
+        for k in 0..9 {
+            let fd = (perturbed(k, h) - perturbed(k, -h)) / (2.0 * h);
+            let col = p.d_intrinsics.column(k);
+            assert!(
+                (fd - col).norm() < 1e-6 * fd.norm().max(1.0),
+                "{}: {fd} vs {col}",
+                INTRINSIC_NAMES[k]
+            );
+        }
+        for k in 0..3 {
+            let mut a = xc;
+            let mut b = xc;
+            a[k] += h;
+            b[k] -= h;
+            let fd = (c.project_camera_point(&a).unwrap().uv
+                - c.project_camera_point(&b).unwrap().uv)
+                / (2.0 * h);
+            assert!((fd - p.d_camera_point.column(k)).norm() < 1e-4 * fd.norm().max(1.0));
         }
     }
 

@@ -157,30 +157,9 @@ pub fn session_toml(s: &Scenario, images: bool, detections: bool, robot: bool) -
     t
 }
 
-/// rig/cameras.toml.
+/// rig/cameras.toml (translations in mm, the session's length unit).
 pub fn cameras_toml(cams: &[Camera]) -> String {
-    let mut t = String::new();
-    for c in cams {
-        let [fx, fy, cx, cy] = c.intrinsics;
-        let [k1, k2, p1, p2, k3] = c.distortion;
-        let r = c.rotation;
-        let tr = c.translation_m * M_TO_MM;
-        let _ = writeln!(t, "[[camera]]");
-        let _ = writeln!(t, "id = \"{}\"", c.id);
-        let _ = writeln!(t, "width = {}\nheight = {}", c.width, c.height);
-        let _ = writeln!(t, "fx = {fx:.6}\nfy = {fy:.6}\ncx = {cx:.6}\ncy = {cy:.6}");
-        let _ = writeln!(
-            t,
-            "k1 = {k1:e}\nk2 = {k2:e}\np1 = {p1:e}\np2 = {p2:e}\nk3 = {k3:e}"
-        );
-        let rows: Vec<String> = (0..3)
-            .flat_map(|i| (0..3).map(move |j| (i, j)))
-            .map(|(i, j)| format!("{:.15}", r[(i, j)]))
-            .collect();
-        let _ = writeln!(t, "rotation = [{}]", rows.join(", "));
-        let _ = writeln!(t, "translation = [{:.9}, {:.9}, {:.9}]\n", tr.x, tr.y, tr.z);
-    }
-    t
+    softcap_core::camera::cameras_toml(cams, M_TO_MM)
 }
 
 /// rig/probe.toml.

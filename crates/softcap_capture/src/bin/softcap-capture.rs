@@ -1,9 +1,15 @@
-//! `softcap-capture DIR -o capture.mcap`: the capture stage's thin binary.
+//! `softcap-capture DIR -o capture.mcap [--cameras refined.toml]`: the capture stage's thin binary;
+//! `softcap-capture calibrate POINTS_OR_SESSION --cameras rig.toml -o refined.toml [--report DIR]`:
+//! bundle adjustment of the rig.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::Parser;
+use std::io::IsTerminal as _;
+
+use clap::{Parser, Subcommand};
+use softcap_capture::bundle::Refine;
+use softcap_capture::calibrate::{self, CalibrateSettings};
 use softcap_capture::{
     CaptureError, CaptureSettings, FsrConversion, MarkerSource, Session, capture,
     write_capture_mcap,
@@ -11,10 +17,22 @@ use softcap_capture::{
 
 /// Raw session folder → markers, probe pose and force, clock sync (capture.mcap).
 #[derive(Debug, Parser)]
-#[command(name = "softcap-capture", version)]
+#[command(
+    name = "softcap-capture",
+    version,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
 struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// Session folder (contains session.toml).
-    session: PathBuf,
+    #[arg(required = true)]
+    session: Option<PathBuf>,
+    /// Use this rig (rig/cameras.toml format, the session's length unit) instead of the
+    /// session's, e.g. one refined by `softcap capture calibrate`.
+    #[arg(long)]
+    cameras: Option<PathBuf>,
     /// Output MCAP file.
     #[arg(short, long, default_value = "capture.mcap")]
     output: PathBuf,
@@ -32,7 +50,112 @@ struct Args {
     settings: Option<PathBuf>,
 }
 
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Refine a rig by bundle adjustment from labeled 2D points (.npz p2d, CSV or a session).
+    Calibrate(CalibrateArgs),
+}
+
+/// `softcap capture calibrate`.
+#[derive(Debug, clap::Args)]
+struct CalibrateArgs {
+    /// Session folder, aniposelib `.npz` (array `p2d`: cameras × points × 2, NaN = unseen) or CSV
+    /// `point,camera,u,v`.
+    input: PathBuf,
+    /// Initial rig: rig/cameras.toml or aniposelib calibration TOML (required for points files;
+    /// replaces a session's rig).
+    #[arg(long)]
+    cameras: Option<PathBuf>,
+    /// Refined rig to write (rig/cameras.toml format).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Folder for report.md and per-camera reprojection histograms.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Intrinsics refined besides the extrinsics: comma list of focal, principal, k1, k2, p1, p2,
+    /// k3 (or radial, tangential, distortion, none).
+    #[arg(long, default_value = "focal,principal,k1,k2")]
+    refine: String,
+    /// Robust loss.
+    #[arg(long, value_parser = ["huber", "cauchy", "squared"], default_value = "huber")]
+    loss: String,
+    /// Camera whose pose is held (default: the first).
+    #[arg(long)]
+    fix_camera: Option<String>,
+    /// Camera whose distance to the fixed one sets the scale (default: the farthest).
+    #[arg(long)]
+    scale_camera: Option<String>,
+    /// That distance in metres (default: its value in the initial rig).
+    #[arg(long)]
+    scale_distance: Option<f64>,
+    /// Rounds of outlier rejection + bundle adjustment.
+    #[arg(long, default_value_t = 5)]
+    max_rounds: usize,
+    /// Outlier threshold on the residual norm, in robust noise scales σ̂.
+    #[arg(long, default_value_t = 3.0)]
+    outlier_threshold: f64,
+    /// Levenberg–Marquardt iteration cap per round.
+    #[arg(long, default_value_t = 100)]
+    max_iterations: usize,
+}
+
+impl CalibrateArgs {
+    fn run(&self) -> Result<(), CaptureError> {
+        let bad = |field: &str, message: String| CaptureError::Format {
+            path: PathBuf::from(format!("--{field}")),
+            message,
+        };
+        let mut settings = CalibrateSettings::default();
+        settings.bundle.refine = Refine::parse(&self.refine).map_err(|m| bad("refine", m))?;
+        settings.bundle.loss = calibrate::parse_loss(&self.loss)
+            .ok_or_else(|| bad("loss", format!("unknown loss `{}`", self.loss)))?;
+        settings.fixed_camera.clone_from(&self.fix_camera);
+        settings.scale_camera.clone_from(&self.scale_camera);
+        settings.scale_distance_m = self.scale_distance;
+        settings.max_rounds = self.max_rounds;
+        settings.outlier_threshold = self.outlier_threshold;
+        settings.bundle.max_iterations = self.max_iterations;
+        let verbose = std::io::stderr().is_terminal();
+        let start = std::time::Instant::now();
+        let (_, cal) = calibrate::run_calibrate(
+            &self.input,
+            self.cameras.as_deref(),
+            &self.output,
+            self.report.as_deref(),
+            &settings,
+            &mut |line| {
+                if verbose || !line.starts_with("  LM") {
+                    eprintln!("{line}");
+                }
+            },
+        )?;
+        println!(
+            "median per-point reprojection error: {:.3} px before, {:.3} px after ({} points; {:.1} s)",
+            cal.before.median_point_error_px,
+            cal.after.median_point_error_px,
+            cal.before.points,
+            start.elapsed().as_secs_f64()
+        );
+        println!("gauge: {}", cal.gauge_description());
+        println!("status: {}", cal.status_description());
+        println!("wrote {}", self.output.display());
+        if let Some(dir) = &self.report {
+            println!("report: {}", dir.join("report.md").display());
+        }
+        Ok(())
+    }
+}
+
 fn run(args: &Args, argv: &[String]) -> Result<(), CaptureError> {
+    if let Some(Command::Calibrate(c)) = &args.command {
+        return c.run();
+    }
+    let Some(session_dir) = &args.session else {
+        return Err(CaptureError::Format {
+            path: PathBuf::from("SESSION"),
+            message: "a session folder is required".into(),
+        });
+    };
     let mut settings: CaptureSettings = match &args.settings {
         Some(p) => softcap_capture::session::parse_settings_toml(p)?,
         None => CaptureSettings::default(),
@@ -48,7 +171,10 @@ fn run(args: &Args, argv: &[String]) -> Result<(), CaptureError> {
         _ => {}
     }
     settings.force_data_sync |= args.data_sync;
-    let session = Session::load(&args.session)?;
+    let mut session = Session::load(session_dir)?;
+    if let Some(path) = &args.cameras {
+        session.use_cameras(path)?;
+    }
     let result = capture(&session, &settings)?;
     let path = write_capture_mcap(&args.output, &session, &result, &settings, argv)?;
     let count = |s| {
