@@ -81,12 +81,16 @@ pub struct Refine {
     pub distortion: [bool; 5],
 }
 
+/// The default, aniposelib's own parameter set (one focal length and k1 per camera): sparse,
+/// noisy labels rarely determine the principal point or higher distortion terms, and freeing them
+/// lets an adjustment trade them against the pose (on the aniposelib rig, with `principal,k2` also
+/// free, one camera's focal length collapses toward zero).
 impl Default for Refine {
     fn default() -> Self {
         Refine {
             focal: true,
-            principal_point: true,
-            distortion: [true, true, false, false, false],
+            principal_point: false,
+            distortion: [true, false, false, false, false],
         }
     }
 }

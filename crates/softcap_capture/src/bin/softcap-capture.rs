@@ -74,7 +74,7 @@ struct CalibrateArgs {
     report: Option<PathBuf>,
     /// Intrinsics refined besides the extrinsics: comma list of focal, principal, k1, k2, p1, p2,
     /// k3 (or radial, tangential, distortion, none).
-    #[arg(long, default_value = "focal,principal,k1,k2")]
+    #[arg(long, default_value = "focal,k1")]
     refine: String,
     /// Robust loss.
     #[arg(long, value_parser = ["huber", "cauchy", "squared"], default_value = "huber")]
@@ -138,6 +138,9 @@ impl CalibrateArgs {
         );
         println!("gauge: {}", cal.gauge_description());
         println!("status: {}", cal.status_description());
+        for w in cal.warnings() {
+            println!("warning: {w}");
+        }
         println!("wrote {}", self.output.display());
         if let Some(dir) = &self.report {
             println!("report: {}", dir.join("report.md").display());

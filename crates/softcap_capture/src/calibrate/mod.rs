@@ -793,6 +793,30 @@ impl Calibration {
             .collect()
     }
 
+    /// Cameras whose refinement deserves a look: most of their observations rejected in the
+    /// last round (the rest may not determine them), or a focal length changed by more than 20 %
+    /// (a camera pulled away from the points can trade focal length against its pose).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (c, change) in self.changes().iter().enumerate() {
+            let (rejected, seen) = (self.rejected_per_camera[c], self.observations_per_camera[c]);
+            if 2 * rejected > seen {
+                out.push(format!(
+                    "camera `{}`: {rejected} of its {seen} observations rejected in the last round",
+                    change.id
+                ));
+            }
+            if change.focal_relative.abs() > 0.2 {
+                out.push(format!(
+                    "camera `{}`: focal length changed by {:+.1} %",
+                    change.id,
+                    100.0 * change.focal_relative
+                ));
+            }
+        }
+        out
+    }
+
     /// One-line description of the gauge.
     pub fn gauge_description(&self) -> String {
         let g = &self.gauge;

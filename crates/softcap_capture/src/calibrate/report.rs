@@ -71,7 +71,11 @@ fn markdown(input: &CalibrationInput, cal: &Calibration, figures: &[PathBuf]) ->
         s.outlier_threshold
     );
     let _ = writeln!(t, "- gauge: {}", cal.gauge_description());
-    let _ = writeln!(t, "- status: {}\n", cal.status_description());
+    let _ = writeln!(t, "- status: {}", cal.status_description());
+    for w in cal.warnings() {
+        let _ = writeln!(t, "- warning: {w}");
+    }
+    let _ = writeln!(t);
     let _ = writeln!(
         t,
         "| all points, each triangulated from all its views | before | after |"
@@ -153,8 +157,8 @@ fn markdown(input: &CalibrationInput, cal: &Calibration, figures: &[PathBuf]) ->
     t
 }
 
-/// Histogram of one camera's reprojection errors before and after; the last bin collects
-/// everything beyond the 99th percentile of the errors before.
+/// Histogram of one camera's reprojection errors before and after on a log axis; the last bin
+/// collects everything beyond the 99th percentile of the errors before.
 fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result<()> {
     let err = |e: &dyn std::fmt::Display| CaptureError::Output {
         path: path.to_path_buf(),
@@ -173,15 +177,19 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
         .copied()
         .unwrap_or(1.0)
         .max(1.0);
-    const BINS: usize = 40;
-    let width = x_max / BINS as f64;
+    // Log-spaced bins from 0.01 px: the errors after span sub-pixel to tens of pixels, those
+    // before tens to hundreds. The first and last bins collect everything beyond them.
+    const BINS: usize = 48;
+    let (lo, hi) = (0.01_f64, x_max.max(10.0));
+    let edge = |k: usize| lo * (hi / lo).powf(k as f64 / BINS as f64);
     let counts = |v: &[f64]| {
         let mut c = [0usize; BINS];
         for &x in v {
-            let k = if x.is_finite() {
-                ((x / width) as usize).min(BINS - 1)
-            } else {
+            let t = ((x / lo).ln() / (hi / lo).ln() * BINS as f64).floor();
+            let k = if t.is_nan() {
                 BINS - 1
+            } else {
+                t.clamp(0.0, (BINS - 1) as f64) as usize
             };
             c[k] += 1;
         }
@@ -198,14 +206,14 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
             .caption(
                 format!(
                     "{camera}: reprojection error per observation (last bin: ≥ {:.1} px)",
-                    x_max - width
+                    edge(BINS - 1)
                 ),
                 (softcap_figure::FONT_FAMILY, 18),
             )
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(60)
-            .build_cartesian_2d(0.0..x_max, 0.0..y_max)
+            .build_cartesian_2d((lo..hi).log_scale(), 0.0..y_max)
             .map_err(|e| err(&e))?;
         chart
             .configure_mesh()
@@ -220,9 +228,8 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
         for (label, counts, color, median) in series {
             chart
                 .draw_series(counts.iter().enumerate().map(|(k, &n)| {
-                    let x0 = k as f64 * width;
                     Rectangle::new(
-                        [(x0, 0.0), (x0 + width, n as f64)],
+                        [(edge(k), 0.0), (edge(k + 1), n as f64)],
                         color.mix(0.45).filled(),
                     )
                 }))
