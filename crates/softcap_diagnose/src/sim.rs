@@ -5,7 +5,7 @@
 //! optional body force (gravity, wang2015 eq. 7), and the tangent response ∂x_markers/∂f of the
 //! converged state (three columns, one per force axis), which the hypothesis machinery uses for its
 //! linearised refits. [`FemProbeSimulator`] implements it on a `softcap_fem` corotational model
-//! through the shared probing kernels of `softcap_fem::probing` (the ones the tissue fit uses):
+//! through the shared probing kernels of `softcap_probing` (the ones the tissue fit uses):
 //! marker embedding, attached region, contact patch and area-weighted nodal forces.
 
 use crate::extend::{Extension, SequenceFrame};

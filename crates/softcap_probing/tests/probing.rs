@@ -1,4 +1,4 @@
-//! `softcap_fem::probing`: marker Jacobian vs finite differences, recovery of a known homogeneous
+//! `softcap_probing`: marker Jacobian vs finite differences, recovery of a known homogeneous
 //! material, per-example fits that reduce the marker error on a non-linear (neo-Hookean) truth,
 //! the strain-space material reproducing its samples, and force-controlled contact synthesis.
 
@@ -8,10 +8,10 @@ use softcap_fem::{
     StiffnessKind, TipShape,
 };
 use softcap_probing::{
-    ContactSynthesisSettings, ExampleFitSettings, FootprintLoad, HomogeneousFitSettings,
-    ObservedMarker, PatchSettings, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample,
-    StrainSpaceMaterial, fit_example, fit_homogeneous, marker_jacobian, probe_pose,
-    simulate_probe_contact, support_nodes,
+    ContactSynthesisSettings, ExampleFit, ExampleFitSettings, FitStart, FootprintLoad,
+    HomogeneousFitSettings, ObservedMarker, PatchSettings, ProbeExample, ProbingSetup,
+    StrainBasisSettings, StrainSample, StrainSpaceMaterial, fit_examples, fit_homogeneous,
+    marker_jacobian, probe_pose, simulate_probe_contact, support_nodes,
 };
 use std::sync::Arc;
 
@@ -474,17 +474,20 @@ fn per_example_fit_of_a_neohookean_truth_beats_the_homogeneous_model() {
     )
     .unwrap();
     let t = setup.num_elements();
-    let fit = fit_example(
-        &setup,
-        &ex,
-        &vec![homog.params; t],
-        &ExampleFitSettings {
-            relative_cost_tolerance: 1e-6,
-            max_iterations: 30,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let fit = ExampleFit::from(
+        fit_examples(
+            &setup,
+            std::slice::from_ref(&ex),
+            &vec![homog.params; t],
+            FitStart::Reference,
+            &ExampleFitSettings {
+                relative_cost_tolerance: 1e-6,
+                max_iterations: 30,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
+    );
     eprintln!(
         "homog {:e} E,nu {:?}; fit {:e} -> {:e} in {} it, costs {:?}",
         homog.rms_m,

@@ -4,7 +4,7 @@
 //! 1. the homogeneous linear corotational model that fits all examples best (bickel2009 §6,
 //!    Fig. 8 baseline; [`fit_homogeneous`]) — also the start of step 2;
 //! 2. per-example (λ_e, α_e) by Levenberg–Marquardt on eq. 9 with the adjoint Jacobian,
-//!    γ‖Lp‖² smoothing and a shrinkage γ_p‖q − q₀‖² toward the baseline ([`fit_example`]),
+//!    γ‖Lp‖² smoothing and a shrinkage γ_p‖q − q₀‖² toward the baseline ([`fit_examples`]),
 //!    examples in parallel; γ_p is chosen among a few candidates by leave-one-location-out
 //!    cross-validation ([`select_gamma_prior`]);
 //! 3. the strain-space material p_e(ε) of eq. 8 with greedy basis selection (§4.2,
@@ -22,9 +22,9 @@ use serde::{Deserialize, Serialize};
 use softcap_fem::{EquilibriumSettings, LinearParams};
 use softcap_mcap::capture::CaptureData;
 use softcap_probing::{
-    BasisErrorStep, ExampleFit, ExampleFitSettings, HomogeneousFit, HomogeneousFitSettings,
-    JointFit, ProbeExample, ProbingSetup, StrainBasisSettings, StrainSample, StrainSpaceMaterial,
-    fit_example, fit_example_warm, fit_examples_jointly, fit_homogeneous,
+    BasisErrorStep, ExampleFit, ExampleFitSettings, FitStart, HomogeneousFit,
+    HomogeneousFitSettings, JointFit, ProbeExample, ProbingSetup, StrainBasisSettings,
+    StrainSample, StrainSpaceMaterial, fit_examples, fit_homogeneous,
 };
 
 use crate::error::{Result, TissueError};
@@ -82,7 +82,7 @@ pub enum ReferenceField {
     #[default]
     Homogeneous,
     /// One heterogeneous linear field fitted to all examples at once (eq. 9 summed over the
-    /// examples, [`fit_examples_jointly`]) is the start, the shrinkage target and the
+    /// examples, [`fit_examples`]) is the start, the shrinkage target and the
     /// zero-strain sample.
     Joint,
 }
@@ -493,10 +493,9 @@ fn fit_all(
         .par_iter()
         .enumerate()
         .map(|(k, ex)| {
-            let r = match start {
-                Some(prev) => fit_example_warm(setup, ex, reference, &prev[k], &fs),
-                None => fit_example(setup, ex, reference, &fs),
-            };
+            let start = start.map_or(FitStart::Reference, |prev| FitStart::from_fit(&prev[k]));
+            let r = fit_examples(setup, std::slice::from_ref(ex), reference, start, &fs)
+                .map(ExampleFit::from);
             bar.inc(1);
             r
         })
@@ -704,10 +703,11 @@ pub fn fit_session(
         ReferenceField::Homogeneous => None,
         ReferenceField::Joint => {
             let bar = progress.bar("joint heterogeneous fit (eq. 9 over all examples)", 1);
-            let j = fit_examples_jointly(
+            let j = fit_examples(
                 setup,
                 &probe_examples,
                 &vec![homogeneous.params; t],
+                FitStart::Reference,
                 &s.joint_fit,
             )?;
             bar.finish();

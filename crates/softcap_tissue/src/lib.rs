@@ -3,7 +3,7 @@
 //! The tissue stage: `capture.mcap` + a tet mesh → a heterogeneous, non-linear material
 //! (`material.mcap`), and synthesis of novel probe deformations with it. The kernels (marker
 //! embedding, eq. 9 per-example fits with the adjoint Jacobian, the eq. 8 strain-space RBF with
-//! greedy basis, probe-contact synthesis) live in [`softcap_fem::probing`]; this crate turns a
+//! greedy basis, probe-contact synthesis) live in [`softcap_probing`]; this crate turns a
 //! recorded session into examples, runs them and writes/reads the files.
 //!
 //! | module | what |
