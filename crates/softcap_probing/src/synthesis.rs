@@ -4,8 +4,8 @@
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
-    ContactProblem, ContactSettings, ElasticModel, EquilibriumSettings, FemError, Probe,
-    SolveStatus, TipShape,
+    ContactProblem, ContactSettings, DirichletBc, ElasticModel, EquilibriumSettings, FemError,
+    Probe, SolveStatus, StaticSolver, TipShape,
 };
 
 use crate::{ProbingSetup, probing_error};
@@ -79,6 +79,28 @@ pub struct ContactSynthesis {
     pub depth_iterations: usize,
 }
 
+impl ContactSynthesis {
+    /// The probe at first contact, no load applied: the rest positions `x`.
+    fn at_touch(
+        x: Vec<Vector3<f64>>,
+        world_from_probe_at_touch: Isometry3<f64>,
+        status: SolveStatus,
+        depth_iterations: usize,
+    ) -> Self {
+        Self {
+            positions_m: x,
+            depth_m: 0.0,
+            axial_force_n: 0.0,
+            steps_m: Vec::new(),
+            step_depths_m: Vec::new(),
+            step_forces_n: Vec::new(),
+            world_from_probe_at_touch,
+            status,
+            depth_iterations,
+        }
+    }
+}
+
 /// Synthesis of a novel probe (bickel2009 §3.4): the rigid `tip` approaches along +z of
 /// `world_from_probe` (whose origin is placed on the surface, see below); the probe is advanced
 /// to depth d in `settings.steps` increments with contact (penalty linear force field per
@@ -105,11 +127,98 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             "probe force {axial_force_n} N must be finite and non-negative"
         )));
     }
-    let probe0 = Probe::new(tip, world_from_probe)?;
-    let axis = probe0.axis_world();
+    let touch = probe_at_touch(setup, tip, world_from_probe)?;
+    let mut approach = Approach::new(setup, &*model, touch, settings)?;
+    let at_touch = approach.touch.world_from_probe;
+    let rest = setup.mesh.vertices.clone();
+    if axial_force_n == 0.0 {
+        return Ok(ContactSynthesis::at_touch(
+            rest,
+            at_touch,
+            SolveStatus::Converged,
+            0,
+        ));
+    }
+    let model0 = model.clone();
+    let target = axial_force_n;
+    let tolerance = settings.force_tolerance_rel * target;
+    let mut bracket = DepthBracket::default();
+    let mut d = settings.initial_depth_m;
+    let mut best: Option<DepthEvaluation> = None;
+    let mut model_best = model0.clone();
+    let mut iterations = 0;
+    let mut failure_status = SolveStatus::Converged;
+    while iterations < settings.max_depth_iterations {
+        iterations += 1;
+        let e = approach.press_from_rest(d, model, &model0, target - tolerance);
+        bracket.record(&e.trace, target, tolerance);
+        if e.status != SolveStatus::Converged {
+            // The approach stopped short of `d`: deeper than its last converged depth there is no
+            // equilibrium along this path (within the halvings).
+            bracket.fail = Some(bracket.fail.map_or(d, |f: f64| f.min(d)));
+            failure_status = e.status.clone();
+        }
+        let closer = best
+            .as_ref()
+            .is_none_or(|b| (e.force - target).abs() < (b.force - target).abs());
+        let done = (e.force - target).abs() <= tolerance && !e.trace.is_empty();
+        if closer && !e.trace.is_empty() {
+            best = Some(e);
+            model_best = model.clone();
+        }
+        if done {
+            break;
+        }
+        match bracket.next_depth(d, target) {
+            Some(next) => d = next,
+            None => break,
+        }
+    }
+    *model = model_best;
+    let Some(best) = best else {
+        let status = if failure_status == SolveStatus::Converged {
+            SolveStatus::MaxIterations
+        } else {
+            failure_status
+        };
+        return Ok(ContactSynthesis::at_touch(
+            rest, at_touch, status, iterations,
+        ));
+    };
+    // The reported status: converged only when the force is within the tolerance.
+    let status = if (best.force - target).abs() <= tolerance {
+        SolveStatus::Converged
+    } else if best.status != SolveStatus::Converged {
+        best.status.clone()
+    } else if failure_status != SolveStatus::Converged {
+        failure_status
+    } else {
+        SolveStatus::MaxIterations
+    };
+    Ok(ContactSynthesis {
+        positions_m: best.positions_m,
+        depth_m: best.depth_m,
+        axial_force_n: best.force,
+        step_depths_m: best.trace.iter().map(|t| t.0).collect(),
+        step_forces_n: best.trace.iter().map(|t| t.1).collect(),
+        steps_m: best.path,
+        world_from_probe_at_touch: at_touch,
+        status,
+        depth_iterations: iterations,
+    })
+}
+
+/// The probe moved back along its approach line to first contact: to the first boundary node
+/// within the tip's footprint of the line.
+fn probe_at_touch(
+    setup: &ProbingSetup,
+    tip: TipShape,
+    world_from_probe: Isometry3<f64>,
+) -> Result<Probe, FemError> {
+    let probe = Probe::new(tip, world_from_probe)?;
+    let axis = probe.axis_world();
     let origin = world_from_probe.translation.vector;
-    // Touch point: first boundary node along the approach line within the tip's footprint.
-    let footprint = footprint_radius(probe0.tip());
+    let footprint = footprint_radius(probe.tip());
     let first = setup
         .boundary_nodes
         .iter()
@@ -124,38 +233,127 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             "the probe's approach line does not meet the mesh surface",
         ));
     }
-    let touch = probe0.advanced(first);
-    let candidates = setup
-        .boundary_nodes
-        .iter()
-        .copied()
-        .filter(|n| setup.attached_nodes.binary_search(n).is_err())
-        .collect::<Vec<_>>();
-    let mut solver = setup.solver(&*model)?;
-    let zero = vec![Vector3::zeros(); setup.mesh.vertices.len()];
-    let bc = setup.dirichlet();
-    let contact_at = |d: f64| ContactProblem {
-        probe: touch.advanced(d),
-        candidate_nodes: candidates.clone(),
-        settings: settings.contact.clone(),
-    };
-    // Moves the probe from depth `from` to `to` in `steps` increments (warm-started from `x`);
-    // an increment whose equilibrium does not converge is undone (positions and model state)
-    // and retried at half the length, up to `max_bisections` halvings in a row; after a
-    // converged increment the length grows back (×2, at most the nominal one). With `stop_n`,
-    // the approach stops after the first converged increment whose axial force reaches it.
-    // Returns the axial force at the last converged depth and the status (not converged when
-    // the halvings are used up); `path` / `trace` receive every converged increment.
-    let max_bisections = settings.max_bisections;
-    let mut advance = |model: &mut M,
-                       x: &mut Vec<Vector3<f64>>,
-                       from: f64,
-                       to: f64,
-                       steps: usize,
-                       stop_n: Option<f64>,
-                       path: &mut Vec<Vec<Vector3<f64>>>,
-                       trace: &mut Vec<(f64, f64)>|
-     -> (f64, SolveStatus) {
+    Ok(probe.advanced(first))
+}
+
+/// The axial force of one approach from rest to a depth: f(d) of the depth search.
+struct DepthEvaluation {
+    /// Axial force at the last converged depth, N.
+    force: f64,
+    /// The last converged depth beyond first contact, m.
+    depth_m: f64,
+    /// `Converged`, or the status of the increment whose halvings were used up.
+    status: SolveStatus,
+    /// Node positions at the last converged depth, m.
+    positions_m: Vec<Vector3<f64>>,
+    /// Node positions after each converged increment, m.
+    path: Vec<Vec<Vector3<f64>>>,
+    /// (depth, axial force) after each converged increment.
+    trace: Vec<(f64, f64)>,
+}
+
+/// The rigid probe pressing the object from first contact: solver, supports and contact
+/// candidates shared by every approach of the depth search.
+struct Approach<'a> {
+    setup: &'a ProbingSetup,
+    settings: &'a ContactSynthesisSettings,
+    /// The probe at first contact (depth 0).
+    touch: Probe,
+    /// Unattached boundary nodes, the ones the probe may push.
+    candidates: Vec<usize>,
+    solver: StaticSolver,
+    bc: DirichletBc,
+    /// No external forces: the probe loads the object through contact only.
+    zero: Vec<Vector3<f64>>,
+}
+
+impl<'a> Approach<'a> {
+    fn new<M: ElasticModel>(
+        setup: &'a ProbingSetup,
+        model: &M,
+        touch: Probe,
+        settings: &'a ContactSynthesisSettings,
+    ) -> Result<Self, FemError> {
+        let candidates = setup
+            .boundary_nodes
+            .iter()
+            .copied()
+            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
+            .collect::<Vec<_>>();
+        Ok(Self {
+            setup,
+            settings,
+            touch,
+            candidates,
+            solver: setup.solver(model)?,
+            bc: setup.dirichlet(),
+            zero: vec![Vector3::zeros(); setup.mesh.vertices.len()],
+        })
+    }
+
+    /// Contact with the probe at depth `d` beyond first contact.
+    fn contact_at(&self, d: f64) -> ContactProblem {
+        ContactProblem {
+            probe: self.touch.advanced(d),
+            candidate_nodes: self.candidates.clone(),
+            settings: self.settings.contact.clone(),
+        }
+    }
+
+    /// f(d): incremental loading from rest to depth `d` (§3.4) in `settings.steps` increments,
+    /// the model reset to `model0` first, so f is a function of d. Stops at the first increment
+    /// whose force reaches `stop_n` (the depth of a stiff object is then sized from the target
+    /// force, not from `initial_depth_m`: a 0.5 N probe on a block that needs 0.2 mm is never
+    /// pushed to 1 mm).
+    fn press_from_rest<M: ElasticModel + Clone>(
+        &mut self,
+        d: f64,
+        model: &mut M,
+        model0: &M,
+        stop_n: f64,
+    ) -> DepthEvaluation {
+        *model = model0.clone();
+        let steps = self.settings.steps;
+        let mut positions_m = self.setup.mesh.vertices.clone();
+        let mut path = Vec::with_capacity(steps);
+        let mut trace = Vec::with_capacity(steps);
+        let (force, status) = self.advance(
+            model,
+            &mut positions_m,
+            (0.0, d),
+            steps,
+            Some(stop_n),
+            &mut path,
+            &mut trace,
+        );
+        DepthEvaluation {
+            force,
+            depth_m: trace.last().map_or(0.0, |t| t.0),
+            status,
+            positions_m,
+            path,
+            trace,
+        }
+    }
+
+    /// Moves the probe from depth `from` to `to` in `steps` increments (warm-started from `x`);
+    /// an increment whose equilibrium does not converge is undone (positions and model state)
+    /// and retried at half the length, up to `max_bisections` halvings in a row; after a
+    /// converged increment the length grows back (×2, at most the nominal one). With `stop_n`,
+    /// the approach stops after the first converged increment whose axial force reaches it.
+    /// Returns the axial force at the last converged depth and the status (not converged when
+    /// the halvings are used up); `path` / `trace` receive every converged increment.
+    #[allow(clippy::too_many_arguments)]
+    fn advance<M: ElasticModel + Clone>(
+        &mut self,
+        model: &mut M,
+        x: &mut Vec<Vector3<f64>>,
+        (from, to): (f64, f64),
+        steps: usize,
+        stop_n: Option<f64>,
+        path: &mut Vec<Vec<Vector3<f64>>>,
+        trace: &mut Vec<(f64, f64)>,
+    ) -> (f64, SolveStatus) {
         let nominal = (to - from) / steps.max(1) as f64;
         let mut h = nominal;
         let mut d = from;
@@ -166,13 +364,14 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             let next = if d + h >= end { to } else { d + h };
             let saved_x = x.clone();
             let saved_model = model.clone();
-            bc.apply(x);
-            let rep = solver.solve(
+            self.bc.apply(x);
+            let contact = self.contact_at(next);
+            let rep = self.solver.solve(
                 model,
                 x,
-                &zero,
-                Some(&contact_at(next)),
-                &settings.equilibrium,
+                &self.zero,
+                Some(&contact),
+                &self.settings.equilibrium,
             );
             if rep.converged() {
                 d = next;
@@ -187,7 +386,7 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             } else {
                 *x = saved_x;
                 *model = saved_model;
-                if halvings >= max_bisections {
+                if halvings >= self.settings.max_bisections {
                     return (force, rep.status);
                 }
                 halvings += 1;
@@ -195,107 +394,56 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             }
         }
         (force, SolveStatus::Converged)
-    };
-    let x = setup.mesh.vertices.clone();
-    if axial_force_n == 0.0 {
-        return Ok(ContactSynthesis {
-            positions_m: x,
-            depth_m: 0.0,
-            axial_force_n: 0.0,
-            steps_m: Vec::new(),
-            step_depths_m: Vec::new(),
-            step_forces_n: Vec::new(),
-            world_from_probe_at_touch: touch.world_from_probe,
-            status: SolveStatus::Converged,
-            depth_iterations: 0,
-        });
     }
-    // f(d): axial force after incremental loading from rest to depth d (§3.4). Every evaluation
-    // starts from rest with the model's state at entry, so f is a function of d; it stops at
-    // the first increment whose force reaches the target (the depth of a stiff object is then
-    // sized from the target force, not from `initial_depth_m`: a 0.5 N probe on a block that
-    // needs 0.2 mm is never pushed to 1 mm).
-    struct Eval {
-        force: f64,
-        depth: f64,
-        status: SolveStatus,
-        xs: Vec<Vector3<f64>>,
-        path: Vec<Vec<Vector3<f64>>>,
-        trace: Vec<(f64, f64)>,
-    }
-    let model0 = model.clone();
-    let target = axial_force_n;
-    let tolerance = settings.force_tolerance_rel * target;
-    let mut eval = |d: f64, model: &mut M| {
-        *model = model0.clone();
-        let mut xs = setup.mesh.vertices.clone();
-        let mut path = Vec::with_capacity(settings.steps);
-        let mut trace = Vec::with_capacity(settings.steps);
-        let (force, status) = advance(
-            model,
-            &mut xs,
-            0.0,
-            d,
-            settings.steps,
-            Some(target - tolerance),
-            &mut path,
-            &mut trace,
-        );
-        let depth = trace.last().map_or(0.0, |t| t.0);
-        Eval {
-            force,
-            depth,
-            status,
-            xs,
-            path,
-            trace,
+}
+
+/// The state of the safeguarded secant (regula falsi once bracketed) on the monotone f(d):
+/// `lo` is the deepest converged (depth, force) below the target, `prev_lo` the one before it,
+/// `hi` the shallowest converged one above it, `fail` the shallowest depth whose approach did not
+/// converge. Every converged increment of every evaluation updates them.
+struct DepthBracket {
+    lo: (f64, f64),
+    prev_lo: Option<(f64, f64)>,
+    hi: Option<(f64, f64)>,
+    fail: Option<f64>,
+}
+
+impl Default for DepthBracket {
+    fn default() -> Self {
+        Self {
+            lo: (0.0, 0.0),
+            prev_lo: None,
+            hi: None,
+            fail: None,
         }
-    };
-    // Safeguarded secant (regula falsi once bracketed) on the monotone f(d): `lo` is the deepest
-    // converged depth below the target, `hi` the shallowest converged depth above it, `fail` the
-    // shallowest depth whose approach did not converge. Every converged increment of every
-    // evaluation updates them.
-    let mut lo = (0.0f64, 0.0f64);
-    let mut prev_lo: Option<(f64, f64)> = None;
-    let mut hi: Option<(f64, f64)> = None;
-    let mut fail: Option<f64> = None;
-    let mut d = settings.initial_depth_m;
-    let mut best: Option<Eval> = None;
-    let mut model_best = model0.clone();
-    let mut iterations = 0;
-    let mut failure_status = SolveStatus::Converged;
-    while iterations < settings.max_depth_iterations {
-        iterations += 1;
-        let e = eval(d, model);
-        for &(dt, ft) in &e.trace {
+    }
+}
+
+impl DepthBracket {
+    /// Takes in the converged increments (depth, force) of one evaluation.
+    fn record(&mut self, trace: &[(f64, f64)], target: f64, tolerance: f64) {
+        for &(dt, ft) in trace {
             if ft < target - tolerance {
-                if dt > lo.0 {
-                    prev_lo = Some(lo);
-                    lo = (dt, ft);
+                if dt > self.lo.0 {
+                    self.prev_lo = Some(self.lo);
+                    self.lo = (dt, ft);
                 }
-            } else if ft > target + tolerance && hi.is_none_or(|h| dt < h.0) {
-                hi = Some((dt, ft));
+            } else if ft > target + tolerance && self.hi.is_none_or(|h| dt < h.0) {
+                self.hi = Some((dt, ft));
             }
         }
-        if e.status != SolveStatus::Converged {
-            // The approach stopped short of `d`: deeper than its last converged depth there is no
-            // equilibrium along this path (within the halvings).
-            fail = Some(fail.map_or(d, |f: f64| f.min(d)));
-            failure_status = e.status.clone();
-        }
-        let closer = best
-            .as_ref()
-            .is_none_or(|b| (e.force - target).abs() < (b.force - target).abs());
-        let done = (e.force - target).abs() <= tolerance && !e.trace.is_empty();
-        if closer && !e.trace.is_empty() {
-            best = Some(e);
-            model_best = model.clone();
-        }
-        if done {
-            break;
-        }
-        // Next depth.
-        d = if let Some(h) = hi {
+    }
+
+    /// The next trial depth after depth `d`; `None` when a failing depth leaves no room above
+    /// `lo`.
+    fn next_depth(&self, d: f64, target: f64) -> Option<f64> {
+        let lo = self.lo;
+        let slope = self.prev_lo.map(|p| (lo.1 - p.1) / (lo.0 - p.0));
+        let secant = |fallback: f64| match slope {
+            Some(k) if k > 0.0 && k.is_finite() => lo.0 + (target - lo.1) / k,
+            _ => fallback,
+        };
+        Some(if let Some(h) = self.hi {
             let w = h.0 - lo.0;
             let t = lo.0 + (target - lo.1) * w / (h.1 - lo.1);
             if t.is_finite() {
@@ -303,67 +451,18 @@ pub fn simulate_probe_contact<M: ElasticModel + Clone>(
             } else {
                 lo.0 + 0.5 * w
             }
-        } else if let Some(f) = fail {
+        } else if let Some(f) = self.fail {
             if f - lo.0 <= 1e-9 + 1e-6 * f {
-                break;
+                return None;
             }
             // The target lies beyond `lo`, and the failing depth bounds the search from above.
-            let slope = prev_lo.map(|p| (lo.1 - p.1) / (lo.0 - p.0));
-            let t = match slope {
-                Some(k) if k > 0.0 && k.is_finite() => lo.0 + (target - lo.1) / k,
-                _ => 0.5 * (lo.0 + f),
-            };
-            t.clamp(lo.0 + 0.05 * (f - lo.0), lo.0 + 0.95 * (f - lo.0))
+            secant(0.5 * (lo.0 + f)).clamp(lo.0 + 0.05 * (f - lo.0), lo.0 + 0.95 * (f - lo.0))
         } else {
             // Not bracketed yet: extrapolate the secant through the last two points below the
             // target, at most doubling the depth.
-            let slope = prev_lo.map(|p| (lo.1 - p.1) / (lo.0 - p.0));
-            let t = match slope {
-                Some(k) if k > 0.0 && k.is_finite() => lo.0 + (target - lo.1) / k,
-                _ => 2.0 * d.max(lo.0),
-            };
-            t.clamp(1.05 * lo.0, 2.0 * lo.0.max(d))
-        };
+            secant(2.0 * d.max(lo.0)).clamp(1.05 * lo.0, 2.0 * lo.0.max(d))
+        })
     }
-    *model = model_best;
-    let Some(best) = best else {
-        return Ok(ContactSynthesis {
-            positions_m: x,
-            depth_m: 0.0,
-            axial_force_n: 0.0,
-            steps_m: Vec::new(),
-            step_depths_m: Vec::new(),
-            step_forces_n: Vec::new(),
-            world_from_probe_at_touch: touch.world_from_probe,
-            status: if failure_status == SolveStatus::Converged {
-                SolveStatus::MaxIterations
-            } else {
-                failure_status
-            },
-            depth_iterations: iterations,
-        });
-    };
-    // The reported status: converged only when the force is within the tolerance.
-    let status = if (best.force - target).abs() <= tolerance {
-        SolveStatus::Converged
-    } else if best.status != SolveStatus::Converged {
-        best.status.clone()
-    } else if failure_status != SolveStatus::Converged {
-        failure_status
-    } else {
-        SolveStatus::MaxIterations
-    };
-    Ok(ContactSynthesis {
-        positions_m: best.xs,
-        depth_m: best.depth,
-        axial_force_n: best.force,
-        step_depths_m: best.trace.iter().map(|t| t.0).collect(),
-        step_forces_n: best.trace.iter().map(|t| t.1).collect(),
-        steps_m: best.path,
-        world_from_probe_at_touch: touch.world_from_probe,
-        status,
-        depth_iterations: iterations,
-    })
 }
 
 /// Radius of the footprint of a tip (disk / sphere / cylinder radius, mesh extent ⟂ z).
