@@ -250,6 +250,12 @@ fn run(effect: Effect, oblique: bool, expect: &str) {
     let mut sim = simulator(20e3);
     let run = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).unwrap();
     let d = &run.diagnosis;
+    if let Some(dir) = std::env::var_os("SOFTCAP_IN_MEMORY_JSON").map(std::path::PathBuf::from) {
+        // the whole diagnosis of the case, to compare runs (`SOFTCAP_IN_MEMORY_JSON=DIR`)
+        std::fs::create_dir_all(&dir).unwrap();
+        let name = std::thread::current().name().unwrap_or("case").replace("::", "-");
+        softcap_diagnose::write_json(&dir.join(format!("{name}.json")), d).unwrap();
+    }
     for r in &d.ranked {
         eprintln!(
             "{:>16} score {:+.3} before {:.3e} after {:.3e} params {:?}",

@@ -62,7 +62,8 @@ fn stage_settings() -> StageSettings {
 
 /// Runs the chain on `fixtures/scenarios/suite/<name>.toml` and checks the diagnosis; with
 /// `SOFTCAP_SUITE_REPORT=DIR` the diagnose report (figures) of the case is written to `DIR/<name>/`;
-/// `SOFTCAP_SUITE_REFINE` sets the fit-mesh refinement ([`stage_settings`]).
+/// `SOFTCAP_SUITE_REFINE` sets the fit-mesh refinement ([`stage_settings`]); with
+/// `SOFTCAP_SUITE_JSON=DIR` the case's diagnosis JSON is kept as `DIR/<name>.json`.
 fn check(name: &str) {
     let scenario = Scenario::load(&common::suite_dir().join(format!("{name}.toml"))).unwrap();
     let inputs = common::prepare_inputs(&scenario);
@@ -79,6 +80,14 @@ fn check(name: &str) {
     })
     .unwrap();
     let t_diagnose = t0.elapsed().as_secs_f64();
+    if let Some(dir) = std::env::var_os("SOFTCAP_SUITE_JSON").map(PathBuf::from) {
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::copy(
+            inputs.dir.path().join("diagnosis.json"),
+            dir.join(format!("{name}.json")),
+        )
+        .unwrap();
+    }
     let want = expected(name);
     let top = &d.ranked[0];
     let ranked: Vec<String> = d
