@@ -4,16 +4,17 @@
 //! re-simulation (DESIGN.md "Missing-physics diagnosis" 1–4; issue 8).
 
 use crate::confirm::Confirmed;
+use crate::evidence::{
+    Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
+};
 use crate::hypothesis::{
     Field, Hypothesis, Prepared, Refit, predict, refit_scored, refit_variants_scored,
     stiffness_scale_variant,
 };
 use crate::recording::Recording;
-use crate::residual::{
-    Component, Located, Residuals, component, locate, noise_sigma_m, residuals, rms_where_m,
-};
+use crate::residual::{Residuals, locate, residuals, rms_where_m};
 use crate::segment::{Phase, Region, SegmentSettings, Segmentation};
-use crate::signal::crossing_time;
+use crate::signatures::{Signatures, signatures};
 use crate::sim::{ProbeLoad, ProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
@@ -72,80 +73,6 @@ impl Default for DiagnoseSettings {
             max_confirmations: 2,
         }
     }
-}
-
-/// One ranked hypothesis (the JSON schema of issue 8).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RankedHypothesis {
-    /// Catalog name.
-    pub hypothesis: String,
-    /// Fraction of the held-out mean-square error the extension explains, 1 − after²/before².
-    pub score: f64,
-    /// Held-out RMS marker error of the default model, m.
-    pub heldout_rmse_before_m: f64,
-    /// Held-out RMS marker error with the extension refitted on the other locations, m.
-    pub heldout_rmse_after_m: f64,
-    /// Full-data parameters.
-    pub params: BTreeMap<String, f64>,
-    /// Evidence: information criterion, signatures, re-simulation.
-    pub evidence: BTreeMap<String, serde_json::Value>,
-}
-
-/// The diagnosis document (`--json`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Diagnosis {
-    /// Name of the missing physics, or `none`.
-    pub verdict: String,
-    /// Every hypothesis, best first (`none` included).
-    pub ranked: Vec<RankedHypothesis>,
-    /// Where the default model's error lives, largest first.
-    pub located: Vec<Located>,
-}
-
-/// Signature features separating look-alikes (see the issue's "Use signatures" paragraph).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Signatures {
-    /// Mean relative change of ‖f‖ over the holds ((last − first)/peak): < 0 relaxation
-    /// (material), > 0 force still rising (sensor).
-    pub hold_force_drift: f64,
-    /// Mean delay of the force behind the tip depth at 10 % of the ramp, s.
-    pub force_delay_10_s: f64,
-    /// … at 50 % of the ramp, s (pure time shift: equal delays; first-order lag: growing delay).
-    pub force_delay_50_s: f64,
-    /// Area of the normalised force–depth loop (0 elastic, > 0 hysteretic).
-    pub force_depth_hysteresis: f64,
-    /// Area of the normalised (probed-marker displacement along the axis)–depth loop.
-    pub geometry_depth_hysteresis: f64,
-    /// RMS baseline residual of probed markers after release, m (permanent offset).
-    pub released_offset_m: f64,
-    /// RMS of (residual after release − the same marker's mean residual at rest) over probed
-    /// markers, m: the permanent set the probing left. A template that differs from the
-    /// observed rest shape (gravity pre-load) offsets rest and released frames alike and
-    /// cancels here; a plastic set exists only after release.
-    pub released_set_m: f64,
-    /// RMS tangential baseline residual of probed markers in contact, m.
-    pub contact_tangential_m: f64,
-    /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
-    /// of the markers within the contact radius of the tip (`crate::spatial::contact_radius_m`)
-    /// over the contact frames of locations where the tip travels along the surface, m: > 0 when
-    /// the surface is dragged along with the tip beyond the model (probe friction); 0 without
-    /// tangential travel.
-    #[serde(default)]
-    pub contact_drag_m: f64,
-    /// RMS baseline residual of attached markers in contact, m.
-    pub attached_motion_m: f64,
-    /// |mean over locations of the mean tangential residual (rest mean removed) of the probed
-    /// markers in contact|, m: a body-fixed lateral shift under every press (anisotropy,
-    /// [`crate::spatial::lateral_shift`]).
-    #[serde(default)]
-    pub lateral_shift_m: f64,
-    /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
-    #[serde(default)]
-    pub lateral_shift_consistency: f64,
-    /// Mean baseline residual along gravity at rest, m.
-    pub rest_gravity_m: f64,
-    /// Marker noise σ per coordinate, m.
-    pub noise_sigma_m: f64,
 }
 
 /// Everything the report needs.
@@ -272,177 +199,6 @@ pub fn prepare(
         gravity_field_m,
         friction_dir,
     })
-}
-
-fn loop_area(x: &[f64], y: &[f64]) -> f64 {
-    // shoelace over the closed polygon, normalised by the bounding box
-    let n = x.len();
-    if n < 3 {
-        return 0.0;
-    }
-    let (xr, yr) = (
-        x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-            - x.iter().cloned().fold(f64::INFINITY, f64::min),
-        y.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-            - y.iter().cloned().fold(f64::INFINITY, f64::min),
-    );
-    if xr <= 0.0 || yr <= 0.0 {
-        return 0.0;
-    }
-    let mut a = 0.0;
-    for i in 0..n {
-        let j = (i + 1) % n;
-        a += x[i] * y[j] - x[j] * y[i];
-    }
-    (0.5 * a).abs() / (xr * yr)
-}
-
-/// Signature features of the recording and the baseline residual.
-pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signatures {
-    let t = rec.times_s();
-    let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
-    let g = rec.gravity_dir();
-    let mut s = Signatures {
-        noise_sigma_m: noise_sigma_m(rec, seg),
-        ..Default::default()
-    };
-    let (mut drift, mut nd) = (0.0, 0);
-    let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
-    let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
-    for l in &seg.locations {
-        let cf = &l.contact_frames;
-        let hold: Vec<usize> = cf
-            .iter()
-            .copied()
-            .filter(|&k| seg.phases[k] == Phase::Hold)
-            .collect();
-        if hold.len() >= 2 && l.peak_force_n > 0.0 {
-            drift += (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n;
-            nd += 1;
-        }
-        // depth and force crossings on the first ramp of the location
-        let Some(&s0) = cf.first() else { continue };
-        let start = s0.saturating_sub(1);
-        let end = cf
-            .last()
-            .map(|&e| (e + 2).min(rec.frames.len()))
-            .unwrap_or(start);
-        let depth: Vec<f64> = (0..rec.frames.len())
-            .map(|k| (rec.frames[k].tip_m - rec.frames[start].tip_m).dot(&l.axis))
-            .collect();
-        let dmax = (start..end).map(|k| depth[k]).fold(0.0, f64::max);
-        if dmax > 0.0 {
-            let peak_k = (start..end)
-                .max_by(|&a, &b| depth[a].total_cmp(&depth[b]))
-                .unwrap_or(start);
-            let fpk = (start..=peak_k).map(|k| fmag[k]).fold(0.0, f64::max);
-            // search force crossings over the whole contact run (force may peak after the depth)
-            let fpk_all = (start..end).map(|k| fmag[k]).fold(0.0, f64::max).max(fpk);
-            // geometry signal: mean displacement of the near markers along the probe axis
-            let near: Vec<usize> = (0..rec.num_markers())
-                .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
-                .collect();
-            let geo: Vec<f64> = (0..rec.frames.len())
-                .map(|k| {
-                    let (mut acc, mut n) = (0.0, 0);
-                    for &m in &near {
-                        if let Some(p) = rec.frames[k].markers_m[m] {
-                            acc += (p - rec.rest_markers_m[m]).dot(&l.axis);
-                            n += 1;
-                        }
-                    }
-                    if n > 0 { acc / n as f64 } else { 0.0 }
-                })
-                .collect();
-            let gmax = (start..end).map(|k| geo[k]).fold(0.0, f64::max);
-            let _ = (peak_k, fpk);
-            if let (Some(a10), Some(b10), Some(a50), Some(b50)) = (
-                crossing_time(&t, &geo, 0.1 * gmax, start..end),
-                crossing_time(&t, &fmag, 0.1 * fpk_all, start..end),
-                crossing_time(&t, &geo, 0.5 * gmax, start..end),
-                crossing_time(&t, &fmag, 0.5 * fpk_all, start..end),
-            ) {
-                d10 += b10 - a10;
-                d50 += b50 - a50;
-                ndel += 1;
-            }
-            // loops over the contact run
-            let idx: Vec<usize> = (start..end).collect();
-            let xs: Vec<f64> = idx.iter().map(|&k| depth[k]).collect();
-            let fs: Vec<f64> = idx.iter().map(|&k| fmag[k]).collect();
-            let gs: Vec<f64> = idx.iter().map(|&k| geo[k]).collect();
-            fh += loop_area(&xs, &fs);
-            gh += loop_area(&xs, &gs);
-            nh += 1;
-        }
-    }
-    if nd > 0 {
-        s.hold_force_drift = drift / nd as f64;
-    }
-    if ndel > 0 {
-        s.force_delay_10_s = d10 / ndel as f64;
-        s.force_delay_50_s = d50 / ndel as f64;
-    }
-    if nh > 0 {
-        s.force_depth_hysteresis = fh / nh as f64;
-        s.geometry_depth_hysteresis = gh / nh as f64;
-    }
-    let rms = |sel: &dyn Fn(usize, usize) -> bool, f: &dyn Fn(&Vector3<f64>, usize) -> f64| {
-        let (mut a, mut n) = (0.0, 0);
-        for (k, row) in res.iter().enumerate() {
-            for (m, r) in row.iter().enumerate() {
-                if let Some(r) = r
-                    && sel(k, m)
-                {
-                    let v = f(r, m);
-                    a += v * v;
-                    n += 1;
-                }
-            }
-        }
-        if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
-    };
-    s.released_offset_m = rms(
-        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
-        &|r, _| r.norm(),
-    );
-    // Mean residual of every marker over the rest frames (zero when never seen at rest).
-    let rest_mean = crate::residual::rest_mean(res, seg, rec.num_markers());
-    s.released_set_m = rms(
-        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
-        &|r, m| (r - rest_mean[m]).norm(),
-    );
-    s.contact_tangential_m = rms(
-        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
-        &|r, m| {
-            component(
-                r,
-                Component::Tangential,
-                &rec.normals[m],
-                &g,
-                &Vector3::zeros(),
-            )
-        },
-    );
-    s.contact_drag_m = crate::friction::drag_signature_m(rec, seg, res);
-    (s.lateral_shift_m, s.lateral_shift_consistency) = crate::spatial::lateral_shift(rec, seg, res);
-    s.attached_motion_m = rms(
-        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
-        &|r, _| r.norm(),
-    );
-    let (mut a, mut n) = (0.0, 0);
-    for (k, row) in res.iter().enumerate() {
-        if seg.phases[k] == Phase::Rest {
-            for r in row.iter().flatten() {
-                a += r.dot(&g);
-                n += 1;
-            }
-        }
-    }
-    if n > 0 {
-        s.rest_gravity_m = a / n as f64;
-    }
-    s
 }
 
 /// How strongly the signatures support `h` (0 = no opinion, 1 = supported, −1 = contradicted).
@@ -973,12 +729,12 @@ pub fn diagnose(
         rows.insert(0, r);
     }
 
-    let focus_json: Vec<serde_json::Value> = if focus.is_empty() {
+    let focus_cells: Vec<String> = if focus.is_empty() {
         vec!["all".into()]
     } else {
         focus
             .iter()
-            .map(|(r, ph)| format!("{}/{}", r.name(), ph.name()).into())
+            .map(|(r, ph)| format!("{}/{}", r.name(), ph.name()))
             .collect()
     };
     let mut ranked = Vec::new();
@@ -990,42 +746,45 @@ pub fn diagnose(
             .ok_or_else(|| DiagnoseError::BadRecording {
                 what: "internal: refit lost".into(),
             })?;
-        let mut evidence: BTreeMap<String, serde_json::Value> = BTreeMap::new();
-        evidence.insert("delta_bic".into(), row.dbic.into());
-        evidence.insert("signature_support".into(), row.support.into());
-        evidence.insert("qualifies".into(), row.qualifies.into());
-        if by_signature.contains(&row.h) || after_screen.contains(&row.h) {
-            evidence.insert("confirmed_by_signature".into(), true.into());
-        }
-        evidence.insert("num_params".into(), r.num_params.into());
-        match crate::spatial::effect_cells_name(row.h).filter(|_| masks.contains_key(&row.h)) {
-            Some(name) => evidence.insert("scored_cells".into(), vec![name].into()),
-            None => evidence.insert("scored_cells".into(), focus_json.clone().into()),
+        let scored_cells =
+            match crate::spatial::effect_cells_name(row.h).filter(|_| masks.contains_key(&row.h)) {
+                Some(name) => vec![name.to_string()],
+                None => focus_cells.clone(),
+            };
+        let mut screened = Screened {
+            delta_bic: row.dbic,
+            signature_support: row.support,
+            qualifies: row.qualifies,
+            confirmed_by_signature: by_signature.contains(&row.h) || after_screen.contains(&row.h),
+            num_params: r.num_params,
+            method: "linearised refit (tangent response)".into(),
+            heldout_rmse_linearised_m: row.after,
         };
-        evidence.insert("heldout_rmse_all_before_m".into(), before_all.into());
-        evidence.insert(
-            "method".into(),
-            "linearised refit (tangent response)".into(),
-        );
-        evidence.insert("heldout_rmse_linearised_m".into(), row.after.into());
+        let mut evidence = Evidence {
+            signatures: sig.clone(),
+            scored_cells: Some(scored_cells),
+            heldout_rmse_all_before_m: Some(before_all),
+            ..Default::default()
+        };
         let mut after = row.after;
         let mut params: BTreeMap<String, f64> = r.params.iter().cloned().collect();
         match confirmed.get(&row.h) {
             Some(Ok(c)) => {
-                evidence.insert("heldout_rmse_resimulated_m".into(), c.after_scored_m.into());
-                evidence.insert("heldout_rmse_all_after_m".into(), c.after_all_m.into());
-                evidence.insert("method".into(), c.method.clone().into());
+                evidence.resimulated = Some(Resimulated {
+                    heldout_rmse_resimulated_m: c.after_scored_m,
+                    heldout_rmse_all_after_m: c.after_all_m,
+                });
+                screened.method = c.method.clone();
                 after = c.after_scored_m;
                 params = c.params.iter().cloned().collect();
                 if Some(row.h) == verdict {
                     extended_m = Some(c.prediction.clone());
                 }
             }
-            Some(Err(e)) => {
-                evidence.insert("confirmation_failed".into(), e.clone().into());
-            }
+            Some(Err(e)) => evidence.confirmation_failed = Some(e.clone()),
             None => {}
         }
+        evidence.screened = Some(screened);
         if Some(row.h) == verdict && extended_m.is_none() {
             extended_m = Some(predict(row.h, rec, &seg, &prepared, r));
         }
@@ -1045,44 +804,46 @@ pub fn diagnose(
         });
     }
     for h in not_applicable {
-        let mut evidence = BTreeMap::new();
-        evidence.insert("applicable".into(), false.into());
-        evidence.insert(
-            "reason".into(),
-            match h {
-                Hypothesis::GravityPreload => "no gravity in the session",
-                Hypothesis::ProbeFriction => "no tangential probe travel or tilt at any location",
-                Hypothesis::SupportSlip => "no support plane and no gravity direction",
-                _ => "no extension field for this recording",
-            }
-            .into(),
-        );
+        let reason = match h {
+            Hypothesis::GravityPreload => "no gravity in the session",
+            Hypothesis::ProbeFriction => "no tangential probe travel or tilt at any location",
+            Hypothesis::SupportSlip => "no support plane and no gravity direction",
+            _ => "no extension field for this recording",
+        };
         ranked.push(RankedHypothesis {
             hypothesis: h.name().into(),
             score: 0.0,
             heldout_rmse_before_m: before,
             heldout_rmse_after_m: before,
             params: BTreeMap::new(),
-            evidence,
+            evidence: Evidence {
+                signatures: sig.clone(),
+                not_applicable: Some(NotApplicable {
+                    applicable: false,
+                    reason: reason.into(),
+                }),
+                ..Default::default()
+            },
         });
     }
     // `none`: the default model itself.
-    let mut none_ev = BTreeMap::new();
-    none_ev.insert("noise_sigma_m".into(), sig.noise_sigma_m.into());
-    none_ev.insert("explainable_beyond_noise".into(), explainable.into());
-    none_ev.insert(
-        "heldout_rmse_stiffness_scale_only_m".into(),
-        scale_only.into(),
-    );
-    none_ev.insert("scored_cells".into(), focus_json.clone().into());
-    none_ev.insert("heldout_rmse_all_before_m".into(), before_all.into());
     let none = RankedHypothesis {
         hypothesis: "none".into(),
         score: 0.0,
         heldout_rmse_before_m: before,
         heldout_rmse_after_m: before,
         params: BTreeMap::new(),
-        evidence: none_ev,
+        evidence: Evidence {
+            signatures: sig.clone(),
+            scored_cells: Some(focus_cells),
+            heldout_rmse_all_before_m: Some(before_all),
+            baseline: Some(Baseline {
+                noise_sigma_m: sig.noise_sigma_m,
+                explainable_beyond_noise: explainable,
+                heldout_rmse_stiffness_scale_only_m: scale_only,
+            }),
+            ..Default::default()
+        },
     };
     if verdict.is_some() {
         let pos = ranked
@@ -1094,11 +855,6 @@ pub fn diagnose(
         ranked.insert(pos, none);
     } else {
         ranked.insert(0, none);
-    }
-    // signature evidence on every hypothesis row
-    let sig_json = serde_json::to_value(&sig).unwrap_or_default();
-    for r in &mut ranked {
-        r.evidence.insert("signatures".into(), sig_json.clone());
     }
 
     let residuals_after = match &extended_m {

@@ -12,6 +12,8 @@
 //! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits (screening) |
 //! | [`temporal`] | viscoelasticity, sensor-lag, clock-offset: grids of extended models re-simulated in time order, leave-one-location-out with a compliance scale |
 //! | [`extend`] | the extended FEM models (Prony, J2 plasticity, support springs, transverse isotropy) re-simulated over the recording |
+//! | [`signatures`] | the signature features that separate look-alike hypotheses |
+//! | [`evidence`] | the diagnosis document: verdict, ranked hypotheses with typed [`Evidence`] |
 //! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
 //! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
 //! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
@@ -53,6 +55,7 @@
 mod confirm;
 pub mod diagnose;
 mod error;
+pub mod evidence;
 pub mod extend;
 pub mod friction;
 pub mod hypothesis;
@@ -64,16 +67,17 @@ mod run;
 pub mod segment;
 pub mod sensor;
 pub mod signal;
+pub mod signatures;
 pub mod sim;
 pub mod spatial;
 pub mod temporal;
 
 pub use confirm::{contact_sequence, pose_sequence};
-pub use diagnose::{
-    DiagnoseSettings, Diagnosis, DiagnosisRun, RankedHypothesis, Signatures, diagnose, prepare,
-    signature_support, signatures,
-};
+pub use diagnose::{DiagnoseSettings, DiagnosisRun, diagnose, prepare, signature_support};
 pub use error::{DiagnoseError, Result};
+pub use evidence::{
+    Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
+};
 pub use extend::{Extension, SequenceFrame, transverse_from_isotropic, transverse_with_poisson};
 pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
 pub use io::{
@@ -87,6 +91,7 @@ pub use residual::{
 };
 pub use run::{RunConfig, StageSettings, run};
 pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
+pub use signatures::{Signatures, signatures};
 pub use sim::{FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SimLoad, SimOutput};
 
 pub use nalgebra;

@@ -2,7 +2,8 @@
 //! with a residual map on the surface, residual against time, measured vs simulated
 //! force–displacement loops and a before/after table) and `diagnosis.mcap`.
 
-use crate::diagnose::{Diagnosis, DiagnosisRun};
+use crate::diagnose::DiagnosisRun;
+use crate::evidence::Diagnosis;
 use crate::hypothesis::Hypothesis;
 use crate::recording::Recording;
 use crate::residual::Residuals;
@@ -68,7 +69,7 @@ pub fn diagnosis_message(d: &Diagnosis) -> proto::Diagnosis {
                 heldout_rmse_before_m: r.heldout_rmse_before_m,
                 heldout_rmse_after_m: r.heldout_rmse_after_m,
                 params: r.params.iter().map(|(k, v)| key_value(k, *v)).collect(),
-                evidence_json: serde_json::to_string(&r.evidence).unwrap_or_default(),
+                evidence_json: r.evidence.to_json().to_string(),
             })
             .collect(),
         located: d

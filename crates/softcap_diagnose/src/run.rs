@@ -1,7 +1,8 @@
 //! The stage entry point: `softcap diagnose capture.mcap material.mcap -o diagnosis.mcap
 //! [--json FILE] [--report DIR]`.
 
-use crate::diagnose::{DiagnoseSettings, Diagnosis, DiagnosisRun, diagnose};
+use crate::diagnose::{DiagnoseSettings, DiagnosisRun, diagnose};
+use crate::evidence::Diagnosis;
 use crate::io::{MaterialSource, read_material_from, recording_from_capture};
 use crate::output::{write_json, write_mcap, write_report};
 use crate::sim::{FemProbeSimulator, FemSimSettings};
@@ -138,8 +139,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         r => r?,
     };
     for r in &mut result.diagnosis.ranked {
-        r.evidence
-            .insert("default_model".into(), material.source.clone().into());
+        r.evidence.default_model = Some(material.source.clone());
     }
     // The content digest (`softcap inspect digest`): equal for equal material content whatever
     // the material file's own provenance timestamp, so reruns reproduce this file's digest.

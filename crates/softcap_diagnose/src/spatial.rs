@@ -233,7 +233,7 @@ pub fn lateral_shift(
 /// locations (≥ [`LATERAL_CONSISTENCY`]). Such a hypothesis is confirmed by re-simulation even
 /// when its linearised screen (a fibre component of the baseline displacement scaled, a poor
 /// proxy for the redirected field) does not qualify; the re-simulated held-out gain still decides.
-pub fn confirmed_by_signature(h: Hypothesis, sig: &crate::diagnose::Signatures) -> bool {
+pub fn confirmed_by_signature(h: Hypothesis, sig: &crate::signatures::Signatures) -> bool {
     h == Hypothesis::Anisotropy
         && sig.lateral_shift_m > 3.0 * sig.noise_sigma_m
         && sig.lateral_shift_consistency >= LATERAL_CONSISTENCY
@@ -805,7 +805,7 @@ mod tests {
         let (shift, _) = lateral_shift(&rec, &seg, &res);
         assert!(shift < 1e-12, "{shift}");
         // the rule: above 3σ and consistent
-        let mut sig = crate::diagnose::Signatures {
+        let mut sig = crate::signatures::Signatures {
             noise_sigma_m: 1e-5,
             lateral_shift_m: 5e-5,
             lateral_shift_consistency: 0.96,

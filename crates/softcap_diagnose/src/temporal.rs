@@ -22,12 +22,12 @@
 //! ramp → a pure time shift (clock-offset) — see [`crate::diagnose::signature_support`].
 
 use crate::confirm::{Candidate, ComplianceScale, Confirmed, contact_sequence, lolo_confirm};
-use crate::diagnose::Signatures;
 use crate::extend::{Extension, SequenceFrame};
 use crate::hypothesis::{Field, Hypothesis, Prepared, Refit};
 use crate::recording::Recording;
 use crate::segment::{Phase, Segmentation};
 use crate::signal::sample;
+use crate::signatures::Signatures;
 use crate::sim::{ProbeLoad, ProbeSimulator, SequenceJob, SimLoad};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;

@@ -253,7 +253,10 @@ fn run(effect: Effect, oblique: bool, expect: &str) {
     if let Some(dir) = std::env::var_os("SOFTCAP_IN_MEMORY_JSON").map(std::path::PathBuf::from) {
         // the whole diagnosis of the case, to compare runs (`SOFTCAP_IN_MEMORY_JSON=DIR`)
         std::fs::create_dir_all(&dir).unwrap();
-        let name = std::thread::current().name().unwrap_or("case").replace("::", "-");
+        let name = std::thread::current()
+            .name()
+            .unwrap_or("case")
+            .replace("::", "-");
         softcap_diagnose::write_json(&dir.join(format!("{name}.json")), d).unwrap();
     }
     for r in &d.ranked {

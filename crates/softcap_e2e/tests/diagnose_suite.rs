@@ -94,7 +94,8 @@ fn check(name: &str) {
         .ranked
         .iter()
         .map(|r| {
-            let ev = |k: &str| r.evidence.get(k).map(|v| v.to_string()).unwrap_or_default();
+            let evidence = r.evidence.to_json();
+            let ev = |k: &str| evidence.get(k).map(|v| v.to_string()).unwrap_or_default();
             format!(
                 "{} {:.4}->{:.4} mm q={} resim={} all={}->{} {}{} params={:?}",
                 r.hypothesis,
@@ -124,10 +125,7 @@ fn check(name: &str) {
     println!("{name} ranked: {ranked:#?}");
     println!(
         "{name} signatures: {}",
-        top.evidence
-            .get("signatures")
-            .map(|v| v.to_string())
-            .unwrap_or_default()
+        top.evidence.to_json()["signatures"]
     );
     assert_eq!(d.verdict, want, "{name}: ranked {ranked:#?}");
     if want != "none" {

@@ -1,0 +1,233 @@
+//! The diagnosis document (`--json`, issue 8 schema): the verdict, every hypothesis ranked with
+//! its held-out errors, parameters and typed [`Evidence`], and where the default model's error
+//! lives. The evidence is serialized only here, as a JSON object with sorted keys.
+
+use crate::residual::Located;
+use crate::signatures::Signatures;
+use serde::{Deserialize, Serialize, Serializer};
+use std::collections::BTreeMap;
+
+/// The diagnosis document (`--json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Diagnosis {
+    /// Name of the missing physics, or `none`.
+    pub verdict: String,
+    /// Every hypothesis, best first (`none` included).
+    pub ranked: Vec<RankedHypothesis>,
+    /// Where the default model's error lives, largest first.
+    pub located: Vec<Located>,
+}
+
+/// One ranked hypothesis (the JSON schema of issue 8).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RankedHypothesis {
+    /// Catalog name.
+    pub hypothesis: String,
+    /// Fraction of the held-out mean-square error the extension explains, 1 − after²/before².
+    pub score: f64,
+    /// Held-out RMS marker error of the default model, m.
+    pub heldout_rmse_before_m: f64,
+    /// Held-out RMS marker error with the extension refitted on the other locations, m.
+    pub heldout_rmse_after_m: f64,
+    /// Full-data parameters.
+    pub params: BTreeMap<String, f64>,
+    /// Evidence: information criterion, signatures, re-simulation.
+    #[serde(serialize_with = "sorted_keys")]
+    pub evidence: Evidence,
+}
+
+/// What a ranked row rests on. Which parts are present depends on the row: a hypothesis that was
+/// screened carries [`Screened`] (and [`Resimulated`] or `confirmation_failed` when it was sent
+/// to re-simulation), one that cannot act on the recording [`NotApplicable`], the `none` row
+/// [`Baseline`]. Written as one flat JSON object (keys sorted).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Evidence {
+    /// Signature features of the recording and the baseline residual (every row).
+    pub signatures: Signatures,
+    /// The default model: which material of material.mcap it is (set by the stage run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub default_model: Option<String>,
+    /// Where the held-out errors are scored: `all`, the focus cells `region/phase`, or the
+    /// hypothesis's own effect cells (screened rows and `none`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scored_cells: Option<Vec<String>>,
+    /// Held-out RMS of the default model over every observation of the locations, m (screened
+    /// rows and `none`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rmse_all_before_m: Option<f64>,
+    /// The linearised screen of a hypothesis.
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub screened: Option<Screened>,
+    /// The confirmation by re-simulation, when it ran.
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub resimulated: Option<Resimulated>,
+    /// Why the re-simulation failed, when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub confirmation_failed: Option<String>,
+    /// The hypothesis cannot act on this recording.
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub not_applicable: Option<NotApplicable>,
+    /// The `none` row: the default model against the noise and the stiffness-scale nuisance.
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<Baseline>,
+}
+
+/// The linearised screen of one hypothesis (leave-one-location-out, BIC).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Screened {
+    /// BIC of the extension minus the default model's (< 0: the extension is preferred).
+    pub delta_bic: f64,
+    /// How strongly the signatures support it (−1 contradicted … 1 supported).
+    pub signature_support: f64,
+    /// It passed the screen (held-out gain, BIC, noise, stiffness-scale nuisance).
+    pub qualifies: bool,
+    /// Sent to re-simulation by its signature alone (written only when true).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub confirmed_by_signature: bool,
+    /// Number of parameters of the chosen variant (grid + linear).
+    pub num_params: usize,
+    /// How the row's `heldout_rmse_after_m` was obtained: the linearised refit or the
+    /// re-simulated extended model.
+    pub method: String,
+    /// Held-out RMS of the linearised refit, m.
+    pub heldout_rmse_linearised_m: f64,
+}
+
+/// The extended model re-simulated over the recording, leave-one-location-out.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Resimulated {
+    /// Held-out RMS on the scored cells, m.
+    pub heldout_rmse_resimulated_m: f64,
+    /// Held-out RMS on every observation of the locations, m.
+    pub heldout_rmse_all_after_m: f64,
+}
+
+/// A hypothesis that cannot act on the recording.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NotApplicable {
+    /// Always false.
+    pub applicable: bool,
+    /// Why not.
+    pub reason: String,
+}
+
+/// The `none` row's evidence.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Baseline {
+    /// Marker noise σ per coordinate, m.
+    pub noise_sigma_m: f64,
+    /// The default model's held-out MSE exceeds the noise floor (settings' factor × 3σ²).
+    pub explainable_beyond_noise: bool,
+    /// Held-out RMS with only the material's stiffness refitted (the nuisance model), m.
+    pub heldout_rmse_stiffness_scale_only_m: f64,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+/// Serializes through a `serde_json::Value`, whose objects keep their keys sorted: the evidence
+/// object (and its signatures) is written in key order, whatever the struct's field order.
+fn sorted_keys<S: Serializer>(e: &Evidence, s: S) -> Result<S::Ok, S::Error> {
+    serde_json::to_value(e)
+        .map_err(serde::ser::Error::custom)?
+        .serialize(s)
+}
+
+impl Evidence {
+    /// The evidence as the JSON object written to the document (keys sorted).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::to_value(self).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn screened_row() -> Evidence {
+        Evidence {
+            signatures: Signatures {
+                noise_sigma_m: 1e-5,
+                ..Default::default()
+            },
+            default_model: Some("homogeneous".into()),
+            scored_cells: Some(vec!["probed/hold".into()]),
+            heldout_rmse_all_before_m: Some(2e-4),
+            screened: Some(Screened {
+                delta_bic: -42.0,
+                signature_support: 1.0,
+                qualifies: true,
+                confirmed_by_signature: false,
+                num_params: 3,
+                method: "re-simulated".into(),
+                heldout_rmse_linearised_m: 1e-4,
+            }),
+            resimulated: Some(Resimulated {
+                heldout_rmse_resimulated_m: 5e-5,
+                heldout_rmse_all_after_m: 6e-5,
+            }),
+            ..Default::default()
+        }
+    }
+
+    /// The JSON keys of a screened, re-simulated row are the documented flat ones, sorted; the
+    /// document reads back to the same typed evidence.
+    #[test]
+    fn evidence_is_one_flat_sorted_object_and_reads_back() {
+        let e = screened_row();
+        let v = e.to_json();
+        let keys: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+        assert_eq!(
+            keys,
+            [
+                "default_model",
+                "delta_bic",
+                "heldout_rmse_all_after_m",
+                "heldout_rmse_all_before_m",
+                "heldout_rmse_linearised_m",
+                "heldout_rmse_resimulated_m",
+                "method",
+                "num_params",
+                "qualifies",
+                "scored_cells",
+                "signature_support",
+                "signatures",
+            ]
+        );
+        let row = RankedHypothesis {
+            hypothesis: "viscoelasticity".into(),
+            score: 0.9,
+            heldout_rmse_before_m: 2e-4,
+            heldout_rmse_after_m: 5e-5,
+            params: BTreeMap::new(),
+            evidence: e.clone(),
+        };
+        let text = serde_json::to_string(&row).unwrap();
+        assert!(text.contains(r#""evidence":{"default_model":"homogeneous","delta_bic":-42.0,"#));
+        let back: RankedHypothesis = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.evidence, e);
+        // the `none` row and a row that is not applicable read back too
+        for e in [
+            Evidence {
+                baseline: Some(Baseline {
+                    noise_sigma_m: 1e-5,
+                    explainable_beyond_noise: true,
+                    heldout_rmse_stiffness_scale_only_m: 1e-4,
+                }),
+                scored_cells: Some(vec!["all".into()]),
+                ..Default::default()
+            },
+            Evidence {
+                not_applicable: Some(NotApplicable {
+                    applicable: false,
+                    reason: "no gravity in the session".into(),
+                }),
+                ..Default::default()
+            },
+        ] {
+            let back: Evidence = serde_json::from_value(e.to_json()).unwrap();
+            assert_eq!(back, e);
+        }
+    }
+}

@@ -1,0 +1,228 @@
+//! Signature features of a recording and its baseline residual: the numbers that separate
+//! look-alike hypotheses (issue 8, "Use signatures"): force relaxing or still rising in the holds,
+//! force delays at 10 % and 50 % of the ramp, force–depth and geometry–depth hysteresis, the set
+//! left after release, support motion, the drag along the tip's travel, a body-fixed lateral shift.
+
+use crate::recording::Recording;
+use crate::residual::{Component, Residuals, component, noise_sigma_m};
+use crate::segment::{Phase, Region, Segmentation};
+use crate::signal::crossing_time;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Signature features separating look-alikes (see the issue's "Use signatures" paragraph).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Signatures {
+    /// Mean relative change of ‖f‖ over the holds ((last − first)/peak): < 0 relaxation
+    /// (material), > 0 force still rising (sensor).
+    pub hold_force_drift: f64,
+    /// Mean delay of the force behind the tip depth at 10 % of the ramp, s.
+    pub force_delay_10_s: f64,
+    /// … at 50 % of the ramp, s (pure time shift: equal delays; first-order lag: growing delay).
+    pub force_delay_50_s: f64,
+    /// Area of the normalised force–depth loop (0 elastic, > 0 hysteretic).
+    pub force_depth_hysteresis: f64,
+    /// Area of the normalised (probed-marker displacement along the axis)–depth loop.
+    pub geometry_depth_hysteresis: f64,
+    /// RMS baseline residual of probed markers after release, m (permanent offset).
+    pub released_offset_m: f64,
+    /// RMS of (residual after release − the same marker's mean residual at rest) over probed
+    /// markers, m: the permanent set the probing left. A template that differs from the
+    /// observed rest shape (gravity pre-load) offsets rest and released frames alike and
+    /// cancels here; a plastic set exists only after release.
+    pub released_set_m: f64,
+    /// RMS tangential baseline residual of probed markers in contact, m.
+    pub contact_tangential_m: f64,
+    /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
+    /// of the markers within the contact radius of the tip (`crate::spatial::contact_radius_m`)
+    /// over the contact frames of locations where the tip travels along the surface, m: > 0 when
+    /// the surface is dragged along with the tip beyond the model (probe friction); 0 without
+    /// tangential travel.
+    #[serde(default)]
+    pub contact_drag_m: f64,
+    /// RMS baseline residual of attached markers in contact, m.
+    pub attached_motion_m: f64,
+    /// |mean over locations of the mean tangential residual (rest mean removed) of the probed
+    /// markers in contact|, m: a body-fixed lateral shift under every press (anisotropy,
+    /// [`crate::spatial::lateral_shift`]).
+    #[serde(default)]
+    pub lateral_shift_m: f64,
+    /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
+    #[serde(default)]
+    pub lateral_shift_consistency: f64,
+    /// Mean baseline residual along gravity at rest, m.
+    pub rest_gravity_m: f64,
+    /// Marker noise σ per coordinate, m.
+    pub noise_sigma_m: f64,
+}
+
+fn loop_area(x: &[f64], y: &[f64]) -> f64 {
+    // shoelace over the closed polygon, normalised by the bounding box
+    let n = x.len();
+    if n < 3 {
+        return 0.0;
+    }
+    let (xr, yr) = (
+        x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - x.iter().cloned().fold(f64::INFINITY, f64::min),
+        y.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - y.iter().cloned().fold(f64::INFINITY, f64::min),
+    );
+    if xr <= 0.0 || yr <= 0.0 {
+        return 0.0;
+    }
+    let mut a = 0.0;
+    for i in 0..n {
+        let j = (i + 1) % n;
+        a += x[i] * y[j] - x[j] * y[i];
+    }
+    (0.5 * a).abs() / (xr * yr)
+}
+
+/// Signature features of the recording and the baseline residual.
+pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signatures {
+    let t = rec.times_s();
+    let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
+    let g = rec.gravity_dir();
+    let mut s = Signatures {
+        noise_sigma_m: noise_sigma_m(rec, seg),
+        ..Default::default()
+    };
+    let (mut drift, mut nd) = (0.0, 0);
+    let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
+    let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
+    for l in &seg.locations {
+        let cf = &l.contact_frames;
+        let hold: Vec<usize> = cf
+            .iter()
+            .copied()
+            .filter(|&k| seg.phases[k] == Phase::Hold)
+            .collect();
+        if hold.len() >= 2 && l.peak_force_n > 0.0 {
+            drift += (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n;
+            nd += 1;
+        }
+        // depth and force crossings on the first ramp of the location
+        let Some(&s0) = cf.first() else { continue };
+        let start = s0.saturating_sub(1);
+        let end = cf
+            .last()
+            .map(|&e| (e + 2).min(rec.frames.len()))
+            .unwrap_or(start);
+        let depth: Vec<f64> = (0..rec.frames.len())
+            .map(|k| (rec.frames[k].tip_m - rec.frames[start].tip_m).dot(&l.axis))
+            .collect();
+        let dmax = (start..end).map(|k| depth[k]).fold(0.0, f64::max);
+        if dmax > 0.0 {
+            let peak_k = (start..end)
+                .max_by(|&a, &b| depth[a].total_cmp(&depth[b]))
+                .unwrap_or(start);
+            let fpk = (start..=peak_k).map(|k| fmag[k]).fold(0.0, f64::max);
+            // search force crossings over the whole contact run (force may peak after the depth)
+            let fpk_all = (start..end).map(|k| fmag[k]).fold(0.0, f64::max).max(fpk);
+            // geometry signal: mean displacement of the near markers along the probe axis
+            let near: Vec<usize> = (0..rec.num_markers())
+                .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
+                .collect();
+            let geo: Vec<f64> = (0..rec.frames.len())
+                .map(|k| {
+                    let (mut acc, mut n) = (0.0, 0);
+                    for &m in &near {
+                        if let Some(p) = rec.frames[k].markers_m[m] {
+                            acc += (p - rec.rest_markers_m[m]).dot(&l.axis);
+                            n += 1;
+                        }
+                    }
+                    if n > 0 { acc / n as f64 } else { 0.0 }
+                })
+                .collect();
+            let gmax = (start..end).map(|k| geo[k]).fold(0.0, f64::max);
+            let _ = (peak_k, fpk);
+            if let (Some(a10), Some(b10), Some(a50), Some(b50)) = (
+                crossing_time(&t, &geo, 0.1 * gmax, start..end),
+                crossing_time(&t, &fmag, 0.1 * fpk_all, start..end),
+                crossing_time(&t, &geo, 0.5 * gmax, start..end),
+                crossing_time(&t, &fmag, 0.5 * fpk_all, start..end),
+            ) {
+                d10 += b10 - a10;
+                d50 += b50 - a50;
+                ndel += 1;
+            }
+            // loops over the contact run
+            let idx: Vec<usize> = (start..end).collect();
+            let xs: Vec<f64> = idx.iter().map(|&k| depth[k]).collect();
+            let fs: Vec<f64> = idx.iter().map(|&k| fmag[k]).collect();
+            let gs: Vec<f64> = idx.iter().map(|&k| geo[k]).collect();
+            fh += loop_area(&xs, &fs);
+            gh += loop_area(&xs, &gs);
+            nh += 1;
+        }
+    }
+    if nd > 0 {
+        s.hold_force_drift = drift / nd as f64;
+    }
+    if ndel > 0 {
+        s.force_delay_10_s = d10 / ndel as f64;
+        s.force_delay_50_s = d50 / ndel as f64;
+    }
+    if nh > 0 {
+        s.force_depth_hysteresis = fh / nh as f64;
+        s.geometry_depth_hysteresis = gh / nh as f64;
+    }
+    let rms = |sel: &dyn Fn(usize, usize) -> bool, f: &dyn Fn(&Vector3<f64>, usize) -> f64| {
+        let (mut a, mut n) = (0.0, 0);
+        for (k, row) in res.iter().enumerate() {
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r
+                    && sel(k, m)
+                {
+                    let v = f(r, m);
+                    a += v * v;
+                    n += 1;
+                }
+            }
+        }
+        if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
+    };
+    s.released_offset_m = rms(
+        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
+        &|r, _| r.norm(),
+    );
+    // Mean residual of every marker over the rest frames (zero when never seen at rest).
+    let rest_mean = crate::residual::rest_mean(res, seg, rec.num_markers());
+    s.released_set_m = rms(
+        &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
+        &|r, m| (r - rest_mean[m]).norm(),
+    );
+    s.contact_tangential_m = rms(
+        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
+        &|r, m| {
+            component(
+                r,
+                Component::Tangential,
+                &rec.normals[m],
+                &g,
+                &Vector3::zeros(),
+            )
+        },
+    );
+    s.contact_drag_m = crate::friction::drag_signature_m(rec, seg, res);
+    (s.lateral_shift_m, s.lateral_shift_consistency) = crate::spatial::lateral_shift(rec, seg, res);
+    s.attached_motion_m = rms(
+        &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
+        &|r, _| r.norm(),
+    );
+    let (mut a, mut n) = (0.0, 0);
+    for (k, row) in res.iter().enumerate() {
+        if seg.phases[k] == Phase::Rest {
+            for r in row.iter().flatten() {
+                a += r.dot(&g);
+                n += 1;
+            }
+        }
+    }
+    if n > 0 {
+        s.rest_gravity_m = a / n as f64;
+    }
+    s
+}
