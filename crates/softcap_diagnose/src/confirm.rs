@@ -1,6 +1,7 @@
 //! Confirmation of a hypothesis by its re-simulated extended model, leave-one-location-out —
 //! the ONE selection/scoring loop used by every confirmation path
-//! ([`crate::diagnose`]'s extended FEM models, [`crate::spatial`], [`crate::temporal`]).
+//! (every hypothesis's extended FEM model, `crate::hypotheses`; the grids come from
+//! [`crate::resim`]).
 //!
 //! Input: candidate predictions (a grid of extended models, each simulated over the whole
 //! recording). Per held-out location l:
@@ -16,60 +17,58 @@
 //!    off the tip);
 //! 2. the held-out prediction of l is x_rest + d u_i — or, with a refit closure, the closure's
 //!    prediction of candidate i refitted without l (e.g. the material refit on the corrected
-//!    forces of a force-channel hypothesis, [`crate::temporal`]);
+//!    forces of a force-channel hypothesis, `crate::hypotheses::sensor_lag`);
 //! 3. score it on l's `scored` observations (the affected cells) and on all of l's observations.
 //!
 //! The full-data choice (nothing held out) is the extended model's prediction and parameters.
 
 use crate::Result;
-use crate::extend::SequenceFrame;
-use crate::hypothesis::{Field, Prepared};
+use crate::baseline::Prepared;
 use crate::recording::Recording;
 use crate::segment::Segmentation;
-use crate::sim::{ProbeLoad, SimLoad};
-use nalgebra::Vector3;
+use crate::sim::Field;
 
 /// One simulated candidate of a confirmation grid.
-pub(crate) struct Candidate {
+pub struct Candidate {
     /// Named parameters of the extended model.
-    pub(crate) params: Vec<(String, f64)>,
+    pub params: Vec<(String, f64)>,
     /// Markers per frame, m.
-    pub(crate) prediction: Field,
+    pub prediction: Field,
     /// Simulated under position control (the rigid tip replayed at its measured poses): the
     /// compliance scale stays 1 (module docs). A force-driven candidate's displacements scale
     /// with the material's compliance, so its scale is refitted; a position-controlled one's
     /// depth is the measured one whatever the material's stiffness.
-    pub(crate) position_controlled: bool,
+    pub position_controlled: bool,
 }
 
 /// An extended model confirmed by re-simulation with leave-one-location-out.
-pub(crate) struct Confirmed {
+pub struct Confirmed {
     /// Held-out RMS on the scored observations, m.
-    pub(crate) after_scored_m: f64,
+    pub after_scored_m: f64,
     /// Held-out RMS on every observation of the locations, m.
-    pub(crate) after_all_m: f64,
+    pub after_all_m: f64,
     /// Full-data parameters.
-    pub(crate) params: Vec<(String, f64)>,
+    pub params: Vec<(String, f64)>,
     /// Full-data prediction, m.
-    pub(crate) prediction: Field,
+    pub prediction: Field,
     /// How it was confirmed.
-    pub(crate) method: String,
+    pub method: String,
 }
 
 /// The nuisance refit of the material's overall compliance d (see the module docs).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct ComplianceScale {
+pub struct ComplianceScale {
     /// Refit d on the training observations (else d = 1).
-    pub(crate) fit: bool,
+    pub fit: bool,
     /// Lower bound of d (only against degenerate sums).
-    pub(crate) min: f64,
+    pub min: f64,
     /// Upper bound of d.
-    pub(crate) max: f64,
+    pub max: f64,
 }
 
 impl ComplianceScale {
     /// Fitted with the bounds [`min`, `max`] (`fit` = false: d = 1).
-    pub(crate) fn new(fit: bool, min: f64, max: f64) -> Self {
+    pub fn new(fit: bool, min: f64, max: f64) -> Self {
         Self { fit, min, max }
     }
 }
@@ -108,13 +107,13 @@ impl Sums {
 /// when it cannot refit (then the confirmation gives `None`). The refits of the held-out
 /// locations and of the full data are independent: [`lolo_confirm`] runs them in parallel
 /// (hence `Fn + Sync`).
-pub(crate) type RefitFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Field>> + Sync + 'a;
+pub type RefitFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Field>> + Sync + 'a;
 
 /// Which candidates a selection may choose: `eligible(candidate, held-out fold)` (`None`: the
 /// full-data choice). A candidate whose very existence was decided with the data of a fold (a
-/// refined re-simulation of another fold's choice, [`crate::spatial`]) must not be offered to
-/// that fold.
-pub(crate) type EligibleFn<'a> = dyn Fn(usize, Option<usize>) -> bool + 'a;
+/// refined re-simulation of another fold's choice, `crate::hypotheses::anisotropy`) must not be
+/// offered to that fold.
+pub type EligibleFn<'a> = dyn Fn(usize, Option<usize>) -> bool + 'a;
 
 /// Per (candidate, fold bucket) sums of the observations of a recording (module docs): `all`
 /// over the training observations (every one, or with `train_on_scored` only the scored ones),
@@ -200,7 +199,7 @@ impl Tally {
 
 /// The candidate [`lolo_confirm`] chooses for each held-out location (index l of the result) and,
 /// last, for the full data (nothing held out); empty without candidates.
-pub(crate) fn lolo_choices(
+pub fn lolo_choices(
     cands: &[Candidate],
     rec: &Recording,
     seg: &Segmentation,
@@ -229,7 +228,7 @@ pub(crate) fn lolo_choices(
 /// scale is then reported: the refit replaces it). `Ok(None)` when there is no candidate or the
 /// refit declines.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn lolo_confirm(
+pub fn lolo_confirm(
     cands: &[Candidate],
     rec: &Recording,
     seg: &Segmentation,
@@ -256,7 +255,7 @@ pub(crate) fn lolo_confirm(
 
 /// [`lolo_confirm`] with each selection restricted to the `eligible` candidates.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn lolo_confirm_among(
+pub fn lolo_confirm_among(
     cands: &[Candidate],
     eligible: Option<&EligibleFn<'_>>,
     rec: &Recording,
@@ -359,57 +358,12 @@ pub(crate) fn lolo_confirm_among(
     }))
 }
 
-/// The recording as a rigid-tip replay's input: every frame carries its measured probe pose (and
-/// force, which a position-controlled replay does not use).
-pub fn pose_sequence(rec: &Recording) -> Vec<SequenceFrame> {
-    rec.frames
-        .iter()
-        .map(|f| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: Some(ProbeLoad {
-                    tip_m: f.tip_m,
-                    axis: f.axis,
-                    force_n: f.force_n,
-                }),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect()
-}
-
-/// The recording as a sequence to re-simulate under per-frame probe forces `forces`: a contact
-/// frame (segmentation) with a non-zero force carries the probe load at its tip and axis, every
-/// other frame is unloaded.
-pub fn contact_sequence(
-    rec: &Recording,
-    seg: &Segmentation,
-    forces: &[Vector3<f64>],
-) -> Vec<SequenceFrame> {
-    rec.frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| SequenceFrame {
-            time_s: f.time_s,
-            load: SimLoad {
-                probe: (seg.phases[k].in_contact() && forces[k].norm() > 1e-9).then_some(
-                    ProbeLoad {
-                        tip_m: f.tip_m,
-                        axis: f.axis,
-                        force_n: forces[k],
-                    },
-                ),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::recording::Frame;
     use crate::segment::SegmentSettings;
+    use nalgebra::Vector3;
 
     /// Two probe locations (ramp / hold / release each), two markers; the measured displacement
     /// is exactly 2 × candidate 0's.

@@ -26,15 +26,11 @@
 //! (t = k_t Δs), long travel slides at μ f_n along the travel, and a retracting tip first unloads
 //! the stick and then slides back (the traction reverses).
 //!
-//! The extended model re-simulated by the confirmation is the default model under the measured
-//! force plus t_k over the contact patch (bickel2009 §4.1 force boundary condition), for a grid
-//! of (μ, k_t) — and, for a traction that keeps its sense while the probe retracts (a tilted
-//! probe's shear, or friction that never slips back), μ‖f‖ŝ along the location's tangential tip
-//! travel ŝ with and without reversal while unloading.
+//! These kernels serve the drag signature ([`crate::signatures`]) and the probe-friction
+//! hypothesis ([`crate::hypotheses::probe_friction`]: its screen and its confirmation grid).
 
-use crate::hypothesis::Prepared;
 use crate::recording::Recording;
-use crate::segment::{Location, Phase, Segmentation};
+use crate::segment::{Location, Segmentation};
 use nalgebra::Vector3;
 
 /// Fraction of the indentation depth the tip must travel tangentially for a location to carry a
@@ -195,118 +191,6 @@ pub fn indentation_stiffness_n_per_m(seg: &Segmentation) -> f64 {
         .fold(0.0, f64::max)
         .max(1e-5);
     peak_n / depth_m
-}
-
-/// Probe force plus the constant-sense traction μ‖f‖ŝ_l along the location's tangential travel
-/// (`Prepared::friction_dir`), reversed while unloading when `reverse`.
-pub fn constant_sense_forces(
-    seg: &Segmentation,
-    p: &Prepared,
-    mu: f64,
-    reverse: bool,
-) -> Vec<Vector3<f64>> {
-    p.force_n
-        .iter()
-        .enumerate()
-        .map(|(k, f)| match seg.fold_of_frame[k] {
-            Some(l) if seg.phases[k].in_contact() => {
-                let sign = if reverse && seg.phases[k] == Phase::Unloading {
-                    -1.0
-                } else {
-                    1.0
-                };
-                f + p.friction_dir[l] * (sign * mu * f.norm())
-            }
-            _ => *f,
-        })
-        .collect()
-}
-
-/// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
-/// frames k with a sliding direction d̂_k ([`sliding_direction`] of the measured forces) and the
-/// observed markers within [`crate::spatial::contact_radius_m`] of the tip, where r is the
-/// baseline residual (measured − model), m. Friction drags the surface along with the tip, so
-/// the markers around the patch lead the model along d̂ (> 0); an effect without a preferred
-/// tangential sense averages out. 0 when no location has tangential travel.
-pub fn drag_signature_m(rec: &Recording, seg: &Segmentation, res: &crate::Residuals) -> f64 {
-    let forces: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
-    let dir = sliding_direction(rec, seg, &forces, indentation_stiffness_n_per_m(seg));
-    let radius = crate::spatial::contact_radius_m(rec);
-    let (mut acc, mut n) = (0.0, 0usize);
-    for (k, row) in res.iter().enumerate() {
-        if !seg.phases[k].in_contact() || dir[k] == Vector3::zeros() {
-            continue;
-        }
-        for (m, r) in row.iter().enumerate() {
-            if let Some(r) = r
-                && (rec.frames[k].tip_m - rec.rest_markers_m[m]).norm() <= radius
-            {
-                acc += r.dot(&dir[k]);
-                n += 1;
-            }
-        }
-    }
-    if n > 0 { acc / n as f64 } else { 0.0 }
-}
-
-/// Friction coefficients of the confirmation grid (rubber / skin-like contacts span 0.2–1;
-/// the material's compliance scale refitted with the traction lets the effective μ go higher).
-pub const MU_GRID: [f64; 8] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0, 1.25, 1.5];
-/// Friction coefficients the frictional rigid-tip replay starts from (`Extension::ProbeFriction`;
-/// each point re-simulates the recording with frictional contact on the refined fit mesh, ≈ 1 min
-/// in the test profile on the suite session, so the grid is coarse): log-spaced by
-/// [`RIGID_MU_STEP`] across rubber on skin, μ 0.5–1. `spatial::confirm` extends it by the same
-/// step until the optimum is bracketed (`spatial::bracket_friction`).
-pub const RIGID_MU_GRID: [f64; 3] = [0.5, 0.5 * std::f64::consts::SQRT_2, 1.0];
-/// Ratio between neighbouring μ of the frictional rigid-tip replay.
-pub const RIGID_MU_STEP: f64 = std::f64::consts::SQRT_2;
-/// At most this many μ added beyond the ends of [`RIGID_MU_GRID`] (down to 0.18, up to 2.8).
-pub const RIGID_MU_EXTENSIONS: usize = 3;
-/// μ the bracketing search stays within: a near-frictionless tip to a tacky one.
-pub const RIGID_MU_RANGE: (f64, f64) = (0.1, 3.0);
-/// Tangential stiffness of the stuck patch as multiples of the indentation stiffness K.
-pub const STIFFNESS_GRID: [f64; 4] = [0.25, 0.5, 1.0, 2.0];
-
-/// The confirmation grid of `probe-friction` (module docs): per point its parameters and the
-/// per-frame force on the object (measured force + traction). Coulomb return mapping over
-/// [`MU_GRID`] × [`STIFFNESS_GRID`], then the constant-sense traction over [`MU_GRID`] with and
-/// without reversal while unloading.
-pub fn confirmation_grid(
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-) -> Vec<(Vec<(String, f64)>, Vec<Vector3<f64>>)> {
-    let k_ind = indentation_stiffness_n_per_m(seg);
-    let mut grid = Vec::new();
-    for c in STIFFNESS_GRID {
-        for mu in MU_GRID {
-            let t = traction_history(rec, seg, &p.force_n, mu, c * k_ind);
-            if t.iter().all(|v| *v == Vector3::zeros()) {
-                continue;
-            }
-            let forces = p.force_n.iter().zip(&t).map(|(f, t)| f + t).collect();
-            grid.push((
-                vec![
-                    ("mu".into(), mu),
-                    ("tangential_stiffness_n_per_m".into(), c * k_ind),
-                ],
-                forces,
-            ));
-        }
-    }
-    for reverse in [false, true] {
-        for mu in MU_GRID {
-            grid.push((
-                vec![
-                    ("mu".into(), mu),
-                    ("constant_sense".into(), 1.0),
-                    ("reverse_on_unloading".into(), f64::from(u8::from(reverse))),
-                ],
-                constant_sense_forces(seg, p, mu, reverse),
-            ));
-        }
-    }
-    grid
 }
 
 #[cfg(test)]

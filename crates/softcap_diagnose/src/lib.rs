@@ -2,24 +2,23 @@
 //!
 //! The diagnosis stage of DESIGN.md ("Missing-physics diagnosis"), issue 8.
 //!
+//! Modules from the bottom up: each uses only the ones above it in this table (no import cycles,
+//! `scripts/module-cycles crates/softcap_diagnose`).
+//!
 //! | module | what |
 //! |---|---|
-//! | [`recording`] | the in-memory recording: frames (time, probe pose, force, markers), normals, support |
-//! | [`segment`] | phases (rest, loading, hold, unloading, released), probe locations, marker regions |
-//! | [`residual`] | residual components (normal, tangential, gravity, probe axis), the located table, noise σ |
-//! | [`sim`] | the [`ProbeSimulator`] contract and the corotational FEM implementation |
-//! | [`signal`] | low-pass, derivative, time shift on frame-time traces |
-//! | [`hypothesis`] | the catalog, extension fields, linearised leave-one-location-out refits (screening) |
-//! | [`temporal`] | viscoelasticity, sensor-lag, clock-offset: grids of extended models re-simulated in time order, leave-one-location-out with a compliance scale |
-//! | [`extend`] | the extended FEM models (Prony, J2 plasticity, support springs, transverse isotropy) re-simulated over the recording |
+//! | [`recording`], [`segment`] | the in-memory recording (frames: time, probe pose, force, markers); its phases, probe locations (the held-out unit) and marker regions |
+//! | [`signal`], [`sensor`], [`friction`] | kernels on frame-time traces: low-pass, derivative, time shift; the FSR chain and its inverse; the Coulomb return mapping of the tip's travel |
+//! | [`residual`], [`cells`] | residual components and where the error lives; noise σ; the focus cells and the hypotheses' effect cells |
 //! | [`signatures`] | the signature features that separate look-alike hypotheses |
+//! | [`sim`] | the [`ProbeSimulator`] contract, [`FemProbeSimulator`] and the extended FEM models ([`Extension`]) re-simulated over a recording |
+//! | [`baseline`] | the default model at every frame with its tangent response ([`Prepared`]) |
+//! | [`screen`] | linearised extensions ([`screen::Variant`]) refitted leave-one-location-out ([`refit`]) |
+//! | [`confirm`], [`resim`] | the re-simulation harness (grids of extended models, rigid-tip replays) and the leave-one-location-out selection of re-simulated candidates |
+//! | [`hypotheses`] | the [`Hypothesis`] trait and one module per catalog entry ([`Effect`]) |
 //! | [`evidence`] | the diagnosis document: verdict, ranked hypotheses with typed [`Evidence`] |
-//! | [`output`] | JSON (issue 8 schema), report.md + PNG figures, diagnosis.mcap |
-//! | [`io`] | capture.mcap → [`Recording`], material.mcap → default model |
-//! | `run` | the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
-//! | [`spatial`] | plasticity, support-slip, anisotropy, probe-friction: effect cells and re-simulated confirmation |
-//! | [`friction`] | probe-friction: the Coulomb traction of the tip's travel under the measured normal force (return mapping), its confirmation grid |
-//! | [`diagnose`](mod@diagnose) | baseline simulation, signatures, ranking, verdict, re-simulation of the winner |
+//! | [`diagnose`](mod@diagnose) | the phases: segment → locate → screen → confirm → verdict → extended model |
+//! | [`output`], [`io`], `run` | JSON, report.md + figures, diagnosis.mcap; capture.mcap → [`Recording`], material.mcap → default model; the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
 //!
 //! ```
 //! use softcap_diagnose::{Phase, Recording, Frame, SegmentSettings, Segmentation};
@@ -52,46 +51,57 @@
 //! assert_eq!(seg.phases[5], Phase::Released);
 //! ```
 
-mod confirm;
+pub mod baseline;
+pub mod catalog;
+pub mod cells;
+pub mod confirm;
 pub mod diagnose;
 mod error;
 pub mod evidence;
-pub mod extend;
 pub mod friction;
-pub mod hypothesis;
+pub mod hypotheses;
 pub mod io;
 pub mod output;
+mod progress;
 pub mod recording;
 pub mod residual;
+pub mod resim;
 mod run;
+pub mod screen;
 pub mod segment;
 pub mod sensor;
+mod settings;
 pub mod signal;
 pub mod signatures;
 pub mod sim;
-pub mod spatial;
-pub mod temporal;
 
-pub use confirm::{contact_sequence, pose_sequence};
-pub use diagnose::{DiagnoseSettings, DiagnosisRun, diagnose, prepare, signature_support};
+pub use baseline::{Prepared, prepare};
+pub use catalog::Effect;
+pub use diagnose::{DiagnosisRun, diagnose, diagnose_with_progress};
 pub use error::{DiagnoseError, Result};
 pub use evidence::{
     Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
 };
-pub use extend::{Extension, SequenceFrame, transverse_from_isotropic, transverse_with_poisson};
-pub use hypothesis::{Hypothesis, Prepared, Refit, bounded_least_squares, refit};
+pub use hypotheses::Hypothesis;
 pub use io::{
     MaterialModel, MaterialSource, material_model, material_model_from, read_material,
     read_material_from, recording_from_capture, strain_space_material,
 };
 pub use output::{write_json, write_mcap, write_report};
+pub use progress::Progress;
 pub use recording::{Frame, Recording, SupportPlane, surface_normals};
 pub use residual::{
     Component, Located, Residuals, component, frame_axes, locate, noise_sigma_m, residuals, rmse_m,
 };
+pub use resim::{contact_sequence, pose_sequence};
 pub use run::{RunConfig, StageSettings, run};
+pub use screen::{Refit, bounded_least_squares, refit};
 pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
+pub use settings::DiagnoseSettings;
 pub use signatures::{Signatures, signatures};
-pub use sim::{FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SimLoad, SimOutput};
+pub use sim::{
+    Extension, FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SequenceFrame,
+    SimLoad, SimOutput, transverse_from_isotropic, transverse_with_poisson,
+};
 
 pub use nalgebra;

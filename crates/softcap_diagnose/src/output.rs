@@ -2,9 +2,9 @@
 //! with a residual map on the surface, residual against time, measured vs simulated
 //! force–displacement loops and a before/after table) and `diagnosis.mcap`.
 
+use crate::catalog::Effect;
 use crate::diagnose::DiagnosisRun;
 use crate::evidence::Diagnosis;
-use crate::hypothesis::Hypothesis;
 use crate::recording::Recording;
 use crate::residual::Residuals;
 use crate::segment::Phase;
@@ -90,7 +90,8 @@ pub fn extended_model_message(d: &Diagnosis, base_material_sha256: &str) -> prot
     let top = d.ranked.iter().find(|r| r.hypothesis == d.verdict);
     proto::ExtendedModel {
         hypothesis: d.verdict.clone(),
-        term: Hypothesis::from_name(&d.verdict)
+        term: Effect::from_name(&d.verdict)
+            .and_then(crate::hypotheses::of)
             .map(|h| h.term().to_string())
             .unwrap_or_else(|| "none: the default elastostatic model (bickel2009)".into()),
         params: top

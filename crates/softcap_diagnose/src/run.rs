@@ -1,10 +1,12 @@
 //! The stage entry point: `softcap diagnose capture.mcap material.mcap -o diagnosis.mcap
 //! [--json FILE] [--report DIR]`.
 
-use crate::diagnose::{DiagnoseSettings, DiagnosisRun, diagnose};
+use crate::diagnose::{DiagnosisRun, diagnose_with_progress};
 use crate::evidence::Diagnosis;
 use crate::io::{MaterialSource, read_material_from, recording_from_capture};
 use crate::output::{write_json, write_mcap, write_report};
+use crate::progress::Progress;
+use crate::settings::DiagnoseSettings;
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
 use serde::{Deserialize, Serialize};
@@ -44,6 +46,8 @@ pub struct RunConfig {
     pub settings: StageSettings,
     /// Full argument list (provenance).
     pub arguments: Vec<String>,
+    /// Show the per-step status on stderr (only ever drawn when stderr is a terminal).
+    pub progress: bool,
 }
 
 /// The rigid tip of the session (`/capture/session` `tip_shape`, `tip_radius_m`) for the
@@ -91,6 +95,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             what: "no mesh node lies on the session's support plane".into(),
         });
     }
+    let progress = Progress::new(cfg.progress);
     // The force boundary condition replays the load the material was fitted under (recorded in
     // material.mcap; files without the entry keep the settings' load).
     let attempt = |model: CorotationalModel,
@@ -110,7 +115,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
         if let Some(tip) = session_tip(&cap.session.tip_shape, cap.session.tip_radius_m) {
             sim = sim.with_rigid_tip(tip);
         }
-        diagnose(&rec, &mut sim, &cfg.settings.diagnose)
+        diagnose_with_progress(&rec, &mut sim, &cfg.settings.diagnose, &progress)
     };
     let mut result = match attempt(
         material.model.clone(),

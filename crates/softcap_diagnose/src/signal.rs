@@ -1,5 +1,5 @@
 //! Small time-series kernels on non-uniformly sampled traces (frame times), used by the hypothesis
-//! extensions: first-order low-pass, derivatives, time shift.
+//! extensions: first-order low-pass, derivatives, time shift, the median frame interval.
 
 use nalgebra::Vector3;
 
@@ -92,6 +92,13 @@ pub fn crossing_time(
         }
     }
     None
+}
+
+/// Median frame interval of the times `t`, s (0.05 s for fewer than two frames, at least 1 ms).
+pub fn median_dt(t: &[f64]) -> f64 {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(0.05).max(1e-3)
 }
 
 #[cfg(test)]

@@ -3,8 +3,10 @@
 //! force delays at 10 % and 50 % of the ramp, force–depth and geometry–depth hysteresis, the set
 //! left after release, support motion, the drag along the tip's travel, a body-fixed lateral shift.
 
+use crate::cells::contact_radius_m;
+use crate::friction::{indentation_stiffness_n_per_m, sliding_direction};
 use crate::recording::Recording;
-use crate::residual::{Component, Residuals, component, noise_sigma_m};
+use crate::residual::{Component, Residuals, component, noise_sigma_m, rest_mean};
 use crate::segment::{Phase, Region, Segmentation};
 use crate::signal::crossing_time;
 use nalgebra::Vector3;
@@ -34,7 +36,7 @@ pub struct Signatures {
     /// RMS tangential baseline residual of probed markers in contact, m.
     pub contact_tangential_m: f64,
     /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
-    /// of the markers within the contact radius of the tip (`crate::spatial::contact_radius_m`)
+    /// of the markers within the contact radius of the tip (`crate::cells::contact_radius_m`)
     /// over the contact frames of locations where the tip travels along the surface, m: > 0 when
     /// the surface is dragged along with the tip beyond the model (probe friction); 0 without
     /// tangential travel.
@@ -44,7 +46,7 @@ pub struct Signatures {
     pub attached_motion_m: f64,
     /// |mean over locations of the mean tangential residual (rest mean removed) of the probed
     /// markers in contact|, m: a body-fixed lateral shift under every press (anisotropy,
-    /// [`crate::spatial::lateral_shift`]).
+    /// [`lateral_shift`]).
     #[serde(default)]
     pub lateral_shift_m: f64,
     /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
@@ -54,6 +56,21 @@ pub struct Signatures {
     pub rest_gravity_m: f64,
     /// Marker noise σ per coordinate, m.
     pub noise_sigma_m: f64,
+}
+
+impl Signatures {
+    /// Three marker noise standard deviations, m: the threshold of the geometric signatures.
+    pub fn three_sigma_m(&self) -> f64 {
+        3.0 * self.noise_sigma_m
+    }
+
+    /// The force delays of a pure time shift: equal at 10 % and 50 % of the ramp (within 35 %),
+    /// where a first-order lag's delay grows.
+    pub fn delays_like_a_time_shift(&self) -> bool {
+        self.force_delay_50_s.abs() > 1e-6
+            && (self.force_delay_10_s - self.force_delay_50_s).abs()
+                < 0.35 * self.force_delay_50_s.abs()
+    }
 }
 
 fn loop_area(x: &[f64], y: &[f64]) -> f64 {
@@ -189,7 +206,7 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         &|r, _| r.norm(),
     );
     // Mean residual of every marker over the rest frames (zero when never seen at rest).
-    let rest_mean = crate::residual::rest_mean(res, seg, rec.num_markers());
+    let rest_mean = rest_mean(res, seg, rec.num_markers());
     s.released_set_m = rms(
         &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
         &|r, m| (r - rest_mean[m]).norm(),
@@ -206,8 +223,8 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
             )
         },
     );
-    s.contact_drag_m = crate::friction::drag_signature_m(rec, seg, res);
-    (s.lateral_shift_m, s.lateral_shift_consistency) = crate::spatial::lateral_shift(rec, seg, res);
+    s.contact_drag_m = drag_signature_m(rec, seg, res);
+    (s.lateral_shift_m, s.lateral_shift_consistency) = lateral_shift(rec, seg, res);
     s.attached_motion_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
         &|r, _| r.norm(),
@@ -225,4 +242,193 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         s.rest_gravity_m = a / n as f64;
     }
     s
+}
+
+/// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
+/// frames k with a sliding direction d̂_k ([`sliding_direction`] of the measured forces) and the
+/// observed markers within [`contact_radius_m`] of the tip, where r is the
+/// baseline residual (measured − model), m. Friction drags the surface along with the tip, so
+/// the markers around the patch lead the model along d̂ (> 0); an effect without a preferred
+/// tangential sense averages out. 0 when no location has tangential travel.
+pub fn drag_signature_m(rec: &Recording, seg: &Segmentation, res: &Residuals) -> f64 {
+    let forces: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
+    let dir = sliding_direction(rec, seg, &forces, indentation_stiffness_n_per_m(seg));
+    let radius = contact_radius_m(rec);
+    let (mut acc, mut n) = (0.0, 0usize);
+    for (k, row) in res.iter().enumerate() {
+        if !seg.phases[k].in_contact() || dir[k] == Vector3::zeros() {
+            continue;
+        }
+        for (m, r) in row.iter().enumerate() {
+            if let Some(r) = r
+                && (rec.frames[k].tip_m - rec.rest_markers_m[m]).norm() <= radius
+            {
+                acc += r.dot(&dir[k]);
+                n += 1;
+            }
+        }
+    }
+    if n > 0 { acc / n as f64 } else { 0.0 }
+}
+
+/// The lateral-shift signature of anisotropy: per location l, v_l = the mean tangential (to the
+/// surface at the marker) part of the baseline residual minus the marker's mean residual at rest,
+/// over the location's contact frames and its probed markers (within the segmentation's near
+/// radius of the contact point). Returns (|mean_l v_l|, |Σ_l v_l| / Σ_l |v_l|), m and 1.
+///
+/// Why: under a press along the surface normal an isotropic body — the default model, whose
+/// geometry the baseline already carries — has no normal–shear coupling, so what it misses
+/// around the probe points in no preferred tangential direction (radial errors of the
+/// axisymmetric response cancel in the mean, and whatever is left varies with the location).
+/// A fibre oblique to the surface couples the normal stress to shear (the compliance's
+/// off-diagonal S₁₃-type terms of thesis eq. 8.5 in the world frame): the surface under every
+/// press slides the same way, along the fibre's tangential projection — a body-fixed direction,
+/// the same at every location. Probe friction drags along each location's own travel,
+/// support slip moves the attached markers with each location's push, a stiff inclusion
+/// pushes away from itself (the sense depends on the location): none is consistent across
+/// locations. Locations with fewer than 3 observations are skipped; (0, 0) with fewer than 2.
+pub fn lateral_shift(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &[Vec<Option<Vector3<f64>>>],
+) -> (f64, f64) {
+    let nm = rec.num_markers();
+    let rest_mean = rest_mean(res, seg, nm);
+    let mut shifts = Vec::new();
+    for l in &seg.locations {
+        let near: Vec<usize> = (0..nm)
+            .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
+            .collect();
+        let (mut v, mut n) = (Vector3::zeros(), 0usize);
+        for &k in &l.contact_frames {
+            if !seg.phases[k].in_contact() {
+                continue;
+            }
+            for &m in &near {
+                if let Some(r) = res[k][m] {
+                    let d = r - rest_mean[m];
+                    let nrm = rec.normals[m];
+                    v += d - nrm * nrm.dot(&d);
+                    n += 1;
+                }
+            }
+        }
+        if n >= 3 {
+            shifts.push(v / n as f64);
+        }
+    }
+    if shifts.len() < 2 {
+        return (0.0, 0.0);
+    }
+    let sum: Vector3<f64> = shifts.iter().sum();
+    let total: f64 = shifts.iter().map(|v| v.norm()).sum();
+    let consistency = if total > 0.0 { sum.norm() / total } else { 0.0 };
+    (sum.norm() / shifts.len() as f64, consistency)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two locations 20 mm apart on a 5 × 5 mm grid of top-surface markers; frame 0 at rest, one
+    /// hold frame per location.
+    fn two_presses() -> (Recording, Segmentation) {
+        use crate::recording::Frame;
+        use crate::segment::{Location, Region};
+        let mut rest = Vec::new();
+        for i in 0..9 {
+            for j in 0..5 {
+                rest.push(Vector3::new(0.005 * i as f64, 0.005 * j as f64, 0.02));
+            }
+        }
+        let nm = rest.len();
+        let tips = [
+            Vector3::new(0.01, 0.01, 0.02),
+            Vector3::new(0.03, 0.01, 0.02),
+        ];
+        let frame = |k: usize, tip: Vector3<f64>, f: f64| Frame {
+            frame: k as u64,
+            time_s: 0.1 * k as f64,
+            tip_m: tip,
+            axis: -Vector3::z(),
+            force_n: Vector3::new(0.0, 0.0, -f),
+            markers_m: rest.iter().map(|p| Some(*p)).collect(),
+        };
+        let rec = Recording {
+            marker_ids: (0..nm).map(|m| m.to_string()).collect(),
+            rest_markers_m: rest.clone(),
+            normals: vec![Vector3::z(); nm],
+            gravity_m_s2: Vector3::zeros(),
+            support: None,
+            tip_radius_m: 0.002,
+            frames: vec![
+                frame(0, tips[0] + Vector3::z() * 0.005, 0.0),
+                frame(1, tips[0], 0.5),
+                frame(2, tips[1], 0.5),
+            ],
+        };
+        let loc = |l: usize| Location {
+            index: l,
+            peak_tip_m: tips[l],
+            contact_tip_m: tips[l],
+            axis: -Vector3::z(),
+            peak_frame: l + 1,
+            peak_force_n: 0.5,
+            contact_frames: vec![l + 1],
+        };
+        let seg = Segmentation {
+            phases: vec![Phase::Rest, Phase::Hold, Phase::Hold],
+            fold_of_frame: vec![None, Some(0), Some(1)],
+            locations: vec![loc(0), loc(1)],
+            regions: vec![Region::Probed; nm],
+            near_radius_m: 0.008,
+        };
+        (rec, seg)
+    }
+
+    #[test]
+    fn lateral_shift_is_the_body_fixed_tangential_residual() {
+        let (rec, seg) = two_presses();
+        let nm = rec.num_markers();
+        // a template offset seen at rest and in contact alike cancels; the normal part is ignored
+        let offset = Vector3::new(1e-4, -2e-4, 3e-4);
+        let field = |k: usize, shift: [Vector3<f64>; 2]| -> Vec<Option<Vector3<f64>>> {
+            (0..nm)
+                .map(|m| {
+                    let normal = Vector3::z() * (1e-4 * m as f64);
+                    Some(match k {
+                        0 => offset,
+                        _ => offset + normal + shift[k - 1],
+                    })
+                })
+                .collect()
+        };
+        let same = [Vector3::new(5e-5, 0.0, 0.0); 2];
+        let res: Vec<_> = (0..3).map(|k| field(k, same)).collect();
+        let (shift, consistency) = lateral_shift(&rec, &seg, &res);
+        assert!((shift - 5e-5).abs() < 1e-12, "{shift}");
+        assert!((consistency - 1.0).abs() < 1e-12);
+        // opposite senses at the two locations (a push away from an inclusion): no consistency
+        let opposite = [Vector3::new(5e-5, 0.0, 0.0), Vector3::new(-5e-5, 0.0, 0.0)];
+        let res: Vec<_> = (0..3).map(|k| field(k, opposite)).collect();
+        let (shift, consistency) = lateral_shift(&rec, &seg, &res);
+        assert!(shift < 1e-12 && consistency < 1e-9);
+        // a radial residual around each press (an isotropic stiffness error) averages out
+        let res: Vec<_> = (0..3)
+            .map(|k| {
+                (0..nm)
+                    .map(|m| {
+                        Some(if k == 0 {
+                            Vector3::zeros()
+                        } else {
+                            let d = rec.rest_markers_m[m] - seg.locations[k - 1].contact_tip_m;
+                            Vector3::new(d.x, d.y, 0.0) * 0.01
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        let (shift, _) = lateral_shift(&rec, &seg, &res);
+        assert!(shift < 1e-12, "{shift}");
+    }
 }

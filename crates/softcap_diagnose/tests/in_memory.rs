@@ -486,6 +486,7 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
         report: Some(dir.path().join("report")),
         settings: Default::default(),
         arguments: vec!["softcap-diagnose".into()],
+        progress: false,
     };
     let d = softcap_diagnose::run(&cfg).unwrap();
     assert_eq!(d.verdict, "clock-offset");

@@ -411,7 +411,7 @@ fn frictional_rigid_replay_drags_the_surface_along_and_lets_go_after_lift_off() 
     // the frictional replay runs on the mesh refined once (6.7 mm surface spacing > 0.8 × the
     // 5 mm tip radius: `friction_refinement`), so compare with the frictionless replay there
     assert_eq!(
-        softcap_diagnose::extend::friction_refinement(&sim.setup().mesh, &sphere(), &[]),
+        softcap_diagnose::sim::friction_refinement(&sim.setup().mesh, &sphere(), &[]),
         1
     );
     let elastic = sim

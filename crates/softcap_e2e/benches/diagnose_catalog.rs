@@ -26,6 +26,7 @@ fn bench(c: &mut Criterion) {
         report: None,
         settings: StageSettings::default(),
         arguments: vec![],
+        progress: false,
     };
     let mut g = c.benchmark_group("diagnose");
     g.sample_size(10);

@@ -151,7 +151,7 @@ fn default_model_floor() {
     // the held force's standard-linear-solid fit (position control: it measures G(t) directly)
     println!(
         "FLOOR hold relaxation (g, tau_s) = {:?}",
-        softcap_diagnose::temporal::hold_relaxation(&rec, &seg)
+        softcap_diagnose::hypotheses::viscoelasticity::hold_relaxation(&rec, &seg)
     );
     // Force BC: the measured force on the contact frames; rigid tip: every frame's measured pose
     // (the diagnosis' own sequences).
@@ -418,9 +418,12 @@ fn friction_profile(
 ) {
     use softcap_diagnose::ProbeSimulator;
     let mus: Vec<f64> = list.split(',').map(|v| v.parse().unwrap()).collect();
-    let balls = softcap_diagnose::spatial::touched_balls(rec, seg);
+    let balls = softcap_diagnose::cells::touched_balls(rec, seg);
     let mut fine = ProbeSimulator::refined(sim, &balls).unwrap().unwrap();
-    let mask = softcap_diagnose::spatial::effect_mask(Hypothesis::ProbeFriction, rec, seg).unwrap();
+    let mask = softcap_diagnose::hypotheses::probe_friction::ProbeFriction
+        .effect_cells(rec, seg)
+        .unwrap()
+        .mask;
     let exts: Vec<Extension> = mus
         .iter()
         .map(|&mu| Extension::ProbeFriction { mu })
@@ -436,8 +439,8 @@ fn friction_profile(
         let r = rec.tip_radius_m;
         println!(
             "MU surface spacing near the tips on the refined mesh h = {:.3} mm, slip distance {:.3} mm (fraction {})",
-            1e3 * softcap_diagnose::extend::surface_spacing_near(mesh, r, &tips).unwrap_or(0.0),
-            1e3 * softcap_diagnose::extend::friction_slip_distance_m(
+            1e3 * softcap_diagnose::sim::surface_spacing_near(mesh, r, &tips).unwrap_or(0.0),
+            1e3 * softcap_diagnose::sim::friction_slip_distance_m(
                 mesh,
                 r,
                 &tips,

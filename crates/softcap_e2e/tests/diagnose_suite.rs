@@ -77,6 +77,7 @@ fn check(name: &str) {
         report,
         settings: stage_settings(),
         arguments: vec![],
+        progress: false,
     })
     .unwrap();
     let t_diagnose = t0.elapsed().as_secs_f64();

@@ -47,6 +47,7 @@ fn probe_friction_ten_locations_timing() {
         report: None,
         settings: StageSettings::default(),
         arguments: vec![],
+        progress: false,
     })
     .expect("diagnosis");
     let wall = t0.elapsed().as_secs_f64();

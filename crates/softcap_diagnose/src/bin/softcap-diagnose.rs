@@ -60,6 +60,7 @@ fn main_inner() -> Result<(), Failure> {
         report: cli.report,
         settings,
         arguments: args,
+        progress: true,
     };
     match run(&cfg) {
         Ok(d) => {

@@ -1,15 +1,11 @@
-//! The model simulator the diagnosis compares a recording with.
-//!
-//! [`ProbeSimulator`] is the contract: quasi-static marker positions under one probe load (force
-//! applied over the contact patch around the tip, bickel2009 §4.1 force boundary condition) plus an
-//! optional body force (gravity, wang2015 eq. 7), and the tangent response ∂x_markers/∂f of the
-//! converged state (three columns, one per force axis), which the hypothesis machinery uses for its
-//! linearised refits. [`FemProbeSimulator`] implements it on a `softcap_fem` corotational model
-//! through the shared probing kernels of `softcap_probing` (the ones the tissue fit uses):
-//! marker embedding, attached region, contact patch and area-weighted nodal forces.
+//! [`FemProbeSimulator`]: the [`ProbeSimulator`] contract on a `softcap_fem` corotational model
+//! (or the strain-space basis), through the shared probing kernels of `softcap_probing` (the
+//! ones the tissue fit uses): marker embedding, attached region, contact patch and area-weighted
+//! nodal forces; the tangent response ∂x/∂f of the converged state.
 
-use crate::extend::{Extension, SequenceFrame};
-use crate::hypothesis::Field;
+use super::contract::{
+    Extension, Field, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
+};
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
@@ -23,141 +19,6 @@ use softcap_probing::{
     StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
 };
 use std::sync::Arc;
-
-/// A probe load: force `force_n` (by the probe on the object) spread over the contact patch around
-/// `tip_m`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ProbeLoad {
-    /// Tip position, m.
-    pub tip_m: Vector3<f64>,
-    /// Unit probe axis (handle → tip), world frame.
-    pub axis: Vector3<f64>,
-    /// Force on the object, N.
-    pub force_n: Vector3<f64>,
-}
-
-/// Everything applied in one quasi-static simulation.
-#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, Deserialize)]
-pub struct SimLoad {
-    /// Probe load, if any.
-    pub probe: Option<ProbeLoad>,
-    /// Body-force density ρ g, N/m³ (zero: no body force).
-    pub body_force_n_m3: Vector3<f64>,
-}
-
-/// Result of one simulation.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SimOutput {
-    /// Marker positions, m.
-    pub markers_m: Vec<Vector3<f64>>,
-    /// ∂x_marker/∂f_k (m/N) for k = x, y, z when requested and a probe load was given.
-    pub force_response: Option<[Vec<Vector3<f64>>; 3]>,
-}
-
-/// One re-simulation of a grid: the extension and the frames of its sequence
-/// ([`ProbeSimulator::simulate_sequences`]).
-pub type SequenceJob = (Extension, Vec<SequenceFrame>);
-
-/// A model that can simulate a probing frame. `Send + Sync`: the diagnosis runs independent
-/// re-simulations of one simulator on several threads ([`Self::simulate_sequences`]).
-pub trait ProbeSimulator: Send + Sync {
-    /// Number of markers.
-    fn num_markers(&self) -> usize;
-    /// Marker positions under `load`; with `want_response`, also the tangent response to the probe
-    /// force. Non-convergence is an error carrying the solver status.
-    fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput>;
-
-    /// A simulator of the same setup whose material is a homogeneous (λ, α) refit to `examples`
-    /// (bickel2009 §6 average fit, `softcap_probing::fit_homogeneous`) — used after a
-    /// temporal extension corrected the forces the material was fitted with. `None` (default)
-    /// when this simulator cannot refit its material or the fit fails.
-    fn refit_homogeneous(
-        &self,
-        examples: &[ProbeExample],
-    ) -> Result<Option<Box<dyn ProbeSimulator>>> {
-        let _ = examples;
-        Ok(None)
-    }
-
-    /// The same object on a refined mesh, each child tet with its parent's material, the markers
-    /// re-embedded, the same support, tip and settings: refined uniformly (every tet split in
-    /// eight, `softcap_mesh::refine_tets`) or only inside the balls `touched` (the recording's
-    /// tip positions with the contact radius; `softcap_mesh::refine_near`), as the simulator's
-    /// settings say. For extended models whose coarse discretisation cannot form the recorded
-    /// deformation (a plastic dent between a few nodes, a stuck contact patch); `None` (default)
-    /// when this simulator has no mesh to refine.
-    fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {
-        let _ = touched;
-        Ok(None)
-    }
-
-    /// True when the fit mesh already resolves a tip of radius `tip_radius_m` at the tip
-    /// positions `tips_m`: its boundary nodes there are spaced ≤ 0.8 tip radii, the rule of
-    /// [`crate::extend::friction_refinement`] (which then adds no refinement level). A model
-    /// re-simulated on such a mesh gains nothing from [`Self::refined`] but its cost (8× the
-    /// tets). `false` (default) when this simulator has no mesh to measure.
-    fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
-        let _ = (tip_radius_m, tips_m);
-        false
-    }
-
-    /// Marker positions of every frame (time order) under the model extended by `ext`, with the
-    /// probe replayed as a RIGID tip at each frame's measured pose (position control, bickel2009
-    /// §3.4 rigid-probe contact) instead of the measured force over the patch (§4.1). Only
-    /// `load.probe`'s `tip_m` / `axis` and `load.body_force_n_m3` of each frame are used.
-    /// `Ok(None)` (default) when the simulator knows no tip geometry or cannot replay `ext`.
-    fn simulate_sequence_rigid_tip(
-        &mut self,
-        ext: &Extension,
-        frames: &[SequenceFrame],
-    ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
-        let _ = (ext, frames);
-        Ok(None)
-    }
-
-    /// [`Self::simulate_sequence_rigid_tip`] of every extension of `exts` over the same `frames`,
-    /// results in the order of `exts`. The default runs them one after another;
-    /// [`FemProbeSimulator`] runs them in parallel (each replay is independent: its own model
-    /// state, solver and contact history), so the results are the serial ones bit for bit.
-    fn simulate_sequences_rigid_tip(
-        &mut self,
-        exts: &[Extension],
-        frames: &[SequenceFrame],
-    ) -> Vec<Result<Option<Field>>> {
-        exts.iter()
-            .map(|e| self.simulate_sequence_rigid_tip(e, frames))
-            .collect()
-    }
-
-    /// [`Self::simulate_sequence`] of every job, results in job order. The default runs them one
-    /// after another; [`FemProbeSimulator`] runs them in parallel (each sequence is independent:
-    /// its own model state and solver, started at rest), so the results are the serial ones bit
-    /// for bit.
-    fn simulate_sequences(&mut self, jobs: &[SequenceJob]) -> Vec<Result<Field>> {
-        jobs.iter()
-            .map(|(e, f)| self.simulate_sequence(e, f))
-            .collect()
-    }
-
-    /// Marker positions of every frame (time order) under the model extended by `ext`
-    /// ([`crate::extend`]). The default handles [`Extension::Elastic`] frame by frame; other
-    /// extensions need a simulator that implements them (an error otherwise).
-    fn simulate_sequence(
-        &mut self,
-        ext: &Extension,
-        frames: &[SequenceFrame],
-    ) -> Result<Vec<Vec<Vector3<f64>>>> {
-        match ext {
-            Extension::Elastic => frames
-                .iter()
-                .map(|f| self.simulate(&f.load, false).map(|o| o.markers_m))
-                .collect(),
-            other => Err(DiagnoseError::BadRecording {
-                what: format!("this simulator cannot simulate the extension {other:?}"),
-            }),
-        }
-    }
-}
 
 /// Settings of [`FemProbeSimulator`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -188,7 +49,7 @@ pub struct FemSimSettings {
     /// The frictional replay's regularization slip ε (`softcap_fem::FrictionParams::
     /// slip_distance_m`, the slip below which a contact node sticks elastically) as a fraction of
     /// the replayed mesh's surface node spacing near the tips
-    /// (`crate::extend::friction_slip_distance_m`: why; never below `FrictionParams`' 10 µm).
+    /// (`crate::sim::friction_slip_distance_m`: why; never below `FrictionParams`' 10 µm).
     pub friction_slip_fraction: f64,
 }
 
@@ -545,7 +406,7 @@ impl ProbeSimulator for FemProbeSimulator {
         let tip = TipShape::Sphere {
             radius_m: tip_radius_m,
         };
-        crate::extend::friction_refinement(&self.setup.mesh, &tip, tips_m) == 0
+        super::resolution::friction_refinement(&self.setup.mesh, &tip, tips_m) == 0
     }
 
     fn refined(&self, touched: &[RefineBall]) -> Result<Option<Box<dyn ProbeSimulator>>> {

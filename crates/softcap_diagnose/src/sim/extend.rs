@@ -1,30 +1,13 @@
-//! The extended models: the default model with one physical term added, from the FEM physics of
-//! `softcap_fem`, re-simulated over the whole recording in time order (history-dependent terms
-//! need the sequence: creep, plastic flow, stick of the support).
-//!
-//! | extension | `softcap_fem` model | parameters |
-//! |---|---|---|
-//! | [`Extension::Viscoelastic`] | `ViscoelasticModel` over the default corotational model, one Prony branch G(t)/G∞ = 1 + g e^{−t/τ} (generalized Maxwell, Simo & Hughes 1998 §10.3), exact exponential recurrence between frames | g, τ |
-//! | [`Extension::Plastic`] | `ElastoplasticModel` (J2 radial return on the corotational element, Simo & Hughes 1998 Box 3.1–3.2), the default model's (λ, α) per element, state committed after every frame | σ_y, H |
-//! | [`Extension::PlasticPoisson`] | as above with the Poisson ratio of every element replaced (Young's modulus kept) | σ_y, H, ν |
-//! | [`Extension::SupportSprings`] | `SupportPlane` with tangential springs on the attached nodes instead of fixed nodes (bilateral normal penalty), `NodalSolver` | total tangential stiffness k |
-//! | [`Extension::Anisotropic`] | `AnisotropicModel`, transversely isotropic (thesis eq. 8.5) with the default model's isotropic (E, ν) across the fibre and E_a = r E along it | fibre a, ratio r |
-//! | [`Extension::TransverselyIsotropic`] | `AnisotropicModel` as above with the Poisson ratios fitted too: ν_t across the fibre, ν_a fibre–transverse (thesis eq. 8.5, `TransverselyIsotropicParams::from_engineering`) | fibre a, ratio r, ν_t, ν_a |
-//! | [`Extension::ProbeFriction`] | the default model with regularized Coulomb friction between the rigid tip and the surface (`FrictionalContact`, IPC f₁ mollifier, stick anchors, normal forces lagged per solve and re-lagged until they settle, `softcap_fem::solve_lagged`), `NodalSolver`; rigid-tip replay only | μ |
-//! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
-//!
-//! The probe force of every frame is spread over its contact patch exactly as in the baseline
-//! (bickel2009 §4.1 force boundary condition, [`crate::FemProbeSimulator::probe_forces`]), or —
-//! [`FemProbeSimulator::simulate_sequence_rigid_tip`] — the probe is replayed as the rigid tip of
-//! the session at each frame's measured pose (bickel2009 §3.4 rigid-probe contact, penalty
-//! springs of `softcap_fem::contact`): position control, so the stress under the tip rim is the
-//! one the tip's geometry imposes (a J2 material yields there as it did in the recording) rather
-//! than the uniform pressure of the force boundary condition.
+//! The extended models of [`Extension`] re-simulated over a recording in time order on
+//! [`FemProbeSimulator`] (the table in [`crate::sim`]): history committed after every frame
+//! (creep, plastic flow, stick of the support and of the tip), force-driven or as a rigid-tip
+//! replay at the measured poses.
 
-use crate::sim::{FemProbeSimulator, SimLoad};
+use super::contract::{Extension, SequenceFrame, SimLoad};
+use super::fem::FemProbeSimulator;
+use super::resolution::{friction_refinement, friction_slip_distance_m, tip_radius_m};
 use crate::{DiagnoseError, Result};
 use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
-use serde::{Deserialize, Serialize};
 use softcap_fem::{
     AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel, EquilibriumSettings,
     FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations, LinearParams,
@@ -32,80 +15,6 @@ use softcap_fem::{
     SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
 };
 use softcap_probing::probe_pose;
-
-/// One extended model (see the module table).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub enum Extension {
-    /// The default model (loads may carry the extension).
-    Elastic,
-    /// One Prony branch.
-    Viscoelastic {
-        /// Relaxing fraction g of the long-term stiffness.
-        g: f64,
-        /// Relaxation time, s.
-        tau_s: f64,
-    },
-    /// J2 plasticity with linear isotropic hardening.
-    Plastic {
-        /// Uniaxial yield stress, Pa.
-        yield_stress_pa: f64,
-        /// Hardening modulus, Pa.
-        hardening_pa: f64,
-    },
-    /// J2 plasticity as [`Extension::Plastic`] on the default model's Young's moduli with the
-    /// Poisson ratio set to `poisson`: the tissue fit's ν is biased by the unmodelled plastic
-    /// flow (suite plasticity session: fitted 0.48, truth 0.45), and under the rigid-tip replay
-    /// (position control) the displacements depend on σ_y/E, H/E and ν only.
-    PlasticPoisson {
-        /// Uniaxial yield stress, Pa.
-        yield_stress_pa: f64,
-        /// Hardening modulus, Pa.
-        hardening_pa: f64,
-        /// Poisson ratio ν of every element (Young's modulus kept).
-        poisson: f64,
-    },
-    /// Tangential springs under the attached face.
-    SupportSprings {
-        /// Total tangential stiffness, N/m.
-        stiffness_n_per_m: f64,
-    },
-    /// Transversely isotropic stiffening along a fibre.
-    Anisotropic {
-        /// Fibre direction (world, unit).
-        fibre: Vector3<f64>,
-        /// Fibre / transverse Young's modulus.
-        ratio: f64,
-    },
-    /// Coulomb friction between the rigid tip and the surface (bickel2009 §7: the shaft-axis
-    /// sensor does not measure it; thesis §6.4 models the indenter as a high-friction surface):
-    /// `softcap_fem::FrictionalContact` with normal forces lagged per solve, the same law and
-    /// iterations the synthetic ground truth uses. Only in the rigid-tip replay (a traction needs
-    /// the tip's pose and the patch's stick history; the force boundary condition has neither).
-    ProbeFriction {
-        /// Coulomb coefficient μ.
-        mu: f64,
-    },
-    /// Transversely isotropic with the Poisson ratios as parameters.
-    TransverselyIsotropic {
-        /// Fibre direction (world, unit).
-        fibre: Vector3<f64>,
-        /// Fibre / transverse Young's modulus E_a / E_t.
-        ratio: f64,
-        /// Poisson ratio in the plane across the fibre ν_t.
-        nu_transverse: f64,
-        /// Poisson ratio ν_a (transverse contraction under fibre stress).
-        nu_fibre: f64,
-    },
-}
-
-/// One frame of a sequence: its time and load.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SequenceFrame {
-    /// Time, s.
-    pub time_s: f64,
-    /// Probe and body load.
-    pub load: SimLoad,
-}
 
 fn not_converged(k: usize, what: String) -> DiagnoseError {
     DiagnoseError::Simulation {
@@ -742,97 +651,6 @@ impl FemProbeSimulator {
     }
 }
 
-/// The radius of an analytic tip (`None` for a mesh tip).
-fn tip_radius_m(tip: &softcap_fem::TipShape) -> Option<f64> {
-    use softcap_fem::TipShape;
-    match tip {
-        TipShape::Sphere { radius_m }
-        | TipShape::Disk { radius_m, .. }
-        | TipShape::Cylinder { radius_m, .. } => Some(*radius_m),
-        TipShape::Mesh { .. } => None,
-    }
-}
-
-/// Mean boundary edge length h of `mesh` over the boundary faces with a vertex within 2 r
-/// (`radius_m`) of one of `tips_m` — over the whole surface when there is none (`None` without
-/// boundary faces): the surface node spacing a tip of radius r meets.
-pub fn surface_spacing_near(
-    mesh: &softcap_mesh::TetMesh,
-    radius_m: f64,
-    tips_m: &[Vector3<f64>],
-) -> Option<f64> {
-    let faces = mesh.boundary_faces();
-    let near = |f: &[usize; 3]| {
-        f.iter().any(|&v| {
-            tips_m
-                .iter()
-                .any(|t| (mesh.vertices[v] - t).norm() <= 2.0 * radius_m)
-        })
-    };
-    let touched: Vec<[usize; 3]> = faces.iter().copied().filter(near).collect();
-    let faces = if touched.is_empty() { faces } else { touched };
-    let (mut sum, mut n) = (0.0, 0usize);
-    for f in faces {
-        for i in 0..3 {
-            sum += (mesh.vertices[f[i]] - mesh.vertices[f[(i + 1) % 3]]).norm();
-            n += 1;
-        }
-    }
-    (n > 0).then(|| sum / n as f64)
-}
-
-/// The frictional replay's regularization slip ε (`softcap_fem::FrictionParams::slip_distance_m`)
-/// on `mesh`: `fraction` × the surface node spacing h near the replayed tips
-/// ([`surface_spacing_near`]; `FemSimSettings::friction_slip_fraction`, docs/diagnose.md session 15).
-///
-/// Why a fraction of h and not the truth's 10 µm: a contact node stands for its tributary patch
-/// of width h, and under a tip whose footprint spans a few nodes the patch's partial slip
-/// (Mindlin's slip annulus creeping inwards as the tip travels; Johnson, *Contact Mechanics*
-/// §7.2) is below the mesh's resolution. With ε ≪ h every node switches from stick to slip at one
-/// instant, and which nodes switch — and so the whole later stick history — forks with μ at the
-/// percent level (session 12: the replay's error jumps between μ 0.7071 and 0.71). Spreading a
-/// node's transition over ε = h / 10 keeps the stick stiff (2 μ f_n / ε is several times a node's
-/// elastic stiffness ~E h at the suite's loads) while the replay becomes a continuous function of μ.
-pub fn friction_slip_distance_m(
-    mesh: &softcap_mesh::TetMesh,
-    radius_m: f64,
-    tips_m: &[Vector3<f64>],
-    fraction: f64,
-) -> f64 {
-    let default = softcap_fem::FrictionParams::default().slip_distance_m;
-    surface_spacing_near(mesh, radius_m, tips_m)
-        .map(|h| (fraction * h).max(default))
-        .unwrap_or(default)
-}
-
-/// Uniform 1 → 8 refinements ([`FemProbeSimulator::refined`]) of `mesh` for the frictional rigid-tip
-/// replay of `tip`: the fewest (at most 2) that bring the mean boundary edge length h to ≤ 0.8 r
-/// (r the tip radius; 0 for a mesh tip). Penalty contact and the stick anchors act at surface
-/// nodes only, so the stuck patch that drags the surface must span several of them: a 6 mm
-/// sphere pressed 2 mm deep (footprint radius ≈ 5 mm) between the nodes of a 6.7 mm fit mesh
-/// touches none or one (the suite's probe-friction session: no displacement at 3 of 5 locations).
-/// h is measured over the boundary faces with a vertex within 2 r of one of `tips_m` (the tip
-/// positions of the replay; a locally refined mesh is fine only there), over the whole surface
-/// when there is none.
-pub fn friction_refinement(
-    mesh: &softcap_mesh::TetMesh,
-    tip: &softcap_fem::TipShape,
-    tips_m: &[Vector3<f64>],
-) -> u32 {
-    let Some(r) = tip_radius_m(tip) else {
-        return 0;
-    };
-    let Some(mut h) = surface_spacing_near(mesh, r, tips_m) else {
-        return 0;
-    };
-    let mut levels = 0;
-    while h > 0.8 * r && levels < 2 {
-        h *= 0.5;
-        levels += 1;
-    }
-    levels
-}
-
 /// Transversely isotropic parameters with the isotropic (E, ν) of `p` across the fibre and
 /// E_a = `ratio` · E along it (thesis eq. 8.5 via `TransverselyIsotropicParams::from_engineering`):
 /// ν_t = ν, fibre Poisson ratio ν_a = ν (capped so the compliance stays positive definite),
@@ -871,30 +689,4 @@ pub fn transverse_with_poisson(
         nu_a,
         e / (2.0 * (1.0 + nu_t)),
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The surface spacing near a tip is the mean boundary edge of the faces within 2 r of it,
-    /// and the frictional replay's slip is the fraction of it (never below the law's 10 µm).
-    #[test]
-    fn slip_distance_is_a_fraction_of_the_surface_spacing_near_the_tip() {
-        // 40 × 40 × 20 mm box, 10 × 10 × 5 cells of 4 mm: boundary edges are 4 mm sides and
-        // 4√2 mm face diagonals
-        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.04, 0.04, 0.02], [10, 10, 5]);
-        let tip = [Vector3::new(0.02, 0.02, 0.02)];
-        let h = surface_spacing_near(&mesh, 0.006, &tip).unwrap();
-        assert!(h > 0.004 && h < 0.004 * 2f64.sqrt(), "{h}");
-        let eps = friction_slip_distance_m(&mesh, 0.006, &tip, 0.1);
-        assert!((eps - 0.1 * h).abs() < 1e-15, "{eps} vs {h}");
-        // a finer mesh halves the spacing and the slip
-        let fine = softcap_mesh::box_tet_mesh([0.0; 3], [0.04, 0.04, 0.02], [20, 20, 10]);
-        let h_fine = surface_spacing_near(&fine, 0.006, &tip).unwrap();
-        assert!((h_fine / h - 0.5).abs() < 0.05, "{h_fine} vs {h}");
-        // never below the regularized Coulomb law's default
-        let floor = softcap_fem::FrictionParams::default().slip_distance_m;
-        assert_eq!(friction_slip_distance_m(&mesh, 0.006, &tip, 0.0), floor);
-    }
 }

@@ -1,0 +1,87 @@
+//! What a hypothesis is to the diagnosis: the [`Hypothesis`] trait and the [`Context`] it sees.
+
+use crate::Result;
+use crate::baseline::Prepared;
+use crate::catalog::Effect;
+use crate::cells::EffectCells;
+use crate::confirm::Confirmed;
+use crate::recording::Recording;
+use crate::screen::{Refit, Variant};
+use crate::segment::Segmentation;
+use crate::settings::DiagnoseSettings;
+use crate::signatures::Signatures;
+use crate::sim::ProbeSimulator;
+
+/// What a hypothesis sees of the diagnosis in progress.
+#[derive(Clone, Copy)]
+pub struct Context<'a> {
+    /// The recording.
+    pub rec: &'a Recording,
+    /// Its phases, locations and regions.
+    pub seg: &'a Segmentation,
+    /// The baseline simulation and the tangent responses.
+    pub prepared: &'a Prepared,
+    /// The signature features of the recording and the baseline residual.
+    pub signatures: &'a Signatures,
+    /// The diagnosis settings.
+    pub settings: &'a DiagnoseSettings,
+}
+
+/// When a hypothesis's signature alone sends it to re-simulation, whatever its screen says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SignatureRoute {
+    /// Confirmed before the screen's candidates (an unambiguous signature).
+    BeforeScreen,
+    /// Confirmed after the screen's candidates (they keep precedence); the re-simulation must
+    /// also beat the stiffness-scale nuisance, as a screened row must.
+    AfterScreen,
+}
+
+/// One catalog entry of the diagnosis.
+pub trait Hypothesis: Sync {
+    /// The catalog entry.
+    fn effect(&self) -> Effect;
+
+    /// The term the extension adds (report, extended model).
+    fn term(&self) -> &'static str;
+
+    /// The screen: the extension as a grid of linearised variants around the baseline. Empty
+    /// when it cannot act on this recording.
+    fn variants(&self, cx: &Context<'_>) -> Vec<Variant>;
+
+    /// Why it cannot act on the recording (when [`Self::variants`] is empty).
+    fn not_applicable_reason(&self) -> &'static str {
+        "no extension field for this recording"
+    }
+
+    /// The observations where its effect lives, scored there instead of the focus cells.
+    fn effect_cells(&self, rec: &Recording, seg: &Segmentation) -> Option<EffectCells> {
+        let _ = (rec, seg);
+        None
+    }
+
+    /// How strongly the signatures support it (0 = no opinion, 1 = supported, −1 = contradicted).
+    fn signature_support(&self, s: &Signatures) -> f64;
+
+    /// Whether its signature alone sends it to re-simulation, and when.
+    fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
+        let _ = s;
+        None
+    }
+
+    /// Confirms it by re-simulating its extended model over the recording, leave-one-location-out,
+    /// scored on `scored(k, m)`; `refit` is its screen. `Ok(None)` when it has no extended model
+    /// to re-simulate here (the verdict then rests on the screen).
+    fn confirm(
+        &self,
+        cx: &Context<'_>,
+        refit: &Refit,
+        scored: &dyn Fn(usize, usize) -> bool,
+        sim: &mut dyn ProbeSimulator,
+    ) -> Result<Option<Confirmed>>;
+}
+
+/// The value of parameter `name` in a parameter list.
+pub(crate) fn param(params: &[(String, f64)], name: &str) -> Option<f64> {
+    params.iter().find(|x| x.0 == name).map(|x| x.1)
+}

@@ -1,0 +1,188 @@
+//! `plasticity`: the probing left a permanent set.
+//!
+//! Screen: a permanent set proportional to the elastic response at each location's peak, growing
+//! with the running maximum force above a yield force f_y (grid), fraction β ≥ 0. Effect cells:
+//! released frames, markers within the contact radius of a location touched before. Signature:
+//! the released residual minus the same marker's rest residual above 3σ (a template offset cancels,
+//! a plastic set exists only after release). Confirmation: J2 plasticity with linear isotropic
+//! hardening (`softcap_fem::ElastoplasticModel`, Simo & Hughes 1998 Box 3.1–3.2) over the default
+//! (λ, α), σ_y and H as fractions of the peak contact pressure, driven by the measured force over
+//! the patch (bickel2009 §4.1) AND replayed with the session's rigid tip at every measured pose
+//! (§3.4 position control: the tip's rim sets the stress the material yields under) on the fit
+//! mesh refined 1 → 8 (`ProbeSimulator::refined`: the coarse linear tets cannot form the dent
+//! between the markers), the latter also with ν = 0.45 (the tissue fit's ν is biased by the
+//! plastic flow it did not model). The grid points are picked on the other locations' effect
+//! cells only: in a rigid-tip replay the contact frames carry the coarse mesh's contact error,
+//! which would otherwise decide the pick.
+
+use super::contract::{Context, Hypothesis};
+use crate::Result;
+use crate::catalog::Effect;
+use crate::cells::{EffectCells, contact_radius_m};
+use crate::confirm::{ComplianceScale, Confirmed};
+use crate::recording::Recording;
+use crate::resim::{GridPoint, Replays, RigidPoint};
+use crate::screen::{Basis, Refit, Variant};
+use crate::segment::{Phase, Segmentation};
+use crate::signatures::Signatures;
+use crate::sim::{Extension, ProbeSimulator};
+use nalgebra::Vector3;
+
+/// The plasticity hypothesis.
+pub struct Plasticity;
+
+/// Name of the effect cells.
+const CELLS: &str = "released/near-touched";
+
+impl Hypothesis for Plasticity {
+    fn effect(&self) -> Effect {
+        Effect::Plasticity
+    }
+
+    fn term(&self) -> &'static str {
+        "plastic set = plastic_fraction * T_peak (max(0, |f|_max - yield_force_n)) f_hat"
+    }
+
+    fn variants(&self, cx: &Context<'_>) -> Vec<Variant> {
+        let (seg, p) = (cx.seg, cx.prepared);
+        let f = &p.force_n;
+        let (nt, nm) = (p.times_s.len(), p.num_markers());
+        let peak = seg.peak_force_n();
+        (0..8)
+            .map(|i| i as f64 * 0.1 * peak)
+            .map(|fy| {
+                let mut field = vec![vec![Vector3::zeros(); nm]; nt];
+                for l in &seg.locations {
+                    let pk = l.peak_frame;
+                    let dir = f[pk].try_normalize(1e-12).unwrap_or_else(Vector3::zeros);
+                    let unit = p.apply(pk, &dir);
+                    let mut run_max = 0.0f64;
+                    for k in 0..nt {
+                        if seg.fold_of_frame[k] == Some(l.index) && seg.phases[k].in_contact() {
+                            run_max = run_max.max(f[k].norm());
+                        }
+                        let excess = (run_max - fy).max(0.0);
+                        if excess > 0.0 {
+                            for m in 0..nm {
+                                field[k][m] += unit[m] * excess;
+                            }
+                        }
+                    }
+                }
+                Variant {
+                    fixed: vec![("yield_force_n", fy)],
+                    offset: None,
+                    bases: vec![Basis {
+                        name: "plastic_fraction",
+                        nonneg: true,
+                        field,
+                    }],
+                }
+            })
+            .collect()
+    }
+
+    /// Released frames, markers within the contact radius of a location touched up to the frame.
+    fn effect_cells(&self, rec: &Recording, seg: &Segmentation) -> Option<EffectCells> {
+        let r = contact_radius_m(rec);
+        let mut touched: Vec<usize> = Vec::new();
+        let mask = (0..rec.frames.len())
+            .map(|k| {
+                if let Some(l) = seg.fold_of_frame[k]
+                    && !touched.contains(&l)
+                {
+                    touched.push(l);
+                }
+                (0..rec.num_markers())
+                    .map(|m| {
+                        seg.fold_of_frame[k].is_some()
+                            && seg.phases[k] == Phase::Released
+                            && touched.iter().any(|&l| {
+                                (seg.locations[l].peak_tip_m - rec.rest_markers_m[m]).norm() <= r
+                            })
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(EffectCells { name: CELLS, mask })
+    }
+
+    fn signature_support(&self, s: &Signatures) -> f64 {
+        if s.released_set_m > s.three_sigma_m() {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
+    fn confirm(
+        &self,
+        cx: &Context<'_>,
+        _: &Refit,
+        scored: &dyn Fn(usize, usize) -> bool,
+        sim: &mut dyn ProbeSimulator,
+    ) -> Result<Option<Confirmed>> {
+        let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
+        let peak_n = seg.peak_force_n();
+        let r_tip = rec.tip_radius_m.max(1e-4);
+        let pressure_pa = peak_n / (std::f64::consts::PI * r_tip * r_tip);
+        let mut grid: Vec<GridPoint> = Vec::new();
+        for sy in [0.1, 0.2, 0.4] {
+            for hh in [0.1, 0.5] {
+                let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                grid.push((
+                    vec![
+                        ("yield_stress_pa".into(), yield_stress_pa),
+                        ("hardening_modulus_pa".into(), hardening_pa),
+                    ],
+                    Extension::Plastic {
+                        yield_stress_pa,
+                        hardening_pa,
+                    },
+                    p.force_n.clone(),
+                ));
+            }
+        }
+        // Rigid-tip replays (position control) with the tissue fit's ν and with ν = 0.45
+        // (`Extension::PlasticPoisson`); under position control E only scales σ_y and H.
+        let mut rigid: Vec<RigidPoint> = Vec::new();
+        for nu in [None, Some(0.45)] {
+            for sy in [0.3, 0.4] {
+                for hh in [0.2, 0.5] {
+                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+                    let mut params = vec![
+                        ("yield_stress_pa".into(), yield_stress_pa),
+                        ("hardening_modulus_pa".into(), hardening_pa),
+                        ("rigid_tip_replay".into(), 1.0),
+                    ];
+                    let ext = match nu {
+                        None => Extension::Plastic {
+                            yield_stress_pa,
+                            hardening_pa,
+                        },
+                        Some(poisson) => {
+                            params.push(("poisson".into(), poisson));
+                            Extension::PlasticPoisson {
+                                yield_stress_pa,
+                                hardening_pa,
+                                poisson,
+                            }
+                        }
+                    };
+                    rigid.push((params, ext));
+                }
+            }
+        }
+        let replays = Replays::run(sim, grid, rigid, rec, seg, p, false)?;
+        replays.confirm(
+            rec,
+            seg,
+            p,
+            ComplianceScale::new(true, 0.1, 10.0),
+            scored,
+            true,
+            "ElastoplasticModel",
+            CELLS,
+        )
+    }
+}

@@ -1,0 +1,359 @@
+//! The re-simulation harness: a recording turned into load sequences, grids of extended models
+//! simulated over the whole recording in time order (force-driven under the measured force over
+//! the contact patch, or as rigid-tip replays at the measured poses), and the candidates they give
+//! the leave-one-location-out confirmation ([`crate::confirm`]).
+//!
+//! The grid points are independent sequences: [`simulate_grid`] and [`simulate_rigid_grid`] hand
+//! them to the simulator as one batch (`ProbeSimulator::simulate_sequences`,
+//! `ProbeSimulator::simulate_sequences_rigid_tip`: in parallel in `FemProbeSimulator`), and
+//! [`Replays::run`] runs the rigid-tip replays on the refined copy beside the force-driven grid
+//! (`rayon::join`). The results are taken in grid order with the serial loop's first-error rule,
+//! so every choice is the one-after-another one bit for bit.
+
+use crate::baseline::Prepared;
+use crate::cells::touched_balls;
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_confirm_among};
+use crate::recording::Recording;
+use crate::segment::Segmentation;
+use crate::sim::{
+    Extension, Field, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad,
+};
+use crate::{DiagnoseError, Result};
+use nalgebra::Vector3;
+
+/// A grid point of a force-driven confirmation: named parameters, the extension, the per-frame
+/// probe forces.
+pub type GridPoint = (Vec<(String, f64)>, Extension, Vec<Vector3<f64>>);
+
+/// A grid point of a rigid-tip replay: named parameters, the extension.
+pub type RigidPoint = (Vec<(String, f64)>, Extension);
+
+/// The recording as a rigid-tip replay's input: every frame carries its measured probe pose (and
+/// force, which a position-controlled replay does not use).
+pub fn pose_sequence(rec: &Recording) -> Vec<SequenceFrame> {
+    rec.frames
+        .iter()
+        .map(|f| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: f.tip_m,
+                    axis: f.axis,
+                    force_n: f.force_n,
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+/// The recording as a sequence to re-simulate under per-frame probe forces `forces`: a contact
+/// frame (segmentation) with a non-zero force carries the probe load at its tip and axis, every
+/// other frame is unloaded.
+pub fn contact_sequence(
+    rec: &Recording,
+    seg: &Segmentation,
+    forces: &[Vector3<f64>],
+) -> Vec<SequenceFrame> {
+    rec.frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| SequenceFrame {
+            time_s: f.time_s,
+            load: SimLoad {
+                probe: (seg.phases[k].in_contact() && forces[k].norm() > 1e-9).then_some(
+                    ProbeLoad {
+                        tip_m: f.tip_m,
+                        axis: f.axis,
+                        force_n: forces[k],
+                    },
+                ),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+/// Simulates every grid point (skipping those that do not reach equilibrium); returns the
+/// candidates, the grid size and, aligned with the candidates, the grid point each came from. With
+/// `contact_only` (extensions without history), only the contact frames are solved and every
+/// other frame is the unloaded model.
+pub fn simulate_grid(
+    sim: &mut dyn ProbeSimulator,
+    grid: Vec<GridPoint>,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    contact_only: bool,
+) -> Result<(Vec<Candidate>, usize, Vec<GridPoint>)> {
+    let total = grid.len();
+    let mut out = Vec::with_capacity(total);
+    let mut sources = Vec::with_capacity(total);
+    let solved: Vec<usize> = (0..rec.frames.len())
+        .filter(|&k| !contact_only || seg.phases[k].in_contact())
+        .collect();
+    let jobs: Vec<SequenceJob> = grid
+        .iter()
+        .map(|(_, ext, forces)| {
+            let all = contact_sequence(rec, seg, forces);
+            (*ext, solved.iter().map(|&k| all[k]).collect())
+        })
+        .collect();
+    // independent sequences, simulated in parallel by the simulator; taken in grid order
+    for (point, result) in grid.into_iter().zip(sim.simulate_sequences(&jobs)) {
+        match result {
+            Ok(x) => {
+                let mut prediction = vec![p.rest_model_m.clone(); rec.frames.len()];
+                for (row, &k) in x.into_iter().zip(&solved) {
+                    prediction[k] = row;
+                }
+                out.push(Candidate {
+                    params: point.0.clone(),
+                    prediction,
+                    position_controlled: false,
+                });
+                sources.push(point);
+            }
+            Err(DiagnoseError::Simulation { .. }) => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((out, total, sources))
+}
+
+/// Simulates every grid point with the rigid-tip replay
+/// ([`ProbeSimulator::simulate_sequence_rigid_tip`]: the probe at every frame's measured pose),
+/// skipping those that do not reach equilibrium; nothing when the simulator has no rigid tip.
+pub fn simulate_rigid_grid(
+    sim: &mut dyn ProbeSimulator,
+    grid: Vec<RigidPoint>,
+    rec: &Recording,
+) -> Result<(Vec<Candidate>, usize)> {
+    let frames = pose_sequence(rec);
+    let exts: Vec<Extension> = grid.iter().map(|(_, e)| *e).collect();
+    let mut out = Vec::with_capacity(grid.len());
+    let mut total = 0;
+    // independent replays, simulated in parallel by the simulator; taken in grid order
+    for ((params, _), result) in grid
+        .into_iter()
+        .zip(sim.simulate_sequences_rigid_tip(&exts, &frames))
+    {
+        match result {
+            Ok(Some(prediction)) => {
+                total += 1;
+                out.push(Candidate {
+                    params,
+                    prediction,
+                    position_controlled: true,
+                });
+            }
+            Ok(None) => break,
+            Err(DiagnoseError::Simulation { .. }) => total += 1,
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((out, total))
+}
+
+/// The candidates of grid sequences simulated in one batch, taken in grid order: each point's
+/// parameters and sequence with its result; points that do not reach equilibrium are skipped,
+/// any other error is returned (the first in grid order). Returns the candidates and, aligned
+/// with them, their sequences.
+pub fn sequence_candidates(
+    points: Vec<(Vec<(String, f64)>, Vec<SequenceFrame>)>,
+    results: Vec<Result<Field>>,
+) -> Result<(Vec<Candidate>, Vec<Vec<SequenceFrame>>)> {
+    let mut cands = Vec::with_capacity(points.len());
+    let mut frames = Vec::with_capacity(points.len());
+    for ((params, seq), result) in points.into_iter().zip(results) {
+        match result {
+            Ok(prediction) => {
+                cands.push(Candidate {
+                    params,
+                    prediction,
+                    position_controlled: false,
+                });
+                frames.push(seq);
+            }
+            Err(DiagnoseError::Simulation { .. }) => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((cands, frames))
+}
+
+/// A force-driven grid and a rigid-tip replay grid of one hypothesis, simulated
+/// ([`Replays::run`]), then confirmed together leave-one-location-out ([`Replays::confirm`]).
+/// Candidates in order: the force-driven grid on the fit mesh, its points re-simulated on a refined
+/// mesh ([`Replays::add_refined`]), the rigid-tip replays.
+pub struct Replays {
+    /// Converged force-driven candidates on the fit mesh.
+    pub forced: Vec<Candidate>,
+    /// The grid point of each force-driven candidate.
+    pub sources: Vec<GridPoint>,
+    /// Converged force-driven candidates on a refined mesh.
+    pub refined: Vec<Candidate>,
+    /// The force-driven candidate (index into `forced`) each refined one refines.
+    pub refined_from: Vec<usize>,
+    /// Per fold (then the full data): the force-driven candidates whose refinements it may choose.
+    pub neighbourhoods: Vec<Vec<usize>>,
+    /// Converged rigid-tip replays.
+    pub rigid: Vec<Candidate>,
+    /// Grid points attempted.
+    pub total: usize,
+    /// The refined copy the rigid-tip replays ran on (`None`: they ran on the fit mesh).
+    pub replay_mesh: Option<Box<dyn ProbeSimulator>>,
+}
+
+impl Replays {
+    /// Simulates the force-driven `grid` on the fit mesh (with `contact_only`, only the contact
+    /// frames, for extensions without history) and the rigid-tip replays `rigid` on a copy of the
+    /// fit mesh refined around the touched locations (`ProbeSimulator::refined`) when the
+    /// simulator has one — side by side — else on the fit mesh. Every rigid point gets the
+    /// parameter `refined_mesh` (1 or 0).
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        sim: &mut dyn ProbeSimulator,
+        grid: Vec<GridPoint>,
+        mut rigid: Vec<RigidPoint>,
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+        contact_only: bool,
+    ) -> Result<Self> {
+        // The rigid-tip replay on the refined mesh when the simulator has one; it does not depend
+        // on the force-driven grid, so the two run side by side on a refined copy.
+        let mut fine = if rigid.is_empty() {
+            Ok(None)
+        } else {
+            sim.refined(&touched_balls(rec, seg))
+        };
+        let refined = matches!(fine, Ok(Some(_)));
+        for (params, _) in &mut rigid {
+            params.push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+        }
+        let (coarse, rigid_side) = match fine.as_mut() {
+            Ok(Some(f)) => {
+                let replay = f.as_mut();
+                let rigid = std::mem::take(&mut rigid);
+                let (coarse, side) = rayon::join(
+                    || simulate_grid(sim, grid, rec, seg, p, contact_only),
+                    || simulate_rigid_grid(replay, rigid, rec),
+                );
+                (coarse, Some(side))
+            }
+            _ => (simulate_grid(sim, grid, rec, seg, p, contact_only), None),
+        };
+        // errors in the serial order: the force-driven grid's, the refinement's, the replays'
+        let (forced, total, sources) = coarse?;
+        let mut fine = fine?;
+        let (rigid_cands, rigid_total) = match rigid_side {
+            Some(side) => side?,
+            None => {
+                let replay: &mut dyn ProbeSimulator = match fine.as_deref_mut() {
+                    Some(f) => f,
+                    None => sim,
+                };
+                simulate_rigid_grid(replay, rigid, rec)?
+            }
+        };
+        Ok(Self {
+            forced,
+            sources,
+            refined: Vec::new(),
+            refined_from: Vec::new(),
+            neighbourhoods: Vec::new(),
+            rigid: rigid_cands,
+            total: total + rigid_total,
+            replay_mesh: fine,
+        })
+    }
+
+    /// Re-simulates the force-driven grid points `chosen` (indices into `sources`) on `fine` (a
+    /// refined copy of the fit mesh), each with the parameter `refined_mesh` = 1; a refined
+    /// candidate is offered only to the folds (index `num_folds`: the full data) whose
+    /// `neighbourhoods` entry holds the point it refines.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_refined(
+        &mut self,
+        fine: &mut dyn ProbeSimulator,
+        chosen: &[usize],
+        neighbourhoods: Vec<Vec<usize>>,
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+        contact_only: bool,
+    ) -> Result<()> {
+        let grid: Vec<GridPoint> = chosen
+            .iter()
+            .map(|&i| {
+                let (mut params, ext, forces) = self.sources[i].clone();
+                params.push(("refined_mesh".into(), 1.0));
+                (params, ext, forces)
+            })
+            .collect();
+        let (fine_cands, fine_total, fine_sources) =
+            simulate_grid(fine, grid, rec, seg, p, contact_only)?;
+        // Which coarse candidate each converged refined one refines (the grid points are unique).
+        for (params, _, _) in &fine_sources {
+            let name = &params[..params.len() - 1];
+            if let Some(&i) = chosen.iter().find(|&&i| self.sources[i].0 == name) {
+                self.refined_from.push(i);
+            }
+        }
+        self.total += fine_total;
+        self.refined.extend(fine_cands);
+        self.neighbourhoods = neighbourhoods;
+        Ok(())
+    }
+
+    /// Leave-one-location-out over every candidate ([`crate::confirm::lolo_confirm_among`]), a
+    /// refined candidate offered only to the folds whose neighbourhood holds the point it
+    /// refines: which grid points get refined was decided with the other folds' data, which
+    /// include this fold's. `what` names the extended model in the method, `cells` the scored
+    /// cells.
+    #[allow(clippy::too_many_arguments)]
+    pub fn confirm(
+        self,
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+        scale: ComplianceScale,
+        scored: &dyn Fn(usize, usize) -> bool,
+        train_on_scored: bool,
+        what: &str,
+        cells: &str,
+    ) -> Result<Option<Confirmed>> {
+        let n_coarse = self.forced.len();
+        let nf = seg.num_folds();
+        let (refined_from, neighbourhoods) = (&self.refined_from, &self.neighbourhoods);
+        let eligible = |i: usize, fold: Option<usize>| match i.checked_sub(n_coarse) {
+            Some(j) if j < refined_from.len() => neighbourhoods
+                .get(fold.unwrap_or(nf))
+                .is_some_and(|nb| nb.contains(&refined_from[j])),
+            _ => true,
+        };
+        let total = self.total;
+        let cands: Vec<Candidate> = self
+            .forced
+            .into_iter()
+            .chain(self.refined)
+            .chain(self.rigid)
+            .collect();
+        let n = cands.len();
+        lolo_confirm_among(
+            &cands,
+            Some(&eligible),
+            rec,
+            seg,
+            p,
+            scale,
+            scored,
+            train_on_scored,
+            None,
+            format!(
+                "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {cells}"
+            ),
+        )
+    }
+}

@@ -1,0 +1,58 @@
+//! Settings of the diagnosis (the `[diagnose]` table of the stage's settings TOML).
+
+use crate::segment::SegmentSettings;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the diagnosis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DiagnoseSettings {
+    /// Phase / location / region segmentation.
+    pub segment: SegmentSettings,
+    /// A hypothesis must explain at least this fraction of the held-out mean-square error …
+    pub min_heldout_gain: f64,
+    /// … lower the BIC by at least this much …
+    pub min_delta_bic: f64,
+    /// … and the baseline held-out MSE must exceed this multiple of the noise MSE (3σ²).
+    pub noise_floor_factor: f64,
+    /// Hypotheses whose held-out MSE is within this fraction of the best are look-alikes; their
+    /// signatures decide.
+    pub lookalike_margin: f64,
+    /// Re-simulate the winner (load extensions) with the full model, per fold.
+    pub confirm_with_resimulation: bool,
+    /// Density of the gravity basis, kg/m³.
+    pub reference_density_kg_m3: f64,
+    /// Score held-out errors on the affected cells only: the (region, phase) cells whose
+    /// baseline RMS is at least `focus_noise_factor` × the noise RMS √3σ and at least
+    /// `focus_fraction_of_max` × the largest cell's RMS (found by the locate step before any
+    /// hypothesis is fitted; the same cells for before, after and every hypothesis).
+    pub score_on_focus: bool,
+    /// See `score_on_focus`.
+    pub focus_noise_factor: f64,
+    /// See `score_on_focus`.
+    pub focus_fraction_of_max: f64,
+    /// Refit a displacement scale (the material's overall compliance) with every extended
+    /// model, on the training locations.
+    pub refit_compliance_scale: bool,
+    /// Confirm at most this many qualifying hypotheses with the extended FEM model.
+    pub max_confirmations: usize,
+}
+
+impl Default for DiagnoseSettings {
+    fn default() -> Self {
+        Self {
+            segment: SegmentSettings::default(),
+            min_heldout_gain: 0.3,
+            min_delta_bic: 10.0,
+            noise_floor_factor: 1.5,
+            lookalike_margin: 0.15,
+            confirm_with_resimulation: true,
+            reference_density_kg_m3: 1000.0,
+            score_on_focus: true,
+            focus_noise_factor: 2.0,
+            focus_fraction_of_max: 0.5,
+            refit_compliance_scale: true,
+            max_confirmations: 2,
+        }
+    }
+}
