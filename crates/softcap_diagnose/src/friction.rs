@@ -26,8 +26,9 @@
 //! (t = k_t Δs), long travel slides at μ f_n along the travel, and a retracting tip first unloads
 //! the stick and then slides back (the traction reverses).
 //!
-//! These kernels serve the drag signature ([`crate::signatures`]) and the probe-friction
-//! hypothesis ([`crate::hypotheses::probe_friction`]: its screen and its confirmation grid).
+//! These kernels serve the drag signature ([`crate::signatures`](mod@crate::signatures)) and the
+//! probe-friction hypothesis ([`crate::hypotheses::probe_friction`]: its screen and its
+//! confirmation grid).
 
 use crate::recording::Recording;
 use crate::segment::{Location, Segmentation};

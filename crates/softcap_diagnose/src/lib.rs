@@ -10,7 +10,7 @@
 //! | [`recording`], [`segment`] | the in-memory recording (frames: time, probe pose, force, markers); its phases, probe locations (the held-out unit) and marker regions |
 //! | [`signal`], [`sensor`], [`friction`] | kernels on frame-time traces: low-pass, derivative, time shift; the FSR chain and its inverse; the Coulomb return mapping of the tip's travel |
 //! | [`residual`], [`cells`] | residual components and where the error lives; noise σ; the focus cells and the hypotheses' effect cells |
-//! | [`signatures`] | the signature features that separate look-alike hypotheses |
+//! | [`signatures`](mod@signatures) | the signature features that separate look-alike hypotheses |
 //! | [`sim`] | the [`ProbeSimulator`] contract, [`FemProbeSimulator`] and the extended FEM models ([`Extension`]) re-simulated over a recording |
 //! | [`baseline`] | the default model at every frame with its tangent response ([`Prepared`]) |
 //! | [`screen`] | linearised extensions ([`screen::Variant`]) refitted leave-one-location-out ([`refit`]) |

@@ -10,7 +10,7 @@
 //! redirected field) does not qualify. Confirmation: `softcap_fem::AnisotropicModel` (thesis
 //! eq. 8.5) with the screened fibre and its mirror across the probe axis ([`mirrored_fibres`]),
 //! fibre ratio and both Poisson ratios on a grid; each fold's choice and its fibre-ratio neighbours
-//! ([`ratio_neighbourhood`]) re-simulated on the fit mesh refined 1 → 8
+//! (`ratio_neighbourhood`) re-simulated on the fit mesh refined 1 → 8
 //! (`ProbeSimulator::refined`), offered only to the folds whose choice they refine.
 
 use super::contract::{Context, Hypothesis, SignatureRoute, param};
@@ -33,8 +33,8 @@ pub struct Anisotropy;
 const CELLS: &str = "contact/away-from-probe";
 
 /// Least consistency |Σ_l v_l| / Σ_l |v_l| of the per-location lateral shifts for the anisotropy
-/// signature ([`lateral_shift`]): 1 when every location shifts the same way, ≈ 1/√L for
-/// directions at random.
+/// signature ([`crate::signatures::lateral_shift`]): 1 when every location shifts the same way,
+/// ≈ 1/√L for directions at random.
 pub const LATERAL_CONSISTENCY: f64 = 0.8;
 
 /// The lateral-shift signature is present: a mean shift above 3σ (σ the marker noise per

@@ -15,8 +15,8 @@
 //! | anisotropy | [`anisotropy`] | displacement along a fibre direction a scaled: −κ a (a·u₀) | a (13 directions), κ | transversely isotropic model (thesis eq. 8.5) |
 //! | inertia-damping | [`inertia_damping`] | M ü + C u̇: x = x₀ − c u̇₀ − m ü₀ | c ≥ 0, m ≥ 0 | — (linearised only) |
 //!
-//! [`crate::diagnose`] runs them all through the same phases; nothing outside this folder knows
-//! an entry by name except through [`Hypothesis::effect`].
+//! [`crate::diagnose`](mod@crate::diagnose) runs them all through the same phases; nothing outside
+//! this folder knows an entry by name except through [`Hypothesis::effect`].
 
 pub mod anisotropy;
 pub mod clock_offset;

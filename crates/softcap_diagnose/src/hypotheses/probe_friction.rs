@@ -11,7 +11,7 @@
 //! without reversal while unloading) AND the rigid tip replayed at its measured poses with Coulomb
 //! friction (`Extension::ProbeFriction`: the truth's law and lagged iterations, on the fit mesh
 //! refined until the tip spans several surface nodes, `crate::sim::friction_refinement`), its μ
-//! grid extended until it brackets the optimum ([`bracket_friction`]). The grid points are picked
+//! grid extended until it brackets the optimum (`bracket_friction`). The grid points are picked
 //! on the other locations' effect cells only: the markers away from the patch carry the default
 //! model's far-field form error, which no μ explains, and μ and the compliance scale would trade
 //! against it.
@@ -193,7 +193,7 @@ pub const MU_GRID: [f64; 8] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0, 1.25, 1.5];
 /// Friction coefficients the frictional rigid-tip replay starts from (`Extension::ProbeFriction`;
 /// each point re-simulates the recording with frictional contact on the refined fit mesh, ≈ 1 min
 /// in the test profile on the suite session, so the grid is coarse): log-spaced by
-/// [`RIGID_MU_STEP`] across rubber on skin, μ 0.5–1. [`bracket_friction`] extends it by the same step until
+/// [`RIGID_MU_STEP`] across rubber on skin, μ 0.5–1. `bracket_friction` extends it by the same step until
 /// the optimum is bracketed.
 pub const RIGID_MU_GRID: [f64; 3] = [0.5, 0.5 * std::f64::consts::SQRT_2, 1.0];
 /// Ratio between neighbouring μ of the frictional rigid-tip replay.
