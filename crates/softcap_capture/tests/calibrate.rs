@@ -496,3 +496,58 @@ fn command_writes_a_rig_and_rejects_bad_input() {
         &["points.csv", "--cameras"],
     );
 }
+
+/// A session folder: capture labels its markers from the detections, the rig given by
+/// `--cameras` (one camera turned by 0.05°: ≈ 1 px, inside capture's 2 px epipolar gate, which
+/// labels with the rig given) is refined back to the session's own, and
+/// `Session::use_cameras` rejects a rig that lacks one of the session's cameras.
+#[test]
+fn session_folder_calibrates_from_the_markers_capture_labels() {
+    use softcap_capture::calibrate::read_calibration_input;
+    use softcap_capture::session::read_cameras_toml;
+    let session = common::fixture("session-min");
+    let truth = read_cameras_toml(&session.join("rig/cameras.toml"), 1e-3).unwrap();
+    let mut turned = truth.clone();
+    let axis = Unit::new_normalize(Vector3::new(0.3, -1.0, 0.5));
+    let centre = turned[1].centre_world().coords;
+    turned[1].rotation =
+        Rotation3::from_axis_angle(&axis, 0.05f64.to_radians()).into_inner() * turned[1].rotation;
+    turned[1].translation_m = -(turned[1].rotation * centre);
+    let dir = tempfile::tempdir().unwrap();
+    let rig = dir.path().join("turned.toml");
+    std::fs::write(&rig, softcap_core::camera::cameras_toml(&turned, 1e3)).unwrap();
+
+    let input = read_calibration_input(&session, Some(&rig)).unwrap();
+    assert_eq!(input.length_unit, "mm");
+    let cal = calibrate(&input, &CalibrateSettings::default(), &mut |_| {}).unwrap();
+    let with_truth = softcap_capture::calibrate::reprojection_summary(&truth, &input.points);
+    let angle = |a: &Camera, b: &Camera| {
+        let dr = a.rotation * b.rotation.transpose();
+        ((dr.trace() - 1.0) / 2.0)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    };
+    let sigma = cal.parameter_std[1].rotation_rad.to_degrees();
+    println!(
+        "session-min, cam1 turned 0.05°: median per-point error {:.4} → {:.4} px (the session's own \
+         rig: {:.4} px); cam1 {:.4}° from the session's rig (σ {sigma:.4}°); {}",
+        cal.before.median_point_error_px,
+        cal.after.median_point_error_px,
+        with_truth.median_point_error_px,
+        angle(&cal.refined[1], &truth[1]),
+        cal.status_description()
+    );
+    assert_eq!(cal.status, CalibrationStatus::Converged);
+    assert!(cal.before.median_point_error_px > 1.5 * cal.after.median_point_error_px);
+    // The detections' own noise is the floor: the refined rig reaches it ...
+    assert!(cal.after.median_point_error_px <= with_truth.median_point_error_px * 1.01);
+    // ... and cam1 comes back to within the estimate's uncertainty.
+    assert!(angle(&cal.refined[1], &truth[1]) < 4.0 * sigma);
+
+    let mut partial = softcap_capture::Session::load(&session).unwrap();
+    let two = dir.path().join("two.toml");
+    std::fs::write(&two, softcap_core::camera::cameras_toml(&truth[..2], 1e3)).unwrap();
+    let e = partial.use_cameras(&two).unwrap_err().to_string();
+    assert!(e.contains("two.toml") && e.contains("cam2"), "{e}");
+}

@@ -33,7 +33,7 @@ use crate::bundle::{
 };
 use crate::camera::Camera;
 use crate::error::{CaptureError, Result};
-use crate::pipeline::{CaptureSettings, capture, median_sorted};
+use crate::pipeline::{CaptureSettings, MarkerSource, capture, median_sorted};
 use crate::session::{Session, read_rig};
 use crate::triangulate::{PixelObservation, TriangulationSettings, triangulate, triangulate_dlt};
 
@@ -107,8 +107,13 @@ pub fn read_calibration_input(input: &Path, cameras: Option<&Path>) -> Result<Ca
         if let Some(path) = cameras {
             session.use_cameras(path)?;
         }
+        // The session's detections when it has them (labeled already, and no image decoding).
         let settings = CaptureSettings {
-            fill_occluded: false,
+            source: if session.detections.is_some() {
+                MarkerSource::Detections
+            } else {
+                MarkerSource::Auto
+            },
             ..CaptureSettings::default()
         };
         let result = capture(&session, &settings)?;
