@@ -142,26 +142,10 @@ fn params_from_q(lambda_ref: &[f64], q: &[f64]) -> Vec<LinearParams> {
         .collect()
 }
 
-/// Jᵀ w for every observed marker coordinate: the rows of J_m = ∂x_markers/∂p (3k × 2T,
-/// parameters interleaved (λ_e, α_e)) by the adjoint method of the appendix (eq. 11–12): one
-/// multi-column solve with the one factorization for all rows.
-fn marker_jacobian_rows(
-    setup: &ProbingSetup,
-    example: &ProbeExample,
-    sens: &Sensitivity<'_>,
-) -> Result<Vec<Vec<f64>>, FemError> {
-    let mut weights = Vec::with_capacity(3 * example.observed.len());
-    for o in &example.observed {
-        let emb = &setup.markers[o.marker];
-        let tet = setup.mesh.tets[emb.tet];
-        for c in 0..3 {
-            weights.push((0..4).map(|a| (3 * tet[a] + c, emb.weights[a])).collect());
-        }
-    }
-    sens.jt_times_sparse(&weights)
-}
-
-/// The rows of [`marker_jacobian_rows`] at the current equilibrium `x` of `model`.
+/// The marker Jacobian J_m = ∂x_markers/∂p at the equilibrium `x` of `model`, one row per
+/// observed marker coordinate of `example` (3k rows × 2T, parameters interleaved (λ_e, α_e)),
+/// by the adjoint method of bickel2009 appendix eq. 10–12: Jᵀw for the k marker weight vectors
+/// w by one multi-column solve with one factorization of the `kind` stiffness.
 pub fn marker_jacobian(
     setup: &ProbingSetup,
     solver: &mut StaticSolver,
@@ -171,7 +155,15 @@ pub fn marker_jacobian(
     kind: StiffnessKind,
 ) -> Result<Vec<Vec<f64>>, FemError> {
     let sens = Sensitivity::new(solver, model, x, kind, None)?;
-    marker_jacobian_rows(setup, example, &sens)
+    let mut weights = Vec::with_capacity(3 * example.observed.len());
+    for o in &example.observed {
+        let emb = &setup.markers[o.marker];
+        let tet = setup.mesh.tets[emb.tet];
+        for c in 0..3 {
+            weights.push((0..4).map(|a| (3 * tet[a] + c, emb.weights[a])).collect());
+        }
+    }
+    sens.jt_times_sparse(&weights)
 }
 
 /// Where the iteration of [`fit_examples`] starts. The reference field (λ_ref of the

@@ -226,7 +226,7 @@ impl StrainSpaceMaterial {
     /// (bickel2009 §4.2 after Carr et al. 2001): start with sample 0 (by convention the
     /// zero-strain sample with the average parameters; with the constant tail the one-centre fit
     /// is the least-squares constant, i.e. the average material), fit eq. 8 to all samples in
-    /// the least-squares sense ([`fit_element_rbf`]), add the sample with the largest error,
+    /// the least-squares sense (`fit_element_rbf`), add the sample with the largest error,
     /// until the RMS error is below `relative_tolerance` × mean λ (`max_centers` at most).
     /// Evaluation clamps λ to [floor, ceiling] from the element's smallest / largest sample λ
     /// and ν = α/λ to `nu_bounds`, so the material stays physically valid at any strain.
