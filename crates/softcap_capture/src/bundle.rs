@@ -790,10 +790,19 @@ impl<'a> Problem<'a> {
                 ..unknown
             };
         }
-        let scale: Vec<f64> = free
+        // A parameter whose Schur-complement diagonal is not positive is determined by nothing
+        // the points leave after their own elimination.
+        if let Some(&row) = free
             .iter()
-            .map(|&i| 1.0 / red.s[(i, i)].max(1e-300).sqrt())
-            .collect();
+            .find(|&&i| !red.s[(i, i)].is_finite() || red.s[(i, i)] <= 0.0)
+        {
+            return Uncertainty {
+                weakest: (row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS]),
+                residual_sigma_px,
+                ..unknown
+            };
+        }
+        let scale: Vec<f64> = free.iter().map(|&i| 1.0 / red.s[(i, i)].sqrt()).collect();
         let a = DMatrix::from_fn(m, m, |i, j| red.s[(free[i], free[j])] * scale[i] * scale[j]);
         let eig = a.symmetric_eigen();
         let (kmin, &lmin) = eig

@@ -637,7 +637,11 @@ pub fn calibrate(
             }
             views[p] = mask.iter().filter(|m| **m).count();
             for (o, keep) in input.points[p].iter().zip(mask) {
-                if keep {
+                if keep && views[p] < 2 {
+                    // The one view left of a point: it constrains nothing but its own ray (and
+                    // would leave the point's 3×3 block singular); not an outlier either.
+                    continue;
+                } else if keep {
                     inliers.push(Observation {
                         camera: o.camera,
                         point: p,
