@@ -166,7 +166,7 @@ fn ordered_parallel_forces_energy(
 /// f_int(x) = Σ_e (element forces) with the element forces computed in parallel and accumulated
 /// serially in element order (the same bits as the serial default of
 /// [`ElasticModel::internal_forces`]).
-fn ordered_parallel_forces(
+pub(crate) fn ordered_parallel_forces(
     geometry: &[TetGeometry],
     num_nodes: usize,
     element_forces: impl Fn(usize) -> [Vector3<f64>; 4] + Sync,

@@ -374,6 +374,51 @@ impl ElasticModel for ElastoplasticModel {
     fn energy(&self, _x: &[Vector3<f64>]) -> Option<f64> {
         None // path dependent: no potential in x alone
     }
+    fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        crate::model::ordered_parallel_forces(&self.geometry, self.rest.len(), |e| {
+            self.element_forces(e, x)
+        })
+    }
+    /// One return mapping (polar decomposition and radial return) per element for its forces
+    /// and its matrix, elements in parallel: the bits of `element_forces` / `element_matrix`
+    /// (the default evaluated the return mapping twice, serially; a rigid-tip J2 replay spends
+    /// most of its time here).
+    fn linearize_elements(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        matrices: &mut [Matrix12],
+    ) -> Option<f64> {
+        let element = |k: usize, (f, m): (&mut [Vector3<f64>; 4], &mut Matrix12)| {
+            let e = first + k;
+            let (rm, r, s) = self.element_return(e, x);
+            let (g, p) = (&self.geometry[e], self.params[e]);
+            *f = forces_from_stress(g, &r, &rm.stress_pa);
+            *m = tangent_from_stress(
+                g,
+                &r,
+                &s,
+                &rm.stress_pa,
+                |de| rm.tangent_apply(&p, de),
+                kind == StiffnessKind::Consistent,
+            );
+        };
+        if forces.len() < crate::model::PARALLEL_MIN_ELEMENTS {
+            for (k, item) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
+                element(k, item);
+            }
+        } else {
+            use rayon::prelude::*;
+            forces
+                .par_iter_mut()
+                .zip(matrices.par_iter_mut())
+                .enumerate()
+                .for_each(|(k, item)| element(k, item));
+        }
+        None
+    }
 }
 
 /// F_p from the symmetric 6-vector s = (s_xx, s_yy, s_zz, s_xy, s_xz, s_yz) (saito-barbic eq. 2).
@@ -605,5 +650,50 @@ mod tests {
         let fd_h = (at(sy, hh + 1e-2) - at(sy, hh - 1e-2)) / 2e-2;
         assert!((fd_sy - dsy).norm() < 1e-6 * dsy.norm(), "{fd_sy} vs {dsy}");
         assert!((fd_h - dh).norm() < 1e-6 * dh.norm(), "{fd_h} vs {dh}");
+    }
+
+    /// The one-pass linearization and the parallel forces are the per-element methods' bits,
+    /// for yielded and elastic elements, both stiffness kinds, serial and parallel lengths.
+    #[test]
+    fn linearization_is_the_per_element_bits() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.04, 0.04, 0.02], [8, 8, 2]);
+        let el = LinearParams::from_young_poisson(2.0e4, 0.45).unwrap();
+        let pl = J2PlasticityParams {
+            yield_stress_pa: 300.0,
+            hardening_modulus_pa: 1.0e3,
+        };
+        let mut model = ElastoplasticModel::homogeneous(&mesh, el, pl).unwrap();
+        let press = |v: &Vector3<f64>| {
+            let r = ((v.x - 0.02).powi(2) + (v.y - 0.02).powi(2)).sqrt();
+            let dz = -0.003 * (v.z / 0.02) * (-(r / 0.008).powi(2)).exp();
+            v + Vector3::new(0.1 * dz, 0.05 * dz, dz)
+        };
+        let x: Vec<Vector3<f64>> = mesh.vertices.iter().map(press).collect();
+        assert!(model.commit(&x) > 0, "the press must yield some elements");
+        let x2: Vec<Vector3<f64>> = x.iter().map(|v| v * 1.001).collect();
+        let n = model.elements().len();
+        assert!(n >= crate::model::PARALLEL_MIN_ELEMENTS);
+        let serial: Vec<Vector3<f64>> = {
+            let mut out = vec![Vector3::zeros(); model.num_nodes()];
+            for (e, g) in model.elements().iter().enumerate() {
+                let f = model.element_forces(e, &x2);
+                for a in 0..4 {
+                    out[g.nodes[a]] += f[a];
+                }
+            }
+            out
+        };
+        assert_eq!(model.internal_forces(&x2), serial);
+        for kind in [StiffnessKind::Consistent, StiffnessKind::Warped] {
+            for (first, len) in [(0, n), (3, 10)] {
+                let mut f = vec![[Vector3::zeros(); 4]; len];
+                let mut m = vec![Matrix12::zeros(); len];
+                model.linearize_elements(first, &x2, kind, &mut f, &mut m);
+                for k in 0..len {
+                    assert_eq!(f[k], model.element_forces(first + k, &x2));
+                    assert_eq!(m[k], model.element_matrix(first + k, &x2, kind));
+                }
+            }
+        }
     }
 }
