@@ -2,7 +2,7 @@
 //! `scripts/thirdparty-suite` with FElupe and gmsh, not by softcap): on every session, unlabeled
 //! detections with 0.2 px noise, dropouts and persistent spurious blobs, the markers are recovered
 //! within 0.25 mm RMS of `truth/markers.csv` and the axial probe force within 2 % of its maximum
-//! (RMS over all frames) of `truth/probe.csv`.
+//! (RMS over all frames) of `truth/probe.csv` (except where the FSR itself lags the force).
 
 mod common;
 
@@ -11,7 +11,10 @@ use softcap_capture::{CaptureSettings, MarkerSource, Session, capture};
 const MARKER_RMS_MM: f64 = 0.25;
 const FORCE_RMS_FRACTION: f64 = 0.02;
 
-fn check(case: &str) {
+/// `force_is_truth`: the FSR measures the true axial force (every case but `sensor-lag`, whose
+/// FSR lags it by design — 10.6 % of the peak RMS, its `truth/README.md` — and whose force
+/// error is the diagnosis's to find, not capture's).
+fn check(case: &str, force_is_truth: bool) {
     let name = format!("thirdparty/{case}");
     let session = Session::load(&common::fixture(&name)).unwrap();
     let settings = CaptureSettings {
@@ -28,7 +31,7 @@ fn check(case: &str) {
         a.marker_max_mm
     );
     assert!(
-        a.axial_force_rms_n <= FORCE_RMS_FRACTION * a.axial_force_max_n,
+        !force_is_truth || a.axial_force_rms_n <= FORCE_RMS_FRACTION * a.axial_force_max_n,
         "{case}: axial force RMS {:.4} N vs max {:.3} N (worst frame {} off by {:.4} N)",
         a.axial_force_rms_n,
         a.axial_force_max_n,
@@ -47,7 +50,7 @@ macro_rules! cases {
         $(
             #[test]
             fn $test() {
-                check($case);
+                check($case, true);
             }
         )*
     };
@@ -62,4 +65,11 @@ cases! {
     plasticity_pair => "plasticity-pair",
     plasticity => "plasticity",
     probe_friction => "probe-friction",
+    support_slip => "support-slip",
+    clock_offset => "clock-offset",
+}
+
+#[test]
+fn sensor_lag() {
+    check("sensor-lag", false);
 }
