@@ -77,7 +77,8 @@ pub fn diagnose_with_progress(
     };
     let screen = screen(&cx, &mismatch, progress);
     let confirmation = confirm(&cx, &screen, sim, progress)?;
-    let (diagnosis, extended_m) = verdict(&cx, &mismatch, &screen, &confirmation);
+    let diagnosis = verdict(&mismatch, &screen, &confirmation);
+    let extended_m = extended_prediction(&cx, &screen, &confirmation);
     progress.finish();
     let residuals_after = match &extended_m {
         Some(x) => residuals(rec, x),
@@ -542,25 +543,12 @@ fn confirm(
 // ------------------------------------------------------------------------------------------
 // 5. verdict
 
-/// The ranked table (the verdict first, `none` after the rows that explain something, or first
-/// without a verdict) and the verdict's extended-model prediction.
-fn verdict(
-    cx: &Context<'_>,
-    mismatch: &Mismatch,
-    screen: &Screen<'_>,
-    confirmation: &Confirmation,
-) -> (Diagnosis, Option<Field>) {
-    let sig = &mismatch.signatures;
+/// The ranked table: the verdict first, then the other screened rows (best score first), the
+/// hypotheses that cannot act, and `none` after the rows that explain something (first without
+/// a verdict).
+fn verdict(mismatch: &Mismatch, screen: &Screen<'_>, confirmation: &Confirmation) -> Diagnosis {
     let winner = confirmation.verdict;
-    let focus_cells: Vec<String> = if mismatch.focus.is_empty() {
-        vec!["all".into()]
-    } else {
-        mismatch
-            .focus
-            .iter()
-            .map(|(r, ph)| format!("{}/{}", r.name(), ph.name()))
-            .collect()
-    };
+    let focus_cells = focus_cell_names(&mismatch.focus);
     let mut order: Vec<&Row> = screen.rows.iter().collect();
     if let Some(i) = order
         .iter()
@@ -569,92 +557,134 @@ fn verdict(
         let r = order.remove(i);
         order.insert(0, r);
     }
-    let mut ranked = Vec::new();
-    let mut extended_m = None;
-    for row in order {
-        let e = row.hypothesis.effect();
-        let mut screened = Screened {
-            delta_bic: row.delta_bic,
-            signature_support: row.support,
-            qualifies: row.qualifies,
-            confirmed_by_signature: confirmation.by_signature.contains(&e),
-            num_params: row.refit.num_params,
-            method: "linearised refit (tangent response)".into(),
-            heldout_rmse_linearised_m: row.after_m,
-        };
-        let mut evidence = Evidence {
-            signatures: sig.clone(),
-            scored_cells: Some(match screen.scoring.cells.get(&e) {
-                Some(c) => vec![c.name.to_string()],
-                None => focus_cells.clone(),
+    let mut ranked: Vec<RankedHypothesis> = order
+        .into_iter()
+        .map(|row| screened_row(row, mismatch, screen, confirmation, &focus_cells))
+        .collect();
+    ranked.extend(
+        screen
+            .not_applicable
+            .iter()
+            .map(|h| not_applicable_row(*h, mismatch)),
+    );
+    let pos = match winner {
+        Some(_) => ranked
+            .iter()
+            .skip(1)
+            .position(|r| r.score <= 0.0)
+            .map(|p| p + 1)
+            .unwrap_or(ranked.len()),
+        None => 0,
+    };
+    ranked.insert(pos, none_row(mismatch, screen, focus_cells));
+    Diagnosis {
+        verdict: winner.map_or("none", |e| e.name()).to_string(),
+        ranked,
+        located: mismatch.located.clone(),
+    }
+}
+
+/// The focus cells as `region/phase` names (`all` when every observation is scored).
+fn focus_cell_names(focus: &[(Region, Phase)]) -> Vec<String> {
+    if focus.is_empty() {
+        return vec!["all".into()];
+    }
+    focus
+        .iter()
+        .map(|(r, ph)| format!("{}/{}", r.name(), ph.name()))
+        .collect()
+}
+
+/// A screened hypothesis: its linearised refit, replaced by the re-simulated extended model
+/// where that ran.
+fn screened_row(
+    row: &Row,
+    mismatch: &Mismatch,
+    screen: &Screen<'_>,
+    confirmation: &Confirmation,
+    focus_cells: &[String],
+) -> RankedHypothesis {
+    let e = row.hypothesis.effect();
+    let mut screened = Screened {
+        delta_bic: row.delta_bic,
+        signature_support: row.support,
+        qualifies: row.qualifies,
+        confirmed_by_signature: confirmation.by_signature.contains(&e),
+        num_params: row.refit.num_params,
+        method: "linearised refit (tangent response)".into(),
+        heldout_rmse_linearised_m: row.after_m,
+    };
+    let mut evidence = Evidence {
+        signatures: mismatch.signatures.clone(),
+        scored_cells: Some(match screen.scoring.cells.get(&e) {
+            Some(c) => vec![c.name.to_string()],
+            None => focus_cells.to_vec(),
+        }),
+        heldout_rmse_all_before_m: Some(mismatch.before_all_m),
+        ..Default::default()
+    };
+    let mut after = row.after_m;
+    let mut params: BTreeMap<String, f64> = row.refit.params.iter().cloned().collect();
+    match confirmation.confirmed.get(&e) {
+        Some(Ok(c)) => {
+            evidence.resimulated = Some(Resimulated {
+                heldout_rmse_resimulated_m: c.after_scored_m,
+                heldout_rmse_all_after_m: c.after_all_m,
+            });
+            screened.method = c.method.clone();
+            after = c.after_scored_m;
+            params = c.params.iter().cloned().collect();
+        }
+        Some(Err(err)) => evidence.confirmation_failed = Some(err.clone()),
+        None => {}
+    }
+    evidence.screened = Some(screened);
+    let before = row.before_m;
+    RankedHypothesis {
+        hypothesis: e.name().into(),
+        score: if before > 0.0 {
+            1.0 - (after * after) / (before * before)
+        } else {
+            0.0
+        },
+        heldout_rmse_before_m: before,
+        heldout_rmse_after_m: after,
+        params,
+        evidence,
+    }
+}
+
+/// A hypothesis that cannot act on the recording: no gain, and why.
+fn not_applicable_row(h: &dyn Hypothesis, mismatch: &Mismatch) -> RankedHypothesis {
+    RankedHypothesis {
+        hypothesis: h.effect().name().into(),
+        score: 0.0,
+        heldout_rmse_before_m: mismatch.before_m,
+        heldout_rmse_after_m: mismatch.before_m,
+        params: BTreeMap::new(),
+        evidence: Evidence {
+            signatures: mismatch.signatures.clone(),
+            not_applicable: Some(NotApplicable {
+                applicable: false,
+                reason: h.not_applicable_reason().into(),
             }),
-            heldout_rmse_all_before_m: Some(mismatch.before_all_m),
             ..Default::default()
-        };
-        let mut after = row.after_m;
-        let mut params: BTreeMap<String, f64> = row.refit.params.iter().cloned().collect();
-        match confirmation.confirmed.get(&e) {
-            Some(Ok(c)) => {
-                evidence.resimulated = Some(Resimulated {
-                    heldout_rmse_resimulated_m: c.after_scored_m,
-                    heldout_rmse_all_after_m: c.after_all_m,
-                });
-                screened.method = c.method.clone();
-                after = c.after_scored_m;
-                params = c.params.iter().cloned().collect();
-                if Some(e) == winner {
-                    extended_m = Some(c.prediction.clone());
-                }
-            }
-            Some(Err(err)) => evidence.confirmation_failed = Some(err.clone()),
-            None => {}
-        }
-        evidence.screened = Some(screened);
-        if Some(e) == winner && extended_m.is_none() {
-            extended_m = Some(predict(
-                &row.hypothesis.variants(cx),
-                cx.prepared,
-                &row.refit,
-            ));
-        }
-        let before = row.before_m;
-        ranked.push(RankedHypothesis {
-            hypothesis: e.name().into(),
-            score: if before > 0.0 {
-                1.0 - (after * after) / (before * before)
-            } else {
-                0.0
-            },
-            heldout_rmse_before_m: before,
-            heldout_rmse_after_m: after,
-            params,
-            evidence,
-        });
+        },
     }
-    let before = mismatch.before_m;
-    for h in &screen.not_applicable {
-        ranked.push(RankedHypothesis {
-            hypothesis: h.effect().name().into(),
-            score: 0.0,
-            heldout_rmse_before_m: before,
-            heldout_rmse_after_m: before,
-            params: BTreeMap::new(),
-            evidence: Evidence {
-                signatures: sig.clone(),
-                not_applicable: Some(NotApplicable {
-                    applicable: false,
-                    reason: h.not_applicable_reason().into(),
-                }),
-                ..Default::default()
-            },
-        });
-    }
-    // `none`: the default model itself.
-    let none = RankedHypothesis {
+}
+
+/// `none`: the default model itself, against the noise and the stiffness-scale nuisance.
+fn none_row(
+    mismatch: &Mismatch,
+    screen: &Screen<'_>,
+    focus_cells: Vec<String>,
+) -> RankedHypothesis {
+    let sig = &mismatch.signatures;
+    RankedHypothesis {
         hypothesis: "none".into(),
         score: 0.0,
-        heldout_rmse_before_m: before,
-        heldout_rmse_after_m: before,
+        heldout_rmse_before_m: mismatch.before_m,
+        heldout_rmse_after_m: mismatch.before_m,
         params: BTreeMap::new(),
         evidence: Evidence {
             signatures: sig.clone(),
@@ -667,27 +697,30 @@ fn verdict(
             }),
             ..Default::default()
         },
-    };
-    let pos = match winner {
-        Some(_) => ranked
-            .iter()
-            .skip(1)
-            .position(|r| r.score <= 0.0)
-            .map(|p| p + 1)
-            .unwrap_or(ranked.len()),
-        None => 0,
-    };
-    ranked.insert(pos, none);
-    let diagnosis = Diagnosis {
-        verdict: winner.map_or("none", |e| e.name()).to_string(),
-        ranked,
-        located: mismatch.located.clone(),
-    };
-    (diagnosis, extended_m)
+    }
 }
 
 // ------------------------------------------------------------------------------------------
 // 6. extended model
+
+/// The verdict's prediction: its re-simulated extended model (full-data fit), else its
+/// linearised refit.
+fn extended_prediction(
+    cx: &Context<'_>,
+    screen: &Screen<'_>,
+    confirmation: &Confirmation,
+) -> Option<Field> {
+    let e = confirmation.verdict?;
+    if let Some(Ok(c)) = confirmation.confirmed.get(&e) {
+        return Some(c.prediction.clone());
+    }
+    let row = screen.row(e)?;
+    Some(predict(
+        &row.hypothesis.variants(cx),
+        cx.prepared,
+        &row.refit,
+    ))
+}
 
 /// RMS before / after per (region, phase), m (in-sample, the verdict's full fit).
 fn extended_model_table(

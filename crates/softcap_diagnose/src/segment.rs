@@ -108,148 +108,24 @@ impl Segmentation {
             .fold(0.0, f64::max)
     }
 
-    /// Segments `rec` (see the module docs).
+    /// Segments `rec` (see the module docs): contact runs of the probe force, extended back over
+    /// the approach a late force channel misses; runs at one place are one location; phases
+    /// inside each run, released frames after it; marker regions from the rest shape.
     pub fn new(rec: &Recording, settings: &SegmentSettings) -> Self {
         let n = rec.frames.len();
         let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
-        let peak = fmag.iter().cloned().fold(0.0, f64::max);
-        let thr = (settings.contact_force_fraction * peak).max(settings.contact_force_min_n);
-        let contact: Vec<bool> = fmag.iter().map(|&f| f > thr && peak > 0.0).collect();
-
-        // Maximal runs of contact frames, split where the tip jumps to another place (a lagging
-        // force may not drop below the threshold between two locations).
-        let mut runs: Vec<(usize, usize)> = Vec::new();
-        let mut i = 0;
-        while i < n {
-            if contact[i] {
-                let s = i;
-                i += 1;
-                while i < n
-                    && contact[i]
-                    && (rec.frames[i].tip_m - rec.frames[i - 1].tip_m).norm()
-                        < settings.same_location_radius_m
-                {
-                    i += 1;
-                }
-                runs.push((s, i));
-                // The run ended on a tip jump with the force still above the threshold: while the
-                // force keeps falling it trails the contact just left (a late or lagging force
-                // channel — clock offset, sensor lag), so those frames are released frames of
-                // that run, not a new location; a rising force starts the next run.
-                if i < n && contact[i] {
-                    while i < n && contact[i] && fmag[i] <= fmag[i - 1] {
-                        i += 1;
-                    }
-                }
-            } else {
-                i += 1;
-            }
-        }
-
-        // Geometry leads a late force channel (clock offset, sensor lag): extend each run back over
-        // the frames where the tip was already pressing in at the same place — the approach frames
-        // whose depth along the probe axis rises monotonically into the run, after the shallowest
-        // frame of the approach (which stays out of contact). With an on-time force channel the
-        // frame before a run is that shallowest frame, so nothing changes.
-        for r in 0..runs.len() {
-            let (s, e) = runs[r];
-            let floor = if r > 0 { runs[r - 1].1 } else { 0 };
-            let Some(axis) = rec.frames[s].axis.try_normalize(1e-12) else {
-                continue;
-            };
-            let tip_s = rec.frames[s].tip_m;
-            let lateral = |k: usize| {
-                let d = rec.frames[k].tip_m - tip_s;
-                (d - axis * axis.dot(&d)).norm()
-            };
-            let depth = |k: usize| (rec.frames[k].tip_m - tip_s).dot(&axis);
-            // tolerance for the tracked tip's noise (a hold is flat up to it)
-            let tol = 0.1 * rec.tip_radius_m.max(1e-3);
-            let mut j = s;
-            while j > floor
-                && lateral(j - 1) < settings.same_location_radius_m
-                && depth(j - 1) <= depth(j) + tol
-            {
-                j -= 1;
-            }
-            let shallow = depth(j) + tol;
-            if let Some(first) = (j..s).find(|&k| depth(k) > shallow)
-                && first < s
-            {
-                runs[r] = (first, e);
-            }
-        }
+        let mut runs = contact_runs(rec, &fmag, settings);
+        extend_runs_back(rec, &mut runs, settings);
 
         let mut phases = vec![Phase::Rest; n];
         let mut fold_of_frame = vec![None; n];
         let mut locations: Vec<Location> = Vec::new();
         let mut run_location = Vec::with_capacity(runs.len());
         for &(s, e) in &runs {
-            let pk = (s..e)
-                .max_by(|&a, &b| fmag[a].total_cmp(&fmag[b]).then(b.cmp(&a)))
-                .unwrap_or(s);
-            let tip = rec.frames[pk].tip_m;
-            let found = locations
-                .iter()
-                .position(|l| (l.peak_tip_m - tip).norm() < settings.same_location_radius_m);
-            let li = match found {
-                Some(li) => {
-                    let l = &mut locations[li];
-                    l.contact_frames.extend(s..e);
-                    if fmag[pk] > l.peak_force_n {
-                        l.peak_force_n = fmag[pk];
-                        l.peak_frame = pk;
-                        l.peak_tip_m = tip;
-                    }
-                    li
-                }
-                None => {
-                    locations.push(Location {
-                        index: locations.len(),
-                        peak_tip_m: tip,
-                        contact_tip_m: rec.frames[s].tip_m,
-                        axis: Vector3::zeros(),
-                        peak_frame: pk,
-                        peak_force_n: fmag[pk],
-                        contact_frames: (s..e).collect(),
-                    });
-                    locations.len() - 1
-                }
-            };
+            let li = add_run(rec, &fmag, s, e, settings, &mut locations);
             run_location.push(li);
-
-            // Phases inside the run: depth along the mean axis when the tip moves, else ‖f‖.
-            let axis_sum: Vector3<f64> = (s..e).map(|k| rec.frames[k].axis).sum();
-            let axis = axis_sum.try_normalize(1e-12).unwrap_or_else(Vector3::zeros);
-            let start_tip = if s > 0 {
-                rec.frames[s - 1].tip_m
-            } else {
-                rec.frames[s].tip_m
-            };
-            let depth: Vec<f64> = (s..e)
-                .map(|k| (rec.frames[k].tip_m - start_tip).dot(&axis))
-                .collect();
-            let dmax = depth.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-            let dmin = depth.iter().cloned().fold(f64::INFINITY, f64::min);
-            let signal: Vec<f64> = if dmax - dmin > 0.2 * rec.tip_radius_m.max(1e-4) {
-                depth.iter().map(|d| d - dmin).collect()
-            } else {
-                (s..e).map(|k| fmag[k]).collect()
-            };
-            let smax = signal.iter().cloned().fold(0.0, f64::max);
-            let level = (1.0 - settings.hold_fraction) * smax;
-            let first = signal.iter().position(|&v| v >= level).unwrap_or(0);
-            let last = signal.iter().rposition(|&v| v >= level).unwrap_or(0);
-            for (j, k) in (s..e).enumerate() {
-                phases[k] = if j < first {
-                    Phase::Loading
-                } else if j > last {
-                    Phase::Unloading
-                } else if first == last {
-                    Phase::Loading
-                } else {
-                    Phase::Hold
-                };
+            for (k, phase) in (s..e).zip(run_phases(rec, &fmag, s, e, settings)) {
+                phases[k] = phase;
                 fold_of_frame[k] = Some(li);
             }
         }
@@ -271,26 +147,7 @@ impl Segmentation {
         } else {
             (4.0 * rec.tip_radius_m).max(0.005)
         };
-        let regions = rec
-            .rest_markers_m
-            .iter()
-            .map(|p| {
-                if let Some(s) = &rec.support
-                    && s.distance_m(p).abs() <= s.tolerance_m
-                {
-                    return Region::Attached;
-                }
-                if locations
-                    .iter()
-                    .any(|l| (l.contact_tip_m - p).norm() <= near_radius_m)
-                {
-                    Region::Probed
-                } else {
-                    Region::Free
-                }
-            })
-            .collect();
-
+        let regions = marker_regions(rec, &locations, near_radius_m);
         Segmentation {
             phases,
             fold_of_frame,
@@ -304,6 +161,191 @@ impl Segmentation {
     pub fn num_folds(&self) -> usize {
         self.locations.len()
     }
+}
+
+/// Maximal runs `[s, e)` of contact frames (‖f‖ above the contact threshold), split where the tip
+/// jumps to another place (a lagging force may not drop below the threshold between two
+/// locations).
+fn contact_runs(rec: &Recording, fmag: &[f64], settings: &SegmentSettings) -> Vec<(usize, usize)> {
+    let n = fmag.len();
+    let peak = fmag.iter().cloned().fold(0.0, f64::max);
+    let thr = (settings.contact_force_fraction * peak).max(settings.contact_force_min_n);
+    let contact: Vec<bool> = fmag.iter().map(|&f| f > thr && peak > 0.0).collect();
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut i = 0;
+    while i < n {
+        if contact[i] {
+            let s = i;
+            i += 1;
+            while i < n
+                && contact[i]
+                && (rec.frames[i].tip_m - rec.frames[i - 1].tip_m).norm()
+                    < settings.same_location_radius_m
+            {
+                i += 1;
+            }
+            runs.push((s, i));
+            // The run ended on a tip jump with the force still above the threshold: while the
+            // force keeps falling it trails the contact just left (a late or lagging force
+            // channel — clock offset, sensor lag), so those frames are released frames of
+            // that run, not a new location; a rising force starts the next run.
+            if i < n && contact[i] {
+                while i < n && contact[i] && fmag[i] <= fmag[i - 1] {
+                    i += 1;
+                }
+            }
+        } else {
+            i += 1;
+        }
+    }
+    runs
+}
+
+/// Geometry leads a late force channel (clock offset, sensor lag): extends each run back over
+/// the frames where the tip was already pressing in at the same place — the approach frames
+/// whose depth along the probe axis rises monotonically into the run, after the shallowest
+/// frame of the approach (which stays out of contact). With an on-time force channel the frame
+/// before a run is that shallowest frame, so nothing changes.
+fn extend_runs_back(rec: &Recording, runs: &mut [(usize, usize)], settings: &SegmentSettings) {
+    for r in 0..runs.len() {
+        let (s, e) = runs[r];
+        let floor = if r > 0 { runs[r - 1].1 } else { 0 };
+        let Some(axis) = rec.frames[s].axis.try_normalize(1e-12) else {
+            continue;
+        };
+        let tip_s = rec.frames[s].tip_m;
+        let lateral = |k: usize| {
+            let d = rec.frames[k].tip_m - tip_s;
+            (d - axis * axis.dot(&d)).norm()
+        };
+        let depth = |k: usize| (rec.frames[k].tip_m - tip_s).dot(&axis);
+        // tolerance for the tracked tip's noise (a hold is flat up to it)
+        let tol = 0.1 * rec.tip_radius_m.max(1e-3);
+        let mut j = s;
+        while j > floor
+            && lateral(j - 1) < settings.same_location_radius_m
+            && depth(j - 1) <= depth(j) + tol
+        {
+            j -= 1;
+        }
+        let shallow = depth(j) + tol;
+        if let Some(first) = (j..s).find(|&k| depth(k) > shallow)
+            && first < s
+        {
+            runs[r] = (first, e);
+        }
+    }
+}
+
+/// Adds contact run `[s, e)` to the location within `same_location_radius_m` of its peak's tip
+/// (a new location when none is); returns the location's index.
+fn add_run(
+    rec: &Recording,
+    fmag: &[f64],
+    s: usize,
+    e: usize,
+    settings: &SegmentSettings,
+    locations: &mut Vec<Location>,
+) -> usize {
+    let pk = (s..e)
+        .max_by(|&a, &b| fmag[a].total_cmp(&fmag[b]).then(b.cmp(&a)))
+        .unwrap_or(s);
+    let tip = rec.frames[pk].tip_m;
+    let found = locations
+        .iter()
+        .position(|l| (l.peak_tip_m - tip).norm() < settings.same_location_radius_m);
+    match found {
+        Some(li) => {
+            let l = &mut locations[li];
+            l.contact_frames.extend(s..e);
+            if fmag[pk] > l.peak_force_n {
+                l.peak_force_n = fmag[pk];
+                l.peak_frame = pk;
+                l.peak_tip_m = tip;
+            }
+            li
+        }
+        None => {
+            locations.push(Location {
+                index: locations.len(),
+                peak_tip_m: tip,
+                contact_tip_m: rec.frames[s].tip_m,
+                axis: Vector3::zeros(),
+                peak_frame: pk,
+                peak_force_n: fmag[pk],
+                contact_frames: (s..e).collect(),
+            });
+            locations.len() - 1
+        }
+    }
+}
+
+/// The phases of the frames of contact run `[s, e)`: loading, hold within `hold_fraction` of
+/// the peak, unloading — of the depth along the run's mean axis when the tip moves, else of ‖f‖.
+fn run_phases(
+    rec: &Recording,
+    fmag: &[f64],
+    s: usize,
+    e: usize,
+    settings: &SegmentSettings,
+) -> Vec<Phase> {
+    let axis_sum: Vector3<f64> = (s..e).map(|k| rec.frames[k].axis).sum();
+    let axis = axis_sum.try_normalize(1e-12).unwrap_or_else(Vector3::zeros);
+    let start_tip = if s > 0 {
+        rec.frames[s - 1].tip_m
+    } else {
+        rec.frames[s].tip_m
+    };
+    let depth: Vec<f64> = (s..e)
+        .map(|k| (rec.frames[k].tip_m - start_tip).dot(&axis))
+        .collect();
+    let dmax = depth.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let dmin = depth.iter().cloned().fold(f64::INFINITY, f64::min);
+    let signal: Vec<f64> = if dmax - dmin > 0.2 * rec.tip_radius_m.max(1e-4) {
+        depth.iter().map(|d| d - dmin).collect()
+    } else {
+        (s..e).map(|k| fmag[k]).collect()
+    };
+    let smax = signal.iter().cloned().fold(0.0, f64::max);
+    let level = (1.0 - settings.hold_fraction) * smax;
+    let first = signal.iter().position(|&v| v >= level).unwrap_or(0);
+    let last = signal.iter().rposition(|&v| v >= level).unwrap_or(0);
+    (0..signal.len())
+        .map(|j| {
+            if j < first {
+                Phase::Loading
+            } else if j > last {
+                Phase::Unloading
+            } else if first == last {
+                Phase::Loading
+            } else {
+                Phase::Hold
+            }
+        })
+        .collect()
+}
+
+/// Each marker's region: `attached` on the support plane, `probed` within `near_radius_m` of a
+/// location's first contact point, else `free`.
+fn marker_regions(rec: &Recording, locations: &[Location], near_radius_m: f64) -> Vec<Region> {
+    rec.rest_markers_m
+        .iter()
+        .map(|p| {
+            if let Some(s) = &rec.support
+                && s.distance_m(p).abs() <= s.tolerance_m
+            {
+                return Region::Attached;
+            }
+            if locations
+                .iter()
+                .any(|l| (l.contact_tip_m - p).norm() <= near_radius_m)
+            {
+                Region::Probed
+            } else {
+                Region::Free
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -9,12 +9,16 @@ use super::resolution::{friction_refinement, friction_slip_distance_m, tip_radiu
 use crate::{DiagnoseError, Result};
 use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use softcap_fem::{
-    AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel, EquilibriumSettings,
-    FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations, LinearParams,
-    NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver, SupportPlane,
-    SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
+    AnisotropicModel, ContactProblem, ElasticModel, ElastoplasticModel, EquilibriumReport,
+    EquilibriumSettings, FrictionParams, FrictionalContact, J2PlasticityParams, LaggedIterations,
+    LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, StaticSolver,
+    SupportPlane, SupportTangential, TransverselyIsotropicParams, ViscoelasticModel, solve_lagged,
 };
 use softcap_probing::probe_pose;
+
+fn fem(e: softcap_fem::FemError) -> DiagnoseError {
+    DiagnoseError::Fem(Box::new(e))
+}
 
 fn not_converged(k: usize, what: String) -> DiagnoseError {
     DiagnoseError::Simulation {
@@ -83,7 +87,6 @@ impl FemProbeSimulator {
         frames: &[SequenceFrame],
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let setup = self.setup();
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
         let mut x = setup.mesh.vertices.clone();
         let mut previous = vec![Vector3::zeros(); x.len()];
@@ -119,7 +122,6 @@ impl FemProbeSimulator {
     /// The `AnisotropicModel` of an anisotropy extension over the default model's (λ, α).
     fn anisotropic_model(&self, ext: &Extension) -> Result<AnisotropicModel> {
         let base = self.model();
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         let (fibre, params) = match *ext {
             Extension::TransverselyIsotropic {
                 fibre,
@@ -158,7 +160,6 @@ impl FemProbeSimulator {
     /// The `ElastoplasticModel` of a plasticity extension over the default model's (λ, α) — with
     /// the Poisson ratio replaced for [`Extension::PlasticPoisson`].
     fn plastic_model(&self, ext: &Extension) -> Result<ElastoplasticModel> {
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         let base = self.model();
         let (yield_stress_pa, hardening_pa, params) = match *ext {
             Extension::Plastic {
@@ -204,7 +205,6 @@ impl FemProbeSimulator {
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let base = self.model().clone();
         let mesh = &self.setup().mesh;
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         match *ext {
             Extension::Elastic => match self.strain_space_model() {
                 Some(model) => self.run_strain_space(model, frames),
@@ -394,7 +394,6 @@ impl FemProbeSimulator {
         fine: Option<&Self>,
     ) -> Result<Option<Vec<Vec<Vector3<f64>>>>> {
         let base = self.model().clone();
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         Ok(Some(match *ext {
             Extension::Elastic => {
                 self.run_rigid(base, tip, None, frames, |_, _| Ok(()), |_, _| {})?
@@ -461,68 +460,19 @@ impl FemProbeSimulator {
     /// of the active set, solved by `softcap_fem::solve_lagged`).
     fn run_rigid<M: ElasticModel + Clone>(
         &self,
-        mut model: M,
+        model: M,
         tip: &softcap_fem::TipShape,
         friction: Option<FrictionParams>,
         frames: &[SequenceFrame],
         mut before: impl FnMut(&mut M, f64) -> Result<()>,
         mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
-        let setup = self.setup();
-        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
-        let rest = setup.mesh.vertices.clone();
-        let candidates: Vec<usize> = setup
-            .boundary_nodes
-            .iter()
-            .copied()
-            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
-            .collect();
-        let max_iterations = if friction.is_some() {
-            FRICTION_MAX_ITERATIONS
-        } else {
-            RIGID_MAX_ITERATIONS
+        let replay = RigidReplay::new(self, tip, friction.is_some());
+        let mut state = RigidState {
+            solver: replay.solver(&model, friction)?,
+            model,
+            x: replay.rest.clone(),
         };
-        let settings = EquilibriumSettings {
-            max_iterations: self
-                .settings()
-                .equilibrium
-                .max_iterations
-                .max(max_iterations),
-            ..self.settings().equilibrium.clone()
-        };
-        // A disk is replayed as a flat punch: penetrations leave through its face, never its rim
-        // (`Probe::with_punch_face`; the closest-feature projection pushed a node just inside the
-        // rim out sideways and the replay jumped to a second equilibrium mid-hold).
-        let punch = |p: Probe| p.with_punch_face();
-        let problem_at = |iso: Isometry3<f64>| -> Result<ContactProblem> {
-            Ok(ContactProblem {
-                probe: punch(Probe::new(tip.clone(), iso).map_err(fem)?),
-                candidate_nodes: candidates.clone(),
-                settings: self.settings().rigid_tip_contact.clone(),
-            })
-        };
-        let mut solver = match friction {
-            None => RigidSolver::Frictionless(setup.solver(&model).map_err(Box::new)?),
-            Some(params) => {
-                let mut contact =
-                    FrictionalContact::new(problem_at(Isometry3::identity())?, params)
-                        .and_then(|c| {
-                            c.with_discretisation(
-                                self.settings().friction_contact,
-                                &setup.mesh.boundary_faces(),
-                                &rest,
-                            )
-                        })
-                        .map_err(fem)?;
-                contact.active_set_hysteresis = true;
-                contact.normal_force_lag = NormalForceLag::Solve;
-                RigidSolver::Frictional {
-                    solver: NodalSolver::new(&model, &setup.dirichlet().dofs()).map_err(fem)?,
-                    contact: Box::new(contact),
-                }
-            }
-        };
-        let mut x = rest.clone();
         let mut out = Vec::with_capacity(frames.len());
         let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
         let mut prev_pose: Option<Isometry3<f64>> = None;
@@ -532,122 +482,252 @@ impl FemProbeSimulator {
                 probe: None,
                 body_force_n_m3: fr.load.body_force_n_m3,
             });
-            // The tip frame is carried from the last frame's by the smallest rotation that turns
-            // its axis onto the measured one (parallel transport). `probe_pose` alone fixes the
-            // rotation about the axis arbitrarily: near an axis pointing straight down, µrad jitter
-            // of the measured axis turns it by up to 180° between frames — invisible to a sphere
-            // or a disk, but the stick anchors of friction live in the tip frame and would be
-            // swung around the axis with it.
-            let pose = fr.load.probe.map(|p| {
-                let iso = probe_pose(&p.tip_m, &p.axis);
-                match (last_rotation, p.axis.try_normalize(1e-12)) {
-                    (Some(r), Some(axis)) => {
-                        let turn = UnitQuaternion::rotation_between(&(r * Vector3::z()), &axis)
-                            .unwrap_or_else(UnitQuaternion::identity);
-                        Isometry3::from_parts(iso.translation, turn * r)
-                    }
-                    _ => iso,
-                }
-            });
+            let pose = fr
+                .load
+                .probe
+                .map(|p| carried_pose(&p.tip_m, &p.axis, last_rotation));
             if let Some(p) = pose {
                 last_rotation = Some(p.rotation);
             }
-            let probe = pose
-                .map(|iso| Probe::new(tip.clone(), iso).map(punch))
-                .transpose()
-                .map_err(fem)?;
-            let touches = probe.as_ref().is_some_and(|p| {
-                candidates
-                    .iter()
-                    .any(|&i| p.penetration(&rest[i]).is_some() || p.penetration(&x[i]).is_some())
-            });
+            let probe = pose.map(|iso| replay.probe(iso)).transpose()?;
+            let touches = replay.touches(probe.as_ref(), &state.x);
             let dt = (fr.time_s - t_prev).max(0.0);
             t_prev = fr.time_s;
-            if let RigidSolver::Frictional { contact, .. } = &mut solver
+            if let RigidSolver::Frictional { contact, .. } = &mut state.solver
                 && !touches
             {
                 // the tip left the surface: no stick history carries over to the next touch
                 contact.reset_history();
             }
-            let start_contact = match &solver {
-                RigidSolver::Frictional { contact, .. } => Some(contact.clone()),
-                RigidSolver::Frictionless(_) => None,
+            let path = match (touches, pose) {
+                (true, Some(to)) => Some((prev_pose.unwrap_or(to), to)),
+                _ => None,
             };
-            let (start_x, start_model) = (x.clone(), model.clone());
-            let mut ok = false;
-            let mut status = String::new();
-            for substeps in [1usize, 4, 16] {
-                x.clone_from(&start_x);
-                model = start_model.clone();
-                if let (RigidSolver::Frictional { contact, .. }, Some(c)) =
-                    (&mut solver, &start_contact)
-                {
-                    contact.clone_from(c);
-                }
-                ok = true;
-                for s in 1..=substeps {
-                    let t = s as f64 / substeps as f64;
-                    before(&mut model, dt / substeps as f64)?;
-                    let iso = match (touches, pose) {
-                        (true, Some(to)) => {
-                            let from = prev_pose.unwrap_or(to);
-                            Some(Isometry3::from_parts(
-                                Translation3::from(
-                                    from.translation.vector.lerp(&to.translation.vector, t),
-                                ),
-                                from.rotation.slerp(&to.rotation, t),
-                            ))
-                        }
-                        _ => None,
-                    };
-                    setup.dirichlet().apply(&mut x);
-                    let rep = match &mut solver {
-                        RigidSolver::Frictionless(solver) => {
-                            let problem = iso.map(problem_at).transpose()?;
-                            solver.solve(&mut model, &mut x, &f, problem.as_ref(), &settings)
-                        }
-                        RigidSolver::Frictional { solver, contact } => {
-                            if let Some(iso) = iso {
-                                contact.move_probe(&mut x, iso);
-                            }
-                            let rep = solve_lagged(
-                                solver,
-                                &mut model,
-                                &mut x,
-                                &f,
-                                iso.is_some().then_some(&mut **contact),
-                                &mut [],
-                                &settings,
-                                &LaggedIterations::default(),
-                            )
-                            .equilibrium;
-                            if rep.converged() && iso.is_some() {
-                                NodalTerm::commit(&mut **contact, &x);
-                            }
-                            rep
-                        }
-                    };
-                    if !rep.converged() {
-                        status = format!(
-                            "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
-                            rep.status, rep.iterations
-                        );
-                        ok = false;
-                        break;
-                    }
-                    commit(&mut model, &x);
-                }
-                if ok {
-                    break;
-                }
-            }
-            if !ok {
-                return Err(not_converged(k, status));
-            }
+            replay
+                .step(&mut state, &f, path, dt, &mut before, &mut commit)?
+                .map_err(|status| not_converged(k, status))?;
             prev_pose = pose;
-            out.push(setup.marker_positions(&x));
+            out.push(self.setup().marker_positions(&state.x));
         }
         Ok(out)
+    }
+}
+
+/// The tip frame at the measured `tip_m` and `axis`, carried from the last frame's rotation by
+/// the smallest rotation that turns its axis onto the measured one (parallel transport).
+/// `probe_pose` alone fixes the rotation about the axis arbitrarily: near an axis pointing
+/// straight down, µrad jitter of the measured axis turns it by up to 180° between frames —
+/// invisible to a sphere or a disk, but the stick anchors of friction live in the tip frame and
+/// would be swung around the axis with it.
+fn carried_pose(
+    tip_m: &Vector3<f64>,
+    axis: &Vector3<f64>,
+    last_rotation: Option<UnitQuaternion<f64>>,
+) -> Isometry3<f64> {
+    let iso = probe_pose(tip_m, axis);
+    match (last_rotation, axis.try_normalize(1e-12)) {
+        (Some(r), Some(axis)) => {
+            let turn = UnitQuaternion::rotation_between(&(r * Vector3::z()), &axis)
+                .unwrap_or_else(UnitQuaternion::identity);
+            Isometry3::from_parts(iso.translation, turn * r)
+        }
+        _ => iso,
+    }
+}
+
+/// What a rigid-tip replay holds fixed: the simulator, the session's tip, the rest shape, the
+/// surface nodes the tip may touch (boundary nodes off the attached region) and the
+/// equilibrium settings.
+struct RigidReplay<'a> {
+    sim: &'a FemProbeSimulator,
+    tip: &'a softcap_fem::TipShape,
+    rest: Vec<Vector3<f64>>,
+    candidates: Vec<usize>,
+    settings: EquilibriumSettings,
+}
+
+/// What a rigid-tip replay carries from frame to frame: the solver (with the friction history),
+/// the material model (with its history) and the node positions.
+struct RigidState<M> {
+    solver: RigidSolver,
+    model: M,
+    x: Vec<Vector3<f64>>,
+}
+
+impl<'a> RigidReplay<'a> {
+    fn new(sim: &'a FemProbeSimulator, tip: &'a softcap_fem::TipShape, frictional: bool) -> Self {
+        let setup = sim.setup();
+        let candidates: Vec<usize> = setup
+            .boundary_nodes
+            .iter()
+            .copied()
+            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
+            .collect();
+        let max_iterations = if frictional {
+            FRICTION_MAX_ITERATIONS
+        } else {
+            RIGID_MAX_ITERATIONS
+        };
+        let settings = EquilibriumSettings {
+            max_iterations: sim
+                .settings()
+                .equilibrium
+                .max_iterations
+                .max(max_iterations),
+            ..sim.settings().equilibrium.clone()
+        };
+        Self {
+            sim,
+            tip,
+            rest: setup.mesh.vertices.clone(),
+            candidates,
+            settings,
+        }
+    }
+
+    /// The tip at `iso`. A disk is replayed as a flat punch: penetrations leave through its
+    /// face, never its rim (`Probe::with_punch_face`; the closest-feature projection pushed a
+    /// node just inside the rim out sideways and the replay jumped to a second equilibrium
+    /// mid-hold).
+    fn probe(&self, iso: Isometry3<f64>) -> Result<Probe> {
+        Probe::new(self.tip.clone(), iso)
+            .map(Probe::with_punch_face)
+            .map_err(fem)
+    }
+
+    /// The contact problem of the tip at `iso`.
+    fn problem_at(&self, iso: Isometry3<f64>) -> Result<ContactProblem> {
+        Ok(ContactProblem {
+            probe: self.probe(iso)?,
+            candidate_nodes: self.candidates.clone(),
+            settings: self.sim.settings().rigid_tip_contact.clone(),
+        })
+    }
+
+    /// The static solver, or with `friction` the nodal solver and its frictional contact.
+    fn solver<M: ElasticModel>(
+        &self,
+        model: &M,
+        friction: Option<FrictionParams>,
+    ) -> Result<RigidSolver> {
+        let setup = self.sim.setup();
+        let Some(params) = friction else {
+            return Ok(RigidSolver::Frictionless(
+                setup.solver(model).map_err(Box::new)?,
+            ));
+        };
+        let mut contact = FrictionalContact::new(self.problem_at(Isometry3::identity())?, params)
+            .and_then(|c| {
+                c.with_discretisation(
+                    self.sim.settings().friction_contact,
+                    &setup.mesh.boundary_faces(),
+                    &self.rest,
+                )
+            })
+            .map_err(fem)?;
+        contact.active_set_hysteresis = true;
+        contact.normal_force_lag = NormalForceLag::Solve;
+        Ok(RigidSolver::Frictional {
+            solver: NodalSolver::new(model, &setup.dirichlet().dofs()).map_err(fem)?,
+            contact: Box::new(contact),
+        })
+    }
+
+    /// The tip penetrates a candidate node at rest or where it is now.
+    fn touches(&self, probe: Option<&Probe>, x: &[Vector3<f64>]) -> bool {
+        probe.is_some_and(|p| {
+            self.candidates
+                .iter()
+                .any(|&i| p.penetration(&self.rest[i]).is_some() || p.penetration(&x[i]).is_some())
+        })
+    }
+
+    /// One frame: the tip moved along `path` (from, to; `None`: off the surface) over `dt` in 1,
+    /// else 4, else 16 sub-steps, each solved to equilibrium and committed; a failed attempt
+    /// restarts from the frame's start. `Ok(Err(status))` when no attempt converged.
+    fn step<M: ElasticModel + Clone>(
+        &self,
+        state: &mut RigidState<M>,
+        f: &[Vector3<f64>],
+        path: Option<(Isometry3<f64>, Isometry3<f64>)>,
+        dt: f64,
+        before: &mut impl FnMut(&mut M, f64) -> Result<()>,
+        commit: &mut impl FnMut(&mut M, &[Vector3<f64>]),
+    ) -> Result<std::result::Result<(), String>> {
+        let start_contact = match &state.solver {
+            RigidSolver::Frictional { contact, .. } => Some(contact.clone()),
+            RigidSolver::Frictionless(_) => None,
+        };
+        let (start_x, start_model) = (state.x.clone(), state.model.clone());
+        let mut status = String::new();
+        'attempts: for substeps in [1usize, 4, 16] {
+            state.x.clone_from(&start_x);
+            state.model = start_model.clone();
+            if let (RigidSolver::Frictional { contact, .. }, Some(c)) =
+                (&mut state.solver, &start_contact)
+            {
+                contact.clone_from(c);
+            }
+            for s in 1..=substeps {
+                let t = s as f64 / substeps as f64;
+                before(&mut state.model, dt / substeps as f64)?;
+                let iso = path.map(|(from, to)| {
+                    Isometry3::from_parts(
+                        Translation3::from(from.translation.vector.lerp(&to.translation.vector, t)),
+                        from.rotation.slerp(&to.rotation, t),
+                    )
+                });
+                let rep = self.solve(state, f, iso)?;
+                if !rep.converged() {
+                    status = format!(
+                        "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
+                        rep.status, rep.iterations
+                    );
+                    continue 'attempts;
+                }
+                commit(&mut state.model, &state.x);
+            }
+            return Ok(Ok(()));
+        }
+        Ok(Err(status))
+    }
+
+    /// Equilibrium with the tip at `iso` (`None`: no contact); the friction history is
+    /// committed when it converged in contact.
+    fn solve<M: ElasticModel>(
+        &self,
+        state: &mut RigidState<M>,
+        f: &[Vector3<f64>],
+        iso: Option<Isometry3<f64>>,
+    ) -> Result<EquilibriumReport> {
+        let RigidState { solver, model, x } = state;
+        self.sim.setup().dirichlet().apply(x);
+        Ok(match solver {
+            RigidSolver::Frictionless(solver) => {
+                let problem = iso.map(|iso| self.problem_at(iso)).transpose()?;
+                solver.solve(model, x, f, problem.as_ref(), &self.settings)
+            }
+            RigidSolver::Frictional { solver, contact } => {
+                if let Some(iso) = iso {
+                    contact.move_probe(x, iso);
+                }
+                let rep = solve_lagged(
+                    solver,
+                    model,
+                    x,
+                    f,
+                    iso.is_some().then_some(&mut **contact),
+                    &mut [],
+                    &self.settings,
+                    &LaggedIterations::default(),
+                )
+                .equilibrium;
+                if rep.converged() && iso.is_some() {
+                    NodalTerm::commit(&mut **contact, x);
+                }
+                rep
+            }
+        })
     }
 }
 
