@@ -113,5 +113,15 @@ impl CaptureError {
     }
 }
 
+impl softcap_app::Classify for CaptureError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        if self.is_bad_input() {
+            softcap_app::ErrorClass::BadInput
+        } else {
+            softcap_app::ErrorClass::Failure
+        }
+    }
+}
+
 /// Result alias of this crate.
 pub type Result<T> = std::result::Result<T, CaptureError>;

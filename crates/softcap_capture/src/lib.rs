@@ -19,6 +19,7 @@
 //! | [`sync`] | clock offset and drift from trigger edges or from the data |
 //! | [`pipeline`] | [`capture`]: the whole stage |
 //! | [`output`] | `capture.mcap` via `softcap_mcap` |
+//! | [`cli`] | the `softcap-capture` command line ([`cli::Cli::run`]) |
 //!
 //! ```
 //! use softcap_capture::{Camera, PixelObservation, TriangulationSettings, triangulate};
@@ -39,6 +40,7 @@ pub mod bundle;
 pub mod c3d;
 pub mod calibrate;
 pub mod camera;
+pub mod cli;
 pub mod correspond;
 pub mod detect;
 pub mod error;

@@ -164,3 +164,26 @@ fn full_run_writes_a_readable_capture_mcap() {
         assert!(((tip[0] - x).hypot(tip[1] - y)) < 1.5e-3, "{tip:?}");
     }
 }
+
+/// `--help`/`--version` exit 0; a missing session folder and a malformed session.toml are bad
+/// input (2), each named once.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-capture");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("c.mcap");
+    let missing = dir.path().join("no-session");
+    let r = run(
+        bin,
+        &[missing.to_str().unwrap(), "-o", out.to_str().unwrap()],
+    );
+    assert_error_names_once(&r, 2, &missing.join("session.toml"));
+    let bad = dir.path().join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    std::fs::write(bad.join("session.toml"), "format = [\n").unwrap();
+    let r = run(bin, &[bad.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_error_names_once(&r, 2, &bad.join("session.toml"));
+    assert!(!out.exists());
+}

@@ -3,14 +3,12 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::Context;
+use softcap_app::{Context, Error, Result};
 use softcap_mcap::proto::{MarkerFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh, TriMesh};
 use softcap_mcap::{Recording, SoftcapMessage, Topic, topics};
 
-use crate::BadInput;
-
 /// Exports `what` (`markers`, `probe`, `simulated`, `surface`, `volume`, or a topic) to `output`.
-pub fn export(r: &Recording, what: &str, output: &Path) -> anyhow::Result<()> {
+pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
     let topic = match what {
         "markers" => topics::MARKERS.name().to_string(),
         "probe" => topics::PROBE.name().to_string(),
@@ -20,7 +18,7 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> anyhow::Result<()> {
         t => t.to_string(),
     };
     let channel = r.channel(&topic).ok_or_else(|| {
-        BadInput(format!(
+        Error::bad_input(format!(
             "{}: no channel `{topic}` (--what {what})",
             r.path().display()
         ))
@@ -32,7 +30,15 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> anyhow::Result<()> {
         .unwrap_or("")
         .to_ascii_lowercase();
     let text = if schema == MarkerFrame::schema_name() {
-        markers_csv(&r.read(&Topic::<MarkerFrame>::custom(&topic))?)
+        let frames = r.read(&Topic::<MarkerFrame>::custom(&topic))?;
+        let ids = session_marker_ids(r)?;
+        markers_csv(&frames, ids.as_deref()).map_err(|id| {
+            Error::bad_input(format!(
+                "{}: `{topic}` has marker id {id}, but /capture/session lists only {} marker ids",
+                r.path().display(),
+                ids.as_ref().map_or(0, Vec::len)
+            ))
+        })?
     } else if schema == ProbeSample::schema_name() {
         probe_csv(&r.read(&Topic::<ProbeSample>::custom(&topic))?)
     } else if schema == SimulatedMarkers::schema_name() {
@@ -46,31 +52,48 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> anyhow::Result<()> {
         let m = r.read_static(&Topic::<TetMesh>::custom(&topic))?;
         mesh_text(&m.positions_m, &m.surface_triangles, &ext)?
     } else {
-        return Err(BadInput(format!(
+        return Err(Error::bad_input(format!(
             "{}: channel `{topic}` has schema `{schema}`, which has no export",
             r.path().display()
-        ))
-        .into());
+        )));
     };
-    // Atomic: write NAME.tmp then rename.
-    let tmp = softcap_mcap::tmp_path(output)
-        .ok_or_else(|| BadInput(format!("{}: no file name", output.display())))?;
-    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, output).with_context(|| format!("renaming to {}", output.display()))?;
-    Ok(())
+    softcap_app::write_atomic(output, text.as_bytes())
+        .with_context(|| format!("writing {}", output.display()))
 }
 
-/// `frame,id,x,y,z` (metres); markers without a position are left out.
-pub fn markers_csv(frames: &[(u64, MarkerFrame)]) -> String {
+/// The session's marker ids (`/capture/session` `marker_ids`: template/markers.csv ids, then
+/// the probe shaft markers), when the recording has that channel.
+fn session_marker_ids(r: &Recording) -> Result<Option<Vec<String>>> {
+    if r.channel(topics::SESSION.name()).is_none() {
+        return Ok(None);
+    }
+    Ok(Some(r.read_static(&topics::SESSION)?.marker_ids))
+}
+
+/// `frame,id,x,y,z` (metres) — the columns of a session's `truth/markers.csv`; markers without
+/// a position are left out. `Marker.id` indexes `session_ids` when given (so `id` is the
+/// session's marker id, e.g. `m07`), else it is written as the number. An id beyond
+/// `session_ids` is returned as the error.
+pub fn markers_csv(
+    frames: &[(u64, MarkerFrame)],
+    session_ids: Option<&[String]>,
+) -> std::result::Result<String, u32> {
     let mut s = String::from("frame,id,x,y,z\n");
     for (_, f) in frames {
         for m in &f.markers {
-            if let Some(p) = &m.position_m {
-                let _ = writeln!(s, "{},{},{},{},{}", f.frame, m.id, p.x, p.y, p.z);
+            let Some(p) = &m.position_m else { continue };
+            match session_ids {
+                Some(ids) => {
+                    let id = ids.get(m.id as usize).ok_or(m.id)?;
+                    let _ = writeln!(s, "{},{id},{},{},{}", f.frame, p.x, p.y, p.z);
+                }
+                None => {
+                    let _ = writeln!(s, "{},{},{},{},{}", f.frame, m.id, p.x, p.y, p.z);
+                }
             }
         }
     }
-    s
+    Ok(s)
 }
 
 /// `frame,t_camera_s,fx,fy,fz,tip_x,tip_y,tip_z` (s, N, m).
@@ -108,7 +131,7 @@ pub fn scalar_csv(samples: &[(u64, Scalar)]) -> String {
     s
 }
 
-fn mesh_text(positions_m: &[f64], triangles: &[u32], ext: &str) -> anyhow::Result<String> {
+fn mesh_text(positions_m: &[f64], triangles: &[u32], ext: &str) -> Result<String> {
     let nv = positions_m.len() / 3;
     let nt = triangles.len() / 3;
     let mut s = String::new();
@@ -135,10 +158,9 @@ fn mesh_text(positions_m: &[f64], triangles: &[u32], ext: &str) -> anyhow::Resul
             }
         }
         _ => {
-            return Err(BadInput(format!(
+            return Err(Error::bad_input(format!(
                 "mesh export needs an .obj or .ply output, got `.{ext}`"
-            ))
-            .into());
+            )));
         }
     }
     Ok(s)

@@ -3,12 +3,10 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::{Args, Subcommand};
 use prost_reflect::{DescriptorPool, DynamicMessage, SerializeOptions};
+use softcap_app::{Error, IntoError, Result};
 use softcap_mcap::Recording;
-
-use crate::BadInput;
 
 /// Look inside an .mcap file. The verb comes first: `softcap inspect summary capture.mcap`.
 #[derive(Debug, Args)]
@@ -62,12 +60,12 @@ pub enum Verb {
     },
 }
 
-fn open(file: &PathBuf) -> anyhow::Result<Recording> {
+fn open(file: &PathBuf) -> Result<Recording> {
     Ok(Recording::open(file)?)
 }
 
 impl Inspect {
-    pub fn run(&self) -> anyhow::Result<()> {
+    pub fn run(&self) -> Result<()> {
         let stdout = std::io::stdout();
         let mut out = std::io::BufWriter::new(stdout.lock());
         match &self.verb {
@@ -182,11 +180,14 @@ pub(crate) fn decode_messages(
     r: &Recording,
     topic: Option<&str>,
     plain_fields: bool,
-) -> anyhow::Result<Vec<Decoded>> {
+) -> Result<Vec<Decoded>> {
     if let Some(t) = topic
         && r.channel(t).is_none()
     {
-        return Err(BadInput(format!("{}: no channel `{t}`", r.path().display())).into());
+        return Err(Error::bad_input(format!(
+            "{}: no channel `{t}`",
+            r.path().display()
+        )));
     }
     let options = SerializeOptions::new()
         .use_proto_field_name(plain_fields)
@@ -206,23 +207,24 @@ pub(crate) fn decode_messages(
         let message = match (m.message_encoding.as_str(), pool) {
             ("protobuf", Some(pool)) => {
                 let desc = pool.get_message_by_name(&m.schema_name).ok_or_else(|| {
-                    BadInput(format!(
+                    Error::bad_input(format!(
                         "{}: schema `{}` not in its descriptor set",
                         r.path().display(),
                         m.schema_name
                     ))
                 })?;
-                let dynamic = DynamicMessage::decode(desc, m.data.as_slice())
-                    .with_context(|| {
+                let dynamic =
+                    DynamicMessage::decode(desc, m.data.as_slice()).bad_input_with(|| {
                         format!(
                             "{}: `{}` at {} ns does not decode",
                             r.path().display(),
                             m.topic,
                             m.log_time_ns
                         )
-                    })
-                    .map_err(|e| BadInput(format!("{e:#}")))?;
-                dynamic.serialize_with_options(serde_json::value::Serializer, &options)?
+                    })?;
+                dynamic
+                    .serialize_with_options(serde_json::value::Serializer, &options)
+                    .failure_with(|| format!("{}: `{}` to JSON", r.path().display(), m.topic))?
             }
             ("json", _) => serde_json::from_slice(&m.data).unwrap_or_else(|_| {
                 serde_json::Value::String(String::from_utf8_lossy(&m.data).into())
@@ -240,7 +242,7 @@ pub(crate) fn decode_messages(
 }
 
 /// Writes every message as `{"topic", "log_time_ns", "schema", "message"}` JSON lines.
-fn dump(r: &Recording, topic: Option<&str>, out: &mut impl Write) -> anyhow::Result<()> {
+fn dump(r: &Recording, topic: Option<&str>, out: &mut impl Write) -> Result<()> {
     for m in decode_messages(r, topic, false)? {
         let line = serde_json::json!({
             "topic": m.topic,

@@ -13,7 +13,7 @@
 //! Exit codes: 0 success, 1 failure while running, 2 bad usage or bad input (a corrupt or
 //! truncated MCAP, a missing channel).
 
-mod export;
+pub mod export;
 mod inspect;
 pub mod plot;
 
@@ -21,6 +21,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use softcap_app::{Error, IntoError, Result};
 
 pub use inspect::{Inspect, Verb};
 
@@ -41,13 +42,8 @@ pub enum Command {
     Stage(Vec<String>),
 }
 
-/// An error caused by the user's input (exit code 2).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct BadInput(pub String);
-
-/// Runs the parsed command.
-pub fn run(cli: &Cli) -> anyhow::Result<ExitCode> {
+/// Runs the parsed command; a stage's exit code is passed on.
+pub fn run(cli: Cli) -> Result<ExitCode> {
     match &cli.command {
         Command::Inspect(i) => {
             i.run()?;
@@ -55,33 +51,6 @@ pub fn run(cli: &Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Stage(args) => run_stage(args),
     }
-}
-
-/// Exit code of an error: 2 for bad input (corrupt/truncated files, missing channels, bad
-/// arguments), 1 otherwise.
-pub fn exit_code(e: &anyhow::Error) -> u8 {
-    for cause in e.chain() {
-        if cause.downcast_ref::<BadInput>().is_some() {
-            return 2;
-        }
-        if let Some(m) = cause.downcast_ref::<softcap_mcap::Error>() {
-            use softcap_mcap::Error as E;
-            return match m {
-                E::Corrupt { .. }
-                | E::Truncated { .. }
-                | E::MissingChannel { .. }
-                | E::NotStatic { .. }
-                | E::WrongSchema { .. }
-                | E::Decode { .. }
-                | E::BadSchema { .. }
-                | E::Provenance { .. }
-                | E::BadOutputPath { .. } => 2,
-                E::Io { action, .. } if *action == "reading" => 2,
-                _ => 1,
-            };
-        }
-    }
-    1
 }
 
 /// Finds `softcap-<stage>` next to the running binary, else on `PATH`.
@@ -103,19 +72,19 @@ pub fn find_stage_binary(stage: &str) -> Option<PathBuf> {
     })
 }
 
-fn run_stage(args: &[String]) -> anyhow::Result<ExitCode> {
+fn run_stage(args: &[String]) -> Result<ExitCode> {
     let (stage, rest) = args
         .split_first()
-        .ok_or_else(|| BadInput("no stage given".into()))?;
+        .ok_or_else(|| Error::bad_input("no stage given"))?;
     let bin = find_stage_binary(stage).ok_or_else(|| {
-        BadInput(format!(
+        Error::bad_input(format!(
             "unknown command `{stage}`: no `softcap-{stage}` next to softcap or on PATH"
         ))
     })?;
     let status = std::process::Command::new(&bin)
         .args(rest)
         .status()
-        .map_err(|e| anyhow::anyhow!("running {}: {e}", bin.display()))?;
+        .failure_with(|| format!("running {}", bin.display()))?;
     Ok(ExitCode::from(
         status.code().unwrap_or(1).clamp(0, 255) as u8
     ))

@@ -10,9 +10,9 @@ use std::path::Path;
 
 use plotters::prelude::*;
 use serde_json::Value;
+use softcap_app::{Error, IntoError, Result};
 use softcap_mcap::Recording;
 
-use crate::BadInput;
 use crate::inspect::decode_messages;
 
 /// One plotted series: the field path and its (x, y) samples.
@@ -30,9 +30,9 @@ enum Step {
     Select { key: String, value: String },
 }
 
-/// Parses `a.b[3].c[id=7].d` into steps; a bad path is a [`BadInput`] naming it.
-fn parse_path(path: &str) -> Result<Vec<Step>, BadInput> {
-    let bad = |why: &str| BadInput(format!("field `{path}`: {why}"));
+/// Parses `a.b[3].c[id=7].d` into steps; a bad path is a bad-input error naming it.
+fn parse_path(path: &str) -> Result<Vec<Step>> {
+    let bad = |why: &str| Error::bad_input(format!("field `{path}`: {why}"));
     let mut steps = Vec::new();
     for part in path.split('.') {
         let (name, mut rest) = match part.find('[') {
@@ -107,20 +107,23 @@ fn follow<'a>(v: &'a Value, steps: &[Step]) -> Option<&'a Value> {
 
 /// Extracts the series of `fields` (y) against `x_field` (or log time in seconds) from the
 /// messages of `topic`. Messages where a path is absent are skipped for that series; a
-/// path that resolves in no message at all is a [`BadInput`].
+/// path that resolves in no message at all is bad input.
 pub fn extract(
     r: &Recording,
     topic: &str,
     fields: &[String],
     x_field: Option<&str>,
-) -> anyhow::Result<Vec<Series>> {
+) -> Result<Vec<Series>> {
     if r.channel(topic).is_none() {
-        return Err(BadInput(format!("{}: no channel `{topic}`", r.path().display())).into());
+        return Err(Error::bad_input(format!(
+            "{}: no channel `{topic}`",
+            r.path().display()
+        )));
     }
     let paths = fields
         .iter()
         .map(|f| parse_path(f))
-        .collect::<Result<Vec<_>, _>>()?;
+        .collect::<Result<Vec<_>>>()?;
     let x_path = x_field.map(parse_path).transpose()?;
     let messages = decode_messages(r, Some(topic), true)?;
     let mut series: Vec<Series> = fields
@@ -146,19 +149,18 @@ pub fn extract(
     }
     for s in &series {
         if s.points.is_empty() {
-            return Err(BadInput(format!(
+            return Err(Error::bad_input(format!(
                 "{}: field `{}` is not a number in any message of `{topic}`",
                 r.path().display(),
                 s.field
-            ))
-            .into());
+            )));
         }
     }
     Ok(series)
 }
 
-/// Draws `series` as lines into a PNG at `output` (written to a temporary file, then renamed).
-pub fn draw(series: &[Series], title: &str, x_label: &str, output: &Path) -> anyhow::Result<()> {
+/// Draws `series` as lines into a PNG at `output` (written atomically).
+pub fn draw(series: &[Series], title: &str, x_label: &str, output: &Path) -> Result<()> {
     let (mut x0, mut x1, mut y0, mut y1) = (
         f64::INFINITY,
         f64::NEG_INFINITY,
@@ -174,7 +176,7 @@ pub fn draw(series: &[Series], title: &str, x_label: &str, output: &Path) -> any
         }
     }
     if !x0.is_finite() {
-        return Err(BadInput("nothing finite to plot".into()).into());
+        return Err(Error::bad_input("nothing finite to plot"));
     }
     let pad = |a: f64, b: f64| {
         let d = if b > a {
@@ -186,46 +188,80 @@ pub fn draw(series: &[Series], title: &str, x_label: &str, output: &Path) -> any
     };
     let (x0, x1) = pad(x0, x1);
     let (y0, y1) = pad(y0, y1);
-    let tmp = output.with_extension("tmp.png");
-    let e = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing {}: {e}", output.display());
-    {
-        softcap_figure::register_fonts();
-        let root = BitMapBackend::new(&tmp, (1000, 600)).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
-        let mut chart = ChartBuilder::on(&root)
+    softcap_figure::draw_png(output, (1000, 600), |root| {
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(root)
             .caption(title, (softcap_figure::FONT_FAMILY, 22))
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(80)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(x0..x1, y0..y1)?;
         chart
             .configure_mesh()
             .x_desc(x_label)
-            .draw()
-            .map_err(|x| e(&x))?;
+            .y_desc(y_label(series))
+            .draw()?;
         for (k, s) in series.iter().enumerate() {
             let color = Palette99::pick(k).to_rgba();
             chart
                 .draw_series(LineSeries::new(
                     s.points.iter().copied(),
                     color.stroke_width(2),
-                ))
-                .map_err(|x| e(&x))?
-                .label(s.field.clone())
+                ))?
+                .label(with_unit(&s.field))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
         }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
-            .draw()
-            .map_err(|x| e(&x))?;
-        root.present().map_err(|x| e(&x))?;
+            .draw()?;
+        Ok(())
+    })
+    .failure_with(|| output.display().to_string())
+}
+
+/// The SI unit a softcap field name carries in its suffix (`force_n` → N, `tip_m` → m,
+/// `t_camera_s` → s, `reprojection_error_px` → px): the last named step of `path` that has one.
+pub fn unit_of(path: &str) -> Option<&'static str> {
+    const SUFFIXES: [(&str, &str); 9] = [
+        ("_m_s2", "m/s²"),
+        ("_kg_m3", "kg/m³"),
+        ("_pa", "Pa"),
+        ("_px", "px"),
+        ("_mm", "mm"),
+        ("_n", "N"),
+        ("_m", "m"),
+        ("_s", "s"),
+        ("_v", "V"),
+    ];
+    path.split('.')
+        .rev()
+        .map(|step| step.split('[').next().unwrap_or(step))
+        .find_map(|name| {
+            SUFFIXES
+                .iter()
+                .find(|(suffix, _)| name.ends_with(suffix))
+                .map(|&(_, unit)| unit)
+        })
+}
+
+/// `field [unit]`, or the field alone when its name carries no unit.
+fn with_unit(field: &str) -> String {
+    match unit_of(field) {
+        Some(u) => format!("{field} [{u}]"),
+        None => field.to_string(),
     }
-    std::fs::rename(&tmp, output)
-        .map_err(|x| anyhow::anyhow!("renaming {} to {}: {x}", tmp.display(), output.display()))?;
-    Ok(())
+}
+
+/// The y axis names the one unit all series share, else says the units are in the legend.
+fn y_label(series: &[Series]) -> String {
+    let mut units = series.iter().map(|s| unit_of(&s.field));
+    match units.next() {
+        Some(Some(u)) if units.all(|v| v == Some(u)) => format!("value [{u}]"),
+        _ if series.len() == 1 => "value (dimensionless)".into(),
+        _ => "value (units in the legend)".into(),
+    }
 }
 
 #[cfg(test)]
@@ -249,5 +285,28 @@ mod tests {
         assert!(parse_path("a[1").is_err());
         assert!(parse_path("a[x]").is_err());
         assert!(parse_path("").is_err());
+    }
+
+    #[test]
+    fn units_come_from_the_field_names() {
+        assert_eq!(unit_of("force_n.z"), Some("N"));
+        assert_eq!(unit_of("markers[id=7].position_m.z"), Some("m"));
+        assert_eq!(unit_of("markers[0].reprojection_error_px"), Some("px"));
+        assert_eq!(unit_of("t_camera_s"), Some("s"));
+        assert_eq!(unit_of("entries[key=lm.cost].number"), None);
+        let series = |f: &[&str]| -> Vec<Series> {
+            f.iter()
+                .map(|f| Series {
+                    field: f.to_string(),
+                    points: vec![],
+                })
+                .collect()
+        };
+        assert_eq!(y_label(&series(&["force_n.x", "force_n.z"])), "value [N]");
+        assert_eq!(
+            y_label(&series(&["force_n.z", "tip_m.z"])),
+            "value (units in the legend)"
+        );
+        assert_eq!(with_unit("tip_m.z"), "tip_m.z [m]");
     }
 }

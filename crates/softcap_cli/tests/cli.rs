@@ -290,3 +290,20 @@ fn plot_extracts_fields_and_writes_png() {
     assert_eq!(code, 2);
     assert!(err.contains("force_n.w"), "{err}");
 }
+
+/// `--help`/`--version` exit 0; a missing or corrupt MCAP is bad input (2) named once.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    assert_help_version_usage(BIN);
+    let r = run(BIN, &["inspect", "--help"]);
+    assert_eq!(r.code, 0, "{r:?}");
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.mcap");
+    let r = run(BIN, &["inspect", "summary", missing.to_str().unwrap()]);
+    assert_error_names_once(&r, 2, &missing);
+    let bad = dir.path().join("bad.mcap");
+    std::fs::write(&bad, b"not an mcap file at all").unwrap();
+    let r = run(BIN, &["inspect", "digest", bad.to_str().unwrap()]);
+    assert_error_names_once(&r, 2, &bad);
+}

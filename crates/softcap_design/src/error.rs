@@ -35,6 +35,14 @@ pub enum DesignError {
         /// what is wrong (line / field when known)
         reason: String,
     },
+    /// An output (figure, print file) could not be produced.
+    #[error("{path}: {reason}")]
+    Output {
+        /// the output
+        path: PathBuf,
+        /// what failed
+        reason: String,
+    },
     /// I/O error on a named file.
     #[error("{path}: {source}")]
     Io {
@@ -43,6 +51,22 @@ pub enum DesignError {
         /// cause
         source: std::io::Error,
     },
+}
+
+/// Malformed input files, bad arguments and paths the OS refuses are the user's input at fault;
+/// FEM, numerics, non-convergence and failed outputs are failures while running.
+impl softcap_app::Classify for DesignError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            DesignError::File { .. } | DesignError::Invalid { .. } => BadInput,
+            DesignError::Io { source, .. } => softcap_app::Classify::class(source),
+            DesignError::Fem(_)
+            | DesignError::Core(_)
+            | DesignError::NotConverged { .. }
+            | DesignError::Output { .. } => Failure,
+        }
+    }
 }
 
 /// Result alias.

@@ -475,12 +475,7 @@ pub fn write_table(
             }
         }
     }
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, &bytes).map_err(|source| DesignError::Io {
-        path: tmp.clone(),
-        source,
-    })?;
-    std::fs::rename(&tmp, path).map_err(|source| DesignError::Io {
+    softcap_app::write_atomic(path, &bytes).map_err(|source| DesignError::Io {
         path: path.into(),
         source,
     })

@@ -10,11 +10,12 @@
 //! | [`model`] | corotational composite model with per-element E(p(ε)) | §8.2 |
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
 //! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
-//! | [`output`] | design / target JSON, force–displacement PNG | |
+//! | [`output`] | design.mcap (`/design/report`), design / target JSON, force–displacement PNG | |
 //! | [`print`] | multi-material 3MF (one object per material) via `threemf` | §8.5 |
 //! | [`recording`] | capture.mcap of a probed base-material block → measurements | §8.3, §8.5 |
 //! | [`rubber`] | the invariant model fitted to Treloar uniaxial + Kawabata biaxial rubber data at once | eq. 8.1–8.2, §8.3 |
 //! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |
+//! | [`cli`] | the `softcap-design` command line ([`cli::Cli::run`]) | |
 //!
 //! ```
 //! use softcap_design::{BaseMaterial, InvariantMaterial, CompositeSettings, CompositeSimulator, LayeredBlock};
@@ -32,6 +33,7 @@
 //! # Ok::<(), softcap_design::DesignError>(())
 //! ```
 
+pub mod cli;
 pub mod composite;
 mod error;
 pub mod experiment;
@@ -64,7 +66,10 @@ pub use material::{
     project_transverse, strain_invariant_gradient, strain_invariants, strain_tensor,
 };
 pub use model::{CompositeModel, ElementState};
-pub use output::{DesignTarget, plot_force_displacement, read_json, write_json};
+pub use output::{
+    DesignRecord, DesignTarget, design_report, plot_force_displacement, read_json,
+    write_design_mcap, write_json,
+};
 pub use print::{PrintPart, read_design_3mf, write_design_3mf};
 pub use recording::{CaptureMappingSettings, measurements_from_capture};
 pub use rubber::{

@@ -41,7 +41,7 @@ pub struct PrintPart {
 
 /// Writes `design` (material index per layer, bottom first) as a block of
 /// `block_size_m` with layer thicknesses `layer_thickness_m` to `path` (atomically:
-/// `.3mf.tmp` then rename). `material_names` names the library entries.
+/// `.3mf.tmp`, fsync, rename). `material_names` names the library entries.
 pub fn write_design_3mf(
     path: &Path,
     design: &[usize],
@@ -158,16 +158,10 @@ pub fn write_design_3mf(
         unit: Unit::Millimeter,
         ..Model::default()
     };
-    let tmp = path.with_extension("3mf.tmp");
-    let file = std::fs::File::create(&tmp).map_err(|source| DesignError::Io {
-        path: tmp.clone(),
-        source,
-    })?;
-    threemf::write(std::io::BufWriter::new(file), model).map_err(|e| DesignError::File {
-        path: tmp.clone(),
-        reason: format!("writing 3MF: {e}"),
-    })?;
-    std::fs::rename(&tmp, path).map_err(|source| DesignError::Io {
+    softcap_app::write_atomic_with(path, |file| {
+        threemf::write(file, model).map_err(|e| std::io::Error::other(format!("writing 3MF: {e}")))
+    })
+    .map_err(|source| DesignError::Io {
         path: path.into(),
         source,
     })

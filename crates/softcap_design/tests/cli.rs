@@ -109,3 +109,35 @@ fn bad_target_exits_2_naming_the_file() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("target.json"));
     assert!(!dir.path().join("o").exists());
 }
+
+/// `--help`/`--version` exit 0; a missing and a malformed library JSON are bad input (2), each
+/// named once.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-design");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("t.json");
+    let out = dir.path().join("t-out.json");
+    for (name, content) in [("missing.json", None), ("bad.json", Some("{ not json"))] {
+        let lib = dir.path().join(name);
+        if let Some(c) = content {
+            std::fs::write(&lib, c).unwrap();
+        }
+        let r = run(
+            bin,
+            &[
+                "target",
+                "--materials",
+                lib.to_str().unwrap(),
+                "--design",
+                "0,1",
+                "-o",
+                target.to_str().unwrap(),
+            ],
+        );
+        assert_error_names_once(&r, 2, &lib);
+    }
+    assert!(!target.exists() && !out.exists());
+}

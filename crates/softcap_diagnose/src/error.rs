@@ -33,8 +33,8 @@ pub enum DiagnoseError {
     /// The mesh layer reported an error (a refinement target it cannot meet).
     #[error(transparent)]
     Mesh(#[from] Box<softcap_mesh::MeshError>),
-    /// Reading or writing an MCAP file failed.
-    #[error("{path}: {source}")]
+    /// Reading or writing an MCAP file failed (the MCAP error names the file).
+    #[error("{source}")]
     Mcap {
         /// file
         path: PathBuf,
@@ -57,6 +57,24 @@ pub enum DiagnoseError {
         /// cause
         reason: String,
     },
+}
+
+/// A recording, material or mesh that is unusable is the user's input at fault; a failed
+/// simulation or output is a failure while running.
+impl softcap_app::Classify for DiagnoseError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            DiagnoseError::BadInput { .. }
+            | DiagnoseError::BadRecording { .. }
+            | DiagnoseError::NonFinite { .. }
+            | DiagnoseError::Mesh(_) => BadInput,
+            DiagnoseError::Mcap { source, .. } => softcap_app::Classify::class(source.as_ref()),
+            DiagnoseError::Simulation { .. }
+            | DiagnoseError::Fem(_)
+            | DiagnoseError::Output { .. } => Failure,
+        }
+    }
 }
 
 /// Result alias.

@@ -54,6 +54,7 @@
 pub mod baseline;
 pub mod catalog;
 pub mod cells;
+pub mod cli;
 pub mod confirm;
 pub mod diagnose;
 mod error;

@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use softcap_mcap::{Provenance, Writer, proto, topics};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 fn out_err(path: &Path, e: impl std::fmt::Display) -> DiagnoseError {
     DiagnoseError::Output {
@@ -22,13 +22,9 @@ fn out_err(path: &Path, e: impl std::fmt::Display) -> DiagnoseError {
     }
 }
 
-/// Writes `bytes` atomically (`NAME.tmp` then rename).
+/// Writes `bytes` atomically ([`softcap_app::write_atomic`]: `NAME.tmp`, fsync, rename).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(|e| out_err(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| out_err(path, e))
+    softcap_app::write_atomic(path, bytes).map_err(|e| out_err(path, e))
 }
 
 /// Writes the diagnosis JSON (issue 8 schema).

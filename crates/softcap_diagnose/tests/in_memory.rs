@@ -345,8 +345,8 @@ fn plastic_set_is_named() {
     );
 }
 
-#[test]
-#[ignore]
+/// Times ten simulations and one diagnosis (part `timing` of the example).
+#[cfg(not(test))]
 fn timing_probe() {
     let mut sim = simulator(20e3);
     let t0 = std::time::Instant::now();
@@ -569,9 +569,8 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
     }
 }
 
-/// Regenerates the example report in docs/diagnose/ (run with `--ignored`).
-#[test]
-#[ignore]
+/// Regenerates the example report in docs/diagnose/ (part `docs-report` of the example).
+#[cfg(not(test))]
 fn write_docs_report() {
     let s = session(Effect::Creep { g: 0.8, tau_s: 0.2 }, false);
     let mut sim = simulator(20e3);
@@ -581,9 +580,8 @@ fn write_docs_report() {
     softcap_diagnose::write_json(&dir.join("diagnosis.json"), &run.diagnosis).unwrap();
 }
 
-/// Timing of the full catalog on a 10-location session (run with `--ignored --nocapture`).
-#[test]
-#[ignore]
+/// Timing of the full catalog on a 10-location session (part `ten-locations` of the example).
+#[cfg(not(test))]
 fn full_catalog_on_ten_locations_timing() {
     let xy: Vec<(f64, f64)> = [0.008, 0.016, 0.024, 0.032]
         .iter()
@@ -700,4 +698,20 @@ fn strain_space_default_model_does_not_depend_on_the_frame_order() {
         stiffening > 1e-5,
         "strain dependence inactive: {stiffening} m from the linear response"
     );
+}
+
+/// The harnesses of `examples/in_memory.rs` (not tests: they time or regenerate docs figures).
+#[cfg(not(test))]
+pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
+    match part {
+        Some("timing") => timing_probe(),
+        Some("ten-locations") => full_catalog_on_ten_locations_timing(),
+        Some("docs-report") => write_docs_report(),
+        other => {
+            return Err(format!(
+                "part {other:?}: one of timing, ten-locations, docs-report"
+            ));
+        }
+    }
+    Ok(())
 }

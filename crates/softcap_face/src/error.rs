@@ -68,5 +68,23 @@ pub enum FaceError {
     },
 }
 
+/// Malformed or inconsistent input files are the user's fault; an OS error is classified by
+/// its kind; solver, classifier and output failures are failures while running.
+impl softcap_app::Classify for FaceError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            FaceError::Parse { .. } | FaceError::InvalidInput { .. } => BadInput,
+            FaceError::Io { source, .. } => softcap_app::Classify::class(source),
+            FaceError::InvalidSetting { .. }
+            | FaceError::Factorization { .. }
+            | FaceError::Classifier(_)
+            | FaceError::Core(_)
+            | FaceError::Output(_)
+            | FaceError::Image { .. } => Failure,
+        }
+    }
+}
+
 /// Result alias of this crate.
 pub type Result<T> = std::result::Result<T, FaceError>;

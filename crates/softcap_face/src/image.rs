@@ -32,7 +32,7 @@ impl RgbImage {
         (r + g + b) / 3.0
     }
 
-    /// Write as an 8-bit sRGB PNG (values clamped to [0, 1]).
+    /// Write as an 8-bit sRGB PNG (values clamped to [0, 1]), atomically.
     pub fn write_png(&self, path: &Path) -> Result<()> {
         let mut buf = Vec::with_capacity(self.data.len() * 3);
         for px in &self.data {
@@ -46,14 +46,11 @@ impl RgbImage {
                 buf.push((s * 255.0 + 0.5) as u8);
             }
         }
-        let img = image::RgbImage::from_raw(self.width as u32, self.height as u32, buf)
-            .ok_or_else(|| FaceError::Image {
+        softcap_figure::write_png(path, &buf, self.width as u32, self.height as u32).map_err(|e| {
+            FaceError::Image {
                 path: path.to_path_buf(),
-                reason: "buffer size does not match dimensions".into(),
-            })?;
-        img.save(path).map_err(|e| FaceError::Image {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
+                reason: e.to_string(),
+            }
         })
     }
 }

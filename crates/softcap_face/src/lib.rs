@@ -29,6 +29,7 @@
 
 pub mod animate;
 pub mod classify;
+pub mod cli;
 pub mod correspondence;
 pub mod cross_section;
 pub mod error;

@@ -208,3 +208,35 @@ fn run_writes_mcap_and_bad_input_exits_2_naming_the_file() {
     assert!(max_move(&meshes[0].1) < 1e-9);
     assert!(max_move(&meshes[1].1) > 0.01, "jaw opens by more than 1 cm");
 }
+
+/// `--help`/`--version` exit 0; a missing and a malformed mocap take are bad input (2), each
+/// named once.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-face");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let face = dir.path().join("face.obj");
+    let out = dir.path().join("table.csv");
+    for (name, content) in [("missing.csv", None), ("bad.csv", Some("no,header\nx,y\n"))] {
+        let take = dir.path().join(name);
+        if let Some(c) = content {
+            std::fs::write(&take, c).unwrap();
+        }
+        let r = run(
+            bin,
+            &[
+                "landmarks",
+                "--mocap",
+                take.to_str().unwrap(),
+                "--face",
+                face.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ],
+        );
+        assert_error_names_once(&r, 2, &take);
+    }
+    assert!(!out.exists());
+}

@@ -1,4 +1,5 @@
-//! The font every softcap figure is drawn with.
+//! What every softcap figure shares: the font it is drawn with, its atomic PNG output
+//! ([`draw_png`], [`write_png`]) and labelled colour scales ([`ColorScale`], [`draw_colorbar`]).
 //!
 //! softcap's stages write PNG figures with [plotters] (fit reports, residual maps, force–displacement
 //! loops, `softcap inspect plot`). plotters' default text backend (`ttf`) finds fonts through the
@@ -26,7 +27,13 @@
 //! assert!(pixels.iter().any(|&p| p < 128), "the text left dark pixels");
 //! ```
 
+mod png;
+mod scale;
+
 use std::sync::OnceLock;
+
+pub use png::{FigureError, draw_png, write_png};
+pub use scale::{ColorScale, diverging, draw_colorbar, sequential};
 
 /// The font family name every softcap figure uses (plotters' conventional `"sans-serif"`).
 pub const FONT_FAMILY: &str = "sans-serif";

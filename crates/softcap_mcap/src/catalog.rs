@@ -176,6 +176,9 @@ pub mod topics {
     pub const FACE_MESH: Topic<TriMesh> = Topic::new("/face/mesh");
     /// Wrinkle cross-sections (image and projected world (d, w)), one message per frame.
     pub const FACE_WRINKLES: Topic<FaceWrinkles> = Topic::new("/face/wrinkles");
+    /// `softcap design search`: the design found, its error, the search statistics and the
+    /// target and predicted force–displacement curves (static, time 0).
+    pub const DESIGN_REPORT: Topic<Report> = Topic::new("/design/report");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -318,5 +321,11 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.FaceWrinkles",
         is_static: false,
         units: "valley/d/w px; d, w, valley m",
+    },
+    ChannelInfo {
+        topic: "/design/report",
+        schema: "softcap.Report",
+        is_static: true,
+        units: "per entry",
     },
 ];

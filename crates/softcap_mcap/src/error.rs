@@ -99,3 +99,26 @@ pub enum Error {
 
 /// Result alias of this crate.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// A file that is not a softcap recording, lacks a channel or holds bad values is the user's
+/// input at fault; an OS error is classified by its kind; a failed encode or MCAP write is a
+/// failure while running.
+impl softcap_app::Classify for Error {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            Error::Io { source, .. } => softcap_app::Classify::class(source),
+            Error::Write { .. } | Error::Encode { .. } => Failure,
+            Error::Corrupt { .. }
+            | Error::Truncated { .. }
+            | Error::MissingChannel { .. }
+            | Error::NotStatic { .. }
+            | Error::WrongSchema { .. }
+            | Error::Decode { .. }
+            | Error::BadSchema { .. }
+            | Error::Provenance { .. }
+            | Error::Invalid { .. }
+            | Error::BadOutputPath { .. } => BadInput,
+        }
+    }
+}

@@ -47,6 +47,35 @@ pub mod proto {
     include!(concat!(env!("OUT_DIR"), "/softcap.rs"));
 }
 
+impl proto::KeyValue {
+    /// A number with its SI unit (`""` when dimensionless).
+    pub fn number(key: impl Into<String>, value: f64, unit: &str) -> Self {
+        Self {
+            key: key.into(),
+            value: Some(proto::key_value::Value::Number(value)),
+            unit: unit.into(),
+        }
+    }
+
+    /// An integer (a count, an index) with its unit (`""` for counts).
+    pub fn integer(key: impl Into<String>, value: i64, unit: &str) -> Self {
+        Self {
+            key: key.into(),
+            value: Some(proto::key_value::Value::Integer(value)),
+            unit: unit.into(),
+        }
+    }
+
+    /// A text value.
+    pub fn text(key: impl Into<String>, value: impl Into<String>) -> Self {
+        Self {
+            key: key.into(),
+            value: Some(proto::key_value::Value::Text(value.into())),
+            unit: String::new(),
+        }
+    }
+}
+
 pub use capture::{
     CaptureData, CaptureFrame, MarkerObservation, Phase, ProbeLocation, ProbeLocationSettings,
     ProbeObservation, SessionInfo, SupportPlane,
@@ -59,8 +88,9 @@ pub use error::{Error, Result};
 pub use material::{BasisTet, MaterialData};
 pub use provenance::{InputFile, PROVENANCE_METADATA, Provenance, git_commit, sha256_file};
 pub use reader::{ChannelSummary, RawMessage, Recording};
+pub use softcap_app::tmp_path;
 pub use viz::VizSettings;
-pub use writer::{PROFILE, Writer, tmp_path};
+pub use writer::{PROFILE, Writer};
 
 pub use foxglove;
 pub use mcap;

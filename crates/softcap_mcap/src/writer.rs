@@ -1,9 +1,9 @@
 //! The typed, atomic MCAP writer.
 
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+
+use softcap_app::AtomicFile;
 
 use crate::catalog::{MESSAGE_ENCODING, SCHEMA_ENCODING, SoftcapMessage, Topic, descriptor_set};
 use crate::error::{Error, Result};
@@ -11,14 +11,6 @@ use crate::provenance::{PROVENANCE_METADATA, Provenance};
 
 /// Profile string in the MCAP header of softcap files.
 pub const PROFILE: &str = "softcap";
-
-/// Path of the temporary file a writer fills before renaming it: `NAME.mcap` → `NAME.mcap.tmp`.
-pub fn tmp_path(path: &Path) -> Option<PathBuf> {
-    let name = path.file_name()?;
-    let mut tmp = name.to_os_string();
-    tmp.push(".tmp");
-    Some(path.with_file_name(tmp))
-}
 
 struct ChannelEntry {
     id: u16,
@@ -28,16 +20,16 @@ struct ChannelEntry {
 
 /// Writes one softcap recording: zstd-compressed chunks, message indexes and a summary section.
 ///
-/// Writes go to `NAME.mcap.tmp`; [`Writer::finish`] writes the summary, fsyncs and renames the
-/// file to `NAME.mcap`. A writer dropped without `finish` (an error or panic in the stage)
-/// removes its temporary file, so a failed stage never leaves a file that looks finished.
+/// Writes go to `NAME.mcap.tmp` (a [`softcap_app::AtomicFile`]); [`Writer::finish`] writes the
+/// summary, fsyncs and renames the file to `NAME.mcap`. A writer dropped without `finish` (an
+/// error or panic in the stage) removes its temporary file, so a failed stage never leaves a
+/// file that looks finished.
 ///
 /// `log_time` is in nanoseconds since session start; static data goes at time 0
 /// ([`Writer::write_static`]). The provenance record is written on creation.
 pub struct Writer {
     path: PathBuf,
-    tmp_path: PathBuf,
-    inner: Option<mcap::Writer<BufWriter<File>>>,
+    inner: Option<mcap::Writer<AtomicFile>>,
     channels: BTreeMap<String, ChannelEntry>,
 }
 
@@ -45,10 +37,11 @@ impl Writer {
     /// Starts `path` (writing `path.tmp`) and records `provenance`.
     pub fn create(path: impl AsRef<Path>, provenance: &Provenance) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let tmp_path =
-            tmp_path(&path).ok_or_else(|| Error::BadOutputPath { path: path.clone() })?;
-        let file = File::create(&tmp_path).map_err(|source| Error::Io {
-            path: tmp_path.clone(),
+        if softcap_app::tmp_path(&path).is_err() {
+            return Err(Error::BadOutputPath { path });
+        }
+        let file = AtomicFile::create(&path).map_err(|source| Error::Io {
+            path: path.clone(),
             action: "creating",
             source,
         })?;
@@ -62,22 +55,13 @@ impl Writer {
             .emit_statistics(true)
             .emit_summary_offsets(true)
             .emit_metadata_indexes(true);
-        let inner = options
-            .create(BufWriter::new(file))
-            .map_err(|source| Error::Write {
-                path: path.clone(),
-                source,
-            });
-        let inner = match inner {
-            Ok(w) => w,
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp_path);
-                return Err(e);
-            }
-        };
+        // On error the AtomicFile is dropped, which removes NAME.mcap.tmp.
+        let inner = options.create(file).map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?;
         let mut writer = Self {
             path,
-            tmp_path,
             inner: Some(inner),
             channels: BTreeMap::new(),
         };
@@ -90,7 +74,7 @@ impl Writer {
         &self.path
     }
 
-    fn inner(&mut self) -> &mut mcap::Writer<BufWriter<File>> {
+    fn inner(&mut self) -> &mut mcap::Writer<AtomicFile> {
         self.inner
             .as_mut()
             .expect("inner writer is present until finish() consumes self")
@@ -245,51 +229,23 @@ impl Writer {
             .inner
             .take()
             .expect("inner writer is present until finish() consumes self");
-        let finished = inner.finish().map_err(|e| self.write_err(e));
-        // The writer is consumed either way; on error, Drop removes the tmp file.
-        finished?;
-        let io = |action: &'static str, path: &Path| {
-            let path = path.to_path_buf();
-            move |source| Error::Io {
-                path,
-                action,
-                source,
-            }
-        };
-        let mut buffered = inner.into_inner();
-        buffered.flush().map_err(io("flushing", &self.tmp_path))?;
-        let file = buffered
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .map_err(io("flushing", &self.tmp_path))?;
-        file.sync_all().map_err(io("fsync", &self.tmp_path))?;
-        drop(file);
-        std::fs::rename(&self.tmp_path, &self.path)
-            .map_err(io("renaming into place", &self.path))?;
-        // Make the rename itself durable (best effort: not every platform can fsync a directory).
-        if let Some(parent) = self.path.parent() {
-            let dir = if parent.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                parent
-            };
-            if let Ok(d) = File::open(dir) {
-                let _ = d.sync_all();
-            }
-        }
+        // On error the writer (and its AtomicFile) is dropped, which removes the tmp file.
+        inner.finish().map_err(|e| self.write_err(e))?;
+        inner.into_inner().commit().map_err(|source| Error::Io {
+            path: self.path.clone(),
+            action: "writing",
+            source,
+        })?;
         Ok(std::mem::take(&mut self.path))
     }
 }
 
 impl Drop for Writer {
     fn drop(&mut self) {
-        // Finished writers have `inner == None` and their tmp file already renamed.
+        // An unfinished writer (an error or panic in the stage): take the file without writing a
+        // summary; dropping the AtomicFile removes NAME.mcap.tmp.
         if let Some(inner) = self.inner.take() {
             drop(inner.into_inner());
-            let _ = std::fs::remove_file(&self.tmp_path);
-        } else if !self.path.as_os_str().is_empty() {
-            // finish() failed after taking the writer: the tmp file must not survive.
-            let _ = std::fs::remove_file(&self.tmp_path);
         }
     }
 }

@@ -69,6 +69,7 @@ fn topic_constants_are_in_the_catalog() {
             topics::FACE_WRINKLES.name().to_string(),
             "softcap.FaceWrinkles",
         ),
+        (topics::DESIGN_REPORT.name().to_string(), "softcap.Report"),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

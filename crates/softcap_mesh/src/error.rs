@@ -137,3 +137,15 @@ impl MeshError {
         }
     }
 }
+
+/// A file that cannot be parsed or a mesh that fails validation is the user's input at fault; an
+/// OS error is classified by its kind; a refinement target that cannot be met is a failure.
+impl softcap_app::Classify for MeshError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        match self {
+            MeshError::Io { source, .. } => softcap_app::Classify::class(source),
+            MeshError::Refinement { .. } => softcap_app::ErrorClass::Failure,
+            _ => softcap_app::ErrorClass::BadInput,
+        }
+    }
+}

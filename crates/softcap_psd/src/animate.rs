@@ -351,3 +351,80 @@ pub fn animate_to_mcap(
         synthesis_s: synthesis.as_secs_f64(),
     })
 }
+
+/// Reads `frame,handle,x_cm,y_cm,z_cm` rows into per-frame handle positions; every frame
+/// needs a row for each of `handles` handles (errors name the line and field).
+pub fn read_handle_csv(path: &Path, handles: usize) -> Result<Vec<Vec<Vector3<f64>>>, PsdError> {
+    let bad = |line: usize, field: &str, reason: String| PsdError::BadMarkerFile {
+        path: path.into(),
+        line,
+        field: field.into(),
+        reason,
+    };
+    let mut rdr = csv::Reader::from_path(path).map_err(|e| bad(1, "header", e.to_string()))?;
+    let mut frames: Vec<Vec<Option<Vector3<f64>>>> = Vec::new();
+    for (i, rec) in rdr.records().enumerate() {
+        let line = i + 2;
+        let rec = rec.map_err(|e| bad(line, "row", e.to_string()))?;
+        let get = |k: usize, name: &str| -> Result<&str, PsdError> {
+            rec.get(k).ok_or_else(|| bad(line, name, "missing".into()))
+        };
+        let frame: usize = get(0, "frame")?
+            .trim()
+            .parse()
+            .map_err(|e| bad(line, "frame", format!("{e}")))?;
+        let h: usize = get(1, "handle")?
+            .trim()
+            .parse()
+            .map_err(|e| bad(line, "handle", format!("{e}")))?;
+        if h >= handles {
+            return Err(bad(line, "handle", format!("{h} ≥ {handles} handles")));
+        }
+        let mut p = Vector3::zeros();
+        for (k, name) in ["x_cm", "y_cm", "z_cm"].iter().enumerate() {
+            let x: f64 = get(2 + k, name)?
+                .trim()
+                .parse()
+                .map_err(|e| bad(line, name, format!("{e}")))?;
+            if !x.is_finite() {
+                return Err(bad(line, name, "not finite".into()));
+            }
+            p[k] = x;
+        }
+        if frames.len() <= frame {
+            frames.resize(frame + 1, vec![None; handles]);
+        }
+        frames[frame][h] = Some(p);
+    }
+    frames
+        .into_iter()
+        .enumerate()
+        .map(|(f, hs)| {
+            hs.into_iter()
+                .enumerate()
+                .map(|(h, p)| {
+                    p.ok_or_else(|| {
+                        bad(0, "handle", format!("frame {f} has no row for handle {h}"))
+                    })
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod csv_tests {
+    use super::*;
+
+    #[test]
+    fn bad_marker_row_names_line_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.csv");
+        std::fs::write(&p, "frame,handle,x_cm,y_cm,z_cm\n0,0,1,2,3\n0,1,1,zz,3\n").unwrap();
+        let e = read_handle_csv(&p, 2).unwrap_err().to_string();
+        assert!(e.contains("line 3") && e.contains("y_cm"), "{e}");
+        std::fs::write(&p, "frame,handle,x_cm,y_cm,z_cm\n0,0,1,2,3\n").unwrap();
+        let e = read_handle_csv(&p, 2).unwrap_err().to_string();
+        assert!(e.contains("no row for handle 1"), "{e}");
+    }
+}

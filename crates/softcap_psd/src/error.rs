@@ -102,5 +102,27 @@ pub enum PsdError {
     },
 }
 
+/// Malformed pose, marker and recording files are the user's input at fault; an OS error is
+/// classified by its kind; fits, renders and outputs that fail are failures while running.
+impl softcap_app::Classify for PsdError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            PsdError::BadPoseFile { .. }
+            | PsdError::BadMarkerFile { .. }
+            | PsdError::BadRecording { .. }
+            | PsdError::BadMessage { .. } => BadInput,
+            PsdError::Io { source, .. } => softcap_app::Classify::class(source),
+            PsdError::Mesh(e) => softcap_app::Classify::class(e),
+            PsdError::Output { .. }
+            | PsdError::SizeMismatch { .. }
+            | PsdError::InvalidSetting { .. }
+            | PsdError::Shell(_)
+            | PsdError::Rbf(_)
+            | PsdError::Render { .. } => Failure,
+        }
+    }
+}
+
 /// Result with [`PsdError`].
 pub type Result<T, E = PsdError> = std::result::Result<T, E>;

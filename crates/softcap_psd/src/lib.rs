@@ -17,6 +17,8 @@
 //! | [`poses`] | `SCPOSE01` pose-delta files, seeded expression mixtures | |
 //! | [`experiment`] | the ICT-FaceKit Fig. 5.5 evaluation | §5.5.1 |
 //! | [`render`], [`plot`] | software rasterizer and plots for the docs | |
+//! | [`transfer_sheet`] | the identity-transfer renders and errors of `evaluate` | §5.4.4 |
+//! | [`cli`] | the `softcap-psd` command line ([`cli::Cli::run`]) | |
 //!
 //! ```
 //! use softcap_psd::{EdgeWeightSettings, EdgeWeights, FeatureGraph, farthest_point_handles};
@@ -36,6 +38,7 @@
 
 pub mod animate;
 pub mod blend;
+pub mod cli;
 pub mod detail;
 pub mod error;
 pub mod experiment;
@@ -47,10 +50,11 @@ pub mod render;
 pub mod rig;
 pub mod runtime;
 pub mod transfer;
+pub mod transfer_sheet;
 
 pub use animate::{
     AnimateSettings, AnimateSummary, HandleFrame, HandleTrajectory, animate_to_mcap,
-    read_handle_trajectory, write_handle_trajectory,
+    read_handle_csv, read_handle_trajectory, write_handle_trajectory,
 };
 pub use blend::{global_blend, local_blend, project_simplex, simplex_least_squares};
 pub use detail::{

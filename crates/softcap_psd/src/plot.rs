@@ -7,15 +7,8 @@ use std::path::Path;
 
 /// Draw every curve of `report` (log-scale error) into a PNG at `path`.
 pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()> {
-    let err = |e: &dyn std::fmt::Display| PsdError::Render {
-        path: path.into(),
-        reason: e.to_string(),
-    };
-    let tmp = path.with_extension("tmp.png");
-    {
-        softcap_figure::register_fonts();
-        let root = BitMapBackend::new(&tmp, (900, 600)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
+    softcap_figure::draw_png(path, (900, 600), |root| {
+        root.fill(&WHITE)?;
         let pmax = report
             .curves
             .iter()
@@ -29,7 +22,7 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
         let (lo, hi) = values.fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
         let lo = lo.min(report.large_scale_only_rms_mm).max(1e-4);
         let hi = hi.max(report.large_scale_only_rms_mm);
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption(
                 format!(
                     "L2 error vs. basis size (ICT face, {} held-out poses, H = {}, F = {})",
@@ -40,14 +33,12 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(70)
-            .build_cartesian_2d(1f64..pmax as f64, (lo * 0.8..hi * 1.25).log_scale())
-            .map_err(|e| err(&e))?;
+            .build_cartesian_2d(1f64..pmax as f64, (lo * 0.8..hi * 1.25).log_scale())?;
         chart
             .configure_mesh()
             .x_desc("size of the basis P (poses, incl. rest)")
             .y_desc("RMS vertex error on held-out poses [mm]")
-            .draw()
-            .map_err(|e| err(&e))?;
+            .draw()?;
         let styles: [(RGBColor, bool); 6] = [
             (BLUE, false),
             (BLUE, true),
@@ -70,18 +61,13 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
                 stroke_width: if dashed { 1 } else { 2 },
             };
             chart
-                .draw_series(LineSeries::new(pts.clone(), style))
-                .map_err(|e| err(&e))?
+                .draw_series(LineSeries::new(pts.clone(), style))?
                 .label(c.method.clone())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
             if dashed {
-                chart
-                    .draw_series(pts.iter().map(|&p| Cross::new(p, 4, style)))
-                    .map_err(|e| err(&e))?;
+                chart.draw_series(pts.iter().map(|&p| Cross::new(p, 4, style)))?;
             } else {
-                chart
-                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, style)))
-                    .map_err(|e| err(&e))?;
+                chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, style)))?;
             }
         }
         let ls = report.large_scale_only_rms_mm;
@@ -89,8 +75,7 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
             .draw_series(LineSeries::new(
                 vec![(1.0, ls), (pmax as f64, ls)],
                 ShapeStyle::from(&RGBColor(128, 128, 128)),
-            ))
-            .map_err(|e| err(&e))?
+            ))?
             .label("large-scale shell only")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(128, 128, 128)));
         chart
@@ -98,12 +83,11 @@ pub fn plot_error_vs_basis(report: &EvaluationReport, path: &Path) -> Result<()>
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(|e| err(&e))?;
-        root.present().map_err(|e| err(&e))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io {
+            .draw()?;
+        Ok(())
+    })
+    .map_err(|e| PsdError::Render {
         path: path.into(),
-        source,
+        reason: e.to_string(),
     })
 }

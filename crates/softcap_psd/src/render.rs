@@ -137,17 +137,13 @@ pub fn render(
     img
 }
 
-/// Write `img` as PNG atomically (temp file + rename).
+/// Write `img` as PNG atomically ([`softcap_figure::write_png`]).
 pub fn save_png(img: &image::RgbImage, path: &Path) -> Result<()> {
-    let tmp = path.with_extension("tmp.png");
-    img.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(|e| PsdError::Render {
+    softcap_figure::write_png(path, img.as_raw(), img.width(), img.height()).map_err(|source| {
+        PsdError::Io {
             path: path.into(),
-            reason: e.to_string(),
-        })?;
-    std::fs::rename(&tmp, path).map_err(|source| PsdError::Io {
-        path: path.into(),
-        source,
+            source,
+        }
     })
 }
 

@@ -236,3 +236,35 @@ fn cli_exits_2_on_bad_input_and_writes_nothing() {
         .collect();
     assert_eq!(left, vec![std::ffi::OsString::from("bad.mcap")], "{left:?}");
 }
+
+/// `--help`/`--version` exit 0; a missing and a malformed marker trajectory are bad input (2),
+/// each named once, before any work.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-psd");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    for (name, content) in [
+        ("missing.csv", None),
+        ("bad.csv", Some("frame,handle,x_cm,y_cm,z_cm\n0,0,1,zz,3\n")),
+    ] {
+        let markers = dir.path().join(name);
+        if let Some(c) = content {
+            std::fs::write(&markers, c).unwrap();
+        }
+        let r = run(
+            bin,
+            &[
+                "animate",
+                "--markers",
+                markers.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        );
+        assert_error_names_once(&r, 2, &markers);
+    }
+    assert!(!out.exists());
+}

@@ -64,6 +64,26 @@ pub enum SynthError {
     },
 }
 
+/// A scenario that is malformed or asks for what the rig cannot do, an output folder in the way,
+/// or an input/output path the OS refuses is the user's input at fault; a failed simulation is a
+/// failure while running.
+impl softcap_app::Classify for SynthError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        use softcap_app::ErrorClass::{BadInput, Failure};
+        match self {
+            SynthError::Scenario { .. }
+            | SynthError::Unsupported { .. }
+            | SynthError::OutputExists { .. } => BadInput,
+            SynthError::Io { source, .. } => softcap_app::Classify::class(source),
+            SynthError::Mesh(e) => softcap_app::Classify::class(e),
+            SynthError::Simulation { .. }
+            | SynthError::Fem(_)
+            | SynthError::Core(_)
+            | SynthError::Image { .. } => Failure,
+        }
+    }
+}
+
 /// Result alias.
 pub type Result<T, E = SynthError> = std::result::Result<T, E>;
 

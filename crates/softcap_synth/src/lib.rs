@@ -16,6 +16,7 @@
 //! | [`sensors`] | FSR power law + divider, DAQ clock (offset, drift), trigger line, sensor lag / hysteresis |
 //! | [`write`] | the session folder and `truth/` (atomic: temporary folder renamed into place) |
 //! | [`error`] | [`SynthError`] |
+//! | [`cli`] | the `softcap-synth` command line ([`cli::Cli::run`]) |
 //!
 //! ```no_run
 //! use softcap_synth::{Scenario, synthesize};
@@ -26,6 +27,7 @@
 //! # Ok::<(), softcap_synth::SynthError>(())
 //! ```
 
+pub mod cli;
 pub(crate) mod engine;
 pub mod error;
 pub mod render;
@@ -41,10 +43,13 @@ pub use scenario::{
     ClockSettings, Effect, EffectSettings, FsrSettings, MaterialSettings, ObjectSettings,
     OutputSettings, ProbeSettings, ProtocolSettings, RigSettings, RobotSettings, Scenario,
 };
-pub use truth::{FrameSpec, FrameTruth, Phase, Truth, TruthModel, simulate};
+pub use truth::{
+    FrameSpec, FrameTruth, Phase, Truth, TruthModel, simulate, simulate_with_progress,
+};
 
 pub use nalgebra;
 
+use softcap_app::Progress;
 use std::path::{Path, PathBuf};
 
 /// What one synthesis run produced.
@@ -83,6 +88,15 @@ mod streams {
 
 /// Simulates the scenario and writes the session to `out` (which must not exist or be empty).
 pub fn synthesize(scenario: &Scenario, out: &Path) -> Result<SynthReport> {
+    synthesize_with_progress(scenario, out, &Progress::hidden())
+}
+
+/// [`synthesize`], with bars over the simulated frames and the rendered images on `progress`.
+pub fn synthesize_with_progress(
+    scenario: &Scenario,
+    out: &Path,
+    progress: &Progress,
+) -> Result<SynthReport> {
     scenario
         .validate()
         .map_err(|message| SynthError::Scenario {
@@ -90,7 +104,11 @@ pub fn synthesize(scenario: &Scenario, out: &Path) -> Result<SynthReport> {
             message,
         })?;
     write::SessionWriter::check_target(out)?;
-    let truth = simulate(scenario, &mut truth::stream(scenario.seed, streams::TRUTH))?;
+    let truth = truth::simulate_with_progress(
+        scenario,
+        &mut truth::stream(scenario.seed, streams::TRUTH),
+        progress,
+    )?;
     // Robot log before anything is written: an unreachable pose is a scenario error.
     let robot = if scenario.kind == "probe-robot" {
         let arm = robot::Arm::new(&scenario.robot);
@@ -109,7 +127,7 @@ pub fn synthesize(scenario: &Scenario, out: &Path) -> Result<SynthReport> {
         None
     };
     let writer = write::SessionWriter::begin(out)?;
-    match write_all(scenario, &truth, robot.as_ref(), &writer) {
+    match write_all(scenario, &truth, robot.as_ref(), &writer, progress) {
         Ok(mut report) => {
             report.path = writer.finish()?;
             Ok(report)
@@ -126,6 +144,7 @@ fn write_all(
     truth: &Truth,
     robot: Option<&(robot::Arm, robot::RobotRecord)>,
     w: &write::SessionWriter,
+    progress: &Progress,
 ) -> Result<SynthReport> {
     let cams = rig::cameras(s, &truth.block.size_m)?;
     let o = &s.output;
@@ -172,6 +191,7 @@ fn write_all(
     }
     let mut images = 0;
     if o.images {
+        let bar = progress.bar("rendering images", (cams.len() * truth.frames.len()) as u64);
         for (k, cam) in cams.iter().enumerate() {
             let rays = render::CameraRays::new(cam);
             let base = render::background(&rays, &truth.block.size_m, o.texture_contrast, k as u64);
@@ -195,8 +215,10 @@ fn write_all(
                         message: e.to_string(),
                     })?;
                 images += 1;
+                bar.inc(1);
             }
         }
+        bar.finish_and_clear();
     }
 
     w.text("truth/markers.csv", &write::truth_markers_csv(truth))?;

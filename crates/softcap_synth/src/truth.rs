@@ -15,6 +15,7 @@
 use nalgebra::{Isometry3, Matrix3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use softcap_app::Progress;
 use softcap_fem::element::{Matrix12, StiffnessKind, TetGeometry};
 use softcap_fem::{
     AnisotropicModel, ContactDiscretisation, ContactProblem, ContactSettings, DynamicsSettings,
@@ -671,6 +672,15 @@ fn truth_probe(geom: &ProbeGeometry, world_from_probe: Isometry3<f64>) -> Result
 
 /// Runs the ground-truth simulation of a scenario.
 pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
+    simulate_with_progress(s, rng, &Progress::hidden())
+}
+
+/// [`simulate`], with a bar over the frames on `progress`.
+pub fn simulate_with_progress(
+    s: &Scenario,
+    rng: &mut ChaCha8Rng,
+    progress: &Progress,
+) -> Result<Truth> {
     s.validate().map_err(|message| SynthError::Scenario {
         path: format!("<scenario {}>", s.name).into(),
         message,
@@ -782,7 +792,9 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     };
     let mut prev_spec: Option<FrameSpec> = None;
     let mut frames = Vec::with_capacity(frames_spec.len());
+    let bar = progress.bar("ground truth: frames", frames_spec.len() as u64);
     for spec in &frames_spec {
+        bar.inc(1);
         let probe = truth_probe(&probe_geom, spec.world_from_probe)?;
         let touches = candidates.iter().any(|&i| {
             probe.penetration(&unloaded[i]).is_some() || probe.penetration(&x[i]).is_some()
@@ -956,6 +968,7 @@ pub fn simulate(s: &Scenario, rng: &mut ChaCha8Rng) -> Result<Truth> {
     for v in template_fit_mesh.vertices.iter_mut() {
         *v = embed(v).position(&mesh.tets, template_state);
     }
+    bar.finish_and_clear();
     Ok(Truth {
         block,
         probe: probe_geom,

@@ -105,3 +105,25 @@ fn bad_scenarios_exit_2_naming_file_and_field_and_write_nothing() {
     assert!(stderr.contains("not empty"), "{stderr}");
     assert_eq!(std::fs::read_dir(&full).unwrap().count(), 1);
 }
+
+/// `--help`/`--version` exit 0; a missing scenario is bad input (2) named once.
+#[test]
+fn exit_codes_of_help_version_and_missing_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-synth");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.toml");
+    let out = dir.path().join("s");
+    let r = run(
+        bin,
+        &[
+            "--scenario",
+            missing.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_error_names_once(&r, 2, &missing);
+    assert!(!out.exists());
+}

@@ -5,16 +5,18 @@ use std::path::PathBuf;
 /// Everything that can go wrong in the tissue stage.
 #[derive(Debug, thiserror::Error)]
 pub enum TissueError {
-    /// An input MCAP (capture.mcap, material.mcap) could not be read or is invalid.
-    #[error("{path}: {source}")]
+    /// An input MCAP (capture.mcap, material.mcap) could not be read or is invalid (the MCAP
+    /// error names the file).
+    #[error("{source}")]
     ReadMcap {
         /// File.
         path: PathBuf,
         /// Cause (names the channel and field).
         source: Box<softcap_mcap::Error>,
     },
-    /// The tet mesh could not be read or is invalid.
-    #[error("{path}: {source}")]
+    /// The tet mesh could not be read or is invalid (the mesh error names the file; for a mesh
+    /// that fails validation, `path` is added).
+    #[error("{}", mesh_message(.path, .source))]
     ReadMesh {
         /// File.
         path: PathBuf,
@@ -61,6 +63,15 @@ pub enum TissueError {
     },
 }
 
+/// A reader error already names its file; a validation error (no file in it) gets the path.
+fn mesh_message(path: &std::path::Path, e: &softcap_mesh::MeshError) -> String {
+    use softcap_mesh::MeshError as M;
+    match e {
+        M::Io { .. } | M::Parse { .. } | M::Format { .. } => e.to_string(),
+        _ => format!("{}: {e}", path.display()),
+    }
+}
+
 impl TissueError {
     /// True for errors caused by the user's input (exit code 2), false for failures while
     /// running (exit code 1).
@@ -83,6 +94,16 @@ impl TissueError {
             path: path.into(),
             field: field.into(),
             problem: problem.into(),
+        }
+    }
+}
+
+impl softcap_app::Classify for TissueError {
+    fn class(&self) -> softcap_app::ErrorClass {
+        if self.is_bad_input() {
+            softcap_app::ErrorClass::BadInput
+        } else {
+            softcap_app::ErrorClass::Failure
         }
     }
 }

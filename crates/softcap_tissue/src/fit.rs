@@ -28,8 +28,8 @@ use softcap_probing::{
 };
 
 use crate::error::{Result, TissueError};
-use crate::progress::Progress;
 use crate::session::{ExampleSelection, PreparedSession, SessionExample, prepare};
+use softcap_app::Progress;
 
 /// Settings of the fit (TOML-loadable; written into the output's provenance).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -485,7 +485,7 @@ fn fit_all(
     start: Option<&[ExampleFit]>,
     settings: &ExampleFitSettings,
     gamma_prior: f64,
-    bar: &indicatif::ProgressBar,
+    bar: &softcap_app::indicatif::ProgressBar,
 ) -> Result<Vec<ExampleFit>> {
     let mut fs = settings.clone();
     fs.gamma_prior = gamma_prior;

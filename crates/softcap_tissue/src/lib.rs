@@ -13,7 +13,7 @@
 //! | [`output`] | material.mcap writer ([`write_material`]) and reader ([`read_material`] → [`LoadedMaterial`]) |
 //! | [`simulate`] | `softcap tissue simulate`: [`SimulateConfig`], [`ProbeSpec`] → sim.mcap (§3.4 incremental loading with probe contact) |
 //! | [`report`] | report.md + PNGs: per-example error, error vs basis size (plotters) |
-//! | [`progress`] | indicatif bars, hidden when stderr is not a terminal |
+//! | [`cli`] | the `softcap-tissue` command line ([`cli::Cli::run`]) |
 //! | [`error`] | [`TissueError`] (`is_bad_input()` → exit code 2) |
 //!
 //! ```
@@ -35,10 +35,10 @@
 //! assert_eq!(b.weights.len(), 2 * b.center_examples.len());
 //! ```
 
+pub mod cli;
 pub mod error;
 pub mod fit;
 pub mod output;
-pub mod progress;
 pub mod report;
 pub mod session;
 pub mod simulate;
@@ -51,13 +51,13 @@ pub use fit::{
     strain_samples, strain_samples_with_reference,
 };
 pub use output::{LoadedMaterial, basis_message, read_material, report_message, write_material};
-pub use progress::Progress;
 pub use report::write_report;
 pub use session::{
     ExampleSelection, PreparedSession, SessionExample, examples_from_frames, prepare,
     read_volume_mesh, select_examples,
 };
 pub use simulate::{ProbeShape, ProbeSpec, SimulateConfig, SimulateOutcome, SimulateSettings};
+pub use softcap_app::Progress;
 
 pub use softcap_fem;
 pub use softcap_mcap;

@@ -100,83 +100,80 @@ pub fn basis_message(material: &StrainSpaceMaterial) -> proto::StrainSpaceBasis 
     }
 }
 
-fn number(key: &str, v: f64, unit: &str) -> KeyValue {
-    KeyValue {
-        key: key.into(),
-        value: Some(Value::Number(v)),
-        unit: unit.into(),
-    }
-}
-
-fn text(key: &str, v: &str) -> KeyValue {
-    KeyValue {
-        key: key.into(),
-        value: Some(Value::Text(v.into())),
-        unit: String::new(),
-    }
-}
-
-fn integer(key: &str, v: i64) -> KeyValue {
-    KeyValue {
-        key: key.into(),
-        value: Some(Value::Integer(v)),
-        unit: String::new(),
-    }
-}
-
 /// The `/tissue/report` of a fit.
 pub fn report_message(fit: &SessionFit) -> proto::Report {
     let o = &fit.outcome;
     let mut entries = vec![
-        integer("tets", o.tets as i64),
-        integer("locations", o.locations as i64),
-        integer("examples", o.examples.len() as i64),
-        number("homogeneous.young", o.homogeneous_young_pa, "Pa"),
-        number("homogeneous.nu", o.homogeneous_nu, ""),
-        number("homogeneous.lambda", o.homogeneous.lambda, "Pa"),
-        number("homogeneous.alpha", o.homogeneous.alpha, "Pa"),
-        number("rms.homogeneous", o.homogeneous_rms_m, "m"),
-        number("rms.per_example", o.example_rms_m, "m"),
-        number("rms.material", o.material_rms_m, "m"),
-        integer("material.failures", o.material_failures as i64),
-        number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
-        number("mean_error.material", o.material_mean_error_m, "m"),
-        number("basis.mean_centers", o.mean_centers, ""),
-        number("gamma_prior", o.gamma_prior, ""),
+        KeyValue::integer("tets", o.tets as i64, ""),
+        KeyValue::integer("locations", o.locations as i64, ""),
+        KeyValue::integer("examples", o.examples.len() as i64, ""),
+        KeyValue::number("homogeneous.young", o.homogeneous_young_pa, "Pa"),
+        KeyValue::number("homogeneous.nu", o.homogeneous_nu, ""),
+        KeyValue::number("homogeneous.lambda", o.homogeneous.lambda, "Pa"),
+        KeyValue::number("homogeneous.alpha", o.homogeneous.alpha, "Pa"),
+        KeyValue::number("rms.homogeneous", o.homogeneous_rms_m, "m"),
+        KeyValue::number("rms.per_example", o.example_rms_m, "m"),
+        KeyValue::number("rms.material", o.material_rms_m, "m"),
+        KeyValue::integer("material.failures", o.material_failures as i64, ""),
+        KeyValue::number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
+        KeyValue::number("mean_error.material", o.material_mean_error_m, "m"),
+        KeyValue::number("basis.mean_centers", o.mean_centers, ""),
+        KeyValue::number("gamma_prior", o.gamma_prior, ""),
     ];
     for (k, g) in o.gamma_prior_scores.iter().enumerate() {
         let p = format!("gamma_prior.candidate.{k}");
-        entries.push(number(&format!("{p}.gamma_prior"), g.gamma_prior, ""));
-        entries.push(number(&format!("{p}.heldout_rms"), g.heldout_rms_m, "m"));
-        entries.push(integer(
-            &format!("{p}.heldout_failures"),
-            g.heldout_failures as i64,
+        entries.push(KeyValue::number(
+            format!("{p}.gamma_prior"),
+            g.gamma_prior,
+            "",
         ));
-        entries.push(number(&format!("{p}.example_rms"), g.example_rms_m, "m"));
+        entries.push(KeyValue::number(
+            format!("{p}.heldout_rms"),
+            g.heldout_rms_m,
+            "m",
+        ));
+        entries.push(KeyValue::integer(
+            format!("{p}.heldout_failures"),
+            g.heldout_failures as i64,
+            "",
+        ));
+        entries.push(KeyValue::number(
+            format!("{p}.example_rms"),
+            g.example_rms_m,
+            "m",
+        ));
     }
     for s in &o.basis_curve {
-        entries.push(number(
-            &format!("basis.error.m{}", s.num_centers),
+        entries.push(KeyValue::number(
+            format!("basis.error.m{}", s.num_centers),
             s.relative_rms_error,
             "",
         ));
     }
     for (k, e) in o.examples.iter().enumerate() {
         let p = format!("example.{k}");
-        entries.push(integer(&format!("{p}.frame"), e.frame as i64));
-        entries.push(integer(&format!("{p}.location"), e.location as i64));
-        entries.push(number(&format!("{p}.force"), e.force_n, "N"));
-        entries.push(number(
-            &format!("{p}.rms.homogeneous"),
+        entries.push(KeyValue::integer(format!("{p}.frame"), e.frame as i64, ""));
+        entries.push(KeyValue::integer(
+            format!("{p}.location"),
+            e.location as i64,
+            "",
+        ));
+        entries.push(KeyValue::number(format!("{p}.force"), e.force_n, "N"));
+        entries.push(KeyValue::number(
+            format!("{p}.rms.homogeneous"),
             e.homogeneous_rms_m,
             "m",
         ));
-        entries.push(number(
-            &format!("{p}.rms.per_example"),
+        entries.push(KeyValue::number(
+            format!("{p}.rms.per_example"),
             e.example_rms_m,
             "m",
         ));
-        entries.push(number(&format!("{p}.rms.material"), e.material_rms_m, "m"));
+        entries.push(KeyValue::number(
+            format!("{p}.rms.material"),
+            e.material_rms_m,
+            "m",
+        ));
     }
     proto::Report {
         title: "softcap tissue fit (bickel2009 §4)".into(),
@@ -278,16 +275,16 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
         crate::fit::effective_settings(&cfg.settings, &prepared.tip_shape, prepared.tip_radius_m);
     let sp = prepared.support;
     report.entries.extend([
-        number("support.normal.x", sp.normal[0], ""),
-        number("support.normal.y", sp.normal[1], ""),
-        number("support.normal.z", sp.normal[2], ""),
-        number("support.offset", sp.offset_m, "m"),
-        number("support.tolerance", sp.tolerance_m, "m"),
-        number("tip.radius", prepared.tip_radius_m, "m"),
+        KeyValue::number("support.normal.x", sp.normal[0], ""),
+        KeyValue::number("support.normal.y", sp.normal[1], ""),
+        KeyValue::number("support.normal.z", sp.normal[2], ""),
+        KeyValue::number("support.offset", sp.offset_m, "m"),
+        KeyValue::number("support.tolerance", sp.tolerance_m, "m"),
+        KeyValue::number("tip.radius", prepared.tip_radius_m, "m"),
         // The footprint loads the fits used (`softcap_probing::FootprintLoad::name`): the diagnosis
         // replays its default model with the load it was fitted under.
-        text("homogeneous.patch.load", used.homogeneous.patch.load.name()),
-        text("examples.patch.load", used.example_fit.patch.load.name()),
+        KeyValue::text("homogeneous.patch.load", used.homogeneous.patch.load.name()),
+        KeyValue::text("examples.patch.load", used.example_fit.patch.load.name()),
     ]);
     w.write_static(&topics::TISSUE_REPORT, &report)
         .map_err(&err)?;

@@ -10,16 +10,15 @@ use plotters::prelude::*;
 use crate::error::{Result, TissueError};
 use crate::fit::FitOutcome;
 
-fn draw_err(path: &Path) -> impl Fn(String) -> TissueError + '_ {
-    move |reason| TissueError::Output {
+fn figure_err(path: &Path) -> impl Fn(softcap_figure::FigureError) -> TissueError + '_ {
+    move |e| TissueError::Output {
         path: path.to_path_buf(),
-        reason,
+        reason: e.to_string(),
     }
 }
 
 /// Bars of the RMS marker error per example (mm): homogeneous, per-example fit, material.
 pub fn draw_example_errors(path: &Path, o: &FitOutcome) -> Result<()> {
-    let err = draw_err(path);
     let n = o.examples.len().max(1);
     let ymax = o
         .examples
@@ -29,55 +28,53 @@ pub fn draw_example_errors(path: &Path, o: &FitOutcome) -> Result<()> {
         .fold(1e-9, f64::max)
         * 1e3
         * 1.15;
-    softcap_figure::register_fonts();
-    let root = BitMapBackend::new(path, (1100, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "RMS marker error per example (bickel2009 eq. 9 / eq. 8)",
-            (softcap_figure::FONT_FAMILY, 18),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..n as f64, 0.0..ymax)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc("example")
-        .y_desc("RMS marker error, mm")
-        .disable_x_mesh()
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    let series: [(&str, RGBColor, fn(&crate::ExampleSummary) -> f64, f64); 3] = [
-        ("homogeneous", RED, |e| e.homogeneous_rms_m, 0.05),
-        ("per-example fit", GREEN, |e| e.example_rms_m, 0.35),
-        ("strain-space material", BLUE, |e| e.material_rms_m, 0.65),
-    ];
-    for (label, color, value, offset) in series {
+    softcap_figure::draw_png(path, (1100, 520), |root| {
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "RMS marker error per example (bickel2009 eq. 9 / eq. 8)",
+                (softcap_figure::FONT_FAMILY, 18),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..n as f64, 0.0..ymax)?;
         chart
-            .draw_series(o.examples.iter().enumerate().map(|(k, e)| {
-                let v = value(e);
-                let v = if v.is_finite() { 1e3 * v } else { 0.0 };
-                let x0 = k as f64 + offset;
-                Rectangle::new([(x0, 0.0), (x0 + 0.28, v)], color.filled())
-            }))
-            .map_err(|e| err(e.to_string()))?
-            .label(label)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    root.present().map_err(|e| err(e.to_string()))
+            .configure_mesh()
+            .x_desc("example")
+            .y_desc("RMS marker error, mm")
+            .disable_x_mesh()
+            .draw()?;
+        let series: [(&str, RGBColor, fn(&crate::ExampleSummary) -> f64, f64); 3] = [
+            ("homogeneous", RED, |e| e.homogeneous_rms_m, 0.05),
+            ("per-example fit", GREEN, |e| e.example_rms_m, 0.35),
+            ("strain-space material", BLUE, |e| e.material_rms_m, 0.65),
+        ];
+        for (label, color, value, offset) in series {
+            chart
+                .draw_series(o.examples.iter().enumerate().map(|(k, e)| {
+                    let v = value(e);
+                    let v = if v.is_finite() { 1e3 * v } else { 0.0 };
+                    let x0 = k as f64 + offset;
+                    Rectangle::new([(x0, 0.0), (x0 + 0.28, v)], color.filled())
+                }))?
+                .label(label)
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled())
+                });
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    })
+    .map_err(figure_err(path))
 }
 
 /// The relative RMS parameter error of the strain-space material against basis size M.
 pub fn draw_basis_curve(path: &Path, o: &FitOutcome) -> Result<()> {
-    let err = draw_err(path);
     let pts: Vec<(f64, f64)> = o
         .basis_curve
         .iter()
@@ -85,32 +82,27 @@ pub fn draw_basis_curve(path: &Path, o: &FitOutcome) -> Result<()> {
         .collect();
     let xmax = pts.last().map_or(2.0, |p| p.0.max(2.0)) + 0.5;
     let ymax = pts.iter().map(|p| p.1).fold(1e-9, f64::max) * 1.15;
-    softcap_figure::register_fonts();
-    let root = BitMapBackend::new(path, (800, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "strain-space fitting error vs basis size (bickel2009 §4.2, Fig. 5)",
-            (softcap_figure::FONT_FAMILY, 18),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.5..xmax, 0.0..ymax)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc("basis size M (centres per tet)")
-        .y_desc("RMS parameter error, % of mean λ")
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .draw_series(LineSeries::new(pts.clone(), BLUE.stroke_width(2)))
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .draw_series(pts.iter().map(|p| Circle::new(*p, 4, BLUE.filled())))
-        .map_err(|e| err(e.to_string()))?;
-    root.present().map_err(|e| err(e.to_string()))
+    softcap_figure::draw_png(path, (800, 520), |root| {
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "strain-space fitting error vs basis size (bickel2009 §4.2, Fig. 5)",
+                (softcap_figure::FONT_FAMILY, 18),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.5..xmax, 0.0..ymax)?;
+        chart
+            .configure_mesh()
+            .x_desc("basis size M (centres per tet)")
+            .y_desc("RMS parameter error, % of mean λ")
+            .draw()?;
+        chart.draw_series(LineSeries::new(pts.clone(), BLUE.stroke_width(2)))?;
+        chart.draw_series(pts.iter().map(|p| Circle::new(*p, 4, BLUE.filled())))?;
+        Ok(())
+    })
+    .map_err(figure_err(path))
 }
 
 /// Writes `dir/report.md`, `dir/example-errors.png`, `dir/basis-error.png`.
@@ -198,8 +190,10 @@ pub fn write_report(dir: &Path, o: &FitOutcome) -> Result<()> {
             1e3 * e.material_rms_m
         );
     }
-    std::fs::write(dir.join("report.md"), md).map_err(|e| TissueError::Output {
-        path: dir.join("report.md"),
-        reason: e.to_string(),
+    softcap_app::write_atomic(dir.join("report.md"), md.as_bytes()).map_err(|e| {
+        TissueError::Output {
+            path: dir.join("report.md"),
+            reason: e.to_string(),
+        }
     })
 }

@@ -244,3 +244,31 @@ fn binary_exits_2_on_bad_input_and_0_on_success() {
     );
     assert!(MaterialData::read(&out).is_ok());
 }
+
+/// `--help`/`--version` exit 0; a missing and a corrupt capture.mcap are bad input (2), each
+/// named once.
+#[test]
+fn exit_codes_of_help_version_missing_and_bad_file() {
+    use softcap_app::testing::{assert_error_names_once, assert_help_version_usage, run};
+    let bin = env!("CARGO_BIN_EXE_softcap-tissue");
+    assert_help_version_usage(bin);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("material.mcap");
+    for (name, content) in [("missing.mcap", None), ("bad.mcap", Some("not an mcap"))] {
+        let capture = dir.path().join(name);
+        if let Some(c) = content {
+            std::fs::write(&capture, c).unwrap();
+        }
+        let r = run(
+            bin,
+            &[
+                "fit",
+                capture.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ],
+        );
+        assert_error_names_once(&r, 2, &capture);
+    }
+    assert!(!out.exists());
+}

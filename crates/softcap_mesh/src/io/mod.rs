@@ -1,8 +1,8 @@
 //! Mesh file formats: Wavefront OBJ, PLY, Gmsh 4.1 `.msh`, TetGen `.node`/`.ele`.
 //!
 //! Every reader comes in two forms: `read_*(path)` and `read_*_from(reader, name)`, where
-//! `name` is used in error messages. Writers write to `NAME.tmp` and rename, so a failed write
-//! never leaves a file that looks finished.
+//! `name` is used in error messages. Writers write to `NAME.tmp`, fsync and rename
+//! ([`softcap_app::fs`]), so a failed write never leaves a file that looks finished.
 
 pub mod msh;
 pub mod obj;
@@ -11,8 +11,8 @@ pub mod tetgen;
 
 use crate::error::{MeshError, Result};
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::BufReader;
+use std::path::Path;
 
 /// Opens `path` for buffered reading, naming it in the error.
 pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
@@ -21,27 +21,12 @@ pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
         .map_err(|e| MeshError::io(path, e))
 }
 
-/// Writes `path` atomically: `body` writes into `path.tmp`, which is synced and renamed.
+/// Writes `path` atomically ([`softcap_app::write_atomic_with`]: `NAME.tmp`, fsync, rename).
 pub(crate) fn write_atomic(
     path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+    body: impl FnOnce(&mut softcap_app::AtomicFile) -> std::io::Result<()>,
 ) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let result = (|| {
-        let mut w = BufWriter::new(File::create(&tmp)?);
-        body(&mut w)?;
-        w.flush()?;
-        w.get_ref().sync_all()?;
-        drop(w);
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(MeshError::io(path, e));
-    }
-    Ok(())
+    softcap_app::write_atomic_with(path, body).map_err(|e| MeshError::io(path, e))
 }
 
 /// Parses the next whitespace token as `T`, or explains which field is missing or malformed.

@@ -2,8 +2,12 @@
 //! subdivisions): shell prefactor, basis precomputation, per-frame time by factor solve and by
 //! basis, and the full-face synthesis on the 2×-subdivided face. Criterion (benches/face.rs)
 //! measures wall time, which on a shared machine is a multiple of this; these figures are user +
-//! system CPU of this process (all threads) from /proc/self/stat. Ignored: minutes.
+//! system CPU of this process (all threads) from /proc/self/stat. Minutes:
+//!
+//! `cargo run --release -p softcap_face --example timing_fine [fine_face_timings | cross_section_fit_timing]`
 
+#[path = "../tests/common/mod.rs"]
+#[allow(dead_code)]
 mod common;
 
 use common::face_scene::{face_camera, face_scene_meshes, face_wrinkles, fixtures, ict_animator};
@@ -28,8 +32,6 @@ fn timed<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
     (out, t0.elapsed().as_secs_f64(), cpu() - c0)
 }
 
-#[test]
-#[ignore]
 fn fine_face_timings() {
     let (anim, _) = ict_animator();
     let take =
@@ -109,8 +111,6 @@ fn fine_face_timings() {
     );
 }
 
-#[test]
-#[ignore]
 fn cross_section_fit_timing() {
     use softcap_face::morphology::connected_components;
     use softcap_face::{
@@ -137,5 +137,23 @@ fn cross_section_fit_timing() {
             "track + {} cross-section fits (d, w) = ({d}, {w}) px: wall {wall:.3} s, CPU {cpu:.3} s",
             t.sections.len()
         );
+    }
+}
+
+/// Runs the part named by the first argument, or all of them.
+fn main() {
+    match std::env::args().nth(1).as_deref() {
+        Some("fine_face_timings") => fine_face_timings(),
+        Some("cross_section_fit_timing") => cross_section_fit_timing(),
+        None => {
+            fine_face_timings();
+            cross_section_fit_timing();
+        }
+        Some(other) => {
+            eprintln!(
+                "unknown part `{other}`; one of: fine_face_timings, cross_section_fit_timing"
+            );
+            std::process::exit(2);
+        }
     }
 }

@@ -1,5 +1,8 @@
 //! Where the shallow-wrinkle (d, w) bias came from
-//! (docs/notes/2026-11-22-wrinkle-cross-section-fit.md). All ignored (minutes):
+//! (docs/notes/2026-11-22-wrinkle-cross-section-fit.md), minutes per part:
+//!
+//! `cargo run --release -p softcap_face --example tracking_bias [PART]` (all parts without PART)
+//!
 //! - `model_only`: the eq. 4.4 fit on Monte-Carlo AO pixels with the *true* distance p to the
 //!   valley (no tracking, no noise, 16²–64² rays);
 //! - `seeds`: the full tracking pipeline on six renders (different MC/noise seeds) per wrinkle;
@@ -10,8 +13,6 @@ use softcap_face::{
     track_wrinkle,
 };
 
-#[test]
-#[ignore]
 fn model_only() {
     let (w, d) = (5.0, 2.0);
     let scene = WrinkleScene {
@@ -56,8 +57,6 @@ fn model_only() {
     }
 }
 
-#[test]
-#[ignore]
 fn seeds() {
     for (w, d) in [(5.0, 2.0), (4.0, 3.0)] {
         let scene = WrinkleScene {
@@ -102,8 +101,6 @@ fn seeds() {
     }
 }
 
-#[test]
-#[ignore]
 fn residual_profile() {
     use softcap_face::{HorizonSettings, ambient_ratio};
     for r in [400.0, 1e6] {
@@ -146,8 +143,6 @@ fn residual_profile() {
     }
 }
 
-#[test]
-#[ignore]
 fn truth_residuals() {
     use softcap_face::{HorizonSettings, ambient_ratio};
     let (w, d) = (5.0, 2.0);
@@ -183,5 +178,27 @@ fn truth_residuals() {
             "p {:+.3} s {:.1}: diff {:+.4} model {:.4}",
             r.0, r.1, r.2, r.3
         );
+    }
+}
+
+/// Runs the part named by the first argument, or all of them.
+fn main() {
+    match std::env::args().nth(1).as_deref() {
+        Some("model_only") => model_only(),
+        Some("seeds") => seeds(),
+        Some("residual_profile") => residual_profile(),
+        Some("truth_residuals") => truth_residuals(),
+        None => {
+            model_only();
+            seeds();
+            residual_profile();
+            truth_residuals();
+        }
+        Some(other) => {
+            eprintln!(
+                "unknown part `{other}`; one of: model_only, seeds, residual_profile, truth_residuals"
+            );
+            std::process::exit(2);
+        }
     }
 }

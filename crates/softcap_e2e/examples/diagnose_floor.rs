@@ -1,10 +1,10 @@
 //! Where the default model's floor comes from (docs/diagnose.md, "Session 11 (lead)"): a suite
 //! session's recording against several models of it, each model's residual RMS on the probed
 //! markers per phase and on the contact frames' markers near / away from the tip (2.5 tip radii,
-//! the anisotropy / support-slip cells). A measuring harness, not a check: `#[ignore]`d, nothing
-//! asserted beyond the chain running.
+//! the anisotropy / support-slip cells). A measuring harness, not a check: nothing asserted beyond
+//! the chain running.
 //!
-//! `cargo test -p softcap_e2e --test diagnose_floor -- --ignored --nocapture`, with
+//! `cargo run --release -p softcap_e2e --example diagnose_floor`, with
 //! - `FLOOR_CASE=NAME` (a suite scenario, default `clean`) or `FLOOR_TOML=PATH` (any scenario, e.g.
 //!   a copy of clean.toml with another `fit_cells`);
 //! - `FLOOR_MATERIAL=E_PA,NU` a homogeneous material instead of the tissue fit's;
@@ -58,6 +58,8 @@
 //!
 //! Always printed: the hold fit (`temporal::hold_relaxation`, the Prony grids' centre).
 
+#[path = "../tests/common/mod.rs"]
+#[allow(dead_code)]
 mod common;
 
 use softcap_diagnose::nalgebra::Vector3;
@@ -71,9 +73,7 @@ use softcap_mcap::capture::CaptureData;
 use softcap_synth::Scenario;
 use std::time::Instant;
 
-#[test]
-#[ignore = "measuring harness (docs/diagnose.md, session 11 floor table); run with --ignored --nocapture"]
-fn default_model_floor() {
+fn main() {
     let env = |k: &str| std::env::var(k).ok();
     let name = env("FLOOR_CASE").unwrap_or_else(|| "clean".into());
     let path = env("FLOOR_TOML")

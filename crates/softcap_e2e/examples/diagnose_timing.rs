@@ -9,8 +9,10 @@
 //! timed call (`SOFTCAP_SUITE_CACHE` reuses them, tests/common); with `SOFTCAP_TIMING_JSON=FILE`
 //! the diagnosis JSON is copied to FILE.
 //!
-//! `cargo test -p softcap_e2e --test diagnose_timing -- --ignored --nocapture`
+//! `cargo run --release -p softcap_e2e --example diagnose_timing`
 
+#[path = "../tests/common/mod.rs"]
+#[allow(dead_code)]
 mod common;
 
 use softcap_diagnose::{RunConfig, StageSettings};
@@ -29,9 +31,7 @@ fn cpu_seconds() -> Option<f64> {
     Some((utime + stime) / 100.0)
 }
 
-#[test]
-#[ignore = "timing (minutes; run with --ignored --nocapture). Idle 2-core machine (lead, main c2c757f, 2026-11-26 22:38): 237.4 s wall / 416.8 CPU-s, verdict probe-friction 0.5388 -> 0.1805 mm. Measured 2026-11-26 (par, test profile, cached inputs, 2 cores shared with two other engineers): parallel re-simulations on main 1b882bb 435.6 s wall / 441.3 CPU-s at load ~3 (both workers running, one core's share in total), on wt/par 439.7 s / 451.9 CPU-s at load 3-7 and 457.4 s / 428.8 CPU-s at load 4-6; serial before (main 6b8d0fd) 739.2 s / 455.5 CPU-s at load 2-5, idle 362 s / 395 CPU-s (lead, main 468b127); verdict probe-friction 0.5388 -> 0.1805 mm, diagnosis JSON byte-identical before/after (docs/diagnose.md, Timing)"]
-fn probe_friction_ten_locations_timing() {
+fn main() {
     let mut scenario =
         Scenario::load(&common::suite_dir().join("probe-friction.toml")).expect("suite scenario");
     scenario.protocol.locations = 10;

@@ -1,0 +1,171 @@
+//! `softcap-tissue fit capture.mcap --mesh volume.msh -o material.mcap [--settings S.toml]`:
+//! bickel2009 material capture; `softcap-tissue simulate material.mcap --probe-shape sphere
+//! --radius R --tip x,y,z --axis x,y,z --force N -o sim.mcap`: novel-probe synthesis.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use softcap_app::{Error, Result, load_toml_or_default};
+
+use crate::{FitConfig, FitSettings, ProbeShape, ProbeSpec, SimulateConfig, SimulateSettings};
+
+/// Soft-tissue material capture and synthesis (bickel2009).
+#[derive(Debug, Parser)]
+#[command(name = "softcap-tissue", version)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Fit a heterogeneous non-linear material to a capture.
+    Fit(FitArgs),
+    /// Synthesize a novel probe deformation with a fitted material (SI units).
+    Simulate(SimulateArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// material.mcap written by `softcap tissue fit`.
+    pub material: PathBuf,
+    /// Tip shape.
+    #[arg(long, value_enum)]
+    pub probe_shape: ProbeShape,
+    /// Tip radius, m.
+    #[arg(long)]
+    pub radius: f64,
+    /// A point on the approach line, m: x,y,z.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_negative_numbers = true
+    )]
+    pub tip: Vec<f64>,
+    /// Approach direction (handle → tip): x,y,z.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_negative_numbers = true,
+        default_value = "0,0,-1"
+    )]
+    pub axis: Vec<f64>,
+    /// Axial force on the object, N.
+    #[arg(long)]
+    pub force: f64,
+    /// Disk thickness, m.
+    #[arg(long, default_value_t = 0.002)]
+    pub thickness: f64,
+    /// Cylinder half length, m (default 2 × radius).
+    #[arg(long, default_value_t = 0.0)]
+    pub half_length: f64,
+    /// sim.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Settings TOML (softcap_tissue::SimulateSettings).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct FitArgs {
+    /// capture.mcap (markers, probe, /capture/session).
+    pub capture: PathBuf,
+    /// Tet mesh (Gmsh 4.1 .msh) in the session's length unit, e.g. SESSION/template/volume.msh.
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    /// material.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Settings TOML (softcap_tissue::FitSettings).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// Also write report.md and PNG figures (per-example error, error vs basis size) here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Examples per probe location (overrides the settings).
+    #[arg(long)]
+    pub examples_per_location: Option<usize>,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl Cli {
+    /// Runs the subcommand.
+    pub fn run(self) -> Result<()> {
+        let arguments: Vec<String> = std::env::args().collect();
+        match &self.command {
+            Command::Fit(a) => a.run(arguments),
+            Command::Simulate(a) => a.run(arguments),
+        }
+    }
+}
+
+impl SimulateArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let settings: SimulateSettings = load_toml_or_default(self.settings.as_deref())?;
+        let three = |v: &[f64], what: &str| -> Result<[f64; 3]> {
+            <[f64; 3]>::try_from(v).map_err(|_| {
+                Error::bad_input(format!("--{what} needs three comma-separated numbers"))
+            })
+        };
+        let cfg = SimulateConfig {
+            material: self.material.clone(),
+            output: self.output.clone(),
+            probe: ProbeSpec {
+                shape: self.probe_shape,
+                radius_m: self.radius,
+                tip_m: three(&self.tip, "tip")?,
+                axis: three(&self.axis, "axis")?,
+                force_n: self.force,
+                disk_thickness_m: self.thickness,
+                half_length_m: self.half_length,
+            },
+            settings,
+            arguments,
+        };
+        let o = crate::simulate::run(&cfg)?;
+        println!(
+            "depth {:.4} mm, axial force {:.4} N, {} load steps, max marker displacement {:.4} mm",
+            1e3 * o.depth_m,
+            o.axial_force_n,
+            o.load_steps,
+            1e3 * o.max_marker_displacement_m
+        );
+        Ok(())
+    }
+}
+
+impl FitArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let mut settings: FitSettings = load_toml_or_default(self.settings.as_deref())?;
+        if let Some(n) = self.examples_per_location {
+            settings.examples.examples_per_location = n;
+        }
+        if self.quiet {
+            settings.progress = false;
+        }
+        let cfg = FitConfig {
+            capture: self.capture.clone(),
+            mesh: self.mesh.clone(),
+            output: self.output.clone(),
+            report: self.report.clone(),
+            settings,
+            arguments,
+        };
+        let o = crate::fit::run(&cfg)?;
+        println!(
+            "{} examples, {} tets: marker RMS homogeneous {:.4} mm, per-example {:.4} mm, strain-space material {:.4} mm ({:.1} centres/tet)",
+            o.examples.len(),
+            o.tets,
+            1e3 * o.homogeneous_rms_m,
+            1e3 * o.example_rms_m,
+            1e3 * o.material_rms_m,
+            o.mean_centers
+        );
+        Ok(())
+    }
+}
