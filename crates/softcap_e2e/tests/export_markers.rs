@@ -50,26 +50,18 @@ fn exported_marker_ids_line_up_with_the_session_truth() {
     let truth = rows(&session_dir.join("truth/markers.csv"), 1e-3);
     let exported = rows(&csv, 1.0);
     let mut matched = 0;
-    let mut worst_m = 0.0f64;
+    let mut sum_sq = 0.0;
     for (key, t) in &truth {
         let Some(e) = exported.get(key) else { continue };
         matched += 1;
-        let d = (0..3).map(|k| (e[k] - t[k]).powi(2)).sum::<f64>().sqrt();
-        worst_m = worst_m.max(d);
+        sum_sq += (0..3).map(|k| (e[k] - t[k]).powi(2)).sum::<f64>();
     }
-    // Every visible or filled object marker of every frame is matched by its session id (only
-    // markers capture could not place are absent), and sits where the truth puts it: the
-    // triangulation noise of the suite's rig is ≈ 0.02 mm per coordinate.
-    assert!(
-        matched as f64 >= 0.95 * truth.len() as f64,
-        "{matched} of {} truth rows matched by (frame, id)",
-        truth.len()
-    );
-    assert!(
-        worst_m < 0.5e-3,
-        "worst marker distance {:.4} mm",
-        worst_m * 1e3
-    );
+    // Every object marker of every frame (capture sees or fills them all on the clean suite
+    // scenario) is found under its session id, and the rows sit where the truth puts them: the
+    // marker RMS bound of the capture suite (tests/capture_reads_synth.rs).
+    assert_eq!(matched, truth.len(), "truth rows matched by (frame, id)");
+    let rms_m = (sum_sq / matched as f64).sqrt();
+    assert!(rms_m < 0.3e-3, "marker RMS {:.4} mm", rms_m * 1e3);
     // The rows absent from the truth are the probe's shaft markers, named as the session names them.
     let truth_ids: std::collections::BTreeSet<&str> = truth.keys().map(|k| k.1.as_str()).collect();
     let extra: std::collections::BTreeSet<&str> = exported
