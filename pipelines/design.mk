@@ -3,7 +3,11 @@
 #   base materials ──softcap design library──▶ <OUT>/library.json       (MATERIALS unset: the nine
 #                                                                         reference base materials)
 #   <TARGETS>/<T>.json (desired force–displacement behaviour)
-#     ──softcap design search──▶ <OUT>/<T>/design.json, curves.png       (branch-and-bound, §8.4)
+#     ──softcap design search──▶ <OUT>/<T>/design.mcap (/design/report + provenance),
+#                                 design.json, design.3mf, curves.png      (branch-and-bound, §8.4)
+#
+#   make -f pipelines/design.mk TARGETS=goals OUT=out/design digests   # `softcap inspect digest`
+#                                                                      # of every design.mcap
 #
 # `make -j` searches independent targets in parallel:
 #
@@ -20,19 +24,25 @@ CLUSTERS  ?= 20
 
 TARGET_NAMES := $(patsubst $(TARGETS)/%.json,%,$(wildcard $(TARGETS)/*.json))
 
-.PHONY: all clean-design
+.PHONY: all digests clean-design
 .DELETE_ON_ERROR:
 .SECONDARY:
 
-all: $(foreach t,$(TARGET_NAMES),$(OUT)/$(t)/design.json)
+DESIGNS := $(foreach t,$(TARGET_NAMES),$(OUT)/$(t)/design.mcap)
+
+all: $(DESIGNS)
 
 $(OUT)/library.json:
 	@mkdir -p $(@D)
 	$(SOFTCAP) design library -o $@
 
-$(OUT)/%/design.json: $(TARGETS)/%.json $(MATERIALS)
+$(OUT)/%/design.mcap: $(TARGETS)/%.json $(MATERIALS)
 	@mkdir -p $(@D)
 	$(SOFTCAP) design search --materials $(MATERIALS) --target $< --clusters $(CLUSTERS) -o $(@D)
+
+# `softcap inspect digest` of every design, one line per file (what `make verify` compares).
+digests: $(DESIGNS)
+	@for f in $(DESIGNS); do printf '%s %s\n' "$$f" "$$($(SOFTCAP) inspect digest $$f)"; done
 
 clean-design:
 	rm -rf $(OUT)

@@ -59,7 +59,6 @@
 //! Always printed: the hold fit (`temporal::hold_relaxation`, the Prony grids' centre).
 
 #[path = "../tests/common/mod.rs"]
-#[allow(dead_code)]
 mod common;
 
 use softcap_diagnose::nalgebra::Vector3;

@@ -12,7 +12,6 @@
 //! `cargo run --release -p softcap_e2e --example diagnose_timing`
 
 #[path = "../tests/common/mod.rs"]
-#[allow(dead_code)]
 mod common;
 
 use softcap_diagnose::{RunConfig, StageSettings};

@@ -1,6 +1,6 @@
-//! Shared by the diagnose suite (tests/diagnose_suite.rs) and the catalog bench
-//! (benches/diagnose_catalog.rs): the stage chain synth → capture → tissue fit on a scenario,
-//! in-process through each stage's library API.
+//! Shared by the diagnose suite (tests/diagnose_suite.rs), the catalog bench
+//! (benches/diagnose_catalog.rs) and the examples: the stage chain synth → capture → tissue fit
+//! on a scenario, in-process through each stage's library API.
 #![allow(dead_code)]
 
 use softcap_capture::{CaptureSettings, Session, capture, write_capture_mcap};
