@@ -1,5 +1,5 @@
-//! `softcap-design` end to end: library → target → search (design.json, curves.png); bad input
-//! exits with 2 naming the file.
+//! `softcap-design` end to end: library → target → search (design.mcap, design.json,
+//! curves.png); bad input exits with 2 naming the file.
 
 use std::process::Command;
 
@@ -37,22 +37,37 @@ fn library_target_search_round_trip() {
         .status()
         .unwrap();
     assert!(st.success());
+    let search = |out: &std::path::Path| {
+        let o = bin()
+            .args(["search", "--materials"])
+            .arg(&small)
+            .arg("--target")
+            .arg(&target)
+            .arg("-o")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
     let out = dir.path().join("out");
-    let o = bin()
-        .args(["search", "--materials"])
-        .arg(&small)
-        .arg("--target")
-        .arg(&target)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    search(&out);
     let d: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("design.json")).unwrap()).unwrap();
     assert_eq!(d["design"], serde_json::json!([2, 0]));
     assert!(d["rms_error_m"].as_f64().unwrap() < 1e-12);
     assert!(std::fs::metadata(out.join("curves.png")).unwrap().len() > 1000);
+    // design.mcap: provenance and one /design/report; a rerun with the same arguments (the
+    // provenance records them) reproduces its content digest (what `softcap inspect digest` and
+    // `make -f pipelines/design.mk digests` print).
+    let digest = || {
+        let rec = softcap_mcap::Recording::open(out.join("design.mcap")).unwrap();
+        assert!(rec.provenance().unwrap().is_some());
+        assert_eq!(rec.messages_on("/design/report").unwrap().len(), 1);
+        rec.digest().unwrap()
+    };
+    let first = digest();
+    search(&out);
+    assert_eq!(digest(), first);
     // The print file: one object per material (2 layers of materials 2 and 0).
     let parts = softcap_design::read_design_3mf(&out.join("design.3mf")).unwrap();
     assert_eq!(parts.len(), 2);
