@@ -123,6 +123,27 @@ fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
     }
 }
 
+/// `element(k, &mut forces[k], &mut matrices[k])` for every k, in parallel for long ranges (see
+/// [`PARALLEL_MIN_ELEMENTS`]): the loop of a one-pass [`ElasticModel::linearize_elements`].
+pub(crate) fn fill_linearization(
+    forces: &mut [[Vector3<f64>; 4]],
+    matrices: &mut [Matrix12],
+    element: impl Fn(usize, &mut [Vector3<f64>; 4], &mut Matrix12) + Sync,
+) {
+    if forces.len() < PARALLEL_MIN_ELEMENTS {
+        for (k, (f, m)) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
+            element(k, f, m);
+        }
+    } else {
+        use rayon::prelude::*;
+        forces
+            .par_iter_mut()
+            .zip(matrices.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, (f, m))| element(k, f, m));
+    }
+}
+
 /// Σ over elements of `per_element(e)` in element order, with the per-element values computed in
 /// parallel: bitwise the same as the serial sum for any number of threads.
 fn ordered_parallel_sum(n: usize, per_element: impl Fn(usize) -> f64 + Sync) -> f64 {
@@ -501,24 +522,12 @@ impl ElasticModel for NeoHookeanModel {
         forces: &mut [[Vector3<f64>; 4]],
         matrices: &mut [Matrix12],
     ) -> Option<f64> {
-        use rayon::prelude::*;
         let g = self.material_geometry();
-        let element = |k: usize, (f, m): (&mut [Vector3<f64>; 4], &mut Matrix12)| {
+        fill_linearization(forces, matrices, |k, f, m| {
             let e = first + k;
             *f = neohookean_forces(&g[e], &self.params[e], x);
             *m = neohookean_tangent(&g[e], &self.params[e], x);
-        };
-        if forces.len() < PARALLEL_MIN_ELEMENTS {
-            for (k, item) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
-                element(k, item);
-            }
-        } else {
-            forces
-                .par_iter_mut()
-                .zip(matrices.par_iter_mut())
-                .enumerate()
-                .for_each(|(k, item)| element(k, item));
-        }
+        });
         None
     }
 }

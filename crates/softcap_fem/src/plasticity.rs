@@ -391,7 +391,7 @@ impl ElasticModel for ElastoplasticModel {
         forces: &mut [[Vector3<f64>; 4]],
         matrices: &mut [Matrix12],
     ) -> Option<f64> {
-        let element = |k: usize, (f, m): (&mut [Vector3<f64>; 4], &mut Matrix12)| {
+        crate::model::fill_linearization(forces, matrices, |k, f, m| {
             let e = first + k;
             let (rm, r, s) = self.element_return(e, x);
             let (g, p) = (&self.geometry[e], self.params[e]);
@@ -404,19 +404,7 @@ impl ElasticModel for ElastoplasticModel {
                 |de| rm.tangent_apply(&p, de),
                 kind == StiffnessKind::Consistent,
             );
-        };
-        if forces.len() < crate::model::PARALLEL_MIN_ELEMENTS {
-            for (k, item) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
-                element(k, item);
-            }
-        } else {
-            use rayon::prelude::*;
-            forces
-                .par_iter_mut()
-                .zip(matrices.par_iter_mut())
-                .enumerate()
-                .for_each(|(k, item)| element(k, item));
-        }
+        });
         None
     }
 }
