@@ -293,8 +293,9 @@ pub struct BundleReport {
     /// scaled to 1): large means some combination of camera parameters is barely determined.
     pub condition_number: f64,
     /// The camera parameter with the largest weight in the least-determined direction:
-    /// `(camera index, slot name)`.
-    pub weakest_parameter: (usize, &'static str),
+    /// `(camera index, slot name)`; `None` when the reduced system could not be formed at the
+    /// solution (a point behind a camera or a singular point block).
+    pub weakest_parameter: Option<(usize, &'static str)>,
     /// Residual noise estimate `√(Σ w ‖r‖² / (residuals − unknowns))`, px per component.
     pub residual_sigma_px: f64,
     /// Per camera, standard deviations of the refined parameters.
@@ -761,20 +762,26 @@ impl<'a> Problem<'a> {
     }
 
     /// At the solution: the Jacobi-scaled condition number of the undamped reduced system, the
-    /// parameter dominating its weakest direction, and the per-camera standard deviations `σ² diag(S⁻¹)` (S⁻¹ is the camera block of the inverse normal matrix; σ² the
+    /// parameter dominating its weakest direction, and the per-camera standard deviations
+    /// `σ² diag(S⁻¹)` (S⁻¹ is the camera block of the inverse normal matrix; σ² the
     /// weighted residual sum of squares over its degrees of freedom).
     fn uncertainty(&self, scene: &Scene) -> Uncertainty {
         let n_cam = self.n_cam();
         let unknown = Uncertainty {
             condition_number: f64::INFINITY,
-            weakest: (0, SLOT_NAMES[0]),
+            weakest: None,
             residual_sigma_px: f64::NAN,
             std: vec![ParameterStd::default(); n_cam],
         };
         // Undamped: any damping would bound the condition number by about m/λ and hide a
         // singular direction. Points are well triangulated (the caller drops narrow ones), so
-        // their 3×3 blocks stay invertible.
-        let Some(red) = self.reduce(scene, 0.0) else {
+        // their 3×3 blocks are normally invertible; if one is exactly singular, a 1e-12 relative
+        // damping (a bound of ≈ 1e12 on the condition number, the ill-conditioning threshold)
+        // keeps the report about the cameras.
+        let Some(red) = self
+            .reduce(scene, 0.0)
+            .or_else(|| self.reduce(scene, 1e-12))
+        else {
             return unknown;
         };
         let free = self.free_rows();
@@ -797,7 +804,7 @@ impl<'a> Problem<'a> {
             .find(|&&i| !red.s[(i, i)].is_finite() || red.s[(i, i)] <= 0.0)
         {
             return Uncertainty {
-                weakest: (row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS]),
+                weakest: Some((row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS])),
                 residual_sigma_px,
                 ..unknown
             };
@@ -815,7 +822,7 @@ impl<'a> Problem<'a> {
         let row = free[eig.eigenvectors.column(kmin).iamax()];
         if lmin.is_nan() || lmin <= 0.0 {
             return Uncertainty {
-                weakest: (row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS]),
+                weakest: Some((row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS])),
                 residual_sigma_px,
                 ..unknown
             };
@@ -845,7 +852,7 @@ impl<'a> Problem<'a> {
             .collect();
         Uncertainty {
             condition_number: lmax / lmin,
-            weakest: (row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS]),
+            weakest: Some((row / CAMERA_SLOTS, SLOT_NAMES[row % CAMERA_SLOTS])),
             residual_sigma_px,
             std,
         }
@@ -954,7 +961,7 @@ impl<'a> Problem<'a> {
 /// [`Problem::uncertainty`].
 struct Uncertainty {
     condition_number: f64,
-    weakest: (usize, &'static str),
+    weakest: Option<(usize, &'static str)>,
     residual_sigma_px: f64,
     std: Vec<ParameterStd>,
 }

@@ -219,10 +219,10 @@ pub enum CalibrationStatus {
     IllConditioned {
         /// Jacobi-scaled condition number.
         condition_number: f64,
-        /// Camera id.
-        camera: String,
+        /// Camera id (`None`: the reduced system could not be formed at the solution).
+        camera: Option<String>,
         /// Parameter (slot) name.
-        parameter: String,
+        parameter: Option<String>,
     },
 }
 
@@ -588,7 +588,7 @@ pub fn calibrate(
     let mut previous_inliers: Option<Vec<Observation>> = None;
     let mut rejected_per_camera = vec![0usize; cameras.len()];
     let mut condition_number = f64::NAN;
-    let mut weakest = (0, "");
+    let mut weakest: Option<(usize, &str)> = None;
     let mut residual_sigma_px = f64::NAN;
     let mut parameter_std = vec![ParameterStd::default(); cameras.len()];
     for round in 1..=settings.max_rounds.max(1) {
@@ -684,14 +684,18 @@ pub fn calibrate(
         );
         progress(&format!(
             "round {round}: {:?} after {} iterations, cost {:.6e} → {:.6e}, condition number {:.2e} \
-             (least determined: {} {})",
+             (least determined: {})",
             report.status,
             report.iterations,
             report.initial_cost,
             report.final_cost,
             report.condition_number,
-            cameras[report.weakest_parameter.0].id,
-            report.weakest_parameter.1
+            report
+                .weakest_parameter
+                .map_or("not computable".to_string(), |(c, p)| format!(
+                    "{} {p}",
+                    cameras[c].id
+                ))
         ));
         rounds.push(Round {
             sigma_px: sigma,
@@ -739,8 +743,8 @@ pub fn calibrate(
         _ if condition_number.is_nan() || condition_number > settings.max_condition_number => {
             CalibrationStatus::IllConditioned {
                 condition_number,
-                camera: cameras[weakest.0].id.clone(),
-                parameter: weakest.1.to_string(),
+                camera: weakest.map(|(c, _)| cameras[c].id.clone()),
+                parameter: weakest.map(|(_, p)| p.to_string()),
             }
         }
         Some(s @ (BundleStatus::MaxIterations | BundleStatus::DampingOverflow)) => {
@@ -856,8 +860,13 @@ impl Calibration {
                 parameter,
             } => format!(
                 "ill-conditioned gauge or parameters: condition number {condition_number:.2e} > \
-                 {:.0e}; least determined: camera `{camera}` {parameter}",
-                self.settings.max_condition_number
+                 {:.0e}; least determined: {}",
+                self.settings.max_condition_number,
+                match (camera, parameter) {
+                    (Some(c), Some(p)) => format!("camera `{c}` {p}"),
+                    _ =>
+                        "not computable (a point behind a camera or a singular point block)".into(),
+                }
             ),
         }
     }
