@@ -925,17 +925,12 @@ pub fn parse_loss(name: &str) -> Option<RobustLoss> {
     }
 }
 
-/// Writes `bytes` to `path` through a temporary sibling and a rename (nothing half-written).
+/// [`softcap_app::write_atomic`] (nothing half-written) with the error naming `path`.
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let err = |e: std::io::Error| CaptureError::Output {
+    softcap_app::write_atomic(path, bytes).map_err(|e| CaptureError::Output {
         path: path.to_path_buf(),
         message: e.to_string(),
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(err)?;
-    std::fs::rename(&tmp, path).map_err(err)
+    })
 }
 
 /// What `softcap capture calibrate` runs: read the input, calibrate, write the report (when
