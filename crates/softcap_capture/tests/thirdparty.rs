@@ -67,6 +67,7 @@ cases! {
     probe_friction => "probe-friction",
     support_slip => "support-slip",
     clock_offset => "clock-offset",
+    viscoelasticity => "viscoelasticity",
 }
 
 #[test]
