@@ -11,7 +11,7 @@ use crate::error::{CaptureError, Result};
 use crate::pipeline::median_sorted;
 
 /// Writes `report.md` and `reprojection_<camera>.png` into `dir` (created if missing); returns
-/// the files written. Each file is written to a temporary name and renamed.
+/// the files written, each atomically ([`softcap_app::write_atomic`]).
 pub fn write_report(
     dir: &Path,
     input: &CalibrationInput,
@@ -197,12 +197,9 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
     };
     let (cb, ca) = (counts(&b), counts(&a));
     let y_max = cb.iter().chain(&ca).copied().max().unwrap_or(1).max(1) as f64 * 1.1;
-    let tmp = path.with_extension("tmp.png");
-    {
-        softcap_figure::register_fonts();
-        let root = BitMapBackend::new(&tmp, (800, 480)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
-        let mut chart = ChartBuilder::on(&root)
+    softcap_figure::draw_png(path, (800, 480), |root| {
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(root)
             .caption(
                 format!(
                     "{camera}: reprojection error per observation (last bin: ≥ {:.1} px)",
@@ -213,14 +210,12 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(60)
-            .build_cartesian_2d((lo..hi).log_scale(), 0.0..y_max)
-            .map_err(|e| err(&e))?;
+            .build_cartesian_2d((lo..hi).log_scale(), 0.0..y_max)?;
         chart
             .configure_mesh()
             .x_desc("reprojection error [px]")
             .y_desc("observations")
-            .draw()
-            .map_err(|e| err(&e))?;
+            .draw()?;
         let series = [
             ("before", &cb, RGBColor(128, 128, 128), median_sorted(&b)),
             ("after", &ca, RGBColor(31, 119, 180), median_sorted(&a)),
@@ -232,8 +227,7 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
                         [(edge(k), 0.0), (edge(k + 1), n as f64)],
                         color.mix(0.45).filled(),
                     )
-                }))
-                .map_err(|e| err(&e))?
+                }))?
                 .label(format!("{label}: median {median:.2} px"))
                 .legend(move |(x, y)| {
                     Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.mix(0.45).filled())
@@ -245,9 +239,8 @@ fn histogram(path: &Path, camera: &str, before: &[f64], after: &[f64]) -> Result
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .label_font((softcap_figure::FONT_FAMILY, 15))
-            .draw()
-            .map_err(|e| err(&e))?;
-        root.present().map_err(|e| err(&e))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|e| err(&e))
+            .draw()?;
+        Ok(())
+    })
+    .map_err(|e| err(&e))
 }
