@@ -215,28 +215,17 @@ fn per_frame_rms(row: &[Option<Vector3<f64>>]) -> f64 {
     if n > 0 { (a / n as f64).sqrt() } else { 0.0 }
 }
 
-/// Colour of `v` in [0, 1] (blue → green → yellow → red).
-fn heat(v: f64) -> RGBColor {
-    let v = v.clamp(0.0, 1.0);
-    let (r, g, b) = if v < 0.33 {
-        let t = v / 0.33;
-        (0.0, t, 1.0 - t)
-    } else if v < 0.66 {
-        let t = (v - 0.33) / 0.33;
-        (t, 1.0, 0.0)
-    } else {
-        let t = (v - 0.66) / 0.34;
-        (1.0, 1.0 - t, 0.0)
-    };
-    RGBColor((255.0 * r) as u8, (255.0 * g) as u8, (255.0 * b) as u8)
-}
-
 type DrawResult<T> = std::result::Result<T, String>;
+
+/// The drawing area a report figure is drawn on (in memory; [`softcap_figure::draw_png`] writes
+/// it atomically).
+type Root<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
 /// Residual map on the surface: markers at their rest positions projected onto the plane
 /// perpendicular to the mean probe axis, coloured by per-marker RMS residual (before | after),
-/// common colour scale; probe locations as crosses.
-fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+/// one colour scale shared by both panels and drawn as a labelled bar under them; probe locations
+/// as crosses.
+fn draw_residual_map(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
     let axis: Vector3<f64> = run.segmentation.locations.iter().map(|l| l.axis).sum();
     let n = axis.try_normalize(1e-12).unwrap_or_else(|| -Vector3::z());
     let u = n
@@ -250,12 +239,16 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
         .map(|p| (1e3 * p.dot(&u), 1e3 * p.dot(&v)))
         .collect();
     let before: Vec<f64> = (0..rec.num_markers())
-        .map(|m| per_marker_rms(&run.residuals_before, m))
+        .map(|m| 1e3 * per_marker_rms(&run.residuals_before, m))
         .collect();
     let after: Vec<f64> = (0..rec.num_markers())
-        .map(|m| per_marker_rms(&run.residuals_after, m))
+        .map(|m| 1e3 * per_marker_rms(&run.residuals_after, m))
         .collect();
-    let vmax = before.iter().chain(&after).cloned().fold(1e-12, f64::max);
+    let scale = softcap_figure::ColorScale::shared_magnitude(
+        "RMS marker residual [mm]",
+        before.iter().chain(&after).copied(),
+        softcap_figure::sequential,
+    );
     let (x0, x1, y0, y1) = pts.iter().fold(
         (
             f64::INFINITY,
@@ -266,16 +259,15 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
         |a, p| (a.0.min(p.0), a.1.max(p.0), a.2.min(p.1), a.3.max(p.1)),
     );
     let pad = 0.08 * (x1 - x0).max(y1 - y0).max(1.0);
-    softcap_figure::register_fonts();
-    let root = BitMapBackend::new(path, (1200, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
-    let halves = root.split_evenly((1, 2));
+    let (panels, bar) = root.split_vertically(RESIDUAL_MAP_SIZE.1 - 70);
+    let halves = panels.split_evenly((1, 2));
     for (area, (title, vals)) in halves.iter().zip([("before", &before), ("after", &after)]) {
         let mut chart = ChartBuilder::on(area)
             .caption(
                 format!(
                     "RMS marker residual {title} (max {:.3} mm)",
-                    1e3 * vals.iter().cloned().fold(0.0, f64::max)
+                    vals.iter().cloned().fold(0.0, f64::max)
                 ),
                 (softcap_figure::FONT_FAMILY, 18),
             )
@@ -294,7 +286,7 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
             .draw_series(
                 pts.iter()
                     .zip(vals.iter())
-                    .map(|(p, &r)| Circle::new(*p, 7, heat(r / vmax).filled())),
+                    .map(|(p, &r)| Circle::new(*p, 7, scale.color(r).filled())),
             )
             .map_err(|e| e.to_string())?;
         chart
@@ -304,11 +296,11 @@ fn draw_residual_map(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawRe
             }))
             .map_err(|e| e.to_string())?;
     }
-    root.present().map_err(|e| e.to_string())
+    softcap_figure::draw_colorbar(&bar.margin(0, 0, 300, 300), &scale).map_err(|e| e.to_string())
 }
 
 /// Residual against time: RMS over markers per frame, before and after; force on a second panel.
-fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+fn draw_residual_time(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
     let t: Vec<f64> = rec.times_s();
     let b: Vec<f64> = run
         .residuals_before
@@ -324,8 +316,6 @@ fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawR
     let tmax = t.last().copied().unwrap_or(1.0).max(t[0] + 1e-6);
     let ymax = b.iter().chain(&a).cloned().fold(1e-9, f64::max) * 1.1;
     let fmax = f.iter().cloned().fold(1e-9, f64::max) * 1.1;
-    softcap_figure::register_fonts();
-    let root = BitMapBackend::new(path, (1100, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (top, bottom) = root.split_vertically(460);
     let mut chart = ChartBuilder::on(&top)
@@ -392,16 +382,14 @@ fn draw_residual_time(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawR
         BLACK.stroke_width(2),
     ))
     .map_err(|e| e.to_string())?;
-    root.present().map_err(|e| e.to_string())
+    Ok(())
 }
 
 /// Force–displacement loops: |f| against the mean displacement of the probed markers near each
 /// location along the probe axis, measured vs default-model vs extended-model simulation.
-fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
+fn draw_loops(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
     let seg = &run.segmentation;
-    let nloc = seg.locations.len().min(6);
-    softcap_figure::register_fonts();
-    let root = BitMapBackend::new(path, (1200, 420 * nloc.div_ceil(3) as u32)).into_drawing_area();
+    let nloc = seg.locations.len().min(LOOP_PANELS);
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let cells = root.split_evenly((nloc.div_ceil(3), 3));
     for (li, area) in seg.locations.iter().take(nloc).zip(cells.iter()) {
@@ -513,26 +501,34 @@ fn draw_loops(path: &Path, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()
             .draw()
             .map_err(|e| e.to_string())?;
     }
-    root.present().map_err(|e| e.to_string())
+    Ok(())
 }
+
+/// Pixel size of the residual map (two panels over a colour bar).
+const RESIDUAL_MAP_SIZE: (u32, u32) = (1200, 630);
+/// At most this many locations get a force–displacement panel (three per row).
+const LOOP_PANELS: usize = 6;
 
 /// Writes `DIR/report.md` and its figures (`residual_map.png`, `residual_time.png`,
 /// `loops.png`).
 pub fn write_report(dir: &Path, rec: &Recording, run: &DiagnosisRun) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| out_err(dir, e))?;
-    let figs = [
-        (
-            "residual_map.png",
-            draw_residual_map as fn(&Path, &Recording, &DiagnosisRun) -> DrawResult<()>,
-        ),
-        ("residual_time.png", draw_residual_time),
-        ("loops.png", draw_loops),
+    let loop_rows = run
+        .segmentation
+        .locations
+        .len()
+        .clamp(1, LOOP_PANELS)
+        .div_ceil(3) as u32;
+    type Draw = fn(&Root<'_>, &Recording, &DiagnosisRun) -> DrawResult<()>;
+    let figs: [(&str, (u32, u32), Draw); 3] = [
+        ("residual_map.png", RESIDUAL_MAP_SIZE, draw_residual_map),
+        ("residual_time.png", (1100, 700), draw_residual_time),
+        ("loops.png", (1200, 420 * loop_rows), draw_loops),
     ];
-    for (name, draw) in figs {
+    for (name, size, draw) in figs {
         let p = dir.join(name);
-        let tmp = dir.join(format!("{name}.tmp.png"));
-        draw(&tmp, rec, run).map_err(|e| out_err(&p, e))?;
-        std::fs::rename(&tmp, &p).map_err(|e| out_err(&p, e))?;
+        softcap_figure::draw_png(&p, size, |root| Ok(draw(root, rec, run)?))
+            .map_err(|e| out_err(&p, e))?;
     }
     let d = &run.diagnosis;
     let mut s = String::new();

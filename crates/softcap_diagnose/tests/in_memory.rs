@@ -525,6 +525,12 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
         assert_eq!(&bytes[1..4], b"PNG", "{f}");
         assert!(report.contains(f));
     }
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("report"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|n| n.to_string_lossy().contains(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
 
     // diagnosis.mcap round trip
     let r = softcap_mcap::Recording::open(dir.path().join("diagnosis.mcap")).unwrap();
