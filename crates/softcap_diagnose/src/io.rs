@@ -304,45 +304,8 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
     if mesh.tets.is_empty() {
         return Err(bad("/mesh/volume: no tets".into()));
     }
-    let nt = mesh.tets.len();
-    let homogeneous = match (
-        report_number(data, "homogeneous.lambda"),
-        report_number(data, "homogeneous.alpha"),
-    ) {
-        (Some(l), Some(a)) if l.is_finite() && a.is_finite() && a > 0.0 => Some(LinearParams {
-            lambda: l,
-            alpha: a,
-        }),
-        _ => None,
-    };
-    let (use_source, why) = match source {
-        MaterialSource::Auto => {
-            let rms_m = report_number(data, "rms.material");
-            let rms_h = report_number(data, "rms.homogeneous");
-            let mm = |v: Option<f64>| 1e3 * v.unwrap_or(f64::NAN);
-            if homogeneous.is_some() {
-                (
-                    MaterialSource::Homogeneous,
-                    format!(
-                        "auto: homogeneous baseline, RMS {:.4} mm on the fitted examples (basis {:.4} mm, fitted to every held-out location)",
-                        mm(rms_h),
-                        mm(rms_m)
-                    ),
-                )
-            } else if data.basis.is_some() {
-                (
-                    MaterialSource::Basis,
-                    "auto: basis (no homogeneous baseline in the report)".into(),
-                )
-            } else {
-                (
-                    MaterialSource::ExampleMean,
-                    "auto: mean per-example parameters (no basis or homogeneous fit)".into(),
-                )
-            }
-        }
-        s => (s, String::new()),
-    };
+    let homogeneous = homogeneous_params(data);
+    let (use_source, why) = resolve_source(data, source, homogeneous.is_some());
     let footprint_load = report_footprint_load(
         data,
         if use_source == MaterialSource::Homogeneous {
@@ -351,14 +314,8 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
             "examples.patch.load"
         },
     )?;
-    let with_why = |name: &str| {
-        if why.is_empty() {
-            name.to_string()
-        } else {
-            format!("{name} ({why})")
-        }
-    };
-    match use_source {
+    let nt = mesh.tets.len();
+    let (params, basis, name, channel) = match use_source {
         MaterialSource::Basis => {
             let Some(basis) = &data.basis else {
                 return Err(bad(
@@ -369,15 +326,12 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                 .map_err(|w| bad(format!("/tissue/basis: {w}")))?;
             let zero = nalgebra::Vector6::zeros();
             let p0 = (0..nt).map(|e| material.evaluate(e, &zero)).collect();
-            let model = CorotationalModel::new(&mesh, p0)
-                .map_err(|e| bad(format!("/tissue/basis: {e}")))?;
-            Ok(MaterialModel {
-                mesh,
-                model,
-                basis: Some(Arc::new(material)),
-                source: with_why("strain-space basis"),
-                footprint_load,
-            })
+            (
+                p0,
+                Some(Arc::new(material)),
+                "strain-space basis",
+                "/tissue/basis",
+            )
         }
         MaterialSource::Homogeneous => {
             let Some(p) = homogeneous else {
@@ -386,15 +340,12 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                         .into(),
                 ));
             };
-            let model = CorotationalModel::new(&mesh, vec![p; nt])
-                .map_err(|e| bad(format!("/tissue/report homogeneous: {e}")))?;
-            Ok(MaterialModel {
-                mesh,
-                model,
-                basis: None,
-                source: with_why("homogeneous baseline"),
-                footprint_load,
-            })
+            (
+                vec![p; nt],
+                None,
+                "homogeneous baseline",
+                "/tissue/report homogeneous",
+            )
         }
         MaterialSource::ExampleMean | MaterialSource::Auto => {
             if data.element_materials.is_empty() {
@@ -402,32 +353,95 @@ pub fn material_model_from(data: &MaterialData, source: MaterialSource) -> Resul
                     "neither /tissue/basis nor /tissue/element_material present".into(),
                 ));
             }
-            let count = data.element_materials.len() as f64;
-            let mean: Vec<LinearParams> = (0..nt)
-                .map(|e| {
-                    let (l, a) = data
-                        .element_materials
-                        .iter()
-                        .fold((0.0, 0.0), |acc, (_, x)| {
-                            (acc.0 + x.lambda_pa[e], acc.1 + x.alpha_pa[e])
-                        });
-                    LinearParams {
-                        lambda: l / count,
-                        alpha: a / count,
-                    }
-                })
-                .collect();
-            let model = CorotationalModel::new(&mesh, mean)
-                .map_err(|e| bad(format!("/tissue/element_material: {e}")))?;
-            Ok(MaterialModel {
-                mesh,
-                model,
-                basis: None,
-                source: with_why("mean per-example parameters"),
-                footprint_load,
-            })
+            (
+                example_mean_params(data, nt),
+                None,
+                "mean per-example parameters",
+                "/tissue/element_material",
+            )
         }
+    };
+    let model =
+        CorotationalModel::new(&mesh, params).map_err(|e| bad(format!("{channel}: {e}")))?;
+    Ok(MaterialModel {
+        mesh,
+        model,
+        basis,
+        source: if why.is_empty() {
+            name.to_string()
+        } else {
+            format!("{name} ({why})")
+        },
+        footprint_load,
+    })
+}
+
+/// The tissue fit's homogeneous baseline (`homogeneous.lambda`, `homogeneous.alpha` of its
+/// report), when present and valid.
+fn homogeneous_params(data: &MaterialData) -> Option<LinearParams> {
+    match (
+        report_number(data, "homogeneous.lambda"),
+        report_number(data, "homogeneous.alpha"),
+    ) {
+        (Some(l), Some(a)) if l.is_finite() && a.is_finite() && a > 0.0 => Some(LinearParams {
+            lambda: l,
+            alpha: a,
+        }),
+        _ => None,
     }
+}
+
+/// The material source `source` stands for, and why when it was chosen automatically:
+/// the homogeneous baseline when there is one, else the basis, else the mean per-example
+/// parameters.
+fn resolve_source(
+    data: &MaterialData,
+    source: MaterialSource,
+    has_homogeneous: bool,
+) -> (MaterialSource, String) {
+    if source != MaterialSource::Auto {
+        return (source, String::new());
+    }
+    let mm = |v: Option<f64>| 1e3 * v.unwrap_or(f64::NAN);
+    if has_homogeneous {
+        (
+            MaterialSource::Homogeneous,
+            format!(
+                "auto: homogeneous baseline, RMS {:.4} mm on the fitted examples (basis {:.4} mm, fitted to every held-out location)",
+                mm(report_number(data, "rms.homogeneous")),
+                mm(report_number(data, "rms.material"))
+            ),
+        )
+    } else if data.basis.is_some() {
+        (
+            MaterialSource::Basis,
+            "auto: basis (no homogeneous baseline in the report)".into(),
+        )
+    } else {
+        (
+            MaterialSource::ExampleMean,
+            "auto: mean per-example parameters (no basis or homogeneous fit)".into(),
+        )
+    }
+}
+
+/// The mean of the per-example element parameters, per element.
+fn example_mean_params(data: &MaterialData, nt: usize) -> Vec<LinearParams> {
+    let count = data.element_materials.len() as f64;
+    (0..nt)
+        .map(|e| {
+            let (l, a) = data
+                .element_materials
+                .iter()
+                .fold((0.0, 0.0), |acc, (_, x)| {
+                    (acc.0 + x.lambda_pa[e], acc.1 + x.alpha_pa[e])
+                });
+            LinearParams {
+                lambda: l / count,
+                alpha: a / count,
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ use crate::cells::contact_radius_m;
 use crate::friction::{indentation_stiffness_n_per_m, sliding_direction};
 use crate::recording::Recording;
 use crate::residual::{Component, Residuals, component, noise_sigma_m, rest_mean};
-use crate::segment::{Phase, Region, Segmentation};
+use crate::segment::{Location, Phase, Region, Segmentation};
 use crate::signal::crossing_time;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -98,82 +98,40 @@ fn loop_area(x: &[f64], y: &[f64]) -> f64 {
 
 /// Signature features of the recording and the baseline residual.
 pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signatures {
-    let t = rec.times_s();
-    let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
-    let g = rec.gravity_dir();
     let mut s = Signatures {
         noise_sigma_m: noise_sigma_m(rec, seg),
         ..Default::default()
     };
+    force_signatures(rec, seg, &mut s);
+    residual_signatures(rec, seg, res, &mut s);
+    s
+}
+
+/// The force channel against the geometry, averaged over the locations: hold-force drift,
+/// force delays behind the near markers at 10 % and 50 % of the ramp, force–depth and
+/// geometry–depth loop areas.
+fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
+    let t = rec.times_s();
+    let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
     let (mut drift, mut nd) = (0.0, 0);
     let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
     let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
     for l in &seg.locations {
-        let cf = &l.contact_frames;
-        let hold: Vec<usize> = cf
-            .iter()
-            .copied()
-            .filter(|&k| seg.phases[k] == Phase::Hold)
-            .collect();
-        if hold.len() >= 2 && l.peak_force_n > 0.0 {
-            drift += (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n;
+        if let Some(d) = hold_drift(seg, l, &fmag) {
+            drift += d;
             nd += 1;
         }
-        // depth and force crossings on the first ramp of the location
-        let Some(&s0) = cf.first() else { continue };
-        let start = s0.saturating_sub(1);
-        let end = cf
-            .last()
-            .map(|&e| (e + 2).min(rec.frames.len()))
-            .unwrap_or(start);
-        let depth: Vec<f64> = (0..rec.frames.len())
-            .map(|k| (rec.frames[k].tip_m - rec.frames[start].tip_m).dot(&l.axis))
-            .collect();
-        let dmax = (start..end).map(|k| depth[k]).fold(0.0, f64::max);
-        if dmax > 0.0 {
-            let peak_k = (start..end)
-                .max_by(|&a, &b| depth[a].total_cmp(&depth[b]))
-                .unwrap_or(start);
-            let fpk = (start..=peak_k).map(|k| fmag[k]).fold(0.0, f64::max);
-            // search force crossings over the whole contact run (force may peak after the depth)
-            let fpk_all = (start..end).map(|k| fmag[k]).fold(0.0, f64::max).max(fpk);
-            // geometry signal: mean displacement of the near markers along the probe axis
-            let near: Vec<usize> = (0..rec.num_markers())
-                .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
-                .collect();
-            let geo: Vec<f64> = (0..rec.frames.len())
-                .map(|k| {
-                    let (mut acc, mut n) = (0.0, 0);
-                    for &m in &near {
-                        if let Some(p) = rec.frames[k].markers_m[m] {
-                            acc += (p - rec.rest_markers_m[m]).dot(&l.axis);
-                            n += 1;
-                        }
-                    }
-                    if n > 0 { acc / n as f64 } else { 0.0 }
-                })
-                .collect();
-            let gmax = (start..end).map(|k| geo[k]).fold(0.0, f64::max);
-            let _ = (peak_k, fpk);
-            if let (Some(a10), Some(b10), Some(a50), Some(b50)) = (
-                crossing_time(&t, &geo, 0.1 * gmax, start..end),
-                crossing_time(&t, &fmag, 0.1 * fpk_all, start..end),
-                crossing_time(&t, &geo, 0.5 * gmax, start..end),
-                crossing_time(&t, &fmag, 0.5 * fpk_all, start..end),
-            ) {
-                d10 += b10 - a10;
-                d50 += b50 - a50;
-                ndel += 1;
-            }
-            // loops over the contact run
-            let idx: Vec<usize> = (start..end).collect();
-            let xs: Vec<f64> = idx.iter().map(|&k| depth[k]).collect();
-            let fs: Vec<f64> = idx.iter().map(|&k| fmag[k]).collect();
-            let gs: Vec<f64> = idx.iter().map(|&k| geo[k]).collect();
-            fh += loop_area(&xs, &fs);
-            gh += loop_area(&xs, &gs);
-            nh += 1;
+        let Some(ramp) = ramp_signatures(rec, seg, l, &t, &fmag) else {
+            continue;
+        };
+        if let Some((a, b)) = ramp.delays_s {
+            d10 += a;
+            d50 += b;
+            ndel += 1;
         }
+        fh += ramp.force_loop;
+        gh += ramp.geometry_loop;
+        nh += 1;
     }
     if nd > 0 {
         s.hold_force_drift = drift / nd as f64;
@@ -186,6 +144,102 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
         s.force_depth_hysteresis = fh / nh as f64;
         s.geometry_depth_hysteresis = gh / nh as f64;
     }
+}
+
+/// (last − first) / peak of the force over location `l`'s hold frames (at least two).
+fn hold_drift(seg: &Segmentation, l: &Location, fmag: &[f64]) -> Option<f64> {
+    let hold: Vec<usize> = l
+        .contact_frames
+        .iter()
+        .copied()
+        .filter(|&k| seg.phases[k] == Phase::Hold)
+        .collect();
+    (hold.len() >= 2 && l.peak_force_n > 0.0)
+        .then(|| (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n)
+}
+
+/// What one location's contact run says about the force channel.
+struct Ramp {
+    /// Force crossing minus geometry crossing at 10 % and 50 % of their peaks, s.
+    delays_s: Option<(f64, f64)>,
+    /// Normalised force–depth loop area.
+    force_loop: f64,
+    /// Normalised geometry–depth loop area.
+    geometry_loop: f64,
+}
+
+/// Depth and force crossings on the first ramp of location `l`, and its loops over the contact
+/// run; `None` when the tip never presses in.
+fn ramp_signatures(
+    rec: &Recording,
+    seg: &Segmentation,
+    l: &Location,
+    t: &[f64],
+    fmag: &[f64],
+) -> Option<Ramp> {
+    let cf = &l.contact_frames;
+    let start = cf.first()?.saturating_sub(1);
+    let end = cf
+        .last()
+        .map(|&e| (e + 2).min(rec.frames.len()))
+        .unwrap_or(start);
+    let depth: Vec<f64> = (0..rec.frames.len())
+        .map(|k| (rec.frames[k].tip_m - rec.frames[start].tip_m).dot(&l.axis))
+        .collect();
+    let dmax = (start..end).map(|k| depth[k]).fold(0.0, f64::max);
+    if dmax <= 0.0 {
+        return None;
+    }
+    let peak_k = (start..end)
+        .max_by(|&a, &b| depth[a].total_cmp(&depth[b]))
+        .unwrap_or(start);
+    let fpk = (start..=peak_k).map(|k| fmag[k]).fold(0.0, f64::max);
+    // search force crossings over the whole contact run (force may peak after the depth)
+    let fpk_all = (start..end).map(|k| fmag[k]).fold(0.0, f64::max).max(fpk);
+    let geo = near_marker_depth(rec, seg, l);
+    let gmax = (start..end).map(|k| geo[k]).fold(0.0, f64::max);
+    let delays_s = match (
+        crossing_time(t, &geo, 0.1 * gmax, start..end),
+        crossing_time(t, fmag, 0.1 * fpk_all, start..end),
+        crossing_time(t, &geo, 0.5 * gmax, start..end),
+        crossing_time(t, fmag, 0.5 * fpk_all, start..end),
+    ) {
+        (Some(a10), Some(b10), Some(a50), Some(b50)) => Some((b10 - a10, b50 - a50)),
+        _ => None,
+    };
+    let xs = &depth[start..end];
+    Some(Ramp {
+        delays_s,
+        force_loop: loop_area(xs, &fmag[start..end]),
+        geometry_loop: loop_area(xs, &geo[start..end]),
+    })
+}
+
+/// The geometry signal of location `l` per frame: the mean displacement of the markers near its
+/// contact point along its probe axis, m (0 where none is observed).
+fn near_marker_depth(rec: &Recording, seg: &Segmentation, l: &Location) -> Vec<f64> {
+    let near: Vec<usize> = (0..rec.num_markers())
+        .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
+        .collect();
+    (0..rec.frames.len())
+        .map(|k| {
+            let (mut acc, mut n) = (0.0, 0);
+            for &m in &near {
+                if let Some(p) = rec.frames[k].markers_m[m] {
+                    acc += (p - rec.rest_markers_m[m]).dot(&l.axis);
+                    n += 1;
+                }
+            }
+            if n > 0 { acc / n as f64 } else { 0.0 }
+        })
+        .collect()
+}
+
+/// The baseline residual in the cells where each effect shows: released set and offset,
+/// tangential slip and drag under the probe, lateral shift, attached-marker motion, the rest
+/// frames' residual along gravity.
+fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: &mut Signatures) {
+    let g = rec.gravity_dir();
     let rms = |sel: &dyn Fn(usize, usize) -> bool, f: &dyn Fn(&Vector3<f64>, usize) -> f64| {
         let (mut a, mut n) = (0.0, 0);
         for (k, row) in res.iter().enumerate() {
@@ -241,7 +295,6 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
     if n > 0 {
         s.rest_gravity_m = a / n as f64;
     }
-    s
 }
 
 /// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
