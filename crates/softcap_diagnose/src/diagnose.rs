@@ -12,12 +12,12 @@
 //! 6. **extended model** — the verdict's prediction and the before / after table.
 
 use crate::baseline::{Prepared, prepare};
-use crate::catalog::Effect;
 use crate::cells::{EffectCells, focus_cells};
 use crate::confirm::Confirmed;
 use crate::evidence::{
     Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
 };
+use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
 use crate::progress::Progress;
 use crate::recording::Recording;

@@ -52,7 +52,6 @@
 //! ```
 
 pub mod baseline;
-pub mod catalog;
 pub mod cells;
 pub mod cli;
 pub mod confirm;
@@ -77,12 +76,12 @@ pub mod signatures;
 pub mod sim;
 
 pub use baseline::{Prepared, prepare};
-pub use catalog::Effect;
 pub use diagnose::{DiagnosisRun, diagnose, diagnose_with_progress};
 pub use error::{DiagnoseError, Result};
 pub use evidence::{
     Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
 };
+pub use hypotheses::Effect;
 pub use hypotheses::Hypothesis;
 pub use io::{
     MaterialModel, MaterialSource, material_model, material_model_from, read_material,

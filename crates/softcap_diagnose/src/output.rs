@@ -2,9 +2,9 @@
 //! with a residual map on the surface, residual against time, measured vs simulated
 //! force–displacement loops and a before/after table) and `diagnosis.mcap`.
 
-use crate::catalog::Effect;
 use crate::diagnose::DiagnosisRun;
 use crate::evidence::Diagnosis;
+use crate::hypotheses::Effect;
 use crate::recording::Recording;
 use crate::residual::Residuals;
 use crate::segment::Phase;

@@ -13,9 +13,9 @@
 //! (`ratio_neighbourhood`) re-simulated on the fit mesh refined 1 → 8
 //! (`ProbeSimulator::refined`), offered only to the folds whose choice they refine.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute, param};
 use crate::Result;
-use crate::catalog::Effect;
 use crate::cells::{EffectCells, contact_cells, touched_balls};
 use crate::confirm::{ComplianceScale, Confirmed, lolo_choices};
 use crate::recording::Recording;

@@ -6,10 +6,10 @@
 //! grows). Confirmation: the default model under the shifted force, δ around the screen's
 //! estimate, with the material refitted to the shifted forces (`force_channel`).
 
+use super::Effect;
 use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
-use crate::catalog::Effect;
 use crate::confirm::Confirmed;
 use crate::screen::{Refit, Variant};
 use crate::signal::{median_dt, sample};

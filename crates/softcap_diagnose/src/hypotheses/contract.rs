@@ -1,8 +1,8 @@
 //! What a hypothesis is to the diagnosis: the [`Hypothesis`] trait and the [`Context`] it sees.
 
+use super::Effect;
 use crate::Result;
 use crate::baseline::Prepared;
-use crate::catalog::Effect;
 use crate::cells::EffectCells;
 use crate::confirm::Confirmed;
 use crate::recording::Recording;

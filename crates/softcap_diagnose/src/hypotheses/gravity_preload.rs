@@ -7,10 +7,10 @@
 //! the measured force plus the body force of each fold's density, scored on the held-out
 //! location's frames.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis, param};
 use crate::Result;
 use crate::baseline::Prepared;
-use crate::catalog::Effect;
 use crate::confirm::Confirmed;
 use crate::recording::Recording;
 use crate::residual::residuals;

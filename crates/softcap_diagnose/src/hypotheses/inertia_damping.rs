@@ -4,9 +4,9 @@
 //! differences over the frame times), c, m ≥ 0. No signature and no extended FEM model: the
 //! verdict rests on the linearised screen.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis};
 use crate::Result;
-use crate::catalog::Effect;
 use crate::confirm::Confirmed;
 use crate::screen::{Basis, Refit, Variant};
 use crate::signal::derivative;

@@ -16,7 +16,9 @@
 //! | inertia-damping | [`inertia_damping`] | M ü + C u̇: x = x₀ − c u̇₀ − m ü₀ | c ≥ 0, m ≥ 0 | — (linearised only) |
 //!
 //! [`crate::diagnose`](mod@crate::diagnose) runs them all through the same phases; nothing outside
-//! this folder knows an entry by name except through [`Hypothesis::effect`].
+//! this folder knows an entry by name except through [`Hypothesis::effect`]. A new entry is its
+//! module and, in this file, its `mod` line, its [`Effect`] variant and name and its line in
+//! [`catalog()`].
 
 pub mod anisotropy;
 pub mod clock_offset;
@@ -32,7 +34,7 @@ pub mod viscoelasticity;
 
 pub use contract::{Context, Hypothesis, SignatureRoute};
 
-use crate::catalog::Effect;
+use serde::{Deserialize, Serialize};
 
 /// Every catalog entry, in catalog order ([`Effect::CATALOG`]).
 pub fn catalog() -> [&'static dyn Hypothesis; 9] {
@@ -52,6 +54,65 @@ pub fn catalog() -> [&'static dyn Hypothesis; 9] {
 /// The hypothesis of catalog entry `effect`.
 pub fn of(effect: Effect) -> Option<&'static dyn Hypothesis> {
     catalog().into_iter().find(|h| h.effect() == effect)
+}
+
+/// A catalog entry: the physics a default model may leave out (issue 8, names exact).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Effect {
+    /// Rate dependence and creep (generalized Maxwell / Prony).
+    Viscoelasticity,
+    /// Plastic set.
+    Plasticity,
+    /// Gravity pre-load: rest shape ≠ observed shape.
+    GravityPreload,
+    /// Tangential traction under the probe.
+    ProbeFriction,
+    /// The object slides on its support.
+    SupportSlip,
+    /// Camera–force clock offset.
+    ClockOffset,
+    /// Force sensor lag.
+    SensorLag,
+    /// Anisotropy (transversely isotropic stiffening).
+    Anisotropy,
+    /// Inertia and damping.
+    InertiaDamping,
+}
+
+impl Effect {
+    /// The catalog, in issue order.
+    pub const CATALOG: [Effect; 9] = [
+        Effect::Viscoelasticity,
+        Effect::Plasticity,
+        Effect::GravityPreload,
+        Effect::ProbeFriction,
+        Effect::SupportSlip,
+        Effect::ClockOffset,
+        Effect::SensorLag,
+        Effect::Anisotropy,
+        Effect::InertiaDamping,
+    ];
+
+    /// The catalog name (issue 8, exact).
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::Viscoelasticity => "viscoelasticity",
+            Effect::Plasticity => "plasticity",
+            Effect::GravityPreload => "gravity-preload",
+            Effect::ProbeFriction => "probe-friction",
+            Effect::SupportSlip => "support-slip",
+            Effect::ClockOffset => "clock-offset",
+            Effect::SensorLag => "sensor-lag",
+            Effect::Anisotropy => "anisotropy",
+            Effect::InertiaDamping => "inertia-damping",
+        }
+    }
+
+    /// Parses a catalog name.
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::CATALOG.into_iter().find(|h| h.name() == s)
+    }
 }
 
 #[cfg(test)]

@@ -15,9 +15,9 @@
 //! cells only: in a rigid-tip replay the contact frames carry the coarse mesh's contact error,
 //! which would otherwise decide the pick.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis};
 use crate::Result;
-use crate::catalog::Effect;
 use crate::cells::{EffectCells, contact_radius_m};
 use crate::confirm::{ComplianceScale, Confirmed};
 use crate::recording::Recording;

@@ -16,10 +16,10 @@
 //! model's far-field form error, which no μ explains, and μ and the compliance scale would trade
 //! against it.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis};
 use crate::Result;
 use crate::baseline::Prepared;
-use crate::catalog::Effect;
 use crate::cells::{EffectCells, contact_cells};
 use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices};
 use crate::friction::{indentation_stiffness_n_per_m, sliding_direction, traction_history};

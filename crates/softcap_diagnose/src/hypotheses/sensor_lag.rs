@@ -9,10 +9,10 @@
 //! lag τ around the screen's estimate × play h ∈ {0, 2.5, 5, 10 %, the estimate} — with the
 //! material refitted to the corrected forces (`force_channel`).
 
+use super::Effect;
 use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
-use crate::catalog::Effect;
 use crate::confirm::Confirmed;
 use crate::screen::{Basis, Refit, Variant};
 use crate::signal::{derivative, median_dt};

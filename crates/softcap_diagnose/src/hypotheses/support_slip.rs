@@ -9,9 +9,9 @@
 //! the indentation stiffness (the compliance scale d makes the family (material stiffness / d,
 //! k / d)).
 
+use super::Effect;
 use super::contract::{Context, Hypothesis};
 use crate::Result;
-use crate::catalog::Effect;
 use crate::cells::{EffectCells, contact_cells};
 use crate::confirm::{ComplianceScale, Confirmed};
 use crate::recording::Recording;

@@ -11,11 +11,11 @@
 //! ([`PRONY_RIDGE_STEPS`]) unless the template already resolves the footprint —
 //! leave-one-location-out with the material's compliance scale.
 
+use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute, param};
 use crate::DiagnoseError;
 use crate::Result;
 use crate::baseline::Prepared;
-use crate::catalog::Effect;
 use crate::cells::touched_balls;
 use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices, lolo_confirm};
 use crate::recording::Recording;
