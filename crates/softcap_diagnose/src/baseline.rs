@@ -3,12 +3,12 @@
 //! converged state, the unloaded state and the gravity response — everything the hypotheses'
 //! linearised extensions are built from.
 
-use crate::progress::Progress;
 use crate::recording::Recording;
 use crate::segment::Segmentation;
 use crate::settings::DiagnoseSettings;
 use crate::sim::{Field, ProbeLoad, ProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
+use indicatif::ProgressBar;
 use nalgebra::Vector3;
 
 /// The baseline simulation and everything the extensions are built from.
@@ -82,10 +82,12 @@ pub fn prepare(
     seg: &Segmentation,
     sim: &mut dyn ProbeSimulator,
     settings: &DiagnoseSettings,
-    progress: &Progress,
+    progress: &ProgressBar,
 ) -> Result<Prepared> {
     let nt = rec.frames.len();
-    progress.step("baseline: the default model at every frame", nt);
+    progress.set_length(nt as u64);
+    progress.set_position(0);
+    progress.set_message("baseline: the default model at every frame");
     let rest = sim.simulate(&SimLoad::default(), false)?.markers_m;
     let gravity_field_m = if rec.gravity_m_s2 != Vector3::zeros() {
         let g = sim.simulate(
@@ -128,7 +130,7 @@ pub fn prepare(
             baseline_m.push(rest.clone());
             response.push(None);
         }
-        progress.inc();
+        progress.inc(1);
     }
     // Frames without a response (out of contact) take the one of the nearest contact frame: the
     // extensions may move load there (time shift, lag).

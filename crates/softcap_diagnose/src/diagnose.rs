@@ -19,7 +19,6 @@ use crate::evidence::{
 };
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
-use crate::progress::Progress;
 use crate::recording::Recording;
 use crate::residual::{Located, Residuals, residuals, rms_where_m};
 use crate::screen::{Refit, predict, refit, stiffness_scale_variant};
@@ -28,6 +27,7 @@ use crate::settings::DiagnoseSettings;
 use crate::signatures::{Signatures, signatures};
 use crate::sim::{Field, ProbeSimulator};
 use crate::{DiagnoseError, Result};
+use indicatif::ProgressBar;
 use std::collections::BTreeMap;
 
 /// Everything the report needs.
@@ -56,7 +56,7 @@ pub fn diagnose(
     sim: &mut dyn ProbeSimulator,
     settings: &DiagnoseSettings,
 ) -> Result<DiagnosisRun> {
-    diagnose_with_progress(rec, sim, settings, &Progress::hidden())
+    diagnose_with_progress(rec, sim, settings, &ProgressBar::hidden())
 }
 
 /// [`diagnose`] with its per-step status on `progress`.
@@ -64,7 +64,7 @@ pub fn diagnose_with_progress(
     rec: &Recording,
     sim: &mut dyn ProbeSimulator,
     settings: &DiagnoseSettings,
-    progress: &Progress,
+    progress: &ProgressBar,
 ) -> Result<DiagnosisRun> {
     let seg = segment(rec, sim, settings)?;
     let mismatch = locate(rec, &seg, sim, settings, progress)?;
@@ -79,7 +79,7 @@ pub fn diagnose_with_progress(
     let confirmation = confirm(&cx, &screen, sim, progress)?;
     let diagnosis = verdict(&mismatch, &screen, &confirmation);
     let extended_m = extended_prediction(&cx, &screen, &confirmation);
-    progress.finish();
+    progress.finish_and_clear();
     let residuals_after = match &extended_m {
         Some(x) => residuals(rec, x),
         None => mismatch.residuals.clone(),
@@ -172,7 +172,7 @@ fn locate(
     seg: &Segmentation,
     sim: &mut dyn ProbeSimulator,
     settings: &DiagnoseSettings,
-    progress: &Progress,
+    progress: &ProgressBar,
 ) -> Result<Mismatch> {
     let prepared = prepare(rec, seg, sim, settings, progress)?;
     let res = residuals(rec, &prepared.baseline_m);
@@ -325,7 +325,7 @@ impl Screen<'_> {
 }
 
 /// Refits every hypothesis linearised (leave-one-location-out, BIC) and scores it.
-fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &Progress) -> Screen<'a> {
+fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &ProgressBar) -> Screen<'a> {
     let (rec, seg, p, settings) = (cx.rec, cx.seg, cx.prepared, cx.settings);
     let before = mismatch.before_m;
     let noise_mse = 3.0 * mismatch.signatures.noise_sigma_m.powi(2);
@@ -340,7 +340,9 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &Progress) -> 
         explainable: before * before > settings.noise_floor_factor * noise_mse,
         scale_only_m: before,
     };
-    progress.step("screen: linearised refits, leave-one-location-out", 9);
+    progress.set_length(9);
+    progress.set_position(0);
+    progress.set_message("screen: linearised refits, leave-one-location-out");
     let refits: Vec<(&'static dyn Hypothesis, Refit)> = catalog()
         .into_iter()
         .filter_map(|h| {
@@ -348,7 +350,7 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &Progress) -> 
             let r = refit(&h.variants(cx), rec, seg, p, &|k, m| {
                 scoring.scored(e, k, m)
             });
-            progress.inc();
+            progress.inc(1);
             r.map(|r| (h, r))
         })
         .collect();
@@ -454,7 +456,7 @@ fn confirm(
     cx: &Context<'_>,
     screen: &Screen<'_>,
     sim: &mut dyn ProbeSimulator,
-    progress: &Progress,
+    progress: &ProgressBar,
 ) -> Result<Confirmation> {
     let settings = cx.settings;
     let scoring = &screen.scoring;
@@ -492,7 +494,9 @@ fn confirm(
         .collect();
     let mut confirmed = BTreeMap::new();
     let mut verdict = None;
-    progress.step("confirm", candidates.len());
+    progress.set_length(candidates.len() as u64);
+    progress.set_position(0);
+    progress.set_message("confirm");
     for (i, &e) in candidates.iter().enumerate() {
         let Some(row) = screen.row(e) else {
             continue;
@@ -501,10 +505,11 @@ fn confirm(
             verdict = Some(e);
             break;
         }
-        progress.at(
-            i,
-            format!("confirm {}: re-simulating its extended model", e.name()),
-        );
+        progress.set_position(i as u64);
+        progress.set_message(format!(
+            "confirm {}: re-simulating its extended model",
+            e.name()
+        ));
         let before_e = scoring.before_m(e);
         let scored = |k: usize, m: usize| scoring.scored(e, k, m);
         match row.hypothesis.confirm(cx, &row.refit, &scored, sim) {

@@ -62,7 +62,6 @@ pub mod friction;
 pub mod hypotheses;
 pub mod io;
 pub mod output;
-mod progress;
 pub mod recording;
 pub mod residual;
 pub mod resim;
@@ -88,7 +87,6 @@ pub use io::{
     read_material_from, recording_from_capture, strain_space_material,
 };
 pub use output::{write_json, write_mcap, write_report};
-pub use progress::Progress;
 pub use recording::{Frame, Recording, SupportPlane, surface_normals};
 pub use residual::{
     Component, Located, Residuals, component, frame_axes, locate, noise_sigma_m, residuals, rmse_m,

@@ -5,7 +5,6 @@ use crate::diagnose::{DiagnosisRun, diagnose_with_progress};
 use crate::evidence::Diagnosis;
 use crate::io::{MaterialSource, read_material_from, recording_from_capture};
 use crate::output::{write_json, write_mcap, write_report};
-use crate::progress::Progress;
 use crate::settings::DiagnoseSettings;
 use crate::sim::{FemProbeSimulator, FemSimSettings};
 use crate::{DiagnoseError, Result};
@@ -95,7 +94,10 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
             what: "no mesh node lies on the session's support plane".into(),
         });
     }
-    let progress = Progress::new(cfg.progress);
+    let progress = softcap_app::Progress::new(cfg.progress).bar("diagnose", 0);
+    if !progress.is_hidden() {
+        progress.enable_steady_tick(std::time::Duration::from_millis(250));
+    }
     // The force boundary condition replays the load the material was fitted under (recorded in
     // material.mcap; files without the entry keep the settings' load).
     let attempt = |model: CorotationalModel,
