@@ -161,6 +161,15 @@ impl Segmentation {
     pub fn num_folds(&self) -> usize {
         self.locations.len()
     }
+
+    /// The hold frames of location `l`, in time order.
+    pub fn hold_frames(&self, l: &Location) -> Vec<usize> {
+        l.contact_frames
+            .iter()
+            .copied()
+            .filter(|&k| self.phases[k] == Phase::Hold)
+            .collect()
+    }
 }
 
 /// Maximal runs `[s, e)` of contact frames (‖f‖ above the contact threshold), split where the tip

@@ -148,12 +148,7 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
 
 /// (last − first) / peak of the force over location `l`'s hold frames (at least two).
 fn hold_drift(seg: &Segmentation, l: &Location, fmag: &[f64]) -> Option<f64> {
-    let hold: Vec<usize> = l
-        .contact_frames
-        .iter()
-        .copied()
-        .filter(|&k| seg.phases[k] == Phase::Hold)
-        .collect();
+    let hold = seg.hold_frames(l);
     (hold.len() >= 2 && l.peak_force_n > 0.0)
         .then(|| (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n)
 }

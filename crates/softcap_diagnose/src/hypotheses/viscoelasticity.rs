@@ -21,7 +21,7 @@ use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices, lolo_c
 use crate::recording::Recording;
 use crate::resim::{contact_sequence, sequence_candidates};
 use crate::screen::{Basis, Refit, Variant};
-use crate::segment::{Phase, Segmentation};
+use crate::segment::Segmentation;
 use crate::signal::{low_pass, median_dt};
 use crate::signatures::Signatures;
 use crate::sim::{Extension, ProbeSimulator, SequenceFrame, SequenceJob};
@@ -284,12 +284,7 @@ pub fn hold_relaxation(rec: &Recording, seg: &Segmentation) -> Option<(f64, f64)
     // (hold times from t_h, normalised force magnitudes, ramp duration) per location
     let mut holds: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
     for l in &seg.locations {
-        let hold: Vec<usize> = l
-            .contact_frames
-            .iter()
-            .copied()
-            .filter(|&k| seg.phases[k] == Phase::Hold)
-            .collect();
+        let hold = seg.hold_frames(l);
         let (Some(&h0), Some(&c0)) = (hold.first(), l.contact_frames.first()) else {
             continue;
         };
