@@ -1,5 +1,5 @@
-//! Gauss–Newton with step-halving line search (used for plastic-strain template reshaping,
-//! Saito & Barbič, and wherever the model is nearly linear in its parameters).
+//! Dense Gauss–Newton with step-halving line search (wherever the model is nearly linear in its
+//! parameters and small enough for dense normal equations).
 //!
 //! Each iteration solves the normal equations (JᵀJ) h = −Jᵀr on the free parameters with
 //! faer's Cholesky (a tiny ridge 10⁻¹² · max diag(JᵀJ) is added only if JᵀJ is singular) and

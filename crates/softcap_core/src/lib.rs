@@ -6,7 +6,9 @@
 //! | [`rbf`] | RBF interpolation / least-squares fit, kernels r and r³, none/linear/quadratic tail, greedy centres | thesis eq. 4.1, bickel2009 eq. 8, §4.2 |
 //! | [`least_squares`] | problem trait, bounds, finite differences, solver status and report | |
 //! | [`levenberg_marquardt`](mod@levenberg_marquardt) | bounded Levenberg–Marquardt (projected active-set steps) | bickel2009 §4.1 |
-//! | [`gauss_newton`](mod@gauss_newton) | Gauss–Newton with step-halving (Armijo) line search | Saito & Barbič |
+//! | [`gauss_newton`](mod@gauss_newton) | dense Gauss–Newton with step-halving (Armijo) line search | |
+//! | [`brent`] | Brent's bounded one-dimensional minimization (parabolic + golden section) | Brent 1973; saito-barbic §3.4 line search |
+//! | [`rigid`] | weighted absolute orientation (rigid registration) | Horn 1987 |
 //! | [`nelder_mead`](mod@nelder_mead) | adaptive Nelder–Mead simplex, bounds by clamping | wang2015 |
 //! | [`kmeans`](mod@kmeans) | seeded k-means++ / Lloyd; k-medoids for custom dissimilarities | thesis §8.3 eq. 8.4 |
 //! | [`bspline`] | uniform cubic B-spline curves, weighted least-squares fit | thesis §4.3.1 eq. 4.2 |
@@ -25,6 +27,7 @@
 //! # Ok::<(), softcap_core::CoreError>(())
 //! ```
 
+pub mod brent;
 pub mod bspline;
 pub mod camera;
 mod dense;
@@ -36,7 +39,9 @@ pub mod levenberg_marquardt;
 pub mod nelder_mead;
 pub mod polar;
 pub mod rbf;
+pub mod rigid;
 
+pub use brent::{BrentMinimum, BrentSettings, minimize_bounded};
 pub use bspline::{BSplineFitSettings, UniformCubicBSpline, fit_uniform_cubic_bspline};
 pub use camera::Camera;
 pub use error::{CoreError, Result};
@@ -49,6 +54,7 @@ pub use least_squares::{
 pub use levenberg_marquardt::{DampingScaling, LevenbergMarquardtSettings, levenberg_marquardt};
 pub use nelder_mead::{NelderMeadReport, NelderMeadSettings, nelder_mead};
 pub use polar::{Polar, polar_decomposition};
+pub use rigid::horn_weighted;
 pub use rbf::{
     GreedyErrorMeasure, GreedyRbfReport, GreedyRbfSettings, GreedyStatus, GreedyStep,
     PolynomialTail, Rbf, RbfKernel, RbfSettings, ScatteredData, greedy_rbf,

@@ -112,7 +112,7 @@ pub(crate) const ELEMENT_CHUNK: usize = 4096;
 pub(crate) const PARALLEL_MIN_ELEMENTS: usize = 256;
 
 /// `f(k, &mut buf[k])` for every k, in parallel for long buffers (see [`PARALLEL_MIN_ELEMENTS`]).
-fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
+pub(crate) fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
     if buf.len() < PARALLEL_MIN_ELEMENTS {
         for (k, v) in buf.iter_mut().enumerate() {
             f(k, v);

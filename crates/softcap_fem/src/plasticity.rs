@@ -35,15 +35,20 @@
 //! with Ψ the stable neo-Hookean density ([`crate::neohookean`]). Because dF_e = dF F_p⁻¹, forces
 //! and tangent are those of a neo-Hookean tet with gradients g̃_a = F_p⁻ᵀ g_a and volume V_p:
 //! f_a = V_p P(F_e) g̃_a. The stress-free state of a tet is x = F_p X (+ rigid motion). F_p may be
-//! given as a symmetric 6-vector (saito-barbic eq. 2, [`plastic_from_vector`]); parameter
-//! derivatives ∂f/∂s are by central finite differences ([`PlasticNeoHookeanModel::plastic_force_jacobian`]).
+//! given as a symmetric 6-vector (saito-barbic eq. 2, [`plastic_from_vector`]); the parameter
+//! derivative ∂f/∂s is analytic (saito-barbic Appendix B eq. 31–34,
+//! [`PlasticNeoHookeanModel::plastic_force_jacobian`]): with J_p = det F_p and a symmetric
+//! direction E = ∂F_p/∂s_k,
+//!
+//! dJ_p = J_p tr(F_p⁻¹E),  dF_e = −F_e E F_p⁻¹,  d(F_p⁻ᵀ) = −F_p⁻ᵀ E F_p⁻ᵀ,
+//! df_a = V [dJ_p P F_p⁻ᵀ + J_p (∂P/∂F : dF_e) F_p⁻ᵀ + J_p P d(F_p⁻ᵀ)] g_a.
 
 use crate::corotated::{forces_from_stress, kinematics, tangent_from_stress};
 use crate::element::{Matrix12, StiffnessKind, TetGeometry, tet_geometries};
 use crate::model::{ElasticModel, NeoHookeanModel};
-use crate::neohookean::neohookean_forces;
+use crate::neohookean::{pk1, pk1_derivative};
 use crate::{FemError, LinearParams, NeoHookeanParams};
-use nalgebra::{Matrix3, SMatrix, Vector3, Vector6};
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 use softcap_mesh::TetMesh;
 
@@ -518,36 +523,61 @@ impl PlasticNeoHookeanModel {
         self.elastic.material_geometry()[e].deformation_gradient(x)
     }
 
-    /// ∂f_e/∂s (12×6) of element `e` with respect to the symmetric 6-vector of its F_p
-    /// (saito-barbic eq. 2) by central differences with step `h` (e.g. 1e-6): a documented-FD
-    /// derivative for fitters; F_p's antisymmetric part is held fixed.
-    pub fn plastic_force_jacobian(
-        &self,
-        e: usize,
-        x: &[Vector3<f64>],
-        h: f64,
-    ) -> Result<SMatrix<f64, 12, 6>, FemError> {
-        let fp = self.plastic[e];
-        let g = &self.elastic.elements()[e];
-        let p = &self.elastic.params()[e];
-        let mut out = SMatrix::<f64, 12, 6>::zeros();
-        for k in 0..6 {
-            let mut ds = Vector6::zeros();
-            ds[k] = h;
-            let dfp = plastic_from_vector(&ds);
-            let gp = plastic_geometry(e, g, &(fp + dfp))?;
-            let gm = plastic_geometry(e, g, &(fp - dfp))?;
-            let fpl = neohookean_forces(&gp, p, x);
-            let fmi = neohookean_forces(&gm, p, x);
-            for a in 0..4 {
-                let d = (fpl[a] - fmi[a]) / (2.0 * h);
-                for i in 0..3 {
-                    out[(3 * a + i, k)] = d[i];
-                }
+    /// ∂f_e/∂s (12×6) of element `e` at `x` with respect to the symmetric 6-vector s of its F_p
+    /// (saito-barbic eq. 2), analytic (Appendix B eq. 31–34; module docs, part (b)). Column k is
+    /// the force change per unit s_k; F_p's antisymmetric part is held fixed.
+    pub fn plastic_force_jacobian(&self, e: usize, x: &[Vector3<f64>]) -> SMatrix<f64, 12, 6> {
+        plastic_force_jacobian(
+            &self.elastic.elements()[e],
+            &self.elastic.params()[e],
+            &self.plastic[e],
+            x,
+        )
+    }
+
+    /// [`Self::plastic_force_jacobian`] of every element (in parallel for large meshes; each
+    /// element's value is independent of the split).
+    pub fn plastic_force_jacobians(&self, x: &[Vector3<f64>]) -> Vec<SMatrix<f64, 12, 6>> {
+        let mut out = vec![SMatrix::<f64, 12, 6>::zeros(); self.plastic.len()];
+        crate::model::fill_elements(&mut out, |e, j| *j = self.plastic_force_jacobian(e, x));
+        out
+    }
+}
+
+/// ∂f/∂s of one tet with rest geometry `g`, parameters `p` and plastic gradient `fp` at `x`
+/// (saito-barbic Appendix B eq. 31–34; see the module docs, part (b)).
+fn plastic_force_jacobian(
+    g: &TetGeometry,
+    p: &NeoHookeanParams,
+    fp: &Matrix3<f64>,
+    x: &[Vector3<f64>],
+) -> SMatrix<f64, 12, 6> {
+    let mut out = SMatrix::<f64, 12, 6>::zeros();
+    let (Some(fp_inv), jp) = (fp.try_inverse(), fp.determinant()) else {
+        return out;
+    };
+    let fp_inv_t = fp_inv.transpose();
+    let fe = g.deformation_gradient(x) * fp_inv;
+    let pk = pk1(p, &fe);
+    let dpdf = pk1_derivative(p, &fe);
+    for k in 0..6 {
+        let mut unit = Vector6::zeros();
+        unit[k] = 1.0;
+        let dir = plastic_from_vector(&unit);
+        let djp = jp * (fp_inv * dir).trace();
+        let dfe = -fe * dir * fp_inv;
+        let dp_vec = dpdf * SVector::<f64, 9>::from_column_slice(dfe.as_slice());
+        let dp = Matrix3::from_column_slice(dp_vec.as_slice());
+        let dfp_inv_t = -fp_inv_t * dir * fp_inv_t;
+        let q = (pk * fp_inv_t * djp + dp * fp_inv_t * jp + pk * dfp_inv_t * jp) * g.volume_m3;
+        for a in 0..4 {
+            let df = q * g.grads[a];
+            for i in 0..3 {
+                out[(3 * a + i, k)] = df[i];
             }
         }
-        Ok(out)
     }
+    out
 }
 
 /// The elastic part evaluated on the plastic configuration (see the type docs).

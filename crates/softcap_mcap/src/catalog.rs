@@ -73,6 +73,9 @@ impl_softcap_message!(
     Diagnosis,
     ExtendedModel,
     FaceWrinkles,
+    PlasticStrains,
+    ReshapeConstraints,
+    ReshapeQuality,
 );
 
 /// A typed channel name: writing or reading through a `Topic<M>` guarantees the channel carries
@@ -179,6 +182,17 @@ pub mod topics {
     /// `softcap design search`: the design found, its error, the search statistics and the
     /// target and predicted force–displacement curves (static, time 0).
     pub const DESIGN_REPORT: Topic<Report> = Topic::new("/design/report");
+    /// `softcap tissue reshape`: the template before reshaping (static, time 0), metres.
+    pub const RESHAPE_TEMPLATE: Topic<TetMesh> = Topic::new("/reshape/template");
+    /// `softcap tissue reshape`: per-tet plastic strains (static, time 0).
+    pub const PLASTIC_STRAINS: Topic<PlasticStrains> = Topic::new("/reshape/plastic_strains");
+    /// `softcap tissue reshape`: every constraint with its error (static, time 0), metres.
+    pub const RESHAPE_CONSTRAINTS: Topic<ReshapeConstraints> =
+        Topic::new("/reshape/constraints");
+    /// `softcap tissue reshape`: mesh quality before and after (static, time 0).
+    pub const RESHAPE_QUALITY: Topic<ReshapeQuality> = Topic::new("/reshape/quality");
+    /// `softcap tissue reshape` report (time 0).
+    pub const RESHAPE_REPORT: Topic<Report> = Topic::new("/reshape/report");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -324,6 +338,36 @@ pub const CATALOG: &[ChannelInfo] = &[
     },
     ChannelInfo {
         topic: "/design/report",
+        schema: "softcap.Report",
+        is_static: true,
+        units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/reshape/template",
+        schema: "softcap.TetMesh",
+        is_static: true,
+        units: "positions m",
+    },
+    ChannelInfo {
+        topic: "/reshape/plastic_strains",
+        schema: "softcap.PlasticStrains",
+        is_static: true,
+        units: "strain 1",
+    },
+    ChannelInfo {
+        topic: "/reshape/constraints",
+        schema: "softcap.ReshapeConstraints",
+        is_static: true,
+        units: "positions m, errors m",
+    },
+    ChannelInfo {
+        topic: "/reshape/quality",
+        schema: "softcap.ReshapeQuality",
+        is_static: true,
+        units: "angles deg, ratios 1",
+    },
+    ChannelInfo {
+        topic: "/reshape/report",
         schema: "softcap.Report",
         is_static: true,
         units: "per entry",

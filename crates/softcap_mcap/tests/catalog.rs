@@ -70,6 +70,20 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.FaceWrinkles",
         ),
         (topics::DESIGN_REPORT.name().to_string(), "softcap.Report"),
+        (topics::RESHAPE_TEMPLATE.name().to_string(), "softcap.TetMesh"),
+        (
+            topics::PLASTIC_STRAINS.name().to_string(),
+            "softcap.PlasticStrains",
+        ),
+        (
+            topics::RESHAPE_CONSTRAINTS.name().to_string(),
+            "softcap.ReshapeConstraints",
+        ),
+        (
+            topics::RESHAPE_QUALITY.name().to_string(),
+            "softcap.ReshapeQuality",
+        ),
+        (topics::RESHAPE_REPORT.name().to_string(), "softcap.Report"),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

@@ -13,6 +13,8 @@
 //! | [`embed`] | barycentric embedding in tets / closest points on triangles, AABB tree ([`bvh`]) |
 //! | [`validate`] | validity checks ([`ValidationSettings`]), orientation repair, unit scaling |
 //! | [`shell`] | bi-Laplacian linear shell with handles (thesis eq. 5.1) |
+//! | [`quality`] | dihedral angles, inverted tets, radius-ratio aspect ([`TetQuality`]) |
+//! | [`layer`] | a tet layer under a surface (offset along smoothed inward normals, conforming prism split) |
 //! | [`error`] | [`MeshError`] |
 //!
 //! ```
@@ -44,6 +46,8 @@ pub mod embed;
 pub mod error;
 pub mod io;
 pub mod laplacian;
+pub mod layer;
+pub mod quality;
 pub mod refine;
 pub mod refine_local;
 pub mod structured;
@@ -74,7 +78,9 @@ pub use laplacian::{
     CotanLaplacian, cotan_laplacian, mass_matrix, sparse_from_triplets, sparse_mul_vec,
     umbrella_laplacian, voronoi_areas,
 };
+pub use layer::{LayerSettings, extrude_layer, smoothed_vertex_normals};
 pub use nalgebra;
+pub use quality::{TetQuality, aspect_ratio, dihedral_angles, tet_quality};
 pub use refine::{RefinedTetMesh, refine_tets};
 pub use refine_local::{RefineBall, refine_near};
 pub use structured::{box_tet_mesh, icosphere};

@@ -34,6 +34,16 @@ pub enum TissueError {
         /// What is wrong.
         problem: String,
     },
+    /// A line of an input text file is unusable.
+    #[error("{}:{line}: {problem}", path.display())]
+    BadInputLine {
+        /// File.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        problem: String,
+    },
     /// Invalid settings or arguments.
     #[error("bad settings: {field}: {problem}")]
     BadSettings {
@@ -81,6 +91,7 @@ impl TissueError {
             Self::ReadMcap { .. }
                 | Self::ReadMesh { .. }
                 | Self::BadInput { .. }
+                | Self::BadInputLine { .. }
                 | Self::BadSettings { .. }
         )
     }

@@ -40,6 +40,7 @@ pub mod error;
 pub mod fit;
 pub mod output;
 pub mod report;
+pub mod reshape;
 pub mod session;
 pub mod simulate;
 
@@ -54,7 +55,7 @@ pub use output::{LoadedMaterial, basis_message, read_material, report_message, w
 pub use report::write_report;
 pub use session::{
     ExampleSelection, PreparedSession, SessionExample, examples_from_frames, prepare,
-    read_volume_mesh, select_examples,
+    read_volume_mesh, read_volume_mesh_mapped, select_examples,
 };
 pub use simulate::{ProbeShape, ProbeSpec, SimulateConfig, SimulateOutcome, SimulateSettings};
 pub use softcap_app::Progress;

@@ -75,6 +75,15 @@ pub struct PreparedSession {
 
 /// Reads a Gmsh 4.1 tet mesh and converts it to metres (`metres_per_unit` of the session).
 pub fn read_volume_mesh(path: &Path, metres_per_unit: f64) -> Result<TetMesh> {
+    read_volume_mesh_mapped(path, metres_per_unit).map(|(mesh, _)| mesh)
+}
+
+/// [`read_volume_mesh`] and, per node of the file (in `$Nodes` order), its index in the returned
+/// mesh (`None` for nodes no tet uses, which are dropped).
+pub fn read_volume_mesh_mapped(
+    path: &Path,
+    metres_per_unit: f64,
+) -> Result<(TetMesh, Vec<Option<usize>>)> {
     if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
         return Err(TissueError::bad_input(
             path,
@@ -94,19 +103,19 @@ pub fn read_volume_mesh(path: &Path, metres_per_unit: f64) -> Result<TetMesh> {
         ));
     }
     mesh.scale(metres_per_unit);
-    drop_unused_vertices(&mut mesh);
+    let map = drop_unused_vertices(&mut mesh);
     mesh.orient_positive();
     mesh.validate(&softcap_mesh::ValidationSettings::default())
         .map_err(|e| TissueError::ReadMesh {
             path: path.to_path_buf(),
             source: Box::new(e),
         })?;
-    Ok(mesh)
+    Ok((mesh, map))
 }
 
-/// Removes vertices no tet uses (Gmsh files may carry geometry points); they would make the
-/// stiffness matrix singular.
-fn drop_unused_vertices(mesh: &mut TetMesh) {
+/// Removes vertices no tet uses (Gmsh files may carry geometry points; they would make the
+/// stiffness matrix singular); returns old index → new index.
+fn drop_unused_vertices(mesh: &mut TetMesh) -> Vec<Option<usize>> {
     let mut used = vec![false; mesh.vertices.len()];
     for t in &mesh.tets {
         for &v in t {
@@ -116,7 +125,7 @@ fn drop_unused_vertices(mesh: &mut TetMesh) {
         }
     }
     if used.iter().all(|&u| u) {
-        return;
+        return (0..mesh.vertices.len()).map(Some).collect();
     }
     let mut map = vec![usize::MAX; mesh.vertices.len()];
     let mut vertices = Vec::with_capacity(mesh.vertices.len());
@@ -134,6 +143,7 @@ fn drop_unused_vertices(mesh: &mut TetMesh) {
         }
     }
     mesh.vertices = vertices;
+    map.into_iter().map(|m| (m != usize::MAX).then_some(m)).collect()
 }
 
 /// Length unit of a capture's session (m per unit), 1 when the capture predates the field.

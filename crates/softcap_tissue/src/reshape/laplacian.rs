@@ -1,0 +1,247 @@
+//! The plastic-strain Laplacian and its singular base operator (saito-barbic Appendix A, §3.5).
+//!
+//! L_t is the combinatorial Laplacian of the tet mesh's dual graph (tets sharing a face; Zhang 2004;
+//! Appendix A eq. 28, [`softcap_mesh::umbrella_laplacian`] over [`softcap_mesh::tet_face_adjacency`]).
+//! The plastic-strain Laplacian (eq. 29) applies it to each of the six components of s with a
+//! weight √2 on the three off-diagonal ones (each appears twice in F_p), so the smoothness energy
+//! of eq. 3 is
+//!
+//! E_s = α/2 ‖L s‖² = α/2 Σ_k w_k ‖L_t s_k‖²,  w = (1, 1, 1, 2, 2, 2),
+//!
+//! with gradient α Σ_k w_k L_t² s_k. On a connected mesh L_t has the single null vector 1, so
+//! the base matrix A₀ = α diag(w) ⊗ L_t² has the six null vectors ψ_k (component k all 1/√T,
+//! Appendix A lemma). [`PlasticLaplacian::apply_base_inverse`] applies the inverse of the invertible
+//! A = A₀ + μ Σ_k ψ_k ψ_kᵀ by the singular lemma (§3.5): (iii) A⁻¹y = y_range + Σ_k (ψ_k·y/μ) ψ_k,
+//! where y_range is the unique solution of A₀ z = y − Σ ψ_k(ψ_k·y) orthogonal to the ψ_k (ii).
+//!
+//! y_range = (α w_k)⁻¹ L_t⁺ L_t⁺ y_k per component, because L_t² and L_t share eigenvectors.
+//! L_t⁺ is applied with one sparse Cholesky factor, computed once (faer, AMD ordering): remove the
+//! mean of the right-hand side (it is then in the range of L_t), solve with L_t grounded at its last
+//! row and column (symmetric positive definite on a connected mesh) — a solution of the singular
+//! system, since the dropped row is minus the sum of the others — and remove the mean of the
+//! solution, which by lemma (ii) is the one orthogonal to the null space.
+
+use crate::error::{Result, TissueError};
+use faer::linalg::solvers::Solve;
+use faer::sparse::SparseColMat;
+use faer::sparse::linalg::solvers::Llt;
+use faer::reborrow::{Reborrow, ReborrowMut};
+use faer::{MatMut, Side};
+use nalgebra::Vector6;
+use rayon::prelude::*;
+
+/// Component weights of the plastic-strain Laplacian (Appendix A eq. 29: √2 on off-diagonals).
+pub const COMPONENT_WEIGHTS: [f64; 6] = [1.0, 1.0, 1.0, 2.0, 2.0, 2.0];
+
+/// L_t of a tet mesh with the factor of its grounded part (see the module docs).
+#[derive(Debug)]
+pub struct PlasticLaplacian {
+    laplacian: SparseColMat<usize, f64>,
+    grounded: Option<Llt<usize, f64>>,
+    num_tets: usize,
+}
+
+impl PlasticLaplacian {
+    /// The dual-graph Laplacian of `tets` and the factor of its grounded part. Fails when the mesh
+    /// is not connected through faces (the null space would be larger than six, Appendix A).
+    pub fn new(tets: &[[usize; 4]]) -> Result<Self> {
+        let adjacency = softcap_mesh::tet_face_adjacency(tets);
+        let parts = components(&adjacency);
+        if parts > 1 {
+            return Err(TissueError::BadSettings {
+                field: "template".into(),
+                problem: format!(
+                    "the tet mesh has {parts} parts not connected through faces; the plastic-strain \
+                     Laplacian needs one (saito-barbic Appendix A)"
+                ),
+            });
+        }
+        let laplacian = softcap_mesh::umbrella_laplacian(&adjacency);
+        let num_tets = tets.len();
+        let grounded = if num_tets > 1 {
+            let mut entries = Vec::new();
+            let sym = laplacian.symbolic();
+            for j in 0..num_tets - 1 {
+                for k in sym.col_range(j) {
+                    let i = sym.row_idx()[k];
+                    if i >= j && i < num_tets - 1 {
+                        entries.push((i, j, laplacian.val()[k]));
+                    }
+                }
+            }
+            let lower = softcap_mesh::sparse_from_triplets(num_tets - 1, num_tets - 1, entries);
+            Some(
+                lower
+                    .sp_cholesky(Side::Lower)
+                    .map_err(|e| TissueError::NotConverged {
+                        what: "Cholesky factorization of the plastic-strain Laplacian".into(),
+                        status: format!("{e:?}"),
+                    })?,
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            laplacian,
+            grounded,
+            num_tets,
+        })
+    }
+
+    /// Number of tets T.
+    pub fn num_tets(&self) -> usize {
+        self.num_tets
+    }
+
+    /// L_t v.
+    pub fn apply_scalar(&self, v: &[f64]) -> Vec<f64> {
+        softcap_mesh::sparse_mul_vec(self.laplacian.as_ref(), v)
+    }
+
+    /// Σ_k w_k ‖L_t s_k‖² (E_s = α/2 times this).
+    pub fn energy(&self, s: &[Vector6<f64>]) -> f64 {
+        (0..6)
+            .map(|k| {
+                let c: Vec<f64> = s.iter().map(|v| v[k]).collect();
+                let l = self.apply_scalar(&c);
+                COMPONENT_WEIGHTS[k] * l.iter().map(|v| v * v).sum::<f64>()
+            })
+            .sum()
+    }
+
+    /// Σ_k w_k L_t² s_k per tet (the gradient of E_s is α times this).
+    pub fn normal_apply(&self, s: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
+        let mut out = vec![Vector6::zeros(); s.len()];
+        for k in 0..6 {
+            let c: Vec<f64> = s.iter().map(|v| v[k]).collect();
+            let l2 = self.apply_scalar(&self.apply_scalar(&c));
+            for (o, v) in out.iter_mut().zip(l2) {
+                o[k] = COMPONENT_WEIGHTS[k] * v;
+            }
+        }
+        out
+    }
+
+    /// L_t⁺ applied to every column of `m` (T rows) in place (module docs; columns in parallel
+    /// blocks, each column's result independent of the blocking).
+    pub fn pseudo_inverse_in_place(&self, mut m: MatMut<'_, f64>) {
+        let t = self.num_tets;
+        let Some(factor) = &self.grounded else {
+            m.fill(0.0);
+            return;
+        };
+        remove_column_means(m.rb_mut());
+        let block = m.ncols().div_ceil(rayon::current_num_threads().max(1)).max(1);
+        let mut cols: Vec<MatMut<'_, f64>> = Vec::new();
+        let mut rest = m;
+        while rest.ncols() > 0 {
+            let take = block.min(rest.ncols());
+            let (head, tail) = rest.split_at_col_mut(take);
+            cols.push(head);
+            rest = tail;
+        }
+        cols.into_par_iter().for_each(|mut c| {
+            let (top, mut last) = c.rb_mut().split_at_row_mut(t - 1);
+            factor.solve_in_place(top);
+            last.fill(0.0);
+        });
+    }
+
+    /// A⁻¹ applied in place to a block of 6-vector fields stored component-major: column
+    /// 6c + k of `m` (T rows) is component k of field c (module docs; singular lemma (iii)
+    /// with the null vectors ψ_k and shift `mu`, scale `alpha`).
+    pub fn apply_base_inverse(&self, mut m: MatMut<'_, f64>, alpha: f64, mu: f64) {
+        let t = self.num_tets as f64;
+        let means: Vec<f64> = (0..m.ncols())
+            .map(|j| m.rb().col(j).iter().sum::<f64>() / t)
+            .collect();
+        self.pseudo_inverse_in_place(m.rb_mut());
+        self.pseudo_inverse_in_place(m.rb_mut());
+        for (j, mean) in means.into_iter().enumerate() {
+            let scale = 1.0 / (alpha * COMPONENT_WEIGHTS[j % 6]);
+            for v in m.rb_mut().col_mut(j).iter_mut() {
+                *v = *v * scale + mean / mu;
+            }
+        }
+    }
+}
+
+/// Subtracts each column's mean.
+fn remove_column_means(mut m: MatMut<'_, f64>) {
+    let n = m.nrows() as f64;
+    for j in 0..m.ncols() {
+        let mean = m.rb().col(j).iter().sum::<f64>() / n;
+        for v in m.rb_mut().col_mut(j).iter_mut() {
+            *v -= mean;
+        }
+    }
+}
+
+/// Number of connected components of a graph given by adjacency lists.
+fn components(adjacency: &[Vec<usize>]) -> usize {
+    let mut seen = vec![false; adjacency.len()];
+    let mut parts = 0;
+    let mut stack = Vec::new();
+    for start in 0..adjacency.len() {
+        if seen[start] {
+            continue;
+        }
+        parts += 1;
+        seen[start] = true;
+        stack.push(start);
+        while let Some(v) = stack.pop() {
+            for &w in &adjacency[v] {
+                if !seen[w] {
+                    seen[w] = true;
+                    stack.push(w);
+                }
+            }
+        }
+    }
+    parts
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use faer::Mat;
+
+    #[test]
+    fn base_inverse_matches_a_dense_solve() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 0.6, 0.4], [3, 2, 2]);
+        let lap = PlasticLaplacian::new(&mesh.tets).unwrap();
+        let t = mesh.tets.len();
+        let (alpha, mu) = (0.7, 1.3);
+        // Dense A = α diag(w) ⊗ L² + μ Σ ψψᵀ on one component (k = 4, weight 2).
+        let mut l = Mat::<f64>::zeros(t, t);
+        for j in 0..t {
+            let mut e = vec![0.0; t];
+            e[j] = 1.0;
+            for (i, v) in lap.apply_scalar(&e).into_iter().enumerate() {
+                l[(i, j)] = v;
+            }
+        }
+        let a = (&l * &l) * (alpha * 2.0) + Mat::<f64>::full(t, t, mu / t as f64);
+        let y: Vec<f64> = (0..t).map(|i| (i as f64 * 0.37).sin() + 0.2).collect();
+        let mut m = Mat::<f64>::zeros(t, 6);
+        for i in 0..t {
+            m[(i, 4)] = y[i];
+        }
+        lap.apply_base_inverse(m.as_mut(), alpha, mu);
+        let x = m.col(4).to_owned();
+        let r = &a * &x;
+        let err = (0..t).map(|i| (r[i] - y[i]).abs()).fold(0.0, f64::max);
+        assert!(err < 1e-9, "residual {err}");
+    }
+
+    #[test]
+    fn disconnected_meshes_are_rejected() {
+        let mut mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 1.0, 1.0], [1, 1, 1]);
+        let n = mesh.vertices.len();
+        let far: Vec<_> = mesh.vertices.iter().map(|v| v.add_scalar(5.0)).collect();
+        mesh.vertices.extend(far);
+        let extra: Vec<[usize; 4]> = mesh.tets.iter().map(|t| t.map(|v| v + n)).collect();
+        mesh.tets.extend(extra);
+        assert!(PlasticLaplacian::new(&mesh.tets).is_err());
+    }
+}

@@ -1,0 +1,931 @@
+//! The saito-barbic optimization (§3.3–3.6): Gauss–Newton over per-tet plastic strains with the
+//! equilibrium constraint, in stages, with stopping rules.
+//!
+//! Objective (eq. 3–6, divided by the attachment stiffness so every term is in m²):
+//!
+//! E(s, x) = α/2 ‖L s‖² + ½ Σ_c ‖S_c x − p_c‖²,
+//!
+//! c over the active attachments (the spring energy E_a), landmarks and ICP markers (their
+//! closest points on the current surface, recomputed after every iteration, eq. 5), subject to
+//! the equilibrium x = x(s) ([`super::equilibrium`]). Stages (§3.4): a constant plastic strain
+//! (one 6-vector for every tet) fitted to the attachments and landmarks as the initial guess;
+//! then attachments only; + landmarks; attachments + ICP markers (landmarks off). A stage stops when
+//! (i) it reached `max_iterations`, (ii) the largest error of its image constraints is below
+//! `error_tolerance_m`, or (iii) an iteration lowered E by less than `relative_progress`.
+//!
+//! Each iteration: factor K at x, Z = K⁻¹(Dᵀ)Gᵀ, gradient g = α∇E_s − Bᵀ Z W r, the step by the
+//! Woodbury identity ([`super::step`]), then a line search along s + ηΔs (Brent's method on
+//! (0, 1), §3.4; the full step is taken without a search when it achieves at least half the
+//! decrease the quadratic model predicts — a shortcut that saves equilibrium solves), each trial
+//! re-solving the equilibrium from the linear prediction x + ηJΔs. Plastic strains are kept
+//! positive definite per tet by clamping eigenvalues below `plastic_eigenvalue_floor` (§3.4).
+//! Free-flying objects alternate this step with the optimal rigid transform ([`super::gauge`]).
+
+use faer::Mat;
+use nalgebra::{Isometry3, Matrix3, Point3, SMatrix, SymmetricEigen, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+use softcap_core::{BrentSettings, minimize_bounded};
+use softcap_fem::{NeoHookeanParams, PlasticNeoHookeanModel, plastic_from_vector};
+use softcap_mesh::{TetMesh, TetQuality, tet_quality};
+
+use super::equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings};
+use super::gauge::{Gauge, best_rigid, project_out_modes, rigid_modes, three_two_one_pins};
+use super::laplacian::PlasticLaplacian;
+use super::problem::{ConstraintKind, MaterialPoint, ReshapeProblem, SurfaceProjector};
+use super::step::{NormalSystem, woodbury_step};
+use crate::error::{Result, TissueError};
+
+/// Settings of [`reshape`] (TOML: `softcap tissue reshape --settings`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReshapeSettings {
+    /// α̂: smoothness weight α = α̂ L³ / h (L the template's bounding-box diagonal, h its mean
+    /// edge length, so the continuum weight does not change with refinement).
+    pub smoothness: f64,
+    /// κ: attachment springs k = κ μ L (μ the elastic shear modulus).
+    pub attachment_stiffness: f64,
+    /// Poisson ratio of the elastic (stable neo-Hookean) part.
+    pub poisson_ratio: f64,
+    /// Iteration cap per stage (stopping rule (i)).
+    pub max_iterations: usize,
+    /// Iteration cap of the constant-plastic-strain initial guess.
+    pub constant_iterations: usize,
+    /// Stopping rule (ii): largest error of the stage's image constraints [m].
+    pub error_tolerance_m: f64,
+    /// Stopping rule (iii): relative decrease of the objective per iteration.
+    pub relative_progress: f64,
+    /// Smallest eigenvalue of a tet's plastic strain (§3.4: clamped to 0.01).
+    pub plastic_eigenvalue_floor: f64,
+    /// Brent line search.
+    pub line_search: BrentSettings,
+    /// Newton equilibrium solves.
+    pub equilibrium: EquilibriumSettings,
+}
+
+impl Default for ReshapeSettings {
+    fn default() -> Self {
+        Self {
+            smoothness: 1e-3,
+            attachment_stiffness: 100.0,
+            poisson_ratio: 0.4,
+            max_iterations: 20,
+            constant_iterations: 10,
+            error_tolerance_m: 1e-4,
+            relative_progress: 0.01,
+            plastic_eigenvalue_floor: 0.01,
+            line_search: BrentSettings {
+                x_tolerance: 0.02,
+                max_evaluations: 8,
+            },
+            equilibrium: EquilibriumSettings::default(),
+        }
+    }
+}
+
+/// Why a stage stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StopReason {
+    /// (ii) every image constraint within the tolerance.
+    ErrorTolerance,
+    /// (iii) an iteration lowered the objective by less than the relative threshold.
+    SmallProgress,
+    /// No step along the Gauss–Newton direction lowered the objective.
+    NoDescent,
+    /// (i) iteration cap.
+    MaxIterations,
+}
+
+impl StopReason {
+    /// Name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::ErrorTolerance => "error-tolerance",
+            Self::SmallProgress => "small-progress",
+            Self::NoDescent => "no-descent",
+            Self::MaxIterations => "max-iterations",
+        }
+    }
+
+    /// Rules (ii)/(iii) (and a stationary point) count as converged; the iteration cap does not.
+    pub fn converged(self) -> bool {
+        self != Self::MaxIterations
+    }
+}
+
+/// One stage of the schedule.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Stage {
+    name: &'static str,
+    constant: bool,
+    landmarks: bool,
+    icp: bool,
+}
+
+/// Summary of one stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageReport {
+    /// "constant", "attachments", "landmarks", "icp".
+    pub name: String,
+    /// Gauss–Newton iterations.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub stop: StopReason,
+    /// Objective at the start [m²].
+    pub objective_start: f64,
+    /// Objective at the end [m²].
+    pub objective_end: f64,
+    /// Largest error of the stage's image constraints at the end [m].
+    pub max_error_m: f64,
+}
+
+/// One Gauss–Newton iteration (the convergence history, saito-barbic Fig. 9).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IterationRecord {
+    /// Stage name.
+    pub stage: String,
+    /// Objective after the iteration [m²].
+    pub objective: f64,
+    /// Largest error of the stage's image constraints after the iteration [m].
+    pub max_error_m: f64,
+    /// Accepted step length η.
+    pub step_length: f64,
+    /// Equilibrium solves of the line search.
+    pub equilibrium_solves: usize,
+}
+
+/// Error of one constraint on the result.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConstraintError {
+    /// Kind.
+    pub kind: ConstraintKind,
+    /// Id from the input.
+    pub id: String,
+    /// Target [m].
+    pub target_m: [f64; 3],
+    /// The reshaped point (for ICP: the closest surface point) [m].
+    pub achieved_m: [f64; 3],
+    /// Distance [m].
+    pub error_m: f64,
+}
+
+/// Overall status.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReshapeStatus {
+    /// The last stage stopped by a convergence rule.
+    Converged,
+    /// The last stage hit its iteration cap.
+    MaxIterations,
+}
+
+/// The result of [`reshape`].
+#[derive(Clone, Debug)]
+pub struct ReshapeOutcome {
+    /// Reshaped node positions [m] (world frame).
+    pub positions_m: Vec<Vector3<f64>>,
+    /// Plastic strain per tet (saito-barbic eq. 2 order: xx, yy, zz, xy, xz, yz).
+    pub plastic: Vec<Vector6<f64>>,
+    /// Stages in order.
+    pub stages: Vec<StageReport>,
+    /// Every iteration.
+    pub history: Vec<IterationRecord>,
+    /// Per-constraint errors on the result (attachments, landmarks, ICP markers).
+    pub errors: Vec<ConstraintError>,
+    /// Quality of the template.
+    pub template_quality: TetQuality,
+    /// Quality of the reshaped mesh.
+    pub reshaped_quality: TetQuality,
+    /// Status.
+    pub status: ReshapeStatus,
+    /// α used [m²].
+    pub alpha_m2: f64,
+}
+
+/// A constraint row triple: material point, target (solver frame), weight.
+#[derive(Clone, Copy, Debug)]
+struct Row {
+    point: MaterialPoint,
+    target: Vector3<f64>,
+    weight: f64,
+}
+
+/// The solver state: plastic strains, shape (canonical frame when free-flying) and frame.
+#[derive(Clone, Debug)]
+struct State {
+    s: Vec<Vector6<f64>>,
+    x: Vec<Vector3<f64>>,
+    frame: Isometry3<f64>,
+}
+
+/// Progress callback: (stage, iteration, objective, max error).
+pub type ProgressFn<'a> = dyn FnMut(&str, usize, f64, f64) + 'a;
+
+struct Solver<'p> {
+    problem: &'p ReshapeProblem,
+    settings: &'p ReshapeSettings,
+    model: PlasticNeoHookeanModel,
+    laplacian: PlasticLaplacian,
+    equilibrium: Equilibrium,
+    gauge: Option<Gauge>,
+    boundary: Vec<[usize; 3]>,
+    alpha: f64,
+    equilibrium_solves: usize,
+}
+
+/// Reshapes `problem.template` (saito-barbic §3): see the module docs. Errors only for unusable
+/// input or an equilibrium that cannot be solved even once; non-convergence is a status.
+pub fn reshape(
+    problem: &ReshapeProblem,
+    settings: &ReshapeSettings,
+    progress: &mut ProgressFn<'_>,
+) -> Result<ReshapeOutcome> {
+    let mut solver = Solver::new(problem, settings)?;
+    let mut state = solver.initial_state()?;
+    let mut stages = Vec::new();
+    let mut history = Vec::new();
+    for stage in solver.schedule() {
+        let report = solver.run_stage(stage, &mut state, &mut history, progress)?;
+        stages.push(report);
+    }
+    Ok(solver.finish(state, stages, history))
+}
+
+impl<'p> Solver<'p> {
+    fn new(problem: &'p ReshapeProblem, settings: &'p ReshapeSettings) -> Result<Self> {
+        let mesh = &problem.template;
+        let params = NeoHookeanParams::from_young_poisson(
+            2.0 * (1.0 + settings.poisson_ratio),
+            settings.poisson_ratio,
+        )
+        .map_err(|e| TissueError::BadSettings {
+            field: "poisson_ratio".into(),
+            problem: e.to_string(),
+        })?;
+        let model = PlasticNeoHookeanModel::homogeneous(mesh, params)?;
+        let laplacian = PlasticLaplacian::new(&mesh.tets)?;
+        let (diag, edge) = size_scales(mesh);
+        let alpha = settings.smoothness * diag.powi(3) / edge;
+        let stiffness = settings.attachment_stiffness * params.mu * diag;
+        let (pins, gauge) = if problem.free_flying {
+            let boundary_nodes = mesh.surface_map().surface_to_volume;
+            (
+                three_two_one_pins(&mesh.vertices),
+                Some(Gauge::new(boundary_nodes, &mesh.vertices)),
+            )
+        } else {
+            (Vec::new(), None)
+        };
+        let attachments = problem
+            .attachments
+            .iter()
+            .map(|a| (a.node, a.target_m))
+            .collect();
+        let equilibrium = Equilibrium::new(&model, attachments, stiffness, &pins)?;
+        Ok(Self {
+            problem,
+            settings,
+            model,
+            laplacian,
+            equilibrium,
+            gauge,
+            boundary: mesh.boundary_faces(),
+            alpha,
+            equilibrium_solves: 0,
+        })
+    }
+
+    /// The stages of §3.4 that have constraints.
+    fn schedule(&self) -> Vec<Stage> {
+        let p = self.problem;
+        let has_a = !p.attachments.is_empty();
+        let has_l = !p.landmarks.is_empty();
+        let mut out = Vec::new();
+        if has_a || has_l {
+            out.push(Stage {
+                name: "constant",
+                constant: true,
+                landmarks: has_l,
+                icp: false,
+            });
+        }
+        if has_a {
+            out.push(Stage {
+                name: "attachments",
+                constant: false,
+                landmarks: false,
+                icp: false,
+            });
+        }
+        if has_l {
+            out.push(Stage {
+                name: "landmarks",
+                constant: false,
+                landmarks: true,
+                icp: false,
+            });
+        }
+        if !p.icp_markers.is_empty() {
+            out.push(Stage {
+                name: "icp",
+                constant: false,
+                landmarks: false,
+                icp: true,
+            });
+        }
+        out
+    }
+
+    /// s = I everywhere, the template (rigidly aligned to the landmarks when free-flying) in
+    /// equilibrium.
+    fn initial_state(&mut self) -> Result<State> {
+        let t = self.problem.template.tets.len();
+        let mut state = State {
+            s: vec![Vector6::new(1.0, 1.0, 1.0, 0.0, 0.0, 0.0); t],
+            x: self.problem.template.vertices.clone(),
+            frame: Isometry3::identity(),
+        };
+        if self.gauge.is_some() {
+            let q: Vec<Vector3<f64>> = self
+                .problem
+                .landmarks
+                .iter()
+                .map(|l| l.point.at(&state.x))
+                .collect();
+            let p: Vec<Vector3<f64>> = self.problem.landmarks.iter().map(|l| l.target_m).collect();
+            state.frame = best_rigid(&q, &p, &vec![1.0; q.len()]).ok_or_else(|| {
+                TissueError::BadSettings {
+                    field: "landmarks".into(),
+                    problem: "a free-flying reshape needs at least three landmarks for its initial \
+                              rigid alignment"
+                        .into(),
+                }
+            })?;
+        }
+        self.set_plastic(&state.s)?;
+        let outcome = self.solve_equilibrium(&mut state.x);
+        if !outcome.converged() {
+            return Err(TissueError::NotConverged {
+                what: "the template's equilibrium under its attachments".into(),
+                status: format!("{outcome:?}"),
+            });
+        }
+        Ok(state)
+    }
+
+    fn set_plastic(&mut self, s: &[Vector6<f64>]) -> Result<()> {
+        let fp: Vec<Matrix3<f64>> = s.iter().map(plastic_from_vector).collect();
+        self.model.set_plastic_gradients(&fp)?;
+        Ok(())
+    }
+
+    /// Newton from `x`; canonicalizes a free-flying shape.
+    fn solve_equilibrium(&mut self, x: &mut [Vector3<f64>]) -> EquilibriumOutcome {
+        self.equilibrium_solves += 1;
+        let outcome = self
+            .equilibrium
+            .solve(&self.model, x, &self.settings.equilibrium);
+        if let Some(g) = &self.gauge {
+            g.canonicalize(x);
+        }
+        outcome
+    }
+
+    /// The active constraint rows of `stage` at `state` (ICP closest points on the current
+    /// surface), targets in the solver frame.
+    fn rows(&self, stage: Stage, state: &State) -> Vec<Row> {
+        let to_frame = |p: &Vector3<f64>| state.frame.inverse_transform_point(&Point3::from(*p)).coords;
+        let mut rows: Vec<Row> = self
+            .problem
+            .attachments
+            .iter()
+            .map(|a| Row {
+                point: MaterialPoint::node(a.node),
+                target: a.target_m,
+                weight: 1.0,
+            })
+            .collect();
+        if stage.landmarks {
+            rows.extend(self.problem.landmarks.iter().map(|l| Row {
+                point: l.point,
+                target: to_frame(&l.target_m),
+                weight: 1.0,
+            }));
+        }
+        if stage.icp {
+            let projector = SurfaceProjector::new(&self.boundary, &state.x);
+            for m in &self.problem.icp_markers {
+                let target = to_frame(&m.position_m);
+                if let Some((point, _)) = projector.project(&target) {
+                    rows.push(Row {
+                        point,
+                        target,
+                        weight: 1.0,
+                    });
+                }
+            }
+        }
+        rows
+    }
+
+    /// Largest distance of the stage's image constraints (attachments only in the attachments
+    /// stage; ICP closest points re-projected) at `state`.
+    fn max_error(&self, stage: Stage, state: &State) -> f64 {
+        let image = stage.landmarks || stage.icp;
+        self.rows(stage, state)
+            .iter()
+            .skip(if image { self.problem.attachments.len() } else { 0 })
+            .map(|r| (r.point.at(&state.x) - r.target).norm())
+            .fold(0.0, f64::max)
+    }
+
+    fn objective(&self, s: &[Vector6<f64>], x: &[Vector3<f64>], rows: &[Row]) -> f64 {
+        let data: f64 = rows
+            .iter()
+            .map(|r| r.weight * (r.point.at(x) - r.target).norm_squared())
+            .sum();
+        0.5 * self.alpha * self.laplacian.energy(s) + 0.5 * data
+    }
+
+    /// Gᵀ (3N × 3·rows) with the free-flying gauge, solved: Z = K⁻¹ (Dᵀ) Gᵀ at `x`.
+    fn z_matrix(&self, x: &[Vector3<f64>], rows: &[Row]) -> Result<Mat<f64>> {
+        let n = x.len();
+        let mut z = Mat::<f64>::zeros(3 * n, 3 * rows.len());
+        for (c, r) in rows.iter().enumerate() {
+            for k in 0..4 {
+                for i in 0..3 {
+                    z[(3 * r.point.nodes[k] + i, 3 * c + i)] += r.point.weights[k];
+                }
+            }
+        }
+        if let Some(g) = &self.gauge {
+            g.project_transposed_columns(x, &mut z);
+        }
+        self.equilibrium.solve_columns(&mut z)?;
+        if self.gauge.is_some() {
+            project_out_modes(&rigid_modes(x), &mut z);
+        }
+        Ok(z)
+    }
+
+    /// J v = −D K⁻¹ B v for a 3N right-hand side `bv` (B v).
+    fn jacobian_times(&self, x: &[Vector3<f64>], bv: &[f64]) -> Result<Vec<Vector3<f64>>> {
+        let mut m = Mat::from_fn(bv.len(), 1, |i, _| -bv[i]);
+        self.equilibrium.solve_columns(&mut m)?;
+        let mut v: Vec<Vector3<f64>> = (0..x.len())
+            .map(|j| Vector3::new(m[(3 * j, 0)], m[(3 * j + 1, 0)], m[(3 * j + 2, 0)]))
+            .collect();
+        if let Some(g) = &self.gauge {
+            g.project(x, &mut v);
+        }
+        Ok(v)
+    }
+
+    fn run_stage(
+        &mut self,
+        stage: Stage,
+        state: &mut State,
+        history: &mut Vec<IterationRecord>,
+        progress: &mut ProgressFn<'_>,
+    ) -> Result<StageReport> {
+        let cap = if stage.constant {
+            self.settings.constant_iterations
+        } else {
+            self.settings.max_iterations
+        };
+        let start = self.objective(&state.s, &state.x, &self.rows(stage, state));
+        let mut report = StageReport {
+            name: stage.name.into(),
+            iterations: 0,
+            stop: StopReason::MaxIterations,
+            objective_start: start,
+            objective_end: start,
+            max_error_m: self.max_error(stage, state),
+        };
+        if !stage.constant && report.max_error_m <= self.settings.error_tolerance_m {
+            report.stop = StopReason::ErrorTolerance;
+            return Ok(report);
+        }
+        for it in 0..cap {
+            let step = self.iteration(stage, state)?;
+            report.iterations = it + 1;
+            let Some(step) = step else {
+                report.stop = StopReason::NoDescent;
+                break;
+            };
+            let max_error = self.max_error(stage, state);
+            report.objective_end = step.objective_after;
+            report.max_error_m = max_error;
+            history.push(IterationRecord {
+                stage: stage.name.into(),
+                objective: step.objective_after,
+                max_error_m: max_error,
+                step_length: step.eta,
+                equilibrium_solves: step.solves,
+            });
+            progress(stage.name, it + 1, step.objective_after, max_error);
+            if !stage.constant && max_error <= self.settings.error_tolerance_m {
+                report.stop = StopReason::ErrorTolerance;
+                break;
+            }
+            let decrease = (step.objective_before - step.objective_after)
+                / step.objective_before.max(f64::MIN_POSITIVE);
+            if decrease < self.settings.relative_progress {
+                report.stop = StopReason::SmallProgress;
+                break;
+            }
+        }
+        Ok(report)
+    }
+
+    /// One Gauss–Newton iteration (+ rigid block when free-flying); `None` if no step length
+    /// lowers the objective (the state is then unchanged).
+    fn iteration(&mut self, stage: Stage, state: &mut State) -> Result<Option<AcceptedStep>> {
+        let rows = self.rows(stage, state);
+        let e0 = self.objective(&state.s, &state.x, &rows);
+        self.set_plastic(&state.s)?;
+        self.equilibrium.factor_at(&self.model, &state.x)?;
+        let jacobians = self.model.plastic_force_jacobians(&state.x);
+        let z = self.z_matrix(&state.x, &rows)?;
+        let weights: Vec<f64> = rows.iter().flat_map(|r| [r.weight; 3]).collect();
+        let mut residual = Mat::<f64>::zeros(3 * rows.len(), 1);
+        for (c, r) in rows.iter().enumerate() {
+            let d = (r.point.at(&state.x) - r.target) * r.weight;
+            for i in 0..3 {
+                residual[(3 * c + i, 0)] = d[i];
+            }
+        }
+        let zr_mat = &z * &residual;
+        let zr: Vec<f64> = (0..zr_mat.nrows()).map(|i| zr_mat[(i, 0)]).collect();
+        let tets = &self.problem.template.tets;
+        let n = state.x.len();
+        let bt_zr: Vec<Vector6<f64>> = jacobians
+            .iter()
+            .zip(tets)
+            .map(|(b, tet)| element_bt(b, tet, &zr))
+            .collect();
+        let smooth_gradient = self.laplacian.normal_apply(&state.s);
+        let gradient: Vec<Vector6<f64>> = smooth_gradient
+            .iter()
+            .zip(&bt_zr)
+            .map(|(l, b)| l * self.alpha - b)
+            .collect();
+        let direction = if stage.constant {
+            constant_step(&jacobians, tets, n, &z, &weights, &gradient)
+        } else {
+            let sys = NormalSystem {
+                jacobians: &jacobians,
+                tets,
+                num_nodes: n,
+                z: &z,
+                weights: &weights,
+                gradient: &gradient,
+                laplacian: &self.laplacian,
+                alpha: self.alpha,
+            };
+            woodbury_step(&sys)
+        };
+        let Some(ds) = direction else {
+            return Ok(None);
+        };
+        let predicted = -0.5
+            * gradient
+                .iter()
+                .zip(&ds)
+                .map(|(g, d)| g.dot(d))
+                .sum::<f64>();
+        let bds = element_b_times(&jacobians, tets, n, &ds);
+        let jds = self.jacobian_times(&state.x, &bds)?;
+        if std::env::var_os("RESHAPE_DEBUG").is_some() {
+            let dsn = ds.iter().map(|d| d.norm_squared()).sum::<f64>().sqrt();
+            let jn = jds.iter().map(|d| d.norm()).fold(0.0, f64::max);
+            eprintln!("  e0 {e0:.4e} predicted {predicted:.4e} |ds| {dsn:.3e} max|J ds| {jn:.3e}");
+            if !stage.constant {
+                let sys = NormalSystem {
+                    jacobians: &jacobians,
+                    tets,
+                    num_nodes: n,
+                    z: &z,
+                    weights: &weights,
+                    gradient: &gradient,
+                    laplacian: &self.laplacian,
+                    alpha: self.alpha,
+                };
+                let cg = super::step::cg_step(&sys, 1e-10, 5000);
+                let diff = cg.step.iter().zip(&ds).map(|(a, b)| (a - b).norm_squared()).sum::<f64>().sqrt();
+                eprintln!("  cg {} its rel res {:.2e}, |cg - woodbury| {diff:.3e}", cg.iterations, cg.relative_residual);
+            }
+            for eta in [1e-3, 1e-2, 0.1, 1.0] {
+                let t = self.trial(state, &rows, &ds, &jds, eta)?;
+                match t {
+                    Some(t) => {
+                        let lin = e0 - 2.0 * predicted * eta + predicted * eta * eta;
+                        let xdev = t.x.iter().zip(&state.x).zip(&jds).map(|((a, b), d)| (a - b - d * eta).norm()).fold(0.0, f64::max);
+                        eprintln!("  eta {eta}: E {:.6e} (quadratic model {lin:.6e}), |x - lin| {xdev:.3e}", t.value)
+                    }
+                    None => eprintln!("  eta {eta}: equilibrium failed"),
+                }
+            }
+            self.set_plastic(&state.s)?;
+        }
+        let accepted = self.line_search(state, &rows, e0, predicted, &ds, &jds)?;
+        let Some(mut step) = accepted else {
+            self.set_plastic(&state.s)?;
+            return Ok(None);
+        };
+        if self.gauge.is_some() {
+            self.rigid_block(state, &rows);
+            // The objective of the accepted point after the rigid block.
+            step.objective_after = self.objective(&state.s, &state.x, &self.rows(stage, state));
+        }
+        Ok(Some(step))
+    }
+
+    /// Brent line search along s + ηΔs (module docs); updates `state` on success.
+    fn line_search(
+        &mut self,
+        state: &mut State,
+        rows: &[Row],
+        e0: f64,
+        predicted: f64,
+        ds: &[Vector6<f64>],
+        jds: &[Vector3<f64>],
+    ) -> Result<Option<AcceptedStep>> {
+        let solves_before = self.equilibrium_solves;
+        let mut best: Option<Trial> = None;
+        let full = self.trial(state, rows, ds, jds, 1.0)?;
+        let full_value = full.as_ref().map_or(f64::INFINITY, |t| t.value);
+        keep_best(&mut best, full);
+        let good_full = predicted > 0.0 && e0 - full_value >= 0.5 * predicted;
+        if !good_full {
+            let mut trials: Vec<Trial> = Vec::new();
+            let mut error = None;
+            let brent = self.settings.line_search;
+            minimize_bounded(
+                |eta| match self.trial(state, rows, ds, jds, eta) {
+                    Ok(Some(t)) => {
+                        let v = t.value;
+                        trials.push(t);
+                        v
+                    }
+                    Ok(None) => f64::INFINITY,
+                    Err(e) => {
+                        error = Some(e);
+                        f64::INFINITY
+                    }
+                },
+                0.0,
+                1.0,
+                &brent,
+            );
+            if let Some(e) = error {
+                return Err(e);
+            }
+            for t in trials {
+                keep_best(&mut best, Some(t));
+            }
+        }
+        let solves = self.equilibrium_solves - solves_before;
+        match best {
+            Some(t) if t.value < e0 => {
+                state.s = t.s;
+                state.x = t.x;
+                self.set_plastic(&state.s)?;
+                Ok(Some(AcceptedStep {
+                    eta: t.eta,
+                    objective_before: e0,
+                    objective_after: t.value,
+                    solves,
+                }))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// The objective at step length `eta` (`None` if the equilibrium does not converge).
+    fn trial(
+        &mut self,
+        state: &State,
+        rows: &[Row],
+        ds: &[Vector6<f64>],
+        jds: &[Vector3<f64>],
+        eta: f64,
+    ) -> Result<Option<Trial>> {
+        let floor = self.settings.plastic_eigenvalue_floor;
+        let s: Vec<Vector6<f64>> = state
+            .s
+            .iter()
+            .zip(ds)
+            .map(|(s, d)| clamp_plastic(&(s + d * eta), floor))
+            .collect();
+        self.set_plastic(&s)?;
+        let mut x: Vec<Vector3<f64>> = state.x.iter().zip(jds).map(|(x, d)| x + d * eta).collect();
+        if !self.solve_equilibrium(&mut x).converged() {
+            return Ok(None);
+        }
+        let value = self.objective(&s, &x, rows);
+        Ok(Some(Trial { eta, value, s, x }))
+    }
+
+    /// The optimal rigid transform for the current shape (§3.6 block-coordinate step).
+    fn rigid_block(&self, state: &mut State, rows: &[Row]) {
+        let image: Vec<&Row> = rows
+            .iter()
+            .skip(self.problem.attachments.len())
+            .collect();
+        let q: Vec<Vector3<f64>> = image.iter().map(|r| r.point.at(&state.x)).collect();
+        let p: Vec<Vector3<f64>> = image
+            .iter()
+            .map(|r| state.frame.transform_point(&Point3::from(r.target)).coords)
+            .collect();
+        let w: Vec<f64> = image.iter().map(|r| r.weight).collect();
+        if let Some(t) = best_rigid(&q, &p, &w) {
+            state.frame = t;
+        }
+    }
+
+    fn finish(
+        mut self,
+        state: State,
+        stages: Vec<StageReport>,
+        history: Vec<IterationRecord>,
+    ) -> ReshapeOutcome {
+        let positions_m: Vec<Vector3<f64>> = state
+            .x
+            .iter()
+            .map(|p| state.frame.transform_point(&Point3::from(*p)).coords)
+            .collect();
+        let errors = self.constraint_errors(&positions_m);
+        let status = match stages.last() {
+            Some(s) if !s.stop.converged() => ReshapeStatus::MaxIterations,
+            _ => ReshapeStatus::Converged,
+        };
+        let _ = self.set_plastic(&state.s);
+        ReshapeOutcome {
+            template_quality: tet_quality(&self.problem.template, &self.problem.template.vertices),
+            reshaped_quality: tet_quality(&self.problem.template, &positions_m),
+            positions_m,
+            plastic: state.s,
+            stages,
+            history,
+            errors,
+            status,
+            alpha_m2: self.alpha,
+        }
+    }
+
+    fn constraint_errors(&self, x: &[Vector3<f64>]) -> Vec<ConstraintError> {
+        let p = self.problem;
+        let entry = |kind, id: &str, target: Vector3<f64>, achieved: Vector3<f64>| ConstraintError {
+            kind,
+            id: id.to_string(),
+            target_m: target.into(),
+            achieved_m: achieved.into(),
+            error_m: (achieved - target).norm(),
+        };
+        let mut out: Vec<ConstraintError> = p
+            .attachments
+            .iter()
+            .map(|a| entry(ConstraintKind::Attachment, &a.id, a.target_m, x[a.node]))
+            .collect();
+        out.extend(
+            p.landmarks
+                .iter()
+                .map(|l| entry(ConstraintKind::Landmark, &l.id, l.target_m, l.point.at(x))),
+        );
+        let projector = SurfaceProjector::new(&self.boundary, x);
+        out.extend(p.icp_markers.iter().filter_map(|m| {
+            let (point, _) = projector.project(&m.position_m)?;
+            Some(entry(ConstraintKind::Icp, &m.id, m.position_m, point.at(x)))
+        }));
+        out
+    }
+}
+
+/// A line-search point.
+struct Trial {
+    eta: f64,
+    value: f64,
+    s: Vec<Vector6<f64>>,
+    x: Vec<Vector3<f64>>,
+}
+
+/// Keeps the lower of `best` and `candidate`.
+fn keep_best(best: &mut Option<Trial>, candidate: Option<Trial>) {
+    if let Some(c) = candidate
+        && c.value.is_finite()
+        && best.as_ref().is_none_or(|b| c.value < b.value)
+    {
+        *best = Some(c);
+    }
+}
+
+/// An accepted line-search point.
+#[derive(Clone, Copy, Debug)]
+struct AcceptedStep {
+    eta: f64,
+    objective_before: f64,
+    objective_after: f64,
+    solves: usize,
+}
+
+/// B_eᵀ v restricted to the tet's 12 dofs.
+fn element_bt(b: &SMatrix<f64, 12, 6>, tet: &[usize; 4], v: &[f64]) -> Vector6<f64> {
+    let mut local = SMatrix::<f64, 12, 1>::zeros();
+    for (a, &node) in tet.iter().enumerate() {
+        for i in 0..3 {
+            local[3 * a + i] = v[3 * node + i];
+        }
+    }
+    b.transpose() * local
+}
+
+/// B v (3N) for a 6-vector field v.
+fn element_b_times(
+    jacobians: &[SMatrix<f64, 12, 6>],
+    tets: &[[usize; 4]],
+    n: usize,
+    v: &[Vector6<f64>],
+) -> Vec<f64> {
+    let mut out = vec![0.0; 3 * n];
+    for ((b, tet), s) in jacobians.iter().zip(tets).zip(v) {
+        let f = b * s;
+        for (a, &node) in tet.iter().enumerate() {
+            for i in 0..3 {
+                out[3 * node + i] += f[3 * a + i];
+            }
+        }
+    }
+    out
+}
+
+/// The Gauss–Newton step restricted to a constant plastic strain (one 6-vector σ for every tet,
+/// the initial guess of §3.4): (V_σᵀ W V_σ) Δσ = −Σ_e g_e with V_σ = −Zᵀ B E.
+fn constant_step(
+    jacobians: &[SMatrix<f64, 12, 6>],
+    tets: &[[usize; 4]],
+    n: usize,
+    z: &Mat<f64>,
+    weights: &[f64],
+    gradient: &[Vector6<f64>],
+) -> Option<Vec<Vector6<f64>>> {
+    let mut be = Mat::<f64>::zeros(3 * n, 6);
+    for (b, tet) in jacobians.iter().zip(tets) {
+        for (a, &node) in tet.iter().enumerate() {
+            for i in 0..3 {
+                for k in 0..6 {
+                    be[(3 * node + i, k)] += b[(3 * a + i, k)];
+                }
+            }
+        }
+    }
+    let v = z.transpose() * &be;
+    let mut normal = nalgebra::Matrix6::<f64>::zeros();
+    for i in 0..v.nrows() {
+        for a in 0..6 {
+            for b in 0..6 {
+                normal[(a, b)] += weights[i] * v[(i, a)] * v[(i, b)];
+            }
+        }
+    }
+    let g: Vector6<f64> = gradient.iter().sum();
+    let step = normal.cholesky()?.solve(&(-g));
+    step.iter()
+        .all(|v| v.is_finite())
+        .then(|| vec![step; jacobians.len()])
+}
+
+/// s with its symmetric matrix's eigenvalues clamped to ≥ `floor` (F_p positive definite, §3.4).
+pub fn clamp_plastic(s: &Vector6<f64>, floor: f64) -> Vector6<f64> {
+    let m = plastic_from_vector(s);
+    let eig = SymmetricEigen::new(m);
+    if eig.eigenvalues.iter().all(|&l| l >= floor) {
+        return *s;
+    }
+    let clamped = eig.eigenvalues.map(|l| l.max(floor));
+    let m = eig.eigenvectors * Matrix3::from_diagonal(&clamped) * eig.eigenvectors.transpose();
+    softcap_fem::plastic_to_vector(&m)
+}
+
+/// (bounding-box diagonal, mean edge length) of the template.
+fn size_scales(mesh: &TetMesh) -> (f64, f64) {
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for p in &mesh.vertices {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let mut total = 0.0;
+    let mut count = 0usize;
+    for t in &mesh.tets {
+        for a in 0..4 {
+            for b in a + 1..4 {
+                total += (mesh.vertices[t[a]] - mesh.vertices[t[b]]).norm();
+                count += 1;
+            }
+        }
+    }
+    ((hi - lo).norm(), total / count.max(1) as f64)
+}
