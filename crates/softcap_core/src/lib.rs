@@ -54,11 +54,11 @@ pub use least_squares::{
 pub use levenberg_marquardt::{DampingScaling, LevenbergMarquardtSettings, levenberg_marquardt};
 pub use nelder_mead::{NelderMeadReport, NelderMeadSettings, nelder_mead};
 pub use polar::{Polar, polar_decomposition};
-pub use rigid::horn_weighted;
 pub use rbf::{
     GreedyErrorMeasure, GreedyRbfReport, GreedyRbfSettings, GreedyStatus, GreedyStep,
     PolynomialTail, Rbf, RbfKernel, RbfSettings, ScatteredData, greedy_rbf,
 };
+pub use rigid::horn_weighted;
 
 pub use faer;
 pub use nalgebra;

@@ -187,8 +187,7 @@ pub mod topics {
     /// `softcap tissue reshape`: per-tet plastic strains (static, time 0).
     pub const PLASTIC_STRAINS: Topic<PlasticStrains> = Topic::new("/reshape/plastic_strains");
     /// `softcap tissue reshape`: every constraint with its error (static, time 0), metres.
-    pub const RESHAPE_CONSTRAINTS: Topic<ReshapeConstraints> =
-        Topic::new("/reshape/constraints");
+    pub const RESHAPE_CONSTRAINTS: Topic<ReshapeConstraints> = Topic::new("/reshape/constraints");
     /// `softcap tissue reshape`: mesh quality before and after (static, time 0).
     pub const RESHAPE_QUALITY: Topic<ReshapeQuality> = Topic::new("/reshape/quality");
     /// `softcap tissue reshape` report (time 0).

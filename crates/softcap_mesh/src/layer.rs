@@ -161,7 +161,11 @@ mod tests {
         assert_eq!(mesh.boundary_faces().len(), 2 * sphere.triangles.len());
         // Volume of the polyhedral shell between radius 1 and 0.8 (inscribed, ≈ 4/3 π (1 − 0.8³)).
         let exact = 4.0 / 3.0 * std::f64::consts::PI * (1.0 - 0.8f64.powi(3));
-        assert!((mesh.volume() - exact).abs() < 0.05 * exact, "{}", mesh.volume());
+        assert!(
+            (mesh.volume() - exact).abs() < 0.05 * exact,
+            "{}",
+            mesh.volume()
+        );
         for (i, v) in sphere.vertices.iter().enumerate() {
             assert_eq!(mesh.vertices[i], *v);
         }
@@ -178,6 +182,9 @@ mod tests {
                 normal_smoothing: 0,
             },
         );
-        assert!(matches!(err, Err(MeshError::InvertedElement { .. })), "{err:?}");
+        assert!(
+            matches!(err, Err(MeshError::InvertedElement { .. })),
+            "{err:?}"
+        );
     }
 }

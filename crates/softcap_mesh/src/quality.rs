@@ -57,10 +57,11 @@ pub fn aspect_ratio(x: &[Vector3<f64>; 4]) -> f64 {
     if det == 0.0 {
         return f64::INFINITY;
     }
-    let circum =
-        (b.cross(&c) * a.norm_squared() + c.cross(&a) * b.norm_squared() + a.cross(&b) * c.norm_squared())
-            .norm()
-            / (2.0 * det);
+    let circum = (b.cross(&c) * a.norm_squared()
+        + c.cross(&a) * b.norm_squared()
+        + a.cross(&b) * c.norm_squared())
+    .norm()
+        / (2.0 * det);
     let faces = [(1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1)];
     let area: f64 = faces
         .iter()
@@ -120,12 +121,7 @@ mod tests {
         }
         assert!((aspect_ratio(&x) - 1.0).abs() < 1e-12);
         // The right-corner tet: three 90° dihedrals at the corner edges.
-        let c = [
-            Vector3::zeros(),
-            Vector3::x(),
-            Vector3::y(),
-            Vector3::z(),
-        ];
+        let c = [Vector3::zeros(), Vector3::x(), Vector3::y(), Vector3::z()];
         let d = dihedral_angles(&c);
         for k in 0..3 {
             assert!((d[k].to_degrees() - 90.0).abs() < 1e-12);

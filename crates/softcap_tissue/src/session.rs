@@ -143,7 +143,9 @@ fn drop_unused_vertices(mesh: &mut TetMesh) -> Vec<Option<usize>> {
         }
     }
     mesh.vertices = vertices;
-    map.into_iter().map(|m| (m != usize::MAX).then_some(m)).collect()
+    map.into_iter()
+        .map(|m| (m != usize::MAX).then_some(m))
+        .collect()
 }
 
 /// Length unit of a capture's session (m per unit), 1 when the capture predates the field.

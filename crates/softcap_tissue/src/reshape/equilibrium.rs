@@ -274,7 +274,10 @@ impl Equilibrium {
             (0..self.gradient.len())
                 .map(|node| {
                     let d = self.pattern.node_diagonal(node, &self.values);
-                    d.iter().filter(|v| v.is_finite()).map(|v| v.abs()).sum::<f64>()
+                    d.iter()
+                        .filter(|v| v.is_finite())
+                        .map(|v| v.abs())
+                        .sum::<f64>()
                 })
                 .sum::<f64>()
                 / (3 * n) as f64

@@ -74,10 +74,7 @@ impl Gauge {
             *p = rt * (*p - c) + self.rest_centroid;
         }
         let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-        Isometry3::from_parts(
-            Translation3::from(c - r * self.rest_centroid),
-            rotation,
-        )
+        Isometry3::from_parts(Translation3::from(c - r * self.rest_centroid), rotation)
     }
 
     /// ((tr S) I − S)⁻¹ at the canonical `x` (S the symmetric part of A(x)).
@@ -226,7 +223,11 @@ mod tests {
         (0..40)
             .map(|i| {
                 let t = i as f64;
-                Vector3::new((0.7 * t).sin() * 2.0, (1.3 * t).cos(), (0.4 * t).sin() * 0.5 + 0.1 * t)
+                Vector3::new(
+                    (0.7 * t).sin() * 2.0,
+                    (1.3 * t).cos(),
+                    (0.4 * t).sin() * 0.5 + 0.1 * t,
+                )
             })
             .collect()
     }
@@ -239,7 +240,10 @@ mod tests {
         let rot = Rotation3::from_euler_angles(0.4, -0.2, 0.9);
         let mut y: Vec<Vector3<f64>> = rest
             .iter()
-            .map(|p| rot * Vector3::new(1.3 * p.x, 0.8 * p.y + 0.1 * p.x, p.z) + Vector3::new(1.0, 2.0, 3.0))
+            .map(|p| {
+                rot * Vector3::new(1.3 * p.x, 0.8 * p.y + 0.1 * p.x, p.z)
+                    + Vector3::new(1.0, 2.0, 3.0)
+            })
             .collect();
         let t = gauge.canonicalize(&mut y);
         assert!(t.rotation.angle() > 0.1);
@@ -276,10 +280,16 @@ mod tests {
         let rhs: f64 = (0..n)
             .map(|j| (0..3).map(|k| dy[j][k] * col[(3 * j + k, 0)]).sum::<f64>())
             .sum();
-        assert!((lhs - rhs).abs() < 1e-10 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
+        assert!(
+            (lhs - rhs).abs() < 1e-10 * lhs.abs().max(1.0),
+            "{lhs} vs {rhs}"
+        );
         // D annihilates the rigid modes.
         for mode in rigid_modes(&y) {
-            let mut v: Vec<Vector3<f64>> = mode.chunks(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect();
+            let mut v: Vec<Vector3<f64>> = mode
+                .chunks(3)
+                .map(|c| Vector3::new(c[0], c[1], c[2]))
+                .collect();
             gauge.project(&y, &mut v);
             assert!(v.iter().map(|p| p.norm()).fold(0.0, f64::max) < 1e-10);
         }

@@ -23,9 +23,9 @@
 
 use crate::error::{Result, TissueError};
 use faer::linalg::solvers::Solve;
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::SparseColMat;
 use faer::sparse::linalg::solvers::Llt;
-use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::{MatMut, Side};
 use nalgebra::Vector6;
 use rayon::prelude::*;
@@ -131,7 +131,10 @@ impl PlasticLaplacian {
             return;
         };
         remove_column_means(m.rb_mut());
-        let block = m.ncols().div_ceil(rayon::current_num_threads().max(1)).max(1);
+        let block = m
+            .ncols()
+            .div_ceil(rayon::current_num_threads().max(1))
+            .max(1);
         let mut cols: Vec<MatMut<'_, f64>> = Vec::new();
         let mut rest = m;
         while rest.ncols() > 0 {
@@ -144,6 +147,8 @@ impl PlasticLaplacian {
             let (top, mut last) = c.rb_mut().split_at_row_mut(t - 1);
             factor.solve_in_place(top);
             last.fill(0.0);
+            // Lemma (ii): the solution orthogonal to the null vector 1.
+            remove_column_means(c);
         });
     }
 

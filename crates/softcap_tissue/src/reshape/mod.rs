@@ -29,9 +29,9 @@ pub use problem::{
     Attachment, ConstraintKind, IcpMarker, Landmark, MaterialPoint, ReshapeProblem,
     SurfaceProjector,
 };
+pub use run::{ReshapeConfig, ReshapeRun, run, summary_line};
 pub use solve::{
     ConstraintError, IterationRecord, ReshapeOutcome, ReshapeSettings, ReshapeStatus, StageReport,
     StopReason, clamp_plastic, reshape,
 };
-pub use run::{ReshapeConfig, ReshapeRun, run, summary_line};
 pub use target::{LoadedTarget, TargetSpec, load_target};

@@ -10,7 +10,6 @@
 //! | `/reshape/quality` | `softcap.ReshapeQuality` | dihedral angles, inverted tets, aspect ratios |
 //! | `/reshape/report` | `softcap.Report` | status, stages, iterations, error statistics |
 
-
 use nalgebra::Vector3;
 use softcap_mcap::proto::{self, KeyValue, key_value::Value};
 use softcap_mcap::{Provenance, Writer, topics};
@@ -108,8 +107,16 @@ pub fn report_message(run: &ReshapeRun) -> proto::Report {
         entries.push(text(&format!("{p}.name"), &s.name));
         entries.push(integer(&format!("{p}.iterations"), s.iterations as i64));
         entries.push(text(&format!("{p}.stop"), s.stop.name()));
-        entries.push(number(&format!("{p}.objective.start"), s.objective_start, "m^2"));
-        entries.push(number(&format!("{p}.objective.end"), s.objective_end, "m^2"));
+        entries.push(number(
+            &format!("{p}.objective.start"),
+            s.objective_start,
+            "m^2",
+        ));
+        entries.push(number(
+            &format!("{p}.objective.end"),
+            s.objective_end,
+            "m^2",
+        ));
         entries.push(number(&format!("{p}.max_error"), s.max_error_m, "m"));
     }
     for (k, h) in o.history.iter().enumerate() {

@@ -55,7 +55,10 @@ fn report_markdown(run: &ReshapeRun) -> String {
             "attached"
         }
     );
-    let _ = writeln!(s, "| stage | iterations | stop | objective start → end (m²) | max error (mm) |");
+    let _ = writeln!(
+        s,
+        "| stage | iterations | stop | objective start → end (m²) | max error (mm) |"
+    );
     let _ = writeln!(s, "|---|---|---|---|---|");
     for st in &o.stages {
         let _ = writeln!(
@@ -69,7 +72,10 @@ fn report_markdown(run: &ReshapeRun) -> String {
             st.max_error_m * 1e3
         );
     }
-    let _ = writeln!(s, "\n| constraints | count | mean (mm) | 95th pct (mm) | max (mm) |");
+    let _ = writeln!(
+        s,
+        "\n| constraints | count | mean (mm) | 95th pct (mm) | max (mm) |"
+    );
     let _ = writeln!(s, "|---|---|---|---|---|");
     for kind in [
         ConstraintKind::Attachment,
@@ -109,13 +115,20 @@ fn report_markdown(run: &ReshapeRun) -> String {
         ("template", &o.template_quality),
         ("reshaped", &o.reshaped_quality),
     ];
-    let _ = writeln!(s, "\n| mesh | min dihedral (°) | max dihedral (°) | inverted tets | max aspect | mean aspect |");
+    let _ = writeln!(
+        s,
+        "\n| mesh | min dihedral (°) | max dihedral (°) | inverted tets | max aspect | mean aspect |"
+    );
     let _ = writeln!(s, "|---|---|---|---|---|---|");
     for (name, q) in q {
         let _ = writeln!(
             s,
             "| {name} | {:.2} | {:.2} | {} | {:.2} | {:.3} |",
-            q.min_dihedral_deg, q.max_dihedral_deg, q.inverted_tets, q.max_aspect_ratio, q.mean_aspect_ratio
+            q.min_dihedral_deg,
+            q.max_dihedral_deg,
+            q.inverted_tets,
+            q.max_aspect_ratio,
+            q.mean_aspect_ratio
         );
     }
     let _ = writeln!(
@@ -170,9 +183,12 @@ fn draw_error_histogram(path: &Path, run: &ReshapeRun) -> Result<()> {
         .y_desc("constraints")
         .draw()
         .map_err(|e| err(e.to_string()))?;
-    for (k, (label, color)) in [("landmarks", RGBColor(230, 120, 30)), ("ICP markers", RGBColor(40, 90, 200))]
-        .into_iter()
-        .enumerate()
+    for (k, (label, color)) in [
+        ("landmarks", RGBColor(230, 120, 30)),
+        ("ICP markers", RGBColor(40, 90, 200)),
+    ]
+    .into_iter()
+    .enumerate()
     {
         let base: Vec<usize> = if k == 0 {
             vec![0; bins]
@@ -184,7 +200,10 @@ fn draw_error_histogram(path: &Path, run: &ReshapeRun) -> Result<()> {
             .draw_series((0..bins).map(move |b| {
                 let x0 = b as f64 * width;
                 Rectangle::new(
-                    [(x0, base[b] as f64), (x0 + width * 0.95, (base[b] + c[b]) as f64)],
+                    [
+                        (x0, base[b] as f64),
+                        (x0 + width * 0.95, (base[b] + c[b]) as f64),
+                    ],
                     color.filled(),
                 )
             }))
@@ -208,8 +227,14 @@ fn draw_convergence(path: &Path, run: &ReshapeRun) -> Result<()> {
     let values: Vec<f64> = h.iter().map(|r| r.objective.max(1e-300)).collect();
     let (lo, hi) = values
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
-    let (lo, hi) = if lo.is_finite() { (lo * 0.5, hi * 2.0) } else { (1e-12, 1.0) };
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(*v), b.max(*v))
+        });
+    let (lo, hi) = if lo.is_finite() {
+        (lo * 0.5, hi * 2.0)
+    } else {
+        (1e-12, 1.0)
+    };
     softcap_figure::register_fonts();
     let root = BitMapBackend::new(path, (800, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
@@ -299,7 +324,12 @@ fn draw_before_after(path: &Path, template: &TetMesh, run: &ReshapeRun) -> Resul
         .collect();
     let all: Vec<Vector3<f64>> = template.vertices.iter().chain(after).copied().collect();
     let project = |p: &Vector3<f64>| (p.dot(&right), p.dot(&up));
-    let (mut xmin, mut xmax, mut ymin, mut ymax) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    let (mut xmin, mut xmax, mut ymin, mut ymax) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
     for p in &all {
         let (x, y) = project(p);
         (xmin, xmax, ymin, ymax) = (xmin.min(x), xmax.max(x), ymin.min(y), ymax.max(y));
@@ -315,8 +345,12 @@ fn draw_before_after(path: &Path, template: &TetMesh, run: &ReshapeRun) -> Resul
         (&left, "template", &template.vertices, false),
         (&right_area, "reshaped (dots: targets)", after, true),
     ] {
-        area.draw(&Text::new(title, (10, 8), (softcap_figure::FONT_FAMILY, 18)))
-            .map_err(|e| err(e.to_string()))?;
+        area.draw(&Text::new(
+            title,
+            (10, 8),
+            (softcap_figure::FONT_FAMILY, 18),
+        ))
+        .map_err(|e| err(e.to_string()))?;
         let to_px = |p: &Vector3<f64>| {
             let (u, v) = project(p);
             let s = size as f64 / span;

@@ -58,13 +58,17 @@ pub fn run(cfg: &ReshapeConfig, progress: &Progress) -> Result<ReshapeRun> {
         "reshape",
         (cfg.settings.constant_iterations + 3 * cfg.settings.max_iterations) as u64,
     );
-    let outcome = reshape(problem, &cfg.settings, &mut |stage, it, objective, max_error| {
-        bar.inc(1);
-        bar.set_message(format!(
-            "{stage} {it}: E {objective:.3e} m², max error {:.3} mm",
-            max_error * 1e3
-        ));
-    })?;
+    let outcome = reshape(
+        problem,
+        &cfg.settings,
+        &mut |stage, it, objective, max_error| {
+            bar.inc(1);
+            bar.set_message(format!(
+                "{stage} {it}: E {objective:.3e} m², max error {:.3} mm",
+                max_error * 1e3
+            ));
+        },
+    )?;
     bar.finish_and_clear();
     let surface_distance = loaded.surface.as_ref().map(|s| {
         let faces = problem.template.boundary_faces();

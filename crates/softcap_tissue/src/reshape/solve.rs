@@ -356,9 +356,10 @@ impl<'p> Solver<'p> {
             state.frame = best_rigid(&q, &p, &vec![1.0; q.len()]).ok_or_else(|| {
                 TissueError::BadSettings {
                     field: "landmarks".into(),
-                    problem: "a free-flying reshape needs at least three landmarks for its initial \
+                    problem:
+                        "a free-flying reshape needs at least three landmarks for its initial \
                               rigid alignment"
-                        .into(),
+                            .into(),
                 }
             })?;
         }
@@ -394,7 +395,12 @@ impl<'p> Solver<'p> {
     /// The active constraint rows of `stage` at `state` (ICP closest points on the current
     /// surface), targets in the solver frame.
     fn rows(&self, stage: Stage, state: &State) -> Vec<Row> {
-        let to_frame = |p: &Vector3<f64>| state.frame.inverse_transform_point(&Point3::from(*p)).coords;
+        let to_frame = |p: &Vector3<f64>| {
+            state
+                .frame
+                .inverse_transform_point(&Point3::from(*p))
+                .coords
+        };
         let mut rows: Vec<Row> = self
             .problem
             .attachments
@@ -434,7 +440,11 @@ impl<'p> Solver<'p> {
         let image = stage.landmarks || stage.icp;
         self.rows(stage, state)
             .iter()
-            .skip(if image { self.problem.attachments.len() } else { 0 })
+            .skip(if image {
+                self.problem.attachments.len()
+            } else {
+                0
+            })
             .map(|r| (r.point.at(&state.x) - r.target).norm())
             .fold(0.0, f64::max)
     }
@@ -588,46 +598,9 @@ impl<'p> Solver<'p> {
         let Some(ds) = direction else {
             return Ok(None);
         };
-        let predicted = -0.5
-            * gradient
-                .iter()
-                .zip(&ds)
-                .map(|(g, d)| g.dot(d))
-                .sum::<f64>();
+        let predicted = -0.5 * gradient.iter().zip(&ds).map(|(g, d)| g.dot(d)).sum::<f64>();
         let bds = element_b_times(&jacobians, tets, n, &ds);
         let jds = self.jacobian_times(&state.x, &bds)?;
-        if std::env::var_os("RESHAPE_DEBUG").is_some() {
-            let dsn = ds.iter().map(|d| d.norm_squared()).sum::<f64>().sqrt();
-            let jn = jds.iter().map(|d| d.norm()).fold(0.0, f64::max);
-            eprintln!("  e0 {e0:.4e} predicted {predicted:.4e} |ds| {dsn:.3e} max|J ds| {jn:.3e}");
-            if !stage.constant {
-                let sys = NormalSystem {
-                    jacobians: &jacobians,
-                    tets,
-                    num_nodes: n,
-                    z: &z,
-                    weights: &weights,
-                    gradient: &gradient,
-                    laplacian: &self.laplacian,
-                    alpha: self.alpha,
-                };
-                let cg = super::step::cg_step(&sys, 1e-10, 5000);
-                let diff = cg.step.iter().zip(&ds).map(|(a, b)| (a - b).norm_squared()).sum::<f64>().sqrt();
-                eprintln!("  cg {} its rel res {:.2e}, |cg - woodbury| {diff:.3e}", cg.iterations, cg.relative_residual);
-            }
-            for eta in [1e-3, 1e-2, 0.1, 1.0] {
-                let t = self.trial(state, &rows, &ds, &jds, eta)?;
-                match t {
-                    Some(t) => {
-                        let lin = e0 - 2.0 * predicted * eta + predicted * eta * eta;
-                        let xdev = t.x.iter().zip(&state.x).zip(&jds).map(|((a, b), d)| (a - b - d * eta).norm()).fold(0.0, f64::max);
-                        eprintln!("  eta {eta}: E {:.6e} (quadratic model {lin:.6e}), |x - lin| {xdev:.3e}", t.value)
-                    }
-                    None => eprintln!("  eta {eta}: equilibrium failed"),
-                }
-            }
-            self.set_plastic(&state.s)?;
-        }
         let accepted = self.line_search(state, &rows, e0, predicted, &ds, &jds)?;
         let Some(mut step) = accepted else {
             self.set_plastic(&state.s)?;
@@ -729,10 +702,7 @@ impl<'p> Solver<'p> {
 
     /// The optimal rigid transform for the current shape (§3.6 block-coordinate step).
     fn rigid_block(&self, state: &mut State, rows: &[Row]) {
-        let image: Vec<&Row> = rows
-            .iter()
-            .skip(self.problem.attachments.len())
-            .collect();
+        let image: Vec<&Row> = rows.iter().skip(self.problem.attachments.len()).collect();
         let q: Vec<Vector3<f64>> = image.iter().map(|r| r.point.at(&state.x)).collect();
         let p: Vec<Vector3<f64>> = image
             .iter()
@@ -776,13 +746,14 @@ impl<'p> Solver<'p> {
 
     fn constraint_errors(&self, x: &[Vector3<f64>]) -> Vec<ConstraintError> {
         let p = self.problem;
-        let entry = |kind, id: &str, target: Vector3<f64>, achieved: Vector3<f64>| ConstraintError {
-            kind,
-            id: id.to_string(),
-            target_m: target.into(),
-            achieved_m: achieved.into(),
-            error_m: (achieved - target).norm(),
-        };
+        let entry =
+            |kind, id: &str, target: Vector3<f64>, achieved: Vector3<f64>| ConstraintError {
+                kind,
+                id: id.to_string(),
+                target_m: target.into(),
+                achieved_m: achieved.into(),
+                error_m: (achieved - target).norm(),
+            };
         let mut out: Vec<ConstraintError> = p
             .attachments
             .iter()

@@ -92,7 +92,9 @@ fn line_error(path: &Path, line: usize, problem: impl Into<String>) -> TissueErr
 
 /// 1-based line of the first line of `text` for which `pred` holds (1 if none).
 fn line_of(text: &str, pred: impl Fn(&str) -> bool) -> usize {
-    text.lines().position(|l| pred(l.trim_start())).map_or(1, |i| i + 1)
+    text.lines()
+        .position(|l| pred(l.trim_start()))
+        .map_or(1, |i| i + 1)
 }
 
 /// Reads TARGET/ and the template mesh into a [`LoadedTarget`].
@@ -101,9 +103,9 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
     let text = std::fs::read_to_string(&toml_path)
         .map_err(|e| TissueError::bad_input(&toml_path, "file", e.to_string()))?;
     let spec: TargetSpec = toml::from_str(&text).map_err(|e| {
-        let line = e
-            .span()
-            .map_or(1, |s| text[..s.start.min(text.len())].lines().count().max(1));
+        let line = e.span().map_or(1, |s| {
+            text[..s.start.min(text.len())].lines().count().max(1)
+        });
         line_error(&toml_path, line, e.message().to_string())
     })?;
     let unit_line = line_of(&text, |l| l.starts_with("length_unit"));
@@ -111,7 +113,10 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
         line_error(
             &toml_path,
             unit_line,
-            format!("length_unit = {:?}: expected \"m\", \"cm\" or \"mm\"", spec.length_unit),
+            format!(
+                "length_unit = {:?}: expected \"m\", \"cm\" or \"mm\"",
+                spec.length_unit
+            ),
         )
     })?;
     let template_unit = match &spec.template_length_unit {
@@ -160,17 +165,29 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
             "free_flying = true needs at least three landmarks (the initial rigid alignment)",
         ));
     }
-    check_units(&toml_path, unit_line, &spec, &mesh, &landmarks, &icp_markers)?;
+    check_units(
+        &toml_path,
+        unit_line,
+        &spec,
+        &mesh,
+        &landmarks,
+        &icp_markers,
+    )?;
     let surface = match &spec.surface {
         Some(name) => Some(read_surface(&target_dir.join(name), unit)?),
         None => None,
     };
-    let files = [Some(&spec.landmarks), Some(&spec.icp_markers), spec.attachments.as_ref(), spec.surface.as_ref()]
-        .into_iter()
-        .flatten()
-        .map(|name| target_dir.join(name))
-        .filter(|p| p.exists())
-        .collect();
+    let files = [
+        Some(&spec.landmarks),
+        Some(&spec.icp_markers),
+        spec.attachments.as_ref(),
+        spec.surface.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    .map(|name| target_dir.join(name))
+    .filter(|p| p.exists())
+    .collect();
     Ok(LoadedTarget {
         problem: ReshapeProblem {
             template: mesh,
@@ -204,7 +221,11 @@ fn csv_records(path: &Path, columns: &[&str]) -> Result<Vec<(usize, Vec<String>)
         return Err(line_error(
             path,
             1,
-            format!("header {:?}, expected {}", header.join(","), columns.join(",")),
+            format!(
+                "header {:?}, expected {}",
+                header.join(","),
+                columns.join(",")
+            ),
         ));
     }
     let mut out = Vec::new();
@@ -227,7 +248,13 @@ fn csv_records(path: &Path, columns: &[&str]) -> Result<Vec<(usize, Vec<String>)
 }
 
 /// Parses finite coordinates `fields[from..from + 3]`, named `names`.
-fn point(path: &Path, line: usize, fields: &[String], from: usize, names: &[&str]) -> Result<Vector3<f64>> {
+fn point(
+    path: &Path,
+    line: usize,
+    fields: &[String],
+    from: usize,
+    names: &[&str],
+) -> Result<Vector3<f64>> {
     let mut v = Vector3::zeros();
     for k in 0..3 {
         let s = &fields[from + k];
@@ -235,7 +262,13 @@ fn point(path: &Path, line: usize, fields: &[String], from: usize, names: &[&str
             .parse::<f64>()
             .ok()
             .filter(|x| x.is_finite())
-            .ok_or_else(|| line_error(path, line, format!("{} = {s:?} is not a finite number", names[k])))?;
+            .ok_or_else(|| {
+                line_error(
+                    path,
+                    line,
+                    format!("{} = {s:?} is not a finite number", names[k]),
+                )
+            })?;
     }
     Ok(v)
 }
@@ -253,7 +286,15 @@ fn unique_id(path: &Path, line: usize, id: &str, seen: &mut BTreeSet<String>) ->
 /// `landmarks.csv`: template points embedded in the template (a point farther than 1 % of the
 /// template's size outside it is an error), targets in metres.
 fn read_landmarks(path: &Path, unit: f64, mesh: &TetMesh) -> Result<Vec<Landmark>> {
-    let columns = ["id", "template_x", "template_y", "template_z", "x", "y", "z"];
+    let columns = [
+        "id",
+        "template_x",
+        "template_y",
+        "template_z",
+        "x",
+        "y",
+        "z",
+    ];
     let records = csv_records(path, &columns)?;
     let locator = TetLocator::new(mesh);
     let tolerance = 0.01 * bounding_diagonal(&mesh.vertices);
@@ -450,7 +491,8 @@ fn read_surface(path: &Path, unit: f64) -> Result<TriMesh> {
             let directed = edges.entry((a, b)).or_insert(0);
             *directed += 1;
             let twice = *directed > 1;
-            let shared = edges.get(&(a, b)).copied().unwrap_or(0) + edges.get(&(b, a)).copied().unwrap_or(0);
+            let shared =
+                edges.get(&(a, b)).copied().unwrap_or(0) + edges.get(&(b, a)).copied().unwrap_or(0);
             if twice || shared > 2 {
                 let face = origin[t];
                 let text = std::fs::read_to_string(path).unwrap_or_default();
