@@ -451,7 +451,7 @@ impl SystemPattern {
 /// What every solver builds once per (mesh, constraint set): the free-dof pattern with its
 /// scatter maps, the symbolic Cholesky factorization, and the length scale of the convergence
 /// test (diagonal of the rest bounding box [m]).
-pub(crate) fn solver_setup<M: ElasticModel + ?Sized>(
+pub fn solver_setup<M: ElasticModel + ?Sized>(
     model: &M,
     constrained_dofs: &[usize],
 ) -> Result<(SystemPattern, SparseCholesky, f64), FemError> {

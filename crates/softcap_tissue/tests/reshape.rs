@@ -159,3 +159,99 @@ fn recovers_a_known_anisotropic_plastic_deformation() {
     assert!(i.0 < 0.3e-3 && i.2 < 2.0e-3, "ICP error {}", mm(i));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
 }
+
+/// Writes the attached problem as a TARGET folder in mm (+ the template .msh) under `dir`.
+fn write_target(dir: &std::path::Path, p: &ReshapeProblem) {
+    let mm = |v: &Vector3<f64>| format!("{},{},{}", v.x * 1e3, v.y * 1e3, v.z * 1e3);
+    let mut template = p.template.clone();
+    template.scale(1e3);
+    softcap_mesh::write_msh(
+        dir.join("template.msh"),
+        &softcap_mesh::MshMesh::from_tet_mesh(&template, None),
+    )
+    .unwrap();
+    let t = dir.join("target");
+    std::fs::create_dir_all(&t).unwrap();
+    std::fs::write(
+        t.join("target.toml"),
+        "length_unit = \"mm\"\nattachments = \"attachments.csv\"\n",
+    )
+    .unwrap();
+    let mut s = String::from("id,template_x,template_y,template_z,x,y,z\n");
+    for l in &p.landmarks {
+        let x = l.point.at(&p.template.vertices);
+        s += &format!("{},{},{}\n", l.id, mm(&x), mm(&l.target_m));
+    }
+    std::fs::write(t.join("landmarks.csv"), s).unwrap();
+    let mut s = String::from("id,x,y,z\n");
+    for m in &p.icp_markers {
+        s += &format!("{},{}\n", m.id, mm(&m.position_m));
+    }
+    std::fs::write(t.join("icp_markers.csv"), s).unwrap();
+    let mut s = String::from("node,x,y,z\n");
+    for a in &p.attachments {
+        s += &format!("{},{}\n", a.node, mm(&a.target_m));
+    }
+    std::fs::write(t.join("attachments.csv"), s).unwrap();
+}
+
+/// `softcap-tissue reshape` end to end with a two-iteration budget: exit 0, the iteration cap is
+/// reported as status `max-iterations`, reshaped.mcap holds the mesh and every constraint; a
+/// landmark outside the template is exit 2 naming landmarks.csv and its line, nothing written.
+#[test]
+fn cli_reshapes_a_target_folder_and_rejects_a_landmark_outside_the_template() {
+    let (p, _) = problem(false);
+    let dir = tempfile::tempdir().unwrap();
+    write_target(dir.path(), &p);
+    let settings = dir.path().join("reshape.toml");
+    std::fs::write(&settings, "max_iterations = 2\nconstant_iterations = 2\n").unwrap();
+    let out = dir.path().join("reshaped.mcap");
+    let bin = env!("CARGO_BIN_EXE_softcap-tissue");
+    let run = |target: &str, output: &std::path::Path| {
+        std::process::Command::new(bin)
+            .arg("reshape")
+            .arg("--template")
+            .arg(dir.path().join("template.msh"))
+            .arg("--target")
+            .arg(dir.path().join(target))
+            .arg("-o")
+            .arg(output)
+            .arg("--settings")
+            .arg(&settings)
+            .arg("--quiet")
+            .output()
+            .unwrap()
+    };
+    let ok = run("target", &out);
+    let stdout = String::from_utf8_lossy(&ok.stdout);
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(stdout.starts_with("max-iterations"), "{stdout}");
+    let r = softcap_mcap::Recording::open(&out).unwrap();
+    let volume = r
+        .read_static(&softcap_mcap::topics::VOLUME_MESH)
+        .unwrap();
+    assert_eq!(volume.positions_m.len(), p.template.vertices.len());
+    let constraints = r
+        .read_static(&softcap_mcap::topics::RESHAPE_CONSTRAINTS)
+        .unwrap();
+    assert_eq!(
+        constraints.constraints.len(),
+        p.attachments.len() + p.landmarks.len() + p.icp_markers.len()
+    );
+    // A landmark 1 m outside the template on line 3.
+    let bad = dir.path().join("bad");
+    std::fs::create_dir_all(&bad).unwrap();
+    for f in ["target.toml", "icp_markers.csv", "attachments.csv"] {
+        std::fs::copy(dir.path().join("target").join(f), bad.join(f)).unwrap();
+    }
+    let text = std::fs::read_to_string(dir.path().join("target/landmarks.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    lines[2] = "far,1000,0,0,0,0,0".into();
+    std::fs::write(bad.join("landmarks.csv"), lines.join("\n") + "\n").unwrap();
+    let bad_out = dir.path().join("bad.mcap");
+    let failed = run("bad", &bad_out);
+    let stderr = String::from_utf8_lossy(&failed.stderr);
+    assert_eq!(failed.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("landmarks.csv:3"), "{stderr}");
+    assert!(!bad_out.exists());
+}

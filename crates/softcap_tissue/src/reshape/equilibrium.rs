@@ -19,7 +19,7 @@ use faer::Mat;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use softcap_fem::assembly::AssemblyScratch;
+use softcap_fem::assembly::{AssemblyScratch, solver_setup};
 use softcap_fem::{
     DofMap, ElasticModel, FemError, PlasticNeoHookeanModel, SparseCholesky, StiffnessKind,
     SystemPattern,
@@ -101,20 +101,7 @@ impl Equilibrium {
         stiffness_n_per_m: f64,
         pinned: &[usize],
     ) -> Result<Self, FemError> {
-        let n = model.num_nodes();
-        let dofs = DofMap::new(n, pinned)?;
-        let tets: Vec<[usize; 4]> = model.elements().iter().map(|g| g.nodes).collect();
-        let pattern = SystemPattern::new(n, &tets, dofs)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for p in model.rest_positions() {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        let length_scale_m = (hi - lo).norm().max(f64::MIN_POSITIVE);
+        let (pattern, cholesky, length_scale_m) = solver_setup(model, pinned)?;
         let mu = model.params().first().map_or(1.0, |p| p.mu);
         Ok(Self {
             pattern,
