@@ -8,13 +8,15 @@
 //! | [`gauge`] | free-flying objects: canonical frame, its derivative, 3-2-1 pins, rigid block | §3.6–3.7, eq. 17–24 |
 //! | [`step`] | Gauss–Newton step by the Woodbury identity; CG baseline | §3.4, eq. 8–14, Table 1 |
 //! | [`solve`] | stages, line search, stopping rules → [`ReshapeOutcome`] | §3.4 |
-//! | [`target`] | the TARGET folder (target.toml, CSVs, surface.obj) with file:line errors | |
+//! | [`target`] | the TARGET folder (target.toml, CSVs, surface.obj) with file:line errors; its writer | |
+//! | [`known_truth`] | the known-truth box of Fig. 21 (tests, example, benches) | Fig. 21 |
 //! | [`run`] | `softcap tissue reshape`: [`ReshapeConfig`] → reshaped.mcap (+ report) | |
 //! | [`output`] | reshaped.mcap channels and report entries | |
 //! | [`report`] | report.md, error histogram (Fig. 16), convergence (Fig. 9), before/after renders | |
 
 pub mod equilibrium;
 pub mod gauge;
+pub mod known_truth;
 pub mod laplacian;
 pub mod output;
 pub mod problem;
@@ -34,4 +36,4 @@ pub use solve::{
     ConstraintError, IterationRecord, ReshapeOutcome, ReshapeSettings, ReshapeStatus, StageReport,
     StopReason, clamp_plastic, reshape,
 };
-pub use target::{LoadedTarget, TargetSpec, load_target};
+pub use target::{LoadedTarget, TargetSpec, load_target, write_target};

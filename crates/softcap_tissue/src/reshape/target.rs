@@ -531,3 +531,62 @@ fn bounding_diagonal(points: &[Vector3<f64>]) -> f64 {
     }
     (hi - lo).norm()
 }
+
+/// Writes `problem` as a TARGET folder `dir/target` (coordinates in `unit`: "m", "cm" or "mm")
+/// and its template as `dir/template.msh` in the same unit: the format [`load_target`] reads.
+pub fn write_target(dir: &Path, problem: &ReshapeProblem, unit: &str) -> Result<()> {
+    let per = metres_per(unit).ok_or_else(|| {
+        TissueError::bad_input(dir, "unit", format!("{unit:?}: expected m, cm or mm"))
+    })?;
+    let xyz = |v: &Vector3<f64>| format!("{},{},{}", v.x / per, v.y / per, v.z / per);
+    let target = dir.join("target");
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |e: std::io::Error| TissueError::Output {
+            path,
+            reason: e.to_string(),
+        }
+    };
+    std::fs::create_dir_all(&target).map_err(io(&target))?;
+    let mut template = problem.template.clone();
+    template.scale(1.0 / per);
+    let msh = dir.join("template.msh");
+    softcap_mesh::write_msh(&msh, &softcap_mesh::MshMesh::from_tet_mesh(&template, None)).map_err(
+        |e| TissueError::Output {
+            path: msh.clone(),
+            reason: e.to_string(),
+        },
+    )?;
+    let mut toml = format!("length_unit = \"{unit}\"\n");
+    if problem.free_flying {
+        toml += "free_flying = true\n";
+    } else {
+        toml += "attachments = \"attachments.csv\"\n";
+    }
+    let mut landmarks = String::from("id,template_x,template_y,template_z,x,y,z\n");
+    for l in &problem.landmarks {
+        let x = l.point.at(&problem.template.vertices);
+        landmarks += &format!("{},{},{}\n", l.id, xyz(&x), xyz(&l.target_m));
+    }
+    let mut icp = String::from("id,x,y,z\n");
+    for m in &problem.icp_markers {
+        icp += &format!("{},{}\n", m.id, xyz(&m.position_m));
+    }
+    let mut files = vec![
+        ("target.toml", toml),
+        ("landmarks.csv", landmarks),
+        ("icp_markers.csv", icp),
+    ];
+    if !problem.free_flying {
+        let mut attachments = String::from("node,x,y,z\n");
+        for a in &problem.attachments {
+            attachments += &format!("{},{}\n", a.node, xyz(&a.target_m));
+        }
+        files.push(("attachments.csv", attachments));
+    }
+    for (name, text) in files {
+        let path = target.join(name);
+        std::fs::write(&path, text).map_err(io(&path))?;
+    }
+    Ok(())
+}
