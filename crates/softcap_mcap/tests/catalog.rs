@@ -70,7 +70,10 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.FaceWrinkles",
         ),
         (topics::DESIGN_REPORT.name().to_string(), "softcap.Report"),
-        (topics::RESHAPE_TEMPLATE.name().to_string(), "softcap.TetMesh"),
+        (
+            topics::RESHAPE_TEMPLATE.name().to_string(),
+            "softcap.TetMesh",
+        ),
         (
             topics::PLASTIC_STRAINS.name().to_string(),
             "softcap.PlasticStrains",

@@ -1,6 +1,9 @@
 //! `softcap-tissue fit capture.mcap --mesh volume.msh -o material.mcap [--settings S.toml]`:
 //! bickel2009 material capture; `softcap-tissue simulate material.mcap --probe-shape sphere
-//! --radius R --tip x,y,z --axis x,y,z --force N -o sim.mcap`: novel-probe synthesis.
+//! --radius R --tip x,y,z --axis x,y,z --force N -o sim.mcap`: novel-probe synthesis;
+//! `softcap-tissue reshape --template T.msh --target TARGET/ -o reshaped.mcap [--report DIR]`:
+//! saito-barbic template reshaping (a reshape that hits its iteration cap says so and still
+//! writes its result).
 
 use std::path::PathBuf;
 
@@ -23,6 +26,46 @@ pub enum Command {
     Fit(FitArgs),
     /// Synthesize a novel probe deformation with a fitted material (SI units).
     Simulate(SimulateArgs),
+    /// Reshape a template tet mesh to a subject's landmarks and ICP markers (saito-barbic).
+    Reshape(ReshapeArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ReshapeArgs {
+    /// Template tet mesh (Gmsh 4.1 .msh), coordinates in TARGET/target.toml's length unit.
+    #[arg(long)]
+    pub template: PathBuf,
+    /// TARGET folder: target.toml, landmarks.csv, icp_markers.csv [, attachments.csv, surface.obj].
+    #[arg(long)]
+    pub target: PathBuf,
+    /// reshaped.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Also write report.md and PNG figures (error histogram, convergence, before/after) here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Settings TOML (softcap_tissue::reshape::ReshapeSettings).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// No progress display.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl ReshapeArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let cfg = crate::reshape::ReshapeConfig {
+            template: self.template.clone(),
+            target: self.target.clone(),
+            output: self.output.clone(),
+            report: self.report.clone(),
+            settings: load_toml_or_default(self.settings.as_deref())?,
+            arguments,
+        };
+        let r = crate::reshape::run(&cfg, &softcap_app::Progress::new(!self.quiet))?;
+        println!("{}", crate::reshape::summary_line(&r));
+        Ok(())
+    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -100,6 +143,7 @@ impl Cli {
         match &self.command {
             Command::Fit(a) => a.run(arguments),
             Command::Simulate(a) => a.run(arguments),
+            Command::Reshape(a) => a.run(arguments),
         }
     }
 }

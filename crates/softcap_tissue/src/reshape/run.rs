@@ -7,7 +7,7 @@ use super::problem::SurfaceProjector;
 use super::solve::{ReshapeOutcome, ReshapeSettings, ReshapeStatus, reshape};
 use super::target::load_target;
 use crate::error::Result;
-use crate::progress::Progress;
+use softcap_app::Progress;
 
 /// What `softcap tissue reshape` was asked to do.
 #[derive(Clone, Debug)]
