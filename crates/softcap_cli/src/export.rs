@@ -50,7 +50,11 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
         mesh_text(&m.positions_m, &m.triangles, &ext)?
     } else if schema == TetMesh::schema_name() {
         let m = r.read_static(&Topic::<TetMesh>::custom(&topic))?;
-        mesh_text(&m.positions_m, &m.surface_triangles, &ext)?
+        if ext == "msh" {
+            tet_msh_text(&m)?
+        } else {
+            mesh_text(&m.positions_m, &m.surface_triangles, &ext)?
+        }
     } else {
         return Err(Error::bad_input(format!(
             "{}: channel `{topic}` has schema `{schema}`, which has no export",
@@ -131,6 +135,31 @@ pub fn scalar_csv(samples: &[(u64, Scalar)]) -> String {
     s
 }
 
+/// A tet mesh as Gmsh 4.1 ASCII (metres; tets and, if present, its boundary triangles).
+fn tet_msh_text(m: &TetMesh) -> Result<String> {
+    let corners = |flat: &[u32]| flat.iter().map(|&v| v as usize).collect::<Vec<usize>>();
+    let mesh = softcap_mesh::TetMesh {
+        vertices: m
+            .positions_m
+            .chunks_exact(3)
+            .map(|p| softcap_mesh::nalgebra::Vector3::new(p[0], p[1], p[2]))
+            .collect(),
+        tets: corners(&m.tets)
+            .chunks_exact(4)
+            .map(|t| [t[0], t[1], t[2], t[3]])
+            .collect(),
+    };
+    let boundary: Vec<[usize; 3]> = corners(&m.surface_triangles)
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    let msh = softcap_mesh::MshMesh::from_tet_mesh(&mesh, Some(&boundary));
+    let mut bytes = Vec::new();
+    softcap_mesh::io::msh::write_msh_to(&mut bytes, &msh)
+        .map_err(|e| Error::failure(format!("formatting the .msh text: {e}")))?;
+    String::from_utf8(bytes).map_err(|e| Error::failure(format!("the .msh text: {e}")))
+}
+
 fn mesh_text(positions_m: &[f64], triangles: &[u32], ext: &str) -> Result<String> {
     let nv = positions_m.len() / 3;
     let nt = triangles.len() / 3;
@@ -159,7 +188,7 @@ fn mesh_text(positions_m: &[f64], triangles: &[u32], ext: &str) -> Result<String
         }
         _ => {
             return Err(Error::bad_input(format!(
-                "mesh export needs an .obj or .ply output, got `.{ext}`"
+                "mesh export needs an .obj or .ply output (or .msh for a tet mesh), got `.{ext}`"
             )));
         }
     }

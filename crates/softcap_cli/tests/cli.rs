@@ -307,3 +307,35 @@ fn exit_codes_of_help_version_missing_and_bad_file() {
     let r = run(BIN, &["inspect", "digest", bad.to_str().unwrap()]);
     assert_error_names_once(&r, 2, &bad);
 }
+
+/// `--what volume -o X.msh`: a tet mesh channel as Gmsh 4.1 that reads back with the same nodes
+/// and tets (the `softcap tissue reshape` output becomes a template again).
+#[test]
+fn export_volume_as_msh_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("volume.mcap");
+    let p = Provenance::new("tissue reshape", "0.1.0").with_arguments(["softcap-tissue", "x"]);
+    let mut w = Writer::create(&f, &p).unwrap();
+    let positions_m = vec![
+        0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.02, 0.0, 0.0, 0.0, 0.03, 0.01, 0.02, 0.03,
+    ];
+    w.write_static(
+        &topics::VOLUME_MESH,
+        &softcap_mcap::proto::TetMesh {
+            name: "v".into(),
+            frame_id: "world".into(),
+            positions_m: positions_m.clone(),
+            tets: vec![0, 1, 2, 3, 1, 2, 3, 4],
+            surface_triangles: vec![0, 2, 1],
+        },
+    )
+    .unwrap();
+    w.finish().unwrap();
+    let o = dir.path().join("v.msh");
+    let (code, err) = export(&f, "volume", &o);
+    assert_eq!(code, 0, "{err}");
+    let m = softcap_mesh::read_msh_tet_mesh(&o).unwrap();
+    assert_eq!(m.tets, vec![[0, 1, 2, 3], [1, 2, 3, 4]]);
+    let flat: Vec<f64> = m.vertices.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+    assert_eq!(flat, positions_m);
+}

@@ -45,12 +45,7 @@ fn evaluate(
             (e.position(&p.template.tets, &out.positions_m) - truth(h)).norm()
         })
         .collect();
-    let mut icp: Vec<f64> = out
-        .errors
-        .iter()
-        .filter(|e| e.kind == ConstraintKind::Icp)
-        .map(|e| e.error_m)
-        .collect();
+    let mut icp = out.errors_of(ConstraintKind::Icp);
     let [s, c, i] = [
         stats(&mut shape),
         stats(&mut correspondence),

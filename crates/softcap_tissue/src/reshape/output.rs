@@ -89,12 +89,7 @@ pub fn report_message(run: &ReshapeRun) -> proto::Report {
         ConstraintKind::Landmark,
         ConstraintKind::Icp,
     ] {
-        let errors: Vec<f64> = o
-            .errors
-            .iter()
-            .filter(|e| e.kind == kind)
-            .map(|e| e.error_m)
-            .collect();
+        let errors = o.errors_of(kind);
         let (mean, p95, max) = error_stats(&errors);
         let k = kind.name();
         entries.push(integer(&format!("{k}.count"), errors.len() as i64));

@@ -82,12 +82,7 @@ fn report_markdown(run: &ReshapeRun) -> String {
         ConstraintKind::Landmark,
         ConstraintKind::Icp,
     ] {
-        let e: Vec<f64> = o
-            .errors
-            .iter()
-            .filter(|e| e.kind == kind)
-            .map(|e| e.error_m)
-            .collect();
+        let e = o.errors_of(kind);
         if e.is_empty() {
             continue;
         }

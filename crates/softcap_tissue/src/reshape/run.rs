@@ -98,15 +98,7 @@ pub fn run(cfg: &ReshapeConfig, progress: &Progress) -> Result<ReshapeRun> {
 /// One line for the terminal: status, stages, errors, quality.
 pub fn summary_line(run: &ReshapeRun) -> String {
     let o = &run.outcome;
-    let stat = |kind| {
-        let e: Vec<f64> = o
-            .errors
-            .iter()
-            .filter(|e| e.kind == kind)
-            .map(|e| e.error_m)
-            .collect();
-        error_stats(&e)
-    };
+    let stat = |kind| error_stats(&o.errors_of(kind));
     let (_, _, lmax) = stat(super::problem::ConstraintKind::Landmark);
     let (imean, _, imax) = stat(super::problem::ConstraintKind::Icp);
     let iterations: usize = o.stages.iter().map(|s| s.iterations).sum();

@@ -202,6 +202,17 @@ pub struct ReshapeOutcome {
     pub alpha_m2: f64,
 }
 
+impl ReshapeOutcome {
+    /// The errors of the constraints of one kind [m], in input order.
+    pub fn errors_of(&self, kind: ConstraintKind) -> Vec<f64> {
+        self.errors
+            .iter()
+            .filter(|e| e.kind == kind)
+            .map(|e| e.error_m)
+            .collect()
+    }
+}
+
 /// A constraint row triple: material point, target (solver frame), weight.
 #[derive(Clone, Copy, Debug)]
 struct Row {
