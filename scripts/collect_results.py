@@ -33,10 +33,10 @@ COLUMNS = [
 
 def last_error(out, session, rule):
     """The last line naming an error in the logs of `rule` for `session` (SLURM or local)."""
-    patterns = [
-        os.path.join(out, ".snakemake", "slurm_logs", f"rule_{rule}", session, "*.log"),
-        os.path.join(out, ".snakemake", "log", "*.log"),
-    ]
+    # Snakemake keeps its logs in the folder it ran in: OUT's parent folders or the current one.
+    roots = [out, os.path.dirname(os.path.abspath(out)), "."]
+    patterns = [os.path.join(r, ".snakemake", "slurm_logs", f"rule_{rule}", session, "*.log") for r in roots]
+    patterns += [os.path.join(r, ".snakemake", "log", "*.log") for r in roots]
     for pattern in patterns:
         for path in sorted(glob.glob(pattern), key=os.path.getmtime, reverse=True):
             with open(path, errors="replace") as f:
