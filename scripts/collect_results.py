@@ -32,15 +32,14 @@ COLUMNS = [
 
 
 def last_error(out, session, rule):
-    """The last line naming an error in the logs of `rule` for `session` (SLURM or local)."""
-    # Snakemake keeps its logs in the folder it ran in: OUT's parent folders or the current one.
+    """The last line naming an error in the SLURM log of `rule` for `session` (the plugin's
+    .snakemake/slurm_logs/rule_<rule>/<session>/<jobid>.log, under OUT's parent or the current folder)."""
     roots = [out, os.path.dirname(os.path.abspath(out)), "."]
-    patterns = [os.path.join(r, ".snakemake", "slurm_logs", f"rule_{rule}", session, "*.log") for r in roots]
-    patterns += [os.path.join(r, ".snakemake", "log", "*.log") for r in roots]
-    for pattern in patterns:
+    for root in roots:
+        pattern = os.path.join(root, ".snakemake", "slurm_logs", f"rule_{rule}", session, "*.log")
         for path in sorted(glob.glob(pattern), key=os.path.getmtime, reverse=True):
             with open(path, errors="replace") as f:
-                lines = [l.strip() for l in f if "error" in l.lower() and session in path + l]
+                lines = [l.strip() for l in f if "error" in l.lower()]
             if lines:
                 return lines[-1][:200]
     return ""
@@ -51,7 +50,7 @@ def row(out, session):
     r["session"] = session
     folder = os.path.join(out, session)
     missing = [rule for rule, name in STAGES if not os.path.isfile(os.path.join(folder, name))]
-    r["status"] = f"{missing[0]} failed" if missing else "ok"
+    r["status"] = f"no {dict(STAGES)[missing[0]]}" if missing else "ok"
     if missing:
         r["error"] = last_error(out, session, missing[0])
     path = os.path.join(folder, "diagnosis.json")
