@@ -68,6 +68,8 @@ cases! {
     support_slip => "support-slip",
     clock_offset => "clock-offset",
     viscoelasticity => "viscoelasticity",
+    gravity_preload => "gravity-preload",
+    gravity_preload_pair => "gravity-preload-pair",
 }
 
 #[test]
