@@ -19,7 +19,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .map(|p| p.strip_prefix(&proto_dir).map(PathBuf::from))
         .collect::<Result<_, _>>()?;
+    // the folder itself too: its mtime changes when a .proto file is added or removed
     println!("cargo:rerun-if-changed=proto");
+    println!("cargo:rerun-if-changed=proto/softcap");
     for f in &files {
         println!("cargo:rerun-if-changed={}", f.display());
     }
@@ -35,6 +37,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         file.source_code_info = None;
     }
     let out_dir = PathBuf::from(std::env::var("OUT_DIR")?);
+    // Unlink the previous outputs instead of overwriting them in place: a target directory seeded
+    // by hard links (several worktrees sharing one prebuilt tree) would otherwise see this
+    // worktree's generated code appear in every other one.
+    for f in ["softcap_descriptor_set.bin", "softcap.rs"] {
+        let _ = std::fs::remove_file(out_dir.join(f));
+    }
     std::fs::write(
         out_dir.join("softcap_descriptor_set.bin"),
         embedded.encode_to_vec(),

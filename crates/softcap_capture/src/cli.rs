@@ -48,6 +48,9 @@ pub struct Cli {
     /// Settings file (TOML, `CaptureSettings`); flags override it.
     #[arg(long)]
     pub settings: Option<PathBuf>,
+    /// Dynamic sessions: voxel size of the cloud downsampling, m (0 = keep every point).
+    #[arg(long)]
+    pub voxel_size: Option<f64>,
 }
 
 /// Subcommands of `softcap-capture`.
@@ -189,11 +192,17 @@ impl Cli {
         let Some(session_dir) = &self.session else {
             return Err(Error::bad_input("a session folder is required"));
         };
-        let settings = self.settings()?;
+        let mut settings = self.settings()?;
+        if let Some(v) = self.voxel_size {
+            settings.depth.voxel_size_m = v;
+        }
         let argv: Vec<String> = std::env::args().collect();
         let mut session = Session::load(session_dir)?;
         if let Some(path) = &self.cameras {
             session.use_cameras(path)?;
+        }
+        if session.kind == crate::SessionKind::Dynamic {
+            return capture_dynamic_session(&self.output, &session, &settings, &argv);
         }
         let result = capture(&session, &settings)?;
         let path = write_capture_mcap(&self.output, &session, &result, &settings, &argv)?;
@@ -201,6 +210,28 @@ impl Cli {
         eprintln!("wrote {}", path.display());
         Ok(())
     }
+}
+
+/// A dynamic session: depth images or PLY clouds → capture.mcap, with a one-line summary.
+fn capture_dynamic_session(
+    output: &std::path::Path,
+    session: &Session,
+    settings: &CaptureSettings,
+    argv: &[String],
+) -> Result<()> {
+    let result = crate::capture_dynamic(session, &settings.depth)?;
+    let path = crate::write_dynamic_capture_mcap(output, session, &result, settings, argv)?;
+    let points: usize = result.frames.iter().map(|f| f.points_m.len()).sum();
+    eprintln!(
+        "{}: {} frames, {} depth cameras, {} points ({:.0} per frame)",
+        result.session,
+        result.frames.len(),
+        result.cameras.len(),
+        points,
+        points as f64 / result.frames.len().max(1) as f64
+    );
+    eprintln!("wrote {}", path.display());
+    Ok(())
 }
 
 /// Markers per state, per-camera reprojection error and the clock fit, on stderr.

@@ -8,6 +8,7 @@
 //! | [`bundle`] | sparse bundle adjustment: robust LM on the Schur complement, explicit gauge |
 //! | [`calibrate`] | `softcap capture calibrate`: outlier rounds around [`bundle`], refined rig, report |
 //! | [`c3d`] | C3D takes (kind `mocap`): POINT trajectories in metres, ANALOG channels |
+//! | [`depth`] | kind `dynamic`: depth images (or PLY clouds) → fused world-frame clouds with normals (wang2015 §4) |
 //! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
 //! | [`correspond`] | epipolar multi-view matching, labeling to marker ids, tracking |
@@ -42,6 +43,7 @@ pub mod calibrate;
 pub mod camera;
 pub mod cli;
 pub mod correspond;
+pub mod depth;
 pub mod detect;
 pub mod error;
 pub mod fill;
@@ -59,11 +61,15 @@ pub use aniposelib::{read_aniposelib_calibration, read_labeled_points, read_npz_
 pub use c3d::{AnalogChannels, C3dTake, read_c3d};
 pub use camera::Camera;
 pub use correspond::{Blob, Candidate, CorrespondenceSettings, find_candidates, label_candidates};
+pub use depth::{
+    CloudFrame, CloudSource, DepthCamera, DepthCaptureSettings, DynamicCapture, DynamicInputs,
+    SupportMotion, capture_dynamic,
+};
 pub use detect::{DetectionSettings, detect_markers, detect_markers_in_file};
 pub use error::{CaptureError, Result};
 pub use fill::{FillSettings, FillShell};
 pub use nalgebra;
-pub use output::{report, write_capture_mcap};
+pub use output::{report, write_capture_mcap, write_dynamic_capture_mcap};
 pub use pipeline::{
     CameraStats, CaptureResult, CaptureSettings, FrameResult, MarkerObservations, MarkerSample,
     MarkerSource, MarkerState, ProbeSample, capture, capture_mocap,

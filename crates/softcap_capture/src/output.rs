@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use softcap_mcap::{Provenance, VizSettings, Writer, proto, topics, viz, viz_topic};
 
+use crate::depth::{CloudSource, DynamicCapture};
 use crate::error::{CaptureError, Result};
 use crate::pipeline::{CaptureResult, CaptureSettings, MarkerState};
 use crate::session::Session;
@@ -61,6 +62,33 @@ pub fn session_inputs(session: &Session) -> Vec<PathBuf> {
     v
 }
 
+/// The error of a failed write to `path`.
+fn output_error(path: &Path) -> impl Fn(softcap_mcap::Error) -> CaptureError + Copy + '_ {
+    move |e| CaptureError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// Opens capture.mcap at `path` with its provenance: the capture's settings, command line and
+/// input files (hashed).
+fn begin_writer(
+    path: &Path,
+    settings: &CaptureSettings,
+    arguments: &[String],
+    inputs: &[PathBuf],
+) -> Result<Writer> {
+    let out = output_error(path);
+    let settings_toml = toml::to_string(settings).unwrap_or_default();
+    let mut prov = Provenance::new("capture", env!("CARGO_PKG_VERSION"))
+        .with_arguments(arguments.iter().cloned())
+        .with_settings(settings_toml);
+    for input in inputs {
+        prov.add_input(input).map_err(&out)?;
+    }
+    Writer::create(path, &prov).map_err(out)
+}
+
 /// Writes the capture result to `path` atomically (`NAME.mcap.tmp` → `NAME.mcap`).
 pub fn write_capture_mcap(
     path: &Path,
@@ -69,18 +97,8 @@ pub fn write_capture_mcap(
     settings: &CaptureSettings,
     arguments: &[String],
 ) -> Result<PathBuf> {
-    let out = |e: softcap_mcap::Error| CaptureError::Output {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    };
-    let settings_toml = toml::to_string(settings).unwrap_or_default();
-    let mut prov = Provenance::new("capture", env!("CARGO_PKG_VERSION"))
-        .with_arguments(arguments.iter().cloned())
-        .with_settings(settings_toml);
-    for input in session_inputs(session) {
-        prov.add_input(&input).map_err(out)?;
-    }
-    let mut w = Writer::create(path, &prov).map_err(out)?;
+    let out = output_error(path);
+    let mut w = begin_writer(path, settings, arguments, &session_inputs(session))?;
     w.write_static(&topics::SESSION, &session_info(session, result))
         .map_err(out)?;
     let viz_settings = VizSettings::default();
@@ -173,6 +191,177 @@ pub fn write_capture_mcap(
     w.finish().map_err(out)
 }
 
+/// Writes a dynamic capture (`/capture/session`, `/capture/dynamic`, `/capture/points` with its
+/// Foxglove `PointCloud` twin, `/capture/report`) to `path` atomically.
+pub fn write_dynamic_capture_mcap(
+    path: &Path,
+    session: &Session,
+    result: &DynamicCapture,
+    settings: &CaptureSettings,
+    arguments: &[String],
+) -> Result<PathBuf> {
+    let out = output_error(path);
+    let mut w = begin_writer(path, settings, arguments, &dynamic_inputs(session))?;
+    let empty = CaptureResult::empty(&session.name);
+    w.write_static(&topics::SESSION, &session_info(session, &empty))
+        .map_err(out)?;
+    w.write_static(
+        &topics::DYNAMIC_SESSION,
+        &dynamic_session(session, result, settings),
+    )
+    .map_err(out)?;
+    let viz = viz_topic(topics::POINTS.name());
+    let flat = |v: &[nalgebra::Vector3<f32>]| -> Vec<f32> {
+        v.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
+    };
+    for f in &result.frames {
+        let t = log_time_ns(f.t_camera_s);
+        let msg = proto::PointCloudFrame {
+            frame: f.frame as u64,
+            t_camera_s: f.t_camera_s,
+            positions_m: flat(&f.points_m),
+            normals: flat(&f.normals),
+            camera: f.camera.clone(),
+            support_motion: f.support_motion.map(|m| proto::RigidMotion {
+                qw: m.rotation.w,
+                qx: m.rotation.i,
+                qy: m.rotation.j,
+                qz: m.rotation.k,
+                translation_m: Some(vec3(&m.translation_m)),
+            }),
+        };
+        w.write(&topics::POINTS, t, &msg).map_err(out)?;
+        w.write_foxglove(&viz, t, &viz::point_cloud(&msg, t))
+            .map_err(out)?;
+    }
+    w.write_static(&topics::CAPTURE_REPORT, &dynamic_report(result))
+        .map_err(out)?;
+    w.finish().map_err(out)
+}
+
+/// Every input file of a dynamic session (sorted): session.toml, cameras, depth images or PLY
+/// clouds, support / interaction files.
+fn dynamic_inputs(session: &Session) -> Vec<PathBuf> {
+    let mut v = vec![session.root.join("session.toml")];
+    if let Some(d) = &session.dynamic {
+        v.extend(d.files.iter().cloned());
+        let mut files_in = |dir: &Path, ext: &str| {
+            if let Ok(rd) = std::fs::read_dir(dir) {
+                v.extend(
+                    rd.filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| p.extension().is_some_and(|e| e == ext)),
+                );
+            }
+        };
+        match &d.source {
+            CloudSource::Depth {
+                dir,
+                cameras,
+                cameras_path,
+            } => {
+                for c in cameras {
+                    files_in(&dir.join(&c.camera.id), "png");
+                }
+                v.push(cameras_path.clone());
+            }
+            CloudSource::Points { dir } => files_in(dir, "ply"),
+        }
+    }
+    v.sort();
+    v.dedup();
+    v.retain(|p| p.is_file());
+    v
+}
+
+/// The `/capture/dynamic` message.
+pub fn dynamic_session(
+    session: &Session,
+    result: &DynamicCapture,
+    settings: &CaptureSettings,
+) -> proto::DynamicSession {
+    let d = session.dynamic.as_ref();
+    proto::DynamicSession {
+        source: match d.map(|d| &d.source) {
+            Some(CloudSource::Points { .. }) => "points",
+            _ => "depth",
+        }
+        .into(),
+        cameras: result
+            .cameras
+            .iter()
+            .map(|c| {
+                let cam = &c.camera;
+                proto::DepthCamera {
+                    id: cam.id.clone(),
+                    width: cam.width,
+                    height: cam.height,
+                    fx: cam.intrinsics[0],
+                    fy: cam.intrinsics[1],
+                    cx: cam.intrinsics[2],
+                    cy: cam.intrinsics[3],
+                    distortion: cam.distortion.to_vec(),
+                    rotation: (0..9).map(|k| cam.rotation[(k / 3, k % 3)]).collect(),
+                    translation_m: Some(vec3(&cam.translation_m)),
+                    depth_scale_m: c.depth_scale_m,
+                    min_depth_m: c.min_depth_m,
+                    max_depth_m: c.max_depth_m,
+                }
+            })
+            .collect(),
+        support_nodes: d
+            .and_then(|d| d.support_nodes.as_ref())
+            .map(|n| n.iter().map(|&i| i as u32).collect())
+            .unwrap_or_default(),
+        interactions: d
+            .map(|d| {
+                d.interactions
+                    .iter()
+                    .map(|&(a, b)| proto::Interval {
+                        t_start_s: a,
+                        t_end_s: b,
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        support_moves: d.is_some_and(|d| d.support_motion.is_some()),
+        voxel_size_m: settings.depth.voxel_size_m,
+        frames: result.frames.len() as u64,
+    }
+}
+
+/// Summary of a dynamic capture: frames, points per frame, points per camera.
+pub fn dynamic_report(r: &DynamicCapture) -> proto::Report {
+    use proto::key_value::Value;
+    let counts: Vec<usize> = r.frames.iter().map(|f| f.points_m.len()).collect();
+    let total: usize = counts.iter().sum();
+    let mut e = vec![
+        entry("session", Value::Text(r.session.clone()), ""),
+        entry("frames", Value::Integer(r.frames.len() as i64), ""),
+        entry("points_total", Value::Integer(total as i64), ""),
+        entry(
+            "points_per_frame_min",
+            Value::Integer(counts.iter().copied().min().unwrap_or(0) as i64),
+            "",
+        ),
+        entry(
+            "points_per_frame_max",
+            Value::Integer(counts.iter().copied().max().unwrap_or(0) as i64),
+            "",
+        ),
+    ];
+    for (c, n) in r.cameras.iter().zip(&r.points_per_camera) {
+        e.push(entry(
+            &format!("points.{}", c.camera.id),
+            Value::Integer(*n as i64),
+            "",
+        ));
+    }
+    proto::Report {
+        title: "capture (dynamic)".into(),
+        entries: e,
+    }
+}
+
 /// The `/capture/session` message: what a later stage needs to interpret the capture without the
 /// session folder (marker ids and rest positions, gravity, support, density, probe tip).
 pub fn session_info(session: &Session, result: &CaptureResult) -> proto::SessionInfo {
@@ -197,6 +386,7 @@ pub fn session_info(session: &Session, result: &CaptureResult) -> proto::Session
             SessionKind::Probe => "probe",
             SessionKind::ProbeRobot => "probe-robot",
             SessionKind::Mocap => "mocap",
+            SessionKind::Dynamic => "dynamic",
         }
         .into(),
         marker_ids: result.marker_ids.clone(),

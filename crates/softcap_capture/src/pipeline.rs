@@ -71,6 +71,8 @@ pub struct CaptureSettings {
     /// FSR still reads the force in those frames, and without an axis downstream stages would
     /// read no force at all.
     pub probe_gap_frames: usize,
+    /// Depth back-projection and downsampling of dynamic sessions.
+    pub depth: crate::depth::DepthCaptureSettings,
 }
 
 impl Default for CaptureSettings {
@@ -89,6 +91,7 @@ impl Default for CaptureSettings {
             force_data_sync: false,
             data_sync_max_drift: 1e-4,
             probe_gap_frames: 5,
+            depth: crate::depth::DepthCaptureSettings::default(),
         }
     }
 }
@@ -209,6 +212,24 @@ pub struct MarkerObservations {
     pub observations: Vec<PixelObservation>,
 }
 
+impl CaptureResult {
+    /// A result without markers or frames (what the `/capture/session` of a dynamic session
+    /// describes).
+    pub fn empty(session: &str) -> Self {
+        Self {
+            session: session.to_string(),
+            marker_ids: Vec::new(),
+            object_markers: 0,
+            frames: Vec::new(),
+            sync: None,
+            cameras: Vec::new(),
+            source: MarkerSource::Auto,
+            analog: None,
+            observations: Vec::new(),
+        }
+    }
+}
+
 struct MarkerInfo {
     id: String,
     color: MarkerColor,
@@ -233,6 +254,14 @@ fn group_detections(per_camera: &[Vec<Detection>], frames: usize) -> Vec<Vec<Vec
 
 /// Runs the capture pipeline on a loaded session.
 pub fn capture(session: &Session, settings: &CaptureSettings) -> Result<CaptureResult> {
+    if session.kind == crate::session::SessionKind::Dynamic {
+        return Err(CaptureError::field(
+            &session.root.join("session.toml"),
+            0,
+            "kind",
+            "a dynamic session has no markers: capture it with capture_dynamic",
+        ));
+    }
     if let Some(c3d) = &session.c3d {
         return capture_mocap(session, c3d);
     }

@@ -86,6 +86,9 @@ pub enum SessionKind {
     ProbeRobot,
     /// Marker motion capture only (C3D).
     Mocap,
+    /// Depth cameras (or fused point clouds) watching a freely moving object (wang2015); see
+    /// [`crate::depth`].
+    Dynamic,
 }
 
 /// A painted marker on the object at rest (`template/markers.csv`).
@@ -243,6 +246,8 @@ pub struct Session {
     pub support: Option<Support>,
     /// `[object] density_kg_m3`, if given.
     pub density_kg_m3: Option<f64>,
+    /// The depth cameras, clouds, support and interactions of a `dynamic` session.
+    pub dynamic: Option<crate::depth::DynamicInputs>,
 }
 
 #[derive(Deserialize)]
@@ -265,20 +270,25 @@ struct RawObject {
 }
 
 #[derive(Deserialize, Default)]
-struct RawFiles {
+pub(crate) struct RawFiles {
     cameras: Option<String>,
     markers: Option<String>,
     images: Option<String>,
     detections: Option<String>,
     c3d: Option<String>,
-    trigger: Option<String>,
+    pub(crate) trigger: Option<String>,
     fsr: Option<String>,
     fsr_samples: Option<String>,
     probe: Option<String>,
     robot: Option<String>,
     robot_samples: Option<String>,
-    surface: Option<String>,
-    volume: Option<String>,
+    pub(crate) surface: Option<String>,
+    pub(crate) volume: Option<String>,
+    pub(crate) depth_cameras: Option<String>,
+    pub(crate) depth: Option<String>,
+    pub(crate) points: Option<String>,
+    pub(crate) support_motion: Option<String>,
+    pub(crate) interactions: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -288,9 +298,10 @@ struct RawWorld {
 
 #[derive(Deserialize)]
 struct RawSupport {
-    plane_normal: [f64; 3],
-    plane_offset: f64,
-    tolerance: f64,
+    plane_normal: Option<[f64; 3]>,
+    plane_offset: Option<f64>,
+    tolerance: Option<f64>,
+    nodes_file: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -305,8 +316,8 @@ struct RawCameras {
 }
 
 #[derive(Deserialize)]
-struct RawCamera {
-    id: String,
+pub(crate) struct RawCamera {
+    pub(crate) id: String,
     width: u32,
     height: u32,
     fx: f64,
@@ -616,27 +627,34 @@ pub fn read_fsr_csv(path: &Path) -> Result<FsrSamples> {
     Ok(s)
 }
 
-/// Reads `rig/cameras.toml`, converting translations to metres and validating each camera.
-pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera>> {
-    let raw: RawCameras = parse_toml(path)?;
-    let mut out = Vec::new();
-    for c in raw.camera {
-        let r = Matrix3::from_row_slice(&c.rotation);
-        let t = Vector3::from(c.translation) * metres_per_unit;
-        let cam = Camera::new(
-            c.id.clone(),
-            c.width,
-            c.height,
-            [c.fx, c.fy, c.cx, c.cy],
-            [c.k1, c.k2, c.p1, c.p2, c.k3],
+impl RawCamera {
+    /// The validated camera (translation converted to metres); errors name `path` and the id.
+    pub(crate) fn camera(&self, path: &Path, metres_per_unit: f64) -> Result<Camera> {
+        let r = Matrix3::from_row_slice(&self.rotation);
+        let t = Vector3::from(self.translation) * metres_per_unit;
+        Camera::new(
+            self.id.clone(),
+            self.width,
+            self.height,
+            [self.fx, self.fy, self.cx, self.cy],
+            [self.k1, self.k2, self.p1, self.p2, self.k3],
             r,
             t,
         )
         .map_err(|e| CaptureError::Camera {
             path: path.to_path_buf(),
-            camera: c.id.clone(),
+            camera: self.id.clone(),
             message: e.to_string(),
-        })?;
+        })
+    }
+}
+
+/// Reads `rig/cameras.toml`, converting translations to metres and validating each camera.
+pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera>> {
+    let raw: RawCameras = parse_toml(path)?;
+    let mut out = Vec::new();
+    for c in raw.camera {
+        let cam = c.camera(path, metres_per_unit)?;
         if out.iter().any(|o: &Camera| o.id == c.id) {
             return Err(CaptureError::Camera {
                 path: path.to_path_buf(),
@@ -795,6 +813,7 @@ impl Session {
             "probe" => SessionKind::Probe,
             "probe-robot" => SessionKind::ProbeRobot,
             "mocap" => SessionKind::Mocap,
+            "dynamic" => SessionKind::Dynamic,
             other => {
                 return Err(CaptureError::field(
                     &manifest,
@@ -816,6 +835,50 @@ impl Session {
                 ));
             }
         };
+        let gravity = raw
+            .world
+            .and_then(|w| w.gravity)
+            .map(Vector3::from)
+            .unwrap_or(Vector3::new(0.0, 0.0, -9.81));
+        let density_kg_m3 = raw.object.and_then(|o| o.density_kg_m3);
+        if let Some(d) = density_kg_m3
+            && !(d > 0.0 && d.is_finite())
+        {
+            return Err(CaptureError::field(
+                &manifest,
+                0,
+                "object.density_kg_m3",
+                "must be a positive number",
+            ));
+        }
+        let (support, support_nodes_file) = match raw.support {
+            Some(s) => parse_support(&manifest, s, metres_per_unit)?,
+            None => (None, None),
+        };
+        if kind == SessionKind::Dynamic {
+            let support_nodes_file = support_nodes_file.map(|p| dir.join(p));
+            return crate::depth::load_dynamic(
+                crate::depth::DynamicManifest {
+                    dir,
+                    manifest: &manifest,
+                    name,
+                    metres_per_unit,
+                    gravity,
+                    density_kg_m3,
+                    support,
+                    support_nodes_file,
+                },
+                raw.files,
+            );
+        }
+        if support_nodes_file.is_some() {
+            return Err(CaptureError::field(
+                &manifest,
+                0,
+                "support.nodes_file",
+                "only dynamic sessions take a node list",
+            ));
+        }
         let f = raw.files;
         let path = |p: &Option<String>| p.as_ref().map(|p| dir.join(p));
         let existing = |p: Option<PathBuf>, field: &str| -> Result<Option<PathBuf>> {
@@ -908,35 +971,12 @@ impl Session {
         } else {
             None
         };
-        let support = match raw.support {
-            Some(s) => {
-                let n = Vector3::from(s.plane_normal);
-                let norm = n.norm();
-                if !(norm > 0.0 && norm.is_finite()) {
-                    return Err(CaptureError::field(
-                        &manifest,
-                        0,
-                        "support.plane_normal",
-                        "must be a non-zero vector",
-                    ));
-                }
-                Some(Support {
-                    plane_normal: n / norm,
-                    plane_offset_m: s.plane_offset * metres_per_unit,
-                    tolerance_m: s.tolerance * metres_per_unit,
-                })
-            }
-            None => None,
-        };
-        let density_kg_m3 = raw.object.and_then(|o| o.density_kg_m3);
-        if let Some(d) = density_kg_m3
-            && !(d > 0.0 && d.is_finite())
-        {
+        if raw_support_lacks_plane(&support) {
             return Err(CaptureError::field(
                 &manifest,
                 0,
-                "object.density_kg_m3",
-                "must be a positive number",
+                "support.plane_normal",
+                "required ([support] needs plane_normal, plane_offset and tolerance)",
             ));
         }
         Ok(Session {
@@ -957,13 +997,10 @@ impl Session {
             robot,
             surface: existing(path(&f.surface), "surface")?,
             volume: existing(path(&f.volume), "volume")?,
-            gravity: raw
-                .world
-                .and_then(|w| w.gravity)
-                .map(Vector3::from)
-                .unwrap_or(Vector3::new(0.0, 0.0, -9.81)),
-            support,
+            gravity,
+            support: support.flatten(),
             density_kg_m3,
+            dynamic: None,
         })
     }
 
@@ -1008,6 +1045,48 @@ impl Session {
             .map(|c| read_detections_csv(&dir.join(format!("{}.csv", c.id))))
             .collect()
     }
+}
+
+/// `[support]`: `Some(Some(plane))` for a plane, `Some(None)` for a table without one, and the
+/// node-list file of a dynamic session.
+type ParsedSupport = (Option<Option<Support>>, Option<String>);
+
+fn parse_support(manifest: &Path, s: RawSupport, metres_per_unit: f64) -> Result<ParsedSupport> {
+    let plane = match (s.plane_normal, s.plane_offset, s.tolerance) {
+        (Some(normal), Some(offset), Some(tolerance)) => {
+            let n = Vector3::from(normal);
+            let norm = n.norm();
+            if !(norm > 0.0 && norm.is_finite()) {
+                return Err(CaptureError::field(
+                    manifest,
+                    0,
+                    "support.plane_normal",
+                    "must be a non-zero vector",
+                ));
+            }
+            Some(Support {
+                plane_normal: n / norm,
+                plane_offset_m: offset * metres_per_unit,
+                tolerance_m: tolerance * metres_per_unit,
+            })
+        }
+        (None, None, None) => None,
+        _ => {
+            return Err(CaptureError::field(
+                manifest,
+                0,
+                "support.plane_normal",
+                "a support plane needs plane_normal, plane_offset and tolerance",
+            ));
+        }
+    };
+    Ok((Some(plane), s.nodes_file))
+}
+
+/// True for a `[support]` table that gives no plane (only dynamic sessions may give a node list
+/// instead).
+fn raw_support_lacks_plane(support: &Option<Option<Support>>) -> bool {
+    matches!(support, Some(None))
 }
 
 /// Reads a `CaptureSettings` TOML file.

@@ -4,10 +4,14 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use softcap_app::{Context, Error, Result};
-use softcap_mcap::proto::{MarkerFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh, TriMesh};
+use softcap_mcap::proto::{
+    MarkerFrame, NodeFrame, PointCloudFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh,
+    TriMesh,
+};
 use softcap_mcap::{Recording, SoftcapMessage, Topic, topics};
 
-/// Exports `what` (`markers`, `probe`, `simulated`, `surface`, `volume`, or a topic) to `output`.
+/// Exports `what` (`markers`, `probe`, `simulated`, `surface`, `volume`, `nodes`, `points`, or a
+/// topic) to `output`.
 pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
     let topic = match what {
         "markers" => topics::MARKERS.name().to_string(),
@@ -15,6 +19,8 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
         "simulated" => topics::SIMULATED_MARKERS.name().to_string(),
         "surface" => topics::SURFACE_MESH.name().to_string(),
         "volume" => topics::VOLUME_MESH.name().to_string(),
+        "nodes" => topics::TRACK_NODES.name().to_string(),
+        "points" => topics::POINTS.name().to_string(),
         t => t.to_string(),
     };
     let channel = r.channel(&topic).ok_or_else(|| {
@@ -43,6 +49,10 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
         probe_csv(&r.read(&Topic::<ProbeSample>::custom(&topic))?)
     } else if schema == SimulatedMarkers::schema_name() {
         simulated_csv(&r.read(&Topic::<SimulatedMarkers>::custom(&topic))?)
+    } else if schema == NodeFrame::schema_name() {
+        nodes_csv(&r.read(&Topic::<NodeFrame>::custom(&topic))?)
+    } else if schema == PointCloudFrame::schema_name() {
+        points_csv(&r.read(&Topic::<PointCloudFrame>::custom(&topic))?)
     } else if schema == Scalar::schema_name() {
         scalar_csv(&r.read(&Topic::<Scalar>::custom(&topic))?)
     } else if schema == TriMesh::schema_name() {
@@ -121,6 +131,39 @@ pub fn simulated_csv(frames: &[(u64, SimulatedMarkers)]) -> String {
     for (_, f) in frames {
         for (id, p) in f.ids.iter().zip(&f.positions_m) {
             let _ = writeln!(s, "{},{},{},{},{}", f.frame, id, p.x, p.y, p.z);
+        }
+    }
+    s
+}
+
+/// `frame,node,x,y,z` (metres) of tracked node positions.
+pub fn nodes_csv(frames: &[(u64, NodeFrame)]) -> String {
+    let mut s = String::from("frame,node,x,y,z\n");
+    for (_, f) in frames {
+        for (i, p) in f.positions_m.chunks_exact(3).enumerate() {
+            let _ = writeln!(s, "{},{i},{},{},{}", f.frame, p[0], p[1], p[2]);
+        }
+    }
+    s
+}
+
+/// `frame,x,y,z,nx,ny,nz` (metres, unit normals; the normal columns empty when the cloud has
+/// none).
+pub fn points_csv(frames: &[(u64, PointCloudFrame)]) -> String {
+    let mut s = String::from("frame,x,y,z,nx,ny,nz\n");
+    for (_, f) in frames {
+        let with_normals = f.normals.len() == f.positions_m.len();
+        for (i, p) in f.positions_m.chunks_exact(3).enumerate() {
+            if with_normals {
+                let n = &f.normals[3 * i..3 * i + 3];
+                let _ = writeln!(
+                    s,
+                    "{},{},{},{},{},{},{}",
+                    f.frame, p[0], p[1], p[2], n[0], n[1], n[2]
+                );
+            } else {
+                let _ = writeln!(s, "{},{},{},{},,,", f.frame, p[0], p[1], p[2]);
+            }
         }
     }
     s

@@ -6,7 +6,7 @@
 //! | `softcap inspect channels FILE` | one line per channel: topic, schema, encoding, count |
 //! | `softcap inspect dump FILE [--topic T]` | JSON lines, protobuf decoded with the embedded schema |
 //! | `softcap inspect digest FILE` | content digest (ignores the provenance timestamp) |
-//! | `softcap inspect export FILE --what markers\|probe\|surface\|volume\|TOPIC -o OUT` | CSV / OBJ / PLY |
+//! | `softcap inspect export FILE --what markers\|probe\|surface\|volume\|nodes\|points\|TOPIC -o OUT` | CSV / OBJ / PLY |
 //! | `softcap inspect plot FILE --topic T --field PATH… -o OUT.png` | PNG time series of numeric fields |
 //! | `softcap <stage> ARGS…` | runs `softcap-<stage>` found next to `softcap` or on `PATH` |
 //!

@@ -99,6 +99,20 @@ impl Camera {
         self.rotation * x_world.coords + self.translation_m
     }
 
+    /// Camera frame → world point: X = Rᵀ (X_c − t).
+    pub fn to_world(&self, x_camera: &Vector3<f64>) -> Point3<f64> {
+        Point3::from(self.rotation.transpose() * (x_camera - self.translation_m))
+    }
+
+    /// World point seen at pixel `(u, v)` at depth `z_m` along the camera's +z axis (the depth
+    /// camera convention of SESSION_FORMAT.md, "Dynamic sessions": depth is z, not the distance
+    /// along the ray): X_c = z (x, y, 1) with (x, y) = [`Camera::undistort`]`(u, v)`,
+    /// X = Rᵀ (X_c − t). The inverse of [`Camera::project`] for points in front of the camera.
+    pub fn back_project(&self, u: f64, v: f64, z_m: f64) -> Point3<f64> {
+        let n = self.undistort(u, v);
+        self.to_world(&(Vector3::new(n.x, n.y, 1.0) * z_m))
+    }
+
     /// Camera centre in the world frame, m.
     pub fn centre_world(&self) -> Point3<f64> {
         Point3::from(-(self.rotation.transpose() * self.translation_m))
@@ -297,6 +311,20 @@ mod tests {
             let [fx, fy, cx, cy] = c.intrinsics;
             let n = c.undistort(fx * xd + cx, fy * yd + cy);
             assert!((n - Vector2::new(x, y)).norm() < 1e-12, "{x} {y} -> {n}");
+        }
+    }
+
+    #[test]
+    fn back_projection_inverts_projection() {
+        let c = cam();
+        for p in [
+            Point3::new(0.01, -0.02, 0.015),
+            Point3::new(-0.05, 0.03, 0.1),
+        ] {
+            let uv = c.project(&p).unwrap();
+            let z = c.to_camera(&p).z;
+            let q = c.back_project(uv.x, uv.y, z);
+            assert!((q - p).norm() < 1e-12, "{p} -> {q}");
         }
     }
 

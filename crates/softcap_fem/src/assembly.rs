@@ -357,6 +357,17 @@ impl SystemPattern {
         })
     }
 
+    /// Mean |diagonal| of `node`'s free dofs in `values` (0 if the node is fully constrained): the
+    /// scale of contact penalties and node-level terms (see [`crate::contact`]).
+    pub fn node_stiffness(&self, node: usize, values: &[f64]) -> f64 {
+        let d = self.node_diagonal(node, values);
+        let (s, k) = d
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
+        if k > 0 { s / k as f64 } else { 0.0 }
+    }
+
     /// Assembles Σ_e (element matrix) over all elements of `model` at `x` into a fresh value array.
     pub fn assemble<M: ElasticModel + ?Sized>(
         &self,

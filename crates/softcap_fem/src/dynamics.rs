@@ -29,6 +29,7 @@ use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern, solver
 use crate::contact::{ContactProblem, ContactReport};
 use crate::element::StiffnessKind;
 use crate::model::ElasticModel;
+use crate::nodal::NodalTerm;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -134,6 +135,24 @@ impl DynamicState {
             accelerations_m_s2: vec![Vector3::zeros(); n],
         }
     }
+
+    /// The integrator's predictor of x_{n+1} over a step `h`: x_n + h v_n (+ h²/4 a_n for
+    /// Newmark average acceleration).
+    pub fn predicted_positions(&self, h: f64, integrator: Integrator) -> Vec<Vector3<f64>> {
+        let newmark = integrator == Integrator::NewmarkAverageAcceleration;
+        self.positions_m
+            .iter()
+            .zip(&self.velocities_m_s)
+            .zip(&self.accelerations_m_s2)
+            .map(|((x, v), a)| {
+                if newmark {
+                    x + v * h + a * (0.25 * h * h)
+                } else {
+                    x + v * h
+                }
+            })
+            .collect()
+    }
 }
 
 /// Outcome of one time step (never a panic).
@@ -170,6 +189,22 @@ pub struct DynamicSolver {
     cholesky: SparseCholesky,
     masses_kg: Vec<f64>,
     length_scale_m: f64,
+    /// Per-chunk element forces and matrices of [`Self::linearize`] (reused across iterations).
+    forces: Vec<[Vector3<f64>; 4]>,
+    matrices: Vec<crate::element::Matrix12>,
+}
+
+/// What acts on the body during one step of [`DynamicSolver::step_with`].
+#[derive(Clone, Copy, Debug)]
+pub struct StepLoads<'a> {
+    /// External forces at t_{n+1} [N], one per node.
+    pub external_forces_n: &'a [Vector3<f64>],
+    /// Prescribed positions at t_{n+1} of moving constrained dofs.
+    pub prescribed: Option<&'a DirichletBc>,
+    /// Probe contact.
+    pub contact: Option<&'a ContactProblem>,
+    /// Initial guess of x_{n+1} (default: the integrator's predictor).
+    pub initial_guess: Option<&'a [Vector3<f64>]>,
 }
 
 struct Kinematics {
@@ -204,6 +239,8 @@ impl DynamicSolver {
             cholesky,
             masses_kg,
             length_scale_m,
+            forces: Vec::new(),
+            matrices: Vec::new(),
         })
     }
 
@@ -343,6 +380,39 @@ impl DynamicSolver {
         contact: Option<&ContactProblem>,
         settings: &DynamicsSettings,
     ) -> DynamicStepReport {
+        self.step_with(
+            model,
+            state,
+            &StepLoads {
+                external_forces_n,
+                prescribed,
+                contact,
+                initial_guess: None,
+            },
+            &mut [],
+            settings,
+        )
+    }
+
+    /// [`Self::step`] with node-level terms (forces f_b(x) on nodes and their stiffness blocks
+    /// −∂f_b/∂x in A, e.g. the virtual forces of a tracker, wang2015 eq. 5) and an optional
+    /// initial guess for x_{n+1} (default: the integrator's predictor). The terms are refreshed
+    /// at every Newton iteration (`requery` while below `contact_freeze_after`); their history is
+    /// the caller's to commit.
+    pub fn step_with<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &mut M,
+        state: &mut DynamicState,
+        loads: &StepLoads<'_>,
+        terms: &mut [&mut dyn NodalTerm],
+        settings: &DynamicsSettings,
+    ) -> DynamicStepReport {
+        let StepLoads {
+            external_forces_n,
+            prescribed,
+            contact,
+            initial_guess,
+        } = *loads;
         let mut report = DynamicStepReport {
             status: DynamicStepStatus::MaxIterations,
             iterations: 0,
@@ -353,10 +423,13 @@ impl DynamicSolver {
         let h = settings.time_step_s;
         if state.positions_m.len() != n
             || external_forces_n.len() != n
+            || initial_guess.is_some_and(|x| x.len() != n)
             || !(h > 0.0 && h.is_finite())
         {
             report.status = DynamicStepStatus::Failed {
-                reason: "length mismatch of state / forces, or time step not positive".into(),
+                reason:
+                    "length mismatch of state / forces / initial guess, or time step not positive"
+                        .into(),
             };
             return report;
         }
@@ -364,16 +437,11 @@ impl DynamicSolver {
         let damping = settings.damping;
         let a_mass = kin.cx + damping.alpha_per_s * kin.cv;
         let a_stiff = 1.0 + damping.beta_s * kin.cv;
-        // Predictor: x_{n+1} = x_n + h v_n (+ h²/4 a_n for Newmark), prescribed dofs applied.
-        let mut x: Vec<Vector3<f64>> = (0..n)
-            .map(|i| {
-                let mut p = state.positions_m[i] + state.velocities_m_s[i] * h;
-                if settings.integrator == Integrator::NewmarkAverageAcceleration {
-                    p += state.accelerations_m_s2[i] * (0.25 * h * h);
-                }
-                p
-            })
-            .collect();
+        // Predictor, or the caller's guess.
+        let mut x: Vec<Vector3<f64>> = match initial_guess {
+            Some(g) => g.to_vec(),
+            None => state.predicted_positions(h, settings.integrator),
+        };
         // Constrained dofs: keep the current value unless prescribed.
         for d in 0..3 * n {
             if self.dofs().free_index(d).is_none() {
@@ -389,27 +457,8 @@ impl DynamicSolver {
         for it in 0..settings.max_iterations.max(1) + 1 {
             model.update_state(&x);
             let (v, a) = Self::velocity_acceleration(settings, state, &x);
-            let mut values = self.pattern.zeros();
-            let fi = model.internal_forces(&x);
-            let mut fd: Vec<Vector3<f64>> = v
-                .iter()
-                .zip(&self.masses_kg)
-                .map(|(vi, m)| vi * (damping.alpha_per_s * m))
-                .collect();
-            for (e, g) in model.elements().iter().enumerate() {
-                let k = model.element_matrix(e, &x, settings.stiffness);
-                self.pattern.add_element(e, &(k * a_stiff), &mut values);
-                if damping.beta_s != 0.0 {
-                    let mut ve = nalgebra::SVector::<f64, 12>::zeros();
-                    for q in 0..4 {
-                        ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[g.nodes[q]]);
-                    }
-                    let fe = k * ve * damping.beta_s;
-                    for q in 0..4 {
-                        fd[g.nodes[q]] += fe.fixed_rows::<3>(3 * q);
-                    }
-                }
-            }
+            let (mut values, fi, fd) =
+                self.linearize(&*model, &x, &v, settings.stiffness, a_stiff, &damping);
             for (i, &m) in self.masses_kg.iter().enumerate() {
                 self.pattern
                     .add_node_block(i, &(Matrix3::identity() * (a_mass * m)), &mut values);
@@ -424,14 +473,7 @@ impl DynamicSolver {
                     None => {
                         let pat = &self.pattern;
                         let vals = values.clone();
-                        c.springs(&x, |node| {
-                            let d = pat.node_diagonal(node, &vals);
-                            let (s, k) = d
-                                .iter()
-                                .filter(|v| v.is_finite())
-                                .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
-                            if k > 0 { s / k as f64 } else { 0.0 }
-                        })
+                        c.springs(&x, |node| pat.node_stiffness(node, &vals))
                     }
                 };
                 if it + 1 >= settings.contact_freeze_after {
@@ -447,6 +489,31 @@ impl DynamicSolver {
                 }
                 fc_norm = norm(&fcs);
                 report.contact = c.report(&springs, &x);
+            }
+            if !terms.is_empty() {
+                let requery = it < settings.contact_freeze_after;
+                {
+                    let pat = &self.pattern;
+                    let vals = values.clone();
+                    let node_k = |node: usize| pat.node_stiffness(node, &vals);
+                    for t in terms.iter_mut() {
+                        t.refresh(&x, &node_k, requery);
+                    }
+                }
+                let mut fb = vec![Vector3::zeros(); n];
+                for t in terms.iter() {
+                    t.add_forces(&x, &mut fb);
+                    for (node, m) in t.blocks(&x) {
+                        self.pattern.add_node_block(node, &m, &mut values);
+                    }
+                    for (p, q, m) in t.pair_blocks(&x) {
+                        self.pattern.add_pair_block(p, q, &m, &mut values);
+                    }
+                }
+                for (ri, fi) in r.iter_mut().zip(&fb) {
+                    *ri += fi;
+                }
+                fc_norm = fc_norm.max(norm(&fb));
             }
             let rf = self.dofs().gather(&r);
             let rn = rf.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -507,5 +574,58 @@ impl DynamicSolver {
             report.iterations = it + 1;
         }
         report
+    }
+
+    /// One pass over the elements at `x` (chunks evaluated by
+    /// [`ElasticModel::linearize_elements`], possibly in parallel, scattered serially in element
+    /// order): the system matrix Σ_e `a_stiff` K_e (mass blocks not yet added), f_int(x), and the
+    /// damping force D v = α M v + β Σ_e K_e v_e. The same bits as the element-by-element loop
+    /// over [`ElasticModel::element_matrix`] and [`ElasticModel::internal_forces`].
+    fn linearize<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        a_stiff: f64,
+        damping: &RayleighDamping,
+    ) -> (Vec<f64>, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let n_el = model.elements().len();
+        let mut values = self.pattern.zeros();
+        let mut fi = vec![Vector3::zeros(); model.num_nodes()];
+        let mut fd: Vec<Vector3<f64>> = v
+            .iter()
+            .zip(&self.masses_kg)
+            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
+            .collect();
+        let chunk = crate::model::ELEMENT_CHUNK.min(n_el.max(1));
+        self.forces.resize(chunk, [Vector3::zeros(); 4]);
+        self.matrices
+            .resize(chunk, crate::element::Matrix12::zeros());
+        for start in (0..n_el).step_by(chunk) {
+            let len = chunk.min(n_el - start);
+            let forces = &mut self.forces[..len];
+            let matrices = &mut self.matrices[..len];
+            model.linearize_elements(start, x, kind, forces, matrices);
+            for (k, g) in model.elements()[start..start + len].iter().enumerate() {
+                let ke = &matrices[k];
+                self.pattern
+                    .add_element(start + k, &(ke * a_stiff), &mut values);
+                for q in 0..4 {
+                    fi[g.nodes[q]] += forces[k][q];
+                }
+                if damping.beta_s != 0.0 {
+                    let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+                    for q in 0..4 {
+                        ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[g.nodes[q]]);
+                    }
+                    let fe = ke * ve * damping.beta_s;
+                    for q in 0..4 {
+                        fd[g.nodes[q]] += fe.fixed_rows::<3>(3 * q);
+                    }
+                }
+            }
+        }
+        (values, fi, fd)
     }
 }

@@ -13,7 +13,7 @@
 //! | [`contact`] | rigid probes (sphere, disk, cylinder, mesh) via parry3d, penalty linear force field | bickel2009 §3.4 |
 //! | [`gravity`] | lumped masses m_a = Σ ρV_e/4, body force M g, rest shape X from a static shape: R K (Rᵀx_s − X) = M g by Newton with exact ∂f/∂X (corotational and neo-Hookean) | wang2015 §3, §6.1 eq. 3, 7–8 |
 //! | [`viscoelastic`] | Prony series G(t)/G_∞ = 1 + Σ g_i e^{−t/τ_i} as QLV on the element stress in the unrotated frame, P = R(T + Σh_i), exact exponential recurrence h ← a h + b ΔT | Simo & Hughes 1998 §10.3; Puso & Weiss 1998 |
-//! | [`dynamics`] | M ẍ + D ẋ + f_int(x) = f_ext, lumped M, Rayleigh D = αM + βK; implicit Euler (A = M/h² + D/h + K) and Newmark average acceleration (A = 4M/h² + 2D/h + K), Newton per step, probe contact | wang2015 eq. 3 |
+//! | [`dynamics`] | M ẍ + D ẋ + f_int(x) = f_ext, lumped M, Rayleigh D = αM + βK; implicit Euler (A = M/h² + D/h + K) and Newmark average acceleration (A = 4M/h² + 2D/h + K), Newton per step, probe contact, node-level terms (tracking's virtual forces, wang2015 eq. 5) | wang2015 eq. 3 |
 //! | [`modal`] | smallest K φ = λ M φ: dense M^{-1/2} K M^{-1/2} eigen; shift-invert Lanczos on (K − σM)⁻¹M with locking/restarts for repeated (rigid-body) modes | wang2015 §7 |
 //! | [`derivatives`] | ∂K/∂p, J = ∂x/∂p (columns, adjoint rows, Jᵀr) | bickel2009 appendix eq. 10–12 |
 //! | [`anisotropy`] | transversely isotropic E with five parameters {E11, E12, E13, E33, E44} and a per-element fibre, σ = C ε on the corotated strain; E_a = E33 − 2E13²/(E11+E12); PD check and Mandel eigenvalue clipping | thesis §8.5 eq. 8.5; Rebonato & Jäckel 1999 |
@@ -105,7 +105,7 @@ pub use viscoelastic::{
 
 pub use dynamics::{
     DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings,
-    Integrator, RayleighDamping,
+    Integrator, RayleighDamping, StepLoads,
 };
 pub use modal::{LanczosModes, LanczosReport, ModalSettings, Modes, dense_modes, lanczos_modes};
 

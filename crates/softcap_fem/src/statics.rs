@@ -261,17 +261,6 @@ impl StaticSolver {
         self.assemble_and_factor_impl(model, x, kind, contact, frozen, None)
     }
 
-    /// Mean |diagonal| of `node`'s free dofs in `values` (0 if the node is fully constrained): the
-    /// scale of the contact penalty (see [`crate::contact`]).
-    fn node_stiffness(pattern: &SystemPattern, values: &[f64], node: usize) -> f64 {
-        let d = pattern.node_diagonal(node, values);
-        let (s, k) = d
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((0.0, 0), |(s, k), v| (s + v.abs(), k + 1));
-        if k > 0 { s / k as f64 } else { 0.0 }
-    }
-
     /// Assembly + factorization. `node_stiffness`: the per-node penalty scale, fixed for a whole
     /// solve (an empty table is filled from this assembly, before the springs are added), and the
     /// previous iteration's springs for the active-set hysteresis; `None` takes the scale from this
@@ -341,13 +330,13 @@ impl StaticSolver {
                             *table = vec![0.0; x.len()];
                             for &n in &c.candidate_nodes {
                                 if n < x.len() {
-                                    table[n] = Self::node_stiffness(pat, vals, n);
+                                    table[n] = pat.node_stiffness(n, vals);
                                 }
                             }
                         }
                         c.springs_with_hysteresis(x, |n| table[n], previous)
                     }
-                    None => c.springs(x, |n| Self::node_stiffness(pat, vals, n)),
+                    None => c.springs(x, |n| pat.node_stiffness(n, vals)),
                 }
             }
             (None, _) => Vec::new(),
@@ -551,7 +540,7 @@ impl StaticSolver {
                     }
                     values_abs_max = None;
                     let table: Vec<f64> = (0..x.len())
-                        .map(|n| Self::node_stiffness(&self.pattern, &self.values, n))
+                        .map(|n| self.pattern.node_stiffness(n, &self.values))
                         .collect();
                     if let Err(e) = self.factor_with_springs(&springs) {
                         report.status = failed(e);

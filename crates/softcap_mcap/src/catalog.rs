@@ -76,6 +76,11 @@ impl_softcap_message!(
     PlasticStrains,
     ReshapeConstraints,
     ReshapeQuality,
+    DynamicSession,
+    PointCloudFrame,
+    NodeFrame,
+    TrackStatus,
+    DynamicMaterial,
 );
 
 /// A typed channel name: writing or reading through a `Topic<M>` guarantees the channel carries
@@ -192,6 +197,18 @@ pub mod topics {
     pub const RESHAPE_QUALITY: Topic<ReshapeQuality> = Topic::new("/reshape/quality");
     /// `softcap tissue reshape` report (time 0).
     pub const RESHAPE_REPORT: Topic<Report> = Topic::new("/reshape/report");
+    /// Dynamic session: depth cameras, support nodes, interactions (static, time 0).
+    pub const DYNAMIC_SESSION: Topic<DynamicSession> = Topic::new("/capture/dynamic");
+    /// World-frame point cloud (all depth cameras fused), one message per camera frame.
+    pub const POINTS: Topic<PointCloudFrame> = Topic::new("/capture/points");
+    /// `softcap tissue track`: tracked node positions of the template mesh, one per frame.
+    pub const TRACK_NODES: Topic<NodeFrame> = Topic::new("/tissue/track/nodes");
+    /// `softcap tissue track`: residual, σ, outlier fraction and status, one per frame.
+    pub const TRACK_STATUS: Topic<TrackStatus> = Topic::new("/tissue/track/status");
+    /// `softcap tissue track`: summary report (time 0).
+    pub const TRACK_REPORT: Topic<Report> = Topic::new("/tissue/track/report");
+    /// A dynamic material (E per tet, ν, ρ, Rayleigh α and β, rest shape) (static, time 0).
+    pub const DYNAMIC_MATERIAL: Topic<DynamicMaterial> = Topic::new("/tissue/dynamic_material");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -370,5 +387,41 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.Report",
         is_static: true,
         units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/capture/dynamic",
+        schema: "softcap.DynamicSession",
+        is_static: true,
+        units: "camera intrinsics px, translation m, depth scale m, intervals s",
+    },
+    ChannelInfo {
+        topic: "/capture/points",
+        schema: "softcap.PointCloudFrame",
+        is_static: false,
+        units: "t s, positions m, normals unit vectors, support translation m",
+    },
+    ChannelInfo {
+        topic: "/tissue/track/nodes",
+        schema: "softcap.NodeFrame",
+        is_static: false,
+        units: "t s, positions m",
+    },
+    ChannelInfo {
+        topic: "/tissue/track/status",
+        schema: "softcap.TrackStatus",
+        is_static: false,
+        units: "t s, residual m, sigma m, outlier fraction 1",
+    },
+    ChannelInfo {
+        topic: "/tissue/track/report",
+        schema: "softcap.Report",
+        is_static: true,
+        units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/tissue/dynamic_material",
+        schema: "softcap.DynamicMaterial",
+        is_static: true,
+        units: "E Pa, density kg/m³, alpha 1/s, beta s, rest positions m",
     },
 ];

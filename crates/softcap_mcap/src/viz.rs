@@ -6,11 +6,12 @@
 //! Write the results with [`crate::Writer::write_foxglove`] on [`crate::viz_topic`]`(topic)`.
 
 use foxglove::messages::{
-    ArrowPrimitive, Color, FrameTransform, Point3, Pose, Quaternion, SceneEntity, SceneUpdate,
-    SpherePrimitive, Timestamp, TriangleListPrimitive, Vector3,
+    ArrowPrimitive, Color, FrameTransform, PackedElementField, Point3, PointCloud, Pose,
+    Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, TriangleListPrimitive,
+    Vector3, packed_element_field::NumericType,
 };
 
-use crate::proto::{self, MarkerFrame, ProbeSample, TetMesh, TriMesh};
+use crate::proto::{self, MarkerFrame, PointCloudFrame, ProbeSample, TetMesh, TriMesh};
 
 /// The frame all softcap positions are expressed in.
 pub const WORLD_FRAME: &str = "world";
@@ -225,6 +226,46 @@ pub fn tetmesh_scene(mesh: &TetMesh, log_time_ns: u64) -> SceneUpdate {
     let mut e = entity(&format!("mesh/{}", mesh.name), log_time_ns);
     e.triangles
         .push(triangle_list(&mesh.positions_m, &mesh.surface_triangles));
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![e],
+    }
+}
+
+/// A fused depth cloud as a Foxglove `PointCloud`: `x, y, z` float32 per point, world frame.
+pub fn point_cloud(frame: &PointCloudFrame, log_time_ns: u64) -> PointCloud {
+    let mut data = Vec::with_capacity(4 * frame.positions_m.len());
+    for v in &frame.positions_m {
+        data.extend_from_slice(&v.to_le_bytes());
+    }
+    let field = |name: &str, offset: u32| PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: NumericType::Float32 as i32,
+    };
+    PointCloud {
+        timestamp: Some(timestamp(log_time_ns)),
+        frame_id: WORLD_FRAME.into(),
+        pose: Some(Pose {
+            position: Some(Vector3::default()),
+            orientation: Some(rotation_x_to([1.0, 0.0, 0.0])),
+        }),
+        point_stride: 12,
+        fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+        data: data.into(),
+    }
+}
+
+/// A tet mesh's boundary at new node positions (`positions_m` flat xyz, the mesh's node order):
+/// the `/viz` twin of a per-frame node channel such as `/tissue/track/nodes`.
+pub fn deformed_tetmesh_scene(
+    mesh: &TetMesh,
+    positions_m: &[f64],
+    log_time_ns: u64,
+) -> SceneUpdate {
+    let mut e = entity(&format!("mesh/{}", mesh.name), log_time_ns);
+    e.triangles
+        .push(triangle_list(positions_m, &mesh.surface_triangles));
     SceneUpdate {
         deletions: Vec::new(),
         entities: vec![e],

@@ -87,6 +87,21 @@ fn topic_constants_are_in_the_catalog() {
             "softcap.ReshapeQuality",
         ),
         (topics::RESHAPE_REPORT.name().to_string(), "softcap.Report"),
+        (
+            topics::DYNAMIC_SESSION.name().to_string(),
+            "softcap.DynamicSession",
+        ),
+        (topics::POINTS.name().to_string(), "softcap.PointCloudFrame"),
+        (topics::TRACK_NODES.name().to_string(), "softcap.NodeFrame"),
+        (
+            topics::TRACK_STATUS.name().to_string(),
+            "softcap.TrackStatus",
+        ),
+        (topics::TRACK_REPORT.name().to_string(), "softcap.Report"),
+        (
+            topics::DYNAMIC_MATERIAL.name().to_string(),
+            "softcap.DynamicMaterial",
+        ),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

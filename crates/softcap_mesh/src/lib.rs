@@ -10,6 +10,7 @@
 //! | [`triangulate`] | ear-clipping of polygons |
 //! | [`adjacency`] | one-rings, vertex→elements, tet face/vertex adjacency, [`SurfaceMap`] |
 //! | [`laplacian`] | cotangent Laplacian + mixed Voronoi areas (thesis eq. 3.4–3.5), bi-Laplacian, umbrella graph Laplacian (bickel2009 eq. 9) |
+//! | [`raycast`] | first hit of a ray on a triangle surface, occlusion tests (parry3d BVH): depth rendering, visibility |
 //! | [`embed`] | barycentric embedding in tets / closest points on triangles, AABB tree ([`bvh`]) |
 //! | [`validate`] | validity checks ([`ValidationSettings`]), orientation repair, unit scaling |
 //! | [`shell`] | bi-Laplacian linear shell with handles (thesis eq. 5.1) |
@@ -48,6 +49,7 @@ pub mod io;
 pub mod laplacian;
 pub mod layer;
 pub mod quality;
+pub mod raycast;
 pub mod refine;
 pub mod refine_local;
 pub mod structured;
@@ -81,6 +83,7 @@ pub use laplacian::{
 pub use layer::{LayerSettings, extrude_layer, smoothed_vertex_normals};
 pub use nalgebra;
 pub use quality::{TetQuality, aspect_ratio, dihedral_angles, tet_quality};
+pub use raycast::{RayHit, SurfaceRayCaster};
 pub use refine::{RefinedTetMesh, refine_tets};
 pub use refine_local::{RefineBall, refine_near};
 pub use structured::{box_tet_mesh, icosphere};

@@ -34,6 +34,20 @@ impl Cli {
         }
         let r = synthesize_with_progress(&scenario, &self.out, &Progress::new(!self.quiet))
             .with_context(|| format!("synthesizing {}", self.scenario.display()))?;
+        if scenario.kind == "dynamic" {
+            eprintln!(
+                "wrote {}: {} frames, truth {} tets / template {} tets, {} depth images, {} depth readings, largest surface displacement {:.1} mm, unseen surface {:.1} %",
+                r.path.display(),
+                r.frames,
+                r.truth_tets,
+                r.fit_tets,
+                r.images,
+                r.depth_readings,
+                r.max_marker_displacement_m * 1e3,
+                100.0 * r.unseen_fraction
+            );
+            return Ok(());
+        }
         eprintln!(
             "wrote {}: {} frames, {} locations, truth {} tets / template {} tets, max force {:.3} N, max marker displacement {:.3} mm, {} detections, {} images",
             r.path.display(),

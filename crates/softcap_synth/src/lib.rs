@@ -15,6 +15,7 @@
 //! | [`robot`] | 4-DOF arm (URDF), closed-form IK / FK, joint log and 6-axis F/T in the sensor frame (`robot.csv`) |
 //! | [`sensors`] | FSR power law + divider, DAQ clock (offset, drift), trigger line, sensor lag / hysteresis |
 //! | [`write`] | the session folder and `truth/` (atomic: temporary folder renamed into place) |
+//! | [`dynamic`] | `kind = "dynamic"`: free motion (release, drop, shaken clamp) under gravity seen by depth cameras (wang2015) |
 //! | [`error`] | [`SynthError`] |
 //! | [`cli`] | the `softcap-synth` command line ([`cli::Cli::run`]) |
 //!
@@ -28,6 +29,7 @@
 //! ```
 
 pub mod cli;
+pub mod dynamic;
 pub(crate) mod engine;
 pub mod error;
 pub mod render;
@@ -75,6 +77,10 @@ pub struct SynthReport {
     pub images: usize,
     /// Largest equilibrium iteration count of any frame.
     pub max_iterations: usize,
+    /// Valid depth readings written (dynamic sessions).
+    pub depth_readings: usize,
+    /// Mean fraction of the truth surface's track points no depth camera sees (dynamic sessions).
+    pub unseen_fraction: f64,
 }
 
 /// RNG streams, one per purpose.
@@ -84,6 +90,9 @@ mod streams {
     pub const DAQ: u64 = 3;
     pub const ROBOT: u64 = 4;
     pub const DETECTIONS: u64 = 10;
+    pub const TRACK_POINTS: u64 = 20;
+    /// Depth images: this + 1_000_000 × camera + frame.
+    pub const DEPTH: u64 = 1_000;
 }
 
 /// Simulates the scenario and writes the session to `out` (which must not exist or be empty).
@@ -103,6 +112,9 @@ pub fn synthesize_with_progress(
             path: PathBuf::from(format!("<scenario {}>", scenario.name)),
             message,
         })?;
+    if scenario.kind == "dynamic" {
+        return dynamic::synthesize(scenario, out);
+    }
     write::SessionWriter::check_target(out)?;
     let truth = truth::simulate_with_progress(
         scenario,
@@ -126,17 +138,11 @@ pub fn synthesize_with_progress(
     } else {
         None
     };
-    let writer = write::SessionWriter::begin(out)?;
-    match write_all(scenario, &truth, robot.as_ref(), &writer, progress) {
-        Ok(mut report) => {
-            report.path = writer.finish()?;
-            Ok(report)
-        }
-        Err(e) => {
-            writer.abandon();
-            Err(e)
-        }
-    }
+    let (mut report, path) = write::SessionWriter::atomically(out, |w| {
+        write_all(scenario, &truth, robot.as_ref(), w, progress)
+    })?;
+    report.path = path;
+    Ok(report)
 }
 
 fn write_all(
@@ -259,5 +265,7 @@ fn write_all(
         detections,
         images,
         max_iterations: truth.max_iterations,
+        depth_readings: 0,
+        unseen_fraction: 0.0,
     })
 }

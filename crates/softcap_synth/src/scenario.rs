@@ -86,7 +86,8 @@ impl Effect {
 pub struct Scenario {
     /// Session name (written to session.toml).
     pub name: String,
-    /// Session kind: "probe" (hand-held probe + FSR) or "probe-robot" (arm + 6-axis F/T).
+    /// Session kind: "probe" (hand-held probe + FSR), "probe-robot" (arm + 6-axis F/T) or
+    /// "dynamic" (depth cameras watching a freely moving object, wang2015).
     pub kind: String,
     /// Master seed of every random choice (locations, depths, noise, dropouts, spurious blobs).
     pub seed: u64,
@@ -112,6 +113,9 @@ pub struct Scenario {
     pub effect_settings: EffectSettings,
     /// The robot arm and F/T sensor (kind "probe-robot").
     pub robot: RobotSettings,
+    /// Motion, damping, depth cameras (kind "dynamic"; the object's box, meshes, material and
+    /// density come from `object` and `material`).
+    pub dynamic: crate::dynamic::DynamicSettings,
 }
 
 impl Default for Scenario {
@@ -131,6 +135,7 @@ impl Default for Scenario {
             output: OutputSettings::default(),
             effect_settings: EffectSettings::default(),
             robot: RobotSettings::default(),
+            dynamic: crate::dynamic::DynamicSettings::default(),
         }
     }
 }
@@ -599,7 +604,12 @@ impl Scenario {
                 "field `name` is missing (required: it names the session)".into(),
             ));
         }
-        let s: Scenario = toml::from_str(text).map_err(|e| err(describe_toml_error(text, &e)))?;
+        let mut s: Scenario =
+            toml::from_str(text).map_err(|e| err(describe_toml_error(text, &e)))?;
+        if let Some(dir) = &s.dynamic.external_truth {
+            let resolved = crate::dynamic::external::resolve(path, dir);
+            s.dynamic.external_truth = Some(resolved.to_string_lossy().into_owned());
+        }
         s.validate().map_err(|message| SynthError::Scenario {
             path: path.to_path_buf(),
             message,
@@ -627,9 +637,12 @@ impl Scenario {
                 self.name
             ));
         }
+        if self.kind == "dynamic" {
+            return self.validate_dynamic();
+        }
         if self.kind != "probe" && self.kind != "probe-robot" {
             return Err(format!(
-                "kind must be \"probe\" or \"probe-robot\", got {:?}",
+                "kind must be \"probe\", \"probe-robot\" or \"dynamic\", got {:?}",
                 self.kind
             ));
         }
@@ -726,6 +739,42 @@ impl Scenario {
             }
         }
         Ok(())
+    }
+
+    /// A dynamic scenario: the object, its material and the `[dynamic]` table (probe, protocol,
+    /// FSR and effects do not apply).
+    fn validate_dynamic(&self) -> std::result::Result<(), String> {
+        if !self.effects.is_empty() {
+            return Err("effects: a dynamic scenario takes no probing effects".into());
+        }
+        for (i, v) in self.object.size_mm.iter().enumerate() {
+            if !(*v > 0.0 && v.is_finite()) {
+                return Err(format!(
+                    "object.size_mm[{i}] must be positive and finite, got {v}"
+                ));
+            }
+        }
+        for (name, c) in [
+            ("object.fit_cells", self.object.fit_cells),
+            ("object.truth_cells", self.object.truth_cells),
+        ] {
+            if c.contains(&0) {
+                return Err(format!("{name} must be ≥ 1 in every direction"));
+            }
+        }
+        if !(self.object.density_kg_m3 > 0.0 && self.object.density_kg_m3.is_finite()) {
+            return Err("object.density_kg_m3 must be positive and finite".into());
+        }
+        if !(self.material.young_pa > 0.0 && self.material.young_pa.is_finite()) {
+            return Err("material.young_pa must be positive and finite".into());
+        }
+        if !(self.material.poisson > -1.0 && self.material.poisson < 0.5) {
+            return Err(format!(
+                "material.poisson must be in (−1, 0.5), got {}",
+                self.material.poisson
+            ));
+        }
+        self.dynamic.validate()
     }
 
     /// Effect parameters and combinations the truth simulation can produce.

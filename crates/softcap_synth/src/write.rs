@@ -71,6 +71,23 @@ impl SessionWriter {
         })
     }
 
+    /// Runs `write` into a fresh temporary folder ([`Self::begin`]) and renames it into place
+    /// when it succeeds, or removes it when it fails: a session is written whole or not at all.
+    /// Returns `write`'s value and the session folder.
+    pub fn atomically<T>(
+        target: &Path,
+        write: impl FnOnce(&Self) -> Result<T>,
+    ) -> Result<(T, PathBuf)> {
+        let writer = Self::begin(target)?;
+        match write(&writer) {
+            Ok(v) => Ok((v, writer.finish()?)),
+            Err(e) => {
+                writer.abandon();
+                Err(e)
+            }
+        }
+    }
+
     /// Path of a file in the session.
     pub fn path(&self, rel: &str) -> PathBuf {
         self.tmp.join(rel)

@@ -3,7 +3,7 @@
 //! --radius R --tip x,y,z --axis x,y,z --force N -o sim.mcap`: novel-probe synthesis;
 //! `softcap-tissue reshape --template T.msh --target TARGET/ -o reshaped.mcap [--report DIR]`:
 //! saito-barbic template reshaping (a reshape that hits its iteration cap says so and still
-//! writes its result).
+//! writes its result); `softcap-tissue track capture.mcap --mesh volume.msh -o track.mcap`: wang2015 §5 tracking.
 
 use std::path::PathBuf;
 
@@ -28,6 +28,8 @@ pub enum Command {
     Simulate(SimulateArgs),
     /// Reshape a template tet mesh to a subject's landmarks and ICP markers (saito-barbic).
     Reshape(ReshapeArgs),
+    /// Track the template mesh through the point clouds of a dynamic capture (wang2015 §5).
+    Track(TrackArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -66,6 +68,34 @@ impl ReshapeArgs {
         println!("{}", crate::reshape::summary_line(&r));
         Ok(())
     }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct TrackArgs {
+    /// capture.mcap of a dynamic session (`softcap capture` on kind = "dynamic").
+    pub capture: PathBuf,
+    /// Template tet mesh (Gmsh 4.1, session length unit), e.g. SESSION/template/volume.msh.
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// Dynamic material (`/tissue/dynamic_material`); default: a soft corotational material
+    /// (settings).
+    #[arg(long)]
+    pub material: Option<PathBuf>,
+    /// Extra attachment nodes: CSV with a `node` column (0-based node indices of the mesh).
+    #[arg(long)]
+    pub attach: Option<PathBuf>,
+    /// track.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Settings TOML (softcap_tissue::TrackSettings).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// Young's modulus of the default material, Pa (overrides the settings).
+    #[arg(long)]
+    pub young_pa: Option<f64>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -144,7 +174,41 @@ impl Cli {
             Command::Fit(a) => a.run(arguments),
             Command::Simulate(a) => a.run(arguments),
             Command::Reshape(a) => a.run(arguments),
+            Command::Track(a) => a.run(arguments),
         }
+    }
+}
+
+impl TrackArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let mut settings: crate::TrackSettings = load_toml_or_default(self.settings.as_deref())?;
+        if let Some(e) = self.young_pa {
+            settings.young_pa = e;
+        }
+        if self.quiet {
+            settings.progress = false;
+        }
+        let cfg = crate::TrackConfig {
+            capture: self.capture.clone(),
+            mesh: self.mesh.clone(),
+            material: self.material.clone(),
+            attach: self.attach.clone(),
+            output: self.output.clone(),
+            settings,
+            arguments,
+        };
+        let o = crate::track::run(&cfg)?;
+        let [c, m, d, n] = o.status_counts();
+        println!(
+            "{} frames ({c} converged, {m} at the EM limit, {d} diverged, {n} without points), {} nodes, {} surface samples, mean residual {:.3} mm, {:.1} frames/s; rest shape: {}",
+            o.frames.len(),
+            o.nodes,
+            o.samples,
+            1e3 * o.mean_residual_m(),
+            o.frames.len() as f64 / o.wall_s.max(1e-9),
+            o.rest_shape
+        );
+        Ok(())
     }
 }
 

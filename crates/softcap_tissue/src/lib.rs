@@ -14,6 +14,7 @@
 //! | [`simulate`] | `softcap tissue simulate`: [`SimulateConfig`], [`ProbeSpec`] → sim.mcap (§3.4 incremental loading with probe contact) |
 //! | [`report`] | report.md + PNGs: per-example error, error vs basis size (plotters) |
 //! | [`cli`] | the `softcap-tissue` command line ([`cli::Cli::run`]) |
+//! | [`track`] | `softcap tissue track` (wang2015 §5): EM tracking of a tet mesh through the point clouds of a dynamic capture → track.mcap |
 //! | [`error`] | [`TissueError`] (`is_bad_input()` → exit code 2) |
 //!
 //! ```
@@ -43,6 +44,7 @@ pub mod report;
 pub mod reshape;
 pub mod session;
 pub mod simulate;
+pub mod track;
 
 pub use error::{Result, TissueError};
 pub use fit::{
@@ -59,6 +61,7 @@ pub use session::{
 };
 pub use simulate::{ProbeShape, ProbeSpec, SimulateConfig, SimulateOutcome, SimulateSettings};
 pub use softcap_app::Progress;
+pub use track::{TrackConfig, TrackMaterial, TrackOutcome, TrackSettings};
 
 pub use softcap_fem;
 pub use softcap_mcap;

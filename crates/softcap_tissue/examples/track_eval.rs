@@ -1,0 +1,44 @@
+//! Surface-point error of tracked node trajectories against the truth of a synthetic dynamic
+//! session (`truth/track_points.csv`), for `softcap tissue track`'s output and for any other
+//! tracker's (the CPD reference of `scripts/cpd_reference.py`):
+//!
+//! ```text
+//! softcap inspect export track.mcap --what nodes -o nodes.csv
+//! cargo run -p softcap_tissue --example track_eval -- SESSION nodes.csv [other.csv ...]
+//! ```
+//!
+//! Node CSVs are `frame,node,x,y,z` in metres, nodes in the order of SESSION/template/volume.msh.
+//! Also prints the template's own floor: the truth carried by the template's nodes
+//! (`truth/template_nodes.csv`).
+
+use std::path::PathBuf;
+
+use softcap_tissue::track::eval::{read_node_trajectories, read_track_points, surface_point_error};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();
+    let Some((session, tracks)) = args.split_first() else {
+        return Err("usage: track_eval SESSION nodes.csv [more.csv ...]".into());
+    };
+    let mesh = softcap_tissue::read_volume_mesh(&session.join("template/volume.msh"), 1e-3)?;
+    let truth = read_track_points(&session.join("truth/track_points.csv"), 1e-3)?;
+    let floor = read_node_trajectories(&session.join("truth/template_nodes.csv"), 1e-3)?;
+    let mut rows = vec![("template floor".to_string(), floor)];
+    for t in tracks {
+        rows.push((t.display().to_string(), read_node_trajectories(t, 1.0)?));
+    }
+    println!("| nodes | frames | RMS mm | seen mm | unseen mm | max mm |");
+    println!("|---|---|---|---|---|---|");
+    for (name, nodes) in rows {
+        let e = surface_point_error(&mesh, &nodes, &truth);
+        println!(
+            "| {name} | {} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            e.per_frame_rms_m.len(),
+            1e3 * e.rms_m,
+            1e3 * e.rms_seen_m,
+            1e3 * e.rms_unseen_m,
+            1e3 * e.max_m
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,450 @@
+//! The physics-based probabilistic tracker of wang2015 §5, frame by frame.
+//!
+//! For frame t, starting from the tracked state of frame t − 1 (positions, velocities,
+//! accelerations; warm start) and the integrator's prediction of x_t:
+//!
+//! 1. visible samples: the surface samples facing some depth camera, inside its image and depth
+//!    range, and not hidden by the surface itself (ray cast through `softcap_mesh::SurfaceRayCaster`
+//!    from the camera centre), at the current positions;
+//! 2. E-step: responsibilities p(z_kn) ([`super::em::e_step`]) at σ;
+//! 3. M-step: the virtual forces of eq. 5 ([`super::forces::VirtualForces`]) join gravity and
+//!    the support (moved by the session's support motion) in one implicit step of wang2015 eq. 3
+//!    over the frame interval (`softcap_fem::DynamicSolver::step_with`, Rayleigh damping), from
+//!    the state of frame t − 1, Newton warm-started at the current positions;
+//! 4. σ ← max(σ_min, min(σ_ML, a σ)) (annealing); stop when the nodes move less than the
+//!    tolerance at σ_min, or after the iteration limit.
+//!
+//! The virtual-force scale η (eq. 5) is `data_weight` · m̄ / h² · σ_min² with m̄ the mean nodal
+//! mass and h the nominal frame interval: at σ = σ_min one point's pull on a sample is
+//! `data_weight` times the inertia of a mean node over one frame. It depends on the density, not
+//! on the elastic material, so a stiffer or softer material changes how the body resists the data
+//! (wang2015 Fig. 8), not how hard the data pull.
+
+use nalgebra::{Point3, Vector3};
+use softcap_core::Camera;
+use softcap_fem::{
+    CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
+    DynamicsSettings, NodalTerm, RayleighDamping, StepLoads,
+};
+use softcap_mesh::{SurfaceRayCaster, TetMesh, TriLocator, TriMesh};
+
+use super::TrackSettings;
+use super::em::{EStep, EStepParams, bounding_volume, e_step};
+use super::forces::VirtualForces;
+use super::samples::SurfaceSamples;
+
+/// A depth camera as the tracker needs it: where it is, what it images, its depth range.
+#[derive(Clone, Debug)]
+pub struct ViewCamera {
+    /// The calibrated camera.
+    pub camera: Camera,
+    /// Valid depth range, m.
+    pub min_depth_m: f64,
+    /// Valid depth range, m.
+    pub max_depth_m: f64,
+}
+
+/// The per-frame outcome.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameTrack {
+    /// Frame index.
+    pub frame: u64,
+    /// Camera time, s.
+    pub t_camera_s: f64,
+    /// Node positions, m.
+    pub positions_m: Vec<Vector3<f64>>,
+    /// `converged` | `max-iterations` | `diverged` | `no-points`.
+    pub status: &'static str,
+    /// Why, when not converged.
+    pub detail: String,
+    /// Mean distance of the inlier points to the tracked surface, m.
+    pub residual_m: f64,
+    /// Final σ, m.
+    pub sigma_m: f64,
+    /// Mean outlier posterior.
+    pub outlier_fraction: f64,
+    /// EM iterations.
+    pub em_iterations: usize,
+    /// Newton iterations summed over the M-steps.
+    pub newton_iterations: usize,
+    /// Points in the cloud.
+    pub points: usize,
+    /// Visible samples at the end.
+    pub visible_samples: usize,
+}
+
+/// The support: held nodes, their frame-0 positions.
+#[derive(Clone, Debug, Default)]
+pub struct Attachment {
+    /// Nodes held by the support or the user, ascending.
+    pub nodes: Vec<usize>,
+    /// Their frame-0 positions, m.
+    pub frame0_m: Vec<Vector3<f64>>,
+}
+
+/// The tracker's state across frames.
+pub struct Tracker<'a> {
+    mesh: &'a TetMesh,
+    model: CorotationalModel,
+    solver: DynamicSolver,
+    gravity_n: Vec<Vector3<f64>>,
+    attachment: Attachment,
+    samples: SurfaceSamples,
+    cameras: Vec<ViewCamera>,
+    settings: TrackSettings,
+    damping: RayleighDamping,
+    /// η of eq. 5, N·m.
+    eta: f64,
+    state: DynamicState,
+    started: bool,
+    surface: TriMesh,
+}
+
+impl<'a> Tracker<'a> {
+    /// A tracker of `mesh` (its frame-0 shape) with `model` (rest shape already chosen),
+    /// nodal masses, constant external forces (gravity, or gravity balanced), support and
+    /// cameras; `frame_interval_s` is the nominal h of η.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        mesh: &'a TetMesh,
+        model: CorotationalModel,
+        masses_kg: Vec<f64>,
+        external_forces_n: Vec<Vector3<f64>>,
+        attachment: Attachment,
+        cameras: Vec<ViewCamera>,
+        damping: RayleighDamping,
+        frame_interval_s: f64,
+        settings: &TrackSettings,
+    ) -> Result<Self, softcap_fem::FemError> {
+        let dofs: Vec<usize> = attachment
+            .nodes
+            .iter()
+            .flat_map(|&n| [3 * n, 3 * n + 1, 3 * n + 2])
+            .collect();
+        let gravity_n = external_forces_n;
+        let mean_mass = masses_kg.iter().sum::<f64>() / masses_kg.len().max(1) as f64;
+        let h = frame_interval_s.max(1e-6);
+        let eta = settings.data_weight * mean_mass / (h * h) * settings.sigma_min_m.powi(2);
+        let solver = DynamicSolver::new(&model, masses_kg, &dofs)?;
+        let samples = SurfaceSamples::new(mesh, settings.sample_spacing_m);
+        let surface = TriMesh {
+            vertices: mesh.vertices.clone(),
+            triangles: samples.faces.clone(),
+        };
+        Ok(Self {
+            mesh,
+            model,
+            solver,
+            gravity_n,
+            attachment,
+            samples,
+            cameras,
+            settings: settings.clone(),
+            damping,
+            eta,
+            state: DynamicState::at_rest(mesh.vertices.clone()),
+            started: false,
+            surface,
+        })
+    }
+
+    /// Number of surface samples (GMM components before visibility).
+    pub fn sample_count(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// η of eq. 5, N·m.
+    pub fn eta(&self) -> f64 {
+        self.eta
+    }
+
+    /// Tracks one frame: `points` (and their normals, or empty) at camera time `t_camera_s`,
+    /// with the attached region moved by `support` (p = R p₀ + t) if given.
+    pub fn track(
+        &mut self,
+        frame: u64,
+        t_camera_s: f64,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        support: Option<&(nalgebra::UnitQuaternion<f64>, Vector3<f64>)>,
+    ) -> FrameTrack {
+        if !self.started {
+            self.started = true;
+            self.state.time_s = t_camera_s - self.nominal_h();
+            let settings = self.dynamics_settings(self.nominal_h());
+            let g = self.gravity_n.clone();
+            self.solver
+                .initialize_acceleration(&self.model, &mut self.state, &g, &settings);
+        }
+        let h = (t_camera_s - self.state.time_s).max(1e-6);
+        let mut bc = DirichletBc::new();
+        for (&n, p0) in self.attachment.nodes.iter().zip(&self.attachment.frame0_m) {
+            let p = match support {
+                Some((r, t)) => r * p0 + t,
+                None => *p0,
+            };
+            bc.fix_node(n, p);
+        }
+        let result = self.em(points, normals, &bc, h);
+        match result {
+            Ok(mut ft) => {
+                ft.frame = frame;
+                ft.t_camera_s = t_camera_s;
+                ft
+            }
+            Err(detail) => {
+                // restart at rest from the previous frame's positions (with the support moved)
+                let mut x = self.state.positions_m.clone();
+                bc.apply(&mut x);
+                self.state = DynamicState::at_rest(x);
+                self.state.time_s = t_camera_s;
+                FrameTrack {
+                    frame,
+                    t_camera_s,
+                    positions_m: self.state.positions_m.clone(),
+                    status: "diverged",
+                    detail,
+                    residual_m: f64::NAN,
+                    sigma_m: f64::NAN,
+                    outlier_fraction: f64::NAN,
+                    em_iterations: 0,
+                    newton_iterations: 0,
+                    points: points.len(),
+                    visible_samples: 0,
+                }
+            }
+        }
+    }
+
+    fn nominal_h(&self) -> f64 {
+        self.settings.nominal_frame_interval_s
+    }
+
+    fn dynamics_settings(&self, h: f64) -> DynamicsSettings {
+        DynamicsSettings {
+            integrator: self.settings.integrator,
+            time_step_s: h,
+            damping: self.damping,
+            max_iterations: self.settings.newton_iterations,
+            ..DynamicsSettings::default()
+        }
+    }
+
+    /// The EM iterations of one frame; `Err` when the step diverges.
+    fn em(
+        &mut self,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bc: &DirichletBc,
+        h: f64,
+    ) -> Result<FrameTrack, String> {
+        let s = self.settings.clone();
+        let dyn_settings = self.dynamics_settings(h);
+        let start = self.state.clone();
+        // the integrator's predictor, support applied: the first E-step's configuration
+        let mut x = start.predicted_positions(h, dyn_settings.integrator);
+        bc.apply(&mut x);
+        let volume = bounding_volume(points);
+        let mut sigma = s.sigma_start_m.max(s.sigma_min_m);
+        let mut out = FrameTrack {
+            frame: 0,
+            t_camera_s: 0.0,
+            positions_m: Vec::new(),
+            status: "max-iterations",
+            detail: String::new(),
+            residual_m: f64::NAN,
+            sigma_m: sigma,
+            outlier_fraction: 1.0,
+            em_iterations: 0,
+            newton_iterations: 0,
+            points: points.len(),
+            visible_samples: 0,
+        };
+        let mut stepped = start.clone();
+        let no_points = points.is_empty();
+        for it in 0..s.max_em_iterations.max(1) {
+            let stride = (((sigma / s.sigma_min_m).powi(2)).round() as usize).clamp(1, 64);
+            let (e, _) = self.expectation(points, normals, &x, volume, sigma, stride);
+            let kappa: Vec<f64> = e
+                .weight
+                .iter()
+                .map(|w| self.eta * w / (sigma * sigma))
+                .collect();
+            let mut term = VirtualForces::new(&self.samples, &kappa, &e.target);
+            let mut trial = start.clone();
+            let report = self.solver.step_with(
+                &mut self.model,
+                &mut trial,
+                &StepLoads {
+                    external_forces_n: &self.gravity_n,
+                    prescribed: Some(bc),
+                    contact: None,
+                    initial_guess: Some(&x),
+                },
+                &mut [&mut term as &mut dyn NodalTerm],
+                &dyn_settings,
+            );
+            out.em_iterations = it + 1;
+            out.newton_iterations += report.iterations;
+            if let DynamicStepStatus::Failed { reason } = &report.status {
+                return Err(format!(
+                    "EM iteration {}: implicit step failed: {reason}",
+                    it + 1
+                ));
+            }
+            let moved = trial
+                .positions_m
+                .iter()
+                .zip(&x)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            if !moved.is_finite() || moved > s.divergence_step_m {
+                return Err(format!(
+                    "EM iteration {}: nodes moved {moved:.3e} m in one M-step (limit {:.3e})",
+                    it + 1,
+                    s.divergence_step_m
+                ));
+            }
+            x = trial.positions_m.clone();
+            stepped = trial;
+            let at_floor = sigma <= s.sigma_min_m * (1.0 + 1e-9);
+            if it + 1 >= s.min_em_iterations && at_floor && moved <= s.em_tolerance_m {
+                out.status = "converged";
+                break;
+            }
+            let ml = if e.sigma2_ml.is_finite() {
+                e.sigma2_ml.sqrt()
+            } else {
+                sigma
+            };
+            sigma = (s.sigma_anneal * sigma).min(ml).max(s.sigma_min_m);
+            out.sigma_m = sigma;
+        }
+        if no_points {
+            out.status = "no-points";
+            out.detail = "the frame's cloud is empty: physics only".into();
+        } else if out.status != "converged" {
+            out.detail = format!(
+                "EM stopped after {} iterations (σ {:.3} mm)",
+                out.em_iterations,
+                1e3 * sigma
+            );
+        }
+        self.state = stepped;
+        self.state.time_s = start.time_s + h;
+        out.positions_m = self.state.positions_m.clone();
+        // final E-step at the tracked positions: residual, outliers, visibility
+        let (e, visible) = self.expectation(points, normals, &out.positions_m, volume, sigma, 1);
+        out.visible_samples = visible;
+        out.sigma_m = sigma;
+        out.outlier_fraction = e.outlier_fraction;
+        out.residual_m = self.residual(&out.positions_m, points, &e.point_outlier);
+        Ok(out)
+    }
+
+    /// The E-step at node positions `x` over the samples visible there; also returns how many
+    /// samples are visible.
+    fn expectation(
+        &self,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        x: &[Vector3<f64>],
+        volume: f64,
+        sigma: f64,
+        stride: usize,
+    ) -> (EStep, usize) {
+        let s = &self.settings;
+        let sample_x = self.samples.positions(x);
+        let sample_n = self.samples.normals(x);
+        let visible = self.visibility(x, &sample_x, &sample_n);
+        let e = e_step(
+            points,
+            normals,
+            &sample_x,
+            &sample_n,
+            &self.samples.areas_m2,
+            &visible,
+            volume,
+            &EStepParams {
+                sigma_m: sigma,
+                outlier_weight: s.outlier_weight,
+                cutoff_sigmas: s.cutoff_sigmas,
+                stride,
+                normal_gate: s.normal_gate,
+            },
+        );
+        (e, visible.iter().filter(|v| **v).count())
+    }
+
+    /// Whether each sample is seen by some camera (all samples without cameras).
+    fn visibility(
+        &self,
+        x: &[Vector3<f64>],
+        sample_x: &[Vector3<f64>],
+        sample_n: &[Vector3<f64>],
+    ) -> Vec<bool> {
+        if self.cameras.is_empty() || !self.settings.visibility {
+            return vec![true; sample_x.len()];
+        }
+        let Ok(caster) = SurfaceRayCaster::new(x, &self.samples.faces) else {
+            return vec![true; sample_x.len()];
+        };
+        let cos_max = self.settings.grazing_deg.to_radians().cos();
+        let tol = self.settings.visibility_tolerance_m;
+        use rayon::prelude::*;
+        sample_x
+            .par_iter()
+            .zip(sample_n.par_iter())
+            .map(|(p, n)| {
+                self.cameras.iter().any(|c| {
+                    let centre = c.camera.centre_world().coords;
+                    let to_cam = centre - p;
+                    let d = to_cam.norm();
+                    if n.dot(&to_cam) < cos_max * d {
+                        return false;
+                    }
+                    let z = c.camera.to_camera(&Point3::from(*p)).z;
+                    if z < c.min_depth_m || z > c.max_depth_m {
+                        return false;
+                    }
+                    let Some(uv) = c.camera.project(&Point3::from(*p)) else {
+                        return false;
+                    };
+                    let inside = uv.x >= -0.5
+                        && uv.y >= -0.5
+                        && uv.x < c.camera.width as f64 - 0.5
+                        && uv.y < c.camera.height as f64 - 0.5;
+                    inside && !caster.occluded(&centre, p, tol)
+                })
+            })
+            .collect()
+    }
+
+    /// Mean distance from the inlier points (outlier posterior < ½) to the surface at `x`.
+    fn residual(&mut self, x: &[Vector3<f64>], points: &[Vector3<f64>], outlier: &[f64]) -> f64 {
+        self.surface.vertices.clone_from_slice(x);
+        let locator = TriLocator::new(&self.surface);
+        use rayon::prelude::*;
+        let d: Vec<Option<f64>> = points
+            .par_iter()
+            .zip(outlier.par_iter())
+            .map(|(p, &po)| {
+                if po < 0.5 {
+                    locator.locate(p).map(|e| e.distance)
+                } else {
+                    None
+                }
+            })
+            .collect();
+        let (sum, n) = d
+            .iter()
+            .flatten()
+            .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+        if n > 0 { sum / n as f64 } else { f64::NAN }
+    }
+
+    /// The mesh being tracked.
+    pub fn mesh(&self) -> &TetMesh {
+        self.mesh
+    }
+}
