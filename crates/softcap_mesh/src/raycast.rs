@@ -9,7 +9,7 @@
 use nalgebra::Vector3;
 use parry3d::math::Vector as PVec;
 use parry3d::query::{Ray, RayCast};
-use parry3d::shape::{FeatureId, TriMesh as ParryTriMesh, TriMeshFlags};
+use parry3d::shape::{TriMesh as ParryTriMesh, TriMeshFlags};
 
 use crate::error::{MeshError, Result};
 
@@ -29,8 +29,6 @@ pub struct RayHit {
 pub struct SurfaceRayCaster {
     mesh: ParryTriMesh,
     normals: Vec<Vector3<f64>>,
-    vertices: Vec<Vector3<f64>>,
-    triangles: Vec<[usize; 3]>,
 }
 
 impl std::fmt::Debug for SurfaceRayCaster {
@@ -77,12 +75,7 @@ impl SurfaceRayCaster {
             TriMeshFlags::empty(),
         )
         .map_err(|e| MeshError::format("ray caster", e.to_string()))?;
-        Ok(Self {
-            mesh,
-            normals,
-            vertices: vertices.to_vec(),
-            triangles: triangles.to_vec(),
-        })
+        Ok(Self { mesh, normals })
     }
 
     /// First hit of the ray `origin + t·direction`, 0 < t ≤ `max_t`, if any.
@@ -96,10 +89,8 @@ impl SurfaceRayCaster {
         let hit = self
             .mesh
             .cast_local_ray_and_get_normal(&ray, max_t, false)?;
-        let triangle = match hit.feature {
-            FeatureId::Face(f) => (f as usize) % self.normals.len(),
-            _ => self.closest_triangle_of_hit(origin, direction, hit.time_of_impact)?,
-        };
+        // parry 0.31: `subshape` is the triangle of the mesh, `feature` the triangle's own face.
+        let triangle = hit.subshape as usize;
         Some(RayHit {
             t: hit.time_of_impact,
             triangle,
@@ -116,25 +107,6 @@ impl SurfaceRayCaster {
             return false;
         }
         self.cast(from, &(d / len), len - tolerance).is_some()
-    }
-
-    /// The triangle of a hit that parry reported on an edge or vertex: the smallest index among
-    /// the triangles whose plane the hit point lies on within a relative 1e-9 (rare: rays through
-    /// an edge exactly).
-    fn closest_triangle_of_hit(
-        &self,
-        origin: &Vector3<f64>,
-        direction: &Vector3<f64>,
-        t: f64,
-    ) -> Option<usize> {
-        let p = origin + direction * t;
-        let scale = direction.norm() * t.abs().max(1e-12);
-        (0..self.triangles.len()).find(|&k| {
-            let [a, b, c] = self.triangles[k].map(|i| self.vertices[i]);
-            let w = crate::closest_point_on_triangle(&p, &a, &b, &c);
-            let q = a * w[0] + b * w[1] + c * w[2];
-            (q - p).norm() <= 1e-9 * scale
-        })
     }
 }
 
