@@ -339,3 +339,44 @@ fn export_volume_as_msh_reads_back() {
     let flat: Vec<f64> = m.vertices.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
     assert_eq!(flat, positions_m);
 }
+
+/// `--what nodes`: a track.mcap's `/tissue/track/nodes` as `frame,node,x,y,z` (m); a file
+/// without that channel exits 2 naming it and writes nothing.
+#[test]
+fn export_tracked_nodes_as_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("track.mcap");
+    let p = Provenance::new("tissue track", "0.1.0").with_arguments(["softcap-tissue", "x"]);
+    let mut w = Writer::create(&f, &p).unwrap();
+    for frame in 0..2u64 {
+        let dz = 0.001 * frame as f64;
+        w.write(
+            &topics::TRACK_NODES,
+            frame * 33_333_333,
+            &softcap_mcap::proto::NodeFrame {
+                frame,
+                t_camera_s: frame as f64 / 30.0,
+                positions_m: vec![0.0, 0.0, dz, 0.25, -0.5, 0.125 + dz],
+            },
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+    let o = dir.path().join("n.csv");
+    let (code, err) = export(&f, "nodes", &o);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&o).unwrap(),
+        "frame,node,x,y,z\n0,0,0,0,0\n0,1,0.25,-0.5,0.125\n1,0,0,0,0.001\n1,1,0.25,-0.5,0.126\n"
+    );
+    let capture = dir.path().join("capture.mcap");
+    write_capture(&capture);
+    let o2 = dir.path().join("none.csv");
+    let (code, err) = export(&capture, "nodes", &o2);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("capture.mcap") && err.contains("/tissue/track/nodes"),
+        "{err}"
+    );
+    assert!(!o2.exists());
+}

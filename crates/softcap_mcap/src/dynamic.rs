@@ -1,6 +1,7 @@
 //! Typed reading of dynamic recordings (wang2015): the point clouds of a dynamic `capture.mcap`
-//! ([`DynamicCaptureData::read`]) and a dynamic material ([`read_dynamic_material`]), validated
-//! so a stage can use them without re-checking (every error names file, channel and field).
+//! ([`DynamicCaptureData::read`]), a dynamic material ([`read_dynamic_material`]) and the
+//! output of `softcap tissue track` ([`read_track`]), validated so a stage can use them without
+//! re-checking (every error names file, channel and field).
 //!
 //! ```
 //! use softcap_mcap::dynamic::DynamicCaptureData;
@@ -28,6 +29,7 @@ use std::path::{Path, PathBuf};
 
 use crate::capture::SessionInfo;
 use crate::error::{Error, Result};
+use crate::material::{VolumeMesh, read_volume_mesh};
 use crate::proto;
 use crate::reader::Recording;
 use crate::topics;
@@ -215,6 +217,16 @@ pub fn read_dynamic_material(
 ) -> Result<proto::DynamicMaterial> {
     let path = path.as_ref();
     let m = Recording::open(path)?.read_static(&topics::DYNAMIC_MATERIAL)?;
+    validate_dynamic_material(path, m, tets, nodes)
+}
+
+/// The checks of [`read_dynamic_material`] on a decoded message.
+fn validate_dynamic_material(
+    path: &Path,
+    m: proto::DynamicMaterial,
+    tets: usize,
+    nodes: usize,
+) -> Result<proto::DynamicMaterial> {
     let material_topic = topics::DYNAMIC_MATERIAL;
     let topic = material_topic.name();
     if !(m.young_pa.len() == 1 || m.young_pa.len() == tets) {
@@ -260,4 +272,177 @@ pub fn read_dynamic_material(
         return Err(invalid(path, topic, "rest_positions_m", "not finite"));
     }
     Ok(m)
+}
+
+/// One tracked frame of a track.mcap (`/tissue/track/nodes` with its `/tissue/track/status`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackedFrame {
+    /// Frame index of the capture.
+    pub frame: u64,
+    /// Camera time, s.
+    pub t_camera_s: f64,
+    /// Tracked positions of the template's nodes, m, world frame, in `/mesh/volume` order.
+    pub positions_m: Vec<[f64; 3]>,
+    /// The tracker's state after this frame (`status` is one of [`TRACK_STATUSES`]).
+    pub status: proto::TrackStatus,
+}
+
+impl TrackedFrame {
+    /// Whether the tracker trusted this frame (`converged` or `max-iterations`): a `diverged`
+    /// frame was restarted from the previous one, a `no-points` frame only predicted.
+    pub fn is_tracked(&self) -> bool {
+        matches!(self.status.status.as_str(), "converged" | "max-iterations")
+    }
+}
+
+/// The values `/tissue/track/status` `status` takes.
+pub const TRACK_STATUSES: [&str; 4] = ["converged", "max-iterations", "diverged", "no-points"];
+
+/// A track.mcap read into memory: [`read_track`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackRecording {
+    /// The file read.
+    pub path: PathBuf,
+    /// `/mesh/volume`: the template mesh at frame 0 (its node order indexes every frame).
+    pub mesh: VolumeMesh,
+    /// `/tissue/dynamic_material`: the material the tracker used (rest shape included when solved).
+    pub material: proto::DynamicMaterial,
+    /// Tracked frames in increasing frame order.
+    pub frames: Vec<TrackedFrame>,
+    /// `/tissue/track/report`, if present.
+    pub report: Option<proto::Report>,
+}
+
+/// Reads and validates the output of `softcap tissue track`: `/mesh/volume`,
+/// `/tissue/dynamic_material` (checked as by [`read_dynamic_material`]), `/tissue/track/nodes`
+/// (frames strictly increasing, one finite position per template node) and
+/// `/tissue/track/status` (exactly one per node frame, same frame numbers, a known status).
+///
+/// ```
+/// use softcap_mcap::dynamic::read_track;
+/// use softcap_mcap::{proto, topics, Provenance, Writer};
+/// # fn main() -> Result<(), softcap_mcap::Error> {
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("track.mcap");
+/// let mut w = Writer::create(&path, &Provenance::new("tissue track", "0"))?;
+/// let x = vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+/// w.write_static(&topics::VOLUME_MESH, &proto::TetMesh {
+///     positions_m: x.clone(), tets: vec![0, 1, 2, 3], ..Default::default()
+/// })?;
+/// w.write_static(&topics::DYNAMIC_MATERIAL, &proto::DynamicMaterial {
+///     young_pa: vec![1e5], poisson: 0.4, density_kg_m3: 1000.0, ..Default::default()
+/// })?;
+/// w.write(&topics::TRACK_NODES, 0, &proto::NodeFrame { frame: 0, positions_m: x, ..Default::default() })?;
+/// w.write(&topics::TRACK_STATUS, 0, &proto::TrackStatus {
+///     frame: 0, status: "converged".into(), ..Default::default()
+/// })?;
+/// w.finish()?;
+/// let track = read_track(&path)?;
+/// assert_eq!(track.frames[0].positions_m[1], [1.0, 0.0, 0.0]);
+/// assert!(track.frames[0].is_tracked());
+/// # Ok(()) }
+/// ```
+pub fn read_track(path: impl AsRef<Path>) -> Result<TrackRecording> {
+    let path = path.as_ref();
+    let r = Recording::open(path)?;
+    let mesh = read_volume_mesh(&r)?;
+    let nodes = mesh.vertices_m.len();
+    let material = validate_dynamic_material(
+        path,
+        r.read_static(&topics::DYNAMIC_MATERIAL)?,
+        mesh.tets.len(),
+        nodes,
+    )?;
+    let nodes_topic = topics::TRACK_NODES;
+    let ntopic = nodes_topic.name();
+    let node_frames = r.read(&topics::TRACK_NODES)?;
+    if node_frames.is_empty() {
+        return Err(invalid(path, ntopic, "frames", "no tracked frames"));
+    }
+    let status_topic = topics::TRACK_STATUS;
+    let stopic = status_topic.name();
+    let statuses = r.read(&topics::TRACK_STATUS)?;
+    if statuses.len() != node_frames.len() {
+        return Err(invalid(
+            path,
+            stopic,
+            "frames",
+            &format!(
+                "{} status messages for {} node frames (need one per frame)",
+                statuses.len(),
+                node_frames.len()
+            ),
+        ));
+    }
+    let mut frames: Vec<TrackedFrame> = Vec::with_capacity(node_frames.len());
+    for ((_, n), (_, status)) in node_frames.into_iter().zip(statuses) {
+        let at = |f: &str| format!("frame {}: {f}", n.frame);
+        if frames.last().is_some_and(|p| p.frame >= n.frame) {
+            return Err(invalid(path, ntopic, at("frame"), "frames must increase"));
+        }
+        if n.positions_m.len() != 3 * nodes {
+            return Err(invalid(
+                path,
+                ntopic,
+                at("positions_m"),
+                &format!(
+                    "{} coordinates for a template of {nodes} nodes",
+                    n.positions_m.len()
+                ),
+            ));
+        }
+        if let Some(i) = n.positions_m.iter().position(|v| !v.is_finite()) {
+            return Err(invalid(
+                path,
+                ntopic,
+                at(&format!("positions_m[{i}]")),
+                "not finite",
+            ));
+        }
+        if status.frame != n.frame {
+            return Err(invalid(
+                path,
+                stopic,
+                at("frame"),
+                &format!(
+                    "status is for frame {} (statuses must pair with node frames)",
+                    status.frame
+                ),
+            ));
+        }
+        if !TRACK_STATUSES.contains(&status.status.as_str()) {
+            return Err(invalid(
+                path,
+                stopic,
+                at("status"),
+                &format!(
+                    "`{}` is none of {}",
+                    status.status,
+                    TRACK_STATUSES.join(", ")
+                ),
+            ));
+        }
+        frames.push(TrackedFrame {
+            frame: n.frame,
+            t_camera_s: n.t_camera_s,
+            positions_m: n
+                .positions_m
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+            status,
+        });
+    }
+    let report = if r.channel(topics::TRACK_REPORT.name()).is_some() {
+        Some(r.read_static(&topics::TRACK_REPORT)?)
+    } else {
+        None
+    };
+    Ok(TrackRecording {
+        path: path.to_path_buf(),
+        mesh,
+        material,
+        frames,
+        report,
+    })
 }

@@ -7,7 +7,7 @@
 //! | [`writer`] | [`Writer`]: zstd chunks, message indexes, summary, atomic `NAME.mcap.tmp` → `NAME.mcap` |
 //! | [`reader`] | [`Recording`]: validated reading, typed decoding, [`Recording::digest`] |
 //! | [`capture`] | [`CaptureData::read`]: typed reading of a `capture.mcap` (session, markers, probe, sync, probe locations) |
-//! | [`dynamic`] | [`dynamic::DynamicCaptureData::read`]: point clouds of a dynamic capture; [`dynamic::read_dynamic_material`] |
+//! | [`dynamic`] | [`dynamic::DynamicCaptureData::read`]: point clouds of a dynamic capture; [`dynamic::read_dynamic_material`]; [`dynamic::read_track`]: a track.mcap |
 //! | [`material`] | [`material::MaterialData::read`]: typed reading of a `material.mcap` (volume mesh, per-example (λ, α), basis, report) |
 //! | [`provenance`] | [`Provenance`]: the `softcap.provenance` metadata record |
 //! | [`viz`] | Foxglove `SceneUpdate` / `FrameTransform` twins for `/viz/...` channels |

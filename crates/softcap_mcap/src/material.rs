@@ -175,43 +175,9 @@ impl MaterialData {
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let r = Recording::open(path)?;
         let path = r.path().to_path_buf();
-        let mesh = r.read_static(&topics::VOLUME_MESH)?;
-        let mtopic = "/mesh/volume";
-        if mesh.positions_m.len() % 3 != 0 || mesh.tets.len() % 4 != 0 {
-            return Err(invalid(
-                &path,
-                mtopic,
-                "positions_m / tets".into(),
-                "length is not a multiple of 3 / 4",
-            ));
-        }
-        if let Some(i) = mesh.positions_m.iter().position(|v| !v.is_finite()) {
-            return Err(invalid(
-                &path,
-                mtopic,
-                format!("positions_m[{i}]"),
-                "not finite",
-            ));
-        }
-        let nv = mesh.positions_m.len() / 3;
-        if let Some(i) = mesh.tets.iter().position(|&v| v as usize >= nv) {
-            return Err(invalid(
-                &path,
-                mtopic,
-                format!("tets[{i}]"),
-                "vertex index out of range",
-            ));
-        }
-        let vertices_m = mesh
-            .positions_m
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let tets: Vec<[usize; 4]> = mesh
-            .tets
-            .chunks_exact(4)
-            .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize, c[3] as usize])
-            .collect();
+        let VolumeMesh {
+            vertices_m, tets, ..
+        } = read_volume_mesh(&r)?;
         let etopic = "/tissue/element_material";
         let element_materials = if r.channel(etopic).is_some() {
             r.read(&topics::ELEMENT_MATERIAL)?
@@ -263,4 +229,83 @@ impl MaterialData {
             report,
         })
     }
+}
+
+/// A validated `/mesh/volume`: [`read_volume_mesh`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct VolumeMesh {
+    /// Vertex positions, m.
+    pub vertices_m: Vec<[f64; 3]>,
+    /// Tets (vertex indices).
+    pub tets: Vec<[usize; 4]>,
+    /// Boundary triangles (vertex indices; empty when the file has none).
+    pub surface_triangles: Vec<[usize; 3]>,
+}
+
+/// Reads `/mesh/volume` of `r`, validated: flat lengths multiples of 3 / 4 / 3, coordinates
+/// finite, vertex indices in range.
+pub fn read_volume_mesh(r: &Recording) -> Result<VolumeMesh> {
+    let path = r.path().to_path_buf();
+    let mesh = r.read_static(&topics::VOLUME_MESH)?;
+    let mtopic = "/mesh/volume";
+    if mesh.positions_m.len() % 3 != 0
+        || mesh.tets.len() % 4 != 0
+        || mesh.surface_triangles.len() % 3 != 0
+    {
+        return Err(invalid(
+            &path,
+            mtopic,
+            "positions_m / tets / surface_triangles".into(),
+            "length is not a multiple of 3 / 4 / 3",
+        ));
+    }
+    if let Some(i) = mesh.positions_m.iter().position(|v| !v.is_finite()) {
+        return Err(invalid(
+            &path,
+            mtopic,
+            format!("positions_m[{i}]"),
+            "not finite",
+        ));
+    }
+    let nv = mesh.positions_m.len() / 3;
+    if let Some(i) = mesh.tets.iter().position(|&v| v as usize >= nv) {
+        return Err(invalid(
+            &path,
+            mtopic,
+            format!("tets[{i}]"),
+            "vertex index out of range",
+        ));
+    }
+    if let Some(i) = mesh
+        .surface_triangles
+        .iter()
+        .position(|&v| v as usize >= nv)
+    {
+        return Err(invalid(
+            &path,
+            mtopic,
+            format!("surface_triangles[{i}]"),
+            "vertex index out of range",
+        ));
+    }
+    let vertices_m = mesh
+        .positions_m
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let tets: Vec<[usize; 4]> = mesh
+        .tets
+        .chunks_exact(4)
+        .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize, c[3] as usize])
+        .collect();
+    let surface_triangles = mesh
+        .surface_triangles
+        .chunks_exact(3)
+        .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+        .collect();
+    Ok(VolumeMesh {
+        vertices_m,
+        tets,
+        surface_triangles,
+    })
 }

@@ -142,6 +142,16 @@ fn a_rigidly_moving_cloud_is_followed_and_the_output_is_deterministic() {
         );
         assert!(fr.residual_m < tolerance, "{}", rows.join("\n"));
     }
+    // the typed reader gives back what the tracker wrote
+    let track = softcap_mcap::dynamic::read_track(dir.path().join("a.mcap")).unwrap();
+    assert_eq!(track.frames.len(), o.frames.len());
+    assert_eq!(track.mesh.vertices_m.len(), rest.vertices.len());
+    for (read, fr) in track.frames.iter().zip(&o.frames) {
+        assert_eq!(read.status.status, fr.status);
+        for (a, b) in read.positions_m.iter().zip(&fr.positions_m) {
+            assert_eq!(*a, [b.x, b.y, b.z]);
+        }
+    }
     run(&config(dir.path(), capture, mesh, "b.mcap")).unwrap();
     let digest = |p: &str| {
         softcap_mcap::Recording::open(dir.path().join(p))
