@@ -4,6 +4,10 @@
 //! - `softcap-face run --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv [--frames 0,150]
 //!   [--stride N] [--wrinkles WRINKLES.json] -o face.mcap` (the stage output, `docs/formats.md`)
 //! - `softcap-face animate --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv --frames 0,120,390 --out DIR`
+//! - `softcap-face track TAKE/ --face NEUTRAL.obj --landmarks TABLE.csv -o wrinkles.mcap [--report DIR]`
+//! - `softcap-face remove --face SCAN.obj (--region REGION.csv | --landmarks TABLE.csv --around MARKER
+//!   --radius R) [--frames face.mcap] -o clean.mcap [--obj clean.obj]`
+//! - `softcap-face synth-take --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv -o TAKE/ [--frames 60]`
 
 use std::path::{Path, PathBuf};
 
@@ -12,7 +16,12 @@ use softcap_app::{Context, Error, IntoError, Progress, Result};
 use softcap_mesh::nalgebra::Vector3;
 use softcap_mesh::shell::ShellSettings;
 
+use crate::take::read_take;
+use crate::take_synth::{TakeSynthSettings, face_from_mocap, synth_take};
+use crate::take_track::{track_take, write_track_mcap};
+use crate::video::VideoTrackSettings;
 use crate::{
+    RemovalSettings, remove_wrinkles,
     FaceAnimator, FaceFrame, MocapTake, OrthoView, SynthesisSettings, WrinkleInput,
     derive_landmarks, landmarks_csv, parse_landmarks_csv, read_animface_csv, render_mesh,
     synthesize_wrinkles, write_face_mcap,
@@ -57,7 +66,8 @@ pub enum Command {
         frames: Vec<u64>,
         #[arg(long, default_value_t = 1)]
         stride: usize,
-        /// Tracked wrinkles and camera (JSON, `softcap_face::WrinkleInput`).
+        /// Tracked wrinkles: `wrinkles.mcap` of `face track`, or a JSON
+        /// `softcap_face::WrinkleInput` (camera + curves).
         #[arg(long)]
         wrinkles: Option<PathBuf>,
         /// Length of one scan unit in metres (ICT face: cm).
@@ -82,6 +92,70 @@ pub enum Command {
         #[arg(long, default_value_t = 480)]
         width_px: usize,
     },
+    /// Track the painted wrinkles of a face take (thesis §4.3) onto the animated face.
+    Track {
+        /// The take directory (cameras.toml, mocap.csv, frames/<camera>/<frame>.png, labels/).
+        take: PathBuf,
+        #[arg(long)]
+        face: PathBuf,
+        #[arg(long)]
+        landmarks: PathBuf,
+        /// Length of one scan unit in metres (ICT face: cm).
+        #[arg(long, default_value_t = 0.01)]
+        metres_per_unit: f64,
+        /// Tracker settings (JSON, `softcap_face::video::VideoTrackSettings`; defaults otherwise).
+        #[arg(long)]
+        settings: Option<PathBuf>,
+        /// Write figures (tracked splines over the frames, (d, w) over time) into this directory.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Remove medium-scale wrinkles from a region of a scan (thesis §3.3.2), and of every frame
+    /// of a face.mcap when given.
+    Remove {
+        #[arg(long)]
+        face: PathBuf,
+        /// The region: a CSV with a `vertex` column (scan vertex indices).
+        #[arg(long, conflicts_with_all = ["around", "radius"])]
+        region: Option<PathBuf>,
+        /// … or the vertices within `--radius` (scan units) of this marker's landmark vertex.
+        #[arg(long, requires_all = ["radius", "landmarks"])]
+        around: Option<String>,
+        #[arg(long)]
+        radius: Option<f64>,
+        #[arg(long)]
+        landmarks: Option<PathBuf>,
+        /// A face.mcap whose `/face/mesh` frames (same topology as the scan) are cleaned too.
+        #[arg(long)]
+        frames: Option<PathBuf>,
+        /// Length of one scan unit in metres (ICT face: cm).
+        #[arg(long, default_value_t = 0.01)]
+        metres_per_unit: f64,
+        /// Also write the cleaned scan as OBJ.
+        #[arg(long)]
+        obj: Option<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Render a face take with known wrinkles (test data of `track`; docs/face.md).
+    SynthTake {
+        #[arg(long)]
+        mocap: PathBuf,
+        #[arg(long)]
+        face: PathBuf,
+        #[arg(long)]
+        landmarks: PathBuf,
+        /// Frames (the first N of the mocap take).
+        #[arg(long, default_value_t = 60)]
+        frames: usize,
+        /// Stratified rays per pixel = N².
+        #[arg(long, default_value_t = 12)]
+        rays_per_axis: usize,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 fn bad(msg: String) -> Error {
@@ -92,12 +166,27 @@ fn read_face(path: &Path) -> Result<softcap_mesh::TriMesh> {
     Ok(softcap_mesh::read_obj(path)?.to_tri_mesh())
 }
 
+fn read_landmarks(path: &Path) -> Result<Vec<crate::Landmark>> {
+    let text = std::fs::read_to_string(path).context(path.display().to_string())?;
+    Ok(parse_landmarks_csv(&text, path)?)
+}
+
 /// The animator of a take, face and landmark table.
 fn animator(mocap: &Path, face: &Path, landmarks: &Path) -> Result<(MocapTake, FaceAnimator)> {
     let take = read_animface_csv(mocap)?;
+    let animator = animator_of(&take, mocap, face, landmarks)?;
+    Ok((take, animator))
+}
+
+/// The animator of an already read take.
+fn animator_of(
+    take: &MocapTake,
+    mocap: &Path,
+    face: &Path,
+    landmarks: &Path,
+) -> Result<FaceAnimator> {
     let mesh = read_face(face)?;
-    let text = std::fs::read_to_string(landmarks).context(landmarks.display().to_string())?;
-    let table = parse_landmarks_csv(&text, landmarks)?;
+    let table = read_landmarks(landmarks)?;
     let mut handles = Vec::new();
     for name in &take.names {
         let Some(row) = table.iter().find(|r| &r.marker == name) else {
@@ -122,7 +211,20 @@ fn animator(mocap: &Path, face: &Path, landmarks: &Path) -> Result<(MocapTake, F
             mocap.display()
         )
     })?;
-    Ok((take, animator))
+    Ok(animator)
+}
+
+/// The `--wrinkles` input of `run`: a `wrinkles.mcap` of `face track` (one input per camera) or
+/// a JSON [`WrinkleInput`].
+fn read_wrinkle_inputs(path: &Path, metres_per_unit: f64) -> Result<Vec<WrinkleInput>> {
+    if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
+        return Ok(crate::take_track::read_track_mcap(path, metres_per_unit)?);
+    }
+    let text = std::fs::read_to_string(path).context(path.display().to_string())?;
+    let w: WrinkleInput = serde_json::from_str(&text).bad_input_with(|| path.display().to_string())?;
+    w.validate()
+        .map_err(|e| bad(format!("{}: {e}", path.display())))?;
+    Ok(vec![w])
 }
 
 impl Command {
@@ -161,16 +263,9 @@ impl Command {
                 if !(*metres_per_unit > 0.0 && metres_per_unit.is_finite()) {
                     return Err(bad("--metres-per-unit must be positive".into()));
                 }
-                let input = match wrinkles {
-                    Some(p) => {
-                        let text = std::fs::read_to_string(p).context(p.display().to_string())?;
-                        let w: WrinkleInput = serde_json::from_str(&text)
-                            .bad_input_with(|| p.display().to_string())?;
-                        w.validate()
-                            .map_err(|e| bad(format!("{}: {e}", p.display())))?;
-                        w
-                    }
-                    None => WrinkleInput::default(),
+                let inputs = match wrinkles {
+                    Some(p) => read_wrinkle_inputs(p, *metres_per_unit)?,
+                    None => Vec::new(),
                 };
                 let (take, animator) = animator(mocap, face, landmarks)?;
                 let indices: Vec<usize> = if frames.is_empty() {
@@ -185,7 +280,7 @@ impl Command {
                     }
                     v
                 };
-                for fw in &input.frames {
+                for fw in inputs.iter().flat_map(|i| &i.frames) {
                     if !take.frames.contains(&fw.frame) {
                         let p = wrinkles.as_ref().map(|p| p.display().to_string());
                         return Err(bad(format!(
@@ -203,10 +298,16 @@ impl Command {
                     bar.inc(1);
                     let mut vertices = animator.frame(&take.positions_cm[t])?;
                     let mut wr = Vec::new();
-                    if let (Some(cam), Some(fw)) = (
-                        &input.camera,
-                        input.frames.iter().find(|f| f.frame == take.frames[t]),
-                    ) {
+                    for input in &inputs {
+                        let (Some(cam), Some(fw)) = (
+                            &input.camera,
+                            input.frames.iter().find(|f| f.frame == take.frames[t]),
+                        ) else {
+                            continue;
+                        };
+                        if fw.wrinkles.is_empty() {
+                            continue;
+                        }
                         let res = synthesize_wrinkles(
                             &animator.mesh,
                             &vertices,
@@ -215,12 +316,12 @@ impl Command {
                             &SynthesisSettings::default(),
                         )?;
                         vertices = res.vertices;
-                        wr = fw
-                            .wrinkles
-                            .iter()
-                            .cloned()
-                            .zip(res.projected.into_iter().map(Some))
-                            .collect();
+                        wr.extend(
+                            fw.wrinkles
+                                .iter()
+                                .cloned()
+                                .zip(res.projected.into_iter().map(Some)),
+                        );
                     }
                     out.push(FaceFrame {
                         frame: take.frames[t],
@@ -274,8 +375,256 @@ impl Command {
                 }
                 Ok(())
             }
+            Command::Track {
+                take,
+                face,
+                landmarks,
+                metres_per_unit,
+                settings,
+                report,
+                output,
+            } => track(
+                take,
+                face,
+                landmarks,
+                *metres_per_unit,
+                settings.as_deref(),
+                report.as_deref(),
+                output,
+            ),
+            Command::Remove {
+                face,
+                region,
+                around,
+                radius,
+                landmarks,
+                frames,
+                metres_per_unit,
+                obj,
+                output,
+            } => {
+                let around = match (around, radius, landmarks) {
+                    (Some(m), Some(r), Some(l)) => Some((m.as_str(), *r, l.as_path())),
+                    _ => None,
+                };
+                remove(
+                    face,
+                    region.as_deref(),
+                    around,
+                    frames.as_deref(),
+                    *metres_per_unit,
+                    obj.as_deref(),
+                    output,
+                )
+            }
+            Command::SynthTake {
+                mocap,
+                face,
+                landmarks,
+                frames,
+                rays_per_axis,
+                output,
+            } => {
+                let take = read_animface_csv(mocap)?;
+                let mesh = read_face(face)?;
+                let table = read_landmarks(landmarks)?;
+                let mut s = TakeSynthSettings {
+                    frames: *frames,
+                    ..Default::default()
+                };
+                s.render.rays_per_axis = *rays_per_axis;
+                let bar = Progress::default().bar("rendering take frames", *frames as u64);
+                synth_take(&mesh, &take, &table, output, &s, &|| bar.inc(1))?;
+                bar.finish_and_clear();
+                Ok(())
+            }
         }
     }
+}
+
+/// `softcap face track`.
+fn track(
+    take_dir: &Path,
+    face: &Path,
+    landmarks: &Path,
+    metres_per_unit: f64,
+    settings: Option<&Path>,
+    report: Option<&Path>,
+    output: &Path,
+) -> Result<()> {
+    if !(metres_per_unit > 0.0 && metres_per_unit.is_finite()) {
+        return Err(bad("--metres-per-unit must be positive".into()));
+    }
+    let settings: VideoTrackSettings = match settings {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).context(p.display().to_string())?;
+            serde_json::from_str(&text).bad_input_with(|| p.display().to_string())?
+        }
+        None => VideoTrackSettings::default(),
+    };
+    let take = read_take(take_dir)?;
+    let animator = animator_of(&take.mocap, &take.mocap_path, face, landmarks)?;
+    let table = read_landmarks(landmarks)?;
+    let face_from_mocap = face_from_mocap(&take.mocap, &table, &animator.mesh)
+        .with_context(|| format!("{} on {}", landmarks.display(), face.display()))?;
+    let total = (take.n_frames() * take.cameras.len()) as u64;
+    let bar = Progress::default().bar("tracking wrinkles (camera frames)", total);
+    let tracks = track_take(&take, &animator, &face_from_mocap, &settings, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let progress = Progress::default();
+    for c in &tracks {
+        for (t, row) in c.frames.iter().enumerate() {
+            let states: Vec<String> = row
+                .iter()
+                .map(|w| format!("wrinkle {} {}", w.id, w.status.name()))
+                .collect();
+            progress.step(t + 1, c.frames.len(), &format!("{}: {}", c.id, states.join(", ")));
+        }
+    }
+    let mut provenance = softcap_mcap::Provenance::new("face", env!("CARGO_PKG_VERSION"))
+        .with_arguments(std::env::args());
+    provenance.add_input(&take.dir.join("cameras.toml"))?;
+    provenance.add_input(&take.mocap_path)?;
+    for p in [face, landmarks] {
+        provenance.add_input(p)?;
+    }
+    if let Some(dir) = report {
+        crate::take_report::write_report(dir, &take, &tracks)?;
+    }
+    write_track_mcap(output, &provenance, &take, &tracks, metres_per_unit)?;
+    Ok(())
+}
+
+/// The region of `remove`: a vertex CSV, or the vertices near a landmark.
+fn removal_region(
+    mesh: &softcap_mesh::TriMesh,
+    region: Option<&Path>,
+    around: Option<(&str, f64, &Path)>,
+) -> Result<Vec<usize>> {
+    if let Some(p) = region {
+        let text = std::fs::read_to_string(p).context(p.display().to_string())?;
+        let mut out = Vec::new();
+        let mut lines = text.lines().enumerate();
+        match lines.next() {
+            Some((_, h)) if h.trim() == "vertex" => {}
+            _ => return Err(bad(format!("{}:1: expected the header `vertex`", p.display()))),
+        }
+        for (i, line) in lines {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let v: usize = line.trim().parse().map_err(|_| {
+                bad(format!("{}:{}: field `vertex`: `{line}` is not a vertex index", p.display(), i + 1))
+            })?;
+            if v >= mesh.vertices.len() {
+                return Err(bad(format!(
+                    "{}:{}: field `vertex`: {v} ≥ {} vertices",
+                    p.display(),
+                    i + 1,
+                    mesh.vertices.len()
+                )));
+            }
+            out.push(v);
+        }
+        return Ok(out);
+    }
+    let Some((marker, radius, landmarks)) = around else {
+        return Err(bad("give --region FILE or --around MARKER --radius R --landmarks TABLE".into()));
+    };
+    if !(radius > 0.0 && radius.is_finite()) {
+        return Err(bad("--radius must be positive".into()));
+    }
+    let table = read_landmarks(landmarks)?;
+    let Some(row) = table.iter().find(|r| r.marker == marker) else {
+        return Err(bad(format!("{}: no marker `{marker}`", landmarks.display())));
+    };
+    let Some(c) = mesh.vertices.get(row.vertex) else {
+        return Err(bad(format!(
+            "{}: vertex {} of `{marker}` is not in the scan",
+            landmarks.display(),
+            row.vertex
+        )));
+    };
+    Ok((0..mesh.vertices.len())
+        .filter(|&v| (mesh.vertices[v] - c).norm() <= radius)
+        .collect())
+}
+
+/// `softcap face remove`.
+#[allow(clippy::too_many_arguments)]
+fn remove(
+    face: &Path,
+    region: Option<&Path>,
+    around: Option<(&str, f64, &Path)>,
+    frames: Option<&Path>,
+    metres_per_unit: f64,
+    obj: Option<&Path>,
+    output: &Path,
+) -> Result<()> {
+    if !(metres_per_unit > 0.0 && metres_per_unit.is_finite()) {
+        return Err(bad("--metres-per-unit must be positive".into()));
+    }
+    let scan = read_face(face)?;
+    let region = removal_region(&scan, region, around)?;
+    if region.is_empty() {
+        return Err(bad("the wrinkle region is empty".into()));
+    }
+    let settings = RemovalSettings::default();
+    let clean = softcap_mesh::TriMesh {
+        vertices: remove_wrinkles(&scan, &region, &settings)?,
+        triangles: scan.triangles.clone(),
+    };
+    let mut out = Vec::new();
+    if let Some(p) = frames {
+        let rec = softcap_mcap::reader::Recording::open(p)
+            .map_err(|e| bad(format!("{}: {e}", p.display())))?;
+        let meshes = rec
+            .read(&softcap_mcap::topics::FACE_MESH)
+            .map_err(|e| bad(format!("{}: {e}", p.display())))?;
+        let bar = Progress::default().bar("removing wrinkles (frames)", meshes.len() as u64);
+        for (k, (t_ns, m)) in meshes.iter().enumerate() {
+            bar.inc(1);
+            if m.positions_m.len() != 3 * scan.vertices.len() {
+                return Err(bad(format!(
+                    "{}: /face/mesh message {k} has {} vertices, {} has {}",
+                    p.display(),
+                    m.positions_m.len() / 3,
+                    face.display(),
+                    scan.vertices.len()
+                )));
+            }
+            let mesh = softcap_mesh::TriMesh {
+                vertices: m
+                    .positions_m
+                    .chunks(3)
+                    .map(|c| Vector3::new(c[0], c[1], c[2]) / metres_per_unit)
+                    .collect(),
+                triangles: scan.triangles.clone(),
+            };
+            out.push(FaceFrame {
+                frame: k as u64,
+                t_s: *t_ns as f64 * 1e-9,
+                vertices: remove_wrinkles(&mesh, &region, &settings)?,
+                wrinkles: Vec::new(),
+            });
+        }
+        bar.finish_and_clear();
+    }
+    let mut provenance = softcap_mcap::Provenance::new("face", env!("CARGO_PKG_VERSION"))
+        .with_arguments(std::env::args());
+    for p in [Some(face), frames].into_iter().flatten() {
+        provenance.add_input(p)?;
+    }
+    if let Some(o) = obj {
+        let m = softcap_mesh::ObjMesh {
+            vertices: clean.vertices.clone(),
+            polygons: clean.triangles.iter().map(|t| t.to_vec()).collect(),
+            ..Default::default()
+        };
+        softcap_mesh::write_obj(o, &m).with_context(|| format!("writing {}", o.display()))?;
+    }
+    write_face_mcap(output, &provenance, &clean, &out, metres_per_unit)?;
+    Ok(())
 }
 
 impl Cli {

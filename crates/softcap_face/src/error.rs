@@ -13,6 +13,14 @@ pub enum FaceError {
         /// The cause.
         source: std::io::Error,
     },
+    /// A face take's file or directory is missing or malformed (`softcap face track`).
+    #[error("{path}: {reason}")]
+    Take {
+        /// The file or directory.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// A CSV record is malformed.
     #[error("{path}:{line}: field `{field}`: {reason}")]
     Parse {
@@ -74,7 +82,9 @@ impl softcap_app::Classify for FaceError {
     fn class(&self) -> softcap_app::ErrorClass {
         use softcap_app::ErrorClass::{BadInput, Failure};
         match self {
-            FaceError::Parse { .. } | FaceError::InvalidInput { .. } => BadInput,
+            FaceError::Parse { .. } | FaceError::InvalidInput { .. } | FaceError::Take { .. } => {
+                BadInput
+            }
             FaceError::Io { source, .. } => softcap_app::Classify::class(source),
             FaceError::InvalidSetting { .. }
             | FaceError::Factorization { .. }

@@ -14,6 +14,11 @@
 //! | [`synth`] | 3D wrinkle synthesis: camera projection, valley offset, discrete-shell energy by Gauss–Newton | §3.3.1 eq. 3.6 |
 //! | [`removal`] | wrinkle removal preprocess: detail split, bi-Laplacian patch, details back | §3.3.2 |
 //! | [`output`] | stage MCAP: `/face/mesh` per frame, `/face/wrinkles`, `/viz` twins | |
+//! | [`take`] | a face take on disk: cameras.toml, frames/<camera>/<frame>.png, labels, mocap | |
+//! | [`take_report`] | `face track --report`: tracked splines over frames, (d, w) over time (PNG) | |
+//! | [`take_track`] | `face track`: a take → wrinkles on the animated face, `wrinkles.mcap` writer and reader | §4.3, §3.3.1 |
+//! | [`video`] | wrinkle tracking over a camera's frames: label patches, association, visibility | §4.3 |
+//! | [`take_synth`] | a rendered take with known moving, appearing and occluded wrinkles | test data |
 //! | [`classify`] | per-colour RBF-kernel SVM pixel classification (smartcore) | §4.3.1 |
 //! | [`morphology`] | erosion, dilation, opening, closing, connected components | §4.3.1 |
 //! | [`image`] | [`RgbImage`] (linear float RGB, PNG out) | |
@@ -42,7 +47,12 @@ pub mod raster;
 pub mod removal;
 pub mod render;
 pub mod synth;
+pub mod take;
+pub mod take_report;
+pub mod take_synth;
+pub mod take_track;
 pub mod track;
+pub mod video;
 
 pub use animate::{FaceAnimator, factor_shell, subdivide_midpoint};
 pub use classify::{SvmSettings, classify_frames};
@@ -59,7 +69,10 @@ pub use nalgebra;
 pub use output::{FaceFrame, FrameWrinkles, WrinkleInput, wrinkles_message, write_face_mcap};
 pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use removal::{RemovalSettings, remove_wrinkles};
-pub use render::{AoRenderSettings, RenderedFrame, WrinkleScene, render_ambient_occlusion};
+pub use render::{
+    AoRenderSettings, AoSurface, CompositeScene, Occluder, RenderedFrame, WrinkleScene,
+    render_ambient_occlusion,
+};
 pub use synth::{
     DiscreteShell, PinholeCamera, ProjectedWrinkle, RegionReport, SynthesisResult,
     SynthesisSettings, WrinkleCurve, WrinkleSample, project_wrinkle, smoothed_normals,

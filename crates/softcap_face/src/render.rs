@@ -153,21 +153,130 @@ pub struct RenderedFrame {
     pub occlusion: Vec<f64>,
 }
 
+/// A surface the ambient-occlusion renderer can draw: a height field H(x, y) over the image
+/// plane (orthographic camera looking down −z, lengths in pixels) with painted and skin albedo,
+/// and optionally occluders in front of it.
+pub trait AoSurface: Sync {
+    /// Image columns and rows.
+    fn image_size(&self) -> (usize, usize);
+    /// Height H(x, y).
+    fn height(&self, x: f64, y: f64) -> f64;
+    /// A Lipschitz bound of H (safe ray-marching steps) and an upper bound of H.
+    fn height_bounds(&self) -> (f64, f64);
+    /// Whether (x, y) lies on wrinkle paint.
+    fn painted(&self, x: f64, y: f64) -> bool;
+    /// Albedo of the paint and of the skin.
+    fn albedo(&self) -> ([f64; 3], [f64; 3]);
+    /// Uniform ambient radiance.
+    fn ambient(&self) -> f64;
+    /// Albedo of an occluder in front of the surface at (x, y), if any (lit by the full sky).
+    fn occluder(&self, _x: f64, _y: f64) -> Option<[f64; 3]> {
+        None
+    }
+}
+
+impl AoSurface for WrinkleScene {
+    fn image_size(&self) -> (usize, usize) {
+        (self.width_px, self.height_px)
+    }
+    fn height(&self, x: f64, y: f64) -> f64 {
+        WrinkleScene::height(self, x, y)
+    }
+    fn height_bounds(&self) -> (f64, f64) {
+        (
+            2.0 * self.depth_d_px / self.width_w_px + 2.0 * self.depth_d_px / self.taper_px + 0.05,
+            self.depth_d_px * (-2.0f64).exp() + 1e-9,
+        )
+    }
+    fn painted(&self, x: f64, y: f64) -> bool {
+        WrinkleScene::painted(self, x, y)
+    }
+    fn albedo(&self) -> ([f64; 3], [f64; 3]) {
+        (self.paint_rgb, self.skin_rgb)
+    }
+    fn ambient(&self) -> f64 {
+        self.ambient
+    }
+}
+
+/// An axis-aligned occluder in front of the face (a strand of hair, a finger), pixels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Occluder {
+    /// Columns covered, [from, to].
+    pub x_px: [f64; 2],
+    /// Rows covered, [from, to].
+    pub y_px: [f64; 2],
+    /// Its albedo.
+    pub rgb: [f64; 3],
+}
+
+/// Several painted wrinkles on one skin patch (heights add up) with occluders in front: one
+/// camera's view of a face take. Image size, paint, skin and ambient are this struct's; of each
+/// wrinkle only the geometry (arc, taper, w, d, paint band) is used.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CompositeScene {
+    /// Image columns.
+    pub width_px: usize,
+    /// Image rows.
+    pub height_px: usize,
+    /// The wrinkles.
+    pub wrinkles: Vec<WrinkleScene>,
+    /// Occluders in front of the skin.
+    pub occluders: Vec<Occluder>,
+    /// Albedo of the wrinkle paint.
+    pub paint_rgb: [f64; 3],
+    /// Albedo of the skin.
+    pub skin_rgb: [f64; 3],
+    /// Uniform ambient radiance.
+    pub ambient: f64,
+}
+
+impl AoSurface for CompositeScene {
+    fn image_size(&self) -> (usize, usize) {
+        (self.width_px, self.height_px)
+    }
+    fn height(&self, x: f64, y: f64) -> f64 {
+        self.wrinkles.iter().map(|w| w.height(x, y)).sum()
+    }
+    fn height_bounds(&self) -> (f64, f64) {
+        self.wrinkles
+            .iter()
+            .map(AoSurface::height_bounds)
+            .fold((0.05, 1e-9), |(l, h), (a, b)| (l + a, h + b))
+    }
+    fn painted(&self, x: f64, y: f64) -> bool {
+        self.wrinkles.iter().any(|w| w.painted(x, y))
+    }
+    fn albedo(&self) -> ([f64; 3], [f64; 3]) {
+        (self.paint_rgb, self.skin_rgb)
+    }
+    fn ambient(&self) -> f64 {
+        self.ambient
+    }
+    fn occluder(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        self.occluders
+            .iter()
+            .find(|o| x >= o.x_px[0] && x <= o.x_px[1] && y >= o.y_px[0] && y <= o.y_px[1])
+            .map(|o| o.rgb)
+    }
+}
+
 /// Render a wrinkle frame: per pixel, I = ambient · albedo · (fraction of cosine-weighted rays
-/// that escape the 3D height field) + noise.
-pub fn render_ambient_occlusion(
-    scene: &WrinkleScene,
+/// that escape the 3D height field) + noise; an occluder's pixels are ambient · its albedo +
+/// noise (it is far enough in front not to shadow the skin).
+pub fn render_ambient_occlusion<S: AoSurface>(
+    scene: &S,
     settings: &AoRenderSettings,
 ) -> RenderedFrame {
-    let (w, h) = (scene.width_px, scene.height_px);
-    // Lipschitz bound of H for safe ray-marching steps.
-    let lip =
-        2.0 * scene.depth_d_px / scene.width_w_px + 2.0 * scene.depth_d_px / scene.taper_px + 0.05;
-    let h_max = scene.depth_d_px * (-2.0f64).exp() + 1e-9;
+    let (w, h) = scene.image_size();
+    let (lip, h_max) = scene.height_bounds();
     let occlusion: Vec<f64> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = ((i % w) as f64, (i / w) as f64);
+            if scene.occluder(x, y).is_some() {
+                return 1.0;
+            }
             let mut rng = ChaCha8Rng::seed_from_u64(
                 settings.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
             );
@@ -177,16 +286,18 @@ pub fn render_ambient_occlusion(
     let mut image = RgbImage::new(w, h);
     let mut paint_mask = vec![false; w * h];
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed.wrapping_add(1));
+    let (paint, skin) = scene.albedo();
     for i in 0..w * h {
         let (x, y) = ((i % w) as f64, (i / w) as f64);
-        paint_mask[i] = scene.painted(x, y);
-        let albedo = if paint_mask[i] {
-            scene.paint_rgb
-        } else {
-            scene.skin_rgb
+        let occluder = scene.occluder(x, y);
+        paint_mask[i] = occluder.is_none() && scene.painted(x, y);
+        let albedo = match occluder {
+            Some(rgb) => rgb,
+            None if paint_mask[i] => paint,
+            None => skin,
         };
         for c in 0..3 {
-            image.data[i][c] = scene.ambient * albedo[c] * occlusion[i]
+            image.data[i][c] = scene.ambient() * albedo[c] * occlusion[i]
                 + settings.noise_sigma * gaussian(&mut rng);
         }
     }
@@ -203,8 +314,8 @@ fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
-fn pixel_occlusion(
-    scene: &WrinkleScene,
+fn pixel_occlusion<S: AoSurface>(
+    scene: &S,
     x: f64,
     y: f64,
     n: usize,
@@ -260,7 +371,7 @@ fn pixel_occlusion(
 }
 
 /// March a ray over the height field with conservative steps gap / (L·|d_xy| + max(−d_z, 0)).
-fn ray_escapes(scene: &WrinkleScene, o: [f64; 3], d: [f64; 3], lip: f64, h_max: f64) -> bool {
+fn ray_escapes<S: AoSurface>(scene: &S, o: [f64; 3], d: [f64; 3], lip: f64, h_max: f64) -> bool {
     let dxy = (d[0] * d[0] + d[1] * d[1]).sqrt();
     let rate = lip * dxy + (-d[2]).max(0.0);
     let mut t = 0.0;

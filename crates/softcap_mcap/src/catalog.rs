@@ -81,6 +81,8 @@ impl_softcap_message!(
     NodeFrame,
     TrackStatus,
     DynamicMaterial,
+    FaceCameras,
+    WrinkleTrackFrame,
 );
 
 /// A typed channel name: writing or reading through a `Topic<M>` guarantees the channel carries
@@ -184,6 +186,10 @@ pub mod topics {
     pub const FACE_MESH: Topic<TriMesh> = Topic::new("/face/mesh");
     /// Wrinkle cross-sections (image and projected world (d, w)), one message per frame.
     pub const FACE_WRINKLES: Topic<FaceWrinkles> = Topic::new("/face/wrinkles");
+    /// `softcap face track`: the take's cameras in the face frame (static, time 0).
+    pub const FACE_TRACK_CAMERAS: Topic<FaceCameras> = Topic::new("/face/track/cameras");
+    /// `softcap face track`: tracked wrinkles, one message per camera and frame at its time.
+    pub const FACE_TRACK_WRINKLES: Topic<WrinkleTrackFrame> = Topic::new("/face/track/wrinkles");
     /// `softcap design search`: the design found, its error, the search statistics and the
     /// target and predicted force–displacement curves (static, time 0).
     pub const DESIGN_REPORT: Topic<Report> = Topic::new("/design/report");
@@ -351,6 +357,18 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.FaceWrinkles",
         is_static: false,
         units: "valley/d/w px; d, w, valley m",
+    },
+    ChannelInfo {
+        topic: "/face/track/cameras",
+        schema: "softcap.FaceCameras",
+        is_static: true,
+        units: "focal, principal point px; position m",
+    },
+    ChannelInfo {
+        topic: "/face/track/wrinkles",
+        schema: "softcap.WrinkleTrackFrame",
+        is_static: false,
+        units: "spline, valley, d, w px; d, w, valley m",
     },
     ChannelInfo {
         topic: "/design/report",

@@ -69,6 +69,14 @@ fn topic_constants_are_in_the_catalog() {
             topics::FACE_WRINKLES.name().to_string(),
             "softcap.FaceWrinkles",
         ),
+        (
+            topics::FACE_TRACK_CAMERAS.name().to_string(),
+            "softcap.FaceCameras",
+        ),
+        (
+            topics::FACE_TRACK_WRINKLES.name().to_string(),
+            "softcap.WrinkleTrackFrame",
+        ),
         (topics::DESIGN_REPORT.name().to_string(), "softcap.Report"),
         (
             topics::RESHAPE_TEMPLATE.name().to_string(),

@@ -1,0 +1,198 @@
+//! Wrinkle tracking over the frames of one camera (thesis §4.3): the paint classifier is trained
+//! on the labelled first frame and applied to every frame (§4.3.1), the predefined wrinkles are
+//! the label's patches, and in each frame every wrinkle takes the classified patches that overlap
+//! its previous patch (dilated by the largest expected motion). Each wrinkle's patch then gets
+//! its PCA parameterization, weighted valley B-spline (eq. 4.2) and cross-section (d, w) fits
+//! (eq. 4.3–4.4) by [`track_wrinkle`]. "If no wrinkle is present, the fitted depth d is 0"
+//! (§4.3.2): a wrinkle whose fitted depth stays below [`VideoTrackSettings::visible_depth_ratio`]
+//! of its width is reported absent in that frame.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::classify::{SvmSettings, classify_frames};
+use crate::error::Result;
+use crate::image::RgbImage;
+use crate::morphology::{close, connected_components, dilate, open};
+use crate::track::{TrackSettings, TrackedWrinkle, track_wrinkle};
+
+/// Settings of [`track_video`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct VideoTrackSettings {
+    /// The paint classifier.
+    pub svm: SvmSettings,
+    /// Valley spline and cross-section fits.
+    pub track: TrackSettings,
+    /// Radius of the opening and closing that clean the classified mask (pixels).
+    pub morphology_radius_px: usize,
+    /// Largest motion of a wrinkle's paint between two frames (pixels).
+    pub search_radius_px: usize,
+    /// Smallest label patch that defines a wrinkle (pixels).
+    pub min_label_patch_px: usize,
+    /// Smallest classified patch given to a wrinkle (pixels).
+    pub min_patch_px: usize,
+    /// A wrinkle is visible when the median fitted d/w of its cross-sections reaches this.
+    pub visible_depth_ratio: f64,
+    /// … and at least this many cross-sections converged.
+    pub min_sections: usize,
+}
+
+impl Default for VideoTrackSettings {
+    fn default() -> Self {
+        Self {
+            svm: SvmSettings::default(),
+            track: TrackSettings::default(),
+            morphology_radius_px: 1,
+            search_radius_px: 8,
+            min_label_patch_px: 100,
+            min_patch_px: 20,
+            visible_depth_ratio: 0.1,
+            min_sections: 3,
+        }
+    }
+}
+
+/// What the tracker found of one wrinkle in one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum WrinkleStatus {
+    /// Paint found and the fitted depth shows a wrinkle.
+    Visible,
+    /// Paint found, but the fitted depth is (near) zero: the skin is smooth there.
+    Absent,
+    /// Too little paint found (occluded or out of view).
+    Lost,
+}
+
+impl WrinkleStatus {
+    /// Lower-case name as written to MCAP.
+    pub fn name(self) -> &'static str {
+        match self {
+            WrinkleStatus::Visible => "visible",
+            WrinkleStatus::Absent => "absent",
+            WrinkleStatus::Lost => "lost",
+        }
+    }
+}
+
+/// One wrinkle in one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameWrinkle {
+    /// Wrinkle id: index of its label patch (label patches ordered by centroid row, then column).
+    pub id: usize,
+    /// Status.
+    pub status: WrinkleStatus,
+    /// Pixels of its patch.
+    pub patch_px: usize,
+    /// Valley spline and cross-sections (`None` when lost).
+    pub tracked: Option<TrackedWrinkle>,
+}
+
+/// Median of a non-empty slice.
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// The wrinkle patches of the training label, ordered by centroid (row, column).
+fn label_patches(label: &[bool], w: usize, h: usize, min_px: usize) -> Vec<Vec<usize>> {
+    let mut patches: Vec<Vec<usize>> = connected_components(label, w, h)
+        .into_iter()
+        .filter(|c| c.len() >= min_px)
+        .collect();
+    let centroid = |c: &[usize]| {
+        let n = c.len() as f64;
+        let (sx, sy) = c
+            .iter()
+            .fold((0.0, 0.0), |(a, b), &i| (a + (i % w) as f64, b + (i / w) as f64));
+        (sy / n, sx / n)
+    };
+    patches.sort_by(|a, b| {
+        let (ca, cb) = (centroid(a), centroid(b));
+        ca.0.total_cmp(&cb.0).then(ca.1.total_cmp(&cb.1))
+    });
+    patches
+}
+
+/// Track the labelled wrinkles through `frames` (frame 0 is the labelled one). Returns, per
+/// frame, one [`FrameWrinkle`] per label patch. `on_frame` is called after each frame.
+pub fn track_video(
+    label: &[bool],
+    frames: &[RgbImage],
+    settings: &VideoTrackSettings,
+    on_frame: &(dyn Fn() + Sync),
+) -> Result<Vec<Vec<FrameWrinkle>>> {
+    let Some(first) = frames.first() else {
+        return Ok(Vec::new());
+    };
+    let (w, h) = (first.width, first.height);
+    let refs: Vec<&RgbImage> = frames.iter().collect();
+    // classify in parallel chunks (the SVM is trained once, deterministically)
+    let masks = classify_frames(first, label, &refs, &settings.svm)?;
+    let r = settings.morphology_radius_px;
+    let cleaned: Vec<Vec<Vec<usize>>> = masks
+        .par_iter()
+        .map(|m| connected_components(&close(&open(m, w, h, r), w, h, r), w, h))
+        .collect();
+    let mut previous = label_patches(label, w, h, settings.min_label_patch_px);
+    let mut out = Vec::with_capacity(frames.len());
+    for (image, comps) in frames.iter().zip(&cleaned) {
+        // each classified patch goes to the wrinkle whose dilated previous patch it overlaps most
+        let reach: Vec<Vec<bool>> = previous
+            .iter()
+            .map(|p| {
+                let mut m = vec![false; w * h];
+                for &i in p {
+                    m[i] = true;
+                }
+                dilate(&m, w, h, settings.search_radius_px)
+            })
+            .collect();
+        let mut patches: Vec<Vec<usize>> = vec![Vec::new(); previous.len()];
+        for c in comps.iter().filter(|c| c.len() >= settings.min_patch_px) {
+            let best = reach
+                .iter()
+                .enumerate()
+                .map(|(k, m)| (k, c.iter().filter(|&&i| m[i]).count()))
+                .max_by_key(|&(_, n)| n);
+            if let Some((k, n)) = best
+                && n > 0
+            {
+                patches[k].extend_from_slice(c);
+            }
+        }
+        let mut row = Vec::with_capacity(patches.len());
+        for (id, patch) in patches.iter_mut().enumerate() {
+            patch.sort_unstable();
+            let tracked = if patch.len() >= 3 * settings.track.n_control.max(4) {
+                track_wrinkle(image, patch, &settings.track).ok()
+            } else {
+                None
+            };
+            let status = match &tracked {
+                None => WrinkleStatus::Lost,
+                Some(t) => {
+                    let ok: Vec<_> = t.sections.iter().filter(|s| s.converged).collect();
+                    let ratio = median(ok.iter().map(|s| s.depth_px / s.width_px).collect());
+                    if ok.len() >= settings.min_sections && ratio >= settings.visible_depth_ratio {
+                        WrinkleStatus::Visible
+                    } else {
+                        WrinkleStatus::Absent
+                    }
+                }
+            };
+            if status != WrinkleStatus::Lost {
+                previous[id].clone_from(patch);
+            }
+            row.push(FrameWrinkle {
+                id,
+                status,
+                patch_px: patch.len(),
+                tracked,
+            });
+        }
+        out.push(row);
+        on_frame();
+    }
+    Ok(out)
+}
