@@ -21,10 +21,9 @@ use crate::take_synth::{TakeSynthSettings, face_from_mocap, synth_take};
 use crate::take_track::{track_take, write_track_mcap};
 use crate::video::VideoTrackSettings;
 use crate::{
-    RemovalSettings, remove_wrinkles,
-    FaceAnimator, FaceFrame, MocapTake, OrthoView, SynthesisSettings, WrinkleInput,
-    derive_landmarks, landmarks_csv, parse_landmarks_csv, read_animface_csv, render_mesh,
-    synthesize_wrinkles, write_face_mcap,
+    FaceAnimator, FaceFrame, MocapTake, OrthoView, RemovalSettings, SynthesisSettings,
+    WrinkleInput, derive_landmarks, landmarks_csv, parse_landmarks_csv, read_animface_csv,
+    remove_wrinkles, render_mesh, synthesize_wrinkles, write_face_mcap,
 };
 
 #[derive(Parser, Debug)]
@@ -221,7 +220,8 @@ fn read_wrinkle_inputs(path: &Path, metres_per_unit: f64) -> Result<Vec<WrinkleI
         return Ok(crate::take_track::read_track_mcap(path, metres_per_unit)?);
     }
     let text = std::fs::read_to_string(path).context(path.display().to_string())?;
-    let w: WrinkleInput = serde_json::from_str(&text).bad_input_with(|| path.display().to_string())?;
+    let w: WrinkleInput =
+        serde_json::from_str(&text).bad_input_with(|| path.display().to_string())?;
     w.validate()
         .map_err(|e| bad(format!("{}: {e}", path.display())))?;
     Ok(vec![w])
@@ -469,7 +469,9 @@ fn track(
         .with_context(|| format!("{} on {}", landmarks.display(), face.display()))?;
     let total = (take.n_frames() * take.cameras.len()) as u64;
     let bar = Progress::default().bar("tracking wrinkles (camera frames)", total);
-    let tracks = track_take(&take, &animator, &face_from_mocap, &settings, &|| bar.inc(1))?;
+    let tracks = track_take(&take, &animator, &face_from_mocap, &settings, &|| {
+        bar.inc(1)
+    })?;
     bar.finish_and_clear();
     let progress = Progress::default();
     for c in &tracks {
@@ -478,12 +480,16 @@ fn track(
                 .iter()
                 .map(|w| format!("wrinkle {} {}", w.id, w.status.name()))
                 .collect();
-            progress.step(t + 1, c.frames.len(), &format!("{}: {}", c.id, states.join(", ")));
+            progress.step(
+                t + 1,
+                c.frames.len(),
+                &format!("{}: {}", c.id, states.join(", ")),
+            );
         }
     }
     let mut provenance = softcap_mcap::Provenance::new("face", env!("CARGO_PKG_VERSION"))
         .with_arguments(std::env::args());
-    provenance.add_input(&take.dir.join("cameras.toml"))?;
+    provenance.add_input(take.dir.join("cameras.toml"))?;
     provenance.add_input(&take.mocap_path)?;
     for p in [face, landmarks] {
         provenance.add_input(p)?;
@@ -507,14 +513,23 @@ fn removal_region(
         let mut lines = text.lines().enumerate();
         match lines.next() {
             Some((_, h)) if h.trim() == "vertex" => {}
-            _ => return Err(bad(format!("{}:1: expected the header `vertex`", p.display()))),
+            _ => {
+                return Err(bad(format!(
+                    "{}:1: expected the header `vertex`",
+                    p.display()
+                )));
+            }
         }
         for (i, line) in lines {
             if line.trim().is_empty() {
                 continue;
             }
             let v: usize = line.trim().parse().map_err(|_| {
-                bad(format!("{}:{}: field `vertex`: `{line}` is not a vertex index", p.display(), i + 1))
+                bad(format!(
+                    "{}:{}: field `vertex`: `{line}` is not a vertex index",
+                    p.display(),
+                    i + 1
+                ))
             })?;
             if v >= mesh.vertices.len() {
                 return Err(bad(format!(
@@ -529,14 +544,19 @@ fn removal_region(
         return Ok(out);
     }
     let Some((marker, radius, landmarks)) = around else {
-        return Err(bad("give --region FILE or --around MARKER --radius R --landmarks TABLE".into()));
+        return Err(bad(
+            "give --region FILE or --around MARKER --radius R --landmarks TABLE".into(),
+        ));
     };
     if !(radius > 0.0 && radius.is_finite()) {
         return Err(bad("--radius must be positive".into()));
     }
     let table = read_landmarks(landmarks)?;
     let Some(row) = table.iter().find(|r| r.marker == marker) else {
-        return Err(bad(format!("{}: no marker `{marker}`", landmarks.display())));
+        return Err(bad(format!(
+            "{}: no marker `{marker}`",
+            landmarks.display()
+        )));
     };
     let Some(c) = mesh.vertices.get(row.vertex) else {
         return Err(bad(format!(

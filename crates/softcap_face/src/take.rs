@@ -138,7 +138,10 @@ fn frame_files(dir: &Path) -> Result<Vec<PathBuf>> {
         }
         let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
         let Ok(k) = stem.parse::<usize>() else {
-            return Err(take_err(&p, "frame images are named <frame>.png, e.g. 000000.png"));
+            return Err(take_err(
+                &p,
+                "frame images are named <frame>.png, e.g. 000000.png",
+            ));
         };
         numbered.push((k, p));
     }
@@ -147,7 +150,9 @@ fn frame_files(dir: &Path) -> Result<Vec<PathBuf>> {
         if *k != i {
             return Err(take_err(
                 &dir.join(format!("{i:06}.png")),
-                format!("missing frame {i} (frames must be numbered 0, 1, 2, … without gaps; next is {k})"),
+                format!(
+                    "missing frame {i} (frames must be numbered 0, 1, 2, … without gaps; next is {k})"
+                ),
             ));
         }
     }
@@ -163,7 +168,10 @@ fn frame_files(dir: &Path) -> Result<Vec<PathBuf>> {
 pub fn read_take(dir: &Path) -> Result<Take> {
     let cameras_path = dir.join("cameras.toml");
     if !cameras_path.is_file() {
-        return Err(take_err(&cameras_path, "missing (the take's camera calibration)"));
+        return Err(take_err(
+            &cameras_path,
+            "missing (the take's camera calibration)",
+        ));
     }
     let cams = read_take_cameras(&cameras_path)?;
     let frames_dir = dir.join("frames");
@@ -185,14 +193,20 @@ pub fn read_take(dir: &Path) -> Result<Take> {
     if let Some(s) = subdirs.iter().find(|s| !cams.iter().any(|c| &c.id == *s)) {
         return Err(take_err(
             &frames_dir.join(s),
-            format!("camera `{s}` has no calibration in {}", cameras_path.display()),
+            format!(
+                "camera `{s}` has no calibration in {}",
+                cameras_path.display()
+            ),
         ));
     }
     let mut cameras = Vec::new();
     for cam in cams {
         let d = frames_dir.join(&cam.id);
         if !d.is_dir() {
-            return Err(take_err(&d, format!("missing: no frames of camera `{}`", cam.id)));
+            return Err(take_err(
+                &d,
+                format!("missing: no frames of camera `{}`", cam.id),
+            ));
         }
         let frames = frame_files(&d)?;
         let label = dir.join("labels").join(format!("{}.png", cam.id));
@@ -218,7 +232,9 @@ pub fn read_take(dir: &Path) -> Result<Take> {
             };
             let k = short.frames.len();
             return Err(take_err(
-                &frames_dir.join(&short.camera.id).join(format!("{k:06}.png")),
+                &frames_dir
+                    .join(&short.camera.id)
+                    .join(format!("{k:06}.png")),
                 format!(
                     "missing frame {k} (camera `{}` has {} frames)",
                     long.camera.id,
@@ -229,7 +245,10 @@ pub fn read_take(dir: &Path) -> Result<Take> {
     }
     let mocap_path = dir.join("mocap.csv");
     if !mocap_path.is_file() {
-        return Err(take_err(&mocap_path, "missing (the take's mocap markers, AnimFace CSV)"));
+        return Err(take_err(
+            &mocap_path,
+            "missing (the take's mocap markers, AnimFace CSV)",
+        ));
     }
     let mocap = read_animface_csv(&mocap_path)?;
     if mocap.frames.len() < n {

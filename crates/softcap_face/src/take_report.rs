@@ -45,8 +45,18 @@ fn median_dw(fw: &FrameWrinkle) -> Option<(f64, f64)> {
         return None;
     }
     let t = fw.tracked.as_ref()?;
-    let mut d: Vec<f64> = t.sections.iter().filter(|s| s.converged).map(|s| s.depth_px).collect();
-    let mut w: Vec<f64> = t.sections.iter().filter(|s| s.converged).map(|s| s.width_px).collect();
+    let mut d: Vec<f64> = t
+        .sections
+        .iter()
+        .filter(|s| s.converged)
+        .map(|s| s.depth_px)
+        .collect();
+    let mut w: Vec<f64> = t
+        .sections
+        .iter()
+        .filter(|s| s.converged)
+        .map(|s| s.width_px)
+        .collect();
     if d.is_empty() {
         return None;
     }
@@ -100,7 +110,8 @@ fn splines_figure(path: &Path, cam: &crate::take::TakeCamera, track: &CameraTrac
                 let steps = 60;
                 chart.draw_series(LineSeries::new(
                     (0..=steps).map(|i| {
-                        let x = tr.spline.x0 + (tr.spline.x1 - tr.spline.x0) * i as f64 / steps as f64;
+                        let x =
+                            tr.spline.x0 + (tr.spline.x1 - tr.spline.x0) * i as f64 / steps as f64;
                         let v = tr.spline.eval(x);
                         (v.x, v.y)
                     }),
@@ -145,7 +156,10 @@ fn depth_width_figure(path: &Path, track: &CameraTrack) -> Result<()> {
             };
             let mut chart = ChartBuilder::on(area)
                 .caption(
-                    format!("{}: {label} per frame (median over cross-sections, visible frames)", track.id),
+                    format!(
+                        "{}: {label} per frame (median over cross-sections, visible frames)",
+                        track.id
+                    ),
                     (softcap_figure::FONT_FAMILY, 16),
                 )
                 .margin(10)

@@ -183,7 +183,12 @@ fn tracked_message(
 
 /// The `softcap.FaceCamera` of a track.
 fn camera_message(c: &CameraTrack, k: f64) -> proto::FaceCamera {
-    let r = c.camera.world_from_camera.rotation.to_rotation_matrix().into_inner();
+    let r = c
+        .camera
+        .world_from_camera
+        .rotation
+        .to_rotation_matrix()
+        .into_inner();
     proto::FaceCamera {
         id: c.id.clone(),
         focal_px: c.camera.focal_px,
@@ -258,10 +263,14 @@ pub fn read_track_mcap(path: &Path, metres_per_unit: f64) -> Result<Vec<WrinkleI
             )));
         }
         if c.rotation.len() != 9 {
-            return Err(bad(format!("camera `{}`: rotation has {} entries", c.id, c.rotation.len())));
+            return Err(bad(format!(
+                "camera `{}`: rotation has {} entries",
+                c.id,
+                c.rotation.len()
+            )));
         }
         let rot = Matrix3::from_row_slice(&c.rotation);
-        let pos = c.position_m.clone().unwrap_or_default();
+        let pos = c.position_m.unwrap_or_default();
         let k = 1.0 / metres_per_unit;
         let camera = PinholeCamera {
             world_from_camera: Isometry3::from_parts(

@@ -102,9 +102,9 @@ fn label_patches(label: &[bool], w: usize, h: usize, min_px: usize) -> Vec<Vec<u
         .collect();
     let centroid = |c: &[usize]| {
         let n = c.len() as f64;
-        let (sx, sy) = c
-            .iter()
-            .fold((0.0, 0.0), |(a, b), &i| (a + (i % w) as f64, b + (i / w) as f64));
+        let (sx, sy) = c.iter().fold((0.0, 0.0), |(a, b), &i| {
+            (a + (i % w) as f64, b + (i / w) as f64)
+        });
         (sy / n, sx / n)
     };
     patches.sort_by(|a, b| {
