@@ -12,7 +12,7 @@
 //! | [`camera`] | re-export of `softcap_core::camera::Camera` (pinhole + Brown–Conrady projection, undistortion) |
 //! | [`detect`] | marker blobs in images: CIELab thresholds, morphology, weighted centroids |
 //! | [`correspond`] | epipolar multi-view matching, labeling to marker ids, tracking |
-//! | [`triangulate`] | DLT + Levenberg–Marquardt on reprojection error |
+//! | [`triangulate`](mod@triangulate) | DLT + Levenberg–Marquardt on reprojection error |
 //! | [`register`] | Horn's weighted absolute orientation |
 //! | [`fill`] | bi-Laplacian linear shell fill-in of occluded markers |
 //! | [`probe`] | shaft markers → probe pose; FSR voltage → force |

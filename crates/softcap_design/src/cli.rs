@@ -50,7 +50,7 @@ pub enum Command {
         /// capture.mcap files, one per base material (probe sessions on 4 × 5 × 2.5 cm blocks).
         #[arg(required = true)]
         captures: Vec<PathBuf>,
-        /// Starting Young's modulus of the linear pre-fit [Pa].
+        /// Starting Young's modulus of the linear pre-fit, in Pa.
         #[arg(long, default_value_t = 2.0e5)]
         young_guess: f64,
         /// RBF centres per material (thesis: 6 isotropic, up to 12 printed materials).

@@ -33,7 +33,7 @@ use std::sync::Arc;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CompositeSettings {
-    /// Block width × length × height [m] (thesis §8.5: 4 × 5 × 2.5 cm).
+    /// Block width × length × height \[m\] (thesis §8.5: 4 × 5 × 2.5 cm).
     pub block_size_m: [f64; 3],
     /// Number of layers N (cells of the design).
     pub layers: usize,
@@ -43,10 +43,10 @@ pub struct CompositeSettings {
     pub cells_per_layer: usize,
     /// Simulate the symmetric quarter (see module docs).
     pub quarter_symmetry: bool,
-    /// Radius of the probe's contact patch [m]; the force is shared equally by the top nodes
+    /// Radius of the probe's contact patch \[m\]; the force is shared equally by the top nodes
     /// within it.
     pub probe_radius_m: f64,
-    /// Probe forces of the examples [N], ascending.
+    /// Probe forces of the examples \[N\], ascending.
     pub forces_n: Vec<f64>,
     /// Load increments between consecutive examples (incremental loading, bickel2009 §3.4).
     pub increments: usize,
@@ -79,7 +79,7 @@ impl Default for CompositeSettings {
 /// The meshed layered block with its boundary conditions and probe patch.
 #[derive(Clone, Debug)]
 pub struct LayeredBlock {
-    /// Tet mesh [m].
+    /// Tet mesh \[m\].
     pub mesh: TetMesh,
     /// Layer (cell) index of every element, 0 = bottom.
     pub element_layer: Vec<usize>,
@@ -296,9 +296,9 @@ impl LayeredBlock {
 /// Response of one design to all examples.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CompositeResponse {
-    /// Top-node displacements [m], example-major: (example, top node, xyz).
+    /// Top-node displacements \[m\], example-major: (example, top node, xyz).
     pub displacements_m: Vec<f64>,
-    /// Probe indentation per example [m]: patch-share-weighted mean of −u_z over the patch.
+    /// Probe indentation per example \[m\]: patch-share-weighted mean of −u_z over the patch.
     pub probe_displacement_m: Vec<f64>,
     /// Equilibrium iterations used in total.
     pub iterations: usize,
@@ -676,7 +676,7 @@ fn banded_solve(a: &mut [f64], copy: &mut [f64], b: &mut [f64], n: usize, band: 
     }
 }
 
-/// RMS displacement error over markers: √(‖x − x̄‖² / (examples · markers)) [m].
+/// RMS displacement error over markers: √(‖x − x̄‖² / (examples · markers)) \[m\].
 pub fn rms_displacement_error(x: &[f64], target: &[f64]) -> f64 {
     let n = (x.len() / 3).max(1) as f64;
     (x.iter()

@@ -177,15 +177,15 @@ impl Default for ExperimentSettings {
 pub struct TargetOutcome {
     /// Material per layer of the target.
     pub target_design: Vec<usize>,
-    /// Its layer thicknesses [m].
+    /// Its layer thicknesses \[m\].
     pub target_thickness_m: Vec<f64>,
     /// Design found by branch-and-bound.
     pub found_design: Vec<usize>,
-    /// RMS displacement error of the found design [m].
+    /// RMS displacement error of the found design \[m\].
     pub found_rms_m: f64,
     /// Distinct designs the search simulated.
     pub evaluations: usize,
-    /// Exhaustive optimum and its RMS error [m] (if run).
+    /// Exhaustive optimum and its RMS error \[m\] (if run).
     pub exhaustive: Option<(Vec<usize>, f64)>,
     /// Found == exhaustive optimum.
     pub matches_exhaustive: Option<bool>,
@@ -194,7 +194,7 @@ pub struct TargetOutcome {
     pub heuristic_design: Option<Vec<usize>>,
     /// Distinct designs the heuristic simulated.
     pub heuristic_evaluations: Option<usize>,
-    /// Wall time of the search [s] (simulations included when not table-backed).
+    /// Wall time of the search \[s\] (simulations included when not table-backed).
     pub search_seconds: f64,
 }
 
@@ -203,7 +203,7 @@ pub struct TargetOutcome {
 pub struct ExperimentReport {
     /// Per target.
     pub outcomes: Vec<TargetOutcome>,
-    /// Mean RMS displacement error of the found designs [m] (bickel2010: 0.067 mm).
+    /// Mean RMS displacement error of the found designs \[m\] (bickel2010: 0.067 mm).
     pub mean_found_rms_m: f64,
     /// Targets whose found design equals the exhaustive optimum.
     pub matches: usize,
@@ -239,7 +239,7 @@ fn jittered_thickness(rng: &mut ChaCha8Rng, layers: usize, height_m: f64, jitter
 pub struct Target {
     /// Material per layer (bottom first).
     pub design: Vec<usize>,
-    /// Layer thicknesses [m] (jittered, summing to the block height).
+    /// Layer thicknesses \[m\] (jittered, summing to the block height).
     pub thickness_m: Vec<f64>,
     /// Response x̄ on its own mesh (same lateral grid, so the same top nodes as the search's).
     pub response: Vec<f64>,

@@ -32,18 +32,18 @@ use std::sync::Arc;
 pub struct ProbeExample {
     /// Top-surface nodes under the probe.
     pub patch_nodes: Vec<usize>,
-    /// Measured probe force on the object [N] (normal component only, as measured).
+    /// Measured probe force on the object \[N\] (normal component only, as measured).
     pub force_n: [f64; 3],
     /// Observed marker nodes.
     pub marker_nodes: Vec<usize>,
-    /// Observed marker displacements [m], one per marker node.
+    /// Observed marker displacements \[m\], one per marker node.
     pub displacements_m: Vec<[f64; 3]>,
 }
 
 /// A homogeneous block with bottom fixed, and its examples.
 #[derive(Clone, Debug)]
 pub struct BaseMeasurements {
-    /// The block mesh [m].
+    /// The block mesh \[m\].
     pub mesh: TetMesh,
     /// Fixed nodes (the bottom).
     pub fixed_nodes: Vec<usize>,
@@ -97,9 +97,9 @@ pub struct BaseFitReport {
     pub material: BaseMaterial,
     /// The homogeneous linear pre-fit (§8.3).
     pub prefit: BaseMaterial,
-    /// RMS marker error of the linear pre-fit [m].
+    /// RMS marker error of the linear pre-fit \[m\].
     pub linear_rms_m: f64,
-    /// RMS marker error of the final fit [m].
+    /// RMS marker error of the final fit \[m\].
     pub rms_m: f64,
     /// LM status of the final fit.
     pub status: String,
@@ -142,7 +142,7 @@ pub fn simulate_examples(
 }
 
 /// Simulates every example of `meas` with `material` (no extra forces); returns all node
-/// positions [m] per example (e.g. for the element strains the examples produce).
+/// positions \[m\] per example (e.g. for the element strains the examples produce).
 pub fn simulate_positions(
     meas: &BaseMeasurements,
     material: &BaseMaterial,
@@ -524,8 +524,8 @@ fn probe_patch(
 /// Probe examples of a known base material on a block, simulated with the same composite FEM the
 /// §8.3 fit uses (so the full probe force is known: no missing tangential forces): the bottom
 /// face is fixed, every top-face node is an observed marker, and example k shares `loads[k].1`
-/// (force on the object [N], any direction) among the top nodes within `probe_radius_m` of
-/// `loads[k].0` (x, y [m]). The virtual measurements of the fitting tests and of the
+/// (force on the object \[N\], any direction) among the top nodes within `probe_radius_m` of
+/// `loads[k].0` (x, y \[m\]). The virtual measurements of the fitting tests and of the
 /// fitted-library example.
 pub fn simulate_block_probes(
     mesh: &TetMesh,

@@ -11,7 +11,7 @@
 //! | [`composite`] | layered 4 × 5 × 2.5 cm block, probe load, design simulation | §8.4.1, §8.5 |
 //! | [`experiment`] | the §8.6 validation: random targets, search vs exhaustive optimum | §8.6 |
 //! | [`output`] | design.mcap (`/design/report`), design / target JSON, force–displacement PNG | |
-//! | [`print`] | multi-material 3MF (one object per material) via `threemf` | §8.5 |
+//! | [`print`](mod@print) | multi-material 3MF (one object per material) via `threemf` | §8.5 |
 //! | [`recording`] | capture.mcap of a probed base-material block → measurements | §8.3, §8.5 |
 //! | [`rubber`] | the invariant model fitted to Treloar uniaxial + Kawabata biaxial rubber data at once | eq. 8.1–8.2, §8.3 |
 //! | [`search`] | branch-and-bound with clustering, exhaustive reference | §8.4.2, eq. 8.4 |

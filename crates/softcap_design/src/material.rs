@@ -53,7 +53,7 @@ pub fn isotropic_matrix(lame_lambda: f64, mu: f64) -> Matrix6<f64> {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct IsotropicBounds {
-    /// Smallest Young's modulus [Pa].
+    /// Smallest Young's modulus \[Pa\].
     pub young_min_pa: f64,
     /// Poisson ratio range.
     pub nu_min: f64,
@@ -297,7 +297,7 @@ pub fn project_lame_jacobian(
 /// Isotropic non-linear base material: (λ, μ) = p(I₁, I₂, I₃) (thesis eq. 8.1–8.2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct InvariantMaterial {
-    /// p(I) → (λ [Pa], μ [Pa]).
+    /// p(I) → (λ \[Pa\], μ \[Pa\]).
     pub rbf: StrainRbf,
     /// Valid range enforced on every evaluation.
     pub bounds: IsotropicBounds,
@@ -334,7 +334,7 @@ impl InvariantMaterial {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct TransverseBounds {
-    /// Smallest eigenvalue of the Mandel stiffness [Pa].
+    /// Smallest eigenvalue of the Mandel stiffness \[Pa\].
     pub eigen_min_pa: f64,
 }
 
@@ -349,15 +349,15 @@ impl Default for TransverseBounds {
 /// The five parameters of thesis eq. 8.5 (transverse isotropy about z).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TransverseParams {
-    /// E11 = E22 [Pa]
+    /// E11 = E22 \[Pa\]
     pub e11: f64,
-    /// E12 [Pa]
+    /// E12 \[Pa\]
     pub e12: f64,
-    /// E13 = E23 [Pa]
+    /// E13 = E23 \[Pa\]
     pub e13: f64,
-    /// E33 [Pa]
+    /// E33 \[Pa\]
     pub e33: f64,
-    /// E44 = E55: out-of-plane shear (γ_xz, γ_yz) [Pa]
+    /// E44 = E55: out-of-plane shear (γ_xz, γ_yz) \[Pa\]
     pub e44: f64,
 }
 
@@ -510,7 +510,7 @@ fn transverse_projection_jacobian(
 /// 6-D strain (thesis eq. 8.2, 8.5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TransverseMaterial {
-    /// p(ε) → the five parameters [Pa].
+    /// p(ε) → the five parameters \[Pa\].
     pub rbf: StrainRbf,
     /// Valid range enforced on every evaluation.
     pub bounds: TransverseBounds,

@@ -137,7 +137,7 @@ impl CompositeModel {
 
     /// The exact element tangent K_e = ∂f_e/∂x of [`Self::state_forces`] in state `st`,
     /// including the rotation derivative (which the warped stiffness of Müller & Gross 2004
-    /// drops). For a direction dF = e_j g_bᵀ: M = RᵀdF, W = RᵀdR = [w]× with
+    /// drops). For a direction dF = e_j g_bᵀ: M = RᵀdF, W = RᵀdR = \[w\]× with
     /// w = (tr S I − S)⁻¹ axial(M − Mᵀ) (McAdams et al. 2011), dε = sym(M − W S),
     /// dσ = C_t dε (material-consistent, thesis §8.2 with p(ε) of eq. 8.2), dP = R (W σ + dσ),
     /// column (b, j) of K_e = V dP g_a for a = 0…3. With this tangent Newton's method converges

@@ -14,11 +14,11 @@ use std::path::Path;
 pub struct DesignTarget {
     /// Number of layers (cells) of the block.
     pub layers: usize,
-    /// Probe forces of the examples [N].
+    /// Probe forces of the examples \[N\].
     pub forces_n: Vec<f64>,
-    /// Desired top-surface displacements x̄ [m], example-major (as [`crate::CompositeResponse`]).
+    /// Desired top-surface displacements x̄ \[m\], example-major (as [`crate::CompositeResponse`]).
     pub displacements_m: Vec<f64>,
-    /// Desired probe indentation per example [m] (for the curve plot).
+    /// Desired probe indentation per example \[m\] (for the curve plot).
     pub probe_displacement_m: Vec<f64>,
 }
 
@@ -46,7 +46,7 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
     })
 }
 
-/// Force–displacement curves (probe indentation [mm] against force [N]) into a PNG at `path`.
+/// Force–displacement curves (probe indentation \[mm\] against force \[N\]) into a PNG at `path`.
 pub fn plot_force_displacement(
     path: &Path,
     title: &str,
@@ -102,15 +102,15 @@ pub fn plot_force_displacement(
 pub struct DesignRecord {
     /// Material index per layer, bottom first.
     pub design: Vec<usize>,
-    /// RMS top-surface displacement error of the found design against the target [m].
+    /// RMS top-surface displacement error of the found design against the target \[m\].
     pub rms_error_m: f64,
     /// The search's statistics.
     pub search: SearchReport,
-    /// Probe forces of the examples [N].
+    /// Probe forces of the examples \[N\].
     pub forces_n: Vec<f64>,
-    /// The target's probe indentation per example [m].
+    /// The target's probe indentation per example \[m\].
     pub target_probe_displacement_m: Vec<f64>,
-    /// The found design's predicted probe indentation per example [m].
+    /// The found design's predicted probe indentation per example \[m\].
     pub predicted_probe_displacement_m: Vec<f64>,
 }
 

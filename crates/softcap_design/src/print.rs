@@ -33,7 +33,7 @@ pub struct PrintPart {
     pub name: String,
     /// Index into the `basematerials` group (`pindex`).
     pub base_index: usize,
-    /// Vertices [mm].
+    /// Vertices \[mm\].
     pub vertices: Vec<[f64; 3]>,
     /// Triangles (vertex indices).
     pub triangles: Vec<[usize; 3]>,
@@ -204,7 +204,7 @@ pub fn read_design_3mf(path: &Path) -> Result<Vec<PrintPart>> {
 }
 
 impl PrintPart {
-    /// Enclosed volume [mm³] by the divergence theorem (positive for outward triangles).
+    /// Enclosed volume \[mm³\] by the divergence theorem (positive for outward triangles).
     pub fn volume_mm3(&self) -> f64 {
         self.triangles
             .iter()

@@ -28,15 +28,15 @@ use std::collections::BTreeMap;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CaptureMappingSettings {
-    /// Block width × length × height [m] (thesis §8.5: 4 × 5 × 2.5 cm).
+    /// Block width × length × height \[m\] (thesis §8.5: 4 × 5 × 2.5 cm).
     pub block_size_m: [f64; 3],
-    /// Minimum corner of the block in the capture's world frame [m]; `None`: from the markers.
+    /// Minimum corner of the block in the capture's world frame \[m\]; `None`: from the markers.
     pub block_origin_m: Option<[f64; 3]>,
     /// Grid cells of the tet mesh (x, y, z).
     pub cells: [usize; 3],
-    /// Largest marker-to-node distance accepted [m].
+    /// Largest marker-to-node distance accepted \[m\].
     pub marker_snap_m: f64,
-    /// Minimum radius of the probed patch [m].
+    /// Minimum radius of the probed patch \[m\].
     pub probe_radius_m: f64,
     /// Examples taken per probe location (force levels up to the peak).
     pub levels_per_location: usize,

@@ -23,15 +23,15 @@ use softcap_core::{
 };
 use std::path::Path;
 
-/// One homogeneous test point: stretches (λ₁, λ₂) and measured nominal stresses [Pa]
+/// One homogeneous test point: stretches (λ₁, λ₂) and measured nominal stresses \[Pa\]
 /// (P₂ = None when not measured, as in uniaxial tension).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RubberPoint {
     /// λ₁, λ₂ (λ₃ = 1/(λ₁λ₂)).
     pub stretch: [f64; 2],
-    /// Measured P₁ [Pa].
+    /// Measured P₁ \[Pa\].
     pub stress1_pa: f64,
-    /// Measured P₂ [Pa], if any.
+    /// Measured P₂ \[Pa\], if any.
     pub stress2_pa: Option<f64>,
 }
 
@@ -107,7 +107,7 @@ fn strain_of(stretch: [f64; 2]) -> (Vector6<f64>, [f64; 3]) {
     )
 }
 
-/// Nominal stresses (P₁, P₂) [Pa] of the invariant material under incompressible homogeneous
+/// Nominal stresses (P₁, P₂) \[Pa\] of the invariant material under incompressible homogeneous
 /// stretch (λ₁, λ₂) (see module docs).
 pub fn nominal_stress(material: &InvariantMaterial, stretch: [f64; 2]) -> [f64; 2] {
     let (eps, l) = strain_of(stretch);
@@ -152,7 +152,7 @@ pub struct DataSetError {
     pub name: String,
     /// Stress values compared.
     pub count: usize,
-    /// RMS nominal-stress error [MPa].
+    /// RMS nominal-stress error \[MPa\].
     pub rms_mpa: f64,
     /// RMS error / largest measured stress.
     pub relative: f64,

@@ -4,8 +4,8 @@
 //! The tree has one level per cell; a node at level l fixes the materials of cells 1…l. Every
 //! node a is bounded (§8.4.2 "Bound Estimation") by filling its undecided cells uniformly with
 //! each base material m̄_j, simulating those M designs x_j and taking the axis-aligned box
-//! [x_j] = [min_j x_j, max_j x_j] in displacement space; the subtree is culled if
-//! dist(x̄, [x_j]) > d_min, where d_min is the smallest displacement error ‖x − x̄‖ of any design
+//! \[x_j\] = [min_j x_j, max_j x_j] in displacement space; the subtree is culled if
+//! dist(x̄, \[x_j\]) > d_min, where d_min is the smallest displacement error ‖x − x̄‖ of any design
 //! simulated so far (every uniform fill is a design, so d_min improves as the tree is visited).
 //! The tree is traversed breadth-first; before splitting, the surviving nodes of a level are
 //! clustered by k-means into K clusters (thesis: K = 20) with the distance of eq. 8.4,
@@ -84,7 +84,7 @@ impl CellOrder {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct BoundMargin {
-    /// Absolute slack per level [m].
+    /// Absolute slack per level \[m\].
     pub absolute_m: Vec<f64>,
     /// Slack per level relative to the box diagonal ‖hi − lo‖.
     pub relative: Vec<f64>,
@@ -165,7 +165,7 @@ pub struct LevelReport {
 pub struct SearchReport {
     /// Material index per cell.
     pub design: Vec<usize>,
-    /// Displacement error ‖x − x̄‖ [m].
+    /// Displacement error ‖x − x̄‖ \[m\].
     pub error_m: f64,
     /// Distinct designs simulated by the search.
     pub evaluations: usize,
@@ -707,8 +707,8 @@ fn prefix_key(design: &[usize], materials: usize, order: &[usize], level: usize)
 /// every length 1 … N − 1, do all completions lie in the box of its M uniform fills, and does
 /// the culling test (box distance minus the `margin` slack) ever exceed the best distance in
 /// the subtree for the given targets? Returns per level (prefixes checked, prefixes with a
-/// completion outside the box, largest excess [m] of a component outside its box, number and
-/// largest excess [m] of (prefix, target) pairs whose bound exceeds the subtree's best).
+/// completion outside the box, largest excess \[m\] of a component outside its box, number and
+/// largest excess \[m\] of (prefix, target) pairs whose bound exceeds the subtree's best).
 pub fn bound_violations(
     table: &[Response],
     cells: usize,
@@ -970,25 +970,25 @@ pub struct AdditiveResidual {
     pub prefixes: usize,
     /// (design, reference) pairs with a non-zero residual.
     pub residuals: usize,
-    /// Largest residual r over all references [m].
+    /// Largest residual r over all references \[m\].
     pub max_residual_m: f64,
     /// Largest r / s over all references.
     pub max_relative: f64,
-    /// Mean scale s over (prefix, reference) [m].
+    /// Mean scale s over (prefix, reference) \[m\].
     pub mean_scale_m: f64,
-    /// Largest r per reference material b [m].
+    /// Largest r per reference material b \[m\].
     pub per_reference_max_m: Vec<f64>,
     /// Largest r / s per reference material b.
     pub per_reference_relative: Vec<f64>,
 }
 
 /// Slack of the additive bound per level and reference material b:
-/// μ = `absolute_m`[l−1][b] plus `relative`[l−1][b] · s (missing entries: 0). Valid when it
+/// μ = `absolute_m`[l−1]\[b\] plus `relative`[l−1]\[b\] · s (missing entries: 0). Valid when it
 /// covers [`additive_residual`] (see there).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct AdditiveMargin {
-    /// Absolute slack [m] per level, per reference.
+    /// Absolute slack \[m\] per level, per reference.
     pub absolute_m: Vec<Vec<f64>>,
     /// Slack relative to s per level, per reference.
     pub relative: Vec<Vec<f64>>,
@@ -1043,11 +1043,11 @@ pub struct BoxExcess {
     pub prefixes: usize,
     /// Designs lying outside their level-`level` prefix's box.
     pub designs_outside: usize,
-    /// Largest Euclidean distance dist(x(m), B) of a design from its prefix's box [m].
+    /// Largest Euclidean distance dist(x(m), B) of a design from its prefix's box \[m\].
     pub max_excess_m: f64,
     /// Largest dist(x(m), B) / diag(B).
     pub max_relative: f64,
-    /// Mean box diagonal ‖hi − lo‖ at this level [m].
+    /// Mean box diagonal ‖hi − lo‖ at this level \[m\].
     pub mean_diagonal_m: f64,
 }
 
@@ -1060,11 +1060,11 @@ pub struct BoundCheck {
     pub prefixes: usize,
     /// Prefixes with at least one completion outside their uniform-fill box.
     pub violating_prefixes: usize,
-    /// Largest distance of a response component outside its box [m].
+    /// Largest distance of a response component outside its box \[m\].
     pub max_component_excess_m: f64,
     /// (prefix, target) pairs whose culling bound exceeds the subtree's true best distance.
     pub bound_failures: usize,
-    /// Largest such excess [m].
+    /// Largest such excess \[m\].
     pub max_bound_excess_m: f64,
 }
 

@@ -47,7 +47,7 @@ use nalgebra::{Matrix2, Matrix3, Matrix6, Unit, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 use softcap_mesh::TetMesh;
 
-/// The five parameters of thesis eq. 8.5 [Pa]; the fibre is the material frame's third axis.
+/// The five parameters of thesis eq. 8.5 \[Pa\]; the fibre is the material frame's third axis.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TransverselyIsotropicParams {
     /// E11 (normal stiffness in the plane ⊥ fibre).

@@ -28,7 +28,7 @@ const NONE: u32 = u32::MAX;
 /// Prescribed positions of individual degrees of freedom (dof = 3·node + axis), in metres.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DirichletBc {
-    /// dof → prescribed position component [m]. A BTreeMap keeps iteration deterministic.
+    /// dof → prescribed position component \[m\]. A BTreeMap keeps iteration deterministic.
     pub values: BTreeMap<usize, f64>,
 }
 
@@ -461,7 +461,7 @@ impl SystemPattern {
 
 /// What every solver builds once per (mesh, constraint set): the free-dof pattern with its
 /// scatter maps, the symbolic Cholesky factorization, and the length scale of the convergence
-/// test (diagonal of the rest bounding box [m]).
+/// test (diagonal of the rest bounding box \[m\]).
 pub fn solver_setup<M: ElasticModel + ?Sized>(
     model: &M,
     constrained_dofs: &[usize],

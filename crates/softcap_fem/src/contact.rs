@@ -41,27 +41,27 @@ use serde::{Deserialize, Serialize};
 pub enum TipShape {
     /// Sphere of radius r, centre at (0, 0, −r).
     Sphere {
-        /// radius [m]
+        /// radius \[m\]
         radius_m: f64,
     },
     /// Flat disk (short cylinder) of radius r and thickness t, axis z, occupying z ∈ [−t, 0].
     Disk {
-        /// radius [m]
+        /// radius \[m\]
         radius_m: f64,
-        /// thickness [m]
+        /// thickness \[m\]
         thickness_m: f64,
     },
     /// Cylinder lying across the approach direction (axis along probe x), radius r, centre
     /// (0, 0, −r) — the rolling/sliding cylinder of bickel2009 Fig. 4.
     Cylinder {
-        /// radius [m]
+        /// radius \[m\]
         radius_m: f64,
-        /// half of the length along probe x [m]
+        /// half of the length along probe x \[m\]
         half_length_m: f64,
     },
     /// Closed, consistently oriented triangle mesh in the probe frame.
     Mesh {
-        /// vertices [m]
+        /// vertices \[m\]
         vertices_m: Vec<Vector3<f64>>,
         /// triangles (outward-facing counter-clockwise)
         triangles: Vec<[u32; 3]>,
@@ -257,7 +257,7 @@ impl Probe {
         p
     }
 
-    /// If `point_world` lies inside the tip: (penetration depth [m], outward unit normal, closest
+    /// If `point_world` lies inside the tip: (penetration depth \[m\], outward unit normal, closest
     /// surface point), all in the world frame.
     pub fn penetration(
         &self,
@@ -344,7 +344,7 @@ pub struct ContactSpring {
     pub node: usize,
     /// outward normal (direction the probe pushes the node) [unit]
     pub normal: Vector3<f64>,
-    /// closest probe-surface point [m]
+    /// closest probe-surface point \[m\]
     pub target_m: Vector3<f64>,
     /// penalty stiffness [N/m]
     pub stiffness_n_per_m: f64,
@@ -366,13 +366,13 @@ impl ContactSpring {
 pub struct ContactReport {
     /// Contact patch: nodes in contact, increasing order.
     pub patch_nodes: Vec<usize>,
-    /// Total contact force exerted by the probe on the body [N].
+    /// Total contact force exerted by the probe on the body \[N\].
     pub contact_force_n: Vector3<f64>,
-    /// Reaction on the probe = −contact force [N].
+    /// Reaction on the probe = −contact force \[N\].
     pub probe_reaction_n: Vector3<f64>,
-    /// Force the probe exerts along its approach axis [N] (positive when pushing).
+    /// Force the probe exerts along its approach axis \[N\] (positive when pushing).
     pub axial_force_n: f64,
-    /// Largest penetration among patch nodes [m].
+    /// Largest penetration among patch nodes \[m\].
     pub max_penetration_m: f64,
 }
 

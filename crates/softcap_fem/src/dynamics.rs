@@ -47,7 +47,7 @@ pub enum Integrator {
 pub struct RayleighDamping {
     /// mass-proportional coefficient α [1/s]
     pub alpha_per_s: f64,
-    /// stiffness-proportional coefficient β [s]
+    /// stiffness-proportional coefficient β \[s\]
     pub beta_s: f64,
 }
 
@@ -75,7 +75,7 @@ impl RayleighDamping {
 pub struct DynamicsSettings {
     /// Integrator.
     pub integrator: Integrator,
-    /// Time step h [s].
+    /// Time step h \[s\].
     pub time_step_s: f64,
     /// Rayleigh damping.
     pub damping: RayleighDamping,
@@ -112,9 +112,9 @@ impl Default for DynamicsSettings {
 /// Positions, velocities and accelerations of every node at time t.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DynamicState {
-    /// time [s]
+    /// time \[s\]
     pub time_s: f64,
-    /// x [m]
+    /// x \[m\]
     pub positions_m: Vec<Vector3<f64>>,
     /// ẋ [m/s]
     pub velocities_m_s: Vec<Vector3<f64>>,
@@ -176,7 +176,7 @@ pub struct DynamicStepReport {
     pub status: DynamicStepStatus,
     /// Newton iterations.
     pub iterations: usize,
-    /// Final residual norm [N].
+    /// Final residual norm \[N\].
     pub residual_norm_n: f64,
     /// Contact outcome at the end of the step.
     pub contact: ContactReport,
@@ -197,7 +197,7 @@ pub struct DynamicSolver {
 /// What acts on the body during one step of [`DynamicSolver::step_with`].
 #[derive(Clone, Copy, Debug)]
 pub struct StepLoads<'a> {
-    /// External forces at t_{n+1} [N], one per node.
+    /// External forces at t_{n+1} \[N\], one per node.
     pub external_forces_n: &'a [Vector3<f64>],
     /// Prescribed positions at t_{n+1} of moving constrained dofs.
     pub prescribed: Option<&'a DirichletBc>,
@@ -258,7 +258,7 @@ impl DynamicSolver {
         self.pattern.dofs()
     }
 
-    /// Nodal masses [kg].
+    /// Nodal masses \[kg\].
     pub fn masses_kg(&self) -> &[f64] {
         &self.masses_kg
     }

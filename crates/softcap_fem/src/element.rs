@@ -43,7 +43,7 @@ pub struct TetGeometry {
     pub nodes: [usize; 4],
     /// Shape-function gradients g_a = ∇N_a in the rest frame [1/m].
     pub grads: [Vector3<f64>; 4],
-    /// Rest volume V_e [m³] (positive).
+    /// Rest volume V_e \[m³\] (positive).
     pub volume_m3: f64,
 }
 
@@ -270,7 +270,7 @@ pub fn corotational_linearization(
 /// Consistent tangent ∂f_e/∂x_e of the corotational element (parameters held fixed).
 ///
 /// With P(F) = R σ(ε), ε = sym(RᵀF) − I and F = RS: for a direction dF let M = RᵀdF and
-/// W = RᵀdR = [w]×. Differentiating F = RS gives M − Mᵀ = WS + SW = [(tr S I − S) w]×, hence
+/// W = RᵀdR = \[w\]×. Differentiating F = RS gives M − Mᵀ = WS + SW = [(tr S I − S) w]×, hence
 /// w = (tr S I − S)⁻¹ axial(M − Mᵀ) (the rotation-derivative formula of McAdams et al. 2011 / Twigg
 /// & Kačić-Alesić 2010). Then dε = sym(M − W S) and dP = R W σ + R σ(dε); column (b, j) of the
 /// element matrix is V dP g_a for dF = e_j g_bᵀ. Near inversion (tr S I − S singular) the rotation

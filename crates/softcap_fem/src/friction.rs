@@ -34,7 +34,7 @@ use std::collections::{BTreeMap, BTreeSet};
 pub struct FrictionParams {
     /// Coulomb coefficient μ ≥ 0.
     pub mu: f64,
-    /// Regularization slip ε > 0 [m]: slip below which a node sticks elastically.
+    /// Regularization slip ε > 0 \[m\]: slip below which a node sticks elastically.
     pub slip_distance_m: f64,
 }
 
@@ -119,13 +119,13 @@ pub enum NormalForceLag {
 pub struct FrictionReport {
     /// Contact nodes, increasing.
     pub patch_nodes: Vec<usize>,
-    /// Σ f_n over the patch [N].
+    /// Σ f_n over the patch \[N\].
     pub normal_force_n: f64,
-    /// Total force of the probe on the body (normal + friction) [N].
+    /// Total force of the probe on the body (normal + friction) \[N\].
     pub contact_force_n: Vector3<f64>,
-    /// Total friction force of the probe on the body [N].
+    /// Total friction force of the probe on the body \[N\].
     pub friction_force_n: Vector3<f64>,
-    /// Tangential force ON THE PROBE = −friction force on the body [N].
+    /// Tangential force ON THE PROBE = −friction force on the body \[N\].
     pub probe_tangential_force_n: Vector3<f64>,
     /// Nodes with ‖δ‖ ≥ ε (sliding).
     pub sliding_nodes: usize,

@@ -42,7 +42,7 @@ use softcap_mesh::TetMesh;
 /// Standard gravity [m/s²] along −z: the default `gravity_m_s2`.
 pub const STANDARD_GRAVITY_M_S2: Vector3<f64> = Vector3::new(0.0, 0.0, -9.80665);
 
-/// Lumped nodal masses m_a = Σ_{e ∋ a} ρ V_e / 4 [kg] of a uniform density `density_kg_m3`
+/// Lumped nodal masses m_a = Σ_{e ∋ a} ρ V_e / 4 \[kg\] of a uniform density `density_kg_m3`
 /// (volumes from the model's rest shape).
 pub fn lumped_masses<M: ElasticModel + ?Sized>(model: &M, density_kg_m3: f64) -> Vec<f64> {
     let mut m = vec![0.0; model.num_nodes()];
@@ -75,7 +75,7 @@ pub fn lumped_masses_per_element<M: ElasticModel + ?Sized>(
     Ok(m)
 }
 
-/// Nodal body forces f_a = m_a g [N] (the M g of wang2015 eq. 3 and 7).
+/// Nodal body forces f_a = m_a g \[N\] (the M g of wang2015 eq. 3 and 7).
 pub fn gravity_forces(masses_kg: &[f64], gravity_m_s2: Vector3<f64>) -> Vec<Vector3<f64>> {
     masses_kg.iter().map(|&m| gravity_m_s2 * m).collect()
 }
@@ -159,10 +159,10 @@ pub struct RestShapeReport {
     pub status: RestShapeStatus,
     /// Newton iterations performed.
     pub iterations: usize,
-    /// Final ‖R K (Rᵀ x_s − X) − M g‖₂ over the free dofs [N] (square root of wang2015 eq. 8's
+    /// Final ‖R K (Rᵀ x_s − X) − M g‖₂ over the free dofs \[N\] (square root of wang2015 eq. 8's
     /// objective restricted to unsupported dofs).
     pub residual_norm_n: f64,
-    /// ‖M g‖₂ over the free dofs [N] (scale of the residual).
+    /// ‖M g‖₂ over the free dofs \[N\] (scale of the residual).
     pub load_norm_n: f64,
     /// Residual norm per iteration (entry 0 = initial guess).
     pub history_n: Vec<f64>,
@@ -178,7 +178,7 @@ impl RestShapeReport {
 /// Rest shape and model with that rest shape (the model is what the forward simulation needs).
 #[derive(Clone, Debug)]
 pub struct RestShape<M> {
-    /// Rest positions X [m].
+    /// Rest positions X \[m\].
     pub rest_positions_m: Vec<Vector3<f64>>,
     /// `model` rebuilt over X.
     pub model: M,

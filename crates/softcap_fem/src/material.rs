@@ -14,9 +14,9 @@ use serde::{Deserialize, Serialize};
 /// elastic forces are linear in (λ, α) (bickel2009 eq. 7), which the fitter exploits.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinearParams {
-    /// bickel2009 λ [Pa] (not Lamé's λ).
+    /// bickel2009 λ \[Pa\] (not Lamé's λ).
     pub lambda: f64,
-    /// bickel2009 α = λν [Pa] = Lamé's first parameter.
+    /// bickel2009 α = λν \[Pa\] = Lamé's first parameter.
     pub alpha: f64,
 }
 
@@ -31,7 +31,7 @@ impl LinearParams {
         })
     }
 
-    /// Back to (E [Pa], ν): ν = α/λ, E = λ(1 + ν)(1 − 2ν). Errors unless λ > 0 and ν ∈ (−1, 0.5).
+    /// Back to (E \[Pa\], ν): ν = α/λ, E = λ(1 + ν)(1 − 2ν). Errors unless λ > 0 and ν ∈ (−1, 0.5).
     pub fn to_young_poisson(&self) -> Result<(f64, f64), FemError> {
         self.validate(usize::MAX)?;
         let nu = self.alpha / self.lambda;
@@ -122,9 +122,9 @@ pub fn matrix_h() -> Matrix6<f64> {
 /// parameters (λ − μ, μ), so λ = λ_Lamé + μ (Smith 2018 §3.4).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct NeoHookeanParams {
-    /// reparameterized λ = λ_Lamé + μ [Pa]
+    /// reparameterized λ = λ_Lamé + μ \[Pa\]
     pub lambda: f64,
-    /// shear modulus μ [Pa]
+    /// shear modulus μ \[Pa\]
     pub mu: f64,
 }
 

@@ -35,7 +35,7 @@ pub struct Modes {
 }
 
 impl Modes {
-    /// Natural frequencies f_i = √max(λ_i, 0) / 2π [Hz].
+    /// Natural frequencies f_i = √max(λ_i, 0) / 2π \[Hz\].
     pub fn frequencies_hz(&self) -> Vec<f64> {
         self.eigenvalues
             .iter()

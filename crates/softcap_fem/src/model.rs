@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 /// A tet-mesh elastic model as the solvers see it.
 pub trait ElasticModel {
-    /// Rest positions X [m].
+    /// Rest positions X \[m\].
     fn rest_positions(&self) -> &[Vector3<f64>];
     /// Precomputed rest geometry of every element.
     fn elements(&self) -> &[TetGeometry];

@@ -35,7 +35,7 @@ pub fn energy_density(p: &NeoHookeanParams, f: &Matrix3<f64>) -> f64 {
         + 0.5 * p.lambda * (j - 1.0) * (j - 1.0)
 }
 
-/// First Piola–Kirchhoff stress P = ∂Ψ/∂F [Pa].
+/// First Piola–Kirchhoff stress P = ∂Ψ/∂F \[Pa\].
 pub fn pk1(p: &NeoHookeanParams, f: &Matrix3<f64>) -> Matrix3<f64> {
     let j = f.determinant();
     f * p.mu + cofactor(f) * (p.lambda * (j - 1.0) - p.mu)
@@ -84,7 +84,7 @@ pub fn neohookean_forces(
     ]
 }
 
-/// Element energy V Ψ(F) [J].
+/// Element energy V Ψ(F) \[J\].
 pub fn neohookean_energy(geom: &TetGeometry, p: &NeoHookeanParams, x: &[Vector3<f64>]) -> f64 {
     geom.volume_m3 * energy_density(p, &geom.deformation_gradient(x))
 }

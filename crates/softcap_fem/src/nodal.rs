@@ -25,7 +25,7 @@ pub trait NodalTerm {
     /// (then only lagged quantities may change). `node_stiffness(n)` is the mean diagonal entry of
     /// node n's free dofs in the assembled elastic matrix (for scale-free penalties).
     fn refresh(&mut self, x: &[Vector3<f64>], node_stiffness: &dyn Fn(usize) -> f64, requery: bool);
-    /// Adds the forces the term exerts on the body [N] into `out`.
+    /// Adds the forces the term exerts on the body \[N\] into `out`.
     fn add_forces(&self, x: &[Vector3<f64>], out: &mut [Vector3<f64>]);
     /// The blocks (node, −∂f/∂x) added to the system matrix (symmetric PSD).
     fn blocks(&self, x: &[Vector3<f64>]) -> Vec<(usize, Matrix3<f64>)>;

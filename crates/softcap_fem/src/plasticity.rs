@@ -55,9 +55,9 @@ use softcap_mesh::TetMesh;
 /// Von Mises yield with linear isotropic hardening (Simo & Hughes 1998 §3.3).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct J2PlasticityParams {
-    /// Initial uniaxial yield stress σ_y [Pa] (> 0).
+    /// Initial uniaxial yield stress σ_y \[Pa\] (> 0).
     pub yield_stress_pa: f64,
-    /// Uniaxial hardening modulus H [Pa] (≥ 0): σ = σ_y + H ᾱ on the plastic branch.
+    /// Uniaxial hardening modulus H \[Pa\] (≥ 0): σ = σ_y + H ᾱ on the plastic branch.
     pub hardening_modulus_pa: f64,
 }
 
@@ -101,7 +101,7 @@ impl Default for PlasticState {
 /// Result of the radial return at one material point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ReturnMapping {
-    /// Stress σ [Pa].
+    /// Stress σ \[Pa\].
     pub stress_pa: Matrix3<f64>,
     /// Updated state (equals the committed one when elastic).
     pub state: PlasticState,

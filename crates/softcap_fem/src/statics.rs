@@ -123,9 +123,9 @@ pub struct EquilibriumReport {
     pub status: SolveStatus,
     /// Iterations performed.
     pub iterations: usize,
-    /// Final ‖r‖₂ over free dofs [N].
+    /// Final ‖r‖₂ over free dofs \[N\].
     pub residual_norm_n: f64,
-    /// Last ‖Δx‖_∞ [m].
+    /// Last ‖Δx‖_∞ \[m\].
     pub last_update_m: f64,
     /// Contact outcome (default/empty without a probe).
     pub contact: ContactReport,
@@ -767,7 +767,7 @@ impl ContactMerit<'_> {
 /// The load applied at pseudo-time t ∈ (0, 1] of an incremental loading run.
 #[derive(Clone, Debug, Default)]
 pub struct LoadState {
-    /// External nodal forces [N] (one per node).
+    /// External nodal forces \[N\] (one per node).
     pub external_forces_n: Vec<Vector3<f64>>,
     /// Prescribed positions of the constrained dofs (must cover the solver's constrained set).
     pub prescribed: DirichletBc,

@@ -41,13 +41,13 @@ pub enum SupportTangential {
 /// Outcome of a support state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct SupportReport {
-    /// Total normal reaction of the plane on the body [N] (along ν).
+    /// Total normal reaction of the plane on the body \[N\] (along ν).
     pub normal_force_n: f64,
-    /// Total tangential force of the plane on the body [N].
+    /// Total tangential force of the plane on the body \[N\].
     pub tangential_force_n: Vector3<f64>,
-    /// Mean tangential displacement of the support nodes from their anchors at build time [m].
+    /// Mean tangential displacement of the support nodes from their anchors at build time \[m\].
     pub mean_slip_m: Vector3<f64>,
-    /// Largest |ν·x − d| over the support nodes [m].
+    /// Largest |ν·x − d| over the support nodes \[m\].
     pub max_normal_gap_m: f64,
 }
 
@@ -56,7 +56,7 @@ pub struct SupportReport {
 pub struct SupportPlane {
     /// Unit normal ν (into the body).
     pub normal: Unit<Vector3<f64>>,
-    /// Plane offset d [m] (ν·x = d on the plane).
+    /// Plane offset d \[m\] (ν·x = d on the plane).
     pub offset_m: f64,
     /// Support nodes, increasing.
     pub nodes: Vec<usize>,

@@ -49,12 +49,12 @@ use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// One Maxwell branch: relative stiffness g (fraction of the long-term stiffness) and relaxation
-/// time τ [s].
+/// time τ \[s\].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PronyBranch {
     /// g_i ≥ 0 (dimensionless, relative to the long-term stiffness)
     pub g: f64,
-    /// τ_i > 0 [s]
+    /// τ_i > 0 \[s\]
     pub tau_s: f64,
 }
 
@@ -232,7 +232,7 @@ impl<M: ElasticModel> ViscoelasticModel<M> {
         &self.prony
     }
 
-    /// Current step Δt [s].
+    /// Current step Δt \[s\].
     pub fn time_step_s(&self) -> f64 {
         self.dt_s
     }
@@ -242,7 +242,7 @@ impl<M: ElasticModel> ViscoelasticModel<M> {
         self.scale
     }
 
-    /// Sets the step Δt ≥ 0 [s] of the next solve (recomputes a_i, b_i and the history stress).
+    /// Sets the step Δt ≥ 0 \[s\] of the next solve (recomputes a_i, b_i and the history stress).
     pub fn set_time_step(&mut self, dt_s: f64) -> Result<(), FemError> {
         if !(dt_s.is_finite() && dt_s >= 0.0) {
             return Err(FemError::InvalidSetting {
@@ -320,7 +320,7 @@ impl<M: ElasticModel> ViscoelasticModel<M> {
         self.refresh_step_stress();
     }
 
-    /// Branch history stresses h_i of element `e` (unrotated frame) [Pa].
+    /// Branch history stresses h_i of element `e` (unrotated frame) \[Pa\].
     pub fn branch_stresses(&self, e: usize) -> &[Matrix3<f64>] {
         let nb = self.coeffs.len();
         &self.history[e * nb..(e + 1) * nb]

@@ -7,7 +7,7 @@
 //! | [`io`] | OBJ, PLY (ASCII/binary), Gmsh 4.1 `.msh`, TetGen `.node`/`.ele` readers and writers |
 //! | [`refine`] | uniform 1 → 8 (red) refinement of tet meshes |
 //! | [`refine_local`] | conforming local refinement inside balls by longest-edge bisection (Rivara 1991) |
-//! | [`triangulate`] | ear-clipping of polygons |
+//! | [`triangulate`](mod@triangulate) | ear-clipping of polygons |
 //! | [`adjacency`] | one-rings, vertex→elements, tet face/vertex adjacency, [`SurfaceMap`] |
 //! | [`laplacian`] | cotangent Laplacian + mixed Voronoi areas (thesis eq. 3.4–3.5), bi-Laplacian, umbrella graph Laplacian (bickel2009 eq. 9) |
 //! | [`raycast`] | first hit of a ray on a triangle surface, occlusion tests (parry3d BVH): depth rendering, visibility |

@@ -14,7 +14,7 @@
 //! | [`render`] | PNG frames: anti-aliased painted discs, probe, textured background |
 //! | [`robot`] | 4-DOF arm (URDF), closed-form IK / FK, joint log and 6-axis F/T in the sensor frame (`robot.csv`) |
 //! | [`sensors`] | FSR power law + divider, DAQ clock (offset, drift), trigger line, sensor lag / hysteresis |
-//! | [`write`] | the session folder and `truth/` (atomic: temporary folder renamed into place) |
+//! | [`write`](mod@write) | the session folder and `truth/` (atomic: temporary folder renamed into place) |
 //! | [`dynamic`] | `kind = "dynamic"`: free motion (release, drop, shaken clamp) under gravity seen by depth cameras (wang2015) |
 //! | [`error`] | [`SynthError`] |
 //! | [`cli`] | the `softcap-synth` command line ([`cli::Cli::run`]) |

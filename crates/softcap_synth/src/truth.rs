@@ -480,7 +480,7 @@ fn contact_radius_m(probe: &ProbeGeometry, depth_m: f64) -> f64 {
 /// The balls of the truth's local refinement along the probe's contact paths
 /// (`object.truth_refine_edge_mm`): one per frame whose tip is below the surface (consecutive
 /// equal ones once), centred on the tip apex's projection onto the top face, radius 2 a with a
-/// the contact radius at the frame's depth ([`contact_radius_m`]). Physical reason for 2 a: the
+/// the contact radius at the frame's depth (`contact_radius_m`). Physical reason for 2 a: the
 /// patch itself is a; beyond it the surface displacement of its normal and tangential tractions
 /// (Boussinesq / Cerruti) decays as 1 / r, so its steepest gradients — and the stick/slip annulus
 /// of a dragged patch (Mindlin; Johnson §7.2) at the patch's rim — lie within r ≤ 2 a. The

@@ -245,7 +245,7 @@ pub fn write_template_meshes(w: &SessionWriter, mesh_m: &TetMesh) -> Result<()> 
     Ok(())
 }
 
-/// detections/<camera>.csv.
+/// `detections/<camera>.csv`.
 pub fn detections_csv(rows: &[DetectionRow], labeled: bool) -> String {
     let mut t = String::from(if labeled {
         "frame,u,v,color,label\n"

@@ -5,7 +5,7 @@
 //! (`rig/cameras.toml` or aniposelib TOML). Output: the refined rig as `rig/cameras.toml`.
 //!
 //! Method ([`calibrate`]): every point is triangulated with the initial rig (DLT + LM,
-//! [`crate::triangulate`]); then rounds of
+//! [`crate::triangulate`](mod@crate::triangulate)); then rounds of
 //! 1. residuals of all observations; noise scale σ̂ = 1.4826 · median |residual component| (the
 //!    MAD about zero, robust to up to half the observations being outliers);
 //! 2. observations farther than `outlier_threshold · σ̂` px from their point's projection are

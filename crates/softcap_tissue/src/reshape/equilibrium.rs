@@ -66,7 +66,7 @@ pub struct EquilibriumOutcome {
     pub status: EquilibriumStatus,
     /// Newton iterations.
     pub iterations: usize,
-    /// Final ‖∇Π‖ over the free dofs [N].
+    /// Final ‖∇Π‖ over the free dofs \[N\].
     pub residual_norm_n: f64,
 }
 

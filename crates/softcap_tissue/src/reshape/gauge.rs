@@ -14,7 +14,7 @@
 //!
 //! Canonicalization y ↦ x = R_yᵀ(y − ȳ) + X̄, R_y = polar(A(y)), has at a canonical y the
 //! derivative (§3.7: the polar rotation's derivative solves the Sylvester equation ΩS + SΩ =
-//! Rᵀ dA − dAᵀR, eq. 22; for Ω = [ω]× this is ((tr S) I − S) ω = vee(dA − dAᵀ))
+//! Rᵀ dA − dAᵀR, eq. 22; for Ω = \[ω\]× this is ((tr S) I − S) ω = vee(dA − dAᵀ))
 //!
 //! D δy = δy − δȳ − ω × (x − X̄),  δȳ = Σ w̃_i δy_i,  ω = ((tr S) I − S)⁻¹ Σ w̃_i d_i × δy_i,
 //!

@@ -10,7 +10,7 @@
 //! | [`solve`] | stages, line search, stopping rules → [`ReshapeOutcome`] | §3.4 |
 //! | [`target`] | the TARGET folder (target.toml, CSVs, surface.obj) with file:line errors; its writer | |
 //! | [`known_truth`] | the known-truth box of Fig. 21 (tests, example, benches) | Fig. 21 |
-//! | [`run`] | `softcap tissue reshape`: [`ReshapeConfig`] → reshaped.mcap (+ report) | |
+//! | [`run`](mod@run) | `softcap tissue reshape`: [`ReshapeConfig`] → reshaped.mcap (+ report) | |
 //! | [`output`] | reshaped.mcap channels and report entries | |
 //! | [`report`] | report.md, error histogram (Fig. 16), convergence (Fig. 9), before/after renders | |
 

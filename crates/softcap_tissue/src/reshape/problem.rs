@@ -63,7 +63,7 @@ pub struct Landmark {
     pub id: String,
     /// Template point (embedded in its tet).
     pub point: MaterialPoint,
-    /// Target position [m].
+    /// Target position \[m\].
     pub target_m: Vector3<f64>,
 }
 
@@ -72,7 +72,7 @@ pub struct Landmark {
 pub struct IcpMarker {
     /// Id from the input.
     pub id: String,
-    /// Position [m].
+    /// Position \[m\].
     pub position_m: Vector3<f64>,
 }
 
@@ -83,14 +83,14 @@ pub struct Attachment {
     pub id: String,
     /// Template node.
     pub node: usize,
-    /// Target position [m].
+    /// Target position \[m\].
     pub target_m: Vector3<f64>,
 }
 
 /// A reshape problem in SI units.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReshapeProblem {
-    /// Template tet mesh [m], positively oriented.
+    /// Template tet mesh \[m\], positively oriented.
     pub template: TetMesh,
     /// Landmarks.
     pub landmarks: Vec<Landmark>,

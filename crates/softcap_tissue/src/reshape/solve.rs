@@ -50,7 +50,7 @@ pub struct ReshapeSettings {
     pub max_iterations: usize,
     /// Iteration cap of the constant-plastic-strain initial guess.
     pub constant_iterations: usize,
-    /// Stopping rule (ii): largest error of the stage's image constraints [m].
+    /// Stopping rule (ii): largest error of the stage's image constraints \[m\].
     pub error_tolerance_m: f64,
     /// Stopping rule (iii): relative decrease of the objective per iteration.
     pub relative_progress: f64,
@@ -131,11 +131,11 @@ pub struct StageReport {
     pub iterations: usize,
     /// Why it stopped.
     pub stop: StopReason,
-    /// Objective at the start [m²].
+    /// Objective at the start \[m²\].
     pub objective_start: f64,
-    /// Objective at the end [m²].
+    /// Objective at the end \[m²\].
     pub objective_end: f64,
-    /// Largest error of the stage's image constraints at the end [m].
+    /// Largest error of the stage's image constraints at the end \[m\].
     pub max_error_m: f64,
 }
 
@@ -144,9 +144,9 @@ pub struct StageReport {
 pub struct IterationRecord {
     /// Stage name.
     pub stage: String,
-    /// Objective after the iteration [m²].
+    /// Objective after the iteration \[m²\].
     pub objective: f64,
-    /// Largest error of the stage's image constraints after the iteration [m].
+    /// Largest error of the stage's image constraints after the iteration \[m\].
     pub max_error_m: f64,
     /// Accepted step length η.
     pub step_length: f64,
@@ -161,11 +161,11 @@ pub struct ConstraintError {
     pub kind: ConstraintKind,
     /// Id from the input.
     pub id: String,
-    /// Target [m].
+    /// Target \[m\].
     pub target_m: [f64; 3],
-    /// The reshaped point (for ICP: the closest surface point) [m].
+    /// The reshaped point (for ICP: the closest surface point) \[m\].
     pub achieved_m: [f64; 3],
-    /// Distance [m].
+    /// Distance \[m\].
     pub error_m: f64,
 }
 
@@ -182,7 +182,7 @@ pub enum ReshapeStatus {
 /// The result of [`reshape`].
 #[derive(Clone, Debug)]
 pub struct ReshapeOutcome {
-    /// Reshaped node positions [m] (world frame).
+    /// Reshaped node positions \[m\] (world frame).
     pub positions_m: Vec<Vector3<f64>>,
     /// Plastic strain per tet (saito-barbic eq. 2 order: xx, yy, zz, xy, xz, yz).
     pub plastic: Vec<Vector6<f64>>,
@@ -198,12 +198,12 @@ pub struct ReshapeOutcome {
     pub reshaped_quality: TetQuality,
     /// Status.
     pub status: ReshapeStatus,
-    /// α used [m²].
+    /// α used \[m²\].
     pub alpha_m2: f64,
 }
 
 impl ReshapeOutcome {
-    /// The errors of the constraints of one kind [m], in input order.
+    /// The errors of the constraints of one kind \[m\], in input order.
     pub fn errors_of(&self, kind: ConstraintKind) -> Vec<f64> {
         self.errors
             .iter()
