@@ -209,7 +209,7 @@ pub struct Gauge {
 
 /// Settings of [`bundle_adjust`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct BundleSettings {
     /// Intrinsics refined per camera.
     pub refine: Refine,

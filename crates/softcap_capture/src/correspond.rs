@@ -23,7 +23,7 @@ pub struct Blob {
 
 /// Settings of the correspondence search.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CorrespondenceSettings {
     /// Largest symmetric epipolar distance of a two-view match, px.
     pub epipolar_tolerance_px: f64,

@@ -15,7 +15,7 @@ use crate::session::MarkerColor;
 
 /// Settings of [`detect_markers`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct DetectionSettings {
     /// Minimum colour strength (CIELab chroma projected on the colour's hue) of a marker pixel.
     pub chroma_threshold: f64,

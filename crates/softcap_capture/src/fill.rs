@@ -18,7 +18,7 @@ use crate::session::Session;
 
 /// Settings of the fill-in.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FillSettings {
     /// Stretching stiffness `k_s` (per m² of `k_b`; see `softcap_mesh::ShellSettings`).
     pub k_stretch: f64,

@@ -39,7 +39,7 @@ pub enum MarkerSource {
 
 /// Settings of [`capture`]. Every field has a default; loadable from TOML.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CaptureSettings {
     /// 2D source.
     pub source: MarkerSource,

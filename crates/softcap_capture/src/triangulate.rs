@@ -18,7 +18,7 @@ pub struct PixelObservation {
 
 /// Settings of [`triangulate`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TriangulationSettings {
     /// Refine the DLT estimate by Levenberg–Marquardt on the reprojection error.
     pub refine: bool,

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 /// Settings of [`minimize_bounded`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct BrentSettings {
     /// Absolute tolerance on the abscissa.
     pub x_tolerance: f64,

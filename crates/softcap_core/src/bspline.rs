@@ -162,7 +162,7 @@ impl UniformCubicBSpline {
 
 /// Settings of [`fit_uniform_cubic_bspline`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct BSplineFitSettings {
     /// Number of control points n ≥ 4 (thesis §4.3.1 uses 5–12).
     pub num_control_points: usize,

@@ -19,7 +19,7 @@ use crate::least_squares::{
 
 /// Settings of [`gauss_newton`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GaussNewtonSettings {
     /// Iteration cap.
     pub max_iterations: usize,

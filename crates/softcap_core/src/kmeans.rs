@@ -24,7 +24,7 @@ use crate::error::{CoreError, Result, check_finite};
 
 /// Settings of [`kmeans`] and [`kmedoids`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct KMeansSettings {
     /// RNG seed for k-means++ seeding.
     pub seed: u64,

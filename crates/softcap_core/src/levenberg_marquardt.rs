@@ -41,7 +41,7 @@ pub enum DampingScaling {
 
 /// Settings of [`levenberg_marquardt`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct LevenbergMarquardtSettings {
     /// Iteration cap (rejected steps count).
     pub max_iterations: usize,

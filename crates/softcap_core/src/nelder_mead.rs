@@ -19,7 +19,7 @@ use crate::least_squares::{Bounds, ConvergenceReason, SolverStatus, setup_bounds
 
 /// Settings of [`nelder_mead`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct NelderMeadSettings {
     /// Iteration cap.
     pub max_iterations: usize,

@@ -155,7 +155,7 @@ impl PolynomialTail {
 
 /// Settings of an RBF fit.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RbfSettings {
     /// Radial kernel φ.
     pub kernel: RbfKernel,
@@ -598,7 +598,7 @@ pub enum GreedyErrorMeasure {
 
 /// Settings of [`greedy_rbf`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GreedyRbfSettings {
     /// Kernel and tail of the fitted RBF.
     pub rbf: RbfSettings,

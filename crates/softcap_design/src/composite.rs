@@ -31,7 +31,7 @@ use std::sync::Arc;
 
 /// Geometry, discretization and load of the composite simulation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CompositeSettings {
     /// Block width × length × height \[m\] (thesis §8.5: 4 × 5 × 2.5 cm).
     pub block_size_m: [f64; 3],

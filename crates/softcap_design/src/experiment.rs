@@ -131,7 +131,7 @@ pub fn reference_library() -> Vec<BaseMaterial> {
 
 /// Settings of the validation experiment.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ExperimentSettings {
     /// Composite simulation (layers N, forces of the examples …).
     pub composite: CompositeSettings,

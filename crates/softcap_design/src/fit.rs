@@ -53,7 +53,7 @@ pub struct BaseMeasurements {
 
 /// Settings of the base-material fit.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct BaseFitSettings {
     /// RBF centres P (thesis: 6 for isotropic materials).
     pub centres: usize,

@@ -51,7 +51,7 @@ pub fn isotropic_matrix(lame_lambda: f64, mu: f64) -> Matrix6<f64> {
 /// Physically valid range of an isotropic material (thesis §8.3: "bound Lamé's parameters by
 /// computing the Young modulus and Poisson ratio and projecting these to physically valid values").
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct IsotropicBounds {
     /// Smallest Young's modulus \[Pa\].
     pub young_min_pa: f64,
@@ -332,7 +332,7 @@ impl InvariantMaterial {
 /// Valid range of a transversely isotropic material: every eigenvalue of the Mandel-form
 /// stiffness at least `eigen_min_pa`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TransverseBounds {
     /// Smallest eigenvalue of the Mandel stiffness \[Pa\].
     pub eigen_min_pa: f64,

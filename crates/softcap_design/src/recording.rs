@@ -26,7 +26,7 @@ use std::collections::BTreeMap;
 
 /// How a capture is mapped onto the block mesh (see module docs).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CaptureMappingSettings {
     /// Block width × length × height \[m\] (thesis §8.5: 4 × 5 × 2.5 cm).
     pub block_size_m: [f64; 3],

@@ -118,7 +118,7 @@ pub fn nominal_stress(material: &InvariantMaterial, stretch: [f64; 2]) -> [f64; 
 
 /// Settings of the rubber fit.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RubberFitSettings {
     /// RBF centres P.
     pub centres: usize,

@@ -23,7 +23,7 @@ use std::sync::Arc;
 
 /// Settings of the branch-and-bound search.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SearchSettings {
     /// Number of clusters K per level (thesis: 20).
     pub clusters: usize,
@@ -82,7 +82,7 @@ impl CellOrder {
 /// and branch-and-bound returns the exhaustive optimum. Level N − 1 boxes are exact (their
 /// fills are all the completions) and need no slack.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct BoundMargin {
     /// Absolute slack per level \[m\].
     pub absolute_m: Vec<f64>,
@@ -986,7 +986,7 @@ pub struct AdditiveResidual {
 /// μ = `absolute_m`[l−1]\[b\] plus `relative`[l−1]\[b\] · s (missing entries: 0). Valid when it
 /// covers [`additive_residual`] (see there).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AdditiveMargin {
     /// Absolute slack \[m\] per level, per reference.
     pub absolute_m: Vec<Vec<f64>>,

@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 /// Settings of the stage (loadable from TOML).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct StageSettings {
     /// Diagnosis.
     pub diagnose: DiagnoseSettings,

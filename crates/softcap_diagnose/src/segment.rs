@@ -35,7 +35,7 @@ impl Region {
 
 /// Settings of the segmentation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SegmentSettings {
     /// A frame is in contact when ‖f‖ exceeds this fraction of the session's peak force …
     pub contact_force_fraction: f64,

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 /// Settings of the diagnosis.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct DiagnoseSettings {
     /// Phase / location / region segmentation.
     pub segment: SegmentSettings,

@@ -19,7 +19,7 @@ use crate::image::RgbImage;
 
 /// Settings of [`classify_frames`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SvmSettings {
     /// Soft-margin penalty C.
     pub c: f64,

@@ -75,7 +75,7 @@ pub enum HorizonSearch {
 
 /// Settings of the horizon search on the unit profile.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct HorizonSettings {
     /// Search method.
     pub search: HorizonSearch,

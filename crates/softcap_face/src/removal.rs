@@ -21,7 +21,7 @@ use crate::raster::vertex_normals;
 
 /// Settings of [`remove_wrinkles`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RemovalSettings {
     /// Umbrella-smoothing passes that split off the fine-scale details (step 1).
     pub detail_smoothing_passes: usize,

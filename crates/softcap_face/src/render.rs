@@ -17,7 +17,7 @@ use crate::image::RgbImage;
 /// A painted wrinkle whose valley is the arc ‖q − center‖ = radius, all lengths in pixels
 /// (orthographic camera looking down −z, one pixel = one length unit, heights in pixels).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct WrinkleScene {
     /// Image columns.
     pub width_px: usize,
@@ -122,7 +122,7 @@ impl WrinkleScene {
 
 /// Settings of [`render_ambient_occlusion`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AoRenderSettings {
     /// Stratified cosine-weighted rays per pixel = n².
     pub rays_per_axis: usize,

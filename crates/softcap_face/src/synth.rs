@@ -129,7 +129,7 @@ pub struct ProjectedWrinkle {
 
 /// Settings of the synthesis (thesis §3.3.1).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SynthesisSettings {
     /// Edge-length stiffness k_e (thesis: 300).
     pub k_e: f64,

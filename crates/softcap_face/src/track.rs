@@ -93,7 +93,7 @@ impl ValleySpline {
 
 /// Settings of [`track_wrinkle`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrackSettings {
     /// Valley-spline control points (thesis: 5–12, by wrinkle length).
     pub n_control: usize,

@@ -206,7 +206,7 @@ impl Phase {
 
 /// Settings of the grouping of frames into probe locations.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ProbeLocationSettings {
     /// A frame is in contact when |force| exceeds this, N.
     pub contact_force_n: f64,

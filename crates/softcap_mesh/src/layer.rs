@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 /// How [`extrude_layer`] builds the layer.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct LayerSettings {
     /// Total thickness along the inward normal, in the surface's units (> 0).
     pub thickness: f64,

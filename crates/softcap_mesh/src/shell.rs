@@ -111,7 +111,7 @@ pub enum ShellError {
 
 /// Stiffnesses of the linear shell (thesis eq. 3.2 / 5.1).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ShellSettings {
     /// Stretching stiffness `k_s`.
     pub k_s: f64,

@@ -12,7 +12,7 @@ pub const CM_TO_M: f64 = 1e-2;
 
 /// What [`TetMesh::validate`] and [`TriMesh::validate`] accept.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ValidationSettings {
     /// Accept vertices used by no element.
     pub allow_unused_vertices: bool,

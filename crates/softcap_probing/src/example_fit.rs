@@ -15,7 +15,7 @@ use crate::{PatchSettings, ProbeExample, ProbingSetup};
 
 /// Settings of the per-example fit (bickel2009 eq. 9).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ExampleFitSettings {
     /// γ of eq. 9 on the log-stiffness field, m² (a unit jump of ln λ between neighbouring tets
     /// costs as much as √γ of marker error).

@@ -82,7 +82,7 @@ impl FootprintLoad {
 
 /// Settings of the contact patch of a force boundary condition.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PatchSettings {
     /// Radius of the probe footprint, m (disk radius, or the contact radius of a sphere).
     pub radius_m: f64,

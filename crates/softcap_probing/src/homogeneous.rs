@@ -27,7 +27,7 @@ fn simulate_params(
 
 /// Settings of [`fit_homogeneous`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct HomogeneousFitSettings {
     /// Starting Young's modulus, Pa (rescaled by a first linear estimate).
     pub initial_young_pa: f64,

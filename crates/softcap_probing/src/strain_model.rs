@@ -153,7 +153,7 @@ impl ElasticModel for StrainSpaceModel {
 /// under one load, continued from the previous equilibrium, with incremental loading from rest
 /// (bickel2009 §3.4) as the fallback path.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct StrainSpaceSolveSettings {
     /// Relaxation ω ∈ (0, 1] of the parameter update p ← p + ω (p(ε) − p)
     /// ([`StrainSpaceModel`]; 1 = the plain iteration of bickel2009 §3.4).

@@ -71,7 +71,7 @@ pub enum StrainTail {
 
 /// Settings of the strain-space basis (bickel2009 §4.2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct StrainBasisSettings {
     /// Greedy stops when the RMS parameter error over the samples is below this fraction of the
     /// element's mean λ.

@@ -12,7 +12,7 @@ use crate::{ProbingSetup, probing_error};
 
 /// Settings of [`simulate_probe_contact`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ContactSynthesisSettings {
     /// Load increments of the first approach (bickel2009 §3.4 incremental loading).
     pub steps: usize,

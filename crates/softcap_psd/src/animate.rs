@@ -53,7 +53,7 @@ pub struct HandleTrajectory {
 
 /// Settings of the MCAP animation output.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AnimateSettings {
     /// Metres per rig unit (0.01 for the ICT face in cm).
     pub metres_per_unit: f64,

@@ -55,7 +55,7 @@ impl IctData {
 
 /// Settings of the Fig. 5.5 evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct EvaluationSettings {
     /// Rig (handles, feature edges, shell, edge weights).
     pub rig: RigSettings,

@@ -125,7 +125,7 @@ impl FeatureGraph {
 
 /// Settings of the WPSD edge weights (thesis eq. 5.4).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct EdgeWeightSettings {
     /// Maximum number of feature edges seen by a vertex (thesis: 16).
     pub max_edges: usize,

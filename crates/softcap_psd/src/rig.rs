@@ -15,7 +15,7 @@ use softcap_mesh::{LinearShell, ShellBasis, ShellSettings, TriMesh};
 
 /// Settings of the face rig.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RigSettings {
     /// Number of handle vertices H (thesis: 89).
     pub handles: usize,

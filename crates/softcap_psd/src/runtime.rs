@@ -55,7 +55,7 @@ pub const LANES: usize = 8;
 
 /// Settings of the run-time layout.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RuntimeSettings {
     /// Largest L2 error allowed in a row of the translation-free basis:
     /// `max_v ‖(B P)_v − (U_b C_b)_v‖₂ ≤ basis_tolerance`, so the large-scale position error of

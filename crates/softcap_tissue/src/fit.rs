@@ -33,7 +33,7 @@ use softcap_app::Progress;
 
 /// Settings of the fit (TOML-loadable; written into the output's provenance).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FitSettings {
     /// Which frames become examples (budget knob: `examples_per_location`).
     pub examples: ExampleSelection,

@@ -14,7 +14,7 @@ use crate::error::{Result, TissueError};
 
 /// How frames become examples.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ExampleSelection {
     /// Grouping of contact frames into probe locations.
     pub locations: ProbeLocationSettings,

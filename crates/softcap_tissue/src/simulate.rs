@@ -98,7 +98,7 @@ impl ProbeSpec {
 
 /// Settings of a simulation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SimulateSettings {
     /// Incremental loading, secant on the depth, contact penalty.
     pub contact: ContactSynthesisSettings,

@@ -39,7 +39,7 @@ use crate::triangulate::{PixelObservation, TriangulationSettings, triangulate, t
 
 /// Settings of [`calibrate`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CalibrateSettings {
     /// Bundle adjustment (refined intrinsics, loss, iterations).
     pub bundle: BundleSettings,

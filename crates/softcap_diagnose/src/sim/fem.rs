@@ -22,7 +22,7 @@ use std::sync::Arc;
 
 /// Settings of [`FemProbeSimulator`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FemSimSettings {
     /// The contact patch the probe force is spread over (`softcap_probing::PatchSettings`,
     /// `ProbingSetup::load_weights`: lumped on the boundary nodes inside the footprint, or the
@@ -55,7 +55,7 @@ pub struct FemSimSettings {
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RefinementSettings {
     /// Refine only inside the touched balls (`softcap_mesh::refine_near`, longest-edge
     /// bisection) instead of every tet 1 → 8 (`softcap_mesh::refine_tets`).

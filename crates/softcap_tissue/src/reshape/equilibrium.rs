@@ -27,7 +27,7 @@ use softcap_fem::{
 
 /// Tolerances of the Newton iterations.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct EquilibriumSettings {
     /// Iteration cap.
     pub max_iterations: usize,
