@@ -8,6 +8,7 @@
 //! | [`reader`] | [`Recording`]: validated reading, typed decoding, [`Recording::digest`] |
 //! | [`capture`] | [`CaptureData::read`]: typed reading of a `capture.mcap` (session, markers, probe, sync, probe locations) |
 //! | [`dynamic`] | [`dynamic::DynamicCaptureData::read`]: point clouds of a dynamic capture; [`dynamic::read_dynamic_material`]; [`dynamic::read_track`]: a track.mcap |
+//! | [`effect`] | [`Effect`]: the effect catalog shared by the virtual rig (conceals) and the diagnosis (names) |
 //! | [`material`] | [`material::MaterialData::read`]: typed reading of a `material.mcap` (volume mesh, per-example (λ, α), basis, report) |
 //! | [`provenance`] | [`Provenance`]: the `softcap.provenance` metadata record |
 //! | [`viz`] | Foxglove `SceneUpdate` / `FrameTransform` twins for `/viz/...` channels |
@@ -36,6 +37,7 @@
 pub mod capture;
 pub mod catalog;
 pub mod dynamic;
+pub mod effect;
 pub mod error;
 pub mod material;
 pub mod provenance;
@@ -86,6 +88,7 @@ pub use catalog::{
     CATALOG, ChannelInfo, MESSAGE_ENCODING, SCHEMA_ENCODING, SoftcapMessage, Topic,
     descriptor_pool, descriptor_set, message_names, topics, viz_topic,
 };
+pub use effect::Effect;
 pub use error::{Error, Result};
 pub use material::{BasisTet, MaterialData};
 pub use provenance::{InputFile, PROVENANCE_METADATA, Provenance, git_commit, sha256_file};

@@ -10,75 +10,9 @@ use std::path::Path;
 use crate::error::{Result, SynthError};
 pub use crate::robot::RobotSettings;
 
-/// One switchable effect. The names are the ones `softcap diagnose` reports.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Effect {
-    /// Rate-dependent (Prony series) response: creep / relaxation during holds.
-    Viscoelasticity,
-    /// Permanent set after a location is released.
-    Plasticity,
-    /// The observed template is the shape sagged under gravity, not the stress-free rest shape.
-    GravityPreload,
-    /// Tilted probe with Coulomb friction under the tip.
-    ProbeFriction,
-    /// The attached face slides on its support plane.
-    SupportSlip,
-    /// A time shift between force and geometry: without `clock_force_latency_s`, no trigger line
-    /// (`fsr.csv` has no `trigger_v`, the clocks must be aligned from the data); with it, the
-    /// trigger line is present and the force channel lags it by a constant latency.
-    ClockOffset,
-    /// FSR first-order lag and hysteresis.
-    SensorLag,
-    /// Transversely isotropic material.
-    Anisotropy,
-    /// Inertia and damping (dynamic, not quasi-static, response).
-    InertiaDamping,
-    /// Control: a stiff spherical inclusion in an otherwise homogeneous block.
-    StiffInclusion,
-    /// Control: strain stiffening (second-order Yeoh term).
-    StrainStiffening,
-}
-
-impl Effect {
-    /// Every effect, in a fixed order.
-    pub const ALL: [Effect; 11] = [
-        Effect::Viscoelasticity,
-        Effect::Plasticity,
-        Effect::GravityPreload,
-        Effect::ProbeFriction,
-        Effect::SupportSlip,
-        Effect::ClockOffset,
-        Effect::SensorLag,
-        Effect::Anisotropy,
-        Effect::InertiaDamping,
-        Effect::StiffInclusion,
-        Effect::StrainStiffening,
-    ];
-
-    /// The kebab-case name used in scenario files, truth/README.md and by diagnose.
-    pub fn name(self) -> &'static str {
-        match self {
-            Effect::Viscoelasticity => "viscoelasticity",
-            Effect::Plasticity => "plasticity",
-            Effect::GravityPreload => "gravity-preload",
-            Effect::ProbeFriction => "probe-friction",
-            Effect::SupportSlip => "support-slip",
-            Effect::ClockOffset => "clock-offset",
-            Effect::SensorLag => "sensor-lag",
-            Effect::Anisotropy => "anisotropy",
-            Effect::InertiaDamping => "inertia-damping",
-            Effect::StiffInclusion => "stiff-inclusion",
-            Effect::StrainStiffening => "strain-stiffening",
-        }
-    }
-
-    /// True for the controls (heterogeneity / nonlinearity the base model can represent through
-    /// its per-element, strain-dependent material).
-    pub fn is_control(self) -> bool {
-        matches!(self, Effect::StiffInclusion | Effect::StrainStiffening)
-    }
-}
+/// One switchable effect: the catalog shared with the diagnosis (its names are the ones
+/// `softcap diagnose` reports), plus the two controls.
+pub use softcap_mcap::Effect;
 
 /// A whole scenario.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

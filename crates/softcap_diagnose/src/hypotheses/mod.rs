@@ -34,8 +34,6 @@ pub mod viscoelasticity;
 
 pub use contract::{Context, Hypothesis, SignatureRoute};
 
-use serde::{Deserialize, Serialize};
-
 /// Every catalog entry, in catalog order ([`Effect::CATALOG`]).
 pub fn catalog() -> [&'static dyn Hypothesis; 9] {
     [
@@ -56,64 +54,9 @@ pub fn of(effect: Effect) -> Option<&'static dyn Hypothesis> {
     catalog().into_iter().find(|h| h.effect() == effect)
 }
 
-/// A catalog entry: the physics a default model may leave out (issue 8, names exact).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Effect {
-    /// Rate dependence and creep (generalized Maxwell / Prony).
-    Viscoelasticity,
-    /// Plastic set.
-    Plasticity,
-    /// Gravity pre-load: rest shape ≠ observed shape.
-    GravityPreload,
-    /// Tangential traction under the probe.
-    ProbeFriction,
-    /// The object slides on its support.
-    SupportSlip,
-    /// Camera–force clock offset.
-    ClockOffset,
-    /// Force sensor lag.
-    SensorLag,
-    /// Anisotropy (transversely isotropic stiffening).
-    Anisotropy,
-    /// Inertia and damping.
-    InertiaDamping,
-}
-
-impl Effect {
-    /// The catalog, in issue order.
-    pub const CATALOG: [Effect; 9] = [
-        Effect::Viscoelasticity,
-        Effect::Plasticity,
-        Effect::GravityPreload,
-        Effect::ProbeFriction,
-        Effect::SupportSlip,
-        Effect::ClockOffset,
-        Effect::SensorLag,
-        Effect::Anisotropy,
-        Effect::InertiaDamping,
-    ];
-
-    /// The catalog name (issue 8, exact).
-    pub fn name(self) -> &'static str {
-        match self {
-            Effect::Viscoelasticity => "viscoelasticity",
-            Effect::Plasticity => "plasticity",
-            Effect::GravityPreload => "gravity-preload",
-            Effect::ProbeFriction => "probe-friction",
-            Effect::SupportSlip => "support-slip",
-            Effect::ClockOffset => "clock-offset",
-            Effect::SensorLag => "sensor-lag",
-            Effect::Anisotropy => "anisotropy",
-            Effect::InertiaDamping => "inertia-damping",
-        }
-    }
-
-    /// Parses a catalog name.
-    pub fn from_name(s: &str) -> Option<Self> {
-        Self::CATALOG.into_iter().find(|h| h.name() == s)
-    }
-}
+/// A catalog entry: the physics a default model may leave out (issue 8, names exact). One
+/// definition shared with the virtual rig, in the format crate where the stages meet.
+pub use softcap_mcap::Effect;
 
 #[cfg(test)]
 mod tests {
