@@ -93,7 +93,7 @@ pub enum Command {
     },
     /// Track the painted wrinkles of a face take (thesis §4.3) onto the animated face.
     Track {
-        /// The take directory (cameras.toml, mocap.csv, frames/<camera>/<frame>.png, labels/).
+        /// The take directory (cameras.toml, mocap.csv, frames/CAMERA/FRAME.png, labels/).
         take: PathBuf,
         #[arg(long)]
         face: PathBuf,

@@ -14,7 +14,7 @@
 //! | [`synth`] | 3D wrinkle synthesis: camera projection, valley offset, discrete-shell energy by Gauss–Newton | §3.3.1 eq. 3.6 |
 //! | [`removal`] | wrinkle removal preprocess: detail split, bi-Laplacian patch, details back | §3.3.2 |
 //! | [`output`] | stage MCAP: `/face/mesh` per frame, `/face/wrinkles`, `/viz` twins | |
-//! | [`take`] | a face take on disk: cameras.toml, frames/<camera>/<frame>.png, labels, mocap | |
+//! | [`take`] | a face take on disk: cameras.toml, `frames/<camera>/<frame>.png`, labels, mocap | |
 //! | [`take_report`] | `face track --report`: tracked splines over frames, (d, w) over time (PNG) | |
 //! | [`take_track`] | `face track`: a take → wrinkles on the animated face, `wrinkles.mcap` writer and reader | §4.3, §3.3.1 |
 //! | [`video`] | wrinkle tracking over a camera's frames: label patches, association, visibility | §4.3 |

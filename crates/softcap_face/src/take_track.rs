@@ -4,7 +4,7 @@
 //! thesis §4.3), and cast each visible wrinkle's cross-sections through the camera onto the face
 //! animated by the take's mocap (thesis §3.3.1, [`project_wrinkle`]); the camera is expressed in
 //! face coordinates by the rigid map of the neutral markers onto their landmark vertices
-//! ([`face_from_mocap`]). The MCAP holds `/face/track/cameras` (static) and
+//! ([`face_from_mocap`](crate::take_synth::face_from_mocap)). The MCAP holds `/face/track/cameras` (static) and
 //! `/face/track/wrinkles` (one message per camera and frame; pixel coordinates of the
 //! distortion-free image, equal to the image's own for a camera without distortion);
 //! `softcap face run --wrinkles` synthesizes from it.
