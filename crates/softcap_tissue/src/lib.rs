@@ -14,6 +14,7 @@
 //! | [`simulate`] | `softcap tissue simulate`: [`SimulateConfig`], [`ProbeSpec`] → sim.mcap (§3.4 incremental loading with probe contact) |
 //! | [`report`] | report.md + PNGs: per-example error, error vs basis size (plotters) |
 //! | [`cli`] | the `softcap-tissue` command line ([`cli::Cli::run`]) |
+//! | [`fit_dynamic`] | `softcap tissue fit-dynamic` (wang2015 §6): E at control points, ν, Rayleigh α/β and rest shape from tracked trajectories (Algorithm 1) |
 //! | [`track`] | `softcap tissue track` (wang2015 §5): EM tracking of a tet mesh through the point clouds of a dynamic capture → track.mcap |
 //! | [`error`] | [`TissueError`] (`is_bad_input()` → exit code 2) |
 //!
@@ -39,6 +40,7 @@
 pub mod cli;
 pub mod error;
 pub mod fit;
+pub mod fit_dynamic;
 pub mod output;
 pub mod report;
 pub mod reshape;

@@ -1,0 +1,628 @@
+//! wang2015 Algorithm 1 (splitting optimization):
+//!
+//! ```text
+//! warm start p₀ = (E₀, ν₀, α₀, β₀)                              (§6.3, [`super::warm`])
+//! repeat
+//!     X ← rest shape: R K (Rᵀ x_s − X) = M g                     (§6.1, eq. 7–8)
+//!     p ← decrease F(p) = Σ_t,k ‖x_tk(p) − x̂_tk‖² with X fixed   (§6.2, eq. 9)
+//! until F converges
+//! ```
+//!
+//! p = (ln E_c for each control point, ln α, ln β) (ν shared and held; E_e = Σ_c w_ec E_c).
+//! The p-step is either the paper's Nelder–Mead (downhill simplex) or Levenberg–Marquardt on the
+//! residual vector of eq. 9 with a forward-difference Jacobian (n_p extra segment simulations per
+//! iteration); the report gives the simulations each needed. The fit runs on `refine` levels of
+//! uniform 1 → 8 refinement of the given mesh (the tracked positions of the new edge-midpoint
+//! nodes are their edges' means; residuals are taken on the given nodes only), because coarse
+//! linear tets are too stiff in bending and E would be the mesh's rather than the material's.
+//! Uncertainty: the covariance s² (JᵀJ)⁻¹ of the log-parameters at the optimum,
+//! s² = ‖r‖²/(m − n), J by central differences.
+
+use nalgebra::{DMatrix, Vector3};
+use serde::{Deserialize, Serialize};
+use softcap_core::{
+    Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, NelderMeadSettings,
+    levenberg_marquardt, nelder_mead,
+};
+use softcap_fem::{RayleighDamping, RestShapeSettings, solve_rest_shape};
+use softcap_mesh::TetMesh;
+
+use super::blend::{Blending, ControlPoints, control_points};
+use super::forward::{DynamicParams, Forward, ForwardSettings};
+use super::sequence::TrackedSequence;
+use super::warm;
+use crate::Progress;
+use crate::error::{Result, TissueError};
+
+/// The p-step optimizer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Optimizer {
+    /// Downhill simplex (wang2015 §6.2).
+    NelderMead,
+    /// Levenberg–Marquardt with a forward-difference Jacobian.
+    LevenbergMarquardt,
+}
+
+/// Settings of `softcap tissue fit-dynamic` (TOML-loadable; every field has a default).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FitDynamicSettings {
+    /// Number of material control points.
+    pub control_points: usize,
+    /// How control-point moduli are blended over the tets.
+    pub blending: Blending,
+    /// Poisson ratio (shared, held fixed).
+    pub poisson: f64,
+    /// Starting Young's modulus, Pa (before the modal warm start).
+    pub initial_young_pa: f64,
+    /// Starting Rayleigh α, 1/s (used when the warm start finds no clean mode).
+    pub initial_alpha_per_s: f64,
+    /// Starting Rayleigh β, s (idem).
+    pub initial_beta_s: f64,
+    /// Modal warm start (wang2015 §6.3).
+    pub warm_start: bool,
+    /// Modes computed for the warm start.
+    pub warm_start_modes: usize,
+    /// Outer iterations of Algorithm 1 (rest shape ↔ parameters).
+    pub outer_iterations: usize,
+    /// The p-step optimizer.
+    pub optimizer: Optimizer,
+    /// Forward simulations per p-step at most.
+    pub max_simulations: usize,
+    /// Levels of uniform refinement of the given mesh for the fit (0 = the mesh itself).
+    pub refine: usize,
+    /// Frame intervals per segment at most.
+    pub segment_frames: usize,
+    /// Shorter free runs are not used.
+    pub min_segment_frames: usize,
+    /// Segment simulation settings.
+    pub forward: ForwardSettings,
+    /// Bounds of E, Pa.
+    pub young_bounds_pa: [f64; 2],
+    /// Bounds of α, 1/s.
+    pub alpha_bounds_per_s: [f64; 2],
+    /// Bounds of β, s.
+    pub beta_bounds_s: [f64; 2],
+    /// Progress on stderr (when it is a terminal).
+    pub progress: bool,
+}
+
+impl Default for FitDynamicSettings {
+    fn default() -> Self {
+        Self {
+            control_points: 1,
+            blending: Blending::Linear,
+            poisson: 0.45,
+            initial_young_pa: 1.0e5,
+            initial_alpha_per_s: 1.0,
+            initial_beta_s: 1.0e-3,
+            warm_start: true,
+            warm_start_modes: 4,
+            outer_iterations: 3,
+            optimizer: Optimizer::LevenbergMarquardt,
+            max_simulations: 120,
+            refine: 0,
+            segment_frames: 30,
+            min_segment_frames: 4,
+            forward: ForwardSettings::default(),
+            young_bounds_pa: [1.0e2, 1.0e10],
+            alpha_bounds_per_s: [1.0e-4, 1.0e3],
+            beta_bounds_s: [1.0e-7, 1.0],
+            progress: true,
+        }
+    }
+}
+
+impl FitDynamicSettings {
+    /// Checks ranges; the error names the setting.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &str, problem: String| {
+            Err(TissueError::BadSettings {
+                field: field.into(),
+                problem,
+            })
+        };
+        if self.control_points == 0 {
+            return bad("control_points", "must be ≥ 1".into());
+        }
+        if !(self.poisson > -1.0 && self.poisson < 0.5) {
+            return bad("poisson", format!("must be in (−1, 0.5), got {}", self.poisson));
+        }
+        for (f, v) in [
+            ("initial_young_pa", self.initial_young_pa),
+            ("initial_alpha_per_s", self.initial_alpha_per_s),
+            ("initial_beta_s", self.initial_beta_s),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(f, format!("must be positive, got {v}"));
+            }
+        }
+        for (f, [lo, hi]) in [
+            ("young_bounds_pa", self.young_bounds_pa),
+            ("alpha_bounds_per_s", self.alpha_bounds_per_s),
+            ("beta_bounds_s", self.beta_bounds_s),
+        ] {
+            if !(lo > 0.0 && hi > lo && hi.is_finite()) {
+                return bad(f, format!("need 0 < lower < upper, got [{lo}, {hi}]"));
+            }
+        }
+        if self.segment_frames == 0 || self.forward.substeps == 0 || self.max_simulations == 0 {
+            return bad(
+                "segment_frames",
+                "segment_frames, forward.substeps and max_simulations must be ≥ 1".into(),
+            );
+        }
+        if self.refine > 2 {
+            return bad("refine", format!("at most 2 levels (64× the tets), got {}", self.refine));
+        }
+        Ok(())
+    }
+}
+
+/// A fitted dynamic material and how it was found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DynamicFit {
+    /// Control points (on the given mesh) and their weights per tet of the given mesh.
+    pub control_points: ControlPoints,
+    /// E per control point, Pa.
+    pub young_pa: Vec<f64>,
+    /// E per tet of the given mesh, Pa.
+    pub young_pa_tets: Vec<f64>,
+    /// ν (held).
+    pub poisson: f64,
+    /// Fitted damping.
+    pub damping: RayleighDamping,
+    /// Density, kg/m³.
+    pub density_kg_m3: f64,
+    /// Rest shape of the given mesh's nodes, m.
+    pub rest_m: Vec<Vector3<f64>>,
+    /// 1-σ relative uncertainty of each E_c, α, β (from the log-parameter covariance).
+    pub relative_sigma: Vec<f64>,
+    /// Trajectory RMS at the starting parameters, m.
+    pub rms_initial_m: f64,
+    /// Trajectory RMS after the warm start, m.
+    pub rms_warm_m: f64,
+    /// Trajectory RMS of the fit, m.
+    pub rms_m: f64,
+    /// Measured modal frequencies and damping ratios (dominant first).
+    pub measured_modes: Vec<warm::ModalFit>,
+    /// Natural frequencies of the fitted body, Hz (ascending).
+    pub fitted_frequencies_hz: Vec<f64>,
+    /// E after the warm start, Pa (one value for all control points).
+    pub warm_young_pa: f64,
+    /// Damping after the warm start.
+    pub warm_damping: RayleighDamping,
+    /// Forward simulations (all segments) of the whole fit.
+    pub simulations: usize,
+    /// Objective F after each outer iteration.
+    pub history: Vec<f64>,
+    /// `converged` | `max-iterations` | `failed: …`.
+    pub status: String,
+    /// Rest-shape solve status of the last outer iteration.
+    pub rest_status: String,
+    /// Segments used and frames simulated.
+    pub segments: usize,
+    /// Frames simulated per evaluation.
+    pub frames: usize,
+    /// Nodes and tets of the fit mesh.
+    pub fit_mesh_size: (usize, usize),
+}
+
+/// The fit mesh: the given mesh refined `levels` times, its tets' parent tets in the given mesh,
+/// and the sequence carried to its nodes (edge midpoints take their edges' mean).
+fn refined(
+    mesh: &TetMesh,
+    seq: &TrackedSequence,
+    levels: usize,
+) -> (TetMesh, Vec<usize>, TrackedSequence) {
+    let mut m = mesh.clone();
+    let mut parent: Vec<usize> = (0..mesh.tets.len()).collect();
+    let mut s = seq.clone();
+    for _ in 0..levels {
+        let r = softcap_mesh::refine_tets(&m);
+        let n = m.vertices.len();
+        let supported: std::collections::BTreeSet<usize> = s.support_nodes.iter().copied().collect();
+        let mut support = s.support_nodes.clone();
+        for (k, [a, b]) in r.midpoint_of.iter().enumerate() {
+            if supported.contains(a) && supported.contains(b) {
+                support.push(n + k);
+            }
+        }
+        for frame in &mut s.positions_m {
+            for [a, b] in &r.midpoint_of {
+                let p = (frame[*a] + frame[*b]) * 0.5;
+                frame.push(p);
+            }
+        }
+        s.support_nodes = support;
+        parent = r.parent_tet.iter().map(|&t| parent[t]).collect();
+        m = r.mesh;
+    }
+    (m, parent, s)
+}
+
+/// Log-parameter vector → (E per control point, damping).
+fn unpack(q: &[f64], nc: usize) -> (Vec<f64>, RayleighDamping) {
+    (
+        q[..nc].iter().map(|v| v.exp()).collect(),
+        RayleighDamping {
+            alpha_per_s: q[nc].exp(),
+            beta_s: q[nc + 1].exp(),
+        },
+    )
+}
+
+struct Problem<'a> {
+    forward: &'a Forward,
+    rest: Vec<Vector3<f64>>,
+    weights: &'a [Vec<f64>],
+    poisson: f64,
+    nc: usize,
+    simulations: usize,
+    best: (f64, Vec<f64>),
+}
+
+impl Problem<'_> {
+    fn params(&self, q: &[f64]) -> DynamicParams {
+        let (young, damping) = unpack(q, self.nc);
+        DynamicParams {
+            young_pa: self
+                .weights
+                .iter()
+                .map(|w| w.iter().zip(&young).map(|(a, b)| a * b).sum())
+                .collect(),
+            poisson: self.poisson,
+            damping,
+        }
+    }
+
+    /// Residuals (non-finite where a simulation failed).
+    fn eval(&mut self, q: &[f64]) -> Vec<f64> {
+        self.simulations += 1;
+        let p = self.params(q);
+        let r = match self.forward.simulate(&p, &self.rest) {
+            Ok(runs) => self.forward.residuals(&runs),
+            Err(_) => vec![f64::NAN; self.forward.num_residuals()],
+        };
+        let f: f64 = r.iter().map(|v| v * v).sum();
+        if f.is_finite() && f < self.best.0 {
+            self.best = (f, q.to_vec());
+        }
+        r
+    }
+
+    fn objective(&mut self, q: &[f64]) -> f64 {
+        let f: f64 = self.eval(q).iter().map(|v| v * v).sum();
+        if f.is_finite() { f } else { f64::INFINITY }
+    }
+}
+
+impl LeastSquaresProblem for Problem<'_> {
+    fn num_params(&self) -> usize {
+        self.nc + 2
+    }
+    fn num_residuals(&self) -> usize {
+        self.forward.num_residuals()
+    }
+    fn residuals(&mut self, params: &[f64], residuals: &mut [f64]) {
+        let r = self.eval(params);
+        for (o, v) in residuals.iter_mut().zip(r) {
+            // A failed simulation: a large finite residual so the step is rejected.
+            *o = if v.is_finite() { v } else { 1.0 };
+        }
+    }
+    fn jacobian(&mut self, params: &[f64], jacobian: &mut DMatrix<f64>) -> bool {
+        // Forward differences in the log-parameters (one simulation per parameter).
+        let r0 = self.eval(params);
+        let h = 1e-4;
+        for j in 0..params.len() {
+            let mut q = params.to_vec();
+            q[j] += h;
+            let r = self.eval(&q);
+            for i in 0..r.len() {
+                jacobian[(i, j)] = (r[i] - r0[i]) / h;
+            }
+        }
+        r0.iter().all(|v| v.is_finite())
+    }
+}
+
+/// The rest shape of `params` reproducing the static shape `static_m` under gravity and the
+/// support (eq. 7), by Newton on X with the exact ∂f/∂X (`softcap_fem::solve_rest_shape`). A
+/// free body keeps its static shape.
+fn rest_shape(
+    forward: &Forward,
+    params: &DynamicParams,
+    static_m: &[Vector3<f64>],
+    initial: Option<&[Vector3<f64>]>,
+) -> Result<(Vec<Vector3<f64>>, String)> {
+    let dofs = forward.support_dofs();
+    if dofs.is_empty() || forward.sequence().gravity_m_s2.norm() == 0.0 {
+        return Ok((static_m.to_vec(), "static shape (free or weightless body)".into()));
+    }
+    let model = forward.model(params, static_m)?;
+    let rest = solve_rest_shape(
+        &model,
+        static_m,
+        forward.gravity_n(),
+        &dofs,
+        initial,
+        &RestShapeSettings::default(),
+    )?;
+    let status = format!(
+        "{:?} after {} Newton iterations, residual {:.2e} of {:.2e} N",
+        rest.report.status, rest.report.iterations, rest.report.residual_norm_n, rest.report.load_norm_n
+    );
+    if rest.report.converged() {
+        Ok((rest.rest_positions_m, status))
+    } else {
+        // No rest shape explains the sag with this material (too soft): keep the best X found.
+        Ok((rest.rest_positions_m, format!("not converged: {status}")))
+    }
+}
+
+/// Fits E at control points, α, β and the rest shape to `seq` on `mesh` (the static shape, i.e.
+/// the template at frame 0) by wang2015 Algorithm 1 (module docs).
+pub fn fit_sequence(
+    mesh: &TetMesh,
+    seq: &TrackedSequence,
+    settings: &FitDynamicSettings,
+    progress: &Progress,
+) -> Result<DynamicFit> {
+    settings.validate()?;
+    let n_given = mesh.vertices.len();
+    let cp = control_points(mesh, &seq.support_nodes, settings.control_points, settings.blending)?;
+    let (fit_mesh, parent, fit_seq) = refined(mesh, seq, settings.refine);
+    let fit_weights: Vec<Vec<f64>> = parent.iter().map(|&t| cp.weights[t].clone()).collect();
+    let segments = fit_seq.segments(
+        settings.segment_frames,
+        settings.min_segment_frames,
+        settings.forward.velocity_half_window,
+    );
+    if segments.is_empty() {
+        return Err(TissueError::BadInput {
+            path: "track".into(),
+            field: "frames".into(),
+            problem: format!(
+                "no free-motion run of {} or more frame intervals outside the interactions",
+                settings.min_segment_frames
+            ),
+        });
+    }
+    let observed: Vec<bool> = (0..fit_mesh.vertices.len()).map(|i| i < n_given).collect();
+    let forward = Forward::new(&fit_mesh, &fit_seq, segments.clone(), observed, &settings.forward)?;
+    let static_m = fit_mesh.vertices.clone();
+    let nc = cp.len();
+    let mut problem = Problem {
+        forward: &forward,
+        rest: Vec::new(),
+        weights: &fit_weights,
+        poisson: settings.poisson,
+        nc,
+        simulations: 0,
+        best: (f64::INFINITY, Vec::new()),
+    };
+    let mut q: Vec<f64> = std::iter::repeat_n(settings.initial_young_pa.ln(), nc)
+        .chain([settings.initial_alpha_per_s.ln(), settings.initial_beta_s.ln()])
+        .collect();
+    let bounds = Bounds::new(
+        std::iter::repeat_n(settings.young_bounds_pa[0].ln(), nc)
+            .chain([settings.alpha_bounds_per_s[0].ln(), settings.beta_bounds_s[0].ln()])
+            .collect(),
+        std::iter::repeat_n(settings.young_bounds_pa[1].ln(), nc)
+            .chain([settings.alpha_bounds_per_s[1].ln(), settings.beta_bounds_s[1].ln()])
+            .collect(),
+    )
+    .map_err(|e| TissueError::BadSettings {
+        field: "bounds".into(),
+        problem: e.to_string(),
+    })?;
+
+    // Starting point.
+    progress.step(1, 4, "rest shape and trajectory error at the starting material");
+    let (mut rest, _) = rest_shape(&forward, &problem.params(&q), &static_m, None)?;
+    problem.rest = rest.clone();
+    let rms_initial_m = rms_of(&mut problem, &q);
+
+    // Modal warm start (§6.3).
+    progress.step(2, 4, "modal warm start (wang2015 §6.3)");
+    let mut measured_modes = Vec::new();
+    if settings.warm_start {
+        let (fits, young, damping) = warm_start(&forward, &mut problem, &q, &static_m, settings)?;
+        measured_modes = fits;
+        if let Some(e) = young {
+            q[..nc].iter_mut().for_each(|v| *v = e.ln());
+        }
+        if let Some(d) = damping {
+            q[nc] = d.alpha_per_s.ln();
+            q[nc + 1] = d.beta_s.ln();
+        }
+        bounds.clamp(&mut q);
+    }
+    let (rest_w, _) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
+    rest = rest_w;
+    problem.rest = rest.clone();
+    let rms_warm_m = rms_of(&mut problem, &q);
+    let (warm_young, warm_damping) = unpack(&q, nc);
+
+    // Algorithm 1.
+    let mut history = Vec::new();
+    let mut status = "max-iterations".to_string();
+    let mut rest_status = String::new();
+    for outer in 0..settings.outer_iterations.max(1) {
+        progress.step(3, 4, &format!("Algorithm 1, iteration {}", outer + 1));
+        let (x, s) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
+        rest = x;
+        rest_status = s;
+        problem.rest = rest.clone();
+        problem.best = (f64::INFINITY, Vec::new());
+        let value = match settings.optimizer {
+            Optimizer::NelderMead => {
+                let r = nelder_mead(
+                    |p| problem.objective(p),
+                    &q,
+                    Some(&bounds),
+                    &NelderMeadSettings {
+                        max_evaluations: settings.max_simulations,
+                        f_tolerance: 1e-10,
+                        x_tolerance: 1e-4,
+                        initial_relative_step: 0.0,
+                        initial_absolute_step: 0.2,
+                        ..NelderMeadSettings::default()
+                    },
+                )
+                .map_err(|e| TissueError::NotConverged {
+                    what: "Nelder–Mead".into(),
+                    status: e.to_string(),
+                })?;
+                q = r.params;
+                r.value
+            }
+            Optimizer::LevenbergMarquardt => {
+                let per_iteration = nc + 3;
+                let r = levenberg_marquardt(
+                    &mut problem,
+                    &q,
+                    Some(&bounds),
+                    &LevenbergMarquardtSettings {
+                        max_iterations: (settings.max_simulations / per_iteration).max(2),
+                        relative_cost_tolerance: 1e-8,
+                        step_tolerance: 1e-6,
+                        ..LevenbergMarquardtSettings::default()
+                    },
+                )
+                .map_err(|e| TissueError::NotConverged {
+                    what: "Levenberg–Marquardt".into(),
+                    status: e.to_string(),
+                })?;
+                q = r.params;
+                2.0 * r.cost
+            }
+        };
+        if problem.best.0 < value {
+            q = problem.best.1.clone();
+        }
+        let f = problem.best.0.min(value);
+        let converged = history
+            .last()
+            .is_some_and(|&prev: &f64| (prev - f).abs() <= 1e-3 * prev);
+        history.push(f);
+        if !f.is_finite() {
+            status = "failed: no parameters gave a finite trajectory".into();
+            break;
+        }
+        if converged {
+            status = "converged".into();
+            break;
+        }
+    }
+    progress.step(4, 4, "uncertainty and modal frequencies");
+    let relative_sigma = covariance_sigma(&mut problem, &q);
+    let rms_m = rms_of(&mut problem, &q);
+    let params = problem.params(&q);
+    let fitted_frequencies_hz = forward
+        .model(&params, &rest)
+        .ok()
+        .and_then(|m| warm::modes(&forward, &m, settings.warm_start_modes).ok())
+        .map(|m| m.frequencies_hz())
+        .unwrap_or_default();
+    let (young_pa, damping) = unpack(&q, nc);
+    let frames = segments.iter().map(|s| s.end - s.start).sum();
+    Ok(DynamicFit {
+        young_pa_tets: cp.blend(&young_pa),
+        control_points: cp,
+        young_pa,
+        poisson: settings.poisson,
+        damping,
+        density_kg_m3: seq.density_kg_m3,
+        rest_m: rest[..n_given].to_vec(),
+        relative_sigma,
+        rms_initial_m,
+        rms_warm_m,
+        rms_m,
+        measured_modes,
+        fitted_frequencies_hz,
+        warm_young_pa: warm_young[0],
+        warm_damping,
+        simulations: problem.simulations,
+        history,
+        status,
+        rest_status,
+        segments: segments.len(),
+        frames,
+        fit_mesh_size: (fit_mesh.vertices.len(), fit_mesh.tets.len()),
+    })
+}
+
+fn rms_of(problem: &mut Problem<'_>, q: &[f64]) -> f64 {
+    let r = problem.eval(q);
+    let ss: f64 = r.iter().map(|v| v * v).sum();
+    (3.0 * ss / r.len().max(1) as f64).sqrt()
+}
+
+/// §6.3: modes at the current E, measured frequencies and damping of the tracked motion, E
+/// matched on the dominant mode (three passes with the rest shape re-solved), (α, β) from the
+/// modal damping ratios.
+fn warm_start(
+    forward: &Forward,
+    problem: &mut Problem<'_>,
+    q: &[f64],
+    static_m: &[Vector3<f64>],
+    settings: &FitDynamicSettings,
+) -> Result<(Vec<warm::ModalFit>, Option<f64>, Option<RayleighDamping>)> {
+    let nc = problem.nc;
+    let mut young = q[0].exp();
+    let mut fits = Vec::new();
+    let mut rest: Option<Vec<Vector3<f64>>> = None;
+    for pass in 0..3 {
+        let mut qq = q.to_vec();
+        qq[..nc].iter_mut().for_each(|v| *v = young.ln());
+        let params = problem.params(&qq);
+        let (x, _) = rest_shape(forward, &params, static_m, rest.as_deref())?;
+        let model = forward.model(&params, &x)?;
+        rest = Some(x);
+        let modes = warm::modes(forward, &model, settings.warm_start_modes)?;
+        if pass == 0 {
+            fits = warm::measure_modes(forward, static_m, &modes);
+        }
+        let Some(dominant) = fits.first().filter(|f| f.explained > 0.5) else {
+            return Ok((fits, None, None));
+        };
+        let omega_model = modes.angular_frequencies_rad_s()[dominant.mode];
+        if !(omega_model > 0.0) {
+            return Ok((fits, None, None));
+        }
+        young *= (dominant.omega_rad_s / omega_model).powi(2);
+        young = young.clamp(settings.young_bounds_pa[0], settings.young_bounds_pa[1]);
+    }
+    let damping = warm::damping_from_modes(&fits);
+    Ok((fits, Some(young), damping))
+}
+
+/// 1-σ uncertainties of the log-parameters (≈ relative uncertainties) from s² (JᵀJ)⁻¹.
+fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64]) -> Vec<f64> {
+    let n = q.len();
+    let r0 = problem.eval(q);
+    let m = r0.len();
+    let h = 1e-3;
+    let mut j = DMatrix::<f64>::zeros(m, n);
+    for k in 0..n {
+        let mut qp = q.to_vec();
+        let mut qm = q.to_vec();
+        qp[k] += h;
+        qm[k] -= h;
+        let rp = problem.eval(&qp);
+        let rm = problem.eval(&qm);
+        for i in 0..m {
+            j[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
+        }
+    }
+    let ss: f64 = r0.iter().map(|v| v * v).sum();
+    let s2 = ss / (m.saturating_sub(n)).max(1) as f64;
+    let jtj = j.transpose() * &j;
+    match jtj.try_inverse() {
+        Some(inv) => (0..n).map(|k| (s2 * inv[(k, k)]).max(0.0).sqrt()).collect(),
+        None => vec![f64::INFINITY; n],
+    }
+}

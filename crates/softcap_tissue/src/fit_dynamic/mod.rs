@@ -1,0 +1,24 @@
+//! `softcap tissue fit-dynamic`: deformation parameters from tracked trajectories alone
+//! (wang2015 §6): Young's modulus at a few control points blended over the mesh, a shared
+//! Poisson ratio, Rayleigh damping (α, β) and the rest shape X.
+//!
+//! | module | what | paper |
+//! |---|---|---|
+//! | [`sequence`] | tracked trajectories, free-motion segments, smoothed initial state and velocity | eq. 6/9 |
+//! | [`forward`] | segments simulated with eq. 3 (corotational, Rayleigh, implicit Newmark), residuals | eq. 3, 9 |
+//! | [`blend`] | control points, linear (axial) or harmonic weights | §6.2 |
+//! | [`warm`] | modal warm start: frequencies and damping of the tracked motion on the modes | §6.3 |
+//! | [`fit`] | Algorithm 1: rest shape (eq. 7–8) ↔ parameters (eq. 9), Nelder–Mead or LM | §6, Alg. 1 |
+//! | [`synthetic`] | known-truth sequences of softcap's own dynamics (tests, examples, benches) | §7, Table 1 |
+
+pub mod blend;
+pub mod fit;
+pub mod forward;
+pub mod sequence;
+pub mod synthetic;
+pub mod warm;
+
+pub use blend::{Blending, ControlPoints, control_points};
+pub use fit::{DynamicFit, FitDynamicSettings, Optimizer, fit_sequence};
+pub use forward::{DynamicParams, Forward, ForwardSettings};
+pub use sequence::{Segment, TrackedSequence};
