@@ -7,7 +7,7 @@ use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthes
 use softcap_tissue::fit_dynamic::{FitDynamicSettings, Optimizer, fit_sequence};
 
 fn bar_spec(young: Vec<f64>, noise_m: f64) -> SyntheticSpec {
-    let (mesh, support, push) = clamped_box([0.2, 0.03, 0.03], [12, 2, 2]);
+    let (mesh, support, push) = clamped_box([0.2, 0.03, 0.02], [12, 2, 2]);
     let young = if young.len() == 1 { vec![young[0]; mesh.tets.len()] } else { young };
     SyntheticSpec {
         rest_mesh: mesh,
@@ -15,10 +15,10 @@ fn bar_spec(young: Vec<f64>, noise_m: f64) -> SyntheticSpec {
         young_pa: young,
         poisson: 0.45,
         density_kg_m3: 1100.0,
-        damping: RayleighDamping { alpha_per_s: 0.8, beta_s: 1.0e-3 },
+        damping: RayleighDamping { alpha_per_s: 0.8, beta_s: std::env::var("BETA").map(|v| v.parse().unwrap()).unwrap_or(1.0e-3) },
         gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
         push_nodes: push,
-        push_force_n: Vector3::new(0.0, 0.3, -0.5),
+        push_force_n: Vector3::new(0.0, 0.5, -0.3),
         push_s: 0.2,
         frames: 45,
         frame_rate_hz: 30.0,
@@ -55,7 +55,7 @@ fn debug_forward_at_truth() {
     println!("segments {segs:?}");
     let n = truth.template.vertices.len();
     let hw: usize = std::env::var("HW").map(|v| v.parse().unwrap()).unwrap_or(2); let it: usize = std::env::var("IT").map(|v| v.parse().unwrap()).unwrap_or(6);
-    let fw = Forward::new(&truth.template, &truth.sequence, segs, vec![true; n], &ForwardSettings { velocity_half_window: hw, newton_iterations: it, velocity_degree: std::env::var("DEG").map(|v| v.parse().unwrap()).unwrap_or(4), ..ForwardSettings::default() }).unwrap();
+    let fw = Forward::new(&truth.template, &truth.sequence, segs, vec![true; n], &ForwardSettings { velocity_half_window: hw, newton_iterations: it, velocity_degree: std::env::var("DEG").map(|v| v.parse().unwrap()).unwrap_or(4), initial_state_smoothing: std::env::var("SM").map(|v| v.parse().unwrap()).unwrap_or(1.0), ..ForwardSettings::default() }).unwrap();
     let p = DynamicParams { young_pa: spec.young_pa.clone(), poisson: 0.45, damping: spec.damping };
     let t = std::time::Instant::now();
     let runs = fw.simulate(&p, &truth.rest_m).unwrap();
@@ -64,4 +64,25 @@ fn debug_forward_at_truth() {
     let r = fw.residuals(&runs);
     let per_frame: Vec<f64> = r.chunks(r.len() / 10).map(|c| (c.iter().map(|v| v*v).sum::<f64>() / c.len() as f64 * 3.0).sqrt()).collect();
     println!("per chunk rms {per_frame:?}");
+}
+
+#[test]
+fn debug_noise_level() {
+    let a = synthesize(&bar_spec(vec![5.0e5], 0.0)).unwrap();
+    let b = synthesize(&bar_spec(vec![5.0e5], 5e-4)).unwrap();
+    let mut ss = 0.0; let mut n = 0;
+    let mut mx: f64 = 0.0;
+    for (fa, fb) in a.sequence.positions_m.iter().zip(&b.sequence.positions_m) {
+        for (p, q) in fa.iter().zip(fb) { ss += (p - q).norm_squared(); n += 3; mx = mx.max((p-q).norm()); }
+    }
+    println!("noise rms {:.3e} max {:.3e}", (ss / n as f64).sqrt(), mx);
+}
+
+#[test]
+fn debug_truth_tip() {
+    let a = synthesize(&bar_spec(vec![5.0e5], 0.0)).unwrap();
+    let tip = a.template.vertices.iter().enumerate().max_by(|x, y| x.1.x.total_cmp(&y.1.x)).unwrap().0;
+    let z: Vec<String> = a.sequence.positions_m.iter().map(|f| format!("{:.1}", (f[tip].z - a.template.vertices[tip].z) * 1e3)).collect();
+    let y: Vec<String> = a.sequence.positions_m.iter().map(|f| format!("{:.1}", (f[tip].y - a.template.vertices[tip].y) * 1e3)).collect();
+    println!("sag tip z {:.2} mm\nz {}\ny {}", (a.template.vertices[tip].z - a.rest_m[tip].z) * 1e3, z.join(" "), y.join(" "));
 }

@@ -459,10 +459,23 @@ pub fn fit_sequence(
         problem.best = (f64::INFINITY, Vec::new());
         let value = match settings.optimizer {
             Optimizer::NelderMead => {
+                // Simplex in offsets from the current point (steps of 0.2 in every log-parameter).
+                let q0 = q.clone();
+                let shifted = Bounds::new(
+                    bounds.lower.iter().zip(&q0).map(|(l, c)| l - c).collect(),
+                    bounds.upper.iter().zip(&q0).map(|(u, c)| u - c).collect(),
+                )
+                .map_err(|e| TissueError::BadSettings {
+                    field: "bounds".into(),
+                    problem: e.to_string(),
+                })?;
                 let r = nelder_mead(
-                    |p| problem.objective(p),
-                    &q,
-                    Some(&bounds),
+                    |z| {
+                        let p: Vec<f64> = z.iter().zip(&q0).map(|(a, b)| a + b).collect();
+                        problem.objective(&p)
+                    },
+                    &vec![0.0; q0.len()],
+                    Some(&shifted),
                     &NelderMeadSettings {
                         max_evaluations: settings.max_simulations,
                         f_tolerance: 1e-10,
@@ -476,7 +489,7 @@ pub fn fit_sequence(
                     what: "Nelder–Mead".into(),
                     status: e.to_string(),
                 })?;
-                q = r.params;
+                q = r.params.iter().zip(&q0).map(|(a, b)| a + b).collect();
                 r.value
             }
             Optimizer::LevenbergMarquardt => {

@@ -51,7 +51,9 @@ pub struct SyntheticSpec {
     pub substeps: usize,
     /// Uniform refinement levels of the truth mesh.
     pub refine: usize,
-    /// Standard deviation of the per-coordinate Gaussian noise on the tracked nodes, m.
+    /// RMS per coordinate of the noise on the tracked nodes, m: Gaussian, independent per frame,
+    /// correlated over about two element lengths in space (iid node noise low-passed twice by
+    /// (I + L)⁻¹ and rescaled), as the errors of a physics-based tracker are.
     pub noise_m: f64,
     /// Noise seed.
     pub seed: u64,
@@ -163,17 +165,29 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         frames.push(state.positions_m[..n_given].to_vec());
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(spec.seed);
-    let normal = Normal::new(0.0, spec.noise_m.max(0.0)).map_err(|e| TissueError::BadSettings {
+    let normal = Normal::new(0.0, 1.0).map_err(|e| TissueError::BadSettings {
         field: "noise_m".into(),
         problem: e.to_string(),
     })?;
-    let held: std::collections::BTreeSet<usize> = spec.support_nodes.iter().copied().collect();
     if spec.noise_m > 0.0 {
+        let given = TetMesh {
+            vertices: xs[..n_given].to_vec(),
+            tets: spec.rest_mesh.tets.clone(),
+        };
+        let smoother = super::forward::Smoother::new(&given, &spec.support_nodes, 1.0)?;
         for f in frames.iter_mut().skip(1) {
-            for (i, p) in f.iter_mut().enumerate() {
-                if !held.contains(&i) {
-                    *p += Vector3::new(normal.sample(&mut rng), normal.sample(&mut rng), normal.sample(&mut rng));
-                }
+            let raw: Vec<Vector3<f64>> = (0..n_given)
+                .map(|_| Vector3::new(normal.sample(&mut rng), normal.sample(&mut rng), normal.sample(&mut rng)))
+                .collect();
+            let mut smooth = smoother.apply(&smoother.apply(&raw));
+            for &i in &spec.support_nodes {
+                smooth[i] = Vector3::zeros();
+            }
+            let free = n_given - spec.support_nodes.len();
+            let rms = (smooth.iter().map(|v| v.norm_squared()).sum::<f64>() / (3 * free.max(1)) as f64).sqrt();
+            let scale = spec.noise_m / rms.max(f64::MIN_POSITIVE);
+            for (p, d) in f.iter_mut().zip(&smooth) {
+                *p += d * scale;
             }
         }
     }
