@@ -1,11 +1,12 @@
-//! `softcap inspect export`: channels to CSV, meshes to OBJ / PLY.
+//! `softcap inspect export`: channels to CSV, meshes to OBJ / PLY / MSH, a dynamic material's rest
+//! shape (`--what rest`) to `node,x,y,z` CSV or MSH.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
 use softcap_app::{Context, Error, Result};
 use softcap_mcap::proto::{
-    MarkerFrame, NodeFrame, PointCloudFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh,
+    DynamicMaterial, MarkerFrame, NodeFrame, PointCloudFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh,
     TriMesh,
 };
 use softcap_mcap::{Recording, SoftcapMessage, Topic, topics};
@@ -21,6 +22,7 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
         "volume" => topics::VOLUME_MESH.name().to_string(),
         "nodes" => topics::TRACK_NODES.name().to_string(),
         "points" => topics::POINTS.name().to_string(),
+        "rest" => topics::DYNAMIC_MATERIAL.name().to_string(),
         t => t.to_string(),
     };
     let channel = r.channel(&topic).ok_or_else(|| {
@@ -58,6 +60,29 @@ pub fn export(r: &Recording, what: &str, output: &Path) -> Result<()> {
     } else if schema == TriMesh::schema_name() {
         let m = r.read_static(&Topic::<TriMesh>::custom(&topic))?;
         mesh_text(&m.positions_m, &m.triangles, &ext)?
+    } else if schema == DynamicMaterial::schema_name() {
+        let m = r.read_static(&Topic::<DynamicMaterial>::custom(&topic))?;
+        if m.rest_positions_m.is_empty() {
+            return Err(Error::bad_input(format!(
+                "{}: `{topic}` has no rest shape (rest_positions_m is empty)",
+                r.path().display()
+            )));
+        }
+        if ext == "msh" {
+            let mut volume = r.read_static(&topics::VOLUME_MESH)?;
+            if volume.positions_m.len() != m.rest_positions_m.len() {
+                return Err(Error::bad_input(format!(
+                    "{}: the rest shape has {} coordinates but /mesh/volume {}",
+                    r.path().display(),
+                    m.rest_positions_m.len(),
+                    volume.positions_m.len()
+                )));
+            }
+            volume.positions_m = m.rest_positions_m;
+            tet_msh_text(&volume)?
+        } else {
+            rest_csv(&m.rest_positions_m)
+        }
     } else if schema == TetMesh::schema_name() {
         let m = r.read_static(&Topic::<TetMesh>::custom(&topic))?;
         if ext == "msh" {
@@ -179,6 +204,15 @@ pub fn scalar_csv(samples: &[(u64, Scalar)]) -> String {
 }
 
 /// A tet mesh as Gmsh 4.1 ASCII (metres; tets and, if present, its boundary triangles).
+/// `node,x,y,z` (metres) of a rest shape.
+pub fn rest_csv(flat: &[f64]) -> String {
+    let mut s = String::from("node,x,y,z\n");
+    for (i, p) in flat.chunks_exact(3).enumerate() {
+        let _ = writeln!(s, "{i},{},{},{}", p[0], p[1], p[2]);
+    }
+    s
+}
+
 fn tet_msh_text(m: &TetMesh) -> Result<String> {
     let corners = |flat: &[u32]| flat.iter().map(|&v| v as usize).collect::<Vec<usize>>();
     let mesh = softcap_mesh::TetMesh {

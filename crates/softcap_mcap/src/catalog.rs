@@ -215,6 +215,10 @@ pub mod topics {
     pub const TRACK_REPORT: Topic<Report> = Topic::new("/tissue/track/report");
     /// A dynamic material (E per tet, ν, ρ, Rayleigh α and β, rest shape) (static, time 0).
     pub const DYNAMIC_MATERIAL: Topic<DynamicMaterial> = Topic::new("/tissue/dynamic_material");
+    /// `softcap tissue fit-dynamic`: fitted parameters, uncertainties, trajectory RMS, modes (time 0).
+    pub const DYNAMIC_FIT_REPORT: Topic<Report> = Topic::new("/tissue/dynamic_fit/report");
+    /// `softcap tissue simulate-dynamic`: simulated node positions of the template mesh per frame.
+    pub const DYNAMIC_SIM_NODES: Topic<NodeFrame> = Topic::new("/tissue/dynamic_sim/nodes");
 }
 
 /// One row of the channel catalog (mirrored in `docs/formats.md`).
@@ -441,5 +445,17 @@ pub const CATALOG: &[ChannelInfo] = &[
         schema: "softcap.DynamicMaterial",
         is_static: true,
         units: "E Pa, density kg/m³, alpha 1/s, beta s, rest positions m",
+    },
+    ChannelInfo {
+        topic: "/tissue/dynamic_fit/report",
+        schema: "softcap.Report",
+        is_static: true,
+        units: "per entry",
+    },
+    ChannelInfo {
+        topic: "/tissue/dynamic_sim/nodes",
+        schema: "softcap.NodeFrame",
+        is_static: false,
+        units: "t s, positions m",
     },
 ];

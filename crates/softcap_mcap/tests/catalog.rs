@@ -110,6 +110,11 @@ fn topic_constants_are_in_the_catalog() {
             topics::DYNAMIC_MATERIAL.name().to_string(),
             "softcap.DynamicMaterial",
         ),
+        (topics::DYNAMIC_FIT_REPORT.name().to_string(), "softcap.Report"),
+        (
+            topics::DYNAMIC_SIM_NODES.name().to_string(),
+            "softcap.NodeFrame",
+        ),
     ];
     assert_eq!(constants.len(), CATALOG.len());
     for (topic, schema) in constants {

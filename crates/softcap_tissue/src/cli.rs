@@ -3,7 +3,9 @@
 //! --radius R --tip x,y,z --axis x,y,z --force N -o sim.mcap`: novel-probe synthesis;
 //! `softcap-tissue reshape --template T.msh --target TARGET/ -o reshaped.mcap [--report DIR]`:
 //! saito-barbic template reshaping (a reshape that hits its iteration cap says so and still
-//! writes its result); `softcap-tissue track capture.mcap --mesh volume.msh -o track.mcap`: wang2015 §5 tracking.
+//! writes its result); `softcap-tissue track capture.mcap --mesh volume.msh -o track.mcap`: wang2015 §5 tracking;
+//! `softcap-tissue fit-dynamic track.mcap --mesh volume.msh -o dynamic.mcap`: wang2015 §6 parameter
+//! estimation; `softcap-tissue simulate-dynamic dynamic.mcap --initial track.mcap --frames a..b -o sim.mcap`.
 
 use std::path::PathBuf;
 
@@ -30,6 +32,124 @@ pub enum Command {
     Reshape(ReshapeArgs),
     /// Track the template mesh through the point clouds of a dynamic capture (wang2015 §5).
     Track(TrackArgs),
+    /// Fit E at control points, Rayleigh α/β and the rest shape to tracked trajectories (wang2015 §6).
+    FitDynamic(FitDynamicArgs),
+    /// Simulate a fitted dynamic material from a tracked frame over a frame range.
+    SimulateDynamic(SimulateDynamicArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct FitDynamicArgs {
+    /// track.mcap (`softcap tissue track`).
+    pub track: PathBuf,
+    /// Template tet mesh (Gmsh 4.1, session length unit) the track was made with: the frame-0 shape.
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// dynamic.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Also write report.md and trajectories.png here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Also write the fitted parameters as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Settings TOML (softcap_tissue::fit_dynamic::FitDynamicSettings).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// Material control points (overrides the settings).
+    #[arg(long)]
+    pub control_points: Option<usize>,
+    /// Uniform refinement levels of the fit mesh (overrides the settings).
+    #[arg(long)]
+    pub refine: Option<usize>,
+    /// No progress display.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl FitDynamicArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let mut settings: crate::fit_dynamic::FitDynamicSettings =
+            load_toml_or_default(self.settings.as_deref())?;
+        if let Some(n) = self.control_points {
+            settings.control_points = n;
+        }
+        if let Some(n) = self.refine {
+            settings.refine = n;
+        }
+        if self.quiet {
+            settings.progress = false;
+        }
+        let cfg = crate::fit_dynamic::FitDynamicConfig {
+            track: self.track.clone(),
+            mesh: self.mesh.clone(),
+            output: self.output.clone(),
+            report: self.report.clone(),
+            json: self.json.clone(),
+            settings,
+            arguments,
+        };
+        let progress = softcap_app::Progress::new(cfg.settings.progress);
+        let f = crate::fit_dynamic::run::run(&cfg, &progress)?;
+        let young: Vec<String> = f.young_pa.iter().map(|e| format!("{e:.4e}")).collect();
+        println!(
+            "{}: E [{}] Pa, nu {:.3}, alpha {:.4e} 1/s, beta {:.4e} s; trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm), {} simulations",
+            f.status,
+            young.join(", "),
+            f.poisson,
+            f.damping.alpha_per_s,
+            f.damping.beta_s,
+            1e3 * f.rms_m,
+            1e3 * f.rms_initial_m,
+            1e3 * f.rms_warm_m,
+            f.simulations
+        );
+        Ok(())
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimulateDynamicArgs {
+    /// dynamic.mcap (`softcap tissue fit-dynamic`).
+    pub material: PathBuf,
+    /// track.mcap whose frame `a` is the initial state (support and gravity from it too).
+    #[arg(long)]
+    pub initial: PathBuf,
+    /// Frame range `a..b` (frame numbers of the track, inclusive).
+    #[arg(long)]
+    pub frames: String,
+    /// sim.mcap to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+impl SimulateDynamicArgs {
+    fn run(&self, arguments: Vec<String>) -> Result<()> {
+        let range = self
+            .frames
+            .split_once("..")
+            .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
+            .ok_or_else(|| {
+                Error::bad_input(format!("--frames `{}`: expected a..b (two frame numbers)", self.frames))
+            })?;
+        let cfg = crate::fit_dynamic::SimulateDynamicConfig {
+            material: self.material.clone(),
+            initial: self.initial.clone(),
+            frames: range,
+            output: self.output.clone(),
+            forward: crate::fit_dynamic::ForwardSettings::default(),
+            arguments,
+        };
+        let o = crate::fit_dynamic::simulate(&cfg)?;
+        println!(
+            "{} frames simulated, RMS {:.3} mm to the track, {} steps at the Newton limit",
+            o.frames,
+            1e3 * o.rms_m,
+            o.max_iteration_steps
+        );
+        Ok(())
+    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -175,6 +295,8 @@ impl Cli {
             Command::Simulate(a) => a.run(arguments),
             Command::Reshape(a) => a.run(arguments),
             Command::Track(a) => a.run(arguments),
+            Command::FitDynamic(a) => a.run(arguments),
+            Command::SimulateDynamic(a) => a.run(arguments),
         }
     }
 }

@@ -66,6 +66,11 @@ pub struct FitDynamicSettings {
     pub warm_start_modes: usize,
     /// Outer iterations of Algorithm 1 (rest shape ↔ parameters).
     pub outer_iterations: usize,
+    /// Re-solve the rest shape (eq. 7) at every evaluation of F instead of holding it through a
+    /// p-step: the static shape is then reproduced at every p and the p-step sees the reduced
+    /// objective F(p, X(p)) (the alternation of Algorithm 1 converges slowly when E moves, the
+    /// rest shape's sag scaling with 1/E).
+    pub rest_shape_per_evaluation: bool,
     /// The p-step optimizer.
     pub optimizer: Optimizer,
     /// Forward simulations per p-step at most.
@@ -100,6 +105,7 @@ impl Default for FitDynamicSettings {
             warm_start: true,
             warm_start_modes: 4,
             outer_iterations: 3,
+            rest_shape_per_evaluation: true,
             optimizer: Optimizer::LevenbergMarquardt,
             max_simulations: 120,
             refine: 0,
@@ -207,6 +213,8 @@ pub struct DynamicFit {
     pub frames: usize,
     /// Nodes and tets of the fit mesh.
     pub fit_mesh_size: (usize, usize),
+    /// The segments simulated with the fitted parameters (the given mesh's nodes only).
+    pub runs: Vec<super::forward::SegmentRun>,
 }
 
 /// The fit mesh: the given mesh refined `levels` times, its tets' parent tets in the given mesh,
@@ -256,6 +264,8 @@ fn unpack(q: &[f64], nc: usize) -> (Vec<f64>, RayleighDamping) {
 struct Problem<'a> {
     forward: &'a Forward,
     rest: Vec<Vector3<f64>>,
+    /// Static shape and whether X is re-solved per evaluation.
+    static_m: Option<Vec<Vector3<f64>>>,
     weights: &'a [Vec<f64>],
     poisson: f64,
     nc: usize,
@@ -281,6 +291,11 @@ impl Problem<'_> {
     fn eval(&mut self, q: &[f64]) -> Vec<f64> {
         self.simulations += 1;
         let p = self.params(q);
+        if let Some(xs) = &self.static_m
+            && let Ok((x, _)) = rest_shape(self.forward, &p, xs, Some(&self.rest))
+        {
+            self.rest = x;
+        }
         let r = match self.forward.simulate(&p, &self.rest) {
             Ok(runs) => self.forward.residuals(&runs),
             Err(_) => vec![f64::NAN; self.forward.num_residuals()],
@@ -397,6 +412,7 @@ pub fn fit_sequence(
     let mut problem = Problem {
         forward: &forward,
         rest: Vec::new(),
+        static_m: None,
         weights: &fit_weights,
         poisson: settings.poisson,
         nc,
@@ -447,6 +463,9 @@ pub fn fit_sequence(
     let (warm_young, warm_damping) = unpack(&q, nc);
 
     // Algorithm 1.
+    if settings.rest_shape_per_evaluation {
+        problem.static_m = Some(static_m.clone());
+    }
     let mut history = Vec::new();
     let mut status = "max-iterations".to_string();
     let mut rest_status = String::new();
@@ -533,6 +552,7 @@ pub fn fit_sequence(
     progress.step(4, 4, "uncertainty and modal frequencies");
     let relative_sigma = covariance_sigma(&mut problem, &q);
     let rms_m = rms_of(&mut problem, &q);
+    let rest = problem.rest.clone();
     let params = problem.params(&q);
     let fitted_frequencies_hz = forward
         .model(&params, &rest)
@@ -542,6 +562,12 @@ pub fn fit_sequence(
         .unwrap_or_default();
     let (young_pa, damping) = unpack(&q, nc);
     let frames = segments.iter().map(|s| s.end - s.start).sum();
+    let mut runs = forward.simulate(&params, &rest).unwrap_or_default();
+    for r in &mut runs {
+        for x in &mut r.positions_m {
+            x.truncate(n_given);
+        }
+    }
     Ok(DynamicFit {
         young_pa_tets: cp.blend(&young_pa),
         control_points: cp,
@@ -565,6 +591,7 @@ pub fn fit_sequence(
         segments: segments.len(),
         frames,
         fit_mesh_size: (fit_mesh.vertices.len(), fit_mesh.tets.len()),
+        runs,
     })
 }
 

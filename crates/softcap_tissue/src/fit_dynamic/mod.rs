@@ -9,11 +9,15 @@
 //! | [`blend`] | control points, linear (axial) or harmonic weights | §6.2 |
 //! | [`warm`] | modal warm start: frequencies and damping of the tracked motion on the modes | §6.3 |
 //! | [`fit`] | Algorithm 1: rest shape (eq. 7–8) ↔ parameters (eq. 9), Nelder–Mead or LM | §6, Alg. 1 |
+//! | [`run`] | the commands: track.mcap → dynamic.mcap (+ JSON, report); simulate-dynamic → sim.mcap | |
+//! | [`report`] | report.md, trajectories.png | |
 //! | [`synthetic`] | known-truth sequences of softcap's own dynamics (tests, examples, benches) | §7, Table 1 |
 
 pub mod blend;
 pub mod fit;
 pub mod forward;
+pub mod report;
+pub mod run;
 pub mod sequence;
 pub mod synthetic;
 pub mod warm;
@@ -21,4 +25,5 @@ pub mod warm;
 pub use blend::{Blending, ControlPoints, control_points};
 pub use fit::{DynamicFit, FitDynamicSettings, Optimizer, fit_sequence};
 pub use forward::{DynamicParams, Forward, ForwardSettings};
+pub use run::{FitDynamicConfig, SimulateDynamicConfig, SimulateDynamicOutcome, simulate};
 pub use sequence::{Segment, TrackedSequence};

@@ -294,8 +294,9 @@ pub fn run(cfg: &TrackConfig) -> Result<TrackOutcome> {
     check_mesh_matches_capture(&cfg.mesh, &mesh, &capture)?;
     let material = track_material(cfg, &capture, &mesh)?;
     let attachment = attachment(cfg, &capture, &mesh)?;
+    let held = attachment.nodes.clone();
     let outcome = track(&capture, &mesh, &material, attachment, &cfg.settings)?;
-    output::write_track(cfg, &mesh, &material, &outcome)?;
+    output::write_track(cfg, &mesh, &material, &outcome, &held)?;
     Ok(outcome)
 }
 

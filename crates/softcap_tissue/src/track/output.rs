@@ -1,5 +1,7 @@
 //! track.mcap: the template (`/mesh/volume`, frame 0), the material used
-//! (`/tissue/dynamic_material`), per frame `/tissue/track/nodes` with its `/viz` mesh twin and
+//! (`/tissue/dynamic_material`), the capture's `/capture/session` and `/capture/dynamic` (its
+//! `support_nodes` replaced by every node the tracker held, so `tissue fit-dynamic` knows the
+//! support, gravity and interactions from the track alone), per frame `/tissue/track/nodes` with its `/viz` mesh twin and
 //! `/tissue/track/status`, and `/tissue/track/report`. Written atomically; nothing here depends
 //! on timing, so the same inputs give the same content digest.
 
@@ -47,6 +49,7 @@ pub fn write_track(
     mesh: &TetMesh,
     material: &TrackMaterial,
     outcome: &TrackOutcome,
+    held_nodes: &[usize],
 ) -> Result<()> {
     let path = &cfg.output;
     let err = |e: softcap_mcap::Error| TissueError::Output {
@@ -72,7 +75,17 @@ pub fn write_track(
             source: Box::new(e),
         })?;
     }
+    let read = |e: softcap_mcap::Error| TissueError::ReadMcap {
+        path: cfg.capture.clone(),
+        source: Box::new(e),
+    };
+    let capture = softcap_mcap::Recording::open(&cfg.capture).map_err(read)?;
+    let session = capture.read_static(&topics::SESSION).map_err(read)?;
+    let mut dynamic = capture.read_static(&topics::DYNAMIC_SESSION).map_err(read)?;
+    dynamic.support_nodes = held_nodes.iter().map(|&i| i as u32).collect();
     let mut w = Writer::create(path, &provenance).map_err(err)?;
+    w.write_static(&topics::SESSION, &session).map_err(err)?;
+    w.write_static(&topics::DYNAMIC_SESSION, &dynamic).map_err(err)?;
     let volume = tet_mesh_message(mesh);
     w.write_static(&topics::VOLUME_MESH, &volume).map_err(err)?;
     w.write_static(&topics::DYNAMIC_MATERIAL, &material_message(material))

@@ -1,0 +1,390 @@
+//! The commands: `softcap tissue fit-dynamic track.mcap --mesh M -o dynamic.mcap [--report DIR]
+//! [--json P.json]` and `softcap tissue simulate-dynamic dynamic.mcap --initial track.mcap
+//! --frames a..b -o sim.mcap`. Files in, files out; the numerics are in [`super::fit`] and
+//! [`super::forward`].
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::Vector3;
+use softcap_mcap::dynamic::{TrackRecording, read_dynamic_material, read_track};
+use softcap_mcap::{Provenance, Recording, Writer, proto, topics, viz, viz_topic};
+use softcap_mesh::TetMesh;
+
+use super::fit::{DynamicFit, FitDynamicSettings, fit_sequence};
+use super::forward::{DynamicParams, Forward, ForwardSettings};
+use super::sequence::{Segment, TrackedSequence};
+use crate::Progress;
+use crate::error::{Result, TissueError};
+use crate::output::tet_mesh_message;
+
+/// What `softcap tissue fit-dynamic` is asked to do.
+#[derive(Clone, Debug)]
+pub struct FitDynamicConfig {
+    /// track.mcap (`softcap tissue track`).
+    pub track: PathBuf,
+    /// The template tet mesh (session length unit), the static shape of frame 0.
+    pub mesh: PathBuf,
+    /// dynamic.mcap to write.
+    pub output: PathBuf,
+    /// Also write report.md and PNG figures here.
+    pub report: Option<PathBuf>,
+    /// Also write the parameters as JSON here.
+    pub json: Option<PathBuf>,
+    /// Settings.
+    pub settings: FitDynamicSettings,
+    /// Command line (provenance).
+    pub arguments: Vec<String>,
+}
+
+fn read_err(path: &Path) -> impl Fn(softcap_mcap::Error) -> TissueError + '_ {
+    move |e| TissueError::ReadMcap {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    }
+}
+
+/// A track.mcap as a [`TrackedSequence`] on `mesh` (bad input when they disagree): support,
+/// gravity and interactions from its `/capture/session` and `/capture/dynamic`; without those
+/// (a track written by another tool) the support is the nodes that never move and gravity is
+/// standard, with no interactions.
+pub fn sequence_from_track(
+    path: &Path,
+    track: &TrackRecording,
+    mesh: &TetMesh,
+    mesh_path: &Path,
+) -> Result<TrackedSequence> {
+    let n = mesh.vertices.len();
+    if track.mesh.vertices_m.len() != n || track.mesh.tets.len() != mesh.tets.len() {
+        return Err(TissueError::bad_input(
+            mesh_path,
+            "mesh",
+            format!(
+                "has {n} nodes and {} tets but {} was tracked with {} nodes and {} tets",
+                mesh.tets.len(),
+                path.display(),
+                track.mesh.vertices_m.len(),
+                track.mesh.tets.len()
+            ),
+        ));
+    }
+    if track.mesh.tets != mesh.tets {
+        return Err(TissueError::bad_input(
+            mesh_path,
+            "tets",
+            format!("do not match the tets of {}'s /mesh/volume", path.display()),
+        ));
+    }
+    let recording = Recording::open(path).map_err(read_err(path))?;
+    let dynamic = match recording.channel(topics::DYNAMIC_SESSION.name()) {
+        Some(_) => Some(recording.read_static(&topics::DYNAMIC_SESSION).map_err(read_err(path))?),
+        None => None,
+    };
+    let gravity = match recording.channel(topics::SESSION.name()) {
+        Some(_) => {
+            let s = recording.read_static(&topics::SESSION).map_err(read_err(path))?;
+            s.gravity_m_s2
+                .map(|g| Vector3::new(g.x, g.y, g.z))
+                .unwrap_or(softcap_fem::STANDARD_GRAVITY_M_S2)
+        }
+        None => softcap_fem::STANDARD_GRAVITY_M_S2,
+    };
+    let positions: Vec<Vec<Vector3<f64>>> = track
+        .frames
+        .iter()
+        .map(|f| f.positions_m.iter().map(|p| Vector3::from(*p)).collect())
+        .collect();
+    let support_nodes: Vec<usize> = match &dynamic {
+        Some(d) => {
+            if let Some(&i) = d.support_nodes.iter().find(|&&i| i as usize >= n) {
+                return Err(TissueError::bad_input(
+                    path,
+                    "/capture/dynamic support_nodes",
+                    format!("node {i} is past the {n} nodes of {}", mesh_path.display()),
+                ));
+            }
+            d.support_nodes.iter().map(|&i| i as usize).collect()
+        }
+        None => (0..n)
+            .filter(|&i| positions.iter().all(|f| (f[i] - positions[0][i]).norm() <= 1e-9))
+            .collect(),
+    };
+    Ok(TrackedSequence {
+        times_s: track.frames.iter().map(|f| f.t_camera_s).collect(),
+        usable: track.frames.iter().map(|f| f.is_tracked()).collect(),
+        positions_m: positions,
+        support_nodes,
+        gravity_m_s2: gravity,
+        density_kg_m3: track.material.density_kg_m3,
+        interactions_s: dynamic
+            .map(|d| d.interactions.iter().map(|i| [i.t_start_s, i.t_end_s]).collect())
+            .unwrap_or_default(),
+    })
+}
+
+fn metres_per_unit(path: &Path) -> Result<f64> {
+    let r = Recording::open(path).map_err(read_err(path))?;
+    if r.channel(topics::SESSION.name()).is_none() {
+        return Ok(1.0);
+    }
+    let s = r.read_static(&topics::SESSION).map_err(read_err(path))?;
+    Ok(if s.metres_per_unit > 0.0 { s.metres_per_unit } else { 1.0 })
+}
+
+/// Runs the fit and writes dynamic.mcap (and the report / JSON when asked).
+pub fn run(cfg: &FitDynamicConfig, progress: &Progress) -> Result<DynamicFit> {
+    cfg.settings.validate()?;
+    let track = read_track(&cfg.track).map_err(read_err(&cfg.track))?;
+    let mesh = crate::session::read_volume_mesh(&cfg.mesh, metres_per_unit(&cfg.track)?)?;
+    let seq = sequence_from_track(&cfg.track, &track, &mesh, &cfg.mesh)?;
+    let fit = fit_sequence(&mesh, &seq, &cfg.settings, progress)?;
+    write_dynamic(cfg, &mesh, &fit)?;
+    if let Some(p) = &cfg.json {
+        softcap_app::write_atomic(p, json(&fit).as_bytes()).map_err(|e| TissueError::Output {
+            path: p.clone(),
+            reason: e.to_string(),
+        })?;
+    }
+    if let Some(dir) = &cfg.report {
+        super::report::write_report(dir, &mesh, &seq, &fit, &cfg.settings)?;
+    }
+    Ok(fit)
+}
+
+/// The `/tissue/dynamic_material` message of a fit (E per tet of the given mesh, rest shape).
+pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
+    proto::DynamicMaterial {
+        element: "corotational".into(),
+        young_pa: fit.young_pa_tets.clone(),
+        poisson: fit.poisson,
+        density_kg_m3: fit.density_kg_m3,
+        rayleigh_alpha_per_s: fit.damping.alpha_per_s,
+        rayleigh_beta_s: fit.damping.beta_s,
+        rest_positions_m: fit.rest_m.iter().flat_map(|v| [v.x, v.y, v.z]).collect(),
+    }
+}
+
+/// The `--json` document (keys as in the issue; `E_pa` per control point).
+pub fn json(fit: &DynamicFit) -> String {
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let cps = fit
+        .control_points
+        .positions_m
+        .iter()
+        .map(|p| format!("[{:e}, {:e}, {:e}]", p.x, p.y, p.z))
+        .collect::<Vec<_>>()
+        .join(", ");
+    format!(
+        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {:e},\n  \"status\": \"{}\"\n}}\n",
+        list(&fit.young_pa),
+        list(&fit.young_pa_tets),
+        fit.poisson,
+        fit.damping.alpha_per_s,
+        fit.damping.beta_s,
+        fit.density_kg_m3,
+        fit.rms_m,
+        fit.status.replace('"', "'"),
+    )
+}
+
+/// The summary report.
+pub fn report_message(fit: &DynamicFit) -> proto::Report {
+    use proto::key_value::Value;
+    let kv = |key: String, value: Value, unit: &str| proto::KeyValue {
+        key,
+        value: Some(value),
+        unit: unit.into(),
+    };
+    let nc = fit.young_pa.len();
+    let mut entries = vec![kv("status".into(), Value::Text(fit.status.clone()), "")];
+    for (c, e) in fit.young_pa.iter().enumerate() {
+        entries.push(kv(format!("young_{c}"), Value::Number(*e), "Pa"));
+        entries.push(kv(
+            format!("young_{c}_relative_sigma"),
+            Value::Number(fit.relative_sigma[c]),
+            "",
+        ));
+    }
+    entries.extend([
+        kv("poisson".into(), Value::Number(fit.poisson), ""),
+        kv("rayleigh_alpha".into(), Value::Number(fit.damping.alpha_per_s), "1/s"),
+        kv("rayleigh_alpha_relative_sigma".into(), Value::Number(fit.relative_sigma[nc]), ""),
+        kv("rayleigh_beta".into(), Value::Number(fit.damping.beta_s), "s"),
+        kv("rayleigh_beta_relative_sigma".into(), Value::Number(fit.relative_sigma[nc + 1]), ""),
+        kv("trajectory_rmse_initial".into(), Value::Number(fit.rms_initial_m), "m"),
+        kv("trajectory_rmse_warm_start".into(), Value::Number(fit.rms_warm_m), "m"),
+        kv("trajectory_rmse".into(), Value::Number(fit.rms_m), "m"),
+        kv("warm_start_young".into(), Value::Number(fit.warm_young_pa), "Pa"),
+        kv("simulations".into(), Value::Integer(fit.simulations as i64), ""),
+        kv("segments".into(), Value::Integer(fit.segments as i64), ""),
+        kv("frames_simulated".into(), Value::Integer(fit.frames as i64), ""),
+        kv("fit_mesh_nodes".into(), Value::Integer(fit.fit_mesh_size.0 as i64), ""),
+        kv("fit_mesh_tets".into(), Value::Integer(fit.fit_mesh_size.1 as i64), ""),
+        kv("rest_shape".into(), Value::Text(fit.rest_status.clone()), ""),
+    ]);
+    for m in &fit.measured_modes {
+        entries.push(kv(
+            format!("mode_{}_measured", m.mode),
+            Value::Number(m.omega_rad_s / std::f64::consts::TAU),
+            "Hz",
+        ));
+        if let Some(f) = fit.fitted_frequencies_hz.get(m.mode) {
+            entries.push(kv(format!("mode_{}_fitted", m.mode), Value::Number(*f), "Hz"));
+        }
+        entries.push(kv(format!("mode_{}_damping_ratio", m.mode), Value::Number(m.zeta), ""));
+    }
+    proto::Report {
+        title: "tissue fit-dynamic (wang2015 §6, Algorithm 1)".into(),
+        entries,
+    }
+}
+
+fn write_dynamic(cfg: &FitDynamicConfig, mesh: &TetMesh, fit: &DynamicFit) -> Result<()> {
+    let path = &cfg.output;
+    let err = |e: softcap_mcap::Error| TissueError::Output {
+        path: path.clone(),
+        reason: e.to_string(),
+    };
+    let settings = toml::to_string(&cfg.settings).map_err(|e| TissueError::BadSettings {
+        field: "settings".into(),
+        problem: e.to_string(),
+    })?;
+    let mut provenance = Provenance::new("tissue fit-dynamic", env!("CARGO_PKG_VERSION"))
+        .with_arguments(cfg.arguments.iter())
+        .with_settings(settings);
+    for p in [&cfg.track, &cfg.mesh] {
+        provenance.add_input(p).map_err(read_err(p))?;
+    }
+    let mut w = Writer::create(path, &provenance).map_err(err)?;
+    w.write_static(&topics::VOLUME_MESH, &tet_mesh_message(mesh))
+        .map_err(err)?;
+    w.write_static(&topics::DYNAMIC_MATERIAL, &material_message(fit))
+        .map_err(err)?;
+    w.write_static(&topics::DYNAMIC_FIT_REPORT, &report_message(fit))
+        .map_err(err)?;
+    w.finish().map_err(err)?;
+    Ok(())
+}
+
+/// What `softcap tissue simulate-dynamic` is asked to do.
+#[derive(Clone, Debug)]
+pub struct SimulateDynamicConfig {
+    /// dynamic.mcap (`tissue fit-dynamic`).
+    pub material: PathBuf,
+    /// track.mcap giving the initial state (and support, gravity).
+    pub initial: PathBuf,
+    /// First and last frame (inclusive) of the track to simulate over.
+    pub frames: (u64, u64),
+    /// sim.mcap to write.
+    pub output: PathBuf,
+    /// Segment simulation settings.
+    pub forward: ForwardSettings,
+    /// Command line (provenance).
+    pub arguments: Vec<String>,
+}
+
+/// What a simulate-dynamic run produced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimulateDynamicOutcome {
+    /// Frames simulated (after the initial one).
+    pub frames: usize,
+    /// RMS distance to the tracked nodes over those frames, m.
+    pub rms_m: f64,
+    /// Steps whose Newton iterations hit their limit.
+    pub max_iteration_steps: usize,
+}
+
+/// Simulates the fitted material from the tracked state at frame a to frame b (the support
+/// follows the track) and writes `/tissue/dynamic_sim/nodes`.
+pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
+    let track = read_track(&cfg.initial).map_err(read_err(&cfg.initial))?;
+    let mesh = TetMesh {
+        vertices: track.mesh.vertices_m.iter().map(|p| Vector3::from(*p)).collect(),
+        tets: track.mesh.tets.clone(),
+    };
+    let m = read_dynamic_material(&cfg.material, mesh.tets.len(), mesh.vertices.len())
+        .map_err(read_err(&cfg.material))?;
+    let seq = sequence_from_track(&cfg.initial, &track, &mesh, &cfg.material)?;
+    let (a, b) = cfg.frames;
+    let index = |f: u64| track.frames.iter().position(|t| t.frame == f);
+    let (Some(start), Some(end)) = (index(a), index(b)) else {
+        return Err(TissueError::BadSettings {
+            field: "--frames".into(),
+            problem: format!("{a}..{b} are not both frames of {}", cfg.initial.display()),
+        });
+    };
+    if end <= start {
+        return Err(TissueError::BadSettings {
+            field: "--frames".into(),
+            problem: format!("{a}..{b}: the last frame must come after the first"),
+        });
+    }
+    let tets = mesh.tets.len();
+    let params = DynamicParams {
+        young_pa: if m.young_pa.len() == 1 { vec![m.young_pa[0]; tets] } else { m.young_pa.clone() },
+        poisson: m.poisson,
+        damping: softcap_fem::RayleighDamping {
+            alpha_per_s: m.rayleigh_alpha_per_s,
+            beta_s: m.rayleigh_beta_s,
+        },
+    };
+    let rest: Vec<Vector3<f64>> = if m.rest_positions_m.is_empty() {
+        mesh.vertices.clone()
+    } else {
+        m.rest_positions_m.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect()
+    };
+    let mut seq = seq;
+    seq.density_kg_m3 = m.density_kg_m3;
+    let n = mesh.vertices.len();
+    let forward = Forward::new(&mesh, &seq, vec![Segment { start, end }], vec![true; n], &cfg.forward)?;
+    let runs = forward.simulate(&params, &rest)?;
+    let run = &runs[0];
+    if let Some(f) = &run.failure {
+        return Err(TissueError::NotConverged {
+            what: "dynamic simulation".into(),
+            status: f.clone(),
+        });
+    }
+    let rms_m = forward.rms_m(&runs);
+    let path = &cfg.output;
+    let err = |e: softcap_mcap::Error| TissueError::Output {
+        path: path.clone(),
+        reason: e.to_string(),
+    };
+    let mut provenance = Provenance::new("tissue simulate-dynamic", env!("CARGO_PKG_VERSION"))
+        .with_arguments(cfg.arguments.iter());
+    for p in [&cfg.material, &cfg.initial] {
+        provenance.add_input(p).map_err(read_err(p))?;
+    }
+    let mut w = Writer::create(path, &provenance).map_err(err)?;
+    let volume = tet_mesh_message(&mesh);
+    w.write_static(&topics::VOLUME_MESH, &volume).map_err(err)?;
+    let viz_nodes = viz_topic(topics::DYNAMIC_SIM_NODES.name());
+    for (o, x) in run.positions_m.iter().enumerate() {
+        let f = &track.frames[start + 1 + o];
+        let t = (f.t_camera_s.max(0.0) * 1e9).round() as u64;
+        let flat: Vec<f64> = x.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        w.write_foxglove(&viz_nodes, t, &viz::deformed_tetmesh_scene(&volume, &flat, t))
+            .map_err(err)?;
+        w.write(
+            &topics::DYNAMIC_SIM_NODES,
+            t,
+            &proto::NodeFrame {
+                frame: f.frame,
+                t_camera_s: f.t_camera_s,
+                positions_m: flat,
+            },
+        )
+        .map_err(err)?;
+    }
+    w.finish().map_err(err)?;
+    Ok(SimulateDynamicOutcome {
+        frames: run.positions_m.len(),
+        rms_m,
+        max_iteration_steps: run.max_iteration_steps,
+    })
+}
