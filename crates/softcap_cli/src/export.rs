@@ -6,8 +6,8 @@ use std::path::Path;
 
 use softcap_app::{Context, Error, Result};
 use softcap_mcap::proto::{
-    DynamicMaterial, MarkerFrame, NodeFrame, PointCloudFrame, ProbeSample, Scalar, SimulatedMarkers, TetMesh,
-    TriMesh,
+    DynamicMaterial, MarkerFrame, NodeFrame, PointCloudFrame, ProbeSample, Scalar,
+    SimulatedMarkers, TetMesh, TriMesh,
 };
 use softcap_mcap::{Recording, SoftcapMessage, Topic, topics};
 

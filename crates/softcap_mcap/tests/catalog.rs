@@ -110,7 +110,10 @@ fn topic_constants_are_in_the_catalog() {
             topics::DYNAMIC_MATERIAL.name().to_string(),
             "softcap.DynamicMaterial",
         ),
-        (topics::DYNAMIC_FIT_REPORT.name().to_string(), "softcap.Report"),
+        (
+            topics::DYNAMIC_FIT_REPORT.name().to_string(),
+            "softcap.Report",
+        ),
         (
             topics::DYNAMIC_SIM_NODES.name().to_string(),
             "softcap.NodeFrame",

@@ -131,7 +131,10 @@ impl SimulateDynamicArgs {
             .split_once("..")
             .and_then(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
             .ok_or_else(|| {
-                Error::bad_input(format!("--frames `{}`: expected a..b (two frame numbers)", self.frames))
+                Error::bad_input(format!(
+                    "--frames `{}`: expected a..b (two frame numbers)",
+                    self.frames
+                ))
             })?;
         let cfg = crate::fit_dynamic::SimulateDynamicConfig {
             material: self.material.clone(),

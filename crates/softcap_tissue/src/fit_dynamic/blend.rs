@@ -68,11 +68,20 @@ fn principal_axis(mesh: &TetMesh, support: &[usize]) -> (Vector3<f64>, Vector3<f
     let imax = eig.eigenvalues.imax();
     let mut axis: Vector3<f64> = eig.eigenvectors.column(imax).into_owned();
     if !support.is_empty() {
-        let s = support.iter().map(|&i| mesh.vertices[i]).sum::<Vector3<f64>>() / support.len() as f64;
+        let s = support
+            .iter()
+            .map(|&i| mesh.vertices[i])
+            .sum::<Vector3<f64>>()
+            / support.len() as f64;
         if (s - c).dot(&axis) > 0.0 {
             axis = -axis;
         }
-    } else if axis.iter().cloned().fold(0.0, |a: f64, b| if b.abs() > a.abs() { b } else { a }) < 0.0 {
+    } else if axis
+        .iter()
+        .cloned()
+        .fold(0.0, |a: f64, b| if b.abs() > a.abs() { b } else { a })
+        < 0.0
+    {
         axis = -axis;
     }
     (c, axis)
@@ -97,7 +106,9 @@ pub fn control_points(
     let s: Vec<f64> = mesh.vertices.iter().map(|v| (v - c).dot(&axis)).collect();
     let (s0, s1) = s
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
     let at: Vec<f64> = (0..count)
         .map(|i| {
             if count == 1 {
@@ -188,7 +199,10 @@ fn harmonic_weights(mesh: &TetMesh, positions: &[Vector3<f64>]) -> Result<Vec<Ve
     if sorted.len() != anchors.len() {
         return Err(TissueError::BadSettings {
             field: "control_points".into(),
-            problem: format!("{} control points on a mesh this coarse share nodes", anchors.len()),
+            problem: format!(
+                "{} control points on a mesh this coarse share nodes",
+                anchors.len()
+            ),
         });
     }
     let adjacency = softcap_mesh::adjacency::vertex_vertices(n, &mesh.tets);
@@ -240,7 +254,8 @@ mod tests {
 
     #[test]
     fn weights_are_a_partition_of_unity_and_one_at_their_control_point() {
-        let mesh = softcap_mesh::box_tet_mesh([0.0, -0.015, -0.015], [0.2, 0.015, 0.015], [12, 2, 2]);
+        let mesh =
+            softcap_mesh::box_tet_mesh([0.0, -0.015, -0.015], [0.2, 0.015, 0.015], [12, 2, 2]);
         let support: Vec<usize> = (0..mesh.vertices.len())
             .filter(|&i| mesh.vertices[i].x < 1e-9)
             .collect();

@@ -133,7 +133,10 @@ impl FitDynamicSettings {
             return bad("control_points", "must be ≥ 1".into());
         }
         if !(self.poisson > -1.0 && self.poisson < 0.5) {
-            return bad("poisson", format!("must be in (−1, 0.5), got {}", self.poisson));
+            return bad(
+                "poisson",
+                format!("must be in (−1, 0.5), got {}", self.poisson),
+            );
         }
         for (f, v) in [
             ("initial_young_pa", self.initial_young_pa),
@@ -160,7 +163,10 @@ impl FitDynamicSettings {
             );
         }
         if self.refine > 2 {
-            return bad("refine", format!("at most 2 levels (64× the tets), got {}", self.refine));
+            return bad(
+                "refine",
+                format!("at most 2 levels (64× the tets), got {}", self.refine),
+            );
         }
         Ok(())
     }
@@ -230,7 +236,8 @@ fn refined(
     for _ in 0..levels {
         let r = softcap_mesh::refine_tets(&m);
         let n = m.vertices.len();
-        let supported: std::collections::BTreeSet<usize> = s.support_nodes.iter().copied().collect();
+        let supported: std::collections::BTreeSet<usize> =
+            s.support_nodes.iter().copied().collect();
         let mut support = s.support_nodes.clone();
         for (k, [a, b]) in r.midpoint_of.iter().enumerate() {
             if supported.contains(a) && supported.contains(b) {
@@ -354,7 +361,10 @@ fn rest_shape(
 ) -> Result<(Vec<Vector3<f64>>, String)> {
     let dofs = forward.support_dofs();
     if dofs.is_empty() || forward.sequence().gravity_m_s2.norm() == 0.0 {
-        return Ok((static_m.to_vec(), "static shape (free or weightless body)".into()));
+        return Ok((
+            static_m.to_vec(),
+            "static shape (free or weightless body)".into(),
+        ));
     }
     let model = forward.model(params, static_m)?;
     let rest = solve_rest_shape(
@@ -367,7 +377,10 @@ fn rest_shape(
     )?;
     let status = format!(
         "{:?} after {} Newton iterations, residual {:.2e} of {:.2e} N",
-        rest.report.status, rest.report.iterations, rest.report.residual_norm_n, rest.report.load_norm_n
+        rest.report.status,
+        rest.report.iterations,
+        rest.report.residual_norm_n,
+        rest.report.load_norm_n
     );
     if rest.report.converged() {
         Ok((rest.rest_positions_m, status))
@@ -387,7 +400,12 @@ pub fn fit_sequence(
 ) -> Result<DynamicFit> {
     settings.validate()?;
     let n_given = mesh.vertices.len();
-    let cp = control_points(mesh, &seq.support_nodes, settings.control_points, settings.blending)?;
+    let cp = control_points(
+        mesh,
+        &seq.support_nodes,
+        settings.control_points,
+        settings.blending,
+    )?;
     let (fit_mesh, parent, fit_seq) = refined(mesh, seq, settings.refine);
     let fit_weights: Vec<Vec<f64>> = parent.iter().map(|&t| cp.weights[t].clone()).collect();
     let segments = fit_seq.segments(
@@ -406,7 +424,13 @@ pub fn fit_sequence(
         });
     }
     let observed: Vec<bool> = (0..fit_mesh.vertices.len()).map(|i| i < n_given).collect();
-    let forward = Forward::new(&fit_mesh, &fit_seq, segments.clone(), observed, &settings.forward)?;
+    let forward = Forward::new(
+        &fit_mesh,
+        &fit_seq,
+        segments.clone(),
+        observed,
+        &settings.forward,
+    )?;
     let static_m = fit_mesh.vertices.clone();
     let nc = cp.len();
     let mut problem = Problem {
@@ -420,14 +444,23 @@ pub fn fit_sequence(
         best: (f64::INFINITY, Vec::new()),
     };
     let mut q: Vec<f64> = std::iter::repeat_n(settings.initial_young_pa.ln(), nc)
-        .chain([settings.initial_alpha_per_s.ln(), settings.initial_beta_s.ln()])
+        .chain([
+            settings.initial_alpha_per_s.ln(),
+            settings.initial_beta_s.ln(),
+        ])
         .collect();
     let bounds = Bounds::new(
         std::iter::repeat_n(settings.young_bounds_pa[0].ln(), nc)
-            .chain([settings.alpha_bounds_per_s[0].ln(), settings.beta_bounds_s[0].ln()])
+            .chain([
+                settings.alpha_bounds_per_s[0].ln(),
+                settings.beta_bounds_s[0].ln(),
+            ])
             .collect(),
         std::iter::repeat_n(settings.young_bounds_pa[1].ln(), nc)
-            .chain([settings.alpha_bounds_per_s[1].ln(), settings.beta_bounds_s[1].ln()])
+            .chain([
+                settings.alpha_bounds_per_s[1].ln(),
+                settings.beta_bounds_s[1].ln(),
+            ])
             .collect(),
     )
     .map_err(|e| TissueError::BadSettings {
@@ -436,7 +469,11 @@ pub fn fit_sequence(
     })?;
 
     // Starting point.
-    progress.step(1, 4, "rest shape and trajectory error at the starting material");
+    progress.step(
+        1,
+        4,
+        "rest shape and trajectory error at the starting material",
+    );
     let (mut rest, _) = rest_shape(&forward, &problem.params(&q), &static_m, None)?;
     problem.rest = rest.clone();
     let rms_initial_m = rms_of(&mut problem, &q);
@@ -630,7 +667,7 @@ fn warm_start(
             return Ok((fits, None, None));
         };
         let omega_model = modes.angular_frequencies_rad_s()[dominant.mode];
-        if !(omega_model > 0.0) {
+        if omega_model.is_nan() || omega_model <= 0.0 {
             return Ok((fits, None, None));
         }
         young *= (dominant.omega_rad_s / omega_model).powi(2);

@@ -91,12 +91,21 @@ impl Smoother {
             index[i] = k;
         }
         if lambda <= 0.0 {
-            return Ok(Self { lu: None, free, coupling: Vec::new(), lambda });
+            return Ok(Self {
+                lu: None,
+                free,
+                coupling: Vec::new(),
+                lambda,
+            });
         }
         let mut triplets = Vec::new();
         let mut coupling = vec![Vec::new(); free.len()];
         for (k, &i) in free.iter().enumerate() {
-            triplets.push(faer::sparse::Triplet::new(k, k, 1.0 + lambda * adjacency[i].len() as f64));
+            triplets.push(faer::sparse::Triplet::new(
+                k,
+                k,
+                1.0 + lambda * adjacency[i].len() as f64,
+            ));
             for &j in &adjacency[i] {
                 if held[j] {
                     coupling[k].push(j);
@@ -105,14 +114,23 @@ impl Smoother {
                 }
             }
         }
-        let lu = faer::sparse::SparseColMat::<usize, f64>::try_new_from_triplets(free.len(), free.len(), &triplets)
-            .map_err(|e| format!("{e:?}"))
-            .and_then(|a| a.sp_lu().map_err(|e| format!("{e:?}")))
-            .map_err(|status| crate::TissueError::NotConverged {
-                what: "initial-state smoothing".into(),
-                status,
-            })?;
-        Ok(Self { lu: Some(lu), free, coupling, lambda })
+        let lu = faer::sparse::SparseColMat::<usize, f64>::try_new_from_triplets(
+            free.len(),
+            free.len(),
+            &triplets,
+        )
+        .map_err(|e| format!("{e:?}"))
+        .and_then(|a| a.sp_lu().map_err(|e| format!("{e:?}")))
+        .map_err(|status| crate::TissueError::NotConverged {
+            what: "initial-state smoothing".into(),
+            status,
+        })?;
+        Ok(Self {
+            lu: Some(lu),
+            free,
+            coupling,
+            lambda,
+        })
     }
 
     pub(crate) fn apply(&self, u: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
@@ -123,7 +141,8 @@ impl Smoother {
         let mut rhs = faer::Mat::<f64>::zeros(self.free.len(), 3);
         for (k, &i) in self.free.iter().enumerate() {
             for c in 0..3 {
-                rhs[(k, c)] = u[i][c] + self.lambda * self.coupling[k].iter().map(|&j| u[j][c]).sum::<f64>();
+                rhs[(k, c)] =
+                    u[i][c] + self.lambda * self.coupling[k].iter().map(|&j| u[j][c]).sum::<f64>();
             }
         }
         lu.solve_in_place(rhs.as_mut());
@@ -173,15 +192,22 @@ impl Forward {
         observed: Vec<bool>,
         settings: &ForwardSettings,
     ) -> Result<Self> {
-        let frame0 = CorotationalModel::homogeneous(mesh, LinearParams::from_young_poisson(1e5, 0.3)?)?;
+        let frame0 =
+            CorotationalModel::homogeneous(mesh, LinearParams::from_young_poisson(1e5, 0.3)?)?;
         let masses_kg = softcap_fem::lumped_masses(&frame0, seq.density_kg_m3);
         let gravity_n = softcap_fem::gravity_forces(&masses_kg, seq.gravity_m_s2);
         let smoother = Smoother::new(mesh, &seq.support_nodes, settings.initial_state_smoothing)?;
         let starts = segments
             .iter()
             .map(|s| {
-                let (x, v) = smoothed_state(seq, s.start, settings.velocity_half_window, settings.velocity_degree);
-                let u: Vec<Vector3<f64>> = x.iter().zip(&mesh.vertices).map(|(a, b)| a - b).collect();
+                let (x, v) = smoothed_state(
+                    seq,
+                    s.start,
+                    settings.velocity_half_window,
+                    settings.velocity_degree,
+                );
+                let u: Vec<Vector3<f64>> =
+                    x.iter().zip(&mesh.vertices).map(|(a, b)| a - b).collect();
                 let u = smoother.apply(&u);
                 let x = mesh.vertices.iter().zip(&u).map(|(b, d)| b + d).collect();
                 (x, smoother.apply(&v))
@@ -253,7 +279,11 @@ impl Forward {
     }
 
     /// The corotational model of `params` over the rest shape `rest_m`.
-    pub fn model(&self, params: &DynamicParams, rest_m: &[Vector3<f64>]) -> Result<CorotationalModel> {
+    pub fn model(
+        &self,
+        params: &DynamicParams,
+        rest_m: &[Vector3<f64>],
+    ) -> Result<CorotationalModel> {
         let lp = params
             .young_pa
             .iter()
@@ -269,7 +299,11 @@ impl Forward {
     }
 
     /// Runs every segment (in parallel; results in segment order).
-    pub fn simulate(&self, params: &DynamicParams, rest_m: &[Vector3<f64>]) -> Result<Vec<SegmentRun>> {
+    pub fn simulate(
+        &self,
+        params: &DynamicParams,
+        rest_m: &[Vector3<f64>],
+    ) -> Result<Vec<SegmentRun>> {
         let model = self.model(params, rest_m)?;
         let runs = (0..self.segments.len())
             .into_par_iter()
@@ -283,7 +317,11 @@ impl Forward {
             integrator: Integrator::NewmarkAverageAcceleration,
             time_step_s: h,
             damping,
-            stiffness: if std::env::var("CONS").is_ok() { StiffnessKind::Consistent } else { StiffnessKind::Warped },
+            stiffness: if std::env::var("CONS").is_ok() {
+                StiffnessKind::Consistent
+            } else {
+                StiffnessKind::Warped
+            },
             max_iterations: self.settings.newton_iterations.max(1),
             ..DynamicsSettings::default()
         }
@@ -306,7 +344,8 @@ impl Forward {
             state.velocities_m_s[i] = Vector3::zeros();
         }
         let substeps = self.settings.substeps.max(1);
-        let first_h = (self.seq.times_s[seg.start + 1] - self.seq.times_s[seg.start]) / substeps as f64;
+        let first_h =
+            (self.seq.times_s[seg.start + 1] - self.seq.times_s[seg.start]) / substeps as f64;
         let mut startup = self.settings.startup_euler_steps;
         let mut run = SegmentRun {
             segment: seg.clone(),
@@ -322,7 +361,8 @@ impl Forward {
                 let w = s as f64 / substeps as f64;
                 let mut bc = DirichletBc::new();
                 for &i in &self.seq.support_nodes {
-                    let p = self.seq.positions_m[j][i] * (1.0 - w) + self.seq.positions_m[j + 1][i] * w;
+                    let p =
+                        self.seq.positions_m[j][i] * (1.0 - w) + self.seq.positions_m[j + 1][i] * w;
                     bc.fix_node(i, p);
                 }
                 // Initial guess x_n + h v_n rather than Newmark's predictor with h²/4 a_n: the
@@ -360,15 +400,18 @@ impl Forward {
                     last.expect("startup_euler_steps > 0")
                 } else {
                     if j == seg.start && s == 1 {
-                        solver.initialize_acceleration(&model, &mut state, &self.gravity_n, &settings);
+                        solver.initialize_acceleration(
+                            &model,
+                            &mut state,
+                            &self.gravity_n,
+                            &settings,
+                        );
                     }
                     solver.step_with(&mut model, &mut state, &loads, &mut [], &settings)
                 };
                 match report.status {
                     DynamicStepStatus::Converged => {}
-                    DynamicStepStatus::MaxIterations => {
-                        run.max_iteration_steps += 1
-                    }
+                    DynamicStepStatus::MaxIterations => run.max_iteration_steps += 1,
                     DynamicStepStatus::Failed { reason } => {
                         run.failure = Some(format!("frame {}: {reason}", j + 1));
                         return Ok(run);

@@ -19,7 +19,10 @@ fn plotted_nodes(mesh: &TetMesh, seq: &TrackedSequence) -> Vec<usize> {
     let anchor = if held.is_empty() {
         mesh.vertices.iter().sum::<nalgebra::Vector3<f64>>() / mesh.vertices.len().max(1) as f64
     } else {
-        held.iter().map(|&i| mesh.vertices[i]).sum::<nalgebra::Vector3<f64>>() / held.len() as f64
+        held.iter()
+            .map(|&i| mesh.vertices[i])
+            .sum::<nalgebra::Vector3<f64>>()
+            / held.len() as f64
     };
     let mut by_distance: Vec<(f64, usize)> = (0..mesh.vertices.len())
         .filter(|i| !held.contains(i))
@@ -41,7 +44,12 @@ fn plotted_nodes(mesh: &TetMesh, seq: &TrackedSequence) -> Vec<usize> {
 }
 
 /// Tracked (dots) and simulated (lines) displacement from the static shape of a few nodes.
-pub fn draw_trajectories(path: &Path, mesh: &TetMesh, seq: &TrackedSequence, fit: &DynamicFit) -> Result<()> {
+pub fn draw_trajectories(
+    path: &Path,
+    mesh: &TetMesh,
+    seq: &TrackedSequence,
+    fit: &DynamicFit,
+) -> Result<()> {
     let nodes = plotted_nodes(mesh, seq);
     let disp = |x: &nalgebra::Vector3<f64>, i: usize| 1e3 * (x - mesh.vertices[i]).norm();
     let mut tracked: Vec<Vec<(f64, f64)>> = vec![Vec::new(); nodes.len()];
@@ -61,12 +69,7 @@ pub fn draw_trajectories(path: &Path, mesh: &TetMesh, seq: &TrackedSequence, fit
     }
     let t0 = seq.times_s.first().copied().unwrap_or(0.0);
     let t1 = seq.times_s.last().copied().unwrap_or(1.0).max(t0 + 1e-6);
-    let ymax = tracked
-        .iter()
-        .flatten()
-        .map(|p| p.1)
-        .fold(1e-6, f64::max)
-        * 1.1;
+    let ymax = tracked.iter().flatten().map(|p| p.1).fold(1e-6, f64::max) * 1.1;
     let colors = [RED, BLUE, GREEN];
     softcap_figure::draw_png(path, (1100, 520), |root| {
         root.fill(&WHITE)?;
@@ -125,7 +128,14 @@ pub fn write_report(
     let _ = writeln!(
         md,
         "Status: {}. {} segments, {} frames simulated per evaluation, {} simulations; fit mesh {} nodes, {} tets ({} refinement levels, {:?} optimizer).\n",
-        fit.status, fit.segments, fit.frames, fit.simulations, fit.fit_mesh_size.0, fit.fit_mesh_size.1, settings.refine, settings.optimizer
+        fit.status,
+        fit.segments,
+        fit.frames,
+        fit.simulations,
+        fit.fit_mesh_size.0,
+        fit.fit_mesh_size.1,
+        settings.refine,
+        settings.optimizer
     );
     let _ = writeln!(md, "| parameter | value | 1-σ (relative) |\n|---|---|---|");
     let nc = fit.young_pa.len();
@@ -138,14 +148,31 @@ pub fn write_report(
         );
     }
     let _ = writeln!(md, "| ν (held) | {:.3} | — |", fit.poisson);
-    let _ = writeln!(md, "| Rayleigh α | {:.4e} 1/s | {:.2e} |", fit.damping.alpha_per_s, fit.relative_sigma[nc]);
-    let _ = writeln!(md, "| Rayleigh β | {:.4e} s | {:.2e} |\n", fit.damping.beta_s, fit.relative_sigma[nc + 1]);
+    let _ = writeln!(
+        md,
+        "| Rayleigh α | {:.4e} 1/s | {:.2e} |",
+        fit.damping.alpha_per_s, fit.relative_sigma[nc]
+    );
+    let _ = writeln!(
+        md,
+        "| Rayleigh β | {:.4e} s | {:.2e} |\n",
+        fit.damping.beta_s,
+        fit.relative_sigma[nc + 1]
+    );
     let _ = writeln!(
         md,
         "Trajectory RMS: {:.3} mm at the starting material, {:.3} mm after the modal warm start (E = {:.4e} Pa, α = {:.3e}, β = {:.3e}), {:.3} mm fitted.\n",
-        1e3 * fit.rms_initial_m, 1e3 * fit.rms_warm_m, fit.warm_young_pa, fit.warm_damping.alpha_per_s, fit.warm_damping.beta_s, 1e3 * fit.rms_m
+        1e3 * fit.rms_initial_m,
+        1e3 * fit.rms_warm_m,
+        fit.warm_young_pa,
+        fit.warm_damping.alpha_per_s,
+        fit.warm_damping.beta_s,
+        1e3 * fit.rms_m
     );
-    let _ = writeln!(md, "| mode | measured Hz | damping ratio | variance explained | fitted Hz |\n|---|---|---|---|---|");
+    let _ = writeln!(
+        md,
+        "| mode | measured Hz | damping ratio | variance explained | fitted Hz |\n|---|---|---|---|---|"
+    );
     for m in &fit.measured_modes {
         let fitted = fit
             .fitted_frequencies_hz
@@ -160,9 +187,15 @@ pub fn write_report(
             m.explained
         );
     }
-    let _ = writeln!(md, "\nRest shape: {}.\n\n![trajectories](trajectories.png)", fit.rest_status);
-    softcap_app::write_atomic(dir.join("report.md"), md.as_bytes()).map_err(|e| TissueError::Output {
-        path: dir.join("report.md"),
-        reason: e.to_string(),
+    let _ = writeln!(
+        md,
+        "\nRest shape: {}.\n\n![trajectories](trajectories.png)",
+        fit.rest_status
+    );
+    softcap_app::write_atomic(dir.join("report.md"), md.as_bytes()).map_err(|e| {
+        TissueError::Output {
+            path: dir.join("report.md"),
+            reason: e.to_string(),
+        }
     })
 }

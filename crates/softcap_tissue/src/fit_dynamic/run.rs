@@ -76,12 +76,18 @@ pub fn sequence_from_track(
     }
     let recording = Recording::open(path).map_err(read_err(path))?;
     let dynamic = match recording.channel(topics::DYNAMIC_SESSION.name()) {
-        Some(_) => Some(recording.read_static(&topics::DYNAMIC_SESSION).map_err(read_err(path))?),
+        Some(_) => Some(
+            recording
+                .read_static(&topics::DYNAMIC_SESSION)
+                .map_err(read_err(path))?,
+        ),
         None => None,
     };
     let gravity = match recording.channel(topics::SESSION.name()) {
         Some(_) => {
-            let s = recording.read_static(&topics::SESSION).map_err(read_err(path))?;
+            let s = recording
+                .read_static(&topics::SESSION)
+                .map_err(read_err(path))?;
             s.gravity_m_s2
                 .map(|g| Vector3::new(g.x, g.y, g.z))
                 .unwrap_or(softcap_fem::STANDARD_GRAVITY_M_S2)
@@ -105,7 +111,11 @@ pub fn sequence_from_track(
             d.support_nodes.iter().map(|&i| i as usize).collect()
         }
         None => (0..n)
-            .filter(|&i| positions.iter().all(|f| (f[i] - positions[0][i]).norm() <= 1e-9))
+            .filter(|&i| {
+                positions
+                    .iter()
+                    .all(|f| (f[i] - positions[0][i]).norm() <= 1e-9)
+            })
             .collect(),
     };
     Ok(TrackedSequence {
@@ -116,7 +126,12 @@ pub fn sequence_from_track(
         gravity_m_s2: gravity,
         density_kg_m3: track.material.density_kg_m3,
         interactions_s: dynamic
-            .map(|d| d.interactions.iter().map(|i| [i.t_start_s, i.t_end_s]).collect())
+            .map(|d| {
+                d.interactions
+                    .iter()
+                    .map(|i| [i.t_start_s, i.t_end_s])
+                    .collect()
+            })
             .unwrap_or_default(),
     })
 }
@@ -127,7 +142,11 @@ fn metres_per_unit(path: &Path) -> Result<f64> {
         return Ok(1.0);
     }
     let s = r.read_static(&topics::SESSION).map_err(read_err(path))?;
-    Ok(if s.metres_per_unit > 0.0 { s.metres_per_unit } else { 1.0 })
+    Ok(if s.metres_per_unit > 0.0 {
+        s.metres_per_unit
+    } else {
+        1.0
+    })
 }
 
 /// Runs the fit and writes dynamic.mcap (and the report / JSON when asked).
@@ -211,20 +230,68 @@ pub fn report_message(fit: &DynamicFit) -> proto::Report {
     }
     entries.extend([
         kv("poisson".into(), Value::Number(fit.poisson), ""),
-        kv("rayleigh_alpha".into(), Value::Number(fit.damping.alpha_per_s), "1/s"),
-        kv("rayleigh_alpha_relative_sigma".into(), Value::Number(fit.relative_sigma[nc]), ""),
-        kv("rayleigh_beta".into(), Value::Number(fit.damping.beta_s), "s"),
-        kv("rayleigh_beta_relative_sigma".into(), Value::Number(fit.relative_sigma[nc + 1]), ""),
-        kv("trajectory_rmse_initial".into(), Value::Number(fit.rms_initial_m), "m"),
-        kv("trajectory_rmse_warm_start".into(), Value::Number(fit.rms_warm_m), "m"),
+        kv(
+            "rayleigh_alpha".into(),
+            Value::Number(fit.damping.alpha_per_s),
+            "1/s",
+        ),
+        kv(
+            "rayleigh_alpha_relative_sigma".into(),
+            Value::Number(fit.relative_sigma[nc]),
+            "",
+        ),
+        kv(
+            "rayleigh_beta".into(),
+            Value::Number(fit.damping.beta_s),
+            "s",
+        ),
+        kv(
+            "rayleigh_beta_relative_sigma".into(),
+            Value::Number(fit.relative_sigma[nc + 1]),
+            "",
+        ),
+        kv(
+            "trajectory_rmse_initial".into(),
+            Value::Number(fit.rms_initial_m),
+            "m",
+        ),
+        kv(
+            "trajectory_rmse_warm_start".into(),
+            Value::Number(fit.rms_warm_m),
+            "m",
+        ),
         kv("trajectory_rmse".into(), Value::Number(fit.rms_m), "m"),
-        kv("warm_start_young".into(), Value::Number(fit.warm_young_pa), "Pa"),
-        kv("simulations".into(), Value::Integer(fit.simulations as i64), ""),
+        kv(
+            "warm_start_young".into(),
+            Value::Number(fit.warm_young_pa),
+            "Pa",
+        ),
+        kv(
+            "simulations".into(),
+            Value::Integer(fit.simulations as i64),
+            "",
+        ),
         kv("segments".into(), Value::Integer(fit.segments as i64), ""),
-        kv("frames_simulated".into(), Value::Integer(fit.frames as i64), ""),
-        kv("fit_mesh_nodes".into(), Value::Integer(fit.fit_mesh_size.0 as i64), ""),
-        kv("fit_mesh_tets".into(), Value::Integer(fit.fit_mesh_size.1 as i64), ""),
-        kv("rest_shape".into(), Value::Text(fit.rest_status.clone()), ""),
+        kv(
+            "frames_simulated".into(),
+            Value::Integer(fit.frames as i64),
+            "",
+        ),
+        kv(
+            "fit_mesh_nodes".into(),
+            Value::Integer(fit.fit_mesh_size.0 as i64),
+            "",
+        ),
+        kv(
+            "fit_mesh_tets".into(),
+            Value::Integer(fit.fit_mesh_size.1 as i64),
+            "",
+        ),
+        kv(
+            "rest_shape".into(),
+            Value::Text(fit.rest_status.clone()),
+            "",
+        ),
     ]);
     for m in &fit.measured_modes {
         entries.push(kv(
@@ -233,9 +300,17 @@ pub fn report_message(fit: &DynamicFit) -> proto::Report {
             "Hz",
         ));
         if let Some(f) = fit.fitted_frequencies_hz.get(m.mode) {
-            entries.push(kv(format!("mode_{}_fitted", m.mode), Value::Number(*f), "Hz"));
+            entries.push(kv(
+                format!("mode_{}_fitted", m.mode),
+                Value::Number(*f),
+                "Hz",
+            ));
         }
-        entries.push(kv(format!("mode_{}_damping_ratio", m.mode), Value::Number(m.zeta), ""));
+        entries.push(kv(
+            format!("mode_{}_damping_ratio", m.mode),
+            Value::Number(m.zeta),
+            "",
+        ));
     }
     proto::Report {
         title: "tissue fit-dynamic (wang2015 §6, Algorithm 1)".into(),
@@ -303,7 +378,12 @@ pub struct SimulateDynamicOutcome {
 pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
     let track = read_track(&cfg.initial).map_err(read_err(&cfg.initial))?;
     let mesh = TetMesh {
-        vertices: track.mesh.vertices_m.iter().map(|p| Vector3::from(*p)).collect(),
+        vertices: track
+            .mesh
+            .vertices_m
+            .iter()
+            .map(|p| Vector3::from(*p))
+            .collect(),
         tets: track.mesh.tets.clone(),
     };
     let m = read_dynamic_material(&cfg.material, mesh.tets.len(), mesh.vertices.len())
@@ -325,7 +405,11 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
     }
     let tets = mesh.tets.len();
     let params = DynamicParams {
-        young_pa: if m.young_pa.len() == 1 { vec![m.young_pa[0]; tets] } else { m.young_pa.clone() },
+        young_pa: if m.young_pa.len() == 1 {
+            vec![m.young_pa[0]; tets]
+        } else {
+            m.young_pa.clone()
+        },
         poisson: m.poisson,
         damping: softcap_fem::RayleighDamping {
             alpha_per_s: m.rayleigh_alpha_per_s,
@@ -335,12 +419,21 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
     let rest: Vec<Vector3<f64>> = if m.rest_positions_m.is_empty() {
         mesh.vertices.clone()
     } else {
-        m.rest_positions_m.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect()
+        m.rest_positions_m
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect()
     };
     let mut seq = seq;
     seq.density_kg_m3 = m.density_kg_m3;
     let n = mesh.vertices.len();
-    let forward = Forward::new(&mesh, &seq, vec![Segment { start, end }], vec![true; n], &cfg.forward)?;
+    let forward = Forward::new(
+        &mesh,
+        &seq,
+        vec![Segment { start, end }],
+        vec![true; n],
+        &cfg.forward,
+    )?;
     let runs = forward.simulate(&params, &rest)?;
     let run = &runs[0];
     if let Some(f) = &run.failure {
@@ -368,8 +461,12 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
         let f = &track.frames[start + 1 + o];
         let t = (f.t_camera_s.max(0.0) * 1e9).round() as u64;
         let flat: Vec<f64> = x.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-        w.write_foxglove(&viz_nodes, t, &viz::deformed_tetmesh_scene(&volume, &flat, t))
-            .map_err(err)?;
+        w.write_foxglove(
+            &viz_nodes,
+            t,
+            &viz::deformed_tetmesh_scene(&volume, &flat, t),
+        )
+        .map_err(err)?;
         w.write(
             &topics::DYNAMIC_SIM_NODES,
             t,

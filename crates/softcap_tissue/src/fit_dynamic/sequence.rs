@@ -191,7 +191,10 @@ mod tests {
         // is one interval before the unusable frame 12; 13..18 full; 18→19 too short.
         assert_eq!(
             segs,
-            vec![Segment { start: 5, end: 10 }, Segment { start: 13, end: 18 }]
+            vec![
+                Segment { start: 5, end: 10 },
+                Segment { start: 13, end: 18 }
+            ]
         );
     }
 }

@@ -12,8 +12,8 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use softcap_fem::{
     CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
-    DynamicsSettings, EquilibriumSettings, Integrator, LinearParams, RayleighDamping,
-    StaticSolver, StiffnessKind,
+    DynamicsSettings, EquilibriumSettings, Integrator, LinearParams, RayleighDamping, StaticSolver,
+    StiffnessKind,
 };
 use softcap_mesh::TetMesh;
 
@@ -121,7 +121,13 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     let mut xs = mesh.vertices.clone();
     if !support.is_empty() {
         let mut statics = StaticSolver::with_bc(&model, &bc)?;
-        let report = statics.solve(&mut model, &mut xs, &gravity, None, &EquilibriumSettings::newton());
+        let report = statics.solve(
+            &mut model,
+            &mut xs,
+            &gravity,
+            None,
+            &EquilibriumSettings::newton(),
+        );
         if !report.converged() {
             return Err(TissueError::NotConverged {
                 what: "synthetic static sag".into(),
@@ -177,14 +183,22 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         let smoother = super::forward::Smoother::new(&given, &spec.support_nodes, 1.0)?;
         for f in frames.iter_mut().skip(1) {
             let raw: Vec<Vector3<f64>> = (0..n_given)
-                .map(|_| Vector3::new(normal.sample(&mut rng), normal.sample(&mut rng), normal.sample(&mut rng)))
+                .map(|_| {
+                    Vector3::new(
+                        normal.sample(&mut rng),
+                        normal.sample(&mut rng),
+                        normal.sample(&mut rng),
+                    )
+                })
                 .collect();
             let mut smooth = smoother.apply(&smoother.apply(&raw));
             for &i in &spec.support_nodes {
                 smooth[i] = Vector3::zeros();
             }
             let free = n_given - spec.support_nodes.len();
-            let rms = (smooth.iter().map(|v| v.norm_squared()).sum::<f64>() / (3 * free.max(1)) as f64).sqrt();
+            let rms = (smooth.iter().map(|v| v.norm_squared()).sum::<f64>()
+                / (3 * free.max(1)) as f64)
+                .sqrt();
             let scale = spec.noise_m / rms.max(f64::MIN_POSITIVE);
             for (p, d) in f.iter_mut().zip(&smooth) {
                 *p += d * scale;
@@ -198,7 +212,9 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
             tets: spec.rest_mesh.tets.clone(),
         },
         sequence: TrackedSequence {
-            times_s: (0..n_frames).map(|k| k as f64 / spec.frame_rate_hz).collect(),
+            times_s: (0..n_frames)
+                .map(|k| k as f64 / spec.frame_rate_hz)
+                .collect(),
             positions_m: frames,
             usable: vec![true; n_frames],
             support_nodes: spec.support_nodes.clone(),
@@ -212,4 +228,99 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         },
         rest_m: spec.rest_mesh.vertices.clone(),
     })
+}
+
+/// Writes `synthetic` as a track.mcap (what `softcap tissue track` would have written had it
+/// tracked the truth with this noise): `/mesh/volume`, `/capture/session` (gravity),
+/// `/capture/dynamic` (support nodes, the push as an interaction), `/tissue/dynamic_material`
+/// (density and the given material), `/tissue/track/nodes` and `/tissue/track/status`.
+pub fn write_track_mcap(
+    path: &std::path::Path,
+    s: &Synthetic,
+    material: &softcap_mcap::proto::DynamicMaterial,
+) -> Result<()> {
+    use softcap_mcap::{Provenance, Writer, proto, topics};
+    let err = |e: softcap_mcap::Error| TissueError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let seq = &s.sequence;
+    let mut w = Writer::create(
+        path,
+        &Provenance::new("tissue fit-dynamic synthetic", env!("CARGO_PKG_VERSION")),
+    )
+    .map_err(err)?;
+    w.write_static(
+        &topics::VOLUME_MESH,
+        &crate::output::tet_mesh_message(&s.template),
+    )
+    .map_err(err)?;
+    let g = seq.gravity_m_s2;
+    w.write_static(
+        &topics::SESSION,
+        &proto::SessionInfo {
+            name: "synthetic".into(),
+            kind: "dynamic".into(),
+            gravity_m_s2: Some(proto::Vec3 {
+                x: g.x,
+                y: g.y,
+                z: g.z,
+            }),
+            density_kg_m3: Some(seq.density_kg_m3),
+            metres_per_unit: 1.0,
+            ..Default::default()
+        },
+    )
+    .map_err(err)?;
+    w.write_static(
+        &topics::DYNAMIC_SESSION,
+        &proto::DynamicSession {
+            source: "points".into(),
+            support_nodes: seq.support_nodes.iter().map(|&i| i as u32).collect(),
+            interactions: seq
+                .interactions_s
+                .iter()
+                .map(|&[a, b]| proto::Interval {
+                    t_start_s: a,
+                    t_end_s: b,
+                })
+                .collect(),
+            frames: seq.frames() as u64,
+            ..Default::default()
+        },
+    )
+    .map_err(err)?;
+    w.write_static(&topics::DYNAMIC_MATERIAL, material)
+        .map_err(err)?;
+    for (k, (t, x)) in seq.times_s.iter().zip(&seq.positions_m).enumerate() {
+        let ns = (t.max(0.0) * 1e9).round() as u64;
+        w.write(
+            &topics::TRACK_NODES,
+            ns,
+            &proto::NodeFrame {
+                frame: k as u64,
+                t_camera_s: *t,
+                positions_m: x.iter().flat_map(|v| [v.x, v.y, v.z]).collect(),
+            },
+        )
+        .map_err(err)?;
+        w.write(
+            &topics::TRACK_STATUS,
+            ns,
+            &proto::TrackStatus {
+                frame: k as u64,
+                t_camera_s: *t,
+                status: if seq.usable[k] {
+                    "converged"
+                } else {
+                    "diverged"
+                }
+                .into(),
+                ..Default::default()
+            },
+        )
+        .map_err(err)?;
+    }
+    w.finish().map_err(err)?;
+    Ok(())
 }

@@ -112,7 +112,7 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
             q.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
         })
         .sum();
-    if !(total_var > 0.0) {
+    if total_var.is_nan() || total_var <= 0.0 {
         return None;
     }
     let duration = series
@@ -120,13 +120,16 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
         .map(|(t, _)| t.last().copied().unwrap_or(0.0))
         .fold(0.0f64, f64::max);
     let omega_min = std::f64::consts::PI / duration.max(1e-6);
-    let rss = |w: f64, s: f64| -> f64 { series.iter().map(|(t, q)| sinusoid_rss(t, q, w, s)).sum() };
+    let rss =
+        |w: f64, s: f64| -> f64 { series.iter().map(|(t, q)| sinusoid_rss(t, q, w, s)).sum() };
     let mut best = (f64::INFINITY, omega_min, 0.0);
     let nw = 200;
     for i in 0..nw {
         let w = omega_min * (omega_max / omega_min).powf(i as f64 / (nw - 1) as f64);
         for j in 0..12 {
-            let s = w * [0.0, 0.005, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6][j];
+            let s = w * [
+                0.0, 0.005, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6,
+            ][j];
             let v = rss(w, s);
             if v < best.0 {
                 best = (v, w, s);
@@ -161,11 +164,7 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
 
 /// Damped-sinusoid fits of the modal coordinates of the `modes` over the free segments, sorted
 /// by amplitude (the dominant first).
-pub fn measure_modes(
-    forward: &Forward,
-    static_m: &[Vector3<f64>],
-    modes: &Modes,
-) -> Vec<ModalFit> {
+pub fn measure_modes(forward: &Forward, static_m: &[Vector3<f64>], modes: &Modes) -> Vec<ModalFit> {
     let seq = forward.sequence();
     let frame_dt = seq
         .times_s
@@ -199,7 +198,11 @@ pub fn measure_modes(
             });
         }
     }
-    fits.sort_by(|a, b| b.amplitude.total_cmp(&a.amplitude).then(a.mode.cmp(&b.mode)));
+    fits.sort_by(|a, b| {
+        b.amplitude
+            .total_cmp(&a.amplitude)
+            .then(a.mode.cmp(&b.mode))
+    });
     fits
 }
 

@@ -81,11 +81,14 @@ pub fn write_track(
     };
     let capture = softcap_mcap::Recording::open(&cfg.capture).map_err(read)?;
     let session = capture.read_static(&topics::SESSION).map_err(read)?;
-    let mut dynamic = capture.read_static(&topics::DYNAMIC_SESSION).map_err(read)?;
+    let mut dynamic = capture
+        .read_static(&topics::DYNAMIC_SESSION)
+        .map_err(read)?;
     dynamic.support_nodes = held_nodes.iter().map(|&i| i as u32).collect();
     let mut w = Writer::create(path, &provenance).map_err(err)?;
     w.write_static(&topics::SESSION, &session).map_err(err)?;
-    w.write_static(&topics::DYNAMIC_SESSION, &dynamic).map_err(err)?;
+    w.write_static(&topics::DYNAMIC_SESSION, &dynamic)
+        .map_err(err)?;
     let volume = tet_mesh_message(mesh);
     w.write_static(&topics::VOLUME_MESH, &volume).map_err(err)?;
     w.write_static(&topics::DYNAMIC_MATERIAL, &material_message(material))
