@@ -21,7 +21,8 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Camera;
 use crate::error::{CaptureError, Result};
 use crate::session::{
-    CsvTable, RawCamera, RawFiles, Session, SessionKind, Support, parse_toml, read_trigger_csv,
+    CsvTable, RawCamera, RawFiles, Session, SessionKind, Support, parse_toml, raw_camera,
+    read_trigger_csv,
 };
 
 /// A depth camera: the calibrated camera and its depth encoding (metres).
@@ -115,7 +116,7 @@ pub fn read_depth_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<
     let raw: RawDepthCameras = parse_toml(path)?;
     let mut out: Vec<DepthCamera> = Vec::new();
     for c in &raw.camera {
-        let camera = c.camera.camera(path, metres_per_unit)?;
+        let camera = raw_camera(&c.camera, path, metres_per_unit)?;
         let bad = |message: &str| CaptureError::Camera {
             path: path.to_path_buf(),
             camera: c.camera.id.clone(),

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use serde::Deserialize;
 
 use crate::camera::Camera;
@@ -315,28 +315,8 @@ struct RawCameras {
     camera: Vec<RawCamera>,
 }
 
-#[derive(Deserialize)]
-pub(crate) struct RawCamera {
-    pub(crate) id: String,
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    #[serde(default)]
-    k1: f64,
-    #[serde(default)]
-    k2: f64,
-    #[serde(default)]
-    p1: f64,
-    #[serde(default)]
-    p2: f64,
-    #[serde(default)]
-    k3: f64,
-    rotation: [f64; 9],
-    translation: [f64; 3],
-}
+/// One `[[camera]]` table (shared with the other rig readers).
+pub(crate) use softcap_core::CameraTable as RawCamera;
 
 #[derive(Deserialize)]
 struct RawProbe {
@@ -627,26 +607,15 @@ pub fn read_fsr_csv(path: &Path) -> Result<FsrSamples> {
     Ok(s)
 }
 
-impl RawCamera {
-    /// The validated camera (translation converted to metres); errors name `path` and the id.
-    pub(crate) fn camera(&self, path: &Path, metres_per_unit: f64) -> Result<Camera> {
-        let r = Matrix3::from_row_slice(&self.rotation);
-        let t = Vector3::from(self.translation) * metres_per_unit;
-        Camera::new(
-            self.id.clone(),
-            self.width,
-            self.height,
-            [self.fx, self.fy, self.cx, self.cy],
-            [self.k1, self.k2, self.p1, self.p2, self.k3],
-            r,
-            t,
-        )
+/// The validated camera of a `[[camera]]` table (translation converted to metres); errors name
+/// `path` and the id.
+pub(crate) fn raw_camera(c: &RawCamera, path: &Path, metres_per_unit: f64) -> Result<Camera> {
+    c.to_camera(metres_per_unit)
         .map_err(|e| CaptureError::Camera {
             path: path.to_path_buf(),
-            camera: self.id.clone(),
+            camera: c.id.clone(),
             message: e.to_string(),
         })
-    }
 }
 
 /// Reads `rig/cameras.toml`, converting translations to metres and validating each camera.
@@ -654,7 +623,7 @@ pub fn read_cameras_toml(path: &Path, metres_per_unit: f64) -> Result<Vec<Camera
     let raw: RawCameras = parse_toml(path)?;
     let mut out = Vec::new();
     for c in raw.camera {
-        let cam = c.camera(path, metres_per_unit)?;
+        let cam = raw_camera(&c, path, metres_per_unit)?;
         if out.iter().any(|o: &Camera| o.id == c.id) {
             return Err(CaptureError::Camera {
                 path: path.to_path_buf(),

@@ -1,6 +1,6 @@
 //! Pinhole camera with OpenCV Brown–Conrady distortion, exactly as in `docs/session-format.md`
-//! (pure math, no I/O: parsing `rig/cameras.toml` is the capture stage's job, writing it the
-//! virtual rig's):
+//! (pure math, no I/O: reading `rig/cameras.toml` is its readers' job — [`CameraTable`] is one
+//! `[[camera]]` table as deserialized — writing it [`cameras_toml`]'s):
 //!
 //! `Xc = R·X + t`, `x = Xc.x/Xc.z`, `y = Xc.y/Xc.z`, `r² = x²+y²`,
 //! `xd = x(1+k1 r²+k2 r⁴+k3 r⁶) + 2 p1 x y + p2 (r²+2x²)`,
@@ -9,6 +9,62 @@
 use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point3, SMatrix, Vector2, Vector3};
 
 use crate::error::{CoreError, Result};
+
+/// One `[[camera]]` table of `rig/cameras.toml` as written in the file (SESSION_FORMAT.md):
+/// intrinsics in pixels, distortion defaulting to 0, rotation world→camera row-major, translation
+/// in the session's length unit. Deserialized by the stages that read camera rigs.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+pub struct CameraTable {
+    /// Camera id.
+    pub id: String,
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Focal length x, px.
+    pub fx: f64,
+    /// Focal length y, px.
+    pub fy: f64,
+    /// Principal point x, px.
+    pub cx: f64,
+    /// Principal point y, px.
+    pub cy: f64,
+    /// Radial k1.
+    #[serde(default)]
+    pub k1: f64,
+    /// Radial k2.
+    #[serde(default)]
+    pub k2: f64,
+    /// Tangential p1.
+    #[serde(default)]
+    pub p1: f64,
+    /// Tangential p2.
+    #[serde(default)]
+    pub p2: f64,
+    /// Radial k3.
+    #[serde(default)]
+    pub k3: f64,
+    /// Rotation world→camera, row-major 3×3.
+    pub rotation: [f64; 9],
+    /// Translation world→camera, length unit.
+    pub translation: [f64; 3],
+}
+
+impl CameraTable {
+    /// The validated camera, the translation converted to metres (`metres_per_unit` metres per
+    /// length unit).
+    pub fn to_camera(&self, metres_per_unit: f64) -> Result<Camera> {
+        Camera::new(
+            self.id.clone(),
+            self.width,
+            self.height,
+            [self.fx, self.fy, self.cx, self.cy],
+            [self.k1, self.k2, self.p1, self.p2, self.k3],
+            Matrix3::from_row_slice(&self.rotation),
+            Vector3::from(self.translation) * metres_per_unit,
+        )
+    }
+}
 
 /// A calibrated camera. Extrinsics are world→camera (`camera_from_world`), translation in metres.
 #[derive(Debug, Clone, PartialEq)]

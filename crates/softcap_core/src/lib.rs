@@ -43,7 +43,7 @@ pub mod rigid;
 
 pub use brent::{BrentMinimum, BrentSettings, minimize_bounded};
 pub use bspline::{BSplineFitSettings, UniformCubicBSpline, fit_uniform_cubic_bspline};
-pub use camera::Camera;
+pub use camera::{Camera, CameraTable};
 pub use error::{CoreError, Result};
 pub use gauss_newton::{GaussNewtonSettings, gauss_newton};
 pub use kmeans::{KMeansResult, KMeansSettings, KMedoidsResult, kmeans, kmedoids};

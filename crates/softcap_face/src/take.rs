@@ -13,9 +13,9 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde::Deserialize;
-use softcap_core::Camera;
+use softcap_core::{Camera, CameraTable};
 
 use crate::error::{FaceError, Result};
 use crate::image::RgbImage;
@@ -61,33 +61,8 @@ fn take_err(path: &Path, reason: impl Into<String>) -> FaceError {
 }
 
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
 struct RawCameras {
-    camera: Vec<RawCamera>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawCamera {
-    id: String,
-    width: u32,
-    height: u32,
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    #[serde(default)]
-    k1: f64,
-    #[serde(default)]
-    k2: f64,
-    #[serde(default)]
-    p1: f64,
-    #[serde(default)]
-    p2: f64,
-    #[serde(default)]
-    k3: f64,
-    rotation: [f64; 9],
-    translation: [f64; 3],
+    camera: Vec<CameraTable>,
 }
 
 /// Read `cameras.toml` (SESSION_FORMAT.md; translations in cm).
@@ -102,16 +77,9 @@ pub fn read_take_cameras(path: &Path) -> Result<Vec<Camera>> {
         if out.iter().any(|o| o.id == c.id) {
             return Err(take_err(path, format!("camera `{}` appears twice", c.id)));
         }
-        let cam = Camera::new(
-            c.id.clone(),
-            c.width,
-            c.height,
-            [c.fx, c.fy, c.cx, c.cy],
-            [c.k1, c.k2, c.p1, c.p2, c.k3],
-            Matrix3::from_row_slice(&c.rotation),
-            Vector3::from(c.translation) * 0.01,
-        )
-        .map_err(|e| take_err(path, format!("camera `{}`: {e}", c.id)))?;
+        let cam = c
+            .to_camera(0.01)
+            .map_err(|e| take_err(path, format!("camera `{}`: {e}", c.id)))?;
         out.push(cam);
     }
     if out.is_empty() {

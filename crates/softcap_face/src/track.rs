@@ -103,6 +103,10 @@ pub struct TrackSettings {
     pub section_half_thickness_px: f64,
     /// Cross-sections closer than this to either spline end are skipped (pixels).
     pub end_margin_px: f64,
+    /// Cross-sections whose slab holds fewer pixels than this fraction of the wrinkle's median
+    /// slab are skipped: the slab is cut (an occluder in front, the end of the paint) and its
+    /// pixels no longer sample the whole profile.
+    pub min_slab_fraction: f64,
     /// I_obs(m): mean gray of the slab's pixels above this quantile (the unshadowed bulge).
     pub ambient_quantile: f64,
     /// Fit a scale c of the reference I_obs(m) with (d, w, p₀) (residual ratio − c·F): the
@@ -129,6 +133,7 @@ impl Default for TrackSettings {
             section_spacing_px: 8.0,
             section_half_thickness_px: 3.0,
             end_margin_px: 22.0,
+            min_slab_fraction: 0.75,
             ambient_quantile: 0.9,
             fit_reference_scale: true,
             position_sigma_px: 0.1,
@@ -491,6 +496,10 @@ pub fn track_wrinkle(
         }
         x += settings.section_spacing_px;
     }
+    let mut counts: Vec<usize> = slabs.iter().map(|(_, ps, _)| ps.len()).collect();
+    counts.sort_unstable();
+    let full = counts.get(counts.len() / 2).copied().unwrap_or(0) as f64;
+    slabs.retain(|(_, ps, _)| ps.len() as f64 >= settings.min_slab_fraction * full);
     let sections = slabs
         .par_iter()
         .map(|(x, ps, ratio)| {

@@ -4,8 +4,8 @@
 //! its previous patch (dilated by the largest expected motion). Each wrinkle's patch then gets
 //! its PCA parameterization, weighted valley B-spline (eq. 4.2) and cross-section (d, w) fits
 //! (eq. 4.3–4.4) by [`track_wrinkle`]. "If no wrinkle is present, the fitted depth d is 0"
-//! (§4.3.2): a wrinkle whose fitted depth stays below [`VideoTrackSettings::visible_depth_ratio`]
-//! of its width is reported absent in that frame.
+//! (§4.3.2): a wrinkle whose median fitted depth stays below [`VideoTrackSettings::min_depth_px`]
+//! (or whose width or d/w is below its bound) is reported absent in that frame.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -32,7 +32,12 @@ pub struct VideoTrackSettings {
     pub min_label_patch_px: usize,
     /// Smallest classified patch given to a wrinkle (pixels).
     pub min_patch_px: usize,
-    /// A wrinkle is visible when the median fitted d/w of its cross-sections reaches this.
+    /// A wrinkle is visible when the median fitted depth of its cross-sections reaches this
+    /// (pixels; on smooth painted skin the fits return d ≲ 0.25 px, mostly at the width bound) …
+    pub min_depth_px: f64,
+    /// … the median width this (pixels: a narrower dip is a few noisy pixels) …
+    pub min_width_px: f64,
+    /// … and the median d/w this.
     pub visible_depth_ratio: f64,
     /// … and at least this many cross-sections converged.
     pub min_sections: usize,
@@ -47,6 +52,8 @@ impl Default for VideoTrackSettings {
             search_radius_px: 8,
             min_label_patch_px: 100,
             min_patch_px: 20,
+            min_depth_px: 0.3,
+            min_width_px: 1.0,
             visible_depth_ratio: 0.1,
             min_sections: 3,
         }
@@ -173,8 +180,13 @@ pub fn track_video(
                 None => WrinkleStatus::Lost,
                 Some(t) => {
                     let ok: Vec<_> = t.sections.iter().filter(|s| s.converged).collect();
-                    let ratio = median(ok.iter().map(|s| s.depth_px / s.width_px).collect());
-                    if ok.len() >= settings.min_sections && ratio >= settings.visible_depth_ratio {
+                    let d = median(ok.iter().map(|s| s.depth_px).collect());
+                    let w = median(ok.iter().map(|s| s.width_px).collect());
+                    if ok.len() >= settings.min_sections
+                        && d >= settings.min_depth_px
+                        && w >= settings.min_width_px
+                        && d >= settings.visible_depth_ratio * w
+                    {
                         WrinkleStatus::Visible
                     } else {
                         WrinkleStatus::Absent

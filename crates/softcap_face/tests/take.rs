@@ -176,3 +176,75 @@ fn bad_takes_exit_2_naming_the_file() {
     std::fs::remove_file(t4.join("mocap.csv")).unwrap();
     check(&t4, "mocap.csv: missing");
 }
+
+#[test]
+fn remove_cleans_the_region_of_the_scan_and_of_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_softcap-face");
+    let face = dir.path().join("face.mcap");
+    let mut c = Command::new(exe);
+    c.arg("run")
+        .arg("--mocap")
+        .arg(fixtures().join("animface-mocap/jaw_subset.csv"))
+        .args(["--frames", "0,390"]);
+    let o = face_args(&mut c).arg("-o").arg(&face).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let clean = dir.path().join("clean.mcap");
+    let obj = dir.path().join("clean.obj");
+    let mut c = Command::new(exe);
+    c.arg("remove")
+        .args(["--around", "ForeHead_M", "--radius", "1.5", "--frames"])
+        .arg(&face)
+        .arg("--obj")
+        .arg(&obj);
+    let o = face_args(&mut c).arg("-o").arg(&clean).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scan = softcap_mesh::read_obj(fixtures().join("ict-face/neutral.obj"))
+        .unwrap()
+        .to_tri_mesh();
+    let cleaned = softcap_mesh::read_obj(&obj).unwrap().to_tri_mesh();
+    let landmarks = softcap_face::parse_landmarks_csv(
+        &std::fs::read_to_string(fixtures().join("animface-mocap/ict_landmarks.csv")).unwrap(),
+        Path::new("ict_landmarks.csv"),
+    )
+    .unwrap();
+    let centre = scan.vertices[landmarks
+        .iter()
+        .find(|l| l.marker == "ForeHead_M")
+        .unwrap()
+        .vertex];
+    let (mut moved_in, mut moved_out) = (0.0f64, 0.0f64);
+    for (a, b) in scan.vertices.iter().zip(&cleaned.vertices) {
+        let m = (a - b).norm();
+        if (a - centre).norm() <= 1.5 {
+            moved_in = moved_in.max(m);
+        } else {
+            moved_out = moved_out.max(m);
+        }
+    }
+    eprintln!("scan: region moved ≤ {moved_in:.2e} cm, outside ≤ {moved_out:.2e} cm");
+    assert!(
+        moved_out < 1e-5,
+        "outside the region the scan is kept ({moved_out} cm)"
+    );
+    assert!(
+        moved_in > 0.0 && moved_in < 0.2,
+        "region smoothed by {moved_in} cm"
+    );
+    let rec = Recording::open(&clean).unwrap();
+    assert_eq!(rec.read(&topics::FACE_MESH).unwrap().len(), 2);
+    // bad region file: exit 2 naming file, line and field
+    let region = dir.path().join("region.csv");
+    std::fs::write(&region, "vertex\n12\n999999\n").unwrap();
+    let mut c = Command::new(exe);
+    c.arg("remove").arg("--region").arg(&region);
+    let o = face_args(&mut c)
+        .arg("-o")
+        .arg(dir.path().join("x.mcap"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("region.csv:3: field `vertex`"), "{err}");
+    assert!(!dir.path().join("x.mcap").exists());
+}
