@@ -6,6 +6,7 @@
 //! | `face_592k/shell_setup_prefactor_basis_592166v` | assemble + factor A_FF + basis B (41 columns) on the 3× subdivided face | ≤ 20 s |
 //! | `face_592k/shell_frame_basis_592166v` | correspondence + u = B u_H on the same face | ≤ 100 ms |
 //! | `wrinkle/track_and_cross_sections_one_frame` | PCA + valley spline + 9 cross-section (d, w) fits, 140 × 64 px | ≤ 1 s |
+//! | `wrinkle/track_video_12_frames_176x120` | `face track`'s per-camera work on 12 frames of the fixture take | ≤ 1 s per frame (issue 32) |
 //! | `synthesis/face_11_wrinkles_148402v` | eleven wrinkles on the jaw-open face subdivided 2× | ≤ 10 s |
 //!
 //! `scripts/bench softcap_face` runs them all (≈ 5–6 min on 2 idle cores, most of it the 592k
@@ -98,6 +99,33 @@ fn bench(c: &mut Criterion) {
     group.sample_size(20);
     group.bench_function("track_and_cross_sections_one_frame", |b| {
         b.iter(|| track_wrinkle(&frame.image, &patch, &TrackSettings::default()).expect("track"))
+    });
+    // `face track`'s per-camera work on the committed take (12 frames of cam0, 176 × 120 px, two
+    // wrinkles): SVM training, classification, morphology, association, splines and fits
+    let face_take = softcap_face::take::read_take(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../fixtures/face-takes/forehead"),
+    )
+    .expect("fixture take");
+    let cam = &face_take.cameras[0];
+    let (w, h) = (cam.camera.width, cam.camera.height);
+    let label: Vec<bool> = softcap_face::take::read_png(&cam.label, w, h)
+        .expect("label")
+        .data
+        .iter()
+        .map(|p| p[0] > 0.5)
+        .collect();
+    let frames: Vec<_> = cam
+        .frames
+        .iter()
+        .map(|p| softcap_face::take::read_png(p, w, h).expect("frame"))
+        .collect();
+    group.sample_size(10);
+    group.bench_function("track_video_12_frames_176x120", |b| {
+        b.iter(|| {
+            softcap_face::video::track_video(&label, &frames, &Default::default(), &|| {})
+                .expect("track video")
+        })
     });
     group.finish();
 
