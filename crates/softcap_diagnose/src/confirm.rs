@@ -53,6 +53,10 @@ pub struct Confirmed {
     pub prediction: Field,
     /// How it was confirmed.
     pub method: String,
+    /// Held-out RSS on the scored observations per fold (location), m² (empty: not per fold).
+    pub fold_rss_m2: Vec<f64>,
+    /// Held-out scored observations per fold.
+    pub fold_n: Vec<usize>,
 }
 
 /// The nuisance refit of the material's overall compliance d (see the module docs).
@@ -294,8 +298,10 @@ pub fn lolo_confirm_among(
             .into_iter()
     });
     let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    let (mut fold_rss_m2, mut fold_n) = (Vec::with_capacity(nf), Vec::with_capacity(nf));
     for &(skip, i, d) in &choices[..nf] {
         let l = skip.unwrap_or(nf);
+        let (e_sc0, n_sc0) = (e_sc, n_sc);
         match refits.as_mut() {
             None => {
                 e_sc += sc[i][l].rss(d);
@@ -324,6 +330,8 @@ pub fn lolo_confirm_among(
                 }
             }
         }
+        fold_rss_m2.push(e_sc - e_sc0);
+        fold_n.push(n_sc - n_sc0);
     }
     let (_, i, d) = choices[nf];
     let (params, prediction) = match refits.as_mut() {
@@ -355,6 +363,8 @@ pub fn lolo_confirm_among(
         params,
         prediction,
         method,
+        fold_rss_m2,
+        fold_n,
     }))
 }
 

@@ -8,20 +8,27 @@
 //!    leave-one-location-out and BIC, against the noise floor and the stiffness-scale nuisance;
 //! 4. **confirm** — the qualifying hypotheses, look-alikes ordered by their signatures, and those
 //!    a signature alone sends, re-simulated with their extended model until one keeps its gain;
-//! 5. **verdict** — the ranked table with typed [`Evidence`], `none` placed among it;
-//! 6. **extended model** — the verdict's prediction and the before / after table.
+//! 5. **select** — the confirmed effect against its look-alikes over the folds (`inconclusive`
+//!    when the data cannot separate them), then greedy forward selection: every other hypothesis
+//!    refitted on top of the effects named so far, kept when it lowers the held-out error beyond
+//!    the fold-to-fold spread (the joint extended model);
+//! 6. **verdict** — the ranked table with typed [`Evidence`], `none` placed among it, the named
+//!    effects with their confidence;
+//! 7. **extended model** — the joint model's prediction and the before / after table.
 
 use crate::baseline::{Prepared, prepare};
 use crate::cells::{EffectCells, focus_cells};
 use crate::confirm::Confirmed;
 use crate::evidence::{
-    Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
+    Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NotApplicable, RankedHypothesis,
+    Resimulated, Screened,
 };
+use crate::folds::{confidence, fold_gains, mean_sd, separable};
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
 use crate::recording::Recording;
 use crate::residual::{Located, Residuals, residuals, rms_where_m};
-use crate::screen::{Refit, predict, refit, stiffness_scale_variant};
+use crate::screen::{Refit, Variant, predict, refit, stiffness_scale_variant};
 use crate::segment::{Phase, Region, Segmentation};
 use crate::settings::DiagnoseSettings;
 use crate::signatures::{Signatures, signatures};
@@ -77,8 +84,10 @@ pub fn diagnose_with_progress(
     };
     let screen = screen(&cx, &mismatch, progress);
     let confirmation = confirm(&cx, &screen, sim, progress)?;
-    let diagnosis = verdict(&mismatch, &screen, &confirmation);
-    let extended_m = extended_prediction(&cx, &screen, &confirmation);
+    let selection = select(&cx, &screen, &confirmation);
+    let mut diagnosis = verdict(&mismatch, &screen, &confirmation, &selection);
+    diagnosis.next_experiment = plan_next_experiment(&cx, &screen, &selection, sim, progress);
+    let extended_m = selection.prediction;
     progress.finish_and_clear();
     let residuals_after = match &extended_m {
         Some(x) => residuals(rec, x),
@@ -262,6 +271,33 @@ impl Scoring<'_> {
             }
         }
         (sum / n.max(1) as f64).sqrt()
+    }
+
+    /// The default model's RSS on `e`'s scored observations per fold, m².
+    fn fold_before(&self, e: Effect) -> Vec<f64> {
+        let seg = self.cx.seg;
+        let mut rss = vec![0.0; seg.num_folds()];
+        for (k, row) in self.mismatch.residuals.iter().enumerate() {
+            let Some(l) = seg.fold_of_frame[k] else {
+                continue;
+            };
+            for (m, r) in row.iter().enumerate() {
+                if let Some(r) = r
+                    && self.scored(e, k, m)
+                {
+                    rss[l] += r.norm_squared();
+                }
+            }
+        }
+        rss
+    }
+
+    /// The cells `e` is scored on, as names.
+    fn cell_names(&self, e: Effect) -> Vec<String> {
+        match self.cells.get(&e) {
+            Some(c) => vec![c.name.to_string()],
+            None => focus_cell_names(&self.mismatch.focus),
+        }
     }
 
     /// Held-out RMS of the stiffness-scale nuisance on `e`'s scored observations (at most
@@ -546,12 +582,295 @@ fn confirm(
 }
 
 // ------------------------------------------------------------------------------------------
-// 5. verdict
+// 5. select
+
+/// The effects named, or the look-alikes the data cannot separate, and the joint prediction.
+struct Selection {
+    /// Named effects, the verdict first (empty: `none` or `inconclusive`).
+    effects: Vec<NamedEffect>,
+    /// `inconclusive`: the look-alikes, best first.
+    candidates: Vec<Candidate>,
+    /// Confidence of the verdict.
+    confidence: f64,
+    /// The joint extended model's prediction (full-data fit), m.
+    prediction: Option<Field>,
+}
+
+impl Row {
+    /// Per-fold gains of its linearised refit on its scored cells.
+    fn screen_gains(&self, scoring: &Scoring<'_>) -> Vec<f64> {
+        fold_gains(
+            &scoring.fold_before(self.hypothesis.effect()),
+            &self.refit.fold_rss_m2,
+        )
+    }
+}
+
+/// Checks the confirmed effect against its look-alikes over the folds and adds further effects
+/// by greedy forward selection ([`forward_step`]).
+fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) -> Selection {
+    let s = cx.settings;
+    let scoring = &screen.scoring;
+    let Some(e1) = confirmation.verdict else {
+        // `none`: how sure that no hypothesis passing the screen and not rejected by its
+        // re-simulation explains the error
+        let best = screen
+            .rows
+            .iter()
+            .filter(|r| r.qualifies && !confirmation.confirmed.contains_key(&r.hypothesis.effect()))
+            .map(|r| confidence(&r.screen_gains(scoring), s.min_heldout_gain))
+            .fold(0.0, f64::max);
+        return Selection {
+            effects: Vec::new(),
+            candidates: Vec::new(),
+            confidence: 1.0 - best,
+            prediction: None,
+        };
+    };
+    let Some(row1) = screen.row(e1) else {
+        return Selection {
+            effects: Vec::new(),
+            candidates: Vec::new(),
+            confidence: 0.0,
+            prediction: None,
+        };
+    };
+    let lookalikes = lookalikes(row1, screen, confirmation, s);
+    if !lookalikes.is_empty() {
+        let candidates: Vec<Candidate> = std::iter::once(row1)
+            .chain(lookalikes)
+            .map(|r| {
+                let gains = r.screen_gains(scoring);
+                Candidate {
+                    hypothesis: r.hypothesis.effect().name().into(),
+                    heldout_rmse_after_m: r.after_m,
+                    confidence: confidence(&gains, s.min_heldout_gain),
+                    fold_gains: gains,
+                    params: r.refit.params.iter().cloned().collect(),
+                }
+            })
+            .collect();
+        return Selection {
+            confidence: candidates[0].confidence,
+            effects: Vec::new(),
+            candidates,
+            prediction: None,
+        };
+    }
+    let Some(mut x) = extended_prediction(cx, screen, confirmation) else {
+        return Selection {
+            effects: Vec::new(),
+            candidates: Vec::new(),
+            confidence: 0.0,
+            prediction: None,
+        };
+    };
+    let before_folds = scoring.fold_before(e1);
+    let (after1, gains1, params1) = match confirmation.confirmed.get(&e1) {
+        Some(Ok(c)) if c.fold_rss_m2.len() == before_folds.len() => (
+            c.after_scored_m,
+            fold_gains(&before_folds, &c.fold_rss_m2),
+            c.params.iter().cloned().collect(),
+        ),
+        _ => (
+            row1.after_m,
+            row1.screen_gains(scoring),
+            row1.refit.params.iter().cloned().collect(),
+        ),
+    };
+    let mut effects = vec![NamedEffect {
+        hypothesis: e1.name().into(),
+        params: params1,
+        confidence: confidence(&gains1, s.min_heldout_gain),
+        scored_cells: scoring.cell_names(e1),
+        heldout_rmse_before_m: row1.before_m,
+        heldout_rmse_without_m: row1.before_m,
+        heldout_rmse_single_m: after1,
+        heldout_rmse_after_m: after1,
+        fold_gains: gains1,
+    }];
+    while effects.len() < s.max_effects.max(1) {
+        let named: Vec<Effect> = effects
+            .iter()
+            .filter_map(|n| Effect::from_name(&n.hypothesis))
+            .collect();
+        let Some((effect, prediction)) = forward_step(cx, screen, confirmation, &named, &x) else {
+            break;
+        };
+        effects.push(effect);
+        x = prediction;
+    }
+    Selection {
+        confidence: effects[0].confidence,
+        effects,
+        candidates: Vec::new(),
+        prediction: Some(x),
+    }
+}
+
+/// The qualifying hypotheses the data cannot separate from the confirmed `row1`: not contradicted
+/// by their signatures nor ranked below it by them, not rejected by their own re-simulation, and
+/// with screen gains per fold not separable from `row1`'s ([`separable`]).
+fn lookalikes<'r>(
+    row1: &Row,
+    screen: &'r Screen<'_>,
+    confirmation: &Confirmation,
+    s: &DiagnoseSettings,
+) -> Vec<&'r Row> {
+    let scoring = &screen.scoring;
+    let g1 = row1.screen_gains(scoring);
+    screen
+        .rows
+        .iter()
+        .filter(|r| {
+            let e = r.hypothesis.effect();
+            let rejected = match confirmation.confirmed.get(&e) {
+                Some(Ok(c)) => {
+                    1.0 - c.after_scored_m.powi(2) / r.before_m.powi(2).max(1e-300)
+                        < s.min_heldout_gain
+                }
+                Some(Err(_)) => true,
+                None => false,
+            };
+            e != row1.hypothesis.effect()
+                && r.qualifies
+                && r.support >= 0.0
+                && r.support >= row1.support
+                && !rejected
+                && !separable(&g1, &r.screen_gains(scoring))
+        })
+        .collect()
+}
+
+/// One step of greedy forward selection: every hypothesis not yet named refitted linearised on
+/// top of the joint prediction `x` of the `named` effects (their correction x − x₀ as a fixed
+/// offset), leave-one-location-out on its own scored cells. The best one is kept when it explains
+/// ≥ `min_heldout_gain` of the remaining held-out MSE, its per-fold gains' mean exceeds their
+/// spread, the remaining error stands out of the noise, it lowers the BIC by `min_delta_bic`,
+/// beats the stiffness-scale nuisance refitted on top of `x`, and its signatures do not
+/// contradict it. Returns the effect and the new joint prediction.
+fn forward_step(
+    cx: &Context<'_>,
+    screen: &Screen<'_>,
+    confirmation: &Confirmation,
+    named: &[Effect],
+    x: &Field,
+) -> Option<(NamedEffect, Field)> {
+    let (rec, seg, p, s) = (cx.rec, cx.seg, cx.prepared, cx.settings);
+    let scoring = &screen.scoring;
+    let mismatch = scoring.mismatch;
+    let correction: Field = x
+        .iter()
+        .zip(&p.baseline_m)
+        .map(|(xk, bk)| xk.iter().zip(bk).map(|(a, b)| a - b).collect())
+        .collect();
+    let on_top = |mut v: Variant| {
+        v.offset = Some(match v.offset.take() {
+            Some(c) => c
+                .iter()
+                .zip(&correction)
+                .map(|(ck, dk)| ck.iter().zip(dk).map(|(a, b)| a + b).collect())
+                .collect(),
+            None => correction.clone(),
+        });
+        v
+    };
+    let without_variant = on_top(Variant {
+        fixed: vec![],
+        offset: None,
+        bases: vec![],
+    });
+    let mut best: Option<(f64, NamedEffect, Field)> = None;
+    for row in &screen.rows {
+        let e = row.hypothesis.effect();
+        if named.contains(&e) || row.support < 0.0 {
+            continue;
+        }
+        let mask = |k: usize, m: usize| scoring.scored(e, k, m);
+        let vars: Vec<Variant> = row
+            .hypothesis
+            .variants(cx)
+            .into_iter()
+            .map(on_top)
+            .collect();
+        let (Some(joint), Some(without)) = (
+            refit(&vars, rec, seg, p, &mask),
+            refit(std::slice::from_ref(&without_variant), rec, seg, p, &mask),
+        ) else {
+            continue;
+        };
+        let (w, a) = (without.heldout_rmse_m(), joint.heldout_rmse_m());
+        let gain = 1.0 - (a * a) / (w * w).max(1e-300);
+        let gains = fold_gains(&without.fold_rss_m2, &joint.fold_rss_m2);
+        let (mean, sd) = mean_sd(&gains);
+        let scale = refit(&[on_top(stiffness_scale_variant(p))], rec, seg, p, &mask)
+            .map(|r| r.heldout_rmse_m())
+            .unwrap_or(w)
+            .min(w);
+        let beats_scale = a * a <= (1.0 - 0.5 * s.min_heldout_gain) * scale * scale;
+        let delta_bic = mismatch.bic(joint.rss_m2, joint.num_params)
+            - mismatch.bic(without.rss_m2, without.num_params);
+        let keep = scoring.explainable(e, w)
+            && w * w > s.noise_floor_factor * scoring.noise_mse
+            && gain >= s.min_heldout_gain
+            && mean > sd
+            && beats_scale
+            && delta_bic <= -s.min_delta_bic;
+        if !keep || best.as_ref().is_some_and(|b| b.0 >= gain) {
+            continue;
+        }
+        let single = match confirmation.confirmed.get(&e) {
+            Some(Ok(c)) => c.after_scored_m,
+            _ => row.after_m,
+        };
+        let effect = NamedEffect {
+            hypothesis: e.name().into(),
+            params: joint.params.iter().cloned().collect(),
+            confidence: confidence(&gains, s.min_heldout_gain),
+            scored_cells: scoring.cell_names(e),
+            heldout_rmse_before_m: row.before_m,
+            heldout_rmse_without_m: w,
+            heldout_rmse_single_m: single,
+            heldout_rmse_after_m: a,
+            fold_gains: gains,
+        };
+        best = Some((gain, effect, predict(&vars, p, &joint)));
+    }
+    best.map(|b| (b.1, b.2))
+}
+
+/// `inconclusive`: the protocol that separates the two leading candidates
+/// ([`crate::protocols::next_experiment`]); `None` otherwise, or when planning fails (a planned
+/// program the default model cannot simulate).
+fn plan_next_experiment(
+    cx: &Context<'_>,
+    screen: &Screen<'_>,
+    selection: &Selection,
+    sim: &mut dyn ProbeSimulator,
+    progress: &ProgressBar,
+) -> Option<crate::evidence::NextExperiment> {
+    let row = |c: &Candidate| Effect::from_name(&c.hypothesis).and_then(|e| screen.row(e));
+    let [a, b, ..] = selection.candidates.as_slice() else {
+        return None;
+    };
+    let (a, b) = (row(a)?, row(b)?);
+    progress.set_message("inconclusive: planning the next experiment");
+    crate::protocols::next_experiment(cx, (a.hypothesis, &a.refit), (b.hypothesis, &b.refit), sim)
+        .ok()
+}
+
+// ------------------------------------------------------------------------------------------
+// 6. verdict
 
 /// The ranked table: the verdict first, then the other screened rows (best score first), the
 /// hypotheses that cannot act, and `none` after the rows that explain something (first without
 /// a verdict).
-fn verdict(mismatch: &Mismatch, screen: &Screen<'_>, confirmation: &Confirmation) -> Diagnosis {
+fn verdict(
+    mismatch: &Mismatch,
+    screen: &Screen<'_>,
+    confirmation: &Confirmation,
+    selection: &Selection,
+) -> Diagnosis {
     let winner = confirmation.verdict;
     let focus_cells = focus_cell_names(&mismatch.focus);
     let mut order: Vec<&Row> = screen.rows.iter().collect();
@@ -582,10 +901,19 @@ fn verdict(mismatch: &Mismatch, screen: &Screen<'_>, confirmation: &Confirmation
         None => 0,
     };
     ranked.insert(pos, none_row(mismatch, screen, focus_cells));
+    let verdict = if selection.candidates.is_empty() {
+        winner.map_or("none", |e| e.name())
+    } else {
+        "inconclusive"
+    };
     Diagnosis {
-        verdict: winner.map_or("none", |e| e.name()).to_string(),
+        verdict: verdict.to_string(),
         ranked,
         located: mismatch.located.clone(),
+        effects: selection.effects.clone(),
+        confidence: selection.confidence,
+        candidates: selection.candidates.clone(),
+        next_experiment: None,
     }
 }
 
@@ -706,7 +1034,7 @@ fn none_row(
 }
 
 // ------------------------------------------------------------------------------------------
-// 6. extended model
+// 7. extended model
 
 /// The verdict's prediction: its re-simulated extended model (full-data fit), else its
 /// linearised refit.

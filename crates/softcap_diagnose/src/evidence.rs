@@ -16,6 +16,89 @@ pub struct Diagnosis {
     pub ranked: Vec<RankedHypothesis>,
     /// Where the default model's error lives, largest first.
     pub located: Vec<Located>,
+    /// Every named effect in the order forward selection added it (the verdict first; empty for
+    /// `none` and `inconclusive`): each with its parameters in the joint model and its held-out
+    /// errors alone, without it and with it.
+    #[serde(default)]
+    pub effects: Vec<NamedEffect>,
+    /// Confidence of the verdict, 0 … 1: of the first named effect (its held-out gain above the
+    /// naming threshold over the folds); for `inconclusive` of its first candidate; for `none`
+    /// one minus the largest confidence of a hypothesis that passed the screen and was not
+    /// re-simulated (a re-simulated one that did not keep its gain is rejected).
+    #[serde(default)]
+    pub confidence: f64,
+    /// `inconclusive`: the look-alikes the data cannot separate, best first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub candidates: Vec<Candidate>,
+    /// `inconclusive`: the protocol whose recording would separate the candidates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next_experiment: Option<NextExperiment>,
+}
+
+/// One named effect of the joint extended model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NamedEffect {
+    /// Catalog name.
+    pub hypothesis: String,
+    /// Parameters: the first effect's as confirmed; a later one's fitted on top of the earlier
+    /// ones (the joint extended model).
+    pub params: BTreeMap<String, f64>,
+    /// Confidence that its held-out gain exceeds the naming threshold (`min_heldout_gain`), from
+    /// the fold gains' mean and spread.
+    pub confidence: f64,
+    /// The cells it is scored on.
+    pub scored_cells: Vec<String>,
+    /// Held-out RMS of the default model on those cells, m.
+    pub heldout_rmse_before_m: f64,
+    /// … of the effects named before it (the default model for the first), m.
+    pub heldout_rmse_without_m: f64,
+    /// … of this effect alone on the default model, m.
+    pub heldout_rmse_single_m: f64,
+    /// … of the joint model with it and the effects before it, m.
+    pub heldout_rmse_after_m: f64,
+    /// Per probe location: 1 − after / without of the held-out mean-square error.
+    pub fold_gains: Vec<f64>,
+}
+
+/// A look-alike of an `inconclusive` verdict.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// Catalog name.
+    pub hypothesis: String,
+    /// Held-out RMS of its linearised refit on its cells, m.
+    pub heldout_rmse_after_m: f64,
+    /// Per probe location: 1 − after / before of the held-out mean-square error (the screen).
+    pub fold_gains: Vec<f64>,
+    /// Confidence that its gain exceeds the naming threshold.
+    pub confidence: f64,
+    /// Parameters of its full-data refit.
+    pub params: BTreeMap<String, f64>,
+}
+
+/// The measurement that separates the candidates of an `inconclusive` verdict: each alternative
+/// protocol simulated with every candidate's fitted model; the one with the largest predicted
+/// difference is recommended.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NextExperiment {
+    /// The recommended protocol.
+    pub protocol: String,
+    /// What to record.
+    pub description: String,
+    /// RMS marker difference between the two leading candidates' predictions under it, m.
+    pub predicted_difference_m: f64,
+    /// The same under the recorded protocol, m.
+    pub recorded_difference_m: f64,
+    /// Every protocol tried, with its predicted difference.
+    pub protocols: Vec<ProtocolPrediction>,
+}
+
+/// One alternative protocol's predicted difference between the candidates.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProtocolPrediction {
+    /// Protocol name.
+    pub protocol: String,
+    /// RMS marker difference between the two leading candidates' predictions, m.
+    pub predicted_difference_m: f64,
 }
 
 /// One ranked hypothesis (the JSON schema of issue 8).

@@ -10,6 +10,7 @@
 //! | [`recording`], [`segment`] | the in-memory recording (frames: time, probe pose, force, markers); its phases, probe locations (the held-out unit) and marker regions |
 //! | [`signal`], [`sensor`], [`friction`] | kernels on frame-time traces: low-pass, derivative, time shift; the FSR chain and its inverse; the Coulomb return mapping of the tip's travel |
 //! | [`residual`], [`cells`] | residual components and where the error lives; noise σ; the focus cells and the hypotheses' effect cells |
+//! | [`folds`] | per-location held-out gains, their spread, the confidence of a named effect |
 //! | [`signatures`](mod@signatures) | the signature features that separate look-alike hypotheses |
 //! | [`sim`] | the [`ProbeSimulator`] contract, [`FemProbeSimulator`] and the extended FEM models ([`Extension`]) re-simulated over a recording |
 //! | [`baseline`] | the default model at every frame with its tangent response ([`Prepared`]) |
@@ -17,6 +18,7 @@
 //! | [`confirm`], [`resim`] | the re-simulation harness (grids of extended models, rigid-tip replays) and the leave-one-location-out selection of re-simulated candidates |
 //! | [`hypotheses`] | the [`Hypothesis`] trait and one module per catalog entry ([`Effect`]) |
 //! | [`evidence`] | the diagnosis document: verdict, ranked hypotheses with typed [`Evidence`] |
+//! | [`protocols`] | alternative probing protocols; the one that separates `inconclusive` look-alikes |
 //! | [`diagnose`](mod@diagnose) | the phases: segment → locate → screen → confirm → verdict → extended model |
 //! | [`output`], [`io`], `run` | JSON, report.md + figures, diagnosis.mcap; capture.mcap → [`Recording`], material.mcap → default model; the stage: [`run()`] with [`RunConfig`] / [`StageSettings`] |
 //!
@@ -58,10 +60,12 @@ pub mod confirm;
 pub mod diagnose;
 mod error;
 pub mod evidence;
+pub mod folds;
 pub mod friction;
 pub mod hypotheses;
 pub mod io;
 pub mod output;
+pub mod protocols;
 pub mod recording;
 pub mod residual;
 pub mod resim;
@@ -78,7 +82,8 @@ pub use baseline::{Prepared, prepare};
 pub use diagnose::{DiagnosisRun, diagnose, diagnose_with_progress};
 pub use error::{DiagnoseError, Result};
 pub use evidence::{
-    Baseline, Diagnosis, Evidence, NotApplicable, RankedHypothesis, Resimulated, Screened,
+    Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NextExperiment, NotApplicable,
+    ProtocolPrediction, RankedHypothesis, Resimulated, Screened,
 };
 pub use hypotheses::Effect;
 pub use hypotheses::Hypothesis;

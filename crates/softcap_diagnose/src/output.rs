@@ -299,6 +299,97 @@ fn draw_residual_map(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> Dr
     softcap_figure::draw_colorbar(&bar.margin(0, 0, 300, 300), &scale).map_err(|e| e.to_string())
 }
 
+/// Fold gains as text: `0.91 0.88 …`.
+fn gains_text(g: &[f64]) -> String {
+    g.iter()
+        .map(|x| format!("{x:.2}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The named effects (joint model against each one alone), or the candidates of an
+/// `inconclusive` verdict and the experiment that would separate them.
+fn write_effects(s: &mut String, d: &Diagnosis) {
+    let mm = |x: f64| 1e3 * x;
+    let params = |p: &std::collections::BTreeMap<String, f64>| {
+        p.iter()
+            .map(|(k, v)| format!("{k} = {v:.4e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if !d.effects.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Named effects\n\nEach effect on its scored cells, held-out RMS in mm: the default \
+             model, the effects named before it, the effect alone, the joint model (fold gains: \
+             1 − joint/without of the held-out MSE per probe location).\n"
+        );
+        let _ = writeln!(
+            s,
+            "| effect | confidence | default | without it | alone | joint | fold gains | params |\n|---|---|---|---|---|---|---|---|"
+        );
+        for e in &d.effects {
+            let _ = writeln!(
+                s,
+                "| {} | {:.3} | {:.4} | {:.4} | {:.4} | {:.4} | {} | {} |",
+                e.hypothesis,
+                e.confidence,
+                mm(e.heldout_rmse_before_m),
+                mm(e.heldout_rmse_without_m),
+                mm(e.heldout_rmse_single_m),
+                mm(e.heldout_rmse_after_m),
+                gains_text(&e.fold_gains),
+                params(&e.params)
+            );
+        }
+        let _ = writeln!(s);
+    }
+    if !d.candidates.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Inconclusive: look-alikes the data cannot separate\n\nTheir held-out gains per \
+             probe location differ by less than their fold-to-fold spread.\n"
+        );
+        let _ = writeln!(
+            s,
+            "| candidate | confidence | held-out after (mm) | fold gains | params |\n|---|---|---|---|---|"
+        );
+        for c in &d.candidates {
+            let _ = writeln!(
+                s,
+                "| {} | {:.3} | {:.4} | {} | {} |",
+                c.hypothesis,
+                c.confidence,
+                mm(c.heldout_rmse_after_m),
+                gains_text(&c.fold_gains),
+                params(&c.params)
+            );
+        }
+        let _ = writeln!(s);
+    }
+    if let Some(n) = &d.next_experiment {
+        let _ = writeln!(
+            s,
+            "## Next experiment: `{}`\n\n{}\n\nPredicted RMS marker difference between the \
+             two leading candidates: {:.4} mm under it, {:.4} mm under the recorded protocol.\n",
+            n.protocol,
+            n.description,
+            mm(n.predicted_difference_m),
+            mm(n.recorded_difference_m)
+        );
+        let _ = writeln!(s, "| protocol | predicted difference (mm) |\n|---|---|");
+        for p in &n.protocols {
+            let _ = writeln!(
+                s,
+                "| {} | {:.4} |",
+                p.protocol,
+                mm(p.predicted_difference_m)
+            );
+        }
+        let _ = writeln!(s);
+    }
+}
+
 /// Residual against time: RMS over markers per frame, before and after; force on a second panel.
 fn draw_residual_time(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> DrawResult<()> {
     let t: Vec<f64> = rec.times_s();
@@ -545,6 +636,8 @@ pub fn write_report(dir: &Path, rec: &Recording, run: &DiagnosisRun) -> Result<(
             top.heldout_rmse_before_m / top.heldout_rmse_after_m.max(1e-300)
         );
     }
+    let _ = writeln!(s, "Confidence of the verdict: {:.3}.\n", d.confidence);
+    write_effects(&mut s, d);
     let _ = writeln!(
         s,
         "{} frames, {} markers, {} probe locations, marker noise σ ≈ {:.4} mm.\n",

@@ -207,6 +207,10 @@ pub struct Refit {
     pub heldout_n: usize,
     /// Parameters fitted in each fold.
     pub fold_params: Vec<Vec<(String, f64)>>,
+    /// Held-out RSS per fold (location), m².
+    pub fold_rss_m2: Vec<f64>,
+    /// Held-out scored observations per fold.
+    pub fold_n: Vec<usize>,
 }
 
 impl Refit {
@@ -272,11 +276,15 @@ pub fn refit(
     let mut heldout_rss_m2 = 0.0;
     let mut heldout_n = 0;
     let mut fold_params = Vec::new();
+    let (mut fold_rss_m2, mut fold_n) = (Vec::new(), Vec::new());
     for l in 0..seg.num_folds() {
         let (fi, ft, _) = fit_variants(&stats, vars, &|k| seg.fold_of_frame[k] != Some(l));
         let (g, hh, e, n) = scored[fi].sum(|k| seg.fold_of_frame[k] == Some(l));
-        heldout_rss_m2 += rss(&g, &hh, e, &ft);
+        let r = rss(&g, &hh, e, &ft);
+        heldout_rss_m2 += r;
         heldout_n += n;
+        fold_rss_m2.push(r);
+        fold_n.push(n);
         fold_params.push(named_params(&vars[fi], &ft));
     }
     Some(Refit {
@@ -288,6 +296,8 @@ pub fn refit(
         heldout_rss_m2,
         heldout_n,
         fold_params,
+        fold_rss_m2,
+        fold_n,
     })
 }
 

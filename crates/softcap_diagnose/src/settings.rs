@@ -36,6 +36,9 @@ pub struct DiagnoseSettings {
     pub refit_compliance_scale: bool,
     /// Confirm at most this many qualifying hypotheses with the extended FEM model.
     pub max_confirmations: usize,
+    /// Name at most this many effects (greedy forward selection on top of the confirmed first
+    /// one; 1 = one effect only).
+    pub max_effects: usize,
 }
 
 impl Default for DiagnoseSettings {
@@ -53,6 +56,7 @@ impl Default for DiagnoseSettings {
             focus_fraction_of_max: 0.5,
             refit_compliance_scale: true,
             max_confirmations: 2,
+            max_effects: 2,
         }
     }
 }

@@ -1,9 +1,10 @@
 //! Diagnosis of small in-memory recordings built with softcap_fem directly: a 4 × 4 × 2 cm block
 //! (648 tets, E = 20 kPa, ν = 0.45) on a fixed support, 25 + 8 surface markers, four probe
 //! locations (ramp 5 / hold 5 / unload 4 / released 3 frames at 20 fps), marker noise σ = 5 µm.
-//! The "recording" is the model's own simulation with ONE effect switched on in the data; the
-//! model the diagnosis runs is the default one. Each case asserts the verdict and that the held-out
-//! error drops at least 3× (effects) or that the answer is `none` (controls).
+//! The "recording" is the model's own simulation with ONE effect switched on in the data (or two,
+//! from different families: [`session_with`]); the model the diagnosis runs is the default one.
+//! Each case asserts the verdict and that the held-out error drops at least 3× (effects) or that
+//! the answer is `none` (controls).
 
 use nalgebra::Vector3;
 use rand::SeedableRng;
@@ -83,6 +84,9 @@ enum Effect {
         hardening_pa: f64,
     },
     Stiffer(f64),
+    /// Transversely isotropic stiffening along the fibre [0.707, 0, 0.707], fibre / transverse
+    /// Young's modulus (`Extension::Anisotropic`).
+    Anisotropic(f64),
 }
 
 struct Session {
@@ -90,23 +94,30 @@ struct Session {
 }
 
 fn session(effect: Effect, oblique: bool) -> Session {
-    session_at(
-        effect,
-        oblique,
-        &[
-            (0.012, 0.012),
-            (0.028, 0.012),
-            (0.012, 0.028),
-            (0.028, 0.028),
-        ],
-    )
+    session_at(effect, oblique, &LOCATIONS)
 }
 
 fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
-    let mut truth_sim = match effect {
-        Effect::Stiffer(s) => simulator(20e3 * s),
-        _ => simulator(20e3),
-    };
+    session_with(&[effect], oblique, xy, 8)
+}
+
+/// The four probe locations of [`session`].
+const LOCATIONS: [(f64, f64); 4] = [
+    (0.012, 0.012),
+    (0.028, 0.012),
+    (0.012, 0.028),
+    (0.028, 0.028),
+];
+
+/// A session with every effect of `effects` in the data (at most one history-dependent truth:
+/// creep, plasticity, support springs or anisotropy; any force-channel, friction, gravity and
+/// stiffness effects besides), marker noise seeded with `seed`.
+fn session_with(effects: &[Effect], oblique: bool, xy: &[(f64, f64)], seed: u64) -> Session {
+    let stiffer = effects.iter().find_map(|e| match e {
+        Effect::Stiffer(s) => Some(*s),
+        _ => None,
+    });
+    let mut truth_sim = simulator(20e3 * stiffer.unwrap_or(1.0));
     let locs: Vec<Vector3<f64>> = xy
         .iter()
         .map(|&(x, y)| Vector3::new(x, y, SIZE[2]))
@@ -147,25 +158,31 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
     }
     let n = t.len();
     // measured force
-    let f_meas: Vec<Vector3<f64>> = match effect {
-        Effect::SensorLag(tau) => low_pass(&t, &f_true, tau),
-        Effect::ClockOffset(d) => (0..n)
-            .map(|k| softcap_diagnose::signal::sample(&t, &f_true, t[k] - d))
-            .collect(),
-        _ => f_true.clone(),
-    };
+    let mut f_meas = f_true.clone();
+    for e in effects {
+        f_meas = match *e {
+            Effect::SensorLag(tau) => low_pass(&t, &f_meas, tau),
+            Effect::ClockOffset(d) => (0..n)
+                .map(|k| softcap_diagnose::signal::sample(&t, &f_meas, t[k] - d))
+                .collect(),
+            _ => f_meas,
+        };
+    }
     // force that deforms the object
-    let f_obj: Vec<Vector3<f64>> = match effect {
-        Effect::Friction(mu) => (0..n)
-            .map(|k| f_true[k] + Vector3::x() * (mu * f_true[k].norm()))
-            .collect(),
-        _ => f_true.clone(),
-    };
-    let body = match effect {
-        Effect::Gravity(rho) => Vector3::new(0.0, 0.0, -9.81 * rho),
-        _ => Vector3::zeros(),
-    };
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    let mut f_obj = f_true.clone();
+    let mut body = Vector3::zeros();
+    for e in effects {
+        match *e {
+            Effect::Friction(mu) => {
+                for k in 0..n {
+                    f_obj[k] += Vector3::x() * (mu * f_true[k].norm());
+                }
+            }
+            Effect::Gravity(rho) => body = Vector3::new(0.0, 0.0, -9.81 * rho),
+            _ => {}
+        }
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, 5e-6).unwrap();
     let rest_truth = truth_sim
         .simulate(&SimLoad::default(), false)
@@ -173,7 +190,7 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
         .markers_m;
     // History-dependent truths: the extended FEM models (Prony creep, J2 plasticity, support
     // springs) over the whole sequence.
-    let ext = match effect {
+    let ext = effects.iter().find_map(|e| match *e {
         Effect::Creep { g, tau_s } => Some(Extension::Viscoelastic { g, tau_s }),
         Effect::Plastic {
             yield_pa,
@@ -185,8 +202,12 @@ fn session_at(effect: Effect, oblique: bool, xy: &[(f64, f64)]) -> Session {
         Effect::SupportSlip(k) => Some(Extension::SupportSprings {
             stiffness_n_per_m: k,
         }),
+        Effect::Anisotropic(ratio) => Some(Extension::Anisotropic {
+            fibre: Vector3::new(1.0, 0.0, 1.0).normalize(),
+            ratio,
+        }),
         _ => None,
-    };
+    });
     let loads: Vec<SimLoad> = (0..n)
         .map(|k| SimLoad {
             probe: (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
@@ -282,6 +303,62 @@ fn run(effect: Effect, oblique: bool, expect: &str) {
     let names: std::collections::BTreeSet<&str> =
         d.ranked.iter().map(|r| r.hypothesis.as_str()).collect();
     assert_eq!(names.len(), 10);
+}
+
+/// Diagnoses a session with `effects` and asserts that exactly the effects `expect` are named
+/// (in any order), each with the joint model's held-out error on its cells below the effects
+/// without it and below the effect alone, and the verdict among them.
+fn run_pair(effects: &[Effect], oblique: bool, expect: [&str; 2]) {
+    let s = session_with(effects, oblique, &LOCATIONS, 8);
+    let mut sim = simulator(20e3);
+    let run = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).unwrap();
+    let d = &run.diagnosis;
+    for e in &d.effects {
+        eprintln!(
+            "{:>16} conf {:.3} before {:.4} without {:.4} alone {:.4} joint {:.4} mm gains {:?} {:?}",
+            e.hypothesis,
+            e.confidence,
+            1e3 * e.heldout_rmse_before_m,
+            1e3 * e.heldout_rmse_without_m,
+            1e3 * e.heldout_rmse_single_m,
+            1e3 * e.heldout_rmse_after_m,
+            e.fold_gains,
+            e.params
+        );
+    }
+    for r in d.ranked.iter().take(5) {
+        eprintln!(
+            "{:>16} score {:+.3} before {:.3e} after {:.3e}",
+            r.hypothesis, r.score, r.heldout_rmse_before_m, r.heldout_rmse_after_m
+        );
+    }
+    let mut named: Vec<&str> = d.effects.iter().map(|e| e.hypothesis.as_str()).collect();
+    named.sort();
+    let mut want = expect.to_vec();
+    want.sort();
+    assert_eq!(named, want, "verdict {}", d.verdict);
+    assert_eq!(d.verdict, d.effects[0].hypothesis);
+    let second = &d.effects[1];
+    assert!(second.heldout_rmse_after_m < second.heldout_rmse_without_m);
+    assert!(second.heldout_rmse_after_m < second.heldout_rmse_single_m);
+}
+
+#[test]
+fn support_slip_and_sensor_lag_are_both_named() {
+    run_pair(
+        &[Effect::SupportSlip(500.0), Effect::SensorLag(0.12)],
+        true,
+        ["support-slip", "sensor-lag"],
+    );
+}
+
+#[test]
+fn anisotropy_and_gravity_are_both_named() {
+    run_pair(
+        &[Effect::Anisotropic(5.0), Effect::Gravity(1000.0)],
+        false,
+        ["anisotropy", "gravity-preload"],
+    );
 }
 
 #[test]
@@ -491,14 +568,34 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
     let d = softcap_diagnose::run(&cfg).unwrap();
     assert_eq!(d.verdict, "clock-offset");
 
-    // JSON: exactly the issue-8 schema
+    // JSON: the issue-8 schema and the named effects with their confidence (issue 37)
     let j: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("diagnosis.json")).unwrap())
             .unwrap();
     let keys =
         |v: &serde_json::Value| -> Vec<String> { v.as_object().unwrap().keys().cloned().collect() };
-    assert_eq!(keys(&j), ["located", "ranked", "verdict"]);
+    assert_eq!(
+        keys(&j),
+        ["confidence", "effects", "located", "ranked", "verdict"]
+    );
     assert_eq!(j["verdict"], "clock-offset");
+    assert_eq!(j["effects"][0]["hypothesis"], "clock-offset");
+    assert_eq!(
+        keys(&j["effects"][0]),
+        [
+            "confidence",
+            "fold_gains",
+            "heldout_rmse_after_m",
+            "heldout_rmse_before_m",
+            "heldout_rmse_single_m",
+            "heldout_rmse_without_m",
+            "hypothesis",
+            "params",
+            "scored_cells"
+        ]
+    );
+    let c = j["confidence"].as_f64().unwrap();
+    assert!((0.9..=1.0).contains(&c), "confidence {c}");
     assert_eq!(
         keys(&j["ranked"][0]),
         [
@@ -520,6 +617,7 @@ fn stage_run_writes_json_report_and_mcap_and_bad_input_exits_2() {
     // report
     let report = std::fs::read_to_string(dir.path().join("report/report.md")).unwrap();
     assert!(report.contains("**Verdict: `clock-offset`**"));
+    assert!(report.contains("## Named effects"));
     for f in ["residual_map.png", "residual_time.png", "loops.png"] {
         let bytes = std::fs::read(dir.path().join("report").join(f)).unwrap();
         assert_eq!(&bytes[1..4], b"PNG", "{f}");
@@ -713,11 +811,313 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
         Some("timing") => timing_probe(),
         Some("ten-locations") => full_catalog_on_ten_locations_timing(),
         Some("docs-report") => write_docs_report(),
+        Some("calibration") => calibration()?,
+        Some("pairs") => pairs_table(),
         other => {
             return Err(format!(
-                "part {other:?}: one of timing, ten-locations, docs-report"
+                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs"
             ));
         }
     }
     Ok(())
+}
+
+/// The calibration sessions: per effect, three strengths (barely above the noise, middle,
+/// strong) and whether the session needs the oblique probe.
+#[cfg(not(test))]
+fn calibration_effects() -> Vec<(&'static str, bool, [Effect; 3])> {
+    let plastic = |y: f64| Effect::Plastic {
+        yield_pa: y,
+        hardening_pa: 1000.0,
+    };
+    let creep = |g: f64| Effect::Creep { g, tau_s: 0.2 };
+    vec![
+        (
+            "sensor-lag",
+            false,
+            [0.02, 0.05, 0.12].map(Effect::SensorLag),
+        ),
+        (
+            "clock-offset",
+            false,
+            [0.01, 0.03, 0.1].map(Effect::ClockOffset),
+        ),
+        ("viscoelasticity", false, [0.1, 0.3, 0.8].map(creep)),
+        (
+            "gravity-preload",
+            false,
+            [100.0, 300.0, 1000.0].map(Effect::Gravity),
+        ),
+        (
+            "probe-friction",
+            true,
+            [0.05, 0.15, 0.5].map(Effect::Friction),
+        ),
+        (
+            "support-slip",
+            true,
+            [5000.0, 1500.0, 500.0].map(Effect::SupportSlip),
+        ),
+        ("plasticity", false, [8000.0, 4000.0, 2000.0].map(plastic)),
+        (
+            "anisotropy",
+            false,
+            [1.5, 2.5, 5.0].map(Effect::Anisotropic),
+        ),
+    ]
+}
+
+/// Strength label of calibration column `i`.
+#[cfg(not(test))]
+fn strength_label(e: &Effect) -> String {
+    match *e {
+        Effect::SensorLag(t) => format!("τ {t} s"),
+        Effect::ClockOffset(d) => format!("δ {d} s"),
+        Effect::Creep { g, .. } => format!("g {g}"),
+        Effect::Gravity(r) => format!("ρ {r} kg/m³"),
+        Effect::Friction(m) => format!("μ {m}"),
+        Effect::SupportSlip(k) => format!("k {k} N/m"),
+        Effect::Plastic { yield_pa, .. } => format!("σy {} kPa", yield_pa / 1e3),
+        Effect::Anisotropic(r) => format!("ratio {r}"),
+        _ => String::new(),
+    }
+}
+
+/// False alarms on 20 seeded clean sessions (alternately straight and oblique probe) and
+/// detection against strength (8 effects × 3 strengths): a table on stdout, the CSV and the plot
+/// under `SOFTCAP_CALIBRATION_OUT` (default `target/calibration`).
+#[cfg(not(test))]
+fn calibration() -> Result<(), String> {
+    use std::fmt::Write as _;
+    let out = std::env::var_os("SOFTCAP_CALIBRATION_OUT")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| "target/calibration".into());
+    std::fs::create_dir_all(&out).map_err(|e| e.to_string())?;
+    let mut csv = String::from("kind,effect,strength,seed,verdict,effects,confidence,named\n");
+    let diagnose_one = |effects: &[Effect], oblique: bool, seed: u64| {
+        let s = session_with(effects, oblique, &LOCATIONS, seed);
+        let mut sim = simulator(20e3);
+        diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()).map(|r| r.diagnosis)
+    };
+    let mut alarms = 0;
+    let clean_n = 20;
+    for seed in 1..=clean_n {
+        let oblique = seed % 2 == 0;
+        let d = diagnose_one(&[Effect::Clean], oblique, seed).map_err(|e| e.to_string())?;
+        let alarm = d.verdict != "none";
+        alarms += alarm as usize;
+        let named: Vec<&str> = d.effects.iter().map(|e| e.hypothesis.as_str()).collect();
+        eprintln!("clean seed {seed}: {} ({:.3})", d.verdict, d.confidence);
+        let _ = writeln!(
+            csv,
+            "clean,none,0,{seed},{},{},{:.4},{}",
+            d.verdict,
+            named.join("+"),
+            d.confidence,
+            !alarm
+        );
+    }
+    let mut rows = Vec::new();
+    for (name, oblique, strengths) in calibration_effects() {
+        let mut hit = [false; 3];
+        for (i, e) in strengths.iter().enumerate() {
+            let seed = 100 + i as u64;
+            let d = diagnose_one(&[*e], oblique, seed).map_err(|e| e.to_string())?;
+            let named: Vec<&str> = d.effects.iter().map(|e| e.hypothesis.as_str()).collect();
+            hit[i] = named.contains(&name);
+            eprintln!(
+                "{name} {}: {} {:?} ({:.3})",
+                strength_label(e),
+                d.verdict,
+                named,
+                d.confidence
+            );
+            let _ = writeln!(
+                csv,
+                "effect,{name},{},{seed},{},{},{:.4},{}",
+                strength_label(e),
+                d.verdict,
+                named.join("+"),
+                d.confidence,
+                hit[i]
+            );
+        }
+        rows.push((name, strengths.map(|e| strength_label(&e)), hit));
+    }
+    std::fs::write(out.join("calibration.csv"), &csv).map_err(|e| e.to_string())?;
+    println!(
+        "false alarms: {alarms} / {clean_n} clean sessions ({:.0} %)\n",
+        100.0 * alarms as f64 / clean_n as f64
+    );
+    println!("| effect | weak | middle | strong |\n|---|---|---|---|");
+    for (name, labels, hit) in &rows {
+        let cell = |i: usize| format!("{} {}", labels[i], if hit[i] { "✓" } else { "✗" });
+        println!("| {name} | {} | {} | {} |", cell(0), cell(1), cell(2));
+    }
+    let rate = |i: usize| rows.iter().filter(|r| r.2[i]).count() as f64 / rows.len() as f64;
+    println!(
+        "| detection rate | {:.0} % | {:.0} % | {:.0} % |",
+        100.0 * rate(0),
+        100.0 * rate(1),
+        100.0 * rate(2)
+    );
+    let png = out.join("calibration.png");
+    let rates = [rate(0), rate(1), rate(2)];
+    let false_alarm = alarms as f64 / clean_n as f64;
+    softcap_figure::draw_png(&png, (800, 500), |root| {
+        calibration_plot(root, &rows, rates, false_alarm).map_err(|e| e.into())
+    })
+    .map_err(|e| e.to_string())?;
+    eprintln!(
+        "wrote {} and {}",
+        out.join("calibration.csv").display(),
+        png.display()
+    );
+    Ok(())
+}
+
+/// Detection per effect and the rate against strength, with the false-alarm rate as a line.
+#[cfg(not(test))]
+fn calibration_plot(
+    root: &plotters::drawing::DrawingArea<
+        plotters::prelude::BitMapBackend<'_>,
+        plotters::coord::Shift,
+    >,
+    rows: &[(&str, [String; 3], [bool; 3])],
+    rates: [f64; 3],
+    false_alarm: f64,
+) -> Result<(), String> {
+    use plotters::prelude::*;
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let mut chart = ChartBuilder::on(root)
+        .caption(
+            "in-memory rig: detection against effect strength",
+            (softcap_figure::FONT_FAMILY, 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(-0.3f64..2.3f64, -0.05f64..1.05f64)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_labels(3)
+        .x_label_formatter(&|x| ["weak", "middle", "strong"][(x.round() as usize).min(2)].into())
+        .y_desc("fraction named")
+        .draw()
+        .map_err(|e| e.to_string())?;
+    for (j, (name, _, hit)) in rows.iter().enumerate() {
+        let c = Palette99::pick(j).to_rgba();
+        let dx = (j as f64 - rows.len() as f64 / 2.0) * 0.02;
+        chart
+            .draw_series((0..3).map(|i| {
+                Circle::new(
+                    (i as f64 + dx, if hit[i] { 1.0 } else { 0.0 }),
+                    5,
+                    c.filled(),
+                )
+            }))
+            .map_err(|e| e.to_string())?
+            .label(*name)
+            .legend(move |(x, y)| Circle::new((x, y), 5, c.filled()));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            (0..3).map(|i| (i as f64, rates[i])),
+            BLACK.stroke_width(3),
+        ))
+        .map_err(|e| e.to_string())?
+        .label("detection rate")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(3)));
+    chart
+        .draw_series(LineSeries::new(
+            [(-0.3, false_alarm), (2.3, false_alarm)],
+            RED.stroke_width(2),
+        ))
+        .map_err(|e| e.to_string())?
+        .label("false-alarm rate (clean)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// The two-effect sessions: the named effects and the joint model against each one alone.
+#[cfg(not(test))]
+fn pairs_table() {
+    let plastic = Effect::Plastic {
+        yield_pa: 2000.0,
+        hardening_pa: 1000.0,
+    };
+    let cases: [(&str, &[Effect], bool); 5] = [
+        (
+            "creep + clock offset",
+            &[
+                Effect::Creep { g: 0.8, tau_s: 0.2 },
+                Effect::ClockOffset(0.1),
+            ],
+            false,
+        ),
+        (
+            "support springs + sensor lag",
+            &[Effect::SupportSlip(500.0), Effect::SensorLag(0.12)],
+            true,
+        ),
+        (
+            "plasticity + probe friction",
+            &[plastic, Effect::Friction(0.5)],
+            true,
+        ),
+        (
+            "anisotropy + gravity",
+            &[Effect::Anisotropic(5.0), Effect::Gravity(1000.0)],
+            false,
+        ),
+        (
+            "gravity + sensor lag",
+            &[Effect::Gravity(1000.0), Effect::SensorLag(0.12)],
+            false,
+        ),
+    ];
+    println!(
+        "| session | verdict | effects (confidence) | second effect's cells: default / first alone / second alone / joint, mm |"
+    );
+    println!("|---|---|---|---|");
+    for (name, effects, oblique) in cases {
+        let s = session_with(effects, oblique, &LOCATIONS, 8);
+        let mut sim = simulator(20e3);
+        let t0 = std::time::Instant::now();
+        let d = match diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()) {
+            Ok(r) => r.diagnosis,
+            Err(e) => {
+                println!("| {name} | error: {e} | | |");
+                continue;
+            }
+        };
+        let named: Vec<String> = d
+            .effects
+            .iter()
+            .map(|e| format!("{} ({:.2})", e.hypothesis, e.confidence))
+            .collect();
+        let cells = d.effects.get(1).map_or("–".to_string(), |e| {
+            format!(
+                "{:.4} / {:.4} / {:.4} / {:.4}",
+                1e3 * e.heldout_rmse_before_m,
+                1e3 * e.heldout_rmse_without_m,
+                1e3 * e.heldout_rmse_single_m,
+                1e3 * e.heldout_rmse_after_m
+            )
+        });
+        println!(
+            "| {name} | `{}` | {} | {cells} |",
+            d.verdict,
+            named.join(", ")
+        );
+        eprintln!("{name}: {:?}", t0.elapsed());
+    }
 }

@@ -71,7 +71,9 @@ impl Hypothesis for GravityPreload {
         let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
         let rho_ref = cx.settings.reference_density_kg_m3;
         let (mut e, mut n, mut ea, mut na) = (0.0, 0usize, 0.0, 0usize);
+        let (mut fold_rss_m2, mut fold_n) = (Vec::new(), Vec::new());
         for (l, fp) in r.fold_params.iter().enumerate() {
+            let (e0, n0) = (e, n);
             let in_l = |k: usize| seg.fold_of_frame[k] == Some(l);
             let pred = resimulate(fp, rec, p, sim, rho_ref, &in_l)?;
             for (k, row_res) in residuals(rec, &pred).iter().enumerate() {
@@ -88,6 +90,8 @@ impl Hypothesis for GravityPreload {
                     }
                 }
             }
+            fold_rss_m2.push(e - e0);
+            fold_n.push(n - n0);
         }
         if na == 0 {
             return Ok(None);
@@ -101,6 +105,8 @@ impl Hypothesis for GravityPreload {
             method:
                 "re-simulated with the default model under the extended load, leave-one-location-out"
                     .into(),
+            fold_rss_m2,
+            fold_n,
         }))
     }
 }

@@ -1,0 +1,347 @@
+//! The next experiment of an `inconclusive` verdict: the recorded session re-planned under
+//! alternative probing protocols, and each look-alike's fitted (linearised) extended model
+//! simulated under every one. The protocol under which the leading two candidates' predicted
+//! marker motions differ most is the measurement that separates them.
+//!
+//! A protocol is a transformation of the recording's probe program (tip poses and force per
+//! frame); the markers of the planned session are unknown and not needed: every candidate is
+//! predicted from the default model's baseline of the planned program ([`crate::baseline`]) and
+//! its extension's variants with the parameters fitted on the recorded session.
+
+use crate::baseline::{Prepared, prepare};
+use crate::evidence::{NextExperiment, ProtocolPrediction};
+use crate::hypotheses::{Context, Hypothesis};
+use crate::recording::{Frame, Recording};
+use crate::screen::{Refit, Variant};
+use crate::segment::{Phase, Segmentation};
+use crate::sim::{Field, ProbeSimulator};
+use crate::{DiagnoseError, Result};
+use indicatif::ProgressBar;
+use nalgebra::{Rotation3, Vector3};
+
+/// An alternative probing protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Protocol {
+    /// Every hold three times as long.
+    LongerHolds,
+    /// Loading and unloading ramps twice as fast.
+    FasterRamps,
+    /// Ten more frames of rest after each release.
+    RestAfterRelease,
+    /// The probe force and shaft tilted by 20° (about the axis perpendicular to the shaft and the
+    /// support normal, else world y).
+    ObliqueProbe,
+    /// Every location moved towards the marker nearest the support, stopping three tip radii
+    /// short of it (measured across the shaft).
+    NearSupport,
+}
+
+impl Protocol {
+    /// Every protocol, in the order they are tried.
+    pub const ALL: [Protocol; 5] = [
+        Protocol::LongerHolds,
+        Protocol::FasterRamps,
+        Protocol::RestAfterRelease,
+        Protocol::ObliqueProbe,
+        Protocol::NearSupport,
+    ];
+
+    /// Name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Protocol::LongerHolds => "longer-holds",
+            Protocol::FasterRamps => "faster-ramps",
+            Protocol::RestAfterRelease => "rest-after-release",
+            Protocol::ObliqueProbe => "oblique-probe",
+            Protocol::NearSupport => "near-support",
+        }
+    }
+
+    /// What to record.
+    pub fn description(self) -> &'static str {
+        match self {
+            Protocol::LongerHolds => "re-record with every hold three times as long",
+            Protocol::FasterRamps => "re-record with the loading and unloading ramps twice as fast",
+            Protocol::RestAfterRelease => {
+                "re-record with the probe lifted off and the object at rest for ten frames after \
+                 each release"
+            }
+            Protocol::ObliqueProbe => "re-record with the probe tilted 20° from the recorded shaft",
+            Protocol::NearSupport => {
+                "re-record with the probe locations moved close to the support"
+            }
+        }
+    }
+
+    /// The recording's probe program under this protocol (markers unobserved).
+    pub fn apply(self, rec: &Recording, seg: &Segmentation) -> Recording {
+        let frames: Vec<Frame> = match self {
+            Protocol::LongerHolds => repeat_where(rec, seg, |k| seg.phases[k] == Phase::Hold, 3),
+            Protocol::RestAfterRelease => {
+                let last_of_location = |k: usize| {
+                    seg.fold_of_frame[k].is_some()
+                        && seg.fold_of_frame.get(k + 1).copied().flatten() != seg.fold_of_frame[k]
+                };
+                let mut out = Vec::new();
+                for (k, f) in rec.frames.iter().enumerate() {
+                    out.push(f.clone());
+                    if last_of_location(k) {
+                        let mut rest = f.clone();
+                        rest.force_n = Vector3::zeros();
+                        out.extend(std::iter::repeat_n(rest, 10));
+                    }
+                }
+                out
+            }
+            Protocol::FasterRamps => rec.frames.clone(),
+            Protocol::ObliqueProbe => {
+                let n = rec.support.map_or(Vector3::z(), |s| s.normal);
+                rec.frames
+                    .iter()
+                    .map(|f| {
+                        let about = f
+                            .axis
+                            .cross(&n)
+                            .try_normalize(1e-6)
+                            .unwrap_or_else(Vector3::y);
+                        let r = Rotation3::from_axis_angle(
+                            &nalgebra::Unit::new_normalize(about),
+                            20f64.to_radians(),
+                        );
+                        Frame {
+                            axis: r * f.axis,
+                            force_n: r * f.force_n,
+                            ..f.clone()
+                        }
+                    })
+                    .collect()
+            }
+            Protocol::NearSupport => near_support(rec, seg),
+        };
+        let dt = frame_steps(rec, seg, self);
+        let mut t = rec.frames.first().map_or(0.0, |f| f.time_s);
+        let frames = frames
+            .into_iter()
+            .enumerate()
+            .map(|(k, f)| {
+                if k > 0 {
+                    t += dt.get(k).copied().unwrap_or_else(|| median_step(rec));
+                }
+                Frame {
+                    frame: k as u64,
+                    time_s: t,
+                    markers_m: vec![None; rec.num_markers()],
+                    ..f
+                }
+            })
+            .collect();
+        Recording {
+            frames,
+            ..rec.clone()
+        }
+    }
+}
+
+/// The median time step of the recording, s.
+fn median_step(rec: &Recording) -> f64 {
+    let mut d: Vec<f64> = rec
+        .frames
+        .windows(2)
+        .map(|w| w[1].time_s - w[0].time_s)
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(0.05)
+}
+
+/// Time steps of the planned frames (index k: from frame k − 1 to k): the recorded ones, halved
+/// on ramps for [`Protocol::FasterRamps`]; the median step for the other protocols' frames.
+fn frame_steps(rec: &Recording, seg: &Segmentation, p: Protocol) -> Vec<f64> {
+    if p != Protocol::FasterRamps {
+        return Vec::new();
+    }
+    (0..rec.frames.len())
+        .map(|k| {
+            let d = if k == 0 {
+                0.0
+            } else {
+                rec.frames[k].time_s - rec.frames[k - 1].time_s
+            };
+            match seg.phases[k] {
+                Phase::Loading | Phase::Unloading => 0.5 * d,
+                _ => d,
+            }
+        })
+        .collect()
+}
+
+/// The frames with every frame `sel` selects repeated `times` times.
+fn repeat_where(
+    rec: &Recording,
+    _seg: &Segmentation,
+    sel: impl Fn(usize) -> bool,
+    times: usize,
+) -> Vec<Frame> {
+    rec.frames
+        .iter()
+        .enumerate()
+        .flat_map(|(k, f)| std::iter::repeat_n(f.clone(), if sel(k) { times } else { 1 }))
+        .collect()
+}
+
+/// Every location's tip poses shifted across the shaft towards the marker nearest the support,
+/// to three tip radii from it.
+fn near_support(rec: &Recording, seg: &Segmentation) -> Vec<Frame> {
+    let Some(support) = rec.support else {
+        return rec.frames.clone();
+    };
+    let anchor = rec
+        .rest_markers_m
+        .iter()
+        .min_by(|a, b| {
+            (support.normal.dot(a) - support.offset_m)
+                .total_cmp(&(support.normal.dot(b) - support.offset_m))
+        })
+        .copied()
+        .unwrap_or_else(Vector3::zeros);
+    let shift: Vec<Vector3<f64>> = seg
+        .locations
+        .iter()
+        .map(|loc| {
+            let a = loc.axis;
+            let d = anchor - loc.contact_tip_m;
+            let across = d - a * a.dot(&d);
+            let len = across.norm();
+            let keep = 3.0 * rec.tip_radius_m;
+            if len > keep {
+                across * ((len - keep) / len)
+            } else {
+                Vector3::zeros()
+            }
+        })
+        .collect();
+    rec.frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let s = seg.fold_of_frame[k].map_or(Vector3::zeros(), |l| shift[l]);
+            Frame {
+                tip_m: f.tip_m + s,
+                ..f.clone()
+            }
+        })
+        .collect()
+}
+
+/// A candidate's linearised prediction under a planned program: the variant of its grid closest
+/// to the fitted one (same nonlinear parameters, else the nearest) with the fitted linear
+/// parameters.
+fn candidate_prediction(vars: &[Variant], fitted: &Variant, r: &Refit, p: &Prepared) -> Field {
+    let distance = |v: &Variant| -> f64 {
+        v.fixed
+            .iter()
+            .zip(&fitted.fixed)
+            .map(|(a, b)| ((a.1 - b.1) / b.1.abs().max(1e-12)).powi(2))
+            .sum::<f64>()
+            + if v.bases.len() == fitted.bases.len() {
+                0.0
+            } else {
+                1e9
+            }
+    };
+    let Some(v) = vars
+        .iter()
+        .min_by(|a, b| distance(a).total_cmp(&distance(b)))
+    else {
+        return p.baseline_m.clone();
+    };
+    (0..p.times_s.len())
+        .map(|k| {
+            (0..p.num_markers())
+                .map(|m| {
+                    let mut x = p.baseline_m[k][m];
+                    if let Some(c) = &v.offset {
+                        x += c[k][m];
+                    }
+                    for (b, th) in v.bases.iter().zip(r.theta.iter()) {
+                        x += b.field[k][m] * *th;
+                    }
+                    x
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// RMS over every frame and marker of the difference of two predictions, m.
+fn rms_difference(a: &Field, b: &Field) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for (ra, rb) in a.iter().zip(b) {
+        for (x, y) in ra.iter().zip(rb) {
+            s += (x - y).norm_squared();
+            n += 1;
+        }
+    }
+    (s / n.max(1) as f64).sqrt()
+}
+
+/// The protocol that best separates the two leading candidates `a` and `b` (each a hypothesis
+/// with its screen refit on the recorded session): both simulated under the recorded program and
+/// under every [`Protocol`]; the largest RMS difference between their predicted markers wins.
+pub fn next_experiment(
+    cx: &Context<'_>,
+    a: (&dyn Hypothesis, &Refit),
+    b: (&dyn Hypothesis, &Refit),
+    sim: &mut dyn ProbeSimulator,
+) -> Result<NextExperiment> {
+    let fitted = |h: &dyn Hypothesis, r: &Refit| -> Result<Variant> {
+        h.variants(cx)
+            .into_iter()
+            .nth(r.variant)
+            .ok_or_else(|| DiagnoseError::BadRecording {
+                what: format!(
+                    "{}: no variant {} to plan with",
+                    h.effect().name(),
+                    r.variant
+                ),
+            })
+    };
+    let (va, vb) = (fitted(a.0, a.1)?, fitted(b.0, b.1)?);
+    let difference = |cx: &Context<'_>| {
+        let pa = candidate_prediction(&a.0.variants(cx), &va, a.1, cx.prepared);
+        let pb = candidate_prediction(&b.0.variants(cx), &vb, b.1, cx.prepared);
+        rms_difference(&pa, &pb)
+    };
+    let recorded = difference(cx);
+    let mut protocols = Vec::new();
+    for p in Protocol::ALL {
+        let rec = p.apply(cx.rec, cx.seg);
+        let seg = Segmentation::new(&rec, &cx.settings.segment);
+        let prepared = prepare(&rec, &seg, sim, cx.settings, &ProgressBar::hidden())?;
+        let planned = Context {
+            rec: &rec,
+            seg: &seg,
+            prepared: &prepared,
+            ..*cx
+        };
+        protocols.push(ProtocolPrediction {
+            protocol: p.name().into(),
+            predicted_difference_m: difference(&planned),
+        });
+    }
+    let best = Protocol::ALL
+        .into_iter()
+        .zip(&protocols)
+        .max_by(|x, y| {
+            x.1.predicted_difference_m
+                .total_cmp(&y.1.predicted_difference_m)
+        })
+        .map(|(p, pp)| (p, pp.predicted_difference_m))
+        .unwrap_or((Protocol::LongerHolds, 0.0));
+    Ok(NextExperiment {
+        protocol: best.0.name().into(),
+        description: best.0.description().into(),
+        predicted_difference_m: best.1,
+        recorded_difference_m: recorded,
+        protocols,
+    })
+}
