@@ -76,7 +76,7 @@ impl Protocol {
     /// The recording's probe program under this protocol (markers unobserved).
     pub fn apply(self, rec: &Recording, seg: &Segmentation) -> Recording {
         let frames: Vec<Frame> = match self {
-            Protocol::LongerHolds => repeat_where(rec, seg, |k| seg.phases[k] == Phase::Hold, 3),
+            Protocol::LongerHolds => repeat_where(rec, |k| seg.phases[k] == Phase::Hold, 3),
             Protocol::RestAfterRelease => {
                 let last_of_location = |k: usize| {
                     seg.fold_of_frame[k].is_some()
@@ -175,12 +175,7 @@ fn frame_steps(rec: &Recording, seg: &Segmentation, p: Protocol) -> Vec<f64> {
 }
 
 /// The frames with every frame `sel` selects repeated `times` times.
-fn repeat_where(
-    rec: &Recording,
-    _seg: &Segmentation,
-    sel: impl Fn(usize) -> bool,
-    times: usize,
-) -> Vec<Frame> {
+fn repeat_where(rec: &Recording, sel: impl Fn(usize) -> bool, times: usize) -> Vec<Frame> {
     rec.frames
         .iter()
         .enumerate()
@@ -344,4 +339,59 @@ pub fn next_experiment(
         recorded_difference_m: recorded,
         protocols,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::segment::SegmentSettings;
+
+    /// Two locations, each: rest, ramp, hold, unload, released.
+    fn toy() -> (Recording, Segmentation) {
+        let profile = [0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0, 0.5, 0.0, 0.0];
+        let mut frames = Vec::new();
+        for tip in [Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)] {
+            for &s in &profile {
+                let k = frames.len();
+                frames.push(Frame {
+                    frame: k as u64,
+                    time_s: k as f64 * 0.1,
+                    tip_m: tip - Vector3::z() * 0.002 * s,
+                    axis: -Vector3::z(),
+                    force_n: -Vector3::z() * 2.0 * s,
+                    markers_m: vec![None, None],
+                });
+            }
+        }
+        let rec = Recording::two_marker_toy(frames);
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        (rec, seg)
+    }
+
+    #[test]
+    fn protocols_replan_the_probe_program() {
+        let (rec, seg) = toy();
+        let holds = seg.phases.iter().filter(|p| **p == Phase::Hold).count();
+        assert!(holds >= 2, "{:?}", seg.phases);
+        let n = rec.frames.len();
+        let longer = Protocol::LongerHolds.apply(&rec, &seg);
+        assert_eq!(longer.frames.len(), n + 2 * holds);
+        let rest = Protocol::RestAfterRelease.apply(&rec, &seg);
+        assert_eq!(rest.frames.len(), n + 10 * seg.num_folds());
+        // times increase by the recorded step everywhere but on the ramps of faster-ramps
+        for r in [&longer, &rest] {
+            for w in r.frames.windows(2) {
+                assert!((w[1].time_s - w[0].time_s - 0.1).abs() < 1e-12);
+            }
+        }
+        let fast = Protocol::FasterRamps.apply(&rec, &seg);
+        let span = |r: &Recording| r.frames[r.frames.len() - 1].time_s - r.frames[0].time_s;
+        assert!(span(&fast) < span(&rec) - 0.05);
+        let oblique = Protocol::ObliqueProbe.apply(&rec, &seg);
+        for (a, b) in oblique.frames.iter().zip(&rec.frames) {
+            assert!((a.axis.angle(&b.axis) - 20f64.to_radians()).abs() < 1e-9);
+            assert!((a.force_n.norm() - b.force_n.norm()).abs() < 1e-12);
+            assert!(a.markers_m.iter().all(|m| m.is_none()));
+        }
+    }
 }

@@ -9,10 +9,12 @@
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
+use softcap_diagnose::protocols::Protocol;
 use softcap_diagnose::signal::low_pass;
 use softcap_diagnose::{
     DiagnoseSettings, Extension, FemProbeSimulator, FemSimSettings, Frame, ProbeLoad,
-    ProbeSimulator, Recording, SequenceFrame, SimLoad, SupportPlane, diagnose, surface_normals,
+    ProbeSimulator, Recording, SegmentSettings, Segmentation, SequenceFrame, SimLoad, SupportPlane,
+    diagnose, surface_normals,
 };
 use softcap_fem::{CorotationalModel, LinearParams};
 use softcap_mesh::TetMesh;
@@ -113,6 +115,18 @@ const LOCATIONS: [(f64, f64); 4] = [
 /// creep, plasticity, support springs or anisotropy; any force-channel, friction, gravity and
 /// stiffness effects besides), marker noise seeded with `seed`.
 fn session_with(effects: &[Effect], oblique: bool, xy: &[(f64, f64)], seed: u64) -> Session {
+    session_planned(effects, oblique, xy, seed, None)
+}
+
+/// [`session_with`] recorded under `protocol` (the library's re-planned probe program of the
+/// standard one, `softcap_diagnose::protocols::Protocol::apply`, applied to the true force).
+fn session_planned(
+    effects: &[Effect],
+    oblique: bool,
+    xy: &[(f64, f64)],
+    seed: u64,
+    protocol: Option<Protocol>,
+) -> Session {
     let stiffer = effects.iter().find_map(|e| match e {
         Effect::Stiffer(s) => Some(*s),
         _ => None,
@@ -155,6 +169,26 @@ fn session_with(effects: &[Effect], oblique: bool, xy: &[(f64, f64)], seed: u64)
             f_true.push(axis * (PEAK_N * p));
             loc_of.push(Some(l));
         }
+    }
+    let mut axes = vec![axis; t.len()];
+    if let Some(protocol) = protocol {
+        let program: Vec<Frame> = (0..t.len())
+            .map(|k| Frame {
+                frame: k as u64,
+                time_s: t[k],
+                tip_m: tip[k],
+                axis,
+                force_n: f_true[k],
+                markers_m: vec![None; markers().len()],
+            })
+            .collect();
+        let rec = recording(program);
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        let planned = protocol.apply(&rec, &seg);
+        t = planned.frames.iter().map(|f| f.time_s).collect();
+        tip = planned.frames.iter().map(|f| f.tip_m).collect();
+        f_true = planned.frames.iter().map(|f| f.force_n).collect();
+        axes = planned.frames.iter().map(|f| f.axis).collect();
     }
     let n = t.len();
     // measured force
@@ -212,7 +246,7 @@ fn session_with(effects: &[Effect], oblique: bool, xy: &[(f64, f64)], seed: u64)
         .map(|k| SimLoad {
             probe: (f_obj[k].norm() > 0.0).then_some(ProbeLoad {
                 tip_m: tip[k],
-                axis,
+                axis: axes[k],
                 force_n: f_obj[k],
             }),
             body_force_n_m3: body,
@@ -242,27 +276,32 @@ fn session_with(effects: &[Effect], oblique: bool, xy: &[(f64, f64)], seed: u64)
             frame: k as u64,
             time_s: t[k],
             tip_m: tip[k],
-            axis,
+            axis: axes[k],
             force_n: f_meas[k],
             markers_m,
         });
     }
+    Session {
+        rec: recording(frames),
+    }
+}
+
+/// The block's recording of `frames`.
+fn recording(frames: Vec<Frame>) -> Recording {
     let mesh = mesh();
     let rest = markers();
-    Session {
-        rec: Recording {
-            marker_ids: (0..rest.len()).map(|i| format!("m{i}")).collect(),
-            normals: surface_normals(&mesh, &rest),
-            rest_markers_m: rest,
-            gravity_m_s2: Vector3::new(0.0, 0.0, -9.81),
-            support: Some(SupportPlane {
-                normal: Vector3::z(),
-                offset_m: 0.0,
-                tolerance_m: 1e-6,
-            }),
-            tip_radius_m: 0.002,
-            frames,
-        },
+    Recording {
+        marker_ids: (0..rest.len()).map(|i| format!("m{i}")).collect(),
+        normals: surface_normals(&mesh, &rest),
+        rest_markers_m: rest,
+        gravity_m_s2: Vector3::new(0.0, 0.0, -9.81),
+        support: Some(SupportPlane {
+            normal: Vector3::z(),
+            offset_m: 0.0,
+            tolerance_m: 1e-6,
+        }),
+        tip_radius_m: 0.002,
+        frames,
     }
 }
 
@@ -813,9 +852,10 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
         Some("docs-report") => write_docs_report(),
         Some("calibration") => calibration()?,
         Some("pairs") => pairs_table(),
+        Some("next-experiment") => next_experiment_table(),
         other => {
             return Err(format!(
-                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs"
+                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs, next-experiment"
             ));
         }
     }
@@ -1119,5 +1159,100 @@ fn pairs_table() {
             named.join(", ")
         );
         eprintln!("{name}: {:?}", t0.elapsed());
+    }
+}
+
+/// Look-alike sessions: diagnosed under the standard protocol; when `inconclusive`, re-recorded
+/// under the suggested protocol (same truth, same noise seed) and diagnosed again.
+#[cfg(not(test))]
+fn next_experiment_table() {
+    let cases: Vec<(&str, &str, Effect, bool)> = vec![
+        (
+            "sensor lag τ 0.03 s",
+            "sensor-lag",
+            Effect::SensorLag(0.03),
+            false,
+        ),
+        (
+            "sensor lag τ 0.05 s",
+            "sensor-lag",
+            Effect::SensorLag(0.05),
+            false,
+        ),
+        (
+            "clock offset 0.02 s",
+            "clock-offset",
+            Effect::ClockOffset(0.02),
+            false,
+        ),
+        (
+            "clock offset 0.03 s",
+            "clock-offset",
+            Effect::ClockOffset(0.03),
+            false,
+        ),
+        (
+            "creep g 0.3",
+            "viscoelasticity",
+            Effect::Creep { g: 0.3, tau_s: 0.2 },
+            false,
+        ),
+        (
+            "creep g 0.3, τ 1 s",
+            "viscoelasticity",
+            Effect::Creep { g: 0.3, tau_s: 1.0 },
+            false,
+        ),
+        (
+            "gravity ρ 300",
+            "gravity-preload",
+            Effect::Gravity(300.0),
+            false,
+        ),
+        (
+            "support springs 1500 N/m",
+            "support-slip",
+            Effect::SupportSlip(1500.0),
+            true,
+        ),
+    ];
+    println!(
+        "| session (truth) | first protocol: verdict, candidates | next experiment (predicted difference, mm) | re-recorded: verdict |"
+    );
+    println!("|---|---|---|---|");
+    for (name, truth, effect, oblique) in cases {
+        let s = session_with(&[effect], oblique, &LOCATIONS, 100);
+        let mut sim = simulator(20e3);
+        let Ok(run) = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()) else {
+            println!("| {name} | error | | |");
+            continue;
+        };
+        let d = run.diagnosis;
+        let cands: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
+        eprintln!("{name}: {} {:?} {:?}", d.verdict, cands, d.next_experiment);
+        let Some(next) = d.next_experiment else {
+            println!(
+                "| {name} (`{truth}`) | `{}` {:?} | – | – |",
+                d.verdict, cands
+            );
+            continue;
+        };
+        let protocol = Protocol::ALL
+            .into_iter()
+            .find(|p| p.name() == next.protocol)
+            .unwrap_or(Protocol::LongerHolds);
+        let s2 = session_planned(&[effect], oblique, &LOCATIONS, 100, Some(protocol));
+        let verdict2 = diagnose(&s2.rec, &mut sim, &DiagnoseSettings::default())
+            .map(|r| r.diagnosis.verdict)
+            .unwrap_or_else(|e| format!("error: {e}"));
+        println!(
+            "| {name} (`{truth}`) | `{}`: {} | `{}` ({:.4} vs {:.4} recorded) | `{verdict2}` {} |",
+            d.verdict,
+            cands.join(", "),
+            next.protocol,
+            1e3 * next.predicted_difference_m,
+            1e3 * next.recorded_difference_m,
+            if verdict2 == truth { "✓" } else { "✗" }
+        );
     }
 }
