@@ -96,7 +96,7 @@ mod tests {
         assert_eq!(g, vec![0.75, 0.75, 0.75]);
         // equal gains well above the threshold: the floored spread gives near certainty
         assert!(confidence(&g, 0.3) > 0.999);
-        assert!(confidence(&[0.3, 0.3, 0.3], 0.3) == 0.5);
+        assert!((confidence(&[0.3, 0.3, 0.3], 0.3) - 0.5).abs() < 1e-6);
         assert!(confidence(&[], 0.3) == 0.0);
         // a consistent difference separates, a noisy one does not
         assert!(separable(&[0.9, 0.8, 0.85], &[0.5, 0.45, 0.55]));
