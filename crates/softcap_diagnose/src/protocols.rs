@@ -12,7 +12,7 @@ use crate::baseline::{Prepared, prepare};
 use crate::evidence::{NextExperiment, ProtocolPrediction};
 use crate::hypotheses::{Context, Hypothesis};
 use crate::recording::{Frame, Recording};
-use crate::screen::{Refit, Variant};
+use crate::screen::{Refit, Variant, predict};
 use crate::segment::{Phase, Segmentation};
 use crate::sim::{Field, ProbeSimulator};
 use crate::{DiagnoseError, Result};
@@ -243,28 +243,19 @@ fn candidate_prediction(vars: &[Variant], fitted: &Variant, r: &Refit, p: &Prepa
                 1e9
             }
     };
-    let Some(v) = vars
-        .iter()
-        .min_by(|a, b| distance(a).total_cmp(&distance(b)))
+    let Some(i) =
+        (0..vars.len()).min_by(|&a, &b| distance(&vars[a]).total_cmp(&distance(&vars[b])))
     else {
         return p.baseline_m.clone();
     };
-    (0..p.times_s.len())
-        .map(|k| {
-            (0..p.num_markers())
-                .map(|m| {
-                    let mut x = p.baseline_m[k][m];
-                    if let Some(c) = &v.offset {
-                        x += c[k][m];
-                    }
-                    for (b, th) in v.bases.iter().zip(r.theta.iter()) {
-                        x += b.field[k][m] * *th;
-                    }
-                    x
-                })
-                .collect()
-        })
-        .collect()
+    predict(
+        vars,
+        p,
+        &Refit {
+            variant: i,
+            ..r.clone()
+        },
+    )
 }
 
 /// RMS over every frame and marker of the difference of two predictions, m.
