@@ -5,8 +5,9 @@
     scripts/cpd-reference SESSION CAPTURE.mcap TRACK.mcap OUT_DIR      # installs its own venv
 
 CPD tracks sequentially like the tracker: frame t registers the surface samples carried to frame
-t - 1 onto frame t's cloud (subsampled to at most MAX_POINTS points), and the template's nodes
-move with CPD's displacement field v(z) = sum_m G(z, y_m) w_m. Its parameters (lambda = alpha,
+t - 1 (a lattice of about SPACING on the template's boundary; pycpd solves an M x M system per
+iteration, so M stays near a thousand) onto frame t's cloud (subsampled to at most MAX_POINTS
+points), and the template's nodes move with CPD's displacement field v(z) = sum_m G(z, y_m) w_m. Its parameters (lambda = alpha,
 beta, w) are chosen on the truth by a small grid over the first frames — the most favourable CPD
 setting, not a tuned-against one. Writes
 
@@ -24,7 +25,7 @@ import numpy as np
 import pycpd
 
 MAX_POINTS = 2500
-SPACING = 0.004
+SPACING = 0.006
 
 
 def read_csv(path):
@@ -62,6 +63,13 @@ def surface_samples(vertices, faces):
     return np.vstack(pts)
 
 
+def displacement(z, y, beta, w):
+    """CPD's displacement field at points z: v(z) = sum_m exp(-|z - y_m|^2 / (2 beta^2)) w_m
+    (Myronenko & Song 2010 eq. 20, pycpd's kernel), y the registered set's starting positions."""
+    d2 = ((z[:, None, :] - y[None, :, :]) ** 2).sum(axis=2)
+    return np.exp(-d2 / (2.0 * beta**2)) @ w
+
+
 def run_cpd(clouds, samples, nodes, alpha, beta, w, frames=None):
     y = samples.copy()
     x_nodes = nodes.copy()
@@ -74,7 +82,7 @@ def run_cpd(clouds, samples, nodes, alpha, beta, w, frames=None):
         t0 = time.perf_counter()
         reg = pycpd.DeformableRegistration(X=cloud, Y=y, alpha=alpha, beta=beta, w=w, max_iterations=60, tolerance=1e-6)
         y_new, _ = reg.register()
-        x_nodes = reg.transform_point_cloud(Y=x_nodes)
+        x_nodes = x_nodes + displacement(x_nodes, y, reg.beta, reg.W)
         seconds.append(time.perf_counter() - t0)
         y = y_new
         out.append(x_nodes.copy())
@@ -141,22 +149,27 @@ def main():
 
 
 def plot(session, track_eval, nodes_csv, cpd_csv, out):
+    """OUT/cpd_vs_track.png: per-frame surface-point RMS of both trackers against the truth."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    truth = frames_of(os.path.join(session, "truth/track_points.csv"), ["x", "y", "z"])
+    rows = subprocess.run([track_eval, "--per-frame", session, nodes_csv, cpd_csv], check=True, capture_output=True, text=True).stdout
+    lines = rows.strip().splitlines()
+    data = np.array([[float(v) for v in l.split(",")] for l in lines[1:]])
+    summary = subprocess.run([track_eval, session, nodes_csv, cpd_csv], check=True, capture_output=True, text=True).stdout
+    rms = {l.split("|")[1].strip(): l.split("|")[3].strip() for l in summary.splitlines() if l.startswith("| ") and "RMS" not in l}
     fig, ax = plt.subplots(figsize=(7, 3.2))
-    for path, label in ((nodes_csv, "softcap tissue track (wang2015 §5)"), (cpd_csv, "non-rigid CPD (pycpd)")):
-        out_csv = subprocess.run([track_eval, session, path], check=True, capture_output=True, text=True).stdout
-        ax.plot([], [], label=f"{label}: {out_csv.splitlines()[-1].split('|')[3].strip()} mm RMS")
-    ax.set_xlabel("frame")
-    ax.set_ylabel("surface-point error (mm)")
+    ax.plot(data[:, 0], data[:, 2], label=f"softcap tissue track (wang2015 §5): {rms[nodes_csv]} mm RMS")
+    ax.plot(data[:, 0], data[:, 3], label=f"non-rigid CPD (pycpd): {rms[cpd_csv]} mm RMS")
+    ax.plot(data[:, 0], data[:, 1], ":", color="gray", label=f"template floor: {rms['template floor']} mm RMS")
+    ax.set_xlabel("frame (30 Hz)")
+    ax.set_ylabel("surface-point RMS (mm)")
+    ax.set_title(os.path.basename(os.path.normpath(session)))
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(os.path.join(out, "cpd_vs_track.png"), dpi=120)
-    del truth
 
 
 if __name__ == "__main__":

@@ -472,8 +472,7 @@ impl DynamicSolver {
                     Some(f) => f.clone(),
                     None => {
                         let pat = &self.pattern;
-                        let vals = values.clone();
-                        c.springs(&x, |node| pat.node_stiffness(node, &vals))
+                        c.springs(&x, |node| pat.node_stiffness(node, &values))
                     }
                 };
                 if it + 1 >= settings.contact_freeze_after {
@@ -494,8 +493,7 @@ impl DynamicSolver {
                 let requery = it < settings.contact_freeze_after;
                 {
                     let pat = &self.pattern;
-                    let vals = values.clone();
-                    let node_k = |node: usize| pat.node_stiffness(node, &vals);
+                    let node_k = |node: usize| pat.node_stiffness(node, &values);
                     for t in terms.iter_mut() {
                         t.refresh(&x, &node_k, requery);
                     }

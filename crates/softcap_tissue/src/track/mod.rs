@@ -59,7 +59,7 @@ pub struct TrackSettings {
     pub rest_shape: RestShapeChoice,
     /// Time integrator of the M-step.
     pub integrator: Integrator,
-    /// Newton iterations per M-step.
+    /// Newton iterations per M-step (one: a generalized EM, see [`tracker`]).
     pub newton_iterations: usize,
     /// Outlier weight w of the GMM.
     pub outlier_weight: f64,
@@ -81,7 +81,8 @@ pub struct TrackSettings {
     pub max_em_iterations: usize,
     /// Converged when no node moves more than this in an M-step at σ_min, m.
     pub em_tolerance_m: f64,
-    /// Virtual-force scale: η = data_weight · m̄ / h² · σ_min² (see [`tracker`]).
+    /// Virtual-force scale: η = data_weight · M / (N h²) · σ_min², M the body's mass, N the
+    /// frame's points (see [`tracker`]).
     pub data_weight: f64,
     /// Only samples some depth camera can see attract points.
     pub visibility: bool,
@@ -107,7 +108,7 @@ impl Default for TrackSettings {
             density_kg_m3: None,
             rest_shape: RestShapeChoice::Solve,
             integrator: Integrator::NewmarkAverageAcceleration,
-            newton_iterations: 3,
+            newton_iterations: 1,
             outlier_weight: 0.1,
             sigma_start_m: 0.01,
             sigma_min_m: 0.0015,
@@ -118,7 +119,7 @@ impl Default for TrackSettings {
             min_em_iterations: 3,
             max_em_iterations: 8,
             em_tolerance_m: 5.0e-5,
-            data_weight: 1.0,
+            data_weight: 64.0,
             visibility: true,
             visibility_tolerance_m: 0.002,
             grazing_deg: 85.0,

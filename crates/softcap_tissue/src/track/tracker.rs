@@ -14,11 +14,21 @@
 //! 4. σ ← max(σ_min, min(σ_ML, a σ)) (annealing); stop when the nodes move less than the
 //!    tolerance at σ_min, or after the iteration limit.
 //!
-//! The virtual-force scale η (eq. 5) is `data_weight` · m̄ / h² · σ_min² with m̄ the mean nodal
-//! mass and h the nominal frame interval: at σ = σ_min one point's pull on a sample is
-//! `data_weight` times the inertia of a mean node over one frame. It depends on the density, not
-//! on the elastic material, so a stiffer or softer material changes how the body resists the data
-//! (wang2015 Fig. 8), not how hard the data pull.
+//! The virtual-force scale η (eq. 5) is set per frame so the data term does not depend on the
+//! mesh or on how many points the cameras deliver: η = `data_weight` · M / (N h²) · σ_min² with
+//! M the body's mass, N the frame's point count and h the nominal frame interval. At σ = σ_min
+//! the N points together then pull like springs of total stiffness `data_weight` · M / h², so a
+//! body held by the data alone settles with ω h = √`data_weight` per frame (8 by default: the data
+//! spring settles within an eighth of a frame, fast enough to follow a release, yet every point
+//! is weighed against the whole body's inertia and elasticity). It depends on the density, not on
+//! the elastic material, so a stiffer or softer material changes how the body resists the data
+//! (wang2015 Fig. 8), not how hard the data pull. (A scale tied to the mean nodal mass instead
+//! weakens the data as the mesh is refined: on the 2k-node bar it lost the release.)
+//!
+//! Each EM iteration takes one Newton step of the implicit M-step from the current positions (a
+//! generalized EM: the M-step improves the objective instead of maximizing it); a frame has
+//! converged when, at σ_min, a further M-step moves no node more than the tolerance, i.e. the
+//! positions solve the implicit step with the final responsibilities.
 
 use nalgebra::{Point3, Vector3};
 use softcap_core::Camera;
@@ -93,8 +103,8 @@ pub struct Tracker<'a> {
     cameras: Vec<ViewCamera>,
     settings: TrackSettings,
     damping: RayleighDamping,
-    /// η of eq. 5, N·m.
-    eta: f64,
+    /// η · N of eq. 5 (divided by the frame's point count N), N·m.
+    eta_points: f64,
     state: DynamicState,
     started: bool,
     surface: TriMesh,
@@ -122,9 +132,9 @@ impl<'a> Tracker<'a> {
             .flat_map(|&n| [3 * n, 3 * n + 1, 3 * n + 2])
             .collect();
         let gravity_n = external_forces_n;
-        let mean_mass = masses_kg.iter().sum::<f64>() / masses_kg.len().max(1) as f64;
+        let total_mass: f64 = masses_kg.iter().sum();
         let h = frame_interval_s.max(1e-6);
-        let eta = settings.data_weight * mean_mass / (h * h) * settings.sigma_min_m.powi(2);
+        let eta_points = settings.data_weight * total_mass / (h * h) * settings.sigma_min_m.powi(2);
         let solver = DynamicSolver::new(&model, masses_kg, &dofs)?;
         let samples = SurfaceSamples::new(mesh, settings.sample_spacing_m);
         let surface = TriMesh {
@@ -141,7 +151,7 @@ impl<'a> Tracker<'a> {
             cameras,
             settings: settings.clone(),
             damping,
-            eta,
+            eta_points,
             state: DynamicState::at_rest(mesh.vertices.clone()),
             started: false,
             surface,
@@ -153,9 +163,9 @@ impl<'a> Tracker<'a> {
         self.samples.len()
     }
 
-    /// η of eq. 5, N·m.
-    pub fn eta(&self) -> f64 {
-        self.eta
+    /// η of eq. 5 for a frame of `points` points, N·m.
+    pub fn eta(&self, points: usize) -> f64 {
+        self.eta_points / points.max(1) as f64
     }
 
     /// Tracks one frame: `points` (and their normals, or empty) at camera time `t_camera_s`,
@@ -245,6 +255,7 @@ impl<'a> Tracker<'a> {
         let mut x = start.predicted_positions(h, dyn_settings.integrator);
         bc.apply(&mut x);
         let volume = bounding_volume(points);
+        let eta = self.eta(points.len());
         let mut sigma = s.sigma_start_m.max(s.sigma_min_m);
         let mut out = FrameTrack {
             frame: 0,
@@ -268,7 +279,7 @@ impl<'a> Tracker<'a> {
             let kappa: Vec<f64> = e
                 .weight
                 .iter()
-                .map(|w| self.eta * w / (sigma * sigma))
+                .map(|w| eta * w / (sigma * sigma))
                 .collect();
             let mut term = VirtualForces::new(&self.samples, &kappa, &e.target);
             let mut trial = start.clone();
