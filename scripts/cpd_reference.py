@@ -3,6 +3,7 @@
 `softcap tissue track`: the reference the tracker is compared with (issue 29).
 
     scripts/cpd-reference SESSION CAPTURE.mcap TRACK.mcap OUT_DIR      # installs its own venv
+    scripts/cpd-reference figure CAPTURE.mcap TRACK.mcap OUT.png       # tracked mesh over the cloud
 
 CPD tracks sequentially like the tracker: frame t registers the surface samples carried to frame
 t - 1 (a lattice of about SPACING on the template's boundary; pycpd solves an M x M system per
@@ -125,8 +126,10 @@ def main():
     # the grid: CPD's best setting for the first 15 frames, judged on the truth
     grid = []
     probe = min(15, len(clouds))
-    for alpha in (0.5, 2.0, 8.0):
-        for beta in (0.02, 0.05, 0.1):
+    # CPD_PARAMS=alpha,beta_m skips the grid (e.g. another session's best setting)
+    given = [float(v) for v in os.environ["CPD_PARAMS"].split(",")] if os.environ.get("CPD_PARAMS") else None
+    for alpha in (given[0],) if given else (0.5, 2.0, 8.0):
+        for beta in (given[1],) if given else (0.02, 0.05, 0.1):
             frames, _ = run_cpd(clouds, samples, template, alpha, beta, 0.1, probe)
             tmp = os.path.join(out, "grid_nodes.csv")
             write_nodes(tmp, frames)
@@ -172,5 +175,46 @@ def plot(session, track_eval, nodes_csv, cpd_csv, out):
     fig.savefig(os.path.join(out, "cpd_vs_track.png"), dpi=120)
 
 
+def figure(capture, track, out_png, frames=(0, 9, 12, 30)):
+    """`figure CAPTURE TRACK OUT.png`: the tracked mesh's boundary edges over the frame's cloud,
+    side view (x, z), for a few frames (docs/dynamic.md)."""
+    import tempfile
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tmp = tempfile.mkdtemp()
+    softcap("inspect", "export", capture, "--what", "points", "-o", os.path.join(tmp, "points.csv"))
+    softcap("inspect", "export", track, "--what", "nodes", "-o", os.path.join(tmp, "nodes.csv"))
+    softcap("inspect", "export", track, "--what", "volume", "-o", os.path.join(tmp, "t.ply"))
+    clouds = frames_of(os.path.join(tmp, "points.csv"), ["x", "y", "z"])
+    nodes = frames_of(os.path.join(tmp, "nodes.csv"), ["x", "y", "z"])
+    with open(os.path.join(tmp, "t.ply")) as f:
+        lines = f.read().splitlines()
+    nv = int([l for l in lines if l.startswith("element vertex")][0].split()[-1])
+    start = lines.index("end_header") + 1
+    faces = [[int(v) for v in l.split()[1:4]] for l in lines[start + nv:]]
+    edges = sorted({tuple(sorted((f[i], f[(i + 1) % 3]))) for f in faces for i in range(3)})
+    frames = [k for k in frames if k < len(nodes)]
+    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 2.6), sharey=True)
+    for ax, k in zip(np.atleast_1d(axes), frames):
+        c = clouds[k]
+        ax.scatter(1e3 * c[:, 0], 1e3 * c[:, 2], s=0.2, color="0.6", rasterized=True)
+        x = nodes[k]
+        for a, b in edges:
+            ax.plot(1e3 * x[[a, b], 0], 1e3 * x[[a, b], 2], color="tab:blue", lw=0.5)
+        ax.set_title(f"frame {k}", fontsize=9)
+        ax.set_xlabel("x (mm)")
+        ax.set_aspect("equal")
+    np.atleast_1d(axes)[0].set_ylabel("z (mm)")
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=130)
+
+
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "figure":
+        figure(*sys.argv[2:5])
+    else:
+        main()

@@ -20,7 +20,8 @@ use softcap_tissue::track::{TrackConfig, TrackSettings, run};
 const FRAMES: usize = 24;
 
 fn scenario(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../fixtures/scenarios/dynamic/{name}.toml"))
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("../../fixtures/scenarios/dynamic/{name}.toml"))
 }
 
 /// Synth → capture (first `FRAMES` frames) → track; returns (RMS, worst frame RMS) in mm.
@@ -36,7 +37,10 @@ fn track_error(name: &str, edit: impl FnOnce(&mut Scenario)) -> (f64, f64, Strin
     clouds.frames.truncate(FRAMES);
     let capture = dir.path().join("capture.mcap");
     write_dynamic_capture_mcap(&capture, &session, &clouds, &settings, &["test".into()]).unwrap();
-    assert_eq!(DynamicCaptureData::read(&capture).unwrap().frames.len(), FRAMES);
+    assert_eq!(
+        DynamicCaptureData::read(&capture).unwrap().frames.len(),
+        FRAMES
+    );
     let out = dir.path().join("track.mcap");
     let o = run(&TrackConfig {
         capture,
@@ -51,8 +55,8 @@ fn track_error(name: &str, edit: impl FnOnce(&mut Scenario)) -> (f64, f64, Strin
         arguments: vec!["test".into()],
     })
     .unwrap();
-    let mesh = softcap_tissue::read_volume_mesh(&session_dir.join("template/volume.msh"), 1e-3)
-        .unwrap();
+    let mesh =
+        softcap_tissue::read_volume_mesh(&session_dir.join("template/volume.msh"), 1e-3).unwrap();
     let truth = read_track_points(&session_dir.join("truth/track_points.csv"), 1e-3).unwrap();
     let tracked: Vec<Vec<Vector3<f64>>> = o.frames.iter().map(|f| f.positions_m.clone()).collect();
     let e = surface_point_error(&mesh, &tracked, &truth);
@@ -64,7 +68,10 @@ fn track_error(name: &str, edit: impl FnOnce(&mut Scenario)) -> (f64, f64, Strin
         1e3 * e.rms_unseen_m,
         e.unseen_fraction,
         1e3 * worst,
-        e.per_frame_rms_m.iter().map(|v| (1e4 * v).round() / 10.0).collect::<Vec<_>>(),
+        e.per_frame_rms_m
+            .iter()
+            .map(|v| (1e4 * v).round() / 10.0)
+            .collect::<Vec<_>>(),
         o.status_counts()
     );
     // the typed reader sees every frame tracked (none diverged)

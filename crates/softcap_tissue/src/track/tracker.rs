@@ -276,11 +276,7 @@ impl<'a> Tracker<'a> {
         for it in 0..s.max_em_iterations.max(1) {
             let stride = (((sigma / s.sigma_min_m).powi(2)).round() as usize).clamp(1, 64);
             let (e, _) = self.expectation(points, normals, &x, volume, sigma, stride);
-            let kappa: Vec<f64> = e
-                .weight
-                .iter()
-                .map(|w| eta * w / (sigma * sigma))
-                .collect();
+            let kappa: Vec<f64> = e.weight.iter().map(|w| eta * w / (sigma * sigma)).collect();
             let mut term = VirtualForces::new(&self.samples, &kappa, &e.target);
             let mut trial = start.clone();
             let report = self.solver.step_with(
