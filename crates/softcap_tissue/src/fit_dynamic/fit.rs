@@ -589,8 +589,11 @@ pub fn fit_sequence(
     progress.step(4, 4, "uncertainty and modal frequencies");
     let relative_sigma = covariance_sigma(&mut problem, &q);
     let rms_m = rms_of(&mut problem, &q);
-    let rest = problem.rest.clone();
     let params = problem.params(&q);
+    let (rest, final_rest_status) = rest_shape(&forward, &params, &static_m, Some(&problem.rest))?;
+    if settings.rest_shape_per_evaluation {
+        rest_status = final_rest_status;
+    }
     let fitted_frequencies_hz = forward
         .model(&params, &rest)
         .ok()
