@@ -89,7 +89,7 @@ fn begin_writer(
     Writer::create(path, &prov).map_err(out)
 }
 
-/// Writes the capture result to `path` atomically (`NAME.mcap.tmp` → `NAME.mcap`).
+/// Writes the capture result to `path` atomically (`NAME.mcap.PID-N.tmp` → `NAME.mcap`).
 pub fn write_capture_mcap(
     path: &Path,
     session: &Session,

@@ -291,6 +291,40 @@ pub(crate) struct RawFiles {
     pub(crate) interactions: Option<String>,
 }
 
+impl RawFiles {
+    /// Every file name given, with its key.
+    fn named(&self) -> impl Iterator<Item = (&'static str, &str)> {
+        [
+            ("files.cameras", &self.cameras),
+            ("files.markers", &self.markers),
+            ("files.images", &self.images),
+            ("files.detections", &self.detections),
+            ("files.c3d", &self.c3d),
+            ("files.trigger", &self.trigger),
+            ("files.fsr", &self.fsr),
+            ("files.fsr_samples", &self.fsr_samples),
+            ("files.probe", &self.probe),
+            ("files.robot", &self.robot),
+            ("files.robot_samples", &self.robot_samples),
+            ("files.surface", &self.surface),
+            ("files.volume", &self.volume),
+            ("files.depth_cameras", &self.depth_cameras),
+            ("files.depth", &self.depth),
+            ("files.points", &self.points),
+            ("files.support_motion", &self.support_motion),
+            ("files.interactions", &self.interactions),
+        ]
+        .into_iter()
+        .filter_map(|(key, name)| name.as_deref().map(|n| (key, n)))
+    }
+}
+
+/// A session may only name files inside its folder ([`softcap_app::path_inside`]): the error
+/// names the key and session.toml.
+fn check_inside(manifest: &Path, dir: &Path, key: &str, name: &str) -> Result<PathBuf> {
+    softcap_app::path_inside(dir, name).map_err(|m| CaptureError::field(manifest, 0, key, m))
+}
+
 #[derive(Deserialize)]
 struct RawWorld {
     gravity: Option<[f64; 3]>,
@@ -690,39 +724,43 @@ pub fn read_fsr_toml(path: &Path) -> Result<FsrConfig> {
 /// Reads `rig/probe.toml`.
 pub fn read_probe_toml(path: &Path, root: &Path, metres_per_unit: f64) -> Result<ProbeConfig> {
     let raw: RawProbe = parse_toml(path)?;
-    let tip =
-        match raw.tip.as_str() {
-            "disk" | "sphere" => {
-                let r = raw.radius.ok_or_else(|| {
-                    CaptureError::field(path, 0, "radius", "required for disk and sphere tips")
-                })?;
-                if r.is_nan() || r <= 0.0 {
-                    return Err(CaptureError::field(path, 0, "radius", "must be positive"));
+    let tip = match raw.tip.as_str() {
+        "disk" | "sphere" => {
+            let r = raw.radius.ok_or_else(|| {
+                CaptureError::field(path, 0, "radius", "required for disk and sphere tips")
+            })?;
+            if r.is_nan() || r <= 0.0 {
+                return Err(CaptureError::field(path, 0, "radius", "must be positive"));
+            }
+            if raw.tip == "disk" {
+                TipShape::Disk {
+                    radius_m: r * metres_per_unit,
                 }
-                if raw.tip == "disk" {
-                    TipShape::Disk {
-                        radius_m: r * metres_per_unit,
-                    }
-                } else {
-                    TipShape::Sphere {
-                        radius_m: r * metres_per_unit,
-                    }
+            } else {
+                TipShape::Sphere {
+                    radius_m: r * metres_per_unit,
                 }
             }
-            "mesh" => TipShape::Mesh {
-                path: root.join(raw.mesh.ok_or_else(|| {
+        }
+        "mesh" => TipShape::Mesh {
+            path: check_inside(
+                path,
+                root,
+                "mesh",
+                &raw.mesh.ok_or_else(|| {
                     CaptureError::field(path, 0, "mesh", "required for mesh tips")
-                })?),
-            },
-            other => {
-                return Err(CaptureError::field(
-                    path,
-                    0,
-                    "tip",
-                    format!("unknown tip `{other}`"),
-                ));
-            }
-        };
+                })?,
+            )?,
+        },
+        other => {
+            return Err(CaptureError::field(
+                path,
+                0,
+                "tip",
+                format!("unknown tip `{other}`"),
+            ));
+        }
+    };
     let mut shaft_markers = Vec::new();
     for m in raw.shaft_marker {
         let color = MarkerColor::parse(&m.color).ok_or_else(|| {
@@ -765,6 +803,12 @@ impl Session {
     pub fn load(dir: &Path) -> Result<Session> {
         let manifest = dir.join("session.toml");
         let raw: RawSession = parse_toml(&manifest)?;
+        for (key, name) in raw.files.named() {
+            check_inside(&manifest, dir, key, name)?;
+        }
+        if let Some(name) = raw.support.as_ref().and_then(|s| s.nodes_file.as_deref()) {
+            check_inside(&manifest, dir, "support.nodes_file", name)?;
+        }
         let req = |v: Option<String>, field: &str| {
             v.ok_or_else(|| CaptureError::field(&manifest, 0, field, "required"))
         };

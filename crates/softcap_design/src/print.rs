@@ -41,7 +41,7 @@ pub struct PrintPart {
 
 /// Writes `design` (material index per layer, bottom first) as a block of
 /// `block_size_m` with layer thicknesses `layer_thickness_m` to `path` (atomically:
-/// `.3mf.tmp`, fsync, rename). `material_names` names the library entries.
+/// `NAME.3mf.PID-N.tmp`, fsync, rename). `material_names` names the library entries.
 pub fn write_design_3mf(
     path: &Path,
     design: &[usize],

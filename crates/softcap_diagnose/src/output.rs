@@ -22,7 +22,7 @@ fn out_err(path: &Path, e: impl std::fmt::Display) -> DiagnoseError {
     }
 }
 
-/// Writes `bytes` atomically ([`softcap_app::write_atomic`]: `NAME.tmp`, fsync, rename).
+/// Writes `bytes` atomically ([`softcap_app::write_atomic`]: `NAME.PID-N.tmp`, fsync, rename).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     softcap_app::write_atomic(path, bytes).map_err(|e| out_err(path, e))
 }

@@ -134,7 +134,7 @@ pub fn wrinkles_message(frame: &FaceFrame, metres_per_unit: f64) -> proto::FaceW
     }
 }
 
-/// Write the face stage's MCAP to `path` (atomically: `path.tmp` renamed on success).
+/// Write the face stage's MCAP to `path` (atomically: a temporary file renamed on success).
 pub fn write_face_mcap(
     path: &Path,
     provenance: &Provenance,

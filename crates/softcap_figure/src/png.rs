@@ -1,4 +1,4 @@
-//! Figures as PNG files, written atomically (`NAME.tmp`, fsync, rename: [`softcap_app::fs`]).
+//! Figures as PNG files, written atomically (`NAME.PID-N.tmp`, fsync, rename: [`softcap_app::fs`]).
 
 use std::fmt;
 use std::io;
@@ -82,7 +82,13 @@ mod tests {
         let img = image::open(&p).unwrap().to_rgb8();
         assert_eq!((img.width(), img.height()), (64, 32));
         assert_eq!(img.get_pixel(5, 5).0, [0, 0, 255]);
-        assert!(!dir.path().join("f.png.tmp").exists());
+        assert!(
+            std::fs::read_dir(dir.path()).unwrap().all(|e| !e
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".tmp"))
+        );
     }
 
     #[test]

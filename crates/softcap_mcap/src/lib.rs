@@ -4,7 +4,7 @@
 //! |---|---|
 //! | [`proto`] | the domain messages (generated from `proto/softcap/*.proto`) |
 //! | [`catalog`] | [`SoftcapMessage`], typed [`Topic`]s, the standard [`topics`], [`CATALOG`], embedded schema |
-//! | [`writer`] | [`Writer`]: zstd chunks, message indexes, summary, atomic `NAME.mcap.tmp` → `NAME.mcap` |
+//! | [`writer`] | [`Writer`]: zstd chunks, message indexes, summary, atomic `NAME.mcap.PID-N.tmp` → `NAME.mcap` |
 //! | [`reader`] | [`Recording`]: validated reading, typed decoding, [`Recording::digest`] |
 //! | [`capture`] | [`CaptureData::read`]: typed reading of a `capture.mcap` (session, markers, probe, sync, probe locations) |
 //! | [`dynamic`] | [`dynamic::DynamicCaptureData::read`]: point clouds of a dynamic capture; [`dynamic::read_dynamic_material`]; [`dynamic::read_track`]: a track.mcap |

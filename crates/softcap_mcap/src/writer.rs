@@ -20,7 +20,7 @@ struct ChannelEntry {
 
 /// Writes one softcap recording: zstd-compressed chunks, message indexes and a summary section.
 ///
-/// Writes go to `NAME.mcap.tmp` (a [`softcap_app::AtomicFile`]); [`Writer::finish`] writes the
+/// Writes go to `NAME.mcap.PID-N.tmp` (a [`softcap_app::AtomicFile`]); [`Writer::finish`] writes the
 /// summary, fsyncs and renames the file to `NAME.mcap`. A writer dropped without `finish` (an
 /// error or panic in the stage) removes its temporary file, so a failed stage never leaves a
 /// file that looks finished.
@@ -34,7 +34,7 @@ pub struct Writer {
 }
 
 impl Writer {
-    /// Starts `path` (writing `path.tmp`) and records `provenance`.
+    /// Starts `path` (writing a temporary file beside it) and records `provenance`.
     pub fn create(path: impl AsRef<Path>, provenance: &Provenance) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
         if softcap_app::tmp_path(&path).is_err() {
@@ -55,7 +55,7 @@ impl Writer {
             .emit_statistics(true)
             .emit_summary_offsets(true)
             .emit_metadata_indexes(true);
-        // On error the AtomicFile is dropped, which removes NAME.mcap.tmp.
+        // On error the AtomicFile is dropped, which removes NAME.mcap.PID-N.tmp.
         let inner = options.create(file).map_err(|source| Error::Write {
             path: path.clone(),
             source,
@@ -222,7 +222,7 @@ impl Writer {
             .map_err(|e| self.write_err(e))
     }
 
-    /// Writes the summary section, fsyncs, and renames `NAME.mcap.tmp` to `NAME.mcap`.
+    /// Writes the summary section, fsyncs, and renames `NAME.mcap.PID-N.tmp` to `NAME.mcap`.
     /// Returns the final path.
     pub fn finish(mut self) -> Result<PathBuf> {
         let mut inner = self
@@ -243,7 +243,7 @@ impl Writer {
 impl Drop for Writer {
     fn drop(&mut self) {
         // An unfinished writer (an error or panic in the stage): take the file without writing a
-        // summary; dropping the AtomicFile removes NAME.mcap.tmp.
+        // summary; dropping the AtomicFile removes NAME.mcap.PID-N.tmp.
         if let Some(inner) = self.inner.take() {
             drop(inner.into_inner());
         }

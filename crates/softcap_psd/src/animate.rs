@@ -5,7 +5,7 @@
 //! is the handle index `k` of the rig (`0 ≤ k < H`, [`crate::FaceRig::handles`]), `position_m`
 //! the handle's position in metres. Every frame must carry every handle exactly once.
 //!
-//! **Output** (written atomically, `NAME.mcap.tmp` renamed when complete):
+//! **Output** (written atomically, `NAME.mcap.PID-N.tmp` renamed when complete):
 //!
 //! | topic | schema | when | content |
 //! |---|---|---|---|

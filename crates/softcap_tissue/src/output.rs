@@ -181,7 +181,7 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
     }
 }
 
-/// Writes material.mcap atomically (`NAME.mcap.tmp`, fsync, rename): nothing is left behind
+/// Writes material.mcap atomically (`NAME.mcap.PID-N.tmp`, fsync, rename): nothing is left behind
 /// on error.
 pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &SessionFit) -> Result<()> {
     let path = &cfg.output;

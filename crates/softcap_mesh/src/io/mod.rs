@@ -1,7 +1,7 @@
 //! Mesh file formats: Wavefront OBJ, PLY, Gmsh 4.1 `.msh`, TetGen `.node`/`.ele`.
 //!
 //! Every reader comes in two forms: `read_*(path)` and `read_*_from(reader, name)`, where
-//! `name` is used in error messages. Writers write to `NAME.tmp`, fsync and rename
+//! `name` is used in error messages. Writers write to `NAME.PID-N.tmp`, fsync and rename
 //! ([`softcap_app::fs`]), so a failed write never leaves a file that looks finished.
 
 pub mod msh;
@@ -21,7 +21,7 @@ pub(crate) fn open(path: &Path) -> Result<BufReader<File>> {
         .map_err(|e| MeshError::io(path, e))
 }
 
-/// Writes `path` atomically ([`softcap_app::write_atomic_with`]: `NAME.tmp`, fsync, rename).
+/// Writes `path` atomically ([`softcap_app::write_atomic_with`]: `NAME.PID-N.tmp`, fsync, rename).
 pub(crate) fn write_atomic(
     path: &Path,
     body: impl FnOnce(&mut softcap_app::AtomicFile) -> std::io::Result<()>,

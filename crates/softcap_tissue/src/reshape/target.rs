@@ -129,6 +129,20 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
             )
         })?,
     };
+    // TARGET may only name files inside its folder (softcap_app::path_inside).
+    for (key, name) in [
+        ("landmarks", Some(&spec.landmarks)),
+        ("icp_markers", Some(&spec.icp_markers)),
+        ("attachments", spec.attachments.as_ref()),
+        ("surface", spec.surface.as_ref()),
+    ] {
+        if let Some(name) = name {
+            softcap_app::path_inside(target_dir, name).map_err(|m| {
+                let line = line_of(&text, |l| l.starts_with(key));
+                line_error(&toml_path, line, format!("{key}: {m}"))
+            })?;
+        }
+    }
     let (mesh, node_map) = crate::session::read_volume_mesh_mapped(template, template_unit)?;
     let landmarks_path = target_dir.join(&spec.landmarks);
     let landmarks = if landmarks_path.exists() {
