@@ -7,6 +7,7 @@
 # and
 #   make verify   rerun the demo pipeline from scratch and compare `softcap inspect digest` of every
 #                 intermediate with the first run (determinism)
+#   make verify-threads  the same digests with RAYON_NUM_THREADS=1 and 2 (scripts/verify-threads)
 CARGO      ?= cargo
 TARGET_DIR ?= $(or $(CARGO_TARGET_DIR),target)
 # The demo binaries are built with Cargo's `demo` profile (Cargo.toml: the test profile's
@@ -24,7 +25,7 @@ OUT        ?= out/demo
 # Only the packages the demo runs.
 DEMO_PACKAGES := -p softcap_cli -p softcap_synth -p softcap_capture -p softcap_tissue -p softcap_diagnose
 
-.PHONY: demo test smoke verify build demo-pipeline clean
+.PHONY: demo test smoke verify verify-threads verify-digests build demo-pipeline clean
 build:
 	$(CARGO) build --target-dir $(TARGET_DIR) --profile $(PROFILE) $(DEMO_PACKAGES) --bins
 
@@ -66,6 +67,16 @@ verify: demo-pipeline
 	else \
 	    echo "verify: FAILED, the rerun differs (see above)" >&2; exit 1; \
 	fi
+
+# The digests `verify` compares, of the pipeline already in $(OUT) (scripts/verify-threads).
+verify-digests:
+	@$(MAKE) --no-print-directory -s -f pipelines/tissue.mk SOFTCAP=$(SOFTCAP) \
+	    SESSIONS=$(OUT)/sessions OUT=$(OUT)/runs SIMULATE_ARGS='$(DEMO_SIMULATE_ARGS)' digests
+	@cd $(OUT)/sessions && find . -type f | LC_ALL=C sort | xargs sha256sum
+
+# Determinism under parallelism: the demo pipeline with 1 and with 2 rayon threads.
+verify-threads: build
+	SOFTCAP=$(SOFTCAP) scripts/verify-threads
 
 clean:
 	rm -rf $(OUT)

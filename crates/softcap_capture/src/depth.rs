@@ -506,6 +506,9 @@ fn normalized_pixels(cam: &DepthCamera) -> Vec<nalgebra::Vector2<f64>> {
         .collect()
 }
 
+/// Largest depth image softcap decodes, pixels (4096 × 4096; a Kinect-class sensor is 640 × 576).
+pub const MAX_DEPTH_PIXELS: u64 = 4096 * 4096;
+
 /// Decodes a depth image: 16-bit grayscale of the camera's size, else an error naming the file.
 pub fn read_depth_png(path: &Path, camera: &Camera) -> Result<Vec<u16>> {
     let bad = |message: String| CaptureError::Image {
@@ -521,23 +524,40 @@ pub fn read_depth_png(path: &Path, camera: &Camera) -> Result<Vec<u16>> {
             ),
         });
     }
-    let img = image::open(path).map_err(|e| bad(format!("cannot decode: {e}")))?;
+    // The header is read first: size and pixel type are checked against the camera and the
+    // documented limit before the pixels are allocated and inflated.
+    let file = std::fs::File::open(path).map_err(|source| CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let decoder = image::codecs::png::PngDecoder::new(std::io::BufReader::new(file))
+        .map_err(|e| bad(format!("cannot decode: {e}")))?;
+    let (width, height) = image::ImageDecoder::dimensions(&decoder);
+    let color = image::ImageDecoder::color_type(&decoder);
+    if u64::from(width) * u64::from(height) > MAX_DEPTH_PIXELS {
+        return Err(bad(format!(
+            "image is {width}×{height} px, more than the {MAX_DEPTH_PIXELS} pixels softcap reads"
+        )));
+    }
+    if width != camera.width || height != camera.height {
+        return Err(bad(format!(
+            "image is {width}×{height} px but camera `{}` is {}×{}",
+            camera.id, camera.width, camera.height
+        )));
+    }
+    if color != image::ColorType::L16 {
+        return Err(bad(format!(
+            "expected a 16-bit grayscale depth PNG, got {color:?}"
+        )));
+    }
+    let img = image::DynamicImage::from_decoder(decoder)
+        .map_err(|e| bad(format!("cannot decode: {e}")))?;
     let image::DynamicImage::ImageLuma16(buf) = img else {
         return Err(bad(format!(
             "expected a 16-bit grayscale depth PNG, got {:?}",
             img.color()
         )));
     };
-    if buf.width() != camera.width || buf.height() != camera.height {
-        return Err(bad(format!(
-            "image is {}×{} px but camera `{}` is {}×{}",
-            buf.width(),
-            buf.height(),
-            camera.id,
-            camera.width,
-            camera.height
-        )));
-    }
     Ok(buf.into_raw())
 }
 

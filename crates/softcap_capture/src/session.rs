@@ -386,6 +386,13 @@ fn line_of(text: &str, offset: usize) -> usize {
 /// Parses a TOML file into `T`, mapping errors to file + line.
 pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
     let text = read_text(path)?;
+    if let Some(bad) = softcap_app::non_finite(&text) {
+        return Err(CaptureError::Toml {
+            path: path.to_path_buf(),
+            line: bad.line,
+            message: format!("{} = {}: not a finite number", bad.key, bad.value),
+        });
+    }
     toml::from_str(&text).map_err(|e| CaptureError::Toml {
         path: path.to_path_buf(),
         line: e.span().map(|s| line_of(&text, s.start)).unwrap_or(0),

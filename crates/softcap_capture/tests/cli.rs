@@ -76,6 +76,63 @@ fn missing_file_names_the_file() {
     assert_bad_input(&dir, &["trigger.csv", "cannot read"]);
 }
 
+/// session.toml may only name files inside the session folder: an absolute path, a `..` escape
+/// and a symlink out of the folder are each exit 2 naming the key and session.toml.
+#[test]
+fn session_paths_outside_the_folder_are_refused() {
+    let (tmp, dir) = session_copy();
+    let outside = tmp.path().join("markers.csv");
+    std::fs::copy(dir.join("template/markers.csv"), &outside).unwrap();
+    let manifest = dir.join("session.toml");
+    let original = std::fs::read_to_string(&manifest).unwrap();
+    let named = |name: &str| original.replace("\"template/markers.csv\"", &format!("{name:?}"));
+    std::fs::write(&manifest, named(&outside.display().to_string())).unwrap();
+    assert_bad_input(&dir, &["session.toml", "files.markers", "absolute"]);
+    std::fs::write(&manifest, named("template/../../markers.csv")).unwrap();
+    assert_bad_input(
+        &dir,
+        &["session.toml", "files.markers", "leaves the folder"],
+    );
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(tmp.path(), dir.join("up")).unwrap();
+        std::fs::write(&manifest, named("up/markers.csv")).unwrap();
+        assert_bad_input(&dir, &["session.toml", "files.markers", "symlink"]);
+    }
+}
+
+/// NaN or ±Inf anywhere in numeric input is exit 2 naming the file, the line and the field:
+/// a TOML `nan` / `-inf` (valid TOML) and a CSV `NaN` / `inf`.
+#[test]
+fn non_finite_numbers_name_file_line_and_field() {
+    let (_tmp, dir) = session_copy();
+    edit(&dir.join("rig/cameras.toml"), |t| {
+        t.replacen("fx = 711.936538", "fx = nan", 1)
+    });
+    assert_bad_input(
+        &dir,
+        &[
+            "cameras.toml",
+            "line 5",
+            "camera[0].fx",
+            "not a finite number",
+        ],
+    );
+    let (_tmp, dir) = session_copy();
+    edit(&dir.join("rig/fsr.toml"), |t| {
+        t.replace("supply_v = 5.0", "supply_v = -inf")
+    });
+    assert_bad_input(&dir, &["fsr.toml", "line 1", "supply_v"]);
+    let (_tmp, dir) = session_copy();
+    edit(&dir.join("detections/cam0.csv"), |t| {
+        t.replacen("438.438", "NaN", 1)
+    });
+    assert_bad_input(&dir, &["cam0.csv", "2", "u", "finite"]);
+    let (_tmp, dir) = session_copy();
+    edit(&dir.join("fsr.csv"), |t| t.replacen("0.00488", "inf", 1));
+    assert_bad_input(&dir, &["fsr.csv", "2", "voltage_v", "finite"]);
+}
+
 #[test]
 fn malformed_toml_names_file_and_line() {
     let (_t, dir) = session_copy();
@@ -190,4 +247,30 @@ fn exit_codes_of_help_version_missing_and_bad_file() {
     let r = run(bin, &[bad.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert_error_names_once(&r, 2, &bad.join("session.toml"));
     assert!(!out.exists());
+}
+
+/// Crash safety (docs/reliability.md): capture SIGKILLed at random moments leaves nothing or a
+/// complete capture.mcap; two processes writing one output at once leave one complete file.
+/// `scripts/kill-test` runs 50 trials (`SOFTCAP_KILL_TRIALS`).
+#[test]
+fn capture_killed_at_random_moments_leaves_nothing_or_a_complete_file() {
+    use softcap_app::testing::{kill_trial_count, kill_trials, race_trials};
+    let (_tmp, dir) = session_copy();
+    let out = dir.parent().unwrap().join("capture.mcap");
+    let capture = || {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_softcap-capture"));
+        c.arg(&dir)
+            .arg("-o")
+            .arg(&out)
+            .args(["--source", "detections"]);
+        c
+    };
+    let complete = |p: &Path| {
+        softcap_mcap::Recording::open(p)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    };
+    let tally = kill_trials(&capture, &out, kill_trial_count(3), 301, &complete);
+    let raced = race_trials(&capture, &out, kill_trial_count(1), &complete);
+    eprintln!("capture: {tally:?}, {raced} race trials");
 }

@@ -156,3 +156,51 @@ fn exit_codes_of_help_version_missing_and_bad_file() {
     }
     assert!(!target.exists() && !out.exists());
 }
+
+/// Crash safety (docs/reliability.md): `design search` SIGKILLed at random moments leaves
+/// nothing or a complete design.mcap; two processes writing one output folder at once leave one
+/// complete file. `scripts/kill-test` runs 50 trials (`SOFTCAP_KILL_TRIALS`).
+#[test]
+fn search_killed_at_random_moments_leaves_nothing_or_a_complete_file() {
+    use softcap_app::testing::{kill_trial_count, kill_trials, race_trials};
+    let dir = tempfile::tempdir().unwrap();
+    let lib = dir.path().join("lib.json");
+    assert!(
+        bin()
+            .args(["library", "-o"])
+            .arg(&lib)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let all: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&lib).unwrap()).unwrap();
+    let small = dir.path().join("small.json");
+    let three = [all[0].clone(), all[3].clone(), all[7].clone()];
+    std::fs::write(&small, serde_json::to_string(&three).unwrap()).unwrap();
+    let target = dir.path().join("target.json");
+    let st = bin()
+        .args(["target", "--materials"])
+        .arg(&small)
+        .args(["--design", "2,0", "-o"])
+        .arg(&target)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = dir.path().join("out");
+    let search = || {
+        let mut c = bin();
+        c.args(["search", "--materials"]).arg(&small);
+        c.arg("--target").arg(&target).arg("-o").arg(&out);
+        c
+    };
+    let mcap = out.join("design.mcap");
+    let complete = |p: &std::path::Path| {
+        softcap_mcap::Recording::open(p)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    };
+    let tally = kill_trials(&search, &mcap, kill_trial_count(3), 331, &complete);
+    let raced = race_trials(&search, &mcap, kill_trial_count(1), &complete);
+    eprintln!("design search: {tally:?}, {raced} race trials");
+}

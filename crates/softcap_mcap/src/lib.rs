@@ -92,7 +92,7 @@ pub use effect::Effect;
 pub use error::{Error, Result};
 pub use material::{BasisTet, MaterialData};
 pub use provenance::{InputFile, PROVENANCE_METADATA, Provenance, git_commit, sha256_file};
-pub use reader::{ChannelSummary, RawMessage, Recording};
+pub use reader::{ChannelSummary, MAX_CHUNK_BYTES, MAX_UNCOMPRESSED_BYTES, RawMessage, Recording};
 pub use softcap_app::tmp_path;
 pub use viz::VizSettings;
 pub use writer::{PROFILE, Writer};

@@ -9,6 +9,14 @@ use crate::catalog::{SoftcapMessage, Topic};
 use crate::error::{Error, Result};
 use crate::provenance::{INPUTS_KEY, InputFile, PROVENANCE_METADATA, Provenance, TIMESTAMP_KEY};
 
+/// Largest uncompressed size one chunk may declare (softcap's writer makes chunks of about a
+/// MiB; a single large message gets its own). A larger claim is refused before anything is
+/// allocated or decompressed: a decompression bomb is bad input (exit code 2).
+pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
+
+/// Largest total uncompressed size of all chunks of one file.
+pub const MAX_UNCOMPRESSED_BYTES: u64 = 2 << 30;
+
 /// One channel of a recording, as listed in its summary.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelSummary {
@@ -86,6 +94,7 @@ impl Recording {
                     .into(),
             });
         }
+        check_chunk_sizes(&path, &bytes)?;
         let summary = match mcap::Summary::read(&bytes) {
             Ok(Some(s)) => s,
             Ok(None) => {
@@ -364,6 +373,45 @@ impl Recording {
         }
         Ok(hex::encode(h.finalize()))
     }
+}
+
+/// Walks the top-level records and refuses a chunk whose declared uncompressed size exceeds
+/// [`MAX_CHUNK_BYTES`], or chunks that add up to more than [`MAX_UNCOMPRESSED_BYTES`]. Record
+/// framing errors are left to the `mcap` reader, which reports them.
+fn check_chunk_sizes(path: &Path, bytes: &[u8]) -> Result<()> {
+    const CHUNK: u8 = 0x06;
+    const FOOTER: u8 = 0x02;
+    let u64_at = |at: usize| -> Option<u64> {
+        Some(u64::from_le_bytes(bytes.get(at..at + 8)?.try_into().ok()?))
+    };
+    let mut pos = mcap::MAGIC.len();
+    let mut total = 0u64;
+    while let (Some(&opcode), Some(len)) = (bytes.get(pos), u64_at(pos + 1)) {
+        let body = pos + 9;
+        if opcode == FOOTER {
+            break;
+        }
+        if opcode == CHUNK
+            && let Some(size) = u64_at(body + 16)
+        {
+            total = total.saturating_add(size);
+            if size > MAX_CHUNK_BYTES || total > MAX_UNCOMPRESSED_BYTES {
+                return Err(Error::Corrupt {
+                    path: path.to_path_buf(),
+                    problem: format!(
+                        "the chunk at byte {pos} declares {size} uncompressed bytes ({total} so \
+                         far; limits {MAX_CHUNK_BYTES} per chunk, {MAX_UNCOMPRESSED_BYTES} per \
+                         file): refusing a possible decompression bomb"
+                    ),
+                });
+            }
+        }
+        match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
+            Some(next) if next <= bytes.len() => pos = next,
+            _ => break,
+        }
+    }
+    Ok(())
 }
 
 /// Maps an `mcap` read error to a structured error naming the file.

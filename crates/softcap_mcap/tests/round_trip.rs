@@ -634,3 +634,28 @@ fn diagnose_and_face_messages_round_trip() {
         vec![(13 * FRAME_NS, wrinkles)]
     );
 }
+
+/// Bounded resources (docs/reliability.md): a chunk declaring more uncompressed bytes than
+/// `MAX_CHUNK_BYTES` — a decompression bomb, here 1 TiB claimed by a few hundred bytes — is
+/// refused before anything is allocated, as bad input (exit code 2) naming the file.
+#[test]
+fn a_decompression_bomb_is_refused_as_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bomb.mcap");
+    write_everything(&path, "t");
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mut pos = 8;
+    loop {
+        let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().unwrap()) as usize;
+        if bytes[pos] == 0x06 {
+            bytes[pos + 9 + 16..pos + 9 + 24].copy_from_slice(&(1u64 << 40).to_le_bytes());
+            break;
+        }
+        pos += 9 + len;
+    }
+    let e = Recording::from_bytes(&path, bytes).unwrap_err();
+    assert!(e.to_string().contains("decompression bomb"), "{e}");
+    assert!(e.to_string().contains("bomb.mcap"), "{e}");
+    assert!(softcap_mcap::MAX_CHUNK_BYTES < 1 << 40);
+    assert_eq!(softcap_app::Error::from(e).exit_code(), 2);
+}

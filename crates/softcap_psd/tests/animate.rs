@@ -268,3 +268,37 @@ fn exit_codes_of_help_version_missing_and_bad_file() {
     }
     assert!(!out.exists());
 }
+
+/// Crash safety (docs/reliability.md): `psd animate` SIGKILLed at random moments leaves nothing
+/// or a complete face.mcap; two processes writing one output at once leave one complete file.
+/// `scripts/kill-test` runs 50 trials (`SOFTCAP_KILL_TRIALS`).
+#[test]
+fn animate_killed_at_random_moments_leaves_nothing_or_a_complete_file() {
+    use softcap_app::testing::{kill_trial_count, kill_trials, race_trials};
+    let data = IctData::load(fixture_dir()).unwrap();
+    let rig = FaceRig::new(&data.mesh, &RigSettings::default()).unwrap();
+    let pose = data.pose(&pose_sets(&data, &EvaluationSettings::default()).1[0]);
+    let trajectory = HandleTrajectory {
+        frames: (0..3)
+            .map(|i| HandleFrame {
+                frame: i,
+                log_time_ns: 33_333_333 * i,
+                positions: rig.handle_positions(&pose),
+            })
+            .collect(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let markers = dir.path().join("markers.mcap");
+    write_handle_trajectory(&markers, &provenance(), &trajectory, CM).unwrap();
+    let out = dir.path().join("face.mcap");
+    let animate = || {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_softcap-psd"));
+        c.args(["animate", "--fixtures"]).arg(fixture_dir());
+        c.arg("--markers").arg(&markers).arg("--out").arg(&out);
+        c
+    };
+    let complete = |p: &Path| Recording::open(p).map(|_| ()).map_err(|e| e.to_string());
+    let tally = kill_trials(&animate, &out, kill_trial_count(2), 321, &complete);
+    let raced = race_trials(&animate, &out, kill_trial_count(1), &complete);
+    eprintln!("psd animate: {tally:?}, {raced} race trials");
+}

@@ -538,6 +538,9 @@ impl Scenario {
                 "field `name` is missing (required: it names the session)".into(),
             ));
         }
+        if let Some(bad) = softcap_app::non_finite(text) {
+            return Err(err(bad.to_string()));
+        }
         let mut s: Scenario =
             toml::from_str(text).map_err(|e| err(describe_toml_error(text, &e)))?;
         if let Some(dir) = &s.dynamic.external_truth {

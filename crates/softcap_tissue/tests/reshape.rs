@@ -158,3 +158,40 @@ fn cli_reshapes_a_target_folder_and_rejects_a_landmark_outside_the_template() {
     assert!(stderr.contains("landmarks.csv:3"), "{stderr}");
     assert!(!bad_out.exists());
 }
+
+/// target.toml may only name files inside TARGET: an absolute path, a `..` escape and a symlink
+/// out of the folder are each a bad-input error naming target.toml and the key.
+#[test]
+fn target_files_outside_the_folder_are_refused() {
+    let (p, _) = problem(false);
+    let dir = tempfile::tempdir().unwrap();
+    write_target(dir.path(), &p, "mm").unwrap();
+    let target = dir.path().join("target");
+    let toml = target.join("target.toml");
+    let original = std::fs::read_to_string(&toml).unwrap();
+    let outside = dir.path().join("landmarks.csv");
+    std::fs::copy(target.join("landmarks.csv"), &outside).unwrap();
+    let template = dir.path().join("template.msh");
+    let refused = |name: &str, needle: &str| {
+        std::fs::write(&toml, format!("{original}landmarks = {name:?}\n")).unwrap();
+        let e = softcap_tissue::reshape::load_target(&template, &target).unwrap_err();
+        let m = e.to_string();
+        assert!(e.is_bad_input(), "{m}");
+        for n in ["target.toml", "landmarks", needle] {
+            assert!(m.contains(n), "`{n}` not in: {m}");
+        }
+    };
+    refused(&outside.display().to_string(), "absolute");
+    refused("../landmarks.csv", "leaves the folder");
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.path(), target.join("up")).unwrap();
+        refused("up/landmarks.csv", "symlink");
+    }
+    std::fs::write(
+        &toml,
+        format!("{original}landmarks = \"./landmarks.csv\"\n"),
+    )
+    .unwrap();
+    softcap_tissue::reshape::load_target(&template, &target).unwrap();
+}

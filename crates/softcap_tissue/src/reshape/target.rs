@@ -102,6 +102,9 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
     let toml_path = target_dir.join("target.toml");
     let text = std::fs::read_to_string(&toml_path)
         .map_err(|e| TissueError::bad_input(&toml_path, "file", e.to_string()))?;
+    if let Some(bad) = softcap_app::non_finite(&text) {
+        return Err(line_error(&toml_path, bad.line, bad.to_string()));
+    }
     let spec: TargetSpec = toml::from_str(&text).map_err(|e| {
         let line = e.span().map_or(1, |s| {
             text[..s.start.min(text.len())].lines().count().max(1)
