@@ -122,7 +122,7 @@ fn non_finite_numbers_name_file_line_and_field() {
     edit(&dir.join("rig/fsr.toml"), |t| {
         t.replace("supply_v = 5.0", "supply_v = -inf")
     });
-    assert_bad_input(&dir, &["fsr.toml", "line 1", "supply_v"]);
+    assert_bad_input(&dir, &["fsr.toml:1", "supply_v", "not a finite number"]);
     let (_tmp, dir) = session_copy();
     edit(&dir.join("detections/cam0.csv"), |t| {
         t.replacen("438.438", "NaN", 1)

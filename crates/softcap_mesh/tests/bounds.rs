@@ -23,7 +23,8 @@ fn ply_counts_beyond_the_data_are_refused() {
         "element vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 4000000000\nproperty list uint int vertex_indices\n",
     ] {
         for format in ["ascii", "binary_little_endian"] {
-            let text = format!("ply\nformat {format} 1.0\n{header}end_header\n0 0 0\n1 0 0\n0 1 0\n");
+            let text =
+                format!("ply\nformat {format} 1.0\n{header}end_header\n0 0 0\n1 0 0\n0 1 0\n");
             let e = read_ply_from(text.as_bytes(), "m.ply").unwrap_err();
             assert!(e.to_string().contains("m.ply"), "{e}");
         }

@@ -22,9 +22,10 @@ fn complete(path: &Path) -> Result<(), String> {
         .map_err(|e| e.to_string())
 }
 
-fn trials(command: &dyn Fn() -> Command, out: &Path, seed: u64) {
-    let tally = kill_trials(command, out, kill_trial_count(3), seed, &complete);
-    let raced = race_trials(command, out, kill_trial_count(1), &complete);
+/// `kills` and `races` trials in `make test` (scripts/kill-test: 50 each).
+fn trials(command: &dyn Fn() -> Command, out: &Path, seed: u64, kills: usize, races: usize) {
+    let tally = kill_trials(command, out, kill_trial_count(kills), seed, &complete);
+    let raced = race_trials(command, out, kill_trial_count(races), &complete);
     eprintln!("{}: {tally:?}, {raced} race trials", out.display());
 }
 
@@ -47,7 +48,7 @@ fn fit_and_simulate_killed_at_random_moments_leave_nothing_or_a_complete_file() 
         c.args(["--examples-per-location", "1", "--quiet"]);
         c
     };
-    trials(&fit, &material, 311);
+    trials(&fit, &material, 311, 2, 0);
     quiet_fit(&s.capture, &s.mesh, &material);
     let sim = dir.path().join("sim.mcap");
     let simulate = || {
@@ -58,7 +59,7 @@ fn fit_and_simulate_killed_at_random_moments_leave_nothing_or_a_complete_file() 
         c.args(["--force", "0.4", "-o"]).arg(&sim);
         c
     };
-    trials(&simulate, &sim, 312);
+    trials(&simulate, &sim, 312, 2, 1);
 }
 
 #[test]
@@ -82,5 +83,5 @@ fn reshape_killed_at_random_moments_leaves_nothing_or_a_complete_file() {
             .arg("--quiet");
         c
     };
-    trials(&reshape, &out, 313);
+    trials(&reshape, &out, 313, 3, 1);
 }
