@@ -200,8 +200,10 @@ fn mcap_typed(dir: &Path, bytes: &[u8]) -> Result<()> {
     let path = put(dir, "typed.mcap", bytes)?;
     let capture = softcap_mcap::capture::CaptureData::read(&path);
     let material = softcap_mcap::material::MaterialData::read(&path);
+    let track = softcap_mcap::dynamic::read_track(&path);
     capture?;
     material?;
+    track?;
     Ok(())
 }
 
