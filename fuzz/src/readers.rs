@@ -448,16 +448,30 @@ fn settings(dir: &Path, bytes: &[u8]) -> Result<()> {
     };
     let path = put(dir, "settings.toml", text)?;
     match which % 8 {
-        0 => drop(softcap_capture::session::parse_settings_toml(&path)?),
-        1 => drop(load_toml::<softcap_tissue::FitSettings>(&path)?),
-        2 => drop(load_toml::<softcap_tissue::SimulateSettings>(&path)?),
-        3 => drop(load_toml::<softcap_tissue::TrackSettings>(&path)?),
-        4 => drop(load_toml::<softcap_tissue::reshape::ReshapeSettings>(
-            &path,
-        )?),
-        5 => drop(load_toml::<softcap_diagnose::StageSettings>(&path)?),
-        6 => drop(load_toml::<softcap_psd::EvaluationSettings>(&path)?),
-        _ => drop(load_toml::<softcap_design::CaptureMappingSettings>(&path)?),
+        0 => {
+            softcap_capture::session::parse_settings_toml(&path)?;
+        }
+        1 => {
+            load_toml::<softcap_tissue::FitSettings>(&path)?;
+        }
+        2 => {
+            load_toml::<softcap_tissue::SimulateSettings>(&path)?;
+        }
+        3 => {
+            load_toml::<softcap_tissue::TrackSettings>(&path)?;
+        }
+        4 => {
+            load_toml::<softcap_tissue::reshape::ReshapeSettings>(&path)?;
+        }
+        5 => {
+            load_toml::<softcap_diagnose::StageSettings>(&path)?;
+        }
+        6 => {
+            load_toml::<softcap_psd::EvaluationSettings>(&path)?;
+        }
+        _ => {
+            load_toml::<softcap_design::CaptureMappingSettings>(&path)?;
+        }
     }
     Ok(())
 }
