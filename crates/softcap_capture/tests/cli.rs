@@ -111,12 +111,7 @@ fn non_finite_numbers_name_file_line_and_field() {
     });
     assert_bad_input(
         &dir,
-        &[
-            "cameras.toml",
-            "line 5",
-            "camera[0].fx",
-            "not a finite number",
-        ],
+        &["cameras.toml:5", "camera[0].fx", "not a finite number"],
     );
     let (_tmp, dir) = session_copy();
     edit(&dir.join("rig/fsr.toml"), |t| {
