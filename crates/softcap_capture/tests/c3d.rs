@@ -200,7 +200,7 @@ fn mocap_template_marker_missing_from_the_take_is_bad_input_naming_it() {
     let toml = std::fs::read_to_string(dir.join("session.toml")).unwrap();
     std::fs::write(
         dir.join("session.toml"),
-        toml.replace("../Qualisys.c3d", "take.c3d"),
+        toml.replace("\"Qualisys.c3d\"", "\"take.c3d\""),
     )
     .unwrap();
     let csv = dir.join("template/markers.csv");
