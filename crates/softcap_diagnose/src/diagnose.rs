@@ -746,7 +746,8 @@ fn lookalikes<'r>(
 /// top of the joint prediction `x` of the `named` effects (their correction x − x₀ as a fixed
 /// offset), leave-one-location-out on its own scored cells. The best one is kept when it explains
 /// ≥ `min_heldout_gain` of the remaining held-out MSE, its per-fold gains' mean exceeds their
-/// spread, the remaining error stands out of the noise, it lowers the BIC by `min_delta_bic`,
+/// spread, the remaining error stands out of the noise (≥ `later_effect_noise_factor` × √3σ),
+/// it lowers the BIC by `min_delta_bic`,
 /// beats the stiffness-scale nuisance refitted on top of `x`, and its signatures do not
 /// contradict it. Returns the effect and the new joint prediction.
 fn forward_step(
@@ -812,6 +813,7 @@ fn forward_step(
             - mismatch.bic(without.rss_m2, without.num_params);
         let keep = scoring.explainable(e, w)
             && w * w > s.noise_floor_factor * scoring.noise_mse
+            && w >= s.later_effect_noise_factor * scoring.noise_mse.sqrt()
             && gain >= s.min_heldout_gain
             && mean > sd
             && beats_scale

@@ -39,6 +39,10 @@ pub struct DiagnoseSettings {
     /// Name at most this many effects (greedy forward selection on top of the confirmed first
     /// one; 1 = one effect only).
     pub max_effects: usize,
+    /// A later effect is looked for only where the error left by the effects before it is at
+    /// least this multiple of the noise RMS √3σ (stricter than `focus_noise_factor`: the earlier
+    /// effects' full-data fit has already taken what it could of the noise).
+    pub later_effect_noise_factor: f64,
 }
 
 impl Default for DiagnoseSettings {
@@ -57,6 +61,7 @@ impl Default for DiagnoseSettings {
             refit_compliance_scale: true,
             max_confirmations: 2,
             max_effects: 2,
+            later_effect_noise_factor: 3.0,
         }
     }
 }
