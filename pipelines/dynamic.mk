@@ -4,6 +4,7 @@
 #   <SESSIONS>/<S>/ (session.toml kind = "dynamic", depth/ or clouds/, template/volume.msh)
 #     ──softcap capture──▶ <OUT>/<S>/capture.mcap        world-frame point clouds (/capture/points)
 #     ──softcap tissue track──▶ <OUT>/<S>/track.mcap     tracked tet mesh per frame (/tissue/track/nodes)
+#     ──softcap tissue fit-dynamic──▶ <OUT>/<S>/dynamic.mcap, dynamic.json, report/   E, ν, α, β, rest shape
 #
 # Every target is a file; `make -j` tracks independent sessions in parallel:
 #
@@ -14,6 +15,7 @@ SOFTCAP  ?= target/release/softcap
 SESSIONS ?= sessions
 OUT      ?= out/dynamic
 TRACK_ARGS ?=
+FIT_ARGS ?=
 
 NAMES := $(sort $(patsubst $(SESSIONS)/%/session.toml,%,$(wildcard $(SESSIONS)/*/session.toml)))
 
@@ -21,7 +23,7 @@ NAMES := $(sort $(patsubst $(SESSIONS)/%/session.toml,%,$(wildcard $(SESSIONS)/*
 .DELETE_ON_ERROR:
 .SECONDARY:
 
-all: $(foreach s,$(NAMES),$(OUT)/$(s)/track.mcap)
+all: $(foreach s,$(NAMES),$(OUT)/$(s)/dynamic.mcap)
 
 $(OUT)/%/capture.mcap: $(SESSIONS)/%/session.toml
 	@mkdir -p $(@D)
@@ -30,8 +32,12 @@ $(OUT)/%/capture.mcap: $(SESSIONS)/%/session.toml
 $(OUT)/%/track.mcap: $(OUT)/%/capture.mcap $(SESSIONS)/%/template/volume.msh
 	$(SOFTCAP) tissue track $< --mesh $(SESSIONS)/$*/template/volume.msh --quiet $(TRACK_ARGS) -o $@
 
+$(OUT)/%/dynamic.mcap: $(OUT)/%/track.mcap $(SESSIONS)/%/template/volume.msh
+	$(SOFTCAP) tissue fit-dynamic $< --mesh $(SESSIONS)/$*/template/volume.msh --json $(@D)/dynamic.json \
+	    --report $(@D)/report --quiet $(FIT_ARGS) -o $@
+
 digests: all
-	@for s in $(NAMES); do for f in capture track; do \
+	@for s in $(NAMES); do for f in capture track dynamic; do \
 	    printf '%s/%s.mcap %s\n' "$$s" "$$f" "$$($(SOFTCAP) inspect digest $(OUT)/$$s/$$f.mcap)"; done; done
 
 clean-dynamic:
