@@ -95,6 +95,7 @@ impl Recording {
             });
         }
         check_chunk_sizes(&path, &bytes)?;
+        check_record_lengths(&path, &bytes)?;
         let summary = match mcap::Summary::read(&bytes) {
             Ok(Some(s)) => s,
             Ok(None) => {
@@ -409,6 +410,37 @@ fn check_chunk_sizes(path: &Path, bytes: &[u8]) -> Result<()> {
         match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
             Some(next) if next <= bytes.len() => pos = next,
             _ => break,
+        }
+    }
+    Ok(())
+}
+
+/// One pass over every record, the records inside chunks included, with each record's length
+/// limited to [`MAX_CHUNK_BYTES`] before anything is allocated for it. `mcap` 0.26's message stream
+/// (`ChunkFlattener`) sets no such limit, so a corrupt length inside a chunk made it reserve an
+/// impossible buffer and panic (found by the `mcap_recording` fuzz target).
+fn check_record_lengths(path: &Path, bytes: &[u8]) -> Result<()> {
+    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let options = LinearReaderOptions::default().with_record_length_limit(MAX_CHUNK_BYTES as usize);
+    let mut reader = LinearReader::new_with_options(options);
+    let mut offset = 0usize;
+    while let Some(event) = reader.next_event() {
+        match event {
+            Ok(LinearReadEvent::ReadRequest(_)) if offset == bytes.len() => {
+                return Err(Error::Truncated {
+                    path: path.to_path_buf(),
+                    len: bytes.len() as u64,
+                    problem: "the file ends inside a record".into(),
+                });
+            }
+            Ok(LinearReadEvent::ReadRequest(n)) => {
+                let n = n.min(bytes.len() - offset);
+                reader.insert(n).copy_from_slice(&bytes[offset..offset + n]);
+                reader.notify_read(n);
+                offset += n;
+            }
+            Ok(LinearReadEvent::Record { .. }) => {}
+            Err(e) => return Err(classify(path.to_path_buf(), bytes.len() as u64, &e)),
         }
     }
     Ok(())
