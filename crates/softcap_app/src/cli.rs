@@ -16,6 +16,15 @@ use clap::Parser;
 
 use crate::error::Error;
 
+/// The degree of faer's parallel kernels (dense products and solves, sparse Cholesky) in every
+/// softcap binary. faer's default, `Par::rayon(0)`, takes the rayon pool's thread count and cuts
+/// a product into that many parts summed in order, so the last bits of a result depended on
+/// `RAYON_NUM_THREADS` (the least-squares normal equations of softcap_core, the face shell).
+/// With a fixed degree the cut is the same for every thread count and the work still runs on
+/// whatever threads the pool has: outputs are identical with 1 and 2 threads
+/// (docs/reliability.md, `make verify-threads`). 2 is faer's own choice on a 2-core machine.
+pub const FAER_PARALLEL_DEGREE: usize = 2;
+
 /// Exit code of a failure while running.
 pub const EXIT_FAILURE: u8 = 1;
 /// Exit code of bad usage or bad input.
@@ -54,6 +63,7 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
+    faer::set_global_parallelism(faer::Par::rayon(FAER_PARALLEL_DEGREE));
     let cli = match C::try_parse_from(args) {
         Ok(cli) => cli,
         Err(e) => {

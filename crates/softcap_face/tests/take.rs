@@ -24,7 +24,19 @@ fn face_args(c: &mut Command) -> &mut Command {
 }
 
 fn track(take: &Path, out: &Path, report: Option<&Path>) -> std::process::Output {
+    track_with_threads(take, out, report, None)
+}
+
+fn track_with_threads(
+    take: &Path,
+    out: &Path,
+    report: Option<&Path>,
+    threads: Option<usize>,
+) -> std::process::Output {
     let mut c = Command::new(env!("CARGO_BIN_EXE_softcap-face"));
+    if let Some(n) = threads {
+        c.env("RAYON_NUM_THREADS", n.to_string());
+    }
     c.arg("track").arg(take);
     face_args(&mut c).arg("-o").arg(out);
     if let Some(r) = report {
@@ -39,8 +51,14 @@ fn track_then_run_reproduces_the_rendered_wrinkles() {
     let dir = tempfile::tempdir().unwrap();
     let wrinkles = dir.path().join("wrinkles.mcap");
     let report = dir.path().join("report");
-    let o = track(&take, &wrinkles, Some(&report));
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // the same bytes with 1 and 2 threads (the output path is part of the digested provenance)
+    let mut digests = Vec::new();
+    for threads in [1, 2] {
+        let o = track_with_threads(&take, &wrinkles, Some(&report), Some(threads));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        digests.push(Recording::open(&wrinkles).unwrap().digest().unwrap());
+    }
+    assert_eq!(digests[0], digests[1], "RAYON_NUM_THREADS 1 and 2 differ");
     for f in ["splines_cam0.png", "depth_width_cam1.png"] {
         assert!(report.join(f).is_file(), "{f}");
     }
