@@ -71,14 +71,19 @@ fn mm(t: (f64, f64, f64)) -> String {
 /// is recovered from 12 landmarks, 150 ICP markers and the attachments of one face. Shape error:
 /// distance from 400 held-out points of the true surface to the reshaped surface; correspondence
 /// error: where each held-out template point went vs where the truth sends it.
+/// The bar: shape error ≤ 0.5 mm at the 95th percentile (measured 0.065 / 0.236 / 0.559
+/// mm mean / p95 / max; the piecewise-linear interpolant of the truth itself is 0.030 / 0.091 /
+/// 0.109 mm), every ICP marker and landmark met to ≤ 0.5 mm.
 #[test]
 fn recovers_a_known_anisotropic_plastic_deformation() {
     let (p, held_out) = problem(false);
     let out = reshape(&p, &ReshapeSettings::default(), &mut |_, _, _, _| {}).unwrap();
     let [s, c, i] = evaluate(&p, &out, &held_out, truth);
-    assert!(s.0 < 0.3e-3 && s.1 < 1.0e-3, "shape error {}", mm(s));
-    assert!(c.0 < 2.0e-3, "correspondence error {}", mm(c));
-    assert!(i.0 < 0.3e-3 && i.2 < 2.0e-3, "ICP error {}", mm(i));
+    assert!(s.1 <= 0.5e-3 && s.2 < 1.0e-3, "shape error {}", mm(s));
+    assert!(c.0 < 1.0e-3, "correspondence error {}", mm(c));
+    assert!(i.2 <= 0.5e-3, "ICP error {}", mm(i));
+    let landmarks = stats(&mut out.errors_of(ConstraintKind::Landmark));
+    assert!(landmarks.2 <= 0.5e-3, "landmark error {}", mm(landmarks));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
 }
 
@@ -194,4 +199,36 @@ fn target_files_outside_the_folder_are_refused() {
     )
     .unwrap();
     softcap_tissue::reshape::load_target(&template, &target).unwrap();
+}
+
+/// Bad input names the file and the line: a non-manifold `surface.obj` (an edge shared by three
+/// faces) and a template whose unit disagrees with TARGET's (`template_length_unit = "m"` for a
+/// template written in mm: the targets span 1/1000 of the template) are each a bad-input error.
+#[test]
+fn a_non_manifold_surface_and_inconsistent_units_are_refused_naming_file_and_line() {
+    let (p, _) = problem(false);
+    let dir = tempfile::tempdir().unwrap();
+    write_target(dir.path(), &p, "mm").unwrap();
+    let target = dir.path().join("target");
+    let template = dir.path().join("template.msh");
+    let toml = target.join("target.toml");
+    let original = std::fs::read_to_string(&toml).unwrap();
+    let expect = |needles: &[&str]| {
+        let e = softcap_tissue::reshape::load_target(&template, &target).unwrap_err();
+        let m = e.to_string();
+        assert!(e.is_bad_input(), "{m}");
+        for n in needles {
+            assert!(m.contains(n), "`{n}` not in: {m}");
+        }
+    };
+    // Three triangles on the edge (1, 2): the third face, on line 9, makes it non-manifold.
+    std::fs::write(
+        target.join("surface.obj"),
+        "# fan\nv 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 -10 0\nv 0 0 10\nf 1 2 3\nf 2 1 4\nf 1 2 5\n",
+    )
+    .unwrap();
+    std::fs::write(&toml, format!("{original}surface = \"surface.obj\"\n")).unwrap();
+    expect(&["surface.obj:9", "non-manifold"]);
+    std::fs::write(&toml, format!("{original}template_length_unit = \"m\"\n")).unwrap();
+    expect(&["target.toml:1", "inconsistent units"]);
 }

@@ -49,8 +49,16 @@ pub fn moved(p: &Vector3<f64>) -> Vector3<f64> {
 /// attached) and 400 held-out template boundary points; `free_flying`: no attachments and the
 /// targets moved rigidly ([`moved`]).
 pub fn problem(free_flying: bool) -> (ReshapeProblem, Vec<Vector3<f64>>) {
+    problem_with_cells(free_flying, [8, 5, 3])
+}
+
+/// [`problem`] on a template of `cells` box cells (6 tets each).
+pub fn problem_with_cells(
+    free_flying: bool,
+    cells: [usize; 3],
+) -> (ReshapeProblem, Vec<Vector3<f64>>) {
     let truth: fn(&Vector3<f64>) -> Vector3<f64> = if free_flying { moved } else { truth };
-    let mesh = box_tet_mesh([0.0; 3], [0.1, 0.06, 0.04], [8, 5, 3]);
+    let mesh = box_tet_mesh([0.0; 3], [0.1, 0.06, 0.04], cells);
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let locator = TetLocator::new(&mesh);
     // Boundary points of the template lie in (or on) one of its tets.

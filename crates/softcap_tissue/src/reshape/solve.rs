@@ -29,7 +29,9 @@ use softcap_fem::{NeoHookeanParams, PlasticNeoHookeanModel, plastic_from_vector}
 use softcap_mesh::{TetMesh, TetQuality, tet_quality};
 
 use super::equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings};
-use super::gauge::{Gauge, best_rigid, project_out_modes, rigid_modes, three_two_one_pins};
+use super::gauge::{
+    Gauge, best_rigid, plane_rigid_step, project_out_modes, rigid_modes, three_two_one_pins,
+};
 use super::laplacian::PlasticLaplacian;
 use super::problem::{ConstraintKind, MaterialPoint, ReshapeProblem, SurfaceProjector};
 use super::step::{NormalSystem, woodbury_step};
@@ -56,6 +58,12 @@ pub struct ReshapeSettings {
     pub relative_progress: f64,
     /// Smallest eigenvalue of a tet's plastic strain (§3.4: clamped to 0.01).
     pub plastic_eigenvalue_floor: f64,
+    /// How an ICP marker's closest-point residual enters the Gauss–Newton model.
+    pub icp_rows: IcpRows,
+    /// Keep the landmarks in the ICP stage (the paper turns them off, §3.4). The ICP markers fix
+    /// the shape but not where the material lies on it: without landmarks the surface is free to
+    /// slide along itself, held only by the smoothness term.
+    pub icp_stage_landmarks: bool,
     /// Brent line search.
     pub line_search: BrentSettings,
     /// Newton equilibrium solves.
@@ -65,7 +73,7 @@ pub struct ReshapeSettings {
 impl Default for ReshapeSettings {
     fn default() -> Self {
         Self {
-            smoothness: 1e-3,
+            smoothness: 3e-4,
             attachment_stiffness: 100.0,
             poisson_ratio: 0.4,
             max_iterations: 20,
@@ -73,6 +81,8 @@ impl Default for ReshapeSettings {
             error_tolerance_m: 1e-4,
             relative_progress: 0.01,
             plastic_eigenvalue_floor: 0.01,
+            icp_rows: IcpRows::PointToPlane,
+            icp_stage_landmarks: true,
             line_search: BrentSettings {
                 x_tolerance: 0.02,
                 max_evaluations: 8,
@@ -80,6 +90,22 @@ impl Default for ReshapeSettings {
             equilibrium: EquilibriumSettings::default(),
         }
     }
+}
+
+/// The Gauss–Newton rows of an ICP marker p with closest surface point q (eq. 5).
+///
+/// Both give the objective the same value at the current iterate (for a closest point,
+/// ‖q − p‖ = |n·(q − p)| with n = (p − q)/‖p − q‖, the surface normal where q is inside a face),
+/// and both recompute q after every iteration; they differ in what the linear model resists.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum IcpRows {
+    /// One row n·(x_q − p) (Chen and Medioni 1992): the surface may slide along itself, so the
+    /// ICP stage converges in a few iterations.
+    PointToPlane,
+    /// Three rows x_q − p, the material point q held to p (the paper's eq. 5 as written): the
+    /// model also resists sliding along the surface, so the stage converges linearly.
+    PointToPoint,
 }
 
 /// Why a stage stopped.
@@ -213,12 +239,41 @@ impl ReshapeOutcome {
     }
 }
 
-/// A constraint row triple: material point, target (solver frame), weight.
+/// Point-to-plane rigid steps per rigid block (each recomputes the closest points).
+const RIGID_STEPS: usize = 5;
+
+/// A constraint: material point, target (solver frame), weight, and for a point-to-plane ICP
+/// row the unit direction along which its residual is measured (one scalar row instead of three).
 #[derive(Clone, Copy, Debug)]
 struct Row {
     point: MaterialPoint,
     target: Vector3<f64>,
     weight: f64,
+    normal: Option<Vector3<f64>>,
+}
+
+impl Row {
+    /// The directions of its scalar rows: x, y, z, or the normal alone.
+    fn directions(&self) -> Vec<Vector3<f64>> {
+        match self.normal {
+            Some(n) => vec![n],
+            None => vec![Vector3::x(), Vector3::y(), Vector3::z()],
+        }
+    }
+
+    /// Squared residual at positions `x`.
+    fn squared(&self, x: &[Vector3<f64>]) -> f64 {
+        let d = self.point.at(x) - self.target;
+        self.normal.map_or(d.norm_squared(), |n| n.dot(&d).powi(2))
+    }
+}
+
+/// Scalar rows of `rows`: (row index, direction).
+fn scalar_rows(rows: &[Row]) -> Vec<(usize, Vector3<f64>)> {
+    rows.iter()
+        .enumerate()
+        .flat_map(|(c, r)| r.directions().into_iter().map(move |d| (c, d)))
+        .collect()
 }
 
 /// The solver state: plastic strains, shape (canonical frame when free-flying) and frame.
@@ -340,7 +395,7 @@ impl<'p> Solver<'p> {
             out.push(Stage {
                 name: "icp",
                 constant: false,
-                landmarks: false,
+                landmarks: has_l && self.settings.icp_stage_landmarks,
                 icp: true,
             });
         }
@@ -406,9 +461,13 @@ impl<'p> Solver<'p> {
     /// The active constraint rows of `stage` at `state` (ICP closest points on the current
     /// surface), targets in the solver frame.
     fn rows(&self, stage: Stage, state: &State) -> Vec<Row> {
+        self.rows_at(stage, &state.x, &state.frame)
+    }
+
+    /// [`Self::rows`] at shape `x` and frame `frame`.
+    fn rows_at(&self, stage: Stage, x: &[Vector3<f64>], frame: &Isometry3<f64>) -> Vec<Row> {
         let to_frame = |p: &Vector3<f64>| {
-            state
-                .frame
+            frame
                 .inverse_transform_point(&Point3::from(*p))
                 .coords
         };
@@ -420,6 +479,7 @@ impl<'p> Solver<'p> {
                 point: MaterialPoint::node(a.node),
                 target: a.target_m,
                 weight: 1.0,
+                normal: None,
             })
             .collect();
         if stage.landmarks {
@@ -427,17 +487,23 @@ impl<'p> Solver<'p> {
                 point: l.point,
                 target: to_frame(&l.target_m),
                 weight: 1.0,
+                normal: None,
             }));
         }
         if stage.icp {
-            let projector = SurfaceProjector::new(&self.boundary, &state.x);
+            let projector = SurfaceProjector::new(&self.boundary, x);
             for m in &self.problem.icp_markers {
                 let target = to_frame(&m.position_m);
                 if let Some((point, _)) = projector.project(&target) {
+                    let normal = match self.settings.icp_rows {
+                        IcpRows::PointToPoint => None,
+                        IcpRows::PointToPlane => Some(closest_point_normal(&point, &target, x)),
+                    };
                     rows.push(Row {
                         point,
                         target,
                         weight: 1.0,
+                        normal,
                     });
                 }
             }
@@ -461,21 +527,20 @@ impl<'p> Solver<'p> {
     }
 
     fn objective(&self, s: &[Vector6<f64>], x: &[Vector3<f64>], rows: &[Row]) -> f64 {
-        let data: f64 = rows
-            .iter()
-            .map(|r| r.weight * (r.point.at(x) - r.target).norm_squared())
-            .sum();
+        let data: f64 = rows.iter().map(|r| r.weight * r.squared(x)).sum();
         0.5 * self.alpha * self.laplacian.energy(s) + 0.5 * data
     }
 
-    /// Gᵀ (3N × 3·rows) with the free-flying gauge, solved: Z = K⁻¹ (Dᵀ) Gᵀ at `x`.
+    /// Gᵀ (3N × scalar rows) with the free-flying gauge, solved: Z = K⁻¹ (Dᵀ) Gᵀ at `x`.
     fn z_matrix(&self, x: &[Vector3<f64>], rows: &[Row]) -> Result<Mat<f64>> {
         let n = x.len();
-        let mut z = Mat::<f64>::zeros(3 * n, 3 * rows.len());
-        for (c, r) in rows.iter().enumerate() {
+        let scalars = scalar_rows(rows);
+        let mut z = Mat::<f64>::zeros(3 * n, scalars.len());
+        for (col, (c, d)) in scalars.iter().enumerate() {
+            let point = &rows[*c].point;
             for k in 0..4 {
                 for i in 0..3 {
-                    z[(3 * r.point.nodes[k] + i, 3 * c + i)] += r.point.weights[k];
+                    z[(3 * point.nodes[k] + i, col)] += point.weights[k] * d[i];
                 }
             }
         }
@@ -568,14 +633,13 @@ impl<'p> Solver<'p> {
         self.equilibrium.factor_at(&self.model, &state.x)?;
         let jacobians = self.model.plastic_force_jacobians(&state.x);
         let z = self.z_matrix(&state.x, &rows)?;
-        let weights: Vec<f64> = rows.iter().flat_map(|r| [r.weight; 3]).collect();
-        let mut residual = Mat::<f64>::zeros(3 * rows.len(), 1);
-        for (c, r) in rows.iter().enumerate() {
-            let d = (r.point.at(&state.x) - r.target) * r.weight;
-            for i in 0..3 {
-                residual[(3 * c + i, 0)] = d[i];
-            }
-        }
+        let scalars = scalar_rows(&rows);
+        let weights: Vec<f64> = scalars.iter().map(|(c, _)| rows[*c].weight).collect();
+        let residual = Mat::<f64>::from_fn(scalars.len(), 1, |i, _| {
+            let (c, d) = scalars[i];
+            let r = &rows[c];
+            d.dot(&(r.point.at(&state.x) - r.target)) * r.weight
+        });
         let zr_mat = &z * &residual;
         let zr: Vec<f64> = (0..zr_mat.nrows()).map(|i| zr_mat[(i, 0)]).collect();
         let tets = &self.problem.template.tets;
@@ -612,13 +676,13 @@ impl<'p> Solver<'p> {
         let predicted = -0.5 * gradient.iter().zip(&ds).map(|(g, d)| g.dot(d)).sum::<f64>();
         let bds = element_b_times(&jacobians, tets, n, &ds);
         let jds = self.jacobian_times(&state.x, &bds)?;
-        let accepted = self.line_search(state, &rows, e0, predicted, &ds, &jds)?;
+        let accepted = self.line_search(stage, state, &rows, e0, predicted, &ds, &jds)?;
         let Some(mut step) = accepted else {
             self.set_plastic(&state.s)?;
             return Ok(None);
         };
         if self.gauge.is_some() {
-            self.rigid_block(state, &rows);
+            self.rigid_block(stage, state);
             // The objective of the accepted point after the rigid block.
             step.objective_after = self.objective(&state.s, &state.x, &self.rows(stage, state));
         }
@@ -626,8 +690,10 @@ impl<'p> Solver<'p> {
     }
 
     /// Brent line search along s + ηΔs (module docs); updates `state` on success.
+    #[allow(clippy::too_many_arguments)]
     fn line_search(
         &mut self,
+        stage: Stage,
         state: &mut State,
         rows: &[Row],
         e0: f64,
@@ -637,7 +703,7 @@ impl<'p> Solver<'p> {
     ) -> Result<Option<AcceptedStep>> {
         let solves_before = self.equilibrium_solves;
         let mut best: Option<Trial> = None;
-        let full = self.trial(state, rows, ds, jds, 1.0)?;
+        let full = self.trial(stage, state, rows, ds, jds, 1.0)?;
         let full_value = full.as_ref().map_or(f64::INFINITY, |t| t.value);
         keep_best(&mut best, full);
         let good_full = predicted > 0.0 && e0 - full_value >= 0.5 * predicted;
@@ -646,7 +712,7 @@ impl<'p> Solver<'p> {
             let mut error = None;
             let brent = self.settings.line_search;
             minimize_bounded(
-                |eta| match self.trial(state, rows, ds, jds, eta) {
+                |eta| match self.trial(stage, state, rows, ds, jds, eta) {
                     Ok(Some(t)) => {
                         let v = t.value;
                         trials.push(t);
@@ -689,6 +755,7 @@ impl<'p> Solver<'p> {
     /// The objective at step length `eta` (`None` if the equilibrium does not converge).
     fn trial(
         &mut self,
+        stage: Stage,
         state: &State,
         rows: &[Row],
         ds: &[Vector6<f64>],
@@ -707,21 +774,62 @@ impl<'p> Solver<'p> {
         if !self.solve_equilibrium(&mut x).converged() {
             return Ok(None);
         }
-        let value = self.objective(&s, &x, rows);
+        let value = match self.settings.icp_rows {
+            // The linear model's planes are only a model: the value is the closest-point
+            // distance (eq. 5) at the trial shape.
+            IcpRows::PointToPlane if stage.icp => {
+                self.objective(&s, &x, &self.rows_at(stage, &x, &state.frame))
+            }
+            _ => self.objective(&s, &x, rows),
+        };
         Ok(Some(Trial { eta, value, s, x }))
     }
 
-    /// The optimal rigid transform for the current shape (§3.6 block-coordinate step).
-    fn rigid_block(&self, state: &mut State, rows: &[Row]) {
-        let image: Vec<&Row> = rows.iter().skip(self.problem.attachments.len()).collect();
-        let q: Vec<Vector3<f64>> = image.iter().map(|r| r.point.at(&state.x)).collect();
-        let p: Vec<Vector3<f64>> = image
-            .iter()
-            .map(|r| state.frame.transform_point(&Point3::from(r.target)).coords)
-            .collect();
-        let w: Vec<f64> = image.iter().map(|r| r.weight).collect();
-        if let Some(t) = best_rigid(&q, &p, &w) {
-            state.frame = t;
+    /// The rigid block of §3.6: the rigid transform for the current shape. Point-to-point rows:
+    /// the optimal transform for the closest points of `stage` at the current shape (Horn).
+    /// Point-to-plane rows: linearized point-to-plane steps ([`plane_rigid_step`]), each with the
+    /// closest points recomputed, while they lower the objective (at most `RIGID_STEPS`).
+    fn rigid_block(&self, stage: Stage, state: &mut State) {
+        let skip = self.problem.attachments.len();
+        if self.settings.icp_rows == IcpRows::PointToPoint {
+            let rows = self.rows(stage, state);
+            let image = &rows[skip..];
+            let q: Vec<Vector3<f64>> = image.iter().map(|r| r.point.at(&state.x)).collect();
+            let p: Vec<Vector3<f64>> = image
+                .iter()
+                .map(|r| state.frame.transform_point(&Point3::from(r.target)).coords)
+                .collect();
+            let w: Vec<f64> = image.iter().map(|r| r.weight).collect();
+            if let Some(t) = best_rigid(&q, &p, &w) {
+                state.frame = t;
+            }
+            return;
+        }
+        for _ in 0..RIGID_STEPS {
+            let rows = self.rows(stage, state);
+            let before = self.objective(&state.s, &state.x, &rows);
+            let world: Vec<_> = scalar_rows(&rows[skip..])
+                .into_iter()
+                .map(|(c, d)| {
+                    let r = &rows[skip + c];
+                    let f = &state.frame;
+                    (
+                        f.transform_point(&Point3::from(r.point.at(&state.x))).coords,
+                        f.rotation * d,
+                        f.transform_point(&Point3::from(r.target)).coords,
+                        r.weight,
+                    )
+                })
+                .collect();
+            let Some(frame) = plane_rigid_step(&world, &state.frame) else {
+                return;
+            };
+            let previous = std::mem::replace(&mut state.frame, frame);
+            let after = self.objective(&state.s, &state.x, &self.rows(stage, state));
+            if after >= before {
+                state.frame = previous;
+                return;
+            }
         }
     }
 
@@ -910,4 +1018,18 @@ fn size_scales(mesh: &TetMesh) -> (f64, f64) {
         }
     }
     ((hi - lo).norm(), total / count.max(1) as f64)
+}
+
+/// Unit direction from the closest point `q` (on the surface at `x`) to the marker `p`; the face
+/// normal when p lies on the surface.
+fn closest_point_normal(q: &MaterialPoint, p: &Vector3<f64>, x: &[Vector3<f64>]) -> Vector3<f64> {
+    let d = p - q.at(x);
+    let [a, b, c] = [0, 1, 2].map(|k| x[q.nodes[k]]);
+    let face = (b - a).cross(&(c - a));
+    let scale = (b - a).norm().max((c - a).norm());
+    if d.norm() > 1e-9 * scale {
+        d.normalize()
+    } else {
+        face.try_normalize(0.0).unwrap_or_else(Vector3::z)
+    }
 }
