@@ -340,7 +340,10 @@ mod tests {
     /// iterated linearized steps recover the motion (the error falls quadratically).
     #[test]
     fn plane_rigid_steps_recover_a_small_rigid_motion() {
-        let truth = Isometry3::new(Vector3::new(0.02, -0.01, 0.03), Vector3::new(0.05, -0.03, 0.04));
+        let truth = Isometry3::new(
+            Vector3::new(0.02, -0.01, 0.03),
+            Vector3::new(0.05, -0.03, 0.04),
+        );
         let pts = cloud();
         let mut frame = Isometry3::identity();
         for _ in 0..4 {
@@ -356,7 +359,11 @@ mod tests {
         }
         let err = pts
             .iter()
-            .map(|q| (frame.transform_point(&Point3::from(*q)) - truth.transform_point(&Point3::from(*q))).norm())
+            .map(|q| {
+                (frame.transform_point(&Point3::from(*q))
+                    - truth.transform_point(&Point3::from(*q)))
+                .norm()
+            })
             .fold(0.0, f64::max);
         assert!(err < 1e-10, "{err}");
     }

@@ -9,9 +9,19 @@
 //! closest points on the current surface, recomputed after every iteration, eq. 5), subject to
 //! the equilibrium x = x(s) ([`super::equilibrium`]). Stages (§3.4): a constant plastic strain
 //! (one 6-vector for every tet) fitted to the attachments and landmarks as the initial guess;
-//! then attachments only; + landmarks; attachments + ICP markers (landmarks off). A stage stops when
-//! (i) it reached `max_iterations`, (ii) the largest error of its image constraints is below
-//! `error_tolerance_m`, or (iii) an iteration lowered E by less than `relative_progress`.
+//! then attachments only; + landmarks; attachments + ICP markers (+ landmarks unless
+//! `icp_stage_landmarks` is off, as in the paper). A stage stops when (i) it reached
+//! `max_iterations`, (ii) the largest error of its image constraints is below `error_tolerance_m`,
+//! or (iii) an iteration lowered E by less than `relative_progress`.
+//!
+//! ICP rows ([`IcpRows`]): by default one point-to-plane row n·(x_q − p) per marker (n from the
+//! closest point q to the marker p), whose value at the current iterate is eq. 5's distance but
+//! whose linear model lets the surface slide along itself; line-search trials measure the true
+//! closest-point distance. With the paper's point-to-point rows (α̂ = 1e-3, landmarks off) the ICP
+//! stage of the known-truth box still progressed after 60 iterations (shape error p95 0.41 mm);
+//! with point-to-plane rows it converges in 6.
+//! Dropping the landmarks in the ICP stage leaves where the material lies on the fitted surface to
+//! the smoothness term alone (known truth: correspondence error 7.6 mm mean vs 0.56 mm kept).
 //!
 //! Each iteration: factor K at x, Z = K⁻¹(Dᵀ)Gᵀ, gradient g = α∇E_s − Bᵀ Z W r, the step by the
 //! Woodbury identity ([`super::step`]), then a line search along s + ηΔs (Brent's method on
@@ -19,7 +29,9 @@
 //! decrease the quadratic model predicts — a shortcut that saves equilibrium solves), each trial
 //! re-solving the equilibrium from the linear prediction x + ηJΔs. Plastic strains are kept
 //! positive definite per tet by clamping eigenvalues below `plastic_eigenvalue_floor` (§3.4).
-//! Free-flying objects alternate this step with the optimal rigid transform ([`super::gauge`]).
+//! Free-flying objects alternate this step with the rigid block ([`super::gauge`]): the optimal
+//! rigid transform at fixed shape (Horn for point-to-point rows, iterated linearized
+//! point-to-plane steps otherwise).
 
 use faer::Mat;
 use nalgebra::{Isometry3, Matrix3, Point3, SMatrix, SymmetricEigen, Vector3, Vector6};
@@ -466,11 +478,7 @@ impl<'p> Solver<'p> {
 
     /// [`Self::rows`] at shape `x` and frame `frame`.
     fn rows_at(&self, stage: Stage, x: &[Vector3<f64>], frame: &Isometry3<f64>) -> Vec<Row> {
-        let to_frame = |p: &Vector3<f64>| {
-            frame
-                .inverse_transform_point(&Point3::from(*p))
-                .coords
-        };
+        let to_frame = |p: &Vector3<f64>| frame.inverse_transform_point(&Point3::from(*p)).coords;
         let mut rows: Vec<Row> = self
             .problem
             .attachments
@@ -814,7 +822,8 @@ impl<'p> Solver<'p> {
                     let r = &rows[skip + c];
                     let f = &state.frame;
                     (
-                        f.transform_point(&Point3::from(r.point.at(&state.x))).coords,
+                        f.transform_point(&Point3::from(r.point.at(&state.x)))
+                            .coords,
                         f.rotation * d,
                         f.transform_point(&Point3::from(r.target)).coords,
                         r.weight,
