@@ -1,0 +1,324 @@
+//! Real shapes: reshape a soft-tissue layer built from the ICT-FaceKit generic neutral face to each
+//! of its 5 identity faces (vertex correspondence = ground truth at every surface vertex), side by
+//! side with softcap's bi-Laplacian shell and RBF warps driven by the same landmarks.
+//!
+//! ```sh
+//! cargo run --release -p softcap_tissue --example reshape_face -- ../shared/data/ict-face [OUT]
+//! scripts/ict-reshape-peers ../shared/data/ict-face OUT      # libigl ARAP and biharmonic
+//! ```
+//!
+//! `OUT/region.json` (written when OUT is given) holds the region — ICT vertex index of each
+//! region vertex, triangles, landmark vertices — for the libigl peers.
+//!
+//! The face region (nose, mouth, cheeks: |x| < 5 cm, −7 cm < y < 2 cm of the ICT frame, its
+//! largest connected piece) is extruded into a 3 mm layer of one tet through the thickness
+//! ([`softcap_mesh::extrude_layer`]). 40 landmark vertices (farthest-point samples) tie the layer
+//! to the identity by attachment springs; 300 ICP markers are random points of the identity's
+//! surface in the region. Error: ‖x_i − identity_i‖ at every other surface vertex of the region.
+//! The shell and RBF warps use the 40 landmarks as handles / centres (they take no ICP markers).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use softcap_core::{Rbf, RbfSettings, ScatteredData};
+use softcap_fem::nalgebra::Vector3;
+use softcap_mesh::{LayerSettings, LinearShell, ShellSettings, TriMesh, extrude_layer};
+use softcap_tissue::reshape::{Attachment, IcpMarker, ReshapeProblem, ReshapeSettings, reshape};
+
+const LANDMARKS: usize = 40;
+const MARKERS: usize = 300;
+const THICKNESS_M: f64 = 0.003;
+
+fn main() -> ExitCode {
+    let Some(dir) = std::env::args().nth(1).map(PathBuf::from) else {
+        eprintln!("usage: reshape_face ICT_FACE_DIR [OUT]");
+        return ExitCode::from(2);
+    };
+    match run(&dir, std::env::args().nth(2).map(PathBuf::from)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("reshape_face: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// A triangulated OBJ in metres (ICT-FaceKit is in cm).
+fn read_face(path: &std::path::Path) -> Result<TriMesh, Box<dyn std::error::Error>> {
+    let mut m = softcap_mesh::read_obj_tri_mesh(path)?;
+    m.scale(0.01);
+    Ok(m)
+}
+
+/// The face region's triangles (largest connected piece), reindexed; and the original index of
+/// each kept vertex.
+fn crop(face: &TriMesh) -> (TriMesh, Vec<usize>) {
+    let inside = |v: &Vector3<f64>| v.x.abs() < 0.05 && v.y > -0.07 && v.y < 0.02;
+    // Without the folds a layer cannot follow (nostril and lip insides): triangles facing away
+    // from the smoothed normals of their corners.
+    let normals = softcap_mesh::smoothed_vertex_normals(face, 40);
+    let tris: Vec<[usize; 3]> = face
+        .triangles
+        .iter()
+        .copied()
+        .filter(|t| {
+            let [a, b, c] = t.map(|v| face.vertices[v]);
+            let n = (b - a).cross(&(c - a)).normalize();
+            t.iter()
+                .all(|&v| inside(&face.vertices[v]) && n.dot(&normals[v]) > 0.5)
+        })
+        .collect();
+    // Largest piece connected through edges (union-find over triangles).
+    let mut parent: Vec<usize> = (0..tris.len()).collect();
+    fn find(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut by_edge: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+    for (k, t) in tris.iter().enumerate() {
+        for e in 0..3 {
+            let (a, b) = (t[e], t[(e + 1) % 3]);
+            let key = (a.min(b), a.max(b));
+            if let Some(&other) = by_edge.get(&key) {
+                let (ra, rb) = (find(&mut parent, k), find(&mut parent, other));
+                parent[ra] = rb;
+            } else {
+                by_edge.insert(key, k);
+            }
+        }
+    }
+    let mut size: BTreeMap<usize, usize> = BTreeMap::new();
+    for k in 0..tris.len() {
+        *size.entry(find(&mut parent, k)).or_default() += 1;
+    }
+    let root = size.iter().max_by_key(|(_, n)| **n).map_or(0, |(r, _)| *r);
+    let mut index = vec![usize::MAX; face.vertices.len()];
+    let mut original = Vec::new();
+    let mut triangles = Vec::new();
+    for (k, t) in tris.iter().enumerate() {
+        if find(&mut parent, k) != root {
+            continue;
+        }
+        triangles.push(t.map(|v| {
+            if index[v] == usize::MAX {
+                index[v] = original.len();
+                original.push(v);
+            }
+            index[v]
+        }));
+    }
+    let vertices = original.iter().map(|&v| face.vertices[v]).collect();
+    (
+        TriMesh {
+            vertices,
+            triangles,
+        },
+        original,
+    )
+}
+
+/// The cropped region and its layer: a triangle whose prism folds (the layer is thicker than the
+/// local radius of curvature) is dropped and the region re-cropped, until the layer is valid.
+#[allow(clippy::type_complexity)]
+fn layer(
+    neutral: &TriMesh,
+) -> Result<(TriMesh, Vec<usize>, softcap_mesh::TetMesh), Box<dyn std::error::Error>> {
+    let mut face = neutral.clone();
+    loop {
+        let (surface, original) = crop(&face);
+        let settings = LayerSettings {
+            thickness: THICKNESS_M,
+            layers: 1,
+            normal_smoothing: 40,
+        };
+        match extrude_layer(&surface, &settings) {
+            Ok(volume) => return Ok((surface, original, volume)),
+            Err(softcap_mesh::MeshError::InvertedElement { tet, .. }) => {
+                let bad = surface.triangles[tet / 3].map(|v| original[v]);
+                face.triangles.retain(|t| *t != bad);
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+/// `k` farthest-point samples of the vertices, from the one nearest the centroid.
+fn farthest_points(v: &[Vector3<f64>], k: usize) -> Vec<usize> {
+    let c = v.iter().sum::<Vector3<f64>>() / v.len() as f64;
+    let first = (0..v.len())
+        .min_by(|&a, &b| (v[a] - c).norm().total_cmp(&(v[b] - c).norm()))
+        .unwrap_or(0);
+    let mut out = vec![first];
+    let mut d: Vec<f64> = v.iter().map(|p| (p - v[first]).norm()).collect();
+    while out.len() < k {
+        let next = (0..v.len())
+            .max_by(|&a, &b| d[a].total_cmp(&d[b]))
+            .unwrap_or(0);
+        out.push(next);
+        for (i, p) in v.iter().enumerate() {
+            d[i] = d[i].min((p - v[next]).norm());
+        }
+    }
+    out
+}
+
+/// `n` uniformly random points of a surface.
+fn surface_samples(m: &TriMesh, n: usize, rng: &mut ChaCha8Rng) -> Vec<Vector3<f64>> {
+    let areas: Vec<f64> = m
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| m.vertices[i]);
+            0.5 * (b - a).cross(&(c - a)).norm()
+        })
+        .collect();
+    let total: f64 = areas.iter().sum();
+    (0..n)
+        .map(|_| {
+            let mut r = rng.random::<f64>() * total;
+            let mut t = 0;
+            while t + 1 < areas.len() && r > areas[t] {
+                r -= areas[t];
+                t += 1;
+            }
+            let (mut a, mut b) = (rng.random::<f64>(), rng.random::<f64>());
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            let [p, q, s] = m.triangles[t].map(|i| m.vertices[i]);
+            p * (1.0 - a - b) + q * a + s * b
+        })
+        .collect()
+}
+
+/// (mean, p95, max) in mm of the per-vertex errors at the non-landmark vertices.
+fn errors(x: &[Vector3<f64>], truth: &[Vector3<f64>], skip: &[usize]) -> (f64, f64, f64) {
+    let mut e: Vec<f64> = (0..x.len())
+        .filter(|i| !skip.contains(i))
+        .map(|i| (x[i] - truth[i]).norm() * 1e3)
+        .collect();
+    e.sort_by(f64::total_cmp);
+    let mean = e.iter().sum::<f64>() / e.len() as f64;
+    (
+        mean,
+        e[(0.95 * (e.len() - 1) as f64).round() as usize],
+        e[e.len() - 1],
+    )
+}
+
+fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::error::Error>> {
+    let neutral = read_face(&dir.join("neutral.obj"))?;
+    let (surface, original, volume) = layer(&neutral)?;
+    let landmarks = farthest_points(&surface.vertices, LANDMARKS);
+    if let Some(out) = out {
+        std::fs::create_dir_all(&out)?;
+        let region = format!(
+            "{{\"ict_vertex\": {original:?}, \"triangles\": {:?}, \"landmarks\": {landmarks:?}}}\n",
+            surface.triangles
+        );
+        std::fs::write(out.join("region.json"), region)?;
+    }
+    println!(
+        "region: {} vertices, {} triangles; layer {} tets; {LANDMARKS} landmarks, {MARKERS} ICP markers",
+        surface.vertices.len(),
+        surface.triangles.len(),
+        volume.tets.len()
+    );
+    println!("| identity | method | mean mm | p95 mm | max mm | inverted tets | time s |");
+    println!("|---|---|---|---|---|---|---|");
+    let shell = LinearShell::from_mesh(&surface, &landmarks, &ShellSettings::default())?;
+    for id in 0..5 {
+        let full = read_face(&dir.join(format!("identities/identity{id:03}.obj")))?;
+        let truth: Vec<Vector3<f64>> = original.iter().map(|&v| full.vertices[v]).collect();
+        let identity = TriMesh {
+            vertices: truth.clone(),
+            triangles: surface.triangles.clone(),
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(100 + id as u64);
+        let row = |name: &str, x: &[Vector3<f64>], inverted: &str, seconds: f64| {
+            let (m, p, x) = errors(x, &truth, &landmarks);
+            println!("| {id:03} | {name} | {m:.3} | {p:.3} | {x:.3} | {inverted} | {seconds:.2} |");
+        };
+        row("none (neutral)", &surface.vertices, "", 0.0);
+        // softcap bi-Laplacian shell, handles at the landmarks.
+        let t0 = Instant::now();
+        let handles: Vec<Vector3<f64>> = landmarks
+            .iter()
+            .map(|&v| truth[v] - surface.vertices[v])
+            .collect();
+        let u = shell.solve(&handles)?;
+        let shelled: Vec<Vector3<f64>> = surface
+            .vertices
+            .iter()
+            .zip(&u)
+            .map(|(p, d)| p + d)
+            .collect();
+        row(
+            "bi-Laplacian shell",
+            &shelled,
+            "",
+            t0.elapsed().as_secs_f64(),
+        );
+        // softcap RBF warp (cubic kernel, quadratic tail), centres at the landmarks.
+        let t0 = Instant::now();
+        let centres: Vec<f64> = landmarks
+            .iter()
+            .flat_map(|&v| surface.vertices[v].iter().copied().collect::<Vec<_>>())
+            .collect();
+        let values: Vec<f64> = handles
+            .iter()
+            .flat_map(|d| d.iter().copied().collect::<Vec<_>>())
+            .collect();
+        let rbf = Rbf::interpolate(
+            &ScatteredData::new(&centres, 3, &values, 3)?,
+            &RbfSettings::default(),
+        )?;
+        let mut warped = Vec::with_capacity(surface.vertices.len());
+        for p in &surface.vertices {
+            let d = rbf.evaluate(p.as_slice())?;
+            warped.push(p + Vector3::new(d[0], d[1], d[2]));
+        }
+        row("RBF warp", &warped, "", t0.elapsed().as_secs_f64());
+        // saito-barbic reshape: attachments at the landmarks + ICP markers on the identity.
+        let t0 = Instant::now();
+        let problem = ReshapeProblem {
+            template: volume.clone(),
+            landmarks: Vec::new(),
+            icp_markers: surface_samples(&identity, MARKERS, &mut rng)
+                .into_iter()
+                .enumerate()
+                .map(|(i, p)| IcpMarker {
+                    id: format!("m{i}"),
+                    position_m: p,
+                })
+                .collect(),
+            attachments: landmarks
+                .iter()
+                .map(|&v| Attachment {
+                    id: v.to_string(),
+                    node: v,
+                    target_m: truth[v],
+                })
+                .collect(),
+            free_flying: false,
+        };
+        let out = reshape(&problem, &ReshapeSettings::default(), &mut |s, i, _, e| {
+            eprintln!("  identity {id:03} {s} {i}: max error {:.3} mm", e * 1e3)
+        })?;
+        let n = surface.vertices.len();
+        row(
+            "plastic-strain reshape",
+            &out.positions_m[..n],
+            &out.reshaped_quality.inverted_tets.to_string(),
+            t0.elapsed().as_secs_f64(),
+        );
+    }
+    Ok(())
+}
