@@ -77,6 +77,14 @@ pub struct FitDynamicSettings {
     pub max_simulations: usize,
     /// Levels of uniform refinement of the given mesh for the fit (0 = the mesh itself).
     pub refine: usize,
+    /// With `refine` > 0: fit on the given mesh first, carry the result to the refined mesh
+    /// (E scaled so that the refined body rings at the measured frequency, α and β kept — the
+    /// modal damping ratios ζ = α/2ω + βω/2 do not change when ω does not) and polish it there
+    /// with at most `fine_max_simulations` simulations; one refined simulation costs about 10×
+    /// a coarse one per level.
+    pub coarse_to_fine: bool,
+    /// Forward simulations of the polish on the refined mesh at most (coarse to fine).
+    pub fine_max_simulations: usize,
     /// Frame intervals per segment at most.
     pub segment_frames: usize,
     /// Shorter free runs are not used.
@@ -109,6 +117,8 @@ impl Default for FitDynamicSettings {
             optimizer: Optimizer::LevenbergMarquardt,
             max_simulations: 120,
             refine: 0,
+            coarse_to_fine: true,
+            fine_max_simulations: 24,
             segment_frames: 30,
             min_segment_frames: 4,
             forward: ForwardSettings::default(),
@@ -156,10 +166,15 @@ impl FitDynamicSettings {
                 return bad(f, format!("need 0 < lower < upper, got [{lo}, {hi}]"));
             }
         }
-        if self.segment_frames == 0 || self.forward.substeps == 0 || self.max_simulations == 0 {
+        if self.segment_frames == 0
+            || self.forward.substeps == 0
+            || self.max_simulations == 0
+            || self.fine_max_simulations == 0
+        {
             return bad(
                 "segment_frames",
-                "segment_frames, forward.substeps and max_simulations must be ≥ 1".into(),
+                "segment_frames, forward.substeps, max_simulations and fine_max_simulations must be ≥ 1"
+                    .into(),
             );
         }
         if self.refine > 2 {
@@ -201,8 +216,10 @@ pub struct DynamicFit {
     pub measured_modes: Vec<warm::ModalFit>,
     /// Natural frequencies of the fitted body, Hz (ascending).
     pub fitted_frequencies_hz: Vec<f64>,
-    /// E after the warm start, Pa (one value for all control points).
+    /// E after the warm start, Pa (the first control point's).
     pub warm_young_pa: f64,
+    /// Coarse to fine: E per control point fitted on the given mesh before the refined polish.
+    pub coarse_young_pa: Option<Vec<f64>>,
     /// Damping after the warm start.
     pub warm_damping: RayleighDamping,
     /// Forward simulations (all segments) of the whole fit.
@@ -276,11 +293,19 @@ struct Problem<'a> {
     weights: &'a [Vec<f64>],
     poisson: f64,
     nc: usize,
+    /// Values of the trailing log-parameters held fixed by the least-squares p-step (empty:
+    /// all free; coarse to fine holds α and β).
+    held: Vec<f64>,
     simulations: usize,
     best: (f64, Vec<f64>),
 }
 
 impl Problem<'_> {
+    /// The full log-parameter vector of the free ones.
+    fn full(&self, free: &[f64]) -> Vec<f64> {
+        free.iter().chain(&self.held).copied().collect()
+    }
+
     fn params(&self, q: &[f64]) -> DynamicParams {
         let (young, damping) = unpack(q, self.nc);
         DynamicParams {
@@ -322,13 +347,13 @@ impl Problem<'_> {
 
 impl LeastSquaresProblem for Problem<'_> {
     fn num_params(&self) -> usize {
-        self.nc + 2
+        self.nc + 2 - self.held.len()
     }
     fn num_residuals(&self) -> usize {
         self.forward.num_residuals()
     }
     fn residuals(&mut self, params: &[f64], residuals: &mut [f64]) {
-        let r = self.eval(params);
+        let r = self.eval(&self.full(params));
         for (o, v) in residuals.iter_mut().zip(r) {
             // A failed simulation: a large finite residual so the step is rejected.
             *o = if v.is_finite() { v } else { 1.0 };
@@ -336,10 +361,10 @@ impl LeastSquaresProblem for Problem<'_> {
     }
     fn jacobian(&mut self, params: &[f64], jacobian: &mut DMatrix<f64>) -> bool {
         // Forward differences in the log-parameters (one simulation per parameter).
-        let r0 = self.eval(params);
+        let r0 = self.eval(&self.full(params));
         let h = 1e-4;
         for j in 0..params.len() {
-            let mut q = params.to_vec();
+            let mut q = self.full(params);
             q[j] += h;
             let r = self.eval(&q);
             for i in 0..r.len() {
@@ -391,7 +416,8 @@ fn rest_shape(
 }
 
 /// Fits E at control points, α, β and the rest shape to `seq` on `mesh` (the static shape, i.e.
-/// the template at frame 0) by wang2015 Algorithm 1 (module docs).
+/// the template at frame 0) by wang2015 Algorithm 1 (module docs), on `settings.refine` levels
+/// of refinement of `mesh`, coarse to fine when `settings.coarse_to_fine`.
 pub fn fit_sequence(
     mesh: &TetMesh,
     seq: &TrackedSequence,
@@ -399,6 +425,31 @@ pub fn fit_sequence(
     progress: &Progress,
 ) -> Result<DynamicFit> {
     settings.validate()?;
+    if settings.refine == 0 || !settings.coarse_to_fine {
+        return fit_level(mesh, seq, settings, None, progress);
+    }
+    let coarse_settings = FitDynamicSettings {
+        refine: 0,
+        ..settings.clone()
+    };
+    let coarse = fit_level(mesh, seq, &coarse_settings, None, progress)?;
+    if coarse.status.starts_with("failed") {
+        return Ok(coarse);
+    }
+    fit_level(mesh, seq, settings, Some(&coarse), progress)
+}
+
+/// Algorithm 1 on `settings.refine` levels of refinement of `mesh`, from the settings' starting
+/// point (modal warm start of E, α, β) or from a `coarse` fit (E rescaled to the refined
+/// body's frequencies, α and β kept, one outer iteration of at most
+/// `settings.fine_max_simulations` simulations).
+fn fit_level(
+    mesh: &TetMesh,
+    seq: &TrackedSequence,
+    settings: &FitDynamicSettings,
+    coarse: Option<&DynamicFit>,
+    progress: &Progress,
+) -> Result<DynamicFit> {
     let n_given = mesh.vertices.len();
     let cp = control_points(
         mesh,
@@ -440,15 +491,24 @@ pub fn fit_sequence(
         weights: &fit_weights,
         poisson: settings.poisson,
         nc,
+        held: Vec::new(),
         simulations: 0,
         best: (f64::INFINITY, Vec::new()),
     };
-    let mut q: Vec<f64> = std::iter::repeat_n(settings.initial_young_pa.ln(), nc)
-        .chain([
-            settings.initial_alpha_per_s.ln(),
-            settings.initial_beta_s.ln(),
-        ])
-        .collect();
+    let mut q: Vec<f64> = match coarse {
+        Some(c) => c
+            .young_pa
+            .iter()
+            .map(|e| e.ln())
+            .chain([c.damping.alpha_per_s.ln(), c.damping.beta_s.ln()])
+            .collect(),
+        None => std::iter::repeat_n(settings.initial_young_pa.ln(), nc)
+            .chain([
+                settings.initial_alpha_per_s.ln(),
+                settings.initial_beta_s.ln(),
+            ])
+            .collect(),
+    };
     let bounds = Bounds::new(
         std::iter::repeat_n(settings.young_bounds_pa[0].ln(), nc)
             .chain([
@@ -481,13 +541,13 @@ pub fn fit_sequence(
     // Modal warm start (§6.3).
     progress.step(2, 4, "modal warm start (wang2015 §6.3)");
     let mut measured_modes = Vec::new();
-    if settings.warm_start {
-        let (fits, young, damping) = warm_start(&forward, &mut problem, &q, &static_m, settings)?;
+    if settings.warm_start || coarse.is_some() {
+        let (fits, scale, damping) = warm_start(&forward, &mut problem, &q, &static_m, settings)?;
         measured_modes = fits;
-        if let Some(e) = young {
-            q[..nc].iter_mut().for_each(|v| *v = e.ln());
+        if let Some(s) = scale {
+            q[..nc].iter_mut().for_each(|v| *v += s.ln());
         }
-        if let Some(d) = damping {
+        if let (Some(d), None) = (damping, coarse) {
             q[nc] = d.alpha_per_s.ln();
             q[nc + 1] = d.beta_s.ln();
         }
@@ -506,7 +566,11 @@ pub fn fit_sequence(
     let mut history = Vec::new();
     let mut status = "max-iterations".to_string();
     let mut rest_status = String::new();
-    for outer in 0..settings.outer_iterations.max(1) {
+    let (outer_iterations, max_simulations) = match coarse {
+        Some(_) => (1, settings.fine_max_simulations),
+        None => (settings.outer_iterations.max(1), settings.max_simulations),
+    };
+    for outer in 0..outer_iterations {
         progress.step(3, 4, &format!("Algorithm 1, iteration {}", outer + 1));
         let (x, s) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
         rest = x;
@@ -533,7 +597,7 @@ pub fn fit_sequence(
                     &vec![0.0; q0.len()],
                     Some(&shifted),
                     &NelderMeadSettings {
-                        max_evaluations: settings.max_simulations,
+                        max_evaluations: max_simulations,
                         f_tolerance: 1e-10,
                         x_tolerance: 1e-4,
                         initial_relative_step: 0.0,
@@ -549,13 +613,23 @@ pub fn fit_sequence(
                 r.value
             }
             Optimizer::LevenbergMarquardt => {
-                let per_iteration = nc + 3;
+                // Coarse to fine: α and β are held (the modal damping ratios they give do not
+                // change with the mesh once E makes the frequencies match), E is polished.
+                let free = if coarse.is_some() { nc } else { nc + 2 };
+                problem.held = q[free..].to_vec();
+                let free_bounds =
+                    Bounds::new(bounds.lower[..free].to_vec(), bounds.upper[..free].to_vec())
+                        .map_err(|e| TissueError::BadSettings {
+                            field: "bounds".into(),
+                            problem: e.to_string(),
+                        })?;
+                let per_iteration = free + 1;
                 let r = levenberg_marquardt(
                     &mut problem,
-                    &q,
-                    Some(&bounds),
+                    &q[..free],
+                    Some(&free_bounds),
                     &LevenbergMarquardtSettings {
-                        max_iterations: (settings.max_simulations / per_iteration).max(2),
+                        max_iterations: (max_simulations / per_iteration).max(2),
                         relative_cost_tolerance: 1e-8,
                         step_tolerance: 1e-6,
                         ..LevenbergMarquardtSettings::default()
@@ -565,7 +639,8 @@ pub fn fit_sequence(
                     what: "Levenberg–Marquardt".into(),
                     status: e.to_string(),
                 })?;
-                q = r.params;
+                q = problem.full(&r.params);
+                problem.held.clear();
                 2.0 * r.cost
             }
         };
@@ -581,13 +656,21 @@ pub fn fit_sequence(
             status = "failed: no parameters gave a finite trajectory".into();
             break;
         }
-        if converged {
+        if converged || (coarse.is_some() && f.is_finite()) {
             status = "converged".into();
             break;
         }
     }
     progress.step(4, 4, "uncertainty and modal frequencies");
-    let relative_sigma = covariance_sigma(&mut problem, &q);
+    let relative_sigma = match coarse {
+        // α and β were held: their uncertainty is the coarse fit's.
+        Some(c) => {
+            let mut s = covariance_sigma(&mut problem, &q, nc);
+            s.extend_from_slice(&c.relative_sigma[nc..]);
+            s
+        }
+        None => covariance_sigma(&mut problem, &q, nc + 2),
+    };
     let rms_m = rms_of(&mut problem, &q);
     let params = problem.params(&q);
     let (rest, final_rest_status) = rest_shape(&forward, &params, &static_m, Some(&problem.rest))?;
@@ -624,7 +707,8 @@ pub fn fit_sequence(
         fitted_frequencies_hz,
         warm_young_pa: warm_young[0],
         warm_damping,
-        simulations: problem.simulations,
+        coarse_young_pa: coarse.map(|c| c.young_pa.clone()),
+        simulations: problem.simulations + coarse.map_or(0, |c| c.simulations),
         history,
         status,
         rest_status,
@@ -641,9 +725,10 @@ fn rms_of(problem: &mut Problem<'_>, q: &[f64]) -> f64 {
     (3.0 * ss / r.len().max(1) as f64).sqrt()
 }
 
-/// §6.3: modes at the current E, measured frequencies and damping of the tracked motion, E
-/// matched on the dominant mode (three passes with the rest shape re-solved), (α, β) from the
-/// modal damping ratios.
+/// §6.3: modes at the current E, measured frequencies and damping of the tracked motion, every
+/// E_c scaled by one factor so that the dominant mode rings at its measured frequency (passes
+/// with the rest shape re-solved until it does to 0.1 %, at most eight), (α, β) from the modal damping ratios. Returns the
+/// modal fits, the factor and the damping.
 fn warm_start(
     forward: &Forward,
     problem: &mut Problem<'_>,
@@ -652,20 +737,27 @@ fn warm_start(
     settings: &FitDynamicSettings,
 ) -> Result<(Vec<warm::ModalFit>, Option<f64>, Option<RayleighDamping>)> {
     let nc = problem.nc;
-    let mut young = q[0].exp();
+    let largest = q[..nc].iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let smallest = q[..nc].iter().cloned().fold(f64::INFINITY, f64::min);
+    let (lo, hi) = (
+        (settings.young_bounds_pa[0].ln() - smallest).exp(),
+        (settings.young_bounds_pa[1].ln() - largest).exp(),
+    );
+    let mut scale = 1.0;
     let mut fits = Vec::new();
     let mut rest: Option<Vec<Vector3<f64>>> = None;
-    for pass in 0..3 {
+    // Until the dominant mode's frequency matches to 0.1 %: the rest shape, and with it the
+    // modes, depend on E, and a rest shape solved at a far-off starting E can be poor, so the
+    // modes are re-measured at every pass.
+    for _pass in 0..8 {
         let mut qq = q.to_vec();
-        qq[..nc].iter_mut().for_each(|v| *v = young.ln());
+        qq[..nc].iter_mut().for_each(|v| *v += f64::ln(scale));
         let params = problem.params(&qq);
         let (x, _) = rest_shape(forward, &params, static_m, rest.as_deref())?;
         let model = forward.model(&params, &x)?;
         rest = Some(x);
         let modes = warm::modes(forward, &model, settings.warm_start_modes)?;
-        if pass == 0 {
-            fits = warm::measure_modes(forward, static_m, &modes);
-        }
+        fits = warm::measure_modes(forward, static_m, &modes);
         let Some(dominant) = fits.first().filter(|f| f.explained > 0.5) else {
             return Ok((fits, None, None));
         };
@@ -673,16 +765,19 @@ fn warm_start(
         if omega_model.is_nan() || omega_model <= 0.0 {
             return Ok((fits, None, None));
         }
-        young *= (dominant.omega_rad_s / omega_model).powi(2);
-        young = young.clamp(settings.young_bounds_pa[0], settings.young_bounds_pa[1]);
+        let ratio = (dominant.omega_rad_s / omega_model).powi(2);
+        scale = (scale * ratio).clamp(lo, hi);
+        if (ratio - 1.0).abs() < 1e-3 {
+            break;
+        }
     }
     let damping = warm::damping_from_modes(&fits);
-    Ok((fits, Some(young), damping))
+    Ok((fits, Some(scale), damping))
 }
 
-/// 1-σ uncertainties of the log-parameters (≈ relative uncertainties) from s² (JᵀJ)⁻¹.
-fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64]) -> Vec<f64> {
-    let n = q.len();
+/// 1-σ uncertainties of the first `n` log-parameters (≈ relative uncertainties) from
+/// s² (JᵀJ)⁻¹, the others held.
+fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> Vec<f64> {
     let r0 = problem.eval(q);
     let m = r0.len();
     let h = 1e-3;

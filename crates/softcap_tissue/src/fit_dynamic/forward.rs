@@ -317,11 +317,7 @@ impl Forward {
             integrator: Integrator::NewmarkAverageAcceleration,
             time_step_s: h,
             damping,
-            stiffness: if std::env::var("CONS").is_ok() {
-                StiffnessKind::Consistent
-            } else {
-                StiffnessKind::Warped
-            },
+            stiffness: StiffnessKind::Warped,
             max_iterations: self.settings.newton_iterations.max(1),
             ..DynamicsSettings::default()
         }

@@ -169,6 +169,14 @@ pub fn write_report(
         fit.warm_damping.beta_s,
         1e3 * fit.rms_m
     );
+    if let Some(coarse) = &fit.coarse_young_pa {
+        let list: Vec<String> = coarse.iter().map(|e| format!("{e:.4e}")).collect();
+        let _ = writeln!(
+            md,
+            "Coarse to fine: E fitted on the given mesh first: [{}] Pa; the refined mesh's is above.\n",
+            list.join(", ")
+        );
+    }
     let _ = writeln!(
         md,
         "| mode | measured Hz | damping ratio | variance explained | fitted Hz |\n|---|---|---|---|---|"

@@ -266,6 +266,13 @@ pub fn report_message(fit: &DynamicFit) -> proto::Report {
             Value::Number(fit.warm_young_pa),
             "Pa",
         ),
+    ]);
+    if let Some(coarse) = &fit.coarse_young_pa {
+        for (c, e) in coarse.iter().enumerate() {
+            entries.push(kv(format!("coarse_young_{c}"), Value::Number(*e), "Pa"));
+        }
+    }
+    entries.extend([
         kv(
             "simulations".into(),
             Value::Integer(fit.simulations as i64),

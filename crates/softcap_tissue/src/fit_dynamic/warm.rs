@@ -6,8 +6,8 @@
 //! dominant coordinates (grid over (ω_d, σ), linear least squares for (a, b, c), then
 //! Nelder–Mead), giving the natural frequency ω = √(ω_d² + σ²) and the damping ratio ζ = σ/ω.
 //! The paper samples fifty E and keeps the best match; here E ← E (ω_measured/ω_model)² is
-//! iterated with the rest shape re-solved at each E (exact for a homogeneous linear body, two
-//! or three passes otherwise). α and β come from the damping ratios of two modes,
+//! iterated with the rest shape re-solved at each E (exact for a homogeneous linear body, a
+//! few passes otherwise). α and β come from the damping ratios of two modes,
 //! ζ = α/(2ω) + βω/2 (`RayleighDamping::from_two_ratios`), or, with one mode, half of ζ each.
 
 use nalgebra::Vector3;
