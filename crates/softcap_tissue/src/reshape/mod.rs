@@ -33,7 +33,7 @@ pub use problem::{
 };
 pub use run::{ReshapeConfig, ReshapeRun, run, summary_line};
 pub use solve::{
-    ConstraintError, IcpRows, IterationRecord, ReshapeOutcome, ReshapeSettings, ReshapeStatus,
-    StageReport, StopReason, clamp_plastic, reshape,
+    ConstraintError, FirstStep, IcpRows, IterationRecord, ReshapeOutcome, ReshapeSettings,
+    ReshapeStatus, StageReport, StopReason, clamp_plastic, reshape,
 };
 pub use target::{LoadedTarget, TargetSpec, load_target, write_target};

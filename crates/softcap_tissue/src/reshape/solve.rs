@@ -637,32 +637,14 @@ impl<'p> Solver<'p> {
     fn iteration(&mut self, stage: Stage, state: &mut State) -> Result<Option<AcceptedStep>> {
         let rows = self.rows(stage, state);
         let e0 = self.objective(&state.s, &state.x, &rows);
-        self.set_plastic(&state.s)?;
-        self.equilibrium.factor_at(&self.model, &state.x)?;
-        let jacobians = self.model.plastic_force_jacobians(&state.x);
-        let z = self.z_matrix(&state.x, &rows)?;
-        let scalars = scalar_rows(&rows);
-        let weights: Vec<f64> = scalars.iter().map(|(c, _)| rows[*c].weight).collect();
-        let residual = Mat::<f64>::from_fn(scalars.len(), 1, |i, _| {
-            let (c, d) = scalars[i];
-            let r = &rows[c];
-            d.dot(&(r.point.at(&state.x) - r.target)) * r.weight
-        });
-        let zr_mat = &z * &residual;
-        let zr: Vec<f64> = (0..zr_mat.nrows()).map(|i| zr_mat[(i, 0)]).collect();
+        let StepParts {
+            jacobians,
+            z,
+            weights,
+            gradient,
+        } = self.step_parts(state, &rows)?;
         let tets = &self.problem.template.tets;
         let n = state.x.len();
-        let bt_zr: Vec<Vector6<f64>> = jacobians
-            .iter()
-            .zip(tets)
-            .map(|(b, tet)| element_bt(b, tet, &zr))
-            .collect();
-        let smooth_gradient = self.laplacian.normal_apply(&state.s);
-        let gradient: Vec<Vector6<f64>> = smooth_gradient
-            .iter()
-            .zip(&bt_zr)
-            .map(|(l, b)| l * self.alpha - b)
-            .collect();
         let direction = if stage.constant {
             constant_step(&jacobians, tets, n, &z, &weights, &gradient)
         } else {
@@ -695,6 +677,41 @@ impl<'p> Solver<'p> {
             step.objective_after = self.objective(&state.s, &state.x, &self.rows(stage, state));
         }
         Ok(Some(step))
+    }
+
+    /// The pieces of the Gauss–Newton normal equations at `state` for `rows` (module docs).
+    fn step_parts(&mut self, state: &State, rows: &[Row]) -> Result<StepParts> {
+        self.set_plastic(&state.s)?;
+        self.equilibrium.factor_at(&self.model, &state.x)?;
+        let jacobians = self.model.plastic_force_jacobians(&state.x);
+        let z = self.z_matrix(&state.x, rows)?;
+        let scalars = scalar_rows(rows);
+        let weights: Vec<f64> = scalars.iter().map(|(c, _)| rows[*c].weight).collect();
+        let residual = Mat::<f64>::from_fn(scalars.len(), 1, |i, _| {
+            let (c, d) = scalars[i];
+            let r = &rows[c];
+            d.dot(&(r.point.at(&state.x) - r.target)) * r.weight
+        });
+        let zr_mat = &z * &residual;
+        let zr: Vec<f64> = (0..zr_mat.nrows()).map(|i| zr_mat[(i, 0)]).collect();
+        let tets = &self.problem.template.tets;
+        let bt_zr: Vec<Vector6<f64>> = jacobians
+            .iter()
+            .zip(tets)
+            .map(|(b, tet)| element_bt(b, tet, &zr))
+            .collect();
+        let smooth_gradient = self.laplacian.normal_apply(&state.s);
+        let gradient: Vec<Vector6<f64>> = smooth_gradient
+            .iter()
+            .zip(&bt_zr)
+            .map(|(l, b)| l * self.alpha - b)
+            .collect();
+        Ok(StepParts {
+            jacobians,
+            z,
+            weights,
+            gradient,
+        })
     }
 
     /// Brent line search along s + ηΔs (module docs); updates `state` on success.
@@ -898,6 +915,67 @@ impl<'p> Solver<'p> {
             Some(entry(ConstraintKind::Icp, &m.id, m.position_m, point.at(x)))
         }));
         out
+    }
+}
+
+/// The pieces of one Gauss–Newton step's normal equations ([`NormalSystem`]).
+struct StepParts {
+    jacobians: Vec<SMatrix<f64, 12, 6>>,
+    z: Mat<f64>,
+    weights: Vec<f64>,
+    gradient: Vec<Vector6<f64>>,
+}
+
+/// The normal equations of the first Gauss–Newton step of the ICP stage of `problem` (from the
+/// template with s = I; every constraint active), owned: the same system for the Woodbury solve
+/// and for CG in the benches (saito-barbic Table 1).
+pub struct FirstStep {
+    parts: StepParts,
+    tets: Vec<[usize; 4]>,
+    num_nodes: usize,
+    laplacian: PlasticLaplacian,
+    alpha: f64,
+}
+
+impl FirstStep {
+    /// Builds the system (one equilibrium solve, one factorization, Z for every row).
+    pub fn new(problem: &ReshapeProblem, settings: &ReshapeSettings) -> Result<Self> {
+        let mut solver = Solver::new(problem, settings)?;
+        let state = solver.initial_state()?;
+        let stage = Stage {
+            name: "icp",
+            constant: false,
+            landmarks: !problem.landmarks.is_empty(),
+            icp: true,
+        };
+        let rows = solver.rows(stage, &state);
+        let parts = solver.step_parts(&state, &rows)?;
+        Ok(Self {
+            parts,
+            tets: problem.template.tets.clone(),
+            num_nodes: state.x.len(),
+            laplacian: solver.laplacian,
+            alpha: solver.alpha,
+        })
+    }
+
+    /// The system for [`woodbury_step`] and [`super::step::cg_step`].
+    pub fn system(&self) -> NormalSystem<'_> {
+        NormalSystem {
+            jacobians: &self.parts.jacobians,
+            tets: &self.tets,
+            num_nodes: self.num_nodes,
+            z: &self.parts.z,
+            weights: &self.parts.weights,
+            gradient: &self.parts.gradient,
+            laplacian: &self.laplacian,
+            alpha: self.alpha,
+        }
+    }
+
+    /// Number of scalar constraint rows.
+    pub fn rows(&self) -> usize {
+        self.parts.weights.len()
     }
 }
 

@@ -1,0 +1,94 @@
+//! Issue 30 benches: one Gauss–Newton step of `softcap tissue reshape` solved by the Woodbury
+//! identity with the singular lemma vs by conjugate gradients on the same normal equations
+//! (saito-barbic Table 1: 238k unknowns, 1,143 constraints — CG 897 s, Woodbury 9.5 s).
+//!
+//! The step is the first one of the ICP stage of the known-truth box
+//! ([`softcap_tissue::reshape::known_truth`]: 12 landmarks, 150 ICP markers, the x = 0 face
+//! attached) on templates of 720 and 5,760 tets; CG runs without preconditioner to
+//! ‖M Δs + g‖ ≤ 1e-6 ‖g‖ (capped at 20,000 iterations). Before criterion starts, each size is
+//! timed once and printed with the CG iteration count, its residual and the relative difference
+//! of the two steps; `SOFTCAP_RESHAPE_BENCH_ONCE=1` stops there, and `SOFTCAP_RESHAPE_BENCH_CELLS`
+//! (e.g. `22,20,15`: 39,600 tets) adds one larger size to the single runs.
+//!
+//! `scripts/bench softcap_tissue -- reshape` (= `cargo bench -p softcap_tissue --bench reshape`).
+
+use std::time::{Duration, Instant};
+
+use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+use softcap_tissue::reshape::step::{cg_step, woodbury_step};
+use softcap_tissue::reshape::{FirstStep, ReshapeSettings, known_truth};
+
+const CG_TOLERANCE: f64 = 1e-6;
+const CG_MAX_ITERATIONS: usize = 20_000;
+
+fn first_step(cells: [usize; 3]) -> FirstStep {
+    let (problem, _) = known_truth::problem_with_cells(false, cells);
+    FirstStep::new(&problem, &ReshapeSettings::default()).expect("first Gauss-Newton step")
+}
+
+/// One timed Woodbury and CG solve of `step`, printed.
+fn once(label: &str, step: &FirstStep) {
+    let sys = step.system();
+    let t0 = Instant::now();
+    let w = woodbury_step(&sys).expect("Woodbury step");
+    let tw = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let cg = cg_step(&sys, CG_TOLERANCE, CG_MAX_ITERATIONS);
+    let tc = t0.elapsed().as_secs_f64();
+    let size = w.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
+    let diff = w
+        .iter()
+        .zip(&cg.step)
+        .map(|(a, b)| (a - b).norm_squared())
+        .sum::<f64>()
+        .sqrt();
+    eprintln!(
+        "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s, CG {tc:.3} s \
+         ({} iterations, residual {:.1e}, step difference {:.1e}); CG / Woodbury {:.1}",
+        6 * sys.jacobians.len(),
+        step.rows(),
+        cg.iterations,
+        cg.relative_residual,
+        diff / size,
+        tc / tw
+    );
+}
+
+fn bench(c: &mut Criterion) {
+    let sizes = [("720_tets", [8, 5, 3]), ("5760_tets", [16, 10, 6])];
+    let steps: Vec<(&str, FirstStep)> = sizes.iter().map(|(l, c)| (*l, first_step(*c))).collect();
+    for (label, step) in &steps {
+        once(label, step);
+    }
+    if let Ok(cells) = std::env::var("SOFTCAP_RESHAPE_BENCH_CELLS") {
+        let c: Vec<usize> = cells.split(',').filter_map(|v| v.parse().ok()).collect();
+        if let [x, y, z] = c[..] {
+            let t0 = Instant::now();
+            let step = first_step([x, y, z]);
+            eprintln!("system built in {:.1} s", t0.elapsed().as_secs_f64());
+            once(&format!("{} tets", 6 * x * y * z), &step);
+        }
+    }
+    if std::env::var_os("SOFTCAP_RESHAPE_BENCH_ONCE").is_some() {
+        eprintln!("SOFTCAP_RESHAPE_BENCH_ONCE set: single runs only, no criterion samples");
+        return;
+    }
+    let mut g = c.benchmark_group("reshape");
+    g.sample_size(10);
+    g.sampling_mode(SamplingMode::Flat);
+    g.warm_up_time(Duration::from_millis(1));
+    g.measurement_time(Duration::from_secs(1));
+    for (label, step) in &steps {
+        let sys = step.system();
+        g.bench_function(format!("woodbury_step_{label}"), |b| {
+            b.iter(|| woodbury_step(&sys).expect("Woodbury step"))
+        });
+        g.bench_function(format!("cg_step_{label}"), |b| {
+            b.iter(|| cg_step(&sys, CG_TOLERANCE, CG_MAX_ITERATIONS))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
