@@ -88,16 +88,26 @@ fn recovers_a_known_anisotropic_plastic_deformation() {
 }
 
 /// saito-barbic §3.6: the same targets moved rigidly (29°, 3 cm) and no attachments (free-flying:
-/// rigid gauge and block-coordinate rigid step) give the moved shape. With the default 20 ICP
-/// iterations the stage ends at its cap (measured: shape 0.56 mm mean, 2.2 mm p95), so the bounds
-/// here are looser than the attached case's.
+/// rigid gauge and block-coordinate rigid step) give the moved shape. The block-coordinate descent
+/// between shape and rigid transform converges linearly, so the stopping rule is tightened
+/// (relative progress 0.001, 60 iterations; with the defaults the ICP stage stops at 15 iterations
+/// with shape error p95 1.28 mm). Measured: shape 0.126 / 0.503 / 1.296 mm, ICP markers max
+/// 0.286 mm, landmarks max 0.349 mm — without the attached face the x = 0 end is known only from
+/// markers, so the p95 sits at the 0.5 mm.
 #[test]
 fn free_flying_reshape_recovers_the_shape_up_to_a_rigid_motion() {
     let (p, held_out) = problem(true);
-    let out = reshape(&p, &ReshapeSettings::default(), &mut |_, _, _, _| {}).unwrap();
+    let settings = ReshapeSettings {
+        relative_progress: 0.001,
+        max_iterations: 60,
+        ..ReshapeSettings::default()
+    };
+    let out = reshape(&p, &settings, &mut |_, _, _, _| {}).unwrap();
     let [s, _, i] = evaluate(&p, &out, &held_out, moved);
-    assert!(s.0 < 1.0e-3 && s.1 < 3.0e-3, "shape error {}", mm(s));
-    assert!(i.0 < 0.5e-3, "ICP error {}", mm(i));
+    assert!(s.0 < 0.2e-3 && s.1 < 0.6e-3, "shape error {}", mm(s));
+    assert!(i.2 <= 0.5e-3, "ICP error {}", mm(i));
+    let landmarks = stats(&mut out.errors_of(ConstraintKind::Landmark));
+    assert!(landmarks.2 <= 0.5e-3, "landmark error {}", mm(landmarks));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
 }
 
