@@ -20,12 +20,14 @@ use crate::baseline::{Prepared, prepare};
 use crate::cells::{EffectCells, focus_cells};
 use crate::confirm::Confirmed;
 use crate::evidence::{
+    Unexplained,
     Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NotApplicable, RankedHypothesis,
     Resimulated, Screened,
 };
 use crate::folds::{confidence, fold_gains, mean_sd, separable};
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
+use crate::outliers::{outlier_runs, without_runs};
 use crate::recording::Recording;
 use crate::residual::{Located, Residuals, residuals, rms_where_m};
 use crate::screen::{Refit, Variant, predict, refit, stiffness_scale_variant};
@@ -74,7 +76,17 @@ pub fn diagnose_with_progress(
     progress: &ProgressBar,
 ) -> Result<DiagnosisRun> {
     let seg = segment(rec, sim, settings)?;
-    let mismatch = locate(rec, &seg, sim, settings, progress)?;
+    let prepared = prepare(rec, &seg, sim, settings, progress)?;
+    // Outlier markers (a marker on the wrong blob for seconds) leave the diagnosis first.
+    let outliers = outlier_runs(rec, &prepared.baseline_m, &settings.outliers);
+    let cleaned;
+    let rec = if outliers.is_empty() {
+        rec
+    } else {
+        cleaned = without_runs(rec, &outliers);
+        &cleaned
+    };
+    let mismatch = locate(rec, &seg, prepared, settings)?;
     let cx = Context {
         rec,
         seg: &seg,
@@ -86,6 +98,7 @@ pub fn diagnose_with_progress(
     let confirmation = confirm(&cx, &screen, sim, progress)?;
     let selection = select(&cx, &screen, &confirmation);
     let mut diagnosis = verdict(&mismatch, &screen, &confirmation, &selection);
+    diagnosis.outliers = outliers;
     diagnosis.next_experiment = plan_next_experiment(&cx, &screen, &selection, sim, progress);
     let extended_m = selection.prediction;
     progress.finish_and_clear();
@@ -179,11 +192,9 @@ impl Mismatch {
 fn locate(
     rec: &Recording,
     seg: &Segmentation,
-    sim: &mut dyn ProbeSimulator,
+    prepared: Prepared,
     settings: &DiagnoseSettings,
-    progress: &ProgressBar,
 ) -> Result<Mismatch> {
-    let prepared = prepare(rec, seg, sim, settings, progress)?;
     let res = residuals(rec, &prepared.baseline_m);
     let located = crate::residual::locate(rec, seg, &res);
     let sig = signatures(rec, seg, &res);
@@ -903,10 +914,16 @@ fn verdict(
         None => 0,
     };
     ranked.insert(pos, none_row(mismatch, screen, focus_cells));
-    let verdict = if selection.candidates.is_empty() {
-        winner.map_or("none", |e| e.name())
-    } else {
+    let unexplained = match (winner, selection.candidates.is_empty()) {
+        (None, true) => unexplained(mismatch, screen),
+        _ => None,
+    };
+    let verdict = if !selection.candidates.is_empty() {
         "inconclusive"
+    } else if unexplained.is_some() {
+        "unexplained"
+    } else {
+        winner.map_or("none", |e| e.name())
     };
     Diagnosis {
         verdict: verdict.to_string(),
@@ -916,7 +933,88 @@ fn verdict(
         confidence: selection.confidence,
         candidates: selection.candidates.clone(),
         next_experiment: None,
+        outliers: Vec::new(),
+        unexplained,
     }
+}
+
+/// `unexplained`: no effect named, yet the default model's held-out error on the focus cells —
+/// and what is left of it after the best catalog entry's refit (its error ratio on its own
+/// cells) or the stiffness-scale nuisance — is at least `unexplained_noise_factor` × the noise RMS √3σ. Where: the focus cell with the
+/// largest RMS, its probe location and markers with the largest RMS.
+fn unexplained(mismatch: &Mismatch, screen: &Screen<'_>) -> Option<Unexplained> {
+    let cx = &screen.scoring.cx;
+    let (rec, seg) = (cx.rec, cx.seg);
+    let factor = cx.settings.unexplained_noise_factor;
+    let noise_floor_m = 3f64.sqrt() * mismatch.signatures.noise_sigma_m;
+    // a hypothesis scored on its own cells explains the focus cells' error in the ratio it
+    // reduced its own cells' error
+    let best_explained_rmse_m = screen
+        .rows
+        .iter()
+        .filter(|r| r.before_m > 0.0)
+        .map(|r| mismatch.before_m * (r.after_m / r.before_m).min(1.0))
+        .fold(screen.scoring.scale_only_m, f64::min);
+    let bar = factor * noise_floor_m;
+    if !(factor > 0.0 && mismatch.before_m >= bar && best_explained_rmse_m >= bar) {
+        return None;
+    }
+    let held_out = |k: usize, m: usize| {
+        seg.fold_of_frame[k].is_some() && mismatch.in_focus(seg, k, m)
+    };
+    // the focus cell with the largest RMS
+    let mut cells: BTreeMap<(Region, Phase), (f64, usize)> = BTreeMap::new();
+    let mut per_marker = vec![BTreeMap::<(Region, Phase), (f64, usize)>::new(); rec.num_markers()];
+    let mut per_fold: BTreeMap<((Region, Phase), usize), (f64, usize)> = BTreeMap::new();
+    for (k, row) in mismatch.residuals.iter().enumerate() {
+        for (m, r) in row.iter().enumerate() {
+            let Some(r) = r else { continue };
+            if !held_out(k, m) {
+                continue;
+            }
+            let cell = (seg.regions[m], seg.phases[k]);
+            let e2 = r.norm_squared();
+            for acc in [
+                cells.entry(cell).or_default(),
+                per_marker[m].entry(cell).or_default(),
+            ] {
+                acc.0 += e2;
+                acc.1 += 1;
+            }
+            if let Some(l) = seg.fold_of_frame[k] {
+                let acc = per_fold.entry((cell, l)).or_default();
+                acc.0 += e2;
+                acc.1 += 1;
+            }
+        }
+    }
+    let rms = |(s, n): (f64, usize)| (s / n.max(1) as f64).sqrt();
+    let (cell, cell_rmse_m) = cells
+        .iter()
+        .map(|(c, acc)| (*c, rms(*acc)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let location = per_fold
+        .iter()
+        .filter(|((c, _), _)| *c == cell)
+        .map(|((_, l), acc)| (*l, rms(*acc)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(l, _)| l);
+    let mut markers: Vec<(String, f64)> = per_marker
+        .iter()
+        .enumerate()
+        .filter_map(|(m, c)| c.get(&cell).map(|acc| (rec.marker_ids[m].clone(), rms(*acc))))
+        .collect();
+    markers.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    markers.truncate(3);
+    Some(Unexplained {
+        heldout_rmse_m: mismatch.before_m,
+        best_explained_rmse_m,
+        noise_floor_m,
+        cell: format!("{}/{}", cell.0.name(), cell.1.name()),
+        cell_rmse_m,
+        location,
+        markers,
+    })
 }
 
 /// The focus cells as `region/phase` names (`all` when every observation is scored).

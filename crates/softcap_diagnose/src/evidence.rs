@@ -33,6 +33,34 @@ pub struct Diagnosis {
     /// `inconclusive`: the protocol whose recording would separate the candidates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub next_experiment: Option<NextExperiment>,
+    /// Outlier markers: runs of a marker's observations whose residual stepped away from the
+    /// default model and back (a marker on the wrong blob), left out of every score.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub outliers: Vec<crate::outliers::OutlierRun>,
+    /// `unexplained`: where the default model misses far above the noise floor while no catalog
+    /// entry (nor the stiffness-scale nuisance) explains it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unexplained: Option<Unexplained>,
+}
+
+/// Where an `unexplained` mismatch lives and how far it is above the noise floor.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Unexplained {
+    /// The default model's held-out RMS on the focus cells, m.
+    pub heldout_rmse_m: f64,
+    /// What is left of `heldout_rmse_m` after the best catalog entry's refit (scaled by the
+    /// after / before ratio it reached on its own cells) or the stiffness-scale nuisance, m.
+    pub best_explained_rmse_m: f64,
+    /// The noise floor: the marker-noise RMS √3σ estimated from the data, m.
+    pub noise_floor_m: f64,
+    /// The cell with the largest error: `region/phase`.
+    pub cell: String,
+    /// Its RMS, m.
+    pub cell_rmse_m: f64,
+    /// The probe location (fold index) with the largest error in the cell.
+    pub location: Option<usize>,
+    /// The markers with the largest error in the cell, largest first: (id, RMS m).
+    pub markers: Vec<(String, f64)>,
 }
 
 /// One named effect of the joint extended model.

@@ -64,6 +64,7 @@ pub mod folds;
 pub mod friction;
 pub mod hypotheses;
 pub mod io;
+pub mod outliers;
 pub mod output;
 pub mod protocols;
 pub mod recording;
@@ -83,7 +84,7 @@ pub use diagnose::{DiagnosisRun, diagnose, diagnose_with_progress};
 pub use error::{DiagnoseError, Result};
 pub use evidence::{
     Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NextExperiment, NotApplicable,
-    ProtocolPrediction, RankedHypothesis, Resimulated, Screened,
+    ProtocolPrediction, RankedHypothesis, Resimulated, Screened, Unexplained,
 };
 pub use hypotheses::Effect;
 pub use hypotheses::Hypothesis;

@@ -52,6 +52,52 @@ fn key_value(key: &str, v: f64) -> proto::KeyValue {
     }
 }
 
+/// The `unexplained` verdict's location and the outlier markers left out, as report sections.
+fn write_unexplained(s: &mut String, d: &Diagnosis) {
+    if let Some(u) = &d.unexplained {
+        let markers: Vec<String> = u
+            .markers
+            .iter()
+            .map(|(id, r)| format!("{id} {:.4} mm", 1e3 * r))
+            .collect();
+        let _ = writeln!(
+            s,
+            "No catalog entry explains the mismatch: held-out RMS {:.4} mm, the best any \
+             hypothesis or the stiffness scale reaches {:.4} mm, noise RMS {:.4} mm. It lives in \
+             `{}` ({:.4} mm){}; markers {}.\n",
+            1e3 * u.heldout_rmse_m,
+            1e3 * u.best_explained_rmse_m,
+            1e3 * u.noise_floor_m,
+            u.cell,
+            1e3 * u.cell_rmse_m,
+            u.location
+                .map(|l| format!(", largest at probe location {l}"))
+                .unwrap_or_default(),
+            markers.join(", ")
+        );
+    }
+    if !d.outliers.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Outlier markers (left out)\n\n| marker | frames | time (s) | step (mm) | observations |\n|---|---|---|---|---|"
+        );
+        for o in &d.outliers {
+            let _ = writeln!(
+                s,
+                "| {} | {}–{} | {:.2}–{:.2} | {:.3} | {} |",
+                o.marker,
+                o.frames[0],
+                o.frames[1],
+                o.time_s[0],
+                o.time_s[1],
+                1e3 * o.step_m,
+                o.observations
+            );
+        }
+        let _ = writeln!(s);
+    }
+}
+
 /// The diagnosis as its protobuf message.
 pub fn diagnosis_message(d: &Diagnosis) -> proto::Diagnosis {
     proto::Diagnosis {
@@ -89,7 +135,16 @@ pub fn extended_model_message(d: &Diagnosis, base_material_sha256: &str) -> prot
         term: Effect::from_name(&d.verdict)
             .and_then(crate::hypotheses::of)
             .map(|h| h.term().to_string())
-            .unwrap_or_else(|| "none: the default elastostatic model (bickel2009)".into()),
+            .unwrap_or_else(|| {
+                format!(
+                    "{}: the default elastostatic model (bickel2009)",
+                    if d.verdict == "unexplained" {
+                        "unexplained (no catalog entry explains the mismatch)"
+                    } else {
+                        "none"
+                    }
+                )
+            }),
         params: top
             .map(|r| r.params.iter().map(|(k, v)| key_value(k, *v)).collect())
             .unwrap_or_default(),
@@ -637,6 +692,7 @@ pub fn write_report(dir: &Path, rec: &Recording, run: &DiagnosisRun) -> Result<(
         );
     }
     let _ = writeln!(s, "Confidence of the verdict: {:.3}.\n", d.confidence);
+    write_unexplained(&mut s, d);
     write_effects(&mut s, d);
     let _ = writeln!(
         s,

@@ -1,5 +1,6 @@
 //! Settings of the diagnosis (the `[diagnose]` table of the stage's settings TOML).
 
+use crate::outliers::OutlierSettings;
 use crate::segment::SegmentSettings;
 use serde::{Deserialize, Serialize};
 
@@ -43,6 +44,15 @@ pub struct DiagnoseSettings {
     /// least this multiple of the noise RMS √3σ (stricter than `focus_noise_factor`: the earlier
     /// effects' full-data fit has already taken what it could of the noise).
     pub later_effect_noise_factor: f64,
+    /// Outlier markers (`crate::outliers`): runs of a marker's residual that step away and back
+    /// are flagged and left out of every score.
+    pub outliers: OutlierSettings,
+    /// Answer `unexplained` (instead of `none`) when the default model's held-out RMS on the
+    /// focus cells, and the best any catalog entry or the stiffness-scale nuisance reaches
+    /// there, are both at least this multiple of the noise RMS √3σ (0: never). 5: above the
+    /// controls' discretisation floors (third-party 1.5×, virtual-rig suite up to ≈ 4× its
+    /// nominal noise), far below a marker on the wrong blob (≈ 15×).
+    pub unexplained_noise_factor: f64,
 }
 
 impl Default for DiagnoseSettings {
@@ -62,6 +72,8 @@ impl Default for DiagnoseSettings {
             max_confirmations: 2,
             max_effects: 2,
             later_effect_noise_factor: 3.0,
+            outliers: OutlierSettings::default(),
+            unexplained_noise_factor: 5.0,
         }
     }
 }

@@ -415,6 +415,59 @@ fn stiffer_material_control_is_none() {
     run(Effect::Stiffer(1.15), false, "none");
 }
 
+/// The clean session with marker m0 (a corner of the top grid, far from every probe location)
+/// moved 0.45 mm sideways for 2 s in the middle of the recording — one marker on a spurious blob
+/// beside it, the shape of a capture mislabel — diagnosed with `settings`.
+fn relabeled_marker(settings: &DiagnoseSettings) -> (softcap_diagnose::Diagnosis, usize, usize) {
+    let mut s = session(Effect::Clean, false);
+    let nt = s.rec.frames.len();
+    let (a, b) = (nt / 2 - 20, nt / 2 + 20);
+    assert!(s.rec.frames[b].time_s - s.rec.frames[a].time_s >= 1.95);
+    for f in &mut s.rec.frames[a..b] {
+        f.markers_m[0] = f.markers_m[0].map(|p| p + Vector3::new(3.2e-4, 3.2e-4, 0.0));
+    }
+    let mut sim = simulator(20e3);
+    let run = diagnose(&s.rec, &mut sim, settings).unwrap();
+    (run.diagnosis, a, b)
+}
+
+/// The relabeled marker is flagged (exactly its 2 s) and left out: the verdict and held-out error
+/// are the clean control's.
+#[test]
+fn relabeled_marker_is_flagged_and_left_out() {
+    let (d, a, b) = relabeled_marker(&DiagnoseSettings::default());
+    assert_eq!(d.outliers.len(), 1, "{:?}", d.outliers);
+    let o = &d.outliers[0];
+    assert_eq!((o.marker.as_str(), o.frames), ("m0", [a, b - 1]));
+    assert!((o.step_m - 4.5e-4).abs() < 5e-5, "step {}", o.step_m);
+    assert_eq!(d.verdict, "none");
+    let none = d.ranked.iter().find(|r| r.hypothesis == "none").unwrap();
+    assert!(none.heldout_rmse_before_m < 0.012e-3, "{}", none.heldout_rmse_before_m);
+}
+
+/// With the outlier check off the mismatch stays in: far above the noise, explained by no catalog
+/// entry — `unexplained`, naming the marker.
+#[test]
+fn relabeled_marker_left_in_is_unexplained() {
+    let mut settings = DiagnoseSettings::default();
+    settings.outliers.enabled = false;
+    let (d, _, _) = relabeled_marker(&settings);
+    assert!(d.outliers.is_empty());
+    for r in &d.ranked {
+        eprintln!(
+            "{:>16} before {:.3e} after {:.3e} {:?}",
+            r.hypothesis, r.heldout_rmse_before_m, r.heldout_rmse_after_m, r.evidence.baseline
+        );
+    }
+    assert_eq!(d.verdict, "unexplained", "{:?}", d.unexplained);
+    let u = d.unexplained.as_ref().unwrap();
+    eprintln!("{u:?}");
+    assert!(u.heldout_rmse_m >= 5.0 * u.noise_floor_m);
+    assert!(u.best_explained_rmse_m >= 5.0 * u.noise_floor_m);
+    assert_eq!(u.markers[0].0, "m0", "{u:?}");
+    assert!(u.markers[0].1 > 1e-4, "{u:?}");
+}
+
 #[test]
 fn sensor_lag_is_named() {
     run(Effect::SensorLag(0.12), false, "sensor-lag");

@@ -396,7 +396,7 @@ impl FemProbeSimulator {
         let base = self.model().clone();
         Ok(Some(match *ext {
             Extension::Elastic => {
-                self.run_rigid(base, tip, None, frames, |_, _| Ok(()), |_, _| {})?
+                self.run_rigid(base, tip, None, frames, true, |_, _| Ok(()), |_, _| {})?
             }
             Extension::ProbeFriction { mu } => {
                 let sim = fine.unwrap_or(self);
@@ -418,6 +418,7 @@ impl FemProbeSimulator {
                     tip,
                     Some(friction),
                     frames,
+                    true,
                     |_, _| Ok(()),
                     |_, _| {},
                 )?
@@ -430,6 +431,7 @@ impl FemProbeSimulator {
                     tip,
                     None,
                     frames,
+                    false,
                     |m, dt| m.set_time_step(dt).map_err(fem),
                     |m, x| m.commit(x),
                 )?
@@ -441,6 +443,7 @@ impl FemProbeSimulator {
                     tip,
                     None,
                     frames,
+                    true,
                     |_, _| Ok(()),
                     |m, x| {
                         m.commit(x);
@@ -449,7 +452,7 @@ impl FemProbeSimulator {
             }
             Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
                 let an = self.anisotropic_model(ext)?;
-                self.run_rigid(an, tip, None, frames, |_, _| Ok(()), |_, _| {})?
+                self.run_rigid(an, tip, None, frames, true, |_, _| Ok(()), |_, _| {})?
             }
             Extension::SupportSprings { .. } => return Ok(None),
         }))
@@ -457,13 +460,18 @@ impl FemProbeSimulator {
 
     /// The replay loop of [`Self::simulate_sequence_rigid_tip`]; with `friction`, the tip carries
     /// regularized Coulomb friction (`FrictionalContact` with lagged normal forces and hysteresis
-    /// of the active set, solved by `softcap_fem::solve_lagged`).
+    /// of the active set, solved by `softcap_fem::solve_lagged`). With `rate_independent` (no
+    /// time in the model: elastic, plastic, anisotropic, frictional), a frame off the surface
+    /// after a frame off the surface under the same body force is the previous equilibrium and is
+    /// not solved again (the hover and lifted frames between presses: a fifth of a session).
+    #[allow(clippy::too_many_arguments)]
     fn run_rigid<M: ElasticModel + Clone>(
         &self,
         model: M,
         tip: &softcap_fem::TipShape,
         friction: Option<FrictionParams>,
         frames: &[SequenceFrame],
+        rate_independent: bool,
         mut before: impl FnMut(&mut M, f64) -> Result<()>,
         mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
@@ -477,6 +485,8 @@ impl FemProbeSimulator {
         let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
         let mut prev_pose: Option<Isometry3<f64>> = None;
         let mut last_rotation: Option<UnitQuaternion<f64>> = None;
+        // the body force of the previous frame when it was solved off the surface
+        let mut previous_at_rest: Option<Vector3<f64>> = None;
         for (k, fr) in frames.iter().enumerate() {
             let f = self.nodal_load(&SimLoad {
                 probe: None,
@@ -503,9 +513,16 @@ impl FemProbeSimulator {
                 (true, Some(to)) => Some((prev_pose.unwrap_or(to), to)),
                 _ => None,
             };
-            replay
-                .step(&mut state, &f, path, dt, &mut before, &mut commit)?
-                .map_err(|status| not_converged(k, status))?;
+            let at_rest = path.is_none() && rate_independent;
+            let unchanged = at_rest
+                && previous_at_rest.as_ref() == Some(&fr.load.body_force_n_m3)
+                && !out.is_empty();
+            if !unchanged {
+                replay
+                    .step(&mut state, &f, path, dt, &mut before, &mut commit)?
+                    .map_err(|status| not_converged(k, status))?;
+            }
+            previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);
             prev_pose = pose;
             out.push(self.setup().marker_positions(&state.x));
         }
@@ -574,6 +591,7 @@ impl<'a> RigidReplay<'a> {
                 .equilibrium
                 .max_iterations
                 .max(max_iterations),
+            refactorization: sim.settings().replay_refactorization,
             ..sim.settings().equilibrium.clone()
         };
         Self {

@@ -11,7 +11,7 @@ use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
     ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings,
-    LinearParams, StaticSolver, TipShape,
+    LinearParams, Refactorization, StaticSolver, TipShape,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use softcap_probing::{
@@ -51,6 +51,12 @@ pub struct FemSimSettings {
     /// the replayed mesh's surface node spacing near the tips
     /// (`crate::sim::friction_slip_distance_m`: why; never below `FrictionParams`' 10 µm).
     pub friction_slip_fraction: f64,
+    /// When the frictionless rigid-tip replays (`Extension::{Elastic, Plastic, Anisotropic, …}`
+    /// replayed at the measured poses) refactor their system matrix
+    /// (`softcap_fem::Refactorization`): at every Newton iterate, or only when the factor stops
+    /// contracting or the contact set changes (modified Newton; the same convergence test, so the
+    /// same equilibrium to the solver's tolerance). No tangent response is read from a replay.
+    pub replay_refactorization: Refactorization,
 }
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
@@ -97,6 +103,7 @@ impl Default for FemSimSettings {
             friction_contact: ContactDiscretisation::Nodes,
             rigid_tip_contact: ContactSettings::default(),
             friction_slip_fraction: 0.1,
+            replay_refactorization: Refactorization::EveryIteration,
         }
     }
 }

@@ -1,0 +1,106 @@
+//! What one rigid-tip J2 replay of the plasticity confirmation costs on a recorded session, and
+//! how far a faster replay's markers move from the reference: the replay `confirm` runs
+//! (`Extension::Plastic`, σ_y = 0.3 and H = 0.2 of the peak contact pressure) on the fit mesh
+//! refined 1 → 8, at the session's measured poses, once per refactorization policy
+//! (`FemSimSettings::replay_refactorization`), with CPU seconds and the largest marker difference
+//! to the first policy.
+//!
+//! ```sh
+//! cargo run --profile test -p softcap_diagnose --example replay_cost -- \
+//!     capture.mcap material.mcap [frames] [every|stale ...]
+//! ```
+
+use softcap_diagnose::{
+    Extension, FemProbeSimulator, FemSimSettings, MaterialSource, Recording, SegmentSettings,
+    Segmentation, pose_sequence, read_material_from, recording_from_capture,
+};
+use softcap_fem::{Refactorization, TipShape};
+use softcap_mcap::capture::CaptureData;
+
+/// CPU seconds of this process (user + system, every thread), from /proc/self/stat.
+fn cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map(|(_, r)| r.split_whitespace().collect())
+        .unwrap_or_default();
+    let tick = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let a: Vec<String> = std::env::args().collect();
+    if a.len() < 3 {
+        return Err("usage: replay_cost capture.mcap material.mcap [frames] [every|stale ...]".into());
+    }
+    let cap = CaptureData::read(&a[1])?;
+    let material = read_material_from(a[2].as_ref(), MaterialSource::Homogeneous)?;
+    let mut rec: Recording = recording_from_capture(&cap, &material.mesh)?;
+    if let Some(n) = a.get(3).and_then(|v| v.parse::<usize>().ok()) {
+        rec.frames.truncate(n.max(2));
+    }
+    let policies: Vec<&str> = a.iter().skip(4).map(String::as_str).collect();
+    let policies = if policies.is_empty() {
+        vec!["every", "stale"]
+    } else {
+        policies
+    };
+    let support = rec.support.ok_or("no support plane")?;
+    let fixed = FemProbeSimulator::nodes_on_plane(
+        &material.mesh,
+        &support.normal,
+        support.offset_m,
+        support.tolerance_m.max(1e-9),
+    );
+    let seg = Segmentation::new(&rec, &SegmentSettings::default());
+    let r_tip = rec.tip_radius_m.max(1e-4);
+    let pressure_pa = seg.peak_force_n() / (std::f64::consts::PI * r_tip * r_tip);
+    let ext = Extension::Plastic {
+        yield_stress_pa: 0.3 * pressure_pa,
+        hardening_pa: 0.2 * pressure_pa,
+    };
+    let frames = pose_sequence(&rec);
+    let mut reference: Option<Vec<Vec<softcap_diagnose::nalgebra::Vector3<f64>>>> = None;
+    for policy in policies {
+        let mut settings = FemSimSettings::default();
+        if let Some(load) = material.footprint_load {
+            settings.patch.load = load;
+        }
+        settings.replay_refactorization = match policy {
+            "stale" => Refactorization::WhenStale,
+            _ => Refactorization::EveryIteration,
+        };
+        let sim = FemProbeSimulator::new(
+            &material.mesh,
+            material.model.clone(),
+            &fixed,
+            &rec.rest_markers_m,
+            settings,
+        )?
+        .with_support_plane(&support.normal, support.offset_m)
+        .with_rigid_tip(TipShape::Disk {
+            radius_m: cap.session.tip_radius_m,
+            thickness_m: cap.session.tip_radius_m,
+        });
+        let fine = sim.refined()?;
+        let (c0, t0) = (cpu_s(), std::time::Instant::now());
+        let x = fine
+            .simulate_sequence_rigid_tip(&ext, &frames)?
+            .ok_or("no rigid tip")?;
+        let (cpu, wall) = (cpu_s() - c0, t0.elapsed().as_secs_f64());
+        let diff = reference.as_ref().map_or(0.0, |r| {
+            r.iter()
+                .zip(&x)
+                .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+                .fold(0.0, f64::max)
+        });
+        println!(
+            "{policy:>6}: {} frames, {} tets, {cpu:.1} CPU-s, {wall:.1} s wall, max marker difference to the first {:.3e} mm",
+            frames.len(),
+            fine.model().params().len(),
+            diff * 1e3
+        );
+        reference.get_or_insert(x);
+    }
+    Ok(())
+}
