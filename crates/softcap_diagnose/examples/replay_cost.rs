@@ -24,14 +24,21 @@ fn cpu_s() -> f64 {
         .rsplit_once(')')
         .map(|(_, r)| r.split_whitespace().collect())
         .unwrap_or_default();
-    let tick = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    let tick = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
     (tick(11) + tick(12)) / 100.0
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     if a.len() < 3 {
-        return Err("usage: replay_cost capture.mcap material.mcap [frames] [every|stale ...]".into());
+        return Err(
+            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale ...]".into(),
+        );
     }
     let cap = CaptureData::read(&a[1])?;
     let material = read_material_from(a[2].as_ref(), MaterialSource::Homogeneous)?;

@@ -20,9 +20,8 @@ use crate::baseline::{Prepared, prepare};
 use crate::cells::{EffectCells, focus_cells};
 use crate::confirm::Confirmed;
 use crate::evidence::{
-    Unexplained,
     Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NotApplicable, RankedHypothesis,
-    Resimulated, Screened,
+    Resimulated, Screened, Unexplained,
 };
 use crate::folds::{confidence, fold_gains, mean_sd, separable};
 use crate::hypotheses::Effect;
@@ -959,9 +958,8 @@ fn unexplained(mismatch: &Mismatch, screen: &Screen<'_>) -> Option<Unexplained> 
     if !(factor > 0.0 && mismatch.before_m >= bar && best_explained_rmse_m >= bar) {
         return None;
     }
-    let held_out = |k: usize, m: usize| {
-        seg.fold_of_frame[k].is_some() && mismatch.in_focus(seg, k, m)
-    };
+    let held_out =
+        |k: usize, m: usize| seg.fold_of_frame[k].is_some() && mismatch.in_focus(seg, k, m);
     // the focus cell with the largest RMS
     let mut cells: BTreeMap<(Region, Phase), (f64, usize)> = BTreeMap::new();
     let mut per_marker = vec![BTreeMap::<(Region, Phase), (f64, usize)>::new(); rec.num_markers()];
@@ -1002,7 +1000,10 @@ fn unexplained(mismatch: &Mismatch, screen: &Screen<'_>) -> Option<Unexplained> 
     let mut markers: Vec<(String, f64)> = per_marker
         .iter()
         .enumerate()
-        .filter_map(|(m, c)| c.get(&cell).map(|acc| (rec.marker_ids[m].clone(), rms(*acc))))
+        .filter_map(|(m, c)| {
+            c.get(&cell)
+                .map(|acc| (rec.marker_ids[m].clone(), rms(*acc)))
+        })
         .collect();
     markers.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     markers.truncate(3);

@@ -10,8 +10,10 @@
 //! distance to the other blob in one frame. An outlier run starts at a step of at least
 //! `step_m` (and `noise_factor` × the robust spread of every marker's steps) and ends at the
 //! first later step back (|d_a + d_b| ≤ ½ |d_a|) within `max_duration_s`, with every residual in
-//! between within ½ |d_a| of the plateau r_{a−1} + d_a. A permanent set (a step without a step
-//! back) and a gradual drift (ramps of many frames) are not outliers.
+//! between within ½ |d_a| of the plateau r_{a−1} + d_a. Both steps must happen while the model's
+//! marker stands still (it moves by at most ¼ of the step: a lagging or leading force moves the
+//! model, a relabel does not), and the run must last `min_duration_s`. A permanent set (a step
+//! without a step back) and a gradual drift (ramps of many frames) are not outliers.
 
 use crate::recording::Recording;
 use crate::residual::Residuals;
@@ -31,6 +33,8 @@ pub struct OutlierSettings {
     pub noise_factor: f64,
     /// The longest run, s.
     pub max_duration_s: f64,
+    /// The shortest run, s.
+    pub min_duration_s: f64,
 }
 
 impl Default for OutlierSettings {
@@ -40,6 +44,7 @@ impl Default for OutlierSettings {
             step_m: 2e-4,
             noise_factor: 8.0,
             max_duration_s: 10.0,
+            min_duration_s: 0.3,
         }
     }
 }
@@ -94,7 +99,12 @@ pub fn outlier_runs(
     for (m, track) in tracks.iter().enumerate() {
         let mut i = 1;
         while i < track.len() {
-            match run_from(rec, track, i, threshold, settings.max_duration_s) {
+            let still = |j: usize| {
+                let (k0, k1) = (track[j - 1].0, track[j].0);
+                (baseline_m[k1][m] - baseline_m[k0][m]).norm()
+                    <= 0.25 * (track[j].1 - track[j - 1].1).norm()
+            };
+            match run_from(rec, track, i, threshold, settings, &still) {
                 Some(end) => {
                     let (a, b) = (track[i].0, track[end - 1].0);
                     runs.push(OutlierRun {
@@ -121,22 +131,24 @@ fn run_from(
     track: &[(usize, Vector3<f64>)],
     i: usize,
     threshold: f64,
-    max_duration_s: f64,
+    settings: &OutlierSettings,
+    still: &dyn Fn(usize) -> bool,
 ) -> Option<usize> {
     let d_in = track[i].1 - track[i - 1].1;
     let size = d_in.norm();
-    if size < threshold {
+    if size < threshold || !still(i) {
         return None;
     }
     let plateau = track[i].1;
     let t0 = rec.frames[track[i].0].time_s;
     for j in i + 1..track.len() {
-        if rec.frames[track[j].0].time_s - t0 > max_duration_s {
+        let duration_s = rec.frames[track[j].0].time_s - t0;
+        if duration_s > settings.max_duration_s {
             return None;
         }
         let d = track[j].1 - track[j - 1].1;
         if d.norm() >= threshold && (d_in + d).norm() <= 0.5 * size {
-            return Some(j);
+            return (still(j) && duration_s >= settings.min_duration_s).then_some(j);
         }
         if (track[j].1 - plateau).norm() > 0.5 * size {
             return None;

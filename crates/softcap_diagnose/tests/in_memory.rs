@@ -442,7 +442,11 @@ fn relabeled_marker_is_flagged_and_left_out() {
     assert!((o.step_m - 4.5e-4).abs() < 5e-5, "step {}", o.step_m);
     assert_eq!(d.verdict, "none");
     let none = d.ranked.iter().find(|r| r.hypothesis == "none").unwrap();
-    assert!(none.heldout_rmse_before_m < 0.012e-3, "{}", none.heldout_rmse_before_m);
+    assert!(
+        none.heldout_rmse_before_m < 0.012e-3,
+        "{}",
+        none.heldout_rmse_before_m
+    );
 }
 
 /// With the outlier check off the mismatch stays in: far above the noise, explained by no catalog
