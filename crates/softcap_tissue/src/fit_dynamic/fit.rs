@@ -24,7 +24,10 @@ use softcap_core::{
     Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, NelderMeadSettings,
     levenberg_marquardt, nelder_mead,
 };
-use softcap_fem::{RayleighDamping, RestShapeSettings, solve_rest_shape};
+use softcap_fem::{
+    DirichletBc, EquilibriumSettings, RayleighDamping, RestShapeSettings, StaticSolver,
+    solve_rest_shape,
+};
 use softcap_mesh::TetMesh;
 
 use super::blend::{Blending, ControlPoints, control_points};
@@ -407,12 +410,71 @@ fn rest_shape(
         rest.report.residual_norm_n,
         rest.report.load_norm_n
     );
-    if rest.report.converged() {
-        Ok((rest.rest_positions_m, status))
-    } else {
-        // No rest shape explains the sag with this material (too soft): keep the best X found.
-        Ok((rest.rest_positions_m, format!("not converged: {status}")))
+    if rest.report.residual_norm_n <= 1e-8 * rest.report.load_norm_n {
+        return Ok((rest.rest_positions_m, status));
     }
+    // Newton stalled (from X = x_s it can barely lower the residual: example rest_shape_table2):
+    // invert the sag by forward static solves from its best X.
+    match sag_inversion(forward, params, static_m, rest.rest_positions_m.clone()) {
+        Some((x, passes)) => Ok((
+            x,
+            format!("Newton: {status}; then fixed-point sag inversion, {passes} static solves"),
+        )),
+        // No rest shape explains the sag with this material (too soft): keep the best X found.
+        None => Ok((rest.rest_positions_m, format!("not converged: {status}"))),
+    }
+}
+
+/// Fixed-point sag inversion X ← X + (x_s − sag(X)): each pass one static solve of the body over
+/// X under gravity, the support held at x_s, until the sagged shape is x_s (mean node distance
+/// ≤ 10⁻⁹ of the body's size). Returns X and the passes; `None` when a static solve fails or 50
+/// passes do not get there.
+fn sag_inversion(
+    forward: &Forward,
+    params: &DynamicParams,
+    static_m: &[Vector3<f64>],
+    mut rest: Vec<Vector3<f64>>,
+) -> Option<(Vec<Vector3<f64>>, usize)> {
+    let (lo, hi) = static_m.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(a, b), p| (a.inf(p), b.sup(p)),
+    );
+    let tolerance = 1e-9 * (hi - lo).norm();
+    let mut bc = DirichletBc::new();
+    for &i in &forward.sequence().support_nodes {
+        bc.fix_node(i, static_m[i]);
+        rest[i] = static_m[i];
+    }
+    for pass in 1..=50 {
+        let mut model = forward.model(params, &rest).ok()?;
+        let mut sagged = rest.clone();
+        let report = StaticSolver::with_bc(&model, &bc).ok()?.solve(
+            &mut model,
+            &mut sagged,
+            forward.gravity_n(),
+            None,
+            &EquilibriumSettings::newton(),
+        );
+        if !report.converged() {
+            return None;
+        }
+        let miss = sagged
+            .iter()
+            .zip(static_m)
+            .map(|(a, b)| (a - b).norm())
+            .sum::<f64>()
+            / static_m.len() as f64;
+        if miss <= tolerance {
+            return Some((rest, pass));
+        }
+        for ((r, s), o) in rest.iter_mut().zip(&sagged).zip(static_m) {
+            *r += o - s;
+        }
+    }
+    None
 }
 
 /// Fits E at control points, α, β and the rest shape to `seq` on `mesh` (the static shape, i.e.
