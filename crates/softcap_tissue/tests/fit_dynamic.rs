@@ -16,6 +16,12 @@ const E_TRUE: f64 = 5.0e5;
 /// A 160 × 30 × 20 mm bar clamped at x = 0, 8 × 2 × 2 cells, pushed for 0.2 s, 30 frames at 30 Hz,
 /// 0.3 mm tracking noise.
 fn small_bar() -> Synthetic {
+    bar(30, 0, 3.0e-4, 3)
+}
+
+/// The small bar's truth: `frames` at 30 Hz, simulated on `refine` levels of refinement,
+/// observed at the given nodes with `noise_m` of tracking noise.
+fn bar(frames: usize, refine: usize, noise_m: f64, seed: u64) -> Synthetic {
     let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
     let tets = mesh.tets.len();
     synthesize(&SyntheticSpec {
@@ -32,12 +38,12 @@ fn small_bar() -> Synthetic {
         push_nodes: push,
         push_force_n: Vector3::new(0.0, 0.4, -0.3),
         push_s: 0.2,
-        frames: 30,
+        frames,
         frame_rate_hz: 30.0,
         substeps: 4,
-        refine: 0,
-        noise_m: 3.0e-4,
-        seed: 3,
+        refine,
+        noise_m,
+        seed,
     })
     .unwrap()
 }
@@ -220,30 +226,8 @@ fn bad_input_exits_2_naming_the_file_and_writes_nothing() {
 /// held, at most 4 simulations of 1,536 tets).
 #[test]
 fn refine_fits_the_material_not_the_coarse_mesh() {
-    let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
-    let tets = mesh.tets.len();
-    let truth = synthesize(&SyntheticSpec {
-        rest_mesh: mesh,
-        support_nodes: support,
-        young_pa: vec![E_TRUE; tets],
-        poisson: 0.45,
-        density_kg_m3: 1100.0,
-        damping: RayleighDamping {
-            alpha_per_s: 0.8,
-            beta_s: 1.0e-3,
-        },
-        gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
-        push_nodes: push,
-        push_force_n: Vector3::new(0.0, 0.4, -0.3),
-        push_s: 0.2,
-        frames: 20,
-        frame_rate_hz: 30.0,
-        substeps: 4,
-        refine: 1,
-        noise_m: 2.0e-4,
-        seed: 5,
-    })
-    .unwrap();
+    let truth = bar(20, 1, 2.0e-4, 5);
+    let tets = truth.template.tets.len();
     let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
         outer_iterations: 1,
         max_simulations: 20,
