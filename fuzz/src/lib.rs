@@ -18,13 +18,13 @@ pub fn scratch() -> &'static Path {
 
 /// Runs the target `name` on `data`: any `Err` is a clean rejection; a panic is a finding.
 ///
-/// `softcap_mesh::parse_msh_bytes` turns a panic inside the third-party `mshio` parser into a
-/// bad-file error with `catch_unwind`; libFuzzer's panic hook would abort before that, so the
-/// `msh` target keeps Rust's own hook. A panic outside that `catch_unwind` still unwinds into
+/// `softcap_mesh::parse_msh_bytes` and `softcap_capture::read_c3d` turn a panic inside the
+/// third-party `mshio` and `c3dio` parsers into a bad-file error with `catch_unwind`; libFuzzer's
+/// panic hook would abort before that, so the `msh` and `c3d` targets install a silent hook. A panic outside that `catch_unwind` still unwinds into
 /// libfuzzer-sys, which reports it as a crash.
 pub fn fuzz(name: &str, data: &[u8]) {
     static HOOK: OnceLock<()> = OnceLock::new();
-    if name == "msh" {
+    if name == "msh" || name == "c3d" {
         HOOK.get_or_init(|| std::panic::set_hook(Box::new(|_| {})));
     }
     let target = readers::target(name).expect("a target of readers::TARGETS");

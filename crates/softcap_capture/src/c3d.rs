@@ -156,8 +156,16 @@ pub fn read_c3d(path: &Path) -> Result<C3dTake> {
         source,
     })?;
     let bytes = drop_empty_parameters(&bytes).unwrap_or(bytes);
-    let c3d = c3dio::C3d::from_bytes(&bytes)
-        .map_err(|e| format(format!("not a readable C3D file: {e:?}")))?;
+    // c3dio 0.8 panics on some corrupt parameter sections (an integer negation overflow, found
+    // by the `c3d` fuzz target); a panic inside it is a bad file, not a bug here.
+    let c3d = match std::panic::catch_unwind(|| c3dio::C3d::from_bytes(&bytes)) {
+        Ok(parsed) => parsed.map_err(|e| format(format!("not a readable C3D file: {e:?}")))?,
+        Err(_) => {
+            return Err(format(
+                "not a readable C3D file: the C3D parser failed on its header or parameters".into(),
+            ));
+        }
+    };
     let units: String = c3d.points.units.iter().collect();
     let scale = metres_per_point_unit(&units)
         .ok_or_else(|| format(format!("POINT:UNITS `{}` is not mm, cm or m", units.trim())))?;

@@ -393,6 +393,14 @@ fn check_chunk_sizes(path: &Path, bytes: &[u8]) -> Result<()> {
             break;
         }
         if opcode == CHUNK
+            && let Err(problem) = uncompressed_chunk_records(bytes, body, len)
+        {
+            return Err(Error::Corrupt {
+                path: path.to_path_buf(),
+                problem: format!("the chunk at byte {pos}: {problem}"),
+            });
+        }
+        if opcode == CHUNK
             && let Some(size) = u64_at(body + 16)
         {
             total = total.saturating_add(size);
@@ -411,6 +419,66 @@ fn check_chunk_sizes(path: &Path, bytes: &[u8]) -> Result<()> {
             Some(next) if next <= bytes.len() => pos = next,
             _ => break,
         }
+    }
+    Ok(())
+}
+
+/// The records of an uncompressed chunk (`body` is the chunk record's first byte after opcode and
+/// length, `len` its length) must lie inside its records section, and the section inside the
+/// chunk: `mcap` 0.26's linear reader subtracts each inner record's length from what is left of
+/// the chunk unchecked, so a record running past the chunk's end panicked with an overflow (found
+/// by the `mcap_recording` fuzz target). A chunk whose header does not fit is left to the `mcap`
+/// reader, which reports it; compressed chunks are checked by `mcap` after decompression.
+fn uncompressed_chunk_records(
+    bytes: &[u8],
+    body: usize,
+    len: u64,
+) -> std::result::Result<(), String> {
+    let u64_at = |at: usize| -> Option<u64> {
+        Some(u64::from_le_bytes(
+            bytes.get(at..at.checked_add(8)?)?.try_into().ok()?,
+        ))
+    };
+    let u32_at = |at: usize| -> Option<u32> {
+        Some(u32::from_le_bytes(
+            bytes.get(at..at.checked_add(4)?)?.try_into().ok()?,
+        ))
+    };
+    // start time, end time, uncompressed size (8 bytes each), CRC (4), compression string
+    let Some(compression_len) = u32_at(body + 28) else {
+        return Ok(());
+    };
+    if compression_len != 0 {
+        return Ok(());
+    }
+    let Some(records_len) = u64_at(body + 32) else {
+        return Ok(());
+    };
+    let start = body + 40;
+    let chunk_end = (body as u64).saturating_add(len);
+    let end = (start as u64).saturating_add(records_len);
+    if end > chunk_end || end > bytes.len() as u64 {
+        return Err(format!(
+            "its records section of {records_len} bytes runs past the end of the chunk"
+        ));
+    }
+    let (mut at, end) = (start as u64, end);
+    while at < end {
+        let record_len = match u64_at(at as usize + 1) {
+            Some(l) if end - at >= 9 => l,
+            _ => {
+                return Err(format!(
+                    "a record header at byte {at} is cut by the chunk's end"
+                ));
+            }
+        };
+        if record_len > end - at - 9 {
+            return Err(format!(
+                "the record at byte {at} declares {record_len} bytes, {} are left in the chunk",
+                end - at - 9
+            ));
+        }
+        at += 9 + record_len;
     }
     Ok(())
 }
