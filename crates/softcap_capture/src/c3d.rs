@@ -158,8 +158,11 @@ pub fn read_c3d(path: &Path) -> Result<C3dTake> {
     let bytes = drop_empty_parameters(&bytes).unwrap_or(bytes);
     // c3dio 0.8 panics on some corrupt parameter sections (an integer negation overflow, found
     // by the `c3d` fuzz target); a panic inside it is a bad file, not a bug here.
-    let c3d = match std::panic::catch_unwind(|| c3dio::C3d::from_bytes(&bytes)) {
-        Ok(parsed) => parsed.map_err(|e| format(format!("not a readable C3D file: {e:?}")))?,
+    let parsed = std::panic::catch_unwind(|| {
+        c3dio::C3d::from_bytes(&bytes).map_err(|e| format!("not a readable C3D file: {e:?}"))
+    });
+    let c3d = match parsed {
+        Ok(parsed) => parsed.map_err(format)?,
         Err(_) => {
             return Err(format(
                 "not a readable C3D file: the C3D parser failed on its header or parameters".into(),
