@@ -192,6 +192,57 @@ pub struct DynamicSolver {
     /// Per-chunk element forces and matrices of [`Self::linearize`] (reused across iterations).
     forces: Vec<[Vector3<f64>; 4]>,
     matrices: Vec<crate::element::Matrix12>,
+    /// The last element pass, for a call with the same inputs (see [`Linearization`]).
+    last: Option<Linearization>,
+}
+
+/// What one element pass of [`DynamicSolver::linearize`] depends on besides the solver: the
+/// model's state id, x, v (as bits), the stiffness kind, the matrix factor and the damping.
+#[derive(Debug, PartialEq, Eq)]
+struct LinearizationKey {
+    state_id: u64,
+    x: Vec<[u64; 3]>,
+    v: Vec<[u64; 3]>,
+    kind: StiffnessKind,
+    a_stiff: u64,
+    damping: [u64; 2],
+}
+
+impl LinearizationKey {
+    fn new(
+        state_id: u64,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        a_stiff: f64,
+        damping: &RayleighDamping,
+    ) -> Self {
+        let bits = |p: &[Vector3<f64>]| -> Vec<[u64; 3]> {
+            p.iter()
+                .map(|a| [a.x, a.y, a.z].map(f64::to_bits))
+                .collect()
+        };
+        Self {
+            state_id,
+            x: bits(x),
+            v: bits(v),
+            kind,
+            a_stiff: a_stiff.to_bits(),
+            damping: [damping.alpha_per_s.to_bits(), damping.beta_s.to_bits()],
+        }
+    }
+}
+
+/// The element pass of the last linearization (matrix without mass blocks, f_int, D v), kept
+/// for a call with bitwise the same inputs: a step that ends with a residual check at x_{k+1}
+/// and a next step that starts from x_{k+1} (the M-steps of a generalized EM, one Newton update
+/// each, as the tracker of wang2015 §5 takes them) need the pass once, not twice.
+#[derive(Debug)]
+struct Linearization {
+    key: LinearizationKey,
+    values: Vec<f64>,
+    fi: Vec<Vector3<f64>>,
+    fd: Vec<Vector3<f64>>,
 }
 
 /// What acts on the body during one step of [`DynamicSolver::step_with`].
@@ -241,6 +292,7 @@ impl DynamicSolver {
             length_scale_m,
             forces: Vec::new(),
             matrices: Vec::new(),
+            last: None,
         })
     }
 
@@ -578,8 +630,37 @@ impl DynamicSolver {
     /// [`ElasticModel::linearize_elements`], possibly in parallel, scattered serially in element
     /// order): the system matrix Σ_e `a_stiff` K_e (mass blocks not yet added), f_int(x), and the
     /// damping force D v = α M v + β Σ_e K_e v_e. The same bits as the element-by-element loop
-    /// over [`ElasticModel::element_matrix`] and [`ElasticModel::internal_forces`].
+    /// over [`ElasticModel::element_matrix`] and [`ElasticModel::internal_forces`]. A call with
+    /// the same inputs as the previous one (and a model with a state id) reuses its pass.
     fn linearize<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        a_stiff: f64,
+        damping: &RayleighDamping,
+    ) -> (Vec<f64>, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let key = model
+            .state_id()
+            .map(|id| LinearizationKey::new(id, x, v, kind, a_stiff, damping));
+        if let (Some(key), Some(last)) = (&key, &self.last)
+            && *key == last.key
+        {
+            return (last.values.clone(), last.fi.clone(), last.fd.clone());
+        }
+        let (values, fi, fd) = self.element_pass(model, x, v, kind, a_stiff, damping);
+        self.last = key.map(|key| Linearization {
+            key,
+            values: values.clone(),
+            fi: fi.clone(),
+            fd: fd.clone(),
+        });
+        (values, fi, fd)
+    }
+
+    /// The element pass of [`Self::linearize`].
+    fn element_pass<M: ElasticModel + ?Sized>(
         &mut self,
         model: &M,
         x: &[Vector3<f64>],

@@ -30,11 +30,11 @@
 //! measured.
 
 use crate::FemError;
-use crate::assembly::DofMap;
-use crate::element::StiffnessKind;
-use crate::model::{CorotationalModel, ElasticModel, NeoHookeanModel};
-use faer::linalg::solvers::Solve;
-use faer::sparse::{SparseColMat, Triplet};
+use crate::assembly::{DofMap, SystemPattern, solver_setup};
+use crate::element::{Matrix12, StiffnessKind};
+use crate::model::{
+    CorotationalModel, ELEMENT_CHUNK, ElasticModel, NeoHookeanModel, fill_elements,
+};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_mesh::TetMesh;
@@ -82,7 +82,7 @@ pub fn gravity_forces(masses_kg: &[f64], gravity_m_s2: Vector3<f64>) -> Vec<Vect
 
 /// A model that can be rebuilt over a different rest shape with the same topology and parameters
 /// (what the rest-shape solve iterates over).
-pub trait RestShapeModel: ElasticModel + Sized {
+pub trait RestShapeModel: ElasticModel + Sized + Sync {
     /// The same model with rest positions `rest_m`.
     fn with_rest_positions(&self, rest_m: &[Vector3<f64>]) -> Result<Self, FemError>;
 }
@@ -120,7 +120,10 @@ impl RestShapeModel for NeoHookeanModel {
 pub struct RestShapeSettings {
     /// Maximum Newton iterations.
     pub max_iterations: usize,
-    /// Converged when ‖r‖₂ ≤ this × ‖f_ext‖₂ over the free dofs (r = f_int(x_s; X) − f_ext).
+    /// Converged when ‖r‖₂ ≤ this × ‖f_ext‖₂ over the free dofs (r = f_int(x_s; X) − f_ext), the
+    /// load being the scale of the forces the rest shape must balance; or when ‖r‖₂ is at the
+    /// round-off floor of the force sum ([`RestShapeReport::roundoff_floor_n`]), below which no
+    /// Newton step can lower it.
     pub residual_tol_rel: f64,
     /// Maximum step halvings of the backtracking on ‖r‖ (a step that degenerates a tet is halved too).
     pub max_halvings: usize,
@@ -130,7 +133,7 @@ impl Default for RestShapeSettings {
     fn default() -> Self {
         Self {
             max_iterations: 50,
-            residual_tol_rel: 1e-11,
+            residual_tol_rel: 1e-9,
             max_halvings: 20,
         }
     }
@@ -164,6 +167,12 @@ pub struct RestShapeReport {
     pub residual_norm_n: f64,
     /// ‖M g‖₂ over the free dofs \[N\] (scale of the residual).
     pub load_norm_n: f64,
+    /// The residual's round-off floor \[N\]: [`ROUNDOFF_FACTOR`] × ε × the norm over the free
+    /// dofs of Σ_e |f_e| (the magnitudes of the element forces summed into each dof, at the
+    /// last rest shape). Where the stresses are large against the load (a long cantilever near
+    /// its clamp) the element forces cancel to a residual far below them and this floor, not the
+    /// load, bounds how small the residual can get.
+    pub roundoff_floor_n: f64,
     /// Residual norm per iteration (entry 0 = initial guess).
     pub history_n: Vec<f64>,
 }
@@ -173,6 +182,27 @@ impl RestShapeReport {
     pub fn converged(&self) -> bool {
         self.status == RestShapeStatus::Converged
     }
+}
+
+/// Multiple of ε × Σ_e |f_e| at which the rest-shape residual counts as round-off (see
+/// [`RestShapeReport::roundoff_floor_n`]): each dof sums a few tens of element forces, each the
+/// result of a few hundred floating-point operations.
+pub const ROUNDOFF_FACTOR: f64 = 1.0e3;
+
+/// ‖(Σ_e |f_e,i|)_i‖₂ over the free dofs \[N\]: the size of the forces that cancel in f_int.
+fn force_magnitude_norm<M: ElasticModel + ?Sized>(
+    model: &M,
+    x: &[Vector3<f64>],
+    dofs: &DofMap,
+) -> f64 {
+    let mut abs = vec![Vector3::zeros(); model.num_nodes()];
+    for (e, g) in model.elements().iter().enumerate() {
+        let f = model.element_forces(e, x);
+        for (a, fa) in g.nodes.iter().zip(&f) {
+            abs[*a] += fa.abs();
+        }
+    }
+    dofs.gather(&abs).iter().map(|v| v * v).sum::<f64>().sqrt()
 }
 
 /// Rest shape and model with that rest shape (the model is what the forward simulation needs).
@@ -246,6 +276,30 @@ pub fn element_rest_jacobian<M: ElasticModel + ?Sized>(
     out
 }
 
+/// J = ∂r/∂X of [`solve_rest_shape`] in `pattern`'s lower layout: (lower, upper) as
+/// [`crate::SparseCholesky::factor_general`] takes them. Element Jacobians in parallel chunks, scattered
+/// serially in element order.
+fn rest_jacobian<M: ElasticModel + Sync + ?Sized>(
+    model: &M,
+    x: &[Vector3<f64>],
+    pattern: &SystemPattern,
+) -> (Vec<f64>, Vec<f64>) {
+    let n_el = model.elements().len();
+    let (mut lower, mut upper) = (pattern.zeros(), pattern.zeros());
+    let mut buf = vec![Matrix12::zeros(); ELEMENT_CHUNK.min(n_el)];
+    for first in (0..n_el).step_by(ELEMENT_CHUNK) {
+        let len = ELEMENT_CHUNK.min(n_el - first);
+        fill_elements(&mut buf[..len], |k, je| {
+            *je = element_rest_jacobian(model, first + k, x);
+        });
+        for (k, je) in buf[..len].iter().enumerate() {
+            pattern.add_element(first + k, je, &mut lower);
+            pattern.add_element_transposed(first + k, je, &mut upper);
+        }
+    }
+    (lower, upper)
+}
+
 /// Rest shape X such that the body rebuilt over X and evaluated at the observed static shape
 /// `static_positions_m` is in equilibrium with `external_forces_n` on every unconstrained dof
 /// (wang2015 eq. 7; eq. 8 as its least-squares form). `constrained_dofs` (3·node + axis) keep
@@ -253,7 +307,7 @@ pub fn element_rest_jacobian<M: ElasticModel + ?Sized>(
 /// shape is the initial guess if `initial_rest_m` is `None` (x_s is a good one too).
 ///
 /// Newton's method with the exact Jacobian ([`element_rest_jacobian`], nonsymmetric, faer sparse
-/// LU) and backtracking on ‖r‖₂. Failures are reported in the status, never a panic; errors only for
+/// LU over the tet pattern, its symbolic analysis once per solve) and backtracking on ‖r‖₂. Failures are reported in the status, never a panic; errors only for
 /// inconsistent input lengths or a degenerate initial rest shape.
 pub fn solve_rest_shape<M: RestShapeModel>(
     model: &M,
@@ -276,7 +330,8 @@ pub fn solve_rest_shape<M: RestShapeModel>(
             });
         }
     }
-    let dofs = DofMap::new(n, constrained_dofs)?;
+    let (pattern, mut factor, _) = solver_setup(model, constrained_dofs)?;
+    let dofs = pattern.dofs().clone();
     let mut rest: Vec<Vector3<f64>> = initial_rest_m
         .map(<[_]>::to_vec)
         .unwrap_or_else(|| model.rest_positions().to_vec());
@@ -303,6 +358,10 @@ pub fn solve_rest_shape<M: RestShapeModel>(
     };
     let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
     let load_norm_n = norm(&dofs.gather(external_forces_n));
+    let load_tolerance_n = (settings.residual_tol_rel * load_norm_n).max(f64::MIN_POSITIVE);
+    let floor = |m: &M| ROUNDOFF_FACTOR * f64::EPSILON * force_magnitude_norm(m, xs, &dofs);
+    let mut roundoff_floor_n = floor(&current);
+    let mut tolerance_n = load_tolerance_n.max(roundoff_floor_n);
     let mut r = residual(&current);
     let mut rn = norm(&r);
     let mut report = RestShapeReport {
@@ -310,42 +369,30 @@ pub fn solve_rest_shape<M: RestShapeModel>(
         iterations: 0,
         residual_norm_n: rn,
         load_norm_n,
+        roundoff_floor_n,
         history_n: vec![rn],
     };
-    let nf = dofs.num_free();
     for it in 0..settings.max_iterations {
-        if rn <= settings.residual_tol_rel * load_norm_n.max(f64::MIN_POSITIVE) {
+        if rn <= tolerance_n {
             report.status = RestShapeStatus::Converged;
             break;
         }
-        // Assemble J = ∂r/∂X over the free dofs.
-        let mut triplets = Vec::with_capacity(current.elements().len() * 144);
-        for (e, g) in current.elements().iter().enumerate() {
-            let je = element_rest_jacobian(&current, e, xs);
-            for li in 0..12 {
-                let Some(fi) = dofs.free_index(3 * g.nodes[li / 3] + li % 3) else {
-                    continue;
-                };
-                for lj in 0..12 {
-                    if let Some(fj) = dofs.free_index(3 * g.nodes[lj / 3] + lj % 3) {
-                        triplets.push(Triplet::new(fi, fj, je[(li, lj)]));
-                    }
-                }
-            }
+        // J = ∂r/∂X over the free dofs: lower and (transposed) upper triangles in the tet
+        // pattern, factored by sparse LU with the symbolic analysis of the first iteration.
+        let (lower, upper) = rest_jacobian(&current, xs, &pattern);
+        if let Err(e) = factor.factor_general(&pattern, &lower, Some(&upper)) {
+            report.status = RestShapeStatus::FactorizationFailed {
+                reason: e.to_string(),
+            };
+            break;
         }
-        let lu = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &triplets)
-            .map_err(|e| format!("{e:?}"))
-            .and_then(|a| a.sp_lu().map_err(|e| format!("{e:?}")));
-        let lu = match lu {
-            Ok(lu) => lu,
-            Err(reason) => {
-                report.status = RestShapeStatus::FactorizationFailed { reason };
-                break;
-            }
-        };
-        let mut dx = faer::Mat::<f64>::from_fn(nf, 1, |i, _| -r[i]);
-        lu.solve_in_place(dx.as_mut());
-        let dx: Vec<f64> = (0..nf).map(|i| dx[(i, 0)]).collect();
+        let mut dx: Vec<f64> = r.iter().map(|v| -v).collect();
+        if let Err(e) = factor.solve_in_place(&mut dx) {
+            report.status = RestShapeStatus::FactorizationFailed {
+                reason: e.to_string(),
+            };
+            break;
+        }
         if !dx.iter().all(|v| v.is_finite()) {
             report.status = RestShapeStatus::FactorizationFailed {
                 reason: "non-finite Newton step".into(),
@@ -375,11 +422,14 @@ pub fn solve_rest_shape<M: RestShapeModel>(
         current = m;
         r = rt;
         rn = rtn;
+        roundoff_floor_n = floor(&current);
+        tolerance_n = load_tolerance_n.max(roundoff_floor_n);
+        report.roundoff_floor_n = roundoff_floor_n;
         report.iterations = it + 1;
         report.residual_norm_n = rn;
         report.history_n.push(rn);
     }
-    if rn <= settings.residual_tol_rel * load_norm_n.max(f64::MIN_POSITIVE) {
+    if rn <= tolerance_n {
         report.status = RestShapeStatus::Converged;
     }
     Ok(RestShape {

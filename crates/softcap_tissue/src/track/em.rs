@@ -21,9 +21,6 @@
 //! the same responsibilities, σ²_ML = Σ p(z_kn) ‖c_n − s_k‖² / (3 Σ p(z_kn)), drives the
 //! annealing.
 
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
-
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -63,72 +60,118 @@ pub struct EStep {
     pub points_used: usize,
 }
 
-/// Hashes a grid cell's integer coordinates by multiply-rotate mixing (the FxHash scheme). The
-/// E-step looks up 27 cells per point and std's SipHash took a tenth of the tracker's time; the
-/// keys are the tracker's own, so SipHash's resistance to chosen keys buys nothing here.
-#[derive(Default)]
-struct CellHasher(u64);
+/// Cells of [`Grid`] at most (8 MB of offsets); a larger box gets larger cells.
+const MAX_GRID_CELLS: usize = 1 << 21;
 
-impl Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
+/// Used points per task of the parallel E-step: the per-point responsibilities are computed in
+/// parallel chunks and summed serially in point order, so the result does not depend on the
+/// number of threads.
+const POINT_CHUNK: usize = 512;
 
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut b = [0u8; 8];
-            b[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(b));
-        }
-    }
-
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-
-    fn write_i64(&mut self, v: i64) {
-        self.write_u64(v as u64);
-    }
-}
-
-/// A uniform grid over the visible samples with cells of the cutoff radius.
+/// A dense uniform grid over the visible samples with cells of at least the cutoff radius, in
+/// compressed rows: the samples of cell c are `items[start[c]..start[c + 1]]`, ascending, cells
+/// ordered with z fastest, so the three cells along z around a point are one contiguous run.
+/// (A hash map of cells cost a tenth of the tracker's time in hashing 27 keys per point.)
 struct Grid {
+    origin: Vector3<f64>,
     cell: f64,
-    cells: HashMap<[i64; 3], Vec<u32>, BuildHasherDefault<CellHasher>>,
+    dims: [usize; 3],
+    start: Vec<u32>,
+    items: Vec<u32>,
 }
 
 impl Grid {
-    fn new(samples: &[Vector3<f64>], visible: &[bool], cell: f64) -> Self {
-        let mut cells: HashMap<[i64; 3], Vec<u32>, BuildHasherDefault<CellHasher>> =
-            HashMap::default();
-        for (k, s) in samples.iter().enumerate() {
-            if visible[k] {
-                cells.entry(Self::key(s, cell)).or_default().push(k as u32);
+    fn new(samples: &[Vector3<f64>], visible: &[bool], radius: f64) -> Self {
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for (s, _) in samples.iter().zip(visible).filter(|(_, v)| **v) {
+            lo = lo.inf(s);
+            hi = hi.sup(s);
+        }
+        // cell boundaries on multiples of the cell size (the same cells wherever the box is)
+        let origin_at = |c: f64| (lo / c).map(f64::floor) * c;
+        let cells_at = |c: f64| (hi - origin_at(c)).map(|v| (v / c).floor().max(0.0) as usize + 1);
+        let mut cell = radius;
+        while cells_at(cell).iter().product::<usize>() > MAX_GRID_CELLS {
+            cell *= 1.25;
+        }
+        let d = cells_at(cell);
+        let dims = [d.x, d.y, d.z];
+        let mut grid = Self {
+            origin: origin_at(cell),
+            cell,
+            dims,
+            start: vec![0; dims.iter().product::<usize>() + 1],
+            items: Vec::new(),
+        };
+        // counting sort of the visible samples by cell (stable: ascending within a cell)
+        let cell_of: Vec<Option<usize>> = samples
+            .iter()
+            .zip(visible)
+            .map(|(s, &v)| v.then(|| grid.index(grid.coords(s))).flatten())
+            .collect();
+        for c in cell_of.iter().flatten() {
+            grid.start[c + 1] += 1;
+        }
+        for c in 0..grid.start.len() - 1 {
+            grid.start[c + 1] += grid.start[c];
+        }
+        let mut fill = grid.start.clone();
+        grid.items = vec![0; grid.start[grid.start.len() - 1] as usize];
+        for (k, c) in cell_of.iter().enumerate() {
+            if let Some(c) = c {
+                grid.items[fill[*c] as usize] = k as u32;
+                fill[*c] += 1;
             }
         }
-        Self { cell, cells }
+        grid
     }
 
-    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
-        [p.x, p.y, p.z].map(|v| (v / cell).floor() as i64)
+    fn coords(&self, p: &Vector3<f64>) -> [i64; 3] {
+        let q = (p - self.origin) / self.cell;
+        [q.x, q.y, q.z].map(|v| v.floor() as i64)
+    }
+
+    fn index(&self, c: [i64; 3]) -> Option<usize> {
+        let [nx, ny, nz] = self.dims;
+        let inside = |v: i64, n: usize| v >= 0 && (v as usize) < n;
+        (inside(c[0], nx) && inside(c[1], ny) && inside(c[2], nz))
+            .then(|| (c[0] as usize * ny + c[1] as usize) * nz + c[2] as usize)
     }
 
     /// Candidates around `p`, in a fixed order (neighbour cells in lexicographic offset order,
     /// samples ascending within a cell).
     fn around(&self, p: &Vector3<f64>, mut f: impl FnMut(usize)) {
-        let c = Self::key(p, self.cell);
+        let c = self.coords(p);
+        let nz = self.dims[2] as i64;
+        let (z0, z1) = ((c[2] - 1).max(0), (c[2] + 1).min(nz - 1));
+        if z0 > z1 {
+            return;
+        }
         for dx in -1..=1 {
             for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(list) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) {
-                        for &k in list {
-                            f(k as usize);
-                        }
-                    }
+                let Some(first) = self.index([c[0] + dx, c[1] + dy, z0]) else {
+                    continue;
+                };
+                let last = first + (z1 - z0) as usize;
+                let run = self.start[first] as usize..self.start[last + 1] as usize;
+                for &k in &self.items[run] {
+                    f(k as usize);
                 }
             }
         }
     }
+}
+
+/// The responsibilities of one chunk of points: `(sample, p(z_kn))` of point i of the chunk at
+/// `comps[ends[i - 1]..ends[i]]`, its outlier posterior at `outlier[i]`.
+#[derive(Default)]
+struct ChunkResponsibilities {
+    comps: Vec<(u32, f64)>,
+    ends: Vec<u32>,
+    outlier: Vec<f64>,
 }
 
 /// Volume of the points' bounding box, m³ (at least a 1 cm cube).
@@ -188,43 +231,61 @@ pub fn e_step(
     let pi_per_area = (1.0 - p.outlier_weight) / visible_area;
     let outlier_density = p.outlier_weight / outlier_volume_m3;
     let gate = p.normal_gate && point_normals.len() == points.len();
-    // per point: (responsibilities of its components, outlier posterior), in parallel
-    let per_point: Vec<(Vec<(u32, f64)>, f64)> = used
-        .par_iter()
-        .map(|&n| {
-            let c = &points[n];
-            let mut comps: Vec<(u32, f64)> = Vec::new();
-            grid.around(c, |k| {
-                let d2 = (c - samples[k]).norm_squared();
-                if d2 > radius * radius {
-                    return;
+    // per chunk of points: the responsibilities of their components and outlier posteriors,
+    // in parallel
+    let chunks: Vec<ChunkResponsibilities> = used
+        .par_chunks(POINT_CHUNK)
+        .map(|chunk| {
+            let mut r = ChunkResponsibilities {
+                comps: Vec::with_capacity(16 * chunk.len()),
+                ends: Vec::with_capacity(chunk.len()),
+                outlier: Vec::with_capacity(chunk.len()),
+            };
+            for &n in chunk {
+                let c = &points[n];
+                let first = r.comps.len();
+                grid.around(c, |k| {
+                    let d2 = (c - samples[k]).norm_squared();
+                    if d2 > radius * radius {
+                        return;
+                    }
+                    if gate && point_normals[n].dot(&sample_normals[k]) < GATE_COS {
+                        return;
+                    }
+                    let pi_k = pi_per_area * area(k);
+                    r.comps
+                        .push((k as u32, pi_k * gauss_norm * (-0.5 * d2 / s2).exp()));
+                });
+                let denom: f64 =
+                    r.comps[first..].iter().map(|c| c.1).sum::<f64>() + outlier_density;
+                for c in &mut r.comps[first..] {
+                    c.1 /= denom;
                 }
-                if gate && point_normals[n].dot(&sample_normals[k]) < GATE_COS {
-                    return;
-                }
-                let pi_k = pi_per_area * area(k);
-                comps.push((k as u32, pi_k * gauss_norm * (-0.5 * d2 / s2).exp()));
-            });
-            let denom: f64 = comps.iter().map(|c| c.1).sum::<f64>() + outlier_density;
-            for c in &mut comps {
-                c.1 /= denom;
+                r.ends.push(r.comps.len() as u32);
+                r.outlier.push(outlier_density / denom);
             }
-            (comps, outlier_density / denom)
+            r
         })
         .collect();
     // serial accumulation in point order: deterministic sums
     let mut sum_c = vec![Vector3::zeros(); samples.len()];
     let (mut num, mut den, mut outlier) = (0.0, 0.0, 0.0);
     let weight = stride as f64;
-    for (&n, (comps, po)) in used.iter().zip(&per_point) {
-        for &(k, r) in comps {
-            let k = k as usize;
-            out.weight[k] += weight * r;
-            sum_c[k] += points[n] * (weight * r);
-            num += weight * r * (points[n] - samples[k]).norm_squared();
-            den += weight * r;
+    let mut point_outlier = Vec::with_capacity(used.len());
+    for (chunk, r) in used.chunks(POINT_CHUNK).zip(&chunks) {
+        let mut first = 0;
+        for ((&n, &end), &po) in chunk.iter().zip(&r.ends).zip(&r.outlier) {
+            for &(k, resp) in &r.comps[first..end as usize] {
+                let k = k as usize;
+                out.weight[k] += weight * resp;
+                sum_c[k] += points[n] * (weight * resp);
+                num += weight * resp * (points[n] - samples[k]).norm_squared();
+                den += weight * resp;
+            }
+            first = end as usize;
+            outlier += po;
+            point_outlier.push(po);
         }
-        outlier += po;
     }
     for k in 0..samples.len() {
         if out.weight[k] > 0.0 {
@@ -235,7 +296,7 @@ pub fn e_step(
         out.sigma2_ml = num / (3.0 * den);
     }
     out.outlier_fraction = outlier / used.len() as f64;
-    out.point_outlier = per_point.iter().map(|p| p.1).collect();
+    out.point_outlier = point_outlier;
     out
 }
 
