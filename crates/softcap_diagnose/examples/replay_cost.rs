@@ -2,12 +2,13 @@
 //! how far a faster replay's markers move from the reference: the replay `confirm` runs
 //! (`Extension::Plastic`, σ_y = 0.3 and H = 0.2 of the peak contact pressure) on the fit mesh
 //! refined 1 → 8, at the session's measured poses, once per refactorization policy
-//! (`FemSimSettings::replay_refactorization`), with CPU seconds and the largest marker difference
-//! to the first policy.
+//! (`FemSimSettings::replay_refactorization`: `every`, `stale`) or with the mesh refined only
+//! inside the touched balls (`local`), with CPU seconds and the largest marker difference to the
+//! first policy.
 //!
 //! ```sh
 //! cargo run --profile test -p softcap_diagnose --example replay_cost -- \
-//!     capture.mcap material.mcap [frames] [every|stale ...]
+//!     capture.mcap material.mcap [frames] [every|stale|local ...]
 //! ```
 
 use softcap_diagnose::{
@@ -37,7 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     if a.len() < 3 {
         return Err(
-            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale ...]".into(),
+            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale|local ...]".into(),
         );
     }
     let cap = CaptureData::read(&a[1])?;
@@ -89,7 +90,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             radius_m: cap.session.tip_radius_m,
             thickness_m: cap.session.tip_radius_m,
         });
-        let fine = sim.refined()?;
+        // "local": refined only inside the touched balls (`RefinementSettings::local`), as
+        // `ProbeSimulator::refined` does with that setting
+        let fine = if policy == "local" {
+            let balls = softcap_diagnose::cells::touched_balls(&rec, &seg);
+            let edge = 0.5 * sim.longest_edge_m();
+            sim.refined_near(&balls, edge, 200_000)?
+        } else {
+            sim.refined()?
+        };
         let (c0, t0) = (cpu_s(), std::time::Instant::now());
         let x = fine
             .simulate_sequence_rigid_tip(&ext, &frames)?
