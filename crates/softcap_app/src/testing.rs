@@ -159,12 +159,18 @@ pub fn race_trials(
             c.stdout(std::process::Stdio::null());
             c
         };
-        let (mut a, mut b) = (quiet().spawn().unwrap(), quiet().spawn().unwrap());
-        let (sa, sb) = (a.wait().unwrap(), b.wait().unwrap());
+        let (mut a, mut b) = (
+            quiet().spawn().expect("starting the first writer"),
+            quiet().spawn().expect("starting the second writer"),
+        );
+        let (sa, sb) = (
+            a.wait().expect("reaping the first writer"),
+            b.wait().expect("reaping the second writer"),
+        );
         assert!(sa.success() && sb.success(), "trial {trial}: {sa}, {sb}");
         complete(output).unwrap_or_else(|e| panic!("trial {trial}: racing writers: {e}"));
         let left = std::fs::read_dir(output.parent().unwrap_or(Path::new(".")))
-            .unwrap()
+            .expect("listing the output folder")
             .flatten()
             .filter(|e| crate::fs::is_tmp_of(output, &e.path()))
             .count();
