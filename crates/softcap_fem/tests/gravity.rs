@@ -7,6 +7,14 @@ use softcap_fem::*;
 
 /// Cantilever sagging under its own weight: L = 0.1 m, 0.02 m × 0.02 m, E = 50 kPa, ρ = 1000 kg/m³
 /// (tip sag ≈ 7 % of L: rotations matter). Fixed at x = 0.
+/// The largest distance between corresponding points of `a` and `b`.
+fn max_distance(a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max)
+}
+
 fn cantilever() -> (softcap_mesh::TetMesh, DirichletBc) {
     let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.1, 0.02, 0.02], [10, 2, 2]);
     let mut bc = DirichletBc::new();
@@ -33,11 +41,7 @@ fn sag_and_recover<M: RestShapeModel>(
     };
     let rep = solver.solve(&mut model, &mut xs, &forces, None, &settings);
     assert!(rep.converged(), "{rep:?}");
-    let sag = rest_true
-        .iter()
-        .zip(&xs)
-        .map(|(a, b)| (a - b).norm())
-        .fold(0.0, f64::max);
+    let sag = max_distance(&rest_true, &xs);
     // Inverse: start from the observed shape as the rest-shape guess (the usual situation).
     let rs = solve_rest_shape(
         &model,
@@ -48,12 +52,7 @@ fn sag_and_recover<M: RestShapeModel>(
         &RestShapeSettings::default(),
     )
     .unwrap();
-    let err = rs
-        .rest_positions_m
-        .iter()
-        .zip(&rest_true)
-        .map(|(a, b)| (a - b).norm())
-        .fold(0.0, f64::max);
+    let err = max_distance(&rs.rest_positions_m, &rest_true);
     (sag, err, rs.report)
 }
 
@@ -192,11 +191,7 @@ fn sagging_beam_rest_shape_reports_converged_at_the_roundoff_floor() {
             .solve(&mut model, &mut xs, &forces, None, &settings)
             .converged()
     );
-    let sag = rest_true
-        .iter()
-        .zip(&xs)
-        .map(|(a, b)| (a - b).norm())
-        .fold(0.0, f64::max);
+    let sag = max_distance(&rest_true, &xs);
     let rs = solve_rest_shape(
         &model,
         &xs,
@@ -207,12 +202,7 @@ fn sagging_beam_rest_shape_reports_converged_at_the_roundoff_floor() {
     )
     .unwrap();
     let rep = &rs.report;
-    let err = rs
-        .rest_positions_m
-        .iter()
-        .zip(&rest_true)
-        .map(|(a, b)| (a - b).norm())
-        .fold(0.0, f64::max);
+    let err = max_distance(&rs.rest_positions_m, &rest_true);
     println!(
         "sag {sag:.3e} m, |X - X_true| {err:.3e} m, {:?} after {} its, residual {:.3e} N of load {:.3e} N (floor {:.3e} N), history {:?}",
         rep.status,
