@@ -5,6 +5,7 @@
 //! |---|---|---|
 //! | [`cross_section`] | wrinkle profile S(w,d,p), visible-wedge ambient integral with exact ∂/∂d, ∂/∂w | §4.3.2 eq. 4.3–4.4 |
 //! | [`track`] | PCA + weighted cubic B-spline valley (eq. 4.2), per-cross-section (d, w) by Gauss–Newton on eq. 4.4 | §4.3.1–4.3.2 |
+//! | [`pooled`] | one (d, w) profile per wrinkle and frame: eq. 4.4 over all its cross-sections, with its covariance | §4.3.2 eq. 4.3–4.4 |
 //! | [`mocap`] | AnimFace CSV reader | §3.2 m_{i,t} |
 //! | [`landmarks`] | marker → scan-vertex table (ICP registration + closest vertex) | §4.2.1 f_{i,0} |
 //! | [`correspondence`] | space warp c(x) = Σ w_i ‖x − c_i‖³ + q(x), u_{i,t} = c(m_{i,t}) − f_{i,0} | §4.2.1 eq. 4.1 |
@@ -43,6 +44,7 @@ pub mod landmarks;
 pub mod mocap;
 pub mod morphology;
 pub mod output;
+pub mod pooled;
 pub mod raster;
 pub mod removal;
 pub mod render;
@@ -67,6 +69,7 @@ pub use landmarks::{Landmark, derive_landmarks, landmarks_csv, parse_landmarks_c
 pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
 pub use output::{FaceFrame, FrameWrinkles, WrinkleInput, wrinkles_message, write_face_mcap};
+pub use pooled::{PoolSettings, PooledFit, PooledProfile, SectionSamples, fit_pooled};
 pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use removal::{RemovalSettings, remove_wrinkles};
 pub use render::{

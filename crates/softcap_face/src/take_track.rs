@@ -147,6 +147,14 @@ fn tracked_message(
     let Some(t) = &fw.tracked else {
         return msg;
     };
+    if let Some(p) = &t.profile {
+        msg.depth_px = p.depth_px;
+        msg.width_px = p.width_px;
+        // (NaN when JᵀJ was singular: written as 0, "unknown")
+        let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+        msg.depth_sigma_px = finite(p.depth_sigma_px);
+        msg.width_sigma_px = finite(p.width_sigma_px);
+    }
     let steps = ((t.spline.x1 - t.spline.x0) / 2.0).ceil().max(1.0) as usize;
     for i in 0..=steps {
         let x = t.spline.x0 + (t.spline.x1 - t.spline.x0) * i as f64 / steps as f64;

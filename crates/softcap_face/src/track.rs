@@ -16,6 +16,7 @@ use softcap_core::{
 use crate::cross_section::{HorizonSettings, UnitHorizons, wedge_shading};
 use crate::error::{FaceError, Result};
 use crate::image::RgbImage;
+use crate::pooled::{PoolSettings, PooledProfile, SectionSamples, fit_pooled};
 
 /// The valley spline v: [x0, x1] → ℝ², a uniform cubic B-spline (softcap_core
 /// [`UniformCubicBSpline`]) over the PCA parameter x.
@@ -124,6 +125,9 @@ pub struct TrackSettings {
     pub horizon: HorizonSettings,
     /// Gauss–Newton / LM settings.
     pub solver: LevenbergMarquardtSettings,
+    /// The joint fit of all sections of the wrinkle ([`crate::pooled`]), started from the
+    /// per-section fits.
+    pub pool: PoolSettings,
 }
 
 impl Default for TrackSettings {
@@ -144,6 +148,7 @@ impl Default for TrackSettings {
                 max_iterations: 50,
                 ..Default::default()
             },
+            pool: PoolSettings::default(),
         }
     }
 }
@@ -174,8 +179,12 @@ pub struct TrackedWrinkle {
     pub axis: [f64; 2],
     /// The valley spline v(x).
     pub spline: ValleySpline,
-    /// Cross-sections along it.
+    /// Cross-sections along it: with [`TrackSettings::pool`] each holds the pooled d(x), w(x)
+    /// at its x and its own valley offset.
     pub sections: Vec<CrossSection>,
+    /// The pooled profile (`None` when pooling is off or had too few sections).
+    #[serde(default)]
+    pub profile: Option<PooledProfile>,
 }
 
 /// Samples (p_k, I_obs(p_k)/I_obs(m)) of one cross-section and the eq. 4.4 residuals.
@@ -219,16 +228,29 @@ impl SectionProblem<'_> {
         let (d, w, p0) = (params[0], params[1], params[2]);
         let c = if self.scale { params[3] } else { 1.0 };
         for k in 0..self.p.len() {
-            // at u = 0 exactly use the one-sided slope next to the kink
-            let mut p = self.p[k] - p0;
-            if p.abs() < 1e-6 * w {
-                p = 1e-6 * w;
-            }
-            let h = UnitHorizons::new(p / w, &self.horizon);
-            let slope = c * wedge_shading(w, d, p, &h).d_p;
-            self.weight[k] = 1.0 / (1.0 + (slope * sigma_p_px / sigma_ratio).powi(2)).sqrt();
+            self.weight[k] = effective_variance_weight(
+                [d, w, c],
+                self.p[k] - p0,
+                [sigma_ratio, sigma_p_px],
+                &self.horizon,
+            );
         }
     }
+}
+
+/// The effective-variance weight σ_I/√(σ_I² + (c ∂F/∂p)² σ_p²) of a sample at distance `p` from
+/// the valley, for the profile `[d, w, c]` and `[σ_I, σ_p]` (see `SectionProblem::reweight`).
+pub(crate) fn effective_variance_weight(
+    [d, w, c]: [f64; 3],
+    p: f64,
+    [sigma_ratio, sigma_p_px]: [f64; 2],
+    horizon: &HorizonSettings,
+) -> f64 {
+    // at u = 0 exactly use the one-sided slope next to the kink
+    let p = if p.abs() < 1e-6 * w { 1e-6 * w } else { p };
+    let h = UnitHorizons::new(p / w, horizon);
+    let slope = c * wedge_shading(w, d, p, &h).d_p;
+    1.0 / (1.0 + (slope * sigma_p_px / sigma_ratio).powi(2)).sqrt()
 }
 
 impl LeastSquaresProblem for SectionProblem<'_> {
@@ -275,6 +297,17 @@ pub fn fit_cross_section(
     ratio: &[f64],
     settings: &TrackSettings,
 ) -> Result<(f64, f64, f64, f64, bool)> {
+    let (x, rms, converged) = fit_section(p, ratio, settings)?;
+    Ok((x[0], x[1], x[2], rms, converged))
+}
+
+/// [`fit_cross_section`] returning (d, w, p₀, c), the RMS and whether it converged (c = 1 when
+/// the reference scale is not fitted).
+fn fit_section(
+    p: &[f64],
+    ratio: &[f64],
+    settings: &TrackSettings,
+) -> Result<([f64; 4], f64, bool)> {
     if p.len() != ratio.len() || p.len() < 4 {
         return Err(FaceError::InvalidInput {
             what: "cross-section",
@@ -334,10 +367,9 @@ pub fn fit_cross_section(
     let mut res = vec![0.0; p.len()];
     problem.residuals(&rep.params, &mut res);
     let rms = (res.iter().map(|r| r * r).sum::<f64>() / p.len() as f64).sqrt();
+    let c = rep.params.get(3).copied().unwrap_or(1.0);
     Ok((
-        rep.params[0],
-        rep.params[1],
-        rep.params[2],
+        [rep.params[0], rep.params[1], rep.params[2], c],
         rms,
         matches!(rep.status, SolverStatus::Converged { .. }),
     ))
@@ -500,26 +532,75 @@ pub fn track_wrinkle(
     counts.sort_unstable();
     let full = counts.get(counts.len() / 2).copied().unwrap_or(0) as f64;
     slabs.retain(|(_, ps, _)| ps.len() as f64 >= settings.min_slab_fraction * full);
-    let sections = slabs
+    let fits = slabs
         .par_iter()
-        .map(|(x, ps, ratio)| {
-            let (d, w, p0, rms, converged) = fit_cross_section(ps, ratio, settings)?;
-            let t = spline.deriv(*x).normalize();
-            let v = spline.eval(*x) + p0 * Vector2::new(-t.y, t.x);
-            Ok(CrossSection {
-                x: *x,
-                valley_px: [v.x, v.y],
-                depth_px: d,
-                width_px: w,
-                rms,
-                converged,
-            })
-        })
+        .map(|(_, ps, ratio)| fit_section(ps, ratio, settings))
         .collect::<Result<Vec<_>>>()?;
+    let valley = |x: f64, p0: f64| {
+        let t = spline.deriv(x).normalize();
+        let v = spline.eval(x) + p0 * Vector2::new(-t.y, t.x);
+        [v.x, v.y]
+    };
+    let mut sections: Vec<CrossSection> = slabs
+        .iter()
+        .zip(&fits)
+        .map(|((x, _, _), (q, rms, converged))| CrossSection {
+            x: *x,
+            valley_px: valley(*x, q[2]),
+            depth_px: q[0],
+            width_px: q[1],
+            rms: *rms,
+            converged: *converged,
+        })
+        .collect();
+    let profile = pool_sections(&slabs, &fits, settings).map(|pooled| {
+        for (s, [d, w, p0]) in sections.iter_mut().zip(&pooled.sections) {
+            s.depth_px = *d;
+            s.width_px = *w;
+            s.valley_px = valley(s.x, *p0);
+            s.converged = pooled.profile.converged;
+        }
+        pooled.profile
+    });
     Ok(TrackedWrinkle {
         mean_px: [mean.x, mean.y],
         axis: [axis.x, axis.y],
         spline,
         sections,
+        profile,
     })
+}
+
+/// The pooled fit ([`crate::pooled`]) of a wrinkle's sections from their own fits, when
+/// [`TrackSettings::pool`] asks for it and there are enough sections (≥ 2 and > degree); `None`
+/// also when the joint problem is invalid (the per-section fits stand then).
+fn pool_sections(
+    slabs: &[(f64, Vec<f64>, Vec<f64>)],
+    fits: &[([f64; 4], f64, bool)],
+    settings: &TrackSettings,
+) -> Option<crate::pooled::PooledFit> {
+    let pool = &settings.pool;
+    if !pool.enabled || slabs.len() < 2 || slabs.len() <= pool.degree {
+        return None;
+    }
+    let samples: Vec<SectionSamples> = slabs
+        .iter()
+        .zip(fits)
+        .map(|((x, p, ratio), (q, _, _))| SectionSamples {
+            x: *x,
+            p: p.clone(),
+            ratio: ratio.clone(),
+            start: *q,
+        })
+        .collect();
+    fit_pooled(
+        &samples,
+        pool,
+        settings.fit_reference_scale,
+        settings.ratio_sigma,
+        settings.position_sigma_px,
+        settings.reweight_passes,
+        &settings.horizon,
+    )
+    .ok()
 }

@@ -73,9 +73,9 @@ fn track_then_run_reproduces_the_rendered_wrinkles() {
         .collect();
     assert_eq!(frames.len(), 2 * 12);
     // issue 32: valleys within 0.5 px, (d, w) within 5 % where visible, events within 2 frames.
-    // (d, w) of a frame: the median over the wrinkle's cross-sections. Measured: valleys
-    // ≤ 0.36 px; d/w ≥ 0.3: d 3.0 %, w 3.6 %; with the ramp frames at d/w 0.27 as well:
-    // d 5.6 %, w 6.8 % (docs/face.md).
+    // (d, w) of a frame: the median over the wrinkle's cross-sections (the pooled profile).
+    // Measured: valleys ≤ 0.20 px; d/w ≥ 0.3: d 2.4 %, w 3.4 %; with the ramp frames at d/w 0.27
+    // as well: d 4.8 %, w 6.0 % (docs/face.md).
     let s = score_track(&truth, &frames, 0.3);
     eprintln!("{s:#?}");
     assert!(s.valley_max_px < 0.5, "valley {} px", s.valley_max_px);
