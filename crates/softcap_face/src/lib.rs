@@ -69,7 +69,10 @@ pub use landmarks::{Landmark, derive_landmarks, landmarks_csv, parse_landmarks_c
 pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
 pub use output::{FaceFrame, FrameWrinkles, WrinkleInput, wrinkles_message, write_face_mcap};
-pub use pooled::{PoolSettings, PooledFit, PooledProfile, SectionSamples, fit_pooled};
+pub use pooled::{
+    FrameEstimate, PoolSettings, PooledFit, PooledProfile, SectionSamples, fit_pooled,
+    smooth_in_time,
+};
 pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use removal::{RemovalSettings, remove_wrinkles};
 pub use render::{

@@ -84,6 +84,9 @@ pub struct PooledProfile {
     pub depth_sigma_px: f64,
     /// Standard deviation of `width_px`.
     pub width_sigma_px: f64,
+    /// Covariance of `depth_px` and `width_px` (px²; d and w err together on a shallow wrinkle).
+    #[serde(default)]
+    pub depth_width_cov_px2: f64,
     /// Unweighted RMS of the intensity-ratio residuals over all samples.
     pub rms: f64,
     /// Whether the joint fit converged.
@@ -102,7 +105,7 @@ pub struct PooledFit {
 }
 
 /// Smallest width the model is evaluated at (pixels; the per-section fit's lower bound).
-const MIN_WIDTH_PX: f64 = 0.3;
+pub(crate) const MIN_WIDTH_PX: f64 = 0.3;
 
 /// Legendre polynomials P_0..P_degree at t.
 fn legendre(t: f64, degree: usize) -> Vec<f64> {
@@ -377,18 +380,23 @@ pub fn fit_pooled(
     let sigma2 = 2.0 * rep.cost / dof;
     let cov = (jac.transpose() * &jac).try_inverse();
     let at_mid = legendre(0.0, pool.degree);
-    let sd = |first: usize| {
+    // Cov(a, b) of the profile at the middle of the valley, a/b the first coefficient of d or w
+    let cov_mid = |fa: usize, fb: usize| {
         cov.as_ref().map_or(f64::NAN, |c| {
             let mut v = 0.0;
             for a in 0..nb {
                 for b in 0..nb {
-                    v += at_mid[a] * c[(first + a, first + b)] * at_mid[b];
+                    v += at_mid[a] * c[(fa + a, fb + b)] * at_mid[b];
                 }
             }
-            (sigma2 * v).max(0.0).sqrt()
+            sigma2 * v
         })
     };
-    let (depth_sigma_px, width_sigma_px) = (sd(0), sd(nb));
+    let (depth_sigma_px, width_sigma_px) = (
+        cov_mid(0, 0).max(0.0).sqrt(),
+        cov_mid(nb, nb).max(0.0).sqrt(),
+    );
+    let depth_width_cov_px2 = cov_mid(0, nb);
     // unweighted RMS
     for s in &mut problem.sections {
         s.weight.fill(1.0);
@@ -409,6 +417,7 @@ pub fn fit_pooled(
             width_px: eval(nb).max(MIN_WIDTH_PX),
             depth_sigma_px,
             width_sigma_px,
+            depth_width_cov_px2,
             rms,
             converged: matches!(rep.status, SolverStatus::Converged { .. }),
             sections: sections.len(),
@@ -417,9 +426,121 @@ pub fn fit_pooled(
     })
 }
 
+/// One frame's pooled estimate for [`smooth_in_time`]: (d, w) and their covariance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameEstimate {
+    /// d (px).
+    pub depth_px: f64,
+    /// w (px).
+    pub width_px: f64,
+    /// Var d, Cov(d, w), Var w (px²).
+    pub cov_px2: [f64; 3],
+}
+
+impl FrameEstimate {
+    /// The estimate of a pooled profile; `None` when its covariance is unknown or degenerate.
+    pub fn of(p: &PooledProfile) -> Option<Self> {
+        let cov_px2 = [
+            p.depth_sigma_px.powi(2),
+            p.depth_width_cov_px2,
+            p.width_sigma_px.powi(2),
+        ];
+        (cov_px2.iter().all(|c| c.is_finite()) && cov_px2[0] > 0.0 && cov_px2[2] > 0.0).then_some(
+            Self {
+                depth_px: p.depth_px,
+                width_px: p.width_px,
+                cov_px2,
+            },
+        )
+    }
+}
+
+/// A smooth-in-time prior on the width of a wrinkle over consecutive frames: w_{t+1} = w_t + η_t,
+/// η_t ~ N(0, (`drift` · ŵ_t)²) (a random walk, `drift` the relative change per frame), and no
+/// prior on the depth (a wrinkle deepens and relaxes within a few frames). Each frame's pooled
+/// estimate (d̂, ŵ) with covariance C is a measurement; the Rauch–Tung–Striebel smoother gives
+/// w̃_t from all frames of the run, and d follows by Gaussian conditioning on the frame's own
+/// joint estimate, d̃ = d̂ + (C_dw / C_ww)(w̃ − ŵ). Returns, per frame, the smoothed
+/// estimate with its covariance (Var d̃ = C_dd − C_dw²/C_ww + (C_dw/C_ww)² P̃_w).
+pub fn smooth_in_time(frames: &[FrameEstimate], drift: f64) -> Vec<FrameEstimate> {
+    let n = frames.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    // forward Kalman filter on w: predicted (m⁻, P⁻) and filtered (m, P)
+    let mut pred = vec![(0.0, f64::INFINITY); n];
+    let mut filt = vec![(0.0, 0.0); n];
+    for (t, f) in frames.iter().enumerate() {
+        let r = f.cov_px2[2];
+        let (m_pred, p_pred) = if t == 0 {
+            (f.width_px, f64::INFINITY)
+        } else {
+            let (m, p) = filt[t - 1];
+            (m, p + (drift * m).powi(2))
+        };
+        pred[t] = (m_pred, p_pred);
+        filt[t] = if p_pred.is_finite() {
+            let k = p_pred / (p_pred + r);
+            (m_pred + k * (f.width_px - m_pred), (1.0 - k) * p_pred)
+        } else {
+            (f.width_px, r)
+        };
+    }
+    // backward RTS pass
+    let mut smooth = filt.clone();
+    for t in (0..n - 1).rev() {
+        let (m, p) = filt[t];
+        let (m_next_pred, p_next_pred) = pred[t + 1];
+        let g = p / p_next_pred;
+        smooth[t] = (
+            m + g * (smooth[t + 1].0 - m_next_pred),
+            p + g * g * (smooth[t + 1].1 - p_next_pred),
+        );
+    }
+    frames
+        .iter()
+        .zip(&smooth)
+        .map(|(f, &(w, pw))| {
+            let [cdd, cdw, cww] = f.cov_px2;
+            let beta = cdw / cww;
+            FrameEstimate {
+                depth_px: (f.depth_px + beta * (w - f.width_px)).max(0.0),
+                width_px: w,
+                cov_px2: [cdd - beta * cdw + beta * beta * pw, beta * pw, pw],
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smoothing_a_constant_width_pools_the_frames() {
+        // five frames of one width, equal variances, no drift: w̃ is the mean, its variance /5,
+        // and d moves by β (w̃ − ŵ) with β = C_dw / C_ww
+        let ws = [4.8, 5.3, 5.0, 4.9, 5.0];
+        let frames: Vec<FrameEstimate> = ws
+            .iter()
+            .map(|&w| FrameEstimate {
+                depth_px: 1.0,
+                width_px: w,
+                cov_px2: [0.01, 0.02, 0.04],
+            })
+            .collect();
+        let out = smooth_in_time(&frames, 0.0);
+        for (f, o) in frames.iter().zip(&out) {
+            assert!((o.width_px - 5.0).abs() < 1e-12, "{o:?}");
+            assert!((o.cov_px2[2] - 0.04 / 5.0).abs() < 1e-12);
+            assert!((o.depth_px - (1.0 + 0.5 * (5.0 - f.width_px))).abs() < 1e-12);
+        }
+        // a large drift leaves every frame alone
+        let free = smooth_in_time(&frames, 1e6);
+        for (f, o) in frames.iter().zip(&free) {
+            assert!((o.width_px - f.width_px).abs() < 1e-9);
+        }
+    }
 
     #[test]
     fn legendre_matches_closed_forms() {

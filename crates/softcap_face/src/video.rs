@@ -14,6 +14,7 @@ use crate::classify::{SvmSettings, classify_frames};
 use crate::error::Result;
 use crate::image::RgbImage;
 use crate::morphology::{close, connected_components, dilate, open};
+use crate::pooled::{FrameEstimate, MIN_WIDTH_PX, smooth_in_time};
 use crate::track::{TrackSettings, TrackedWrinkle, track_wrinkle};
 
 /// Settings of [`track_video`].
@@ -41,6 +42,12 @@ pub struct VideoTrackSettings {
     pub visible_depth_ratio: f64,
     /// … and at least this many cross-sections converged.
     pub min_sections: usize,
+    /// Smooth each wrinkle's pooled width over runs of consecutive visible frames
+    /// ([`smooth_in_time`]; needs [`TrackSettings::pool`](crate::track::TrackSettings::pool)).
+    pub smooth_in_time: bool,
+    /// The width's relative change per frame the smoother allows (standard deviation of its
+    /// random walk).
+    pub width_drift_per_frame: f64,
 }
 
 impl Default for VideoTrackSettings {
@@ -56,6 +63,8 @@ impl Default for VideoTrackSettings {
             min_width_px: 1.0,
             visible_depth_ratio: 0.1,
             min_sections: 3,
+            smooth_in_time: true,
+            width_drift_per_frame: 0.02,
         }
     }
 }
@@ -206,5 +215,55 @@ pub fn track_video(
         out.push(row);
         on_frame();
     }
+    if settings.smooth_in_time {
+        smooth_widths(&mut out, settings.width_drift_per_frame);
+    }
     Ok(out)
+}
+
+/// The pooled estimate of a visible wrinkle, if it has one with a usable covariance.
+fn estimate(fw: &FrameWrinkle) -> Option<FrameEstimate> {
+    if fw.status != WrinkleStatus::Visible {
+        return None;
+    }
+    FrameEstimate::of(fw.tracked.as_ref()?.profile.as_ref()?)
+}
+
+/// [`smooth_in_time`] over every run of consecutive frames in which a wrinkle is visible with a
+/// pooled profile: the profile takes the smoothed (d, w) and covariance, every cross-section is
+/// shifted by the same change of d and w.
+fn smooth_widths(frames: &mut [Vec<FrameWrinkle>], drift: f64) {
+    let n_wrinkles = frames.first().map_or(0, Vec::len);
+    for k in 0..n_wrinkles {
+        let mut t = 0;
+        while t < frames.len() {
+            let run: Vec<FrameEstimate> = frames[t..]
+                .iter()
+                .map_while(|row| row.get(k).and_then(estimate))
+                .collect();
+            if run.is_empty() {
+                t += 1;
+                continue;
+            }
+            let smoothed = smooth_in_time(&run, drift);
+            for (i, (old, new)) in run.iter().zip(&smoothed).enumerate() {
+                let Some(tw) = frames[t + i][k].tracked.as_mut() else {
+                    continue;
+                };
+                let (dd, dw) = (new.depth_px - old.depth_px, new.width_px - old.width_px);
+                for s in &mut tw.sections {
+                    s.depth_px = (s.depth_px + dd).max(0.0);
+                    s.width_px = (s.width_px + dw).max(MIN_WIDTH_PX);
+                }
+                if let Some(p) = tw.profile.as_mut() {
+                    p.depth_px = new.depth_px;
+                    p.width_px = new.width_px;
+                    p.depth_sigma_px = new.cov_px2[0].max(0.0).sqrt();
+                    p.width_sigma_px = new.cov_px2[2].max(0.0).sqrt();
+                    p.depth_width_cov_px2 = new.cov_px2[1];
+                }
+            }
+            t += run.len();
+        }
+    }
 }

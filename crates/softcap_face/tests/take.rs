@@ -73,19 +73,20 @@ fn track_then_run_reproduces_the_rendered_wrinkles() {
         .collect();
     assert_eq!(frames.len(), 2 * 12);
     // issue 32: valleys within 0.5 px, (d, w) within 5 % where visible, events within 2 frames.
-    // (d, w) of a frame: the median over the wrinkle's cross-sections (the pooled profile).
-    // Measured: valleys ≤ 0.20 px; d/w ≥ 0.3: d 2.4 %, w 3.4 %; with the ramp frames at d/w 0.27
-    // as well: d 4.8 %, w 6.0 % (docs/face.md).
+    // (d, w) of a frame: the median over the wrinkle's cross-sections (the pooled profile,
+    // smoothed in time). Measured: valleys ≤ 0.20 px; d/w ≥ 0.3: d 2.2 %, w 2.7 %; every frame
+    // the wrinkle is present (the appearance ramps' d/w 0.27 and 0.13 too): d 3.5 %, w 3.7 %
+    // (docs/face.md).
     let s = score_track(&truth, &frames, 0.3);
     eprintln!("{s:#?}");
     assert!(s.valley_max_px < 0.5, "valley {} px", s.valley_max_px);
     assert!(s.depth_max_rel < 0.05, "depth {}", s.depth_max_rel);
     assert!(s.width_max_rel < 0.05, "width {}", s.width_max_rel);
     assert_eq!(s.missed, 0);
-    let ramp = score_track(&truth, &frames, 0.2);
+    let ramp = score_track(&truth, &frames, f64::MIN_POSITIVE);
     eprintln!("{ramp:#?}");
     assert!(
-        ramp.depth_max_rel < 0.08 && ramp.width_max_rel < 0.08,
+        ramp.depth_max_rel < 0.05 && ramp.width_max_rel < 0.05,
         "{ramp:?}"
     );
     assert_eq!(ramp.missed, 0);
