@@ -52,7 +52,9 @@ def materials(spec, ncells, tags, dtime):
             fem.Volumetric(bulk=spec["bulk"]),
         ]
     if kind == "viscoelastic":
-        out = [fem.NeoHooke(mu=spec["mu"], bulk=spec["bulk"])]
+        # the equilibrium branch takes the inclusion's shear modulus (`mu_inclusion`) as neo-hooke does
+        mu = np.where(tags == 1, spec.get("mu_inclusion", spec["mu"]), spec["mu"])
+        out = [fem.NeoHooke(mu=mu, bulk=spec["bulk"] * mu / spec["mu"])]
         for mu_i, tau_i in spec["branches"]:
             out.append(
                 fem.Hyperelastic(

@@ -908,8 +908,8 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
         Some("ten-locations") => full_catalog_on_ten_locations_timing(),
         Some("docs-report") => write_docs_report(),
         Some("calibration") => calibration()?,
-        Some("pairs") => pairs_table(),
-        Some("next-experiment") => next_experiment_table(),
+        Some("pairs") => pairs_table(std::env::args().nth(2).as_deref()),
+        Some("next-experiment") => next_experiment_table(std::env::args().nth(2).as_deref()),
         other => {
             return Err(format!(
                 "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs, next-experiment"
@@ -1144,14 +1144,15 @@ fn calibration_plot(
     Ok(())
 }
 
-/// The two-effect sessions: the named effects and the joint model against each one alone.
+/// The two-effect sessions (those whose name contains `filter`): the named effects and the joint
+/// model against each one alone.
 #[cfg(not(test))]
-fn pairs_table() {
+fn pairs_table(filter: Option<&str>) {
     let plastic = Effect::Plastic {
         yield_pa: 2000.0,
         hardening_pa: 1000.0,
     };
-    let cases: [(&str, &[Effect], bool); 5] = [
+    let cases: [(&str, &[Effect], bool); 10] = [
         (
             "creep + clock offset",
             &[
@@ -1180,12 +1181,43 @@ fn pairs_table() {
             &[Effect::Gravity(1000.0), Effect::SensorLag(0.12)],
             false,
         ),
+        (
+            "gravity + clock offset",
+            &[Effect::Gravity(1000.0), Effect::ClockOffset(0.1)],
+            false,
+        ),
+        (
+            "probe friction + clock offset",
+            &[Effect::Friction(0.5), Effect::ClockOffset(0.1)],
+            true,
+        ),
+        (
+            "support springs + clock offset",
+            &[Effect::SupportSlip(500.0), Effect::ClockOffset(0.1)],
+            true,
+        ),
+        (
+            "anisotropy + sensor lag",
+            &[Effect::Anisotropic(5.0), Effect::SensorLag(0.12)],
+            false,
+        ),
+        (
+            "creep + sensor lag",
+            &[
+                Effect::Creep { g: 0.8, tau_s: 0.2 },
+                Effect::SensorLag(0.12),
+            ],
+            false,
+        ),
     ];
     println!(
         "| session | verdict | effects (confidence) | second effect's cells: default / first alone / second alone / joint, mm |"
     );
     println!("|---|---|---|---|");
     for (name, effects, oblique) in cases {
+        if filter.is_some_and(|f| !name.contains(f)) {
+            continue;
+        }
         let s = session_with(effects, oblique, &LOCATIONS, 8);
         let mut sim = simulator(20e3);
         let t0 = std::time::Instant::now();
@@ -1196,6 +1228,8 @@ fn pairs_table() {
                 continue;
             }
         };
+        eprintln!("{name}:");
+        print_ranked(&d);
         let named: Vec<String> = d
             .effects
             .iter()
@@ -1219,10 +1253,57 @@ fn pairs_table() {
     }
 }
 
-/// Look-alike sessions: diagnosed under the standard protocol; when `inconclusive`, re-recorded
-/// under the suggested protocol (same truth, same noise seed) and diagnosed again.
+/// The top of the ranked table, the named effects and the candidates on stderr.
 #[cfg(not(test))]
-fn next_experiment_table() {
+fn print_ranked(d: &softcap_diagnose::Diagnosis) {
+    for r in d.ranked.iter().take(5) {
+        let sup = r
+            .evidence
+            .screened
+            .as_ref()
+            .map(|s| (s.signature_support, s.qualifies));
+        eprintln!(
+            "  {:>16} score {:+.3} before {:.4} after {:.4} mm support/qualifies {sup:?} {:?} {:?}",
+            r.hypothesis,
+            r.score,
+            1e3 * r.heldout_rmse_before_m,
+            1e3 * r.heldout_rmse_after_m,
+            r.evidence.confirmation_failed,
+            r.params
+        );
+    }
+    for e in &d.effects {
+        eprintln!(
+            "  effect {} conf {:.3} before/without/single/after {:.4}/{:.4}/{:.4}/{:.4} mm gains {:?} {:?}",
+            e.hypothesis,
+            e.confidence,
+            1e3 * e.heldout_rmse_before_m,
+            1e3 * e.heldout_rmse_without_m,
+            1e3 * e.heldout_rmse_single_m,
+            1e3 * e.heldout_rmse_after_m,
+            e.fold_gains,
+            e.params
+        );
+    }
+    for c in &d.candidates {
+        eprintln!(
+            "  candidate {} conf {:.3} after {:.4} mm gains {:?}",
+            c.hypothesis,
+            c.confidence,
+            1e3 * c.heldout_rmse_after_m,
+            c.fold_gains
+        );
+    }
+    if let Some(n) = &d.next_experiment {
+        eprintln!("  next {n:?}");
+    }
+}
+
+/// Look-alike sessions (those whose name contains `filter`): diagnosed under the standard
+/// protocol; when `inconclusive`, re-recorded under the suggested protocol (same truth, same noise
+/// seed) and diagnosed again.
+#[cfg(not(test))]
+fn next_experiment_table(filter: Option<&str>) {
     let cases: Vec<(&str, &str, Effect, bool)> = vec![
         (
             "sensor lag τ 0.03 s",
@@ -1272,12 +1353,39 @@ fn next_experiment_table() {
             Effect::SupportSlip(1500.0),
             true,
         ),
+        (
+            "clock offset 0.015 s",
+            "clock-offset",
+            Effect::ClockOffset(0.015),
+            false,
+        ),
+        (
+            "sensor lag τ 0.02 s",
+            "sensor-lag",
+            Effect::SensorLag(0.02),
+            false,
+        ),
+        (
+            "creep g 0.8, τ 1.5 s",
+            "viscoelasticity",
+            Effect::Creep { g: 0.8, tau_s: 1.5 },
+            false,
+        ),
+        (
+            "creep g 1.5, τ 3 s",
+            "viscoelasticity",
+            Effect::Creep { g: 1.5, tau_s: 3.0 },
+            false,
+        ),
     ];
     println!(
         "| session (truth) | first protocol: verdict, candidates | next experiment (predicted difference, mm) | re-recorded: verdict |"
     );
     println!("|---|---|---|---|");
     for (name, truth, effect, oblique) in cases {
+        if filter.is_some_and(|f| !name.contains(f)) {
+            continue;
+        }
         let s = session_with(&[effect], oblique, &LOCATIONS, 100);
         let mut sim = simulator(20e3);
         let Ok(run) = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default()) else {
@@ -1285,6 +1393,8 @@ fn next_experiment_table() {
             continue;
         };
         let d = run.diagnosis;
+        eprintln!("{name}:");
+        print_ranked(&d);
         let cands: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
         eprintln!("{name}: {} {:?} {:?}", d.verdict, cands, d.next_experiment);
         let Some(next) = d.next_experiment else {
