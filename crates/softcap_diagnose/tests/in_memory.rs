@@ -400,6 +400,18 @@ fn anisotropy_and_gravity_are_both_named() {
     );
 }
 
+/// The fourth pair: Coulomb probe friction μ 0.5 on the oblique path and a 0.1 s clock offset
+/// (the frictional rigid-tip replays of its confirmation cost ≈ 60 CPU-s in the test profile).
+#[test]
+#[ignore = "≈ 60 CPU-s: probe friction's rigid-tip replays"]
+fn probe_friction_and_clock_offset_are_both_named() {
+    run_pair(
+        &[Effect::Friction(0.5), Effect::ClockOffset(0.1)],
+        true,
+        ["probe-friction", "clock-offset"],
+    );
+}
+
 #[test]
 fn clean_control_is_none() {
     run(Effect::Clean, false, "none");
@@ -946,20 +958,21 @@ fn calibration_effects() -> Vec<(&'static str, bool, [Effect; 3])> {
             [100.0, 300.0, 1000.0].map(Effect::Gravity),
         ),
         (
-            "probe-friction",
-            true,
-            [0.05, 0.15, 0.5].map(Effect::Friction),
-        ),
-        (
             "support-slip",
             true,
             [5000.0, 1500.0, 500.0].map(Effect::SupportSlip),
         ),
-        ("plasticity", false, [8000.0, 4000.0, 2000.0].map(plastic)),
         (
             "anisotropy",
             false,
             [1.5, 2.5, 5.0].map(Effect::Anisotropic),
+        ),
+        // the two with rigid-tip replays (tens of CPU-s per session) last
+        ("plasticity", false, [8000.0, 4000.0, 2000.0].map(plastic)),
+        (
+            "probe-friction",
+            true,
+            [0.05, 0.15, 0.5].map(Effect::Friction),
         ),
     ]
 }
