@@ -109,6 +109,7 @@ pub fn problem_with_cells(
             icp_markers,
             attachments,
             free_flying,
+            icp_surface: None,
         },
         held_out,
     )

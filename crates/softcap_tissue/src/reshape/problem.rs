@@ -100,6 +100,11 @@ pub struct ReshapeProblem {
     pub attachments: Vec<Attachment>,
     /// No attachments: solve with the rigid gauge of §3.6.
     pub free_flying: bool,
+    /// The part of the template's boundary the ICP markers lie on (triangles of template nodes);
+    /// `None`: the whole boundary (an organ seen all round, as in saito-barbic §3.1). A layer cut
+    /// from a body (a skin layer) is seen on one side only: closest points on its inner or cut
+    /// surfaces would tie those to the subject's skin.
+    pub icp_surface: Option<Vec<[usize; 3]>>,
 }
 
 /// Closest points on the boundary of a deformed tet mesh (parry3d's triangle-mesh projection).

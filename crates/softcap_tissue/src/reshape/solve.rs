@@ -307,7 +307,8 @@ struct Solver<'p> {
     laplacian: PlasticLaplacian,
     equilibrium: Equilibrium,
     gauge: Option<Gauge>,
-    boundary: Vec<[usize; 3]>,
+    /// The boundary triangles ICP markers project onto ([`ReshapeProblem::icp_surface`]).
+    icp_surface: Vec<[usize; 3]>,
     alpha: f64,
     equilibrium_solves: usize,
 }
@@ -361,6 +362,22 @@ impl<'p> Solver<'p> {
             .map(|a| (a.node, a.target_m))
             .collect();
         let equilibrium = Equilibrium::new(&model, attachments, stiffness, &pins)?;
+        let icp_surface = match &problem.icp_surface {
+            Some(faces) => {
+                let n = mesh.vertices.len();
+                if faces.is_empty() || faces.iter().flatten().any(|&v| v >= n) {
+                    return Err(TissueError::BadSettings {
+                        field: "icp_surface".into(),
+                        problem: format!(
+                            "{} triangles, some with a node outside the template's {n} nodes (or none)",
+                            faces.len()
+                        ),
+                    });
+                }
+                faces.clone()
+            }
+            None => mesh.boundary_faces(),
+        };
         Ok(Self {
             problem,
             settings,
@@ -368,7 +385,7 @@ impl<'p> Solver<'p> {
             laplacian,
             equilibrium,
             gauge,
-            boundary: mesh.boundary_faces(),
+            icp_surface,
             alpha,
             equilibrium_solves: 0,
         })
@@ -500,7 +517,7 @@ impl<'p> Solver<'p> {
             }));
         }
         if stage.icp {
-            let projector = SurfaceProjector::new(&self.boundary, x);
+            let projector = SurfaceProjector::new(&self.icp_surface, x);
             for m in &self.problem.icp_markers {
                 let target = to_frame(&m.position_m);
                 if let Some((point, _)) = projector.project(&target) {
@@ -910,7 +927,7 @@ impl<'p> Solver<'p> {
                 .iter()
                 .map(|l| entry(ConstraintKind::Landmark, &l.id, l.target_m, l.point.at(x))),
         );
-        let projector = SurfaceProjector::new(&self.boundary, x);
+        let projector = SurfaceProjector::new(&self.icp_surface, x);
         out.extend(p.icp_markers.iter().filter_map(|m| {
             let (point, _) = projector.project(&m.position_m)?;
             Some(entry(ConstraintKind::Icp, &m.id, m.position_m, point.at(x)))

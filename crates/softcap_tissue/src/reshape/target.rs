@@ -212,6 +212,7 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
             icp_markers,
             attachments,
             free_flying: spec.free_flying,
+            icp_surface: None,
         },
         surface,
         metres_per_unit: unit,
