@@ -242,3 +242,14 @@ fn a_non_manifold_surface_and_inconsistent_units_are_refused_naming_file_and_lin
     std::fs::write(&toml, format!("{original}template_length_unit = \"m\"\n")).unwrap();
     expect(&["target.toml:1", "inconsistent units"]);
 }
+
+/// `icp_surface` names the part of the boundary the markers lie on; a triangle with a node the
+/// template does not have is refused before any solve.
+#[test]
+fn an_icp_surface_outside_the_template_is_refused() {
+    let (mut p, _) = problem(false);
+    let n = p.template.vertices.len();
+    p.icp_surface = Some(vec![[0, 1, n]]);
+    let err = reshape(&p, &ReshapeSettings::default(), &mut |_, _, _, _| {}).expect_err("refused");
+    assert!(err.to_string().contains("icp_surface"), "{err}");
+}
