@@ -33,6 +33,11 @@ pub struct Signatures {
     /// observed rest shape (gravity pre-load) offsets rest and released frames alike and
     /// cancels here; a plastic set exists only after release.
     pub released_set_m: f64,
+    /// How much of the set each press leaves at its release is still there at the later
+    /// releases ([`released_set_persistence`]): 1 a permanent (plastic) set, toward 0 a set
+    /// that recovers (creep recovery); `None` without a later release to compare.
+    #[serde(default)]
+    pub released_set_persistence: Option<f64>,
     /// RMS tangential baseline residual of probed markers in contact, m.
     pub contact_tangential_m: f64,
     /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
@@ -260,6 +265,7 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
         &|k, m| seg.phases[k] == Phase::Released && seg.regions[m] == Region::Probed,
         &|r, m| (r - rest_mean[m]).norm(),
     );
+    s.released_set_persistence = released_set_persistence(rec, seg, res, &rest_mean);
     s.contact_tangential_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
         &|r, m| {
@@ -290,6 +296,73 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
     if n > 0 {
         s.rest_gravity_m = a / n as f64;
     }
+}
+
+/// The persistence of the released set (`Signatures::released_set_persistence`): per block b of
+/// consecutive released frames (after one press at location l_b) and marker m within
+/// [`contact_radius_m`] of l_b's contact point, the set s_bm = the mean of r − r̄_rest over b (r the
+/// baseline residual, r̄_rest the marker's mean residual at rest) and, for every later released
+/// block b' after a press farther than [`contact_radius_m`] from m, its mean s_b'm over b'.
+/// Returns Σ s_b'm · s_bm / Σ |s_bm|² over all such (b, m, b'), or `None` without such a pair.
+///
+/// Why: after the probe lifts off, the elastic default model is back at its rest shape, so the
+/// residual is what the press left. A plastic set is permanent (rate-independent J2 flow,
+/// Simo & Hughes 1998 Box 3.1: no flow without load), so at the later releases it is still
+/// there: persistence ≈ 1. A viscoelastic body recovers its creep after unloading (the Maxwell
+/// branches' internal strains relax back with their τ, Simo & Hughes §10.3): seconds later the
+/// set has decayed by e^{−Δt/τ}, persistence → 0. Later presses close to the marker leave their
+/// own set on it and are skipped.
+pub fn released_set_persistence(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &Residuals,
+    rest_mean: &[Vector3<f64>],
+) -> Option<f64> {
+    let radius = contact_radius_m(rec);
+    let nm = rec.num_markers();
+    // blocks of consecutive released frames of one location: (location, frames)
+    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
+    for k in 0..res.len() {
+        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
+            continue;
+        };
+        match blocks.last_mut() {
+            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&p| p + 1 == k) => {
+                frames.push(k)
+            }
+            _ => blocks.push((l, vec![k])),
+        }
+    }
+    let near = |l: usize, m: usize| {
+        (seg.locations[l].contact_tip_m - rec.rest_markers_m[m]).norm() <= radius
+    };
+    // the mean set of marker m over a block's observed frames
+    let set = |frames: &[usize], m: usize| -> Option<Vector3<f64>> {
+        let (mut acc, mut n) = (Vector3::zeros(), 0usize);
+        for &k in frames {
+            if let Some(r) = res[k][m] {
+                acc += r - rest_mean[m];
+                n += 1;
+            }
+        }
+        (n > 0).then(|| acc / n as f64)
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for (b, (l, frames)) in blocks.iter().enumerate() {
+        for m in (0..nm).filter(|&m| near(*l, m)) {
+            let Some(own) = set(frames, m) else { continue };
+            for (l2, later) in &blocks[b + 1..] {
+                if near(*l2, m) {
+                    continue;
+                }
+                if let Some(s) = set(later, m) {
+                    num += s.dot(&own);
+                    den += own.norm_squared();
+                }
+            }
+        }
+    }
+    (den > 0.0).then(|| num / den)
 }
 
 /// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
@@ -432,6 +505,103 @@ mod tests {
             near_radius_m: 0.008,
         };
         (rec, seg)
+    }
+
+    #[test]
+    fn released_set_persistence_tells_a_permanent_set_from_a_recovering_one() {
+        // three presses 20 mm apart, each followed by a released frame; the markers within the
+        // contact radius (5 mm) of the first press carry a set after it, which at the two later
+        // releases is still all there (plastic) or has decayed to a fifth (creep recovery)
+        use crate::recording::Frame;
+        use crate::segment::{Location, Region};
+        let rest: Vec<Vector3<f64>> = (0..9)
+            .map(|i| Vector3::new(0.005 * i as f64, 0.0, 0.02))
+            .collect();
+        let nm = rest.len();
+        let tips: Vec<Vector3<f64>> = [0.0, 0.02, 0.04]
+            .iter()
+            .map(|&x| Vector3::new(x, 0.0, 0.02))
+            .collect();
+        let frames: Vec<Frame> = (0..7usize)
+            .map(|k| Frame {
+                frame: k as u64,
+                time_s: k as f64,
+                tip_m: tips[k.saturating_sub(1) / 2],
+                axis: -Vector3::z(),
+                force_n: Vector3::new(0.0, 0.0, if k % 2 == 1 { -0.5 } else { 0.0 }),
+                markers_m: rest.iter().map(|p| Some(*p)).collect(),
+            })
+            .collect();
+        let rec = Recording {
+            marker_ids: (0..nm).map(|m| m.to_string()).collect(),
+            rest_markers_m: rest.clone(),
+            normals: vec![Vector3::z(); nm],
+            gravity_m_s2: Vector3::zeros(),
+            support: None,
+            tip_radius_m: 0.002,
+            frames,
+        };
+        let loc = |l: usize| Location {
+            index: l,
+            peak_tip_m: tips[l],
+            contact_tip_m: tips[l],
+            axis: -Vector3::z(),
+            peak_frame: 2 * l + 1,
+            peak_force_n: 0.5,
+            contact_frames: vec![2 * l + 1],
+        };
+        let seg = Segmentation {
+            phases: (0..7)
+                .map(|k| match k {
+                    0 => Phase::Rest,
+                    k if k % 2 == 1 => Phase::Hold,
+                    _ => Phase::Released,
+                })
+                .collect(),
+            fold_of_frame: (0..7).map(|k| (k > 0).then(|| (k - 1) / 2)).collect(),
+            locations: (0..3).map(loc).collect(),
+            regions: vec![Region::Probed; nm],
+            near_radius_m: 0.008,
+        };
+        // a template offset (the same at rest and after release) cancels
+        let offset = Vector3::new(2e-5, 0.0, 1e-5);
+        let res = |later: f64| -> Residuals {
+            (0..7)
+                .map(|k| {
+                    (0..nm)
+                        .map(|m| {
+                            let set = Vector3::new(0.0, 0.0, -3e-4) * (1.0 - m as f64 / 2.0);
+                            let under_first = (rest[m] - tips[0]).norm() <= 0.005;
+                            Some(match k {
+                                2 if under_first => offset + set,
+                                4 | 6 if under_first => offset + set * later,
+                                _ => offset,
+                            })
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let rest_mean = |r: &Residuals| rest_mean(r, &seg, nm);
+        let permanent = res(1.0);
+        let p = released_set_persistence(&rec, &seg, &permanent, &rest_mean(&permanent));
+        assert!((p.unwrap() - 1.0).abs() < 1e-12, "{p:?}");
+        let recovering = res(0.2);
+        let p = released_set_persistence(&rec, &seg, &recovering, &rest_mean(&recovering));
+        assert!((p.unwrap() - 0.2).abs() < 1e-12, "{p:?}");
+        // one press: no later release to compare
+        let mut one = seg.clone();
+        one.phases.truncate(3);
+        one.fold_of_frame.truncate(3);
+        let short = Recording {
+            frames: rec.frames[..3].to_vec(),
+            ..rec.clone()
+        };
+        let r3: Residuals = permanent[..3].to_vec();
+        assert_eq!(
+            released_set_persistence(&short, &one, &r3, &rest_mean(&permanent)),
+            None
+        );
     }
 
     #[test]

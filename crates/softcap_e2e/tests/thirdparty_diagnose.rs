@@ -353,7 +353,6 @@ cases! {
     cylinder => "cylinder",
     plasticity_pair => "plasticity-pair",
     gravity_preload_pair => "gravity-preload-pair",
-    #[ignore = "verdict inconclusive: viscoelasticity confirmed 0.1973 -> 0.1512 mm (clean 0.1691), but plasticity's screen (0.1735 -> 0.1424 mm on released/near-touched, creep recovery after release) is a look-alike within the fold spread; 157 CPU-s"]
     viscoelasticity => "viscoelasticity",
     clock_offset => "clock-offset",
     gravity_preload => "gravity-preload",

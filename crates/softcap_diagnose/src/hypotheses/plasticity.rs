@@ -4,7 +4,7 @@
 //! with the running maximum force above a yield force f_y (grid), fraction β ≥ 0. Effect cells:
 //! released frames, markers within the contact radius of a location touched before. Signature:
 //! the released residual minus the same marker's rest residual above 3σ (a template offset cancels,
-//! a plastic set exists only after release). Confirmation: J2 plasticity with linear isotropic
+//! a plastic set exists only after release) that persists at the later releases (creep recovers). Confirmation: J2 plasticity with linear isotropic
 //! hardening (`softcap_fem::ElastoplasticModel`, Simo & Hughes 1998 Box 3.1–3.2) over the default
 //! (λ, α), σ_y and H as fractions of the peak contact pressure, driven by the measured force over
 //! the patch (bickel2009 §4.1) AND replayed with the session's rigid tip at every measured pose
@@ -30,6 +30,12 @@ use nalgebra::Vector3;
 
 /// The plasticity hypothesis.
 pub struct Plasticity;
+
+/// Persistence of the released set (`Signatures::released_set_persistence`) below which the set
+/// recovers rather than stays: less than half of it is left at the later releases. A plastic
+/// set is permanent (≈ 1); a viscoelastic one recovers by e^{−Δt/τ} over the seconds between
+/// releases.
+pub const RECOVERED_PERSISTENCE: f64 = 0.5;
 
 /// Name of the effect cells.
 const CELLS: &str = "released/near-touched";
@@ -107,8 +113,13 @@ impl Hypothesis for Plasticity {
         Some(EffectCells { name: CELLS, mask })
     }
 
+    /// Supported by a released set above 3σ that persists; contradicted without a set, or when
+    /// the set recovers at the later releases ([`RECOVERED_PERSISTENCE`]): creep recovery.
     fn signature_support(&self, s: &Signatures) -> f64 {
-        if s.released_set_m > s.three_sigma_m() {
+        let recovers = s
+            .released_set_persistence
+            .is_some_and(|p| p < RECOVERED_PERSISTENCE);
+        if s.released_set_m > s.three_sigma_m() && !recovers {
             1.0
         } else {
             -1.0
