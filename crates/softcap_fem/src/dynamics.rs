@@ -258,9 +258,9 @@ pub struct StepLoads<'a> {
     pub initial_guess: Option<&'a [Vector3<f64>]>,
 }
 
-struct Kinematics {
-    cx: f64,
-    cv: f64,
+pub(crate) struct Kinematics {
+    pub(crate) cx: f64,
+    pub(crate) cv: f64,
 }
 
 impl DynamicSolver {
@@ -375,7 +375,7 @@ impl DynamicSolver {
         }
     }
 
-    fn kinematics(settings: &DynamicsSettings) -> Kinematics {
+    pub(crate) fn kinematics(settings: &DynamicsSettings) -> Kinematics {
         let h = settings.time_step_s;
         match settings.integrator {
             Integrator::ImplicitEuler => Kinematics {
@@ -390,7 +390,7 @@ impl DynamicSolver {
     }
 
     /// (v_{n+1}, a_{n+1}) of the integrator for a trial x_{n+1}.
-    fn velocity_acceleration(
+    pub(crate) fn velocity_acceleration(
         settings: &DynamicsSettings,
         state: &DynamicState,
         x: &[Vector3<f64>],

@@ -20,6 +20,7 @@
 //! | [`friction`] | regularized Coulomb at the probe: f_t = −μ f_n s(‖δ‖/ε) δ/‖δ‖, s(r) = 2r − r² (r < 1), 1 after; stick anchors in the probe frame, dragged to ε on commit | Li et al. 2020 (IPC) §5.1 f₁ mollifier; bickel2009 §3.4 contact |
 //! | [`support`] | support slip: attached face on a plane ν·x = d, bilateral normal penalty, tangential springs −k_t P(x − a) or regularized Coulomb | issue 4 (support slip) |
 //! | [`nodal`] | equilibrium with node-level terms (frictional contact, supports): A Δx = f_ext + Σ f_b − f_int | bickel2009 §3.4 iterations |
+//! | [`quadratic`] | 10-node corotational tets (4-point rule, element rotation at the centroid), their implicit dynamics, statics and subspace-iteration modes | wang2015 §7 (coarse-mesh stiffness); Müller & Gross 2004 |
 //! | [`plasticity`] | (a) additive J2 plastic strain on the corotational element, f = ‖dev σ‖ − √(2/3)(σ_y + Hᾱ), radial return + algorithmic tangent, permanent set ε_p = (Eε_max − σ_y)/(E + H) in 1D; (b) multiplicative F_e = F F_p⁻¹ on stable neo-Hookean, E_e = V det F_p Ψ(F_e) | Simo & Hughes 1998 Box 3.1–3.2; saito-barbic §3.2 eq. 1–2 |
 //!
 //! ```
@@ -58,6 +59,7 @@ pub mod model;
 pub mod neohookean;
 pub mod nodal;
 pub mod plasticity;
+pub mod quadratic;
 pub mod statics;
 pub mod support;
 pub mod viscoelastic;
@@ -108,6 +110,7 @@ pub use dynamics::{
     Integrator, RayleighDamping, StepLoads,
 };
 pub use modal::{LanczosModes, LanczosReport, ModalSettings, Modes, dense_modes, lanczos_modes};
+pub use quadratic::{QuadraticModel, QuadraticSolver, QuadraticTetMesh, quadratic_tets};
 
 pub use faer;
 pub use nalgebra;

@@ -86,6 +86,7 @@ fn scene() -> Scene {
         frame_rate_hz: FRAME_RATE_HZ,
         substeps: 4,
         refine: 0,
+        elements: softcap_tissue::fit_dynamic::Elements::Linear,
         noise_m: 0.0,
         seed: 29,
     };

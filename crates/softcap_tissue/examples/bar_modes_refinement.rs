@@ -2,12 +2,17 @@
 //! frequencies of the clamped 200 × 30 × 30 mm bar of the dynamic scenarios (E = 1 MPa, ν = 0.45,
 //! ρ = 1100 kg/m³, clamped at x = 0, `softcap_fem::lanczos_modes`, lumped mass) on the template
 //! mesh (12 × 2 × 2 cells) and on the bar-release truth mesh (32 × 5 × 5 cells) refined L times,
-//! next to Timoshenko beam theory. A fitted E scales with (f_model / f_converged)⁻², so the
-//! frequency ratio is the stiffness the mesh adds to a fitted modulus.
+//! next to Timoshenko beam theory, and with quadratic (10-node) tets on each mesh
+//! (`softcap_fem::quadratic`, masses lumped from the once-refined mesh on the same nodes). A
+//! fitted E scales with (f_model / f_converged)⁻², so the frequency ratio is the stiffness the
+//! mesh adds to a fitted modulus.
 //!
 //! `cargo run --profile test -p softcap_tissue --example bar_modes_refinement [MAX_LEVEL]`
 
-use softcap_fem::{CorotationalModel, LinearParams, ModalSettings, lanczos_modes, lumped_masses};
+use softcap_fem::{
+    CorotationalModel, LinearParams, ModalSettings, QuadraticModel, QuadraticSolver, lanczos_modes,
+    lumped_masses, quadratic_tets,
+};
 
 const L: f64 = 0.2;
 const A: f64 = 0.03;
@@ -33,9 +38,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let max_level: usize = std::env::args().nth(1).map_or(Ok(2), |a| a.parse())?;
     let reference = timoshenko_hz();
     println!(
-        "| mesh | level | tets | f₁ Hz | f₂ Hz | f₁ / Timoshenko {reference:.3} Hz | E factor (f₁/f_T)² |"
+        "| mesh | elements | level | tets | nodes | f₁ Hz | f₂ Hz | f₂/f₁ | f₁ / Timoshenko {reference:.3} Hz | E factor (f₁/f_T)² | s |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    let row = |name: &str,
+               kind: &str,
+               level: usize,
+               tets: usize,
+               nodes: usize,
+               f: &[f64],
+               s: f64| {
+        println!(
+            "| {name} | {kind} | {level} | {tets} | {nodes} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {s:.1} |",
+            f[0],
+            f[1],
+            f[1] / f[0],
+            f[0] / reference,
+            (f[0] / reference).powi(2)
+        );
+    };
     for (name, cells, levels) in [
         ("template 12 × 2 × 2", [12, 2, 2], max_level),
         ("bar-release truth 32 × 5 × 5", [32, 5, 5], max_level.min(1)),
@@ -46,17 +67,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if level > 0 {
                 mesh = softcap_mesh::refine_tets(&mesh).mesh;
             }
-            let model =
-                CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(E, NU)?)?;
-            let masses = lumped_masses(&model, RHO);
-            let dofs: Vec<usize> = (0..mesh.vertices.len())
-                .filter(|&i| mesh.vertices[i].x <= 1e-9)
-                .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-                .collect();
+            let clamped = |v: &[softcap_fem::nalgebra::Vector3<f64>]| -> Vec<usize> {
+                (0..v.len())
+                    .filter(|&i| v[i].x <= 1e-9)
+                    .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+                    .collect()
+            };
+            let p = LinearParams::from_young_poisson(E, NU)?;
+            let t0 = std::time::Instant::now();
+            let model = CorotationalModel::homogeneous(&mesh, p)?;
             let modes = lanczos_modes(
                 &model,
-                &masses,
-                &dofs,
+                &lumped_masses(&model, RHO),
+                &clamped(&mesh.vertices),
                 &ModalSettings {
                     num_modes: 2,
                     tolerance: 1e-8,
@@ -64,13 +87,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 },
             )?;
             let f = modes.modes.frequencies_hz();
-            println!(
-                "| {name} | {level} | {} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            let s = t0.elapsed().as_secs_f64();
+            row(
+                name,
+                "linear",
+                level,
                 mesh.tets.len(),
-                f[0],
-                f[1],
-                f[0] / reference,
-                (f[0] / reference).powi(2)
+                mesh.vertices.len(),
+                &f,
+                s,
+            );
+            if level == levels {
+                continue; // quadratic tets have the nodes of the next level
+            }
+            let t0 = std::time::Instant::now();
+            let q = quadratic_tets(&mesh);
+            let fine = softcap_mesh::refine_tets(&mesh).mesh;
+            let masses = lumped_masses(&CorotationalModel::homogeneous(&fine, p)?, RHO);
+            let model = QuadraticModel::new(&q.nodes, &q.elements, &vec![p; q.elements.len()])?;
+            let modes =
+                QuadraticSolver::new(&model, masses, &clamped(&q.nodes))?.modes(&model, 2)?;
+            let f = modes.frequencies_hz();
+            let s = t0.elapsed().as_secs_f64();
+            row(
+                name,
+                "quadratic",
+                level,
+                q.elements.len(),
+                q.nodes.len(),
+                &f,
+                s,
             );
         }
     }

@@ -63,6 +63,10 @@ pub struct FitDynamicArgs {
     /// Uniform refinement levels of the fit mesh (overrides the settings).
     #[arg(long)]
     pub refine: Option<usize>,
+    /// Elements of the fit: linear tets, or quadratic (10-node) tets converged in bending
+    /// (overrides the settings).
+    #[arg(long, value_enum)]
+    pub elements: Option<crate::fit_dynamic::Elements>,
     /// No progress display.
     #[arg(long)]
     pub quiet: bool,
@@ -77,6 +81,9 @@ impl FitDynamicArgs {
         }
         if let Some(n) = self.refine {
             settings.refine = n;
+        }
+        if let Some(e) = self.elements {
+            settings.elements = e;
         }
         if self.quiet {
             settings.progress = false;

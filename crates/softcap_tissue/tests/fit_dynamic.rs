@@ -7,6 +7,7 @@ use std::process::Command;
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
+use softcap_tissue::fit_dynamic::Elements;
 use softcap_tissue::fit_dynamic::synthetic::{
     Synthetic, SyntheticSpec, clamped_box, synthesize, write_track_mcap,
 };
@@ -22,6 +23,11 @@ fn small_bar() -> Synthetic {
 /// The small bar's truth: `frames` at 30 Hz, simulated on `refine` levels of refinement,
 /// observed at the given nodes with `noise_m` of tracking noise.
 fn bar(frames: usize, refine: usize, noise_m: f64, seed: u64) -> Synthetic {
+    bar_of(frames, refine, Elements::Linear, noise_m, seed)
+}
+
+/// [`bar`] with linear or quadratic tets in the truth.
+fn bar_of(frames: usize, refine: usize, elements: Elements, noise_m: f64, seed: u64) -> Synthetic {
     let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
     let tets = mesh.tets.len();
     synthesize(&SyntheticSpec {
@@ -42,6 +48,7 @@ fn bar(frames: usize, refine: usize, noise_m: f64, seed: u64) -> Synthetic {
         frame_rate_hz: 30.0,
         substeps: 4,
         refine,
+        elements,
         noise_m,
         seed,
     })
@@ -260,4 +267,42 @@ fn refine_fits_the_material_not_the_coarse_mesh() {
     assert_eq!(fit.young_pa_tets.len(), tets);
     assert_eq!(fit.rest_m.len(), truth.template.vertices.len());
     assert_eq!(fit.fit_mesh_size.1, 8 * tets);
+}
+
+/// Quadratic elements: a truth converged in bending (quadratic tets on the once-refined mesh),
+/// observed at the given mesh's nodes; fitted coarse to fine with quadratic tets on the given
+/// 192 tets (α, β fitted again on them), E is the truth's, where the given mesh's linear tets
+/// give half of it.
+#[test]
+fn quadratic_tets_fit_a_converged_truth() {
+    let truth = bar_of(16, 1, Elements::Quadratic, 2.0e-4, 7);
+    let tets = truth.template.tets.len();
+    let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
+        outer_iterations: 1,
+        max_simulations: 20,
+        fine_max_simulations: 8,
+        progress: false,
+        elements: Elements::Quadratic,
+        ..Default::default()
+    };
+    let fit = softcap_tissue::fit_dynamic::fit_sequence(
+        &truth.template,
+        &truth.sequence,
+        &settings,
+        &softcap_tissue::Progress::hidden(),
+    )
+    .unwrap();
+    let coarse = fit.coarse_young_pa.as_ref().unwrap()[0];
+    let fine = fit.young_pa[0];
+    eprintln!(
+        "coarse linear E {coarse:.4e}, quadratic E {fine:.4e}, alpha {:.3}, beta {:.2e}, {} simulations, status {}",
+        fit.damping.alpha_per_s, fit.damping.beta_s, fit.simulations, fit.status
+    );
+    assert!(coarse < 0.8 * E_TRUE, "coarse linear E {coarse:.4e}");
+    assert!(
+        (fine / E_TRUE - 1.0).abs() < 0.05,
+        "quadratic fit E {fine:.4e} vs truth {E_TRUE:.1e} (coarse {coarse:.4e})"
+    );
+    assert_eq!(fit.young_pa_tets.len(), tets);
+    assert_eq!(fit.fit_mesh_size.1, tets);
 }

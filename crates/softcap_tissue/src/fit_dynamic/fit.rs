@@ -25,13 +25,13 @@ use softcap_core::{
     levenberg_marquardt, nelder_mead,
 };
 use softcap_fem::{
-    DirichletBc, EquilibriumSettings, RayleighDamping, RestShapeSettings, StaticSolver,
-    solve_rest_shape,
+    DirichletBc, EquilibriumSettings, QuadraticSolver, RayleighDamping, RestShapeSettings,
+    StaticSolver, solve_rest_shape,
 };
 use softcap_mesh::TetMesh;
 
 use super::blend::{Blending, ControlPoints, control_points};
-use super::forward::{DynamicParams, Forward, ForwardSettings};
+use super::forward::{DynamicParams, FitModel, Forward, ForwardSettings};
 use super::sequence::TrackedSequence;
 use super::warm;
 use crate::Progress;
@@ -45,6 +45,17 @@ pub enum Optimizer {
     NelderMead,
     /// Levenberg–Marquardt with a forward-difference Jacobian.
     LevenbergMarquardt,
+}
+
+/// The elements the fit simulates with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Elements {
+    /// Linear (4-node) corotational tets of the (refined) mesh.
+    Linear,
+    /// Quadratic (10-node) corotational tets on the (refined) mesh's tets, the nodes of one more
+    /// refinement (`softcap_fem::quadratic`): converged in bending where linear tets lock.
+    Quadratic,
 }
 
 /// Settings of `softcap tissue fit-dynamic` (TOML-loadable; every field has a default).
@@ -80,11 +91,14 @@ pub struct FitDynamicSettings {
     pub max_simulations: usize,
     /// Levels of uniform refinement of the given mesh for the fit (0 = the mesh itself).
     pub refine: usize,
+    /// Linear or quadratic tets on the refined mesh.
+    pub elements: Elements,
     /// With `refine` > 0: fit on the given mesh first, carry the result to the refined mesh
     /// (E scaled so that the refined body rings at the measured frequency, α and β kept — the
     /// modal damping ratios ζ = α/2ω + βω/2 do not change when ω does not) and polish it there
     /// with at most `fine_max_simulations` simulations; one refined simulation costs about 10×
-    /// a coarse one per level.
+    /// a coarse one per level. With quadratic elements α and β are fitted again on the fine
+    /// body (the coarse linear mesh's bending anisotropy biases them).
     pub coarse_to_fine: bool,
     /// Forward simulations of the polish on the refined mesh at most (coarse to fine).
     pub fine_max_simulations: usize,
@@ -120,6 +134,7 @@ impl Default for FitDynamicSettings {
             optimizer: Optimizer::LevenbergMarquardt,
             max_simulations: 120,
             refine: 0,
+            elements: Elements::Linear,
             coarse_to_fine: true,
             fine_max_simulations: 24,
             segment_frames: 30,
@@ -237,7 +252,7 @@ pub struct DynamicFit {
     pub segments: usize,
     /// Frames simulated per evaluation.
     pub frames: usize,
-    /// Nodes and tets of the fit mesh.
+    /// Nodes and elements (linear or quadratic tets) of the fit mesh.
     pub fit_mesh_size: (usize, usize),
     /// The segments simulated with the fitted parameters (the given mesh's nodes only).
     pub runs: Vec<super::forward::SegmentRun>,
@@ -275,6 +290,30 @@ fn refined(
         m = r.mesh;
     }
     (m, parent, s)
+}
+
+/// The fit mesh of `settings` (`refine` levels, linear or quadratic elements): the linear mesh
+/// whose nodes are simulated (masses, supports), each element's parent tet in the given mesh,
+/// the sequence on the nodes, and the quadratic elements if any (over the nodes of one more
+/// refinement than their tets).
+fn fit_mesh(
+    mesh: &TetMesh,
+    seq: &TrackedSequence,
+    settings: &FitDynamicSettings,
+) -> (
+    TetMesh,
+    Vec<usize>,
+    TrackedSequence,
+    Option<Vec<[usize; 10]>>,
+) {
+    let (m, parent, s) = refined(mesh, seq, settings.refine);
+    if settings.elements == Elements::Linear {
+        return (m, parent, s, None);
+    }
+    let q = softcap_fem::quadratic_tets(&m);
+    let (m1, _, s1) = refined(mesh, seq, settings.refine + 1);
+    debug_assert_eq!(q.nodes.len(), m1.vertices.len());
+    (m1, parent, s1, Some(q.elements))
 }
 
 /// Log-parameter vector → (E per control point, damping).
@@ -394,7 +433,20 @@ fn rest_shape(
             "static shape (free or weightless body)".into(),
         ));
     }
-    let model = forward.model(params, static_m)?;
+    let FitModel::Linear(model) = forward.model(params, static_m)? else {
+        // Quadratic tets: no exact ∂f/∂X here; the sag inversion alone.
+        let start = initial.map_or_else(|| static_m.to_vec(), <[_]>::to_vec);
+        return Ok(match sag_inversion(forward, params, static_m, start) {
+            Some((x, passes)) => (
+                x,
+                format!("fixed-point sag inversion, {passes} static solves"),
+            ),
+            None => (
+                initial.map_or_else(|| static_m.to_vec(), <[_]>::to_vec),
+                "not converged: fixed-point sag inversion".into(),
+            ),
+        });
+    };
     let rest = solve_rest_shape(
         &model,
         static_m,
@@ -449,16 +501,26 @@ fn sag_inversion(
         rest[i] = static_m[i];
     }
     for pass in 1..=50 {
-        let mut model = forward.model(params, &rest).ok()?;
         let mut sagged = rest.clone();
-        let report = StaticSolver::with_bc(&model, &bc).ok()?.solve(
-            &mut model,
-            &mut sagged,
-            forward.gravity_n(),
-            None,
-            &EquilibriumSettings::newton(),
-        );
-        if !report.converged() {
+        let converged = match forward.model(params, &rest).ok()? {
+            FitModel::Linear(mut model) => StaticSolver::with_bc(&model, &bc)
+                .ok()?
+                .solve(
+                    &mut model,
+                    &mut sagged,
+                    forward.gravity_n(),
+                    None,
+                    &EquilibriumSettings::newton(),
+                )
+                .converged(),
+            FitModel::Quadratic(model) => {
+                QuadraticSolver::new(&model, forward.masses_kg().to_vec(), &bc.dofs())
+                    .ok()?
+                    .solve_static(&model, &mut sagged, forward.gravity_n(), 1e-9, 100)
+                    .converged
+            }
+        };
+        if !converged {
             return None;
         }
         let miss = sagged
@@ -487,11 +549,13 @@ pub fn fit_sequence(
     progress: &Progress,
 ) -> Result<DynamicFit> {
     settings.validate()?;
-    if settings.refine == 0 || !settings.coarse_to_fine {
+    let fine = settings.refine > 0 || settings.elements == Elements::Quadratic;
+    if !fine || !settings.coarse_to_fine {
         return fit_level(mesh, seq, settings, None, progress);
     }
     let coarse_settings = FitDynamicSettings {
         refine: 0,
+        elements: Elements::Linear,
         ..settings.clone()
     };
     let coarse = fit_level(mesh, seq, &coarse_settings, None, progress)?;
@@ -519,7 +583,7 @@ fn fit_level(
         settings.control_points,
         settings.blending,
     )?;
-    let (fit_mesh, parent, fit_seq) = refined(mesh, seq, settings.refine);
+    let (fit_mesh, parent, fit_seq, quadratic) = fit_mesh(mesh, seq, settings);
     let fit_weights: Vec<Vec<f64>> = parent.iter().map(|&t| cp.weights[t].clone()).collect();
     let segments = fit_seq.segments(
         settings.segment_frames,
@@ -537,13 +601,17 @@ fn fit_level(
         });
     }
     let observed: Vec<bool> = (0..fit_mesh.vertices.len()).map(|i| i < n_given).collect();
-    let forward = Forward::new(
+    let mut forward = Forward::new(
         &fit_mesh,
         &fit_seq,
         segments.clone(),
         observed,
         &settings.forward,
     )?;
+    if let Some(elements) = quadratic {
+        forward = forward.with_quadratic(elements);
+    }
+    let fine_damping = coarse.is_some() && settings.elements == Elements::Quadratic;
     let static_m = fit_mesh.vertices.clone();
     let nc = cp.len();
     let mut problem = Problem {
@@ -677,7 +745,11 @@ fn fit_level(
             Optimizer::LevenbergMarquardt => {
                 // Coarse to fine: α and β are held (the modal damping ratios they give do not
                 // change with the mesh once E makes the frequencies match), E is polished.
-                let free = if coarse.is_some() { nc } else { nc + 2 };
+                let free = if coarse.is_some() && !fine_damping {
+                    nc
+                } else {
+                    nc + 2
+                };
                 problem.held = q[free..].to_vec();
                 let free_bounds =
                     Bounds::new(bounds.lower[..free].to_vec(), bounds.upper[..free].to_vec())
@@ -724,7 +796,7 @@ fn fit_level(
         }
     }
     progress.step(4, 4, "uncertainty and modal frequencies");
-    let relative_sigma = match coarse {
+    let relative_sigma = match coarse.filter(|_| !fine_damping) {
         // α and β were held: their uncertainty is the coarse fit's.
         Some(c) => {
             let mut s = covariance_sigma(&mut problem, &q, nc);
@@ -776,7 +848,7 @@ fn fit_level(
         rest_status,
         segments: segments.len(),
         frames,
-        fit_mesh_size: (fit_mesh.vertices.len(), fit_mesh.tets.len()),
+        fit_mesh_size: (fit_mesh.vertices.len(), forward.num_elements()),
         runs,
     })
 }

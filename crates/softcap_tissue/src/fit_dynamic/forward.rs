@@ -12,8 +12,9 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
-    CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
-    DynamicsSettings, Integrator, LinearParams, RayleighDamping, StepLoads, StiffnessKind,
+    CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepReport,
+    DynamicStepStatus, DynamicsSettings, Integrator, LinearParams, QuadraticModel, QuadraticSolver,
+    RayleighDamping, StepLoads, StiffnessKind,
 };
 use softcap_mesh::TetMesh;
 
@@ -180,6 +181,75 @@ pub struct Forward {
     free_nodes: Vec<usize>,
     observed: Vec<bool>,
     settings: ForwardSettings,
+    /// Quadratic elements over the mesh's nodes (then `mesh` is the once-refined linear mesh of
+    /// their parent mesh and gives the masses, supports and smoothing only).
+    quadratic: Option<Vec<[usize; 10]>>,
+}
+
+/// The elastic model of a forward run: corotational linear tets of the fit mesh, or quadratic
+/// tets over the same nodes (`softcap_fem::quadratic`).
+#[derive(Clone, Debug)]
+pub enum FitModel {
+    /// Linear tets.
+    Linear(CorotationalModel),
+    /// Quadratic tets.
+    Quadratic(QuadraticModel),
+}
+
+/// The time stepper of a [`FitModel`].
+pub(crate) enum Stepper {
+    Linear(DynamicSolver),
+    Quadratic(QuadraticSolver),
+}
+
+impl Stepper {
+    pub(crate) fn new(model: &FitModel, masses_kg: Vec<f64>, dofs: &[usize]) -> Result<Self> {
+        Ok(match model {
+            FitModel::Linear(m) => Self::Linear(DynamicSolver::new(m, masses_kg, dofs)?),
+            FitModel::Quadratic(m) => Self::Quadratic(QuadraticSolver::new(m, masses_kg, dofs)?),
+        })
+    }
+
+    pub(crate) fn step(
+        &mut self,
+        model: &mut FitModel,
+        state: &mut DynamicState,
+        loads: &StepLoads<'_>,
+        settings: &DynamicsSettings,
+    ) -> DynamicStepReport {
+        match (self, model) {
+            (Self::Linear(s), FitModel::Linear(m)) => {
+                s.step_with(m, state, loads, &mut [], settings)
+            }
+            (Self::Quadratic(s), FitModel::Quadratic(m)) => s.step(
+                m,
+                state,
+                loads.external_forces_n,
+                loads.prescribed,
+                loads.initial_guess,
+                settings,
+            ),
+            _ => unreachable!("a stepper is built for its model"),
+        }
+    }
+
+    fn initialize_acceleration(
+        &self,
+        model: &FitModel,
+        state: &mut DynamicState,
+        forces: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+    ) {
+        match (self, model) {
+            (Self::Linear(s), FitModel::Linear(m)) => {
+                s.initialize_acceleration(m, state, forces, settings)
+            }
+            (Self::Quadratic(s), FitModel::Quadratic(m)) => {
+                s.initialize_acceleration(m, state, forces, settings)
+            }
+            _ => unreachable!("a stepper is built for its model"),
+        }
+    }
 }
 
 impl Forward {
@@ -230,7 +300,22 @@ impl Forward {
             free_nodes,
             observed,
             settings: settings.clone(),
+            quadratic: None,
         })
+    }
+
+    /// The same forward model on quadratic `elements` over the mesh's nodes (the mesh being the
+    /// once-refined linear mesh of their parent mesh: `softcap_fem::quadratic_tets`).
+    pub fn with_quadratic(mut self, elements: Vec<[usize; 10]>) -> Self {
+        self.quadratic = Some(elements);
+        self
+    }
+
+    /// Elements of the model (one E per element in [`DynamicParams`]).
+    pub fn num_elements(&self) -> usize {
+        self.quadratic
+            .as_ref()
+            .map_or(self.mesh.tets.len(), |q| q.len())
     }
 
     /// The segments.
@@ -279,23 +364,22 @@ impl Forward {
     }
 
     /// The corotational model of `params` over the rest shape `rest_m`.
-    pub fn model(
-        &self,
-        params: &DynamicParams,
-        rest_m: &[Vector3<f64>],
-    ) -> Result<CorotationalModel> {
+    pub fn model(&self, params: &DynamicParams, rest_m: &[Vector3<f64>]) -> Result<FitModel> {
         let lp = params
             .young_pa
             .iter()
             .map(|&e| LinearParams::from_young_poisson(e, params.poisson))
             .collect::<std::result::Result<Vec<_>, _>>()?;
-        Ok(CorotationalModel::new(
-            &TetMesh {
-                vertices: rest_m.to_vec(),
-                tets: self.mesh.tets.clone(),
-            },
-            lp,
-        )?)
+        Ok(match &self.quadratic {
+            Some(elements) => FitModel::Quadratic(QuadraticModel::new(rest_m, elements, &lp)?),
+            None => FitModel::Linear(CorotationalModel::new(
+                &TetMesh {
+                    vertices: rest_m.to_vec(),
+                    tets: self.mesh.tets.clone(),
+                },
+                lp,
+            )?),
+        })
     }
 
     /// Runs every segment (in parallel; results in segment order).
@@ -326,12 +410,12 @@ impl Forward {
     fn run_segment(
         &self,
         k: usize,
-        model: &CorotationalModel,
+        model: &FitModel,
         damping: RayleighDamping,
     ) -> Result<SegmentRun> {
         let seg = self.segments[k].clone();
         let mut model = model.clone();
-        let mut solver = DynamicSolver::new(&model, self.masses_kg.clone(), &self.support_dofs())?;
+        let mut solver = Stepper::new(&model, self.masses_kg.clone(), &self.support_dofs())?;
         let (x0, v0) = &self.starts[k];
         let mut state = DynamicState::at_rest(x0.clone());
         state.time_s = self.seq.times_s[seg.start];
@@ -384,7 +468,7 @@ impl Forward {
                     };
                     let mut last = None;
                     for _ in 0..startup {
-                        let r = solver.step_with(&mut model, &mut state, &loads, &mut [], &euler);
+                        let r = solver.step(&mut model, &mut state, &loads, &euler);
                         let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
                         last = Some(r);
                         if failed {
@@ -403,7 +487,7 @@ impl Forward {
                             &settings,
                         );
                     }
-                    solver.step_with(&mut model, &mut state, &loads, &mut [], &settings)
+                    solver.step(&mut model, &mut state, &loads, &settings)
                 };
                 match report.status {
                     DynamicStepStatus::Converged => {}

@@ -108,6 +108,35 @@ impl TrackedSequence {
         self.times_s.len()
     }
 
+    /// This sequence followed by `other`, a second recorded motion of the same body (same nodes,
+    /// support, gravity and density): `other`'s times shifted to start `gap_s` after this one's
+    /// end and the gap marked as an interaction, so that no segment spans the two. A joint fit
+    /// sees the modes both motions excite (wang2015 §7's "one more shape"). `None` when the
+    /// bodies differ.
+    pub fn joined(&self, other: &TrackedSequence, gap_s: f64) -> Option<TrackedSequence> {
+        let same_body = self.positions_m.first()?.len() == other.positions_m.first()?.len()
+            && self.support_nodes == other.support_nodes
+            && self.gravity_m_s2 == other.gravity_m_s2
+            && self.density_kg_m3 == other.density_kg_m3;
+        if !same_body || !(gap_s > 0.0) {
+            return None;
+        }
+        let end = *self.times_s.last()?;
+        let shift = end + gap_s - other.times_s[0];
+        let mut out = self.clone();
+        out.times_s.extend(other.times_s.iter().map(|t| t + shift));
+        out.positions_m.extend(other.positions_m.iter().cloned());
+        out.usable.extend(&other.usable);
+        out.interactions_s.push([end, end + gap_s]);
+        out.interactions_s.extend(
+            other
+                .interactions_s
+                .iter()
+                .map(|[a, b]| [a + shift, b + shift]),
+        );
+        Some(out)
+    }
+
     /// True if no interaction interval overlaps the open interval (t_a, t_b).
     fn is_free(&self, ta: f64, tb: f64) -> bool {
         self.interactions_s

@@ -3,7 +3,7 @@
 //! a body with a known rest shape, E per tet, ν, ρ and Rayleigh damping, sagging in static
 //! equilibrium under gravity at frame 0, pushed by a known force for a few frames (an
 //! interaction), then released and ringing down. The truth runs on `refine` levels of uniform
-//! refinement of the given mesh and is observed at the given mesh's nodes, with Gaussian noise
+//! refinement of the given mesh, with linear or quadratic tets, and is observed at the given mesh's nodes, with Gaussian noise
 //! of a tracker's size. These share softcap's discretization; the third-party check is the
 //! FElupe sequence of `fixtures/dynamic/felupe-bar`.
 
@@ -11,12 +11,13 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use softcap_fem::{
-    CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepStatus,
-    DynamicsSettings, EquilibriumSettings, Integrator, LinearParams, RayleighDamping, StaticSolver,
-    StiffnessKind,
+    CorotationalModel, DirichletBc, DynamicState, DynamicStepStatus, DynamicsSettings,
+    EquilibriumSettings, Integrator, LinearParams, QuadraticModel, QuadraticSolver,
+    RayleighDamping, StaticSolver, StepLoads, StiffnessKind,
 };
 use softcap_mesh::TetMesh;
 
+use super::forward::{FitModel, Stepper};
 use super::sequence::TrackedSequence;
 use crate::error::{Result, TissueError};
 
@@ -51,6 +52,8 @@ pub struct SyntheticSpec {
     pub substeps: usize,
     /// Uniform refinement levels of the truth mesh.
     pub refine: usize,
+    /// Linear tets of the refined mesh, or quadratic tets on it (converged in bending).
+    pub elements: super::Elements,
     /// RMS per coordinate of the noise on the tracked nodes, m: Gaussian, independent per frame,
     /// correlated over about two element lengths in space (iid node noise low-passed twice by
     /// (I + L)⁻¹ and rescaled), as the errors of a physics-based tracker are.
@@ -110,8 +113,33 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         .iter()
         .map(|&e| LinearParams::from_young_poisson(e, spec.poisson))
         .collect::<std::result::Result<Vec<_>, _>>()?;
-    let mut model = CorotationalModel::new(&mesh, params)?;
-    let masses = softcap_fem::lumped_masses(&model, spec.density_kg_m3);
+    // Masses lumped on the linear tets of the simulated nodes (for quadratic tets, those of one
+    // more refinement, which has their nodes).
+    let (mut model, masses) = match spec.elements {
+        super::Elements::Linear => {
+            let model = CorotationalModel::new(&mesh, params)?;
+            let masses = softcap_fem::lumped_masses(&model, spec.density_kg_m3);
+            (FitModel::Linear(model), masses)
+        }
+        super::Elements::Quadratic => {
+            let q = softcap_fem::quadratic_tets(&mesh);
+            let fine = softcap_mesh::refine_tets(&mesh);
+            let held: std::collections::BTreeSet<usize> = support.iter().copied().collect();
+            let n = mesh.vertices.len();
+            for (k, [a, b]) in fine.midpoint_of.iter().enumerate() {
+                if held.contains(a) && held.contains(b) {
+                    support.push(n + k);
+                }
+            }
+            let masses = softcap_fem::lumped_masses(
+                &CorotationalModel::homogeneous(&fine.mesh, params[0])?,
+                spec.density_kg_m3,
+            );
+            mesh = fine.mesh;
+            let model = QuadraticModel::new(&q.nodes, &q.elements, &params)?;
+            (FitModel::Quadratic(model), masses)
+        }
+    };
     let gravity = softcap_fem::gravity_forces(&masses, spec.gravity_m_s2);
     let mut bc = DirichletBc::new();
     for &i in &support {
@@ -120,18 +148,20 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     // Frame 0: static equilibrium under gravity.
     let mut xs = mesh.vertices.clone();
     if !support.is_empty() {
-        let mut statics = StaticSolver::with_bc(&model, &bc)?;
-        let report = statics.solve(
-            &mut model,
-            &mut xs,
-            &gravity,
-            None,
-            &EquilibriumSettings::newton(),
-        );
-        if !report.converged() {
+        let converged = match &mut model {
+            FitModel::Linear(m) => StaticSolver::with_bc(m, &bc)?
+                .solve(m, &mut xs, &gravity, None, &EquilibriumSettings::newton())
+                .converged(),
+            FitModel::Quadratic(m) => {
+                QuadraticSolver::new(m, masses.clone(), &bc.dofs())?
+                    .solve_static(m, &mut xs, &gravity, 1e-9, 100)
+                    .converged
+            }
+        };
+        if !converged {
             return Err(TissueError::NotConverged {
                 what: "synthetic static sag".into(),
-                status: format!("{:?}", report.status),
+                status: "the static solve under gravity did not converge".into(),
             });
         }
     }
@@ -144,7 +174,7 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         max_iterations: 20,
         ..DynamicsSettings::default()
     };
-    let mut solver = DynamicSolver::with_bc(&model, masses, &bc)?;
+    let mut solver = Stepper::new(&model, masses, &bc.dofs())?;
     let mut state = DynamicState::at_rest(xs.clone());
     let push_each = spec.push_force_n / spec.push_nodes.len().max(1) as f64;
     let forces_at = |t: f64| {
@@ -160,7 +190,13 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     for frame in 1..spec.frames {
         for _ in 0..spec.substeps.max(1) {
             let f = forces_at(state.time_s + h);
-            let r = solver.step(&mut model, &mut state, &f, None, None, &settings);
+            let loads = StepLoads {
+                external_forces_n: &f,
+                prescribed: None,
+                contact: None,
+                initial_guess: None,
+            };
+            let r = solver.step(&mut model, &mut state, &loads, &settings);
             if let DynamicStepStatus::Failed { reason } = r.status {
                 return Err(TissueError::NotConverged {
                     what: format!("synthetic truth, frame {frame}"),

@@ -12,9 +12,9 @@
 
 use nalgebra::Vector3;
 use softcap_core::{NelderMeadSettings, nelder_mead};
-use softcap_fem::{ModalSettings, Modes, RayleighDamping, lanczos_modes};
+use softcap_fem::{ModalSettings, Modes, QuadraticSolver, RayleighDamping, lanczos_modes};
 
-use super::forward::Forward;
+use super::forward::{FitModel, Forward};
 use super::sequence::Segment;
 
 /// A damped oscillation fitted to one modal coordinate.
@@ -32,24 +32,31 @@ pub struct ModalFit {
     pub amplitude: f64,
 }
 
-/// Modes of the linearized body at its rest shape (support dofs fixed), `count` smallest.
-pub fn modes(
-    forward: &Forward,
-    model: &softcap_fem::CorotationalModel,
-    count: usize,
-) -> crate::Result<Modes> {
+/// Modes of the linearized body at its rest shape (support dofs fixed), `count` smallest:
+/// shift-invert Lanczos for linear tets, subspace iteration for quadratic ones.
+pub fn modes(forward: &Forward, model: &FitModel, count: usize) -> crate::Result<Modes> {
     let dofs = forward.support_dofs();
-    let m = lanczos_modes(
-        model,
-        forward.masses_kg(),
-        &dofs,
-        &ModalSettings {
-            num_modes: count,
-            tolerance: 1e-6,
-            ..ModalSettings::default()
-        },
-    )?;
-    Ok(m.modes)
+    match model {
+        FitModel::Linear(model) => {
+            let m = lanczos_modes(
+                model,
+                forward.masses_kg(),
+                &dofs,
+                &ModalSettings {
+                    num_modes: count,
+                    tolerance: 1e-6,
+                    ..ModalSettings::default()
+                },
+            )?;
+            Ok(m.modes)
+        }
+        FitModel::Quadratic(model) => {
+            Ok(
+                QuadraticSolver::new(model, forward.masses_kg().to_vec(), &dofs)?
+                    .modes(model, count)?,
+            )
+        }
+    }
 }
 
 /// Modal coordinate q(t) = φᵀ M (x̂_t − x_s) over the frames of a segment.
