@@ -599,7 +599,7 @@ impl QuadraticSolver {
         let m_free: Vec<f64> = (0..nf)
             .map(|f| self.masses_kg[self.dofs().dof(f) / 3])
             .collect();
-        if let Some(&m) = m_free.iter().find(|m| !(**m > 0.0)) {
+        if let Some(&m) = m_free.iter().find(|m| m.is_nan() || **m <= 0.0) {
             return Err(FemError::InvalidSetting {
                 what: "nodal mass kg of a free dof",
                 value: m,

@@ -198,15 +198,17 @@ pub enum FitModel {
 
 /// The time stepper of a [`FitModel`].
 pub(crate) enum Stepper {
-    Linear(DynamicSolver),
-    Quadratic(QuadraticSolver),
+    Linear(Box<DynamicSolver>),
+    Quadratic(Box<QuadraticSolver>),
 }
 
 impl Stepper {
     pub(crate) fn new(model: &FitModel, masses_kg: Vec<f64>, dofs: &[usize]) -> Result<Self> {
         Ok(match model {
-            FitModel::Linear(m) => Self::Linear(DynamicSolver::new(m, masses_kg, dofs)?),
-            FitModel::Quadratic(m) => Self::Quadratic(QuadraticSolver::new(m, masses_kg, dofs)?),
+            FitModel::Linear(m) => Self::Linear(Box::new(DynamicSolver::new(m, masses_kg, dofs)?)),
+            FitModel::Quadratic(m) => {
+                Self::Quadratic(Box::new(QuadraticSolver::new(m, masses_kg, dofs)?))
+            }
         })
     }
 

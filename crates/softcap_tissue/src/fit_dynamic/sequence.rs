@@ -118,7 +118,7 @@ impl TrackedSequence {
             && self.support_nodes == other.support_nodes
             && self.gravity_m_s2 == other.gravity_m_s2
             && self.density_kg_m3 == other.density_kg_m3;
-        if !same_body || !(gap_s > 0.0) {
+        if !same_body || gap_s.is_nan() || gap_s <= 0.0 {
             return None;
         }
         let end = *self.times_s.last()?;
