@@ -89,8 +89,8 @@ pub fn kill_trial_count(default: usize) -> usize {
 
 /// Crash safety of one command writing `output` (docs/reliability.md): runs `command` once to
 /// completion (its wall time `T` sets the kill window), then `trials` times SIGKILLs it after a
-/// random delay in `[0, 1.2 T)` — every other trial with a complete output already in place —
-/// and checks that `output` then holds nothing or a file `complete` accepts, never a truncated
+/// random delay in `[0, 1.2 T)` — even trials start with no output, odd trials with whatever the
+/// trial before left (nothing or a complete file) — and checks that `output` then holds nothing or a file `complete` accepts, never a truncated
 /// one. Temporary files a killed writer leaves (`*.tmp`) are removed between trials. Panics
 /// with the trial and the problem on the first failure.
 pub fn kill_trials(
