@@ -451,6 +451,22 @@ pub fn lateral_shift(
 mod tests {
     use super::*;
 
+    /// Markers at `rest` on a top face (normals +z), no gravity, a 2 mm tip.
+    fn top_face_recording(
+        rest: &[Vector3<f64>],
+        frames: Vec<crate::recording::Frame>,
+    ) -> Recording {
+        Recording {
+            marker_ids: (0..rest.len()).map(|m| m.to_string()).collect(),
+            rest_markers_m: rest.to_vec(),
+            normals: vec![Vector3::z(); rest.len()],
+            gravity_m_s2: Vector3::zeros(),
+            support: None,
+            tip_radius_m: 0.002,
+            frames,
+        }
+    }
+
     /// Two locations 20 mm apart on a 5 × 5 mm grid of top-surface markers; frame 0 at rest, one
     /// hold frame per location.
     fn two_presses() -> (Recording, Segmentation) {
@@ -475,19 +491,14 @@ mod tests {
             force_n: Vector3::new(0.0, 0.0, -f),
             markers_m: rest.iter().map(|p| Some(*p)).collect(),
         };
-        let rec = Recording {
-            marker_ids: (0..nm).map(|m| m.to_string()).collect(),
-            rest_markers_m: rest.clone(),
-            normals: vec![Vector3::z(); nm],
-            gravity_m_s2: Vector3::zeros(),
-            support: None,
-            tip_radius_m: 0.002,
-            frames: vec![
+        let rec = top_face_recording(
+            &rest,
+            vec![
                 frame(0, tips[0] + Vector3::z() * 0.005, 0.0),
                 frame(1, tips[0], 0.5),
                 frame(2, tips[1], 0.5),
             ],
-        };
+        );
         let loc = |l: usize| Location {
             index: l,
             peak_tip_m: tips[l],
@@ -532,15 +543,7 @@ mod tests {
                 markers_m: rest.iter().map(|p| Some(*p)).collect(),
             })
             .collect();
-        let rec = Recording {
-            marker_ids: (0..nm).map(|m| m.to_string()).collect(),
-            rest_markers_m: rest.clone(),
-            normals: vec![Vector3::z(); nm],
-            gravity_m_s2: Vector3::zeros(),
-            support: None,
-            tip_radius_m: 0.002,
-            frames,
-        };
+        let rec = top_face_recording(&rest, frames);
         let loc = |l: usize| Location {
             index: l,
             peak_tip_m: tips[l],
