@@ -124,6 +124,37 @@ pub fn diagnosis_message(d: &Diagnosis) -> proto::Diagnosis {
                 rmse_m: l.rmse_m,
             })
             .collect(),
+        unexplained: d.unexplained.as_ref().map(|u| proto::Unexplained {
+            heldout_rmse_m: u.heldout_rmse_m,
+            best_explained_rmse_m: u.best_explained_rmse_m,
+            noise_floor_m: u.noise_floor_m,
+            cell: u.cell.clone(),
+            cell_rmse_m: u.cell_rmse_m,
+            location: u.location.map(|l| l as u32),
+            markers: u
+                .markers
+                .iter()
+                .map(|(id, rmse_m)| proto::KeyValue {
+                    key: id.clone(),
+                    value: Some(proto::key_value::Value::Number(*rmse_m)),
+                    unit: "m".into(),
+                })
+                .collect(),
+        }),
+        outliers: d
+            .outliers
+            .iter()
+            .map(|o| proto::OutlierRun {
+                marker: o.marker.clone(),
+                marker_index: o.marker_index as u32,
+                first_frame: o.frames[0] as u32,
+                last_frame: o.frames[1] as u32,
+                first_time_s: o.time_s[0],
+                last_time_s: o.time_s[1],
+                step_m: o.step_m,
+                observations: o.observations as u32,
+            })
+            .collect(),
     }
 }
 

@@ -453,6 +453,7 @@ fn relabeled_marker_is_flagged_and_left_out() {
     assert_eq!((o.marker.as_str(), o.frames), ("m0", [a, b - 1]));
     assert!((o.step_m - 4.5e-4).abs() < 5e-5, "step {}", o.step_m);
     assert_eq!(d.verdict, "none");
+    assert_message_matches(&d);
     let none = d.ranked.iter().find(|r| r.hypothesis == "none").unwrap();
     assert!(
         none.heldout_rmse_before_m < 0.012e-3,
@@ -482,6 +483,47 @@ fn relabeled_marker_left_in_is_unexplained() {
     assert!(u.best_explained_rmse_m >= 5.0 * u.noise_floor_m);
     assert_eq!(u.markers[0].0, "m0", "{u:?}");
     assert!(u.markers[0].1 > 1e-4, "{u:?}");
+    assert_message_matches(&d);
+}
+
+/// `/diagnose/diagnosis` (the protobuf message, through an encode/decode round trip) carries the
+/// same verdict, `unexplained` location and outlier runs as the JSON document.
+fn assert_message_matches(d: &softcap_diagnose::Diagnosis) {
+    use softcap_mcap::prost::Message;
+    let bytes = softcap_diagnose::output::diagnosis_message(d).encode_to_vec();
+    let m = softcap_mcap::proto::Diagnosis::decode(bytes.as_slice()).unwrap();
+    assert_eq!(m.verdict, d.verdict);
+    match (&m.unexplained, &d.unexplained) {
+        (Some(p), Some(u)) => {
+            assert_eq!(p.cell, u.cell);
+            assert_eq!(p.location, u.location.map(|l| l as u32));
+            assert_eq!(
+                (p.heldout_rmse_m, p.best_explained_rmse_m, p.noise_floor_m, p.cell_rmse_m),
+                (u.heldout_rmse_m, u.best_explained_rmse_m, u.noise_floor_m, u.cell_rmse_m)
+            );
+            let markers: Vec<(String, f64)> = p
+                .markers
+                .iter()
+                .map(|kv| match kv.value {
+                    Some(softcap_mcap::proto::key_value::Value::Number(v)) => (kv.key.clone(), v),
+                    ref other => panic!("marker {}: {other:?}", kv.key),
+                })
+                .collect();
+            assert_eq!(markers, u.markers);
+        }
+        (None, None) => {}
+        (p, u) => panic!("message {p:?} vs JSON {u:?}"),
+    }
+    assert_eq!(m.outliers.len(), d.outliers.len());
+    for (p, o) in m.outliers.iter().zip(&d.outliers) {
+        assert_eq!(
+            (p.marker.as_str(), p.marker_index as usize, p.observations as usize),
+            (o.marker.as_str(), o.marker_index, o.observations)
+        );
+        assert_eq!([p.first_frame as usize, p.last_frame as usize], o.frames);
+        assert_eq!([p.first_time_s, p.last_time_s], o.time_s);
+        assert_eq!(p.step_m, o.step_m);
+    }
 }
 
 #[test]
