@@ -2,13 +2,14 @@
 //! how far a faster replay's markers move from the reference: the replay `confirm` runs
 //! (`Extension::Plastic`, σ_y = 0.3 and H = 0.2 of the peak contact pressure) on the fit mesh
 //! refined 1 → 8, at the session's measured poses, once per refactorization policy
-//! (`FemSimSettings::replay_refactorization`: `every`, `stale`) or with the mesh refined only
-//! inside the touched balls (`local`), with CPU seconds and the largest marker difference to the
-//! first policy.
+//! (`FemSimSettings::replay_refactorization`: `every`, `stale`), with the contact active set
+//! frozen after N equilibrium iterations instead of 12 (`freezeN`,
+//! `EquilibriumSettings::contact_freeze_after`) or with the mesh refined only inside the touched
+//! balls (`local`), with CPU seconds and the largest marker difference to the first policy.
 //!
 //! ```sh
 //! cargo run --profile test -p softcap_diagnose --example replay_cost -- \
-//!     capture.mcap material.mcap [frames] [every|stale|local ...]
+//!     capture.mcap material.mcap [frames] [every|stale|freezeN|local ...]
 //! ```
 
 use softcap_diagnose::{
@@ -38,7 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     if a.len() < 3 {
         return Err(
-            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale|local ...]".into(),
+            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale|freezeN|local ...]".into(),
         );
     }
     let cap = CaptureData::read(&a[1])?;
@@ -73,6 +74,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut settings = FemSimSettings::default();
         if let Some(load) = material.footprint_load {
             settings.patch.load = load;
+        }
+        // "freezeN": the contact active set frozen after N equilibrium iterations (default 12)
+        if let Some(n) = policy
+            .strip_prefix("freeze")
+            .and_then(|n| n.parse::<usize>().ok())
+        {
+            settings.equilibrium.contact_freeze_after = n;
         }
         settings.replay_refactorization = match policy {
             "stale" => Refactorization::WhenStale,

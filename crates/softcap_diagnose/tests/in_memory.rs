@@ -498,8 +498,18 @@ fn assert_message_matches(d: &softcap_diagnose::Diagnosis) {
             assert_eq!(p.cell, u.cell);
             assert_eq!(p.location, u.location.map(|l| l as u32));
             assert_eq!(
-                (p.heldout_rmse_m, p.best_explained_rmse_m, p.noise_floor_m, p.cell_rmse_m),
-                (u.heldout_rmse_m, u.best_explained_rmse_m, u.noise_floor_m, u.cell_rmse_m)
+                (
+                    p.heldout_rmse_m,
+                    p.best_explained_rmse_m,
+                    p.noise_floor_m,
+                    p.cell_rmse_m
+                ),
+                (
+                    u.heldout_rmse_m,
+                    u.best_explained_rmse_m,
+                    u.noise_floor_m,
+                    u.cell_rmse_m
+                )
             );
             let markers: Vec<(String, f64)> = p
                 .markers
@@ -517,7 +527,11 @@ fn assert_message_matches(d: &softcap_diagnose::Diagnosis) {
     assert_eq!(m.outliers.len(), d.outliers.len());
     for (p, o) in m.outliers.iter().zip(&d.outliers) {
         assert_eq!(
-            (p.marker.as_str(), p.marker_index as usize, p.observations as usize),
+            (
+                p.marker.as_str(),
+                p.marker_index as usize,
+                p.observations as usize
+            ),
             (o.marker.as_str(), o.marker_index, o.observations)
         );
         assert_eq!([p.first_frame as usize, p.last_frame as usize], o.frames);

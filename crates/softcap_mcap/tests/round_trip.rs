@@ -596,6 +596,25 @@ fn diagnose_and_face_messages_round_trip() {
             component: "probe-axis".into(),
             rmse_m: 7.1e-5,
         }],
+        unexplained: Some(Unexplained {
+            heldout_rmse_m: 7.0e-5,
+            best_explained_rmse_m: 6.2e-5,
+            noise_floor_m: 7.8e-6,
+            cell: "free/released".into(),
+            cell_rmse_m: 9.1e-5,
+            location: Some(0),
+            markers: vec![number("m0", 3.93e-4, "m")],
+        }),
+        outliers: vec![OutlierRun {
+            marker: "m0".into(),
+            marker_index: 0,
+            first_frame: 24,
+            last_frame: 63,
+            first_time_s: 1.2,
+            last_time_s: 3.15,
+            step_m: 4.5e-4,
+            observations: 40,
+        }],
     };
     let extended = ExtendedModel {
         hypothesis: "clock-offset".into(),
