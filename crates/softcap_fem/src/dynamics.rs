@@ -194,6 +194,9 @@ pub struct DynamicSolver {
     matrices: Vec<crate::element::Matrix12>,
     /// The last element pass, for a call with the same inputs (see [`Linearization`]).
     last: Option<Linearization>,
+    /// Solve the next steps' Newton updates with the factor of an earlier system matrix (see
+    /// [`Self::set_reuse_factorization`]).
+    reuse_factorization: bool,
 }
 
 /// What one element pass of [`DynamicSolver::linearize`] depends on besides the solver: the
@@ -293,7 +296,18 @@ impl DynamicSolver {
             forces: Vec::new(),
             matrices: Vec::new(),
             last: None,
+            reuse_factorization: false,
         })
+    }
+
+    /// While `reuse` is set, a step's Newton updates are solved with the numeric factor of the
+    /// last factored system matrix instead of the current one (a chord step; factored anew when
+    /// none exists). The step still converges to the same solution — the residual is the current
+    /// one — but linearly, at a rate set by how far the matrix has moved since. For callers
+    /// whose consecutive steps have nearly the same matrix, e.g. the EM iterations of a tracker at
+    /// a fixed σ (wang2015 §5), where one factorization then serves several M-steps.
+    pub fn set_reuse_factorization(&mut self, reuse: bool) {
+        self.reuse_factorization = reuse;
     }
 
     /// Solver for the constraint set of `bc`.
@@ -600,7 +614,11 @@ impl DynamicSolver {
                 state.accelerations_m_s2 = a;
                 return report;
             }
-            if let Err(e) = self.cholesky.factor(&self.pattern, &values) {
+            let fres = match self.cholesky.kind() {
+                Some(kind) if self.reuse_factorization => Ok(kind),
+                _ => self.cholesky.factor(&self.pattern, &values),
+            };
+            if let Err(e) = fres {
                 report.status = DynamicStepStatus::Failed {
                     reason: e.to_string(),
                 };

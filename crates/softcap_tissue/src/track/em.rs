@@ -63,10 +63,11 @@ pub struct EStep {
 /// Cells of [`Grid`] at most (8 MB of offsets); a larger box gets larger cells.
 const MAX_GRID_CELLS: usize = 1 << 21;
 
-/// Used points per task of the parallel E-step: the per-point responsibilities are computed in
-/// parallel chunks and summed serially in point order, so the result does not depend on the
-/// number of threads.
-const POINT_CHUNK: usize = 512;
+/// Used points per block of the parallel E-step. Each block computes its points'
+/// responsibilities and sums them into its own per-sample partial sums; the blocks' sums are
+/// then added in block order. The blocks are fixed by the point count alone, so the result does
+/// not depend on the number of threads.
+const POINT_BLOCK: usize = 2048;
 
 /// A dense uniform grid over the visible samples with cells of at least the cutoff radius, in
 /// compressed rows: the samples of cell c are `items[start[c]..start[c + 1]]`, ascending, cells
@@ -165,12 +166,13 @@ impl Grid {
     }
 }
 
-/// The responsibilities of one chunk of points: `(sample, p(z_kn))` of point i of the chunk at
-/// `comps[ends[i - 1]..ends[i]]`, its outlier posterior at `outlier[i]`.
-#[derive(Default)]
-struct ChunkResponsibilities {
-    comps: Vec<(u32, f64)>,
-    ends: Vec<u32>,
+/// The partial sums of one block of points: per sample W_k and Σ_n p(z_kn) c_n, the
+/// numerator and denominator of σ²_ML, and the block's per-point outlier posteriors.
+struct BlockSums {
+    weight: Vec<f64>,
+    sum_c: Vec<Vector3<f64>>,
+    num: f64,
+    den: f64,
     outlier: Vec<f64>,
 }
 
@@ -231,19 +233,25 @@ pub fn e_step(
     let pi_per_area = (1.0 - p.outlier_weight) / visible_area;
     let outlier_density = p.outlier_weight / outlier_volume_m3;
     let gate = p.normal_gate && point_normals.len() == points.len();
-    // per chunk of points: the responsibilities of their components and outlier posteriors,
-    // in parallel
-    let chunks: Vec<ChunkResponsibilities> = used
-        .par_chunks(POINT_CHUNK)
-        .map(|chunk| {
-            let mut r = ChunkResponsibilities {
-                comps: Vec::with_capacity(16 * chunk.len()),
-                ends: Vec::with_capacity(chunk.len()),
-                outlier: Vec::with_capacity(chunk.len()),
+    let pi_k: Vec<f64> = (0..samples.len())
+        .map(|k| pi_per_area * area(k) * gauss_norm)
+        .collect();
+    let weight = stride as f64;
+    // per block of points, in parallel: responsibilities and their partial sums
+    let blocks: Vec<BlockSums> = used
+        .par_chunks(POINT_BLOCK)
+        .map(|block| {
+            let mut b = BlockSums {
+                weight: vec![0.0; samples.len()],
+                sum_c: vec![Vector3::zeros(); samples.len()],
+                num: 0.0,
+                den: 0.0,
+                outlier: Vec::with_capacity(block.len()),
             };
-            for &n in chunk {
+            let mut comps: Vec<(u32, f64, f64)> = Vec::with_capacity(64);
+            for &n in block {
                 let c = &points[n];
-                let first = r.comps.len();
+                comps.clear();
                 grid.around(c, |k| {
                     let d2 = (c - samples[k]).norm_squared();
                     if d2 > radius * radius {
@@ -252,40 +260,35 @@ pub fn e_step(
                     if gate && point_normals[n].dot(&sample_normals[k]) < GATE_COS {
                         return;
                     }
-                    let pi_k = pi_per_area * area(k);
-                    r.comps
-                        .push((k as u32, pi_k * gauss_norm * (-0.5 * d2 / s2).exp()));
+                    comps.push((k as u32, pi_k[k] * (-0.5 * d2 / s2).exp(), d2));
                 });
-                let denom: f64 =
-                    r.comps[first..].iter().map(|c| c.1).sum::<f64>() + outlier_density;
-                for c in &mut r.comps[first..] {
-                    c.1 /= denom;
+                let denom: f64 = comps.iter().map(|c| c.1).sum::<f64>() + outlier_density;
+                let scale = weight / denom;
+                for &(k, g, d2) in &comps {
+                    let w = g * scale;
+                    b.weight[k as usize] += w;
+                    b.sum_c[k as usize] += c * w;
+                    b.num += w * d2;
+                    b.den += w;
                 }
-                r.ends.push(r.comps.len() as u32);
-                r.outlier.push(outlier_density / denom);
+                b.outlier.push(outlier_density / denom);
             }
-            r
+            b
         })
         .collect();
-    // serial accumulation in point order: deterministic sums
+    // the blocks' sums in block order: deterministic
     let mut sum_c = vec![Vector3::zeros(); samples.len()];
     let (mut num, mut den, mut outlier) = (0.0, 0.0, 0.0);
-    let weight = stride as f64;
     let mut point_outlier = Vec::with_capacity(used.len());
-    for (chunk, r) in used.chunks(POINT_CHUNK).zip(&chunks) {
-        let mut first = 0;
-        for ((&n, &end), &po) in chunk.iter().zip(&r.ends).zip(&r.outlier) {
-            for &(k, resp) in &r.comps[first..end as usize] {
-                let k = k as usize;
-                out.weight[k] += weight * resp;
-                sum_c[k] += points[n] * (weight * resp);
-                num += weight * resp * (points[n] - samples[k]).norm_squared();
-                den += weight * resp;
-            }
-            first = end as usize;
-            outlier += po;
-            point_outlier.push(po);
+    for b in &blocks {
+        for k in 0..samples.len() {
+            out.weight[k] += b.weight[k];
+            sum_c[k] += b.sum_c[k];
         }
+        num += b.num;
+        den += b.den;
+        outlier += b.outlier.iter().sum::<f64>();
+        point_outlier.extend_from_slice(&b.outlier);
     }
     for k in 0..samples.len() {
         if out.weight[k] > 0.0 {

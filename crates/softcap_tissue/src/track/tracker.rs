@@ -28,7 +28,12 @@
 //! Each EM iteration takes one Newton step of the implicit M-step from the current positions (a
 //! generalized EM: the M-step improves the objective instead of maximizing it); a frame has
 //! converged when, at σ_min, a further M-step moves no node more than the tolerance, i.e. the
-//! positions solve the implicit step with the final responsibilities.
+//! positions solve the implicit step with the final responsibilities. At σ_min the M-steps after
+//! the first reuse its factorization (`DynamicSolver::set_reuse_factorization`: a chord step
+//! with the current residual, so the fixed point is the same; the matrix moves only with the
+//! responsibilities and the rotations there).
+//!
+//! The first frame steps from rest over the nominal interval h.
 
 use nalgebra::{Point3, Vector3};
 use softcap_core::Camera;
@@ -137,6 +142,9 @@ impl<'a> Tracker<'a> {
         let eta_points = settings.data_weight * total_mass / (h * h) * settings.sigma_min_m.powi(2);
         let solver = DynamicSolver::new(&model, masses_kg, &dofs)?;
         let samples = SurfaceSamples::new(mesh, settings.sample_spacing_m);
+        // the nominal interval is also the first frame's step (from rest at t₀ − h)
+        let mut settings = settings.clone();
+        settings.nominal_frame_interval_s = h;
         let surface = TriMesh {
             vertices: mesh.vertices.clone(),
             triangles: samples.faces.clone(),
@@ -149,7 +157,7 @@ impl<'a> Tracker<'a> {
             attachment,
             samples,
             cameras,
-            settings: settings.clone(),
+            settings,
             damping,
             eta_points,
             state: DynamicState::at_rest(mesh.vertices.clone()),
@@ -273,12 +281,17 @@ impl<'a> Tracker<'a> {
         };
         let mut stepped = start.clone();
         let no_points = points.is_empty();
+        let mut last_sigma = f64::NAN;
         for it in 0..s.max_em_iterations.max(1) {
             let stride = (((sigma / s.sigma_min_m).powi(2)).round() as usize).clamp(1, 64);
             let (e, _) = self.expectation(points, normals, &x, volume, sigma, stride);
             let kappa: Vec<f64> = e.weight.iter().map(|w| eta * w / (sigma * sigma)).collect();
             let mut term = VirtualForces::new(&self.samples, &kappa, &e.target);
             let mut trial = start.clone();
+            // one factorization per σ: at the floor, the M-steps after the first reuse it
+            self.solver
+                .set_reuse_factorization(s.reuse_factorization && it > 0 && sigma == last_sigma);
+            last_sigma = sigma;
             let report = self.solver.step_with(
                 &mut self.model,
                 &mut trial,
