@@ -95,7 +95,7 @@ pub struct TrackSettings {
     /// Frame interval used for η (0: the median interval of the capture), s.
     pub nominal_frame_interval_s: f64,
     /// At σ_min, the EM iterations after the first solve their M-step with the factorization of
-    /// the first (a chord step; the responsibilities and rotations change little there).
+    /// the first (a chord step). Off by default: it lost the bar release's fast phase.
     pub reuse_factorization: bool,
     /// Progress bar on stderr (when it is a terminal).
     pub progress: bool,
@@ -128,7 +128,7 @@ impl Default for TrackSettings {
             grazing_deg: 85.0,
             divergence_step_m: 0.2,
             nominal_frame_interval_s: 0.0,
-            reuse_factorization: true,
+            reuse_factorization: false,
             progress: true,
         }
     }

@@ -28,10 +28,11 @@
 //! Each EM iteration takes one Newton step of the implicit M-step from the current positions (a
 //! generalized EM: the M-step improves the objective instead of maximizing it); a frame has
 //! converged when, at σ_min, a further M-step moves no node more than the tolerance, i.e. the
-//! positions solve the implicit step with the final responsibilities. At σ_min the M-steps after
-//! the first reuse its factorization (`DynamicSolver::set_reuse_factorization`: a chord step
-//! with the current residual, so the fixed point is the same; the matrix moves only with the
-//! responsibilities and the rotations there).
+//! positions solve the implicit step with the final responsibilities. With
+//! `reuse_factorization` (off by default) the M-steps at σ_min after the first reuse its
+//! factorization (`DynamicSolver::set_reuse_factorization`, chord steps on the current residual).
+//! It saves 40 % of the factorizations but lost the fast phase of the synthetic bar release
+//! (surface RMS 1.70 mm against ≤ 1.5 mm with fresh factorizations).
 //!
 //! The first frame steps from rest over the nominal interval h.
 
