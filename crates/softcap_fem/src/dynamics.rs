@@ -261,6 +261,51 @@ pub struct StepLoads<'a> {
     pub initial_guess: Option<&'a [Vector3<f64>]>,
 }
 
+/// The residual test that ends a Newton iteration of an implicit dynamic step (shared by
+/// [`DynamicSolver`] and the quadratic solver): the residual norm `rn` \[N\] against
+/// `residual_tol_rel` × the step's force `scale`, or against the largest system-matrix entry ×
+/// the displacement tolerance `tol_x` \[m\], after at least one update (a linear problem converges
+/// in one Newton step). When the test passes or the iterations are used up it sets `status` and
+/// returns `true`: the caller then commits the trial state and ends the step.
+pub(crate) fn finish_iteration(
+    settings: &DynamicsSettings,
+    it: usize,
+    rn: f64,
+    scale: f64,
+    values: &[f64],
+    tol_x: f64,
+    status: &mut DynamicStepStatus,
+) -> bool {
+    let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
+    let converged = it > 0 && res_ok;
+    if !converged && it < settings.max_iterations.max(1) {
+        return false;
+    }
+    *status = if converged {
+        DynamicStepStatus::Converged
+    } else {
+        DynamicStepStatus::MaxIterations
+    };
+    true
+}
+
+impl DynamicState {
+    /// Commits a finished step of length `h` \[s\]: time, positions, velocities, accelerations.
+    pub(crate) fn advance(
+        &mut self,
+        h: f64,
+        x: Vec<Vector3<f64>>,
+        v: Vec<Vector3<f64>>,
+        a: Vec<Vector3<f64>>,
+    ) {
+        self.time_s += h;
+        self.positions_m = x;
+        self.velocities_m_s = v;
+        self.accelerations_m_s2 = a;
+    }
+}
+
 pub(crate) struct Kinematics {
     pub(crate) cx: f64,
     pub(crate) cv: f64,
@@ -597,21 +642,8 @@ impl DynamicSolver {
                 .max(norm(&fi))
                 .max(norm(&inertia))
                 .max(fc_norm);
-            let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
-            // Converged once the residual test passes after at least one update (a linear problem
-            // converges in one Newton step).
-            let converged = it > 0 && res_ok;
-            if converged || it >= settings.max_iterations.max(1) {
-                report.status = if converged {
-                    DynamicStepStatus::Converged
-                } else {
-                    DynamicStepStatus::MaxIterations
-                };
-                state.time_s += h;
-                state.positions_m = x;
-                state.velocities_m_s = v;
-                state.accelerations_m_s2 = a;
+            if finish_iteration(settings, it, rn, scale, &values, tol_x, &mut report.status) {
+                state.advance(h, x, v, a);
                 return report;
             }
             let fres = match self.cholesky.kind() {

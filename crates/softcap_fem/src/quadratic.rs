@@ -26,6 +26,7 @@
 use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
 use crate::dynamics::{
     DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings,
+    finish_iteration,
 };
 use crate::modal::Modes;
 use crate::{FemError, LinearParams};
@@ -492,19 +493,8 @@ impl QuadraticSolver {
                 return report;
             }
             let scale = norm(external_forces_n).max(norm(&fi)).max(norm(&inertia));
-            let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
-            let converged = it > 0 && res_ok;
-            if converged || it >= settings.max_iterations.max(1) {
-                report.status = if converged {
-                    DynamicStepStatus::Converged
-                } else {
-                    DynamicStepStatus::MaxIterations
-                };
-                state.time_s += h;
-                state.positions_m = x;
-                state.velocities_m_s = v;
-                state.accelerations_m_s2 = a;
+            if finish_iteration(settings, it, rn, scale, &values, tol_x, &mut report.status) {
+                state.advance(h, x, v, a);
                 return report;
             }
             match self.solve(&values, rf) {
