@@ -37,7 +37,8 @@ use softcap_core::{Rbf, RbfSettings, ScatteredData};
 use softcap_fem::nalgebra::Vector3;
 use softcap_mesh::{LayerSettings, LinearShell, ShellSettings, TriMesh, extrude_layer};
 use softcap_tissue::reshape::{
-    Attachment, IcpMarker, Landmark, MaterialPoint, ReshapeProblem, ReshapeSettings, reshape,
+    Attachment, IcpMarker, Landmark, MaterialPoint, ReshapeProblem, ReshapeSettings, Smoothness,
+    reshape,
 };
 
 const LANDMARKS: usize = 40;
@@ -309,7 +310,7 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
     let settings: ReshapeSettings = match std::env::var("SOFTCAP_FACE_SETTINGS") {
         Ok(toml) => toml::from_str(&toml)?,
         Err(_) => ReshapeSettings {
-            smoothness: FACE_SMOOTHNESS,
+            smoothness: Smoothness::Fixed(FACE_SMOOTHNESS),
             ..ReshapeSettings::default()
         },
     };
@@ -417,6 +418,19 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
             "  reshape {}",
             breakdown(&out.positions_m[..n], &identity, &landmarks)
         );
+        if let Some(cv) = &out.cross_validation {
+            let scores: Vec<String> = cv
+                .scores
+                .iter()
+                .map(|s| format!("{:.0e}: {:.4}", s.smoothness, s.rms_m * 1e3))
+                .collect();
+            println!(
+                "| {id:03} | cross-validation ({} folds): held-out RMS mm per α̂ {}; chose α̂ = {} |",
+                cv.folds,
+                scores.join(", "),
+                cv.chosen
+            );
+        }
     }
     Ok(())
 }

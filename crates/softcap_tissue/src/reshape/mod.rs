@@ -2,6 +2,7 @@
 //!
 //! | module | what | paper |
 //! |---|---|---|
+//! | [`cv`] | α̂ by k-fold cross-validation on held-out ICP markers (`smoothness = "cv"`) | |
 //! | [`problem`] | landmarks, ICP markers, attachments, closest points (parry3d) | §3.1, eq. 5 |
 //! | [`laplacian`] | plastic-strain Laplacian, its null space, A⁻¹ by the singular lemma | Appendix A, §3.5 |
 //! | [`equilibrium`] | Newton equilibrium under plastic strains and attachment springs | §3.2–3.3, eq. 1, 4, 7 |
@@ -14,6 +15,7 @@
 //! | [`output`] | reshaped.mcap channels and report entries | |
 //! | [`report`] | report.md, error histogram (Fig. 16), convergence (Fig. 9), before/after renders | |
 
+pub mod cv;
 pub mod equilibrium;
 pub mod gauge;
 pub mod known_truth;
@@ -26,6 +28,7 @@ pub mod solve;
 pub mod step;
 pub mod target;
 
+pub use cv::{CrossValidationReport, CrossValidationScore, CrossValidationSettings, Smoothness};
 pub use equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings, EquilibriumStatus};
 pub use problem::{
     Attachment, ConstraintKind, IcpMarker, Landmark, MaterialPoint, ReshapeProblem,

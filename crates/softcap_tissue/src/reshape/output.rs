@@ -82,8 +82,16 @@ pub fn report_message(run: &ReshapeRun) -> proto::Report {
         integer("tets", o.plastic.len() as i64),
         integer("nodes", o.positions_m.len() as i64),
         integer("free_flying", i64::from(run.free_flying)),
+        number("smoothness", o.smoothness, ""),
         number("alpha", o.alpha_m2, "m^2"),
     ];
+    if let Some(cv) = &o.cross_validation {
+        entries.push(integer("cv.folds", cv.folds as i64));
+        for (k, score) in cv.scores.iter().enumerate() {
+            entries.push(number(&format!("cv.{k}.smoothness"), score.smoothness, ""));
+            entries.push(number(&format!("cv.{k}.rms"), score.rms_m, "m"));
+        }
+    }
     for kind in [
         ConstraintKind::Attachment,
         ConstraintKind::Landmark,

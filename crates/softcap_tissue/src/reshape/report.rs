@@ -55,6 +55,23 @@ fn report_markdown(run: &ReshapeRun) -> String {
             "attached"
         }
     );
+    match &o.cross_validation {
+        None => {
+            let _ = writeln!(s, "Smoothness α̂ = {:e}.\n", o.smoothness);
+        }
+        Some(cv) => {
+            let _ = writeln!(
+                s,
+                "Smoothness α̂ = {:e}, chosen by {}-fold cross-validation on the ICP markers:\n",
+                o.smoothness, cv.folds
+            );
+            let _ = writeln!(s, "| α̂ | held-out marker distance, RMS (mm) |\n|---|---|");
+            for score in &cv.scores {
+                let _ = writeln!(s, "| {:e} | {:.4} |", score.smoothness, score.rms_m * 1e3);
+            }
+            let _ = writeln!(s);
+        }
+    }
     let _ = writeln!(
         s,
         "| stage | iterations | stop | objective start → end (m²) | max error (mm) |"

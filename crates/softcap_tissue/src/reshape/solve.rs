@@ -41,22 +41,29 @@ use softcap_core::{BrentSettings, minimize_bounded};
 use softcap_fem::{NeoHookeanParams, PlasticNeoHookeanModel, plastic_from_vector};
 use softcap_mesh::{TetMesh, TetQuality, tet_quality};
 
+use super::cv::{CrossValidationReport, CrossValidationSettings, Smoothness};
 use super::equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings};
 use super::gauge::{
     Gauge, best_rigid, plane_rigid_step, project_out_modes, rigid_modes, three_two_one_pins,
 };
 use super::laplacian::PlasticLaplacian;
-use super::problem::{ConstraintKind, MaterialPoint, ReshapeProblem, SurfaceProjector};
+use super::problem::{ConstraintKind, IcpMarker, MaterialPoint, ReshapeProblem, SurfaceProjector};
 use super::step::{NormalSystem, woodbury_step};
 use crate::error::{Result, TissueError};
+
+/// The default α̂ (a bulky organ; see docs/reshape.md for a thin layer).
+pub const DEFAULT_SMOOTHNESS: f64 = 3e-4;
 
 /// Settings of [`reshape`] (TOML: `softcap tissue reshape --settings`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReshapeSettings {
     /// α̂: smoothness weight α = α̂ L³ / h (L the template's bounding-box diagonal, h its mean
-    /// edge length, so the continuum weight does not change with refinement).
-    pub smoothness: f64,
+    /// edge length, so the continuum weight does not change with refinement); a number, or
+    /// `"cv"`: chosen by k-fold cross-validation on held-out ICP markers ([`super::cv`]).
+    pub smoothness: Smoothness,
+    /// The folds and α̂ grid of `smoothness = "cv"`.
+    pub cross_validation: CrossValidationSettings,
     /// κ: attachment springs k = κ μ L (μ the elastic shear modulus).
     pub attachment_stiffness: f64,
     /// Poisson ratio of the elastic (stable neo-Hookean) part.
@@ -86,7 +93,8 @@ pub struct ReshapeSettings {
 impl Default for ReshapeSettings {
     fn default() -> Self {
         Self {
-            smoothness: 3e-4,
+            smoothness: Smoothness::Fixed(DEFAULT_SMOOTHNESS),
+            cross_validation: CrossValidationSettings::default(),
             attachment_stiffness: 100.0,
             poisson_ratio: 0.4,
             max_iterations: 20,
@@ -154,11 +162,12 @@ impl StopReason {
 
 /// One stage of the schedule.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Stage {
+pub(super) struct Stage {
     name: &'static str,
     constant: bool,
     landmarks: bool,
-    icp: bool,
+    /// The stage uses the ICP markers (the last one).
+    pub(super) icp: bool,
 }
 
 /// Summary of one stage.
@@ -237,8 +246,12 @@ pub struct ReshapeOutcome {
     pub reshaped_quality: TetQuality,
     /// Status.
     pub status: ReshapeStatus,
+    /// α̂ used (the setting, or the one cross-validation chose).
+    pub smoothness: f64,
     /// α used \[m²\].
     pub alpha_m2: f64,
+    /// The cross-validation that chose α̂ (`smoothness = "cv"`).
+    pub cross_validation: Option<CrossValidationReport>,
 }
 
 impl ReshapeOutcome {
@@ -291,7 +304,7 @@ fn scalar_rows(rows: &[Row]) -> Vec<(usize, Vector3<f64>)> {
 
 /// The solver state: plastic strains, shape (canonical frame when free-flying) and frame.
 #[derive(Clone, Debug)]
-struct State {
+pub(super) struct State {
     s: Vec<Vector6<f64>>,
     x: Vec<Vector3<f64>>,
     frame: Isometry3<f64>,
@@ -300,15 +313,22 @@ struct State {
 /// Progress callback: (stage, iteration, objective, max error).
 pub type ProgressFn<'a> = dyn FnMut(&str, usize, f64, f64) + 'a;
 
-struct Solver<'p> {
-    problem: &'p ReshapeProblem,
-    settings: &'p ReshapeSettings,
+/// The solver of one problem; α̂ and the active ICP markers can change between runs of its
+/// stages (cross-validation, [`super::cv`]).
+pub(super) struct Solver<'p> {
+    pub(super) problem: &'p ReshapeProblem,
+    pub(super) settings: &'p ReshapeSettings,
     model: PlasticNeoHookeanModel,
     laplacian: PlasticLaplacian,
     equilibrium: Equilibrium,
     gauge: Option<Gauge>,
     /// The boundary triangles ICP markers project onto ([`ReshapeProblem::icp_surface`]).
     icp_surface: Vec<[usize; 3]>,
+    /// The ICP markers the stages use (all of the problem's but during cross-validation).
+    icp_markers: Vec<IcpMarker>,
+    /// L³ / h: α = α̂ × this.
+    alpha_scale: f64,
+    smoothness: f64,
     alpha: f64,
     equilibrium_solves: usize,
 }
@@ -322,13 +342,16 @@ pub fn reshape(
 ) -> Result<ReshapeOutcome> {
     let mut solver = Solver::new(problem, settings)?;
     let mut state = solver.initial_state()?;
-    let mut stages = Vec::new();
-    let mut history = Vec::new();
-    for stage in solver.schedule() {
-        let report = solver.run_stage(stage, &mut state, &mut history, progress)?;
-        stages.push(report);
+    match settings.smoothness {
+        Smoothness::Fixed(smoothness) => {
+            solver.set_smoothness(smoothness)?;
+            let mut history = Vec::new();
+            let schedule = solver.schedule();
+            let stages = solver.run_stages(&schedule, &mut state, &mut history, progress)?;
+            Ok(solver.finish(state, stages, history, None))
+        }
+        Smoothness::CrossValidated => super::cv::cross_validated(solver, state, progress),
     }
-    Ok(solver.finish(state, stages, history))
 }
 
 impl<'p> Solver<'p> {
@@ -345,7 +368,6 @@ impl<'p> Solver<'p> {
         let model = PlasticNeoHookeanModel::homogeneous(mesh, params)?;
         let laplacian = PlasticLaplacian::new(&mesh.tets)?;
         let (diag, edge) = size_scales(mesh);
-        let alpha = settings.smoothness * diag.powi(3) / edge;
         let stiffness = settings.attachment_stiffness * params.mu * diag;
         let (pins, gauge) = if problem.free_flying {
             let boundary_nodes = mesh.surface_map().surface_to_volume;
@@ -386,13 +408,66 @@ impl<'p> Solver<'p> {
             equilibrium,
             gauge,
             icp_surface,
-            alpha,
+            icp_markers: problem.icp_markers.clone(),
+            alpha_scale: diag.powi(3) / edge,
+            smoothness: f64::NAN,
+            alpha: f64::NAN,
             equilibrium_solves: 0,
         })
     }
 
+    /// Sets α̂ (α = α̂ L³ / h); it must be positive and finite.
+    pub(super) fn set_smoothness(&mut self, smoothness: f64) -> Result<()> {
+        if !(smoothness.is_finite() && smoothness > 0.0) {
+            return Err(TissueError::BadSettings {
+                field: "smoothness".into(),
+                problem: format!("{smoothness}: α̂ must be a positive number (or \"cv\")"),
+            });
+        }
+        self.smoothness = smoothness;
+        self.alpha = smoothness * self.alpha_scale;
+        Ok(())
+    }
+
+    /// The ICP markers the following stages use.
+    pub(super) fn set_icp_markers(&mut self, markers: Vec<IcpMarker>) {
+        self.icp_markers = markers;
+    }
+
+    /// Runs `stages` from `state` in order, appending to `history`.
+    pub(super) fn run_stages(
+        &mut self,
+        stages: &[Stage],
+        state: &mut State,
+        history: &mut Vec<IterationRecord>,
+        progress: &mut ProgressFn<'_>,
+    ) -> Result<Vec<StageReport>> {
+        stages
+            .iter()
+            .map(|&stage| self.run_stage(stage, state, history, progress))
+            .collect()
+    }
+
+    /// Distance of each of `markers` to the ICP surface of `state` (world frame) \[m\].
+    pub(super) fn marker_distances(&self, state: &State, markers: &[IcpMarker]) -> Vec<f64> {
+        let world: Vec<Vector3<f64>> = state
+            .x
+            .iter()
+            .map(|p| state.frame.transform_point(&Point3::from(*p)).coords)
+            .collect();
+        let projector = SurfaceProjector::new(&self.icp_surface, &world);
+        markers
+            .iter()
+            .map(|m| {
+                projector
+                    .project(&m.position_m)
+                    .map_or(f64::INFINITY, |(_, d)| d)
+            })
+            .collect()
+    }
+
     /// The stages of §3.4 that have constraints.
-    fn schedule(&self) -> Vec<Stage> {
+    pub(super) fn schedule(&self) -> Vec<Stage> {
         let p = self.problem;
         let has_a = !p.attachments.is_empty();
         let has_l = !p.landmarks.is_empty();
@@ -434,7 +509,7 @@ impl<'p> Solver<'p> {
 
     /// s = I everywhere, the template (rigidly aligned to the landmarks when free-flying) in
     /// equilibrium.
-    fn initial_state(&mut self) -> Result<State> {
+    pub(super) fn initial_state(&mut self) -> Result<State> {
         let t = self.problem.template.tets.len();
         let mut state = State {
             s: vec![Vector6::new(1.0, 1.0, 1.0, 0.0, 0.0, 0.0); t],
@@ -518,7 +593,7 @@ impl<'p> Solver<'p> {
         }
         if stage.icp {
             let projector = SurfaceProjector::new(&self.icp_surface, x);
-            for m in &self.problem.icp_markers {
+            for m in &self.icp_markers {
                 let target = to_frame(&m.position_m);
                 if let Some((point, _)) = projector.project(&target) {
                     let normal = match self.settings.icp_rows {
@@ -877,11 +952,12 @@ impl<'p> Solver<'p> {
         }
     }
 
-    fn finish(
+    pub(super) fn finish(
         mut self,
         state: State,
         stages: Vec<StageReport>,
         history: Vec<IterationRecord>,
+        cross_validation: Option<CrossValidationReport>,
     ) -> ReshapeOutcome {
         let positions_m: Vec<Vector3<f64>> = state
             .x
@@ -903,7 +979,9 @@ impl<'p> Solver<'p> {
             history,
             errors,
             status,
+            smoothness: self.smoothness,
             alpha_m2: self.alpha,
+            cross_validation,
         }
     }
 
@@ -959,6 +1037,8 @@ impl FirstStep {
     /// Builds the system (one equilibrium solve, one factorization, Z for every row).
     pub fn new(problem: &ReshapeProblem, settings: &ReshapeSettings) -> Result<Self> {
         let mut solver = Solver::new(problem, settings)?;
+        // Cross-validation would run whole reshapes: the step is built at the default α̂.
+        solver.set_smoothness(settings.smoothness.fixed().unwrap_or(DEFAULT_SMOOTHNESS))?;
         let state = solver.initial_state()?;
         let stage = Stage {
             name: "icp",

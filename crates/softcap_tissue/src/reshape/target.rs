@@ -5,6 +5,7 @@
 //! TARGET/landmarks.csv    id,template_x,template_y,template_z,x,y,z
 //! TARGET/icp_markers.csv  id,x,y,z
 //! TARGET/attachments.csv  node,x,y,z          (optional; required unless free_flying)
+//! TARGET/icp_surface.csv  a,b,c               (optional; the boundary triangles ICP markers lie on)
 //! TARGET/surface.obj      subject's dense surface (optional; evaluation only)
 //! ```
 //!
@@ -42,6 +43,11 @@ pub struct TargetSpec {
     /// The subject's dense surface (optional; evaluation only).
     #[serde(default)]
     pub surface: Option<String>,
+    /// The part of the template's boundary the ICP markers lie on (optional; default the whole
+    /// boundary): a CSV `a,b,c` of template node triples, each a boundary triangle
+    /// ([`ReshapeProblem::icp_surface`]).
+    #[serde(default)]
+    pub icp_surface: Option<String>,
     /// No attachments: solve with the rigid gauge (saito-barbic §3.6).
     #[serde(default)]
     pub free_flying: bool,
@@ -138,6 +144,7 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
         ("icp_markers", Some(&spec.icp_markers)),
         ("attachments", spec.attachments.as_ref()),
         ("surface", spec.surface.as_ref()),
+        ("icp_surface", spec.icp_surface.as_ref()),
     ] {
         if let Some(name) = name {
             softcap_app::path_inside(target_dir, name).map_err(|m| {
@@ -194,11 +201,16 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
         Some(name) => Some(read_surface(&target_dir.join(name), unit)?),
         None => None,
     };
+    let icp_surface = match &spec.icp_surface {
+        Some(name) => Some(read_icp_surface(&target_dir.join(name), &node_map, &mesh)?),
+        None => None,
+    };
     let files = [
         Some(&spec.landmarks),
         Some(&spec.icp_markers),
         spec.attachments.as_ref(),
         spec.surface.as_ref(),
+        spec.icp_surface.as_ref(),
     ]
     .into_iter()
     .flatten()
@@ -212,7 +224,7 @@ pub fn load_target(template: &Path, target_dir: &Path) -> Result<LoadedTarget> {
             icp_markers,
             attachments,
             free_flying: spec.free_flying,
-            icp_surface: None,
+            icp_surface,
         },
         surface,
         metres_per_unit: unit,
@@ -410,6 +422,65 @@ fn read_attachments(path: &Path, unit: f64, node_map: &[Option<usize>]) -> Resul
         .collect()
 }
 
+/// `icp_surface.csv`: rows `a,b,c` of 0-based template node indices (`$Nodes` order), each a
+/// boundary triangle of the template (taken with the template's orientation).
+fn read_icp_surface(
+    path: &Path,
+    node_map: &[Option<usize>],
+    mesh: &TetMesh,
+) -> Result<Vec<[usize; 3]>> {
+    let boundary: std::collections::BTreeMap<[usize; 3], [usize; 3]> = mesh
+        .boundary_faces()
+        .into_iter()
+        .map(|f| {
+            let mut key = f;
+            key.sort_unstable();
+            (key, f)
+        })
+        .collect();
+    let records = csv_records(path, &["a", "b", "c"])?;
+    if records.is_empty() {
+        return Err(line_error(path, 1, "no triangles"));
+    }
+    let mut seen = BTreeSet::new();
+    records
+        .into_iter()
+        .map(|(line, f)| {
+            let mut key = [0; 3];
+            for (k, field) in f.iter().enumerate() {
+                let file_node: usize = field.parse().map_err(|_| {
+                    line_error(path, line, format!("{field:?} is not a node index"))
+                })?;
+                key[k] = node_map.get(file_node).copied().flatten().ok_or_else(|| {
+                    line_error(
+                        path,
+                        line,
+                        format!(
+                            "node {file_node} is not a node of a tet of the template ({} nodes)",
+                            node_map.len()
+                        ),
+                    )
+                })?;
+            }
+            key.sort_unstable();
+            let face = boundary.get(&key).copied().ok_or_else(|| {
+                line_error(
+                    path,
+                    line,
+                    format!(
+                        "({}, {}, {}) is not a boundary triangle of the template",
+                        f[0], f[1], f[2]
+                    ),
+                )
+            })?;
+            if !seen.insert(key) {
+                return Err(line_error(path, line, "duplicate triangle"));
+            }
+            Ok(face)
+        })
+        .collect()
+}
+
 /// An attached object needs ≥ 3 non-collinear attached nodes (else its equilibrium has rigid
 /// motions); a free-flying one none.
 fn check_attachments(
@@ -601,6 +672,14 @@ pub fn write_target(dir: &Path, problem: &ReshapeProblem, unit: &str) -> Result<
             attachments += &format!("{},{}\n", a.node, xyz(&a.target_m));
         }
         files.push(("attachments.csv", attachments));
+    }
+    if let Some(faces) = &problem.icp_surface {
+        files[0].1 += "icp_surface = \"icp_surface.csv\"\n";
+        let mut csv = String::from("a,b,c\n");
+        for f in faces {
+            csv += &format!("{},{},{}\n", f[0], f[1], f[2]);
+        }
+        files.push(("icp_surface.csv", csv));
     }
     for (name, text) in files {
         let path = target.join(name);
