@@ -171,10 +171,12 @@ pub fn woodbury_step(sys: &NormalSystem<'_>) -> Option<Vec<Vector6<f64>>> {
         let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
         lap.apply_base_inverse(btz.as_mut(), sys.alpha, mu);
         let y = sys.b_times(btz.as_ref());
-        let block = sys.z.transpose() * &y;
+        // ZᵀY is symmetric: rows below c1 of these columns are the mirror of later blocks.
+        let block = sys.z.as_ref().subcols(0, c1).transpose() * &y;
         for j in 0..c1 - c0 {
-            for i in 0..rows {
+            for i in 0..c1 {
                 small[(i, c0 + j)] = block[(i, j)];
+                small[(c0 + j, i)] = block[(i, j)];
             }
         }
     }
