@@ -7,7 +7,8 @@
 //! - `softcap-face track TAKE/ --face NEUTRAL.obj --landmarks TABLE.csv -o wrinkles.mcap [--report DIR]`
 //! - `softcap-face remove --face SCAN.obj (--region REGION.csv | --landmarks TABLE.csv --around MARKER
 //!   --radius R) [--frames face.mcap] -o clean.mcap [--obj clean.obj]`
-//! - `softcap-face synth-take --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv -o TAKE/ [--frames 60]`
+//! - `softcap-face synth-take --mocap TAKE.csv --face NEUTRAL.obj --landmarks TABLE.csv -o TAKE/ [--frames 60]
+//!   [--motion steady|varying] [--seed 7]`
 
 use std::path::{Path, PathBuf};
 
@@ -17,7 +18,7 @@ use softcap_mesh::nalgebra::Vector3;
 use softcap_mesh::shell::ShellSettings;
 
 use crate::take::read_take;
-use crate::take_synth::{TakeSynthSettings, face_from_mocap, synth_take};
+use crate::take_synth::{TakeMotion, TakeSynthSettings, face_from_mocap, synth_take};
 use crate::take_track::{track_take, write_track_mcap};
 use crate::video::VideoTrackSettings;
 use crate::{
@@ -152,6 +153,12 @@ pub enum Command {
         /// Stratified rays per pixel = N².
         #[arg(long, default_value_t = 12)]
         rays_per_axis: usize,
+        /// How the wrinkles' depth and width change over the take (docs/face.md).
+        #[arg(long, value_enum, default_value_t = TakeMotion::Steady)]
+        motion: TakeMotion,
+        /// Seed of the render's ray and noise streams.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -423,6 +430,8 @@ impl Command {
                 landmarks,
                 frames,
                 rays_per_axis,
+                motion,
+                seed,
                 output,
             } => {
                 let take = read_animface_csv(mocap)?;
@@ -430,9 +439,11 @@ impl Command {
                 let table = read_landmarks(landmarks)?;
                 let mut s = TakeSynthSettings {
                     frames: *frames,
+                    motion: *motion,
                     ..Default::default()
                 };
                 s.render.rays_per_axis = *rays_per_axis;
+                s.render.seed = *seed;
                 let bar = Progress::default().bar("rendering take frames", *frames as u64);
                 synth_take(&mesh, &take, &table, output, &s, &|| bar.inc(1))?;
                 bar.finish_and_clear();

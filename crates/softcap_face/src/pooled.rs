@@ -455,91 +455,217 @@ impl FrameEstimate {
     }
 }
 
-/// A smooth-in-time prior on the width of a wrinkle over consecutive frames: w_{t+1} = w_t + η_t,
-/// η_t ~ N(0, (`drift` · ŵ_t)²) (a random walk, `drift` the relative change per frame), and no
-/// prior on the depth (a wrinkle deepens and relaxes within a few frames). Each frame's pooled
-/// estimate (d̂, ŵ) with covariance C is a measurement; the Rauch–Tung–Striebel smoother gives
-/// w̃_t from all frames of the run, and d follows by Gaussian conditioning on the frame's own
-/// joint estimate, d̃ = d̂ + (C_dw / C_ww)(w̃ − ŵ). Returns, per frame, the smoothed
-/// estimate with its covariance (Var d̃ = C_dd − C_dw²/C_ww + (C_dw/C_ww)² P̃_w).
-pub fn smooth_in_time(frames: &[FrameEstimate], drift: f64) -> Vec<FrameEstimate> {
+/// A smooth-in-time prior on a wrinkle's profile over consecutive frames: ln d and ln w each
+/// follow a random walk, ln d_{t+1} = ln d_t + η_t, η_t ~ N(0, q_d²) (likewise w with q_w), so
+/// `q = [q_d, q_w]` is the relative change per frame the prior allows. Each frame's pooled
+/// estimate (d̂, ŵ) with covariance C is a measurement of (ln d, ln w) with covariance
+/// D⁻¹ C D⁻¹, D = diag(d̂, ŵ) (the d–w correlation of a shallow wrinkle's fit is kept: a
+/// well-determined w corrects d); a Kalman filter and the Rauch–Tung–Striebel smoother give the
+/// estimate from all frames of the run. Returns, per frame, the smoothed (d, w) and covariance.
+/// The process noise is estimated from the data by [`estimate_time_noise`].
+pub fn smooth_in_time(frames: &[FrameEstimate], q: [f64; 2]) -> Vec<FrameEstimate> {
+    let Some(pass) = kalman_pass(frames, q) else {
+        return frames.to_vec();
+    };
     let n = frames.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    // forward Kalman filter on w: predicted (m⁻, P⁻) and filtered (m, P)
-    let mut pred = vec![(0.0, f64::INFINITY); n];
-    let mut filt = vec![(0.0, 0.0); n];
-    for (t, f) in frames.iter().enumerate() {
-        let r = f.cov_px2[2];
-        let (m_pred, p_pred) = if t == 0 {
-            (f.width_px, f64::INFINITY)
-        } else {
-            let (m, p) = filt[t - 1];
-            (m, p + (drift * m).powi(2))
+    let mut smooth = pass.filtered.clone();
+    for t in (0..n.saturating_sub(1)).rev() {
+        let (m, p) = pass.filtered[t];
+        let (m_pred, p_pred) = pass.predicted[t + 1];
+        let Some(inv) = p_pred.try_inverse() else {
+            continue;
         };
-        pred[t] = (m_pred, p_pred);
-        filt[t] = if p_pred.is_finite() {
-            let k = p_pred / (p_pred + r);
-            (m_pred + k * (f.width_px - m_pred), (1.0 - k) * p_pred)
-        } else {
-            (f.width_px, r)
-        };
+        let g = p * inv;
+        let (ms, ps) = smooth[t + 1];
+        let cov = p + g * (ps - p_pred) * g.transpose();
+        smooth[t] = (m + g * (ms - m_pred), 0.5 * (cov + cov.transpose()));
     }
-    // backward RTS pass
-    let mut smooth = filt.clone();
-    for t in (0..n - 1).rev() {
-        let (m, p) = filt[t];
-        let (m_next_pred, p_next_pred) = pred[t + 1];
-        let g = p / p_next_pred;
-        smooth[t] = (
-            m + g * (smooth[t + 1].0 - m_next_pred),
-            p + g * g * (smooth[t + 1].1 - p_next_pred),
-        );
-    }
-    frames
+    smooth
         .iter()
-        .zip(&smooth)
-        .map(|(f, &(w, pw))| {
-            let [cdd, cdw, cww] = f.cov_px2;
-            let beta = cdw / cww;
+        .map(|(m, p)| {
+            let (d, w) = (m.x.exp(), m.y.exp());
             FrameEstimate {
-                depth_px: (f.depth_px + beta * (w - f.width_px)).max(0.0),
+                depth_px: d,
                 width_px: w,
-                cov_px2: [cdd - beta * cdw + beta * beta * pw, beta * pw, pw],
+                cov_px2: [p[(0, 0)] * d * d, p[(0, 1)] * d * w, p[(1, 1)] * w * w],
             }
         })
         .collect()
+}
+
+type Vec2 = nalgebra::Vector2<f64>;
+type Mat2 = nalgebra::Matrix2<f64>;
+
+/// One forward Kalman pass over a run in (ln d, ln w).
+struct KalmanPass {
+    /// Per frame: predicted mean and covariance (frame 0: its own measurement).
+    predicted: Vec<(Vec2, Mat2)>,
+    /// Per frame: filtered mean and covariance.
+    filtered: Vec<(Vec2, Mat2)>,
+    /// ln p(y_1 … y_n | y_0, q): the marginal likelihood of the run given its first frame.
+    log_likelihood: f64,
+}
+
+/// Measurement (ln d̂, ln ŵ) and its covariance D⁻¹ C D⁻¹ of one frame.
+fn log_measurement(f: &FrameEstimate) -> (Vec2, Mat2) {
+    let (d, w) = (f.depth_px, f.width_px);
+    let [cdd, cdw, cww] = f.cov_px2;
+    (
+        Vec2::new(d.ln(), w.ln()),
+        Mat2::new(cdd / (d * d), cdw / (d * w), cdw / (d * w), cww / (w * w)),
+    )
+}
+
+/// The forward pass of [`smooth_in_time`]; `None` when a frame has d̂ or ŵ ≤ 0 or a singular
+/// innovation covariance.
+fn kalman_pass(frames: &[FrameEstimate], q: [f64; 2]) -> Option<KalmanPass> {
+    let process = Mat2::new(q[0] * q[0], 0.0, 0.0, q[1] * q[1]);
+    let mut predicted = Vec::with_capacity(frames.len());
+    let mut filtered: Vec<(Vec2, Mat2)> = Vec::with_capacity(frames.len());
+    let mut log_likelihood = 0.0;
+    for f in frames {
+        if !(f.depth_px > 0.0 && f.width_px > 0.0) {
+            return None;
+        }
+        let (y, r) = log_measurement(f);
+        let Some(&(m, p)) = filtered.last() else {
+            // diffuse start: the first frame is its own estimate
+            predicted.push((y, r));
+            filtered.push((y, r));
+            continue;
+        };
+        let p_pred = p + process;
+        let s = p_pred + r;
+        let s_inv = s.try_inverse()?;
+        let nu = y - m;
+        log_likelihood -= 0.5
+            * (s.determinant().max(f64::MIN_POSITIVE).ln()
+                + (nu.transpose() * s_inv * nu)[(0, 0)]
+                + 2.0 * std::f64::consts::TAU.ln());
+        let k = p_pred * s_inv;
+        let i_k = Mat2::identity() - k;
+        // Joseph form: stays symmetric positive definite
+        let cov = i_k * p_pred * i_k.transpose() + k * r * k.transpose();
+        predicted.push((m, p_pred));
+        filtered.push((m + k * nu, 0.5 * (cov + cov.transpose())));
+    }
+    Some(KalmanPass {
+        predicted,
+        filtered,
+        log_likelihood,
+    })
+}
+
+/// Candidate relative changes per frame of [`estimate_time_noise`]: 0 and 0.1 % … 100 % on a
+/// log grid of 10 steps per decade.
+fn noise_grid() -> Vec<f64> {
+    std::iter::once(0.0)
+        .chain((0..=30u32).map(|k| 10f64.powf(-3.0 + f64::from(k) / 10.0)))
+        .collect()
+}
+
+/// The process noise q = [q_d, q_w] of [`smooth_in_time`] that maximizes the marginal
+/// likelihood of the measured frames (type-II maximum likelihood, the Kalman filter's innovation
+/// likelihood summed over `runs`; each run's first frame starts it diffusely), searched over a
+/// log grid of relative changes per frame (0 and 0.1 % … 100 %, 10 steps per decade). A wrinkle
+/// whose width is constant gets q_w = 0 (every frame of a run shares one width); one whose depth
+/// jumps (appearing over a few frames) gets a large q_d and its depth is left to its frames.
+/// Runs of one frame carry no information on q; with none longer, the result is `[∞, ∞]` (no
+/// smoothing).
+pub fn estimate_time_noise(runs: &[Vec<FrameEstimate>]) -> [f64; 2] {
+    if runs.iter().all(|r| r.len() < 2) {
+        return [f64::INFINITY; 2];
+    }
+    let grid = noise_grid();
+    let mut best = (f64::NEG_INFINITY, [f64::INFINITY; 2]);
+    for &qd in &grid {
+        for &qw in &grid {
+            let ll: Option<f64> = runs
+                .iter()
+                .filter(|r| r.len() >= 2)
+                .map(|r| kalman_pass(r, [qd, qw]).map(|p| p.log_likelihood))
+                .sum();
+            if let Some(ll) = ll
+                && ll > best.0
+            {
+                best = (ll, [qd, qw]);
+            }
+        }
+    }
+    best.1
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// Frames of log-space estimates (ln d, ln w) with one log covariance [r_dd, r_dw, r_ww].
+    fn frames_of(logs: &[[f64; 2]], r: [f64; 3]) -> Vec<FrameEstimate> {
+        logs.iter()
+            .map(|&[ld, lw]| {
+                let (d, w) = (ld.exp(), lw.exp());
+                FrameEstimate {
+                    depth_px: d,
+                    width_px: w,
+                    cov_px2: [r[0] * d * d, r[1] * d * w, r[2] * w * w],
+                }
+            })
+            .collect()
+    }
+
     #[test]
     fn smoothing_a_constant_width_pools_the_frames() {
-        // five frames of one width, equal variances, no drift: w̃ is the mean, its variance /5,
-        // and d moves by β (w̃ − ŵ) with β = C_dw / C_ww
-        let ws = [4.8, 5.3, 5.0, 4.9, 5.0];
-        let frames: Vec<FrameEstimate> = ws
-            .iter()
-            .map(|&w| FrameEstimate {
-                depth_px: 1.0,
-                width_px: w,
-                cov_px2: [0.01, 0.02, 0.04],
-            })
-            .collect();
-        let out = smooth_in_time(&frames, 0.0);
-        for (f, o) in frames.iter().zip(&out) {
-            assert!((o.width_px - 5.0).abs() < 1e-12, "{o:?}");
-            assert!((o.cov_px2[2] - 0.04 / 5.0).abs() < 1e-12);
-            assert!((o.depth_px - (1.0 + 0.5 * (5.0 - f.width_px))).abs() < 1e-12);
+        // five frames, equal log covariances, w constant (q_w = 0), d free: ln w̃ is the mean of
+        // ln ŵ, its variance r_ww/5, and ln d moves by β (ln w̃ − ln ŵ) with β = r_dw / r_ww
+        let lw = [0.1, -0.05, 0.02, 0.0, -0.07];
+        let logs: Vec<[f64; 2]> = lw.iter().map(|&w| [0.3, 5f64.ln() + w]).collect();
+        let r = [0.01, 0.006, 0.004];
+        let frames = frames_of(&logs, r);
+        let out = smooth_in_time(&frames, [1e6, 0.0]);
+        let mean = 5f64.ln() + lw.iter().sum::<f64>() / 5.0;
+        for (l, o) in logs.iter().zip(&out) {
+            assert!((o.width_px.ln() - mean).abs() < 1e-9, "{o:?}");
+            assert!((o.cov_px2[2] / (o.width_px * o.width_px) - r[2] / 5.0).abs() < 1e-9);
+            let expect = l[0] + (r[1] / r[2]) * (mean - l[1]);
+            assert!((o.depth_px.ln() - expect).abs() < 1e-6, "{o:?}");
         }
         // a large drift leaves every frame alone
-        let free = smooth_in_time(&frames, 1e6);
+        let free = smooth_in_time(&frames, [1e6, 1e6]);
         for (f, o) in frames.iter().zip(&free) {
-            assert!((o.width_px - f.width_px).abs() < 1e-9);
+            assert!((o.width_px / f.width_px - 1.0).abs() < 1e-9);
+            assert!((o.depth_px / f.depth_px - 1.0).abs() < 1e-9);
         }
+    }
+
+    #[test]
+    fn the_time_noise_estimate_recovers_the_simulated_drift() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut normal = || {
+            let u1: f64 = rng.random::<f64>().max(1e-300);
+            let u2: f64 = rng.random();
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        // 4 runs of 60 frames: ln w walks with 3 % per frame, ln d is constant; measurement
+        // noise 4 % (d) and 5 % (w), correlated 0.6
+        let r = [0.04f64.powi(2), 0.6 * 0.04 * 0.05, 0.05f64.powi(2)];
+        let (a, b) = (0.04, 0.05 * 0.8); // Cholesky factor rows: [a, 0], [0.6·σ_w, b]
+        let runs: Vec<Vec<FrameEstimate>> = (0..4)
+            .map(|_| {
+                let mut lw = 5f64.ln();
+                let logs: Vec<[f64; 2]> = (0..60)
+                    .map(|_| {
+                        lw += 0.03 * normal();
+                        let (e1, e2) = (normal(), normal());
+                        [0.7 + a * e1, lw + 0.6 * 0.05 * e1 + b * e2]
+                    })
+                    .collect();
+                frames_of(&logs, r)
+            })
+            .collect();
+        let [qd, qw] = estimate_time_noise(&runs);
+        assert!(qd <= 0.01, "q_d {qd}");
+        assert!((0.02..=0.045).contains(&qw), "q_w {qw}");
     }
 
     #[test]

@@ -12,6 +12,12 @@
 //!   disappears at 75 % (its depth ramps over [`TakeSynthSettings::ramp_frames`] frames; the paint
 //!   is always there).
 //!
+//! With [`TakeMotion::Varying`] (`synth-take --motion varying`) the take is made differently:
+//! both wrinkles change depth AND width over time at their own rates (wrinkle 0: d × 0.7–1.0 at
+//! 1.3 cycles per take, w × 0.8–1.2 at 0.8 cycles; wrinkle 1: d × 0.75–1.25 at 2 cycles, w ×
+//! 0.7–1.3 at 1.7 cycles, up to 5 % per frame at 60 frames) and wrinkle 1 appears at 20 % and
+//! disappears at 70 % of the take.
+//!
 //! Each camera's image of a frame is the Monte-Carlo ambient-occlusion render
 //! ([`render_ambient_occlusion`]) of a [`CompositeScene`]: the wrinkles as height fields in the
 //! image plane, placed at the projection of the animated anchor vertex and scaled by the camera's
@@ -52,6 +58,21 @@ pub struct TakeSynthSettings {
     pub ramp_frames: usize,
     /// Renderer settings (rays, noise, seed; each frame and camera derives its own seed).
     pub render: AoRenderSettings,
+    /// How the wrinkles' depth and width change over the take.
+    pub motion: TakeMotion,
+}
+
+/// How the wrinkles of a rendered take change over time (module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum TakeMotion {
+    /// Constant widths; wrinkle 0 deepens and relaxes, wrinkle 1 appears at 25 % and disappears
+    /// at 75 % of the take.
+    #[default]
+    Steady,
+    /// Depth and width of both wrinkles vary at different rates; wrinkle 1 appears at 20 % and
+    /// disappears at 70 % of the take.
+    Varying,
 }
 
 impl Default for TakeSynthSettings {
@@ -66,6 +87,7 @@ impl Default for TakeSynthSettings {
                 rays_per_axis: 12,
                 ..Default::default()
             },
+            motion: TakeMotion::Steady,
         }
     }
 }
@@ -109,18 +131,34 @@ const WRINKLES: [ForeheadWrinkle; 2] = [
     },
 ];
 
-/// Depth multiplier of wrinkle `k` at frame `t` of `n`: wrinkle 0 deepens and relaxes
-/// (0.8–1.0), wrinkle 1 ramps in at n/4 and out at 3n/4 over `ramp` frames.
+/// Depth multiplier of wrinkle `k` at frame `t` of `n` for [`TakeMotion::Steady`]: wrinkle 0
+/// deepens and relaxes (0.8–1.0), wrinkle 1 ramps in at n/4 and out at 3n/4 over `ramp` frames.
 pub fn depth_factor(k: usize, t: usize, n: usize, ramp: usize) -> f64 {
-    let phase = std::f64::consts::TAU * t as f64 / n.max(1) as f64;
-    if k == 0 {
-        return 0.9 - 0.1 * phase.cos();
+    profile_factors(TakeMotion::Steady, k, t, n, ramp)[0]
+}
+
+/// (depth, width) multipliers of wrinkle `k` at frame `t` of `n` (module docs); an appearing or
+/// disappearing wrinkle's depth ramps over `ramp` frames.
+pub fn profile_factors(motion: TakeMotion, k: usize, t: usize, n: usize, ramp: usize) -> [f64; 2] {
+    let cycles = |c: f64| std::f64::consts::TAU * c * t as f64 / n.max(1) as f64;
+    let ramp_in_out = |on: usize, off: usize| {
+        let r = ramp.max(1) as f64;
+        let up = ((t as f64 - on as f64 + 1.0) / r).clamp(0.0, 1.0);
+        let down = ((off as f64 - t as f64) / r).clamp(0.0, 1.0);
+        up.min(down)
+    };
+    match (motion, k) {
+        (TakeMotion::Steady, 0) => [0.9 - 0.1 * cycles(1.0).cos(), 1.0],
+        (TakeMotion::Steady, _) => [ramp_in_out(n / 4, (3 * n) / 4), 1.0],
+        (TakeMotion::Varying, 0) => [
+            0.85 + 0.15 * cycles(1.3).sin(),
+            1.0 + 0.2 * (cycles(0.8) + 1.0).sin(),
+        ],
+        (TakeMotion::Varying, _) => [
+            ramp_in_out(n / 5, (7 * n) / 10) * (1.0 + 0.25 * cycles(2.0).sin()),
+            1.0 + 0.3 * cycles(1.7).cos(),
+        ],
     }
-    let (on, off) = (n / 4, (3 * n) / 4);
-    let r = ramp.max(1) as f64;
-    let up = ((t as f64 - on as f64 + 1.0) / r).clamp(0.0, 1.0);
-    let down = ((off as f64 - t as f64) / r).clamp(0.0, 1.0);
-    up.min(down)
 }
 
 /// Slide of wrinkle `k` along the skin at frame `t` of `n` (cm, x right / y up).
@@ -223,6 +261,7 @@ fn frame_scene(
             // valley top at (sx, top + sy) cm; image rows grow downwards
             let top = [a[0] + s * sx, a[1] - s * (w.top_cm + sy)];
             let half = 0.5 * w.length_cm / w.radius_cm;
+            let [fd, fw] = profile_factors(settings.motion, k, t, n, settings.ramp_frames);
             WrinkleScene {
                 width_px: settings.width_px,
                 height_px: settings.height_px,
@@ -233,8 +272,8 @@ fn frame_scene(
                     -std::f64::consts::FRAC_PI_2 + half,
                 ],
                 taper_px: 0.3 * s,
-                width_w_px: s * w.width_cm,
-                depth_d_px: s * w.depth_cm * depth_factor(k, t, n, settings.ramp_frames),
+                width_w_px: s * w.width_cm * fw,
+                depth_d_px: s * w.depth_cm * fd,
                 paint_half_width_px: 0.35 * s,
                 ..base.clone()
             }

@@ -14,7 +14,7 @@ use crate::classify::{SvmSettings, classify_frames};
 use crate::error::Result;
 use crate::image::RgbImage;
 use crate::morphology::{close, connected_components, dilate, open};
-use crate::pooled::{FrameEstimate, MIN_WIDTH_PX, smooth_in_time};
+use crate::pooled::{FrameEstimate, MIN_WIDTH_PX, estimate_time_noise, smooth_in_time};
 use crate::track::{TrackSettings, TrackedWrinkle, track_wrinkle};
 
 /// Settings of [`track_video`].
@@ -42,12 +42,13 @@ pub struct VideoTrackSettings {
     pub visible_depth_ratio: f64,
     /// … and at least this many cross-sections converged.
     pub min_sections: usize,
-    /// Smooth each wrinkle's pooled width over runs of consecutive visible frames
+    /// Smooth each wrinkle's pooled (d, w) over runs of consecutive visible frames
     /// ([`smooth_in_time`]; needs [`TrackSettings::pool`](crate::track::TrackSettings::pool)).
     pub smooth_in_time: bool,
-    /// The width's relative change per frame the smoother allows (standard deviation of its
-    /// random walk).
-    pub width_drift_per_frame: f64,
+    /// The relative change per frame [d, w] the smoother allows (standard deviations of the
+    /// random walks of ln d, ln w); `None`: estimated per wrinkle and camera from its frames by
+    /// maximum marginal likelihood ([`estimate_time_noise`]).
+    pub drift_per_frame: Option<[f64; 2]>,
 }
 
 impl Default for VideoTrackSettings {
@@ -64,7 +65,7 @@ impl Default for VideoTrackSettings {
             visible_depth_ratio: 0.1,
             min_sections: 3,
             smooth_in_time: true,
-            width_drift_per_frame: 0.02,
+            drift_per_frame: None,
         }
     }
 }
@@ -216,7 +217,7 @@ pub fn track_video(
         on_frame();
     }
     if settings.smooth_in_time {
-        smooth_widths(&mut out, settings.width_drift_per_frame);
+        smooth_profiles(&mut out, settings.drift_per_frame);
     }
     Ok(out)
 }
@@ -229,23 +230,39 @@ fn estimate(fw: &FrameWrinkle) -> Option<FrameEstimate> {
     FrameEstimate::of(fw.tracked.as_ref()?.profile.as_ref()?)
 }
 
+/// The runs of consecutive frames in which wrinkle `k` is visible with a pooled profile: (first
+/// frame, estimates).
+fn visible_runs(frames: &[Vec<FrameWrinkle>], k: usize) -> Vec<(usize, Vec<FrameEstimate>)> {
+    let mut runs = Vec::new();
+    let mut t = 0;
+    while t < frames.len() {
+        let run: Vec<FrameEstimate> = frames[t..]
+            .iter()
+            .map_while(|row| row.get(k).and_then(estimate))
+            .collect();
+        if run.is_empty() {
+            t += 1;
+        } else {
+            t += run.len();
+            runs.push((t - run.len(), run));
+        }
+    }
+    runs
+}
+
 /// [`smooth_in_time`] over every run of consecutive frames in which a wrinkle is visible with a
-/// pooled profile: the profile takes the smoothed (d, w) and covariance, every cross-section is
-/// shifted by the same change of d and w.
-fn smooth_widths(frames: &mut [Vec<FrameWrinkle>], drift: f64) {
+/// pooled profile, with the wrinkle's process noise `drift` or, when `None`, the one its runs
+/// make most likely ([`estimate_time_noise`]): the profile takes the smoothed (d, w) and
+/// covariance, every cross-section is shifted by the same change of d and w.
+fn smooth_profiles(frames: &mut [Vec<FrameWrinkle>], drift: Option<[f64; 2]>) {
     let n_wrinkles = frames.first().map_or(0, Vec::len);
     for k in 0..n_wrinkles {
-        let mut t = 0;
-        while t < frames.len() {
-            let run: Vec<FrameEstimate> = frames[t..]
-                .iter()
-                .map_while(|row| row.get(k).and_then(estimate))
-                .collect();
-            if run.is_empty() {
-                t += 1;
-                continue;
-            }
-            let smoothed = smooth_in_time(&run, drift);
+        let runs = visible_runs(frames, k);
+        let q = drift.unwrap_or_else(|| {
+            estimate_time_noise(&runs.iter().map(|(_, r)| r.clone()).collect::<Vec<_>>())
+        });
+        for (t, run) in &runs {
+            let smoothed = smooth_in_time(run, q);
             for (i, (old, new)) in run.iter().zip(&smoothed).enumerate() {
                 let Some(tw) = frames[t + i][k].tracked.as_mut() else {
                     continue;
@@ -263,7 +280,6 @@ fn smooth_widths(frames: &mut [Vec<FrameWrinkle>], drift: f64) {
                     p.depth_width_cov_px2 = new.cov_px2[1];
                 }
             }
-            t += run.len();
         }
     }
 }
