@@ -16,12 +16,16 @@ use std::path::PathBuf;
 
 use softcap_face::take::read_png;
 use softcap_face::take_synth::TakeTruth;
-use softcap_face::{AoRenderSettings, AoSurface, TrackSettings, render_ambient_occlusion, track_wrinkle};
+use softcap_face::{
+    AoRenderSettings, AoSurface, TrackSettings, render_ambient_occlusion, track_wrinkle,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 4 {
-        return Err("usage: take_floor TAKE_DIR CAMERA FRAME WRINKLE [RENDERS] [RAYS_PER_AXIS]".into());
+        return Err(
+            "usage: take_floor TAKE_DIR CAMERA FRAME WRINKLE [RENDERS] [RAYS_PER_AXIS]".into(),
+        );
     }
     let take = PathBuf::from(&args[0]);
     let (frame, k): (usize, usize) = (args[2].parse()?, args[3].parse()?);
@@ -61,13 +65,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ..Default::default()
         };
         let png = dir.join(format!("{r}.png"));
-        render_ambient_occlusion(scene, &render).image.write_png(&png)?;
+        render_ambient_occlusion(scene, &render)
+            .image
+            .write_png(&png)?;
         let image = read_png(&png, w as u32, h as u32)?;
         let t = track_wrinkle(&image, &patch, &settings)?;
         let p = t.profile.ok_or("no pooled profile")?;
-        let cond = (p.depth_sigma_px.powi(2) - p.depth_width_cov_px2.powi(2) / p.width_sigma_px.powi(2))
-            .max(0.0)
-            .sqrt();
+        let cond = (p.depth_sigma_px.powi(2)
+            - p.depth_width_cov_px2.powi(2) / p.width_sigma_px.powi(2))
+        .max(0.0)
+        .sqrt();
         println!(
             "  seed {}: d {:+.2} %, w {:+.2} %; σ_d {:.2} %, σ_w {:.2} %, σ_d|w {:.2} %",
             1000 + r,

@@ -14,9 +14,9 @@
 //!
 //! With [`TakeMotion::Varying`] (`synth-take --motion varying`) the take is made differently:
 //! both wrinkles change depth AND width over time at their own rates (wrinkle 0: d × 0.7–1.0 at
-//! 1.3 cycles per take, w × 0.8–1.2 at 0.8 cycles; wrinkle 1: d × 0.75–1.25 at 2 cycles, w ×
-//! 0.7–1.3 at 1.7 cycles, up to 5 % per frame at 60 frames) and wrinkle 1 appears at 20 % and
-//! disappears at 70 % of the take.
+//! 1.3 cycles per 60 frames, w × 0.8–1.2 at 0.8 cycles; wrinkle 1: d × 0.75–1.25 at 2 cycles,
+//! w × 0.7–1.3 at 1.7 cycles, up to 5 % per frame) and wrinkle 1 appears at 20 % and disappears
+//! at 70 % of the take.
 //!
 //! Each camera's image of a frame is the Monte-Carlo ambient-occlusion render
 //! ([`render_ambient_occlusion`]) of a [`CompositeScene`]: the wrinkles as height fields in the
@@ -141,6 +141,8 @@ pub fn depth_factor(k: usize, t: usize, n: usize, ramp: usize) -> f64 {
 /// disappearing wrinkle's depth ramps over `ramp` frames.
 pub fn profile_factors(motion: TakeMotion, k: usize, t: usize, n: usize, ramp: usize) -> [f64; 2] {
     let cycles = |c: f64| std::f64::consts::TAU * c * t as f64 / n.max(1) as f64;
+    // the varying take's rates are per 60 frames, so a shorter take is the start of the long one
+    let per_60 = |c: f64| std::f64::consts::TAU * c * t as f64 / 60.0;
     let ramp_in_out = |on: usize, off: usize| {
         let r = ramp.max(1) as f64;
         let up = ((t as f64 - on as f64 + 1.0) / r).clamp(0.0, 1.0);
@@ -151,12 +153,12 @@ pub fn profile_factors(motion: TakeMotion, k: usize, t: usize, n: usize, ramp: u
         (TakeMotion::Steady, 0) => [0.9 - 0.1 * cycles(1.0).cos(), 1.0],
         (TakeMotion::Steady, _) => [ramp_in_out(n / 4, (3 * n) / 4), 1.0],
         (TakeMotion::Varying, 0) => [
-            0.85 + 0.15 * cycles(1.3).sin(),
-            1.0 + 0.2 * (cycles(0.8) + 1.0).sin(),
+            0.85 + 0.15 * per_60(1.3).sin(),
+            1.0 + 0.2 * (per_60(0.8) + 1.0).sin(),
         ],
         (TakeMotion::Varying, _) => [
-            ramp_in_out(n / 5, (7 * n) / 10) * (1.0 + 0.25 * cycles(2.0).sin()),
-            1.0 + 0.3 * cycles(1.7).cos(),
+            ramp_in_out(n / 5, (7 * n) / 10) * (1.0 + 0.25 * per_60(2.0).sin()),
+            1.0 + 0.3 * per_60(1.7).cos(),
         ],
     }
 }

@@ -20,7 +20,7 @@ use crate::image::RgbImage;
 use crate::output::{FrameWrinkles, WrinkleInput};
 use crate::synth::{PinholeCamera, ProjectedWrinkle, WrinkleCurve, WrinkleSample, project_wrinkle};
 use crate::take::{Take, face_camera, ideal_pixel, read_png};
-use crate::video::{FrameWrinkle, VideoTrackSettings, WrinkleStatus, track_video};
+use crate::video::{FrameWrinkle, VideoTrackSettings, WrinkleStatus, smooth_profiles, track_video};
 
 /// One camera's track of a take.
 #[derive(Clone, Debug)]
@@ -89,9 +89,26 @@ pub fn track_take(
     let verts: Vec<Vec<Vector3<f64>>> = (0..n)
         .map(|t| animator.frame(&take.mocap.positions_cm[t]))
         .collect::<Result<_>>()?;
+    // every camera's wrinkles, then their (d, w) smoothed in time with one process noise per
+    // wrinkle estimated from all cameras
+    let per_camera = VideoTrackSettings {
+        smooth_in_time: false,
+        ..*settings
+    };
+    let mut tracked: Vec<Vec<Vec<FrameWrinkle>>> = take
+        .cameras
+        .iter()
+        .zip(&decoded)
+        .map(|(_, (mask, frames))| track_video(mask, frames, &per_camera, progress))
+        .collect::<Result<_>>()?;
+    if settings.smooth_in_time {
+        smooth_profiles(
+            &mut tracked.iter_mut().collect::<Vec<_>>(),
+            settings.drift_per_frame,
+        );
+    }
     let mut out = Vec::new();
-    for (cam, (mask, frames)) in take.cameras.iter().zip(&decoded) {
-        let tracked = track_video(mask, frames, settings, progress)?;
+    for (cam, tracked) in take.cameras.iter().zip(tracked) {
         let pin = face_camera(&cam.camera, face_from_mocap);
         let projected = tracked
             .iter()

@@ -217,7 +217,7 @@ pub fn track_video(
         on_frame();
     }
     if settings.smooth_in_time {
-        smooth_profiles(&mut out, settings.drift_per_frame);
+        smooth_profiles(&mut [&mut out], settings.drift_per_frame);
     }
     Ok(out)
 }
@@ -251,33 +251,45 @@ fn visible_runs(frames: &[Vec<FrameWrinkle>], k: usize) -> Vec<(usize, Vec<Frame
 }
 
 /// [`smooth_in_time`] over every run of consecutive frames in which a wrinkle is visible with a
-/// pooled profile, with the wrinkle's process noise `drift` or, when `None`, the one its runs
-/// make most likely ([`estimate_time_noise`]): the profile takes the smoothed (d, w) and
-/// covariance, every cross-section is shifted by the same change of d and w.
-fn smooth_profiles(frames: &mut [Vec<FrameWrinkle>], drift: Option<[f64; 2]>) {
-    let n_wrinkles = frames.first().map_or(0, Vec::len);
+/// pooled profile, in every camera of `cameras` (each `[frame][wrinkle]` as [`track_video`]
+/// returns them), with the process noise `drift` or, when `None`, the one that makes the
+/// wrinkle's runs in all cameras most likely ([`estimate_time_noise`]; its relative changes per
+/// frame are the same in every camera, wrinkle k being the same label patch in each): the
+/// profile takes the smoothed (d, w) and covariance, every cross-section is shifted by the same
+/// change of d and w.
+pub fn smooth_profiles(cameras: &mut [&mut Vec<Vec<FrameWrinkle>>], drift: Option<[f64; 2]>) {
+    let n_wrinkles = cameras
+        .iter()
+        .map(|c| c.first().map_or(0, Vec::len))
+        .max()
+        .unwrap_or(0);
     for k in 0..n_wrinkles {
-        let runs = visible_runs(frames, k);
+        let runs: Vec<Vec<(usize, Vec<FrameEstimate>)>> =
+            cameras.iter().map(|c| visible_runs(c, k)).collect();
         let q = drift.unwrap_or_else(|| {
-            estimate_time_noise(&runs.iter().map(|(_, r)| r.clone()).collect::<Vec<_>>())
+            let all: Vec<Vec<FrameEstimate>> =
+                runs.iter().flatten().map(|(_, r)| r.clone()).collect();
+            estimate_time_noise(&all)
         });
-        for (t, run) in &runs {
-            let smoothed = smooth_in_time(run, q);
-            for (i, (old, new)) in run.iter().zip(&smoothed).enumerate() {
-                let Some(tw) = frames[t + i][k].tracked.as_mut() else {
-                    continue;
-                };
-                let (dd, dw) = (new.depth_px - old.depth_px, new.width_px - old.width_px);
-                for s in &mut tw.sections {
-                    s.depth_px = (s.depth_px + dd).max(0.0);
-                    s.width_px = (s.width_px + dw).max(MIN_WIDTH_PX);
-                }
-                if let Some(p) = tw.profile.as_mut() {
-                    p.depth_px = new.depth_px;
-                    p.width_px = new.width_px;
-                    p.depth_sigma_px = new.cov_px2[0].max(0.0).sqrt();
-                    p.width_sigma_px = new.cov_px2[2].max(0.0).sqrt();
-                    p.depth_width_cov_px2 = new.cov_px2[1];
+        for (frames, runs) in cameras.iter_mut().zip(&runs) {
+            for (t, run) in runs {
+                let smoothed = smooth_in_time(run, q);
+                for (i, (old, new)) in run.iter().zip(&smoothed).enumerate() {
+                    let Some(tw) = frames[t + i][k].tracked.as_mut() else {
+                        continue;
+                    };
+                    let (dd, dw) = (new.depth_px - old.depth_px, new.width_px - old.width_px);
+                    for s in &mut tw.sections {
+                        s.depth_px = (s.depth_px + dd).max(0.0);
+                        s.width_px = (s.width_px + dw).max(MIN_WIDTH_PX);
+                    }
+                    if let Some(p) = tw.profile.as_mut() {
+                        p.depth_px = new.depth_px;
+                        p.width_px = new.width_px;
+                        p.depth_sigma_px = new.cov_px2[0].max(0.0).sqrt();
+                        p.width_sigma_px = new.cov_px2[2].max(0.0).sqrt();
+                        p.depth_width_cov_px2 = new.cov_px2[1];
+                    }
                 }
             }
         }
