@@ -11,6 +11,7 @@
 //! A reader may reject its input (an `Err`); it must never panic, hang or allocate without bound.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use softcap_app::{Error, Result};
 
@@ -281,10 +282,22 @@ fn interactions_csv(dir: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// `robot.csv` against the tool and F/T chains of fixtures/robot/arm.urdf, as `RobotRig::load`
+/// reads it; the URDF is fixed, so it is parsed once per process (the `urdf` target fuzzes it).
 fn robot_csv(dir: &Path, bytes: &[u8]) -> Result<()> {
-    let urdf = put(dir, "arm.urdf", ARM_URDF)?;
+    use softcap_capture::robot::KinematicChain;
+    static CHAINS: OnceLock<[KinematicChain; 2]> = OnceLock::new();
+    let chains = match CHAINS.get() {
+        Some(chains) => chains,
+        None => {
+            let urdf = put(dir, "arm.urdf", ARM_URDF)?;
+            let model = softcap_capture::RobotModel::from_urdf(&urdf)?;
+            let chains = [model.chain("probe_tip")?, model.chain("ft_sensor")?];
+            CHAINS.get_or_init(|| chains)
+        }
+    };
     let path = put(dir, "robot.csv", bytes)?;
-    softcap_capture::RobotRig::load(&urdf, &path, "probe_tip", "ft_sensor", 1e-3)?;
+    softcap_capture::robot::read_robot_csv(&path, &[&chains[0], &chains[1]], 1e-3)?;
     Ok(())
 }
 
@@ -313,15 +326,23 @@ fn aniposelib_toml(dir: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// aniposelib labeled points: CSV, or `.npz` when the bytes are a zip archive.
+/// The calibration is fixed, so it is read once per process (`aniposelib_toml` fuzzes it).
 fn aniposelib_points(dir: &Path, bytes: &[u8]) -> Result<()> {
-    let calibration = put(dir, "calibration.toml", ANIPOSE_CALIBRATION)?;
-    let cameras = softcap_capture::read_aniposelib_calibration(&calibration, 1e-3)?;
+    static CAMERAS: OnceLock<Vec<softcap_capture::Camera>> = OnceLock::new();
+    let cameras = match CAMERAS.get() {
+        Some(cameras) => cameras,
+        None => {
+            let calibration = put(dir, "calibration.toml", ANIPOSE_CALIBRATION)?;
+            let cameras = softcap_capture::read_aniposelib_calibration(&calibration, 1e-3)?;
+            CAMERAS.get_or_init(|| cameras)
+        }
+    };
     if bytes.starts_with(b"PK") {
         let path = put(dir, "points.npz", bytes)?;
-        softcap_capture::read_npz_points(&path, &cameras)?;
+        softcap_capture::read_npz_points(&path, cameras)?;
     } else {
         let path = put(dir, "points.csv", bytes)?;
-        softcap_capture::read_labeled_points(&path, &cameras)?;
+        softcap_capture::read_labeled_points(&path, cameras)?;
     }
     Ok(())
 }
@@ -430,11 +451,6 @@ fn reshape_target(dir: &Path, bytes: &[u8]) -> Result<()> {
 
 fn reshape_landmarks(dir: &Path, bytes: &[u8]) -> Result<()> {
     let (template, target) = reshape_folder(dir)?;
-    put(
-        &target,
-        "target.toml",
-        b"length_unit = \"mm\"\nfree_flying = true\n",
-    )?;
     put(&target, "landmarks.csv", bytes)?;
     softcap_tissue::reshape::target::load_target(&template, &target)?;
     Ok(())

@@ -139,6 +139,52 @@ fn drop_empty_parameters(bytes: &[u8]) -> Option<Vec<u8>> {
     Some(fixed)
 }
 
+/// Caps the header's frame range (words 4 and 5) at the frames the file's bytes can hold.
+///
+/// `c3dio` 0.8 allocates a `frames × markers` grid from the header alone, before it looks at the
+/// parameters or the data, and then takes the frame count from POINT:FRAMES and the data, not
+/// from the header: a 6 kB file declaring 1,149 frames of 41,782 markers made it allocate 1.2 GB
+/// (found by the `c3d` fuzz target). Real headers are not always consistent (the ezc3d Optotrak
+/// take declares 1,149 frames and holds 29), so the range is capped, not refused: a point takes
+/// at least 8 bytes (four 16-bit words), so the file holds at most `len / (8 · markers)` frames.
+fn cap_header_frames(bytes: &mut [u8]) {
+    let Some(start) = bytes
+        .first()
+        .and_then(|&b| (b as usize).checked_sub(1))
+        .map(|b| b * 512)
+    else {
+        return;
+    };
+    let (Some(&processor), true) = (bytes.get(start + 3), bytes.len() >= 512) else {
+        return;
+    };
+    let big_endian = processor == 86; // 84 Intel, 85 DEC, 86 MIPS
+    let word = |i: usize| {
+        let b = [bytes[2 * i], bytes[2 * i + 1]];
+        if big_endian {
+            u16::from_be_bytes(b)
+        } else {
+            u16::from_le_bytes(b)
+        }
+    };
+    let (markers, first, last) = (word(1) as usize, word(3), word(4));
+    if markers == 0 {
+        return;
+    }
+    let max_frames = (bytes.len() / (8 * markers)).clamp(1, 1 << 16);
+    let frames = last.wrapping_sub(first).wrapping_add(1) as usize; // as c3dio counts them
+    if last >= first && frames <= max_frames {
+        return;
+    }
+    let capped = first.saturating_add((max_frames - 1) as u16);
+    let b = if big_endian {
+        capped.to_be_bytes()
+    } else {
+        capped.to_le_bytes()
+    };
+    bytes[8..10].copy_from_slice(&b);
+}
+
 /// Reads a C3D take: POINT trajectories (converted to metres) and ANALOG channels.
 pub fn read_c3d(path: &Path) -> Result<C3dTake> {
     let format = |message: String| CaptureError::Format {
@@ -155,7 +201,8 @@ pub fn read_c3d(path: &Path) -> Result<C3dTake> {
         path: path.to_path_buf(),
         source,
     })?;
-    let bytes = drop_empty_parameters(&bytes).unwrap_or(bytes);
+    let mut bytes = drop_empty_parameters(&bytes).unwrap_or(bytes);
+    cap_header_frames(&mut bytes);
     // c3dio 0.8 panics on some corrupt parameter sections (an integer negation overflow, found
     // by the `c3d` fuzz target); a panic inside it is a bad file, not a bug here.
     let parsed = std::panic::catch_unwind(|| {

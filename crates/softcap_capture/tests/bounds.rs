@@ -103,3 +103,23 @@ fn a_c3d_claiming_more_frames_than_it_holds_is_refused() {
         Err(e) => assert_eq!(softcap_app::Error::from(e).exit_code(), 2),
     }
 }
+
+/// A C3D header declaring 65,535 frames of 65,535 markers in a 28 kB file: `c3dio` sizes a grid
+/// from the header before it reads anything else (about 100 GB here); `read_c3d` caps the
+/// header's frame range at what the file's bytes can hold first (found by the `c3d` fuzz target).
+#[test]
+fn a_c3d_header_declaring_a_huge_marker_grid_allocates_nothing_for_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let src =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/c3d/Optotrak.c3d");
+    let mut bytes = std::fs::read(src).unwrap();
+    // Header words 2, 4 and 5 (1-based): markers, first and last frame (u16, little-endian here).
+    bytes[2..4].copy_from_slice(&u16::MAX.to_le_bytes());
+    bytes[6..8].copy_from_slice(&1u16.to_le_bytes());
+    bytes[8..10].copy_from_slice(&u16::MAX.to_le_bytes());
+    let p = dir.path().join("take.c3d");
+    std::fs::write(&p, &bytes).unwrap();
+    if let Err(e) = read_c3d(&p) {
+        assert_eq!(softcap_app::Error::from(e).exit_code(), 2);
+    }
+}

@@ -507,11 +507,37 @@ fn check_record_lengths(path: &Path, bytes: &[u8]) -> Result<()> {
                 reader.notify_read(n);
                 offset += n;
             }
-            Ok(LinearReadEvent::Record { .. }) => {}
+            Ok(LinearReadEvent::Record { opcode, data }) => {
+                if opcode == mcap::records::op::ATTACHMENT && !attachment_holds_its_crc(data) {
+                    return Err(Error::Corrupt {
+                        path: path.to_path_buf(),
+                        problem: "an attachment record ends before its CRC".into(),
+                    });
+                }
+            }
             Err(e) => return Err(classify(path.to_path_buf(), bytes.len() as u64, &e)),
         }
     }
     Ok(())
+}
+
+/// Whether an attachment record's body holds the 4-byte CRC after its header and data length.
+/// `mcap` 0.26's `parse_record` slices the body at `len - 4` without checking, so a body that
+/// ends inside the CRC made `Summary::read` panic (found by the `mcap_recording` fuzz target).
+/// A body too short for the header itself is `mcap`'s own (clean) error, so it passes here.
+fn attachment_holds_its_crc(body: &[u8]) -> bool {
+    // log_time u64, create_time u64, name (u32 length + bytes), media_type (the same), data_len u64
+    let u32_at = |i: usize| -> Option<usize> {
+        let b: [u8; 4] = body.get(i..i.checked_add(4)?)?.try_into().ok()?;
+        Some(u32::from_le_bytes(b) as usize)
+    };
+    let header_len = u32_at(16)
+        .and_then(|name| 20usize.checked_add(name))
+        .and_then(|at| Some(at + 4 + u32_at(at)? + 8));
+    match header_len {
+        Some(n) if n <= body.len() => body.len() - n >= 4,
+        _ => true,
+    }
 }
 
 /// Maps an `mcap` read error to a structured error naming the file.
