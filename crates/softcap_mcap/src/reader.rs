@@ -486,12 +486,33 @@ fn uncompressed_chunk_records(
 /// One pass over every record, the records inside chunks included, with each record's length
 /// limited to [`MAX_CHUNK_BYTES`] before anything is allocated for it. `mcap` 0.26's message stream
 /// (`ChunkFlattener`) sets no such limit, so a corrupt length inside a chunk made it reserve an
-/// impossible buffer and panic (found by the `mcap_recording` fuzz target).
+/// impossible buffer and panic (found by the `mcap_recording` fuzz target). Then the same pass
+/// from where the footer says the summary section starts, as `mcap::Summary::read` reads it: that
+/// offset need not fall on a record of the first pass.
 fn check_record_lengths(path: &Path, bytes: &[u8]) -> Result<()> {
+    check_records_from(path, bytes, 0)?;
+    // footer record (opcode, u64 length, summary_start u64, summary_offset_start u64, crc u32)
+    // and the end magic: 37 bytes at the end of the file
+    let footer = bytes.len().saturating_sub(37);
+    let summary_start = bytes
+        .get(footer + 9..footer + 17)
+        .and_then(|b| b.try_into().ok())
+        .map_or(0, u64::from_le_bytes);
+    if summary_start > 0 && summary_start < bytes.len() as u64 {
+        check_records_from(path, bytes, summary_start as usize)?;
+    }
+    Ok(())
+}
+
+/// The pass of [`check_record_lengths`] over the records from byte `start` (0: the file's start,
+/// magic included) to the footer.
+fn check_records_from(path: &Path, bytes: &[u8], start: usize) -> Result<()> {
     use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    let options = LinearReaderOptions::default().with_record_length_limit(MAX_CHUNK_BYTES as usize);
+    let options = LinearReaderOptions::default()
+        .with_record_length_limit(MAX_CHUNK_BYTES as usize)
+        .with_skip_start_magic(start > 0);
     let mut reader = LinearReader::new_with_options(options);
-    let mut offset = 0usize;
+    let mut offset = start;
     while let Some(event) = reader.next_event() {
         match event {
             Ok(LinearReadEvent::ReadRequest(_)) if offset == bytes.len() => {

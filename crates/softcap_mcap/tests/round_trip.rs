@@ -678,3 +678,19 @@ fn a_decompression_bomb_is_refused_as_bad_input() {
     const { assert!(softcap_mcap::MAX_CHUNK_BYTES < 1 << 40) };
     assert_eq!(softcap_app::Error::from(e).exit_code(), 2);
 }
+
+/// The MCAP inputs that made a reader panic under the fuzzer (`fuzz/regressions/mcap_*`) are
+/// corrupt-file errors: e.g. an attachment record in the summary section that ends inside its CRC.
+#[test]
+fn fuzz_regression_inputs_are_corrupt_file_errors() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/regressions");
+    for target in ["mcap_recording", "mcap_typed"] {
+        for entry in std::fs::read_dir(root.join(target)).unwrap() {
+            let path = entry.unwrap().path();
+            let bytes = std::fs::read(&path).unwrap();
+            let e = Recording::from_bytes(&path, bytes).unwrap_err();
+            let clean = matches!(e, Error::Corrupt { .. } | Error::Truncated { .. });
+            assert!(clean, "{}: {e}", path.display());
+        }
+    }
+}
