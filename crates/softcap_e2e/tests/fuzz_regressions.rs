@@ -37,18 +37,22 @@ fn inputs(kind: &str) -> Vec<(String, PathBuf)> {
     out
 }
 
-fn read(target: &str, file: &Path) -> softcap_app::Result<()> {
+/// Reads `file` as `target`'s input in `scratch`, the target's own folder (as under the fuzzer,
+/// where one process reads every input of one target: fixed companion files are written once).
+fn read(target: &str, file: &Path, scratch: &Path) -> softcap_app::Result<()> {
     let t = readers::target(target)
         .unwrap_or_else(|| panic!("{}: no fuzz target `{target}`", file.display()));
     let bytes = std::fs::read(file).unwrap();
-    let scratch = tempfile::tempdir().unwrap();
-    (t.read)(scratch.path(), &bytes)
+    let dir = scratch.join(target);
+    std::fs::create_dir_all(&dir).unwrap();
+    (t.read)(&dir, &bytes)
 }
 
 #[test]
 fn every_fuzz_crash_input_is_a_clean_bad_input_error() {
+    let scratch = tempfile::tempdir().unwrap();
     for (target, file) in inputs("regressions") {
-        match read(&target, &file) {
+        match read(&target, &file, scratch.path()) {
             Ok(()) => {}
             Err(e) => assert_eq!(
                 e.class(),
@@ -64,8 +68,9 @@ fn every_fuzz_crash_input_is_a_clean_bad_input_error() {
 #[test]
 fn the_minimized_fuzz_corpora_read_without_a_panic() {
     let inputs = inputs("corpus");
+    let scratch = tempfile::tempdir().unwrap();
     for (target, file) in &inputs {
-        let _ = read(target, file);
+        let _ = read(target, file, scratch.path());
     }
     for t in readers::TARGETS {
         assert!(
