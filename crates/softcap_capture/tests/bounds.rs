@@ -83,19 +83,28 @@ fn a_depth_png_larger_than_the_limit_is_refused_before_decoding() {
     assert!(m.contains("cannot decode"), "{m}");
 }
 
-/// A C3D header whose frame range promises far more frames than the file holds.
-#[test]
-fn a_c3d_claiming_more_frames_than_it_holds_is_refused() {
+/// fixtures/c3d/Optotrak.c3d with its header words (1-based index, u16, little-endian in this
+/// file) replaced, read with `read_c3d`.
+fn read_optotrak_with_header(
+    words: &[(usize, u16)],
+) -> softcap_capture::Result<softcap_capture::C3dTake> {
     let dir = tempfile::tempdir().unwrap();
     let src =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/c3d/Optotrak.c3d");
     let mut bytes = std::fs::read(src).unwrap();
-    // Header words 4 and 5 (1-based): first and last frame (u16, little-endian in this file).
-    bytes[8..10].copy_from_slice(&65_000u16.to_le_bytes());
-    bytes[6..8].copy_from_slice(&1u16.to_le_bytes());
+    for &(word, value) in words {
+        bytes[2 * (word - 1)..2 * word].copy_from_slice(&value.to_le_bytes());
+    }
     let p = dir.path().join("take.c3d");
     std::fs::write(&p, &bytes).unwrap();
-    match read_c3d(&p) {
+    read_c3d(&p)
+}
+
+/// A C3D header whose frame range promises far more frames than the file holds.
+#[test]
+fn a_c3d_claiming_more_frames_than_it_holds_is_refused() {
+    // words 4 and 5: first and last frame
+    match read_optotrak_with_header(&[(4, 1), (5, 65_000)]) {
         Ok(take) => assert!(
             take.positions_m.len() < 65_000,
             "frames beyond the file's data"
@@ -109,17 +118,8 @@ fn a_c3d_claiming_more_frames_than_it_holds_is_refused() {
 /// header's frame range at what the file's bytes can hold first (found by the `c3d` fuzz target).
 #[test]
 fn a_c3d_header_declaring_a_huge_marker_grid_allocates_nothing_for_it() {
-    let dir = tempfile::tempdir().unwrap();
-    let src =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/c3d/Optotrak.c3d");
-    let mut bytes = std::fs::read(src).unwrap();
-    // Header words 2, 4 and 5 (1-based): markers, first and last frame (u16, little-endian here).
-    bytes[2..4].copy_from_slice(&u16::MAX.to_le_bytes());
-    bytes[6..8].copy_from_slice(&1u16.to_le_bytes());
-    bytes[8..10].copy_from_slice(&u16::MAX.to_le_bytes());
-    let p = dir.path().join("take.c3d");
-    std::fs::write(&p, &bytes).unwrap();
-    if let Err(e) = read_c3d(&p) {
+    // words 2, 4 and 5: markers, first and last frame
+    if let Err(e) = read_optotrak_with_header(&[(2, u16::MAX), (4, 1), (5, u16::MAX)]) {
         assert_eq!(softcap_app::Error::from(e).exit_code(), 2);
     }
 }
