@@ -70,8 +70,8 @@ pub use mocap::{MocapTake, parse_animface_csv, read_animface_csv};
 pub use nalgebra;
 pub use output::{FaceFrame, FrameWrinkles, WrinkleInput, wrinkles_message, write_face_mcap};
 pub use pooled::{
-    FrameEstimate, PoolSettings, PooledFit, PooledProfile, SectionSamples, estimate_time_noise,
-    fit_pooled, smooth_in_time,
+    FrameEstimate, PoolSettings, PooledFit, PooledProfile, SectionSamples, TimeModel,
+    estimate_time_noise, fit_pooled, smooth_in_time,
 };
 pub use raster::{OrthoView, render_mesh, vertex_normals};
 pub use removal::{RemovalSettings, remove_wrinkles};

@@ -455,19 +455,41 @@ impl FrameEstimate {
     }
 }
 
+/// How one of ln d, ln w moves between frames in the smooth-in-time prior.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TimeModel {
+    /// Random walk: it changes by N(0, q²) per frame.
+    Walk(f64),
+    /// Integrated random walk (a local linear trend): its change per frame changes by N(0, q²)
+    /// per frame, so a steady widening or narrowing is followed without lag.
+    Trend(f64),
+}
+
+impl TimeModel {
+    /// (process noise of the value, of its rate, whether the rate moves the value).
+    fn noise(self) -> (f64, f64, f64) {
+        match self {
+            TimeModel::Walk(q) => (q * q, 0.0, 0.0),
+            TimeModel::Trend(q) => (0.0, q * q, 1.0),
+        }
+    }
+}
+
 /// A smooth-in-time prior on a wrinkle's profile over consecutive frames: ln d and ln w each
-/// follow a random walk, ln d_{t+1} = ln d_t + η_t, η_t ~ N(0, q_d²) (likewise w with q_w), so
-/// `q = [q_d, q_w]` is the relative change per frame the prior allows. Each frame's pooled
-/// estimate (d̂, ŵ) with covariance C is a measurement of (ln d, ln w) with covariance
-/// D⁻¹ C D⁻¹, D = diag(d̂, ŵ) (the d–w correlation of a shallow wrinkle's fit is kept: a
-/// well-determined w corrects d); a Kalman filter and the Rauch–Tung–Striebel smoother give the
-/// estimate from all frames of the run. Returns, per frame, the smoothed (d, w) and covariance.
-/// The process noise is estimated from the data by [`estimate_time_noise`].
-pub fn smooth_in_time(frames: &[FrameEstimate], q: [f64; 2]) -> Vec<FrameEstimate> {
+/// follow a random walk or an integrated random walk ([`TimeModel`]) with relative changes per
+/// frame `q = [depth, width]`. Each frame's pooled estimate (d̂, ŵ) with covariance C is a
+/// measurement of (ln d, ln w) with covariance D⁻¹ C D⁻¹, D = diag(d̂, ŵ) (the d–w correlation
+/// of a shallow wrinkle's fit is kept: a well-determined w corrects d); a Kalman filter and the
+/// Rauch–Tung–Striebel smoother give the estimate from all frames of the run. Returns, per
+/// frame, the smoothed (d, w) and covariance. The models are chosen from the data by
+/// [`estimate_time_noise`].
+pub fn smooth_in_time(frames: &[FrameEstimate], q: [TimeModel; 2]) -> Vec<FrameEstimate> {
     let Some(pass) = kalman_pass(frames, q) else {
         return frames.to_vec();
     };
     let n = frames.len();
+    let f = transition(q);
     let mut smooth = pass.filtered.clone();
     for t in (0..n.saturating_sub(1)).rev() {
         let (m, p) = pass.filtered[t];
@@ -475,7 +497,7 @@ pub fn smooth_in_time(frames: &[FrameEstimate], q: [f64; 2]) -> Vec<FrameEstimat
         let Some(inv) = p_pred.try_inverse() else {
             continue;
         };
-        let g = p * inv;
+        let g = p * f.transpose() * inv;
         let (ms, ps) = smooth[t + 1];
         let cov = p + g * (ps - p_pred) * g.transpose();
         smooth[t] = (m + g * (ms - m_pred), 0.5 * (cov + cov.transpose()));
@@ -483,7 +505,7 @@ pub fn smooth_in_time(frames: &[FrameEstimate], q: [f64; 2]) -> Vec<FrameEstimat
     smooth
         .iter()
         .map(|(m, p)| {
-            let (d, w) = (m.x.exp(), m.y.exp());
+            let (d, w) = (m[0].exp(), m[1].exp());
             FrameEstimate {
                 depth_px: d,
                 width_px: w,
@@ -495,14 +517,17 @@ pub fn smooth_in_time(frames: &[FrameEstimate], q: [f64; 2]) -> Vec<FrameEstimat
 
 type Vec2 = nalgebra::Vector2<f64>;
 type Mat2 = nalgebra::Matrix2<f64>;
+type Vec4 = nalgebra::Vector4<f64>;
+type Mat4 = nalgebra::Matrix4<f64>;
 
-/// One forward Kalman pass over a run in (ln d, ln w).
+/// One forward Kalman pass over a run; state (ln d, ln w, their rates per frame).
 struct KalmanPass {
     /// Per frame: predicted mean and covariance (frame 0: its own measurement).
-    predicted: Vec<(Vec2, Mat2)>,
+    predicted: Vec<(Vec4, Mat4)>,
     /// Per frame: filtered mean and covariance.
-    filtered: Vec<(Vec2, Mat2)>,
-    /// ln p(y_1 … y_n | y_0, q): the marginal likelihood of the run given its first frame.
+    filtered: Vec<(Vec4, Mat4)>,
+    /// ln p(y_2 … y_n | y_0, y_1, q): the marginal likelihood of the run given its first two
+    /// frames (which start a trend's rate), the same data for every model.
     log_likelihood: f64,
 }
 
@@ -516,38 +541,67 @@ fn log_measurement(f: &FrameEstimate) -> (Vec2, Mat2) {
     )
 }
 
+/// State transition of the models: a trend's rate moves its value.
+fn transition(q: [TimeModel; 2]) -> Mat4 {
+    let mut f = Mat4::identity();
+    for (k, m) in q.iter().enumerate() {
+        f[(k, k + 2)] = m.noise().2;
+    }
+    f
+}
+
+/// Prior standard deviation of a rate at the start of a run (per frame, in ln units: 100 %).
+const RATE_PRIOR: f64 = 1.0;
+
 /// The forward pass of [`smooth_in_time`]; `None` when a frame has d̂ or ŵ ≤ 0 or a singular
 /// innovation covariance.
-fn kalman_pass(frames: &[FrameEstimate], q: [f64; 2]) -> Option<KalmanPass> {
-    let process = Mat2::new(q[0] * q[0], 0.0, 0.0, q[1] * q[1]);
+fn kalman_pass(frames: &[FrameEstimate], q: [TimeModel; 2]) -> Option<KalmanPass> {
+    let f = transition(q);
+    let mut process = Mat4::zeros();
+    for (k, m) in q.iter().enumerate() {
+        let (value, rate, _) = m.noise();
+        process[(k, k)] = value;
+        process[(k + 2, k + 2)] = rate;
+    }
     let mut predicted = Vec::with_capacity(frames.len());
-    let mut filtered: Vec<(Vec2, Mat2)> = Vec::with_capacity(frames.len());
+    let mut filtered: Vec<(Vec4, Mat4)> = Vec::with_capacity(frames.len());
     let mut log_likelihood = 0.0;
-    for f in frames {
-        if !(f.depth_px > 0.0 && f.width_px > 0.0) {
+    for (t, fr) in frames.iter().enumerate() {
+        if !(fr.depth_px > 0.0 && fr.width_px > 0.0) {
             return None;
         }
-        let (y, r) = log_measurement(f);
+        let (y, r) = log_measurement(fr);
         let Some(&(m, p)) = filtered.last() else {
-            // diffuse start: the first frame is its own estimate
-            predicted.push((y, r));
-            filtered.push((y, r));
+            // diffuse start: the first frame is its own estimate, the rates are unknown
+            let m = Vec4::new(y.x, y.y, 0.0, 0.0);
+            let mut p = Mat4::zeros();
+            p.fixed_view_mut::<2, 2>(0, 0).copy_from(&r);
+            p[(2, 2)] = RATE_PRIOR * RATE_PRIOR;
+            p[(3, 3)] = RATE_PRIOR * RATE_PRIOR;
+            predicted.push((m, p));
+            filtered.push((m, p));
             continue;
         };
-        let p_pred = p + process;
-        let s = p_pred + r;
+        let m_pred = f * m;
+        let p_pred = f * p * f.transpose() + process;
+        let s = p_pred.fixed_view::<2, 2>(0, 0) + r;
         let s_inv = s.try_inverse()?;
-        let nu = y - m;
-        log_likelihood -= 0.5
-            * (s.determinant().max(f64::MIN_POSITIVE).ln()
-                + (nu.transpose() * s_inv * nu)[(0, 0)]
-                + 2.0 * std::f64::consts::TAU.ln());
-        let k = p_pred * s_inv;
-        let i_k = Mat2::identity() - k;
+        let nu = y - m_pred.fixed_rows::<2>(0);
+        if t >= 2 {
+            log_likelihood -= 0.5
+                * (s.determinant().max(f64::MIN_POSITIVE).ln()
+                    + (nu.transpose() * s_inv * nu)[(0, 0)]
+                    + 2.0 * std::f64::consts::TAU.ln());
+        }
+        // K = P⁻ Hᵀ S⁻¹ with H = [I 0]
+        let k = p_pred.fixed_view::<4, 2>(0, 0) * s_inv;
+        let mut i_kh = Mat4::identity();
+        i_kh.fixed_view_mut::<4, 2>(0, 0)
+            .copy_from(&(nalgebra::Matrix4x2::identity() - k));
         // Joseph form: stays symmetric positive definite
-        let cov = i_k * p_pred * i_k.transpose() + k * r * k.transpose();
-        predicted.push((m, p_pred));
-        filtered.push((m + k * nu, 0.5 * (cov + cov.transpose())));
+        let cov = i_kh * p_pred * i_kh.transpose() + k * r * k.transpose();
+        predicted.push((m_pred, p_pred));
+        filtered.push((m_pred + k * nu, 0.5 * (cov + cov.transpose())));
     }
     Some(KalmanPass {
         predicted,
@@ -556,33 +610,38 @@ fn kalman_pass(frames: &[FrameEstimate], q: [f64; 2]) -> Option<KalmanPass> {
     })
 }
 
-/// Candidate relative changes per frame of [`estimate_time_noise`]: 0 and 0.1 % … 100 % on a
-/// log grid of 10 steps per decade.
-fn noise_grid() -> Vec<f64> {
-    std::iter::once(0.0)
+/// Candidate models of [`estimate_time_noise`] for one of ln d, ln w: random walks with 0 and
+/// 0.1 % … 100 % per frame, integrated random walks with 0.01 % … 10 % per frame², on log grids
+/// of 10 steps per decade.
+fn model_grid() -> Vec<TimeModel> {
+    let walks = std::iter::once(0.0)
         .chain((0..=30u32).map(|k| 10f64.powf(-3.0 + f64::from(k) / 10.0)))
-        .collect()
+        .map(TimeModel::Walk);
+    let trends = (0..=30u32)
+        .map(|k| 10f64.powf(-4.0 + f64::from(k) / 10.0))
+        .map(TimeModel::Trend);
+    walks.chain(trends).collect()
 }
 
-/// The process noise q = [q_d, q_w] of [`smooth_in_time`] that maximizes the marginal
-/// likelihood of the measured frames (type-II maximum likelihood, the Kalman filter's innovation
-/// likelihood summed over `runs`; each run's first frame starts it diffusely), searched over a
-/// log grid of relative changes per frame (0 and 0.1 % … 100 %, 10 steps per decade). A wrinkle
-/// whose width is constant gets q_w = 0 (every frame of a run shares one width); one whose depth
-/// jumps (appearing over a few frames) gets a large q_d and its depth is left to its frames.
-/// Runs of one frame carry no information on q; with none longer, the result is `[∞, ∞]` (no
-/// smoothing).
-pub fn estimate_time_noise(runs: &[Vec<FrameEstimate>]) -> [f64; 2] {
-    if runs.iter().all(|r| r.len() < 2) {
-        return [f64::INFINITY; 2];
+/// The models of [`smooth_in_time`] for ln d and ln w that maximize the marginal likelihood of
+/// the measured frames (type-II maximum likelihood, the Kalman filter's innovation likelihood
+/// summed over `runs`, each run's first two frames starting it), searched over random walks and
+/// integrated random walks on log grids of their noise. A wrinkle whose width is constant gets a
+/// walk with q = 0 (every frame of a run shares one width), one that widens steadily a trend;
+/// one whose depth jumps (appearing over a few frames) gets a large walk and its depth is left
+/// to its frames. With no run of 3 frames, the result is no smoothing (walks with q = ∞).
+pub fn estimate_time_noise(runs: &[Vec<FrameEstimate>]) -> [TimeModel; 2] {
+    let none = [TimeModel::Walk(f64::INFINITY); 2];
+    if runs.iter().all(|r| r.len() < 3) {
+        return none;
     }
-    let grid = noise_grid();
-    let mut best = (f64::NEG_INFINITY, [f64::INFINITY; 2]);
+    let grid = model_grid();
+    let mut best = (f64::NEG_INFINITY, none);
     for &qd in &grid {
         for &qw in &grid {
             let ll: Option<f64> = runs
                 .iter()
-                .filter(|r| r.len() >= 2)
+                .filter(|r| r.len() >= 3)
                 .map(|r| kalman_pass(r, [qd, qw]).map(|p| p.log_likelihood))
                 .sum();
             if let Some(ll) = ll
@@ -621,7 +680,7 @@ mod tests {
         let logs: Vec<[f64; 2]> = lw.iter().map(|&w| [0.3, 5f64.ln() + w]).collect();
         let r = [0.01, 0.006, 0.004];
         let frames = frames_of(&logs, r);
-        let out = smooth_in_time(&frames, [1e6, 0.0]);
+        let out = smooth_in_time(&frames, [TimeModel::Walk(1e6), TimeModel::Walk(0.0)]);
         let mean = 5f64.ln() + lw.iter().sum::<f64>() / 5.0;
         for (l, o) in logs.iter().zip(&out) {
             assert!((o.width_px.ln() - mean).abs() < 1e-9, "{o:?}");
@@ -630,7 +689,7 @@ mod tests {
             assert!((o.depth_px.ln() - expect).abs() < 1e-6, "{o:?}");
         }
         // a large drift leaves every frame alone
-        let free = smooth_in_time(&frames, [1e6, 1e6]);
+        let free = smooth_in_time(&frames, [TimeModel::Walk(1e6); 2]);
         for (f, o) in frames.iter().zip(&free) {
             assert!((o.width_px / f.width_px - 1.0).abs() < 1e-9);
             assert!((o.depth_px / f.depth_px - 1.0).abs() < 1e-9);
@@ -664,8 +723,15 @@ mod tests {
             })
             .collect();
         let [qd, qw] = estimate_time_noise(&runs);
-        assert!(qd <= 0.01, "q_d {qd}");
-        assert!((0.02..=0.045).contains(&qw), "q_w {qw}");
+        assert!(
+            matches!(qd, TimeModel::Walk(q) if q <= 0.01)
+                || matches!(qd, TimeModel::Trend(q) if q <= 0.001),
+            "q_d {qd:?}"
+        );
+        assert!(
+            matches!(qw, TimeModel::Walk(q) if (0.02..=0.045).contains(&q)),
+            "q_w {qw:?}"
+        );
     }
 
     #[test]

@@ -14,7 +14,7 @@ use crate::classify::{SvmSettings, classify_frames};
 use crate::error::Result;
 use crate::image::RgbImage;
 use crate::morphology::{close, connected_components, dilate, open};
-use crate::pooled::{FrameEstimate, MIN_WIDTH_PX, estimate_time_noise, smooth_in_time};
+use crate::pooled::{FrameEstimate, MIN_WIDTH_PX, TimeModel, estimate_time_noise, smooth_in_time};
 use crate::track::{TrackSettings, TrackedWrinkle, track_wrinkle};
 
 /// Settings of [`track_video`].
@@ -45,10 +45,10 @@ pub struct VideoTrackSettings {
     /// Smooth each wrinkle's pooled (d, w) over runs of consecutive visible frames
     /// ([`smooth_in_time`]; needs [`TrackSettings::pool`](crate::track::TrackSettings::pool)).
     pub smooth_in_time: bool,
-    /// The relative change per frame [d, w] the smoother allows (standard deviations of the
-    /// random walks of ln d, ln w); `None`: estimated per wrinkle and camera from its frames by
-    /// maximum marginal likelihood ([`estimate_time_noise`]).
-    pub drift_per_frame: Option<[f64; 2]>,
+    /// How ln d and ln w move between frames in the smoother ([`TimeModel`]); `None`: chosen
+    /// per wrinkle from its frames in all cameras by maximum marginal likelihood
+    /// ([`estimate_time_noise`]).
+    pub drift_per_frame: Option<[TimeModel; 2]>,
 }
 
 impl Default for VideoTrackSettings {
@@ -257,7 +257,7 @@ fn visible_runs(frames: &[Vec<FrameWrinkle>], k: usize) -> Vec<(usize, Vec<Frame
 /// frame are the same in every camera, wrinkle k being the same label patch in each): the
 /// profile takes the smoothed (d, w) and covariance, every cross-section is shifted by the same
 /// change of d and w.
-pub fn smooth_profiles(cameras: &mut [&mut Vec<Vec<FrameWrinkle>>], drift: Option<[f64; 2]>) {
+pub fn smooth_profiles(cameras: &mut [&mut Vec<Vec<FrameWrinkle>>], drift: Option<[TimeModel; 2]>) {
     let n_wrinkles = cameras
         .iter()
         .map(|c| c.first().map_or(0, Vec::len))
