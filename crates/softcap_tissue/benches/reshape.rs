@@ -26,15 +26,36 @@ fn first_step(cells: [usize; 3]) -> FirstStep {
     FirstStep::new(&problem, &ReshapeSettings::default()).expect("first Gauss-Newton step")
 }
 
+/// CPU seconds of this process so far (all threads; Linux `/proc/self/stat` utime + stime at
+/// 100 ticks per second), NaN elsewhere.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest
+        .split_whitespace()
+        .skip(11)
+        .take(2)
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    if f.len() == 2 {
+        (f[0] + f[1]) / 100.0
+    } else {
+        f64::NAN
+    }
+}
+
 /// One timed Woodbury and CG solve of `step`, printed.
 fn once(label: &str, step: &FirstStep) {
     let sys = step.system();
-    let t0 = Instant::now();
+    let (t0, c0) = (Instant::now(), cpu_seconds());
     let w = woodbury_step(&sys).expect("Woodbury step");
     let tw = t0.elapsed().as_secs_f64();
+    let cw = cpu_seconds() - c0;
     if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_CG").is_some() {
         eprintln!(
-            "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s (CG skipped)",
+            "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s wall, {cw:.2} CPU-s \
+             (CG skipped)",
             6 * sys.jacobians.len(),
             step.rows()
         );
@@ -51,7 +72,7 @@ fn once(label: &str, step: &FirstStep) {
         .sum::<f64>()
         .sqrt();
     eprintln!(
-        "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s, CG {tc:.3} s \
+        "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s ({cw:.2} CPU-s), CG {tc:.3} s \
          ({} iterations, residual {:.1e}, step difference {:.1e}); CG / Woodbury {:.1}",
         6 * sys.jacobians.len(),
         step.rows(),

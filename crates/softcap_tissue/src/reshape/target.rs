@@ -400,19 +400,7 @@ fn read_attachments(path: &Path, unit: f64, node_map: &[Option<usize>]) -> Resul
         .into_iter()
         .map(|(line, f)| {
             unique_id(path, line, &f[0], &mut seen)?;
-            let file_node: usize = f[0].parse().map_err(|_| {
-                line_error(path, line, format!("node = {:?} is not a node index", f[0]))
-            })?;
-            let node = node_map.get(file_node).copied().flatten().ok_or_else(|| {
-                line_error(
-                    path,
-                    line,
-                    format!(
-                        "node {file_node} is not a node of a tet of the template ({} nodes)",
-                        node_map.len()
-                    ),
-                )
-            })?;
+            let node = template_node(path, line, &f[0], node_map)?;
             Ok(Attachment {
                 id: f[0].clone(),
                 node,
@@ -420,6 +408,28 @@ fn read_attachments(path: &Path, unit: f64, node_map: &[Option<usize>]) -> Resul
             })
         })
         .collect()
+}
+
+/// The solver's node for `field`, a 0-based node index of the template file (`$Nodes` order).
+fn template_node(
+    path: &Path,
+    line: usize,
+    field: &str,
+    node_map: &[Option<usize>],
+) -> Result<usize> {
+    let file_node: usize = field
+        .parse()
+        .map_err(|_| line_error(path, line, format!("node = {field:?} is not a node index")))?;
+    node_map.get(file_node).copied().flatten().ok_or_else(|| {
+        line_error(
+            path,
+            line,
+            format!(
+                "node {file_node} is not a node of a tet of the template ({} nodes)",
+                node_map.len()
+            ),
+        )
+    })
 }
 
 /// `icp_surface.csv`: rows `a,b,c` of 0-based template node indices (`$Nodes` order), each a
@@ -448,19 +458,7 @@ fn read_icp_surface(
         .map(|(line, f)| {
             let mut key = [0; 3];
             for (k, field) in f.iter().enumerate() {
-                let file_node: usize = field.parse().map_err(|_| {
-                    line_error(path, line, format!("{field:?} is not a node index"))
-                })?;
-                key[k] = node_map.get(file_node).copied().flatten().ok_or_else(|| {
-                    line_error(
-                        path,
-                        line,
-                        format!(
-                            "node {file_node} is not a node of a tet of the template ({} nodes)",
-                            node_map.len()
-                        ),
-                    )
-                })?;
+                key[k] = template_node(path, line, field, node_map)?;
             }
             key.sort_unstable();
             let face = boundary.get(&key).copied().ok_or_else(|| {
