@@ -4,8 +4,8 @@ use softcap_fem::nalgebra::Vector3;
 use softcap_mesh::TetLocator;
 use softcap_tissue::reshape::known_truth::{self, moved, problem, truth};
 use softcap_tissue::reshape::{
-    ConstraintKind, CrossValidationSettings, ReshapeOutcome, ReshapeProblem, ReshapeSettings,
-    Smoothness, SurfaceProjector, reshape, write_target,
+    ConstraintKind, CrossValidationSettings, HoldOut, ReshapeOutcome, ReshapeProblem,
+    ReshapeSettings, Smoothness, SurfaceProjector, reshape, write_target,
 };
 
 /// (mean, 95th percentile, max) of `v`.
@@ -336,6 +336,7 @@ fn cross_validation_picks_the_smoothness_the_truth_prefers() {
         cross_validation: CrossValidationSettings {
             folds: 3,
             grid: grid.clone(),
+            ..CrossValidationSettings::default()
         },
         ..ReshapeSettings::default()
     };
@@ -378,4 +379,64 @@ fn cross_validation_picks_the_smoothness_the_truth_prefers() {
     assert_eq!(out.smoothness, cv.chosen);
     // The refit with every marker is the fixed-α̂ reshape at the chosen α̂.
     assert!((shape_p95(&out.positions_m) - truth_errors[best]).abs() < 1e-9);
+}
+
+/// `hold_out = "correspondence"`: the attachments and landmarks are held out (every fold a whole
+/// reshape), scored by where their template points went. On the noisy known-truth box it picks
+/// an α̂ of the grid whose correspondence error (where 400 held-out template points went vs the
+/// truth) is the lowest of the grid.
+#[test]
+fn correspondence_cross_validation_picks_the_smoothness_the_truth_prefers() {
+    let (mut p, held_out) = known_truth::problem_with_cells(false, [6, 4, 2]);
+    for (i, m) in p.icp_markers.iter_mut().enumerate() {
+        let u = |k: usize| ((((3 * i + k) as f64) * 12.9898).sin() * 43758.5453).fract();
+        m.position_m += Vector3::new(u(0), u(1), u(2)).normalize() * 0.3e-3;
+    }
+    let grid = vec![3e-6, 3e-4, 3e-2];
+    let settings = ReshapeSettings {
+        smoothness: Smoothness::CrossValidated,
+        cross_validation: CrossValidationSettings {
+            folds: 3,
+            grid: grid.clone(),
+            hold_out: HoldOut::Correspondence,
+        },
+        ..ReshapeSettings::default()
+    };
+    let out = reshape(&p, &settings, &mut |_, _, _, _| {}).unwrap();
+    let cv = out.cross_validation.clone().unwrap();
+    let locator = TetLocator::new(&p.template);
+    let correspondence = |x: &[Vector3<f64>]| {
+        let mut d: Vec<f64> = held_out
+            .iter()
+            .map(|h| {
+                let e = locator.locate(h).unwrap();
+                (e.position(&p.template.tets, x) - truth(h)).norm()
+            })
+            .collect();
+        stats(&mut d).0
+    };
+    let truth_errors: Vec<f64> = grid
+        .iter()
+        .map(|&a| {
+            let fixed = ReshapeSettings {
+                smoothness: Smoothness::Fixed(a),
+                ..ReshapeSettings::default()
+            };
+            correspondence(
+                &reshape(&p, &fixed, &mut |_, _, _, _| {})
+                    .unwrap()
+                    .positions_m,
+            ) * 1e3
+        })
+        .collect();
+    let rms: Vec<f64> = cv.scores.iter().map(|s| s.rms_m * 1e3).collect();
+    eprintln!("held-out RMS {rms:.3?} mm; true correspondence mean {truth_errors:.3?} mm");
+    let best = (0..grid.len())
+        .min_by(|&a, &b| truth_errors[a].total_cmp(&truth_errors[b]))
+        .unwrap();
+    assert_eq!(
+        cv.chosen, grid[best],
+        "CV chose {}, the truth {}",
+        cv.chosen, grid[best]
+    );
 }

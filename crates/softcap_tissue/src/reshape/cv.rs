@@ -84,10 +84,12 @@ impl<'de> Deserialize<'de> for Smoothness {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CrossValidationSettings {
-    /// Number of folds k (2 ≤ k ≤ the number of ICP markers).
+    /// Number of folds k (2 ≤ k ≤ the number of held-out points).
     pub folds: usize,
     /// The α̂ tried (positive; a log grid).
     pub grid: Vec<f64>,
+    /// Which target points are held out.
+    pub hold_out: HoldOut,
 }
 
 impl Default for CrossValidationSettings {
@@ -95,8 +97,21 @@ impl Default for CrossValidationSettings {
         Self {
             folds: 5,
             grid: vec![3e-5, 3e-4, 3e-3, 3e-2, 0.3, 3.0],
+            hold_out: HoldOut::IcpMarkers,
         }
     }
+}
+
+/// The target points cross-validation holds out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HoldOut {
+    /// ICP markers, scored by their distance to the reshaped surface: how well the surface is
+    /// fitted, not where the material lies on it.
+    IcpMarkers,
+    /// Attachments and landmarks, scored by the distance of their template point from its
+    /// target: correspondence, tangential error included. Every fold runs the whole reshape.
+    Correspondence,
 }
 
 /// The cross-validation score of one α̂.
@@ -167,6 +182,9 @@ pub(super) fn cross_validated(
     progress: &mut ProgressFn<'_>,
 ) -> Result<ReshapeOutcome> {
     let settings = &solver.settings.cross_validation;
+    if settings.hold_out == HoldOut::Correspondence {
+        return correspondence_cross_validated(solver, progress);
+    }
     let all = solver.problem.icp_markers.clone();
     check(settings, all.len())?;
     let folds = settings.folds;
@@ -209,14 +227,8 @@ pub(super) fn cross_validated(
         });
         starts.push((state, stages, history));
     }
-    let best = (0..scores.len())
-        .filter(|&k| scores[k].rms_m.is_finite())
-        .min_by(|&a, &b| scores[a].rms_m.total_cmp(&scores[b].rms_m))
-        .ok_or_else(|| TissueError::NotConverged {
-            what: "cross-validation of the smoothness weight".into(),
-            status: "no α̂ of the grid gave a finite held-out error".into(),
-        })?;
-    let chosen = grid[best];
+    let chosen = best(&scores)?;
+    let best = grid.iter().position(|&a| a == chosen).unwrap_or(0);
     solver.set_smoothness(chosen)?;
     solver.set_icp_markers(all);
     let (mut state, mut stages, mut history) = starts.swap_remove(best);
@@ -227,6 +239,91 @@ pub(super) fn cross_validated(
         chosen,
     };
     Ok(solver.finish(state, stages, history, Some(report)))
+}
+
+/// [`HoldOut::Correspondence`]: the attachments and landmarks (in that order, point i in fold
+/// i mod k) are held out in turn; every fold runs the whole reshape without them, the score is
+/// the RMS distance of the held-out template points from their targets.
+fn correspondence_cross_validated(
+    solver: Solver<'_>,
+    progress: &mut ProgressFn<'_>,
+) -> Result<ReshapeOutcome> {
+    let (problem, base) = (solver.problem, solver.settings);
+    let cv = &base.cross_validation;
+    let (attachments, landmarks) = (problem.attachments.len(), problem.landmarks.len());
+    let points = attachments + landmarks;
+    check(cv, points)?;
+    let mut scores = Vec::with_capacity(cv.grid.len());
+    for &smoothness in &cv.grid {
+        let settings = super::solve::ReshapeSettings {
+            smoothness: Smoothness::Fixed(smoothness),
+            ..base.clone()
+        };
+        let mut squared = 0.0;
+        let mut iterations = 0;
+        for fold in 0..cv.folds {
+            let held = |i: usize| i % cv.folds == fold;
+            let mut train = problem.clone();
+            train.attachments = keep(&problem.attachments, |i| !held(i));
+            train.landmarks = keep(&problem.landmarks, |i| !held(attachments + i));
+            let label = format!("cv α̂ {smoothness:.0e} fold {}/{}", fold + 1, cv.folds);
+            let out = super::solve::reshape(&train, &settings, &mut |s, i, e, m| {
+                progress(&format!("{label} {s}"), i, e, m)
+            })?;
+            iterations += out.stages.iter().map(|s| s.iterations).sum::<usize>();
+            let x = &out.positions_m;
+            squared += (0..attachments)
+                .filter(|&i| held(i))
+                .map(|i| &problem.attachments[i])
+                .map(|a| (x[a.node] - a.target_m).norm_squared())
+                .chain(
+                    (0..landmarks)
+                        .filter(|&i| held(attachments + i))
+                        .map(|i| &problem.landmarks[i])
+                        .map(|l| (l.point.at(x) - l.target_m).norm_squared()),
+                )
+                .sum::<f64>();
+        }
+        scores.push(CrossValidationScore {
+            smoothness,
+            rms_m: (squared / points as f64).sqrt(),
+            iterations,
+        });
+    }
+    let chosen = best(&scores)?;
+    let settings = super::solve::ReshapeSettings {
+        smoothness: Smoothness::Fixed(chosen),
+        ..base.clone()
+    };
+    let mut out = super::solve::reshape(problem, &settings, progress)?;
+    out.cross_validation = Some(CrossValidationReport {
+        folds: cv.folds,
+        scores,
+        chosen,
+    });
+    Ok(out)
+}
+
+/// The items of `v` whose index passes `pred`.
+fn keep<T: Clone>(v: &[T], pred: impl Fn(usize) -> bool) -> Vec<T> {
+    v.iter()
+        .enumerate()
+        .filter(|(i, _)| pred(*i))
+        .map(|(_, t)| t.clone())
+        .collect()
+}
+
+/// The α̂ with the lowest finite score.
+fn best(scores: &[CrossValidationScore]) -> Result<f64> {
+    scores
+        .iter()
+        .filter(|s| s.rms_m.is_finite())
+        .min_by(|a, b| a.rms_m.total_cmp(&b.rms_m))
+        .map(|s| s.smoothness)
+        .ok_or_else(|| TissueError::NotConverged {
+            what: "cross-validation of the smoothness weight".into(),
+            status: "no α̂ of the grid gave a finite held-out error".into(),
+        })
 }
 
 #[cfg(test)]

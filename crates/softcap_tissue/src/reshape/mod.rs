@@ -28,7 +28,9 @@ pub mod solve;
 pub mod step;
 pub mod target;
 
-pub use cv::{CrossValidationReport, CrossValidationScore, CrossValidationSettings, Smoothness};
+pub use cv::{
+    CrossValidationReport, CrossValidationScore, CrossValidationSettings, HoldOut, Smoothness,
+};
 pub use equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings, EquilibriumStatus};
 pub use problem::{
     Attachment, ConstraintKind, IcpMarker, Landmark, MaterialPoint, ReshapeProblem,
