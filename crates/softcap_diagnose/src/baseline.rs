@@ -6,7 +6,7 @@
 use crate::recording::Recording;
 use crate::segment::Segmentation;
 use crate::settings::DiagnoseSettings;
-use crate::sim::{Field, ProbeLoad, ProbeSimulator, SimLoad};
+use crate::sim::{Field, LoadPoint, ProbeLoad, ProbeSimulator, SimLoad};
 use crate::{DiagnoseError, Result};
 use indicatif::ProgressBar;
 use nalgebra::Vector3;
@@ -28,6 +28,10 @@ pub struct Prepared {
     pub gravity_field_m: Vec<Vector3<f64>>,
     /// Tangential direction of the extra traction per location (unit or zero).
     pub friction_dir: Vec<Vector3<f64>>,
+    /// Where the measured force acts on the default model and its response, per frame
+    /// (`None` out of contact): the model's side of the force–indentation relation
+    /// ([`crate::indentation`]).
+    pub load_point: Vec<Option<LoadPoint>>,
 }
 
 impl Prepared {
@@ -103,6 +107,7 @@ pub fn prepare(
     };
     let mut baseline_m = Vec::with_capacity(nt);
     let mut response: Vec<Option<[Vec<Vector3<f64>>; 3]>> = Vec::with_capacity(nt);
+    let mut load_point = Vec::with_capacity(nt);
     for (k, f) in rec.frames.iter().enumerate() {
         if seg.phases[k].in_contact() {
             let out = sim
@@ -126,9 +131,11 @@ pub fn prepare(
                 })?;
             baseline_m.push(out.markers_m);
             response.push(out.force_response);
+            load_point.push(out.load_point);
         } else {
             baseline_m.push(rest.clone());
             response.push(None);
+            load_point.push(None);
         }
         progress.inc(1);
     }
@@ -158,5 +165,6 @@ pub fn prepare(
         rest_model_m: rest,
         gravity_field_m,
         friction_dir,
+        load_point,
     })
 }

@@ -57,6 +57,9 @@ pub struct Confirmed {
     pub fold_rss_m2: Vec<f64>,
     /// Held-out scored observations per fold.
     pub fold_n: Vec<usize>,
+    /// The extended model's held-out error on the force channel (`crate::indentation`), for a
+    /// hypothesis that changes the force–indentation relation.
+    pub force: Option<crate::indentation::ForceScore>,
 }
 
 /// The nuisance refit of the material's overall compliance d (see the module docs).
@@ -365,6 +368,7 @@ pub fn lolo_confirm_among(
         method,
         fold_rss_m2,
         fold_n,
+        force: None,
     }))
 }
 
@@ -421,6 +425,7 @@ mod tests {
             rest_model_m: rest.clone(),
             gravity_field_m: vec![Vector3::zeros(); 2],
             friction_dir: Vec::new(),
+            load_point: Vec::new(),
         };
         let field = |f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| -> Field {
             u_true

@@ -20,12 +20,13 @@ use crate::baseline::{Prepared, prepare};
 use crate::cells::{EffectCells, focus_cells};
 use crate::confirm::Confirmed;
 use crate::evidence::{
-    Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NotApplicable, RankedHypothesis,
-    Resimulated, Screened, Unexplained,
+    Baseline, Candidate, Diagnosis, Evidence, ForceChannel, NamedEffect, NotApplicable,
+    RankedHypothesis, Resimulated, Screened, Unexplained,
 };
 use crate::folds::{confidence, fold_gains, mean_sd, separable};
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
+use crate::indentation::{ForceObservations, ForceScore, heldout_fit};
 use crate::outliers::{outlier_runs, without_runs};
 use crate::recording::Recording;
 use crate::residual::{Located, Residuals, residuals, rms_where_m};
@@ -251,9 +252,24 @@ struct Scoring<'a> {
     explainable: bool,
     /// Held-out RMS of the stiffness-scale nuisance on the focus cells, m.
     scale_only_m: f64,
+    /// The force channel against the indentation.
+    force_obs: ForceObservations,
 }
 
 impl Scoring<'_> {
+    /// The force screen's rule (the marker rule on the force channel): the nuisance's held-out
+    /// force MSE exceeds `noise_floor_factor` σ² and its RMS `focus_noise_factor` σ (σ the force
+    /// noise), the extension removes ≥ `min_heldout_gain` of it and lowers the BIC by
+    /// `min_delta_bic`.
+    fn force_qualifies(&self, f: &ForceScore) -> bool {
+        let s = self.cx.settings;
+        let (b, sigma) = (f.heldout_force_rmse_before_n, f.force_noise_n);
+        b * b > s.noise_floor_factor * sigma * sigma
+            && b >= s.focus_noise_factor * sigma
+            && f.gain() >= s.min_heldout_gain
+            && f.force_delta_bic <= -s.min_delta_bic
+    }
+
     /// True when observation (k, m) is scored for `e`.
     fn scored(&self, e: Effect, k: usize, m: usize) -> bool {
         match self.cells.get(&e) {
@@ -353,6 +369,11 @@ struct Row {
     support: f64,
     /// Passes the screen.
     qualifies: bool,
+    /// Its extension on the force channel, when it changes the force–indentation relation.
+    force: Option<ForceScore>,
+    /// Passes the force screen ([`Scoring::force_qualifies`]) and its signatures do not
+    /// contradict it.
+    force_qualifies: bool,
 }
 
 /// The screen's outcome.
@@ -385,6 +406,7 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &ProgressBar) 
         noise_mse,
         explainable: before * before > settings.noise_floor_factor * noise_mse,
         scale_only_m: before,
+        force_obs: ForceObservations::new(rec, seg, p),
     };
     progress.set_length(9);
     progress.set_position(0);
@@ -429,15 +451,23 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &ProgressBar) 
                 && score >= settings.min_heldout_gain
                 && beats_scale
                 && delta_bic <= -settings.min_delta_bic;
+            let support = h.signature_support(&mismatch.signatures);
+            let force = h
+                .force_candidates(cx, &scoring.force_obs)
+                .and_then(|c| heldout_fit(&scoring.force_obs, seg, &c));
+            let force_qualifies =
+                support >= 0.0 && force.as_ref().is_some_and(|f| scoring.force_qualifies(f));
             Row {
                 hypothesis: h,
-                support: h.signature_support(&mismatch.signatures),
+                support,
                 refit: r,
                 before_m: before,
                 after_m: after,
                 score,
                 delta_bic,
                 qualifies,
+                force,
+                force_qualifies,
             }
         })
         .collect();
@@ -460,6 +490,9 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &ProgressBar) 
 struct Confirmation {
     /// Sent to re-simulation by their signature alone (before or after the screen's candidates).
     by_signature: Vec<Effect>,
+    /// Sent to re-simulation by the force screen alone (after every other candidate) and judged
+    /// on the force channel.
+    by_force: Vec<Effect>,
     /// Re-simulated: the confirmed extended model, or why it failed.
     confirmed: BTreeMap<Effect, std::result::Result<Confirmed, String>>,
     /// The verdict.
@@ -522,6 +555,17 @@ fn confirm(
     let screened = screened_candidates(&screen.rows, settings);
     let before_screen = sent(SignatureRoute::BeforeScreen, &screened);
     let after_screen = sent(SignatureRoute::AfterScreen, &screened);
+    // the force screen's: their marker error may sit at the noise (checked on the force
+    // channel instead), after every candidate the markers or signatures sent
+    let by_force: Vec<Effect> = screen
+        .rows
+        .iter()
+        .filter(|r| settings.name_on_force_channel && r.force_qualifies)
+        .map(|r| r.hypothesis.effect())
+        .filter(|e| {
+            !screened.contains(e) && !before_screen.contains(e) && !after_screen.contains(e)
+        })
+        .collect();
     let n_screened = screened
         .iter()
         .filter(|e| !before_screen.contains(e))
@@ -537,6 +581,7 @@ fn confirm(
                 .take(n_screened),
         )
         .chain(after_screen.iter().copied())
+        .chain(by_force.iter().copied())
         .collect();
     let mut confirmed = BTreeMap::new();
     let mut verdict = None;
@@ -567,14 +612,20 @@ fn confirm(
                     let s = scoring.scale_only_m(e, before_e);
                     c.after_scored_m.powi(2) <= (1.0 - 0.5 * settings.min_heldout_gain) * s * s
                 };
-                let keep = gain >= settings.min_heldout_gain && beats_scale;
+                let keep = if by_force.contains(&e) {
+                    force_confirmed(scoring, &c, before_e)
+                } else {
+                    gain >= settings.min_heldout_gain && beats_scale
+                };
                 confirmed.insert(e, Ok(c));
                 if keep {
                     verdict = Some(e);
                     break;
                 }
             }
-            // no extended FEM model to re-simulate: the screen decides
+            // no extended FEM model to re-simulate: the screen decides (not the force screen's
+            // candidates, which need the re-simulated model on the force channel)
+            Ok(None) if by_force.contains(&e) => {}
             Ok(None) => {
                 verdict = Some(e);
                 break;
@@ -586,9 +637,18 @@ fn confirm(
     }
     Ok(Confirmation {
         by_signature: before_screen.into_iter().chain(after_screen).collect(),
+        by_force,
         confirmed,
         verdict,
     })
+}
+
+/// A force screen's candidate is confirmed when its re-simulated extended model keeps the force
+/// screen's rule on the force channel ([`Scoring::force_qualifies`], leave-one-location-out) and
+/// does not raise the held-out marker error on its scored cells (`before_m`): the force channel
+/// names it, the markers must not contradict it.
+fn force_confirmed(scoring: &Scoring<'_>, c: &Confirmed, before_m: f64) -> bool {
+    c.force.as_ref().is_some_and(|f| scoring.force_qualifies(f)) && c.after_scored_m <= before_m
 }
 
 // ------------------------------------------------------------------------------------------
@@ -677,6 +737,15 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
     };
     let before_folds = scoring.fold_before(e1);
     let (after1, gains1, params1) = match confirmation.confirmed.get(&e1) {
+        // named on the force channel: its confidence is that channel's
+        Some(Ok(c)) if confirmation.by_force.contains(&e1) && c.force.is_some() => (
+            c.after_scored_m,
+            c.force
+                .as_ref()
+                .map(|f| fold_gains(&f.fold_rss_before_n2, &f.fold_rss_after_n2))
+                .unwrap_or_default(),
+            c.params.iter().cloned().collect(),
+        ),
         Some(Ok(c)) if c.fold_rss_m2.len() == before_folds.len() => (
             c.after_scored_m,
             fold_gains(&before_folds, &c.fold_rss_m2),
@@ -1059,6 +1128,14 @@ fn screened_row(
     };
     let mut after = row.after_m;
     let mut params: BTreeMap<String, f64> = row.refit.params.iter().cloned().collect();
+    evidence.force_channel = row.force.clone().map(|screened| ForceChannel {
+        screened,
+        qualifies: row.force_qualifies,
+        resimulated: match confirmation.confirmed.get(&e) {
+            Some(Ok(c)) => c.force.clone(),
+            _ => None,
+        },
+    });
     match confirmation.confirmed.get(&e) {
         Some(Ok(c)) => {
             evidence.resimulated = Some(Resimulated {

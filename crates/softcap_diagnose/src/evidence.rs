@@ -181,6 +181,25 @@ pub struct Evidence {
     /// The `none` row: the default model against the noise and the stiffness-scale nuisance.
     #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
     pub baseline: Option<Baseline>,
+    /// A hypothesis that changes the force–indentation relation, judged on the force channel
+    /// (`crate::indentation`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_channel: Option<ForceChannel>,
+}
+
+/// A hypothesis on the force channel (`crate::indentation`): the force the default model needs
+/// for the measured tip depth against the reading, leave-one-location-out.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ForceChannel {
+    /// Its linearised extension against the nuisance (a f + o / c).
+    pub screened: crate::indentation::ForceScore,
+    /// It passed the force screen: the nuisance's held-out force MSE above the noise rule (the
+    /// marker rule's factors on the force noise σ), held-out gain and BIC as on the markers, its
+    /// signatures not against it.
+    pub qualifies: bool,
+    /// Its re-simulated extended model on the force channel, when it was confirmed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resimulated: Option<crate::indentation::ForceScore>,
 }
 
 /// The linearised screen of one hypothesis (leave-one-location-out, BIC).

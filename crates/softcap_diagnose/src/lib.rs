@@ -63,6 +63,7 @@ pub mod evidence;
 pub mod folds;
 pub mod friction;
 pub mod hypotheses;
+pub mod indentation;
 pub mod io;
 pub mod outliers;
 pub mod output;
@@ -83,8 +84,8 @@ pub use baseline::{Prepared, prepare};
 pub use diagnose::{DiagnosisRun, diagnose, diagnose_with_progress};
 pub use error::{DiagnoseError, Result};
 pub use evidence::{
-    Baseline, Candidate, Diagnosis, Evidence, NamedEffect, NextExperiment, NotApplicable,
-    ProtocolPrediction, RankedHypothesis, Resimulated, Screened, Unexplained,
+    Baseline, Candidate, Diagnosis, Evidence, ForceChannel, NamedEffect, NextExperiment,
+    NotApplicable, ProtocolPrediction, RankedHypothesis, Resimulated, Screened, Unexplained,
 };
 pub use hypotheses::Effect;
 pub use hypotheses::Hypothesis;
@@ -104,8 +105,8 @@ pub use segment::{Location, Phase, Region, SegmentSettings, Segmentation};
 pub use settings::DiagnoseSettings;
 pub use signatures::{Signatures, signatures};
 pub use sim::{
-    Extension, FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SequenceFrame,
-    SimLoad, SimOutput, transverse_from_isotropic, transverse_with_poisson,
+    Extension, FemProbeSimulator, FemSimSettings, LoadPoint, ProbeLoad, ProbeSimulator,
+    SequenceFrame, SimLoad, SimOutput, transverse_from_isotropic, transverse_with_poisson,
 };
 
 pub use nalgebra;

@@ -53,6 +53,13 @@ pub struct DiagnoseSettings {
     /// controls' discretisation floors (third-party 1.5×, virtual-rig suite up to ≈ 4× its
     /// nominal noise), far below a marker on the wrong blob (≈ 15×).
     pub unexplained_noise_factor: f64,
+    /// Send a hypothesis whose force-channel screen qualifies (`crate::indentation`: the force
+    /// the default model needs at the measured tip depth against the reading) to re-simulation
+    /// even when its marker error is at the noise, and name it when its re-simulated model keeps
+    /// the force rule without raising the marker error. Off by default: the force channel is
+    /// computed and reported (`evidence.force_channel`) on every run, but the route is not yet
+    /// measured on every control of both suites.
+    pub name_on_force_channel: bool,
 }
 
 impl Default for DiagnoseSettings {
@@ -74,6 +81,7 @@ impl Default for DiagnoseSettings {
             later_effect_noise_factor: 3.0,
             outliers: OutlierSettings::default(),
             unexplained_noise_factor: 5.0,
+            name_on_force_channel: false,
         }
     }
 }

@@ -5,6 +5,7 @@ use crate::Result;
 use crate::baseline::Prepared;
 use crate::cells::EffectCells;
 use crate::confirm::Confirmed;
+use crate::indentation::{ForceCandidate, ForceObservations};
 use crate::recording::Recording;
 use crate::screen::{Refit, Variant};
 use crate::segment::Segmentation;
@@ -66,6 +67,21 @@ pub trait Hypothesis: Sync {
     /// Whether its signature alone sends it to re-simulation, and when.
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
         let _ = s;
+        None
+    }
+
+    /// Its models of the force channel (`crate::indentation`): each a full set of columns for
+    /// the force y the default model needs at the measured tip depth (the nuisance's a f and
+    /// o / c included or replaced), for a hypothesis that changes the force–indentation relation
+    /// (a sensor that lags the force). `None` (default) for the others. A hypothesis whose
+    /// held-out force gain qualifies is sent to re-simulation even when its marker error is at
+    /// the noise, and then judged on the force channel as well ([`Confirmed::force`]).
+    fn force_candidates(
+        &self,
+        cx: &Context<'_>,
+        obs: &ForceObservations,
+    ) -> Option<Vec<ForceCandidate>> {
+        let _ = (cx, obs);
         None
     }
 

@@ -107,6 +107,7 @@ impl Hypothesis for GravityPreload {
                     .into(),
             fold_rss_m2,
             fold_n,
+            force: None,
         }))
     }
 }

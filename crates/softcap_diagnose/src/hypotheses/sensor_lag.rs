@@ -14,6 +14,7 @@ use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
 use crate::confirm::Confirmed;
+use crate::indentation::{Column, ForceCandidate, ForceObservations, heldout_fit};
 use crate::screen::{Basis, Refit, Variant};
 use crate::signal::{derivative, median_dt};
 use crate::signatures::Signatures;
@@ -93,18 +94,31 @@ impl Hypothesis for SensorLag {
         if h0 > 0.0 && h0 < 0.5 && !hs.contains(&h0) {
             hs.push(h0);
         }
+        let obs = ForceObservations::new(rec, seg, p);
+        // the force channel's candidates: the reading itself (no lag), then every grid point's
+        // true force, each with the nuisance's scale and tip offset
+        let force_column = |name: Vec<(String, f64)>, f: &[Vector3<f64>]| -> ForceCandidate {
+            let axial = f.iter().zip(&axes).map(|(f, a)| f.dot(a)).collect();
+            let mut cols = obs.nuisance();
+            cols[0].values = axial;
+            (name, cols)
+        };
+        let mut force_grid = vec![force_column(
+            vec![("tau_s".into(), 0.0), ("hysteresis".into(), 0.0)],
+            &p.force_n,
+        )];
         let mut grid = Vec::new();
         for m in [0.8, 0.9, 1.0, 1.1, 1.25] {
             for &h in &hs {
                 let tau_s = tau0 * m;
                 let f = crate::sensor::true_forces(t, &p.force_n, &axes, tau_s, h);
-                grid.push((
-                    vec![("tau_s".into(), tau_s), ("hysteresis".into(), h)],
-                    force_channel::frames_with_forces(rec, &f, thr),
-                ));
+                let params = vec![("tau_s".into(), tau_s), ("hysteresis".into(), h)];
+                force_grid.push(force_column(params.clone(), &f));
+                grid.push((params, force_channel::frames_with_forces(rec, &f, thr)));
             }
         }
-        force_channel::confirm(
+        let force = heldout_fit(&obs, seg, &force_grid);
+        let confirmed = force_channel::confirm(
             grid,
             rec,
             seg,
@@ -114,8 +128,44 @@ impl Hypothesis for SensorLag {
             scored,
             "true force through the inverse FSR chain (lag tau, play hysteresis)",
             "default model under the true force through the inverse FSR chain (lag tau, play hysteresis)",
-        )
+        )?;
+        Ok(confirmed.map(|c| Confirmed { force, ..c }))
     }
+
+    /// The FSR chain to first order on the force channel: y = a f + o / c + τ ḟ + h sgn(ḟ) f
+    /// (the true force behind a lagging, looping reading f; τ, h ≥ 0).
+    fn force_candidates(
+        &self,
+        cx: &Context<'_>,
+        obs: &ForceObservations,
+    ) -> Option<Vec<ForceCandidate>> {
+        let f = &obs.reading_n;
+        let d = derivative(&cx.prepared.times_s, f);
+        let mut cols = obs.nuisance();
+        cols.push(Column::nonneg("tau_s", d.clone()));
+        let peak = f.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        let side = play_side(&d, 0.05 * peak);
+        cols.push(Column::nonneg(
+            "hysteresis",
+            f.iter().zip(&side).map(|(f, s)| f * s).collect(),
+        ));
+        Some(vec![(Vec::new(), cols)])
+    }
+}
+
+/// The side of the play band the reading sits on per frame: +1 after the force last rose, −1
+/// after it last fell (a play operator keeps its side while the force holds), 0 before it first
+/// moved; a rate |ḟ| below `dead_n_per_s` is holding.
+fn play_side(rate: &[f64], dead_n_per_s: f64) -> Vec<f64> {
+    let mut side = 0.0;
+    rate.iter()
+        .map(|&d| {
+            if d.abs() > dead_n_per_s {
+                side = d.signum();
+            }
+            side
+        })
+        .collect()
 }
 
 #[cfg(test)]

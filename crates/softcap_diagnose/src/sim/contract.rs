@@ -38,6 +38,21 @@ pub struct SimOutput {
     pub markers_m: Vec<Vector3<f64>>,
     /// ∂x_marker/∂f_k (m/N) for k = x, y, z when requested and a probe load was given.
     pub force_response: Option<[Vec<Vector3<f64>>; 3]>,
+    /// Where the probe load acts, when a probe load was given and the simulator knows it
+    /// (`None` otherwise): the load-weighted mean of the loaded nodes.
+    pub load_point: Option<LoadPoint>,
+}
+
+/// The point of the body a probe load acts on: x_P = Σ w_i x_i / Σ w_i over the loaded nodes i
+/// with the load's weights w_i (the share of the force each node carries), the displacement
+/// work-conjugate to the resultant (f · δx_P is the load's virtual work for a uniform δf), so the
+/// pair (f, x_P) is the model's force–indentation relation at the tip.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoadPoint {
+    /// x_P, m.
+    pub position_m: Vector3<f64>,
+    /// ∂x_P/∂f_k (m/N) for k = x, y, z, when the force response was requested.
+    pub response_m_per_n: Option<[Vector3<f64>; 3]>,
 }
 
 /// One re-simulation of a grid: the extension and the frames of its sequence

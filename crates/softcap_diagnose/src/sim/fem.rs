@@ -4,7 +4,8 @@
 //! nodal forces; the tangent response ∂x/∂f of the converged state.
 
 use super::contract::{
-    Extension, Field, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
+    Extension, Field, LoadPoint, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad,
+    SimOutput,
 };
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
@@ -552,18 +553,33 @@ impl ProbeSimulator for FemProbeSimulator {
                     .cholesky()
                     .solve_in_place(&mut rhs)
                     .map_err(Box::new)?;
+                let mut point = [Vector3::zeros(); 3];
                 let cols = [0, 1, 2].map(|k| {
                     let mut dx = vec![Vector3::zeros(); n];
                     dofs.scatter_add(&rhs[k * nf..(k + 1) * nf], 1.0, &mut dx);
+                    point[k] = load_point(&weights, &dx);
                     self.setup.marker_positions(&dx)
                 });
-                Some(cols)
+                Some((cols, point))
             }
             _ => None,
         };
+        let load_point = (load.probe.is_some() && !weights.is_empty()).then(|| LoadPoint {
+            position_m: load_point(&weights, &x),
+            response_m_per_n: force_response.as_ref().map(|r| r.1),
+        });
         Ok(SimOutput {
             markers_m,
-            force_response,
+            force_response: force_response.map(|r| r.0),
+            load_point,
         })
     }
+}
+
+/// The load-weighted mean Σ w_i v_i / Σ w_i of the nodal vectors `v` over the loaded nodes
+/// (`LoadPoint`).
+fn load_point(weights: &[(usize, f64)], v: &[Vector3<f64>]) -> Vector3<f64> {
+    let total: f64 = weights.iter().map(|w| w.1).sum();
+    let sum: Vector3<f64> = weights.iter().map(|&(i, w)| v[i] * w).sum();
+    sum / total.max(1e-300)
 }

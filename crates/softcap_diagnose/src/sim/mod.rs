@@ -37,7 +37,8 @@ mod fem;
 mod resolution;
 
 pub use contract::{
-    Extension, Field, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
+    Extension, Field, LoadPoint, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad,
+    SimOutput,
 };
 pub use extend::{transverse_from_isotropic, transverse_with_poisson};
 pub use fem::{FemProbeSimulator, FemSimSettings, RefinementSettings};
