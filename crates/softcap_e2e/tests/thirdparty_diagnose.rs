@@ -209,9 +209,6 @@ fn check(case: &str) {
             1e3 * none.unwrap_or(f64::NAN)
         );
         println!("{case} ranked: {all:#?}");
-        if let Some((_, r)) = ranked(d, "sensor-lag") {
-            print_force_channel(case, "-", r, None);
-        }
         assert_eq!(d.verdict, "none", "{case}: ranked {all:#?}");
         return;
     }
@@ -229,7 +226,6 @@ fn check(case: &str) {
         1e3 * floor
     );
     println!("{case} ranked: {all:#?}");
-    print_force_channel(case, &pair, r, ranked(&p.diagnosis, &effect).map(|x| x.1));
     if effect == "clock-offset" {
         check_clock_corrected_by_capture(case, &o, before, floor);
         return;
@@ -246,45 +242,6 @@ fn check(case: &str) {
         1e3 * before,
         1e3 * after,
         1e3 * floor
-    );
-}
-
-/// The force channel of `effect`'s row (the force the default model needs at the measured tip
-/// depth against the reading, held-out, N) on the case and on its paired control.
-fn print_force_channel(
-    case: &str,
-    pair: &str,
-    r: &RankedHypothesis,
-    pair_row: Option<&RankedHypothesis>,
-) {
-    let Some(f) = &r.evidence.force_channel else {
-        return;
-    };
-    let resim = f
-        .resimulated
-        .as_ref()
-        .map(|x| format!("{:.4}", x.heldout_force_rmse_after_n))
-        .unwrap_or_else(|| "–".into());
-    let floor = pair_row
-        .and_then(|p| p.evidence.force_channel.as_ref())
-        .map(|p| {
-            format!(
-                "{:.4} -> {:.4} (noise {:.4})",
-                p.screened.heldout_force_rmse_before_n,
-                p.screened.heldout_force_rmse_after_n,
-                p.screened.force_noise_n
-            )
-        })
-        .unwrap_or_default();
-    println!(
-        "FORCE | {case} | before {:.4} N | screen {:.4} N | re-simulated {resim} N | noise {:.4} N | \
-         qualifies {} | dBIC {:.1} | params {:?} | {pair}: {floor}",
-        f.screened.heldout_force_rmse_before_n,
-        f.screened.heldout_force_rmse_after_n,
-        f.screened.force_noise_n,
-        f.qualifies,
-        f.screened.force_delta_bic,
-        f.resimulated.as_ref().map(|x| &x.force_params),
     );
 }
 
