@@ -67,7 +67,7 @@ impl ForceObservations {
             };
             let a = f.axis;
             let c = a.dot(&(r[0] * a.x + r[1] * a.y + r[2] * a.z));
-            if !(c > 0.0) {
+            if c.is_nan() || c <= 0.0 {
                 continue;
             }
             // a tip off the surface needs no force (the contact cannot pull)
