@@ -197,6 +197,10 @@ pub struct DynamicSolver {
     /// Solve the next steps' Newton updates with the factor of an earlier system matrix (see
     /// [`Self::set_reuse_factorization`]).
     reuse_factorization: bool,
+    /// Numeric factorizations so far.
+    factorizations: usize,
+    /// Evaluate the residual after the last Newton update (see [`DynamicSolver::set_final_residual`]).
+    final_residual: bool,
 }
 
 /// What one element pass of [`DynamicSolver::linearize`] depends on besides the solver: the
@@ -342,6 +346,8 @@ impl DynamicSolver {
             matrices: Vec::new(),
             last: None,
             reuse_factorization: false,
+            factorizations: 0,
+            final_residual: true,
         })
     }
 
@@ -353,6 +359,16 @@ impl DynamicSolver {
     /// a fixed σ (wang2015 §5), where one factorization then serves several M-steps.
     pub fn set_reuse_factorization(&mut self, reuse: bool) {
         self.reuse_factorization = reuse;
+    }
+
+    /// With `evaluate` off, a step that has used up its Newton iterations ends at its last update
+    /// without the element pass that would measure the residual there: the report then holds
+    /// the residual before that update and the status [`DynamicStepStatus::MaxIterations`]. For
+    /// callers that take a fixed number of updates and do not read the residual, e.g. the
+    /// one-update M-steps of a tracker (wang2015 §5), whose next M-step starts elsewhere. On by
+    /// default.
+    pub fn set_final_residual(&mut self, evaluate: bool) {
+        self.final_residual = evaluate;
     }
 
     /// Solver for the constraint set of `bc`.
@@ -566,6 +582,12 @@ impl DynamicSolver {
         let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
         let mut frozen: Option<Vec<crate::contact::ContactSpring>> = None;
         for it in 0..settings.max_iterations.max(1) + 1 {
+            if it == settings.max_iterations.max(1) && !self.final_residual {
+                // the iterations are used up and the caller does not want the residual there
+                let (v, a) = Self::velocity_acceleration(settings, state, &x);
+                state.advance(h, x, v, a);
+                return report;
+            }
             model.update_state(&x);
             let (v, a) = Self::velocity_acceleration(settings, state, &x);
             let (mut values, fi, fd) =
@@ -646,23 +668,15 @@ impl DynamicSolver {
                 state.advance(h, x, v, a);
                 return report;
             }
-            let fres = match self.cholesky.kind() {
-                Some(kind) if self.reuse_factorization => Ok(kind),
-                _ => self.cholesky.factor(&self.pattern, &values),
+            let dx = match self.solve_update(&values, rf) {
+                Ok(dx) => dx,
+                Err(e) => {
+                    report.status = DynamicStepStatus::Failed {
+                        reason: e.to_string(),
+                    };
+                    return report;
+                }
             };
-            if let Err(e) = fres {
-                report.status = DynamicStepStatus::Failed {
-                    reason: e.to_string(),
-                };
-                return report;
-            }
-            let mut dx = rf;
-            if let Err(e) = self.cholesky.solve_in_place(&mut dx) {
-                report.status = DynamicStepStatus::Failed {
-                    reason: e.to_string(),
-                };
-                return report;
-            }
             let last_dx = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             if !last_dx.is_finite() {
                 report.status = DynamicStepStatus::Failed {
@@ -674,6 +688,24 @@ impl DynamicSolver {
             report.iterations = it + 1;
         }
         report
+    }
+
+    /// The Newton update A⁻¹ r: with the last factor while [`Self::set_reuse_factorization`] is
+    /// on and one exists (a chord step), else with a fresh factorization of A.
+    fn solve_update(&mut self, values: &[f64], rf: Vec<f64>) -> Result<Vec<f64>, FemError> {
+        if !(self.reuse_factorization && self.cholesky.kind().is_some()) {
+            self.cholesky.factor(&self.pattern, values)?;
+            self.factorizations += 1;
+        }
+        let mut dx = rf;
+        self.cholesky.solve_in_place(&mut dx)?;
+        Ok(dx)
+    }
+
+    /// Numeric factorizations of the system matrix so far (one per Newton update, except those
+    /// of [`Self::set_reuse_factorization`]).
+    pub fn factorizations(&self) -> usize {
+        self.factorizations
     }
 
     /// One pass over the elements at `x` (chunks evaluated by

@@ -170,17 +170,24 @@ fn tracker<'a>(s: &'a Scene, settings: &TrackSettings) -> Tracker<'a> {
     .expect("tracker")
 }
 
-/// Tracks every frame; returns the node RMS error against the truth over all frames, m.
-fn run(s: &Scene, mut t: Tracker<'_>) -> f64 {
-    let (mut sum, mut count) = (0.0, 0usize);
+/// Tracks every frame; returns the node RMS error against the truth over all frames (m), the EM
+/// iterations and the factorizations per frame.
+fn run(s: &Scene, mut t: Tracker<'_>) -> (f64, f64, f64) {
+    let (mut sum, mut count, mut iterations) = (0.0, 0usize, 0usize);
     for (k, (points, normals)) in s.clouds.iter().enumerate() {
         let f = t.track(k as u64, k as f64 / FRAME_RATE_HZ, points, normals, None);
+        iterations += f.em_iterations;
         for (a, b) in f.positions_m.iter().zip(&s.truth[k]) {
             sum += (a - b).norm_squared();
             count += 1;
         }
     }
-    (sum / count.max(1) as f64).sqrt()
+    let frames = s.clouds.len().max(1) as f64;
+    (
+        (sum / count.max(1) as f64).sqrt(),
+        iterations as f64 / frames,
+        t.factorizations() as f64 / frames,
+    )
 }
 
 fn process_cpu_s() -> f64 {
@@ -215,13 +222,14 @@ fn bench(c: &mut Criterion) {
         ..TrackSettings::default()
     };
     let (cpu0, wall0) = (process_cpu_s(), Instant::now());
-    let rms = run(&s, tracker(&s, &settings));
+    let (rms, iterations, factorizations) = run(&s, tracker(&s, &settings));
     let (cpu, wall) = (process_cpu_s() - cpu0, wall0.elapsed().as_secs_f64());
     eprintln!(
-        "single run: {:.2} frames/s ({wall:.2} s wall, {:.2} CPU-s per frame), node RMS vs truth {:.3} mm",
+        "single run: {:.2} frames/s ({wall:.2} s wall, {:.3} CPU-s per frame), {iterations:.2} EM iterations and {factorizations:.2} factorizations per frame, node RMS vs truth {:.3} mm, {} rayon threads",
         FRAMES as f64 / wall,
         cpu / FRAMES as f64,
-        1e3 * rms
+        1e3 * rms,
+        rayon::current_num_threads()
     );
     if std::env::var_os("SOFTCAP_TRACK_BENCH_ONCE").is_some() {
         eprintln!("SOFTCAP_TRACK_BENCH_ONCE set: single run only, no criterion samples");

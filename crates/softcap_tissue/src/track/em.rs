@@ -63,11 +63,17 @@ pub struct EStep {
 /// Cells of [`Grid`] at most (8 MB of offsets); a larger box gets larger cells.
 const MAX_GRID_CELLS: usize = 1 << 21;
 
-/// Used points per block of the parallel E-step. Each block computes its points'
+/// Work per block of the parallel E-step, in points at stride 1. Each block computes its points'
 /// responsibilities and sums them into its own per-sample partial sums; the blocks' sums are
-/// then added in block order. The blocks are fixed by the point count alone, so the result does
-/// not depend on the number of threads.
+/// then added in block order. A point at stride s meets about s times the candidates of a point
+/// at stride 1 (its grid cells are √s times wider), so a block holds `POINT_BLOCK / s` used
+/// points: the large-σ E-steps, with few points, still split into several blocks. The blocks
+/// are fixed by the point count and the stride alone, so the result does not depend on the number
+/// of threads.
 const POINT_BLOCK: usize = 2048;
+
+/// Samples per task of the blocks' reduction (each sample adds its blocks' sums in block order).
+const SAMPLE_CHUNK: usize = 1024;
 
 /// A dense uniform grid over the visible samples with cells of at least the cutoff radius, in
 /// compressed rows: the samples of cell c are `items[start[c]..start[c + 1]]`, ascending, cells
@@ -238,8 +244,9 @@ pub fn e_step(
         .collect();
     let weight = stride as f64;
     // per block of points, in parallel: responsibilities and their partial sums
+    let block_len = POINT_BLOCK.div_ceil(stride).max(1);
     let blocks: Vec<BlockSums> = used
-        .par_chunks(POINT_BLOCK)
+        .par_chunks(block_len)
         .map(|block| {
             let mut b = BlockSums {
                 weight: vec![0.0; samples.len()],
@@ -276,24 +283,31 @@ pub fn e_step(
             b
         })
         .collect();
-    // the blocks' sums in block order: deterministic
-    let mut sum_c = vec![Vector3::zeros(); samples.len()];
+    // the blocks' sums in block order, per sample (in parallel over samples): deterministic
+    out.weight
+        .par_chunks_mut(SAMPLE_CHUNK)
+        .zip(out.target.par_chunks_mut(SAMPLE_CHUNK))
+        .enumerate()
+        .for_each(|(chunk, (weight, target))| {
+            for (i, (w, t)) in weight.iter_mut().zip(target.iter_mut()).enumerate() {
+                let k = chunk * SAMPLE_CHUNK + i;
+                let mut sum_c = Vector3::zeros();
+                for b in &blocks {
+                    *w += b.weight[k];
+                    sum_c += b.sum_c[k];
+                }
+                if *w > 0.0 {
+                    *t = sum_c / *w;
+                }
+            }
+        });
     let (mut num, mut den, mut outlier) = (0.0, 0.0, 0.0);
     let mut point_outlier = Vec::with_capacity(used.len());
     for b in &blocks {
-        for k in 0..samples.len() {
-            out.weight[k] += b.weight[k];
-            sum_c[k] += b.sum_c[k];
-        }
         num += b.num;
         den += b.den;
         outlier += b.outlier.iter().sum::<f64>();
         point_outlier.extend_from_slice(&b.outlier);
-    }
-    for k in 0..samples.len() {
-        if out.weight[k] > 0.0 {
-            out.target[k] = sum_c[k] / out.weight[k];
-        }
     }
     if den > 0.0 {
         out.sigma2_ml = num / (3.0 * den);

@@ -9,8 +9,6 @@
 //! forces go from the surface to the simulation nodes by the same weights that carry positions
 //! back).
 
-use std::collections::BTreeMap;
-
 use nalgebra::{Matrix3, Vector3};
 use softcap_fem::NodalTerm;
 
@@ -23,9 +21,9 @@ pub struct VirtualForces<'a> {
     /// (sample, κ_k [N/m], ĉ_k [m])
     springs: Vec<(usize, f64, Vector3<f64>)>,
     /// Σ_k κ_k w_ka² per node, and κ_k w_ka w_kb per node pair a < b (fixed while the
-    /// responsibilities are).
-    diagonal: BTreeMap<usize, f64>,
-    pairs: BTreeMap<(usize, usize), f64>,
+    /// responsibilities are), each ascending by node (pair), every sum in sample order.
+    diagonal: Vec<(usize, f64)>,
+    pairs: Vec<((usize, usize), f64)>,
 }
 
 impl<'a> VirtualForces<'a> {
@@ -33,8 +31,8 @@ impl<'a> VirtualForces<'a> {
     /// samples with κ = 0 exert nothing.
     pub fn new(samples: &'a SurfaceSamples, kappa: &[f64], targets: &[Vector3<f64>]) -> Self {
         let mut springs = Vec::new();
-        let mut diagonal = BTreeMap::new();
-        let mut pairs = BTreeMap::new();
+        let mut diagonal = Vec::new();
+        let mut pairs = Vec::new();
         for k in 0..samples.len() {
             let kk = kappa[k];
             if !(kk > 0.0 && kk.is_finite()) {
@@ -43,18 +41,17 @@ impl<'a> VirtualForces<'a> {
             springs.push((k, kk, targets[k]));
             let e = samples.entries(k);
             for (i, &(a, wa)) in e.iter().enumerate() {
-                *diagonal.entry(a).or_insert(0.0) += kk * wa * wa;
+                diagonal.push((a, kk * wa * wa));
                 for &(b, wb) in &e[i + 1..] {
-                    let key = (a.min(b), a.max(b));
-                    *pairs.entry(key).or_insert(0.0) += kk * wa * wb;
+                    pairs.push(((a.min(b), a.max(b)), kk * wa * wb));
                 }
             }
         }
         Self {
             samples,
             springs,
-            diagonal,
-            pairs,
+            diagonal: sum_by_key(diagonal),
+            pairs: sum_by_key(pairs),
         }
     }
 
@@ -86,16 +83,30 @@ impl NodalTerm for VirtualForces<'_> {
     fn blocks(&self, _x: &[Vector3<f64>]) -> Vec<(usize, Matrix3<f64>)> {
         self.diagonal
             .iter()
-            .map(|(&a, &v)| (a, Matrix3::identity() * v))
+            .map(|&(a, v)| (a, Matrix3::identity() * v))
             .collect()
     }
 
     fn pair_blocks(&self, _x: &[Vector3<f64>]) -> Vec<(usize, usize, Matrix3<f64>)> {
         self.pairs
             .iter()
-            .map(|(&(a, b), &v)| (a, b, Matrix3::identity() * v))
+            .map(|&((a, b), v)| (a, b, Matrix3::identity() * v))
             .collect()
     }
+}
+
+/// The values of equal keys summed in their order in `items` (a stable sort, then one pass), in
+/// ascending key order: the sums of a map accumulated in that order, without the map.
+fn sum_by_key<K: Ord + Copy>(mut items: Vec<(K, f64)>) -> Vec<(K, f64)> {
+    items.sort_by_key(|&(key, _)| key);
+    let mut out: Vec<(K, f64)> = Vec::with_capacity(items.len());
+    for (key, v) in items {
+        match out.last_mut() {
+            Some((last, sum)) if *last == key => *sum += v,
+            _ => out.push((key, v)),
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -18,6 +18,7 @@
 //! counter-force (for a linear model gravity then only shifts the equilibrium, which the data
 //! fixes), and the report says so. A free body (no support) keeps gravity and its frame-0 shape.
 
+pub mod anderson;
 pub mod em;
 pub mod eval;
 pub mod forces;
@@ -81,6 +82,9 @@ pub struct TrackSettings {
     pub max_em_iterations: usize,
     /// Converged when no node moves more than this in an M-step at σ_min, m.
     pub em_tolerance_m: f64,
+    /// At σ_min, Anderson acceleration of the EM iterates over this many past iterations (0:
+    /// plain EM iterations).
+    pub anderson_memory: usize,
     /// Virtual-force scale: η = data_weight · M / (N h²) · σ_min², M the body's mass, N the
     /// frame's points (see [`tracker`]).
     pub data_weight: f64,
@@ -95,7 +99,8 @@ pub struct TrackSettings {
     /// Frame interval used for η (0: the median interval of the capture), s.
     pub nominal_frame_interval_s: f64,
     /// At σ_min, the EM iterations after the first solve their M-step with the factorization of
-    /// the first (a chord step). Off by default: it lost the bar release's fast phase.
+    /// the first (a chord step; with the Anderson acceleration the same fixed point, reached in
+    /// as many iterations).
     pub reuse_factorization: bool,
     /// Progress bar on stderr (when it is a terminal).
     pub progress: bool,
@@ -122,13 +127,14 @@ impl Default for TrackSettings {
             min_em_iterations: 3,
             max_em_iterations: 8,
             em_tolerance_m: 5.0e-5,
+            anderson_memory: 2,
             data_weight: 64.0,
             visibility: true,
             visibility_tolerance_m: 0.002,
             grazing_deg: 85.0,
             divergence_step_m: 0.2,
             nominal_frame_interval_s: 0.0,
-            reuse_factorization: false,
+            reuse_factorization: true,
             progress: true,
         }
     }

@@ -28,11 +28,18 @@
 //! Each EM iteration takes one Newton step of the implicit M-step from the current positions (a
 //! generalized EM: the M-step improves the objective instead of maximizing it); a frame has
 //! converged when, at σ_min, a further M-step moves no node more than the tolerance, i.e. the
-//! positions solve the implicit step with the final responsibilities. With
-//! `reuse_factorization` (off by default) the M-steps at σ_min after the first reuse its
-//! factorization (`DynamicSolver::set_reuse_factorization`, chord steps on the current residual).
-//! It saves 40 % of the factorizations but lost the fast phase of the synthetic bar release
-//! (surface RMS 1.70 mm against ≤ 1.5 mm with fresh factorizations).
+//! positions solve the implicit step with the final responsibilities. At σ_min the map x ↦
+//! M-step(E-step(x)) no longer changes between iterations, and its plain iterates converge
+//! slowly (each M-step moved the nodes about 0.6 × as far as the one before on the bench-2k bar):
+//! they are Anderson-accelerated ([`super::anderson`], `anderson_memory` past iterates), which
+//! does not change the fixed point, only how fast it is reached. With `reuse_factorization` (on
+//! by default) the M-steps at σ_min after the first solve with its factorization
+//! (`DynamicSolver::set_reuse_factorization`: chord steps on the current residual); the fixed
+//! point is again the same (the residual is the current one). Without the acceleration the
+//! chord steps had not converged within the iteration limit and lost the synthetic bar
+//! release's fast phase (surface RMS 1.70 mm against ≤ 1.5 mm). Which samples are visible is
+//! recomputed only when a node has moved more than half the visibility tolerance since; the
+//! last E-step at σ_min gives the frame's outlier fraction.
 //!
 //! The first frame steps from rest over the nominal interval h.
 
@@ -45,6 +52,7 @@ use softcap_fem::{
 use softcap_mesh::{SurfaceRayCaster, TetMesh, TriLocator, TriMesh};
 
 use super::TrackSettings;
+use super::anderson::Anderson;
 use super::em::{EStep, EStepParams, bounding_volume, e_step};
 use super::forces::VirtualForces;
 use super::samples::SurfaceSamples;
@@ -98,6 +106,13 @@ pub struct Attachment {
     pub frame0_m: Vec<Vector3<f64>>,
 }
 
+/// Which samples were visible, and at which node positions that was computed.
+#[derive(Clone, Debug, Default)]
+struct VisibilityCache {
+    at: Vec<Vector3<f64>>,
+    visible: Vec<bool>,
+}
+
 /// The tracker's state across frames.
 pub struct Tracker<'a> {
     mesh: &'a TetMesh,
@@ -114,6 +129,7 @@ pub struct Tracker<'a> {
     state: DynamicState,
     started: bool,
     surface: TriMesh,
+    visibility: VisibilityCache,
 }
 
 impl<'a> Tracker<'a> {
@@ -141,7 +157,9 @@ impl<'a> Tracker<'a> {
         let total_mass: f64 = masses_kg.iter().sum();
         let h = frame_interval_s.max(1e-6);
         let eta_points = settings.data_weight * total_mass / (h * h) * settings.sigma_min_m.powi(2);
-        let solver = DynamicSolver::new(&model, masses_kg, &dofs)?;
+        let mut solver = DynamicSolver::new(&model, masses_kg, &dofs)?;
+        // one Newton update per M-step, whose residual nobody reads (the next starts elsewhere)
+        solver.set_final_residual(false);
         let samples = SurfaceSamples::new(mesh, settings.sample_spacing_m);
         // the nominal interval is also the first frame's step (from rest at t₀ − h)
         let mut settings = settings.clone();
@@ -164,7 +182,13 @@ impl<'a> Tracker<'a> {
             state: DynamicState::at_rest(mesh.vertices.clone()),
             started: false,
             surface,
+            visibility: VisibilityCache::default(),
         })
+    }
+
+    /// Numeric factorizations of the M-steps' system matrix so far.
+    pub fn factorizations(&self) -> usize {
+        self.solver.factorizations()
     }
 
     /// Number of surface samples (GMM components before visibility).
@@ -283,9 +307,16 @@ impl<'a> Tracker<'a> {
         let mut stepped = start.clone();
         let no_points = points.is_empty();
         let mut last_sigma = f64::NAN;
+        let mut anderson = Anderson::new(s.anderson_memory);
+        let mut last_e: Option<EStep> = None;
         for it in 0..s.max_em_iterations.max(1) {
             let stride = (((sigma / s.sigma_min_m).powi(2)).round() as usize).clamp(1, 64);
-            let (e, _) = self.expectation(points, normals, &x, volume, sigma, stride);
+            let e = self.expectation(points, normals, &x, volume, sigma, stride);
+            let ml = if e.sigma2_ml.is_finite() {
+                e.sigma2_ml.sqrt()
+            } else {
+                sigma
+            };
             let kappa: Vec<f64> = e.weight.iter().map(|w| eta * w / (sigma * sigma)).collect();
             let mut term = VirtualForces::new(&self.samples, &kappa, &e.target);
             let mut trial = start.clone();
@@ -326,18 +357,19 @@ impl<'a> Tracker<'a> {
                     s.divergence_step_m
                 ));
             }
-            x = trial.positions_m.clone();
-            stepped = trial;
+            // at σ_min the map x ↦ M-step(E-step(x)) is fixed: Anderson-accelerate its iterates
             let at_floor = sigma <= s.sigma_min_m * (1.0 + 1e-9);
+            x = if at_floor {
+                anderson.next(&x, &trial.positions_m)
+            } else {
+                trial.positions_m.clone()
+            };
+            stepped = trial;
+            last_e = (stride == 1).then_some(e);
             if it + 1 >= s.min_em_iterations && at_floor && moved <= s.em_tolerance_m {
                 out.status = "converged";
                 break;
             }
-            let ml = if e.sigma2_ml.is_finite() {
-                e.sigma2_ml.sqrt()
-            } else {
-                sigma
-            };
             sigma = (s.sigma_anneal * sigma).min(ml).max(s.sigma_min_m);
             out.sigma_m = sigma;
         }
@@ -354,37 +386,40 @@ impl<'a> Tracker<'a> {
         self.state = stepped;
         self.state.time_s = start.time_s + h;
         out.positions_m = self.state.positions_m.clone();
-        // final E-step at the tracked positions: residual, outliers, visibility
-        let (e, visible) = self.expectation(points, normals, &out.positions_m, volume, sigma, 1);
-        out.visible_samples = visible;
+        // outliers and visibility of the last E-step (at σ_min: every point, positions within
+        // the last M-step's move of the tracked ones), else of one at the tracked positions
+        let e = match last_e {
+            Some(e) => e,
+            None => self.expectation(points, normals, &out.positions_m, volume, sigma, 1),
+        };
+        out.visible_samples = self.visibility.visible.iter().filter(|v| **v).count();
         out.sigma_m = sigma;
         out.outlier_fraction = e.outlier_fraction;
         out.residual_m = self.residual(&out.positions_m, points, &e.point_outlier);
         Ok(out)
     }
 
-    /// The E-step at node positions `x` over the samples visible there; also returns how many
-    /// samples are visible.
+    /// The E-step at node positions `x` over the samples visible there.
     fn expectation(
-        &self,
+        &mut self,
         points: &[Vector3<f64>],
         normals: &[Vector3<f64>],
         x: &[Vector3<f64>],
         volume: f64,
         sigma: f64,
         stride: usize,
-    ) -> (EStep, usize) {
-        let s = &self.settings;
+    ) -> EStep {
         let sample_x = self.samples.positions(x);
         let sample_n = self.samples.normals(x);
-        let visible = self.visibility(x, &sample_x, &sample_n);
-        let e = e_step(
+        self.refresh_visibility(x, &sample_x, &sample_n);
+        let s = &self.settings;
+        e_step(
             points,
             normals,
             &sample_x,
             &sample_n,
             &self.samples.areas_m2,
-            &visible,
+            &self.visibility.visible,
             volume,
             &EStepParams {
                 sigma_m: sigma,
@@ -393,8 +428,34 @@ impl<'a> Tracker<'a> {
                 stride,
                 normal_gate: s.normal_gate,
             },
-        );
-        (e, visible.iter().filter(|v| **v).count())
+        )
+    }
+
+    /// Recomputes which samples are visible when a node has moved more than half the visibility
+    /// tolerance since they last were (a sample's occlusion test already allows the surface that
+    /// much slack; the EM iterations at σ_min move nodes by fractions of a millimetre).
+    fn refresh_visibility(
+        &mut self,
+        x: &[Vector3<f64>],
+        sample_x: &[Vector3<f64>],
+        sample_n: &[Vector3<f64>],
+    ) {
+        let cache = &self.visibility;
+        let moved = if cache.at.len() == x.len() {
+            x.iter()
+                .zip(&cache.at)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max)
+        } else {
+            f64::INFINITY
+        };
+        if moved <= 0.5 * self.settings.visibility_tolerance_m {
+            return;
+        }
+        self.visibility = VisibilityCache {
+            visible: self.visibility(x, sample_x, sample_n),
+            at: x.to_vec(),
+        };
     }
 
     /// Whether each sample is seen by some camera (all samples without cameras).
