@@ -338,6 +338,32 @@ fn noisy_box(hold_out: HoldOut) -> (ReshapeProblem, Vec<Vector3<f64>>, Vec<f64>,
     (p, held_out, grid, settings)
 }
 
+/// The truth's error of the reshape at each fixed α̂ of `grid` (what cross-validation must match).
+fn errors_at_fixed_smoothness(
+    p: &ReshapeProblem,
+    grid: &[f64],
+    error: impl Fn(&[Vector3<f64>]) -> f64,
+) -> Vec<f64> {
+    grid.iter()
+        .map(|&a| {
+            let fixed = ReshapeSettings {
+                smoothness: Smoothness::Fixed(a),
+                ..ReshapeSettings::default()
+            };
+            error(
+                &reshape(p, &fixed, &mut |_, _, _, _| {})
+                    .unwrap()
+                    .positions_m,
+            )
+        })
+        .collect()
+}
+
+/// Index of the smallest value.
+fn argmin(v: &[f64]) -> usize {
+    (0..v.len()).min_by(|&a, &b| v[a].total_cmp(&v[b])).unwrap()
+}
+
 /// Cross-validation chooses α̂ without the truth (`smoothness = "cv"`): on the known-truth box
 /// (288 tets) with ICP markers 0.3 mm off the surface, 3-fold cross-validation on held-out
 /// markers over the grid 3e-6, 3e-4, 3e-2 picks the α̂ whose true shape error (p95 distance from
@@ -358,26 +384,11 @@ fn cross_validation_picks_the_smoothness_the_truth_prefers() {
             .collect();
         stats(&mut d).1
     };
-    let truth_errors: Vec<f64> = grid
-        .iter()
-        .map(|&a| {
-            let fixed = ReshapeSettings {
-                smoothness: Smoothness::Fixed(a),
-                ..ReshapeSettings::default()
-            };
-            shape_p95(
-                &reshape(&p, &fixed, &mut |_, _, _, _| {})
-                    .unwrap()
-                    .positions_m,
-            )
-        })
-        .collect();
+    let truth_errors = errors_at_fixed_smoothness(&p, &grid, shape_p95);
     let rms: Vec<f64> = cv.scores.iter().map(|s| s.rms_m * 1e3).collect();
     let mm: Vec<f64> = truth_errors.iter().map(|e| e * 1e3).collect();
     eprintln!("held-out RMS {rms:.3?} mm; true shape p95 {mm:.3?} mm");
-    let best = (0..grid.len())
-        .min_by(|&a, &b| truth_errors[a].total_cmp(&truth_errors[b]))
-        .unwrap();
+    let best = argmin(&truth_errors);
     assert_eq!(
         cv.chosen, grid[best],
         "CV chose {}, the truth {}",
@@ -408,25 +419,10 @@ fn correspondence_cross_validation_picks_the_smoothness_the_truth_prefers() {
             .collect();
         stats(&mut d).0
     };
-    let truth_errors: Vec<f64> = grid
-        .iter()
-        .map(|&a| {
-            let fixed = ReshapeSettings {
-                smoothness: Smoothness::Fixed(a),
-                ..ReshapeSettings::default()
-            };
-            correspondence(
-                &reshape(&p, &fixed, &mut |_, _, _, _| {})
-                    .unwrap()
-                    .positions_m,
-            ) * 1e3
-        })
-        .collect();
+    let truth_errors = errors_at_fixed_smoothness(&p, &grid, |x| correspondence(x) * 1e3);
     let rms: Vec<f64> = cv.scores.iter().map(|s| s.rms_m * 1e3).collect();
     eprintln!("held-out RMS {rms:.3?} mm; true correspondence mean {truth_errors:.3?} mm");
-    let best = (0..grid.len())
-        .min_by(|&a, &b| truth_errors[a].total_cmp(&truth_errors[b]))
-        .unwrap();
+    let best = argmin(&truth_errors);
     assert_eq!(
         cv.chosen, grid[best],
         "CV chose {}, the truth {}",
