@@ -32,6 +32,28 @@ use super::laplacian::PlasticLaplacian;
 /// Columns per block of Y = B A⁻¹ Bᵀ Z (bounds the 6T × block scratch).
 const BLOCK: usize = 64;
 
+/// Columns per parallel tile of the Bᵀ and B products: each tet's 12×6 block (576 bytes) is
+/// read once per tile, not once per column.
+const TILE: usize = 8;
+
+/// The columns of `m` as slices (copied when a column is not contiguous).
+fn column_slices(m: MatRef<'_, f64>) -> Vec<std::borrow::Cow<'_, [f64]>> {
+    m.col_iter()
+        .map(|c| match c.try_as_col_major() {
+            Some(c) => std::borrow::Cow::Borrowed(c.as_slice()),
+            None => std::borrow::Cow::Owned(c.iter().copied().collect()),
+        })
+        .collect()
+}
+
+/// A column of an owned [`Mat`] as a slice (faer stores each column contiguously).
+fn contiguous_mut(c: faer::ColMut<'_, f64>) -> &mut [f64] {
+    match c.try_as_col_major_mut() {
+        Some(c) => c.as_slice_mut(),
+        None => unreachable!("columns of an owned Mat are contiguous"),
+    }
+}
+
 /// What both solvers of the normal equations need.
 pub struct NormalSystem<'a> {
     /// ∂f_int/∂s per tet (12×6, node-major rows).
@@ -58,65 +80,61 @@ impl NormalSystem<'_> {
     }
 
     /// Bᵀ applied to the columns of `v` (3N × m): a T × 6m component-major block
-    /// (column 6c + k = component k of the result for column c).
+    /// (column 6c + k = component k of the result for column c). Tiles of [`TILE`] columns run
+    /// in parallel; each reads every tet's 12×6 block once per tile.
     fn bt_times(&self, v: MatRef<'_, f64>) -> Mat<f64> {
         let t = self.num_tets();
+        let inputs = column_slices(v);
         let mut out = Mat::<f64>::zeros(t, 6 * v.ncols());
-        let cols: Vec<Vec<[f64; 6]>> = (0..v.ncols())
-            .into_par_iter()
-            .map(|c| {
-                let col = v.col(c);
-                self.jacobians
-                    .iter()
-                    .zip(self.tets)
-                    .map(|(b, tet)| {
-                        let mut r = [0.0; 6];
-                        for (a, &node) in tet.iter().enumerate() {
-                            for i in 0..3 {
-                                let z = col[3 * node + i];
-                                if z != 0.0 {
-                                    for (k, rk) in r.iter_mut().enumerate() {
-                                        *rk += b[(3 * a + i, k)] * z;
-                                    }
-                                }
-                            }
-                        }
-                        r
-                    })
-                    .collect()
-            })
-            .collect();
-        for (c, rows) in cols.into_iter().enumerate() {
-            for (e, r) in rows.into_iter().enumerate() {
-                for k in 0..6 {
-                    out[(e, 6 * c + k)] = r[k];
-                }
-            }
-        }
-        out
-    }
-
-    /// B applied to a T × 6m component-major block: 3N × m.
-    fn b_times(&self, v: MatRef<'_, f64>) -> Mat<f64> {
-        let m = v.ncols() / 6;
-        let n3 = 3 * self.num_nodes;
-        let cols: Vec<Vec<f64>> = (0..m)
-            .into_par_iter()
-            .map(|c| {
-                let mut y = vec![0.0; n3];
+        let mut outputs: Vec<&mut [f64]> = out.col_iter_mut().map(contiguous_mut).collect();
+        outputs
+            .par_chunks_mut(6 * TILE)
+            .zip(inputs.par_chunks(TILE))
+            .for_each(|(outs, ins)| {
+                let mut local = SMatrix::<f64, 12, TILE>::zeros();
                 for (e, (b, tet)) in self.jacobians.iter().zip(self.tets).enumerate() {
-                    let s = Vector6::from_fn(|k, _| v[(e, 6 * c + k)]);
-                    let f = b * s;
                     for (a, &node) in tet.iter().enumerate() {
                         for i in 0..3 {
-                            y[3 * node + i] += f[3 * a + i];
+                            for (c, col) in ins.iter().enumerate() {
+                                local[(3 * a + i, c)] = col[3 * node + i];
+                            }
+                        }
+                    }
+                    let r = b.tr_mul(&local);
+                    for c in 0..ins.len() {
+                        for k in 0..6 {
+                            outs[6 * c + k][e] = r[(k, c)];
                         }
                     }
                 }
-                y
-            })
-            .collect();
-        Mat::from_fn(n3, m, |i, c| cols[c][i])
+            });
+        out
+    }
+
+    /// B applied to a T × 6m component-major block: 3N × m (tiles of [`TILE`] columns in
+    /// parallel).
+    fn b_times(&self, v: MatRef<'_, f64>) -> Mat<f64> {
+        let m = v.ncols() / 6;
+        let inputs = column_slices(v);
+        let mut out = Mat::<f64>::zeros(3 * self.num_nodes, m);
+        let mut outputs: Vec<&mut [f64]> = out.col_iter_mut().map(contiguous_mut).collect();
+        outputs
+            .par_chunks_mut(TILE)
+            .zip(inputs.par_chunks(6 * TILE))
+            .for_each(|(outs, ins)| {
+                for (e, (b, tet)) in self.jacobians.iter().zip(self.tets).enumerate() {
+                    for (c, y) in outs.iter_mut().enumerate() {
+                        let s = Vector6::from_fn(|k, _| ins[6 * c + k][e]);
+                        let f = b * s;
+                        for (a, &node) in tet.iter().enumerate() {
+                            for i in 0..3 {
+                                y[3 * node + i] += f[3 * a + i];
+                            }
+                        }
+                    }
+                }
+            });
+        out
     }
 
     /// A 6-vector field (T entries) as a T × 6 component-major block.
