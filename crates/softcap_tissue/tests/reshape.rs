@@ -1,7 +1,8 @@
 //! saito-barbic reshaping against known ground truth (paper Fig. 21).
 
-use softcap_fem::nalgebra::Vector3;
+use softcap_fem::nalgebra::{Isometry3, Vector3};
 use softcap_mesh::TetLocator;
+use softcap_tissue::reshape::gauge::best_rigid;
 use softcap_tissue::reshape::known_truth::{self, moved, problem, truth};
 use softcap_tissue::reshape::{
     ConstraintKind, CrossValidationSettings, HoldOut, ReshapeOutcome, ReshapeProblem,
@@ -90,13 +91,29 @@ fn recovers_a_known_anisotropic_plastic_deformation() {
 /// saito-barbic §3.6: the same targets moved rigidly (29°, 3 cm) and no attachments (free-flying:
 /// rigid gauge and block-coordinate rigid step) give the moved shape. The block-coordinate descent
 /// between shape and rigid transform converges linearly, so the stopping rule is tightened
-/// (relative progress 0.001, 60 iterations; with the defaults the ICP stage stops at 15 iterations
-/// with shape error p95 1.28 mm). Measured: shape 0.126 / 0.503 / 1.296 mm, ICP markers max
-/// 0.286 mm, landmarks max 0.349 mm — without the attached face the x = 0 end is known only from
-/// markers, so the p95 sits at the issue's 0.5 mm.
+/// (relative progress 0.001, 60 iterations). Measured: shape 0.126 / 0.503 / 1.296 mm, ICP markers
+/// max 0.286 mm, landmarks max 0.349 mm — without the attached face the x = 0 end is known only
+/// from markers, so the p95 sits at the issue's 0.5 mm. With the default settings the ICP stage
+/// stops early (rule (iii)); that run is measured and printed too, in the world frame and after
+/// the best rigid motion of all nodes onto the truth's (Horn 1987) — "the same shape up to a rigid
+/// motion" — and not asserted: it is not met (docs/reshape.md).
 #[test]
 fn free_flying_reshape_recovers_the_shape_up_to_a_rigid_motion() {
     let (p, held_out) = problem(true);
+    let defaults = reshape(&p, &ReshapeSettings::default(), &mut |_, _, _, _| {}).unwrap();
+    let [world, _, _] = evaluate(&p, &defaults, &held_out, moved);
+    let (shape, nodes, align) = after_best_rigid_motion(&p, &defaults, &held_out);
+    eprintln!(
+        "defaults: {:?}, world-frame shape {}; after the best rigid motion ({:.2}°, {:.3} mm): \
+         shape {}, node residual {}",
+        defaults.status,
+        mm(world),
+        align.rotation.angle().to_degrees(),
+        align.translation.vector.norm() * 1e3,
+        mm(shape),
+        mm(nodes)
+    );
+    assert_eq!(defaults.reshaped_quality.inverted_tets, 0);
     let settings = ReshapeSettings {
         relative_progress: 0.001,
         max_iterations: 60,
@@ -109,6 +126,34 @@ fn free_flying_reshape_recovers_the_shape_up_to_a_rigid_motion() {
     let landmarks = stats(&mut out.errors_of(ConstraintKind::Landmark));
     assert!(landmarks.2 <= 0.5e-3, "landmark error {}", mm(landmarks));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
+}
+
+/// The reshaped nodes moved by the best rigid motion onto the truth's nodes (Horn 1987): the
+/// held-out points' distance to the moved surface and the node residuals (statistics), and the
+/// motion.
+fn after_best_rigid_motion(
+    p: &ReshapeProblem,
+    out: &ReshapeOutcome,
+    held_out: &[Vector3<f64>],
+) -> ((f64, f64, f64), (f64, f64, f64), Isometry3<f64>) {
+    let truth: Vec<Vector3<f64>> = p.template.vertices.iter().map(moved).collect();
+    let align = best_rigid(&out.positions_m, &truth, &vec![1.0; truth.len()]).unwrap();
+    let aligned: Vec<Vector3<f64>> = out
+        .positions_m
+        .iter()
+        .map(|x| align.transform_point(&(*x).into()).coords)
+        .collect();
+    let mut nodes: Vec<f64> = aligned
+        .iter()
+        .zip(&truth)
+        .map(|(a, t)| (a - t).norm())
+        .collect();
+    let surface = SurfaceProjector::new(&p.template.boundary_faces(), &aligned);
+    let mut shape: Vec<f64> = held_out
+        .iter()
+        .map(|h| surface.project(&moved(h)).unwrap().1)
+        .collect();
+    (stats(&mut shape), stats(&mut nodes), align)
 }
 
 /// `softcap-tissue reshape` end to end with a two-iteration budget: exit 0, the iteration cap is
