@@ -56,9 +56,9 @@ pub struct DiagnoseSettings {
     /// Send a hypothesis whose force-channel screen qualifies (`crate::indentation`: the force
     /// the default model needs at the measured tip depth against the reading) to re-simulation
     /// even when its marker error is at the noise, and name it when its re-simulated model keeps
-    /// the force rule without raising the marker error. Off by default: the force channel is
-    /// computed and reported (`evidence.force_channel`) on every run, but the route is not yet
-    /// measured on every control of both suites.
+    /// the force rule without raising the marker error. On by default: measured with it on,
+    /// every control of both suites (own virtual rig and third-party) stays `none`
+    /// (docs/thirdparty.md, confusion tables).
     pub name_on_force_channel: bool,
 }
 
@@ -81,7 +81,7 @@ impl Default for DiagnoseSettings {
             later_effect_noise_factor: 3.0,
             outliers: OutlierSettings::default(),
             unexplained_noise_factor: 5.0,
-            name_on_force_channel: false,
+            name_on_force_channel: true,
         }
     }
 }

@@ -356,11 +356,11 @@ cases! {
     viscoelasticity => "viscoelasticity",
     clock_offset => "clock-offset",
     gravity_preload => "gravity-preload",
-    #[ignore = "verdict none: support-slip 0.1079 -> 0.1079 mm on contact/away-from-probe (rank 8), clean 0.1080; the screen's basis is the tangential probe force, zero under a vertical punch"]
+    #[ignore = "verdict none: support-slip 0.1079 -> 0.1079 mm on contact/away-from-probe (rank 8), clean 0.1080; the fitted material takes up the slip: the truth's force beyond a scale differs from clean's by 0.0199 N RMS, force noise 0.0455 N (fixture too weak)"]
     support_slip => "support-slip",
-    #[ignore = "verdict none: anisotropy 0.1380 -> 0.1390 mm on contact/away-from-probe (rank 10), clean 0.1080; one fibre cannot fit two HGO families at +-30 deg"]
+    #[ignore = "verdict none: anisotropy 0.1380 -> 0.1390 mm on contact/away-from-probe (rank 10), clean 0.1080; below the 2√3σ noise rule on those cells (0.169 mm); one fibre cannot fit two HGO families at +-30 deg"]
     anisotropy => "anisotropy",
-    #[ignore = "verdict none: sensor-lag 0.1695 -> 0.1661 mm (rank 2) on probed/hold, where the lag has settled; on contact/probed 0.163 -> 0.138 (clean 0.137) but below the 2√3σ noise rule (0.168 mm)"]
+    #[ignore = "passes (named on the force channel: 0.2506 -> 0.0710 N held-out; markers 0.1695 -> 0.1668 mm, clean 0.1691) but costs about 100 CPU-s (the de-lagged grid's re-simulations with material refits)"]
     sensor_lag => "sensor-lag",
     #[ignore = "its paired control probe-friction-pair is not generated (FElupe Newton |r| = 7.3 N after 30 iterations); verdict none, 0.341 mm"]
     probe_friction => "probe-friction",
