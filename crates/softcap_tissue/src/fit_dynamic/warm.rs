@@ -7,8 +7,9 @@
 //! Nelder–Mead), giving the natural frequency ω = √(ω_d² + σ²) and the damping ratio ζ = σ/ω.
 //! The paper samples fifty E and keeps the best match; here E ← E (ω_measured/ω_model)² is
 //! iterated with the rest shape re-solved at each E (exact for a homogeneous linear body, a
-//! few passes otherwise). α and β come from the damping ratios of two modes,
-//! ζ = α/(2ω) + βω/2 (`RayleighDamping::from_two_ratios`), or, with one mode, half of ζ each.
+//! few passes otherwise). α and β come from the damping ratios of the measured modes,
+//! ζ_i = α/(2ω_i) + βω_i/2 in least squares ([`damping_from_modes`]), or, with one mode (or
+//! modes too close in frequency to separate them), half of ζ each.
 
 use nalgebra::Vector3;
 use softcap_core::{NelderMeadSettings, nelder_mead};
@@ -170,22 +171,40 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
 }
 
 /// Damped-sinusoid fits of the modal coordinates of the `modes` over the free segments, sorted
-/// by amplitude (the dominant first).
+/// by amplitude (the dominant first). A mode is fitted on the segments whose frame rate resolves
+/// it (its model frequency below 0.8 of their Nyquist frequency; a sequence joined from a slow
+/// and a fast recording measures its high modes on the fast one only).
 pub fn measure_modes(forward: &Forward, static_m: &[Vector3<f64>], modes: &Modes) -> Vec<ModalFit> {
     let seq = forward.sequence();
-    let frame_dt = seq
-        .times_s
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .fold(f64::INFINITY, f64::min);
-    // Below the Nyquist frequency of the frame rate.
-    let omega_max = 0.95 * std::f64::consts::PI / frame_dt.max(1e-9);
+    let omegas = modes.angular_frequencies_rad_s();
+    // Smallest frame interval of each segment.
+    let nyquist: Vec<f64> = forward
+        .segments()
+        .iter()
+        .map(|s| {
+            let dt = seq.times_s[s.start..=s.end]
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .fold(f64::INFINITY, f64::min);
+            std::f64::consts::PI / dt.max(1e-9)
+        })
+        .collect();
     let mut fits: Vec<ModalFit> = Vec::new();
     for (i, shape) in modes.shapes.iter().enumerate() {
-        let series: Vec<(Vec<f64>, Vec<f64>)> = forward
-            .segments()
+        let model_omega = omegas.get(i).copied().unwrap_or(0.0);
+        let resolving: Vec<usize> = (0..nyquist.len())
+            .filter(|&k| !(model_omega > 0.8 * nyquist[k]))
+            .collect();
+        let Some(omega_max) = resolving
             .iter()
-            .map(|s| modal_coordinate(forward, static_m, shape, s))
+            .map(|&k| 0.95 * nyquist[k])
+            .reduce(f64::min)
+        else {
+            continue;
+        };
+        let series: Vec<(Vec<f64>, Vec<f64>)> = resolving
+            .iter()
+            .map(|&k| modal_coordinate(forward, static_m, shape, &forward.segments()[k]))
             .collect();
         let n: usize = series.iter().map(|(t, _)| t.len()).sum();
         let amplitude = (series
@@ -213,24 +232,35 @@ pub fn measure_modes(forward: &Forward, static_m: &[Vector3<f64>], modes: &Modes
     fits
 }
 
-/// Rayleigh (α, β) from the damping ratios of the measured modes (module docs): two
-/// well-explained modes of different frequency, else the dominant one split evenly.
+/// Rayleigh (α, β) from the damping ratios of the measured modes (module docs): the
+/// least-squares solution of ζ_i = α/(2ω_i) + β ω_i/2 over the well-explained modes (variance
+/// explained > 0.8), when their frequencies span a factor of 1.3 or more; else the dominant mode's ζ split evenly
+/// (half from α, half from β). Two modes close in frequency (a bar's two bending directions)
+/// have nearly the same ζ for a whole line of (α, β) pairs and cannot separate them: α and β
+/// need a mode well above the others, such as a torsion or a second bending mode.
 pub fn damping_from_modes(fits: &[ModalFit]) -> Option<RayleighDamping> {
     let good: Vec<&ModalFit> = fits.iter().filter(|f| f.explained > 0.8).collect();
     let first = good.first()?;
-    if let Some(second) = good
-        .iter()
-        .skip(1)
-        .find(|f| (f.omega_rad_s / first.omega_rad_s - 1.0).abs() > 0.3)
-    {
-        let d = RayleighDamping::from_two_ratios(
-            first.omega_rad_s,
-            first.zeta,
-            second.omega_rad_s,
-            second.zeta,
-        );
-        if d.alpha_per_s > 0.0 && d.beta_s > 0.0 {
-            return Some(d);
+    let (lo, hi) = good.iter().fold((f64::INFINITY, 0.0f64), |(a, b), f| {
+        (a.min(f.omega_rad_s), b.max(f.omega_rad_s))
+    });
+    if hi > 1.3 * lo {
+        // Rows ζ_i = α/(2ω_i) + β ω_i/2.
+        let mut ata = nalgebra::Matrix2::<f64>::zeros();
+        let mut atb = nalgebra::Vector2::<f64>::zeros();
+        for f in &good {
+            let row = nalgebra::Vector2::new(0.5 / f.omega_rad_s, 0.5 * f.omega_rad_s);
+            ata += row * row.transpose();
+            atb += row * f.zeta;
+        }
+        if let Some(ab) = ata.try_inverse().map(|i| i * atb)
+            && ab[0] > 0.0
+            && ab[1] > 0.0
+        {
+            return Some(RayleighDamping {
+                alpha_per_s: ab[0],
+                beta_s: ab[1],
+            });
         }
     }
     Some(RayleighDamping {
