@@ -268,3 +268,37 @@ pub fn damping_from_modes(fits: &[ModalFit]) -> Option<RayleighDamping> {
         beta_s: (first.zeta / first.omega_rad_s).max(1e-7),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mode(mode: usize, omega_rad_s: f64, d: RayleighDamping) -> ModalFit {
+        ModalFit {
+            mode,
+            omega_rad_s,
+            zeta: d.alpha_per_s / (2.0 * omega_rad_s) + d.beta_s * omega_rad_s / 2.0,
+            explained: 0.99,
+            amplitude: 1.0 / (mode + 1) as f64,
+        }
+    }
+
+    /// Two bending modes close in frequency and a torsion mode well above them: the least
+    /// squares over all three gives α and β exactly; the two bending modes alone (ω within a
+    /// factor 1.3) do not try to separate them.
+    #[test]
+    fn rayleigh_from_modes_needs_a_mode_well_apart() {
+        let truth = RayleighDamping {
+            alpha_per_s: 0.8,
+            beta_s: 1.0e-3,
+        };
+        let fits = [mode(0, 20.5, truth), mode(1, 24.0, truth), mode(2, 80.0, truth)];
+        let d = damping_from_modes(&fits).unwrap();
+        assert!((d.alpha_per_s / 0.8 - 1.0).abs() < 1e-9, "{d:?}");
+        assert!((d.beta_s / 1.0e-3 - 1.0).abs() < 1e-9, "{d:?}");
+        // Close modes only: the dominant ζ split evenly (ζ ω from α, ζ/ω from β).
+        let d = damping_from_modes(&fits[..2]).unwrap();
+        let z = fits[0].zeta;
+        assert!((d.alpha_per_s - z * 20.5).abs() < 1e-12 && (d.beta_s - z / 20.5).abs() < 1e-12);
+    }
+}
