@@ -880,6 +880,7 @@ fn warm_start(
     let mut scale = 1.0;
     let mut fits = Vec::new();
     let mut rest: Option<Vec<Vector3<f64>>> = None;
+    let mut last_modes = None;
     // Until the dominant mode's frequency matches to 0.1 %: the rest shape, and with it the
     // modes, depend on E, and a rest shape solved at a far-off starting E can be poor, so the
     // modes are re-measured at every pass.
@@ -891,7 +892,7 @@ fn warm_start(
         let model = forward.model(&params, &x)?;
         rest = Some(x);
         let modes = warm::modes(forward, &model, settings.warm_start_modes)?;
-        fits = warm::measure_modes(forward, static_m, &modes);
+        fits = warm::measure_modes(forward, static_m, &modes, None);
         let Some(dominant) = fits.first().filter(|f| f.explained > 0.5) else {
             return Ok((fits, None, None));
         };
@@ -901,8 +902,17 @@ fn warm_start(
         }
         let ratio = (dominant.omega_rad_s / omega_model).powi(2);
         scale = (scale * ratio).clamp(lo, hi);
+        last_modes = Some(modes);
         if (ratio - 1.0).abs() < 1e-3 {
             break;
+        }
+    }
+    // The body now rings at (or near) the dominant frequency: every mode is measured again near
+    // its own model frequency (the damping ratios of the weak, high ones give β).
+    if let Some(modes) = last_modes {
+        let matched = warm::measure_modes(forward, static_m, &modes, Some(1.5));
+        if matched.first().map(|f| f.mode) == fits.first().map(|f| f.mode) {
+            fits = matched;
         }
     }
     let damping = warm::damping_from_modes(&fits);

@@ -110,9 +110,14 @@ fn sinusoid_rss(t: &[f64], q: &[f64], omega: f64, sigma: f64) -> f64 {
         .sum()
 }
 
-/// Fits the damped sinusoid jointly to the segments' coordinates (shared ω, σ): grid, then
-/// Nelder–Mead on (ω, σ). Returns (ω_d, σ, explained fraction).
-fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Option<(f64, f64, f64)> {
+/// Fits the damped sinusoid jointly to the segments' coordinates (shared ω, σ): grid over
+/// ω ∈ [max(π/duration, `omega_range.0`), `omega_range.1`], then Nelder–Mead on (ω, σ). Returns
+/// (ω_d, σ, explained fraction).
+fn fit_damped_sinusoid(
+    series: &[(Vec<f64>, Vec<f64>)],
+    omega_range: (f64, f64),
+) -> Option<(f64, f64, f64)> {
+    let omega_max = omega_range.1;
     let total_var: f64 = series
         .iter()
         .map(|(_, q)| {
@@ -127,7 +132,10 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
         .iter()
         .map(|(t, _)| t.last().copied().unwrap_or(0.0))
         .fold(0.0f64, f64::max);
-    let omega_min = std::f64::consts::PI / duration.max(1e-6);
+    let omega_min = (std::f64::consts::PI / duration.max(1e-6)).max(omega_range.0);
+    if omega_min >= omega_max {
+        return None;
+    }
     let rss =
         |w: f64, s: f64| -> f64 { series.iter().map(|(t, q)| sinusoid_rss(t, q, w, s)).sum() };
     let mut best = (f64::INFINITY, omega_min, 0.0);
@@ -146,7 +154,7 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
     }
     let report = nelder_mead(
         |p| {
-            if p[0] <= 0.0 || p[1] < 0.0 {
+            if !(omega_min..=omega_max).contains(&p[0]) || p[1] < 0.0 {
                 f64::INFINITY
             } else {
                 rss(p[0], p[1])
@@ -173,8 +181,16 @@ fn fit_damped_sinusoid(series: &[(Vec<f64>, Vec<f64>)], omega_max: f64) -> Optio
 /// Damped-sinusoid fits of the modal coordinates of the `modes` over the free segments, sorted
 /// by amplitude (the dominant first). A mode is fitted on the segments whose frame rate resolves
 /// it (its model frequency below 0.8 of their Nyquist frequency; a sequence joined from a slow
-/// and a fast recording measures its high modes on the fast one only).
-pub fn measure_modes(forward: &Forward, static_m: &[Vector3<f64>], modes: &Modes) -> Vec<ModalFit> {
+/// and a fast recording measures its high modes on the fast one only). With `band` = Some(r)
+/// (the model's E already matched to the dominant mode) each mode's frequency is searched within
+/// a factor r of the model's, so that a weakly excited mode is not read off a stronger one's
+/// leakage; with `None` over everything the frame rate resolves.
+pub fn measure_modes(
+    forward: &Forward,
+    static_m: &[Vector3<f64>],
+    modes: &Modes,
+    band: Option<f64>,
+) -> Vec<ModalFit> {
     let seq = forward.sequence();
     let omegas = modes.angular_frequencies_rad_s();
     // Smallest frame interval of each segment.
@@ -213,7 +229,11 @@ pub fn measure_modes(forward: &Forward, static_m: &[Vector3<f64>], modes: &Modes
             .sum::<f64>()
             / n.max(1) as f64)
             .sqrt();
-        if let Some((wd, s, explained)) = fit_damped_sinusoid(&series, omega_max) {
+        let range = match band {
+            Some(r) if model_omega > 0.0 => (model_omega / r, omega_max.min(model_omega * r)),
+            _ => (0.0, omega_max),
+        };
+        if let Some((wd, s, explained)) = fit_damped_sinusoid(&series, range) {
             let omega = (wd * wd + s * s).sqrt();
             fits.push(ModalFit {
                 mode: i,
