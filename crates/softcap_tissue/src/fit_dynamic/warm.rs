@@ -209,7 +209,7 @@ pub fn measure_modes(
     for (i, shape) in modes.shapes.iter().enumerate() {
         let model_omega = omegas.get(i).copied().unwrap_or(0.0);
         let resolving: Vec<usize> = (0..nyquist.len())
-            .filter(|&k| !(model_omega > 0.8 * nyquist[k]))
+            .filter(|&k| model_omega <= 0.8 * nyquist[k])
             .collect();
         let Some(omega_max) = resolving
             .iter()
@@ -312,7 +312,11 @@ mod tests {
             alpha_per_s: 0.8,
             beta_s: 1.0e-3,
         };
-        let fits = [mode(0, 20.5, truth), mode(1, 24.0, truth), mode(2, 80.0, truth)];
+        let fits = [
+            mode(0, 20.5, truth),
+            mode(1, 24.0, truth),
+            mode(2, 80.0, truth),
+        ];
         let d = damping_from_modes(&fits).unwrap();
         assert!((d.alpha_per_s / 0.8 - 1.0).abs() < 1e-9, "{d:?}");
         assert!((d.beta_s / 1.0e-3 - 1.0).abs() < 1e-9, "{d:?}");
