@@ -4,12 +4,12 @@
 //! refined 1 → 8, at the session's measured poses, once per refactorization policy
 //! (`FemSimSettings::replay_refactorization`: `every`, `stale`), with the contact active set
 //! frozen after N equilibrium iterations instead of 12 (`freezeN`,
-//! `EquilibriumSettings::contact_freeze_after`) or with the mesh refined only inside the touched
-//! balls (`local`), with CPU seconds and the largest marker difference to the first policy.
+//! `EquilibriumSettings::contact_freeze_after`), with the mesh refined only inside the touched
+//! balls (`local`) or on the fit mesh itself (`coarse`), with CPU seconds and the largest marker difference to the first policy.
 //!
 //! ```sh
 //! cargo run --profile test -p softcap_diagnose --example replay_cost -- \
-//!     capture.mcap material.mcap [frames] [every|stale|freezeN|local ...]
+//!     capture.mcap material.mcap [frames] [every|stale|freezeN|local|coarse ...]
 //! ```
 
 use softcap_diagnose::{
@@ -39,7 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     if a.len() < 3 {
         return Err(
-            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale|freezeN|local ...]".into(),
+            "usage: replay_cost capture.mcap material.mcap [frames] [every|stale|freezeN|local|coarse ...]".into(),
         );
     }
     let cap = CaptureData::read(&a[1])?;
@@ -100,7 +100,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         });
         // "local": refined only inside the touched balls (`RefinementSettings::local`), as
         // `ProbeSimulator::refined` does with that setting
-        let fine = if policy == "local" {
+        let fine = if policy == "coarse" {
+            sim
+        } else if policy == "local" {
             let balls = softcap_diagnose::cells::touched_balls(&rec, &seg);
             let edge = 0.5 * sim.longest_edge_m();
             sim.refined_near(&balls, edge, 200_000)?

@@ -12,7 +12,7 @@
 
 use crate::baseline::Prepared;
 use crate::cells::touched_balls;
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_confirm_among};
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices, lolo_confirm_among};
 use crate::recording::Recording;
 use crate::segment::Segmentation;
 use crate::sim::{
@@ -199,6 +199,13 @@ pub struct Replays {
     pub neighbourhoods: Vec<Vec<usize>>,
     /// Converged rigid-tip replays.
     pub rigid: Vec<Candidate>,
+    /// Rigid-tip replays of some of `rigid`'s points re-run on the refined mesh
+    /// ([`Replays::run_coarse_first`]; empty otherwise).
+    pub rigid_fine: Vec<Candidate>,
+    /// The rigid candidate (index into `rigid`) each of `rigid_fine` refines.
+    pub rigid_fine_from: Vec<usize>,
+    /// Per fold (then the full data): the rigid candidates whose refinements it may choose.
+    pub rigid_neighbourhoods: Vec<Vec<usize>>,
     /// Grid points attempted.
     pub total: usize,
     /// The refined copy the rigid-tip replays ran on (`None`: they ran on the fit mesh).
@@ -264,9 +271,103 @@ impl Replays {
             refined_from: Vec::new(),
             neighbourhoods: Vec::new(),
             rigid: rigid_cands,
+            rigid_fine: Vec::new(),
+            rigid_fine_from: Vec::new(),
+            rigid_neighbourhoods: Vec::new(),
             total: total + rigid_total,
             replay_mesh: fine,
         })
+    }
+
+    /// As [`Replays::run`], but the rigid-tip replays are decided on the fit mesh first: every
+    /// point of `rigid` is replayed on the fit mesh (`refined_mesh` = 0; a fit-mesh replay costs
+    /// about a sixteenth of a replay on the mesh refined 1 → 8), each fold (and the full data)
+    /// picks its best on its training cells ([`lolo_choices`]), and only the points picked
+    /// most often — at most `refine_at_most` — are replayed again on the refined copy
+    /// (`refined_mesh` = 1). A refined replay is offered only to the folds that picked its point
+    /// on the fit mesh (that pick was made without the fold's data); the fit-mesh replays stay
+    /// candidates of every fold. Without a refined copy, the fit-mesh replays are the rigid
+    /// candidates, as in [`Replays::run`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn run_coarse_first(
+        sim: &mut dyn ProbeSimulator,
+        grid: Vec<GridPoint>,
+        mut rigid: Vec<RigidPoint>,
+        rec: &Recording,
+        seg: &Segmentation,
+        p: &Prepared,
+        contact_only: bool,
+        scored: &dyn Fn(usize, usize) -> bool,
+        train_on_scored: bool,
+        refine_at_most: usize,
+    ) -> Result<Self> {
+        let points = rigid.clone();
+        for (params, _) in &mut rigid {
+            params.push(("refined_mesh".into(), 0.0));
+        }
+        let (forced, total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
+        let (coarse, coarse_total) = simulate_rigid_grid(sim, rigid, rec)?;
+        let mut replays = Self {
+            forced,
+            sources,
+            refined: Vec::new(),
+            refined_from: Vec::new(),
+            neighbourhoods: Vec::new(),
+            rigid: coarse,
+            rigid_fine: Vec::new(),
+            rigid_fine_from: Vec::new(),
+            rigid_neighbourhoods: Vec::new(),
+            total: total + coarse_total,
+            replay_mesh: None,
+        };
+        if replays.rigid.is_empty() || refine_at_most == 0 {
+            return Ok(replays);
+        }
+        let choices = lolo_choices(
+            &replays.rigid,
+            rec,
+            seg,
+            p,
+            ComplianceScale::new(false, 1.0, 1.0),
+            scored,
+            train_on_scored,
+        );
+        let chosen = most_chosen(&choices, refine_at_most);
+        let Some(mut fine) = sim.refined(&touched_balls(rec, seg))? else {
+            return Ok(replays);
+        };
+        // the chosen points (their parameters without the coarse `refined_mesh` entry)
+        let grid: Vec<RigidPoint> = chosen
+            .iter()
+            .map(|&i| {
+                let params = &replays.rigid[i].params;
+                let (mut params, ext) = points
+                    .iter()
+                    .find(|(q, _)| q[..] == params[..params.len() - 1])
+                    .cloned()
+                    .ok_or_else(|| DiagnoseError::BadRecording {
+                        what: "coarse-first replay: a candidate without its grid point".into(),
+                    })?;
+                params.push(("refined_mesh".into(), 1.0));
+                Ok((params, ext))
+            })
+            .collect::<Result<_>>()?;
+        // which chosen point each converged refined replay refines (the grid points are unique)
+        let (fine_cands, fine_total) = simulate_rigid_grid(fine.as_mut(), grid, rec)?;
+        for c in &fine_cands {
+            let name = &c.params[..c.params.len() - 1];
+            if let Some(&i) = chosen
+                .iter()
+                .find(|&&i| replays.rigid[i].params[..replays.rigid[i].params.len() - 1] == *name)
+            {
+                replays.rigid_fine_from.push(i);
+            }
+        }
+        replays.total += fine_total;
+        replays.rigid_fine = fine_cands;
+        replays.rigid_neighbourhoods = choices.iter().map(|&i| vec![i]).collect();
+        replays.replay_mesh = Some(fine);
+        Ok(replays)
     }
 
     /// Re-simulates the force-driven grid points `chosen` (indices into `sources`) on `fine` (a
@@ -325,13 +426,26 @@ impl Replays {
         cells: &str,
     ) -> Result<Option<Confirmed>> {
         let n_coarse = self.forced.len();
+        // the refined rigid replays come after every other candidate
+        let n_before_fine = n_coarse + self.refined.len() + self.rigid.len();
         let nf = seg.num_folds();
         let (refined_from, neighbourhoods) = (&self.refined_from, &self.neighbourhoods);
-        let eligible = |i: usize, fold: Option<usize>| match i.checked_sub(n_coarse) {
-            Some(j) if j < refined_from.len() => neighbourhoods
-                .get(fold.unwrap_or(nf))
-                .is_some_and(|nb| nb.contains(&refined_from[j])),
-            _ => true,
+        let (rigid_fine_from, rigid_neighbourhoods) =
+            (&self.rigid_fine_from, &self.rigid_neighbourhoods);
+        let offered = |nbs: &[Vec<usize>], from: usize, fold: Option<usize>| {
+            nbs.get(fold.unwrap_or(nf))
+                .is_some_and(|nb| nb.contains(&from))
+        };
+        let eligible = |i: usize, fold: Option<usize>| {
+            if let Some(j) = i.checked_sub(n_before_fine) {
+                return rigid_fine_from
+                    .get(j)
+                    .is_some_and(|&from| offered(rigid_neighbourhoods, from, fold));
+            }
+            match i.checked_sub(n_coarse) {
+                Some(j) if j < refined_from.len() => offered(neighbourhoods, refined_from[j], fold),
+                _ => true,
+            }
         };
         let total = self.total;
         let cands: Vec<Candidate> = self
@@ -339,6 +453,7 @@ impl Replays {
             .into_iter()
             .chain(self.refined)
             .chain(self.rigid)
+            .chain(self.rigid_fine)
             .collect();
         let n = cands.len();
         lolo_confirm_among(
@@ -355,5 +470,33 @@ impl Replays {
                 "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {cells}"
             ),
         )
+    }
+}
+
+/// The candidates named most often in `choices` (per fold, then the full data), at most `n`:
+/// by how many choices name them, ties in the order they are first named.
+fn most_chosen(choices: &[usize], n: usize) -> Vec<usize> {
+    let mut counts: Vec<(usize, usize)> = Vec::new();
+    for &c in choices {
+        match counts.iter_mut().find(|(i, _)| *i == c) {
+            Some((_, k)) => *k += 1,
+            None => counts.push((c, 1)),
+        }
+    }
+    // stable: ties keep their first-named order
+    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    counts.into_iter().take(n).map(|(i, _)| i).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::most_chosen;
+
+    #[test]
+    fn most_chosen_counts_then_first_named() {
+        assert_eq!(most_chosen(&[3, 1, 1, 3, 2, 1, 5], 2), vec![1, 3]);
+        assert_eq!(most_chosen(&[4, 2, 2, 4], 1), vec![4]);
+        assert_eq!(most_chosen(&[0, 7, 9], 5), vec![0, 7, 9]);
+        assert!(most_chosen(&[], 2).is_empty());
     }
 }
