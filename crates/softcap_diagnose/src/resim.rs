@@ -484,7 +484,7 @@ fn most_chosen(choices: &[usize], n: usize) -> Vec<usize> {
         }
     }
     // stable: ties keep their first-named order
-    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    counts.sort_by_key(|c| std::cmp::Reverse(c.1));
     counts.into_iter().take(n).map(|(i, _)| i).collect()
 }
 
