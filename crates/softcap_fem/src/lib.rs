@@ -98,8 +98,8 @@ pub use support::{SupportPlane, SupportReport, SupportTangential};
 
 pub use gravity::{
     RestShape, RestShapeModel, RestShapeReport, RestShapeSettings, RestShapeStatus,
-    STANDARD_GRAVITY_M_S2, element_rest_jacobian, gravity_forces, lumped_masses,
-    lumped_masses_per_element, solve_rest_shape,
+    STANDARD_GRAVITY_M_S2, VirtualForceSettings, element_rest_jacobian, gravity_forces,
+    lumped_masses, lumped_masses_per_element, solve_rest_shape, solve_rest_shape_virtual_force,
 };
 pub use viscoelastic::{
     PronyBranch, PronySeries, ViscoelasticModel, viscoelastic_quasi_static_step,

@@ -465,8 +465,8 @@ fn rest_shape(
     if rest.report.residual_norm_n <= 1e-8 * rest.report.load_norm_n {
         return Ok((rest.rest_positions_m, status));
     }
-    // Newton stalled (from X = x_s it can barely lower the residual: example rest_shape_table2):
-    // invert the sag by forward static solves from its best X.
+    // Newton did not converge (it does in 4–5 iterations on the bodies of example
+    // rest_shape_table2): invert the sag by forward static solves from its best X.
     match sag_inversion(forward, params, static_m, rest.rest_positions_m.clone()) {
         Some((x, passes)) => Ok((
             x,
