@@ -406,6 +406,37 @@ impl<'a> RestProblem<'a> {
         report.residual_norm_n <= self.load_tolerance_n.max(report.roundoff_floor_n)
     }
 
+    /// Records the accepted iterate `m` (iteration count `iterations`, residual norm `rn`).
+    fn record<M: ElasticModel + ?Sized>(
+        &self,
+        m: &M,
+        iterations: usize,
+        rn: f64,
+        report: &mut RestShapeReport,
+    ) {
+        report.roundoff_floor_n = self.floor(m);
+        report.iterations = iterations;
+        report.residual_norm_n = rn;
+        report.history_n.push(rn);
+    }
+
+    /// The solve's result: the status is `Converged` when the final iterate meets the test.
+    fn finish<M>(
+        &self,
+        rest_positions_m: Vec<Vector3<f64>>,
+        model: M,
+        mut report: RestShapeReport,
+    ) -> RestShape<M> {
+        if self.converged(&report) {
+            report.status = RestShapeStatus::Converged;
+        }
+        RestShape {
+            rest_positions_m,
+            model,
+            report,
+        }
+    }
+
     /// Assembles J = ∂r/∂X at `current` (lower and transposed-upper arrays, [`rest_jacobian`]).
     fn jacobian<M: ElasticModel + Sync + ?Sized>(&self, current: &M) -> (Vec<f64>, Vec<f64>) {
         rest_jacobian(current, self.xs, &self.pattern)
@@ -511,10 +542,7 @@ pub fn solve_rest_shape<M: RestShapeModel>(
         current = m;
         r = rt;
         rn = rtn;
-        report.roundoff_floor_n = problem.floor(&current);
-        report.iterations = it + 1;
-        report.residual_norm_n = rn;
-        report.history_n.push(rn);
+        problem.record(&current, it + 1, rn, &mut report);
     }
     if let Some((x, m, bn, floor)) = best
         && bn < rn
@@ -523,14 +551,7 @@ pub fn solve_rest_shape<M: RestShapeModel>(
         report.residual_norm_n = bn;
         report.roundoff_floor_n = floor;
     }
-    if problem.converged(&report) {
-        report.status = RestShapeStatus::Converged;
-    }
-    Ok(RestShape {
-        rest_positions_m: rest,
-        model: current,
-        report,
-    })
+    Ok(problem.finish(rest, current, report))
 }
 
 /// Settings of [`solve_rest_shape_virtual_force`].
@@ -659,19 +680,9 @@ pub fn solve_rest_shape_virtual_force<M: RestShapeModel>(
         current = m;
         velocity = v_new;
         r = problem.residual(&current);
-        report.roundoff_floor_n = problem.floor(&current);
-        report.iterations = step + 1;
-        report.residual_norm_n = norm(&r);
-        report.history_n.push(report.residual_norm_n);
+        problem.record(&current, step + 1, norm(&r), &mut report);
     }
-    if problem.converged(&report) {
-        report.status = RestShapeStatus::Converged;
-    }
-    Ok(RestShape {
-        rest_positions_m: rest,
-        model: current,
-        report,
-    })
+    Ok(problem.finish(rest, current, report))
 }
 
 #[cfg(test)]
