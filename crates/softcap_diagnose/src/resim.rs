@@ -264,19 +264,35 @@ impl Replays {
                 simulate_rigid_grid(replay, rigid, rec)?
             }
         };
-        Ok(Self {
+        Ok(Self::unrefined(
+            (forced, sources),
+            rigid_cands,
+            total + rigid_total,
+            fine,
+        ))
+    }
+
+    /// The simulated grids before any refined re-simulation: `forced` with its grid points, the
+    /// rigid-tip replays, the points attempted and the mesh the replays ran on.
+    fn unrefined(
+        (forced, sources): (Vec<Candidate>, Vec<GridPoint>),
+        rigid: Vec<Candidate>,
+        total: usize,
+        replay_mesh: Option<Box<dyn ProbeSimulator>>,
+    ) -> Self {
+        Self {
             forced,
             sources,
             refined: Vec::new(),
             refined_from: Vec::new(),
             neighbourhoods: Vec::new(),
-            rigid: rigid_cands,
+            rigid,
             rigid_fine: Vec::new(),
             rigid_fine_from: Vec::new(),
             rigid_neighbourhoods: Vec::new(),
-            total: total + rigid_total,
-            replay_mesh: fine,
-        })
+            total,
+            replay_mesh,
+        }
     }
 
     /// As [`Replays::run`], but the rigid-tip replays are decided on the fit mesh first: every
@@ -307,19 +323,7 @@ impl Replays {
         }
         let (forced, total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
         let (coarse, coarse_total) = simulate_rigid_grid(sim, rigid, rec)?;
-        let mut replays = Self {
-            forced,
-            sources,
-            refined: Vec::new(),
-            refined_from: Vec::new(),
-            neighbourhoods: Vec::new(),
-            rigid: coarse,
-            rigid_fine: Vec::new(),
-            rigid_fine_from: Vec::new(),
-            rigid_neighbourhoods: Vec::new(),
-            total: total + coarse_total,
-            replay_mesh: None,
-        };
+        let mut replays = Self::unrefined((forced, sources), coarse, total + coarse_total, None);
         if replays.rigid.is_empty() || refine_at_most == 0 {
             return Ok(replays);
         }
