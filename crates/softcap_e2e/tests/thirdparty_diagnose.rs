@@ -364,6 +364,6 @@ cases! {
     sensor_lag => "sensor-lag",
     #[ignore = "its paired control probe-friction-pair is not generated (FElupe Newton |r| = 7.3 N after 30 iterations); verdict none, 0.341 mm"]
     probe_friction => "probe-friction",
-    #[ignore = "verdict plasticity but 0.492 -> 0.296 mm is 1.66x lower and 3.4x the pair's 0.087 mm (the rule needs <= 0.109 mm); the diagnose costs about 274 CPU-s"]
+    #[ignore = "default settings run past 30 min; with plasticity_refined_replays = 2: verdict plasticity, 0.492 -> 0.296 mm, 3.4x the pair's 0.087 mm (the rule needs <= 0.109 mm), 274 CPU-s"]
     plasticity => "plasticity",
 }

@@ -11,8 +11,9 @@
 //! (§3.4 position control: the tip's rim sets the stress the material yields under) on the fit
 //! mesh refined 1 → 8 (`ProbeSimulator::refined`: the coarse linear tets cannot form the dent
 //! between the markers), the latter also with ν = 0.45 (the tissue fit's ν is biased by the
-//! plastic flow it did not model). The eight rigid-tip points are replayed on the fit mesh first
-//! and only the two the folds pick most often again on the refined mesh. The grid points are
+//! plastic flow it did not model). With `plasticity_refined_replays` = n > 0 the eight rigid-tip
+//! points are replayed on the fit mesh first and only the n the folds pick most often again on
+//! the refined mesh. The grid points are
 //! picked on the other locations' effect cells only: in a rigid-tip replay the contact frames carry the coarse mesh's contact error,
 //! which would otherwise decide the pick.
 
@@ -37,11 +38,6 @@ pub struct Plasticity;
 /// set is permanent (≈ 1); a viscoelastic one recovers by e^{−Δt/τ} over the seconds between
 /// releases.
 pub const RECOVERED_PERSISTENCE: f64 = 0.5;
-
-/// Rigid-tip replays re-run on the refined mesh: the grid points the folds pick most often on
-/// the fit mesh (`Replays::run_coarse_first`; each refined replay costs about sixteen on the
-/// fit mesh).
-const REFINED_REPLAYS: usize = 2;
 
 /// Name of the effect cells.
 const CELLS: &str = "released/near-touched";
@@ -190,19 +186,11 @@ impl Hypothesis for Plasticity {
                 }
             }
         }
-        // decided on the fit mesh first; the two points picked most often replayed refined
-        let replays = Replays::run_coarse_first(
-            sim,
-            grid,
-            rigid,
-            rec,
-            seg,
-            p,
-            false,
-            scored,
-            true,
-            REFINED_REPLAYS,
-        )?;
+        // every rigid-tip point replayed refined, or (opt-in) decided on the fit mesh first
+        let replays = match cx.settings.plasticity_refined_replays {
+            0 => Replays::run(sim, grid, rigid, rec, seg, p, false)?,
+            n => Replays::run_coarse_first(sim, grid, rigid, rec, seg, p, false, scored, true, n)?,
+        };
         replays.confirm(
             rec,
             seg,
