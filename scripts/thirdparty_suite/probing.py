@@ -7,8 +7,9 @@ hovering above the first location. The punch is a rigid flat disk with a sharp e
   (frictionless: their x, y are free); nodes that penetrate the face are added; when the total
   force turns tensile the punch has lost contact and the set is emptied;
 - tilted shaft (probe friction case and its pair): the disk face is perpendicular to the shaft and
-  contact is a penalty on the nodes under the disk: on the normal gap only (frictionless) or on
-  the full relative motion from where the node touched (sticking friction).
+  contact is a penalty on the nodes under the disk: a one-sided penalty on the normal gap of the
+  nodes nearer the face than the rim (frictionless), or on an active set's full relative motion
+  from where each node touched (sticking friction).
 """
 import numpy as np
 
@@ -59,7 +60,9 @@ class Punch:
         vertical = abs(axis[2] + 1.0) < 1e-9
         if vertical:
             return self._vertical(tip, fixed_support)
-        return self._tilted(tip, axis, fixed_support)
+        if self.friction == "stick":
+            return self._tilted(tip, axis, fixed_support)
+        return self._tilted_frictionless(tip, axis, fixed_support)
 
     def _candidates(self, tip, axis):
         x = m_pos(self.m)
@@ -99,10 +102,9 @@ class Punch:
             ids, along, lat = self._candidates(tip, axis)
             add = {int(i) for i, a, l in zip(ids, along, lat) if l <= self.R and a < 0.0} - self.active
             for i in add:
-                if self.friction == "stick":
-                    x = m_pos(m)[i]
-                    y = x - tip
-                    self.anchor[i] = y - (y @ axis) * axis
+                x = m_pos(m)[i]
+                y = x - tip
+                self.anchor[i] = y - (y @ axis) * axis
             self.active |= add
             active = sorted(self.active)
 
@@ -112,14 +114,9 @@ class Punch:
                 for i in active:
                     A = m.top_area[i]
                     x = m.points[i] + u[i]
-                    if self.friction == "stick":
-                        g = x - tip - self.anchor[i]
-                        f[3 * i:3 * i + 3] = k * A * g
-                        K = k * A * np.eye(3)
-                    else:
-                        p = (x - tip) @ axis
-                        f[3 * i:3 * i + 3] = k * A * p * axis
-                        K = k * A * np.outer(axis, axis)
+                    g = x - tip - self.anchor[i]
+                    f[3 * i:3 * i + 3] = k * A * g
+                    K = k * A * np.eye(3)
                     for a in range(3):
                         for b in range(3):
                             rows.append(3 * i + a)
@@ -141,6 +138,42 @@ class Punch:
         for i in self.active:
             force -= fp[3 * i:3 * i + 3]
         return force
+
+    def _tilted_frictionless(self, tip, axis, fixed_support):
+        """Frictionless tilted punch: a one-sided penalty on the normal gap of every top node
+        under the disk face, the face being the contact geometry of the sticking punch too (no
+        side wall). A node counts as under the face while it is nearer the face than the rim
+        (penetration along the shaft ≤ R − lateral distance): the surface slides along the face
+        toward the sharp low edge, and material carried past the rim (behind the face from its
+        side) takes no load: the punch has no side wall, frictionless or sticking, and its force
+        stays along the shaft. With an active set of face nodes (as the sticking punch has),
+        such material joined the set deep behind the face and Newton diverged (location 4,
+        2 mm). Returns the force on the object."""
+        m = self.m
+        top = m.top
+        kA = self.k_pen * m.top_area[top]
+        R = self.R
+        K1 = np.outer(axis, axis)
+
+        def penalty(u):
+            d = m.points[top] + u[top] - tip
+            a = d @ axis
+            lat = np.linalg.norm(d - np.outer(a, axis), axis=1)
+            f = np.zeros(3 * m.n)
+            rows, cols, vals = [], [], []
+            for j in np.flatnonzero((a < 0.0) & (-a <= R - lat)):
+                i = top[j]
+                f[3 * i:3 * i + 3] = kA[j] * a[j] * axis
+                for r in range(3):
+                    for c in range(3):
+                        rows.append(3 * i + r)
+                        cols.append(3 * i + c)
+                        vals.append(kA[j] * K1[r, c])
+            return f, (rows, cols, vals)
+
+        m.solve(dict(fixed_support), penalty=penalty)
+        fp, _ = penalty(m.u)
+        return -fp.reshape(-1, 3).sum(axis=0)
 
 
 def m_pos(m):
