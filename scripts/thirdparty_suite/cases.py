@@ -42,6 +42,7 @@ def case(name, seed, description, **over):
 
 def cases():
     tilt = [0.342, 0.0, -0.940]  # 20° from the vertical, in the x–z plane
+    oblique = [0.2588, 0.0, -0.9659]  # 15° (support-slip: the bonded twin converges at 15°, not at 20°)
     gravity_block = dict(BLOCK, size_mm=[40.0, 40.0, 28.0], h_bottom_mm=7.5)
     soft = {"kind": "neo-hooke", "mu": 0.0035, "bulk": 20 * 0.0035}
     j2 = {"kind": "j2", "E": 0.05, "nu": 0.45, "yield": 0.0045, "hardening": 0.004}
@@ -65,10 +66,14 @@ def cases():
              material=j2, effect="plasticity", pair="plasticity-pair"),
         case("plasticity-pair", 203, "Paired control of plasticity: the same small-strain linear elastic material without yield.",
              material=dict(j2, **{"yield": None})),
-        case("support-slip", 204, "Effect support-slip: the base rests on the table with Coulomb friction mu = 0.25 "
-             "(regularized: tangential stiffness 0.2 MPa/mm per area, smoothly capped at mu (p + rho g H)).",
-             support={"kind": "friction", "mu": 0.25, "k_t": 0.2, "p_weight": 2.1e-4},
-             effect="support-slip", pair="clean"),
+        case("support-slip", 204, "Effect support-slip: the probe pushes obliquely (shaft tilted 15 degrees in the "
+             "x-z plane, frictionless disk) and the base rests on a compliant interface (a soft mat): per area a "
+             "tangential stiffness 1e-3 MPa/mm (1.6 N/mm over the base), smoothly capped at the Coulomb limit "
+             "mu (p + rho g H), mu = 5 (reached only at the unloaded rim): the base slides with the push.",
+             probe_axis=oblique, support={"kind": "friction", "mu": 5.0, "k_t": 1.0e-3, "p_weight": 2.1e-4},
+             effect="support-slip", pair="support-slip-pair"),
+        case("support-slip-pair", 212, "Paired control of support-slip: the same oblique probe (15 degrees), bonded base.",
+             probe_axis=oblique),
         case("anisotropy", 205, "Effect anisotropy: HGO-like matrix (neo-Hooke mu = 0.017 MPa) with two fibre families "
              "at +-30 degrees to x in the top plane, k1 = 0.02 MPa, k2 = 4.",
              material={"kind": "hgo", "mu": MU, "bulk": 20 * MU, "k1": 0.02, "k2": 4.0,
