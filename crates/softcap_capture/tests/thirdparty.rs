@@ -66,6 +66,7 @@ cases! {
     plasticity => "plasticity",
     probe_friction => "probe-friction",
     support_slip => "support-slip",
+    support_slip_pair => "support-slip-pair",
     clock_offset => "clock-offset",
     viscoelasticity => "viscoelasticity",
     gravity_preload => "gravity-preload",
