@@ -7,9 +7,12 @@
 //! and fitted with quadratic tets on the given mesh (coarse to fine), so E is checked against a
 //! discretization finer than the fit's; `bar1ab` — `bar1` and a second motion of the same bar
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
-//! shape": a mode far in frequency from the bending ones).
+//! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --profile test -p softcap_tissue --example fit_dynamic_table1 [bar1|bar1q|bar1ab|bar8|leaf] [--seed N]`
+//! `cargo run --profile test -p softcap_tissue --example fit_dynamic_table1 [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M]`
+//!
+//! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
+//! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
@@ -30,6 +33,14 @@ fn main() {
             .expect("--seed takes an integer");
         which.drain(k..=k + 1);
     }
+    let mut start_modes = FitDynamicSettings::default().start_state_modes;
+    if let Some(k) = which.iter().position(|a| a == "--start-modes") {
+        start_modes = which
+            .get(k + 1)
+            .and_then(|v| v.parse().ok())
+            .expect("--start-modes takes an integer");
+        which.drain(k..=k + 1);
+    }
     let cases: Vec<&str> = if which.is_empty() {
         vec!["bar1", "bar8", "leaf"]
     } else {
@@ -41,7 +52,7 @@ fn main() {
                 "bar1" | "bar1q" | "bar1ab" => {
                     ([0.2, 0.03, 0.02], [12, 2, 2], 1, vec![5.0e5], 5.0e-4)
                 }
-                "bar8" => (
+                "bar8" | "bar8ab" => (
                     [0.2, 0.03, 0.02],
                     [12, 2, 2],
                     8,
@@ -92,7 +103,7 @@ fn main() {
             seed,
         };
         let mut truth = synthesize(&spec).unwrap();
-        if case == "bar1ab" {
+        if case.ends_with("ab") {
             // The second motion: the far end twisted by a couple (±y on its top and bottom
             // nodes) for 0.05 s, released, 0.5 s at 120 Hz.
             let end: Vec<usize> = (0..mesh.vertices.len())
@@ -119,6 +130,7 @@ fn main() {
             control_points: ncp,
             progress: false,
             max_simulations: 200,
+            start_state_modes: start_modes,
             elements: if quadratic {
                 Elements::Quadratic
             } else {
@@ -144,12 +156,13 @@ fn main() {
             .sum::<f64>()
             / fit.rest_m.len() as f64;
         println!(
-            "## {case}: {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations, status {}",
+            "## {case} (seed {seed}, start modes {start_modes}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
             mesh.vertices.len(),
             mesh.tets.len(),
             spec.frames,
             noise * 1e3,
             fit.simulations,
+            fit.segment_simulations,
             fit.status
         );
         println!("| parameter | truth | fitted | error | 1-σ (rel.) |\n|---|---|---|---|---|");
@@ -176,6 +189,33 @@ fn main() {
             100.0 * (fit.damping.beta_s / truth_damping.beta_s - 1.0),
             100.0 * fit.relative_sigma[ncp + 1]
         );
+        if ncp > 1 {
+            // Which combinations of the moduli the motion determines: the eigen-directions of
+            // their covariance block (marginal over α, β and the start states).
+            let eig = fit
+                .covariance
+                .view((0, 0), (ncp, ncp))
+                .clone_owned()
+                .symmetric_eigen();
+            let mut sig: Vec<f64> = eig.eigenvalues.iter().map(|l| l.max(0.0).sqrt()).collect();
+            sig.sort_by(f64::total_cmp);
+            let observable: Vec<String> = (0..ncp)
+                .filter(|&c| 2.0 * fit.relative_sigma[c] <= 0.05)
+                .map(|c| format!("E_{c}"))
+                .collect();
+            println!(
+                "1-σ along the eigen-directions of the E covariance: {}; observable (2σ ≤ 5 %): {}",
+                sig.iter()
+                    .map(|v| format!("{:.1} %", 100.0 * v))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                if observable.is_empty() {
+                    "none".to_string()
+                } else {
+                    observable.join(", ")
+                }
+            );
+        }
         println!(
             "trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm; warm E {:.3e}, α {:.3}, β {:.2e}); ΔX mean {:.2e} m ({:.2e} of the size); rest: {}",
             fit.rms_m * 1e3,

@@ -19,6 +19,7 @@
 //! s² = ‖r‖²/(m − n), J by central differences.
 
 use nalgebra::{DMatrix, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use softcap_core::{
     Bounds, LeastSquaresProblem, LevenbergMarquardtSettings, NelderMeadSettings,
@@ -31,7 +32,7 @@ use softcap_fem::{
 use softcap_mesh::TetMesh;
 
 use super::blend::{Blending, ControlPoints, control_points};
-use super::forward::{DynamicParams, FitModel, Forward, ForwardSettings};
+use super::forward::{DynamicParams, FitModel, Forward, ForwardSettings, StartModes};
 use super::sequence::TrackedSequence;
 use super::warm;
 use crate::Progress;
@@ -108,6 +109,11 @@ pub struct FitDynamicSettings {
     pub min_segment_frames: usize,
     /// Segment simulation settings.
     pub forward: ForwardSettings,
+    /// Modes whose share of every segment's initial state (position and velocity) is fitted
+    /// with the parameters ([`super::forward::StartModes`]; 0 = each segment starts from its
+    /// tracked, noisy state). Costs 2 × this many one-segment simulations per segment and
+    /// Jacobian.
+    pub start_state_modes: usize,
     /// Bounds of E, Pa.
     pub young_bounds_pa: [f64; 2],
     /// Bounds of α, 1/s.
@@ -140,6 +146,7 @@ impl Default for FitDynamicSettings {
             segment_frames: 30,
             min_segment_frames: 4,
             forward: ForwardSettings::default(),
+            start_state_modes: 0,
             young_bounds_pa: [1.0e2, 1.0e10],
             alpha_bounds_per_s: [1.0e-4, 1.0e3],
             beta_bounds_s: [1.0e-7, 1.0],
@@ -195,6 +202,15 @@ impl FitDynamicSettings {
                     .into(),
             );
         }
+        if self.start_state_modes > 12 {
+            return bad(
+                "start_state_modes",
+                format!(
+                    "at most 12 modes per segment, got {}",
+                    self.start_state_modes
+                ),
+            );
+        }
         if self.refine > 2 {
             return bad(
                 "refine",
@@ -224,6 +240,10 @@ pub struct DynamicFit {
     pub rest_m: Vec<Vector3<f64>>,
     /// 1-σ relative uncertainty of each E_c, α, β (from the log-parameter covariance).
     pub relative_sigma: Vec<f64>,
+    /// Covariance s² (JᵀJ)⁻¹ of the fitted log-parameters (ln E_c…, then ln α, ln β unless held),
+    /// marginal over the fitted start states: its eigenvectors say which combinations of the
+    /// control-point moduli the motion determines.
+    pub covariance: DMatrix<f64>,
     /// Trajectory RMS at the starting parameters, m.
     pub rms_initial_m: f64,
     /// Trajectory RMS after the warm start, m.
@@ -242,6 +262,10 @@ pub struct DynamicFit {
     pub warm_damping: RayleighDamping,
     /// Forward simulations (all segments) of the whole fit.
     pub simulations: usize,
+    /// One-segment simulations of the start-state Jacobian columns.
+    pub segment_simulations: usize,
+    /// Modes whose share of each segment's initial state was fitted (0: tracked states).
+    pub start_state_modes: usize,
     /// Objective F after each outer iteration.
     pub history: Vec<f64>,
     /// `converged` | `max-iterations` | `failed: …`.
@@ -338,14 +362,41 @@ struct Problem<'a> {
     /// Values of the trailing log-parameters held fixed by the least-squares p-step (empty:
     /// all free; coarse to fine holds α and β).
     held: Vec<f64>,
+    /// Modes of the segments' fitted start states, and their coefficients (segment-major);
+    /// `None`: the tracked states.
+    start_modes: Option<StartModes>,
+    start: Vec<f64>,
+    /// Whether the least-squares p-step fits `start` too (its parameters follow the free
+    /// log-parameters).
+    fit_start: bool,
     simulations: usize,
-    best: (f64, Vec<f64>),
+    /// One-segment simulations of the start-state Jacobian columns.
+    segment_simulations: usize,
+    /// Best (F, log-parameters, start coefficients) evaluated.
+    best: (f64, Vec<f64>, Vec<f64>),
 }
+
+/// Step of the forward differences in the start-state coefficients (units of
+/// [`super::forward::START_MODE_SCALE_M`]: 10 µm at a mode's peak, where the response is linear).
+const START_STEP: f64 = 1e-2;
+
+/// Bound of the start-state coefficients (mm at a mode's peak).
+const START_BOUND: f64 = 50.0;
 
 impl Problem<'_> {
     /// The full log-parameter vector of the free ones.
     fn full(&self, free: &[f64]) -> Vec<f64> {
         free.iter().chain(&self.held).copied().collect()
+    }
+
+    /// Least-squares parameters → the full log-parameter vector; their start-state tail (if
+    /// fitted) becomes the current start coefficients.
+    fn split(&mut self, params: &[f64]) -> Vec<f64> {
+        let nm = params.len() - self.num_start();
+        if self.fit_start {
+            self.start = params[nm..].to_vec();
+        }
+        self.full(&params[..nm])
     }
 
     fn params(&self, q: &[f64]) -> DynamicParams {
@@ -370,15 +421,65 @@ impl Problem<'_> {
         {
             self.rest = x;
         }
-        let r = match self.forward.simulate(&p, &self.rest) {
+        let start = self
+            .start_modes
+            .as_ref()
+            .map(|m| (m, self.start.as_slice()));
+        let r = match self.forward.simulate_from(&p, &self.rest, start) {
             Ok(runs) => self.forward.residuals(&runs),
             Err(_) => vec![f64::NAN; self.forward.num_residuals()],
         };
         let f: f64 = r.iter().map(|v| v * v).sum();
         if f.is_finite() && f < self.best.0 {
-            self.best = (f, q.to_vec());
+            self.best = (f, q.to_vec(), self.start.clone());
         }
         r
+    }
+
+    /// Start-state coefficients fitted by the least-squares p-step.
+    fn num_start(&self) -> usize {
+        if self.fit_start { self.start.len() } else { 0 }
+    }
+
+    /// Columns ∂r/∂c of the start-state coefficients at log-parameters `q` (forward differences
+    /// about the residuals `r0` of the last evaluation, which solved the rest shape of `q`):
+    /// a coefficient moves its own segment only, so each column is one one-segment simulation
+    /// (all in parallel) and is zero outside that segment's rows.
+    fn start_columns(&mut self, q: &[f64], r0: &[f64]) -> DMatrix<f64> {
+        let (forward, modes) = match (&self.start_modes, self.fit_start) {
+            (Some(m), true) => (self.forward, m),
+            _ => return DMatrix::zeros(r0.len(), 0),
+        };
+        let per = modes.per_segment();
+        let n = self.start.len();
+        let mut j = DMatrix::<f64>::zeros(r0.len(), n);
+        let params = self.params(q);
+        let Ok(model) = forward.model(&params, &self.rest) else {
+            return j;
+        };
+        let start = &self.start;
+        let columns: Vec<(usize, Vec<f64>)> = (0..n)
+            .into_par_iter()
+            .map(|c| {
+                let k = c / per;
+                let mut coeff = modes.of_segment(start, k).to_vec();
+                coeff[c % per] += START_STEP;
+                let mut r = Vec::new();
+                match forward.simulate_segment(k, &model, params.damping, Some((modes, &coeff))) {
+                    Ok(run) => forward.extend_residuals(&run, &mut r),
+                    Err(_) => r.resize(forward.residual_range(k).len(), f64::NAN),
+                }
+                (c, r)
+            })
+            .collect();
+        self.segment_simulations += n;
+        for (c, r) in columns {
+            let range = forward.residual_range(c / per);
+            for (i, v) in range.zip(r) {
+                j[(i, c)] = (v - r0[i]) / START_STEP;
+            }
+        }
+        j
     }
 
     fn objective(&mut self, q: &[f64]) -> f64 {
@@ -389,24 +490,31 @@ impl Problem<'_> {
 
 impl LeastSquaresProblem for Problem<'_> {
     fn num_params(&self) -> usize {
-        self.nc + 2 - self.held.len()
+        self.nc + 2 - self.held.len() + self.num_start()
     }
     fn num_residuals(&self) -> usize {
         self.forward.num_residuals()
     }
     fn residuals(&mut self, params: &[f64], residuals: &mut [f64]) {
-        let r = self.eval(&self.full(params));
+        let q = self.split(params);
+        let r = self.eval(&q);
         for (o, v) in residuals.iter_mut().zip(r) {
             // A failed simulation: a large finite residual so the step is rejected.
             *o = if v.is_finite() { v } else { 1.0 };
         }
     }
     fn jacobian(&mut self, params: &[f64], jacobian: &mut DMatrix<f64>) -> bool {
-        // Forward differences in the log-parameters (one simulation per parameter).
-        let r0 = self.eval(&self.full(params));
+        // Forward differences in the log-parameters (one simulation per parameter) and in the
+        // start-state coefficients (one one-segment simulation each, taken first: the material
+        // columns re-solve the rest shape at their own parameters).
+        let q0 = self.split(params);
+        let r0 = self.eval(&q0);
+        let nm = params.len() - self.num_start();
+        let js = self.start_columns(&q0, &r0);
+        jacobian.columns_mut(nm, js.ncols()).copy_from(&js);
         let h = 1e-4;
-        for j in 0..params.len() {
-            let mut q = self.full(params);
+        for j in 0..nm {
+            let mut q = q0.clone();
             q[j] += h;
             let r = self.eval(&q);
             for i in 0..r.len() {
@@ -622,8 +730,12 @@ fn fit_level(
         poisson: settings.poisson,
         nc,
         held: Vec::new(),
+        start_modes: None,
+        start: Vec::new(),
+        fit_start: false,
         simulations: 0,
-        best: (f64::INFINITY, Vec::new()),
+        segment_simulations: 0,
+        best: (f64::INFINITY, Vec::new(), Vec::new()),
     };
     let mut q: Vec<f64> = match coarse {
         Some(c) => c
@@ -688,6 +800,15 @@ fn fit_level(
     problem.rest = rest.clone();
     let rms_warm_m = rms_of(&mut problem, &q);
     let (warm_young, warm_damping) = unpack(&q, nc);
+    if settings.start_state_modes > 0 {
+        // The low modes at the warm start (their shapes barely move with the parameters).
+        let model = forward.model(&problem.params(&q), &rest)?;
+        let modes = warm::modes(&forward, &model, settings.start_state_modes)?;
+        let start_modes =
+            StartModes::new(&modes, settings.start_state_modes, &fit_seq.support_nodes);
+        problem.start = vec![0.0; segments.len() * start_modes.per_segment()];
+        problem.start_modes = Some(start_modes);
+    }
 
     // Algorithm 1.
     if settings.rest_shape_per_evaluation {
@@ -706,7 +827,7 @@ fn fit_level(
         rest = x;
         rest_status = s;
         problem.rest = rest.clone();
-        problem.best = (f64::INFINITY, Vec::new());
+        problem.best = (f64::INFINITY, Vec::new(), Vec::new());
         let value = match settings.optimizer {
             Optimizer::NelderMead => {
                 // Simplex in offsets from the current point (steps of 0.2 in every log-parameter).
@@ -751,16 +872,31 @@ fn fit_level(
                     nc + 2
                 };
                 problem.held = q[free..].to_vec();
-                let free_bounds =
-                    Bounds::new(bounds.lower[..free].to_vec(), bounds.upper[..free].to_vec())
-                        .map_err(|e| TissueError::BadSettings {
-                            field: "bounds".into(),
-                            problem: e.to_string(),
-                        })?;
-                let per_iteration = free + 1;
+                // The start-state coefficients follow (bounded to ±START_BOUND mm at a mode's
+                // peak); their Jacobian columns cost one segment each.
+                problem.fit_start = problem.start_modes.is_some();
+                let ns = problem.num_start();
+                let free_bounds = Bounds::new(
+                    bounds.lower[..free]
+                        .iter()
+                        .copied()
+                        .chain(std::iter::repeat_n(-START_BOUND, ns))
+                        .collect(),
+                    bounds.upper[..free]
+                        .iter()
+                        .copied()
+                        .chain(std::iter::repeat_n(START_BOUND, ns))
+                        .collect(),
+                )
+                .map_err(|e| TissueError::BadSettings {
+                    field: "bounds".into(),
+                    problem: e.to_string(),
+                })?;
+                let initial: Vec<f64> = q[..free].iter().chain(&problem.start).copied().collect();
+                let per_iteration = free + 1 + ns / segments.len();
                 let r = levenberg_marquardt(
                     &mut problem,
-                    &q[..free],
+                    &initial,
                     Some(&free_bounds),
                     &LevenbergMarquardtSettings {
                         max_iterations: (max_simulations / per_iteration).max(2),
@@ -773,13 +909,15 @@ fn fit_level(
                     what: "Levenberg–Marquardt".into(),
                     status: e.to_string(),
                 })?;
-                q = problem.full(&r.params);
+                q = problem.split(&r.params);
                 problem.held.clear();
+                problem.fit_start = false;
                 2.0 * r.cost
             }
         };
         if problem.best.0 < value {
             q = problem.best.1.clone();
+            problem.start = problem.best.2.clone();
         }
         let f = problem.best.0.min(value);
         let converged = history
@@ -796,12 +934,12 @@ fn fit_level(
         }
     }
     progress.step(4, 4, "uncertainty and modal frequencies");
-    let relative_sigma = match coarse.filter(|_| !fine_damping) {
+    let (relative_sigma, covariance) = match coarse.filter(|_| !fine_damping) {
         // α and β were held: their uncertainty is the coarse fit's.
         Some(c) => {
-            let mut s = covariance_sigma(&mut problem, &q, nc);
+            let (mut s, cov) = covariance_sigma(&mut problem, &q, nc);
             s.extend_from_slice(&c.relative_sigma[nc..]);
-            s
+            (s, cov)
         }
         None => covariance_sigma(&mut problem, &q, nc + 2),
     };
@@ -819,7 +957,13 @@ fn fit_level(
         .unwrap_or_default();
     let (young_pa, damping) = unpack(&q, nc);
     let frames = segments.iter().map(|s| s.end - s.start).sum();
-    let mut runs = forward.simulate(&params, &rest).unwrap_or_default();
+    let start = problem
+        .start_modes
+        .as_ref()
+        .map(|m| (m, problem.start.as_slice()));
+    let mut runs = forward
+        .simulate_from(&params, &rest, start)
+        .unwrap_or_default();
     for r in &mut runs {
         for x in &mut r.positions_m {
             x.truncate(n_given);
@@ -834,6 +978,7 @@ fn fit_level(
         density_kg_m3: seq.density_kg_m3,
         rest_m: rest[..n_given].to_vec(),
         relative_sigma,
+        covariance,
         rms_initial_m,
         rms_warm_m,
         rms_m,
@@ -843,6 +988,12 @@ fn fit_level(
         warm_damping,
         coarse_young_pa: coarse.map(|c| c.young_pa.clone()),
         simulations: problem.simulations + coarse.map_or(0, |c| c.simulations),
+        segment_simulations: problem.segment_simulations
+            + coarse.map_or(0, |c| c.segment_simulations),
+        start_state_modes: problem
+            .start_modes
+            .as_ref()
+            .map_or(0, |m| m.per_segment() / 2),
         history,
         status,
         rest_status,
@@ -920,12 +1071,17 @@ fn warm_start(
 }
 
 /// 1-σ uncertainties of the first `n` log-parameters (≈ relative uncertainties) from
-/// s² (JᵀJ)⁻¹, the others held.
-fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> Vec<f64> {
+/// s² (JᵀJ)⁻¹, the other log-parameters held; fitted start-state coefficients are columns of J
+/// too (their uncertainty is the parameters' as well).
+fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>, DMatrix<f64>) {
     let r0 = problem.eval(q);
     let m = r0.len();
+    problem.fit_start = problem.start_modes.is_some();
+    let js = problem.start_columns(q, &r0);
+    problem.fit_start = false;
     let h = 1e-3;
-    let mut j = DMatrix::<f64>::zeros(m, n);
+    let mut j = DMatrix::<f64>::zeros(m, n + js.ncols());
+    j.columns_mut(n, js.ncols()).copy_from(&js);
     for k in 0..n {
         let mut qp = q.to_vec();
         let mut qm = q.to_vec();
@@ -938,10 +1094,16 @@ fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> Vec<f64> 
         }
     }
     let ss: f64 = r0.iter().map(|v| v * v).sum();
-    let s2 = ss / (m.saturating_sub(n)).max(1) as f64;
+    let s2 = ss / (m.saturating_sub(j.ncols())).max(1) as f64;
     let jtj = j.transpose() * &j;
     match jtj.try_inverse() {
-        Some(inv) => (0..n).map(|k| (s2 * inv[(k, k)]).max(0.0).sqrt()).collect(),
-        None => vec![f64::INFINITY; n],
+        Some(inv) => {
+            let cov = inv.view((0, 0), (n, n)) * s2;
+            ((0..n).map(|k| cov[(k, k)].max(0.0).sqrt()).collect(), cov)
+        }
+        None => (
+            vec![f64::INFINITY; n],
+            DMatrix::from_element(n, n, f64::INFINITY),
+        ),
     }
 }

@@ -155,6 +155,66 @@ impl Smoother {
     }
 }
 
+/// Low-mode corrections of the segments' initial states, fitted with the parameters (wang2015
+/// eq. 6/9 simulates each segment "from the same initial state"; its §7 simulates the learned
+/// models "from estimated initial state"). A segment's state is the tracked one plus
+/// Σ_i a_i φ̂_i in position and Σ_i b_i ω_i φ̂_i in velocity, φ̂_i the i-th mode scaled to
+/// [`START_MODE_SCALE_M`] at its largest node displacement: the tracked state's noise in the
+/// lowest modes (and the polynomial velocity's lag) would otherwise ring through the whole
+/// segment, and the fit would take damping to remove it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StartModes {
+    shapes: Vec<Vec<Vector3<f64>>>,
+    omegas_rad_s: Vec<f64>,
+}
+
+/// Length unit of the start-state coefficients (1 mm).
+pub const START_MODE_SCALE_M: f64 = 1.0e-3;
+
+impl StartModes {
+    /// The first `count` of `modes` (shapes zeroed on `support` nodes).
+    pub fn new(modes: &softcap_fem::Modes, count: usize, support: &[usize]) -> Self {
+        let omegas = modes.angular_frequencies_rad_s();
+        let mut out = Self::default();
+        for (shape, &omega) in modes.shapes.iter().zip(&omegas).take(count) {
+            let mut phi = shape.clone();
+            for &i in support {
+                phi[i] = Vector3::zeros();
+            }
+            let peak = phi.iter().map(|v| v.norm()).fold(0.0f64, f64::max);
+            if peak > 0.0 && omega > 0.0 {
+                phi.iter_mut().for_each(|v| *v *= START_MODE_SCALE_M / peak);
+                out.shapes.push(phi);
+                out.omegas_rad_s.push(omega);
+            }
+        }
+        out
+    }
+
+    /// Coefficients per segment (a_i and b_i of every mode).
+    pub fn per_segment(&self) -> usize {
+        2 * self.shapes.len()
+    }
+
+    /// Segment `k`'s coefficients in the segment-major vector `c`.
+    pub fn of_segment<'a>(&self, c: &'a [f64], k: usize) -> &'a [f64] {
+        let n = self.per_segment();
+        &c[k * n..(k + 1) * n]
+    }
+
+    /// The corrected state (x + Σ a_i φ̂_i, v + Σ b_i ω_i φ̂_i); `c` = (a…, b…).
+    fn apply(&self, x: &mut [Vector3<f64>], v: &mut [Vector3<f64>], c: &[f64]) {
+        let m = self.shapes.len();
+        for (i, phi) in self.shapes.iter().enumerate() {
+            let (a, b) = (c[i], c[m + i] * self.omegas_rad_s[i]);
+            for ((xn, vn), p) in x.iter_mut().zip(v.iter_mut()).zip(phi) {
+                *xn += p * a;
+                *vn += p * b;
+            }
+        }
+    }
+}
+
 /// The simulated positions of one segment's frames `start + 1 ..= end`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SegmentRun {
@@ -384,18 +444,40 @@ impl Forward {
         })
     }
 
-    /// Runs every segment (in parallel; results in segment order).
+    /// Runs every segment from its tracked initial state (in parallel; results in segment order).
     pub fn simulate(
         &self,
         params: &DynamicParams,
         rest_m: &[Vector3<f64>],
     ) -> Result<Vec<SegmentRun>> {
+        self.simulate_from(params, rest_m, None)
+    }
+
+    /// Runs every segment from its initial state corrected by `start` (the modes and the
+    /// segment-major coefficients, [`StartModes`]; `None`: the tracked states).
+    pub fn simulate_from(
+        &self,
+        params: &DynamicParams,
+        rest_m: &[Vector3<f64>],
+        start: Option<(&StartModes, &[f64])>,
+    ) -> Result<Vec<SegmentRun>> {
         let model = self.model(params, rest_m)?;
         let runs = (0..self.segments.len())
             .into_par_iter()
-            .map(|k| self.run_segment(k, &model, params.damping))
+            .map(|k| {
+                let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
+                self.simulate_segment(k, &model, params.damping, correction)
+            })
             .collect::<Vec<_>>();
         runs.into_iter().collect()
+    }
+
+    /// Where segment `k`'s residuals sit in [`Self::residuals`].
+    pub fn residual_range(&self, k: usize) -> std::ops::Range<usize> {
+        let per_frame = 3 * self.free_nodes.len();
+        let before: usize = self.segments[..k].iter().map(|s| s.end - s.start).sum();
+        let seg = &self.segments[k];
+        before * per_frame..(before + seg.end - seg.start) * per_frame
     }
 
     fn dynamics_settings(&self, h: f64, damping: RayleighDamping) -> DynamicsSettings {
@@ -409,19 +491,25 @@ impl Forward {
         }
     }
 
-    fn run_segment(
+    /// Runs segment `k` alone from its tracked initial state, corrected by the modes and its own
+    /// coefficients if given.
+    pub fn simulate_segment(
         &self,
         k: usize,
         model: &FitModel,
         damping: RayleighDamping,
+        correction: Option<(&StartModes, &[f64])>,
     ) -> Result<SegmentRun> {
         let seg = self.segments[k].clone();
         let mut model = model.clone();
         let mut solver = Stepper::new(&model, self.masses_kg.clone(), &self.support_dofs())?;
-        let (x0, v0) = &self.starts[k];
-        let mut state = DynamicState::at_rest(x0.clone());
+        let (mut x0, mut v0) = self.starts[k].clone();
+        if let Some((modes, c)) = correction {
+            modes.apply(&mut x0, &mut v0, c);
+        }
+        let mut state = DynamicState::at_rest(x0);
         state.time_s = self.seq.times_s[seg.start];
-        state.velocities_m_s = v0.clone();
+        state.velocities_m_s = v0;
         for &i in &self.seq.support_nodes {
             state.velocities_m_s[i] = Vector3::zeros();
         }
@@ -510,19 +598,24 @@ impl Forward {
     pub fn residuals(&self, runs: &[SegmentRun]) -> Vec<f64> {
         let mut r = Vec::with_capacity(self.num_residuals());
         for run in runs {
-            let seg = &run.segment;
-            for (o, j) in (seg.start + 1..=seg.end).enumerate() {
-                let sim = run.positions_m.get(o);
-                for &i in &self.free_nodes {
-                    let d = match sim {
-                        Some(x) => x[i] - self.seq.positions_m[j][i],
-                        None => Vector3::repeat(f64::NAN),
-                    };
-                    r.extend([d.x, d.y, d.z]);
-                }
-            }
+            self.extend_residuals(run, &mut r);
         }
         r
+    }
+
+    /// Appends the residuals of one segment's run.
+    pub fn extend_residuals(&self, run: &SegmentRun, r: &mut Vec<f64>) {
+        let seg = &run.segment;
+        for (o, j) in (seg.start + 1..=seg.end).enumerate() {
+            let sim = run.positions_m.get(o);
+            for &i in &self.free_nodes {
+                let d = match sim {
+                    Some(x) => x[i] - self.seq.positions_m[j][i],
+                    None => Vector3::repeat(f64::NAN),
+                };
+                r.extend([d.x, d.y, d.z]);
+            }
+        }
     }
 
     /// Root-mean-square node distance of `runs` to the tracked positions, m (over the residuals).

@@ -127,11 +127,13 @@ pub fn write_report(
     let _ = writeln!(md, "# softcap tissue fit-dynamic\n");
     let _ = writeln!(
         md,
-        "Status: {}. {} segments, {} frames simulated per evaluation, {} simulations; fit mesh {} nodes, {} tets ({} refinement levels, {:?} optimizer).\n",
+        "Status: {}. {} segments, {} frames simulated per evaluation, {} simulations and {} one-segment simulations (start states of {} modes fitted); fit mesh {} nodes, {} tets ({} refinement levels, {:?} optimizer).\n",
         fit.status,
         fit.segments,
         fit.frames,
         fit.simulations,
+        fit.segment_simulations,
+        fit.start_state_modes,
         fit.fit_mesh_size.0,
         fit.fit_mesh_size.1,
         settings.refine,

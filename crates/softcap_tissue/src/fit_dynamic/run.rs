@@ -278,6 +278,16 @@ pub fn report_message(fit: &DynamicFit) -> proto::Report {
             Value::Integer(fit.simulations as i64),
             "",
         ),
+        kv(
+            "segment_simulations".into(),
+            Value::Integer(fit.segment_simulations as i64),
+            "",
+        ),
+        kv(
+            "start_state_modes".into(),
+            Value::Integer(fit.start_state_modes as i64),
+            "",
+        ),
         kv("segments".into(), Value::Integer(fit.segments as i64), ""),
         kv(
             "frames_simulated".into(),
