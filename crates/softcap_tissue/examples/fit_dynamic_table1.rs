@@ -22,25 +22,25 @@ use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, control_points, fit_sequence,
 };
 
+/// Removes `name N` from `args` and returns N (integer), if present.
+fn take_option(args: &mut Vec<String>, name: &str) -> Option<u64> {
+    let k = args.iter().position(|a| a == name)?;
+    let value = args
+        .get(k + 1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{name} takes an integer"));
+    args.drain(k..=k + 1);
+    Some(value)
+}
+
 fn main() {
     let mut which: Vec<String> = std::env::args().skip(1).collect();
     // `--seed N`: the noise seed (default 11; the second motion of `bar1ab` uses N + 1).
-    let mut seed = 11;
-    if let Some(k) = which.iter().position(|a| a == "--seed") {
-        seed = which
-            .get(k + 1)
-            .and_then(|v| v.parse().ok())
-            .expect("--seed takes an integer");
-        which.drain(k..=k + 1);
-    }
-    let mut start_modes = FitDynamicSettings::default().start_state_modes;
-    if let Some(k) = which.iter().position(|a| a == "--start-modes") {
-        start_modes = which
-            .get(k + 1)
-            .and_then(|v| v.parse().ok())
-            .expect("--start-modes takes an integer");
-        which.drain(k..=k + 1);
-    }
+    let seed = take_option(&mut which, "--seed").unwrap_or(11);
+    let start_modes = take_option(&mut which, "--start-modes")
+        .map_or(FitDynamicSettings::default().start_state_modes, |m| {
+            m as usize
+        });
     let cases: Vec<&str> = if which.is_empty() {
         vec!["bar1", "bar8", "leaf"]
     } else {
