@@ -133,6 +133,11 @@ def write(out, chosen):
     import gmsh
     versions = {"felupe": felupe.__version__, "gmsh": gmsh.__version__}
     os.makedirs(out, exist_ok=True)
+    toml = os.path.join(out, "suite.toml")
+    entries = {}  # the sessions already under OUT keep their entries (read before the generator writes)
+    if os.path.isfile(toml):
+        for block in open(toml).read().split("\n[")[1:]:
+            entries[block.split("]")[0].strip('"')] = "[" + block.rstrip("\n") + "\n"
     solve = []
     for c in chosen:
         name = committed_physics(c)
@@ -150,13 +155,8 @@ def write(out, chosen):
                 return 1
         finally:
             suite.cases = cases
-    toml = os.path.join(out, "suite.toml")
-    entries = {}  # the sessions already under OUT keep their entries
-    if os.path.isfile(toml):
-        for block in open(toml).read().split("\n[")[1:]:
-            entries[block.split("]")[0]] = "[" + block.rstrip("\n") + "\n"
-    for c in chosen:
-        entries[c["name"]] = f'[{c["name"]}]\neffect = "{c["effect"] or "none"}"\npair = "{c["pair"] or ""}"\n'
+    for c in chosen:  # quoted table names: a case name may hold a '+'
+        entries[c["name"]] = f'["{c["name"]}"]\neffect = "{c["effect"] or "none"}"\npair = "{c["pair"] or ""}"\n'
     with open(toml, "w") as f:
         f.write("# case → effect (written by scripts/diagnose_thirdparty_sessions.py)\n" + "".join(entries.values()))
     return 0
