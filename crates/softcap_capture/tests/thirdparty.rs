@@ -65,6 +65,7 @@ cases! {
     plasticity_pair => "plasticity-pair",
     plasticity => "plasticity",
     probe_friction => "probe-friction",
+    probe_friction_pair => "probe-friction-pair",
     support_slip => "support-slip",
     support_slip_pair => "support-slip-pair",
     clock_offset => "clock-offset",
