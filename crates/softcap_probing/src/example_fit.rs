@@ -26,10 +26,20 @@ pub struct ExampleFitSettings {
     pub lambda_factor_bounds: (f64, f64),
     /// Bounds on ν_e = α_e/λ_e (physically valid: within (−1, 0.5)).
     pub nu_bounds: (f64, f64),
-    /// Levenberg–Marquardt iterations (accepted or rejected steps).
+    /// Safety cap on the Levenberg–Marquardt iterations (accepted or rejected steps); a fit that
+    /// reaches it ends with [`FitStop::IterationCap`], i.e. not converged.
     pub max_iterations: usize,
-    /// Stop when an accepted step lowers the cost by less than this fraction.
+    /// Stop ([`FitStop::Cost`]) when an accepted step lowers the cost by less than this fraction;
+    /// 0 disables the test.
     pub relative_cost_tolerance: f64,
+    /// Stop ([`FitStop::Gradient`]) when the projected gradient ‖P g‖∞ (components pushing
+    /// against an active bound removed: first-order optimality of the bound-constrained
+    /// problem, Nocedal & Wright eq. 12.34 / Moré 1978 §7) has fallen to this fraction of its
+    /// value at the start; 0 disables the test.
+    pub gradient_tolerance: f64,
+    /// Stop ([`FitStop::Step`]) when an accepted step moves no unknown by more than this, in
+    /// q = (ln λ, ν) units (1e-4 = 0.01 % of λ); 0 disables the test.
+    pub step_tolerance: f64,
     /// Initial damping μ relative to the largest diagonal of JᵀJ.
     pub initial_damping: f64,
     /// Floor of the Marquardt scaling relative to its largest entry: D_i = max(diag_i,
@@ -85,6 +95,8 @@ impl Default for ExampleFitSettings {
             nu_bounds: (0.0, 0.49),
             max_iterations: 12,
             relative_cost_tolerance: 1e-3,
+            gradient_tolerance: 0.0,
+            step_tolerance: 0.0,
             initial_damping: 1e-3,
             min_scaling: 1e-2,
             max_step: 1.0,
@@ -101,6 +113,36 @@ impl Default for ExampleFitSettings {
             preconditioner: StepPreconditioner::default(),
             patch: PatchSettings::default(),
         }
+    }
+}
+
+/// Why the Levenberg–Marquardt iteration of [`fit_examples`] stopped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FitStop {
+    /// The projected gradient fell below `gradient_tolerance` of its start value (converged).
+    Gradient,
+    /// An accepted step was below `step_tolerance` (converged).
+    Step,
+    /// An accepted step lowered the cost by less than `relative_cost_tolerance` (converged).
+    Cost,
+    /// No observed marker: nothing to fit.
+    NoData,
+    /// No step along the damped direction lowered the cost (damping above 10¹² or trust radius
+    /// below 10⁻⁶): the cost is flat to the resolution of the equilibrium solves.
+    Stalled,
+    /// `max_iterations` reached before any tolerance: not converged.
+    #[default]
+    IterationCap,
+}
+
+impl FitStop {
+    /// The iteration stopped on a tolerance (or had nothing to fit), not on the cap or a stall.
+    pub fn converged(self) -> bool {
+        matches!(
+            self,
+            FitStop::Gradient | FitStop::Step | FitStop::Cost | FitStop::NoData
+        )
     }
 }
 
@@ -126,6 +168,12 @@ pub struct ExampleFit {
     pub cg_iterations: usize,
     /// Equilibrium status of the final simulation.
     pub status: SolveStatus,
+    /// Why the iteration stopped.
+    #[serde(default)]
+    pub stop: FitStop,
+    /// Projected gradient ‖P g‖∞ at each linearization (first entry: the start).
+    #[serde(default)]
+    pub gradient_history: Vec<f64>,
 }
 
 /// (log-λ, ν) parameterization of the per-tet material (λ_e = λ_ref,e · exp(s_e), α_e = ν_e λ_e).
@@ -223,6 +271,12 @@ pub struct JointFit {
     pub cg_iterations: usize,
     /// Worst equilibrium status of the final simulations.
     pub status: SolveStatus,
+    /// Why the iteration stopped.
+    #[serde(default)]
+    pub stop: FitStop,
+    /// Projected gradient ‖P g‖∞ at each linearization (first entry: the start).
+    #[serde(default)]
+    pub gradient_history: Vec<f64>,
 }
 
 impl From<JointFit> for ExampleFit {
@@ -238,6 +292,8 @@ impl From<JointFit> for ExampleFit {
             iterations,
             cg_iterations,
             status,
+            stop,
+            gradient_history,
             ..
         } = joint;
         ExampleFit {
@@ -250,6 +306,8 @@ impl From<JointFit> for ExampleFit {
             iterations,
             cg_iterations,
             status,
+            stop,
+            gradient_history,
         }
     }
 }
@@ -327,8 +385,13 @@ pub fn fit_examples(
     let mut jac_valid = false;
     let mut cg_iterations = 0;
 
-    while iterations < settings.max_iterations && problem.num_rows > 0 {
-        iterations += 1;
+    let mut gradient_history = Vec::new();
+    let mut stop = FitStop::NoData;
+    while problem.num_rows > 0 {
+        if iterations >= settings.max_iterations {
+            stop = FitStop::IterationCap;
+            break;
+        }
         if !jac_valid {
             problem.linearize(
                 &model,
@@ -340,7 +403,14 @@ pub fn fit_examples(
                 &mut linearization,
             )?;
             jac_valid = true;
+            let pg = problem.projected_gradient_norm(&linearization, &q);
+            gradient_history.push(pg);
+            if pg <= settings.gradient_tolerance * gradient_history[0] {
+                stop = FitStop::Gradient;
+                break;
+            }
         }
+        iterations += 1;
         let (h, cg) = problem.step(&linearization, &q, mu_rel, &mut scratch);
         cg_iterations += cg;
         // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
@@ -354,6 +424,10 @@ pub fn fit_examples(
             sum_of_squares(&trial.residuals) + problem.regularization(&q_trial, &mut scratch);
         if trial.converged && cost_trial.is_finite() && cost_trial < cost {
             let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
+            let moved = q_trial
+                .iter()
+                .zip(&q)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
             q = q_trial;
             xs = xs_trial;
             rs = trial.residuals;
@@ -364,6 +438,11 @@ pub fn fit_examples(
             mu_rel = (mu_rel / 3.0).max(1e-12);
             radius = (2.0 * radius).min(max_radius);
             if decrease < settings.relative_cost_tolerance {
+                stop = FitStop::Cost;
+                break;
+            }
+            if moved <= settings.step_tolerance {
+                stop = FitStop::Step;
                 break;
             }
         } else {
@@ -374,6 +453,7 @@ pub fn fit_examples(
                 radius = 0.25 * radius.min(shrink * h_inf);
             }
             if mu_rel > 1e12 || radius < 1e-6 {
+                stop = FitStop::Stalled;
                 break;
             }
         }
@@ -394,6 +474,8 @@ pub fn fit_examples(
         iterations,
         cg_iterations,
         status,
+        stop,
+        gradient_history,
     })
 }
 
@@ -661,6 +743,18 @@ impl<'a> Eq9Problem<'a> {
             lin.diag_max[i] = lin.diag_max[i].max(d);
         }
         Ok(())
+    }
+
+    /// ‖P g‖∞: the gradient with the components that push against an active bound removed
+    /// (the same free set as [`Self::step`]).
+    fn projected_gradient_norm(&self, lin: &Linearization, q: &[f64]) -> f64 {
+        let (lower, upper) = (&self.space.lower, &self.space.upper);
+        (0..q.len())
+            .filter(|&i| {
+                let g = lin.grad[i];
+                !((q[i] <= lower[i] && g > 0.0) || (q[i] >= upper[i] && g < 0.0))
+            })
+            .fold(0.0f64, |m, i| m.max(lin.grad[i].abs()))
     }
 
     /// The damped step h at q, damping μ = `mu_rel` × max D, on the variables not held at a

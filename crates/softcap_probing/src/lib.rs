@@ -66,7 +66,7 @@ pub mod strain_space;
 pub mod synthesis;
 
 pub use example_fit::{
-    ExampleFit, ExampleFitSettings, FitStart, JointFit, StepPreconditioner, fit_examples,
+    ExampleFit, ExampleFitSettings, FitStart, FitStop, JointFit, StepPreconditioner, fit_examples,
     marker_jacobian,
 };
 pub use footprint::{FootprintLoad, PatchSettings};

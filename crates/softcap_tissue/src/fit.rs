@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use softcap_fem::{EquilibriumSettings, LinearParams};
 use softcap_mcap::capture::CaptureData;
 use softcap_probing::{
-    BasisErrorStep, ExampleFit, ExampleFitSettings, FitStart, HomogeneousFit,
+    BasisErrorStep, ExampleFit, ExampleFitSettings, FitStart, FitStop, HomogeneousFit,
     HomogeneousFitSettings, JointFit, ProbeExample, ProbingSetup, StrainBasisSettings,
     StrainSample, StrainSpaceMaterial, fit_examples, fit_homogeneous,
 };
@@ -214,6 +214,9 @@ pub struct ExampleSummary {
     pub displacement_rms_m: f64,
     /// LM iterations of the per-example fit.
     pub iterations: usize,
+    /// Why the per-example fit stopped ([`FitStop::converged`] unless it hit the cap).
+    #[serde(default)]
+    pub stop: FitStop,
 }
 
 /// Result of a fit.
@@ -827,6 +830,7 @@ pub fn fit_session(
                 material_rms_m: mat_rms,
                 displacement_rms_m: disp,
                 iterations: fits[k].iterations,
+                stop: fits[k].stop,
             },
             mat_mean,
             hom_mean,

@@ -115,6 +115,11 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         KeyValue::number("rms.per_example", o.example_rms_m, "m"),
         KeyValue::number("rms.material", o.material_rms_m, "m"),
         KeyValue::integer("material.failures", o.material_failures as i64, ""),
+        KeyValue::integer(
+            "examples.unconverged",
+            o.examples.iter().filter(|e| !e.stop.converged()).count() as i64,
+            "",
+        ),
         KeyValue::number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
         KeyValue::number("mean_error.material", o.material_mean_error_m, "m"),
         KeyValue::number("basis.mean_centers", o.mean_centers, ""),
@@ -173,6 +178,11 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
             format!("{p}.rms.material"),
             e.material_rms_m,
             "m",
+        ));
+        entries.push(KeyValue::integer(
+            format!("{p}.iterations"),
+            e.iterations as i64,
+            "",
         ));
     }
     proto::Report {
