@@ -386,78 +386,76 @@ pub fn fit_examples(
     let mut cg_iterations = 0;
 
     let mut gradient_history = Vec::new();
-    let mut stop = FitStop::NoData;
-    while problem.num_rows > 0 {
-        if iterations >= settings.max_iterations {
-            stop = FitStop::IterationCap;
-            break;
-        }
-        if !jac_valid {
-            problem.linearize(
-                &model,
-                &mut solver,
-                &q,
-                &xs,
-                &rs,
-                &mut scratch,
-                &mut linearization,
-            )?;
-            jac_valid = true;
-            let pg = problem.projected_gradient_norm(&linearization, &q);
-            gradient_history.push(pg);
-            if pg <= settings.gradient_tolerance * gradient_history[0] {
-                stop = FitStop::Gradient;
-                break;
+    let stop = if problem.num_rows == 0 {
+        FitStop::NoData
+    } else {
+        loop {
+            if iterations >= settings.max_iterations {
+                break FitStop::IterationCap;
+            }
+            if !jac_valid {
+                problem.linearize(
+                    &model,
+                    &mut solver,
+                    &q,
+                    &xs,
+                    &rs,
+                    &mut scratch,
+                    &mut linearization,
+                )?;
+                jac_valid = true;
+                let pg = problem.projected_gradient_norm(&linearization, &q);
+                gradient_history.push(pg);
+                if pg <= settings.gradient_tolerance * gradient_history[0] {
+                    break FitStop::Gradient;
+                }
+            }
+            iterations += 1;
+            let (h, cg) = problem.step(&linearization, &q, mu_rel, &mut scratch);
+            cg_iterations += cg;
+            // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
+            let h_inf = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let shrink = if h_inf > radius { radius / h_inf } else { 1.0 };
+            let mut q_trial: Vec<f64> = (0..n).map(|i| q[i] + shrink * h[i]).collect();
+            problem.space.clamp(&mut q_trial);
+            let mut xs_trial = xs.clone();
+            let trial = problem.simulate_all(&mut model, &mut solver, &q_trial, &mut xs_trial)?;
+            let cost_trial =
+                sum_of_squares(&trial.residuals) + problem.regularization(&q_trial, &mut scratch);
+            if trial.converged && cost_trial.is_finite() && cost_trial < cost {
+                let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
+                let moved = q_trial
+                    .iter()
+                    .zip(&q)
+                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                q = q_trial;
+                xs = xs_trial;
+                rs = trial.residuals;
+                cost = cost_trial;
+                status = trial.status;
+                history.push(cost);
+                jac_valid = false;
+                mu_rel = (mu_rel / 3.0).max(1e-12);
+                radius = (2.0 * radius).min(max_radius);
+                if decrease < settings.relative_cost_tolerance {
+                    break FitStop::Cost;
+                }
+                if moved <= settings.step_tolerance {
+                    break FitStop::Step;
+                }
+            } else {
+                // Restore the model to the accepted parameters.
+                model.set_params(&problem.space.params(&q))?;
+                mu_rel *= 4.0;
+                if settings.max_step > 0.0 {
+                    radius = 0.25 * radius.min(shrink * h_inf);
+                }
+                if mu_rel > 1e12 || radius < 1e-6 {
+                    break FitStop::Stalled;
+                }
             }
         }
-        iterations += 1;
-        let (h, cg) = problem.step(&linearization, &q, mu_rel, &mut scratch);
-        cg_iterations += cg;
-        // Trust region ‖h‖∞ ≤ radius on top of the damping: shortens the step uniformly.
-        let h_inf = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let shrink = if h_inf > radius { radius / h_inf } else { 1.0 };
-        let mut q_trial: Vec<f64> = (0..n).map(|i| q[i] + shrink * h[i]).collect();
-        problem.space.clamp(&mut q_trial);
-        let mut xs_trial = xs.clone();
-        let trial = problem.simulate_all(&mut model, &mut solver, &q_trial, &mut xs_trial)?;
-        let cost_trial =
-            sum_of_squares(&trial.residuals) + problem.regularization(&q_trial, &mut scratch);
-        if trial.converged && cost_trial.is_finite() && cost_trial < cost {
-            let decrease = (cost - cost_trial) / cost.max(f64::MIN_POSITIVE);
-            let moved = q_trial
-                .iter()
-                .zip(&q)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            q = q_trial;
-            xs = xs_trial;
-            rs = trial.residuals;
-            cost = cost_trial;
-            status = trial.status;
-            history.push(cost);
-            jac_valid = false;
-            mu_rel = (mu_rel / 3.0).max(1e-12);
-            radius = (2.0 * radius).min(max_radius);
-            if decrease < settings.relative_cost_tolerance {
-                stop = FitStop::Cost;
-                break;
-            }
-            if moved <= settings.step_tolerance {
-                stop = FitStop::Step;
-                break;
-            }
-        } else {
-            // Restore the model to the accepted parameters.
-            model.set_params(&problem.space.params(&q))?;
-            mu_rel *= 4.0;
-            if settings.max_step > 0.0 {
-                radius = 0.25 * radius.min(shrink * h_inf);
-            }
-            if mu_rel > 1e12 || radius < 1e-6 {
-                stop = FitStop::Stalled;
-                break;
-            }
-        }
-    }
+    };
     let params = problem.space.params(&q);
     model.set_params(&params)?;
     let strains = xs.iter().map(|x| model.strains(x)).collect();
