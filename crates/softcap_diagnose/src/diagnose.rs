@@ -8,10 +8,11 @@
 //!    leave-one-location-out and BIC, against the noise floor and the stiffness-scale nuisance;
 //! 4. **confirm** — the qualifying hypotheses, look-alikes ordered by their signatures, and those
 //!    a signature alone sends, re-simulated with their extended model until one keeps its gain;
-//! 5. **select** — the confirmed effect against its look-alikes over the folds (`inconclusive`
-//!    when the data cannot separate them), then greedy forward selection: every other hypothesis
+//! 5. **select** — greedy forward selection from the confirmed effect: every other hypothesis
 //!    refitted on top of the effects named so far, kept when it lowers the held-out error beyond
-//!    the fold-to-fold spread (the joint extended model);
+//!    the fold-to-fold spread (the joint extended model); then the confirmed effect against its
+//!    look-alikes not added as effects, over the folds on its own cells (`inconclusive` when the
+//!    data cannot separate them);
 //! 6. **verdict** — the ranked table with typed [`Evidence`], `none` placed among it, the named
 //!    effects with their confidence;
 //! 7. **extended model** — the joint model's prediction and the before / after table.
@@ -23,7 +24,7 @@ use crate::evidence::{
     Baseline, Candidate, Diagnosis, Evidence, ForceChannel, NamedEffect, NotApplicable,
     RankedHypothesis, Resimulated, Screened, Unexplained,
 };
-use crate::folds::{confidence, fold_gains, mean_sd, separable};
+use crate::folds::{confidence, fold_gains, mean_sd, outexplains, separable};
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
 use crate::indentation::{ForceObservations, ForceScore, heldout_fit};
@@ -676,8 +677,11 @@ impl Row {
     }
 }
 
-/// Checks the confirmed effect against its look-alikes over the folds and adds further effects
-/// by greedy forward selection ([`forward_step`]).
+/// Adds further effects to the confirmed one by greedy forward selection ([`forward_step`]), then
+/// checks it against its look-alikes ([`lookalikes`]) that selection did not add: one that the
+/// confirmed effect does not out-explain on its own cells ([`outexplains`], fold gains of both
+/// linearised refits on the same observations) makes the verdict `inconclusive` (a real second
+/// effect, with gains as large, is added instead).
 fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) -> Selection {
     let s = cx.settings;
     let scoring = &screen.scoring;
@@ -706,33 +710,15 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
         };
     };
     let lookalikes = lookalikes(row1, screen, confirmation, s);
-    if !lookalikes.is_empty() {
-        let candidates: Vec<Candidate> = std::iter::once(row1)
-            .chain(lookalikes)
-            .map(|r| {
-                let gains = r.screen_gains(scoring);
-                Candidate {
-                    hypothesis: r.hypothesis.effect().name().into(),
-                    heldout_rmse_after_m: r.after_m,
-                    confidence: confidence(&gains, s.min_heldout_gain),
-                    fold_gains: gains,
-                    params: r.refit.params.iter().cloned().collect(),
-                }
-            })
-            .collect();
-        return Selection {
-            confidence: candidates[0].confidence,
-            effects: Vec::new(),
-            candidates,
-            prediction: None,
-        };
-    }
     let Some(mut x) = extended_prediction(cx, screen, confirmation) else {
-        return Selection {
-            effects: Vec::new(),
-            candidates: Vec::new(),
-            confidence: 0.0,
-            prediction: None,
+        return match lookalikes.is_empty() {
+            true => Selection {
+                effects: Vec::new(),
+                candidates: Vec::new(),
+                confidence: 0.0,
+                prediction: None,
+            },
+            false => inconclusive(cx, screen, row1, &lookalikes),
         };
     };
     let before_folds = scoring.fold_before(e1);
@@ -779,12 +765,83 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
         effects.push(effect);
         x = prediction;
     }
+    // The look-alike check after forward selection: an entry it added explains what the verdict
+    // leaves (a second effect, not an alternative); one that explains the verdict's own cells
+    // less than the verdict, beyond the fold-to-fold spread, is not a look-alike either.
+    let named: Vec<Effect> = effects
+        .iter()
+        .filter_map(|n| Effect::from_name(&n.hypothesis))
+        .collect();
+    let g1 = row1.screen_gains(scoring);
+    let lookalikes: Vec<&Row> = lookalikes
+        .into_iter()
+        .filter(|r| !named.contains(&r.hypothesis.effect()))
+        .filter(|r| same_cell_gains(cx, screen, r, e1).is_none_or(|g| !outexplains(&g1, &g)))
+        .collect();
+    if !lookalikes.is_empty() {
+        return inconclusive(cx, screen, row1, &lookalikes);
+    }
     Selection {
         confidence: effects[0].confidence,
         effects,
         candidates: Vec::new(),
         prediction: Some(x),
     }
+}
+
+/// `inconclusive` between the confirmed `row1` and its `lookalikes`: each candidate with its fold
+/// gains on the verdict's cells (the comparison that could not separate them).
+fn inconclusive(
+    cx: &Context<'_>,
+    screen: &Screen<'_>,
+    row1: &Row,
+    lookalikes: &[&Row],
+) -> Selection {
+    let (s, scoring) = (cx.settings, &screen.scoring);
+    let e1 = row1.hypothesis.effect();
+    let candidates: Vec<Candidate> = std::iter::once(row1)
+        .chain(lookalikes.iter().copied())
+        .map(|r| {
+            let gains = match r.hypothesis.effect() == e1 {
+                true => None,
+                false => same_cell_gains(cx, screen, r, e1),
+            }
+            .unwrap_or_else(|| r.screen_gains(scoring));
+            Candidate {
+                hypothesis: r.hypothesis.effect().name().into(),
+                heldout_rmse_after_m: r.after_m,
+                confidence: confidence(&gains, s.min_heldout_gain),
+                fold_gains: gains,
+                params: r.refit.params.iter().cloned().collect(),
+            }
+        })
+        .collect();
+    Selection {
+        confidence: candidates[0].confidence,
+        effects: Vec::new(),
+        candidates,
+        prediction: None,
+    }
+}
+
+/// Fold gains of `row`'s linearised refit scored on `e1`'s cells (leave-one-location-out against
+/// the default model on the same observations), to compare with `e1`'s own; `None` when the refit
+/// fails.
+fn same_cell_gains(
+    cx: &Context<'_>,
+    screen: &Screen<'_>,
+    row: &Row,
+    e1: Effect,
+) -> Option<Vec<f64>> {
+    let scoring = &screen.scoring;
+    let r = refit(
+        &row.hypothesis.variants(cx),
+        cx.rec,
+        cx.seg,
+        cx.prepared,
+        &|k, m| scoring.scored(e1, k, m),
+    )?;
+    Some(fold_gains(&scoring.fold_before(e1), &r.fold_rss_m2))
 }
 
 /// The qualifying hypotheses the data cannot separate from the confirmed `row1`: not contradicted

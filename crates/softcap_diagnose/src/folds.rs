@@ -52,6 +52,15 @@ pub fn separable(a: &[f64], b: &[f64]) -> bool {
     mean.abs() > sd
 }
 
+/// `a` removes more of the held-out error than `b` (fold gains on the same folds and
+/// observations): the mean of their paired differences exceeds its fold-to-fold spread (the
+/// one-sided [`separable`]).
+pub fn outexplains(a: &[f64], b: &[f64]) -> bool {
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let (mean, sd) = mean_sd(&d);
+    mean > sd
+}
+
 /// The standard normal distribution function Φ(z) = ½ erfc(−z/√2). Hand-written (no special
 /// function crate in the workspace for one call): erfc by Abramowitz & Stegun 7.1.26, absolute
 /// error ≤ 1.5 × 10⁻⁷.
@@ -101,5 +110,8 @@ mod tests {
         // a consistent difference separates, a noisy one does not
         assert!(separable(&[0.9, 0.8, 0.85], &[0.5, 0.45, 0.55]));
         assert!(!separable(&[0.9, 0.2, 0.85], &[0.5, 0.8, 0.55]));
+        // one-sided: only the first out-explains the second
+        assert!(outexplains(&[0.9, 0.8, 0.85], &[0.5, 0.45, 0.55]));
+        assert!(!outexplains(&[0.5, 0.45, 0.55], &[0.9, 0.8, 0.85]));
     }
 }
