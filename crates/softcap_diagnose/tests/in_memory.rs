@@ -400,6 +400,18 @@ fn anisotropy_and_gravity_are_both_named() {
     );
 }
 
+/// A pair whose second effect has fold gains as large as the first's (inconclusive while the
+/// look-alike check ran before forward selection): tangential support springs and a 0.1 s clock
+/// offset on the oblique path.
+#[test]
+fn support_slip_and_clock_offset_are_both_named() {
+    run_pair(
+        &[Effect::SupportSlip(500.0), Effect::ClockOffset(0.1)],
+        true,
+        ["support-slip", "clock-offset"],
+    );
+}
+
 /// The fourth pair: Coulomb probe friction μ 0.5 on the oblique path and a 0.1 s clock offset
 /// (the frictional rigid-tip replays of its confirmation cost ≈ 60 CPU-s in the test profile).
 #[test]
