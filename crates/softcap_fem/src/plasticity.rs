@@ -45,7 +45,7 @@
 
 use crate::corotated::{forces_from_stress, kinematics, tangent_from_stress};
 use crate::element::{Matrix12, StiffnessKind, TetGeometry, tet_geometries};
-use crate::model::{ElasticModel, NeoHookeanModel};
+use crate::model::{ElasticModel, NeoHookeanModel, fresh_state_id};
 use crate::neohookean::{pk1, pk1_derivative};
 use crate::{FemError, LinearParams, NeoHookeanParams};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3, Vector6};
@@ -206,6 +206,9 @@ pub struct ElastoplasticModel {
     params: Vec<LinearParams>,
     plasticity: Vec<J2PlasticityParams>,
     committed: Vec<PlasticState>,
+    /// [`ElasticModel::state_id`]: renewed by every change of the parameters or the committed
+    /// state.
+    state_id: u64,
 }
 
 impl ElastoplasticModel {
@@ -235,6 +238,7 @@ impl ElastoplasticModel {
         Ok(Self {
             rest: mesh.vertices.clone(),
             committed: vec![PlasticState::default(); geometry.len()],
+            state_id: fresh_state_id(),
             geometry,
             params,
             plasticity,
@@ -270,6 +274,7 @@ impl ElastoplasticModel {
             });
         }
         self.plasticity.copy_from_slice(q);
+        self.state_id = fresh_state_id();
         Ok(())
     }
 
@@ -283,6 +288,7 @@ impl ElastoplasticModel {
             });
         }
         self.params.copy_from_slice(p);
+        self.state_id = fresh_state_id();
         Ok(())
     }
 
@@ -294,6 +300,7 @@ impl ElastoplasticModel {
     /// Back to the virgin (unyielded) state.
     pub fn reset(&mut self) {
         self.committed.fill(PlasticState::default());
+        self.state_id = fresh_state_id();
     }
 
     /// Return mapping of element `e` at positions `x` (from the committed state) together with the
@@ -349,6 +356,7 @@ impl ElastoplasticModel {
             })
             .collect();
         self.committed = states;
+        self.state_id = fresh_state_id();
         yielded
     }
 }
@@ -378,6 +386,9 @@ impl ElasticModel for ElastoplasticModel {
     }
     fn energy(&self, _x: &[Vector3<f64>]) -> Option<f64> {
         None // path dependent: no potential in x alone
+    }
+    fn state_id(&self) -> Option<u64> {
+        Some(self.state_id)
     }
     fn internal_forces(&self, x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         crate::model::ordered_parallel_forces(&self.geometry, self.rest.len(), |e| {

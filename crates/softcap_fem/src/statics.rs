@@ -73,6 +73,17 @@ pub enum Refactorization {
     /// model this is the scale a fresh assembly gives (the trace of R K Rᵀ does not depend on R),
     /// for other models it is the scale at the factored iterate.
     WhenStale,
+    /// Full Newton, but the matrix is assembled and factored only at iterates that take a step:
+    /// an iterate whose previous update was already within the displacement tolerance is first
+    /// tested with its forces alone (those of the accepted line-search point when the search
+    /// computed them), and when it has converged the solve returns without the assembly and the
+    /// factorization nothing would use. The iterates, and every convergence decision the
+    /// residual tolerance makes, are those of [`Refactorization::EveryIteration`]; only the
+    /// alternative test against the matrix diagonal (‖r‖ ≤ max|A_ij| · tol_x) is not made on
+    /// the forces-only test. The factor and [`StaticSolver::last_matrix_values`] left after a
+    /// solve belong to the last step's iterate, not to the solution: for loops that read only
+    /// the equilibrium (rigid-tip replays), never for a tangent response ∂x/∂f.
+    EveryStep,
 }
 
 impl Default for EquilibriumSettings {
@@ -386,16 +397,6 @@ impl StaticSolver {
         free_residual(self.dofs(), f_ext, f_int, &fc)
     }
 
-    fn residual<M: ElasticModel + ?Sized>(
-        &self,
-        model: &M,
-        x: &[Vector3<f64>],
-        f_ext: &[Vector3<f64>],
-        springs: &[ContactSpring],
-    ) -> (Vec<f64>, f64) {
-        self.residual_with(&model.internal_forces(x), x, f_ext, springs)
-    }
-
     /// Solves f_int(x) = f_ext (+ contact) for the free dofs, starting from `x` (whose constrained
     /// components must already hold the prescribed values). Never panics: failures are reported in
     /// the status, and `x` keeps the last finite iterate.
@@ -447,8 +448,40 @@ impl StaticSolver {
             },
         };
         let converged_before = self.converged_at.take();
+        let lazy = settings.refactorization == Refactorization::EveryStep;
+        // EveryStep: f_int at the current x from the accepted line-search point, if it made it,
+        // with the model state it was computed in.
+        let mut searched: Option<(Vec<Vector3<f64>>, Option<u64>)> = None;
         for it in 0..settings.max_iterations {
             model.update_state(x);
+            if lazy && it > 0 && report.last_update_m <= tol_x {
+                // the searched forces only when the model state did not change since
+                let f_int = match searched.take() {
+                    Some((f, Some(id))) if model.state_id() == Some(id) => f,
+                    _ => model.internal_forces(x),
+                };
+                let frozen_ref = (it >= settings.contact_freeze_after)
+                    .then_some(last_springs.as_deref())
+                    .flatten();
+                let previous = last_springs.as_deref().unwrap_or(&[]);
+                let springs = self.contact_springs(
+                    x,
+                    contact,
+                    frozen_ref,
+                    Some((&mut node_stiffness, previous)),
+                );
+                let (r, scale) = self.residual_with(&f_int, x, f_ext, &springs);
+                let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if rnorm.is_finite() && rnorm <= settings.residual_tol_rel * scale {
+                    report.residual_norm_n = rnorm;
+                    if let Some(c) = contact {
+                        report.contact = c.report(&springs, x);
+                    }
+                    report.status = SolveStatus::Converged;
+                    return report;
+                }
+            }
+            searched = None;
             if it == 0
                 && reuse
                 && let Some((id, at)) = &converged_before
@@ -578,9 +611,22 @@ impl StaticSolver {
                     frozen: freeze,
                 });
                 let energy = self.energy;
-                let carry = if reuse { Some(&mut carried) } else { None };
-                self.line_search(&*model, x, energy, f_ext, merit, &dx, &r, settings, carry)
+                let carry = if reuse || lazy {
+                    Some(&mut carried)
+                } else {
+                    None
+                };
+                let (s, residual_forces) =
+                    self.line_search(&*model, x, energy, f_ext, merit, &dx, &r, settings, carry);
+                if lazy {
+                    // the accepted point's forces serve the next iterate's forces-only test
+                    searched = residual_forces
+                        .or_else(|| carried.take().map(|(f, _)| f))
+                        .map(|f| (f, model.state_id()));
+                }
+                s
             } else {
+                searched = None;
                 1.0
             };
             last_springs = Some(springs);
@@ -603,7 +649,7 @@ impl StaticSolver {
         r: &[f64],
         settings: &EquilibriumSettings,
         mut carry: Option<&mut Option<(Vec<Vector3<f64>>, Option<f64>)>>,
-    ) -> f64 {
+    ) -> (f64, Option<Vec<Vector3<f64>>>) {
         let dofs = self.dofs();
         let trial = |s: f64| {
             let mut xt = x.to_vec();
@@ -642,11 +688,11 @@ impl StaticSolver {
                         if let (Some(slot), Some(f)) = (carry.as_deref_mut(), forces) {
                             *slot = Some((f, energy));
                         }
-                        return s;
+                        return (s, None);
                     }
                     s *= 0.5;
                 }
-                return 1.0;
+                return (1.0, None);
             }
         }
         let r0 = r.iter().map(|v| v * v).sum::<f64>();
@@ -654,14 +700,15 @@ impl StaticSolver {
         for _ in 0..=settings.max_halvings {
             let xt = trial(s);
             let springs = contact.as_ref().map_or(Vec::new(), |c| c.springs(&xt));
-            let (rt, _) = self.residual(model, &xt, f_ext, &springs);
+            let f_int = model.internal_forces(&xt);
+            let (rt, _) = self.residual_with(&f_int, &xt, f_ext, &springs);
             let rn = rt.iter().map(|v| v * v).sum::<f64>();
             if rn.is_finite() && rn < r0 {
-                return s;
+                return (s, Some(f_int));
             }
             s *= 0.5;
         }
-        1.0
+        (1.0, None)
     }
 
     /// bickel2009 eq. 10 with the rotations *frozen*: x = K(R)⁻¹(F + K′(R) X) for given element

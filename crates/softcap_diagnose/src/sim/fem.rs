@@ -54,9 +54,12 @@ pub struct FemSimSettings {
     pub friction_slip_fraction: f64,
     /// When the frictionless rigid-tip replays (`Extension::{Elastic, Plastic, Anisotropic, …}`
     /// replayed at the measured poses) refactor their system matrix
-    /// (`softcap_fem::Refactorization`): at every Newton iterate, or only when the factor stops
-    /// contracting or the contact set changes (modified Newton; the same convergence test, so the
-    /// same equilibrium to the solver's tolerance). No tangent response is read from a replay.
+    /// (`softcap_fem::Refactorization`): at every iterate that takes a Newton step (the default,
+    /// `EveryStep`: the converged iterate is tested with its forces alone — the iterates of
+    /// `EveryIteration`, one assembly and factorization fewer per frame), at every iterate
+    /// (`EveryIteration`), or only when the factor stops contracting or the contact set changes
+    /// (`WhenStale`, modified Newton: other iterates, and through the contact set's hysteresis
+    /// and the plastic history other equilibria). No tangent response is read from a replay.
     pub replay_refactorization: Refactorization,
 }
 
@@ -104,7 +107,7 @@ impl Default for FemSimSettings {
             friction_contact: ContactDiscretisation::Nodes,
             rigid_tip_contact: ContactSettings::default(),
             friction_slip_fraction: 0.1,
-            replay_refactorization: Refactorization::EveryIteration,
+            replay_refactorization: Refactorization::EveryStep,
         }
     }
 }
