@@ -1,9 +1,11 @@
 """How far each effect case is from its paired control, from the two sessions' truth/ alone:
 RMS over frames and object markers of the difference of marker displacements from frame 0
-(mm), its largest value, and the RMS difference of the axial probe force in % of the case's
-largest force.
+(mm), its largest value, the RMS difference of the axial probe force in % of the case's largest
+force, and the same after the best common scale s (f_case ≈ s f_pair, least squares): what a
+refitted material stiffness cannot take up.
 
-python -m thirdparty_suite.pairs [fixtures/thirdparty]
+python -m thirdparty_suite.pairs [fixtures/thirdparty [CASE OTHER]]   (CASE OTHER: any two cases, e.g. a
+control against clean)
 """
 import os
 import sys
@@ -40,9 +42,11 @@ def effect_and_pair(root):
 
 def main(argv):
     root = argv[0] if argv else "fixtures/thirdparty"
-    print("| case | paired control | marker displacement difference RMS / max (mm) | axial force difference RMS (% of max) |")
-    print("|---|---|---|---|")
-    for case, effect, pair in effect_and_pair(root):
+    print("| case | paired control | marker displacement difference RMS / max (mm) | axial force difference RMS (% of max) "
+          "| beyond one scale (% of max) |")
+    print("|---|---|---|---|---|")
+    rows = [(argv[1], None, argv[2])] if len(argv) >= 3 else effect_and_pair(root)
+    for case, effect, pair in rows:
         if not all(os.path.isdir(os.path.join(root, c)) for c in (case, pair)):
             continue
         a, fa = load(os.path.join(root, case))
@@ -51,8 +55,11 @@ def main(argv):
         da = (a[:n] - a[0]) - (b[:n] - b[0])
         d = np.linalg.norm(da, axis=2)
         df = fa[:n] - fb[:n]
+        s = float(fa[:n] @ fb[:n]) / max(float(fb[:n] @ fb[:n]), 1e-300)
+        ds = fa[:n] - s * fb[:n]
+        top = np.abs(fa).max()
         print(f"| {case} | {pair} | {np.sqrt((d ** 2).mean()):.3f} / {d.max():.3f} | "
-              f"{100 * np.sqrt((df ** 2).mean()) / np.abs(fa).max():.1f} |")
+              f"{100 * np.sqrt((df ** 2).mean()) / top:.1f} | {100 * np.sqrt((ds ** 2).mean()) / top:.1f} |")
 
 
 if __name__ == "__main__":

@@ -49,6 +49,12 @@ pub struct Signatures {
     pub contact_drag_m: f64,
     /// RMS baseline residual of attached markers in contact, m.
     pub attached_motion_m: f64,
+    /// Mean baseline residual (rest mean removed) of the markers away from the probe along the
+    /// push's tangential direction, over the contact frames with a tangential push, m
+    /// ([`far_field_push`]): > 0 when the whole body follows an oblique push beyond the model
+    /// (support slip); 0 without a tangential push.
+    #[serde(default)]
+    pub far_field_push_m: f64,
     /// |mean over locations of the mean tangential residual (rest mean removed) of the probed
     /// markers in contact|, m: a body-fixed lateral shift under every press (anisotropy,
     /// [`lateral_shift`]).
@@ -284,6 +290,7 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
         &|r, _| r.norm(),
     );
+    s.far_field_push_m = far_field_push(rec, seg, res, &rest_mean);
     let (mut a, mut n) = (0.0, 0);
     for (k, row) in res.iter().enumerate() {
         if seg.phases[k] == Phase::Rest {
@@ -363,6 +370,60 @@ pub fn released_set_persistence(
         }
     }
     (den > 0.0).then(|| num / den)
+}
+
+/// Least tangential part ‖P_t f‖ / ‖f‖ of a contact frame's force for [`far_field_push`]: the
+/// push of a probe tilted by ≥ 6° from the support normal (a vertical probe's axis jitter stays
+/// below it).
+pub const MIN_PUSH_FRACTION: f64 = 0.1;
+
+/// The far-field push signature of support slip (`Signatures::far_field_push_m`): the mean of
+/// (r − r̄_rest) · t̂_k over the contact frames k whose force has a tangential part
+/// t_k = P_t f_k with ‖t_k‖ ≥ [`MIN_PUSH_FRACTION`] ‖f_k‖ (P_t the projection on the support
+/// plane, or across gravity without one; t̂_k = t_k / ‖t_k‖) and the observed markers beyond
+/// [`contact_radius_m`] of the tip, where r is the baseline residual (measured − model) and
+/// r̄_rest the marker's mean residual at rest, m. 0 when no frame has such a push.
+///
+/// Why: a body bonded to its support carries an oblique push in shear that decays away from the
+/// contact (Saint-Venant: beyond a few contact radii the field depends on the resultant only, and
+/// the bonded base holds it), so what the default model misses there has no preferred sense along
+/// the push. A body that slides on its support (Coulomb, or a compliant interface) translates as
+/// a whole with the tangential force: every far marker leads the model along t̂. Probe friction
+/// and a stiff inclusion act within a few contact radii; fibres redirect the field about the
+/// probe, not along each frame's push.
+pub fn far_field_push(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &Residuals,
+    rest_mean: &[Vector3<f64>],
+) -> f64 {
+    let n = match (&rec.support, rec.gravity_dir()) {
+        (Some(s), _) => s.normal,
+        (None, g) if g != Vector3::zeros() => g,
+        _ => return 0.0,
+    };
+    let radius = contact_radius_m(rec);
+    let (mut acc, mut count) = (0.0, 0usize);
+    for (k, row) in res.iter().enumerate() {
+        if seg.fold_of_frame[k].is_none() || !seg.phases[k].in_contact() {
+            continue;
+        }
+        let f = rec.frames[k].force_n;
+        let t = f - n * n.dot(&f);
+        if t.norm() < MIN_PUSH_FRACTION * f.norm() || t.norm() <= 0.0 {
+            continue;
+        }
+        let dir = t / t.norm();
+        for (m, r) in row.iter().enumerate() {
+            if let Some(r) = r
+                && (rec.frames[k].tip_m - rec.rest_markers_m[m]).norm() > radius
+            {
+                acc += (r - rest_mean[m]).dot(&dir);
+                count += 1;
+            }
+        }
+    }
+    if count > 0 { acc / count as f64 } else { 0.0 }
 }
 
 /// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
@@ -651,5 +712,39 @@ mod tests {
             .collect();
         let (shift, _) = lateral_shift(&rec, &seg, &res);
         assert!(shift < 1e-12, "{shift}");
+    }
+
+    #[test]
+    fn far_field_push_is_the_far_markers_translation_along_the_push() {
+        let (mut rec, seg) = two_presses();
+        let nm = rec.num_markers();
+        let rest_mean = vec![Vector3::zeros(); nm];
+        // an oblique push along +x (0.3 N tangential of 1 N) at the first press, along −y at the
+        // second; every marker translates 0.2 mm with each push
+        rec.frames[1].force_n = Vector3::new(0.3, 0.0, -0.95);
+        rec.frames[2].force_n = Vector3::new(0.0, -0.3, -0.95);
+        rec.support = Some(crate::recording::SupportPlane {
+            normal: Vector3::z(),
+            offset_m: 0.0,
+            tolerance_m: 5e-4,
+        });
+        let slide = |t: [Vector3<f64>; 2]| -> Vec<Vec<Option<Vector3<f64>>>> {
+            (0..3)
+                .map(|k| vec![Some(if k == 0 { Vector3::zeros() } else { t[k - 1] }); nm])
+                .collect()
+        };
+        let res = slide([Vector3::new(2e-4, 0.0, 0.0), Vector3::new(0.0, -2e-4, 0.0)]);
+        let push = far_field_push(&rec, &seg, &res, &rest_mean);
+        assert!((push - 2e-4).abs() < 1e-12, "{push}");
+        // a translation that does not follow each frame's push (a body-fixed shift) averages out
+        // (up to the far markers counted at each press: the two presses are mirror images)
+        let res = slide([Vector3::new(2e-4, 0.0, 0.0), Vector3::new(0.0, 2e-4, 0.0)]);
+        let push = far_field_push(&rec, &seg, &res, &rest_mean);
+        assert!(push.abs() < 1e-5, "{push}");
+        // a vertical push has no tangential direction: no signature
+        rec.frames[1].force_n = Vector3::new(0.02, 0.0, -1.0);
+        rec.frames[2].force_n = Vector3::new(0.0, 0.0, -1.0);
+        let push = far_field_push(&rec, &seg, &res, &rest_mean);
+        assert_eq!(push, 0.0);
     }
 }

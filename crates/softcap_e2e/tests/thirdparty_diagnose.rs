@@ -354,10 +354,10 @@ cases! {
     plasticity_pair => "plasticity-pair",
     gravity_preload_pair => "gravity-preload-pair",
     probe_friction_pair => "probe-friction-pair",
+    support_slip_pair => "support-slip-pair",
     viscoelasticity => "viscoelasticity",
     clock_offset => "clock-offset",
     gravity_preload => "gravity-preload",
-    #[ignore = "verdict none: support-slip 0.1079 -> 0.1079 mm on contact/away-from-probe (rank 8), clean 0.1080; the fitted material takes up the slip: the truth's force beyond a scale differs from clean's by 0.0199 N RMS, force noise 0.0455 N (fixture too weak)"]
     support_slip => "support-slip",
     #[ignore = "verdict none: anisotropy 0.1380 -> 0.1390 mm on contact/away-from-probe (rank 10), clean 0.1080; below the 2√3σ noise rule on those cells (0.169 mm); one fibre cannot fit two HGO families at +-30 deg"]
     anisotropy => "anisotropy",

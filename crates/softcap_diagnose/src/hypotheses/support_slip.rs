@@ -3,8 +3,9 @@
 //! Screen: a rigid translation of the whole body along the support plane, c·P_t f (elastic) +
 //! c_p·P_t f at the running maximum (stick-slip), c, c_p ≥ 0 (P_t the projection on the support
 //! plane, or on the plane across gravity without a support). Effect cells: contact frames,
-//! markers away from the active contact. Signature: the attached markers move in contact (above
-//! 3σ). Confirmation: the default model on a `softcap_fem::SupportPlane` with tangential springs
+//! markers away from the active contact. Signature: the attached markers move in contact, or the
+//! markers away from the probe follow an oblique push
+//! ([`crate::signatures::far_field_push`]), above 3σ. Confirmation: the default model on a `softcap_fem::SupportPlane` with tangential springs
 //! under the attached face instead of fixed nodes, the total stiffness k on a √2 log grid around
 //! the indentation stiffness (the compliance scale d makes the family (material stiffness / d,
 //! k / d)).
@@ -88,7 +89,7 @@ impl Hypothesis for SupportSlip {
     }
 
     fn signature_support(&self, s: &Signatures) -> f64 {
-        if s.attached_motion_m > s.three_sigma_m() {
+        if s.attached_motion_m > s.three_sigma_m() || s.far_field_push_m > s.three_sigma_m() {
             1.0
         } else {
             -1.0
