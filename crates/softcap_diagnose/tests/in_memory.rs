@@ -1337,7 +1337,21 @@ fn pairs_table(filter: Option<&str>) {
 /// The top of the ranked table, the named effects and the candidates on stderr.
 #[cfg(not(test))]
 fn print_ranked(d: &softcap_diagnose::Diagnosis) {
-    for r in d.ranked.iter().take(5) {
+    if let Some(s) = d.ranked.first().map(|r| &r.evidence.signatures) {
+        eprintln!(
+            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} set {:.2e} persist {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
+            s.hold_force_drift,
+            s.force_delay_10_s,
+            s.force_delay_50_s,
+            s.released_set_m,
+            s.released_set_persistence,
+            s.contact_drag_m,
+            s.attached_motion_m,
+            s.far_field_push_m,
+            s.three_sigma_m()
+        );
+    }
+    for r in d.ranked.iter().take(7) {
         let sup = r
             .evidence
             .screened
@@ -1457,6 +1471,66 @@ fn next_experiment_table(filter: Option<&str>) {
             &["viscoelasticity"],
             vec![Effect::Creep { g: 1.5, tau_s: 3.0 }],
             false,
+        ),
+        (
+            "sensor lag τ 0.01 s",
+            &["sensor-lag"],
+            vec![Effect::SensorLag(0.01)],
+            false,
+        ),
+        (
+            "sensor lag τ 0.015 s",
+            &["sensor-lag"],
+            vec![Effect::SensorLag(0.015)],
+            false,
+        ),
+        (
+            "clock offset 0.01 s",
+            &["clock-offset"],
+            vec![Effect::ClockOffset(0.01)],
+            false,
+        ),
+        (
+            "creep g 0.5, τ 0.05 s",
+            &["viscoelasticity"],
+            vec![Effect::Creep {
+                g: 0.5,
+                tau_s: 0.05,
+            }],
+            false,
+        ),
+        (
+            "creep g 0.3, τ 0.1 s",
+            &["viscoelasticity"],
+            vec![Effect::Creep { g: 0.3, tau_s: 0.1 }],
+            false,
+        ),
+        (
+            "creep g 1, τ 0.05 s",
+            &["viscoelasticity"],
+            vec![Effect::Creep {
+                g: 1.0,
+                tau_s: 0.05,
+            }],
+            false,
+        ),
+        (
+            "support springs 700 N/m",
+            &["support-slip"],
+            vec![Effect::SupportSlip(700.0)],
+            true,
+        ),
+        (
+            "support springs 1000 N/m",
+            &["support-slip"],
+            vec![Effect::SupportSlip(1000.0)],
+            true,
+        ),
+        (
+            "friction μ 0.1",
+            &["probe-friction"],
+            vec![Effect::Friction(0.1)],
+            true,
         ),
         (
             "gravity ρ 1000 + clock offset 0.1 s",
