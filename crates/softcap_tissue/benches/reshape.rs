@@ -54,10 +54,11 @@ fn once(label: &str, step: &FirstStep) {
     let cw = cpu_seconds() - c0;
     if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_CG").is_some() {
         eprintln!(
-            "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s wall, {cw:.2} CPU-s \
-             (CG skipped)",
+            "{label}: {} unknowns, {} constraint rows, Laplacian factor {} values: Woodbury \
+             {tw:.3} s wall, {cw:.2} CPU-s (CG skipped)",
             6 * sys.jacobians.len(),
-            step.rows()
+            step.rows(),
+            sys.laplacian.factor_len()
         );
         return;
     }

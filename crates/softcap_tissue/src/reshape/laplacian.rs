@@ -162,6 +162,12 @@ impl PlasticLaplacian {
         })
     }
 
+    /// Stored values of the grounded Laplacian's Cholesky factor (0 for one tet): each L_t⁺
+    /// application costs about 4 flops per value and column (two triangular sweeps).
+    pub fn factor_len(&self) -> usize {
+        self.grounded.as_ref().map_or(0, |f| f.values.len())
+    }
+
     /// Number of tets T.
     pub fn num_tets(&self) -> usize {
         self.num_tets

@@ -82,7 +82,7 @@ impl NormalSystem<'_> {
     /// Bᵀ applied to the columns of `v` (3N × m): a T × 6m component-major block
     /// (column 6c + k = component k of the result for column c). Tiles of [`TILE`] columns run
     /// in parallel; each reads every tet's 12×6 block once per tile.
-    fn bt_times(&self, v: MatRef<'_, f64>) -> Mat<f64> {
+    pub(super) fn bt_times(&self, v: MatRef<'_, f64>) -> Mat<f64> {
         let t = self.num_tets();
         let inputs = column_slices(v);
         let mut out = Mat::<f64>::zeros(t, 6 * v.ncols());
@@ -138,7 +138,7 @@ impl NormalSystem<'_> {
     }
 
     /// A 6-vector field (T entries) as a T × 6 component-major block.
-    fn field_block(field: &[Vector6<f64>]) -> Mat<f64> {
+    pub(super) fn field_block(field: &[Vector6<f64>]) -> Mat<f64> {
         Mat::from_fn(field.len(), 6, |e, k| field[e][k])
     }
 
@@ -178,77 +178,108 @@ impl NormalSystem<'_> {
 /// Δs = −M⁻¹ g by the Woodbury identity with the singular lemma (module docs). `None` when the
 /// small system is singular (the constraints do not determine the six constant plastic modes).
 pub fn woodbury_step(sys: &NormalSystem<'_>) -> Option<Vec<Vector6<f64>>> {
-    let rows = sys.z.ncols();
-    let t = sys.num_tets();
-    let mu = sys.mu();
-    let lap = sys.laplacian;
-    // P = W⁻¹ + Zᵀ Y, Y = B A⁻¹ Bᵀ Z block by block.
-    let mut small = Mat::<f64>::zeros(rows + 6, rows + 6);
-    for c0 in (0..rows).step_by(BLOCK) {
-        let c1 = (c0 + BLOCK).min(rows);
-        let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
-        lap.apply_base_inverse(btz.as_mut(), sys.alpha, mu);
-        let y = sys.b_times(btz.as_ref());
-        // ZᵀY is symmetric: rows below c1 of these columns are the mirror of later blocks.
-        let block = sys.z.as_ref().subcols(0, c1).transpose() * &y;
-        for j in 0..c1 - c0 {
-            for i in 0..c1 {
-                small[(i, c0 + j)] = block[(i, j)];
-                small[(c0 + j, i)] = block[(i, j)];
+    let minus_g: Vec<Vector6<f64>> = sys.gradient.iter().map(|g| -g).collect();
+    WoodburySolver::new(sys)?.solve(&minus_g)
+}
+
+/// M⁻¹ by the Woodbury identity (module docs) with the small matrix C⁻¹ + UᵀA⁻¹U formed and
+/// factored once: each further right-hand side costs two A⁻¹ applications (six columns each)
+/// and products with Z and B, not the (rows × 6) columns of the factorization.
+pub struct WoodburySolver<'s, 'a> {
+    sys: &'s NormalSystem<'a>,
+    lu: faer::linalg::solvers::PartialPivLu<f64>,
+}
+
+impl<'s, 'a> WoodburySolver<'s, 'a> {
+    /// Forms C⁻¹ + UᵀA⁻¹U (rows + 6 square) and its LU.
+    pub fn new(sys: &'s NormalSystem<'a>) -> Option<Self> {
+        let rows = sys.z.ncols();
+        let t = sys.num_tets();
+        let mu = sys.mu();
+        let lap = sys.laplacian;
+        // P = W⁻¹ + Zᵀ Y, Y = B A⁻¹ Bᵀ Z block by block.
+        let mut small = Mat::<f64>::zeros(rows + 6, rows + 6);
+        for c0 in (0..rows).step_by(BLOCK) {
+            let c1 = (c0 + BLOCK).min(rows);
+            let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
+            lap.apply_base_inverse(btz.as_mut(), sys.alpha, mu);
+            let y = sys.b_times(btz.as_ref());
+            // ZᵀY is symmetric: rows below c1 of these columns are the mirror of later blocks.
+            let block = sys.z.as_ref().subcols(0, c1).transpose() * &y;
+            for j in 0..c1 - c0 {
+                for i in 0..c1 {
+                    small[(i, c0 + j)] = block[(i, j)];
+                    small[(c0 + j, i)] = block[(i, j)];
+                }
             }
         }
-    }
-    for (i, w) in sys.weights.iter().enumerate() {
-        small[(i, i)] += 1.0 / w;
-    }
-    // Q = −Zᵀ B Ψ / μ (Ψ_k: component k all 1/√T).
-    // Six fields (component-major block T × 36): field k has component k = 1/√T.
-    let mut psi = Mat::<f64>::zeros(t, 36);
-    let inv_sqrt_t = 1.0 / (t as f64).sqrt();
-    for e in 0..t {
-        for k in 0..6 {
-            psi[(e, 6 * k + k)] = inv_sqrt_t;
+        for (i, w) in sys.weights.iter().enumerate() {
+            small[(i, i)] += 1.0 / w;
         }
-    }
-    let b_psi = sys.b_times(psi.as_ref());
-    let q = sys.z.transpose() * &b_psi * (-1.0 / mu);
-    for i in 0..rows {
-        for k in 0..6 {
-            small[(i, rows + k)] = q[(i, k)];
-            small[(rows + k, i)] = q[(i, k)];
+        // Q = −Zᵀ B Ψ / μ (Ψ_k: component k all 1/√T).
+        // Six fields (component-major block T × 36): field k has component k = 1/√T.
+        let mut psi = Mat::<f64>::zeros(t, 36);
+        let inv_sqrt_t = 1.0 / (t as f64).sqrt();
+        for e in 0..t {
+            for k in 0..6 {
+                psi[(e, 6 * k + k)] = inv_sqrt_t;
+            }
         }
-    }
-    // a = A⁻¹ r, r = −g.
-    let mut a = NormalSystem::field_block(sys.gradient) * (-1.0);
-    lap.apply_base_inverse(a.as_mut(), sys.alpha, mu);
-    // Uᵀ a = [V a; Ψᵀ a] = [−Zᵀ B a; Σ_e a_k / √T].
-    let ba = sys.b_times(a.as_ref());
-    let va = sys.z.transpose() * &ba * (-1.0);
-    let mut rhs = Mat::<f64>::zeros(rows + 6, 1);
-    for i in 0..rows {
-        rhs[(i, 0)] = va[(i, 0)];
-    }
-    for k in 0..6 {
-        rhs[(rows + k, 0)] = a.col(k).iter().sum::<f64>() * inv_sqrt_t;
-    }
-    let lu = small.partial_piv_lu();
-    let c = lu.solve(&rhs);
-    if !c.col(0).iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    // A⁻¹ U c = A⁻¹(−Bᵀ Z c₁) + Ψ c₂ / μ.
-    let zc = sys.z * c.as_ref().subrows(0, rows);
-    let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
-    lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
-    let mut step = NormalSystem::block_field(a.as_ref());
-    for (e, s) in step.iter_mut().enumerate() {
-        for k in 0..6 {
-            s[k] -= w[(e, k)] + c[(rows + k, 0)] * inv_sqrt_t / mu;
+        let b_psi = sys.b_times(psi.as_ref());
+        let q = sys.z.transpose() * &b_psi * (-1.0 / mu);
+        for i in 0..rows {
+            for k in 0..6 {
+                small[(i, rows + k)] = q[(i, k)];
+                small[(rows + k, i)] = q[(i, k)];
+            }
         }
+        let lu = small.partial_piv_lu();
+        let ok = (0..rows + 6).all(|i| {
+            let d = lu.U()[(i, i)];
+            d.is_finite() && d != 0.0
+        });
+        ok.then_some(Self { sys, lu })
     }
-    step.iter()
-        .all(|s| s.iter().all(|v| v.is_finite()))
-        .then_some(step)
+
+    /// x = M⁻¹ r (`None` if it is not finite).
+    pub fn solve(&self, r: &[Vector6<f64>]) -> Option<Vec<Vector6<f64>>> {
+        let sys = self.sys;
+        let rows = sys.z.ncols();
+        let t = sys.num_tets();
+        let mu = sys.mu();
+        let lap = sys.laplacian;
+        let inv_sqrt_t = 1.0 / (t as f64).sqrt();
+        // a = A⁻¹ r.
+        let mut a = NormalSystem::field_block(r);
+        lap.apply_base_inverse(a.as_mut(), sys.alpha, mu);
+        // Uᵀ a = [V a; Ψᵀ a] = [−Zᵀ B a; Σ_e a_k / √T].
+        let ba = sys.b_times(a.as_ref());
+        let va = sys.z.transpose() * &ba * (-1.0);
+        let mut rhs = Mat::<f64>::zeros(rows + 6, 1);
+        for i in 0..rows {
+            rhs[(i, 0)] = va[(i, 0)];
+        }
+        for k in 0..6 {
+            rhs[(rows + k, 0)] = a.col(k).iter().sum::<f64>() * inv_sqrt_t;
+        }
+        let c = self.lu.solve(&rhs);
+        if !c.col(0).iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        // A⁻¹ U c = A⁻¹(−Bᵀ Z c₁) + Ψ c₂ / μ.
+        let zc = sys.z * c.as_ref().subrows(0, rows);
+        let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
+        lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
+        let mut x = NormalSystem::block_field(a.as_ref());
+        for (e, s) in x.iter_mut().enumerate() {
+            for k in 0..6 {
+                s[k] -= w[(e, k)] + c[(rows + k, 0)] * inv_sqrt_t / mu;
+            }
+        }
+        x.iter()
+            .all(|s| s.iter().all(|v| v.is_finite()))
+            .then_some(x)
+    }
 }
 
 /// Outcome of [`cg_step`].
