@@ -1386,3 +1386,132 @@ fn closest_point_normal(q: &MaterialPoint, p: &Vector3<f64>, x: &[Vector3<f64>])
         face.try_normalize(0.0).unwrap_or_else(Vector3::z)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic pseudo-random number in (−1, 1).
+    fn noise(i: usize) -> f64 {
+        ((i as f64 * 12.9898).sin() * 43758.5453).fract()
+    }
+
+    /// The joint step solves the augmented normal equations
+    /// \[M, VᵀWR; RᵀWV, RᵀWR\] (Δs, ξ) = −(g, RᵀWr), checked against the dense system built
+    /// column by column (M from the Laplacian and V = −ZᵀB), and its ξ is the rigid motion's.
+    #[test]
+    fn joint_rigid_step_solves_the_augmented_normal_equations() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 0.7, 0.5], [2, 2, 1]);
+        let laplacian = PlasticLaplacian::new(&mesh.tets).unwrap();
+        let (t, n) = (mesh.tets.len(), mesh.vertices.len());
+        let x: Vec<Vector3<f64>> = mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + Vector3::new(noise(3 * i), noise(3 * i + 1), noise(3 * i + 2)) * 0.05)
+            .collect();
+        // Four point rows (three scalar rows each) and three plane rows.
+        let rows: Vec<Row> = (0..7)
+            .map(|c| Row {
+                point: MaterialPoint::node((5 * c + 1) % n),
+                target: Vector3::new(noise(50 + c), noise(60 + c), noise(70 + c)),
+                weight: 0.5 + 0.2 * c as f64,
+                normal: (c >= 4)
+                    .then(|| Vector3::new(noise(80 + c), noise(90 + c), 1.0).normalize()),
+            })
+            .collect();
+        let scalars = scalar_rows(&rows);
+        let m = scalars.len();
+        let weights: Vec<f64> = scalars.iter().map(|(c, _)| rows[*c].weight).collect();
+        let jacobians: Vec<SMatrix<f64, 12, 6>> = (0..t)
+            .map(|e| SMatrix::from_fn(|i, j| noise(1000 * e + 12 * j + i)))
+            .collect();
+        let z = Mat::from_fn(3 * n, m, |i, j| noise(7 + 31 * i + 1013 * j));
+        let gradient: Vec<Vector6<f64>> = (0..t)
+            .map(|e| Vector6::from_fn(|k, _| noise(99_991 + 6 * e + k)))
+            .collect();
+        let alpha = 0.3;
+        let sys = NormalSystem {
+            jacobians: &jacobians,
+            tets: &mesh.tets,
+            num_nodes: n,
+            z: &z,
+            weights: &weights,
+            gradient: &gradient,
+            laplacian: &laplacian,
+            alpha,
+        };
+        let frame = Isometry3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.2, 0.1, -0.3));
+        let (ds, motion) = joint_rigid_step(&sys, &rows, &x, &frame).unwrap();
+        // Dense V (m × 6T), R (m × 6), M = α A₀ + VᵀWV.
+        let u = 6 * t;
+        let mut v = Mat::<f64>::zeros(m, u);
+        let mut a0 = Mat::<f64>::zeros(u, u);
+        for j in 0..u {
+            let mut unit = vec![Vector6::zeros(); t];
+            unit[j / 6][j % 6] = 1.0;
+            let b = element_b_times(&jacobians, &mesh.tets, n, &unit);
+            for i in 0..m {
+                v[(i, j)] = -(0..3 * n).map(|k| z[(k, i)] * b[k]).sum::<f64>();
+            }
+            for (e, l) in laplacian.normal_apply(&unit).iter().enumerate() {
+                for k in 0..6 {
+                    a0[(6 * e + k, j)] = alpha * l[k];
+                }
+            }
+        }
+        let c = motion.center;
+        let mut r = Mat::<f64>::zeros(m, 6);
+        let mut res = vec![0.0; m];
+        for (i, &(row, d)) in scalars.iter().enumerate() {
+            let q = rows[row].point.at(&x);
+            let y = frame.transform_point(&Point3::from(q)).coords;
+            let dw = frame.rotation * d;
+            let ri = (y - c).cross(&dw);
+            for k in 0..3 {
+                r[(i, k)] = ri[k];
+                r[(i, 3 + k)] = dw[k];
+            }
+            res[i] = d.dot(&(q - rows[row].target));
+        }
+        let w = Mat::from_fn(m, m, |i, j| if i == j { weights[i] } else { 0.0 });
+        let big = Mat::from_fn(u + 6, u + 6, |i, j| {
+            let col = |k: usize| {
+                if k < u {
+                    v.col(k).to_owned()
+                } else {
+                    r.col(k - u).to_owned()
+                }
+            };
+            let base = if i < u && j < u { a0[(i, j)] } else { 0.0 };
+            let ci = col(i);
+            let cj = col(j);
+            base + (0..m).map(|k| ci[k] * w[(k, k)] * cj[k]).sum::<f64>()
+        });
+        let mut rhs = vec![0.0; u + 6];
+        for e in 0..t {
+            for k in 0..6 {
+                rhs[6 * e + k] = -gradient[e][k];
+            }
+        }
+        for k in 0..6 {
+            rhs[u + k] = -(0..m).map(|i| r[(i, k)] * weights[i] * res[i]).sum::<f64>();
+        }
+        let sol = Mat::from_fn(u + 6, 1, |i, _| {
+            if i < u {
+                ds[i / 6][i % 6]
+            } else {
+                motion.xi[i - u]
+            }
+        });
+        let lhs = &big * &sol;
+        let scale = rhs.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        for i in 0..u + 6 {
+            let e = (lhs[(i, 0)] - rhs[i]).abs();
+            assert!(e < 1e-8 * scale, "row {i}: residual {e} (scale {scale})");
+        }
+        for k in 0..6 {
+            assert!((motion.gradient[k] + rhs[u + k]).abs() < 1e-12 * scale.max(1.0));
+        }
+    }
+}
