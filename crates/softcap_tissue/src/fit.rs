@@ -69,6 +69,12 @@ pub struct FitSettings {
     /// as given. Order matters only for speed: each candidate's fits start from the previous
     /// candidate's (continuation), so list them from strong to weak shrinkage.
     pub gamma_prior_candidates: Vec<f64>,
+    /// Also score both default-model candidates leave-one-location-out
+    /// ([`compare_heldout`]): the homogeneous baseline refitted without each probe location and
+    /// the strain-space material built without it, each predicting that location's examples
+    /// (`heldout.*` of `/tissue/report`). Costs one homogeneous fit per location and one
+    /// re-simulation of every example (unless the γ_p selection already scored the material).
+    pub heldout_comparison: bool,
     /// Show progress bars (only ever drawn when stderr is a terminal).
     pub progress: bool,
 }
@@ -170,6 +176,7 @@ impl Default for FitSettings {
                 ..ExampleFitSettings::default()
             },
             gamma_prior_candidates: DEFAULT_GAMMA_PRIOR_CANDIDATES.to_vec(),
+            heldout_comparison: false,
             progress: true,
         }
     }
@@ -255,6 +262,24 @@ pub struct FitOutcome {
     pub gamma_prior: f64,
     /// The leave-one-location-out scores of the γ_p candidates (empty when γ_p was given).
     pub gamma_prior_scores: Vec<GammaPriorScore>,
+    /// Both default-model candidates scored leave-one-location-out
+    /// ([`FitSettings::heldout_comparison`]; `None` when off or with fewer than two locations).
+    #[serde(default)]
+    pub heldout: Option<HeldoutComparison>,
+}
+
+/// The homogeneous baseline and the strain-space material predicting probe locations they were
+/// not fitted to ([`compare_heldout`]). RMS over the held-out examples of their marker RMS, m.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeldoutComparison {
+    /// The homogeneous baseline (bickel2009 §6, Fig. 8) refitted without the held-out location.
+    pub homogeneous_rms_m: f64,
+    /// Its held-out simulations that did not converge (left out of the RMS).
+    pub homogeneous_failures: usize,
+    /// The strain-space material (eq. 8) built from the other locations' per-example fits.
+    pub material_rms_m: f64,
+    /// Its held-out re-simulations that did not converge (left out of the RMS).
+    pub material_failures: usize,
 }
 
 /// Leave-one-location-out score of one γ_p candidate ([`select_gamma_prior`]).
@@ -608,6 +633,72 @@ pub fn leave_one_location_out_from(
     })
 }
 
+/// Leave-one-location-out comparison of the two candidates for the diagnosis's default model
+/// on the session's own examples: for every probe location l, (a) the homogeneous baseline
+/// (bickel2009 §6, Fig. 8; [`fit_homogeneous`]) is refitted to the examples of the other
+/// locations and simulates l's examples, (b) the strain-space material (eq. 8) is built from
+/// the other locations' per-example fits and re-simulates them ([`leave_one_location_out`];
+/// `material` when the γ_p selection already computed it). The per-example fits keep the
+/// reference field fitted to every location (their start, shrinkage target and zero-strain
+/// sample), which favours (b) slightly.
+pub fn compare_heldout(
+    setup: &ProbingSetup,
+    examples: &[SessionExample],
+    fits: &[ExampleFit],
+    reference_sample: Option<&[LinearParams]>,
+    settings: &FitSettings,
+    material: Option<(f64, usize)>,
+) -> Result<HeldoutComparison> {
+    let mut locations: Vec<usize> = examples.iter().map(|e| e.location).collect();
+    locations.sort_unstable();
+    locations.dedup();
+    let per_location = locations
+        .par_iter()
+        .map(|&l| -> Result<Vec<Option<f64>>> {
+            let train: Vec<ProbeExample> = examples
+                .iter()
+                .filter(|e| e.location != l)
+                .map(|e| e.example.clone())
+                .collect();
+            let hom = fit_homogeneous(setup, &train, &settings.homogeneous)?;
+            let model = softcap_fem::CorotationalModel::homogeneous(&setup.mesh, hom.params)?;
+            examples
+                .iter()
+                .filter(|e| e.location == l)
+                .map(|e| {
+                    let mut m = model.clone();
+                    let x = simulate_example(
+                        setup,
+                        &mut m,
+                        &e.example,
+                        &settings.homogeneous.patch,
+                        &settings.homogeneous.equilibrium,
+                        1,
+                    )?;
+                    Ok(x.map(|x| marker_errors(setup, &e.example, &x).0))
+                })
+                .collect()
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let held: Vec<Option<f64>> = per_location.into_iter().flatten().collect();
+    let ok: Vec<f64> = held.iter().flatten().copied().collect();
+    let homogeneous_rms_m = if ok.is_empty() {
+        f64::INFINITY
+    } else {
+        (ok.iter().map(|v| v * v).sum::<f64>() / ok.len() as f64).sqrt()
+    };
+    let (material_rms_m, material_failures) = match material {
+        Some(m) => m,
+        None => leave_one_location_out(setup, examples, fits, reference_sample, settings)?,
+    };
+    Ok(HeldoutComparison {
+        homogeneous_rms_m,
+        homogeneous_failures: held.len() - ok.len(),
+        material_rms_m,
+        material_failures,
+    })
+}
+
 /// Chooses the shrinkage γ_p of the per-example fits (eq. 9 + γ_p‖q − q₀‖²) by
 /// leave-one-location-out cross-validation over `candidates` (the held-out protocol of the
 /// session: probe locations are held out; bickel2009 §4.2 judges the basis by its error on examples it
@@ -759,6 +850,19 @@ pub fn fit_session(
             (fits, g, Vec::new())
         };
 
+    let heldout = if s.heldout_comparison && location_ids.len() >= 2 {
+        let bar = progress.bar("leave-one-location-out: homogeneous vs material", 1);
+        let scored = gamma_prior_scores
+            .iter()
+            .find(|g| g.gamma_prior == gamma_prior)
+            .map(|g| (g.heldout_rms_m, g.heldout_failures));
+        let c = compare_heldout(setup, &examples, &fits, reference_sample, &s, scored)?;
+        bar.finish();
+        Some(c)
+    } else {
+        None
+    };
+
     let samples = strain_samples_with_reference(&fits, reference_sample, t);
     let (material, basis_curve) = StrainSpaceMaterial::fit(&samples, &s.basis)?;
     let material = Arc::new(material);
@@ -867,6 +971,7 @@ pub fn fit_session(
         mean_centers: material.mean_centers(),
         gamma_prior,
         gamma_prior_scores,
+        heldout,
     };
     Ok(SessionFit {
         examples,

@@ -50,10 +50,11 @@ pub mod track;
 
 pub use error::{Result, TissueError};
 pub use fit::{
-    ExampleSummary, FitConfig, FitOutcome, FitSettings, GammaPriorScore, LeaveOneLocationOut,
-    ReferenceField, SessionFit, fit_session, leave_one_location_out, leave_one_location_out_from,
-    marker_errors, resimulate, resimulate_from, select_gamma_prior, simulate_example,
-    strain_samples, strain_samples_with_reference,
+    ExampleSummary, FitConfig, FitOutcome, FitSettings, GammaPriorScore, HeldoutComparison,
+    LeaveOneLocationOut, ReferenceField, SessionFit, compare_heldout, fit_session,
+    leave_one_location_out, leave_one_location_out_from, marker_errors, resimulate,
+    resimulate_from, select_gamma_prior, simulate_example, strain_samples,
+    strain_samples_with_reference,
 };
 pub use output::{LoadedMaterial, basis_message, read_material, report_message, write_material};
 pub use report::write_report;

@@ -148,6 +148,28 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
             "m",
         ));
     }
+    if let Some(h) = &o.heldout {
+        entries.push(KeyValue::number(
+            "heldout.homogeneous_rms",
+            h.homogeneous_rms_m,
+            "m",
+        ));
+        entries.push(KeyValue::integer(
+            "heldout.homogeneous_failures",
+            h.homogeneous_failures as i64,
+            "",
+        ));
+        entries.push(KeyValue::number(
+            "heldout.material_rms",
+            h.material_rms_m,
+            "m",
+        ));
+        entries.push(KeyValue::integer(
+            "heldout.material_failures",
+            h.material_failures as i64,
+            "",
+        ));
+    }
     for s in &o.basis_curve {
         entries.push(KeyValue::number(
             format!("basis.error.m{}", s.num_centers),
@@ -184,6 +206,7 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
             e.iterations as i64,
             "",
         ));
+        entries.push(KeyValue::text(format!("{p}.stop"), e.stop.name()));
     }
     proto::Report {
         title: "softcap tissue fit (bickel2009 §4)".into(),
