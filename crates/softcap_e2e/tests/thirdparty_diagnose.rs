@@ -113,17 +113,15 @@ fn chain(case: &str) -> Outcome {
 
     let t0 = Instant::now();
     if !cached {
-        common::fit_and_print(
-            case,
-            &softcap_tissue::fit::FitConfig {
-                capture: capture_path.clone(),
-                mesh: Some(session.volume.clone().expect("template/volume.msh")),
-                output: material.clone(),
-                report: None,
-                settings: common::suite_fit_settings(),
-                arguments: vec![],
-            },
-        );
+        softcap_tissue::fit::run(&softcap_tissue::fit::FitConfig {
+            capture: capture_path.clone(),
+            mesh: Some(session.volume.clone().expect("template/volume.msh")),
+            output: material.clone(),
+            report: None,
+            settings: common::suite_fit_settings(),
+            arguments: vec![],
+        })
+        .unwrap();
     }
     let t_tissue = t0.elapsed().as_secs_f64();
 
@@ -134,10 +132,7 @@ fn chain(case: &str) -> Outcome {
         output: dir.path().join("diagnosis.mcap"),
         json: Some(dir.path().join("diagnosis.json")),
         report: None,
-        settings: StageSettings {
-            material: common::suite_material_source(),
-            ..StageSettings::default()
-        },
+        settings: StageSettings::default(),
         arguments: vec![],
         progress: false,
     })
