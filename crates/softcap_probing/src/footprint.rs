@@ -97,6 +97,10 @@ pub struct PatchSettings {
     pub rings: usize,
     /// Samples per ring (equally spaced in angle, every other ring turned by half a step).
     pub samples_per_ring: usize,
+    /// [`FootprintLoad::FlatPunch`] with the disk tilted against the surface beyond full
+    /// contact: square cells across the footprint's diameter of the half-space contact solve
+    /// ([`ProbingSetup::load_weights`], "a tilted disk").
+    pub tilt_cells: usize,
 }
 
 impl Default for PatchSettings {
@@ -110,6 +114,10 @@ impl Default for PatchSettings {
             // spacing is about the tip radius to ≈ 1/192 of the force.
             rings: 8,
             samples_per_ring: 24,
+            // 16 across: ≈ 200 cells of a/8 (0.6 mm for a 5 mm disk), several per surface
+            // triangle of a mesh whose spacing is about the tip radius; the contact solve of
+            // ≈ 200 unknowns takes well under a millisecond.
+            tilt_cells: 16,
         }
     }
 }
@@ -182,6 +190,41 @@ impl ProbingSetup {
     /// measured force is carried by the part in contact). When every sample misses, the force
     /// goes to the closest surface point to the tip. Shares on attached vertices are taken up
     /// by the support.
+    ///
+    /// **A tilted disk** ([`FootprintLoad::FlatPunch`] only: the disk tip's load). The face of
+    /// a flat disk whose axis is tilted against the surface normal does not press evenly: its
+    /// low side goes deeper, and when the tilt is large against the depth only the low side
+    /// touches. The samples' signed distances t along the axis to the rest surface give the
+    /// face's penetration δ = −t, fitted as a plane over the disk, δ(x) = δ₀ + g·x (x in the
+    /// disk's plane from its centre; [`FaceTilt`]). When g = 0 (an axis along the surface
+    /// normal of a flat face, to 10⁻⁹ rad) nothing changes: the rings above, weights for
+    /// weights. Otherwise, on an elastic half-space (E* = E/(1 − ν²)):
+    ///
+    /// - full contact, δ₀ ≥ 2|g|a: a rigid circular punch pressed δ₀ and turned by the slope g
+    ///   has the pressure p(x) = E*(δ₀ + 2g·x) / (π√(a² − r²)) (Johnson, *Contact Mechanics*
+    ///   1985, ch. 3 axisymmetric pressures and §5 the flat punch: the rim-singular pressure of
+    ///   Sneddon's translation plus that of a rotation, whose moment is the rigid footing's
+    ///   (4/3)E*a³|g|), non-negative at the high rim while δ₀ ≥ 2|g|a. Its resultant is Sneddon's
+    ///   2E*aδ₀ and its centre lies (2/3)|g|a²/δ₀ from the axis toward the low side (at most
+    ///   a/3): each equal-load ring sample is scaled by 1 + 2g·x/δ₀.
+    /// - incomplete contact, δ₀ < 2|g|a (the high rim would pull): the contact region and
+    ///   pressure of the rigid tilted face are solved on the half-space by influence
+    ///   coefficients (Johnson 1985, ch. 5, non-Hertzian normal contact solved numerically on a
+    ///   grid of uniformly loaded cells; Boussinesq's point load, ch. 3, between cells): square
+    ///   cells of side 2a/[`PatchSettings::tilt_cells`] on the disk, cast along the axis onto the
+    ///   rest surface, their loads P ≥ 0 such that the surface sinks exactly by the face's
+    ///   penetration where P > 0 and at least by it elsewhere (a linear complementarity problem
+    ///   solved by active sets). Each cell's share goes to its
+    ///   triangle's vertices by the barycentric weights of its hit. At small depth the load sits
+    ///   on the low rim; it spreads across the disk as the depth grows.
+    ///
+    /// Approximated: the body is an elastic half-space under the footprint (a block a few radii
+    /// deep is stiffer; the pressure's shape, not its magnitude, is used); the face's
+    /// penetration is measured from the rest surface (the tip pose of the example, the mesh at
+    /// rest); the surface under the disk is the disk itself cast along the axis (an ellipse
+    /// 1/cos θ longer across the tilt on a flat surface: 6 % at 20°) and, for the full-contact
+    /// factors, flat (the fitted plane); the contact is frictionless (normal pressure only; the
+    /// measured force vector, whatever its direction, is spread by these shares).
     pub fn load_weights(&self, example: &ProbeExample, patch: &PatchSettings) -> Vec<(usize, f64)> {
         if patch.load == FootprintLoad::Lumped {
             let mut nodes = self.patch_nodes(example, patch);
@@ -232,10 +275,25 @@ impl ProbingSetup {
             let e1 = (t - axis * t.dot(&axis)).normalize();
             (e1, axis.cross(&e1))
         };
+        let cast = |origin: &Vector3<f64>| {
+            candidates
+                .iter()
+                .filter_map(|f| {
+                    softcap_mesh::line_triangle(origin, &axis, &f.map(|i| v[i])).map(|(t, w)| {
+                        // Clamp the edge tolerance away; keep Σw = 1.
+                        let w = w.map(|c| c.clamp(0.0, 1.0));
+                        let sum: f64 = w.iter().sum();
+                        (t, w.map(|c| c / sum), f)
+                    })
+                })
+                .min_by(|a, b| a.0.abs().total_cmp(&b.0.abs()))
+        };
         let rings = patch.rings.max(1);
         let per_ring = patch.samples_per_ring.max(1);
-        let mut acc: std::collections::BTreeMap<usize, f64> = std::collections::BTreeMap::new();
-        let mut hit_samples = 0usize;
+        // Every hit: its position (u, v) in the disk's plane, the signed distance t along the
+        // axis from the disk point to the rest surface (t < 0: the point is below it), its
+        // barycentric weights and triangle.
+        let mut hits: Vec<([f64; 2], f64, [f64; 3], &[usize; 3])> = Vec::new();
         for k in 0..rings {
             let r = radius
                 * patch
@@ -244,29 +302,14 @@ impl ProbingSetup {
             let turn = if k % 2 == 1 { 0.5 } else { 0.0 };
             for j in 0..per_ring {
                 let phi = std::f64::consts::TAU * (j as f64 + turn) / per_ring as f64;
-                let origin = example.tip_m + (e1 * phi.cos() + e2 * phi.sin()) * r;
-                let best = candidates
-                    .iter()
-                    .filter_map(|f| {
-                        softcap_mesh::line_triangle(&origin, &axis, &f.map(|i| v[i])).map(
-                            |(t, w)| {
-                                // Clamp the edge tolerance away; keep Σw = 1.
-                                let w = w.map(|c| c.clamp(0.0, 1.0));
-                                let sum: f64 = w.iter().sum();
-                                (t, w.map(|c| c / sum), f)
-                            },
-                        )
-                    })
-                    .min_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
-                if let Some((_, w, f)) = best {
-                    hit_samples += 1;
-                    for (n, wn) in f.iter().zip(w) {
-                        *acc.entry(*n).or_insert(0.0) += wn;
-                    }
+                let (u, w2) = (r * phi.cos(), r * phi.sin());
+                let origin = example.tip_m + e1 * u + e2 * w2;
+                if let Some((t, w, f)) = cast(&origin) {
+                    hits.push(([u, w2], t, w, f));
                 }
             }
         }
-        if hit_samples == 0 {
+        if hits.is_empty() {
             let closest = self
                 .load_faces
                 .iter()
@@ -293,7 +336,41 @@ impl ProbingSetup {
                 None => Vec::new(),
             };
         }
-        let scale = 1.0 / hit_samples as f64;
+        // A flat disk tilted against the surface under it presses with its low side.
+        let mut factors = vec![1.0; hits.len()];
+        if patch.load == FootprintLoad::FlatPunch
+            && let Some(tilt) = FaceTilt::fit(&hits, radius)
+        {
+            if tilt.full_contact(radius) {
+                for (f, h) in factors.iter_mut().zip(&hits) {
+                    *f = tilt.full_contact_factor(h.0);
+                }
+            } else {
+                let cells = tilted_punch_cells(
+                    patch.tilt_cells,
+                    radius,
+                    &|u: f64, w2: f64| cast(&(example.tip_m + e1 * u + e2 * w2)),
+                    &axis,
+                    &|f: &[usize; 3]| {
+                        let [a, b, c] = f.map(|i| v[i]);
+                        (b - a).cross(&(c - a)).normalize()
+                    },
+                    &|f: &[usize; 3], w: &[f64; 3]| {
+                        v[f[0]] * w[0] + v[f[1]] * w[1] + v[f[2]] * w[2]
+                    },
+                );
+                if let Some(weights) = incomplete_contact_weights(&cells) {
+                    return weights;
+                }
+            }
+        }
+        let mut acc: std::collections::BTreeMap<usize, f64> = std::collections::BTreeMap::new();
+        for ((_, _, w, f), factor) in hits.iter().zip(&factors) {
+            for (n, wn) in f.iter().zip(w) {
+                *acc.entry(*n).or_insert(0.0) += wn * factor;
+            }
+        }
+        let scale = 1.0 / factors.iter().sum::<f64>();
         acc.into_iter()
             .filter(|e| e.1 != 0.0)
             .map(|(n, w)| (n, w * scale))
@@ -309,4 +386,222 @@ impl ProbingSetup {
         }
         f
     }
+}
+
+/// The penetration of a flat disk's face into the rest surface fitted as a plane over the disk,
+/// δ(x) = δ₀ + g·x (x = (u, v) in the disk's plane from its centre; δ = −t, t the signed
+/// distance along the axis from a face point to the surface: positive below it), least squares
+/// over the footprint's samples ([`ProbingSetup::load_weights`], "a tilted disk").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FaceTilt {
+    /// δ₀, m: the penetration at the disk's centre (negative: above the surface).
+    pub depth_m: f64,
+    /// g: the penetration's slope across the disk (tan of the tilt), pointing to the low side.
+    pub slope: [f64; 2],
+}
+
+impl FaceTilt {
+    /// The fitted plane of the samples `hits` (position in the disk plane, signed distance t
+    /// along the axis, …); `None` when the face is parallel to the surface (|g| ≤ 10⁻⁹: an
+    /// axis along the normal of a flat face, to rounding) or fewer than three samples fix the
+    /// plane.
+    fn fit<T, F>(hits: &[([f64; 2], f64, T, F)], radius_m: f64) -> Option<Self> {
+        if hits.len() < 3 || radius_m <= 0.0 {
+            return None;
+        }
+        // Normal equations of δ ≈ c₀ + c₁ u + c₂ v, with u, v in units of the radius.
+        let mut m = nalgebra::Matrix3::<f64>::zeros();
+        let mut r = Vector3::<f64>::zeros();
+        for (x, t, _, _) in hits {
+            let row = Vector3::new(1.0, x[0] / radius_m, x[1] / radius_m);
+            m += row * row.transpose();
+            r += row * -t;
+        }
+        let c = m.lu().solve(&r)?;
+        let slope = [c.y / radius_m, c.z / radius_m];
+        if slope[0].hypot(slope[1]) <= 1e-9 {
+            return None;
+        }
+        Some(Self {
+            depth_m: c.x,
+            slope,
+        })
+    }
+
+    /// |g|: the tangent of the face's tilt against the surface.
+    pub fn tilt(&self) -> f64 {
+        self.slope[0].hypot(self.slope[1])
+    }
+
+    /// Whether the whole face of radius a presses on an elastic half-space: δ₀ ≥ 2|g|a, where
+    /// the full-contact pressure E*(δ₀ + 2g·x)/(π√(a² − r²)) is non-negative at the high rim.
+    pub fn full_contact(&self, radius_m: f64) -> bool {
+        self.depth_m >= 2.0 * self.tilt() * radius_m
+    }
+
+    /// The full-contact pressure over Sneddon's at x: 1 + 2g·x/δ₀.
+    pub fn full_contact_factor(&self, x: [f64; 2]) -> f64 {
+        1.0 + 2.0 * (self.slope[0] * x[0] + self.slope[1] * x[1]) / self.depth_m
+    }
+
+    /// The centre of the full-contact pressure, in the disk's plane: (2/3)a²g/δ₀ (toward the
+    /// low side, |·| ≤ a/3 in full contact).
+    pub fn full_contact_centre(&self, radius_m: f64) -> [f64; 2] {
+        let s = 2.0 / 3.0 * radius_m * radius_m / self.depth_m;
+        [s * self.slope[0], s * self.slope[1]]
+    }
+}
+
+/// One cell of the tilted disk's contact solve: where it meets the rest surface and how far the
+/// face presses there.
+#[derive(Clone, Debug)]
+struct ContactCell<'a> {
+    /// The hit on the rest surface, m.
+    point: Vector3<f64>,
+    /// The cell's area on the surface, m².
+    area_m2: f64,
+    /// The face's penetration along the surface normal, m (negative: a gap).
+    penetration_m: f64,
+    /// Barycentric weights of the hit on `face`.
+    bary: [f64; 3],
+    face: &'a [usize; 3],
+}
+
+/// The cells of the disk (radius a, `n` × `n` squares of side 2a/n whose centres lie on the
+/// disk) that meet the rest surface: `cast(u, v)` the cast along the axis of the disk point
+/// (u, v) (signed distance t, barycentric weights, triangle), `normal` a triangle's unit normal,
+/// `point` the surface point of a hit.
+fn tilted_punch_cells<'a>(
+    n: usize,
+    radius_m: f64,
+    cast: &dyn Fn(f64, f64) -> Option<(f64, [f64; 3], &'a [usize; 3])>,
+    axis: &Vector3<f64>,
+    normal: &dyn Fn(&[usize; 3]) -> Vector3<f64>,
+    point: &dyn Fn(&[usize; 3], &[f64; 3]) -> Vector3<f64>,
+) -> Vec<ContactCell<'a>> {
+    let n = n.max(2);
+    let h = 2.0 * radius_m / n as f64;
+    let mut cells = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            let (u, w) = (
+                -radius_m + (i as f64 + 0.5) * h,
+                -radius_m + (j as f64 + 0.5) * h,
+            );
+            if u * u + w * w > radius_m * radius_m {
+                continue;
+            }
+            let Some((t, bary, face)) = cast(u, w) else {
+                continue;
+            };
+            // The axis meets front faces only (n·axis < 0): the cast stretches the cell's area
+            // by 1/|n·axis| and the normal penetration is |n·axis| of the axial one.
+            let c = normal(face).dot(axis).abs().max(1e-6);
+            cells.push(ContactCell {
+                point: point(face, &bary),
+                area_m2: h * h / c,
+                penetration_m: -t * c,
+                bary,
+                face,
+            });
+        }
+    }
+    cells
+}
+
+/// The nodal shares of the rigid face's contact pressure over `cells` on an elastic half-space
+/// (Johnson 1985, ch. 5: non-Hertzian normal contact by influence coefficients). The surface
+/// displacement at cell i is w_i = Σ_j K_ij P_j (in units of (1 − ν²)/(πE), which the shares do
+/// not depend on): Boussinesq's point load K_ij = 1/|x_i − x_j| between cells and, for a cell's
+/// own load, the centre displacement of a uniformly loaded disk of the cell's area A,
+/// K_ii = 2√(π/A). Loads P ≥ 0 with w_i = δ_i where P_i > 0 and w_i ≥ δ_i elsewhere (the
+/// surface reaches the face exactly where it carries load, nowhere penetrates it): a linear
+/// complementarity problem, solved by active sets (start from the cells the face penetrates;
+/// drop the cells with tensile load, add the cells the surface would penetrate, until neither
+/// happens). When the face penetrates no cell, the deepest carries the whole force.
+/// `None` for no cells.
+fn incomplete_contact_weights(cells: &[ContactCell<'_>]) -> Option<Vec<(usize, f64)>> {
+    let n = cells.len();
+    if n == 0 {
+        return None;
+    }
+    let deepest = (0..n)
+        .max_by(|&a, &b| cells[a].penetration_m.total_cmp(&cells[b].penetration_m))
+        .unwrap_or(0);
+    let mut load = vec![0.0; n];
+    if cells[deepest].penetration_m <= 0.0 {
+        load[deepest] = 1.0;
+    } else {
+        let k = nalgebra::DMatrix::<f64>::from_fn(n, n, |i, j| {
+            if i == j {
+                2.0 * (std::f64::consts::PI / cells[i].area_m2).sqrt()
+            } else {
+                1.0 / (cells[i].point - cells[j].point).norm().max(1e-12)
+            }
+        });
+        let scale = cells[deepest].penetration_m;
+        let mut active: Vec<bool> = cells.iter().map(|c| c.penetration_m > 0.0).collect();
+        // Each pass either settles or changes the set; a cycle ends at the cap with the last
+        // solution's compressive loads.
+        for _ in 0..4 * n {
+            let idx: Vec<usize> = (0..n).filter(|&i| active[i]).collect();
+            if idx.is_empty() {
+                active[deepest] = true;
+                continue;
+            }
+            let kaa =
+                nalgebra::DMatrix::<f64>::from_fn(idx.len(), idx.len(), |a, b| k[(idx[a], idx[b])]);
+            let rhs =
+                nalgebra::DVector::<f64>::from_fn(idx.len(), |a, _| cells[idx[a]].penetration_m);
+            let p = match kaa.clone().cholesky() {
+                Some(ch) => ch.solve(&rhs),
+                None => kaa.lu().solve(&rhs)?,
+            };
+            load.iter_mut().for_each(|l| *l = 0.0);
+            for (a, &i) in idx.iter().enumerate() {
+                load[i] = p[a];
+            }
+            let mut changed = false;
+            for &i in &idx {
+                if load[i] < 0.0 {
+                    active[i] = false;
+                    changed = true;
+                }
+            }
+            if changed {
+                continue;
+            }
+            for i in 0..n {
+                if active[i] {
+                    continue;
+                }
+                let w: f64 = idx.iter().map(|&j| k[(i, j)] * load[j]).sum();
+                if w < cells[i].penetration_m - 1e-9 * scale {
+                    active[i] = true;
+                    changed = true;
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        load.iter_mut().for_each(|l| *l = l.max(0.0));
+    }
+    let total: f64 = load.iter().sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let mut acc = std::collections::BTreeMap::new();
+    for (c, l) in cells.iter().zip(&load) {
+        if *l > 0.0 {
+            for (node, b) in c.face.iter().zip(c.bary) {
+                *acc.entry(*node).or_insert(0.0) += b * l / total;
+            }
+        }
+    }
+    Some(
+        acc.into_iter()
+            .filter(|e: &(usize, f64)| e.1 != 0.0)
+            .collect(),
+    )
 }

@@ -8,7 +8,7 @@
 //! | module | what | paper |
 //! |---|---|---|
 //! | [`setup`] | [`ProbingSetup`]: mesh, embedded markers, attached / boundary / load regions, umbrella adjacency; [`ProbeExample`]; [`support_nodes`]; elastostatic response to an example's force | bickel2009 §4.1 |
-//! | [`footprint`] | [`FootprintLoad`], [`PatchSettings`]: the measured force over the contact patch — lumped, or the consistent loads of a uniform, flat-punch or Hertz pressure | bickel2009 §4.1, Fig. 7; Sneddon 1946; Hertz 1882 |
+//! | [`footprint`] | [`FootprintLoad`], [`PatchSettings`]: the measured force over the contact patch — lumped, or the consistent loads of a uniform, flat-punch or Hertz pressure; a tilted disk's partial contact ([`FaceTilt`]) | bickel2009 §4.1, Fig. 7; Sneddon 1946; Hertz 1882; Johnson 1985 ch. 3, 5 |
 //! | [`example_fit`] | the per-example fit [`fit_examples`] with [`ExampleFitSettings`]: projected LM over (ln λ, ν), adjoint marker Jacobian [`marker_jacobian`], umbrella smoothing, shrinkage, trust region | bickel2009 eq. 9, appendix eq. 10–12; Moré 1978 |
 //! | [`lm_step`] | the damped normal equations of one LM step by preconditioned CG (Jacobi or Woodbury), the blocked J_mᵀ(J_m v) | bickel2009 eq. 9; Dembo et al. 1982 |
 //! | [`homogeneous`] | [`fit_homogeneous`]: one (E, ν) for all tets and examples | bickel2009 §6, Fig. 8 |
@@ -69,7 +69,7 @@ pub use example_fit::{
     ExampleFit, ExampleFitSettings, FitStart, FitStop, JointFit, StepPreconditioner, fit_examples,
     marker_jacobian,
 };
-pub use footprint::{FootprintLoad, PatchSettings};
+pub use footprint::{FaceTilt, FootprintLoad, PatchSettings};
 pub use homogeneous::{HomogeneousFit, HomogeneousFitSettings, fit_homogeneous};
 pub use lm_step::{normal_product, normal_product_unblocked};
 pub use setup::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};

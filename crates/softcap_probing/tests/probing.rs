@@ -252,6 +252,126 @@ fn footprint_loads_have_the_pressures_first_and_second_moments() {
     }
 }
 
+/// A flat disk tilted by θ in the x–z plane, its centre `depth` below the flat top face (z = 4 mm
+/// of a 30 × 30 mm, 1 mm-spaced plate) along the axis under (15, 15) mm, the flat-punch load:
+/// (the load centre Σ w_n x_n, where the disk point (2/3)·tanθ·a²/depth toward the low side cast
+/// along the axis meets the face, the shares).
+fn tilted_disk(theta_deg: f64, depth: f64, patch: &PatchSettings) -> (Vector3<f64>, Vector3<f64>) {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.03, 0.004], [30, 30, 1]);
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let setup = ProbingSetup::new(mesh, &[Vector3::new(0.015, 0.015, 0.004)], fixed).unwrap();
+    let th = theta_deg.to_radians();
+    let axis = Vector3::new(th.sin(), 0.0, -th.cos());
+    let surface = Vector3::new(0.015, 0.015, 0.004);
+    let tip = surface + axis * depth;
+    let ex = ProbeExample {
+        frame: 0,
+        time_s: 0.0,
+        tip_m: tip,
+        axis,
+        force_n: axis,
+        observed: Vec::new(),
+    };
+    let w = setup.load_weights(&ex, patch);
+    let sum: f64 = w.iter().map(|e| e.1).sum();
+    assert!((sum - 1.0).abs() < 1e-12, "Σw = {sum}");
+    assert!(w.iter().all(|e| e.1 > 0.0), "{w:?}");
+    let centre: Vector3<f64> = w.iter().map(|&(n, wn)| setup.mesh.vertices[n] * wn).sum();
+    // The low side of the disk (its face points' z falls along −(cos θ, 0, sin θ)).
+    let low = -Vector3::new(th.cos(), 0.0, th.sin());
+    let e = 2.0 / 3.0 * th.tan() * patch.radius_m.powi(2) / depth;
+    let c = tip + low * e;
+    let expected = c + axis * ((c.z - 0.004) / th.cos());
+    (centre, expected)
+}
+
+/// A tilted rigid disk in full contact with a half-space (δ₀ ≥ 2a·tanθ) carries the pressure
+/// E*(δ₀ + 2g·x)/(π√(a² − r²)): its load centre lies (2/3)·tanθ·a²/δ₀ from the axis toward the
+/// low side. Tilted 4° (5 mm disk, 2 mm deep: 2a·tanθ = 0.70 mm), the flat-punch nodal loads'
+/// first moment lands there to 0.3 % of the shift (0.61 mm; the 8 rings' discrete second moment
+/// is 1/(12·8²) off the pressure's); the same disk aligned with the face has its load centre on
+/// the axis and loads that do not depend on the depth (the face parallel to the surface: the
+/// rings of Sneddon's pressure, weights for weights).
+#[test]
+fn tilted_disk_in_full_contact_shifts_its_load_to_the_low_side() {
+    let patch = PatchSettings {
+        load: FootprintLoad::FlatPunch,
+        ..PatchSettings::default()
+    };
+    let (centre, expected) = tilted_disk(4.0, 0.002, &patch);
+    let shift = 2.0 / 3.0 * 4f64.to_radians().tan() * 0.005f64.powi(2) / 0.002;
+    assert!(
+        (centre - expected).norm() < 3e-3 * shift,
+        "load centre {centre:?} vs {expected:?} (shift {shift:e} m)"
+    );
+    // Aligned: the load does not depend on the depth and is centred on the axis.
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.03, 0.03, 0.004], [30, 30, 1]);
+    let fixed = support_nodes(&mesh, &Vector3::z(), 0.0, 1e-9);
+    let setup = ProbingSetup::new(mesh, &[Vector3::new(0.015, 0.015, 0.004)], fixed).unwrap();
+    let weights = |depth: f64| {
+        let ex = ProbeExample {
+            frame: 0,
+            time_s: 0.0,
+            tip_m: Vector3::new(0.0137, 0.0161, 0.004 - depth),
+            axis: -Vector3::z(),
+            force_n: -Vector3::z(),
+            observed: Vec::new(),
+        };
+        setup.load_weights(&ex, &patch)
+    };
+    let shallow = weights(0.0005);
+    assert_eq!(shallow, weights(0.003));
+    let c: Vector3<f64> = shallow
+        .iter()
+        .map(|&(n, w)| setup.mesh.vertices[n] * w)
+        .sum();
+    assert!(
+        (c.x - 0.0137).abs() < 1e-12 && (c.y - 0.0161).abs() < 1e-12,
+        "{c:?}"
+    );
+}
+
+/// Tilted beyond full contact (δ₀ < 2a·tanθ) the high rim lifts off: the half-space contact
+/// solve puts the load on the low side. Just inside the incomplete regime (δ₀ = 0.97 · 2a·tanθ)
+/// the solve meets the full-contact limit, whose centre is a/3 from the axis (to 6 %, the
+/// 16-cell grid's resolution of the rim singularity); a 20° disk (the third-party
+/// probe-friction fixture's) 0.5 → 1 → 2 → 3 mm deep carries its load beyond a/3 toward the
+/// low rim, spreading toward the centre as it goes deeper.
+#[test]
+fn tilted_disk_in_partial_contact_presses_with_its_low_side() {
+    let patch = PatchSettings {
+        load: FootprintLoad::FlatPunch,
+        ..PatchSettings::default()
+    };
+    let a = patch.radius_m;
+    let shift = |theta: f64, depth: f64| {
+        let (centre, _) = tilted_disk(theta, depth, &patch);
+        let th = theta.to_radians();
+        // Where the axis meets the face, and the load centre's distance from it in the disk's
+        // plane, toward the low side (the cast along the axis stretches x by 1/cos θ).
+        let on_axis = Vector3::new(0.015, 0.015, 0.004);
+        -(centre.x - on_axis.x) * th.cos()
+    };
+    let th = 4f64.to_radians();
+    let limit = shift(4.0, 0.97 * 2.0 * a * th.tan());
+    assert!(
+        (limit / (a / 3.0) - 1.0).abs() < 0.06,
+        "centre {:.3} a at the full-contact limit vs 1/3",
+        limit / a
+    );
+    let mut last = a;
+    for depth in [0.0005, 0.001, 0.002, 0.003] {
+        let e = shift(20.0, depth);
+        assert!(
+            e > a / 3.0 && e < last,
+            "20°, {depth} m deep: load centre {:.3} a (previous {:.3} a)",
+            e / a,
+            last / a
+        );
+        last = e;
+    }
+}
+
 /// A rigid flat punch's surface displacement is uniform over its footprint (Sneddon 1946);
 /// the uniform pressure's dent is rounded, its rim displacement (2/π)·E(r/a) of the centre's on
 /// a half-space (0.64 at the rim). On a 40 × 40 × 20 mm block (2 mm tets, bottom attached) the
