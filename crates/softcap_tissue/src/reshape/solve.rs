@@ -765,34 +765,24 @@ impl<'p> Solver<'p> {
         let tets = &self.problem.template.tets;
         let n = state.x.len();
         let mut rigid = None;
+        let sys = NormalSystem {
+            jacobians: &jacobians,
+            tets,
+            num_nodes: n,
+            z: &z,
+            weights: &weights,
+            gradient: &gradient,
+            laplacian: &self.laplacian,
+            alpha: self.alpha,
+        };
         let direction = if stage.constant {
             constant_step(&jacobians, tets, n, &z, &weights, &gradient)
         } else if self.gauge.is_some() && self.joint_rigid {
-            let sys = NormalSystem {
-                jacobians: &jacobians,
-                tets,
-                num_nodes: n,
-                z: &z,
-                weights: &weights,
-                gradient: &gradient,
-                laplacian: &self.laplacian,
-                alpha: self.alpha,
-            };
             joint_rigid_step(&sys, &rows, &state.x, &state.frame).map(|(ds, motion)| {
                 rigid = Some(motion);
                 ds
             })
         } else {
-            let sys = NormalSystem {
-                jacobians: &jacobians,
-                tets,
-                num_nodes: n,
-                z: &z,
-                weights: &weights,
-                gradient: &gradient,
-                laplacian: &self.laplacian,
-                alpha: self.alpha,
-            };
             woodbury_step(&sys)
         };
         let Some(ds) = direction else {
