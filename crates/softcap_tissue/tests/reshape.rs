@@ -5,8 +5,9 @@ use softcap_mesh::TetLocator;
 use softcap_tissue::reshape::gauge::best_rigid;
 use softcap_tissue::reshape::known_truth::{self, moved, problem, truth};
 use softcap_tissue::reshape::{
-    ConstraintKind, CrossValidationSettings, HoldOut, ReshapeOutcome, ReshapeProblem,
-    ReshapeSettings, Smoothness, SurfaceProjector, reshape, write_target,
+    ConstraintKind, CrossValidationSettings, HoldOut, Landmark, MaterialPoint, ReshapeOutcome,
+    ReshapeProblem, ReshapeSettings, ReshapeStatus, Smoothness, SurfaceProjector, reshape,
+    write_target,
 };
 
 /// (mean, 95th percentile, max) of `v`.
@@ -89,71 +90,137 @@ fn recovers_a_known_anisotropic_plastic_deformation() {
 }
 
 /// saito-barbic §3.6: the same targets moved rigidly (29°, 3 cm) and no attachments (free-flying:
-/// rigid gauge, block-coordinate rigid steps, then joint shape-and-pose steps) give the moved
-/// shape. With a tightened stopping rule (relative progress 0.001, 60 iterations) measured: shape
-/// 0.122 / 0.473 / 1.333 mm, ICP markers max 0.282 mm, landmarks max 0.353 mm — without the
-/// attached face the x = 0 end is known only from markers, so the p95 sits near the issue's 0.5 mm.
-/// The default settings run is measured and printed too, in the world frame (0.168 / 0.558 /
-/// 2.788 mm, status max-iterations) and after the best rigid motion of all nodes onto the truth's
-/// (Horn 1987; 0.325 / 0.944 / 2.412 mm) — "the same shape up to a rigid motion" — and not
-/// asserted: it is not met (docs/reshape.md).
+/// rigid gauge, block-coordinate rigid steps, then joint shape-and-pose steps), default settings.
+/// Compared with the attached case by the same two measures "up to a rigid motion": the held-out
+/// points' distance to the surface after the rigid motion that minimizes it (`surface_aligned`)
+/// and after the best rigid motion of all nodes onto the truth's (`node_aligned`, which also
+/// charges material sliding along the surface).
+///
+/// (a) The free-flying problem with the same information — the attached face's 24 nodes as
+/// landmarks at their (moved) targets instead of springs — converges to the attached case's shape:
+/// measured p95 surface-aligned 0.225 vs 0.217 mm, node-aligned 0.511 vs 0.526 mm (bar 1.25×).
+/// (b) Without them (12 landmarks, 150 markers; the x = 0 end known from markers alone) it
+/// converges too (11 ICP iterations), measured world frame 0.104 / 0.420 / 1.022 mm, node-aligned
+/// p95 0.668 mm (1.27× the attached case's), surface-aligned 0.375 mm: less data, a shape further
+/// from the truth, asserted against the issue's 0.5 mm.
 #[test]
 fn free_flying_reshape_recovers_the_shape_up_to_a_rigid_motion() {
-    let (p, held_out) = problem(true);
-    let defaults = reshape(&p, &ReshapeSettings::default(), &mut |_, _, _, _| {}).unwrap();
-    let [world, _, _] = evaluate(&p, &defaults, &held_out, moved);
-    let (shape, nodes, align) = after_best_rigid_motion(&p, &defaults, &held_out);
+    let settings = ReshapeSettings::default();
+    let (attached_problem, held_out) = problem(false);
+    let attached = reshape(&attached_problem, &settings, &mut |_, _, _, _| {}).unwrap();
+    let attached_fit = up_to_a_rigid_motion(&attached_problem, &attached, &held_out, truth);
+    eprintln!("attached: {attached_fit}");
+    // (a) The same information without attachments.
+    let (mut p, _) = problem(true);
+    p.landmarks
+        .extend(attached_problem.attachments.iter().map(|a| Landmark {
+            id: format!("attachment {}", a.id),
+            point: MaterialPoint::node(a.node),
+            target_m: moved(&attached_problem.template.vertices[a.node]),
+        }));
+    let same = reshape(&p, &settings, &mut |_, _, _, _| {}).unwrap();
+    let same_fit = up_to_a_rigid_motion(&p, &same, &held_out, moved);
     eprintln!(
-        "defaults: {:?}, world-frame shape {}; after the best rigid motion ({:.2}°, {:.3} mm): \
-         shape {}, node residual {}",
-        defaults.status,
-        mm(world),
-        align.rotation.angle().to_degrees(),
-        align.translation.vector.norm() * 1e3,
-        mm(shape),
-        mm(nodes)
+        "free-flying, same information: {:?}, {same_fit}",
+        same.status
     );
-    assert_eq!(defaults.reshaped_quality.inverted_tets, 0);
-    let settings = ReshapeSettings {
-        relative_progress: 0.001,
-        max_iterations: 60,
-        ..ReshapeSettings::default()
-    };
+    assert_eq!(same.status, ReshapeStatus::Converged);
+    assert!(
+        same_fit.surface_aligned.1 <= 1.25 * attached_fit.surface_aligned.1
+            && same_fit.node_aligned.1 <= 1.25 * attached_fit.node_aligned.1,
+        "free-flying {same_fit} vs attached {attached_fit}"
+    );
+    assert_eq!(same.reshaped_quality.inverted_tets, 0);
+    // (b) Landmarks and markers only.
+    let (p, _) = problem(true);
     let out = reshape(&p, &settings, &mut |_, _, _, _| {}).unwrap();
     let [s, _, i] = evaluate(&p, &out, &held_out, moved);
-    assert!(s.0 < 0.2e-3 && s.1 < 0.6e-3, "shape error {}", mm(s));
+    let fit = up_to_a_rigid_motion(&p, &out, &held_out, moved);
+    eprintln!(
+        "free-flying: {:?} ({} iterations), world frame {}, {fit}",
+        out.status,
+        out.history.len(),
+        mm(s)
+    );
+    assert_eq!(out.status, ReshapeStatus::Converged);
+    assert!(s.0 < 0.2e-3 && s.1 < 0.5e-3, "shape error {}", mm(s));
     assert!(i.2 <= 0.5e-3, "ICP error {}", mm(i));
     let landmarks = stats(&mut out.errors_of(ConstraintKind::Landmark));
     assert!(landmarks.2 <= 0.5e-3, "landmark error {}", mm(landmarks));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
 }
 
-/// The reshaped nodes moved by the best rigid motion onto the truth's nodes (Horn 1987): the
-/// held-out points' distance to the moved surface and the node residuals (statistics), and the
-/// motion.
-fn after_best_rigid_motion(
+/// Held-out shape error statistics up to a rigid motion (see the free-flying test).
+struct RigidFit {
+    surface_aligned: (f64, f64, f64),
+    node_aligned: (f64, f64, f64),
+    node_residual: (f64, f64, f64),
+}
+
+impl std::fmt::Display for RigidFit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "surface-aligned shape {}, node-aligned shape {} (node residual {})",
+            mm(self.surface_aligned),
+            mm(self.node_aligned),
+            mm(self.node_residual)
+        )
+    }
+}
+
+/// The held-out points' distance to the reshaped surface (i) after the rigid motion minimizing
+/// it (rigid ICP: Horn 1987 on the closest points, 40 rounds), (ii) after the best rigid motion
+/// of the reshaped nodes onto the truth's (Horn), and the node residuals of (ii).
+fn up_to_a_rigid_motion(
     p: &ReshapeProblem,
     out: &ReshapeOutcome,
     held_out: &[Vector3<f64>],
-) -> ((f64, f64, f64), (f64, f64, f64), Isometry3<f64>) {
-    let truth: Vec<Vector3<f64>> = p.template.vertices.iter().map(moved).collect();
-    let align = best_rigid(&out.positions_m, &truth, &vec![1.0; truth.len()]).unwrap();
-    let aligned: Vec<Vector3<f64>> = out
-        .positions_m
-        .iter()
-        .map(|x| align.transform_point(&(*x).into()).coords)
-        .collect();
+    map: fn(&Vector3<f64>) -> Vector3<f64>,
+) -> RigidFit {
+    let faces = p.template.boundary_faces();
+    let targets: Vec<Vector3<f64>> = held_out.iter().map(map).collect();
+    let moved_by = |t: &Isometry3<f64>| -> Vec<Vector3<f64>> {
+        out.positions_m
+            .iter()
+            .map(|x| t.transform_point(&(*x).into()).coords)
+            .collect()
+    };
+    let distances = |x: &[Vector3<f64>]| -> Vec<f64> {
+        let surface = SurfaceProjector::new(&faces, x);
+        targets
+            .iter()
+            .map(|h| surface.project(h).unwrap().1)
+            .collect()
+    };
+    let mut motion = Isometry3::identity();
+    for _ in 0..40 {
+        let x = moved_by(&motion);
+        let surface = SurfaceProjector::new(&faces, &x);
+        let closest: Vec<Vector3<f64>> = targets
+            .iter()
+            .map(|h| surface.project(h).unwrap().0.at(&x))
+            .collect();
+        motion = best_rigid(&closest, &targets, &vec![1.0; targets.len()]).unwrap() * motion;
+    }
+    let truth_nodes: Vec<Vector3<f64>> = p.template.vertices.iter().map(map).collect();
+    let align = best_rigid(
+        &out.positions_m,
+        &truth_nodes,
+        &vec![1.0; truth_nodes.len()],
+    )
+    .unwrap();
+    let aligned = moved_by(&align);
     let mut nodes: Vec<f64> = aligned
         .iter()
-        .zip(&truth)
+        .zip(&truth_nodes)
         .map(|(a, t)| (a - t).norm())
         .collect();
-    let surface = SurfaceProjector::new(&p.template.boundary_faces(), &aligned);
-    let mut shape: Vec<f64> = held_out
-        .iter()
-        .map(|h| surface.project(&moved(h)).unwrap().1)
-        .collect();
-    (stats(&mut shape), stats(&mut nodes), align)
+    RigidFit {
+        surface_aligned: stats(&mut distances(&moved_by(&motion))),
+        node_aligned: stats(&mut distances(&aligned)),
+        node_residual: stats(&mut nodes),
+    }
 }
 
 /// `softcap-tissue reshape` end to end with a two-iteration budget: exit 0, the iteration cap is
