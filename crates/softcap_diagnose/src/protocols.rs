@@ -400,8 +400,15 @@ mod tests {
             .windows(2)
             .map(|w| w[1].time_s - w[0].time_s)
             .collect();
-        assert!(steps.iter().all(|d| (d - 0.1).abs() < 1e-12 || (d - rest_step).abs() < 1e-12));
-        let rested = steps.iter().filter(|d| (*d - rest_step).abs() < 1e-12).count();
+        assert!(
+            steps
+                .iter()
+                .all(|d| (d - 0.1).abs() < 1e-12 || (d - rest_step).abs() < 1e-12)
+        );
+        let rested = steps
+            .iter()
+            .filter(|d| (*d - rest_step).abs() < 1e-12)
+            .count();
         assert_eq!(rested, REST_FRAMES * seg.num_folds(), "{steps:?}");
         let span = |r: &Recording| r.frames[r.frames.len() - 1].time_s - r.frames[0].time_s;
         let folds = seg.num_folds() as f64;

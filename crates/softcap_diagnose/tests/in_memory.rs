@@ -429,7 +429,11 @@ fn probe_friction_and_clock_offset_are_both_named() {
 /// 101) and the other candidate's truth `b` recorded under it too (seed 102), each diagnosed.
 struct LookalikeChain {
     first: softcap_diagnose::Diagnosis,
-    next: Option<(Protocol, softcap_diagnose::Diagnosis, softcap_diagnose::Diagnosis)>,
+    next: Option<(
+        Protocol,
+        softcap_diagnose::Diagnosis,
+        softcap_diagnose::Diagnosis,
+    )>,
 }
 
 fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)]) -> LookalikeChain {
@@ -1645,7 +1649,8 @@ fn lookalike_table(filter: Option<&str>) {
         hardening_pa: 1000.0,
     };
     // a Prony branch whose instantaneous modulus is the model's: G∞ = 20 kPa / (1 + g)
-    let slow_creep = |g: f64, tau_s: f64| vec![Effect::Stiffer(1.0 / (1.0 + g)), Effect::Creep { g, tau_s }];
+    let slow_creep =
+        |g: f64, tau_s: f64| vec![Effect::Stiffer(1.0 / (1.0 + g)), Effect::Creep { g, tau_s }];
     let cases: Vec<(&str, Vec<Effect>, Vec<Effect>, bool)> = vec![
         (
             "slow creep g 1, τ 2 s / plasticity",
@@ -1696,15 +1701,25 @@ fn lookalike_table(filter: Option<&str>) {
         print_ranked(d);
         if let Some((p, again, reverse)) = &chain.next {
             for (what, r) in [("same truth", again), ("other truth", reverse)] {
-                eprintln!("{name}, {what} re-recorded under {}: {}", p.name(), r.verdict);
+                eprintln!(
+                    "{name}, {what} re-recorded under {}: {}",
+                    p.name(),
+                    r.verdict
+                );
                 print_ranked(r);
             }
             println!(
                 "| {name} | `{}` {cands:?} | `{}` ({:.4} mm vs {:.4} recorded) | `{}` / `{}` | {:.0} s |",
                 d.verdict,
                 p.name(),
-                1e3 * d.next_experiment.as_ref().map_or(0.0, |n| n.predicted_difference_m),
-                1e3 * d.next_experiment.as_ref().map_or(0.0, |n| n.recorded_difference_m),
+                1e3 * d
+                    .next_experiment
+                    .as_ref()
+                    .map_or(0.0, |n| n.predicted_difference_m),
+                1e3 * d
+                    .next_experiment
+                    .as_ref()
+                    .map_or(0.0, |n| n.recorded_difference_m),
                 again.verdict,
                 reverse.verdict,
                 t0.elapsed().as_secs_f64()
