@@ -427,6 +427,7 @@ fn probe_friction_and_clock_offset_are_both_named() {
 /// One look-alike chain of issue 37: the truth `a` recorded under the standard protocol (noise
 /// seed 100), its diagnosis; when that names a next experiment, `a` re-recorded under it (seed
 /// 101) and the other candidate's truth `b` recorded under it too (seed 102), each diagnosed.
+#[cfg(not(test))]
 struct LookalikeChain {
     first: softcap_diagnose::Diagnosis,
     next: Option<(
@@ -436,6 +437,7 @@ struct LookalikeChain {
     )>,
 }
 
+#[cfg(not(test))]
 fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)]) -> LookalikeChain {
     let mut sim = simulator(20e3);
     let settings = DiagnoseSettings::default();
@@ -454,6 +456,42 @@ fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)])
         (protocol, again(a, 101), again(b, 102))
     });
     LookalikeChain { first, next }
+}
+
+/// Slow creep against plasticity (issue 37's look-alike pair): a Prony branch g 1, τ 2 s whose
+/// instantaneous modulus is the model's leaves a set after each release that persists over the
+/// gaps between releases (persistence 0.77), as a plastic set does. The creep screen keeps each
+/// location's creep under its markers and the persisting-but-recovering set no longer ranks
+/// plasticity first: the creep is named, not plasticity (the reverse truth:
+/// [`plastic_set_is_named`]). ≈ 70 CPU-s: the Prony re-simulations.
+#[test]
+#[ignore = "≈ 70 CPU-s: the Prony grid re-simulations"]
+fn slow_creep_is_not_named_plasticity() {
+    let s = session_with(
+        &[Effect::Stiffer(0.5), Effect::Creep { g: 1.0, tau_s: 2.0 }],
+        false,
+        &LOCATIONS,
+        100,
+    );
+    let mut sim = simulator(20e3);
+    let d = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default())
+        .unwrap()
+        .diagnosis;
+    let persistence = d.ranked[0].evidence.signatures.released_set_persistence;
+    assert!(
+        persistence.is_some_and(|p| (0.5..0.9).contains(&p)),
+        "{persistence:?}"
+    );
+    assert_eq!(d.verdict, "viscoelasticity", "{:?}", d.candidates);
+    let top = &d.ranked[0];
+    assert!(top.heldout_rmse_after_m * 3.0 <= top.heldout_rmse_before_m);
+    // the plastic set was a qualifying alternative
+    let plastic = d
+        .ranked
+        .iter()
+        .find(|r| r.hypothesis == "plasticity")
+        .unwrap();
+    assert!(plastic.score >= 0.3, "{}", plastic.score);
 }
 
 #[test]
