@@ -43,7 +43,10 @@ fn expected(name: &str) -> &'static str {
 /// (`uniform`, or `local:F[:S]` — `softcap_mesh::refine_near` inside the touched balls, radii
 /// scaled by S, to F × the longest edge); unset: the default.
 fn stage_settings() -> StageSettings {
-    let mut settings = StageSettings::default();
+    let mut settings = StageSettings {
+        material: common::suite_material_source(),
+        ..StageSettings::default()
+    };
     if let Ok(v) = std::env::var("SOFTCAP_SUITE_REFINE") {
         let r = &mut settings.simulator.refinement;
         match v.split_once(':') {

@@ -113,15 +113,17 @@ fn chain(case: &str) -> Outcome {
 
     let t0 = Instant::now();
     if !cached {
-        softcap_tissue::fit::run(&softcap_tissue::fit::FitConfig {
-            capture: capture_path.clone(),
-            mesh: Some(session.volume.clone().expect("template/volume.msh")),
-            output: material.clone(),
-            report: None,
-            settings: common::suite_fit_settings(),
-            arguments: vec![],
-        })
-        .unwrap();
+        common::fit_and_print(
+            case,
+            &softcap_tissue::fit::FitConfig {
+                capture: capture_path.clone(),
+                mesh: Some(session.volume.clone().expect("template/volume.msh")),
+                output: material.clone(),
+                report: None,
+                settings: common::suite_fit_settings(),
+                arguments: vec![],
+            },
+        );
     }
     let t_tissue = t0.elapsed().as_secs_f64();
 
@@ -132,7 +134,10 @@ fn chain(case: &str) -> Outcome {
         output: dir.path().join("diagnosis.mcap"),
         json: Some(dir.path().join("diagnosis.json")),
         report: None,
-        settings: StageSettings::default(),
+        settings: StageSettings {
+            material: common::suite_material_source(),
+            ..StageSettings::default()
+        },
         arguments: vec![],
         progress: false,
     })

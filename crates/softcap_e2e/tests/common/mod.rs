@@ -38,14 +38,58 @@ pub struct Inputs {
 /// the same homogeneous baseline bit for bit and the same verdicts and held-out numbers
 /// (docs/diagnose.md, "Session 14 (speed)"). If the default model ever reads the basis or the
 /// per-example parameters, this must go back to `FitSettings::default()`.
+///
+/// Measuring aid: `SOFTCAP_SUITE_HELDOUT_COMPARISON=1` also scores the homogeneous baseline and
+/// the strain-space material leave-one-location-out (`FitSettings::heldout_comparison`, printed
+/// in the `TISSUE` line of [`fit_and_print`]).
 pub fn suite_fit_settings() -> FitSettings {
     let mut s = FitSettings {
         progress: false,
         gamma_prior_candidates: Vec::new(),
+        heldout_comparison: std::env::var_os("SOFTCAP_SUITE_HELDOUT_COMPARISON").is_some(),
         ..Default::default()
     };
     s.example_fit.gamma_prior = RECOMMENDED_GAMMA_PRIOR;
     s
+}
+
+/// The diagnosis's default model: `MaterialSource::Auto`, or with the measuring aid
+/// `SOFTCAP_SUITE_MATERIAL=basis|homogeneous|example-mean` that material source.
+pub fn suite_material_source() -> softcap_diagnose::MaterialSource {
+    use softcap_diagnose::MaterialSource;
+    match std::env::var("SOFTCAP_SUITE_MATERIAL").as_deref() {
+        Err(_) | Ok("auto") => MaterialSource::Auto,
+        Ok("basis") => MaterialSource::Basis,
+        Ok("homogeneous") => MaterialSource::Homogeneous,
+        Ok("example-mean") => MaterialSource::ExampleMean,
+        Ok(v) => panic!("SOFTCAP_SUITE_MATERIAL={v}: auto | basis | homogeneous | example-mean"),
+    }
+}
+
+/// `softcap_tissue::fit::run` on `cfg`; prints one `TISSUE` row: the per-example fits' LM
+/// iterations and stop reasons, and with `heldout_comparison` the leave-one-location-out RMS of
+/// the homogeneous baseline and the strain-space material (mm).
+pub fn fit_and_print(name: &str, cfg: &FitConfig) {
+    let o = softcap_tissue::fit::run(cfg).expect("softcap_tissue::fit::run");
+    let iterations: Vec<usize> = o.examples.iter().map(|e| e.iterations).collect();
+    let stops: Vec<&str> = o.examples.iter().map(|e| e.stop.name()).collect();
+    let unconverged = o.examples.iter().filter(|e| !e.stop.converged()).count();
+    let heldout = o.heldout.as_ref().map_or(String::new(), |h| {
+        format!(
+            " | held-out homogeneous {:.4} mm ({} failed), material {:.4} mm ({} failed)",
+            1e3 * h.homogeneous_rms_m,
+            h.homogeneous_failures,
+            1e3 * h.material_rms_m,
+            h.material_failures
+        )
+    });
+    println!(
+        "TISSUE | {name} | unconverged {unconverged}/{} | iterations {iterations:?} | stops {stops:?} | rms homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm{heldout}",
+        o.examples.len(),
+        1e3 * o.homogeneous_rms_m,
+        1e3 * o.example_rms_m,
+        1e3 * o.material_rms_m,
+    );
 }
 
 /// synth → capture (capture.mcap) → `softcap_tissue::fit::run` (material.mcap) with
@@ -142,15 +186,17 @@ fn cache_synth_files(scenario: &Scenario, c: &Path, scratch: &Path) {
 }
 
 fn fit_material(capture: &Path, volume: &Path, output: &Path, settings: &FitSettings) {
-    softcap_tissue::fit::run(&FitConfig {
-        capture: capture.to_path_buf(),
-        mesh: Some(volume.to_path_buf()),
-        output: output.to_path_buf(),
-        report: None,
-        settings: settings.clone(),
-        arguments: vec![],
-    })
-    .expect("softcap_tissue::fit::run");
+    fit_and_print(
+        &output.display().to_string(),
+        &FitConfig {
+            capture: capture.to_path_buf(),
+            mesh: Some(volume.to_path_buf()),
+            output: output.to_path_buf(),
+            report: None,
+            settings: settings.clone(),
+            arguments: vec![],
+        },
+    );
 }
 
 fn prepare_fresh(scenario: &Scenario, dir: tempfile::TempDir, settings: &FitSettings) -> Inputs {
