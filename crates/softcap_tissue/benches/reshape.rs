@@ -7,19 +7,26 @@
 //! attached) on templates of 720 and 5,760 tets; CG runs without preconditioner to
 //! ‖M Δs + g‖ ≤ 1e-6 ‖g‖ (capped at 20,000 iterations). Before criterion starts, each size is
 //! timed once and printed with the CG iteration count, its residual and the relative difference
-//! of the two steps; `SOFTCAP_RESHAPE_BENCH_ONCE=1` stops there, and `SOFTCAP_RESHAPE_BENCH_CELLS`
-//! (e.g. `22,20,15`: 39,600 tets) adds one larger size to the single runs.
+//! of the two steps, and so is the inexact step (CG preconditioned by the Woodbury solve over the
+//! soft rows, [`pcg_step`]) at the relative residuals [`PCG_TOLERANCES`];
+//! `SOFTCAP_RESHAPE_BENCH_ONCE=1` stops there, `SOFTCAP_RESHAPE_BENCH_NO_CG=1` skips the
+//! unpreconditioned CG runs, and `SOFTCAP_RESHAPE_BENCH_CELLS` (e.g. `22,20,15`: 39,600 tets)
+//! adds one larger size to the single runs.
 //!
-//! `scripts/bench softcap_tissue -- reshape` (= `cargo bench -p softcap_tissue --bench reshape`).
+//! `cargo bench --workspace --profile test --bench reshape` (criterion: `scripts/bench
+//! softcap_tissue -- reshape`).
 
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
-use softcap_tissue::reshape::step::{cg_step, woodbury_step};
+use softcap_tissue::reshape::step::{cg_step, field_norm, pcg_step, woodbury_step};
 use softcap_tissue::reshape::{FirstStep, ReshapeSettings, known_truth};
 
 const CG_TOLERANCE: f64 = 1e-6;
 const CG_MAX_ITERATIONS: usize = 20_000;
+/// Relative residuals of the inexact (preconditioned CG) step timed by the single runs.
+const PCG_TOLERANCES: [f64; 3] = [1e-1, 1e-3, 1e-6];
+const PCG_MAX_ITERATIONS: usize = 2_000;
 
 fn first_step(cells: [usize; 3]) -> FirstStep {
     let (problem, _) = known_truth::problem_with_cells(false, cells);
@@ -52,26 +59,42 @@ fn once(label: &str, step: &FirstStep) {
     let w = woodbury_step(&sys).expect("Woodbury step");
     let tw = t0.elapsed().as_secs_f64();
     let cw = cpu_seconds() - c0;
-    if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_CG").is_some() {
+    eprintln!(
+        "{label}: {} unknowns, {} constraint rows, Laplacian factor {} values: Woodbury \
+         {tw:.3} s wall, {cw:.2} CPU-s",
+        6 * sys.jacobians.len(),
+        step.rows(),
+        sys.laplacian.factor_len()
+    );
+    let size = field_norm(&w);
+    let difference = |s: &[nalgebra::Vector6<f64>]| {
+        let d: Vec<_> = w.iter().zip(s).map(|(a, b)| a - b).collect();
+        field_norm(&d) / size
+    };
+    for tolerance in PCG_TOLERANCES {
+        let (t0, c0) = (Instant::now(), cpu_seconds());
+        let pcg = pcg_step(&sys, tolerance, PCG_MAX_ITERATIONS);
+        let tp = t0.elapsed().as_secs_f64();
+        let cp = cpu_seconds() - c0;
         eprintln!(
-            "{label}: {} unknowns, {} constraint rows, Laplacian factor {} values: Woodbury \
-             {tw:.3} s wall, {cw:.2} CPU-s (CG skipped)",
-            6 * sys.jacobians.len(),
-            step.rows(),
-            sys.laplacian.factor_len()
+            "{label}: PCG to {tolerance:.0e}: {tp:.3} s wall, {cp:.2} CPU-s, {} iterations, \
+             {} rows in its Woodbury part, residual {:.1e}, step difference {:.1e}; \
+             Woodbury / PCG {:.1} CPU-s, {:.1} wall",
+            pcg.iterations,
+            pcg.woodbury_rows,
+            pcg.relative_residual,
+            difference(&pcg.step),
+            cw / cp,
+            tw / tp
         );
+    }
+    if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_CG").is_some() {
         return;
     }
     let t0 = Instant::now();
     let cg = cg_step(&sys, CG_TOLERANCE, CG_MAX_ITERATIONS);
     let tc = t0.elapsed().as_secs_f64();
-    let size = w.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
-    let diff = w
-        .iter()
-        .zip(&cg.step)
-        .map(|(a, b)| (a - b).norm_squared())
-        .sum::<f64>()
-        .sqrt();
+    let diff = difference(&cg.step) * size;
     eprintln!(
         "{label}: {} unknowns, {} constraint rows: Woodbury {tw:.3} s ({cw:.2} CPU-s), CG {tc:.3} s \
          ({} iterations, residual {:.1e}, step difference {:.1e}); CG / Woodbury {:.1}",

@@ -216,11 +216,17 @@ impl PlasticLaplacian {
             }
             return;
         };
+        // A few columns (one preconditioner application of the inexact step, [`super::step`])
+        // are split over the cores too; a column's result does not depend on the blocking.
+        let width = m
+            .ncols()
+            .div_ceil(rayon::current_num_threads())
+            .clamp(1, SOLVE_BLOCK);
         let mut blocks: Vec<(usize, MatMut<'_, f64>)> = Vec::new();
         let mut rest = m;
         let mut start = 0;
         while rest.ncols() > 0 {
-            let take = SOLVE_BLOCK.min(rest.ncols());
+            let take = width.min(rest.ncols());
             let (head, tail) = rest.split_at_col_mut(take);
             blocks.push((start, head));
             start += take;

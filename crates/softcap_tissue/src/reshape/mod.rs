@@ -7,7 +7,7 @@
 //! | [`laplacian`] | plastic-strain Laplacian, its null space, A⁻¹ by the singular lemma | Appendix A, §3.5 |
 //! | [`equilibrium`] | Newton equilibrium under plastic strains and attachment springs | §3.2–3.3, eq. 1, 4, 7 |
 //! | [`gauge`] | free-flying objects: canonical frame, its derivative, 3-2-1 pins, rigid block | §3.6–3.7, eq. 17–24 |
-//! | [`step`] | Gauss–Newton step by the Woodbury identity; CG baseline | §3.4, eq. 8–14, Table 1 |
+//! | [`step`] | Gauss–Newton step: exact by the Woodbury identity, inexact by CG preconditioned with its base; CG baseline | §3.4, eq. 8–14, Table 1 |
 //! | [`solve`] | stages, line search, stopping rules → [`ReshapeOutcome`] | §3.4 |
 //! | [`target`] | the TARGET folder (target.toml, CSVs, surface.obj) with file:line errors; its writer | |
 //! | [`known_truth`] | the known-truth box of Fig. 21 (tests, example, benches) | Fig. 21 |
@@ -41,4 +41,5 @@ pub use solve::{
     ConstraintError, FirstStep, IcpRows, IterationRecord, ReshapeOutcome, ReshapeSettings,
     ReshapeStatus, StageReport, StopReason, clamp_plastic, reshape,
 };
+pub use step::StepSolver;
 pub use target::{LoadedTarget, TargetSpec, load_target, write_target};

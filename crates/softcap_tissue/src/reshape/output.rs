@@ -132,6 +132,10 @@ pub fn report_message(run: &ReshapeRun) -> proto::Report {
             &format!("{p}.equilibrium_solves"),
             h.equilibrium_solves as i64,
         ));
+        entries.push(integer(
+            &format!("{p}.step_iterations"),
+            h.step_iterations as i64,
+        ));
     }
     if let Some(e) = &run.surface_distance {
         entries.push(number("surface.distance.mean", e.0, "m"));

@@ -57,7 +57,9 @@ use super::gauge::{
 };
 use super::laplacian::PlasticLaplacian;
 use super::problem::{ConstraintKind, IcpMarker, MaterialPoint, ReshapeProblem, SurfaceProjector};
-use super::step::{NormalSystem, WoodburySolver, woodbury_step};
+use super::step::{
+    NormalSystem, StepSolver, WoodburySolver, field_norm, forcing_term, pcg_step, woodbury_step,
+};
 use crate::error::{Result, TissueError};
 
 /// The default α̂ (a bulky organ; see docs/reshape.md for a thin layer).
@@ -93,6 +95,14 @@ pub struct ReshapeSettings {
     /// the shape but not where the material lies on it: without landmarks the surface is free to
     /// slide along itself, held only by the smoothness term.
     pub icp_stage_landmarks: bool,
+    /// How each Gauss–Newton step is solved: `"woodbury"` (exact, §3.5) or `"pcg"` (inexact,
+    /// preconditioned CG).
+    pub step_solver: StepSolver,
+    /// η_max of the inexact step: CG stops at ‖M Δs + g‖ ≤ η ‖g‖ with
+    /// η = min(η_max, √(‖g‖/‖g₀‖)), g₀ the stage's first gradient ([`forcing_term`]).
+    pub step_forcing: f64,
+    /// Cap on the CG iterations of one inexact step.
+    pub step_cg_iterations: usize,
     /// Brent line search.
     pub line_search: BrentSettings,
     /// Newton equilibrium solves.
@@ -113,6 +123,9 @@ impl Default for ReshapeSettings {
             plastic_eigenvalue_floor: 0.01,
             icp_rows: IcpRows::PointToPlane,
             icp_stage_landmarks: true,
+            step_solver: StepSolver::Woodbury,
+            step_forcing: 1e-4,
+            step_cg_iterations: 500,
             line_search: BrentSettings {
                 x_tolerance: 0.02,
                 max_evaluations: 8,
@@ -209,6 +222,9 @@ pub struct IterationRecord {
     pub step_length: f64,
     /// Equilibrium solves of the line search.
     pub equilibrium_solves: usize,
+    /// CG iterations of the inexact step (0: exact step).
+    #[serde(default)]
+    pub step_iterations: usize,
 }
 
 /// Error of one constraint on the result.
@@ -353,6 +369,11 @@ pub(super) struct Solver<'p> {
     /// Free-flying: the current stage has handed over from block-coordinate steps (§3.6) to
     /// joint shape-and-pose steps ([`joint_rigid_step`]; module docs).
     joint_rigid: bool,
+    /// ‖g₀‖, the first gradient of the current stage (the inexact step's forcing term); NaN
+    /// before its first step.
+    stage_gradient_norm: f64,
+    /// CG iterations of the last inexact step.
+    step_iterations: usize,
 }
 
 /// Reshapes `problem.template` (saito-barbic §3): see the module docs. Errors only for unusable
@@ -436,6 +457,8 @@ impl<'p> Solver<'p> {
             alpha: f64::NAN,
             equilibrium_solves: 0,
             joint_rigid: true,
+            stage_gradient_norm: f64::NAN,
+            step_iterations: 0,
         })
     }
 
@@ -717,6 +740,7 @@ impl<'p> Solver<'p> {
             return Ok(report);
         }
         self.joint_rigid = false;
+        self.stage_gradient_norm = f64::NAN;
         // Free-flying block-coordinate steps that slow down (less than `BLOCK_PROGRESS`) or find
         // no descent hand over to joint steps (module docs); `true` if the stage goes on.
         let hand_over = |solver: &mut Self| {
@@ -743,6 +767,7 @@ impl<'p> Solver<'p> {
                 max_error_m: max_error,
                 step_length: step.eta,
                 equilibrium_solves: step.solves,
+                step_iterations: self.step_iterations,
             });
             progress(stage.name, it + 1, step.objective_after, max_error);
             if !stage.constant && max_error <= self.settings.error_tolerance_m {
@@ -794,8 +819,14 @@ impl<'p> Solver<'p> {
                 ds
             })
         } else {
-            woodbury_step(&sys)
+            let (ds, iterations) =
+                gauss_newton_step(self.settings, &mut self.stage_gradient_norm, &sys);
+            self.step_iterations = iterations;
+            ds
         };
+        if stage.constant || self.gauge.is_some() && self.joint_rigid {
+            self.step_iterations = 0;
+        }
         let Some(ds) = direction else {
             return Ok(None);
         };
@@ -1252,6 +1283,31 @@ fn joint_rigid_step(
             gradient: rwres,
         },
     ))
+}
+
+/// Δs of an ordinary Gauss–Newton step by `settings.step_solver` and its CG iterations:
+/// exact (Woodbury; 0 iterations) or inexact (CG preconditioned by the Woodbury base to the
+/// forcing term of [`forcing_term`] relative to ‖g₀‖, `stage_gradient_norm`, set from `sys` at
+/// the stage's first step).
+fn gauss_newton_step(
+    settings: &ReshapeSettings,
+    stage_gradient_norm: &mut f64,
+    sys: &NormalSystem<'_>,
+) -> (Option<Vec<Vector6<f64>>>, usize) {
+    match settings.step_solver {
+        StepSolver::Woodbury => (woodbury_step(sys), 0),
+        StepSolver::Pcg => {
+            let norm = field_norm(sys.gradient);
+            if stage_gradient_norm.is_nan() {
+                *stage_gradient_norm = norm;
+            }
+            let eta = forcing_term(settings.step_forcing, norm, *stage_gradient_norm);
+            let cg = pcg_step(sys, eta, settings.step_cg_iterations);
+            let finite = cg.step.iter().all(|s| s.iter().all(|v| v.is_finite()));
+            let ds = (cg.iterations > 0 && finite).then_some(cg.step);
+            (ds, cg.iterations)
+        }
+    }
 }
 
 /// Keeps the lower of `best` and `candidate`.
