@@ -9,10 +9,13 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --profile test -p softcap_tissue --example fit_dynamic_table1 [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--noise-um N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
+//! `--start-fit M`, `--start-frames K`: model-based start states, least squares in M modes over
+//! K frame intervals (`ForwardSettings::start_fit_modes`, `start_fit_frames`).
+//! `--noise-um N`: tracking noise, µm (default 500).
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
@@ -41,6 +44,15 @@ fn main() {
         .map_or(FitDynamicSettings::default().start_state_modes, |m| {
             m as usize
         });
+    // `--start-fit M`, `--start-frames K`: model-based start states in M modes over K frame
+    // intervals (`ForwardSettings::start_fit_modes`, `start_fit_frames`; 0 = tracked states).
+    let defaults = FitDynamicSettings::default().forward;
+    let start_fit =
+        take_option(&mut which, "--start-fit").map_or(defaults.start_fit_modes, |m| m as usize);
+    let start_frames =
+        take_option(&mut which, "--start-frames").map_or(defaults.start_fit_frames, |m| m as usize);
+    // `--noise-um N`: tracking noise in µm (default 500).
+    let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
     let cases: Vec<&str> = if which.is_empty() {
         vec!["bar1", "bar8", "leaf"]
     } else {
@@ -49,17 +61,27 @@ fn main() {
     for case in cases {
         let (size, cells, ncp, e_cp, noise): ([f64; 3], [usize; 3], usize, Vec<f64>, f64) =
             match case {
-                "bar1" | "bar1q" | "bar1ab" => {
-                    ([0.2, 0.03, 0.02], [12, 2, 2], 1, vec![5.0e5], 5.0e-4)
-                }
+                "bar1" | "bar1q" | "bar1ab" => (
+                    [0.2, 0.03, 0.02],
+                    [12, 2, 2],
+                    1,
+                    vec![5.0e5],
+                    1e-6 * noise_um as f64,
+                ),
                 "bar8" | "bar8ab" => (
                     [0.2, 0.03, 0.02],
                     [12, 2, 2],
                     8,
                     vec![8.0e5, 7.0e5, 6.0e5, 5.5e5, 5.0e5, 4.5e5, 4.0e5, 3.5e5],
-                    5.0e-4,
+                    1e-6 * noise_um as f64,
                 ),
-                "leaf" => ([0.2, 0.06, 0.006], [10, 3, 1], 1, vec![2.0e6], 5.0e-4),
+                "leaf" => (
+                    [0.2, 0.06, 0.006],
+                    [10, 3, 1],
+                    1,
+                    vec![2.0e6],
+                    1e-6 * noise_um as f64,
+                ),
                 other => panic!("unknown case {other}"),
             };
         let (mesh, support, push) = clamped_box(size, cells);
@@ -131,6 +153,11 @@ fn main() {
             progress: false,
             max_simulations: 200,
             start_state_modes: start_modes,
+            forward: softcap_tissue::fit_dynamic::ForwardSettings {
+                start_fit_modes: start_fit,
+                start_fit_frames: start_frames,
+                ..defaults.clone()
+            },
             elements: if quadratic {
                 Elements::Quadratic
             } else {
@@ -156,7 +183,7 @@ fn main() {
             .sum::<f64>()
             / fit.rest_m.len() as f64;
         println!(
-            "## {case} (seed {seed}, start modes {start_modes}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
+            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
             mesh.vertices.len(),
             mesh.tets.len(),
             spec.frames,

@@ -457,6 +457,9 @@ impl Problem<'_> {
         let Ok(model) = forward.model(&params, &self.rest) else {
             return j;
         };
+        let Ok(base) = forward.start_states(&model, params.damping) else {
+            return j;
+        };
         let start = &self.start;
         let columns: Vec<(usize, Vec<f64>)> = (0..n)
             .into_par_iter()
@@ -465,7 +468,13 @@ impl Problem<'_> {
                 let mut coeff = modes.of_segment(start, k).to_vec();
                 coeff[c % per] += START_STEP;
                 let mut r = Vec::new();
-                match forward.simulate_segment(k, &model, params.damping, Some((modes, &coeff))) {
+                match forward.simulate_segment(
+                    k,
+                    &model,
+                    params.damping,
+                    &base[k],
+                    Some((modes, &coeff)),
+                ) {
                     Ok(run) => forward.extend_residuals(&run, &mut r),
                     Err(_) => r.resize(forward.residual_range(k).len(), f64::NAN),
                 }

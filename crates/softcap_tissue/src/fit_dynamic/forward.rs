@@ -54,6 +54,15 @@ pub struct ForwardSettings {
     /// umbrella Laplacian L of the node graph (λ in edges²; 0 = off): tracking noise that is
     /// independent from node to node is strain that would ring in the stiffest modes.
     pub initial_state_smoothing: f64,
+    /// Model-based start states ([`Forward::modal_start_states`]; 0 = the tracked state and the
+    /// polynomial velocity): each segment's initial displacement and velocity in the first this
+    /// many modes of the simulated body, fitted by linear least squares to the tracked motion of
+    /// the segment under the body's own linearised damped dynamics (variable projection of the
+    /// start state; wang2015 §7 simulates "from estimated initial state").
+    pub start_fit_modes: usize,
+    /// Frame intervals of a segment the start state is fitted to (at most the segment's; the
+    /// default, the whole segment, is the variable projection of eq. 9 for the linearised body).
+    pub start_fit_frames: usize,
 }
 
 impl Default for ForwardSettings {
@@ -65,6 +74,8 @@ impl Default for ForwardSettings {
             velocity_degree: 4,
             initial_state_smoothing: 0.0,
             startup_euler_steps: 4,
+            start_fit_modes: 0,
+            start_fit_frames: 30,
         }
     }
 }
@@ -462,11 +473,12 @@ impl Forward {
         start: Option<(&StartModes, &[f64])>,
     ) -> Result<Vec<SegmentRun>> {
         let model = self.model(params, rest_m)?;
+        let starts = self.start_states(&model, params.damping)?;
         let runs = (0..self.segments.len())
             .into_par_iter()
             .map(|k| {
                 let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
-                self.simulate_segment(k, &model, params.damping, correction)
+                self.simulate_segment(k, &model, params.damping, &starts[k], correction)
             })
             .collect::<Vec<_>>();
         runs.into_iter().collect()
@@ -491,19 +503,123 @@ impl Forward {
         }
     }
 
-    /// Runs segment `k` alone from its tracked initial state, corrected by the modes and its own
-    /// coefficients if given.
+    /// The initial state (positions, velocities) of every segment for the body `model` with
+    /// `damping`: the tracked state and polynomial velocity, or, with
+    /// `ForwardSettings::start_fit_modes` = M > 0, the model-based estimate
+    /// ([`Self::modal_start_states`]).
+    pub fn start_states(
+        &self,
+        model: &FitModel,
+        damping: RayleighDamping,
+    ) -> Result<Vec<(Vec<Vector3<f64>>, Vec<Vector3<f64>>)>> {
+        if self.settings.start_fit_modes == 0 {
+            return Ok(self.starts.clone());
+        }
+        self.modal_start_states(model, damping)
+    }
+
+    /// Model-based initial states (variable projection of the start state, wang2015 §7's
+    /// "estimated initial state"): linearised about the static shape x_s, the body's free
+    /// motion is u(t) = Σ_i φ_i q_i(t) with every modal coordinate obeying
+    /// q̈ + 2σ_i q̇ + ω_i² q = 0, σ_i = α/2 + βω_i²/2 (Rayleigh damping, eq. 3), so
+    /// q_i(t) = q_i(0) f₁(t) + q̇_i(0) f₂(t) is linear in the start state. For each of the first
+    /// M modes (M-orthonormal, K φ = ω² M φ of the body simulated, at the current parameters)
+    /// and each segment, (q_i(0), q̇_i(0)) is the least-squares fit of the tracked coordinate
+    /// φ_iᵀ M (x̂_t − x_s) over the segment's first `start_fit_frames` frame intervals; the start
+    /// state is x_s + Σ φ_i q_i(0), velocity Σ φ_i q̇_i(0), the support at its tracked position.
+    /// Modes above 0.8 of the segment's Nyquist frequency are left out (the frames cannot tell
+    /// their motion from noise), and a mode within 2 % of the M-th's frequency is taken with it
+    /// (the two bending directions of a square bar). The tracked state instead carries the
+    /// tracking noise of every mode and the polynomial velocity's error in the fast ones, which
+    /// ring through the segment where the data does not, and the fit pays for them with damping
+    /// (β up, α down); this estimate costs no simulation, one eigen-solve per evaluation.
+    pub fn modal_start_states(
+        &self,
+        model: &FitModel,
+        damping: RayleighDamping,
+    ) -> Result<Vec<(Vec<Vector3<f64>>, Vec<Vector3<f64>>)>> {
+        let count = self.settings.start_fit_modes;
+        let modes = super::warm::modes_to(self, model, count + 1, 1e-9)?;
+        let omegas = modes.angular_frequencies_rad_s();
+        let mut used = count.min(omegas.len());
+        if used > 0 && used < omegas.len() && omegas[used] < 1.02 * omegas[used - 1] {
+            used += 1;
+        }
+        let xs = &self.mesh.vertices;
+        let window = self.settings.start_fit_frames.max(1);
+        let out = self
+            .segments
+            .iter()
+            .map(|seg| {
+                let frames = seg.start..=(seg.start + window).min(seg.end);
+                let t: Vec<f64> = frames
+                    .clone()
+                    .map(|j| self.seq.times_s[j] - self.seq.times_s[seg.start])
+                    .collect();
+                let dt = self.seq.times_s[seg.start..=seg.end]
+                    .windows(2)
+                    .map(|w| w[1] - w[0])
+                    .fold(f64::INFINITY, f64::min);
+                let nyquist = std::f64::consts::PI / dt.max(1e-12);
+                let mut x = xs.clone();
+                let mut v = vec![Vector3::zeros(); xs.len()];
+                for (phi, &omega) in modes.shapes.iter().zip(&omegas).take(used) {
+                    if !(omega > 0.0 && omega <= 0.8 * nyquist) {
+                        continue;
+                    }
+                    // Least squares in (q(0), q̇(0)/ω) with a small ridge (a mode sampled near a
+                    // multiple of the frame rate has almost no f₂).
+                    let sigma = 0.5 * (damping.alpha_per_s + damping.beta_s * omega * omega);
+                    let (mut a, mut b) = (nalgebra::Matrix2::zeros(), nalgebra::Vector2::zeros());
+                    for (&tj, j) in t.iter().zip(frames.clone()) {
+                        let q: f64 = self.seq.positions_m[j]
+                            .iter()
+                            .zip(xs)
+                            .zip(phi)
+                            .zip(&self.masses_kg)
+                            .map(|(((p, s), f), m)| m * f.dot(&(p - s)))
+                            .sum();
+                        let f = free_response(omega, sigma, tj)
+                            .component_mul(&nalgebra::Vector2::new(1.0, omega));
+                        a += f * f.transpose();
+                        b += f * q;
+                    }
+                    let ridge = 1e-4 * a.trace();
+                    a[(0, 0)] += ridge;
+                    a[(1, 1)] += ridge;
+                    let Some(c) = a.try_inverse().map(|i| i * b) else {
+                        continue;
+                    };
+                    let (q0, qd0) = (c[0], c[1] * omega);
+                    for ((xn, vn), f) in x.iter_mut().zip(v.iter_mut()).zip(phi) {
+                        *xn += f * q0;
+                        *vn += f * qd0;
+                    }
+                }
+                for &i in &self.seq.support_nodes {
+                    x[i] = self.seq.positions_m[seg.start][i];
+                    v[i] = Vector3::zeros();
+                }
+                (x, v)
+            })
+            .collect();
+        Ok(out)
+    }
+
+    /// Runs segment `k` alone from the initial state `start` ([`Self::start_states`]),
+    /// corrected by the modes and its own coefficients if given.
     pub fn simulate_segment(
         &self,
         k: usize,
         model: &FitModel,
         damping: RayleighDamping,
+        start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
         correction: Option<(&StartModes, &[f64])>,
     ) -> Result<SegmentRun> {
         let seg = self.segments[k].clone();
         let mut model = model.clone();
         let mut solver = Stepper::new(&model, self.masses_kg.clone(), &self.support_dofs())?;
-        let (mut x0, mut v0) = self.starts[k].clone();
+        let (mut x0, mut v0) = start.clone();
         if let Some((modes, c)) = correction {
             modes.apply(&mut x0, &mut v0, c);
         }
@@ -623,5 +739,55 @@ impl Forward {
         let r = self.residuals(runs);
         let ss: f64 = r.iter().map(|v| v * v).sum();
         (3.0 * ss / r.len().max(1) as f64).sqrt()
+    }
+}
+
+/// The free responses (f₁(t), f₂(t)) of q̈ + 2σ q̇ + ω² q = 0 with f₁(0) = 1, f₁'(0) = 0 and
+/// f₂(0) = 0, f₂'(0) = 1 (under-, over- or critically damped).
+fn free_response(omega: f64, sigma: f64, t: f64) -> nalgebra::Vector2<f64> {
+    let d = omega * omega - sigma * sigma;
+    let e = (-sigma * t).exp();
+    let (c, s) = if d.abs() <= 1e-12 * omega * omega {
+        (1.0, t)
+    } else if d > 0.0 {
+        let w = d.sqrt();
+        ((w * t).cos(), (w * t).sin() / w)
+    } else {
+        let w = (-d).sqrt();
+        ((w * t).cosh(), (w * t).sinh() / w)
+    };
+    nalgebra::Vector2::new(e * (c + sigma * s), e * s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::free_response;
+
+    /// f₁, f₂ solve q̈ + 2σq̇ + ω²q = 0 (central differences) with f(0) = (1, 0), ḟ(0) = (0, 1),
+    /// under-, over- and critically damped.
+    #[test]
+    fn free_responses_solve_the_damped_oscillator() {
+        for (omega, sigma) in [(20.0, 0.7), (20.0, 35.0), (20.0, 20.0)] {
+            let h = 1e-4;
+            let f0 = free_response(omega, sigma, 0.0);
+            let d0 = (free_response(omega, sigma, h) - free_response(omega, sigma, -h)) / (2.0 * h);
+            assert!(
+                (f0 - nalgebra::Vector2::new(1.0, 0.0)).norm() < 1e-12,
+                "{f0}"
+            );
+            assert!(
+                (d0 - nalgebra::Vector2::new(0.0, 1.0)).norm() < 1e-6,
+                "{d0}"
+            );
+            for t in [0.01, 0.05, 0.2] {
+                let [a, b, c] = [t - h, t, t + h].map(|s| free_response(omega, sigma, s));
+                let (d1, d2) = ((c - a) / (2.0 * h), (c - 2.0 * b + a) / (h * h));
+                let r = d2 + 2.0 * sigma * d1 + omega * omega * b;
+                assert!(
+                    r.norm() < 1e-3 * omega * omega,
+                    "ω {omega} σ {sigma} t {t}: {r}"
+                );
+            }
+        }
     }
 }

@@ -36,6 +36,16 @@ pub struct ModalFit {
 /// Modes of the linearized body at its rest shape (support dofs fixed), `count` smallest:
 /// shift-invert Lanczos for linear tets, subspace iteration for quadratic ones.
 pub fn modes(forward: &Forward, model: &FitModel, count: usize) -> crate::Result<Modes> {
+    modes_to(forward, model, count, 1e-6)
+}
+
+/// [`modes`] to a relative residual `tolerance` (linear tets; quadratic tets: their solver's).
+pub fn modes_to(
+    forward: &Forward,
+    model: &FitModel,
+    count: usize,
+    tolerance: f64,
+) -> crate::Result<Modes> {
     let dofs = forward.support_dofs();
     match model {
         FitModel::Linear(model) => {
@@ -45,7 +55,7 @@ pub fn modes(forward: &Forward, model: &FitModel, count: usize) -> crate::Result
                 &dofs,
                 &ModalSettings {
                     num_modes: count,
-                    tolerance: 1e-6,
+                    tolerance,
                     ..ModalSettings::default()
                 },
             )?;
