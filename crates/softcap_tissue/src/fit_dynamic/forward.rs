@@ -776,7 +776,7 @@ mod tests {
                 "{f0}"
             );
             assert!(
-                (d0 - nalgebra::Vector2::new(0.0, 1.0)).norm() < 1e-6,
+                (d0 - nalgebra::Vector2::new(0.0, 1.0)).norm() < 1e-3, // central difference: h²/6 × f‴ ≈ 5e-5 at σ = 35 1/s
                 "{d0}"
             );
             for t in [0.01, 0.05, 0.2] {
