@@ -345,43 +345,9 @@ pub struct CgOutcome {
 }
 
 /// Δs = −M⁻¹ g by conjugate gradients on M (no preconditioner, as the paper's CG baseline), to
-/// ‖r‖ ≤ `tolerance` ‖g‖ or `max_iterations`.
+/// ‖r‖ ≤ `tolerance` ‖g‖ or `max_iterations`: [`preconditioned_cg`] with P = I.
 pub fn cg_step(sys: &NormalSystem<'_>, tolerance: f64, max_iterations: usize) -> CgOutcome {
-    let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| {
-        a.iter().zip(b).map(|(u, v)| u.dot(v)).sum::<f64>()
-    };
-    let t = sys.num_tets();
-    let mut x = vec![Vector6::zeros(); t];
-    let mut r: Vec<Vector6<f64>> = sys.gradient.iter().map(|g| -g).collect();
-    let g_norm = dot(&r, &r).sqrt().max(f64::MIN_POSITIVE);
-    let mut p = r.clone();
-    let mut rr = dot(&r, &r);
-    let mut iterations = 0;
-    while iterations < max_iterations && rr.sqrt() > tolerance * g_norm {
-        let mp = sys.apply_normal(&p);
-        let pmp = dot(&p, &mp);
-        if pmp <= 0.0 || !pmp.is_finite() {
-            break;
-        }
-        let step = rr / pmp;
-        for i in 0..t {
-            x[i] += p[i] * step;
-            r[i] -= mp[i] * step;
-        }
-        let rr_next = dot(&r, &r);
-        let beta = rr_next / rr;
-        for i in 0..t {
-            p[i] = r[i] + p[i] * beta;
-        }
-        rr = rr_next;
-        iterations += 1;
-    }
-    CgOutcome {
-        step: x,
-        iterations,
-        relative_residual: rr.sqrt() / g_norm,
-        woodbury_rows: 0,
-    }
+    preconditioned_cg(sys, |r| r.to_vec(), tolerance, max_iterations, 0)
 }
 
 /// How the Gauss–Newton step's normal equations are solved (`step_solver` of
@@ -461,6 +427,21 @@ pub fn pcg_step(sys: &NormalSystem<'_>, tolerance: f64, max_iterations: usize) -
         Some(w) => w.solve(r).unwrap_or_else(|| base(r)),
         None => base(r),
     };
+    let woodbury_rows = woodbury.as_ref().map_or(0, |_| soft.len());
+    preconditioned_cg(sys, precondition, tolerance, max_iterations, woodbury_rows)
+}
+
+/// Preconditioned conjugate gradients on M Δs = −g from Δs = 0 (Nocedal & Wright §5.1,
+/// Algorithm 5.3), `precondition(r)` = P⁻¹ r, stopped at ‖M Δs + g‖ ≤ `tolerance` ‖g‖, after
+/// `max_iterations`, or where M stops being positive along a search direction. The one CG kernel
+/// of the reshape: [`cg_step`] (P = I) and [`pcg_step`] (P from the soft rows).
+fn preconditioned_cg(
+    sys: &NormalSystem<'_>,
+    precondition: impl Fn(&[Vector6<f64>]) -> Vec<Vector6<f64>>,
+    tolerance: f64,
+    max_iterations: usize,
+    woodbury_rows: usize,
+) -> CgOutcome {
     let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| {
         a.iter().zip(b).map(|(u, v)| u.dot(v)).sum::<f64>()
     };
@@ -501,7 +482,7 @@ pub fn pcg_step(sys: &NormalSystem<'_>, tolerance: f64, max_iterations: usize) -
         step: x,
         iterations,
         relative_residual: residual / g_norm,
-        woodbury_rows: woodbury.as_ref().map_or(0, |_| soft.len()),
+        woodbury_rows,
     }
 }
 
