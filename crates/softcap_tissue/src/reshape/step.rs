@@ -345,7 +345,7 @@ pub struct CgOutcome {
 }
 
 /// Δs = −M⁻¹ g by conjugate gradients on M (no preconditioner, as the paper's CG baseline), to
-/// ‖r‖ ≤ `tolerance` ‖g‖ or `max_iterations`: [`preconditioned_cg`] with P = I.
+/// ‖r‖ ≤ `tolerance` ‖g‖ or `max_iterations`: `preconditioned_cg` with P = I.
 pub fn cg_step(sys: &NormalSystem<'_>, tolerance: f64, max_iterations: usize) -> CgOutcome {
     preconditioned_cg(sys, |r| r.to_vec(), tolerance, max_iterations, 0)
 }
