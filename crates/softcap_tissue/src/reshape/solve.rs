@@ -811,22 +811,22 @@ impl<'p> Solver<'p> {
             laplacian: &self.laplacian,
             alpha: self.alpha,
         };
-        let direction = if stage.constant {
-            constant_step(&jacobians, tets, n, &z, &weights, &gradient)
+        // The direction and the CG iterations it took (0 for the exact steps).
+        let (direction, iterations) = if stage.constant {
+            (
+                constant_step(&jacobians, tets, n, &z, &weights, &gradient),
+                0,
+            )
         } else if self.gauge.is_some() && self.joint_rigid {
-            joint_rigid_step(&sys, &rows, &state.x, &state.frame).map(|(ds, motion)| {
+            let ds = joint_rigid_step(&sys, &rows, &state.x, &state.frame).map(|(ds, motion)| {
                 rigid = Some(motion);
                 ds
-            })
+            });
+            (ds, 0)
         } else {
-            let (ds, iterations) =
-                gauss_newton_step(self.settings, &mut self.stage_gradient_norm, &sys);
-            self.step_iterations = iterations;
-            ds
+            gauss_newton_step(self.settings, &mut self.stage_gradient_norm, &sys)
         };
-        if stage.constant || self.gauge.is_some() && self.joint_rigid {
-            self.step_iterations = 0;
-        }
+        self.step_iterations = iterations;
         let Some(ds) = direction else {
             return Ok(None);
         };
