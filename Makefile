@@ -2,7 +2,7 @@
 #   make demo     synthesize the embedded default session (a virtual-rig probing session with one
 #                 concealed physical effect), run the tissue pipeline over it (capture → tissue fit →
 #                 tissue simulate → diagnose) and print the diagnosis verdict and where every file is
-#   make test     run the tests (cargo test --workspace)
+#   make test     run the tests (cargo test --workspace --tests, then --doc)
 #   make smoke    the workflow-engine smoke test (Snakemake over one synthesized session)
 # and
 #   make verify   rerun the demo pipeline from scratch and compare `softcap inspect digest` of every
@@ -29,8 +29,12 @@ DEMO_PACKAGES := -p softcap_cli -p softcap_synth -p softcap_capture -p softcap_t
 build:
 	$(CARGO) build --target-dir $(TARGET_DIR) --profile $(PROFILE) $(DEMO_PACKAGES) --bins
 
+# Every test of `cargo test --workspace` (unit, integration, doc tests) without building the 26
+# examples, which plain `cargo test` links only to see that they build (≈ 120 CPU-s in the test
+# profile; `cargo clippy --all-targets` in .ci/run still compiles them).
 test:
-	$(CARGO) test --workspace
+	$(CARGO) test --workspace --tests
+	$(CARGO) test --workspace --doc
 
 # The workflow-engine smoke test: Snakemake (installed into .venv-workflow on first use) runs
 # workflow/Snakefile over one small synthesized session.
