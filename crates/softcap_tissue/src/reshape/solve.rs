@@ -24,8 +24,9 @@
 //! the smoothness term alone (known truth, α̂ = 1e-3: correspondence error 7.6 mm mean vs 0.69 mm
 //! kept).
 //!
-//! Each iteration: factor K at x, Z = K⁻¹(Dᵀ)Gᵀ, gradient g = α∇E_s − Bᵀ Z W r, the step by the
-//! Woodbury identity ([`super::step`]), then a line search along s + ηΔs (Brent's method on
+//! Each iteration: factor K at x, Z = K⁻¹(Dᵀ)Gᵀ, gradient g = α∇E_s − Bᵀ Z W r, the step by
+//! preconditioned CG (`step_solver = "pcg"`, the default) or the Woodbury identity
+//! ([`super::step`]), then a line search along s + ηΔs (Brent's method on
 //! (0, 1), §3.4; the full step is taken without a search when it achieves at least half the
 //! decrease the quadratic model predicts — a shortcut that saves equilibrium solves), each trial
 //! re-solving the equilibrium from the linear prediction x + ηJΔs. Plastic strains are kept
@@ -95,10 +96,10 @@ pub struct ReshapeSettings {
     /// the shape but not where the material lies on it: without landmarks the surface is free to
     /// slide along itself, held only by the smoothness term.
     pub icp_stage_landmarks: bool,
-    /// How each Gauss–Newton step is solved: `"woodbury"` (exact, §3.5) or `"pcg"` (inexact,
-    /// preconditioned CG).
+    /// How each Gauss–Newton step is solved: `"pcg"` (inexact, preconditioned CG; the default)
+    /// or `"woodbury"` (exact, §3.5).
     pub step_solver: StepSolver,
-    /// η_max of the inexact step: CG stops at ‖M Δs + g‖ ≤ η ‖g‖ with
+    /// η_max of the inexact step: CG stops at ‖M Δs + g‖ ≤ η ‖g‖ (also in the P⁻¹-norm) with
     /// η = min(η_max, √(‖g‖/‖g₀‖)), g₀ the stage's first gradient ([`forcing_term`]).
     pub step_forcing: f64,
     /// Cap on the CG iterations of one inexact step.
@@ -123,7 +124,7 @@ impl Default for ReshapeSettings {
             plastic_eigenvalue_floor: 0.01,
             icp_rows: IcpRows::PointToPlane,
             icp_stage_landmarks: true,
-            step_solver: StepSolver::Woodbury,
+            step_solver: StepSolver::Pcg,
             step_forcing: 1e-4,
             step_cg_iterations: 500,
             line_search: BrentSettings {
