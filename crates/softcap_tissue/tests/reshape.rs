@@ -480,7 +480,7 @@ fn argmin(v: &[f64]) -> usize {
 /// (288 tets) with ICP markers 0.3 mm off the surface, 3-fold cross-validation on held-out
 /// markers over the grid 3e-6, 3e-4, 3e-2 picks the α̂ whose true shape error (p95 distance from
 /// 400 held-out points of the true surface to the reshaped surface) is the lowest — which only
-/// the truth can tell. Measured: held-out marker RMS 0.466 / 0.312 / 0.485 mm, true shape p95
+/// the truth can tell. Measured: held-out marker RMS 0.464 / 0.312 / 0.485 mm, true shape p95
 /// 0.831 / 0.499 / 1.943 mm.
 #[test]
 fn cross_validation_picks_the_smoothness_the_truth_prefers() {

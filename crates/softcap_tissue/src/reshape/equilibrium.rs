@@ -5,8 +5,9 @@
 //! solved by Newton's method on the potential Π(x) = Σ_e V det F_p Ψ(F F_p⁻¹) + k/2 Σ_a ‖x_a − a‖²
 //! with an Armijo backtracking line search (the paper uses Knitro or Newton–Raphson; §3.4). When
 //! the tangent is indefinite far from equilibrium, a growing multiple of the identity is added
-//! until the Newton direction descends. The tangent K = ∂f_int/∂x + k Σ_a (node blocks) of the
-//! last iterate stays factored for the Jacobian solves of the Gauss–Newton step (eq. 10).
+//! until the Newton direction descends. The tangent K = ∂f_int/∂x + k Σ_a (node blocks) at the
+//! solution is factored on request ([`Equilibrium::factor_at`]) for the Jacobian solves of the
+//! Gauss–Newton step (eq. 10).
 //!
 //! A free-flying object has no attachments; its equilibrium is unique only up to a rigid motion
 //! (§3.6, Nullspace Lemma). The caller then pins six degrees of freedom (a 3-2-1 set: one node
@@ -182,8 +183,10 @@ impl Equilibrium {
         self.factor(0.0)
     }
 
-    /// Solves the equilibrium from `x` (pinned components keep their values). On return the factor
-    /// holds K at the returned `x` when converged.
+    /// Solves the equilibrium from `x` (pinned components keep their values). The factor is not
+    /// kept: [`Self::factor_at`] the returned `x` before [`Self::solve_columns`] (one
+    /// factorization less per solve: of a Gauss–Newton iteration's line-search trials only the
+    /// accepted one needs the tangent).
     pub fn solve(
         &mut self,
         model: &PlasticNeoHookeanModel,
@@ -209,10 +212,9 @@ impl Equilibrium {
                 return outcome;
             }
             if gnorm <= tol_r && (last_update <= tol_x || gnorm == 0.0) {
-                if let Err(e) = self.factor(0.0) {
-                    outcome.status = EquilibriumStatus::Failed(e.to_string());
-                    return outcome;
-                }
+                // The factor is of the previous iterate's tangent: a line-search trial that is
+                // not kept needs none, the kept one gets its own from `factor_at`.
+                self.factored = false;
                 outcome.status = EquilibriumStatus::Converged;
                 return outcome;
             }
