@@ -9,12 +9,17 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--noise-um N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
 //! `--start-fit M`, `--start-frames K`: model-based start states, least squares in M modes over
 //! K frame intervals (`ForwardSettings::start_fit_modes`, `start_fit_frames`).
+//! `--keep-tracked`: the model-based start replaces only the fitted modes' share of the tracked
+//! start (`start_fit_keeps_tracked`); `--choose-start`: per segment, the tracked or model-based
+//! start, whichever fits better at the warm start (`start_fit_choice`).
+//! `--per-segment`: each fitted segment's RMS to the tracked and to the noise-free positions.
+//! `--clean-starts`: an oracle — the frames each segment's start is estimated from noise-free.
 //! `--noise-um N`: tracking noise, µm (default 500).
 
 use nalgebra::Vector3;
@@ -51,6 +56,41 @@ fn main() {
         take_option(&mut which, "--start-fit").map_or(defaults.start_fit_modes, |m| m as usize);
     let start_frames =
         take_option(&mut which, "--start-frames").map_or(defaults.start_fit_frames, |m| m as usize);
+    // `--keep-tracked`: the model-based start replaces only the fitted modes' share of the
+    // tracked start (`ForwardSettings::start_fit_keeps_tracked`).
+    let keep_tracked = match which.iter().position(|a| a == "--keep-tracked") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => defaults.start_fit_keeps_tracked,
+    };
+    // `--per-segment`: each segment's RMS to the tracked and to the noise-free positions.
+    let per_segment = match which.iter().position(|a| a == "--per-segment") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => false,
+    };
+    // `--choose-start`: per segment, tracked or model-based start, whichever fits it better at
+    // the warm start (`ForwardSettings::start_fit_choice`).
+    let choose_start = match which.iter().position(|a| a == "--choose-start") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => defaults.start_fit_choice,
+    };
+    // `--clean-starts`: no noise on the frames the segments' initial states come from (an
+    // oracle: how far the start states' noise moves the fit).
+    let clean_starts = match which.iter().position(|a| a == "--clean-starts") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => false,
+    };
     // `--noise-um N`: tracking noise in µm (default 500).
     let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
     let cases: Vec<&str> = if which.is_empty() {
@@ -124,29 +164,54 @@ fn main() {
             noise_m: noise,
             seed,
         };
-        let mut truth = synthesize(&spec).unwrap();
-        if case.ends_with("ab") {
-            // The second motion: the far end twisted by a couple (±y on its top and bottom
-            // nodes) for 0.05 s, released, 0.5 s at 120 Hz.
-            let end: Vec<usize> = (0..mesh.vertices.len())
-                .filter(|&i| mesh.vertices[i].x >= size[0] * (1.0 - 1e-9))
-                .collect();
-            let top: Vec<usize> = end
-                .iter()
-                .copied()
-                .filter(|&i| mesh.vertices[i].z >= 0.5 * size[2] * (1.0 - 1e-9))
-                .collect();
-            let twist = synthesize(&SyntheticSpec {
-                push_nodes: top,
-                push_force_n: Vector3::new(0.0, 0.6, 0.0),
-                push_s: 0.05,
-                frame_rate_hz: 120.0,
-                seed: spec.seed + 1,
-                frames: 60,
+        // The truth's tracked sequence with `noise_m` of noise (the second motion of `…ab` too).
+        let make = |noise_m: f64| {
+            let spec = SyntheticSpec {
+                noise_m,
                 ..spec.clone()
-            })
-            .unwrap();
-            truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
+            };
+            let mut truth = synthesize(&spec).unwrap();
+            if case.ends_with("ab") {
+                // The second motion: the far end twisted by a couple (±y on its top and bottom
+                // nodes) for 0.05 s, released, 0.5 s at 120 Hz.
+                let end: Vec<usize> = (0..mesh.vertices.len())
+                    .filter(|&i| mesh.vertices[i].x >= size[0] * (1.0 - 1e-9))
+                    .collect();
+                let top: Vec<usize> = end
+                    .iter()
+                    .copied()
+                    .filter(|&i| mesh.vertices[i].z >= 0.5 * size[2] * (1.0 - 1e-9))
+                    .collect();
+                let twist = synthesize(&SyntheticSpec {
+                    push_nodes: top,
+                    push_force_n: Vector3::new(0.0, 0.6, 0.0),
+                    push_s: 0.05,
+                    frame_rate_hz: 120.0,
+                    seed: spec.seed + 1,
+                    frames: 60,
+                    ..spec.clone()
+                })
+                .unwrap();
+                truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
+            }
+            truth
+        };
+        let mut truth = make(noise);
+        if clean_starts {
+            // Oracle: the frames each segment's initial state is estimated from (±
+            // velocity_half_window) without noise, every other frame noisy.
+            let clean = make(0.0);
+            let d = FitDynamicSettings::default();
+            let h = d.forward.velocity_half_window;
+            let last = truth.sequence.frames() - 1;
+            for seg in truth
+                .sequence
+                .segments(d.segment_frames, d.min_segment_frames, h)
+            {
+                for j in seg.start.saturating_sub(h)..=(seg.start + h).min(last) {
+                    truth.sequence.positions_m[j] = clean.sequence.positions_m[j].clone();
+                }
+            }
         }
         let settings = FitDynamicSettings {
             control_points: ncp,
@@ -156,6 +221,8 @@ fn main() {
             forward: softcap_tissue::fit_dynamic::ForwardSettings {
                 start_fit_modes: start_fit,
                 start_fit_frames: start_frames,
+                start_fit_keeps_tracked: keep_tracked,
+                start_fit_choice: choose_start,
                 ..defaults.clone()
             },
             elements: if quadratic {
@@ -183,7 +250,7 @@ fn main() {
             .sum::<f64>()
             / fit.rest_m.len() as f64;
         println!(
-            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
+            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames, keeps tracked {keep_tracked}, choice {choose_start}, clean starts {clean_starts}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
             mesh.vertices.len(),
             mesh.tets.len(),
             spec.frames,
@@ -272,6 +339,35 @@ fn main() {
                 )
             })
             .collect();
-        println!("{}\n", modes.join("; "));
+        println!("{}", modes.join("; "));
+        if per_segment {
+            // Each fitted segment's RMS node distance to the tracked (noisy) and to the
+            // noise-free positions: which segments the fit does not reproduce.
+            let clean = make(0.0);
+            let rms = |run: &softcap_tissue::fit_dynamic::forward::SegmentRun,
+                       seq: &softcap_tissue::fit_dynamic::TrackedSequence| {
+                let support: std::collections::BTreeSet<usize> =
+                    seq.support_nodes.iter().copied().collect();
+                let (mut ss, mut n) = (0.0, 0usize);
+                for (o, x) in run.positions_m.iter().enumerate() {
+                    let j = run.segment.start + 1 + o;
+                    for (i, p) in x.iter().enumerate().filter(|(i, _)| !support.contains(i)) {
+                        ss += (p - seq.positions_m[j][i]).norm_squared();
+                        n += 1;
+                    }
+                }
+                (ss / n.max(1) as f64).sqrt()
+            };
+            for run in &fit.runs {
+                println!(
+                    "segment {}..{}: RMS {:.3} mm to the tracked, {:.3} mm to the noise-free positions",
+                    run.segment.start,
+                    run.segment.end,
+                    1e3 * rms(run, &truth.sequence),
+                    1e3 * rms(run, &clean.sequence)
+                );
+            }
+        }
+        println!();
     }
 }

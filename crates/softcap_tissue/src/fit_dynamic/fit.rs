@@ -807,6 +807,9 @@ fn fit_level(
     let (rest_w, _) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
     rest = rest_w;
     problem.rest = rest.clone();
+    if settings.forward.start_fit_modes > 0 && settings.forward.start_fit_choice {
+        forward.choose_start_states(&problem.params(&q), &rest)?;
+    }
     let rms_warm_m = rms_of(&mut problem, &q);
     let (warm_young, warm_damping) = unpack(&q, nc);
     if settings.start_state_modes > 0 {

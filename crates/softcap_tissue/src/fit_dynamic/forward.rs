@@ -63,6 +63,15 @@ pub struct ForwardSettings {
     /// Frame intervals of a segment the start state is fitted to (at most the segment's; the
     /// default, the whole segment, is the variable projection of eq. 9 for the linearised body).
     pub start_fit_frames: usize,
+    /// With `start_fit_modes` > 0: replace only the fitted modes' share of the tracked start
+    /// state (x̂ − Σ φ_i φ_iᵀM(x̂ − x_s) + Σ φ_i q_i(0), the same for the velocity), keeping
+    /// the tracked state outside them — the bent bar's nonlinear share and the modes above the
+    /// fit's frequency cut-off — instead of starting from x_s + Σ φ_i q_i(0) alone.
+    pub start_fit_keeps_tracked: bool,
+    /// With `start_fit_modes` > 0: per segment, the start state (tracked or model-based) whose
+    /// simulation fits the segment better at the warm start ([`Forward::choose_start_states`])
+    /// is used throughout the fit.
+    pub start_fit_choice: bool,
 }
 
 impl Default for ForwardSettings {
@@ -76,6 +85,8 @@ impl Default for ForwardSettings {
             startup_euler_steps: 4,
             start_fit_modes: 0,
             start_fit_frames: 30,
+            start_fit_keeps_tracked: false,
+            start_fit_choice: false,
         }
     }
 }
@@ -255,6 +266,8 @@ pub struct Forward {
     /// Quadratic elements over the mesh's nodes (then `mesh` is the once-refined linear mesh of
     /// their parent mesh and gives the masses, supports and smoothing only).
     quadratic: Option<Vec<[usize; 10]>>,
+    /// Per segment, whether the model-based start state is used ([`Self::choose_start_states`]).
+    start_choice: std::sync::OnceLock<Vec<bool>>,
 }
 
 /// The elastic model of a forward run: corotational linear tets of the fit mesh, or quadratic
@@ -374,6 +387,7 @@ impl Forward {
             observed,
             settings: settings.clone(),
             quadratic: None,
+            start_choice: std::sync::OnceLock::new(),
         })
     }
 
@@ -515,7 +529,48 @@ impl Forward {
         if self.settings.start_fit_modes == 0 {
             return Ok(self.starts.clone());
         }
-        self.modal_start_states(model, damping)
+        let modal = self.modal_start_states(model, damping)?;
+        Ok(match self.start_choice.get() {
+            Some(choice) => modal
+                .into_iter()
+                .zip(&self.starts)
+                .zip(choice)
+                .map(|((m, t), &use_model)| if use_model { m } else { t.clone() })
+                .collect(),
+            None => modal,
+        })
+    }
+
+    /// Per segment, the start state — tracked or model-based ([`Self::modal_start_states`]) —
+    /// whose simulation with `params` over `rest_m` has the smaller residual over the segment;
+    /// with `ForwardSettings::start_fit_choice` the choice is kept for every later evaluation
+    /// (set once). Returns the choice (true: model-based) and each segment's residual sums of
+    /// squares (tracked, model-based), m².
+    pub fn choose_start_states(
+        &self,
+        params: &DynamicParams,
+        rest_m: &[Vector3<f64>],
+    ) -> Result<(Vec<bool>, Vec<(f64, f64)>)> {
+        let model = self.model(params, rest_m)?;
+        let modal = self.modal_start_states(&model, params.damping)?;
+        let sums = (0..self.segments.len())
+            .into_par_iter()
+            .map(|k| {
+                let ss = |start| -> Result<f64> {
+                    let run = self.simulate_segment(k, &model, params.damping, start, None)?;
+                    let mut r = Vec::new();
+                    self.extend_residuals(&run, &mut r);
+                    let ss: f64 = r.iter().map(|v| v * v).sum();
+                    Ok(if ss.is_finite() { ss } else { f64::INFINITY })
+                };
+                Ok((ss(&self.starts[k])?, ss(&modal[k])?))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let choice: Vec<bool> = sums.iter().map(|(t, m)| m < t).collect();
+        if self.settings.start_fit_modes > 0 && self.settings.start_fit_choice {
+            let _ = self.start_choice.set(choice.clone());
+        }
+        Ok((choice, sums))
     }
 
     /// Model-based initial states (variable projection of the start state, wang2015 §7's
@@ -547,10 +602,12 @@ impl Forward {
         }
         let xs = &self.mesh.vertices;
         let window = self.settings.start_fit_frames.max(1);
+        let keep = self.settings.start_fit_keeps_tracked;
         let out = self
             .segments
             .iter()
-            .map(|seg| {
+            .zip(&self.starts)
+            .map(|(seg, (tracked_x, tracked_v))| {
                 let frames = seg.start..=(seg.start + window).min(seg.end);
                 let t: Vec<f64> = frames
                     .clone()
@@ -561,8 +618,11 @@ impl Forward {
                     .map(|w| w[1] - w[0])
                     .fold(f64::INFINITY, f64::min);
                 let nyquist = std::f64::consts::PI / dt.max(1e-12);
-                let mut x = xs.clone();
-                let mut v = vec![Vector3::zeros(); xs.len()];
+                let (mut x, mut v) = if keep {
+                    (tracked_x.clone(), tracked_v.clone())
+                } else {
+                    (xs.clone(), vec![Vector3::zeros(); xs.len()])
+                };
                 for (phi, &omega) in modes.shapes.iter().zip(&omegas).take(used) {
                     if !(omega > 0.0 && omega <= 0.8 * nyquist) {
                         continue;
@@ -590,7 +650,20 @@ impl Forward {
                     let Some(c) = a.try_inverse().map(|i| i * b) else {
                         continue;
                     };
-                    let (q0, qd0) = (c[0], c[1] * omega);
+                    let (mut q0, mut qd0) = (c[0], c[1] * omega);
+                    if keep {
+                        // The tracked state's own share of this mode is replaced.
+                        let (qx, qv) = phi
+                            .iter()
+                            .zip(xs)
+                            .zip(self.masses_kg.iter())
+                            .zip(tracked_x.iter().zip(tracked_v))
+                            .fold((0.0, 0.0), |(a, b), (((f, s), m), (p, u))| {
+                                (a + m * f.dot(&(p - s)), b + m * f.dot(u))
+                            });
+                        q0 -= qx;
+                        qd0 -= qv;
+                    }
                     for ((xn, vn), f) in x.iter_mut().zip(v.iter_mut()).zip(phi) {
                         *xn += f * q0;
                         *vn += f * qd0;

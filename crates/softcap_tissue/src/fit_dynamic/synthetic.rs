@@ -72,6 +72,8 @@ pub struct Synthetic {
     pub sequence: TrackedSequence,
     /// The truth's rest shape at the given nodes, m.
     pub rest_m: Vec<Vector3<f64>>,
+    /// The truth's node velocities per frame at the given nodes (noise-free), m/s.
+    pub velocities_m_s: Vec<Vec<Vector3<f64>>>,
 }
 
 /// A clamped box (x from 0 to `size_m[0]`, centred in y and z), its x = 0 face held, pushed on
@@ -187,6 +189,7 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
         f
     };
     let mut frames = vec![xs[..n_given].to_vec()];
+    let mut velocities = vec![vec![Vector3::zeros(); n_given]];
     for frame in 1..spec.frames {
         for _ in 0..spec.substeps.max(1) {
             let f = forces_at(state.time_s + h);
@@ -205,6 +208,7 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
             }
         }
         frames.push(state.positions_m[..n_given].to_vec());
+        velocities.push(state.velocities_m_s[..n_given].to_vec());
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(spec.seed);
     let normal = Normal::new(0.0, 1.0).map_err(|e| TissueError::BadSettings {
@@ -263,6 +267,7 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
             },
         },
         rest_m: spec.rest_mesh.vertices.clone(),
+        velocities_m_s: velocities,
     })
 }
 
