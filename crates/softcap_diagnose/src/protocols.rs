@@ -19,6 +19,15 @@ use crate::{DiagnoseError, Result};
 use indicatif::ProgressBar;
 use nalgebra::{Rotation3, Vector3};
 
+/// Length of the rest of [`Protocol::RestAfterRelease`], s: long against the gaps between the
+/// releases of a standard session (≈ 1–3 s), so that a creep recovering with τ' of a few seconds
+/// — whose set persists over those gaps like a permanent one — visibly recovers.
+pub const REST_AFTER_RELEASE_S: f64 = 3.0;
+
+/// Frames observed during the rest of [`Protocol::RestAfterRelease`] (evenly spaced; a camera
+/// recording the whole rest adds frames of a motionless object).
+pub const REST_FRAMES: usize = 10;
+
 /// An alternative probing protocol.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Protocol {
@@ -26,7 +35,8 @@ pub enum Protocol {
     LongerHolds,
     /// Loading and unloading ramps twice as fast.
     FasterRamps,
-    /// Ten more frames of rest after each release.
+    /// The object at rest for [`REST_AFTER_RELEASE_S`] after each release, observed at
+    /// [`REST_FRAMES`] evenly spaced frames.
     RestAfterRelease,
     /// The probe force and shaft tilted by 20° (about the axis perpendicular to the shaft and the
     /// support normal, else world y).
@@ -63,8 +73,8 @@ impl Protocol {
             Protocol::LongerHolds => "re-record with every hold three times as long",
             Protocol::FasterRamps => "re-record with the loading and unloading ramps twice as fast",
             Protocol::RestAfterRelease => {
-                "re-record with the probe lifted off and the object at rest for ten frames after \
-                 each release"
+                "re-record with the probe lifted off and the object at rest for 3 s after each \
+                 release"
             }
             Protocol::ObliqueProbe => "re-record with the probe tilted 20° from the recorded shaft",
             Protocol::NearSupport => {
@@ -75,6 +85,9 @@ impl Protocol {
 
     /// The recording's probe program under this protocol (markers unobserved).
     pub fn apply(self, rec: &Recording, seg: &Segmentation) -> Recording {
+        // time steps of the planned frames (index k: from frame k − 1 to k) where they differ
+        // from the recording's median step
+        let mut dt = frame_steps(rec, seg, self);
         let frames: Vec<Frame> = match self {
             Protocol::LongerHolds => repeat_where(rec, |k| seg.phases[k] == Phase::Hold, 3),
             Protocol::RestAfterRelease => {
@@ -82,13 +95,20 @@ impl Protocol {
                     seg.fold_of_frame[k].is_some()
                         && seg.fold_of_frame.get(k + 1).copied().flatten() != seg.fold_of_frame[k]
                 };
+                let rest_step = REST_AFTER_RELEASE_S / REST_FRAMES as f64;
                 let mut out = Vec::new();
                 for (k, f) in rec.frames.iter().enumerate() {
                     out.push(f.clone());
+                    dt.push(if k == 0 {
+                        0.0
+                    } else {
+                        f.time_s - rec.frames[k - 1].time_s
+                    });
                     if last_of_location(k) {
                         let mut rest = f.clone();
                         rest.force_n = Vector3::zeros();
-                        out.extend(std::iter::repeat_n(rest, 10));
+                        out.extend(std::iter::repeat_n(rest, REST_FRAMES));
+                        dt.extend(std::iter::repeat_n(rest_step, REST_FRAMES));
                     }
                 }
                 out
@@ -118,7 +138,6 @@ impl Protocol {
             }
             Protocol::NearSupport => near_support(rec, seg),
         };
-        let dt = frame_steps(rec, seg, self);
         let mut t = rec.frames.first().map_or(0.0, |f| f.time_s);
         let frames = frames
             .into_iter()
@@ -154,7 +173,8 @@ fn median_step(rec: &Recording) -> f64 {
 }
 
 /// Time steps of the planned frames (index k: from frame k − 1 to k): the recorded ones, halved
-/// on ramps for [`Protocol::FasterRamps`]; the median step for the other protocols' frames.
+/// on ramps for [`Protocol::FasterRamps`]; empty for the others (the median step, or the steps
+/// [`Protocol::apply`] sets for [`Protocol::RestAfterRelease`]).
 fn frame_steps(rec: &Recording, seg: &Segmentation, p: Protocol) -> Vec<f64> {
     if p != Protocol::FasterRamps {
         return Vec::new();
@@ -369,14 +389,31 @@ mod tests {
         assert_eq!(longer.frames.len(), n + 2 * holds);
         let rest = Protocol::RestAfterRelease.apply(&rec, &seg);
         assert_eq!(rest.frames.len(), n + 10 * seg.num_folds());
-        // times increase by the recorded step everywhere but on the ramps of faster-ramps
-        for r in [&longer, &rest] {
-            for w in r.frames.windows(2) {
-                assert!((w[1].time_s - w[0].time_s - 0.1).abs() < 1e-12);
-            }
+        // times increase by the recorded step everywhere but on the ramps of faster-ramps and
+        // during the rests
+        for w in longer.frames.windows(2) {
+            assert!((w[1].time_s - w[0].time_s - 0.1).abs() < 1e-12);
         }
-        let fast = Protocol::FasterRamps.apply(&rec, &seg);
+        let rest_step = REST_AFTER_RELEASE_S / REST_FRAMES as f64;
+        let steps: Vec<f64> = rest
+            .frames
+            .windows(2)
+            .map(|w| w[1].time_s - w[0].time_s)
+            .collect();
+        assert!(
+            steps
+                .iter()
+                .all(|d| (d - 0.1).abs() < 1e-12 || (d - rest_step).abs() < 1e-12)
+        );
+        let rested = steps
+            .iter()
+            .filter(|d| (*d - rest_step).abs() < 1e-12)
+            .count();
+        assert_eq!(rested, REST_FRAMES * seg.num_folds(), "{steps:?}");
         let span = |r: &Recording| r.frames[r.frames.len() - 1].time_s - r.frames[0].time_s;
+        let folds = seg.num_folds() as f64;
+        assert!((span(&rest) - span(&rec) - REST_AFTER_RELEASE_S * folds).abs() < 1e-9);
+        let fast = Protocol::FasterRamps.apply(&rec, &seg);
         assert!(span(&fast) < span(&rec) - 0.05);
         let oblique = Protocol::ObliqueProbe.apply(&rec, &seg);
         for (a, b) in oblique.frames.iter().zip(&rec.frames) {

@@ -424,6 +424,76 @@ fn probe_friction_and_clock_offset_are_both_named() {
     );
 }
 
+/// One look-alike chain of issue 37: the truth `a` recorded under the standard protocol (noise
+/// seed 100), its diagnosis; when that names a next experiment, `a` re-recorded under it (seed
+/// 101) and the other candidate's truth `b` recorded under it too (seed 102), each diagnosed.
+#[cfg(not(test))]
+struct LookalikeChain {
+    first: softcap_diagnose::Diagnosis,
+    next: Option<(
+        Protocol,
+        softcap_diagnose::Diagnosis,
+        softcap_diagnose::Diagnosis,
+    )>,
+}
+
+#[cfg(not(test))]
+fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)]) -> LookalikeChain {
+    let mut sim = simulator(20e3);
+    let settings = DiagnoseSettings::default();
+    let first = diagnose(&session_with(a, oblique, xy, 100).rec, &mut sim, &settings)
+        .unwrap()
+        .diagnosis;
+    let next = first.next_experiment.as_ref().map(|n| {
+        let protocol = Protocol::ALL
+            .into_iter()
+            .find(|p| p.name() == n.protocol)
+            .unwrap();
+        let mut again = |truth: &[Effect], seed: u64| {
+            let s = session_planned(truth, oblique, xy, seed, Some(protocol));
+            diagnose(&s.rec, &mut sim, &settings).unwrap().diagnosis
+        };
+        (protocol, again(a, 101), again(b, 102))
+    });
+    LookalikeChain { first, next }
+}
+
+/// Slow creep against plasticity (issue 37's look-alike pair): a Prony branch g 1, τ 2 s whose
+/// instantaneous modulus is the model's leaves a set after each release that persists over the
+/// gaps between releases (persistence 0.77), as a plastic set does. The creep screen keeps each
+/// location's creep under its markers and the persisting-but-recovering set no longer ranks
+/// plasticity first: the creep is named, not plasticity (the reverse truth:
+/// [`plastic_set_is_named`]). ≈ 70 CPU-s: the Prony re-simulations.
+#[test]
+#[ignore = "≈ 70 CPU-s: the Prony grid re-simulations"]
+fn slow_creep_is_not_named_plasticity() {
+    let s = session_with(
+        &[Effect::Stiffer(0.5), Effect::Creep { g: 1.0, tau_s: 2.0 }],
+        false,
+        &LOCATIONS,
+        100,
+    );
+    let mut sim = simulator(20e3);
+    let d = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default())
+        .unwrap()
+        .diagnosis;
+    let persistence = d.ranked[0].evidence.signatures.released_set_persistence;
+    assert!(
+        persistence.is_some_and(|p| (0.5..0.9).contains(&p)),
+        "{persistence:?}"
+    );
+    assert_eq!(d.verdict, "viscoelasticity", "{:?}", d.candidates);
+    let top = &d.ranked[0];
+    assert!(top.heldout_rmse_after_m * 3.0 <= top.heldout_rmse_before_m);
+    // the plastic set was a qualifying alternative
+    let plastic = d
+        .ranked
+        .iter()
+        .find(|r| r.hypothesis == "plasticity")
+        .unwrap();
+    assert!(plastic.score >= 0.3, "{}", plastic.score);
+}
+
 #[test]
 fn clean_control_is_none() {
     run(Effect::Clean, false, "none");
@@ -990,9 +1060,10 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
         Some("calibration") => calibration()?,
         Some("pairs") => pairs_table(std::env::args().nth(2).as_deref()),
         Some("next-experiment") => next_experiment_table(std::env::args().nth(2).as_deref()),
+        Some("lookalike") => lookalike_table(std::env::args().nth(2).as_deref()),
         other => {
             return Err(format!(
-                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs, next-experiment"
+                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs, next-experiment, lookalike"
             ));
         }
     }
@@ -1603,5 +1674,100 @@ fn next_experiment_table(filter: Option<&str>) {
             1e3 * next.recorded_difference_m,
             if decided { "✓" } else { "✗" }
         );
+    }
+}
+
+/// The look-alike pairs of issue 37 (those whose name contains `filter`): the first truth under
+/// the standard protocol, and when `inconclusive` both truths re-recorded under the suggested
+/// protocol ([`lookalike_chain`]).
+#[cfg(not(test))]
+fn lookalike_table(filter: Option<&str>) {
+    let plastic = Effect::Plastic {
+        yield_pa: 2000.0,
+        hardening_pa: 1000.0,
+    };
+    // a Prony branch whose instantaneous modulus is the model's: G∞ = 20 kPa / (1 + g)
+    let slow_creep =
+        |g: f64, tau_s: f64| vec![Effect::Stiffer(1.0 / (1.0 + g)), Effect::Creep { g, tau_s }];
+    let cases: Vec<(&str, Vec<Effect>, Vec<Effect>, bool)> = vec![
+        (
+            "slow creep g 1, τ 2 s / plasticity",
+            slow_creep(1.0, 2.0),
+            vec![plastic],
+            false,
+        ),
+        (
+            "slow creep g 0.5, τ 4 s / plasticity",
+            slow_creep(0.5, 4.0),
+            vec![plastic],
+            false,
+        ),
+        (
+            "slow creep g 0.3, τ 4 s / plasticity",
+            slow_creep(0.3, 4.0),
+            vec![plastic],
+            false,
+        ),
+        (
+            "slow creep g 1, τ 5 s / plasticity",
+            slow_creep(1.0, 5.0),
+            vec![plastic],
+            false,
+        ),
+        (
+            "support springs 700 N/m / friction μ 0.2",
+            vec![Effect::SupportSlip(700.0)],
+            vec![Effect::Friction(0.2)],
+            true,
+        ),
+        (
+            "friction μ 0.2 / support springs 700 N/m",
+            vec![Effect::Friction(0.2)],
+            vec![Effect::SupportSlip(700.0)],
+            true,
+        ),
+    ];
+    for (name, a, b, oblique) in cases {
+        if filter.is_some_and(|f| !name.contains(f)) {
+            continue;
+        }
+        let t0 = std::time::Instant::now();
+        let chain = lookalike_chain(&a, &b, oblique, &LOCATIONS);
+        let d = &chain.first;
+        let cands: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
+        eprintln!("{name}, first protocol: {} {cands:?}", d.verdict);
+        print_ranked(d);
+        if let Some((p, again, reverse)) = &chain.next {
+            for (what, r) in [("same truth", again), ("other truth", reverse)] {
+                eprintln!(
+                    "{name}, {what} re-recorded under {}: {}",
+                    p.name(),
+                    r.verdict
+                );
+                print_ranked(r);
+            }
+            println!(
+                "| {name} | `{}` {cands:?} | `{}` ({:.4} mm vs {:.4} recorded) | `{}` / `{}` | {:.0} s |",
+                d.verdict,
+                p.name(),
+                1e3 * d
+                    .next_experiment
+                    .as_ref()
+                    .map_or(0.0, |n| n.predicted_difference_m),
+                1e3 * d
+                    .next_experiment
+                    .as_ref()
+                    .map_or(0.0, |n| n.recorded_difference_m),
+                again.verdict,
+                reverse.verdict,
+                t0.elapsed().as_secs_f64()
+            );
+        } else {
+            println!(
+                "| {name} | `{}` {cands:?} | – | – | {:.0} s |",
+                d.verdict,
+                t0.elapsed().as_secs_f64()
+            );
+        }
     }
 }

@@ -39,6 +39,13 @@ pub struct Plasticity;
 /// releases.
 pub const RECOVERED_PERSISTENCE: f64 = 0.5;
 
+/// Persistence at or above which the released set is permanent within the noise: a plastic set
+/// stays (the suites measure 1.03–1.06). Between [`RECOVERED_PERSISTENCE`] and this the set
+/// partly recovers over the gaps between releases: a creep whose recovery time τ' exceeds the
+/// gaps (e^{−Δt/τ'} ≥ 0.5 for τ' ≥ Δt / ln 2) leaves the same persisting set as a permanent
+/// one, and the signature abstains (support 0) rather than rank plasticity above it.
+pub const PERMANENT_PERSISTENCE: f64 = 0.9;
+
 /// Name of the effect cells.
 const CELLS: &str = "released/near-touched";
 
@@ -115,16 +122,18 @@ impl Hypothesis for Plasticity {
         Some(EffectCells { name: CELLS, mask })
     }
 
-    /// Supported by a released set above 3σ that persists; contradicted without a set, or when
-    /// the set recovers at the later releases ([`RECOVERED_PERSISTENCE`]): creep recovery.
+    /// Supported by a released set above 3σ that persists ([`PERMANENT_PERSISTENCE`], or no
+    /// later release to compare); contradicted without a set, or when the set recovers at the
+    /// later releases ([`RECOVERED_PERSISTENCE`]): creep recovery. A set that only partly
+    /// recovers over the gaps is neither (0): a slow creep or a permanent set.
     fn signature_support(&self, s: &Signatures) -> f64 {
-        let recovers = s
-            .released_set_persistence
-            .is_some_and(|p| p < RECOVERED_PERSISTENCE);
-        if s.released_set_m > s.three_sigma_m() && !recovers {
-            1.0
-        } else {
+        let p = s.released_set_persistence;
+        if s.released_set_m <= s.three_sigma_m() || p.is_some_and(|p| p < RECOVERED_PERSISTENCE) {
             -1.0
+        } else if p.is_some_and(|p| p < PERMANENT_PERSISTENCE) {
+            0.0
+        } else {
+            1.0
         }
     }
 

@@ -1,7 +1,8 @@
 //! `viscoelasticity`: rate dependence and creep — the force relaxes in the holds at fixed depth.
 //!
 //! Screen: creep of a standard linear solid, f_eff = (1 + a) f + g·LP_τ(f) (LP_τ the first-order
-//! low-pass of [`crate::signal::low_pass`]) through the tangent response; τ on a log grid, a and
+//! low-pass of [`crate::signal::low_pass`]) through the tangent response, each location's creep
+//! kept under that location's markers ([`creep_field`]); τ on a log grid, a and
 //! g ≥ 0 linear. Signature: the hold force drifts down ([`RELAXATION_DRIFT`]); a relaxing hold
 //! sends it to re-simulation before the screen's candidates. Confirmation: one Prony branch
 //! G(t)/G∞ = 1 + g e^{−t/τ} over the default model (generalized Maxwell, Simo & Hughes 1998
@@ -44,6 +45,47 @@ pub fn relaxes(sig: &Signatures) -> bool {
     sig.hold_force_drift <= RELAXATION_DRIFT
 }
 
+/// The screen's creep field LP_τ(f) through the tangent response, with each location's memory
+/// kept where its force acted: Σ_l R_l(k) LP_τ(f_l)(k), f_l the measured force at the frames of
+/// location l (zero elsewhere; frames of no location form one more term) and R_l(k) the tangent
+/// response of frame k while l is in contact, else of l's peak frame. The creep strain a press
+/// leaves is the Maxwell branches' internal strain of that press's stress field (Simo & Hughes
+/// 1998 §10.3), which recovers with τ under the markers it was left at — not under the next
+/// press, whose response the frame's own tangent carries.
+pub fn creep_field(p: &Prepared, seg: &Segmentation, tau_s: f64) -> Vec<Vec<Vector3<f64>>> {
+    let (f, t) = (&p.force_n, &p.times_s);
+    let nt = f.len();
+    let groups: Vec<Option<usize>> = std::iter::once(None)
+        .chain((0..seg.num_folds()).map(Some))
+        .collect();
+    let mut field = vec![vec![Vector3::zeros(); p.num_markers()]; nt];
+    for g in groups {
+        let fg: Vec<Vector3<f64>> = (0..nt)
+            .map(|k| match seg.fold_of_frame.get(k).copied().flatten() == g {
+                true => f[k],
+                false => Vector3::zeros(),
+            })
+            .collect();
+        if fg.iter().all(|v| *v == Vector3::zeros()) {
+            continue;
+        }
+        let lp = low_pass(t, &fg, tau_s);
+        let peak = g.and_then(|l| seg.locations.get(l)).map(|l| l.peak_frame);
+        for k in 0..nt {
+            let own = seg.fold_of_frame.get(k).copied().flatten() == g
+                && seg.phases.get(k).is_some_and(|ph| ph.in_contact());
+            let frame = match (own, peak) {
+                (false, Some(pk)) => pk,
+                _ => k,
+            };
+            for (acc, r) in field[k].iter_mut().zip(p.apply(frame, &lp[k])) {
+                *acc += r;
+            }
+        }
+    }
+    field
+}
+
 impl Hypothesis for Viscoelasticity {
     fn effect(&self) -> Effect {
         Effect::Viscoelasticity
@@ -55,8 +97,7 @@ impl Hypothesis for Viscoelasticity {
 
     fn variants(&self, cx: &Context<'_>) -> Vec<Variant> {
         let p = cx.prepared;
-        let (f, t) = (&p.force_n, &p.times_s);
-        let scale = p.load_field(f);
+        let scale = p.load_field(&p.force_n);
         (0..13)
             .map(|i| 0.03 * 10f64.powf(i as f64 * 2.5 / 12.0))
             .map(|tau| Variant {
@@ -71,7 +112,7 @@ impl Hypothesis for Viscoelasticity {
                     Basis {
                         name: "creep_g",
                         nonneg: true,
-                        field: p.load_field(&low_pass(t, f, tau)),
+                        field: creep_field(p, cx.seg, tau),
                     },
                 ],
             })
