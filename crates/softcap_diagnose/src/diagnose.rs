@@ -605,6 +605,10 @@ fn confirm(
         let before_e = scoring.before_m(e);
         let scored = |k: usize, m: usize| scoring.scored(e, k, m);
         match row.hypothesis.confirm(cx, &row.refit, &scored, sim) {
+            Ok(Some(c)) if row.hypothesis.fit_at_bound(&c).is_some() => {
+                let why = row.hypothesis.fit_at_bound(&c).unwrap_or_default();
+                confirmed.insert(e, Err(why));
+            }
             Ok(Some(c)) => {
                 let gain = 1.0 - c.after_scored_m.powi(2) / before_e.powi(2).max(1e-300);
                 // Confirmed past a screen that did not qualify: the re-simulation must also

@@ -64,6 +64,15 @@ pub trait Hypothesis: Sync {
     /// How strongly the signatures support it (0 = no opinion, 1 = supported, −1 = contradicted).
     fn signature_support(&self, s: &Signatures) -> f64;
 
+    /// Why its re-simulated extended model `c` is no confirmation even though it keeps its gain:
+    /// the fit reached the data only at a bound of its search, outside the physics the
+    /// extension models. Then it is neither the verdict nor a look-alike, and the reason is
+    /// reported as its failed confirmation. `None` (default): its gain decides.
+    fn fit_at_bound(&self, c: &Confirmed) -> Option<String> {
+        let _ = c;
+        None
+    }
+
     /// Whether its signature alone sends it to re-simulation, and when.
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
         let _ = s;
