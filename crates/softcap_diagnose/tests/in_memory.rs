@@ -1715,6 +1715,12 @@ fn lookalike_table(filter: Option<&str>) {
             false,
         ),
         (
+            "slow creep g 2, τ 10 s / plasticity",
+            slow_creep(2.0, 10.0),
+            vec![plastic],
+            false,
+        ),
+        (
             "support springs 700 N/m / friction μ 0.2",
             vec![Effect::SupportSlip(700.0)],
             vec![Effect::Friction(0.2)],
