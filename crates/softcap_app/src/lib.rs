@@ -12,6 +12,7 @@
 //! | [`settings`] | [`load_toml`]: a stage's `…Settings` from a TOML file, errors naming file, line and field; [`non_finite`]: `nan` / `inf` in any TOML input |
 //! | [`testing`] | running a binary in its exit-code tests; an error that names a file once |
 //! | [`progress`] | [`Progress`]: indicatif bars and per-step status on stderr, drawn only on a terminal |
+//! | [`process`] | [`process::cpu_seconds`]: CPU time this process has used (benches' and examples' timing lines) |
 //!
 //! A stage binary is three lines over its library's `run()`:
 //!
@@ -28,6 +29,7 @@
 pub mod cli;
 pub mod error;
 pub mod fs;
+pub mod process;
 pub mod progress;
 pub mod settings;
 pub mod testing;

@@ -36,20 +36,7 @@ fn first_step(cells: [usize; 3]) -> FirstStep {
 /// CPU seconds of this process so far (all threads; Linux `/proc/self/stat` utime + stime at
 /// 100 ticks per second), NaN elsewhere.
 fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<f64> = rest
-        .split_whitespace()
-        .skip(11)
-        .take(2)
-        .filter_map(|v| v.parse().ok())
-        .collect();
-    if f.len() == 2 {
-        (f[0] + f[1]) / 100.0
-    } else {
-        f64::NAN
-    }
+    softcap_app::process::cpu_seconds().unwrap_or(f64::NAN)
 }
 
 /// One timed Woodbury and CG solve of `step`, printed.

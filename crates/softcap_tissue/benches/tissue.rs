@@ -70,13 +70,7 @@ fn session() -> PreparedSession {
 
 /// Process CPU time (user + system, all threads), s; `None` where /proc is not available.
 fn cpu_time_s() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which is in parentheses): utime and stime are fields
-    // 14 and 15 of the whole line, i.e. 12 and 13 after the closing parenthesis.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0) // USER_HZ = 100 on Linux
+    softcap_app::process::cpu_seconds()
 }
 
 fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {

@@ -191,19 +191,7 @@ fn run(s: &Scene, mut t: Tracker<'_>) -> (f64, f64, f64) {
 }
 
 fn process_cpu_s() -> f64 {
-    // utime + stime of this process from /proc (Linux; NaN elsewhere)
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
-    match (ticks(11), ticks(12)) {
-        (Some(u), Some(s)) => (u + s) / 100.0,
-        _ => f64::NAN,
-    }
+    softcap_app::process::cpu_seconds().unwrap_or(f64::NAN)
 }
 
 fn bench(c: &mut Criterion) {

@@ -19,19 +19,7 @@ use softcap_tissue::reshape::{ReshapeSettings, known_truth, reshape};
 
 /// CPU seconds of this process (user + system, every thread) from /proc/self/stat; NaN elsewhere.
 fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<f64> = rest
-        .split_whitespace()
-        .skip(11)
-        .take(2)
-        .filter_map(|v| v.parse().ok())
-        .collect();
-    if f.len() == 2 {
-        (f[0] + f[1]) / 100.0
-    } else {
-        f64::NAN
-    }
+    softcap_app::process::cpu_seconds().unwrap_or(f64::NAN)
 }
 
 fn main() -> ExitCode {
