@@ -55,6 +55,19 @@ fn bar_of(frames: usize, refine: usize, elements: Elements, noise_m: f64, seed: 
     .unwrap()
 }
 
+/// The small bar's true parameters (E_TRUE everywhere, ν 0.45, α 0.8 1/s, β 1 ms), for the
+/// start-state tests.
+fn true_params(s: &Synthetic) -> softcap_tissue::fit_dynamic::DynamicParams {
+    softcap_tissue::fit_dynamic::DynamicParams {
+        young_pa: vec![E_TRUE; s.template.tets.len()],
+        poisson: 0.45,
+        damping: RayleighDamping {
+            alpha_per_s: 0.8,
+            beta_s: 1.0e-3,
+        },
+    }
+}
+
 fn write_inputs(dir: &Path, s: &Synthetic) {
     let material = softcap_mcap::proto::DynamicMaterial {
         element: "corotational".into(),
@@ -363,19 +376,12 @@ fn start_states_are_fitted_with_the_parameters() {
 /// linear modes ring 0.6 % off the bent bar's frequency over the 0.7 s segment). 1 CPU-s.
 #[test]
 fn model_based_start_states_denoise_the_tracked_start() {
-    use softcap_tissue::fit_dynamic::{DynamicParams, Forward, ForwardSettings};
+    use softcap_tissue::fit_dynamic::{Forward, ForwardSettings};
     let clean = bar(30, 0, 0.0, 3);
     let noisy = bar(30, 0, 3.0e-4, 3);
     let segments = clean.sequence.segments(30, 4, 2);
     let n = clean.template.vertices.len();
-    let params = DynamicParams {
-        young_pa: vec![E_TRUE; clean.template.tets.len()],
-        poisson: 0.45,
-        damping: RayleighDamping {
-            alpha_per_s: 0.8,
-            beta_s: 1.0e-3,
-        },
-    };
+    let params = true_params(&clean);
     let starts = |truth: &Synthetic, start_fit_modes: usize| {
         let settings = ForwardSettings {
             start_fit_modes,
@@ -442,19 +448,12 @@ fn model_based_start_states_denoise_the_tracked_start() {
 /// m/s; the fast modes the 30 Hz frames alias). 2 CPU-s.
 #[test]
 fn start_states_against_the_truth_and_the_per_segment_choice() {
-    use softcap_tissue::fit_dynamic::{DynamicParams, Forward, ForwardSettings};
+    use softcap_tissue::fit_dynamic::{Forward, ForwardSettings};
     let clean = bar(30, 0, 0.0, 3);
     let noisy = bar(30, 0, 3.0e-4, 3);
     let segments = clean.sequence.segments(30, 4, 2);
     let n = clean.template.vertices.len();
-    let params = DynamicParams {
-        young_pa: vec![E_TRUE; clean.template.tets.len()],
-        poisson: 0.45,
-        damping: RayleighDamping {
-            alpha_per_s: 0.8,
-            beta_s: 1.0e-3,
-        },
-    };
+    let params = true_params(&clean);
     let forward = |truth: &Synthetic, start_fit_modes: usize, keep: bool, choice: bool| {
         let settings = ForwardSettings {
             start_fit_modes,
