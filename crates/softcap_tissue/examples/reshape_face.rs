@@ -36,9 +36,10 @@ use rand_chacha::ChaCha8Rng;
 use softcap_core::{Rbf, RbfSettings, ScatteredData};
 use softcap_fem::nalgebra::Vector3;
 use softcap_mesh::{LayerSettings, LinearShell, ShellSettings, TriMesh, extrude_layer};
+use softcap_tissue::reshape::cv::{choose, standard_error};
 use softcap_tissue::reshape::{
-    Attachment, IcpMarker, Landmark, MaterialPoint, ReshapeProblem, ReshapeSettings, Smoothness,
-    reshape,
+    Attachment, CvRule, IcpMarker, Landmark, MaterialPoint, ReshapeProblem, ReshapeSettings,
+    Smoothness, reshape,
 };
 
 const LANDMARKS: usize = 40;
@@ -422,13 +423,22 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
             let scores: Vec<String> = cv
                 .scores
                 .iter()
-                .map(|s| format!("{:.0e}: {:.4}", s.smoothness, s.rms_m * 1e3))
+                .map(|s| {
+                    format!(
+                        "{:.0e}: {:.4} (SE of the MSE {:.4} mm²)",
+                        s.smoothness,
+                        s.rms_m * 1e3,
+                        standard_error(&s.fold_rms_m) * 1e6
+                    )
+                })
                 .collect();
             println!(
-                "| {id:03} | cross-validation ({} folds): held-out RMS mm per α̂ {}; chose α̂ = {} |",
+                "| {id:03} | cross-validation ({} folds): held-out RMS mm per α̂ {}; chose α̂ = {} (lowest: {}, one-SE rule: {}) |",
                 cv.folds,
                 scores.join(", "),
-                cv.chosen
+                cv.chosen,
+                choose(&cv.scores, CvRule::Minimum)?,
+                choose(&cv.scores, CvRule::OneStandardError)?,
             );
         }
     }

@@ -444,6 +444,7 @@ fn noisy_box(hold_out: HoldOut) -> (ReshapeProblem, Vec<Vector3<f64>>, Vec<f64>,
             folds: 3,
             grid: grid.clone(),
             hold_out,
+            ..CrossValidationSettings::default()
         },
         ..ReshapeSettings::default()
     };

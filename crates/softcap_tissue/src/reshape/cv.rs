@@ -9,7 +9,9 @@
 //! every α̂ of a log grid each fold is held out in turn, the reshape is run with the other
 //! markers, and the held-out markers' distances to the reshaped ICP surface are collected. The
 //! score of α̂ is the root mean square of those distances over all markers (each is held out once);
-//! the α̂ with the lowest score is chosen and the reshape is run again with every marker.
+//! the α̂ with the lowest score is chosen (or, with `rule = "one-standard-error"`, the strongest
+//! smoothness within one standard error of it, [`CvRule`]) and the reshape is run again with
+//! every marker.
 //!
 //! Cost: the stages before the ICP stage (constant guess, attachments, landmarks) do not see the
 //! ICP markers, so they run once per α̂ and every fold starts its ICP stage from their result;
@@ -90,6 +92,8 @@ pub struct CrossValidationSettings {
     pub grid: Vec<f64>,
     /// Which target points are held out.
     pub hold_out: HoldOut,
+    /// How the α̂ is picked from the scores.
+    pub rule: CvRule,
 }
 
 impl Default for CrossValidationSettings {
@@ -98,8 +102,23 @@ impl Default for CrossValidationSettings {
             folds: 5,
             grid: vec![3e-5, 3e-4, 3e-3, 3e-2, 0.3, 3.0],
             hold_out: HoldOut::IcpMarkers,
+            rule: CvRule::Minimum,
         }
     }
+}
+
+/// How cross-validation picks α̂ from the scores of the grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CvRule {
+    /// The α̂ with the lowest score.
+    Minimum,
+    /// The one-standard-error rule (Hastie, Tibshirani and Friedman, *The Elements of Statistical
+    /// Learning* §7.10): the strongest smoothness (largest α̂) whose mean squared held-out error
+    /// is at most the lowest one plus its standard error, sd(MSE₁ … MSE_k)/√k over the k folds.
+    /// Where the score is flat near its minimum the folds cannot tell the α̂ there apart, and the
+    /// rule takes the smoothest of them.
+    OneStandardError,
 }
 
 /// The target points cross-validation holds out.
@@ -119,8 +138,11 @@ pub enum HoldOut {
 pub struct CrossValidationScore {
     /// α̂.
     pub smoothness: f64,
-    /// Root mean square of the held-out markers' distances to the reshaped surface \[m\].
+    /// Root mean square of the held-out errors over all folds \[m\] (markers: distance to the
+    /// reshaped surface; correspondence: distance of the template point from its target).
     pub rms_m: f64,
+    /// The RMS of each fold's held-out errors \[m\].
+    pub fold_rms_m: Vec<f64>,
     /// Gauss–Newton iterations of the ICP stages of all folds.
     pub iterations: usize,
 }
@@ -132,7 +154,7 @@ pub struct CrossValidationReport {
     pub folds: usize,
     /// One score per α̂ of the grid, in grid order.
     pub scores: Vec<CrossValidationScore>,
-    /// The α̂ chosen (lowest score).
+    /// The α̂ chosen (by the settings' [`CvRule`]).
     pub chosen: f64,
 }
 
@@ -203,6 +225,7 @@ pub(super) fn cross_validated(
             progress(&format!("{label} {s}"), i, e, m)
         })?;
         let mut squared = 0.0;
+        let mut fold_rms_m = Vec::with_capacity(folds);
         let mut iterations = 0;
         for fold in 0..folds {
             let (kept, held) = split_fold(&all, folds, fold);
@@ -214,20 +237,23 @@ pub(super) fn cross_validated(
                     progress(&format!("{label} {s}"), i, e, m)
                 })?;
             iterations += reports.iter().map(|r| r.iterations).sum::<usize>();
-            squared += solver
+            let fold_squared = solver
                 .marker_distances(&trial, &held)
                 .iter()
                 .map(|d| d * d)
                 .sum::<f64>();
+            squared += fold_squared;
+            fold_rms_m.push((fold_squared / held.len().max(1) as f64).sqrt());
         }
         scores.push(CrossValidationScore {
             smoothness,
             rms_m: (squared / all.len() as f64).sqrt(),
+            fold_rms_m,
             iterations,
         });
         starts.push((state, stages, history));
     }
-    let chosen = best(&scores)?;
+    let chosen = choose(&scores, settings.rule)?;
     let best = grid.iter().position(|&a| a == chosen).unwrap_or(0);
     solver.set_smoothness(chosen)?;
     solver.set_icp_markers(all);
@@ -260,6 +286,7 @@ fn correspondence_cross_validated(
             ..base.clone()
         };
         let mut squared = 0.0;
+        let mut fold_rms_m = Vec::with_capacity(cv.folds);
         let mut iterations = 0;
         for fold in 0..cv.folds {
             let held = |i: usize| i % cv.folds == fold;
@@ -272,7 +299,8 @@ fn correspondence_cross_validated(
             })?;
             iterations += out.stages.iter().map(|s| s.iterations).sum::<usize>();
             let x = &out.positions_m;
-            squared += (0..attachments)
+            let fold_points = (0..points).filter(|&i| held(i)).count();
+            let fold_squared = (0..attachments)
                 .filter(|&i| held(i))
                 .map(|i| &problem.attachments[i])
                 .map(|a| (x[a.node] - a.target_m).norm_squared())
@@ -283,14 +311,17 @@ fn correspondence_cross_validated(
                         .map(|l| (l.point.at(x) - l.target_m).norm_squared()),
                 )
                 .sum::<f64>();
+            squared += fold_squared;
+            fold_rms_m.push((fold_squared / fold_points.max(1) as f64).sqrt());
         }
         scores.push(CrossValidationScore {
             smoothness,
             rms_m: (squared / points as f64).sqrt(),
+            fold_rms_m,
             iterations,
         });
     }
-    let chosen = best(&scores)?;
+    let chosen = choose(&scores, cv.rule)?;
     let settings = super::solve::ReshapeSettings {
         smoothness: Smoothness::Fixed(chosen),
         ..base.clone()
@@ -313,17 +344,38 @@ fn keep<T: Clone>(v: &[T], pred: impl Fn(usize) -> bool) -> Vec<T> {
         .collect()
 }
 
-/// The α̂ with the lowest finite score.
-fn best(scores: &[CrossValidationScore]) -> Result<f64> {
-    scores
-        .iter()
-        .filter(|s| s.rms_m.is_finite())
+/// The α̂ picked from `scores` by `rule`, among those with a finite score.
+pub fn choose(scores: &[CrossValidationScore], rule: CvRule) -> Result<f64> {
+    let finite = || scores.iter().filter(|s| s.rms_m.is_finite());
+    let best = finite()
         .min_by(|a, b| a.rms_m.total_cmp(&b.rms_m))
-        .map(|s| s.smoothness)
         .ok_or_else(|| TissueError::NotConverged {
             what: "cross-validation of the smoothness weight".into(),
             status: "no α̂ of the grid gave a finite held-out error".into(),
-        })
+        })?;
+    Ok(match rule {
+        CvRule::Minimum => best.smoothness,
+        CvRule::OneStandardError => {
+            let limit = best.rms_m.powi(2) + standard_error(&best.fold_rms_m);
+            finite()
+                .filter(|s| s.rms_m.powi(2) <= limit)
+                .map(|s| s.smoothness)
+                .fold(best.smoothness, f64::max)
+        }
+    })
+}
+
+/// Standard error of the cross-validated mean squared error (ESL §7.10): sd(MSE₁ … MSE_k)/√k
+/// from the folds' RMS errors; 0 for fewer than two folds.
+pub fn standard_error(fold_rms_m: &[f64]) -> f64 {
+    let k = fold_rms_m.len();
+    if k < 2 {
+        return 0.0;
+    }
+    let mse: Vec<f64> = fold_rms_m.iter().map(|r| r * r).collect();
+    let mean = mse.iter().sum::<f64>() / k as f64;
+    let variance = mse.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (k - 1) as f64;
+    (variance / k as f64).sqrt()
 }
 
 #[cfg(test)]
@@ -355,6 +407,38 @@ mod tests {
         })
         .unwrap();
         assert!(back.contains("smoothness = \"cv\""), "{back}");
+    }
+
+    fn score(smoothness: f64, fold_rms_mm: &[f64]) -> CrossValidationScore {
+        let fold_rms_m: Vec<f64> = fold_rms_mm.iter().map(|r| r * 1e-3).collect();
+        let mse = fold_rms_m.iter().map(|r| r * r).sum::<f64>() / fold_rms_m.len() as f64;
+        CrossValidationScore {
+            smoothness,
+            rms_m: mse.sqrt(),
+            fold_rms_m,
+            iterations: 0,
+        }
+    }
+
+    /// The one-standard-error rule against a hand computation: fold MSEs 0.04, 0.09, 0.16,
+    /// 0.25 mm² (mean 0.135, sd 0.0911, SE 0.0456) at α̂ = 0.1 make the limit 0.1806 mm²; α̂ = 0.3
+    /// (MSE 0.17) is within it, α̂ = 1 (MSE 0.19) is not.
+    #[test]
+    fn one_standard_error_rule_takes_the_smoothest_within_one_se() {
+        assert!((standard_error(&[0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3]) - 0.045_552e-6).abs() < 1e-12);
+        let scores = vec![
+            score(1e-2, &[0.4, 0.4, 0.4, 0.4]),
+            score(0.1, &[0.2, 0.3, 0.4, 0.5]),
+            score(0.3, &[0.17f64.sqrt(); 4]),
+            score(1.0, &[0.19f64.sqrt(); 4]),
+            score(3.0, &[f64::NAN; 4]),
+        ];
+        assert_eq!(choose(&scores, CvRule::Minimum).unwrap(), 0.1);
+        assert_eq!(choose(&scores, CvRule::OneStandardError).unwrap(), 0.3);
+        // Folds that agree leave no room: the minimum itself.
+        let sharp = vec![score(0.1, &[0.3; 4]), score(0.3, &[0.31; 4])];
+        assert_eq!(choose(&sharp, CvRule::OneStandardError).unwrap(), 0.1);
+        assert!(choose(&[score(1.0, &[f64::NAN; 2])], CvRule::Minimum).is_err());
     }
 
     #[test]

@@ -29,7 +29,8 @@ pub mod step;
 pub mod target;
 
 pub use cv::{
-    CrossValidationReport, CrossValidationScore, CrossValidationSettings, HoldOut, Smoothness,
+    CrossValidationReport, CrossValidationScore, CrossValidationSettings, CvRule, HoldOut,
+    Smoothness,
 };
 pub use equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings, EquilibriumStatus};
 pub use problem::{

@@ -65,9 +65,18 @@ fn report_markdown(run: &ReshapeRun) -> String {
                 "Smoothness α̂ = {:e}, chosen by {}-fold cross-validation on the ICP markers:\n",
                 o.smoothness, cv.folds
             );
-            let _ = writeln!(s, "| α̂ | held-out marker distance, RMS (mm) |\n|---|---|");
+            let _ = writeln!(
+                s,
+                "| α̂ | held-out error, RMS (mm) | standard error of its square (mm²) |\n|---|---|---|"
+            );
             for score in &cv.scores {
-                let _ = writeln!(s, "| {:e} | {:.4} |", score.smoothness, score.rms_m * 1e3);
+                let _ = writeln!(
+                    s,
+                    "| {:e} | {:.4} | {:.4} |",
+                    score.smoothness,
+                    score.rms_m * 1e3,
+                    super::cv::standard_error(&score.fold_rms_m) * 1e6
+                );
             }
             let _ = writeln!(s);
         }
