@@ -427,7 +427,6 @@ fn probe_friction_and_clock_offset_are_both_named() {
 /// One look-alike chain of issue 37: the truth `a` recorded under the standard protocol (noise
 /// seed 100), its diagnosis; when that names a next experiment, `a` re-recorded under it (seed
 /// 101) and the other candidate's truth `b` recorded under it too (seed 102), each diagnosed.
-#[cfg(not(test))]
 struct LookalikeChain {
     first: softcap_diagnose::Diagnosis,
     next: Option<(
@@ -437,7 +436,6 @@ struct LookalikeChain {
     )>,
 }
 
-#[cfg(not(test))]
 fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)]) -> LookalikeChain {
     let mut sim = simulator(20e3);
     let settings = DiagnoseSettings::default();
@@ -456,6 +454,106 @@ fn lookalike_chain(a: &[Effect], b: &[Effect], oblique: bool, xy: &[(f64, f64)])
         (protocol, again(a, 101), again(b, 102))
     });
     LookalikeChain { first, next }
+}
+
+/// The plastic truth of the look-alike pairs: J2, σ_y 2 kPa, H 1 kPa.
+const LOOKALIKE_PLASTIC: Effect = Effect::Plastic {
+    yield_pa: 2000.0,
+    hardening_pa: 1000.0,
+};
+
+/// A Prony branch g, τ whose instantaneous modulus is the model's: G∞ = 20 kPa / (1 + g).
+fn slow_creep(g: f64, tau_s: f64) -> Vec<Effect> {
+    vec![Effect::Stiffer(1.0 / (1.0 + g)), Effect::Creep { g, tau_s }]
+}
+
+/// Issue 37's first look-alike pair decided by re-recording: slow creep g 1, τ 5 s (recovery
+/// time τ(1 + g) = 10 s over gaps of ≈ 0.85 s: the released set persists 0.91 over them, as a
+/// permanent one would) against J2 plasticity. Under the standard protocol neither outexplains
+/// the other beyond the fold-to-fold spread: `inconclusive` with both as candidates, and the
+/// next experiment is `longer-holds` (the creep keeps creeping under the tripled holds, a
+/// plastic set does not), predicted to separate them more than the recorded protocol does.
+/// Re-recorded under it, the creep truth is named `viscoelasticity` and the plastic truth
+/// `plasticity`. With `plasticity::PERMANENT_PERSISTENCE` at 0.9 the first protocol named
+/// the creep `plasticity`. ≈ 220 CPU-s (three diagnoses with Prony re-simulations):
+/// `cargo test --workspace --test in_memory -- --ignored slow_creep_and_plasticity_decided_by_longer_holds`.
+#[test]
+#[ignore = "≈ 220 CPU-s: three diagnoses with the Prony grid re-simulations"]
+fn slow_creep_and_plasticity_decided_by_longer_holds() {
+    let chain = lookalike_chain(
+        &slow_creep(1.0, 5.0),
+        &[LOOKALIKE_PLASTIC],
+        false,
+        &LOCATIONS,
+    );
+    let d = &chain.first;
+    eprintln!("first protocol: {}", d.verdict);
+    print_ranked(d);
+    if let Some((p, creep, plastic)) = &chain.next {
+        for (what, r) in [("creep truth", creep), ("plastic truth", plastic)] {
+            eprintln!("{what} re-recorded under {}: {}", p.name(), r.verdict);
+            print_ranked(r);
+        }
+    }
+    let persistence = d.ranked[0].evidence.signatures.released_set_persistence;
+    assert!(
+        persistence.is_some_and(|p| (0.9..1.0).contains(&p)),
+        "{persistence:?}"
+    );
+    assert_eq!(d.verdict, "inconclusive", "{:?}", d.effects);
+    let mut cands: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
+    cands.sort();
+    assert_eq!(cands, ["plasticity", "viscoelasticity"]);
+    let next = d.next_experiment.as_ref().unwrap();
+    assert_eq!(next.protocol, "longer-holds");
+    assert!(
+        next.predicted_difference_m > 2.0 * next.recorded_difference_m,
+        "{next:?}"
+    );
+    let (protocol, creep, plastic) = chain.next.as_ref().unwrap();
+    assert_eq!(protocol.name(), "longer-holds");
+    assert_eq!(creep.verdict, "viscoelasticity", "{:?}", creep.candidates);
+    assert_eq!(plastic.verdict, "plasticity", "{:?}", plastic.candidates);
+}
+
+/// A set above 3σ whose persistence over the gaps between releases is `p`.
+fn persisting(p: f64) -> softcap_diagnose::Signatures {
+    softcap_diagnose::Signatures {
+        noise_sigma_m: 5e-6,
+        released_set_m: 8e-5,
+        released_set_persistence: Some(p),
+        ..Default::default()
+    }
+}
+
+/// Plasticity's signature (`plasticity::PERMANENT_PERSISTENCE`): a creep recovering at zero load
+/// with the retardation time τ' leaves e^{−Δt/τ'} of its set after a gap Δt, below 1 however
+/// long τ' is: the creep g 1, τ 5 s of [`slow_creep_and_plasticity_decided_by_longer_holds`]
+/// (τ' = τ(1 + g) = 10 s) over its 0.85 s gaps persists 0.92 and gets no support; a set that
+/// does not decay (the suites' plastic sets measure 1.03–1.13) does; one recovering within a gap
+/// is contradicted, as is a set at the noise.
+#[test]
+fn only_a_released_set_that_does_not_decay_supports_plasticity() {
+    use softcap_diagnose::Hypothesis;
+    use softcap_diagnose::hypotheses::plasticity::Plasticity;
+    let creep = (-0.85f64 / (5.0 * (1.0 + 1.0))).exp();
+    assert!((0.9..1.0).contains(&creep), "{creep}");
+    assert_eq!(Plasticity.signature_support(&persisting(creep)), 0.0);
+    assert_eq!(Plasticity.signature_support(&persisting(0.999)), 0.0);
+    for p in [1.0, 1.03, 1.13] {
+        assert_eq!(Plasticity.signature_support(&persisting(p)), 1.0, "{p}");
+    }
+    assert_eq!(Plasticity.signature_support(&persisting(0.3)), -1.0);
+    let at_noise = softcap_diagnose::Signatures {
+        released_set_m: 1e-5,
+        ..persisting(1.1)
+    };
+    assert_eq!(Plasticity.signature_support(&at_noise), -1.0);
+    let single_release = softcap_diagnose::Signatures {
+        released_set_persistence: None,
+        ..persisting(1.0)
+    };
+    assert_eq!(Plasticity.signature_support(&single_release), 1.0);
 }
 
 /// Slow creep against plasticity (issue 37's look-alike pair): a Prony branch g 1, τ 2 s whose
@@ -1406,7 +1504,6 @@ fn pairs_table(filter: Option<&str>) {
 }
 
 /// The top of the ranked table, the named effects and the candidates on stderr.
-#[cfg(not(test))]
 fn print_ranked(d: &softcap_diagnose::Diagnosis) {
     if let Some(s) = d.ranked.first().map(|r| &r.evidence.signatures) {
         eprintln!(
@@ -1682,13 +1779,7 @@ fn next_experiment_table(filter: Option<&str>) {
 /// protocol ([`lookalike_chain`]).
 #[cfg(not(test))]
 fn lookalike_table(filter: Option<&str>) {
-    let plastic = Effect::Plastic {
-        yield_pa: 2000.0,
-        hardening_pa: 1000.0,
-    };
-    // a Prony branch whose instantaneous modulus is the model's: G∞ = 20 kPa / (1 + g)
-    let slow_creep =
-        |g: f64, tau_s: f64| vec![Effect::Stiffer(1.0 / (1.0 + g)), Effect::Creep { g, tau_s }];
+    let plastic = LOOKALIKE_PLASTIC;
     let cases: Vec<(&str, Vec<Effect>, Vec<Effect>, bool)> = vec![
         (
             "slow creep g 1, τ 2 s / plasticity",
