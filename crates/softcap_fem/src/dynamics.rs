@@ -197,8 +197,14 @@ pub struct DynamicSolver {
     /// Solve the next steps' Newton updates with the factor of an earlier system matrix (see
     /// [`Self::set_reuse_factorization`]).
     reuse_factorization: bool,
-    /// Numeric factorizations so far.
+    /// Adaptive reuse ([`Self::set_refactor_ratio`]): the residual ratio above which the factor
+    /// is renewed, whether it is due, and the (mass, stiffness) coefficients it was built with.
+    refactor_ratio: Option<f64>,
+    refactor_due: bool,
+    factored_coefficients: Option<[u64; 2]>,
+    /// Numeric factorizations so far, and the wall time they took \[s\].
     factorizations: usize,
+    factor_s: f64,
     /// Evaluate the residual after the last Newton update (see [`DynamicSolver::set_final_residual`]).
     final_residual: bool,
 }
@@ -346,7 +352,11 @@ impl DynamicSolver {
             matrices: Vec::new(),
             last: None,
             reuse_factorization: false,
+            refactor_ratio: None,
+            refactor_due: false,
+            factored_coefficients: None,
             factorizations: 0,
+            factor_s: 0.0,
             final_residual: true,
         })
     }
@@ -359,6 +369,20 @@ impl DynamicSolver {
     /// a fixed σ (wang2015 §5), where one factorization then serves several M-steps.
     pub fn set_reuse_factorization(&mut self, reuse: bool) {
         self.reuse_factorization = reuse;
+    }
+
+    /// Adaptive factorization reuse within a step (a modified Newton method with renewal):
+    /// with `Some(ρ)`, a step's first update factors the system matrix at the initial guess
+    /// (as Newton does) and its later updates are solved with that factor until an iteration
+    /// reduces the residual norm by less than the factor ρ (‖r_{k+1}‖ > ρ ‖r_k‖: the matrix
+    /// has moved too far from the factored one); then the current matrix is factored for the
+    /// next update. Each step still converges to its tolerance on the current residual, so the
+    /// solution is Newton's to that tolerance, with about one factorization per step instead
+    /// of one per update. (A factor carried over from the previous step was tried: from noisy
+    /// initial states its first chord updates diverged.) `None` (default): every update
+    /// factors anew (unless [`Self::set_reuse_factorization`]).
+    pub fn set_refactor_ratio(&mut self, ratio: Option<f64>) {
+        self.refactor_ratio = ratio.filter(|r| r.is_finite() && *r > 0.0);
     }
 
     /// With `evaluate` off, a step that has used up its Newton iterations ends at its last update
@@ -581,6 +605,10 @@ impl DynamicSolver {
         let tol_x = settings.displacement_tol_rel * self.length_scale_m;
         let norm = |v: &[Vector3<f64>]| v.iter().map(|a| a.norm_squared()).sum::<f64>().sqrt();
         let mut frozen: Option<Vec<crate::contact::ContactSpring>> = None;
+        let coefficients = [a_mass.to_bits(), a_stiff.to_bits()];
+        let mut previous_rn: Option<f64> = None;
+        // Factorization reuse: the step's first update factors (Newton's first iteration).
+        self.refactor_due = true;
         for it in 0..settings.max_iterations.max(1) + 1 {
             if it == settings.max_iterations.max(1) && !self.final_residual {
                 // the iterations are used up and the caller does not want the residual there
@@ -649,6 +677,9 @@ impl DynamicSolver {
             let rf = self.dofs().gather(&r);
             let rn = rf.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.residual_norm_n = rn;
+            let slow = matches!((self.refactor_ratio, previous_rn),
+                (Some(ratio), Some(prev)) if rn > ratio * prev);
+            previous_rn = Some(rn);
             if !rn.is_finite() {
                 report.status = DynamicStepStatus::Failed {
                     reason: "non-finite residual".into(),
@@ -668,7 +699,10 @@ impl DynamicSolver {
                 state.advance(h, x, v, a);
                 return report;
             }
-            let dx = match self.solve_update(&values, rf) {
+            // A slow reduction by the reused factor (not the last, converged iteration's, which
+            // may sit at the rounding floor) renews it for this update.
+            self.refactor_due |= slow;
+            let dx = match self.solve_update(&values, rf, coefficients) {
                 Ok(dx) => dx,
                 Err(e) => {
                     report.status = DynamicStepStatus::Failed {
@@ -692,9 +726,25 @@ impl DynamicSolver {
 
     /// The Newton update A⁻¹ r: with the last factor while [`Self::set_reuse_factorization`] is
     /// on and one exists (a chord step), else with a fresh factorization of A.
-    fn solve_update(&mut self, values: &[f64], rf: Vec<f64>) -> Result<Vec<f64>, FemError> {
-        if !(self.reuse_factorization && self.cholesky.kind().is_some()) {
-            self.cholesky.factor(&self.pattern, values)?;
+    fn solve_update(
+        &mut self,
+        values: &[f64],
+        rf: Vec<f64>,
+        coefficients: [u64; 2],
+    ) -> Result<Vec<f64>, FemError> {
+        let reuse = self.cholesky.kind().is_some()
+            && if self.refactor_ratio.is_some() {
+                !self.refactor_due && self.factored_coefficients == Some(coefficients)
+            } else {
+                self.reuse_factorization
+            };
+        if !reuse {
+            let t0 = std::time::Instant::now();
+            let factored = self.cholesky.factor(&self.pattern, values);
+            self.factor_s += t0.elapsed().as_secs_f64();
+            self.factored_coefficients = factored.is_ok().then_some(coefficients);
+            self.refactor_due = false;
+            factored?;
             self.factorizations += 1;
         }
         let mut dx = rf;
@@ -706,6 +756,12 @@ impl DynamicSolver {
     /// of [`Self::set_reuse_factorization`]).
     pub fn factorizations(&self) -> usize {
         self.factorizations
+    }
+
+    /// Wall time of those factorizations so far \[s\] (on the calling thread: the numeric
+    /// factorization runs sequentially), for splitting a simulation's cost.
+    pub fn factor_seconds(&self) -> f64 {
+        self.factor_s
     }
 
     /// One pass over the elements at `x` (chunks evaluated by

@@ -8,15 +8,22 @@
 //! 0.5 mm of tracking-level noise; E = 5·10⁵ Pa, α = 0.8 1/s, β = 10⁻³ s. The fit runs with the
 //! default settings from E = 10⁵ Pa.
 //!
-//! `cargo bench --profile test -p softcap_tissue --bench fit_dynamic` (criterion: 10 one-call
-//! samples of one evaluation of the objective, i.e. every segment simulated once at the fitted
-//! parameters). Before criterion starts, the truth and one whole fit are timed and printed
-//! (`full fit: … s wall`, the fitted parameters and their errors); `SOFTCAP_FIT_DYNAMIC_BENCH_ONCE=1`
-//! stops there. Run it under `/usr/bin/time -v` for the CPU-seconds.
+//! `cargo bench --workspace --profile test --bench fit_dynamic` (criterion: 10 one-call samples
+//! of one evaluation of the objective, every segment simulated once at the truth's parameters
+//! over its rest shape). Before criterion starts, the truth and one evaluation are timed (wall
+//! and CPU-s, Newton updates and factorizations per step). Environment:
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_ONCE=1` runs the whole fit once with the stage defaults instead
+//! and prints wall, CPU-s, evaluations and where the time went (forward simulation,
+//! factorization, rest shape, modal warm start; `DynamicFit::timing`);
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE=1` also times the evaluation with a factorization at
+//! every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the largest node
+//! distance between the two; `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence.
 
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+use softcap_app::process::cpu_seconds;
 use softcap_fem::RayleighDamping;
 use softcap_fem::nalgebra::Vector3;
 use softcap_tissue::Progress;
@@ -51,7 +58,7 @@ fn sequence() -> Synthetic {
         push_nodes: push,
         push_force_n: Vector3::new(0.0, 0.5, -0.4),
         push_s: 0.2,
-        frames: FRAMES,
+        frames: frames(),
         frame_rate_hz: 30.0,
         substeps: 4,
         refine: 0,
@@ -62,37 +69,76 @@ fn sequence() -> Synthetic {
     .expect("truth")
 }
 
+fn frames() -> usize {
+    std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(FRAMES)
+}
+
+/// Runs `f`, printing its wall time and the process's CPU-s.
 fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
-    let t0 = Instant::now();
+    let (c0, t0) = (cpu_seconds(), Instant::now());
     let r = f();
-    eprintln!("{what}: {:.1} s wall", t0.elapsed().as_secs_f64());
+    eprintln!(
+        "{what}: {:.1} s wall, {:.1} CPU-s",
+        t0.elapsed().as_secs_f64(),
+        cpu_seconds().zip(c0).map_or(f64::NAN, |(b, a)| b - a)
+    );
     r
 }
 
-fn bench(c: &mut Criterion) {
-    let truth = timed("truth (one simulation of every frame)", sequence);
+/// The whole fit with the stage defaults: wall, CPU-s, evaluations and where the time went.
+fn full_fit(truth: &Synthetic) {
     let settings = FitDynamicSettings {
         progress: false,
         ..FitDynamicSettings::default()
     };
-    let fit = timed("full fit", || {
-        fit_sequence(
-            &truth.template,
-            &truth.sequence,
-            &settings,
-            &Progress::hidden(),
-        )
-        .expect("fit")
-    });
+    let (c0, t0) = (cpu_seconds(), Instant::now());
+    let fit = fit_sequence(
+        &truth.template,
+        &truth.sequence,
+        &settings,
+        &Progress::hidden(),
+    )
+    .expect("fit");
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu = cpu_seconds().zip(c0).map_or(f64::NAN, |(b, a)| b - a);
+    let t = &fit.timing;
     eprintln!(
-        "  {} nodes, {} tets, {} frames in {} segments; {} simulations + {} one-segment; status {}",
+        "full fit: {wall:.1} s wall, {cpu:.1} CPU-s ({} rayon threads, load {})",
+        rayon::current_num_threads(),
+        std::fs::read_to_string("/proc/loadavg")
+            .unwrap_or_default()
+            .trim()
+    );
+    eprintln!(
+        "  {} nodes, {} tets, {} frames in {} segments; {} evaluations (simulations of every segment) + {} one-segment; status {}",
         truth.template.vertices.len(),
         truth.template.tets.len(),
-        FRAMES,
+        truth.sequence.positions_m.len(),
         fit.segments,
         fit.simulations,
         fit.segment_simulations,
         fit.status
+    );
+    let other = cpu - t.simulate_cpu_s - t.rest_shape_cpu_s - t.modal_cpu_s;
+    eprintln!(
+        "  split (CPU-s): forward simulation {:.1} (of which factorization ≈ {:.1}), rest shape {:.1}, modal warm start {:.1}, other {:.1}",
+        t.simulate_cpu_s,
+        t.factor_cpu_s(),
+        t.rest_shape_cpu_s,
+        t.modal_cpu_s,
+        other
+    );
+    eprintln!(
+        "  {} segment runs, {} time steps, {} Newton iterations ({:.2} per step), {} factorizations ({:.2} per step)",
+        t.segment_runs,
+        t.steps,
+        t.newton_iterations,
+        t.newton_iterations as f64 / t.steps.max(1) as f64,
+        t.factorizations,
+        t.factorizations as f64 / t.steps.max(1) as f64
     );
     eprintln!(
         "  E {:.4e} Pa ({:+.1} %), α {:.3} 1/s ({:+.1} %), β {:.3e} s ({:+.1} %); trajectory RMS {:.3} mm (warm start {:.3} mm)",
@@ -105,35 +151,80 @@ fn bench(c: &mut Criterion) {
         1e3 * fit.rms_m,
         1e3 * fit.rms_warm_m
     );
+}
+
+fn bench(c: &mut Criterion) {
+    let truth = timed("truth (one simulation of every frame)", sequence);
     if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_ONCE").is_some() {
+        full_fit(&truth);
         return;
     }
+    // One evaluation of the objective: every segment simulated once at the truth's parameters
+    // over its rest shape, with the default factorization reuse and (for comparison) with a
+    // factorization at every Newton update.
+    let settings = FitDynamicSettings::default();
     let segments = truth.sequence.segments(
         settings.segment_frames,
         settings.min_segment_frames,
         settings.forward.velocity_half_window,
     );
     let observed = vec![true; truth.template.vertices.len()];
-    let forward = Forward::new(
-        &truth.template,
-        &truth.sequence,
-        segments,
-        observed,
-        &ForwardSettings::default(),
-    )
-    .expect("forward");
-    let params = DynamicParams {
-        young_pa: fit.young_pa_tets.clone(),
-        poisson: fit.poisson,
-        damping: fit.damping,
+    let forward_with = |refactor_ratio: f64| {
+        Forward::new(
+            &truth.template,
+            &truth.sequence,
+            segments.clone(),
+            observed.clone(),
+            &ForwardSettings {
+                refactor_ratio,
+                ..settings.forward.clone()
+            },
+        )
+        .expect("forward")
     };
+    let params = DynamicParams {
+        young_pa: vec![YOUNG_PA; truth.template.tets.len()],
+        poisson: 0.45,
+        damping: DAMPING,
+    };
+    let evaluate = |label: &str, forward: &Forward| {
+        let runs = timed(&format!("one evaluation, {label}"), || {
+            forward.simulate(&params, &truth.rest_m).expect("simulate")
+        });
+        let t = forward.timing();
+        eprintln!(
+            "  {} segments, RMS to the tracked positions {:.4} mm; {} time steps, {:.2} Newton iterations and {:.3} factorizations per step, factorization ≈ {:.0} % of the simulation",
+            runs.len(),
+            1e3 * forward.rms_m(&runs),
+            t.steps,
+            t.newton_iterations as f64 / t.steps.max(1) as f64,
+            t.factorizations as f64 / t.steps.max(1) as f64,
+            100.0 * t.factor_thread_s / t.segment_thread_s.max(1e-12)
+        );
+        runs
+    };
+    let forward = forward_with(settings.forward.refactor_ratio);
+    let runs = evaluate("factorization reuse (default)", &forward);
+    if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE").is_some() {
+        let newton = evaluate("a factorization per Newton update", &forward_with(0.0));
+        let largest = runs
+            .iter()
+            .zip(&newton)
+            .flat_map(|(a, b)| a.positions_m.iter().zip(&b.positions_m))
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+            .fold(0.0f64, f64::max);
+        eprintln!("  largest node distance between the two: {:.3e} m", largest);
+    }
+    if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY").is_some() {
+        return;
+    }
     let mut group = c.benchmark_group("fit_dynamic");
     group
         .sample_size(10)
         .sampling_mode(SamplingMode::Flat)
         .measurement_time(Duration::from_secs(60));
     group.bench_function("objective_2k_nodes_250_frames", |b| {
-        b.iter(|| forward.simulate(&params, &fit.rest_m).expect("simulate"))
+        b.iter(|| forward.simulate(&params, &truth.rest_m).expect("simulate"))
     });
     group.finish();
 }

@@ -9,7 +9,7 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -21,6 +21,8 @@
 //! `--per-segment`: each fitted segment's RMS to the tracked and to the noise-free positions.
 //! `--clean-starts`: an oracle — the frames each segment's start is estimated from noise-free.
 //! `--noise-um N`: tracking noise, µm (default 500).
+//! `--velocity-window H`, `--velocity-degree D`: the tracked start states from a degree-D
+//! polynomial over ±H frames (`velocity_half_window`, `velocity_degree`; default ±2, 4).
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
@@ -56,6 +58,13 @@ fn main() {
         take_option(&mut which, "--start-fit").map_or(defaults.start_fit_modes, |m| m as usize);
     let start_frames =
         take_option(&mut which, "--start-frames").map_or(defaults.start_fit_frames, |m| m as usize);
+    // `--velocity-window H`, `--velocity-degree D`: each segment's tracked start state from a
+    // degree-D polynomial over ±H frames (`ForwardSettings::velocity_half_window`,
+    // `velocity_degree`).
+    let velocity_window = take_option(&mut which, "--velocity-window")
+        .map_or(defaults.velocity_half_window, |m| m as usize);
+    let velocity_degree = take_option(&mut which, "--velocity-degree")
+        .map_or(defaults.velocity_degree, |m| m as usize);
     // `--keep-tracked`: the model-based start replaces only the fitted modes' share of the
     // tracked start (`ForwardSettings::start_fit_keeps_tracked`).
     let keep_tracked = match which.iter().position(|a| a == "--keep-tracked") {
@@ -202,7 +211,7 @@ fn main() {
             // velocity_half_window) without noise, every other frame noisy.
             let clean = make(0.0);
             let d = FitDynamicSettings::default();
-            let h = d.forward.velocity_half_window;
+            let h = velocity_window;
             let last = truth.sequence.frames() - 1;
             for seg in truth
                 .sequence
@@ -223,6 +232,8 @@ fn main() {
                 start_fit_frames: start_frames,
                 start_fit_keeps_tracked: keep_tracked,
                 start_fit_choice: choose_start,
+                velocity_half_window: velocity_window,
+                velocity_degree,
                 ..defaults.clone()
             },
             elements: if quadratic {
@@ -233,6 +244,7 @@ fn main() {
             ..FitDynamicSettings::default()
         };
         let t = std::time::Instant::now();
+        let cpu0 = softcap_app::process::cpu_seconds();
         let fit = fit_sequence(
             &truth.template,
             &truth.sequence,
@@ -241,6 +253,9 @@ fn main() {
         )
         .unwrap();
         let wall = t.elapsed().as_secs_f64();
+        let cpu = softcap_app::process::cpu_seconds()
+            .zip(cpu0)
+            .map_or(f64::NAN, |(b, a)| b - a);
         let scale = size.iter().cloned().fold(0.0, f64::max);
         let dx: f64 = fit
             .rest_m
@@ -250,7 +265,7 @@ fn main() {
             .sum::<f64>()
             / fit.rest_m.len() as f64;
         println!(
-            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames, keeps tracked {keep_tracked}, choice {choose_start}, clean starts {clean_starts}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s, {} simulations + {} one-segment, status {}",
+            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames, keeps tracked {keep_tracked}, choice {choose_start}, clean starts {clean_starts}, velocity ±{velocity_window} frames degree {velocity_degree}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s wall, {cpu:.1} CPU-s, {} simulations + {} one-segment, status {}",
             mesh.vertices.len(),
             mesh.tets.len(),
             spec.frames,

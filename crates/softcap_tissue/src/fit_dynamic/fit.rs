@@ -32,7 +32,9 @@ use softcap_fem::{
 use softcap_mesh::TetMesh;
 
 use super::blend::{Blending, ControlPoints, control_points};
-use super::forward::{DynamicParams, FitModel, Forward, ForwardSettings, StartModes};
+use super::forward::{
+    DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Phase, StartModes,
+};
 use super::sequence::TrackedSequence;
 use super::warm;
 use crate::Progress;
@@ -280,6 +282,8 @@ pub struct DynamicFit {
     pub fit_mesh_size: (usize, usize),
     /// The segments simulated with the fitted parameters (the given mesh's nodes only).
     pub runs: Vec<super::forward::SegmentRun>,
+    /// Where the fit's time went (both levels of a coarse-to-fine fit).
+    pub timing: FitTiming,
 }
 
 /// The fit mesh: the given mesh refined `levels` times, its tets' parent tets in the given mesh,
@@ -538,6 +542,17 @@ impl LeastSquaresProblem for Problem<'_> {
 /// support (eq. 7), by Newton on X with the exact ∂f/∂X (`softcap_fem::solve_rest_shape`). A
 /// free body keeps its static shape.
 fn rest_shape(
+    forward: &Forward,
+    params: &DynamicParams,
+    static_m: &[Vector3<f64>],
+    initial: Option<&[Vector3<f64>]>,
+) -> Result<(Vec<Vector3<f64>>, String)> {
+    forward.timed(Phase::RestShape, || {
+        rest_shape_untimed(forward, params, static_m, initial)
+    })
+}
+
+fn rest_shape_untimed(
     forward: &Forward,
     params: &DynamicParams,
     static_m: &[Vector3<f64>],
@@ -964,7 +979,13 @@ fn fit_level(
     let fitted_frequencies_hz = forward
         .model(&params, &rest)
         .ok()
-        .and_then(|m| warm::modes(&forward, &m, settings.warm_start_modes).ok())
+        .and_then(|m| {
+            forward
+                .timed(Phase::Modal, || {
+                    warm::modes(&forward, &m, settings.warm_start_modes)
+                })
+                .ok()
+        })
         .map(|m| m.frequencies_hz())
         .unwrap_or_default();
     let (young_pa, damping) = unpack(&q, nc);
@@ -976,6 +997,7 @@ fn fit_level(
     let mut runs = forward
         .simulate_from(&params, &rest, start)
         .unwrap_or_default();
+    let timing = forward.timing();
     for r in &mut runs {
         for x in &mut r.positions_m {
             x.truncate(n_given);
@@ -1013,6 +1035,7 @@ fn fit_level(
         frames,
         fit_mesh_size: (fit_mesh.vertices.len(), forward.num_elements()),
         runs,
+        timing: coarse.map_or(timing, |c| c.timing.plus(&timing)),
     })
 }
 
@@ -1054,8 +1077,12 @@ fn warm_start(
         let (x, _) = rest_shape(forward, &params, static_m, rest.as_deref())?;
         let model = forward.model(&params, &x)?;
         rest = Some(x);
-        let modes = warm::modes(forward, &model, settings.warm_start_modes)?;
-        fits = warm::measure_modes(forward, static_m, &modes, None);
+        let modes = forward.timed(Phase::Modal, || {
+            warm::modes(forward, &model, settings.warm_start_modes)
+        })?;
+        fits = forward.timed(Phase::Modal, || {
+            warm::measure_modes(forward, static_m, &modes, None)
+        });
         let Some(dominant) = fits.first().filter(|f| f.explained > 0.5) else {
             return Ok((fits, None, None));
         };
@@ -1073,7 +1100,9 @@ fn warm_start(
     // The body now rings at (or near) the dominant frequency: every mode is measured again near
     // its own model frequency (the damping ratios of the weak, high ones give β).
     if let Some(modes) = last_modes {
-        let matched = warm::measure_modes(forward, static_m, &modes, Some(1.5));
+        let matched = forward.timed(Phase::Modal, || {
+            warm::measure_modes(forward, static_m, &modes, Some(1.5))
+        });
         if matched.first().map(|f| f.mode) == fits.first().map(|f| f.mode) {
             fits = matched;
         }

@@ -40,6 +40,11 @@ pub struct ForwardSettings {
     pub substeps: usize,
     /// Newton iterations per step at most.
     pub newton_iterations: usize,
+    /// Factorization reuse (`softcap_fem::DynamicSolver::set_refactor_ratio`): a step's later
+    /// Newton updates are solved with the factor of its first until an iteration reduces the
+    /// residual by less than this factor; then the current matrix is factored. Every step
+    /// still converges to the same tolerance. 0: every Newton update factors anew.
+    pub refactor_ratio: f64,
     /// Half width (frames) of the polynomial fit that gives a segment's initial state.
     pub velocity_half_window: usize,
     /// Degree of that polynomial.
@@ -79,6 +84,7 @@ impl Default for ForwardSettings {
         Self {
             substeps: 4,
             newton_iterations: 12,
+            refactor_ratio: 0.3,
             velocity_half_window: 2,
             velocity_degree: 4,
             initial_state_smoothing: 0.0,
@@ -250,6 +256,97 @@ pub struct SegmentRun {
     pub failure: Option<String>,
 }
 
+/// Where the time of a fit went (summed over the fit; [`Forward::timing`]). CPU-s are the
+/// process's CPU time over each phase (the phases run one after another; the segments of one
+/// simulation run in parallel); thread-s are wall time summed over the threads that did the
+/// work.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FitTiming {
+    /// Forward simulations (every segment of one evaluation, [`Forward::simulate_from`]): CPU-s.
+    pub simulate_cpu_s: f64,
+    /// Their wall time, s.
+    pub simulate_wall_s: f64,
+    /// Rest-shape solves (eq. 7): CPU-s.
+    pub rest_shape_cpu_s: f64,
+    /// Their wall time, s.
+    pub rest_shape_wall_s: f64,
+    /// Modal warm start (§6.3: eigen-solves and modal measurements, rest shapes excluded): CPU-s.
+    pub modal_cpu_s: f64,
+    /// Its wall time, s.
+    pub modal_wall_s: f64,
+    /// Segment simulations, time steps, Newton iterations (element passes) and numeric
+    /// factorizations in them.
+    pub segment_runs: usize,
+    /// Time steps.
+    pub steps: usize,
+    /// Newton iterations.
+    pub newton_iterations: usize,
+    /// Numeric factorizations of the system matrix.
+    pub factorizations: usize,
+    /// Thread-s in segment simulations, and in their factorizations (the numeric Cholesky
+    /// runs sequentially on its thread).
+    pub segment_thread_s: f64,
+    /// Thread-s in factorizations.
+    pub factor_thread_s: f64,
+}
+
+impl FitTiming {
+    /// CPU-s of the factorizations, estimated as their share of the segments' thread time.
+    pub fn factor_cpu_s(&self) -> f64 {
+        if self.segment_thread_s > 0.0 {
+            self.simulate_cpu_s * self.factor_thread_s / self.segment_thread_s
+        } else {
+            0.0
+        }
+    }
+
+    /// The sum of `self` and `other`.
+    pub fn plus(&self, o: &Self) -> Self {
+        Self {
+            simulate_cpu_s: self.simulate_cpu_s + o.simulate_cpu_s,
+            simulate_wall_s: self.simulate_wall_s + o.simulate_wall_s,
+            rest_shape_cpu_s: self.rest_shape_cpu_s + o.rest_shape_cpu_s,
+            rest_shape_wall_s: self.rest_shape_wall_s + o.rest_shape_wall_s,
+            modal_cpu_s: self.modal_cpu_s + o.modal_cpu_s,
+            modal_wall_s: self.modal_wall_s + o.modal_wall_s,
+            segment_runs: self.segment_runs + o.segment_runs,
+            steps: self.steps + o.steps,
+            newton_iterations: self.newton_iterations + o.newton_iterations,
+            factorizations: self.factorizations + o.factorizations,
+            segment_thread_s: self.segment_thread_s + o.segment_thread_s,
+            factor_thread_s: self.factor_thread_s + o.factor_thread_s,
+        }
+    }
+}
+
+/// The phases of [`FitTiming`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Phase {
+    Simulate,
+    RestShape,
+    Modal,
+}
+
+/// A [`FitTiming`] shared by the threads of a fit.
+#[derive(Debug, Default)]
+struct TimingCell(std::sync::Mutex<FitTiming>);
+
+impl Clone for TimingCell {
+    fn clone(&self) -> Self {
+        Self(std::sync::Mutex::new(self.get()))
+    }
+}
+
+impl TimingCell {
+    fn get(&self) -> FitTiming {
+        *self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn update(&self, f: impl FnOnce(&mut FitTiming)) {
+        f(&mut self.0.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+}
+
 /// Segments, initial states, masses and loads of a sequence on a mesh: evaluates the forward
 /// model for any (p, X).
 #[derive(Clone, Debug)]
@@ -268,6 +365,8 @@ pub struct Forward {
     quadratic: Option<Vec<[usize; 10]>>,
     /// Per segment, whether the model-based start state is used ([`Self::choose_start_states`]).
     start_choice: std::sync::OnceLock<Vec<bool>>,
+    /// Where the time went.
+    timing: TimingCell,
 }
 
 /// The elastic model of a forward run: corotational linear tets of the fit mesh, or quadratic
@@ -287,6 +386,21 @@ pub(crate) enum Stepper {
 }
 
 impl Stepper {
+    /// The stepper with factorization reuse at `ratio` ([`ForwardSettings::refactor_ratio`];
+    /// linear tets only).
+    pub(crate) fn with_refactor_ratio(
+        model: &FitModel,
+        masses_kg: Vec<f64>,
+        dofs: &[usize],
+        ratio: f64,
+    ) -> Result<Self> {
+        let mut stepper = Self::new(model, masses_kg, dofs)?;
+        if let Self::Linear(s) = &mut stepper {
+            s.set_refactor_ratio((ratio > 0.0).then_some(ratio));
+        }
+        Ok(stepper)
+    }
+
     pub(crate) fn new(model: &FitModel, masses_kg: Vec<f64>, dofs: &[usize]) -> Result<Self> {
         Ok(match model {
             FitModel::Linear(m) => Self::Linear(Box::new(DynamicSolver::new(m, masses_kg, dofs)?)),
@@ -388,6 +502,7 @@ impl Forward {
             settings: settings.clone(),
             quadratic: None,
             start_choice: std::sync::OnceLock::new(),
+            timing: TimingCell::default(),
         })
     }
 
@@ -396,6 +511,35 @@ impl Forward {
     pub fn with_quadratic(mut self, elements: Vec<[usize; 10]>) -> Self {
         self.quadratic = Some(elements);
         self
+    }
+
+    /// Where the time of the evaluations so far went.
+    pub fn timing(&self) -> FitTiming {
+        self.timing.get()
+    }
+
+    /// Runs `f` as a `phase` of [`Self::timing`] (process CPU-s and wall).
+    pub(crate) fn timed<T>(&self, phase: Phase, f: impl FnOnce() -> T) -> T {
+        let (c0, t0) = (
+            softcap_app::process::cpu_seconds(),
+            std::time::Instant::now(),
+        );
+        let out = f();
+        let wall = t0.elapsed().as_secs_f64();
+        let cpu = match (c0, softcap_app::process::cpu_seconds()) {
+            (Some(a), Some(b)) => b - a,
+            _ => wall,
+        };
+        self.timing.update(|t| {
+            let (c, w) = match phase {
+                Phase::Simulate => (&mut t.simulate_cpu_s, &mut t.simulate_wall_s),
+                Phase::RestShape => (&mut t.rest_shape_cpu_s, &mut t.rest_shape_wall_s),
+                Phase::Modal => (&mut t.modal_cpu_s, &mut t.modal_wall_s),
+            };
+            *c += cpu;
+            *w += wall;
+        });
+        out
     }
 
     /// Elements of the model (one E per element in [`DynamicParams`]).
@@ -486,16 +630,18 @@ impl Forward {
         rest_m: &[Vector3<f64>],
         start: Option<(&StartModes, &[f64])>,
     ) -> Result<Vec<SegmentRun>> {
-        let model = self.model(params, rest_m)?;
-        let starts = self.start_states(&model, params.damping)?;
-        let runs = (0..self.segments.len())
-            .into_par_iter()
-            .map(|k| {
-                let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
-                self.simulate_segment(k, &model, params.damping, &starts[k], correction)
-            })
-            .collect::<Vec<_>>();
-        runs.into_iter().collect()
+        self.timed(Phase::Simulate, || {
+            let model = self.model(params, rest_m)?;
+            let starts = self.start_states(&model, params.damping)?;
+            let runs = (0..self.segments.len())
+                .into_par_iter()
+                .map(|k| {
+                    let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
+                    self.simulate_segment(k, &model, params.damping, &starts[k], correction)
+                })
+                .collect::<Vec<_>>();
+            runs.into_iter().collect()
+        })
     }
 
     /// Where segment `k`'s residuals sit in [`Self::residuals`].
@@ -689,9 +835,15 @@ impl Forward {
         start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
         correction: Option<(&StartModes, &[f64])>,
     ) -> Result<SegmentRun> {
+        let t0 = std::time::Instant::now();
         let seg = self.segments[k].clone();
         let mut model = model.clone();
-        let mut solver = Stepper::new(&model, self.masses_kg.clone(), &self.support_dofs())?;
+        let mut solver = Stepper::with_refactor_ratio(
+            &model,
+            self.masses_kg.clone(),
+            &self.support_dofs(),
+            self.settings.refactor_ratio,
+        )?;
         let (mut x0, mut v0) = start.clone();
         if let Some((modes, c)) = correction {
             modes.apply(&mut x0, &mut v0, c);
@@ -706,6 +858,7 @@ impl Forward {
         let first_h =
             (self.seq.times_s[seg.start + 1] - self.seq.times_s[seg.start]) / substeps as f64;
         let mut startup = self.settings.startup_euler_steps;
+        let (mut steps, mut iterations) = (0, 0);
         let mut run = SegmentRun {
             segment: seg.clone(),
             positions_m: Vec::with_capacity(seg.end - seg.start),
@@ -748,6 +901,7 @@ impl Forward {
                     let mut last = None;
                     for _ in 0..startup {
                         let r = solver.step(&mut model, &mut state, &loads, &euler);
+                        iterations += r.iterations;
                         let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
                         last = Some(r);
                         if failed {
@@ -756,7 +910,10 @@ impl Forward {
                     }
                     startup = 0;
                     solver.initialize_acceleration(&model, &mut state, &self.gravity_n, &settings);
-                    last.expect("startup_euler_steps > 0")
+                    steps += self.settings.startup_euler_steps - 1;
+                    let last = last.expect("startup_euler_steps > 0");
+                    iterations -= last.iterations; // counted below with the step
+                    last
                 } else {
                     if j == seg.start && s == 1 {
                         solver.initialize_acceleration(
@@ -768,18 +925,44 @@ impl Forward {
                     }
                     solver.step(&mut model, &mut state, &loads, &settings)
                 };
+                steps += 1;
+                iterations += report.iterations;
                 match report.status {
                     DynamicStepStatus::Converged => {}
                     DynamicStepStatus::MaxIterations => run.max_iteration_steps += 1,
                     DynamicStepStatus::Failed { reason } => {
                         run.failure = Some(format!("frame {}: {reason}", j + 1));
+                        self.record_segment(&solver, t0, steps, iterations);
                         return Ok(run);
                     }
                 }
             }
             run.positions_m.push(state.positions_m.clone());
         }
+        self.record_segment(&solver, t0, steps, iterations);
         Ok(run)
+    }
+
+    fn record_segment(
+        &self,
+        solver: &Stepper,
+        t0: std::time::Instant,
+        steps: usize,
+        iterations: usize,
+    ) {
+        let wall = t0.elapsed().as_secs_f64();
+        let (factorizations, factor_s) = match solver {
+            Stepper::Linear(s) => (s.factorizations(), s.factor_seconds()),
+            Stepper::Quadratic(_) => (0, 0.0),
+        };
+        self.timing.update(|t| {
+            t.segment_runs += 1;
+            t.steps += steps;
+            t.newton_iterations += iterations;
+            t.factorizations += factorizations;
+            t.segment_thread_s += wall;
+            t.factor_thread_s += factor_s;
+        });
     }
 
     /// Residuals x_t(p) − x̂_t (eq. 9) of `runs`, in segment, frame, node, axis order; a failed

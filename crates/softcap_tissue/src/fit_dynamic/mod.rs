@@ -24,6 +24,6 @@ pub mod warm;
 
 pub use blend::{Blending, ControlPoints, control_points};
 pub use fit::{DynamicFit, Elements, FitDynamicSettings, Optimizer, fit_sequence};
-pub use forward::{DynamicParams, FitModel, Forward, ForwardSettings};
+pub use forward::{DynamicParams, FitModel, FitTiming, Forward, ForwardSettings};
 pub use run::{FitDynamicConfig, SimulateDynamicConfig, SimulateDynamicOutcome, simulate};
 pub use sequence::{Segment, TrackedSequence};
