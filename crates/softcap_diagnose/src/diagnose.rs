@@ -76,8 +76,12 @@ pub fn diagnose_with_progress(
     settings: &DiagnoseSettings,
     progress: &ProgressBar,
 ) -> Result<DiagnosisRun> {
+    use crate::profile::span;
+    let total = span(|| "diagnose".into());
     let seg = segment(rec, sim, settings)?;
+    let phase = span(|| "baseline (default model at every frame, tangent response)".into());
     let prepared = prepare(rec, &seg, sim, settings, progress)?;
+    drop(phase);
     // Outlier markers (a marker on the wrong blob for seconds) leave the diagnosis first.
     let outliers = outlier_runs(rec, &prepared.baseline_m, &settings.outliers);
     let cleaned;
@@ -95,12 +99,19 @@ pub fn diagnose_with_progress(
         signatures: &mismatch.signatures,
         settings,
     };
+    let phase = span(|| "screen (linearised refits)".into());
     let screen = screen(&cx, &mismatch, progress);
+    drop(phase);
     let confirmation = confirm(&cx, &screen, sim, progress)?;
+    let phase = span(|| "select (forward selection, look-alikes)".into());
     let selection = select(&cx, &screen, &confirmation);
+    drop(phase);
     let mut diagnosis = verdict(&mismatch, &screen, &confirmation, &selection);
     diagnosis.outliers = outliers;
+    let phase = span(|| "next experiment".into());
     diagnosis.next_experiment = plan_next_experiment(&cx, &screen, &selection, sim, progress);
+    drop(phase);
+    drop(total);
     let extended_m = selection.prediction;
     progress.finish_and_clear();
     let residuals_after = match &extended_m {
@@ -416,6 +427,7 @@ fn screen<'a>(cx: &Context<'a>, mismatch: &'a Mismatch, progress: &ProgressBar) 
         .into_iter()
         .filter_map(|h| {
             let e = h.effect();
+            let _profile = crate::profile::span(|| format!("screen {}", e.name()));
             let r = refit(&h.variants(cx), rec, seg, p, &|k, m| {
                 scoring.scored(e, k, m)
             });
@@ -604,6 +616,7 @@ fn confirm(
         ));
         let before_e = scoring.before_m(e);
         let scored = |k: usize, m: usize| scoring.scored(e, k, m);
+        let _profile = crate::profile::span(|| format!("confirm {}", e.name()));
         match row.hypothesis.confirm(cx, &row.refit, &scored, sim) {
             Ok(Some(c)) if row.hypothesis.fit_at_bound(&c).is_some() => {
                 let why = row.hypothesis.fit_at_bound(&c).unwrap_or_default();

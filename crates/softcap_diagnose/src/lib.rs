@@ -7,6 +7,7 @@
 //!
 //! | module | what |
 //! |---|---|
+//! | [`profile`] | where the diagnosis's time goes (`SOFTCAP_DIAGNOSE_PROFILE`) |
 //! | [`recording`], [`segment`] | the in-memory recording (frames: time, probe pose, force, markers); its phases, probe locations (the held-out unit) and marker regions |
 //! | [`signal`], [`sensor`], [`friction`] | kernels on frame-time traces: low-pass, derivative, time shift; the FSR chain and its inverse; the Coulomb return mapping of the tip's travel |
 //! | [`residual`], [`cells`] | residual components and where the error lives; noise σ; the focus cells and the hypotheses' effect cells |
@@ -67,6 +68,7 @@ pub mod indentation;
 pub mod io;
 pub mod outliers;
 pub mod output;
+pub mod profile;
 pub mod protocols;
 pub mod recording;
 pub mod residual;

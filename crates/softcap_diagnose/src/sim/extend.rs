@@ -52,20 +52,21 @@ impl FemProbeSimulator {
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let setup = self.setup();
         let mut solver: StaticSolver = setup.solver(&model).map_err(Box::new)?;
+        let settings = EquilibriumSettings {
+            refactorization: self.settings().sequence_refactorization,
+            ..self.settings().equilibrium.clone()
+        };
         let mut x = setup.mesh.vertices.clone();
         let mut out = Vec::with_capacity(frames.len());
         let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
+        let _profile =
+            crate::profile::sequence("force-driven", setup.mesh.tets.len(), frames.len());
         for (k, fr) in frames.iter().enumerate() {
             before(&mut model, (fr.time_s - t_prev).max(0.0))?;
             t_prev = fr.time_s;
             let f = self.nodal_load(&fr.load);
-            let rep = setup.simulate(
-                &mut solver,
-                &mut model,
-                &mut x,
-                &f,
-                &self.settings().equilibrium,
-            );
+            let rep = setup.simulate(&mut solver, &mut model, &mut x, &f, &settings);
+            crate::profile::solve(rep.iterations, setup.mesh.tets.len());
             if !rep.converged() {
                 return Err(not_converged(
                     k,
@@ -91,6 +92,8 @@ impl FemProbeSimulator {
         let mut x = setup.mesh.vertices.clone();
         let mut previous = vec![Vector3::zeros(); x.len()];
         let mut out = Vec::with_capacity(frames.len());
+        let _profile =
+            crate::profile::sequence("strain-space", setup.mesh.tets.len(), frames.len());
         for (k, fr) in frames.iter().enumerate() {
             let f = self.nodal_load(&fr.load);
             let solve = model
@@ -104,6 +107,7 @@ impl FemProbeSimulator {
                     &self.settings().strain_space,
                 )
                 .map_err(fem)?;
+            crate::profile::solve(solve.iterations, setup.mesh.tets.len());
             if !solve.converged() {
                 return Err(not_converged(
                     k,
@@ -270,6 +274,8 @@ impl FemProbeSimulator {
                 let mut solver = NodalSolver::new(&model, &[]).map_err(fem)?;
                 let mut x = mesh.vertices.clone();
                 let mut out = Vec::with_capacity(frames.len());
+                let _profile =
+                    crate::profile::sequence("support springs", mesh.tets.len(), frames.len());
                 for (k, fr) in frames.iter().enumerate() {
                     let f = self.nodal_load(&fr.load);
                     let rep = solver.solve(
@@ -279,6 +285,7 @@ impl FemProbeSimulator {
                         &mut [&mut sup],
                         &self.settings().equilibrium,
                     );
+                    crate::profile::solve(rep.iterations, mesh.tets.len());
                     if !rep.converged() {
                         return Err(not_converged(
                             k,
@@ -476,6 +483,11 @@ impl FemProbeSimulator {
         mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let replay = RigidReplay::new(self, tip, friction.is_some());
+        let _profile = crate::profile::sequence(
+            "rigid-tip replay",
+            self.setup().mesh.tets.len(),
+            frames.len(),
+        );
         let mut state = RigidState {
             solver: replay.solver(&model, friction)?,
             model,
@@ -720,7 +732,7 @@ impl<'a> RigidReplay<'a> {
     ) -> Result<EquilibriumReport> {
         let RigidState { solver, model, x } = state;
         self.sim.setup().dirichlet().apply(x);
-        Ok(match solver {
+        let rep = match solver {
             RigidSolver::Frictionless(solver) => {
                 let problem = iso.map(|iso| self.problem_at(iso)).transpose()?;
                 solver.solve(model, x, f, problem.as_ref(), &self.settings)
@@ -745,7 +757,9 @@ impl<'a> RigidReplay<'a> {
                 }
                 rep
             }
-        })
+        };
+        crate::profile::solve(rep.iterations, self.sim.setup().mesh.tets.len());
+        Ok(rep)
     }
 }
 

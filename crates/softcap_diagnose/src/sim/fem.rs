@@ -61,6 +61,18 @@ pub struct FemSimSettings {
     /// (`WhenStale`, modified Newton: other iterates, and through the contact set's hysteresis
     /// and the plastic history other equilibria). No tangent response is read from a replay.
     pub replay_refactorization: Refactorization,
+    /// When the force-driven re-simulations of the extended models (`Extension::{Elastic,
+    /// Viscoelastic, Plastic, Anisotropic, …}` under the measured force over the patch, one
+    /// frame after another) refactor their system matrix (`softcap_fem::Refactorization`): at
+    /// every iterate (`EveryIteration`, the default), or only when the factor stops contracting
+    /// (`WhenStale`, modified Newton: the factor kept across iterations and frames; without
+    /// contact a frame's equilibrium is the one full Newton finds, to the same convergence
+    /// test). Measured with `WhenStale` on the own rig's viscoelasticity case: the diagnosis
+    /// 109.4 → 48.6 CPU-s, its compliance scale moved by 1e-8 relative and its held-out RMS by
+    /// 3e-12 m (docs/diagnose.md, where the time goes); not the default until both suites
+    /// pass with it. The baseline's single solves refactor at every iterate (their tangent
+    /// response is read from the factor); no tangent response is read from a sequence.
+    pub sequence_refactorization: Refactorization,
 }
 
 /// How [`ProbeSimulator::refined`] refines the fit mesh for the spatial hypotheses' replays.
@@ -108,6 +120,7 @@ impl Default for FemSimSettings {
             rigid_tip_contact: ContactSettings::default(),
             friction_slip_fraction: 0.1,
             replay_refactorization: Refactorization::EveryStep,
+            sequence_refactorization: Refactorization::EveryIteration,
         }
     }
 }
@@ -497,6 +510,7 @@ impl ProbeSimulator for FemProbeSimulator {
                         &self.settings.strain_space,
                     )
                     .map_err(|e| DiagnoseError::Fem(Box::new(e)))?;
+                crate::profile::solve(solve.iterations, self.setup.mesh.tets.len());
                 if solve.converged() {
                     state.forces.clone_from(&f);
                 } else {
@@ -522,6 +536,7 @@ impl ProbeSimulator for FemProbeSimulator {
                     &f,
                     &self.settings.equilibrium,
                 );
+                crate::profile::solve(report.iterations, self.setup.mesh.tets.len());
                 if !report.converged() {
                     return Err(DiagnoseError::Simulation {
                         frame: u64::MAX,
