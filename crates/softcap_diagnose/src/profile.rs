@@ -1,5 +1,5 @@
 //! Where the diagnosis's time goes (a measuring aid, off unless asked for): with the environment
-//! variable `SOFTCAP_DIAGNOSE_PROFILE` set, every phase of [`crate::diagnose`] and every
+//! variable `SOFTCAP_DIAGNOSE_PROFILE` set, every phase of [`crate::diagnose()`] and every
 //! confirmation prints one `PROFILE` line to stderr — its CPU seconds (user + system of the
 //! process, every thread: the re-simulations run in parallel), wall seconds, and what the
 //! simulator did meanwhile: sequences re-simulated, frames solved, equilibrium iterations (an
