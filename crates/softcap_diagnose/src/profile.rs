@@ -38,17 +38,6 @@ thread_local! {
     static THREAD: std::cell::Cell<(u64, u64)> = const { std::cell::Cell::new((0, 0)) };
 }
 
-/// CPU seconds of the calling thread (Linux `/proc/thread-self/stat`, as
-/// `softcap_app::process::cpu_seconds` reads the process's).
-fn thread_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let mut fields = rest.split_whitespace().skip(11);
-    let user: f64 = fields.next()?.parse().ok()?;
-    let system: f64 = fields.next()?.parse().ok()?;
-    Some((user + system) / 100.0)
-}
-
 /// One re-simulated sequence (run on one thread); prints its `PROFILE-SEQ` line when dropped.
 pub(crate) struct Sequence {
     kind: &'static str,
@@ -68,7 +57,7 @@ pub(crate) fn sequence(kind: &'static str, tets: usize, frames: usize) -> Option
             kind,
             tets,
             frames,
-            cpu_s: thread_cpu_seconds().unwrap_or(f64::NAN),
+            cpu_s: softcap_app::process::thread_cpu_seconds().unwrap_or(f64::NAN),
             thread: THREAD.with(|t| t.get()),
         }
     })
@@ -76,7 +65,7 @@ pub(crate) fn sequence(kind: &'static str, tets: usize, frames: usize) -> Option
 
 impl Drop for Sequence {
     fn drop(&mut self) {
-        let cpu = thread_cpu_seconds().unwrap_or(f64::NAN) - self.cpu_s;
+        let cpu = softcap_app::process::thread_cpu_seconds().unwrap_or(f64::NAN) - self.cpu_s;
         let (s, i) = THREAD.with(|t| t.get());
         eprintln!(
             "PROFILE-SEQ | {} | {} tets | {} frames | solves {} | iterations {} | {cpu:.2} thread CPU-s",

@@ -18,25 +18,13 @@ use softcap_diagnose::{RunConfig, StageSettings};
 use softcap_synth::Scenario;
 use std::time::Instant;
 
-/// User + system CPU seconds of this process so far (Linux `/proc/self/stat`, clock ticks of
-/// 1/100 s); `None` where that file is not available.
-fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = f.get(11)?.parse().ok()?;
-    let stime: f64 = f.get(12)?.parse().ok()?;
-    Some((utime + stime) / 100.0)
-}
-
 fn main() {
     let mut scenario =
         Scenario::load(&common::suite_dir().join("probe-friction.toml")).expect("suite scenario");
     scenario.protocol.locations = 10;
     let inputs = common::prepare_inputs(&scenario);
     let json = inputs.dir.path().join("diagnosis.json");
-    let cpu0 = cpu_seconds();
+    let cpu0 = softcap_app::process::cpu_seconds();
     let t0 = Instant::now();
     let d = softcap_diagnose::run(&RunConfig {
         capture: inputs.capture.clone(),
@@ -50,7 +38,9 @@ fn main() {
     })
     .expect("diagnosis");
     let wall = t0.elapsed().as_secs_f64();
-    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+    let cpu = cpu0
+        .zip(softcap_app::process::cpu_seconds())
+        .map(|(a, b)| b - a);
     if let Some(out) = std::env::var_os("SOFTCAP_TIMING_JSON") {
         std::fs::copy(&json, out).expect("copy diagnosis.json");
     }

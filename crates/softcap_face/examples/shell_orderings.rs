@@ -9,15 +9,7 @@ use softcap_mesh::shell::{LinearShell, ShellOrdering, ShellSettings};
 use std::path::PathBuf;
 
 fn cpu_s() -> f64 {
-    let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let f: Vec<&str> = s
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
+    softcap_app::process::cpu_seconds().unwrap_or(0.0)
 }
 
 fn main() {

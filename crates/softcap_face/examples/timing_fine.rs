@@ -16,17 +16,7 @@ use softcap_mesh::shell::ShellSettings;
 
 /// (wall s, CPU s) of `f`.
 fn timed<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
-    let cpu = || -> f64 {
-        let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-        let f: Vec<&str> = s
-            .rsplit(')')
-            .next()
-            .unwrap_or("")
-            .split_whitespace()
-            .collect();
-        let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-        (tick(11) + tick(12)) / 100.0
-    };
+    let cpu = || softcap_app::process::cpu_seconds().unwrap_or(0.0);
     let (c0, t0) = (cpu(), std::time::Instant::now());
     let out = f();
     (out, t0.elapsed().as_secs_f64(), cpu() - c0)

@@ -23,12 +23,10 @@ use std::time::Instant;
 
 /// (user + system CPU seconds of the process, wall seconds)
 fn clocks() -> (f64, Instant) {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // fields after the parenthesised command name; utime, stime are fields 14, 15
-    let rest = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok()).unwrap_or(0.0);
-    ((ticks(11) + ticks(12)) / 100.0, Instant::now())
+    (
+        softcap_app::process::cpu_seconds().unwrap_or(0.0),
+        Instant::now(),
+    )
 }
 
 fn time(label: &str, reps: usize, mut f: impl FnMut()) {
