@@ -189,9 +189,11 @@ pub struct DynamicSolver {
     cholesky: SparseCholesky,
     masses_kg: Vec<f64>,
     length_scale_m: f64,
-    /// Per-chunk element forces and matrices of [`Self::linearize`] (reused across iterations).
+    /// Per-chunk element forces, matrices and K_e v_e products of [`Self::linearize`] and
+    /// [`Self::force_pass`] (reused across iterations).
     forces: Vec<[Vector3<f64>; 4]>,
     matrices: Vec<crate::element::Matrix12>,
+    products: Vec<[Vector3<f64>; 4]>,
     /// The last element pass, for a call with the same inputs (see [`Linearization`]).
     last: Option<Linearization>,
     /// Solve the next steps' Newton updates with the factor of an earlier system matrix (see
@@ -202,6 +204,12 @@ pub struct DynamicSolver {
     refactor_ratio: Option<f64>,
     refactor_due: bool,
     factored_coefficients: Option<[u64; 2]>,
+    /// Residual-only element passes for the updates that reuse the factor
+    /// ([`Self::set_residual_only`]).
+    residual_only: bool,
+    /// Largest |entry| of the factored matrix: the displacement test of the iterations that
+    /// reuse its factor and assemble no matrix ([`finish_iteration`]).
+    factored_entry_max: f64,
     /// Numeric factorizations so far, and the wall time they took \[s\].
     factorizations: usize,
     factor_s: f64,
@@ -271,22 +279,27 @@ pub struct StepLoads<'a> {
     pub initial_guess: Option<&'a [Vector3<f64>]>,
 }
 
+/// The largest |entry| of a system matrix's values.
+pub(crate) fn entry_max(values: &[f64]) -> f64 {
+    values.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+}
+
 /// The residual test that ends a Newton iteration of an implicit dynamic step (shared by
 /// [`DynamicSolver`] and the quadratic solver): the residual norm `rn` \[N\] against
-/// `residual_tol_rel` × the step's force `scale`, or against the largest system-matrix entry ×
-/// the displacement tolerance `tol_x` \[m\], after at least one update (a linear problem converges
-/// in one Newton step). When the test passes or the iterations are used up it sets `status` and
-/// returns `true`: the caller then commits the trial state and ends the step.
+/// `residual_tol_rel` × the step's force `scale`, or against the largest system-matrix entry
+/// `diag_max` ([`entry_max`]) × the displacement tolerance `tol_x` \[m\], after at least one
+/// update (a linear problem converges in one Newton step). When the test passes or the
+/// iterations are used up it sets `status` and returns `true`: the caller then commits the
+/// trial state and ends the step.
 pub(crate) fn finish_iteration(
     settings: &DynamicsSettings,
     it: usize,
     rn: f64,
     scale: f64,
-    values: &[f64],
+    diag_max: f64,
     tol_x: f64,
     status: &mut DynamicStepStatus,
 ) -> bool {
-    let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
     let converged = it > 0 && res_ok;
     if !converged && it < settings.max_iterations.max(1) {
@@ -350,11 +363,14 @@ impl DynamicSolver {
             length_scale_m,
             forces: Vec::new(),
             matrices: Vec::new(),
+            products: Vec::new(),
             last: None,
             reuse_factorization: false,
             refactor_ratio: None,
             refactor_due: false,
             factored_coefficients: None,
+            residual_only: true,
+            factored_entry_max: 0.0,
             factorizations: 0,
             factor_s: 0.0,
             final_residual: true,
@@ -381,8 +397,24 @@ impl DynamicSolver {
     /// of one per update. (A factor carried over from the previous step was tried: from noisy
     /// initial states its first chord updates diverged.) `None` (default): every update
     /// factors anew (unless [`Self::set_reuse_factorization`]).
+    ///
+    /// An iteration whose update will reuse the factor (no contact, no nodal terms) evaluates
+    /// only the residual — element forces and K_e v_e for the damping force
+    /// ([`ElasticModel::element_forces_products`]), no element matrices and no assembly; its
+    /// displacement test takes the largest entry of the factored matrix. When that residual
+    /// calls for a renewal, the matrix at the iterate is assembled then
+    /// ([`Self::set_residual_only`]).
     pub fn set_refactor_ratio(&mut self, ratio: Option<f64>) {
         self.refactor_ratio = ratio.filter(|r| r.is_finite() && *r > 0.0);
+    }
+
+    /// Whether, under [`Self::set_refactor_ratio`], an iteration whose update reuses the factor
+    /// evaluates only the residual (on by default). Off: every iteration assembles the system
+    /// matrix as well, which such an update does not use — the same iterates to round-off
+    /// (up to the displacement test, which then takes the current matrix's largest entry),
+    /// for measuring what the residual-only passes save.
+    pub fn set_residual_only(&mut self, on: bool) {
+        self.residual_only = on;
     }
 
     /// With `evaluate` off, a step that has used up its Newton iterations ends at its last update
@@ -618,22 +650,37 @@ impl DynamicSolver {
             }
             model.update_state(&x);
             let (v, a) = Self::velocity_acceleration(settings, state, &x);
-            let (mut values, fi, fd) =
-                self.linearize(&*model, &x, &v, settings.stiffness, a_stiff, &damping);
-            for (i, &m) in self.masses_kg.iter().enumerate() {
-                self.pattern
-                    .add_node_block(i, &(Matrix3::identity() * (a_mass * m)), &mut values);
-            }
+            // An update that will reuse the factor needs the residual only.
+            let residual_only = self.residual_only
+                && self.refactor_ratio.is_some()
+                && contact.is_none()
+                && terms.is_empty()
+                && self.reuses_factor(coefficients);
+            let (mut values, fi, fd) = if residual_only {
+                let (fi, fd) = self.force_pass(&*model, &x, &v, settings.stiffness, &damping);
+                (None, fi, fd)
+            } else {
+                let (values, fi, fd) = self.system(
+                    &*model,
+                    &x,
+                    &v,
+                    settings.stiffness,
+                    a_stiff,
+                    a_mass,
+                    &damping,
+                );
+                (Some(values), fi, fd)
+            };
             let mut r: Vec<Vector3<f64>> = (0..n)
                 .map(|i| external_forces_n[i] - fi[i] - fd[i] - a[i] * self.masses_kg[i])
                 .collect();
             let mut fc_norm = 0.0;
-            if let Some(c) = contact {
+            if let (Some(c), Some(values)) = (contact, values.as_mut()) {
                 let springs = match &frozen {
                     Some(f) => f.clone(),
                     None => {
                         let pat = &self.pattern;
-                        c.springs(&x, |node| pat.node_stiffness(node, &values))
+                        c.springs(&x, |node| pat.node_stiffness(node, values))
                     }
                 };
                 if it + 1 >= settings.contact_freeze_after {
@@ -641,8 +688,7 @@ impl DynamicSolver {
                 }
                 let mut fcs = Vec::with_capacity(springs.len());
                 for s in &springs {
-                    self.pattern
-                        .add_node_block(s.node, &s.matrix(), &mut values);
+                    self.pattern.add_node_block(s.node, &s.matrix(), values);
                     let f = s.force(&x[s.node]);
                     r[s.node] += f;
                     fcs.push(f);
@@ -650,11 +696,11 @@ impl DynamicSolver {
                 fc_norm = norm(&fcs);
                 report.contact = c.report(&springs, &x);
             }
-            if !terms.is_empty() {
+            if let Some(values) = values.as_mut().filter(|_| !terms.is_empty()) {
                 let requery = it < settings.contact_freeze_after;
                 {
                     let pat = &self.pattern;
-                    let node_k = |node: usize| pat.node_stiffness(node, &values);
+                    let node_k = |node: usize| pat.node_stiffness(node, values);
                     for t in terms.iter_mut() {
                         t.refresh(&x, &node_k, requery);
                     }
@@ -663,10 +709,10 @@ impl DynamicSolver {
                 for t in terms.iter() {
                     t.add_forces(&x, &mut fb);
                     for (node, m) in t.blocks(&x) {
-                        self.pattern.add_node_block(node, &m, &mut values);
+                        self.pattern.add_node_block(node, &m, values);
                     }
                     for (p, q, m) in t.pair_blocks(&x) {
-                        self.pattern.add_pair_block(p, q, &m, &mut values);
+                        self.pattern.add_pair_block(p, q, &m, values);
                     }
                 }
                 for (ri, fi) in r.iter_mut().zip(&fb) {
@@ -695,14 +741,27 @@ impl DynamicSolver {
                 .max(norm(&fi))
                 .max(norm(&inertia))
                 .max(fc_norm);
-            if finish_iteration(settings, it, rn, scale, &values, tol_x, &mut report.status) {
+            let diag_max = values.as_deref().map_or(self.factored_entry_max, entry_max);
+            if finish_iteration(settings, it, rn, scale, diag_max, tol_x, &mut report.status) {
                 state.advance(h, x, v, a);
                 return report;
             }
             // A slow reduction by the reused factor (not the last, converged iteration's, which
-            // may sit at the rounding floor) renews it for this update.
+            // may sit at the rounding floor) renews it for this update: with the matrix at x.
             self.refactor_due |= slow;
-            let dx = match self.solve_update(&values, rf, coefficients) {
+            if values.is_none() && !self.reuses_factor(coefficients) {
+                let (matrix, _, _) = self.system(
+                    &*model,
+                    &x,
+                    &v,
+                    settings.stiffness,
+                    a_stiff,
+                    a_mass,
+                    &damping,
+                );
+                values = Some(matrix);
+            }
+            let dx = match self.solve_update(values.as_deref(), rf, coefficients) {
                 Ok(dx) => dx,
                 Err(e) => {
                     report.status = DynamicStepStatus::Failed {
@@ -724,25 +783,37 @@ impl DynamicSolver {
         report
     }
 
-    /// The Newton update A⁻¹ r: with the last factor while [`Self::set_reuse_factorization`] is
-    /// on and one exists (a chord step), else with a fresh factorization of A.
-    fn solve_update(
-        &mut self,
-        values: &[f64],
-        rf: Vec<f64>,
-        coefficients: [u64; 2],
-    ) -> Result<Vec<f64>, FemError> {
-        let reuse = self.cholesky.kind().is_some()
+    /// Whether the next Newton update is solved with the existing factor: while
+    /// [`Self::set_reuse_factorization`] is on, or under [`Self::set_refactor_ratio`] until a
+    /// renewal is due or the system's (mass, stiffness) coefficients changed.
+    fn reuses_factor(&self, coefficients: [u64; 2]) -> bool {
+        self.cholesky.kind().is_some()
             && if self.refactor_ratio.is_some() {
                 !self.refactor_due && self.factored_coefficients == Some(coefficients)
             } else {
                 self.reuse_factorization
+            }
+    }
+
+    /// The Newton update A⁻¹ r: with the existing factor when [`Self::reuses_factor`] (a chord
+    /// step), else with a fresh factorization of A (`values`, which must then be given).
+    fn solve_update(
+        &mut self,
+        values: Option<&[f64]>,
+        rf: Vec<f64>,
+        coefficients: [u64; 2],
+    ) -> Result<Vec<f64>, FemError> {
+        if !self.reuses_factor(coefficients) {
+            let Some(values) = values else {
+                return Err(FemError::Factorization {
+                    reason: "no system matrix assembled for a renewed factorization".into(),
+                });
             };
-        if !reuse {
             let t0 = std::time::Instant::now();
             let factored = self.cholesky.factor(&self.pattern, values);
             self.factor_s += t0.elapsed().as_secs_f64();
             self.factored_coefficients = factored.is_ok().then_some(coefficients);
+            self.factored_entry_max = entry_max(values);
             self.refactor_due = false;
             factored?;
             self.factorizations += 1;
@@ -795,6 +866,70 @@ impl DynamicSolver {
             fd: fd.clone(),
         });
         (values, fi, fd)
+    }
+
+    /// The system matrix A = a_mass M + a_stiff Σ_e K_e at `x` ([`Self::linearize`] plus the
+    /// mass blocks), f_int(x) and D v.
+    #[allow(clippy::too_many_arguments)]
+    fn system<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        a_stiff: f64,
+        a_mass: f64,
+        damping: &RayleighDamping,
+    ) -> (Vec<f64>, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let (mut values, fi, fd) = self.linearize(model, x, v, kind, a_stiff, damping);
+        for (i, &m) in self.masses_kg.iter().enumerate() {
+            self.pattern
+                .add_node_block(i, &(Matrix3::identity() * (a_mass * m)), &mut values);
+        }
+        (values, fi, fd)
+    }
+
+    /// The residual's element pass without the system matrix: f_int(x) and the damping force
+    /// D v = α M v + β Σ_e K_e v_e ([`ElasticModel::element_forces_products`]; chunks possibly in
+    /// parallel, accumulated serially in element order). The forces of [`Self::linearize`] to
+    /// round-off, for an update that reuses the factor of an earlier matrix.
+    fn force_pass<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        damping: &RayleighDamping,
+    ) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let n_el = model.elements().len();
+        let mut fi = vec![Vector3::zeros(); model.num_nodes()];
+        let mut fd: Vec<Vector3<f64>> = v
+            .iter()
+            .zip(&self.masses_kg)
+            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
+            .collect();
+        let beta = damping.beta_s;
+        let chunk = crate::model::ELEMENT_CHUNK.min(n_el.max(1));
+        self.forces.resize(chunk, [Vector3::zeros(); 4]);
+        self.products.resize(chunk, [Vector3::zeros(); 4]);
+        for start in (0..n_el).step_by(chunk) {
+            let len = chunk.min(n_el - start);
+            let forces = &mut self.forces[..len];
+            let products = &mut self.products[..len];
+            let velocities = (beta != 0.0).then_some(v);
+            model.element_forces_products(start, x, velocities, kind, forces, products);
+            for (k, g) in model.elements()[start..start + len].iter().enumerate() {
+                for q in 0..4 {
+                    fi[g.nodes[q]] += forces[k][q];
+                }
+                if beta != 0.0 {
+                    for q in 0..4 {
+                        fd[g.nodes[q]] += products[k][q] * beta;
+                    }
+                }
+            }
+        }
+        (fi, fd)
     }
 
     /// The element pass of [`Self::linearize`].

@@ -92,6 +92,52 @@ pub trait ElasticModel {
         }
         None
     }
+
+    /// Forces of the elements `first .. first + forces.len()` at `x` (as
+    /// [`Self::linearize_elements`]) and, when `v` is given, the products K_e v_e of their
+    /// element matrices of `kind` at `x` with the nodal velocities `v` (the stiffness-proportional
+    /// Rayleigh damping force β K_e v_e without β; `products` untouched otherwise). No element
+    /// matrix is returned: this is the pass of a Newton update that reuses a factored system
+    /// matrix and needs only its residual. Same element-order contract as
+    /// [`Self::linearize_elements`]; the values equal its forces and K_e v_e to round-off.
+    ///
+    /// The default forms K_e ([`Self::element_matrix`]); models override it to skip the 12×12
+    /// matrix.
+    fn element_forces_products(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        v: Option<&[Vector3<f64>]>,
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        products: &mut [[Vector3<f64>; 4]],
+    ) {
+        for (k, (f, p)) in forces.iter_mut().zip(products.iter_mut()).enumerate() {
+            let e = first + k;
+            *f = self.element_forces(e, x);
+            if let Some(v) = v {
+                *p = element_product(
+                    &self.element_matrix(e, x, kind),
+                    &self.elements()[e].nodes,
+                    v,
+                );
+            }
+        }
+    }
+}
+
+/// K_e v_e of a 12×12 element matrix with the velocities of its nodes, per node.
+pub(crate) fn element_product(
+    k: &Matrix12,
+    nodes: &[usize; 4],
+    v: &[Vector3<f64>],
+) -> [Vector3<f64>; 4] {
+    let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+    for q in 0..4 {
+        ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[nodes[q]]);
+    }
+    let kv = k * ve;
+    std::array::from_fn(|q| kv.fixed_rows::<3>(3 * q).into_owned())
 }
 
 /// A process-wide fresh id for [`ElasticModel::state_id`] (ids are never reused, so a cache
@@ -124,11 +170,12 @@ pub(crate) fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + 
 }
 
 /// `element(k, &mut forces[k], &mut matrices[k])` for every k, in parallel for long ranges (see
-/// [`PARALLEL_MIN_ELEMENTS`]): the loop of a one-pass [`ElasticModel::linearize_elements`].
-pub(crate) fn fill_linearization(
+/// [`PARALLEL_MIN_ELEMENTS`]): the loop of a one-pass [`ElasticModel::linearize_elements`] (and,
+/// with per-node products in place of matrices, of [`ElasticModel::element_forces_products`]).
+pub(crate) fn fill_linearization<T: Send>(
     forces: &mut [[Vector3<f64>; 4]],
-    matrices: &mut [Matrix12],
-    element: impl Fn(usize, &mut [Vector3<f64>; 4], &mut Matrix12) + Sync,
+    matrices: &mut [T],
+    element: impl Fn(usize, &mut [Vector3<f64>; 4], &mut T) + Sync,
 ) {
     if forces.len() < PARALLEL_MIN_ELEMENTS {
         for (k, (f, m)) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
@@ -391,6 +438,39 @@ impl ElasticModel for CorotationalModel {
         }
         // Energy only for fixed parameters and when it came out of the pass.
         (self.hook.is_none() && kind == StiffnessKind::Warped).then(|| energies.iter().sum())
+    }
+    /// For the warped matrix without forming it: R K_e Rᵀ v_e is the corotational force of the
+    /// velocity field, f_a = V R σ(sym(Rᵀ Ḟ)) g_a with Ḟ = Σ_a v_a g_aᵀ (R K_e Rᵀ applied to v is
+    /// K_e applied to the unrotated velocities Rᵀ v, whose gradient is Rᵀ Ḟ, then rotated back;
+    /// bickel2009 eq. 7, 10), from the one polar decomposition the forces need. The consistent
+    /// tangent is formed as in the default.
+    fn element_forces_products(
+        &self,
+        first: usize,
+        x: &[Vector3<f64>],
+        v: Option<&[Vector3<f64>]>,
+        kind: StiffnessKind,
+        forces: &mut [[Vector3<f64>; 4]],
+        products: &mut [[Vector3<f64>; 4]],
+    ) {
+        fill_linearization(forces, products, |k, f, kv| {
+            let (g, p) = (&self.geometry[first + k], &self.params[first + k]);
+            let (r, eps) = corotated_strain(&g.deformation_gradient(x));
+            let pm = r * crate::element::linear_stress(p, &eps) * g.volume_m3;
+            *f = std::array::from_fn(|a| pm * g.grads[a]);
+            let Some(v) = v else { return };
+            *kv = match kind {
+                StiffnessKind::Warped => {
+                    let rate = r.transpose() * g.deformation_gradient(v);
+                    let rate = (rate + rate.transpose()) * 0.5;
+                    let pv = r * crate::element::linear_stress(p, &rate) * g.volume_m3;
+                    std::array::from_fn(|a| pv * g.grads[a])
+                }
+                StiffnessKind::Consistent => {
+                    element_product(&corotational_tangent(g, p, x), &g.nodes, v)
+                }
+            };
+        });
     }
     fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12 {
         let g = &self.geometry[e];

@@ -25,7 +25,7 @@
 
 use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
 use crate::dynamics::{
-    DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings,
+    DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings, entry_max,
     finish_iteration,
 };
 use crate::modal::Modes;
@@ -493,7 +493,8 @@ impl QuadraticSolver {
                 return report;
             }
             let scale = norm(external_forces_n).max(norm(&fi)).max(norm(&inertia));
-            if finish_iteration(settings, it, rn, scale, &values, tol_x, &mut report.status) {
+            let diag_max = entry_max(&values);
+            if finish_iteration(settings, it, rn, scale, diag_max, tol_x, &mut report.status) {
                 state.advance(h, x, v, a);
                 return report;
             }

@@ -249,10 +249,11 @@ fn factorization_reuse_follows_newtons_trajectory_with_fewer_factorizations() {
         residual_tol_rel: 1e-10,
         ..DynamicsSettings::default()
     };
-    let run = |ratio: Option<f64>| {
+    let run = |ratio: Option<f64>, residual_only: bool| {
         let mut model = model.clone();
         let mut solver = DynamicSolver::with_bc(&model, masses.clone(), &bc).unwrap();
         solver.set_refactor_ratio(ratio);
+        solver.set_residual_only(residual_only);
         // Released from the straight bar: it falls and swings under gravity.
         let mut state = DynamicState::at_rest(mesh.vertices.clone());
         let mut tip = 0.0f64;
@@ -269,8 +270,23 @@ fn factorization_reuse_follows_newtons_trajectory_with_fewer_factorizations() {
         }
         (path, solver.factorizations(), tip)
     };
-    let (newton, newton_factors, tip) = run(None);
-    let (reused, reused_factors, _) = run(Some(0.3));
+    let (newton, newton_factors, tip) = run(None, true);
+    let (reused, reused_factors, _) = run(Some(0.3), true);
+    // The updates that reuse the factor evaluate the residual only (no element matrices): the
+    // same iterates as assembling the matrix there too, to round-off.
+    let (assembled, assembled_factors, _) = run(Some(0.3), false);
+    let residual_only_gap = assembled
+        .iter()
+        .zip(&reused)
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "residual-only vs assembled: {residual_only_gap:.2e} m, factorizations {reused_factors} vs {assembled_factors}"
+    );
+    assert!(
+        residual_only_gap < 1e-9,
+        "residual-only passes moved the trajectory by {residual_only_gap} m"
+    );
     eprintln!(
         "tip {tip:.3} m; factorizations {newton_factors} (Newton) vs {reused_factors} (reuse)"
     );
@@ -290,4 +306,92 @@ fn factorization_reuse_follows_newtons_trajectory_with_fewer_factorizations() {
         2 * reused_factors < newton_factors,
         "{reused_factors} factorizations with reuse, {newton_factors} without"
     );
+}
+
+/// The residual-only element pass ([`ElasticModel::element_forces_products`], what an update
+/// that reuses a factored matrix evaluates) against the full one
+/// ([`ElasticModel::linearize_elements`]): the same element forces, and K_e v_e equal to the
+/// formed element matrices times the nodal velocities, to round-off — for the corotational
+/// model's closed form R K_e Rᵀ v_e = V R σ(sym(Rᵀ Ḟ)) g_a (warped), its formed consistent
+/// tangent, and the trait default (neo-Hookean), on a bent, twisted and rotated bar with a
+/// non-uniform velocity field (864 tets: the parallel element loop).
+#[test]
+fn residual_only_pass_equals_the_full_element_pass() {
+    use softcap_fem::nalgebra::{Rotation3, SVector};
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.2, 0.03, 0.03], [16, 3, 3]);
+    let rot = Rotation3::from_scaled_axis(Vector3::new(0.3, -1.1, 0.7));
+    let x: Vec<Vector3<f64>> = mesh
+        .vertices
+        .iter()
+        .map(|p| {
+            let (s, c) = (4.0 * p.x).sin_cos();
+            let bent = Vector3::new(
+                p.x * (1.0 + 0.05 * p.y / 0.03),
+                p.y * c - p.z * s + 0.02 * p.x * p.x,
+                p.y * s + p.z * c - 0.3 * p.x * p.x,
+            );
+            rot * bent + Vector3::new(0.01, -0.02, 0.005)
+        })
+        .collect();
+    let v: Vec<Vector3<f64>> = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let w = (i as f64 * 0.37).sin();
+            Vector3::new(0.1 * w, -2.0 * p.x + 0.3 * p.z, 0.5 * p.x * p.x - 0.2 * w)
+        })
+        .collect();
+    let corotational =
+        CorotationalModel::homogeneous(&mesh, LinearParams::from_young_poisson(5e5, 0.45).unwrap())
+            .unwrap();
+    let neohookean = NeoHookeanModel::homogeneous(
+        &mesh,
+        NeoHookeanParams::from_young_poisson(5e5, 0.45).unwrap(),
+    )
+    .unwrap();
+    let cases: [(&dyn ElasticModel, StiffnessKind, &str); 3] = [
+        (&corotational, StiffnessKind::Warped, "corotational, warped"),
+        (
+            &corotational,
+            StiffnessKind::Consistent,
+            "corotational, consistent",
+        ),
+        (&neohookean, StiffnessKind::Consistent, "neo-Hookean"),
+    ];
+    let n = mesh.tets.len();
+    assert!(n >= 256, "{n} tets: below the parallel loop's threshold");
+    for (model, kind, what) in cases {
+        let mut forces = vec![[Vector3::zeros(); 4]; n];
+        let mut matrices = vec![Matrix12::zeros(); n];
+        model.linearize_elements(0, &x, kind, &mut forces, &mut matrices);
+        let mut only = vec![[Vector3::zeros(); 4]; n];
+        let mut products = vec![[Vector3::zeros(); 4]; n];
+        model.element_forces_products(0, &x, Some(&v), kind, &mut only, &mut products);
+        let (mut f_err, mut f_max, mut p_err, mut p_max) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (e, g) in model.elements().iter().enumerate() {
+            let mut ve = SVector::<f64, 12>::zeros();
+            for q in 0..4 {
+                ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[g.nodes[q]]);
+            }
+            let kv = matrices[e] * ve;
+            for q in 0..4 {
+                f_err = f_err.max((only[e][q] - forces[e][q]).norm());
+                f_max = f_max.max(forces[e][q].norm());
+                p_err = p_err.max((products[e][q] - kv.fixed_rows::<3>(3 * q)).norm());
+                p_max = p_max.max(kv.fixed_rows::<3>(3 * q).norm());
+            }
+        }
+        eprintln!("{what}: forces {f_err:.1e} of {f_max:.1e}, K v {p_err:.1e} of {p_max:.1e}");
+        assert!(f_max > 0.0 && p_max > 0.0, "{what}: nothing to compare");
+        assert!(f_err <= 1e-12 * f_max, "{what}: forces differ by {f_err:e}");
+        assert!(
+            p_err <= 1e-12 * p_max,
+            "{what}: K_e v_e differs by {p_err:e}"
+        );
+        // Without velocities the products are left as they were.
+        let before = products.clone();
+        model.element_forces_products(0, &x, None, kind, &mut only, &mut products);
+        assert_eq!(products, before, "{what}");
+    }
 }

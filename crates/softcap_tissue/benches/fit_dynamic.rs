@@ -15,9 +15,10 @@
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_ONCE=1` runs the whole fit once with the stage defaults instead
 //! and prints wall, CPU-s, evaluations and where the time went (forward simulation,
 //! factorization, rest shape, modal warm start; `DynamicFit::timing`);
-//! `SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE=1` also times the evaluation with a factorization at
-//! every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the largest node
-//! distance between the two; `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE=1` also times the evaluation with the system matrix
+//! assembled at every Newton iteration (`ForwardSettings::residual_only` off) and with a
+//! factorization at every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the
+//! largest node distance of each to the default; `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence.
 
 use std::time::{Duration, Instant};
@@ -169,7 +170,7 @@ fn bench(c: &mut Criterion) {
         settings.forward.velocity_half_window,
     );
     let observed = vec![true; truth.template.vertices.len()];
-    let forward_with = |refactor_ratio: f64| {
+    let forward_with = |refactor_ratio: f64, residual_only: bool| {
         Forward::new(
             &truth.template,
             &truth.sequence,
@@ -177,6 +178,7 @@ fn bench(c: &mut Criterion) {
             observed.clone(),
             &ForwardSettings {
                 refactor_ratio,
+                residual_only,
                 ..settings.forward.clone()
             },
         )
@@ -203,17 +205,35 @@ fn bench(c: &mut Criterion) {
         );
         runs
     };
-    let forward = forward_with(settings.forward.refactor_ratio);
-    let runs = evaluate("factorization reuse (default)", &forward);
+    let forward = forward_with(settings.forward.refactor_ratio, true);
+    let runs = evaluate(
+        "factorization reuse, residual-only passes (default)",
+        &forward,
+    );
     if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE").is_some() {
-        let newton = evaluate("a factorization per Newton update", &forward_with(0.0));
-        let largest = runs
-            .iter()
-            .zip(&newton)
-            .flat_map(|(a, b)| a.positions_m.iter().zip(&b.positions_m))
-            .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
-            .fold(0.0f64, f64::max);
-        eprintln!("  largest node distance between the two: {:.3e} m", largest);
+        let largest = |other: &[softcap_tissue::fit_dynamic::forward::SegmentRun]| {
+            runs.iter()
+                .zip(other)
+                .flat_map(|(a, b)| a.positions_m.iter().zip(&b.positions_m))
+                .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+                .fold(0.0f64, f64::max)
+        };
+        let assembled = evaluate(
+            "factorization reuse, the matrix assembled at every iteration",
+            &forward_with(settings.forward.refactor_ratio, false),
+        );
+        eprintln!(
+            "  largest node distance to the default: {:.3e} m",
+            largest(&assembled)
+        );
+        let newton = evaluate(
+            "a factorization per Newton update",
+            &forward_with(0.0, true),
+        );
+        eprintln!(
+            "  largest node distance to the default: {:.3e} m",
+            largest(&newton)
+        );
     }
     if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY").is_some() {
         return;

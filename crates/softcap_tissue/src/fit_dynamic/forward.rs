@@ -45,6 +45,11 @@ pub struct ForwardSettings {
     /// residual by less than this factor; then the current matrix is factored. Every step
     /// still converges to the same tolerance. 0: every Newton update factors anew.
     pub refactor_ratio: f64,
+    /// With `refactor_ratio` > 0: an iteration whose update reuses the factor evaluates only
+    /// the residual (element forces, no element matrices or assembly;
+    /// `softcap_fem::DynamicSolver::set_residual_only`). Off: the matrix is assembled at every
+    /// iteration (the same trajectories to round-off; for comparison).
+    pub residual_only: bool,
     /// Half width (frames) of the polynomial fit that gives a segment's initial state.
     pub velocity_half_window: usize,
     /// Degree of that polynomial.
@@ -85,6 +90,7 @@ impl Default for ForwardSettings {
             substeps: 4,
             newton_iterations: 12,
             refactor_ratio: 0.3,
+            residual_only: true,
             velocity_half_window: 2,
             velocity_degree: 4,
             initial_state_smoothing: 0.0,
@@ -386,17 +392,20 @@ pub(crate) enum Stepper {
 }
 
 impl Stepper {
-    /// The stepper with factorization reuse at `ratio` ([`ForwardSettings::refactor_ratio`];
-    /// linear tets only).
+    /// The stepper with factorization reuse at `ratio` ([`ForwardSettings::refactor_ratio`])
+    /// and residual-only passes if `residual_only` ([`ForwardSettings::residual_only`]; linear
+    /// tets only).
     pub(crate) fn with_refactor_ratio(
         model: &FitModel,
         masses_kg: Vec<f64>,
         dofs: &[usize],
         ratio: f64,
+        residual_only: bool,
     ) -> Result<Self> {
         let mut stepper = Self::new(model, masses_kg, dofs)?;
         if let Self::Linear(s) = &mut stepper {
             s.set_refactor_ratio((ratio > 0.0).then_some(ratio));
+            s.set_residual_only(residual_only);
         }
         Ok(stepper)
     }
@@ -843,6 +852,7 @@ impl Forward {
             self.masses_kg.clone(),
             &self.support_dofs(),
             self.settings.refactor_ratio,
+            self.settings.residual_only,
         )?;
         let (mut x0, mut v0) = start.clone();
         if let Some((modes, c)) = correction {
