@@ -1948,6 +1948,20 @@ fn lookalike_table(filter: Option<&str>) {
             View::Top,
         ),
         (
+            "anisotropy 2.5 / friction μ 0.2",
+            vec![Effect::Anisotropic(2.5)],
+            vec![Effect::Friction(0.2)],
+            true,
+            View::All,
+        ),
+        (
+            "anisotropy 5 / friction μ 0.2",
+            vec![Effect::Anisotropic(5.0)],
+            vec![Effect::Friction(0.2)],
+            true,
+            View::All,
+        ),
+        (
             "top view: support springs 2500 N/m / friction μ 0.05",
             vec![Effect::SupportSlip(2500.0)],
             vec![Effect::Friction(0.05)],
