@@ -226,6 +226,31 @@ pub fn lolo_choices(
         .collect()
 }
 
+/// [`lolo_choices`] with each selection restricted to the `eligible` candidates: per held-out
+/// location, then the full data, the eligible candidate with the least training error (its
+/// compliance scale fitted) and that error (RSS, m²); `None` where no candidate is eligible.
+#[allow(clippy::too_many_arguments)]
+pub fn lolo_choices_among(
+    cands: &[Candidate],
+    eligible: &EligibleFn<'_>,
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    scale: ComplianceScale,
+    scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
+) -> Vec<Option<(usize, f64)>> {
+    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
+    (0..seg.num_folds())
+        .map(Some)
+        .chain([None])
+        .map(|skip| {
+            let (i, _, rss) = t.best(skip, scale, Some(eligible));
+            rss.is_finite().then_some((i, rss))
+        })
+        .collect()
+}
+
 /// Leave-one-location-out over simulated candidates (module docs): per held-out location the
 /// candidate and compliance scale with the least error on every other observation (with
 /// `train_on_scored`: only the other locations' `scored` observations, and the held-out "all"

@@ -63,6 +63,10 @@ pub struct Signatures {
     /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
     #[serde(default)]
     pub lateral_shift_consistency: f64,
+    /// How far the surface under the probe rebounds past its rest shape after the probe lets go,
+    /// beyond the model ([`release_rebound`]), m: 0 without released frames.
+    #[serde(default)]
+    pub release_rebound_m: f64,
     /// Mean baseline residual along gravity at rest, m.
     pub rest_gravity_m: f64,
     /// Marker noise σ per coordinate, m.
@@ -291,6 +295,7 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
         &|r, _| r.norm(),
     );
     s.far_field_push_m = far_field_push(rec, seg, res, &rest_mean);
+    s.release_rebound_m = release_rebound(rec, seg, res, &rest_mean);
     let (mut a, mut n) = (0.0, 0);
     for (k, row) in res.iter().enumerate() {
         if seg.phases[k] == Phase::Rest {
@@ -370,6 +375,69 @@ pub fn released_set_persistence(
         }
     }
     (den > 0.0).then(|| num / den)
+}
+
+/// The rebound after release (`Signatures::release_rebound_m`): per block b of consecutive
+/// released frames after a press at location l_b, the largest over its frames k of
+/// d_k = −mean_m (r_km − r̄_rest,m) · â_l over the observed markers m within [`contact_radius_m`]
+/// of l_b's contact point (r the baseline residual, r̄_rest the marker's mean residual at rest,
+/// â_l the location's probe axis, pointing into the body); the median over the blocks, m. 0
+/// without released frames.
+///
+/// Why: once the probe has let go, the quasi-static default model is back at its rest shape, so
+/// the residual is the motion the press left. A body with inertia released faster than its
+/// period springs back past its rest shape and rings (a damped mode overshoots by
+/// e^{−πζ/√(1−ζ²)} of its displacement, wang2015 eq. 3 with Rayleigh damping): d > 0. Creep
+/// recovery (Prony branches relaxing back, Simo & Hughes §10.3) and a plastic set approach rest
+/// from the pressed side, d ≤ 0; a template off the rest shape (gravity pre-load) cancels with the
+/// rest mean.
+pub fn release_rebound(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &Residuals,
+    rest_mean: &[Vector3<f64>],
+) -> f64 {
+    let radius = contact_radius_m(rec);
+    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
+    for k in 0..res.len() {
+        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
+            continue;
+        };
+        match blocks.last_mut() {
+            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&p| p + 1 == k) => {
+                frames.push(k)
+            }
+            _ => blocks.push((l, vec![k])),
+        }
+    }
+    let mut peaks: Vec<f64> = blocks
+        .iter()
+        .filter_map(|(l, frames)| {
+            let loc = &seg.locations[*l];
+            let axis = loc.axis.try_normalize(1e-12)?;
+            let near: Vec<usize> = (0..rec.num_markers())
+                .filter(|&m| (loc.contact_tip_m - rec.rest_markers_m[m]).norm() <= radius)
+                .collect();
+            frames
+                .iter()
+                .filter_map(|&k| {
+                    let (mut acc, mut n) = (0.0, 0usize);
+                    for &m in &near {
+                        if let Some(r) = res[k][m] {
+                            acc -= (r - rest_mean[m]).dot(&axis);
+                            n += 1;
+                        }
+                    }
+                    (n > 0).then(|| acc / n as f64)
+                })
+                .reduce(f64::max)
+        })
+        .collect();
+    if peaks.is_empty() {
+        return 0.0;
+    }
+    peaks.sort_by(f64::total_cmp);
+    peaks[peaks.len() / 2]
 }
 
 /// Least tangential part ‖P_t f‖ / ‖f‖ of a contact frame's force for [`far_field_push`]: the

@@ -232,3 +232,15 @@ fn support_slip_is_named() {
 fn probe_friction_is_named() {
     check("probe-friction");
 }
+
+/// A soft, heavy block probed fast (3-frame ramps at 60 fps, released in one frame; truth with
+/// implicit dynamics and Rayleigh damping): confirmed by the dynamic replay of the measured force
+/// with the density scale and Rayleigh α, β fitted per fold on the training locations
+/// (`hypotheses::inertia_damping`). Session 24 (dyndiag): before the dynamic model the verdict was
+/// viscoelasticity, 0.2354 -> 0.1902 mm, 157 CPU-s for the chain (synth 25 s with the dynamic
+/// truth): `#[ignore]` for its cost.
+#[test]
+#[ignore = "> 60 CPU-s (157 CPU-s measured, session 24); run with -- --ignored inertia_damping"]
+fn inertia_damping_is_named() {
+    check("inertia-damping");
+}

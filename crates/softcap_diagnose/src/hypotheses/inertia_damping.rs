@@ -1,21 +1,44 @@
-//! `inertia-damping`: the response is dynamic, not quasi-static — M ü + C u̇ act on the body.
+//! `inertia-damping`: the response is dynamic, not quasi-static — M ü + D u̇ act on the body.
 //!
 //! Screen: x = x₀ − c u̇₀ − m ü₀ with the baseline's marker velocity and acceleration (central
-//! differences over the frame times), c, m ≥ 0. No signature and no extended FEM model: the
-//! verdict rests on the linearised screen.
+//! differences over the frame times), c, m ≥ 0. It cannot see the motion after the probe lets go
+//! (the baseline is at rest there), so a rebound past the rest shape after release
+//! ([`crate::signatures::release_rebound`], ≥ [`REBOUND_SIGMAS`] σ) sends it to re-simulation
+//! before the screen's candidates. Confirmation: the default model's implicit dynamics
+//! M ü + D u̇ + f_int(u) = f_ext with Rayleigh damping D = α M + β K (wang2015 eq. 3, lumped M of
+//! density ρ; `crate::sim::Extension::Dynamic`) driven by the measured force over the recording,
+//! with (ρ, α, β) fitted per fold on its training locations by a compass search
+//! ([`fit_dynamics`]) and the held-out location predicted.
 
 use super::Effect;
-use super::contract::{Context, Hypothesis};
+use super::contract::{Context, Hypothesis, SignatureRoute};
+use crate::DiagnoseError;
 use crate::Result;
-use crate::confirm::Confirmed;
+use crate::confirm::{
+    Candidate, ComplianceScale, Confirmed, lolo_choices_among, lolo_confirm_among,
+};
+use crate::resim::contact_sequence;
 use crate::screen::{Basis, Refit, Variant};
 use crate::signal::derivative;
 use crate::signatures::Signatures;
-use crate::sim::{Field, ProbeSimulator};
+use crate::sim::{Extension, Field, ProbeSimulator, SequenceFrame, SequenceJob};
 use nalgebra::Vector3;
+use std::collections::BTreeMap;
 
 /// The inertia-damping hypothesis.
 pub struct InertiaDamping;
+
+/// Rebound after release (`Signatures::release_rebound_m`) in marker noise σ at or above which
+/// the dynamic model is re-simulated before the screen's candidates: the markers under the probe
+/// spring back past their rest shape, which creep recovery and a plastic set never do (they
+/// approach rest from the pressed side) and which the quasi-static default model, at rest once
+/// the force is zero, cannot follow.
+pub const REBOUND_SIGMAS: f64 = 4.0;
+
+/// True when the surface rebounds past its rest shape after release ([`REBOUND_SIGMAS`]).
+pub fn rebounds(sig: &Signatures) -> bool {
+    sig.noise_sigma_m > 0.0 && sig.release_rebound_m >= REBOUND_SIGMAS * sig.noise_sigma_m
+}
 
 impl Hypothesis for InertiaDamping {
     fn effect(&self) -> Effect {
@@ -23,7 +46,7 @@ impl Hypothesis for InertiaDamping {
     }
 
     fn term(&self) -> &'static str {
-        "x = x0 - damping_s dx0/dt - mass_s2 d2x0/dt2"
+        "M d2u/dt2 + (alpha M + beta K) du/dt + f_int(u) = f_ext (lumped M of density rho; screen: x = x0 - damping_s dx0/dt - mass_s2 d2x0/dt2)"
     }
 
     fn variants(&self, cx: &Context<'_>) -> Vec<Variant> {
@@ -58,18 +81,274 @@ impl Hypothesis for InertiaDamping {
         }]
     }
 
-    fn signature_support(&self, _: &Signatures) -> f64 {
-        0.0
+    fn signature_support(&self, s: &Signatures) -> f64 {
+        if rebounds(s) { 1.0 } else { 0.0 }
     }
 
-    /// No extended FEM model: linearised only.
+    fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
+        rebounds(s).then_some(SignatureRoute::BeforeScreen)
+    }
+
+    /// The dynamic replay with (ρ, α, β) fitted per fold ([`fit_dynamics`]), leave-one-location-out
+    /// with the material's compliance scale.
     fn confirm(
         &self,
-        _: &Context<'_>,
+        cx: &Context<'_>,
         _: &Refit,
-        _: &dyn Fn(usize, usize) -> bool,
-        _: &mut dyn ProbeSimulator,
+        scored: &dyn Fn(usize, usize) -> bool,
+        sim: &mut dyn ProbeSimulator,
     ) -> Result<Option<Confirmed>> {
-        Ok(None)
+        let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
+        let measured = contact_sequence(rec, seg, &p.force_n);
+        let scale = ComplianceScale::new(cx.settings.refit_compliance_scale, 0.1, 10.0);
+        let nf = seg.num_folds();
+        let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
+            lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
+        };
+        let fit = fit_dynamics(sim, &measured, nf, train)?;
+        let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
+        lolo_confirm_among(
+            &fit.candidates,
+            Some(&eligible),
+            rec,
+            seg,
+            p,
+            scale,
+            scored,
+            false,
+            None,
+            format!(
+                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, driven by the measured force; density, alpha, beta fitted per fold by a compass search, {} sequences, {} failed), compliance scale, leave-one-location-out",
+                fit.candidates.len(),
+                fit.failed
+            ),
+        )
+    }
+}
+
+/// The start grid of the dynamic fit (every fold starts from its best point): density ρ, kg/m³ —
+/// from a light foam to a dense filled gel, a factor 4 apart (a factor 2 in the frequencies).
+pub const START_DENSITY_KG_M3: [f64; 4] = [250.0, 1000.0, 4000.0, 16000.0];
+/// … Rayleigh α, 1/s.
+pub const START_ALPHA_PER_S: [f64; 2] = [2.0, 20.0];
+/// … Rayleigh β, s.
+pub const START_BETA_S: [f64; 2] = [2e-4, 4e-3];
+
+/// Compass-search steps of the dynamic fit in log₂ units of (ρ, α, β): the first step, and the
+/// step below which a coordinate is not refined further (ρ to 2^{1/16}: 2 % in the frequencies).
+const FIRST_STEP: [f64; 3] = [1.0, 1.0, 1.0];
+const LAST_STEP: [f64; 3] = [1.0 / 16.0, 0.25, 0.25];
+/// log₂ bounds of (ρ [kg/m³], α [1/s], β [s]).
+const LOG2_BOUNDS: [(f64, f64); 3] = [(5.0, 17.0), (-4.0, 9.0), (-17.0, -4.0)];
+/// At most this many compass rounds.
+const MAX_ROUNDS: usize = 12;
+
+/// The simulated dynamic models of [`fit_dynamics`] and which fold may choose each.
+pub struct DynamicFit {
+    /// Every converged sequence: the start grid, then the compass points in the order simulated.
+    pub candidates: Vec<Candidate>,
+    /// Per candidate: `None` for the start grid (chosen without data, every fold may take it),
+    /// else the searches that proposed it (fold l, or `nf` for the full data).
+    pub proposed_by: Vec<Option<Vec<usize>>>,
+    /// Number of folds.
+    pub folds: usize,
+    /// Sequences that did not reach equilibrium.
+    pub failed: usize,
+}
+
+impl DynamicFit {
+    /// Fold `fold` (`None`: the full data) may choose candidate `i`: the start grid, or a point
+    /// its own search proposed from its training locations.
+    pub fn eligible(&self, i: usize, fold: Option<usize>) -> bool {
+        let s = fold.unwrap_or(self.folds);
+        match &self.proposed_by[i] {
+            None => true,
+            Some(by) => by.contains(&s),
+        }
+    }
+}
+
+/// A point of the search: log₂ (ρ, α, β) on a 1/64 lattice.
+type Key = [i64; 3];
+
+fn key(theta: [f64; 3]) -> Key {
+    theta.map(|t| (t * 64.0).round() as i64)
+}
+
+fn theta(k: Key) -> [f64; 3] {
+    k.map(|v| v as f64 / 64.0)
+}
+
+fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
+    let [rho, alpha, beta] = theta(k).map(f64::exp2);
+    (
+        vec![
+            ("density_kg_m3".into(), rho),
+            ("rayleigh_alpha_per_s".into(), alpha),
+            ("rayleigh_beta_s".into(), beta),
+        ],
+        Extension::Dynamic {
+            density_kg_m3: rho,
+            alpha_per_s: alpha,
+            beta_s: beta,
+        },
+    )
+}
+
+/// Fits the dynamic model's density ρ and Rayleigh α, β (wang2015 eq. 3: D = α M + β K) per
+/// fold on its training locations: every fold and the full data start from the best point of a
+/// start grid ([`START_DENSITY_KG_M3`] × [`START_ALPHA_PER_S`] × [`START_BETA_S`], simulated
+/// once), then a compass search in log₂ (ρ, α, β) — each round every search tries ± its step
+/// along each coordinate, moves to the best of its points (training error with the compliance
+/// scale, `train`), and halves its steps when none is better, until they are below
+/// `LAST_STEP` or after `MAX_ROUNDS` rounds. The searches run in lockstep: one round's points
+/// of every search are simulated together (in parallel, each point once however many
+/// searches propose it), and a point is offered only to the searches that proposed it
+/// ([`DynamicFit::eligible`]), so a held-out location never shapes its own model. `train` returns,
+/// per fold and then for the full data, the eligible candidate with the least training error.
+pub fn fit_dynamics(
+    sim: &mut dyn ProbeSimulator,
+    measured: &[SequenceFrame],
+    folds: usize,
+    train: impl Fn(&[Candidate], &dyn Fn(usize, Option<usize>) -> bool) -> Vec<Option<(usize, f64)>>,
+) -> Result<DynamicFit> {
+    let mut fit = DynamicFit {
+        candidates: Vec::new(),
+        proposed_by: Vec::new(),
+        folds,
+        failed: 0,
+    };
+    // key -> candidate index (None: did not converge)
+    let mut simulated: BTreeMap<Key, Option<usize>> = BTreeMap::new();
+    let mut keys: Vec<Key> = Vec::new();
+    let mut run = |fit: &mut DynamicFit,
+                   keys: &mut Vec<Key>,
+                   simulated: &mut BTreeMap<Key, Option<usize>>,
+                   batch: Vec<(Key, Option<Vec<usize>>)>|
+     -> Result<()> {
+        let jobs: Vec<SequenceJob> = batch
+            .iter()
+            .map(|(k, _)| (extension(*k).1, measured.to_vec()))
+            .collect();
+        for ((k, by), result) in batch.into_iter().zip(sim.simulate_sequences(&jobs)) {
+            match result {
+                Ok(prediction) => {
+                    simulated.insert(k, Some(fit.candidates.len()));
+                    fit.candidates.push(Candidate {
+                        params: extension(k).0,
+                        prediction,
+                        position_controlled: false,
+                    });
+                    fit.proposed_by.push(by);
+                    keys.push(k);
+                }
+                Err(DiagnoseError::Simulation { .. }) => {
+                    simulated.insert(k, None);
+                    fit.failed += 1;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    };
+    let mut start = Vec::new();
+    for rho in START_DENSITY_KG_M3 {
+        for alpha in START_ALPHA_PER_S {
+            for beta in START_BETA_S {
+                start.push((key([rho.log2(), alpha.log2(), beta.log2()]), None));
+            }
+        }
+    }
+    run(&mut fit, &mut keys, &mut simulated, start)?;
+    // per search (fold l, then the full data): centre and steps
+    let choose = |fit: &DynamicFit| {
+        let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
+        train(&fit.candidates, &eligible)
+    };
+    let first = choose(&fit);
+    let mut searches: Vec<Option<(Key, [f64; 3])>> = first
+        .iter()
+        .map(|c| c.map(|(i, _)| (keys[i], FIRST_STEP)))
+        .collect();
+    for _ in 0..MAX_ROUNDS {
+        // this round's points, each with the searches proposing it
+        let mut proposals: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
+        for (s, search) in searches.iter().enumerate() {
+            let Some((centre, step)) = search else {
+                continue;
+            };
+            let c = theta(*centre);
+            for d in 0..3 {
+                if step[d] < LAST_STEP[d] {
+                    continue;
+                }
+                for sign in [-1.0, 1.0] {
+                    let mut t = c;
+                    t[d] = (t[d] + sign * step[d]).clamp(LOG2_BOUNDS[d].0, LOG2_BOUNDS[d].1);
+                    let k = key(t);
+                    if k != *centre {
+                        proposals.entry(k).or_default().push(s);
+                    }
+                }
+            }
+        }
+        if proposals.is_empty() {
+            break;
+        }
+        // points already simulated become eligible to their new proposers; the others are run
+        let mut batch = Vec::new();
+        for (k, by) in proposals {
+            match simulated.get(&k) {
+                Some(Some(i)) => {
+                    if let Some(list) = fit.proposed_by[*i].as_mut() {
+                        for s in by {
+                            if !list.contains(&s) {
+                                list.push(s);
+                            }
+                        }
+                    }
+                }
+                Some(None) => {}
+                None => batch.push((k, Some(by))),
+            }
+        }
+        run(&mut fit, &mut keys, &mut simulated, batch)?;
+        let choices = choose(&fit);
+        for (search, choice) in searches.iter_mut().zip(choices) {
+            let (Some((centre, step)), Some((i, _))) = (search.as_mut(), choice) else {
+                continue;
+            };
+            if keys[i] == *centre {
+                for (s, last) in step.iter_mut().zip(LAST_STEP) {
+                    if *s >= last {
+                        *s *= 0.5;
+                    }
+                }
+            } else {
+                *centre = keys[i];
+            }
+        }
+    }
+    Ok(fit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lattice_keys_round_trip_and_name_the_parameters() {
+        let k = key([10.0, 3.0, -9.0]);
+        assert_eq!(theta(k), [10.0, 3.0, -9.0]);
+        let (params, ext) = extension(k);
+        assert_eq!(params[0], ("density_kg_m3".to_string(), 1024.0));
+        assert_eq!(
+            ext,
+            Extension::Dynamic {
+                density_kg_m3: 1024.0,
+                alpha_per_s: 8.0,
+                beta_s: 2f64.powi(-9),
+            }
+        );
     }
 }

@@ -13,7 +13,7 @@
 //! | clock-offset | [`clock_offset`] | force trace shifted in time: f_eff(t) = f(t + δ) | δ (grid) | the shifted force, material refitted |
 //! | sensor-lag | [`sensor_lag`] | FSR chain, first order: f_true = f + τ ḟ + h sgn(ḟ) f | τ, h ≥ 0 | the inverse FSR chain ([`crate::sensor`]), material refitted |
 //! | anisotropy | [`anisotropy`] | displacement along a fibre direction a scaled: −κ a (a·u₀) | a (13 directions), κ | transversely isotropic model (thesis eq. 8.5) |
-//! | inertia-damping | [`inertia_damping`] | M ü + C u̇: x = x₀ − c u̇₀ − m ü₀ | c ≥ 0, m ≥ 0 | — (linearised only) |
+//! | inertia-damping | [`inertia_damping`] | M ü + C u̇: x = x₀ − c u̇₀ − m ü₀ | c ≥ 0, m ≥ 0 | implicit dynamics M ü + (αM + βK) u̇ + f(u) = f_ext under the measured force (wang2015 eq. 3), ρ, α, β fitted per fold by a compass search |
 //!
 //! [`crate::diagnose`](mod@crate::diagnose) runs them all through the same phases; nothing outside
 //! this folder knows an entry by name except through [`Hypothesis::effect`]. A new entry is its

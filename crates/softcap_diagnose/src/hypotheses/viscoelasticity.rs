@@ -40,9 +40,12 @@ pub struct Viscoelasticity;
 /// sessions drift by at most ±1.2 % (controls ≤ 0.5 %), sensor-lag and clock-offset upward.
 pub const RELAXATION_DRIFT: f64 = -0.10;
 
-/// True when the holds relax beyond any elastic explanation ([`RELAXATION_DRIFT`]).
+/// True when the holds relax beyond any elastic explanation ([`RELAXATION_DRIFT`]) and the
+/// surface does not rebound past its rest shape after release
+/// ([`super::inertia_damping::rebounds`]): a body ringing against the held tip also loses hold
+/// force, but creep recovery never overshoots rest.
 pub fn relaxes(sig: &Signatures) -> bool {
-    sig.hold_force_drift <= RELAXATION_DRIFT
+    sig.hold_force_drift <= RELAXATION_DRIFT && !super::inertia_damping::rebounds(sig)
 }
 
 /// The screen's creep field LP_τ(f) through the tangent response, with each location's memory

@@ -212,6 +212,17 @@ pub enum Extension {
         /// Coulomb coefficient μ.
         mu: f64,
     },
+    /// Inertia and Rayleigh damping: the default model's implicit dynamics
+    /// M ü + D u̇ + f_int(u) = f_ext, D = α M + β K (wang2015 eq. 3), lumped M of a uniform
+    /// density, driven by the measured force.
+    Dynamic {
+        /// Density ρ of the lumped mass, kg/m³.
+        density_kg_m3: f64,
+        /// Rayleigh mass-proportional coefficient α, 1/s.
+        alpha_per_s: f64,
+        /// Rayleigh stiffness-proportional coefficient β, s.
+        beta_s: f64,
+    },
     /// Transversely isotropic with the Poisson ratios as parameters.
     TransverselyIsotropic {
         /// Fibre direction (world, unit).
