@@ -63,7 +63,7 @@ fn stiffness_proportional_damping_without_mass_is_a_first_order_lag() {
     let seq = frames(&times, |t| if t > 0.0 { force } else { 0.0 });
     let quasi = uz(&sim.simulate_sequence(&Extension::Elastic, &seq).unwrap());
     let u_qs = quasi[5];
-    assert!(u_qs < -1e-4, "the press moves the surface down: {u_qs}");
+    assert!(u_qs < -5e-5, "the press moves the surface down: {u_qs}");
     let lag = uz(&sim
         .simulate_sequence(
             &Extension::Dynamic {
@@ -128,7 +128,7 @@ fn a_fast_release_rebounds_past_the_rest_shape() {
         )
         .unwrap());
     let u0 = dynamic[0];
-    assert!(u0 < -1e-4 && (u0 - quasi[0]).abs() < 1e-9 * u0.abs().max(1.0));
+    assert!(u0 < -5e-5 && (u0 - quasi[0]).abs() < 1e-9 * u0.abs().max(1.0));
     assert!(
         quasi[1..].iter().all(|u| u.abs() < 1e-12),
         "quasi-static: at rest"
