@@ -17,11 +17,11 @@ use crate::Result;
 use crate::confirm::{
     Candidate, ComplianceScale, Confirmed, lolo_choices_among, lolo_confirm_among,
 };
-use crate::resim::contact_sequence;
+use crate::resim::{contact_sequence, pose_sequence};
 use crate::screen::{Basis, Refit, Variant};
 use crate::signal::derivative;
 use crate::signatures::Signatures;
-use crate::sim::{Extension, Field, ProbeSimulator, SequenceFrame, SequenceJob};
+use crate::sim::{Extension, Field, ProbeSimulator, SequenceJob};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 
@@ -99,14 +99,35 @@ impl Hypothesis for InertiaDamping {
         sim: &mut dyn ProbeSimulator,
     ) -> Result<Option<Confirmed>> {
         let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
+        // the rigid tip at its measured poses (position control: compliance scale 1), else the
+        // measured force (force-driven: the material's compliance scale refitted)
+        let poses = pose_sequence(rec);
         let measured = contact_sequence(rec, seg, &p.force_n);
+        let mut rigid = true;
+        let mut simulate = |exts: &[Extension]| -> (Vec<Result<Field>>, bool) {
+            if rigid {
+                let out = sim.simulate_sequences_rigid_tip(exts, &poses);
+                if !out.iter().any(|r| matches!(r, Ok(None))) {
+                    let out = out.into_iter().map(|r| r.map(Option::unwrap_or_default));
+                    return (out.collect(), true);
+                }
+                rigid = false; // no tip geometry: force-driven from here on
+            }
+            let jobs: Vec<SequenceJob> = exts.iter().map(|e| (*e, measured.clone())).collect();
+            (sim.simulate_sequences(&jobs), false)
+        };
         let scale = ComplianceScale::new(cx.settings.refit_compliance_scale, 0.1, 10.0);
         let nf = seg.num_folds();
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
             lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
         };
-        let fit = fit_dynamics(sim, &measured, nf, train)?;
+        let fit = fit_dynamics(&mut simulate, nf, train)?;
         let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
+        let driven = if fit.position_controlled {
+            "the rigid tip replayed at its measured poses, contact lost at once on release"
+        } else {
+            "driven by the measured force, compliance scale"
+        };
         lolo_confirm_among(
             &fit.candidates,
             Some(&eligible),
@@ -118,7 +139,7 @@ impl Hypothesis for InertiaDamping {
             false,
             None,
             format!(
-                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, driven by the measured force; density, alpha, beta fitted per fold by a compass search, {} sequences, {} failed), compliance scale, leave-one-location-out",
+                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search, {} sequences, {} failed), leave-one-location-out",
                 fit.candidates.len(),
                 fit.failed
             ),
@@ -154,6 +175,8 @@ pub struct DynamicFit {
     pub folds: usize,
     /// Sequences that did not reach equilibrium.
     pub failed: usize,
+    /// The sequences are rigid-tip replays (position control; else driven by the force).
+    pub position_controlled: bool,
 }
 
 impl DynamicFit {
@@ -207,8 +230,7 @@ fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
 /// ([`DynamicFit::eligible`]), so a held-out location never shapes its own model. `train` returns,
 /// per fold and then for the full data, the eligible candidate with the least training error.
 pub fn fit_dynamics(
-    sim: &mut dyn ProbeSimulator,
-    measured: &[SequenceFrame],
+    simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
     folds: usize,
     train: impl Fn(&[Candidate], &dyn Fn(usize, Option<usize>) -> bool) -> Vec<Option<(usize, f64)>>,
 ) -> Result<DynamicFit> {
@@ -217,6 +239,7 @@ pub fn fit_dynamics(
         proposed_by: Vec::new(),
         folds,
         failed: 0,
+        position_controlled: false,
     };
     // key -> candidate index (None: did not converge)
     let mut simulated: BTreeMap<Key, Option<usize>> = BTreeMap::new();
@@ -226,18 +249,17 @@ pub fn fit_dynamics(
                    simulated: &mut BTreeMap<Key, Option<usize>>,
                    batch: Vec<(Key, Option<Vec<usize>>)>|
      -> Result<()> {
-        let jobs: Vec<SequenceJob> = batch
-            .iter()
-            .map(|(k, _)| (extension(*k).1, measured.to_vec()))
-            .collect();
-        for ((k, by), result) in batch.into_iter().zip(sim.simulate_sequences(&jobs)) {
+        let exts: Vec<Extension> = batch.iter().map(|(k, _)| extension(*k).1).collect();
+        let (results, position_controlled) = simulate(&exts);
+        fit.position_controlled = position_controlled;
+        for ((k, by), result) in batch.into_iter().zip(results) {
             match result {
                 Ok(prediction) => {
                     simulated.insert(k, Some(fit.candidates.len()));
                     fit.candidates.push(Candidate {
                         params: extension(k).0,
                         prediction,
-                        position_controlled: false,
+                        position_controlled,
                     });
                     fit.proposed_by.push(by);
                     keys.push(k);

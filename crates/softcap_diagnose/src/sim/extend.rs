@@ -416,6 +416,144 @@ impl FemProbeSimulator {
     }
 }
 
+impl FemProbeSimulator {
+    /// The rigid-tip dynamic replay of [`Extension::Dynamic`]: wang2015 eq. 3,
+    /// M ü + D u̇ + f_int(x) = f_ext + f_c with the lumped mass M of density `density_kg_m3`
+    /// (m_a = Σ ρ V_e / 4) and Rayleigh damping D = α M + β K, integrated by
+    /// `softcap_fem::DynamicSolver` (Newmark average acceleration) in
+    /// [`DYNAMIC_STEPS_PER_FRAME`] steps per frame interval, with the probe as the rigid tip at
+    /// its measured poses (penalty contact f_c, bickel2009 §3.4) instead of the measured force.
+    /// A frame whose tip penetrates the surface (at rest or where it is now) moves the tip from
+    /// the previous frame's pose to its own over the frame's steps; any other frame is solved
+    /// without the tip, so the contact is lost at once when the probe lets go and the body rings
+    /// freely (a force-driven replay ramps the force down over the frame instead). The first
+    /// frame is solved quasi-statically and the motion starts there at rest.
+    fn run_rigid_dynamic(
+        &self,
+        model: softcap_fem::CorotationalModel,
+        tip: &softcap_fem::TipShape,
+        density_kg_m3: f64,
+        damping: RayleighDamping,
+        frames: &[SequenceFrame],
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        if !(density_kg_m3 > 0.0 && density_kg_m3.is_finite()) {
+            return Err(DiagnoseError::BadRecording {
+                what: format!("dynamic replay: density {density_kg_m3} kg/m^3 is not positive"),
+            });
+        }
+        let Some(first) = frames.first() else {
+            return Ok(Vec::new());
+        };
+        let replay = RigidReplay::new(self, tip, false);
+        let body_load = |fr: &SequenceFrame| {
+            self.nodal_load(&SimLoad {
+                probe: None,
+                body_force_n_m3: fr.load.body_force_n_m3,
+            })
+        };
+        // frame 0: quasi-static equilibrium with the tip at its pose (the recording starts at rest)
+        let mut last_rotation: Option<UnitQuaternion<f64>> = None;
+        let mut pose_of = |fr: &SequenceFrame| {
+            let pose = fr
+                .load
+                .probe
+                .map(|p| carried_pose(&p.tip_m, &p.axis, last_rotation));
+            if let Some(p) = pose {
+                last_rotation = Some(p.rotation);
+            }
+            pose
+        };
+        let mut state = RigidState {
+            solver: replay.solver(&model, None)?,
+            model,
+            x: replay.rest.clone(),
+        };
+        let pose0 = pose_of(first);
+        let probe0 = pose0.map(|iso| replay.probe(iso)).transpose()?;
+        let path0 = pose0
+            .filter(|_| replay.touches(probe0.as_ref(), &state.x))
+            .map(|p| (p, p));
+        replay
+            .step(
+                &mut state,
+                &body_load(first),
+                path0,
+                0.0,
+                &mut |_, _| Ok(()),
+                &mut |_, _| {},
+            )?
+            .map_err(|status| not_converged(0, status))?;
+        let RigidState { mut model, x, .. } = state;
+        let setup = self.setup();
+        let masses = lumped_masses(&model, density_kg_m3);
+        let mut dynamic =
+            DynamicSolver::with_bc(&model, masses, &setup.dirichlet()).map_err(fem)?;
+        let mut dyn_state = DynamicState::at_rest(x);
+        dyn_state.time_s = first.time_s;
+        let eq = &replay.settings;
+        let mut settings = DynamicsSettings {
+            integrator: Integrator::NewmarkAverageAcceleration,
+            time_step_s: 1.0,
+            damping,
+            stiffness: StiffnessKind::Warped,
+            max_iterations: eq.max_iterations.max(20),
+            displacement_tol_rel: eq.displacement_tol_rel,
+            residual_tol_rel: eq.residual_tol_rel,
+            contact_freeze_after: 8,
+        };
+        let mut out = Vec::with_capacity(frames.len());
+        out.push(setup.marker_positions(&dyn_state.positions_m));
+        let (mut t_prev, mut prev_pose) = (first.time_s, pose0);
+        for (k, fr) in frames.iter().enumerate().skip(1) {
+            let f = body_load(fr);
+            let pose = pose_of(fr);
+            let probe = pose.map(|iso| replay.probe(iso)).transpose()?;
+            let path = pose
+                .filter(|_| replay.touches(probe.as_ref(), &dyn_state.positions_m))
+                .map(|to| (prev_pose.unwrap_or(to), to));
+            let dt = fr.time_s - t_prev;
+            t_prev = fr.time_s;
+            prev_pose = pose;
+            if dt > 0.0 {
+                let n = DYNAMIC_STEPS_PER_FRAME;
+                settings.time_step_s = dt / n as f64;
+                for j in 1..=n {
+                    let t = j as f64 / n as f64;
+                    let problem = path
+                        .map(|(from, to)| {
+                            replay.problem_at(Isometry3::from_parts(
+                                Translation3::from(
+                                    from.translation.vector.lerp(&to.translation.vector, t),
+                                ),
+                                from.rotation.slerp(&to.rotation, t),
+                            ))
+                        })
+                        .transpose()?;
+                    let rep = dynamic.step(
+                        &mut model,
+                        &mut dyn_state,
+                        &f,
+                        None,
+                        problem.as_ref(),
+                        &settings,
+                    );
+                    if rep.status != DynamicStepStatus::Converged {
+                        return Err(not_converged(
+                            k,
+                            format!(
+                                "rigid-tip dynamic replay: {:?} after {} iterations",
+                                rep.status, rep.iterations
+                            ),
+                        ));
+                    }
+                }
+            }
+            out.push(setup.marker_positions(&dyn_state.positions_m));
+        }
+        Ok(out)
+    }
+}
+
 /// Rigid-tip replay: the settings of one frame's contact solve.
 const RIGID_MAX_ITERATIONS: usize = 80;
 /// Frictional rigid-tip replay: iterations of one solve (regularized Coulomb with lagged normal
@@ -576,7 +714,21 @@ impl FemProbeSimulator {
                 let an = self.anisotropic_model(ext)?;
                 self.run_rigid(an, tip, None, frames, true, |_, _| Ok(()), |_, _| {})?
             }
-            Extension::SupportSprings { .. } | Extension::Dynamic { .. } => return Ok(None),
+            Extension::Dynamic {
+                density_kg_m3,
+                alpha_per_s,
+                beta_s,
+            } => self.run_rigid_dynamic(
+                base,
+                tip,
+                density_kg_m3,
+                RayleighDamping {
+                    alpha_per_s,
+                    beta_s,
+                },
+                frames,
+            )?,
+            Extension::SupportSprings { .. } => return Ok(None),
         }))
     }
 
