@@ -9,12 +9,17 @@
 //! - slow probing (ramps of seconds, the block's lowest period a few ms): the quasi-static model;
 //! - released in 1 ms from a static press, undamped: the surface springs back past its rest
 //!   shape (the quasi-static model sits at rest).
+//!
+//! and the rigid-tip dynamic replay (`simulate_sequence_rigid_tip` of `Extension::Dynamic`: the
+//! same dynamics with a 5 mm sphere at the commanded poses as penalty contact) against its own:
+//! slow probing equals the quasi-static rigid-tip replay, and a tip lifted off at once leaves the
+//! surface to spring back past rest.
 
 use nalgebra::Vector3;
 use softcap_diagnose::{
     Extension, FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SequenceFrame, SimLoad,
 };
-use softcap_fem::{CorotationalModel, LinearParams};
+use softcap_fem::{CorotationalModel, LinearParams, TipShape};
 
 const CENTRE: [f64; 3] = [0.02, 0.02, 0.02];
 
@@ -131,6 +136,103 @@ fn a_fast_release_rebounds_past_the_rest_shape() {
     assert!(u0 < -5e-5 && (u0 - quasi[0]).abs() < 1e-9 * u0.abs().max(1.0));
     assert!(
         quasi[1..].iter().all(|u| u.abs() < 1e-12),
+        "quasi-static: at rest"
+    );
+    let rebound = dynamic.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+    assert!(
+        rebound > 0.3 * u0.abs(),
+        "rebound {rebound} past rest for a press of {u0}"
+    );
+}
+
+/// Frames at times `t` with the 5 mm sphere's tip `depth(t)` (m, ≤ 0: above the surface) below
+/// the top centre, straight down.
+fn pose_frames(times: &[f64], depth: impl Fn(f64) -> f64) -> Vec<SequenceFrame> {
+    times
+        .iter()
+        .map(|&t| SequenceFrame {
+            time_s: t,
+            load: SimLoad {
+                probe: Some(ProbeLoad {
+                    tip_m: Vector3::from(CENTRE) - Vector3::z() * depth(t),
+                    axis: -Vector3::z(),
+                    force_n: Vector3::zeros(),
+                }),
+                body_force_n_m3: Vector3::zeros(),
+            },
+        })
+        .collect()
+}
+
+#[test]
+fn slow_rigid_tip_probing_is_the_quasi_static_rigid_replay() {
+    let sim = simulator().with_rigid_tip(TipShape::Sphere { radius_m: 0.005 });
+    // 2 mm deep over 2 s, held 2 s, up over 2 s, frames 0.1 s apart (steps of 25 ms resolve the
+    // block's lowest modes, ≈ 30 Hz); the tip starts and ends 0.05 mm above the surface, so the
+    // release (the frame after the last one in contact lifts it off at once) leaves 0.05 mm to
+    // spring back
+    let times: Vec<f64> = (0..=65).map(|k| 0.1 * k as f64).collect();
+    let seq = pose_frames(&times, |t| {
+        2e-3 * (t / 2.0).min(1.0).min((6.0 - t) / 2.0).max(0.0) - 5e-5
+    });
+    let quasi = sim
+        .simulate_sequence_rigid_tip(&Extension::Elastic, &seq)
+        .unwrap()
+        .expect("the simulator has a rigid tip");
+    let dynamic = sim
+        .simulate_sequence_rigid_tip(
+            &Extension::Dynamic {
+                density_kg_m3: 1000.0,
+                alpha_per_s: 20.0,
+                beta_s: 1e-3,
+            },
+            &seq,
+        )
+        .unwrap()
+        .expect("the rigid tip replays the dynamic model");
+    let peak = uz(&quasi).into_iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    assert!(peak > 1e-3, "the tip presses the surface down: {peak}");
+    let worst = quasi
+        .iter()
+        .zip(&dynamic)
+        .flat_map(|(q, d)| q.iter().zip(d).map(|(a, b)| (a - b).norm()))
+        .fold(0.0f64, f64::max);
+    // measured 0.19 % of the peak
+    assert!(
+        worst <= 0.01 * peak,
+        "{worst} m off the quasi-static replay (peak {peak})"
+    );
+}
+
+#[test]
+fn a_rigid_tip_lifted_at_once_leaves_the_surface_ringing() {
+    let sim = simulator().with_rigid_tip(TipShape::Sphere { radius_m: 0.005 });
+    // 2 mm deep at t = 0 (solved quasi-statically), 5 mm above the surface 1 ms later, then 60 ms
+    let times: Vec<f64> = (0..=60).map(|k| 0.001 * k as f64).collect();
+    let seq = pose_frames(&times, |t| if t < 0.0005 { 2e-3 } else { -5e-3 });
+    let quasi = uz(&sim
+        .simulate_sequence_rigid_tip(&Extension::Elastic, &seq)
+        .unwrap()
+        .unwrap());
+    let dynamic = uz(&sim
+        .simulate_sequence_rigid_tip(
+            &Extension::Dynamic {
+                density_kg_m3: 1000.0,
+                alpha_per_s: 0.0,
+                beta_s: 0.0,
+            },
+            &seq,
+        )
+        .unwrap()
+        .unwrap());
+    let u0 = dynamic[0];
+    assert!(
+        u0 < -1e-3 && (u0 - quasi[0]).abs() < 1e-9,
+        "pressed: {u0} vs {}",
+        quasi[0]
+    );
+    assert!(
+        quasi[1..].iter().all(|u| u.abs() < 1e-9),
         "quasi-static: at rest"
     );
     let rebound = dynamic.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));

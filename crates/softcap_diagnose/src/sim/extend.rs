@@ -13,8 +13,8 @@ use softcap_fem::{
     DynamicsSettings, ElasticModel, ElastoplasticModel, EquilibriumReport, EquilibriumSettings,
     FrictionParams, FrictionalContact, Integrator, J2PlasticityParams, LaggedIterations,
     LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, RayleighDamping,
-    StaticSolver, StiffnessKind, SupportPlane, SupportTangential, TransverselyIsotropicParams,
-    ViscoelasticModel, lumped_masses, solve_lagged,
+    StaticSolver, StepLoads, StiffnessKind, SupportPlane, SupportTangential,
+    TransverselyIsotropicParams, ViscoelasticModel, lumped_masses, solve_lagged,
 };
 use softcap_probing::probe_pose;
 
@@ -490,6 +490,19 @@ impl FemProbeSimulator {
             DynamicSolver::with_bc(&model, masses, &setup.dirichlet()).map_err(fem)?;
         let mut dyn_state = DynamicState::at_rest(x);
         dyn_state.time_s = first.time_s;
+        // the tip's frictionless penalty contact with the active-set hysteresis of the static
+        // replays (a node stays in the patch while it is still pressed against the tip's
+        // surface): the plain re-queried springs let a node that Newton placed on the tip's
+        // tangent plane drop out and back in, and the step ended on either side
+        let mut contact = FrictionalContact::new(
+            replay.problem_at(Isometry3::identity())?,
+            FrictionParams {
+                mu: 0.0,
+                slip_distance_m: 1e-3,
+            },
+        )
+        .map_err(fem)?;
+        contact.active_set_hysteresis = true;
         let eq = &replay.settings;
         let mut settings = DynamicsSettings {
             integrator: Integrator::NewmarkAverageAcceleration,
@@ -519,24 +532,44 @@ impl FemProbeSimulator {
                 settings.time_step_s = dt / n as f64;
                 for j in 1..=n {
                     let t = j as f64 / n as f64;
-                    let problem = path
-                        .map(|(from, to)| {
-                            replay.problem_at(Isometry3::from_parts(
-                                Translation3::from(
-                                    from.translation.vector.lerp(&to.translation.vector, t),
-                                ),
-                                from.rotation.slerp(&to.rotation, t),
-                            ))
-                        })
-                        .transpose()?;
-                    let rep = dynamic.step(
-                        &mut model,
-                        &mut dyn_state,
-                        &f,
-                        None,
-                        problem.as_ref(),
-                        &settings,
-                    );
+                    let iso = path.map(|(from, to)| {
+                        Isometry3::from_parts(
+                            Translation3::from(
+                                from.translation.vector.lerp(&to.translation.vector, t),
+                            ),
+                            from.rotation.slerp(&to.rotation, t),
+                        )
+                    });
+                    let loads = StepLoads {
+                        external_forces_n: &f,
+                        prescribed: None,
+                        contact: None,
+                        initial_guess: None,
+                    };
+                    let rep = match iso {
+                        Some(iso) => {
+                            contact.move_probe(&mut dyn_state.positions_m, iso);
+                            let rep = dynamic.step_with(
+                                &mut model,
+                                &mut dyn_state,
+                                &loads,
+                                &mut [&mut contact],
+                                &settings,
+                            );
+                            NodalTerm::commit(&mut contact, &dyn_state.positions_m);
+                            rep
+                        }
+                        None => {
+                            contact.reset_history();
+                            dynamic.step_with(
+                                &mut model,
+                                &mut dyn_state,
+                                &loads,
+                                &mut [],
+                                &settings,
+                            )
+                        }
+                    };
                     if rep.status != DynamicStepStatus::Converged {
                         return Err(not_converged(
                             k,
