@@ -17,7 +17,7 @@
 
 use nalgebra::Vector3;
 use softcap_diagnose::{
-    Extension, FemProbeSimulator, FemSimSettings, ProbeLoad, ProbeSimulator, SequenceFrame, SimLoad,
+    Extension, FemProbeSimulator, FemSimSettings, ProbeLoad, SequenceFrame, SimLoad,
 };
 use softcap_fem::{CorotationalModel, LinearParams, TipShape};
 

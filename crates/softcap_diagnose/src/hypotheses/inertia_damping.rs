@@ -5,8 +5,10 @@
 //! (the baseline is at rest there), so a rebound past the rest shape after release
 //! ([`crate::signatures::release_rebound`], ≥ [`REBOUND_SIGMAS`] σ) sends it to re-simulation
 //! before the screen's candidates. Confirmation: the default model's implicit dynamics
-//! M ü + D u̇ + f_int(u) = f_ext with Rayleigh damping D = α M + β K (wang2015 eq. 3, lumped M of
-//! density ρ; `crate::sim::Extension::Dynamic`) driven by the measured force over the recording,
+//! M ü + D u̇ + f_int(u) = f_ext + f_c with Rayleigh damping D = α M + β K (wang2015 eq. 3, lumped
+//! M of density ρ; `crate::sim::Extension::Dynamic`) with the session's rigid tip at its measured
+//! poses (penalty contact f_c; the contact is lost at once when the probe lets go, as a fast
+//! release does) — driven by the measured force instead when the session has no tip geometry —
 //! with (ρ, α, β) fitted per fold on its training locations by a compass search
 //! ([`fit_dynamics`]) and the held-out location predicted.
 
@@ -89,8 +91,9 @@ impl Hypothesis for InertiaDamping {
         rebounds(s).then_some(SignatureRoute::BeforeScreen)
     }
 
-    /// The dynamic replay with (ρ, α, β) fitted per fold ([`fit_dynamics`]), leave-one-location-out
-    /// with the material's compliance scale.
+    /// The rigid-tip dynamic replay (position control, compliance scale 1; force-driven with the
+    /// material's compliance scale without a tip) with (ρ, α, β) fitted per fold
+    /// ([`fit_dynamics`]), leave-one-location-out.
     fn confirm(
         &self,
         cx: &Context<'_>,
@@ -222,13 +225,15 @@ fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
 /// fold on its training locations: every fold and the full data start from the best point of a
 /// start grid ([`START_DENSITY_KG_M3`] × [`START_ALPHA_PER_S`] × [`START_BETA_S`], simulated
 /// once), then a compass search in log₂ (ρ, α, β) — each round every search tries ± its step
-/// along each coordinate, moves to the best of its points (training error with the compliance
-/// scale, `train`), and halves its steps when none is better, until they are below
-/// `LAST_STEP` or after `MAX_ROUNDS` rounds. The searches run in lockstep: one round's points
+/// along each coordinate, moves to the best of its points (training error, `train`), and
+/// halves its steps when none is better, until they are below `LAST_STEP` or after
+/// `MAX_ROUNDS` rounds. The searches run in lockstep: one round's points
 /// of every search are simulated together (in parallel, each point once however many
 /// searches propose it), and a point is offered only to the searches that proposed it
 /// ([`DynamicFit::eligible`]), so a held-out location never shapes its own model. `train` returns,
-/// per fold and then for the full data, the eligible candidate with the least training error.
+/// per fold and then for the full data, the eligible candidate with the least training error;
+/// `simulate` replays a batch of extensions over the recording and says whether its replays are
+/// position-controlled.
 pub fn fit_dynamics(
     simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
     folds: usize,

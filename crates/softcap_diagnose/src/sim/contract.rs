@@ -214,7 +214,8 @@ pub enum Extension {
     },
     /// Inertia and Rayleigh damping: the default model's implicit dynamics
     /// M ü + D u̇ + f_int(u) = f_ext, D = α M + β K (wang2015 eq. 3), lumped M of a uniform
-    /// density, driven by the measured force.
+    /// density, driven by the measured force or (rigid-tip replay) by the tip at its measured
+    /// poses.
     Dynamic {
         /// Density ρ of the lumped mass, kg/m³.
         density_kg_m3: f64,

@@ -610,8 +610,9 @@ impl FemProbeSimulator {
     /// moved there from the previous frame's pose in 1, then 4, then 16 sub-steps (state restored
     /// between attempts); other frames are solved without the probe. History (plastic strain,
     /// Prony state, stick anchors) is committed after every converged frame; the stick history
-    /// is forgotten when the tip leaves the surface. `Ok(None)` without a recorded tip or for the
-    /// support springs (a `NodalSolver` term, no rigid replay).
+    /// is forgotten when the tip leaves the surface. [`Extension::Dynamic`] is replayed with
+    /// inertia and damping instead (`run_rigid_dynamic`). `Ok(None)` without a recorded tip or for
+    /// the support springs (a `NodalSolver` term, no rigid replay).
     pub fn simulate_sequence_rigid_tip(
         &self,
         ext: &Extension,
