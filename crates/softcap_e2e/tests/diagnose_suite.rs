@@ -240,8 +240,11 @@ fn probe_friction_is_named() {
 /// viscoelasticity, 0.2354 -> 0.1902 mm, 157 CPU-s for the chain (synth 25 s with the dynamic
 /// truth); with it (rebound 5.6 sigma routes it first) `inconclusive` against viscoelasticity's
 /// screen: re-simulated 0.2354 -> 0.1797 mm (1.31x, rho 22674 kg/m^3, alpha 16.9 1/s, beta 5.6 ms,
-/// compliance 2.55), diagnose alone 240 CPU-s. Fails: the effect is not 3x the default model's
-/// floor on this template; `#[ignore]`.
+/// compliance 2.55), diagnose alone 240 CPU-s. Session 25: as a rigid-tip dynamic replay (position
+/// control, compliance 1, contact lost at once on release) `none`: 0.2354 -> 0.2489 mm (rho 459
+/// kg/m^3, alpha 64 1/s, beta 2.0 ms; truth 4000, 10, 2 ms), viscoelasticity re-simulated 0.1984 mm
+/// (gain 0.29 < 0.3), diagnose 469 CPU-s. Fails: the effect is not 3x the default model's floor on
+/// this template; `#[ignore]`.
 #[test]
 #[ignore = "> 60 CPU-s (157 CPU-s measured, session 24); run with -- --ignored inertia_damping"]
 fn inertia_damping_is_named() {
