@@ -16,6 +16,7 @@ use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute};
 use crate::DiagnoseError;
 use crate::Result;
+use crate::cells::touched_balls;
 use crate::confirm::{
     Candidate, ComplianceScale, Confirmed, lolo_choices_among, lolo_confirm_among,
 };
@@ -102,6 +103,26 @@ impl Hypothesis for InertiaDamping {
         sim: &mut dyn ProbeSimulator,
     ) -> Result<Option<Confirmed>> {
         let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
+        // the fit mesh refined 1 -> 8 where it does not resolve the tip's footprint: the coarse
+        // contact nodes overshoot under a fast press and no dynamics beats the quasi-static
+        // replay there (docs/diagnose.md)
+        let balls = touched_balls(rec, seg);
+        let tips: Vec<Vector3<f64>> = balls.iter().map(|b| b.centre_m).collect();
+        let mut fine = if sim.resolves_footprint(rec.tip_radius_m, &tips) {
+            None
+        } else {
+            sim.refined(&balls)?
+        };
+        let refined = fine.is_some();
+        let plan = if refined {
+            DynamicSearch::REFINED
+        } else {
+            DynamicSearch::FIT_MESH
+        };
+        let sim: &mut dyn ProbeSimulator = match fine.as_deref_mut() {
+            Some(f) => f,
+            None => sim,
+        };
         // the rigid tip at its measured poses (position control: compliance scale 1), else the
         // measured force (force-driven: the material's compliance scale refitted)
         let poses = pose_sequence(rec);
@@ -124,7 +145,11 @@ impl Hypothesis for InertiaDamping {
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
             lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
         };
-        let fit = fit_dynamics(&mut simulate, nf, train)?;
+        let mut fit = fit_dynamics(&mut simulate, nf, train, &plan)?;
+        for c in &mut fit.candidates {
+            c.params
+                .push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
+        }
         let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
         let driven = if fit.position_controlled {
             "the rigid tip replayed at its measured poses, contact lost at once on release"
@@ -142,30 +167,84 @@ impl Hypothesis for InertiaDamping {
             false,
             None,
             format!(
-                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search, {} sequences, {} failed), leave-one-location-out",
+                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search, {} sequences on the {}, {} failed), leave-one-location-out",
                 fit.candidates.len(),
+                if refined {
+                    "fit mesh refined 1 -> 8"
+                } else {
+                    "fit mesh"
+                },
                 fit.failed
             ),
         )
     }
 }
 
-/// The start grid of the dynamic fit (every fold starts from its best point): density ρ, kg/m³ —
-/// from a light foam to a dense filled gel, a factor 4 apart (a factor 2 in the frequencies).
+/// The start grid of the dynamic fit on the fit mesh (every fold starts from its best point):
+/// density ρ, kg/m³ — from a light foam to a dense filled gel, a factor 4 apart (a factor 2 in the
+/// frequencies).
 pub const START_DENSITY_KG_M3: [f64; 4] = [250.0, 1000.0, 4000.0, 16000.0];
 /// … Rayleigh α, 1/s.
 pub const START_ALPHA_PER_S: [f64; 2] = [2.0, 20.0];
 /// … Rayleigh β, s.
 pub const START_BETA_S: [f64; 2] = [2e-4, 4e-3];
 
-/// Compass-search steps of the dynamic fit in log₂ units of (ρ, α, β): the first step, and the
-/// step below which a coordinate is not refined further (ρ to 2^{1/16}: 2 % in the frequencies).
-const FIRST_STEP: [f64; 3] = [1.0, 1.0, 1.0];
-const LAST_STEP: [f64; 3] = [1.0 / 16.0, 0.25, 0.25];
+/// The start line of the dynamic fit on the refined mesh: density ρ, kg/m³, a factor 4 apart,
+/// one octave higher than [`START_DENSITY_KG_M3`] at the top (position control: only E/ρ moves
+/// the markers, and a fitted material that is too stiff is matched by a heavier body).
+pub const REFINED_START_DENSITY_KG_M3: [f64; 4] = [1000.0, 4000.0, 16000.0, 64000.0];
+/// … at the geometric middle of [`START_ALPHA_PER_S`], 1/s …
+pub const REFINED_START_ALPHA_PER_S: [f64; 1] = [6.324555320336759];
+/// … and of [`START_BETA_S`], s.
+pub const REFINED_START_BETA_S: [f64; 1] = [8.94427190999916e-4];
+
 /// log₂ bounds of (ρ [kg/m³], α [1/s], β [s]).
 const LOG2_BOUNDS: [(f64, f64); 3] = [(5.0, 17.0), (-4.0, 9.0), (-17.0, -4.0)];
-/// At most this many compass rounds.
-const MAX_ROUNDS: usize = 12;
+
+/// How [`fit_dynamics`] searches (ρ, α, β): a start grid simulated once, then compass rounds in
+/// log₂ units.
+#[derive(Clone, Copy, Debug)]
+pub struct DynamicSearch {
+    /// Start grid: densities, kg/m³.
+    pub densities_kg_m3: &'static [f64],
+    /// … Rayleigh α, 1/s.
+    pub alphas_per_s: &'static [f64],
+    /// … Rayleigh β, s.
+    pub betas_s: &'static [f64],
+    /// The compass's first step along log₂ (ρ, α, β).
+    pub first_step: [f64; 3],
+    /// The step below which a coordinate is not refined further.
+    pub last_step: [f64; 3],
+    /// At most this many compass rounds.
+    pub max_rounds: usize,
+}
+
+impl DynamicSearch {
+    /// On the fit mesh (a replay 1.5–3.3 CPU-s on the 648-tet suite template): the 16-point grid
+    /// [`START_DENSITY_KG_M3`] × [`START_ALPHA_PER_S`] × [`START_BETA_S`], then up to 12 rounds
+    /// from steps of an octave down to 2^{1/16} in ρ (2 % in the frequencies) and 2^{1/4} in α, β.
+    pub const FIT_MESH: Self = Self {
+        densities_kg_m3: &START_DENSITY_KG_M3,
+        alphas_per_s: &START_ALPHA_PER_S,
+        betas_s: &START_BETA_S,
+        first_step: [1.0, 1.0, 1.0],
+        last_step: [1.0 / 16.0, 0.25, 0.25],
+        max_rounds: 12,
+    };
+    /// On the fit mesh refined 1 → 8 (a replay ≈ 21–24 CPU-s on the 5184-tet refined suite
+    /// template, 16× the fit mesh's): few replays — the 1-D line [`REFINED_START_DENSITY_KG_M3`]
+    /// at the middle damping, then two compass rounds of an octave in ρ and a factor 4 in α, β
+    /// (each fold's search proposes at most 6 points a round; points shared by several folds are
+    /// replayed once).
+    pub const REFINED: Self = Self {
+        densities_kg_m3: &REFINED_START_DENSITY_KG_M3,
+        alphas_per_s: &REFINED_START_ALPHA_PER_S,
+        betas_s: &REFINED_START_BETA_S,
+        first_step: [1.0, 2.0, 2.0],
+        last_step: [0.5, 2.0, 2.0],
+        max_rounds: 2,
+    };
+}
 
 /// The simulated dynamic models of [`fit_dynamics`] and which fold may choose each.
 pub struct DynamicFit {
@@ -222,12 +301,11 @@ fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
 }
 
 /// Fits the dynamic model's density ρ and Rayleigh α, β (wang2015 eq. 3: D = α M + β K) per
-/// fold on its training locations: every fold and the full data start from the best point of a
-/// start grid ([`START_DENSITY_KG_M3`] × [`START_ALPHA_PER_S`] × [`START_BETA_S`], simulated
-/// once), then a compass search in log₂ (ρ, α, β) — each round every search tries ± its step
-/// along each coordinate, moves to the best of its points (training error, `train`), and
-/// halves its steps when none is better, until they are below `LAST_STEP` or after
-/// `MAX_ROUNDS` rounds. The searches run in lockstep: one round's points
+/// fold on its training locations: every fold and the full data start from the best point of
+/// `plan`'s start grid (simulated once), then a compass search in log₂ (ρ, α, β) — each round
+/// every search tries ± its step along each coordinate, moves to the best of its points
+/// (training error, `train`), and halves its steps when none is better, until they are below
+/// `plan.last_step` or after `plan.max_rounds` rounds. The searches run in lockstep: one round's points
 /// of every search are simulated together (in parallel, each point once however many
 /// searches propose it), and a point is offered only to the searches that proposed it
 /// ([`DynamicFit::eligible`]), so a held-out location never shapes its own model. `train` returns,
@@ -238,6 +316,7 @@ pub fn fit_dynamics(
     simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
     folds: usize,
     train: impl Fn(&[Candidate], &dyn Fn(usize, Option<usize>) -> bool) -> Vec<Option<(usize, f64)>>,
+    plan: &DynamicSearch,
 ) -> Result<DynamicFit> {
     let mut fit = DynamicFit {
         candidates: Vec::new(),
@@ -279,9 +358,9 @@ pub fn fit_dynamics(
         Ok(())
     };
     let mut start = Vec::new();
-    for rho in START_DENSITY_KG_M3 {
-        for alpha in START_ALPHA_PER_S {
-            for beta in START_BETA_S {
+    for rho in plan.densities_kg_m3 {
+        for alpha in plan.alphas_per_s {
+            for beta in plan.betas_s {
                 start.push((key([rho.log2(), alpha.log2(), beta.log2()]), None));
             }
         }
@@ -295,9 +374,9 @@ pub fn fit_dynamics(
     let first = choose(&fit);
     let mut searches: Vec<Option<(Key, [f64; 3])>> = first
         .iter()
-        .map(|c| c.map(|(i, _)| (keys[i], FIRST_STEP)))
+        .map(|c| c.map(|(i, _)| (keys[i], plan.first_step)))
         .collect();
-    for _ in 0..MAX_ROUNDS {
+    for _ in 0..plan.max_rounds {
         // this round's points, each with the searches proposing it
         let mut proposals: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
         for (s, search) in searches.iter().enumerate() {
@@ -306,7 +385,7 @@ pub fn fit_dynamics(
             };
             let c = theta(*centre);
             for d in 0..3 {
-                if step[d] < LAST_STEP[d] {
+                if step[d] < plan.last_step[d] {
                     continue;
                 }
                 for sign in [-1.0, 1.0] {
@@ -346,7 +425,7 @@ pub fn fit_dynamics(
                 continue;
             };
             if keys[i] == *centre {
-                for (s, last) in step.iter_mut().zip(LAST_STEP) {
+                for (s, last) in step.iter_mut().zip(plan.last_step) {
                     if *s >= last {
                         *s *= 0.5;
                     }
