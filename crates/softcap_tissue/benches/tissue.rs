@@ -125,7 +125,8 @@ fn bench(c: &mut Criterion) {
         fit.fits.iter().map(|f| f.cg_iterations).sum::<usize>()
     );
     let setup = &prepared.setup;
-    let model = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).expect("model");
+    let model = StrainSpaceModel::new(fit.material.clone().expect("material"), &setup.mesh, 0.5)
+        .expect("model");
     let pose = probe_pose(&Vector3::new(0.02, 0.015, 0.025), &-Vector3::z());
     let tip = TipShape::Sphere { radius_m: 0.006 };
     let cs = ContactSynthesisSettings::default();

@@ -397,6 +397,17 @@ impl FitArgs {
             arguments,
         };
         let o = crate::fit::run(&cfg)?;
+        if o.homogeneous_only {
+            println!(
+                "{} examples, {} tets: homogeneous baseline only, E {:.1} Pa, nu {:.3}, marker RMS {:.4} mm",
+                o.examples.len(),
+                o.tets,
+                o.homogeneous_young_pa,
+                o.homogeneous_nu,
+                1e3 * o.homogeneous_rms_m
+            );
+            return Ok(());
+        }
         println!(
             "{} examples, {} tets: marker RMS homogeneous {:.4} mm, per-example {:.4} mm, strain-space material {:.4} mm ({:.1} centres/tet)",
             o.examples.len(),

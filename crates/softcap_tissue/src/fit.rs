@@ -75,6 +75,15 @@ pub struct FitSettings {
     /// (`heldout.*` of `/tissue/report`). Costs one homogeneous fit per location and one
     /// re-simulation of every example (unless the γ_p selection already scored the material).
     pub heldout_comparison: bool,
+    /// Stop after step 1: fit and evaluate only the homogeneous baseline (bickel2009 §6,
+    /// Fig. 8). material.mcap then has `/mesh/volume` and `/tissue/report` (`homogeneous.*`,
+    /// `rms.homogeneous`, per example `example.K.rms.homogeneous`) but no
+    /// `/tissue/element_material` or `/tissue/basis`: what `softcap diagnose` reads with
+    /// `material = "homogeneous"`, and with `"auto"` when the report has no held-out comparison,
+    /// in a fraction of the time (the per-example fits, the γ_p selection, the basis and its
+    /// re-simulation are skipped). Incompatible with `heldout_comparison`, which scores the
+    /// strain-space material.
+    pub homogeneous_only: bool,
     /// Show progress bars (only ever drawn when stderr is a terminal).
     pub progress: bool,
 }
@@ -193,6 +202,7 @@ impl Default for FitSettings {
             },
             gamma_prior_candidates: DEFAULT_GAMMA_PRIOR_CANDIDATES.to_vec(),
             heldout_comparison: false,
+            homogeneous_only: false,
             progress: true,
         }
     }
@@ -282,6 +292,11 @@ pub struct FitOutcome {
     /// ([`FitSettings::heldout_comparison`]; `None` when off or with fewer than two locations).
     #[serde(default)]
     pub heldout: Option<HeldoutComparison>,
+    /// Only the homogeneous baseline was fitted ([`FitSettings::homogeneous_only`]): the
+    /// per-example and material fields are NaN / empty, each example's `iterations` 0 and its
+    /// `stop` not meaningful.
+    #[serde(default)]
+    pub homogeneous_only: bool,
 }
 
 /// The homogeneous baseline and the strain-space material predicting probe locations they were
@@ -321,14 +336,14 @@ pub struct SessionFit {
     pub homogeneous: HomogeneousFit,
     /// Joint heterogeneous fit (`reference = "joint"`).
     pub joint: Option<JointFit>,
-    /// Per-example fits, same order as `examples`.
+    /// Per-example fits, same order as `examples` (empty with [`FitSettings::homogeneous_only`]).
     pub fits: Vec<ExampleFit>,
-    /// The strain-space material.
-    pub material: Arc<StrainSpaceMaterial>,
+    /// The strain-space material (`None` with [`FitSettings::homogeneous_only`]).
+    pub material: Option<Arc<StrainSpaceMaterial>>,
     /// Error against basis size (bickel2009 Fig. 5).
     pub basis_curve: Vec<BasisErrorStep>,
     /// Node positions of the strain-space material re-simulating each example (`None` when
-    /// the equilibrium iteration did not converge).
+    /// the equilibrium iteration did not converge; empty with [`FitSettings::homogeneous_only`]).
     pub material_positions_m: Vec<Option<Vec<nalgebra::Vector3<f64>>>>,
     /// The summary.
     pub outcome: FitOutcome,
@@ -802,12 +817,21 @@ pub fn fit_session(
             problem: "no example selected".into(),
         });
     }
+    if s.homogeneous_only && s.heldout_comparison {
+        return Err(TissueError::BadSettings {
+            field: "homogeneous_only".into(),
+            problem: "heldout_comparison scores the strain-space material, which homogeneous_only does not fit: set one of them to false".into(),
+        });
+    }
     let probe_examples: Vec<ProbeExample> = examples.iter().map(|e| e.example.clone()).collect();
     let t = setup.num_elements();
 
     let bar = progress.bar("homogeneous fit", 1);
     let homogeneous = fit_homogeneous(setup, &probe_examples, &s.homogeneous)?;
     bar.finish();
+    if s.homogeneous_only {
+        return homogeneous_only_fit(prepared, examples, homogeneous, &s);
+    }
 
     let joint = match s.reference {
         ReferenceField::Homogeneous => None,
@@ -901,24 +925,7 @@ pub fn fit_session(
         .collect::<Result<Vec<_>>>()?;
     bar.finish();
 
-    // Homogeneous per-example errors (also the mean ‖·‖ measure) by re-simulation.
-    let homog_model = softcap_fem::CorotationalModel::homogeneous(&setup.mesh, homogeneous.params)?;
-    let homog_eval = probe_examples
-        .par_iter()
-        .map(|ex| {
-            let mut m = homog_model.clone();
-            // Newton (consistent tangent): the same equilibrium as the warped iteration of
-            // `evaluation`, in a few factorizations instead of tens.
-            simulate_example(
-                setup,
-                &mut m,
-                ex,
-                &s.homogeneous.patch,
-                &s.homogeneous.equilibrium,
-                1,
-            )
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let homog_eval = homogeneous_evaluation(setup, &probe_examples, &homogeneous, &s)?;
 
     let rest = setup.marker_positions(&setup.mesh.vertices);
     let mut summaries = Vec::with_capacity(examples.len());
@@ -988,15 +995,129 @@ pub fn fit_session(
         gamma_prior,
         gamma_prior_scores,
         heldout,
+        homogeneous_only: false,
     };
     Ok(SessionFit {
         examples,
         homogeneous,
         joint,
         fits,
-        material,
+        material: Some(material),
         basis_curve,
         material_positions_m: evaluated,
+        outcome,
+    })
+}
+
+/// The homogeneous baseline re-simulating every example (its per-example errors, also the mean
+/// ‖·‖ measure); `None` where the equilibrium did not converge.
+fn homogeneous_evaluation(
+    setup: &ProbingSetup,
+    probe_examples: &[ProbeExample],
+    homogeneous: &HomogeneousFit,
+    s: &FitSettings,
+) -> Result<Vec<Option<Vec<nalgebra::Vector3<f64>>>>> {
+    let homog_model = softcap_fem::CorotationalModel::homogeneous(&setup.mesh, homogeneous.params)?;
+    probe_examples
+        .par_iter()
+        .map(|ex| {
+            let mut m = homog_model.clone();
+            // Newton (consistent tangent): the same equilibrium as the warped iteration of
+            // `evaluation`, in a few factorizations instead of tens.
+            simulate_example(
+                setup,
+                &mut m,
+                ex,
+                &s.homogeneous.patch,
+                &s.homogeneous.equilibrium,
+                1,
+            )
+        })
+        .collect()
+}
+
+/// [`FitSettings::homogeneous_only`]: step 1 and its evaluation only. The per-example and
+/// material fields of the outcome are NaN (γ_p, `mean_centers`, the example and material RMS),
+/// the per-example fits, the basis and its re-simulations are empty.
+fn homogeneous_only_fit(
+    prepared: &PreparedSession,
+    examples: Vec<SessionExample>,
+    homogeneous: HomogeneousFit,
+    s: &FitSettings,
+) -> Result<SessionFit> {
+    let setup = &prepared.setup;
+    let probe_examples: Vec<ProbeExample> = examples.iter().map(|e| e.example.clone()).collect();
+    let homog_eval = homogeneous_evaluation(setup, &probe_examples, &homogeneous, s)?;
+    let rest = setup.marker_positions(&setup.mesh.vertices);
+    let mut means = Vec::with_capacity(examples.len());
+    let summaries: Vec<ExampleSummary> = examples
+        .iter()
+        .zip(&homog_eval)
+        .enumerate()
+        .map(|(k, (ex, x))| {
+            let e = &ex.example;
+            let (hom_rms, hom_mean) = match x {
+                Some(x) => marker_errors(setup, e, x),
+                None => (homogeneous.example_rms_m[k], homogeneous.example_rms_m[k]),
+            };
+            means.push(hom_mean);
+            let disp = (e
+                .observed
+                .iter()
+                .map(|o| (o.position_m - rest[o.marker]).norm_squared())
+                .sum::<f64>()
+                / e.observed.len().max(1) as f64)
+                .sqrt();
+            ExampleSummary {
+                frame: e.frame,
+                location: ex.location,
+                force_n: e.force_n.norm(),
+                markers: e.observed.len(),
+                homogeneous_rms_m: hom_rms,
+                example_rms_m: f64::NAN,
+                material_rms_m: f64::NAN,
+                displacement_rms_m: disp,
+                iterations: 0,
+                stop: FitStop::default(),
+            }
+        })
+        .collect();
+    let finite: Vec<f64> = summaries
+        .iter()
+        .map(|e| e.homogeneous_rms_m)
+        .filter(|v| v.is_finite())
+        .collect();
+    let means: Vec<f64> = means.into_iter().filter(|v| v.is_finite()).collect();
+    let (young, nu) = homogeneous.params.to_young_poisson()?;
+    let outcome = FitOutcome {
+        tets: setup.num_elements(),
+        locations: prepared.locations.len(),
+        homogeneous: homogeneous.params,
+        homogeneous_young_pa: young,
+        homogeneous_nu: nu,
+        homogeneous_rms_m: (finite.iter().map(|x| x * x).sum::<f64>() / finite.len().max(1) as f64)
+            .sqrt(),
+        example_rms_m: f64::NAN,
+        material_rms_m: f64::NAN,
+        material_failures: 0,
+        material_mean_error_m: f64::NAN,
+        homogeneous_mean_error_m: means.iter().sum::<f64>() / means.len().max(1) as f64,
+        examples: summaries,
+        basis_curve: Vec::new(),
+        mean_centers: f64::NAN,
+        gamma_prior: f64::NAN,
+        gamma_prior_scores: Vec::new(),
+        heldout: None,
+        homogeneous_only: true,
+    };
+    Ok(SessionFit {
+        examples,
+        homogeneous,
+        joint: None,
+        fits: Vec::new(),
+        material: None,
+        basis_curve: Vec::new(),
+        material_positions_m: Vec::new(),
         outcome,
     })
 }

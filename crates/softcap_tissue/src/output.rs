@@ -6,6 +6,10 @@
 //! | `/tissue/element_material` | `softcap.ElementMaterial` | per example: (λ_e, α_e), ε_e, RMS residual |
 //! | `/tissue/basis` | `softcap.StrainSpaceBasis` | p_e(ε) of eq. 8, per-tet centre counts, validity clamp |
 //! | `/tissue/report` | `softcap.Report` | errors of the homogeneous, per-example and strain-space models |
+//!
+//! With `homogeneous_only` (`FitSettings::homogeneous_only`) only `/mesh/volume`, the rest
+//! markers of `/tissue/simulated_markers` and `/tissue/report` (the baseline and its errors,
+//! `fit = "homogeneous-only"`) are written.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -112,6 +116,33 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         KeyValue::number("homogeneous.lambda", o.homogeneous.lambda, "Pa"),
         KeyValue::number("homogeneous.alpha", o.homogeneous.alpha, "Pa"),
         KeyValue::number("rms.homogeneous", o.homogeneous_rms_m, "m"),
+    ];
+    if o.homogeneous_only {
+        entries.extend([
+            KeyValue::number("mean_error.homogeneous", o.homogeneous_mean_error_m, "m"),
+            KeyValue::text("fit", "homogeneous-only"),
+        ]);
+        for (k, e) in o.examples.iter().enumerate() {
+            let p = format!("example.{k}");
+            entries.push(KeyValue::integer(format!("{p}.frame"), e.frame as i64, ""));
+            entries.push(KeyValue::integer(
+                format!("{p}.location"),
+                e.location as i64,
+                "",
+            ));
+            entries.push(KeyValue::number(format!("{p}.force"), e.force_n, "N"));
+            entries.push(KeyValue::number(
+                format!("{p}.rms.homogeneous"),
+                e.homogeneous_rms_m,
+                "m",
+            ));
+        }
+        return proto::Report {
+            title: "softcap tissue fit (bickel2009 §6 homogeneous baseline only)".into(),
+            entries,
+        };
+    }
+    entries.extend([
         KeyValue::number("rms.per_example", o.example_rms_m, "m"),
         KeyValue::number("rms.material", o.material_rms_m, "m"),
         KeyValue::integer("material.failures", o.material_failures as i64, ""),
@@ -124,7 +155,7 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         KeyValue::number("mean_error.material", o.material_mean_error_m, "m"),
         KeyValue::number("basis.mean_centers", o.mean_centers, ""),
         KeyValue::number("gamma_prior", o.gamma_prior, ""),
-    ];
+    ]);
     for (k, g) in o.gamma_prior_scores.iter().enumerate() {
         let p = format!("gamma_prior.candidate.{k}");
         entries.push(KeyValue::number(
@@ -301,8 +332,10 @@ pub fn write_material(cfg: &FitConfig, prepared: &PreparedSession, fit: &Session
         )
         .map_err(&err)?;
     }
-    w.write_static(&topics::STRAIN_SPACE_BASIS, &basis_message(&fit.material))
-        .map_err(&err)?;
+    if let Some(material) = &fit.material {
+        w.write_static(&topics::STRAIN_SPACE_BASIS, &basis_message(material))
+            .map_err(&err)?;
+    }
     let mut report = report_message(fit);
     let used =
         crate::fit::effective_settings(&cfg.settings, &prepared.tip_shape, prepared.tip_radius_m);

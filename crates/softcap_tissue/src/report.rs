@@ -112,7 +112,9 @@ pub fn write_report(dir: &Path, o: &FitOutcome) -> Result<()> {
         reason: e.to_string(),
     })?;
     draw_example_errors(&dir.join("example-errors.png"), o)?;
-    draw_basis_curve(&dir.join("basis-error.png"), o)?;
+    if !o.homogeneous_only {
+        draw_basis_curve(&dir.join("basis-error.png"), o)?;
+    }
     let mut md = String::new();
     let _ = writeln!(md, "# softcap tissue fit\n");
     let _ = writeln!(
@@ -134,6 +136,29 @@ pub fn write_report(dir: &Path, o: &FitOutcome) -> Result<()> {
         1e3 * o.homogeneous_rms_m,
         1e3 * o.homogeneous_mean_error_m
     );
+    if o.homogeneous_only {
+        let _ = writeln!(
+            md,
+            "\nHomogeneous baseline only (`homogeneous_only = true`): no per-example fits, no strain-space material.\n\n![per-example error](example-errors.png)\n\n| example | frame | location | force (N) | RMS displacement (mm) | homogeneous (mm) |\n|---|---|---|---|---|---|"
+        );
+        for (k, e) in o.examples.iter().enumerate() {
+            let _ = writeln!(
+                md,
+                "| {k} | {} | {} | {:.3} | {:.4} | {:.4} |",
+                e.frame,
+                e.location,
+                e.force_n,
+                1e3 * e.displacement_rms_m,
+                1e3 * e.homogeneous_rms_m
+            );
+        }
+        return softcap_app::write_atomic(dir.join("report.md"), md.as_bytes()).map_err(|e| {
+            TissueError::Output {
+                path: dir.join("report.md"),
+                reason: e.to_string(),
+            }
+        });
+    }
     let _ = writeln!(
         md,
         "| per-example fits (eq. 9) | {:.4} | |",

@@ -108,6 +108,51 @@ fn fit_writes_a_material_that_reads_back_and_beats_the_homogeneous_model() {
         let p = loaded.material.evaluate(e, &eps);
         p.validate(e).unwrap();
     }
+
+    // `homogeneous_only`: step 1 alone gives the same baseline bit for bit (it is computed
+    // before and independently of the rest) and a material.mcap with the mesh and the report's
+    // baseline, the entries `softcap diagnose` reads with `material = "homogeneous"` / `"auto"`.
+    let mut h = config(dir.path(), &s, "homogeneous.mcap");
+    h.settings.homogeneous_only = true;
+    let oh = softcap_tissue::fit::run(&h).unwrap();
+    assert!(oh.homogeneous_only && !o.homogeneous_only);
+    assert_eq!(oh.homogeneous, o.homogeneous);
+    assert_eq!(oh.homogeneous_rms_m, o.homogeneous_rms_m);
+    assert_eq!(oh.examples.len(), o.examples.len());
+    for (a, b) in oh.examples.iter().zip(&o.examples) {
+        assert_eq!(
+            (a.frame, a.homogeneous_rms_m),
+            (b.frame, b.homogeneous_rms_m)
+        );
+        assert!(a.example_rms_m.is_nan() && a.material_rms_m.is_nan());
+    }
+    let mh = MaterialData::read(&h.output).unwrap();
+    assert_eq!(
+        (mh.vertices_m, mh.tets),
+        (m.vertices_m.clone(), m.tets.clone())
+    );
+    assert!(mh.element_materials.is_empty() && mh.basis.is_none());
+    let rh = mh.report.as_ref().unwrap();
+    for key in [
+        "homogeneous.lambda",
+        "homogeneous.alpha",
+        "homogeneous.young",
+        "homogeneous.nu",
+        "rms.homogeneous",
+        "homogeneous.patch.load",
+    ] {
+        let full = report.entries.iter().find(|e| e.key == key).unwrap();
+        let only = rh.entries.iter().find(|e| e.key == key).unwrap();
+        assert_eq!(only, full, "{key}");
+    }
+    assert!(!rh.entries.iter().any(|e| e.key == "rms.material"));
+    // … and the held-out comparison, which scores the strain-space material, is refused.
+    let mut bad = config(dir.path(), &s, "bad.mcap");
+    bad.settings.homogeneous_only = true;
+    bad.settings.heldout_comparison = true;
+    let err = softcap_tissue::fit::run(&bad).unwrap_err().to_string();
+    assert!(err.contains("homogeneous_only"), "{err}");
+    assert!(!bad.output.exists());
 }
 
 #[test]

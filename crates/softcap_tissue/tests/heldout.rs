@@ -68,16 +68,17 @@ fn held_out_sphere_probe_is_predicted_better_than_by_the_homogeneous_model() {
         simulate_probe_contact(&setup, &mut truth, tip.clone(), pose, force, &cs).unwrap();
     // The material at the truth's held-out strains vs the tet's mean sample λ.
     let t = setup.num_elements();
+    let fitted = fit.material.clone().expect("the strain-space material");
     let homog = CorotationalModel::homogeneous(&setup.mesh, fit.homogeneous.params).unwrap();
     let strains = homog.strains(&truth_x.positions_m);
     let worst = (0..t)
         .map(|e| {
             let mean =
                 fit.fits.iter().map(|f| f.params[e].lambda).sum::<f64>() / fit.fits.len() as f64;
-            fit.material.evaluate(e, &strains[e]).lambda / mean
+            fitted.evaluate(e, &strains[e]).lambda / mean
         })
         .fold(0.0, f64::max);
-    let mut material = StrainSpaceModel::new(fit.material.clone(), &setup.mesh, 0.5).unwrap();
+    let mut material = StrainSpaceModel::new(fitted, &setup.mesh, 0.5).unwrap();
     let mat_x =
         simulate_probe_contact(&setup, &mut material, tip.clone(), pose, force, &cs).unwrap();
     eprintln!(
