@@ -1,115 +1,17 @@
-//! The capture stage reads every diagnose-suite scenario of the virtual rig and recovers the
-//! markers, probe tip and force against `truth/` (which only tests read).
+//! The capture stage reads the robot-arm, standard and demo sessions and the diagnose-suite
+//! scenarios without a running suite case, and recovers the markers, probe tip and force against
+//! `truth/` (which only tests read). The other suite scenarios' capture checks run in their
+//! diagnose_suite case (`common::assert_suite_capture`), so each is synthesized once per run.
 
-use softcap_capture::nalgebra::{Point3, Vector3};
-use softcap_capture::{CaptureSettings, MarkerState, Session, capture};
-use softcap_synth::{Effect, Scenario, synthesize};
-use std::collections::BTreeMap;
+mod common;
+
+use common::{Accuracy, accuracy, assert_geometry_recovered};
+use softcap_capture::{CaptureSettings, Session, capture};
+use softcap_synth::{Scenario, synthesize};
 use std::path::{Path, PathBuf};
 
 fn scenario_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/scenarios/suite")
-}
-
-fn csv_rows(path: &Path) -> Vec<Vec<String>> {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').map(str::to_string).collect())
-        .collect()
-}
-
-#[derive(Debug)]
-struct Accuracy {
-    marker_rms_mm: f64,
-    missing: usize,
-    frames_without_probe_pose: Vec<usize>,
-    force_rms_n: f64,
-    force_max_n: f64,
-    /// RMS of the true force's component across the recovered (shaft) force direction, N.
-    force_off_axis_rms_n: f64,
-    tip_rms_mm: f64,
-    clock_offset_error_ms: f64,
-}
-
-fn accuracy(dir: &Path, r: &softcap_capture::CaptureResult) -> Accuracy {
-    let mut truth: BTreeMap<(usize, String), Point3<f64>> = BTreeMap::new();
-    for row in csv_rows(&dir.join("truth/markers.csv")) {
-        let p = Point3::new(
-            row[2].parse().unwrap(),
-            row[3].parse().unwrap(),
-            row[4].parse::<f64>().unwrap(),
-        ) * 1e-3;
-        truth.insert((row[0].parse().unwrap(), row[1].clone()), p);
-    }
-    let (mut s, mut n, mut missing) = (0.0, 0usize, 0usize);
-    for f in &r.frames {
-        for (i, m) in f.markers.iter().enumerate() {
-            let Some(t) = truth.get(&(f.frame, r.marker_ids[i].clone())) else {
-                continue;
-            };
-            if m.state == MarkerState::Missing {
-                missing += 1;
-                continue;
-            }
-            s += (m.position_m - t).norm_squared();
-            n += 1;
-        }
-    }
-    let (mut fs, mut fmax, mut ts, mut nt) = (0.0, 0.0f64, 0.0, 0usize);
-    let mut fl = 0.0;
-    let mut no_pose = Vec::new();
-    for row in csv_rows(&dir.join("truth/probe.csv")) {
-        let frame: usize = row[0].parse().unwrap();
-        let ft = Vector3::new(
-            row[2].parse().unwrap(),
-            row[3].parse().unwrap(),
-            row[4].parse::<f64>().unwrap(),
-        );
-        let tip = Point3::new(
-            row[5].parse().unwrap(),
-            row[6].parse().unwrap(),
-            row[7].parse::<f64>().unwrap(),
-        ) * 1e-3;
-        fmax = fmax.max(ft.norm());
-        let Some(p) = r.frames[frame].probe.as_ref() else {
-            no_pose.push(frame);
-            continue;
-        };
-        let (Some(fe), Some(te)) = (p.force_n, p.tip_m) else {
-            no_pose.push(frame);
-            continue;
-        };
-        fs += (fe - ft).norm_squared();
-        // the part of the true force across the shaft (capture's force is along it)
-        if let Some(e) = fe.try_normalize(1e-12) {
-            fl += (ft - e * ft.dot(&e)).norm_squared();
-        }
-        ts += (te - tip).norm_squared();
-        nt += 1;
-    }
-    let clock = std::fs::read_to_string(dir.join("truth/clock.toml")).unwrap();
-    let offset: f64 = clock
-        .lines()
-        .find(|l| l.starts_with("offset_s"))
-        .unwrap()
-        .split('=')
-        .nth(1)
-        .unwrap()
-        .trim()
-        .parse()
-        .unwrap();
-    Accuracy {
-        marker_rms_mm: (s / n as f64).sqrt() * 1e3,
-        missing,
-        frames_without_probe_pose: no_pose,
-        force_rms_n: (fs / nt as f64).sqrt(),
-        force_max_n: fmax,
-        force_off_axis_rms_n: (fl / nt as f64).sqrt(),
-        tip_rms_mm: (ts / nt as f64).sqrt() * 1e3,
-        clock_offset_error_ms: (r.sync.expect("sync").offset_s - offset).abs() * 1e3,
-    }
 }
 
 /// Synthesizes `path`, captures it and measures capture against truth/.
@@ -132,23 +34,6 @@ fn synth_and_capture(path: &Path, tmp: &Path) -> (Scenario, Accuracy, usize) {
     );
     assert_eq!(r.frames.len(), report.frames);
     (scenario, a, report.frames)
-}
-
-/// Every probe frame has a pose, every marker is visible or filled, and markers (0.3 mm) and the
-/// probe tip (0.5 mm) are recovered against truth/.
-fn assert_geometry_recovered(name: &str, a: &Accuracy) {
-    assert!(
-        a.frames_without_probe_pose.is_empty(),
-        "{name}: no probe pose in frames {:?}",
-        a.frames_without_probe_pose
-    );
-    assert_eq!(a.missing, 0, "{name}: every marker visible or filled");
-    assert!(
-        a.marker_rms_mm < 0.3,
-        "{name}: marker RMS {:.3} mm",
-        a.marker_rms_mm
-    );
-    assert!(a.tip_rms_mm < 0.5, "{name}: tip RMS {:.3} mm", a.tip_rms_mm);
 }
 
 #[test]
@@ -184,96 +69,68 @@ fn capture_reads_the_robot_arm_session_and_recovers_tip_and_force() {
     );
 }
 
+/// The suite scenarios no running diagnose_suite case synthesizes
+/// ([`common::CAPTURE_TEST_SCENARIOS`]: their case is `#[ignore]`d) get the suite's capture checks
+/// ([`common::assert_suite_capture`]) here; every other suite scenario gets them in its
+/// diagnose_suite case, on the capture it diagnoses (each scenario synthesized once per
+/// `make test`). Fails when a suite scenario is checked by neither: every `fixtures/scenarios/
+/// suite/*.toml` must be in that list or named by a `check("…")` / `check_against("…", Some("…"))`
+/// of a test of tests/diagnose_suite.rs without `#[ignore]`.
 #[test]
-fn capture_reads_every_suite_scenario_and_recovers_the_truth() {
-    let tmp = tempfile::tempdir().unwrap();
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(scenario_dir())
+fn capture_reads_the_suite_scenarios_without_a_running_case_and_recovers_the_truth() {
+    let mut names: Vec<String> = std::fs::read_dir(scenario_dir())
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
         .collect();
-    paths.sort();
-    assert!(paths.len() >= 6, "{} suite scenarios", paths.len());
-    // Developer aid: SOFTCAP_SUITE_ONLY=a,b checks only those scenarios (unset in CI: all).
-    if let Ok(only) = std::env::var("SOFTCAP_SUITE_ONLY") {
-        let names: Vec<&str> = only.split(',').map(str::trim).collect();
-        paths.retain(|p| {
-            p.file_stem()
-                .and_then(|s| s.to_str())
-                .is_some_and(|s| names.contains(&s))
-        });
+    names.sort();
+    assert!(names.len() >= 6, "{} suite scenarios", names.len());
+    let cases = running_suite_cases(include_str!("diagnose_suite.rs"));
+    for n in &names {
+        let own = common::CAPTURE_TEST_SCENARIOS.contains(&n.as_str());
+        let case = cases.contains(n);
+        assert!(
+            own != case,
+            "suite scenario {n}: its capture must be checked exactly once per make test — by a \
+             running diagnose_suite case ({case}) or here, common::CAPTURE_TEST_SCENARIOS ({own})"
+        );
     }
-    for path in paths {
+    // Developer aid: SOFTCAP_SUITE_ONLY=a,b checks only those scenarios (unset in CI: the list).
+    let only = std::env::var("SOFTCAP_SUITE_ONLY").ok();
+    let tmp = tempfile::tempdir().unwrap();
+    for name in common::CAPTURE_TEST_SCENARIOS {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|x| x.trim() == name))
+        {
+            continue;
+        }
+        let path = scenario_dir().join(format!("{name}.toml"));
         let (scenario, a, _) = synth_and_capture(&path, tmp.path());
-        assert_geometry_recovered(&scenario.name, &a);
-        let force_latency = scenario.has(Effect::ClockOffset)
-            && scenario.effect_settings.clock_force_latency_s > 0.0;
-        if scenario.has(Effect::SensorLag) || force_latency {
-            // The concealed effect: the FSR reading lags and hysteresis bends it (sensor-lag), or
-            // the FSR channel lags the trigger by a constant latency (clock-offset), so the
-            // recovered force is clearly off the truth.
-            assert!(
-                a.force_rms_n > 0.05 * a.force_max_n,
-                "{}: sensor lag should show, force RMS {:.4} N of max {:.3} N",
-                scenario.name,
-                a.force_rms_n,
-                a.force_max_n
-            );
-        } else {
-            // Capture's force is the FSR magnitude along the shaft; under the anisotropic block the
-            // disk's rim also takes a lateral reaction, which that model cannot see.
-            // The tilted disk of support-slip likewise. The FSR (calibration noise, ADC) has an
-            // absolute floor of ≈ 0.03 N RMS (clean: 0.029 N), which dominates on soft sessions.
-            // probe-friction: the FSR reads only the force along the shaft; the friction
-            // traction under the dragged tip (up to ≈ 0.3 of the axial force in the truth) is
-            // the concealed part of the force vector.
-            // viscoelasticity (session 7 TOML: g 2, τ 0.3 s, the force relaxes by a third within
-            // every hold): measured 3.04 % RMS of the peak (0.114 of 3.75 N); the elastic sessions
-            // read ≤ 2.7 % (strain-stiffening 0.117 of 4.28 N).
-            // plasticity (session 8 TOML: a 14 mm flat punch into a yielding block): the rim takes
-            // a lateral reaction the shaft FSR cannot see — measured 0.0550 N RMS of 1.584 N
-            // (3.5 %), of which 0.0533 N across the shaft (`force_off_axis_rms_n`).
-            let bound = if scenario.has(Effect::ProbeFriction) {
-                0.4
-            } else if scenario.has(Effect::Viscoelasticity) || scenario.has(Effect::Plasticity) {
-                0.04
-            } else if scenario.has(Effect::Anisotropy) || scenario.has(Effect::SupportSlip) {
-                0.08
-            } else {
-                0.03
-            };
-            assert!(
-                a.force_rms_n < (bound * a.force_max_n).max(0.045),
-                "{}: force RMS {:.4} N vs max {:.3} N",
-                scenario.name,
-                a.force_rms_n,
-                a.force_max_n
-            );
-            if scenario.has(Effect::Plasticity) {
-                // what capture can see, the force along the shaft, within the elastic sessions'
-                // 3 % (measured 0.0136 N of 1.584 N)
-                let along = (a.force_rms_n.powi(2) - a.force_off_axis_rms_n.powi(2))
-                    .max(0.0)
-                    .sqrt();
-                assert!(
-                    along < 0.03 * a.force_max_n,
-                    "{}: force RMS along the shaft {along:.4} N vs max {:.3} N",
-                    scenario.name,
-                    a.force_max_n
-                );
+        common::assert_suite_capture(&scenario, &a);
+    }
+}
+
+/// The scenarios the `#[test]`s of `source` (tests/diagnose_suite.rs) without `#[ignore]` run:
+/// the names in their `check("…")` and `check_against("…", Some("…"))` calls.
+fn running_suite_cases(source: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    for chunk in source.split("#[test]").skip(1) {
+        let body = chunk.split("\n}\n").next().unwrap_or(chunk);
+        if body.contains("#[ignore") {
+            continue;
+        }
+        for call in ["check(\"", "check_against(\"", "Some(\""] {
+            for (i, _) in body.match_indices(call) {
+                let rest = &body[i + call.len()..];
+                if let Some(end) = rest.find('"') {
+                    names.push(rest[..end].to_string());
+                }
             }
         }
-        // clock-offset without a trigger line: capture's data-driven sync; with the force-channel
-        // latency the trigger is present and the clocks themselves are exact.
-        if !scenario.has(Effect::ClockOffset) || force_latency {
-            assert!(
-                a.clock_offset_error_ms < 2.0,
-                "{}: clock {:.3} ms",
-                scenario.name,
-                a.clock_offset_error_ms
-            );
-        }
     }
+    names
 }
 
 /// The two top-level scenarios besides the robot: `standard.toml` (the generation bench's session:

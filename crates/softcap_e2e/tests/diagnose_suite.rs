@@ -6,10 +6,12 @@
 //! error after modeling at least 3× lower than before on every effect session.
 //!
 //! The material is `softcap_tissue::fit::run` with `common::suite_fit_settings` (the stage's
-//! defaults with the shrinkage γ_p fixed instead of chosen by leave-one-location-out: the
-//! diagnosis does not read what γ_p shapes); the diagnosis reads it with `MaterialSource::Auto`
-//! (the tissue report's homogeneous baseline; the strain-space basis absorbs support slip and
-//! anisotropy, docs/diagnose.md session 10). Every case runs (since session 15, when probe-friction,
+//! defaults, homogeneous baseline only: the diagnosis reads nothing else); the diagnosis reads
+//! it with `MaterialSource::Auto` (the tissue report's homogeneous baseline; the strain-space
+//! basis absorbs support slip and anisotropy, docs/diagnose.md session 10). Each case also
+//! asserts capture's recovery of its synthesized session against the truth
+//! (`common::assert_suite_capture`, the checks tests/capture_reads_synth.rs ran on every suite
+//! scenario before), so a scenario is synthesized once per run. Every case runs (since session 15, when probe-friction,
 //! the last `#[ignore]`d one, passed); a case that stops passing is to be `#[ignore]`d only with the
 //! measured numbers in the reason.
 //!
@@ -149,8 +151,14 @@ fn ranked_rows(d: &softcap_diagnose::Diagnosis) -> Vec<String> {
 /// Runs the chain on `fixtures/scenarios/suite/<name>.toml` and prints its `SUITE` row, ranking
 /// and signatures.
 fn diagnose(name: &str) -> softcap_diagnose::Diagnosis {
+    println!("SUITE start | {name}");
     let scenario = Scenario::load(&common::suite_dir().join(format!("{name}.toml"))).unwrap();
     let inputs = common::prepare_inputs(&scenario);
+    // The scenario's capture checks (each suite scenario is synthesized once per run: here, or
+    // in tests/capture_reads_synth.rs for common::CAPTURE_TEST_SCENARIOS).
+    if let Some(a) = &inputs.capture_accuracy {
+        common::assert_suite_capture(&scenario, a);
+    }
     let t0 = Instant::now();
     let report = std::env::var_os("SOFTCAP_SUITE_REPORT").map(|d| PathBuf::from(d).join(name));
     let d = softcap_diagnose::run(&RunConfig {
