@@ -209,7 +209,15 @@ pub struct WoodburySolver<'s, 'a> {
     /// false: (A + VᵀWV)⁻¹, the shift μΣψψᵀ kept (symmetric positive definite for any rows;
     /// the inexact step's preconditioner, [`pcg_step`]).
     singular_lemma: bool,
+    /// A⁻¹BᵀZ by blocks of [`BLOCK`] columns (T × 6·block, component-major), kept from forming
+    /// the small matrix when it fits in [`CACHE_BYTES`]: each solve then applies A⁻¹ to its
+    /// right-hand side only, the A⁻¹U c part being a dense product with these columns.
+    a_inv_btz: Vec<Mat<f64>>,
 }
+
+/// Largest A⁻¹BᵀZ kept by a [`WoodburySolver`] for its solves (Table 1 size, the inexact step's
+/// 155 soft rows: 39,600 × 6 × 155 values, 295 MB).
+const CACHE_BYTES: usize = 400 << 20;
 
 impl<'s, 'a> WoodburySolver<'s, 'a> {
     /// Forms C⁻¹ + UᵀA⁻¹U (rows + 6 square) and its LU.
@@ -231,6 +239,8 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
         // P = W⁻¹ + Zᵀ Y, Y = B A⁻¹ Bᵀ Z block by block.
         let extra = if singular_lemma { 6 } else { 0 };
         let mut small = Mat::<f64>::zeros(rows + extra, rows + extra);
+        let keep = t * 6 * rows * std::mem::size_of::<f64>() <= CACHE_BYTES;
+        let mut a_inv_btz = Vec::new();
         for c0 in (0..rows).step_by(BLOCK) {
             let c1 = (c0 + BLOCK).min(rows);
             let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
@@ -243,6 +253,9 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
                     small[(i, c0 + j)] = block[(i, j)];
                     small[(c0 + j, i)] = block[(i, j)];
                 }
+            }
+            if keep {
+                a_inv_btz.push(btz);
             }
         }
         for (i, w) in sys.weights.iter().enumerate() {
@@ -258,6 +271,7 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
                 sys,
                 lu,
                 singular_lemma,
+                a_inv_btz,
             });
         }
         // Q = −Zᵀ B Ψ / μ (Ψ_k: component k all 1/√T).
@@ -286,6 +300,7 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
             sys,
             lu,
             singular_lemma,
+            a_inv_btz,
         })
     }
 
@@ -316,9 +331,27 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
             return None;
         }
         // A⁻¹ U c = A⁻¹(−Bᵀ Z c₁) + Ψ c₂ / μ.
-        let zc = sys.z * c.as_ref().subrows(0, rows);
-        let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
-        lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
+        let w = if self.a_inv_btz.is_empty() {
+            let zc = sys.z * c.as_ref().subrows(0, rows);
+            let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
+            lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
+            w
+        } else {
+            // Column 6j + k of block b is component k of A⁻¹BᵀZ's column BLOCK·b + j.
+            let mut w = Mat::<f64>::zeros(t, 6);
+            for (b, block) in self.a_inv_btz.iter().enumerate() {
+                for j in 0..block.ncols() / 6 {
+                    let cj = -c[(BLOCK * b + j, 0)];
+                    for k in 0..6 {
+                        let col = block.col(6 * j + k);
+                        for (o, v) in w.col_mut(k).iter_mut().zip(col.iter()) {
+                            *o += cj * v;
+                        }
+                    }
+                }
+            }
+            w
+        };
         let mut x = NormalSystem::block_field(a.as_ref());
         for (e, s) in x.iter_mut().enumerate() {
             for k in 0..6 {
