@@ -10,7 +10,8 @@
 //! of the two steps, and so is the inexact step (CG preconditioned by the Woodbury solve over the
 //! soft rows, [`pcg_step`]) at the relative residuals [`PCG_TOLERANCES`];
 //! `SOFTCAP_RESHAPE_BENCH_ONCE=1` stops there, `SOFTCAP_RESHAPE_BENCH_NO_CG=1` skips the
-//! unpreconditioned CG runs, and `SOFTCAP_RESHAPE_BENCH_CELLS` (e.g. `22,20,15`: 39,600 tets)
+//! unpreconditioned CG runs, `SOFTCAP_RESHAPE_BENCH_NO_WOODBURY=1` the exact step (PCG alone, no
+//! step difference), and `SOFTCAP_RESHAPE_BENCH_CELLS` (e.g. `22,20,15`: 39,600 tets)
 //! adds one larger size to the single runs.
 //!
 //! `cargo bench --workspace --profile test --bench reshape` (criterion: `scripts/bench
@@ -39,9 +40,36 @@ fn cpu_seconds() -> f64 {
     softcap_app::process::cpu_seconds().unwrap_or(f64::NAN)
 }
 
+/// CPU seconds of the calling thread so far (`/proc/thread-self/stat`), NaN elsewhere. The work
+/// outside the rayon pool (the pool's threads run the parallel parts while this one waits
+/// asleep): the serial part of a timed call.
+fn thread_cpu_seconds() -> f64 {
+    softcap_app::process::thread_cpu_seconds().unwrap_or(f64::NAN)
+}
+
 /// One timed Woodbury and CG solve of `step`, printed.
 fn once(label: &str, step: &FirstStep) {
     let sys = step.system();
+    if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_WOODBURY").is_some() {
+        for tolerance in PCG_TOLERANCES {
+            let (t0, c0, s0) = (Instant::now(), cpu_seconds(), thread_cpu_seconds());
+            let pcg = pcg_step(&sys, tolerance, PCG_MAX_ITERATIONS);
+            let (cpu, serial) = (cpu_seconds() - c0, thread_cpu_seconds() - s0);
+            eprintln!(
+                "{label}: PCG to {tolerance:.0e}: {:.3} s wall, {cpu:.2} CPU-s ({serial:.2} on the \
+                 calling thread, {:.2} in the pool of {} threads: {:.2} s on idle cores), {} \
+                 iterations, {} rows in its Woodbury part, residual {:.1e}",
+                t0.elapsed().as_secs_f64(),
+                cpu - serial,
+                rayon::current_num_threads(),
+                serial + (cpu - serial) / rayon::current_num_threads() as f64,
+                pcg.iterations,
+                pcg.woodbury_rows,
+                pcg.relative_residual
+            );
+        }
+        return;
+    }
     let (t0, c0) = (Instant::now(), cpu_seconds());
     let w = woodbury_step(&sys).expect("Woodbury step");
     let tw = t0.elapsed().as_secs_f64();

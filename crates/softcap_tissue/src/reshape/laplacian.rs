@@ -207,11 +207,25 @@ impl PlasticLaplacian {
     /// with the null vectors ψ_k and shift `mu`, scale `alpha`). Each column's result does not
     /// depend on the blocking.
     pub fn apply_base_inverse(&self, m: MatMut<'_, f64>, alpha: f64, mu: f64) {
+        self.apply_pseudo_inverse(m, 2, alpha, Some(mu));
+    }
+
+    /// H applied in place to a block laid out as for [`Self::apply_base_inverse`]: the "half"
+    /// of A⁻¹ with H = (α w_k)^(−1/2) L_t⁺ per component, so that A⁻¹ = H² + μ⁻¹ Σ_k ψ_k ψ_kᵀ
+    /// (L_t⁺ is symmetric and annihilates the ψ_k, so H is symmetric with Hψ_k = 0). One
+    /// application of L_t⁺ (two triangular sweeps), half the cost of A⁻¹: a quadratic form
+    /// yᵀA⁻¹y′ = (Hy)ᵀ(Hy′) + μ⁻¹ Σ_k (ψ_k·y)(ψ_k·y′) needs one per column, not two.
+    pub fn apply_half_inverse(&self, m: MatMut<'_, f64>, alpha: f64) {
+        self.apply_pseudo_inverse(m, 1, alpha, None);
+    }
+
+    /// (α w_k)^(−passes/2) (L_t⁺)^passes per column, plus the mean over μ when `mu` is given.
+    fn apply_pseudo_inverse(&self, m: MatMut<'_, f64>, passes: i32, alpha: f64, mu: Option<f64>) {
         let Some(factor) = &self.grounded else {
-            // One tet: L_t = 0, A = μ ψψᵀ with ψ = 1.
+            // One tet: L_t = 0 (L_t⁺ = 0), A = μ ψψᵀ with ψ = 1.
             for col in m.col_iter_mut() {
                 for v in col.iter_mut() {
-                    *v /= mu;
+                    *v = mu.map_or(0.0, |mu| *v / mu);
                 }
             }
             return;
@@ -233,19 +247,20 @@ impl PlasticLaplacian {
             rest = tail;
         }
         blocks.into_par_iter().for_each(|(start, block)| {
-            self.base_inverse_block(factor, block, start, alpha, mu);
+            self.pseudo_inverse_block(factor, block, start, passes, alpha, mu);
         });
     }
 
-    /// [`Self::apply_base_inverse`] on columns `start..` of the whole block (the column index
+    /// [`Self::apply_pseudo_inverse`] on columns `start..` of the whole block (the column index
     /// picks the component weight).
-    fn base_inverse_block(
+    fn pseudo_inverse_block(
         &self,
         factor: &GroundedFactor,
         mut m: MatMut<'_, f64>,
         start: usize,
+        passes: i32,
         alpha: f64,
-        mu: f64,
+        mu: Option<f64>,
     ) {
         let t = self.num_tets;
         let inv_t = 1.0 / t as f64;
@@ -265,9 +280,9 @@ impl PlasticLaplacian {
         let stack = MemStack::new(&mut buf);
         // Last-row entries (not in the factor) of the current iterate.
         let mut last = vec![0.0; k];
-        // L_t⁺ twice; after the first the right-hand side is already centred (lemma (ii)), and
-        // the grounded solve ignores the last row.
-        for _ in 0..2 {
+        // L_t⁺ per pass; after the first the right-hand side is already centred (lemma (ii)),
+        // and the grounded solve ignores the last row.
+        for _ in 0..passes {
             factor.solve_ordered(x.as_mut(), stack);
             for (j, l) in last.iter_mut().enumerate() {
                 let col = x.col_mut(j);
@@ -279,8 +294,13 @@ impl PlasticLaplacian {
             }
         }
         for j in 0..k {
-            let scale = 1.0 / (alpha * COMPONENT_WEIGHTS[(start + j) % 6]);
-            let shift = means[j] / mu;
+            let weight = alpha * COMPONENT_WEIGHTS[(start + j) % 6];
+            let scale = if passes == 2 {
+                1.0 / weight
+            } else {
+                weight.powf(-0.5 * passes as f64)
+            };
+            let shift = mu.map_or(0.0, |mu| means[j] / mu);
             let mut dst = m.rb_mut().col_mut(j);
             for (i, &o) in factor.order.iter().enumerate() {
                 dst[o] = x[(i, j)] * scale + shift;
@@ -345,6 +365,37 @@ mod tests {
         let r = &a * &x;
         let err = (0..t).map(|i| (r[i] - y[i]).abs()).fold(0.0, f64::max);
         assert!(err < 1e-9, "residual {err}");
+    }
+
+    /// A⁻¹ = H² + μ⁻¹ Σ ψ_k ψ_kᵀ with H symmetric: H applied twice plus the mean over μ is
+    /// A⁻¹ column by column, and (Hy)·(Hy′) + μ⁻¹ (ψ·y)(ψ·y′) = y·A⁻¹y′.
+    #[test]
+    fn half_inverse_squares_to_the_base_inverse() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 0.6, 0.4], [3, 2, 2]);
+        let lap = PlasticLaplacian::new(&mesh.tets).unwrap();
+        let t = mesh.tets.len();
+        let (alpha, mu) = (0.7, 1.3);
+        let y = Mat::<f64>::from_fn(t, 12, |i, j| ((i * 13 + j * 7) as f64 * 0.37).sin() + 0.1);
+        let mut full = y.clone();
+        lap.apply_base_inverse(full.as_mut(), alpha, mu);
+        let mut half = y.clone();
+        lap.apply_half_inverse(half.as_mut(), alpha);
+        let mut twice = half.clone();
+        lap.apply_half_inverse(twice.as_mut(), alpha);
+        let scale = full.norm_max();
+        for j in 0..12 {
+            let mean = y.col(j).sum() / t as f64;
+            for i in 0..t {
+                let err = (twice[(i, j)] + mean / mu - full[(i, j)]).abs();
+                assert!(err < 1e-12 * scale, "({i}, {j}): {err}");
+            }
+            // Columns j and j + 6 carry the same component.
+            let j2 = (j + 6) % 12;
+            let quadratic = half.col(j).transpose() * half.col(j2)
+                + y.col(j).sum() * y.col(j2).sum() / (t as f64 * mu);
+            let exact = y.col(j).transpose() * full.col(j2);
+            assert!((quadratic - exact).abs() < 1e-12 * exact.abs().max(scale));
+        }
     }
 
     #[test]

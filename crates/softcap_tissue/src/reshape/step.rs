@@ -39,8 +39,9 @@
 //! [`cg_step`] solves the same system by conjugate gradients on M without preconditioner (the
 //! paper's Table 1 baseline), for the benches.
 
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::solvers::Solve;
-use faer::{Mat, MatRef};
+use faer::{Accum, Mat, MatRef};
 use nalgebra::{SMatrix, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -201,22 +202,29 @@ pub fn woodbury_step(sys: &NormalSystem<'_>) -> Option<Vec<Vector6<f64>>> {
 }
 
 /// M⁻¹ by the Woodbury identity (module docs) with the small matrix C⁻¹ + UᵀA⁻¹U formed and
-/// factored once: each further right-hand side costs two A⁻¹ applications (six columns each)
-/// and products with Z and B, not the (rows × 6) columns of the factorization.
+/// factored once: each further right-hand side costs A⁻¹ on six columns and products with the
+/// kept columns (or with Z and B), not the (rows × 6) columns of the factorization.
+///
+/// With A⁻¹ = H² + μ⁻¹ΨΨᵀ ([`PlasticLaplacian::apply_half_inverse`]: H = (αw)^(−1/2) L_t⁺,
+/// symmetric, HΨ = 0) the Gram form ZᵀBA⁻¹BᵀZ = XᵀX + μ⁻¹SᵀS with X = HBᵀZ (6T × rows) and
+/// S = ΨᵀBᵀZ (6 × rows) needs one L_t⁺ application per column of BᵀZ instead of A⁻¹'s two.
+/// X is kept when it fits in 400 MB (the inexact step's preconditioner: Table 1 size, 155 soft
+/// rows, 295 MB) and each solve is then H r, a product with Xᵀ, the small solve, a product with
+/// X and H once more: A⁻¹ once. Otherwise (the exact step at Table 1 size, 1,194 rows) the small
+/// matrix is Zᵀ(B A⁻¹BᵀZ) by blocks of 64 columns and each solve applies A⁻¹ twice.
 pub struct WoodburySolver<'s, 'a> {
     sys: &'s NormalSystem<'a>,
     lu: faer::linalg::solvers::PartialPivLu<f64>,
     /// false: (A + VᵀWV)⁻¹, the shift μΣψψᵀ kept (symmetric positive definite for any rows;
     /// the inexact step's preconditioner, [`pcg_step`]).
     singular_lemma: bool,
-    /// A⁻¹BᵀZ by blocks of [`BLOCK`] columns (T × 6·block, component-major), kept from forming
-    /// the small matrix when it fits in [`CACHE_BYTES`]: each solve then applies A⁻¹ to its
-    /// right-hand side only, the A⁻¹U c part being a dense product with these columns.
-    a_inv_btz: Vec<Mat<f64>>,
+    /// X = HBᵀZ and S = ΨᵀBᵀZ when kept; rows 6T of X stacked component-major (row kT + e is
+    /// component k of tet e, the layout of `NormalSystem::field_block` read column-major).
+    gram: Option<(Mat<f64>, Mat<f64>)>,
 }
 
-/// Largest A⁻¹BᵀZ kept by a [`WoodburySolver`] for its solves (Table 1 size, the inexact step's
-/// 155 soft rows: 39,600 × 6 × 155 values, 295 MB).
+/// Largest X = HBᵀZ kept by a [`WoodburySolver`] (Table 1 size, the inexact step's 155 soft
+/// rows: 39,600 × 6 × 155 values, 295 MB).
 const CACHE_BYTES: usize = 400 << 20;
 
 impl<'s, 'a> WoodburySolver<'s, 'a> {
@@ -231,68 +239,118 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
         Self::with_lemma(sys, false)
     }
 
+    /// X = HBᵀZ (stacked, 6T × rows) and S = ΨᵀBᵀZ (6 × rows), by blocks of [`BLOCK`] columns.
+    fn gram_columns(sys: &NormalSystem<'_>) -> (Mat<f64>, Mat<f64>) {
+        let (rows, t) = (sys.z.ncols(), sys.num_tets());
+        let inv_sqrt_t = 1.0 / (t as f64).sqrt();
+        let mut x = Mat::<f64>::zeros(6 * t, rows);
+        let mut s = Mat::<f64>::zeros(6, rows);
+        for c0 in (0..rows).step_by(BLOCK) {
+            let c1 = (c0 + BLOCK).min(rows);
+            let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
+            for j in 0..c1 - c0 {
+                for k in 0..6 {
+                    s[(k, c0 + j)] = btz.col(6 * j + k).sum() * inv_sqrt_t;
+                }
+            }
+            sys.laplacian.apply_half_inverse(btz.as_mut(), sys.alpha);
+            for j in 0..c1 - c0 {
+                let dst = contiguous_mut(x.col_mut(c0 + j));
+                for k in 0..6 {
+                    let src = btz.col(6 * j + k);
+                    for (d, v) in dst[k * t..(k + 1) * t].iter_mut().zip(src.iter()) {
+                        *d = *v;
+                    }
+                }
+            }
+        }
+        (x, s)
+    }
+
     fn with_lemma(sys: &'s NormalSystem<'a>, singular_lemma: bool) -> Option<Self> {
+        Self::with_cache(sys, singular_lemma, CACHE_BYTES)
+    }
+
+    /// The solver keeping X when it fits in `cache_bytes`.
+    fn with_cache(
+        sys: &'s NormalSystem<'a>,
+        singular_lemma: bool,
+        cache_bytes: usize,
+    ) -> Option<Self> {
         let rows = sys.z.ncols();
         let t = sys.num_tets();
         let mu = sys.mu();
         let lap = sys.laplacian;
-        // P = W⁻¹ + Zᵀ Y, Y = B A⁻¹ Bᵀ Z block by block.
+        // P = W⁻¹ + ZᵀBA⁻¹BᵀZ.
         let extra = if singular_lemma { 6 } else { 0 };
         let mut small = Mat::<f64>::zeros(rows + extra, rows + extra);
-        let keep = t * 6 * rows * std::mem::size_of::<f64>() <= CACHE_BYTES;
-        let mut a_inv_btz = Vec::new();
-        for c0 in (0..rows).step_by(BLOCK) {
-            let c1 = (c0 + BLOCK).min(rows);
-            let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
-            lap.apply_base_inverse(btz.as_mut(), sys.alpha, mu);
-            let y = sys.b_times(btz.as_ref());
-            // ZᵀY is symmetric: rows below c1 of these columns are the mirror of later blocks.
-            let block = sys.z.as_ref().subcols(0, c1).transpose() * &y;
-            for j in 0..c1 - c0 {
-                for i in 0..c1 {
-                    small[(i, c0 + j)] = block[(i, j)];
-                    small[(c0 + j, i)] = block[(i, j)];
+        let keep = t * 6 * rows * std::mem::size_of::<f64>() <= cache_bytes;
+        let gram = if keep {
+            let (x, s) = Self::gram_columns(sys);
+            // XᵀX is symmetric: its lower half only (half the flops of the full product).
+            let mut p = Mat::<f64>::zeros(rows, rows);
+            triangular::matmul(
+                p.as_mut(),
+                BlockStructure::TriangularLower,
+                Accum::Replace,
+                x.transpose(),
+                BlockStructure::Rectangular,
+                x.as_ref(),
+                BlockStructure::Rectangular,
+                1.0,
+                faer::get_global_parallelism(),
+            );
+            let sts = s.transpose() * &s;
+            for j in 0..rows {
+                for i in j..rows {
+                    let v = p[(i, j)] + sts[(i, j)] / mu;
+                    small[(i, j)] = v;
+                    small[(j, i)] = v;
                 }
             }
-            if keep {
-                a_inv_btz.push(btz);
+            Some((x, s))
+        } else {
+            // Y = B A⁻¹ Bᵀ Z block by block.
+            for c0 in (0..rows).step_by(BLOCK) {
+                let c1 = (c0 + BLOCK).min(rows);
+                let mut btz = sys.bt_times(sys.z.as_ref().subcols(c0, c1 - c0));
+                lap.apply_base_inverse(btz.as_mut(), sys.alpha, mu);
+                let y = sys.b_times(btz.as_ref());
+                // ZᵀY is symmetric: rows below c1 of these columns are the mirror of later blocks.
+                let block = sys.z.as_ref().subcols(0, c1).transpose() * &y;
+                for j in 0..c1 - c0 {
+                    for i in 0..c1 {
+                        small[(i, c0 + j)] = block[(i, j)];
+                        small[(c0 + j, i)] = block[(i, j)];
+                    }
+                }
             }
-        }
+            None
+        };
         for (i, w) in sys.weights.iter().enumerate() {
             small[(i, i)] += 1.0 / w;
         }
-        if !singular_lemma {
-            let lu = small.partial_piv_lu();
-            let ok = (0..rows).all(|i| {
-                let d = lu.U()[(i, i)];
-                d.is_finite() && d != 0.0
-            });
-            return ok.then_some(Self {
-                sys,
-                lu,
-                singular_lemma,
-                a_inv_btz,
-            });
-        }
-        // Q = −Zᵀ B Ψ / μ (Ψ_k: component k all 1/√T).
-        // Six fields (component-major block T × 36): field k has component k = 1/√T.
-        let mut psi = Mat::<f64>::zeros(t, 36);
-        let inv_sqrt_t = 1.0 / (t as f64).sqrt();
-        for e in 0..t {
-            for k in 0..6 {
-                psi[(e, 6 * k + k)] = inv_sqrt_t;
+        if singular_lemma {
+            // Q = −Zᵀ B Ψ / μ (Ψ_k: component k all 1/√T).
+            // Six fields (component-major block T × 36): field k has component k = 1/√T.
+            let mut psi = Mat::<f64>::zeros(t, 36);
+            let inv_sqrt_t = 1.0 / (t as f64).sqrt();
+            for e in 0..t {
+                for k in 0..6 {
+                    psi[(e, 6 * k + k)] = inv_sqrt_t;
+                }
             }
-        }
-        let b_psi = sys.b_times(psi.as_ref());
-        let q = sys.z.transpose() * &b_psi * (-1.0 / mu);
-        for i in 0..rows {
-            for k in 0..6 {
-                small[(i, rows + k)] = q[(i, k)];
-                small[(rows + k, i)] = q[(i, k)];
+            let b_psi = sys.b_times(psi.as_ref());
+            let q = sys.z.transpose() * &b_psi * (-1.0 / mu);
+            for i in 0..rows {
+                for k in 0..6 {
+                    small[(i, rows + k)] = q[(i, k)];
+                    small[(rows + k, i)] = q[(i, k)];
+                }
             }
         }
         let lu = small.partial_piv_lu();
-        let ok = (0..rows + 6).all(|i| {
+        let ok = (0..rows + extra).all(|i| {
             let d = lu.U()[(i, i)];
             d.is_finite() && d != 0.0
         });
@@ -300,7 +358,7 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
             sys,
             lu,
             singular_lemma,
-            a_inv_btz,
+            gram,
         })
     }
 
@@ -312,14 +370,54 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
         let mu = sys.mu();
         let lap = sys.laplacian;
         let inv_sqrt_t = 1.0 / (t as f64).sqrt();
+        let extra = if self.singular_lemma { 6 } else { 0 };
+        let mut rhs = Mat::<f64>::zeros(rows + extra, 1);
+        if let Some((x, s)) = &self.gram {
+            // h = H r, p = Ψᵀ r: A⁻¹ r = H h + Ψ p / μ.
+            let mut h = NormalSystem::field_block(r);
+            let p: Vec<f64> = (0..6).map(|k| h.col(k).sum() * inv_sqrt_t).collect();
+            lap.apply_half_inverse(h.as_mut(), sys.alpha);
+            let h = Mat::from_fn(6 * t, 1, |i, _| h[(i % t, i / t)]);
+            let pm = Mat::from_fn(6, 1, |k, _| p[k] / mu);
+            // Uᵀ A⁻¹ r = [V A⁻¹ r; Ψᵀ A⁻¹ r] = [−(Xᵀ h + Sᵀ p / μ); p / μ].
+            let va = (x.transpose() * &h + s.transpose() * &pm) * (-1.0);
+            rhs.as_mut().subrows_mut(0, rows).copy_from(&va);
+            for k in 0..extra {
+                rhs[(rows + k, 0)] = pm[(k, 0)];
+            }
+            let c = self.lu.solve(&rhs);
+            if !c.col(0).iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            // x = A⁻¹ r − A⁻¹ U c = H (h + X c₁) + Ψ (p + S c₁ − c₂) / μ.
+            let c1 = c.as_ref().subrows(0, rows);
+            let u = &h + x * c1;
+            let mean = Mat::from_fn(6, 1, |k, _| p[k]) + s * c1;
+            let mut out = Mat::from_fn(t, 6, |e, k| u[(k * t + e, 0)]);
+            lap.apply_half_inverse(out.as_mut(), sys.alpha);
+            let result: Vec<Vector6<f64>> = (0..t)
+                .map(|e| {
+                    Vector6::from_fn(|k, _| {
+                        let c2 = if self.singular_lemma {
+                            c[(rows + k, 0)]
+                        } else {
+                            0.0
+                        };
+                        out[(e, k)] + (mean[(k, 0)] - c2) * inv_sqrt_t / mu
+                    })
+                })
+                .collect();
+            return result
+                .iter()
+                .all(|s| s.iter().all(|v| v.is_finite()))
+                .then_some(result);
+        }
         // a = A⁻¹ r.
         let mut a = NormalSystem::field_block(r);
         lap.apply_base_inverse(a.as_mut(), sys.alpha, mu);
         // Uᵀ a = [V a; Ψᵀ a] = [−Zᵀ B a; Σ_e a_k / √T].
         let ba = sys.b_times(a.as_ref());
         let va = sys.z.transpose() * &ba * (-1.0);
-        let extra = if self.singular_lemma { 6 } else { 0 };
-        let mut rhs = Mat::<f64>::zeros(rows + extra, 1);
         for i in 0..rows {
             rhs[(i, 0)] = va[(i, 0)];
         }
@@ -331,27 +429,9 @@ impl<'s, 'a> WoodburySolver<'s, 'a> {
             return None;
         }
         // A⁻¹ U c = A⁻¹(−Bᵀ Z c₁) + Ψ c₂ / μ.
-        let w = if self.a_inv_btz.is_empty() {
-            let zc = sys.z * c.as_ref().subrows(0, rows);
-            let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
-            lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
-            w
-        } else {
-            // Column 6j + k of block b is component k of A⁻¹BᵀZ's column BLOCK·b + j.
-            let mut w = Mat::<f64>::zeros(t, 6);
-            for (b, block) in self.a_inv_btz.iter().enumerate() {
-                for j in 0..block.ncols() / 6 {
-                    let cj = -c[(BLOCK * b + j, 0)];
-                    for k in 0..6 {
-                        let col = block.col(6 * j + k);
-                        for (o, v) in w.col_mut(k).iter_mut().zip(col.iter()) {
-                            *o += cj * v;
-                        }
-                    }
-                }
-            }
-            w
-        };
+        let zc = sys.z * c.as_ref().subrows(0, rows);
+        let mut w = sys.bt_times(zc.as_ref()) * (-1.0);
+        lap.apply_base_inverse(w.as_mut(), sys.alpha, mu);
         let mut x = NormalSystem::block_field(a.as_ref());
         for (e, s) in x.iter_mut().enumerate() {
             for k in 0..6 {
@@ -669,6 +749,19 @@ mod tests {
             alpha: 0.3,
         };
         let step = woodbury_step(&sys).unwrap();
+        // Without the kept X (the exact step at Table 1 size): the same step.
+        let minus_g: Vec<Vector6<f64>> = gradient.iter().map(|g| -g).collect();
+        let uncached = WoodburySolver::with_cache(&sys, true, 0)
+            .unwrap()
+            .solve(&minus_g)
+            .unwrap();
+        let size = step.iter().map(|s| s.amax()).fold(0.0, f64::max);
+        let gap = uncached
+            .iter()
+            .zip(&step)
+            .map(|(a, b)| (a - b).amax())
+            .fold(0.0, f64::max);
+        assert!(gap < 1e-9 * size, "kept X vs not: {gap} (step {size})");
         // Dense M.
         let mut m = Mat::<f64>::zeros(6 * t, 6 * t);
         for j in 0..6 * t {
@@ -694,7 +787,6 @@ mod tests {
             .zip(&step)
             .map(|(a, b)| (a - b).amax())
             .fold(0.0, f64::max);
-        let size = step.iter().map(|s| s.amax()).fold(0.0, f64::max);
         assert!(diff < 1e-6 * size, "CG vs Woodbury {diff} (step {size})");
     }
 }
