@@ -7,6 +7,10 @@
 //! frame); the markers of the planned session are unknown and not needed: every candidate is
 //! predicted from the default model's baseline of the planned program ([`crate::baseline`]) and
 //! its extension's variants with the parameters fitted on the recorded session.
+//!
+//! The differences are measured only where the cameras can see them: on the markers the recording
+//! observes (after outlier runs are left out — the observations the held-out scores use), frame
+//! by frame; a planned frame is observed as the recorded frame it is planned from.
 
 use crate::baseline::{Prepared, prepare};
 use crate::evidence::{NextExperiment, ProtocolPrediction};
@@ -85,10 +89,16 @@ impl Protocol {
 
     /// The recording's probe program under this protocol (markers unobserved).
     pub fn apply(self, rec: &Recording, seg: &Segmentation) -> Recording {
+        self.plan(rec, seg).0
+    }
+
+    /// [`Protocol::apply`] and, per planned frame, the recorded frame it is planned from (a
+    /// repeated hold frame: the hold frame; a rest frame: the release it follows).
+    fn plan(self, rec: &Recording, seg: &Segmentation) -> (Recording, Vec<usize>) {
         // time steps of the planned frames (index k: from frame k − 1 to k) where they differ
         // from the recording's median step
         let mut dt = frame_steps(rec, seg, self);
-        let frames: Vec<Frame> = match self {
+        let planned: Vec<(usize, Frame)> = match self {
             Protocol::LongerHolds => repeat_where(rec, |k| seg.phases[k] == Phase::Hold, 3),
             Protocol::RestAfterRelease => {
                 let last_of_location = |k: usize| {
@@ -98,7 +108,7 @@ impl Protocol {
                 let rest_step = REST_AFTER_RELEASE_S / REST_FRAMES as f64;
                 let mut out = Vec::new();
                 for (k, f) in rec.frames.iter().enumerate() {
-                    out.push(f.clone());
+                    out.push((k, f.clone()));
                     dt.push(if k == 0 {
                         0.0
                     } else {
@@ -107,18 +117,19 @@ impl Protocol {
                     if last_of_location(k) {
                         let mut rest = f.clone();
                         rest.force_n = Vector3::zeros();
-                        out.extend(std::iter::repeat_n(rest, REST_FRAMES));
+                        out.extend(std::iter::repeat_n((k, rest), REST_FRAMES));
                         dt.extend(std::iter::repeat_n(rest_step, REST_FRAMES));
                     }
                 }
                 out
             }
-            Protocol::FasterRamps => rec.frames.clone(),
+            Protocol::FasterRamps => rec.frames.iter().cloned().enumerate().collect(),
             Protocol::ObliqueProbe => {
                 let n = rec.support.map_or(Vector3::z(), |s| s.normal);
                 rec.frames
                     .iter()
-                    .map(|f| {
+                    .enumerate()
+                    .map(|(k, f)| {
                         let about = f
                             .axis
                             .cross(&n)
@@ -128,16 +139,18 @@ impl Protocol {
                             &nalgebra::Unit::new_normalize(about),
                             20f64.to_radians(),
                         );
-                        Frame {
+                        let planned = Frame {
                             axis: r * f.axis,
                             force_n: r * f.force_n,
                             ..f.clone()
-                        }
+                        };
+                        (k, planned)
                     })
                     .collect()
             }
-            Protocol::NearSupport => near_support(rec, seg),
+            Protocol::NearSupport => near_support(rec, seg).into_iter().enumerate().collect(),
         };
+        let (sources, frames): (Vec<usize>, Vec<Frame>) = planned.into_iter().unzip();
         let mut t = rec.frames.first().map_or(0.0, |f| f.time_s);
         let frames = frames
             .into_iter()
@@ -154,10 +167,11 @@ impl Protocol {
                 }
             })
             .collect();
-        Recording {
+        let planned = Recording {
             frames,
             ..rec.clone()
-        }
+        };
+        (planned, sources)
     }
 }
 
@@ -194,12 +208,12 @@ fn frame_steps(rec: &Recording, seg: &Segmentation, p: Protocol) -> Vec<f64> {
         .collect()
 }
 
-/// The frames with every frame `sel` selects repeated `times` times.
-fn repeat_where(rec: &Recording, sel: impl Fn(usize) -> bool, times: usize) -> Vec<Frame> {
+/// The frames (each with its index) with every frame `sel` selects repeated `times` times.
+fn repeat_where(rec: &Recording, sel: impl Fn(usize) -> bool, times: usize) -> Vec<(usize, Frame)> {
     rec.frames
         .iter()
         .enumerate()
-        .flat_map(|(k, f)| std::iter::repeat_n(f.clone(), if sel(k) { times } else { 1 }))
+        .flat_map(|(k, f)| std::iter::repeat_n((k, f.clone()), if sel(k) { times } else { 1 }))
         .collect()
 }
 
@@ -278,21 +292,43 @@ fn candidate_prediction(vars: &[Variant], fitted: &Variant, r: &Refit, p: &Prepa
     )
 }
 
-/// RMS over every frame and marker of the difference of two predictions, m.
-fn rms_difference(a: &Field, b: &Field) -> f64 {
+/// Which markers the cameras observe, per frame of `rec` (`[k][m]`).
+fn observed(rec: &Recording) -> Vec<Vec<bool>> {
+    rec.frames
+        .iter()
+        .map(|f| f.markers_m.iter().map(Option::is_some).collect())
+        .collect()
+}
+
+/// Which markers the cameras would observe per planned frame: those of the recorded frame it is
+/// planned from (`sources`, [`Protocol::plan`]) — the same cameras, the same object.
+fn observed_planned(rec_observed: &[Vec<bool>], sources: &[usize]) -> Vec<Vec<bool>> {
+    sources.iter().map(|&k| rec_observed[k].clone()).collect()
+}
+
+/// RMS of the difference of two predictions over the observed (frame k, marker m) samples
+/// (`observed[k][m]`), m; 0 without any. Only observed markers count: a difference on markers
+/// the cameras never see (e.g. the support markers under a camera above the block) cannot be
+/// measured by re-recording with the same cameras, so it must not make a protocol the next
+/// experiment; and the samples are those the held-out scores of the candidates are taken on.
+fn rms_difference(a: &Field, b: &Field, observed: &[Vec<bool>]) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
-    for (ra, rb) in a.iter().zip(b) {
-        for (x, y) in ra.iter().zip(rb) {
-            s += (x - y).norm_squared();
-            n += 1;
+    for ((ra, rb), seen) in a.iter().zip(b).zip(observed) {
+        for ((x, y), &seen) in ra.iter().zip(rb).zip(seen) {
+            if seen {
+                s += (x - y).norm_squared();
+                n += 1;
+            }
         }
     }
-    (s / n.max(1) as f64).sqrt()
+    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
 /// The protocol that best separates the two leading candidates `a` and `b` (each a hypothesis
 /// with its screen refit on the recorded session): both simulated under the recorded program and
-/// under every [`Protocol`]; the largest RMS difference between their predicted markers wins.
+/// under every [`Protocol`]; the largest RMS difference between their predicted markers wins,
+/// taken over the markers observed (per recorded frame, and per planned frame those of the
+/// recorded frame it is planned from; module docs).
 pub fn next_experiment(
     cx: &Context<'_>,
     a: (&dyn Hypothesis, &Refit),
@@ -312,15 +348,16 @@ pub fn next_experiment(
             })
     };
     let (va, vb) = (fitted(a.0, a.1)?, fitted(b.0, b.1)?);
-    let difference = |cx: &Context<'_>| {
+    let difference = |cx: &Context<'_>, observed: &[Vec<bool>]| {
         let pa = candidate_prediction(&a.0.variants(cx), &va, a.1, cx.prepared);
         let pb = candidate_prediction(&b.0.variants(cx), &vb, b.1, cx.prepared);
-        rms_difference(&pa, &pb)
+        rms_difference(&pa, &pb, observed)
     };
-    let recorded = difference(cx);
+    let seen = observed(cx.rec);
+    let recorded = difference(cx, &seen);
     let mut protocols = Vec::new();
     for p in Protocol::ALL {
-        let rec = p.apply(cx.rec, cx.seg);
+        let (rec, sources) = p.plan(cx.rec, cx.seg);
         let seg = Segmentation::new(&rec, &cx.settings.segment);
         let prepared = prepare(&rec, &seg, sim, cx.settings, &ProgressBar::hidden())?;
         let planned = Context {
@@ -331,7 +368,7 @@ pub fn next_experiment(
         };
         protocols.push(ProtocolPrediction {
             protocol: p.name().into(),
-            predicted_difference_m: difference(&planned),
+            predicted_difference_m: difference(&planned, &observed_planned(&seen, &sources)),
         });
     }
     let best = Protocol::ALL
@@ -377,6 +414,68 @@ mod tests {
         let rec = Recording::two_marker_toy(frames);
         let seg = Segmentation::new(&rec, &SegmentSettings::default());
         (rec, seg)
+    }
+
+    #[test]
+    fn predicted_difference_counts_only_observed_markers() {
+        // 2 frames × 3 markers; observed: frame 0 marker 0, frame 1 markers 0 and 1; marker 2
+        // (e.g. on the support, under a camera above the block) never
+        let seen = vec![vec![true, false, false], vec![true, true, false]];
+        let a: Field = vec![vec![Vector3::zeros(); 3]; 2];
+        let mut b = a.clone();
+        for row in &mut b {
+            row[2] = Vector3::new(1e-3, -2e-3, 5e-3);
+        }
+        b[0][1] = Vector3::new(7e-3, 0.0, 0.0);
+        assert_eq!(rms_difference(&a, &b, &seen), 0.0);
+        // observed differences: (3, 4, 0) mm at frame 0 marker 0, (0, 0, 1) mm at frame 1
+        // marker 1, 0 at frame 1 marker 0: RMS √((25 + 1 + 0)/3) mm
+        b[0][0] = Vector3::new(3e-3, 4e-3, 0.0);
+        b[1][1] = Vector3::new(0.0, 0.0, 1e-3);
+        let want = 1e-3 * (26.0f64 / 3.0).sqrt();
+        assert!((rms_difference(&a, &b, &seen) - want).abs() < 1e-15);
+        // nothing observed: no difference
+        assert_eq!(
+            rms_difference(&a, &b, &[vec![false; 3], vec![false; 3]]),
+            0.0
+        );
+    }
+
+    #[test]
+    fn planned_frames_are_observed_as_their_recorded_frame() {
+        let (mut rec, seg) = toy();
+        // marker 0 seen in every frame, marker 1 in the odd ones
+        for (k, f) in rec.frames.iter_mut().enumerate() {
+            f.markers_m = vec![Some(Vector3::zeros()), (k % 2 == 1).then(Vector3::zeros)];
+        }
+        let seen = observed(&rec);
+        for p in Protocol::ALL {
+            let (planned, sources) = p.plan(&rec, &seg);
+            assert_eq!(sources.len(), planned.frames.len(), "{}", p.name());
+            let rows = observed_planned(&seen, &sources);
+            for (j, &k) in sources.iter().enumerate() {
+                assert_eq!(rows[j], [true, k % 2 == 1], "{}", p.name());
+                assert!(planned.frames[j].markers_m.iter().all(Option::is_none));
+            }
+            assert!(sources.windows(2).all(|w| w[0] <= w[1]), "{}", p.name());
+        }
+        // longer holds: each hold frame planned three times; rest after release: each release
+        // followed by REST_FRAMES rest frames planned from it
+        let (_, sources) = Protocol::LongerHolds.plan(&rec, &seg);
+        for (k, phase) in seg.phases.iter().enumerate() {
+            let times = sources.iter().filter(|&&s| s == k).count();
+            assert_eq!(times, if *phase == Phase::Hold { 3 } else { 1 });
+        }
+        let (rest, sources) = Protocol::RestAfterRelease.plan(&rec, &seg);
+        for (j, f) in rest.frames.iter().enumerate() {
+            assert_eq!(f.tip_m, rec.frames[sources[j]].tip_m);
+        }
+        let times: Vec<usize> = (0..rec.frames.len())
+            .map(|k| sources.iter().filter(|&&s| s == k).count())
+            .collect();
+        let released = times.iter().filter(|&&t| t == 1 + REST_FRAMES).count();
+        assert_eq!(released, seg.num_folds(), "{times:?}");
+        assert!(times.iter().all(|&t| t == 1 || t == 1 + REST_FRAMES));
     }
 
     #[test]
