@@ -202,6 +202,24 @@ impl Tally {
             .min_by(|a, b| a.2.total_cmp(&b.2))
             .unwrap_or((0, 1.0, f64::INFINITY))
     }
+
+    /// [`Self::best`] per held-out location of the `nf` (index l of the result), then for the full
+    /// data (nothing held out): (held-out location, candidate, scale, residual sum of squares).
+    fn best_per_fold(
+        &self,
+        nf: usize,
+        scale: ComplianceScale,
+        eligible: Option<&EligibleFn<'_>>,
+    ) -> Vec<(Option<usize>, usize, f64, f64)> {
+        (0..nf)
+            .map(Some)
+            .chain([None])
+            .map(|skip| {
+                let (i, d, rss) = self.best(skip, scale, eligible);
+                (skip, i, d, rss)
+            })
+            .collect()
+    }
 }
 
 /// The candidate [`lolo_confirm`] chooses for each held-out location (index l of the result) and,
@@ -219,10 +237,9 @@ pub fn lolo_choices(
         return Vec::new();
     }
     let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
-    (0..seg.num_folds())
-        .map(Some)
-        .chain([None])
-        .map(|skip| t.best(skip, scale, None).0)
+    t.best_per_fold(seg.num_folds(), scale, None)
+        .into_iter()
+        .map(|(_, i, _, _)| i)
         .collect()
 }
 
@@ -241,13 +258,9 @@ pub fn lolo_choices_among(
     train_on_scored: bool,
 ) -> Vec<Option<(usize, f64)>> {
     let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
-    (0..seg.num_folds())
-        .map(Some)
-        .chain([None])
-        .map(|skip| {
-            let (i, _, rss) = t.best(skip, scale, Some(eligible));
-            rss.is_finite().then_some((i, rss))
-        })
+    t.best_per_fold(seg.num_folds(), scale, Some(eligible))
+        .into_iter()
+        .map(|(_, i, _, rss)| rss.is_finite().then_some((i, rss)))
         .collect()
 }
 
@@ -306,15 +319,11 @@ pub fn lolo_confirm_among(
     let nf = seg.num_folds();
     let tally = Tally::new(cands, rec, seg, p, scored, train_on_scored);
     let (all, sc) = (&tally.all, &tally.sc);
-    let best = |skip: Option<usize>| tally.best(skip, scale, eligible);
     // per held-out location, then the full data: the chosen candidate and compliance scale
-    let choices: Vec<(Option<usize>, usize, f64)> = (0..nf)
-        .map(Some)
-        .chain([None])
-        .map(|skip| {
-            let (i, d, _) = best(skip);
-            (skip, i, d)
-        })
+    let choices: Vec<(Option<usize>, usize, f64)> = tally
+        .best_per_fold(nf, scale, eligible)
+        .into_iter()
+        .map(|(skip, i, d, _)| (skip, i, d))
         .collect();
     // With a refit closure, its independent refits run in parallel; taken in this order below
     // (the first error or declined refit decides, as one after another).

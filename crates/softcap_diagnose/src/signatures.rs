@@ -310,6 +310,24 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
     }
 }
 
+/// The blocks of consecutive released frames among the first `n_frames`, each after one press:
+/// (location, frames) in frame order.
+fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize>)> {
+    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
+    for k in 0..n_frames {
+        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
+            continue;
+        };
+        match blocks.last_mut() {
+            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&p| p + 1 == k) => {
+                frames.push(k)
+            }
+            _ => blocks.push((l, vec![k])),
+        }
+    }
+    blocks
+}
+
 /// The persistence of the released set (`Signatures::released_set_persistence`): per block b of
 /// consecutive released frames (after one press at location l_b) and marker m within
 /// [`contact_radius_m`] of l_b's contact point, the set s_bm = the mean of r − r̄_rest over b (r the
@@ -332,19 +350,7 @@ pub fn released_set_persistence(
 ) -> Option<f64> {
     let radius = contact_radius_m(rec);
     let nm = rec.num_markers();
-    // blocks of consecutive released frames of one location: (location, frames)
-    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
-    for k in 0..res.len() {
-        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
-            continue;
-        };
-        match blocks.last_mut() {
-            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&p| p + 1 == k) => {
-                frames.push(k)
-            }
-            _ => blocks.push((l, vec![k])),
-        }
-    }
+    let blocks = released_blocks(seg, res.len());
     let near = |l: usize, m: usize| {
         (seg.locations[l].contact_tip_m - rec.rest_markers_m[m]).norm() <= radius
     };
@@ -398,18 +404,7 @@ pub fn release_rebound(
     rest_mean: &[Vector3<f64>],
 ) -> f64 {
     let radius = contact_radius_m(rec);
-    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
-    for k in 0..res.len() {
-        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
-            continue;
-        };
-        match blocks.last_mut() {
-            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&p| p + 1 == k) => {
-                frames.push(k)
-            }
-            _ => blocks.push((l, vec![k])),
-        }
-    }
+    let blocks = released_blocks(seg, res.len());
     let mut peaks: Vec<f64> = blocks
         .iter()
         .filter_map(|(l, frames)| {

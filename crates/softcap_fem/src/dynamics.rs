@@ -28,7 +28,7 @@ use crate::FemError;
 use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern, solver_setup};
 use crate::contact::{ContactProblem, ContactReport};
 use crate::element::StiffnessKind;
-use crate::model::ElasticModel;
+use crate::model::{ElasticModel, element_product};
 use crate::nodal::NodalTerm;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -455,25 +455,28 @@ impl DynamicSolver {
         damping: &RayleighDamping,
         kind: StiffnessKind,
     ) -> Vec<Vector3<f64>> {
-        let mut out: Vec<Vector3<f64>> = v
-            .iter()
-            .zip(&self.masses_kg)
-            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
-            .collect();
+        let mut out = self.mass_damping_forces(v, damping);
         if damping.beta_s != 0.0 {
             for (e, g) in model.elements().iter().enumerate() {
-                let k = model.element_matrix(e, x, kind);
-                let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+                let kv = element_product(&model.element_matrix(e, x, kind), &g.nodes, v);
                 for a in 0..4 {
-                    ve.fixed_rows_mut::<3>(3 * a).copy_from(&v[g.nodes[a]]);
-                }
-                let fe = k * ve * damping.beta_s;
-                for a in 0..4 {
-                    out[g.nodes[a]] += fe.fixed_rows::<3>(3 * a);
+                    out[g.nodes[a]] += kv[a] * damping.beta_s;
                 }
             }
         }
         out
+    }
+
+    /// The mass-proportional part α M v of the damping force (lumped M).
+    fn mass_damping_forces(
+        &self,
+        v: &[Vector3<f64>],
+        damping: &RayleighDamping,
+    ) -> Vec<Vector3<f64>> {
+        v.iter()
+            .zip(&self.masses_kg)
+            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
+            .collect()
     }
 
     /// Sets a₀ = M⁻¹ (f_ext − f_int(x₀) − D v₀) on the free dofs (zero on constrained dofs and on
@@ -616,10 +619,7 @@ impl DynamicSolver {
             };
             return report;
         }
-        let kin = Self::kinematics(settings);
-        let damping = settings.damping;
-        let a_mass = kin.cx + damping.alpha_per_s * kin.cv;
-        let a_stiff = 1.0 + damping.beta_s * kin.cv;
+        let (a_mass, a_stiff) = Self::system_coefficients(settings);
         // Predictor, or the caller's guess.
         let mut x: Vec<Vector3<f64>> = match initial_guess {
             Some(g) => g.to_vec(),
@@ -657,18 +657,10 @@ impl DynamicSolver {
                 && terms.is_empty()
                 && self.reuses_factor(coefficients);
             let (mut values, fi, fd) = if residual_only {
-                let (fi, fd) = self.force_pass(&*model, &x, &v, settings.stiffness, &damping);
+                let (fi, fd) = self.force_pass(&*model, &x, &v, settings);
                 (None, fi, fd)
             } else {
-                let (values, fi, fd) = self.system(
-                    &*model,
-                    &x,
-                    &v,
-                    settings.stiffness,
-                    a_stiff,
-                    a_mass,
-                    &damping,
-                );
+                let (values, fi, fd) = self.system(&*model, &x, &v, settings);
                 (Some(values), fi, fd)
             };
             let mut r: Vec<Vector3<f64>> = (0..n)
@@ -750,16 +742,7 @@ impl DynamicSolver {
             // may sit at the rounding floor) renews it for this update: with the matrix at x.
             self.refactor_due |= slow;
             if values.is_none() && !self.reuses_factor(coefficients) {
-                let (matrix, _, _) = self.system(
-                    &*model,
-                    &x,
-                    &v,
-                    settings.stiffness,
-                    a_stiff,
-                    a_mass,
-                    &damping,
-                );
-                values = Some(matrix);
+                values = Some(self.system(&*model, &x, &v, settings).0);
             }
             let dx = match self.solve_update(values.as_deref(), rf, coefficients) {
                 Ok(dx) => dx,
@@ -868,20 +851,30 @@ impl DynamicSolver {
         (values, fi, fd)
     }
 
-    /// The system matrix A = a_mass M + a_stiff Σ_e K_e at `x` ([`Self::linearize`] plus the
-    /// mass blocks), f_int(x) and D v.
-    #[allow(clippy::too_many_arguments)]
+    /// The coefficients (a_mass, a_stiff) of a step's system matrix A = a_mass M + a_stiff K:
+    /// c_x + α c_v and 1 + β c_v of the integrator's [`Self::kinematics`] and the Rayleigh
+    /// damping.
+    fn system_coefficients(settings: &DynamicsSettings) -> (f64, f64) {
+        let kin = Self::kinematics(settings);
+        let damping = &settings.damping;
+        let a_mass = kin.cx + damping.alpha_per_s * kin.cv;
+        let a_stiff = 1.0 + damping.beta_s * kin.cv;
+        (a_mass, a_stiff)
+    }
+
+    /// The system matrix A = a_mass M + a_stiff Σ_e K_e of a step with `settings` at `x`
+    /// ([`Self::system_coefficients`]; [`Self::linearize`] plus the mass blocks), f_int(x) and
+    /// D v.
     fn system<M: ElasticModel + ?Sized>(
         &mut self,
         model: &M,
         x: &[Vector3<f64>],
         v: &[Vector3<f64>],
-        kind: StiffnessKind,
-        a_stiff: f64,
-        a_mass: f64,
-        damping: &RayleighDamping,
+        settings: &DynamicsSettings,
     ) -> (Vec<f64>, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-        let (mut values, fi, fd) = self.linearize(model, x, v, kind, a_stiff, damping);
+        let (a_mass, a_stiff) = Self::system_coefficients(settings);
+        let (mut values, fi, fd) =
+            self.linearize(model, x, v, settings.stiffness, a_stiff, &settings.damping);
         for (i, &m) in self.masses_kg.iter().enumerate() {
             self.pattern
                 .add_node_block(i, &(Matrix3::identity() * (a_mass * m)), &mut values);
@@ -889,26 +882,23 @@ impl DynamicSolver {
         (values, fi, fd)
     }
 
-    /// The residual's element pass without the system matrix: f_int(x) and the damping force
-    /// D v = α M v + β Σ_e K_e v_e ([`ElasticModel::element_forces_products`]; chunks possibly in
-    /// parallel, accumulated serially in element order). The forces of [`Self::linearize`] to
-    /// round-off, for an update that reuses the factor of an earlier matrix.
+    /// The residual's element pass of a step with `settings` without the system matrix: f_int(x)
+    /// and the damping force D v = α M v + β Σ_e K_e v_e
+    /// ([`ElasticModel::element_forces_products`]; chunks possibly in parallel, accumulated
+    /// serially in element order). The forces of [`Self::linearize`] to round-off, for an update
+    /// that reuses the factor of an earlier matrix.
     fn force_pass<M: ElasticModel + ?Sized>(
         &mut self,
         model: &M,
         x: &[Vector3<f64>],
         v: &[Vector3<f64>],
-        kind: StiffnessKind,
-        damping: &RayleighDamping,
+        settings: &DynamicsSettings,
     ) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let kind = settings.stiffness;
         let n_el = model.elements().len();
         let mut fi = vec![Vector3::zeros(); model.num_nodes()];
-        let mut fd: Vec<Vector3<f64>> = v
-            .iter()
-            .zip(&self.masses_kg)
-            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
-            .collect();
-        let beta = damping.beta_s;
+        let mut fd = self.mass_damping_forces(v, &settings.damping);
+        let beta = settings.damping.beta_s;
         let chunk = crate::model::ELEMENT_CHUNK.min(n_el.max(1));
         self.forces.resize(chunk, [Vector3::zeros(); 4]);
         self.products.resize(chunk, [Vector3::zeros(); 4]);
@@ -945,11 +935,7 @@ impl DynamicSolver {
         let n_el = model.elements().len();
         let mut values = self.pattern.zeros();
         let mut fi = vec![Vector3::zeros(); model.num_nodes()];
-        let mut fd: Vec<Vector3<f64>> = v
-            .iter()
-            .zip(&self.masses_kg)
-            .map(|(vi, m)| vi * (damping.alpha_per_s * m))
-            .collect();
+        let mut fd = self.mass_damping_forces(v, damping);
         let chunk = crate::model::ELEMENT_CHUNK.min(n_el.max(1));
         self.forces.resize(chunk, [Vector3::zeros(); 4]);
         self.matrices
@@ -967,13 +953,9 @@ impl DynamicSolver {
                     fi[g.nodes[q]] += forces[k][q];
                 }
                 if damping.beta_s != 0.0 {
-                    let mut ve = nalgebra::SVector::<f64, 12>::zeros();
+                    let kv = element_product(ke, &g.nodes, v);
                     for q in 0..4 {
-                        ve.fixed_rows_mut::<3>(3 * q).copy_from(&v[g.nodes[q]]);
-                    }
-                    let fe = ke * ve * damping.beta_s;
-                    for q in 0..4 {
-                        fd[g.nodes[q]] += fe.fixed_rows::<3>(3 * q);
+                        fd[g.nodes[q]] += kv[q] * damping.beta_s;
                     }
                 }
             }

@@ -935,46 +935,18 @@ pub fn fit_session(
             Some(x) => marker_errors(setup, e, x),
             None => (f64::NAN, f64::NAN),
         };
-        let (hom_rms, hom_mean) = match &homog_eval[k] {
-            Some(x) => marker_errors(setup, e, x),
-            None => (homogeneous.example_rms_m[k], homogeneous.example_rms_m[k]),
+        let (summary, hom_mean) =
+            homogeneous_summary(setup, &rest, ex, homog_eval[k].as_deref(), &homogeneous, k);
+        let summary = ExampleSummary {
+            example_rms_m: fits[k].rms_m,
+            material_rms_m: mat_rms,
+            iterations: fits[k].iterations,
+            stop: fits[k].stop,
+            ..summary
         };
-        let disp = (e
-            .observed
-            .iter()
-            .map(|o| (o.position_m - rest[o.marker]).norm_squared())
-            .sum::<f64>()
-            / e.observed.len().max(1) as f64)
-            .sqrt();
-        summaries.push((
-            ExampleSummary {
-                frame: e.frame,
-                location: ex.location,
-                force_n: e.force_n.norm(),
-                markers: e.observed.len(),
-                homogeneous_rms_m: hom_rms,
-                example_rms_m: fits[k].rms_m,
-                material_rms_m: mat_rms,
-                displacement_rms_m: disp,
-                iterations: fits[k].iterations,
-                stop: fits[k].stop,
-            },
-            mat_mean,
-            hom_mean,
-        ));
+        summaries.push((summary, mat_mean, hom_mean));
     }
-    let rms = |f: &dyn Fn(&ExampleSummary) -> f64| {
-        let v: Vec<f64> = summaries
-            .iter()
-            .map(|s| f(&s.0))
-            .filter(|v| v.is_finite())
-            .collect();
-        (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-    };
-    let mean = |v: Vec<f64>| {
-        let v: Vec<f64> = v.into_iter().filter(|v| v.is_finite()).collect();
-        v.iter().sum::<f64>() / v.len().max(1) as f64
-    };
+    let rms = |f: &dyn Fn(&ExampleSummary) -> f64| finite_rms(summaries.iter().map(|s| f(&s.0)));
     let material_failures = evaluated.iter().filter(|x| x.is_none()).count();
     let (young, nu) = homogeneous.params.to_young_poisson()?;
     let outcome = FitOutcome {
@@ -987,8 +959,8 @@ pub fn fit_session(
         example_rms_m: rms(&|s| s.example_rms_m),
         material_rms_m: rms(&|s| s.material_rms_m),
         material_failures,
-        material_mean_error_m: mean(summaries.iter().map(|s| s.1).collect()),
-        homogeneous_mean_error_m: mean(summaries.iter().map(|s| s.2).collect()),
+        material_mean_error_m: finite_mean(summaries.iter().map(|s| s.1)),
+        homogeneous_mean_error_m: finite_mean(summaries.iter().map(|s| s.2)),
         examples: summaries.into_iter().map(|s| s.0).collect(),
         basis_curve: basis_curve.clone(),
         mean_centers: material.mean_centers(),
@@ -1007,6 +979,59 @@ pub fn fit_session(
         material_positions_m: evaluated,
         outcome,
     })
+}
+
+/// The summary of example `k` (`ex`) as far as the homogeneous baseline goes, and that
+/// baseline's mean ‖·‖ marker error: its errors from its re-simulation `x` ([`marker_errors`];
+/// where that did not converge, the homogeneous fit's own RMS error of the example for both) and
+/// the RMS displacement of the observed markers from their `rest` positions. The per-example and
+/// material fields are those of a homogeneous-only fit (NaN, no iterations), for the full fit
+/// to fill in.
+fn homogeneous_summary(
+    setup: &ProbingSetup,
+    rest: &[nalgebra::Vector3<f64>],
+    ex: &SessionExample,
+    x: Option<&[nalgebra::Vector3<f64>]>,
+    homogeneous: &HomogeneousFit,
+    k: usize,
+) -> (ExampleSummary, f64) {
+    let e = &ex.example;
+    let (hom_rms, hom_mean) = match x {
+        Some(x) => marker_errors(setup, e, x),
+        None => (homogeneous.example_rms_m[k], homogeneous.example_rms_m[k]),
+    };
+    let disp = (e
+        .observed
+        .iter()
+        .map(|o| (o.position_m - rest[o.marker]).norm_squared())
+        .sum::<f64>()
+        / e.observed.len().max(1) as f64)
+        .sqrt();
+    let summary = ExampleSummary {
+        frame: e.frame,
+        location: ex.location,
+        force_n: e.force_n.norm(),
+        markers: e.observed.len(),
+        homogeneous_rms_m: hom_rms,
+        example_rms_m: f64::NAN,
+        material_rms_m: f64::NAN,
+        displacement_rms_m: disp,
+        iterations: 0,
+        stop: FitStop::default(),
+    };
+    (summary, hom_mean)
+}
+
+/// √(Σ v² / n) over the finite values v (n of them; 0 without any).
+fn finite_rms(values: impl Iterator<Item = f64>) -> f64 {
+    let v: Vec<f64> = values.filter(|v| v.is_finite()).collect();
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+/// Σ v / n over the finite values v (n of them; 0 without any).
+fn finite_mean(values: impl IntoIterator<Item = f64>) -> f64 {
+    let v: Vec<f64> = values.into_iter().filter(|v| v.is_finite()).collect();
+    v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
 /// The homogeneous baseline re-simulating every example (its per-example errors, also the mean
@@ -1055,39 +1080,12 @@ fn homogeneous_only_fit(
         .zip(&homog_eval)
         .enumerate()
         .map(|(k, (ex, x))| {
-            let e = &ex.example;
-            let (hom_rms, hom_mean) = match x {
-                Some(x) => marker_errors(setup, e, x),
-                None => (homogeneous.example_rms_m[k], homogeneous.example_rms_m[k]),
-            };
+            let (summary, hom_mean) =
+                homogeneous_summary(setup, &rest, ex, x.as_deref(), &homogeneous, k);
             means.push(hom_mean);
-            let disp = (e
-                .observed
-                .iter()
-                .map(|o| (o.position_m - rest[o.marker]).norm_squared())
-                .sum::<f64>()
-                / e.observed.len().max(1) as f64)
-                .sqrt();
-            ExampleSummary {
-                frame: e.frame,
-                location: ex.location,
-                force_n: e.force_n.norm(),
-                markers: e.observed.len(),
-                homogeneous_rms_m: hom_rms,
-                example_rms_m: f64::NAN,
-                material_rms_m: f64::NAN,
-                displacement_rms_m: disp,
-                iterations: 0,
-                stop: FitStop::default(),
-            }
+            summary
         })
         .collect();
-    let finite: Vec<f64> = summaries
-        .iter()
-        .map(|e| e.homogeneous_rms_m)
-        .filter(|v| v.is_finite())
-        .collect();
-    let means: Vec<f64> = means.into_iter().filter(|v| v.is_finite()).collect();
     let (young, nu) = homogeneous.params.to_young_poisson()?;
     let outcome = FitOutcome {
         tets: setup.num_elements(),
@@ -1095,13 +1093,12 @@ fn homogeneous_only_fit(
         homogeneous: homogeneous.params,
         homogeneous_young_pa: young,
         homogeneous_nu: nu,
-        homogeneous_rms_m: (finite.iter().map(|x| x * x).sum::<f64>() / finite.len().max(1) as f64)
-            .sqrt(),
+        homogeneous_rms_m: finite_rms(summaries.iter().map(|e| e.homogeneous_rms_m)),
         example_rms_m: f64::NAN,
         material_rms_m: f64::NAN,
         material_failures: 0,
         material_mean_error_m: f64::NAN,
-        homogeneous_mean_error_m: means.iter().sum::<f64>() / means.len().max(1) as f64,
+        homogeneous_mean_error_m: finite_mean(means),
         examples: summaries,
         basis_curve: Vec::new(),
         mean_centers: f64::NAN,

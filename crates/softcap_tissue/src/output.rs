@@ -22,7 +22,7 @@ use softcap_mesh::TetMesh;
 use softcap_probing::StrainSpaceMaterial;
 
 use crate::error::{Result, TissueError};
-use crate::fit::{FitConfig, SessionFit};
+use crate::fit::{ExampleSummary, FitConfig, SessionFit};
 use crate::session::PreparedSession;
 
 fn out_err(path: &Path) -> impl Fn(softcap_mcap::Error) -> TissueError + '_ {
@@ -104,6 +104,18 @@ pub fn basis_message(material: &StrainSpaceMaterial) -> proto::StrainSpaceBasis 
     }
 }
 
+/// The report entries `example.{k}.*` that a homogeneous-only fit has as well: frame, location,
+/// force and the homogeneous fit's RMS error.
+fn example_entries(k: usize, e: &ExampleSummary) -> [KeyValue; 4] {
+    let p = format!("example.{k}");
+    [
+        KeyValue::integer(format!("{p}.frame"), e.frame as i64, ""),
+        KeyValue::integer(format!("{p}.location"), e.location as i64, ""),
+        KeyValue::number(format!("{p}.force"), e.force_n, "N"),
+        KeyValue::number(format!("{p}.rms.homogeneous"), e.homogeneous_rms_m, "m"),
+    ]
+}
+
 /// The `/tissue/report` of a fit.
 pub fn report_message(fit: &SessionFit) -> proto::Report {
     let o = &fit.outcome;
@@ -123,19 +135,7 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
             KeyValue::text("fit", "homogeneous-only"),
         ]);
         for (k, e) in o.examples.iter().enumerate() {
-            let p = format!("example.{k}");
-            entries.push(KeyValue::integer(format!("{p}.frame"), e.frame as i64, ""));
-            entries.push(KeyValue::integer(
-                format!("{p}.location"),
-                e.location as i64,
-                "",
-            ));
-            entries.push(KeyValue::number(format!("{p}.force"), e.force_n, "N"));
-            entries.push(KeyValue::number(
-                format!("{p}.rms.homogeneous"),
-                e.homogeneous_rms_m,
-                "m",
-            ));
+            entries.extend(example_entries(k, e));
         }
         return proto::Report {
             title: "softcap tissue fit (bickel2009 §6 homogeneous baseline only)".into(),
@@ -209,19 +209,8 @@ pub fn report_message(fit: &SessionFit) -> proto::Report {
         ));
     }
     for (k, e) in o.examples.iter().enumerate() {
+        entries.extend(example_entries(k, e));
         let p = format!("example.{k}");
-        entries.push(KeyValue::integer(format!("{p}.frame"), e.frame as i64, ""));
-        entries.push(KeyValue::integer(
-            format!("{p}.location"),
-            e.location as i64,
-            "",
-        ));
-        entries.push(KeyValue::number(format!("{p}.force"), e.force_n, "N"));
-        entries.push(KeyValue::number(
-            format!("{p}.rms.homogeneous"),
-            e.homogeneous_rms_m,
-            "m",
-        ));
         entries.push(KeyValue::number(
             format!("{p}.rms.per_example"),
             e.example_rms_m,

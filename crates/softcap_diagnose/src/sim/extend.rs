@@ -369,17 +369,7 @@ impl FemProbeSimulator {
             DynamicSolver::with_bc(&model, masses, &setup.dirichlet()).map_err(fem)?;
         let mut state = DynamicState::at_rest(x);
         state.time_s = first.time_s;
-        let eq = &self.settings().equilibrium;
-        let mut settings = DynamicsSettings {
-            integrator: Integrator::NewmarkAverageAcceleration,
-            time_step_s: 1.0,
-            damping,
-            stiffness: StiffnessKind::Warped,
-            max_iterations: eq.max_iterations.max(20),
-            displacement_tol_rel: eq.displacement_tol_rel,
-            residual_tol_rel: eq.residual_tol_rel,
-            contact_freeze_after: 8,
-        };
+        let mut settings = replay_dynamics_settings(damping, &self.settings().equilibrium);
         let mut out = Vec::with_capacity(frames.len());
         out.push(setup.marker_positions(&state.positions_m));
         let mut t_prev = first.time_s;
@@ -452,23 +442,13 @@ impl FemProbeSimulator {
             })
         };
         // frame 0: quasi-static equilibrium with the tip at its pose (the recording starts at rest)
-        let mut last_rotation: Option<UnitQuaternion<f64>> = None;
-        let mut pose_of = |fr: &SequenceFrame| {
-            let pose = fr
-                .load
-                .probe
-                .map(|p| carried_pose(&p.tip_m, &p.axis, last_rotation));
-            if let Some(p) = pose {
-                last_rotation = Some(p.rotation);
-            }
-            pose
-        };
+        let mut poses = CarriedPoses::default();
         let mut state = RigidState {
             solver: replay.solver(&model, None)?,
             model,
             x: replay.rest.clone(),
         };
-        let pose0 = pose_of(first);
+        let pose0 = poses.pose(first);
         let probe0 = pose0.map(|iso| replay.probe(iso)).transpose()?;
         let path0 = pose0
             .filter(|_| replay.touches(probe0.as_ref(), &state.x))
@@ -503,23 +483,13 @@ impl FemProbeSimulator {
         )
         .map_err(fem)?;
         contact.active_set_hysteresis = true;
-        let eq = &replay.settings;
-        let mut settings = DynamicsSettings {
-            integrator: Integrator::NewmarkAverageAcceleration,
-            time_step_s: 1.0,
-            damping,
-            stiffness: StiffnessKind::Warped,
-            max_iterations: eq.max_iterations.max(20),
-            displacement_tol_rel: eq.displacement_tol_rel,
-            residual_tol_rel: eq.residual_tol_rel,
-            contact_freeze_after: 8,
-        };
+        let mut settings = replay_dynamics_settings(damping, &replay.settings);
         let mut out = Vec::with_capacity(frames.len());
         out.push(setup.marker_positions(&dyn_state.positions_m));
         let (mut t_prev, mut prev_pose) = (first.time_s, pose0);
         for (k, fr) in frames.iter().enumerate().skip(1) {
             let f = body_load(fr);
-            let pose = pose_of(fr);
+            let pose = poses.pose(fr);
             let probe = pose.map(|iso| replay.probe(iso)).transpose()?;
             let path = pose
                 .filter(|_| replay.touches(probe.as_ref(), &dyn_state.positions_m))
@@ -584,6 +554,25 @@ impl FemProbeSimulator {
             out.push(setup.marker_positions(&dyn_state.positions_m));
         }
         Ok(out)
+    }
+}
+
+/// The dynamic replays' step settings: Newmark average acceleration with warped stiffness and
+/// Rayleigh `damping`, the tolerances of the static solves `eq` (at least 20 iterations). The
+/// time step is the caller's to set per frame interval.
+fn replay_dynamics_settings(
+    damping: RayleighDamping,
+    eq: &EquilibriumSettings,
+) -> DynamicsSettings {
+    DynamicsSettings {
+        integrator: Integrator::NewmarkAverageAcceleration,
+        time_step_s: 1.0,
+        damping,
+        stiffness: StiffnessKind::Warped,
+        max_iterations: eq.max_iterations.max(20),
+        displacement_tol_rel: eq.displacement_tol_rel,
+        residual_tol_rel: eq.residual_tol_rel,
+        contact_freeze_after: 8,
     }
 }
 
@@ -797,7 +786,7 @@ impl FemProbeSimulator {
         let mut out = Vec::with_capacity(frames.len());
         let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
         let mut prev_pose: Option<Isometry3<f64>> = None;
-        let mut last_rotation: Option<UnitQuaternion<f64>> = None;
+        let mut poses = CarriedPoses::default();
         // the body force of the previous frame when it was solved off the surface
         let mut previous_at_rest: Option<Vector3<f64>> = None;
         for (k, fr) in frames.iter().enumerate() {
@@ -805,13 +794,7 @@ impl FemProbeSimulator {
                 probe: None,
                 body_force_n_m3: fr.load.body_force_n_m3,
             });
-            let pose = fr
-                .load
-                .probe
-                .map(|p| carried_pose(&p.tip_m, &p.axis, last_rotation));
-            if let Some(p) = pose {
-                last_rotation = Some(p.rotation);
-            }
+            let pose = poses.pose(fr);
             let probe = pose.map(|iso| replay.probe(iso)).transpose()?;
             let touches = replay.touches(probe.as_ref(), &state.x);
             let dt = (fr.time_s - t_prev).max(0.0);
@@ -862,6 +845,27 @@ fn carried_pose(
             Isometry3::from_parts(iso.translation, turn * r)
         }
         _ => iso,
+    }
+}
+
+/// The tip frames of a replay's frames in order, each carried from the last one's rotation
+/// ([`carried_pose`]).
+#[derive(Default)]
+struct CarriedPoses {
+    last_rotation: Option<UnitQuaternion<f64>>,
+}
+
+impl CarriedPoses {
+    /// The tip frame of `frame` (`None` without a probe, which leaves the carried rotation as is).
+    fn pose(&mut self, frame: &SequenceFrame) -> Option<Isometry3<f64>> {
+        let pose = frame
+            .load
+            .probe
+            .map(|p| carried_pose(&p.tip_m, &p.axis, self.last_rotation));
+        if let Some(p) = pose {
+            self.last_rotation = Some(p.rotation);
+        }
+        pose
     }
 }
 

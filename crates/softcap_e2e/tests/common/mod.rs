@@ -84,16 +84,17 @@ pub fn suite_material_source() -> softcap_diagnose::MaterialSource {
 /// the homogeneous baseline and the strain-space material (mm).
 pub fn fit_and_print(name: &str, cfg: &FitConfig) {
     let o = softcap_tissue::fit::run(cfg).expect("softcap_tissue::fit::run");
+    let n = o.examples.len();
+    let homogeneous = format!(
+        "E {:.6e} Pa, nu {:.6} (lambda {:.6e}, alpha {:.6e}) | rms homogeneous {:.4} mm",
+        o.homogeneous_young_pa,
+        o.homogeneous_nu,
+        o.homogeneous.lambda,
+        o.homogeneous.alpha,
+        1e3 * o.homogeneous_rms_m,
+    );
     if o.homogeneous_only {
-        println!(
-            "TISSUE | {name} | homogeneous only | {} examples | E {:.6e} Pa, nu {:.6} (lambda {:.6e}, alpha {:.6e}) | rms homogeneous {:.4} mm",
-            o.examples.len(),
-            o.homogeneous_young_pa,
-            o.homogeneous_nu,
-            o.homogeneous.lambda,
-            o.homogeneous.alpha,
-            1e3 * o.homogeneous_rms_m,
-        );
+        println!("TISSUE | {name} | homogeneous only | {n} examples | {homogeneous}");
         return;
     }
     let iterations: Vec<usize> = o.examples.iter().map(|e| e.iterations).collect();
@@ -109,13 +110,7 @@ pub fn fit_and_print(name: &str, cfg: &FitConfig) {
         )
     });
     println!(
-        "TISSUE | {name} | unconverged {unconverged}/{} | iterations {iterations:?} | stops {stops:?} | E {:.6e} Pa, nu {:.6} (lambda {:.6e}, alpha {:.6e}) | rms homogeneous {:.4} mm, per-example {:.4} mm, material {:.4} mm{heldout}",
-        o.examples.len(),
-        o.homogeneous_young_pa,
-        o.homogeneous_nu,
-        o.homogeneous.lambda,
-        o.homogeneous.alpha,
-        1e3 * o.homogeneous_rms_m,
+        "TISSUE | {name} | unconverged {unconverged}/{n} | iterations {iterations:?} | stops {stops:?} | {homogeneous}, per-example {:.4} mm, material {:.4} mm{heldout}",
         1e3 * o.example_rms_m,
         1e3 * o.material_rms_m,
     );
