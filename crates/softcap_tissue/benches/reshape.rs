@@ -11,8 +11,10 @@
 //! soft rows, [`pcg_step`]) at the relative residuals [`PCG_TOLERANCES`];
 //! `SOFTCAP_RESHAPE_BENCH_ONCE=1` stops there, `SOFTCAP_RESHAPE_BENCH_NO_CG=1` skips the
 //! unpreconditioned CG runs, `SOFTCAP_RESHAPE_BENCH_NO_WOODBURY=1` the exact step (PCG alone, no
-//! step difference), and `SOFTCAP_RESHAPE_BENCH_CELLS` (e.g. `22,20,15`: 39,600 tets)
-//! adds one larger size to the single runs.
+//! step difference; with it `SOFTCAP_RESHAPE_BENCH_DENSE_Z=1` also times forming every row's
+//! column of Z and the step with M's products with Z dense, not through the equilibrium
+//! factor), and `SOFTCAP_RESHAPE_BENCH_CELLS` (e.g. `22,20,15`: 39,600
+//! tets) adds one larger size to the single runs.
 //!
 //! `cargo bench --workspace --profile test --bench reshape` (criterion: `scripts/bench
 //! softcap_tissue -- reshape`).
@@ -47,26 +49,51 @@ fn thread_cpu_seconds() -> f64 {
     softcap_app::process::thread_cpu_seconds().unwrap_or(f64::NAN)
 }
 
+/// The inexact step of `sys` to each of [`PCG_TOLERANCES`], timed and printed.
+fn pcg_once(label: &str, sys: &softcap_tissue::reshape::step::NormalSystem<'_>) {
+    for tolerance in PCG_TOLERANCES {
+        let (t0, c0, s0) = (Instant::now(), cpu_seconds(), thread_cpu_seconds());
+        let pcg = pcg_step(sys, tolerance, PCG_MAX_ITERATIONS);
+        let (cpu, serial) = (cpu_seconds() - c0, thread_cpu_seconds() - s0);
+        eprintln!(
+            "{label}: PCG to {tolerance:.0e}: {:.3} s wall, {cpu:.2} CPU-s ({serial:.2} on the \
+             calling thread, {:.2} in the pool of {} threads: {:.2} s on idle cores), {} \
+             iterations, {} rows in its Woodbury part, residual {:.1e}",
+            t0.elapsed().as_secs_f64(),
+            cpu - serial,
+            rayon::current_num_threads(),
+            serial + (cpu - serial) / rayon::current_num_threads() as f64,
+            pcg.iterations,
+            pcg.woodbury_rows,
+            pcg.relative_residual
+        );
+    }
+}
+
 /// One timed Woodbury and CG solve of `step`, printed.
 fn once(label: &str, step: &FirstStep) {
     let sys = step.system();
     if std::env::var_os("SOFTCAP_RESHAPE_BENCH_NO_WOODBURY").is_some() {
-        for tolerance in PCG_TOLERANCES {
-            let (t0, c0, s0) = (Instant::now(), cpu_seconds(), thread_cpu_seconds());
-            let pcg = pcg_step(&sys, tolerance, PCG_MAX_ITERATIONS);
-            let (cpu, serial) = (cpu_seconds() - c0, thread_cpu_seconds() - s0);
+        pcg_once(label, &sys);
+        if std::env::var_os("SOFTCAP_RESHAPE_BENCH_DENSE_Z").is_some() {
+            // The same step with every row's column of Z formed (as the exact step does), M's
+            // products with Z dense instead of through the factor.
+            let (c0, s0) = (cpu_seconds(), thread_cpu_seconds());
+            let z = sys.dense_z();
             eprintln!(
-                "{label}: PCG to {tolerance:.0e}: {:.3} s wall, {cpu:.2} CPU-s ({serial:.2} on the \
-                 calling thread, {:.2} in the pool of {} threads: {:.2} s on idle cores), {} \
-                 iterations, {} rows in its Woodbury part, residual {:.1e}",
-                t0.elapsed().as_secs_f64(),
-                cpu - serial,
-                rayon::current_num_threads(),
-                serial + (cpu - serial) / rayon::current_num_threads() as f64,
-                pcg.iterations,
-                pcg.woodbury_rows,
-                pcg.relative_residual
+                "{label}: every row's column of Z ({}; {} kept) formed in {:.2} CPU-s ({:.2} on \
+                 the calling thread)",
+                z.ncols(),
+                sys.z.ncols(),
+                cpu_seconds() - c0,
+                thread_cpu_seconds() - s0
             );
+            let dense = softcap_tissue::reshape::step::NormalSystem {
+                z: &z,
+                implicit: None,
+                ..sys
+            };
+            pcg_once(&format!("{label}, Z dense"), &dense);
         }
         return;
     }

@@ -59,7 +59,8 @@ use super::gauge::{
 use super::laplacian::PlasticLaplacian;
 use super::problem::{ConstraintKind, IcpMarker, MaterialPoint, ReshapeProblem, SurfaceProjector};
 use super::step::{
-    NormalSystem, StepSolver, WoodburySolver, field_norm, forcing_term, pcg_step, woodbury_step,
+    ImplicitZ, NormalSystem, StepSolver, WoodburySolver, ZOperator, field_norm, forcing_term,
+    pcg_step, woodbury_step,
 };
 use crate::error::{Result, TissueError};
 
@@ -681,17 +682,9 @@ impl<'p> Solver<'p> {
 
     /// Gᵀ (3N × scalar rows) with the free-flying gauge, solved: Z = K⁻¹ (Dᵀ) Gᵀ at `x`.
     fn z_matrix(&self, x: &[Vector3<f64>], rows: &[Row]) -> Result<Mat<f64>> {
-        let n = x.len();
-        let scalars = scalar_rows(rows);
-        let mut z = Mat::<f64>::zeros(3 * n, scalars.len());
-        for (col, (c, d)) in scalars.iter().enumerate() {
-            let point = &rows[*c].point;
-            for k in 0..4 {
-                for i in 0..3 {
-                    z[(3 * point.nodes[k] + i, col)] += point.weights[k] * d[i];
-                }
-            }
-        }
+        let g = g_rows(rows);
+        let all: Vec<usize> = (0..g.len()).collect();
+        let mut z = g_transposed_columns(&g, x.len(), &all);
         if let Some(g) = &self.gauge {
             g.project_transposed_columns(x, &mut z);
         }
@@ -796,17 +789,24 @@ impl<'p> Solver<'p> {
         let StepParts {
             jacobians,
             z,
+            kept,
             weights,
             gradient,
-        } = self.step_parts(state, &rows)?;
+        } = self.step_parts(stage, state, &rows)?;
         let tets = &self.problem.template.tets;
         let n = state.x.len();
         let mut rigid = None;
+        let op = FactorZ {
+            equilibrium: &self.equilibrium,
+            g: g_rows(&rows),
+            num_nodes: n,
+        };
         let sys = NormalSystem {
             jacobians: &jacobians,
             tets,
             num_nodes: n,
             z: &z,
+            implicit: kept.as_deref().map(|kept| ImplicitZ { kept, op: &op }),
             weights: &weights,
             gradient: &gradient,
             laplacian: &self.laplacian,
@@ -814,10 +814,7 @@ impl<'p> Solver<'p> {
         };
         // The direction and the CG iterations it took (0 for the exact steps).
         let (direction, iterations) = if stage.constant {
-            (
-                constant_step(&jacobians, tets, n, &z, &weights, &gradient),
-                0,
-            )
+            (constant_step(&sys), 0)
         } else if self.gauge.is_some() && self.joint_rigid {
             let ds = joint_rigid_step(&sys, &rows, &state.x, &state.frame).map(|(ds, motion)| {
                 rigid = Some(motion);
@@ -851,12 +848,48 @@ impl<'p> Solver<'p> {
         Ok(Some(step))
     }
 
-    /// The pieces of the Gauss–Newton normal equations at `state` for `rows` (module docs).
-    fn step_parts(&mut self, state: &State, rows: &[Row]) -> Result<StepParts> {
+    /// The rows whose columns of Z the step of `stage` forms (`None`: every row's), the whole of
+    /// Z applied through the factor ([`ZOperator`]: two single-column sparse solves per product
+    /// with M). The constant step needs Zᵀ B E alone (six solves instead of one per row; Table 1
+    /// size: 1,044). The inexact step of an attached object keeps the image rows (landmarks,
+    /// ICP markers): its preconditioner needs only the soft rows' columns ([`super::step::soft_rows`]), and
+    /// the attachment rows, whose points the stiff springs hold, are never soft (known-truth
+    /// box: w‖z_j‖² ≤ 1e-7 of the largest, the threshold 1e-4). First ICP step at Table 1 size
+    /// (1,194 rows, 186 image rows, 155 soft; one thread, same load): forming every column
+    /// 3.5 CPU-s vs the image rows' 0.45, each CG iteration 0.22 vs 0.14 CPU-s, step with Z to
+    /// η = 1e-6 9.3 vs 6.5 CPU-s (benches/reshape.rs `SOFTCAP_RESHAPE_BENCH_DENSE_Z`). The
+    /// exact step and free-flying objects (the gauge's projections) keep every column, and so
+    /// does a stage with attachment rows only.
+    fn kept_rows(&self, stage: Stage, rows: &[Row]) -> Option<Vec<usize>> {
+        if self.gauge.is_some() {
+            return None;
+        }
+        if stage.constant {
+            return Some(Vec::new());
+        }
+        if self.settings.step_solver != StepSolver::Pcg {
+            return None;
+        }
+        let image = image_rows(rows, self.problem.attachments.len());
+        (!image.is_empty()).then_some(image)
+    }
+
+    /// The pieces of the Gauss–Newton normal equations of `stage` at `state` for `rows` (module
+    /// docs).
+    fn step_parts(&mut self, stage: Stage, state: &State, rows: &[Row]) -> Result<StepParts> {
         self.set_plastic(&state.s)?;
         self.equilibrium.factor_at(&self.model, &state.x)?;
         let jacobians = self.model.plastic_force_jacobians(&state.x);
-        let z = self.z_matrix(&state.x, rows)?;
+        let kept = self.kept_rows(stage, rows);
+        let op = FactorZ {
+            equilibrium: &self.equilibrium,
+            g: g_rows(rows),
+            num_nodes: state.x.len(),
+        };
+        let z = match &kept {
+            Some(kept) => op.columns(kept),
+            None => self.z_matrix(&state.x, rows)?,
+        };
         let scalars = scalar_rows(rows);
         let weights: Vec<f64> = scalars.iter().map(|(c, _)| rows[*c].weight).collect();
         let residual = Mat::<f64>::from_fn(scalars.len(), 1, |i, _| {
@@ -864,7 +897,10 @@ impl<'p> Solver<'p> {
             let r = &rows[c];
             d.dot(&(r.point.at(&state.x) - r.target)) * r.weight
         });
-        let zr_mat = &z * &residual;
+        let zr_mat = match kept {
+            Some(_) => op.apply(residual.as_ref()),
+            None => &z * &residual,
+        };
         let zr: Vec<f64> = (0..zr_mat.nrows()).map(|i| zr_mat[(i, 0)]).collect();
         let tets = &self.problem.template.tets;
         let bt_zr: Vec<Vector6<f64>> = jacobians
@@ -881,6 +917,7 @@ impl<'p> Solver<'p> {
         Ok(StepParts {
             jacobians,
             z,
+            kept,
             weights,
             gradient,
         })
@@ -1108,7 +1145,10 @@ impl<'p> Solver<'p> {
 /// The pieces of one Gauss–Newton step's normal equations ([`NormalSystem`]).
 struct StepParts {
     jacobians: Vec<SMatrix<f64, 12, 6>>,
+    /// Z's columns: every row's, or those of `kept`.
     z: Mat<f64>,
+    /// The rows whose columns `z` holds when not every row's (`Solver::kept_rows`).
+    kept: Option<Vec<usize>>,
     weights: Vec<f64>,
     gradient: Vec<Vector6<f64>>,
 }
@@ -1118,6 +1158,8 @@ struct StepParts {
 /// and for CG in the benches (saito-barbic Table 1).
 pub struct FirstStep {
     parts: StepParts,
+    /// Z through the factor at the step's state (`parts` keeps the image rows' columns).
+    op: FactorZ<Equilibrium>,
     tets: Vec<[usize; 4]>,
     num_nodes: usize,
     laplacian: PlasticLaplacian,
@@ -1125,7 +1167,9 @@ pub struct FirstStep {
 }
 
 impl FirstStep {
-    /// Builds the system (one equilibrium solve, one factorization, Z for every row).
+    /// Builds the system as the reshape does (one equilibrium solve, one factorization, the
+    /// columns of Z for the image rows with the inexact step, for every row otherwise; the rest
+    /// of Z through the factor).
     pub fn new(problem: &ReshapeProblem, settings: &ReshapeSettings) -> Result<Self> {
         let mut solver = Solver::new(problem, settings)?;
         // Cross-validation would run whole reshapes: the step is built at the default α̂.
@@ -1138,9 +1182,14 @@ impl FirstStep {
             icp: true,
         };
         let rows = solver.rows(stage, &state);
-        let parts = solver.step_parts(&state, &rows)?;
+        let parts = solver.step_parts(stage, &state, &rows)?;
         Ok(Self {
             parts,
+            op: FactorZ {
+                g: g_rows(&rows),
+                num_nodes: state.x.len(),
+                equilibrium: solver.equilibrium,
+            },
             tets: problem.template.tets.clone(),
             num_nodes: state.x.len(),
             laplacian: solver.laplacian,
@@ -1155,6 +1204,11 @@ impl FirstStep {
             tets: &self.tets,
             num_nodes: self.num_nodes,
             z: &self.parts.z,
+            implicit: self
+                .parts
+                .kept
+                .as_deref()
+                .map(|kept| ImplicitZ { kept, op: &self.op }),
             weights: &self.parts.weights,
             gradient: &self.parts.gradient,
             laplacian: &self.laplacian,
@@ -1249,7 +1303,7 @@ fn joint_rigid_step(
     }
     // H = −Bᵀ Z (W R): six 6-vector fields.
     let wr = Mat::<f64>::from_fn(scalars.len(), 6, |i, j| sys.weights[i] * r_rows[i][j]);
-    let zwr = sys.z * &wr;
+    let zwr = sys.z_times(wr.as_ref());
     let bt = sys.bt_times(zwr.as_ref());
     let h: Vec<Vec<Vector6<f64>>> = (0..6)
         .map(|j| {
@@ -1311,6 +1365,100 @@ fn gauss_newton_step(
     }
 }
 
+/// The scalar rows of the image constraints (landmarks, ICP markers): those after the first
+/// `attachments` rows of `rows`.
+fn image_rows(rows: &[Row], attachments: usize) -> Vec<usize> {
+    scalar_rows(rows)
+        .iter()
+        .enumerate()
+        .filter(|(_, (c, _))| *c >= attachments)
+        .map(|(j, _)| j)
+        .collect()
+}
+
+/// A row of G: the material point and the direction of a scalar constraint row.
+type GRow = (MaterialPoint, Vector3<f64>);
+
+/// The rows of G for `rows` (one per scalar row, [`scalar_rows`] order).
+fn g_rows(rows: &[Row]) -> Vec<GRow> {
+    scalar_rows(rows)
+        .into_iter()
+        .map(|(c, d)| (rows[c].point, d))
+        .collect()
+}
+
+/// Gᵀ restricted to the columns of `which` (3N × which.len()).
+fn g_transposed_columns(g: &[GRow], num_nodes: usize, which: &[usize]) -> Mat<f64> {
+    let mut out = Mat::<f64>::zeros(3 * num_nodes, which.len());
+    for (col, &j) in which.iter().enumerate() {
+        let (point, d) = &g[j];
+        for k in 0..4 {
+            for i in 0..3 {
+                out[(3 * point.nodes[k] + i, col)] += point.weights[k] * d[i];
+            }
+        }
+    }
+    out
+}
+
+/// Z = K⁻¹ Gᵀ of an attached object (no gauge: no pinned dofs, no projections) through the
+/// equilibrium factor ([`Equilibrium::solve_columns`], multi-column sparse solves).
+struct FactorZ<E> {
+    equilibrium: E,
+    g: Vec<GRow>,
+    num_nodes: usize,
+}
+
+impl<E: std::borrow::Borrow<Equilibrium> + Sync> FactorZ<E> {
+    /// K⁻¹ applied to the columns of `m` in place; NaN where the solve fails (a factor is
+    /// always there when Z is: a failure is reported by CG's non-finite curvature).
+    fn solve(&self, m: &mut Mat<f64>) {
+        if self.equilibrium.borrow().solve_columns(m).is_err() {
+            m.fill(f64::NAN);
+        }
+    }
+}
+
+impl<E: std::borrow::Borrow<Equilibrium> + Sync> ZOperator for FactorZ<E> {
+    fn transpose_apply(&self, u: faer::MatRef<'_, f64>) -> Mat<f64> {
+        let mut y = u.to_owned();
+        self.solve(&mut y);
+        Mat::from_fn(self.g.len(), u.ncols(), |j, c| {
+            let (point, d) = &self.g[j];
+            let col = y.col(c);
+            (0..4)
+                .map(|k| {
+                    let n = point.nodes[k];
+                    point.weights[k]
+                        * (d[0] * col[3 * n] + d[1] * col[3 * n + 1] + d[2] * col[3 * n + 2])
+                })
+                .sum()
+        })
+    }
+
+    fn apply(&self, c: faer::MatRef<'_, f64>) -> Mat<f64> {
+        let mut out = Mat::<f64>::zeros(3 * self.num_nodes, c.ncols());
+        for m in 0..c.ncols() {
+            for (j, (point, d)) in self.g.iter().enumerate() {
+                let v = c[(j, m)];
+                for k in 0..4 {
+                    for i in 0..3 {
+                        out[(3 * point.nodes[k] + i, m)] += point.weights[k] * d[i] * v;
+                    }
+                }
+            }
+        }
+        self.solve(&mut out);
+        out
+    }
+
+    fn columns(&self, rows: &[usize]) -> Mat<f64> {
+        let mut z = g_transposed_columns(&self.g, self.num_nodes, rows);
+        self.solve(&mut z);
+        z
+    }
+}
+
 /// Keeps the lower of `best` and `candidate`.
 fn keep_best(best: &mut Option<Trial>, candidate: Option<Trial>) {
     if let Some(c) = candidate
@@ -1362,16 +1510,10 @@ fn element_b_times(
 
 /// The Gauss–Newton step restricted to a constant plastic strain (one 6-vector σ for every tet,
 /// the initial guess of §3.4): (V_σᵀ W V_σ) Δσ = −Σ_e g_e with V_σ = −Zᵀ B E.
-fn constant_step(
-    jacobians: &[SMatrix<f64, 12, 6>],
-    tets: &[[usize; 4]],
-    n: usize,
-    z: &Mat<f64>,
-    weights: &[f64],
-    gradient: &[Vector6<f64>],
-) -> Option<Vec<Vector6<f64>>> {
-    let mut be = Mat::<f64>::zeros(3 * n, 6);
-    for (b, tet) in jacobians.iter().zip(tets) {
+fn constant_step(sys: &NormalSystem<'_>) -> Option<Vec<Vector6<f64>>> {
+    let (jacobians, weights, gradient) = (sys.jacobians, sys.weights, sys.gradient);
+    let mut be = Mat::<f64>::zeros(3 * sys.num_nodes, 6);
+    for (b, tet) in jacobians.iter().zip(sys.tets) {
         for (a, &node) in tet.iter().enumerate() {
             for i in 0..3 {
                 for k in 0..6 {
@@ -1380,7 +1522,7 @@ fn constant_step(
             }
         }
     }
-    let v = z.transpose() * &be;
+    let v = sys.zt_times(be.as_ref());
     let mut normal = nalgebra::Matrix6::<f64>::zeros();
     for i in 0..v.nrows() {
         for a in 0..6 {
@@ -1494,6 +1636,7 @@ mod tests {
             tets: &mesh.tets,
             num_nodes: n,
             z: &z,
+            implicit: None,
             weights: &weights,
             gradient: &gradient,
             laplacian: &laplacian,
