@@ -16,7 +16,13 @@
 //! nodes are their edges' means; residuals are taken on the given nodes only), because coarse
 //! linear tets are too stiff in bending and E would be the mesh's rather than the material's.
 //! Uncertainty: the covariance s² (JᵀJ)⁻¹ of the log-parameters at the optimum,
-//! s² = ‖r‖²/(m − n), J by central differences.
+//! s² = ‖r‖²/(m − n), J by forward differences.
+//!
+//! Cost: X depends on the E field, ν and ρ, not on α and β, so a rest shape is solved once per
+//! modulus and kept; a point evaluated again (the Jacobian at the step just accepted, the
+//! covariance at the optimum) reuses its runs; a Jacobian's columns run as one parallel pass
+//! over all their segments (the segments are independent, eq. 6/9), the same bits on any
+//! number of threads.
 
 use nalgebra::{DMatrix, Vector3};
 use rayon::prelude::*;
@@ -81,7 +87,9 @@ pub struct FitDynamicSettings {
     pub warm_start: bool,
     /// Modes computed for the warm start.
     pub warm_start_modes: usize,
-    /// Outer iterations of Algorithm 1 (rest shape ↔ parameters).
+    /// Outer iterations of Algorithm 1 (rest shape ↔ parameters) at most; with
+    /// `rest_shape_per_evaluation` the fit stops after the first whose Levenberg–Marquardt
+    /// p-step converged (it minimized the reduced objective itself).
     pub outer_iterations: usize,
     /// Re-solve the rest shape (eq. 7) at every evaluation of F instead of holding it through a
     /// p-step: the static shape is then reproduced at every p and the p-step sees the reduced
@@ -355,11 +363,32 @@ fn unpack(q: &[f64], nc: usize) -> (Vec<f64>, RayleighDamping) {
     )
 }
 
+/// Rest shapes kept by [`Problem::rest_of`] (most recent last).
+const REST_CACHE: usize = 4;
+
+/// Evaluations kept by [`Problem::runs`] (most recent last; each holds the observed nodes'
+/// positions in every simulated frame: 12 MB for 2,009 nodes and 250 frames).
+const RUN_CACHE: usize = 8;
+
+/// A forward simulation kept for a point evaluated again (an LM Jacobian at the step just
+/// accepted, the covariance and the final runs at the optimum).
+struct Evaluated {
+    q: Vec<f64>,
+    start: Vec<f64>,
+    rest: Vec<Vector3<f64>>,
+    runs: Vec<super::forward::SegmentRun>,
+}
+
 struct Problem<'a> {
     forward: &'a Forward,
     rest: Vec<Vector3<f64>>,
     /// Static shape and whether X is re-solved per evaluation.
-    static_m: Option<Vec<Vector3<f64>>>,
+    static_m: Option<&'a [Vector3<f64>]>,
+    /// Rest shapes solved, with their status, by the E log-parameters they were solved for
+    /// ([`Problem::rest_of`]).
+    rest_cache: Vec<(Vec<f64>, Vec<Vector3<f64>>, String)>,
+    /// The last evaluations' runs ([`Problem::runs`]).
+    evaluated: Vec<Evaluated>,
     weights: &'a [Vec<f64>],
     poisson: f64,
     nc: usize,
@@ -384,10 +413,36 @@ struct Problem<'a> {
 /// [`super::forward::START_MODE_SCALE_M`]: 10 µm at a mode's peak, where the response is linear).
 const START_STEP: f64 = 1e-2;
 
+/// Step of the forward differences in the log-parameters (the p-step's Jacobian and the
+/// covariance's).
+const FD_STEP: f64 = 1e-4;
+
 /// Bound of the start-state coefficients (mm at a mode's peak).
 const START_BOUND: f64 = 50.0;
 
-impl Problem<'_> {
+impl<'a> Problem<'a> {
+    /// The problem of `forward` with `weights` (per element, of each control point) and ν; the
+    /// rest shape held until one is set (`rest`, or `static_m` to solve it per evaluation).
+    fn new(forward: &'a Forward, weights: &'a [Vec<f64>], poisson: f64) -> Self {
+        Self {
+            forward,
+            rest: Vec::new(),
+            static_m: None,
+            rest_cache: Vec::new(),
+            evaluated: Vec::new(),
+            weights,
+            poisson,
+            nc: weights.first().map_or(0, Vec::len),
+            held: Vec::new(),
+            start_modes: None,
+            start: Vec::new(),
+            fit_start: false,
+            simulations: 0,
+            segment_simulations: 0,
+            best: (f64::INFINITY, Vec::new(), Vec::new()),
+        }
+    }
+
     /// The full log-parameter vector of the free ones.
     fn full(&self, free: &[f64]) -> Vec<f64> {
         free.iter().chain(&self.held).copied().collect()
@@ -416,28 +471,171 @@ impl Problem<'_> {
         }
     }
 
-    /// Residuals (non-finite where a simulation failed).
-    fn eval(&mut self, q: &[f64]) -> Vec<f64> {
-        self.simulations += 1;
-        let p = self.params(q);
-        if let Some(xs) = &self.static_m
-            && let Ok((x, _)) = rest_shape(self.forward, &p, xs, Some(&self.rest))
-        {
-            self.rest = x;
+    /// The rest shape of log-parameters `q` (eq. 7 for the static shape `static_m`, solved from
+    /// the current rest shape) and its status, or the one solved before for the same moduli:
+    /// X depends on the E field, ν and ρ (the last two are the problem's own), not on α and β
+    /// (eq. 7 is static), so the damping columns of a Jacobian and a point evaluated again
+    /// reuse their point's X instead of solving it again (wang2015 Algorithm 1 alternates the
+    /// rest shape with the material and damping fit for the same reason).
+    fn rest_of(
+        &mut self,
+        q: &[f64],
+        static_m: &[Vector3<f64>],
+    ) -> Result<(Vec<Vector3<f64>>, String)> {
+        let key = &q[..self.nc];
+        if let Some(k) = self.rest_cache.iter().position(|(e, _, _)| e == key) {
+            let hit = self.rest_cache.remove(k);
+            self.rest_cache.push(hit.clone());
+            return Ok((hit.1, hit.2));
         }
+        let initial = (!self.rest.is_empty()).then_some(self.rest.as_slice());
+        let (x, status) = rest_shape(self.forward, &self.params(q), static_m, initial)?;
+        if self.rest_cache.len() == REST_CACHE {
+            self.rest_cache.remove(0);
+        }
+        self.rest_cache
+            .push((key.to_vec(), x.clone(), status.clone()));
+        Ok((x, status))
+    }
+
+    /// The runs of every segment at log-parameters `q` over the rest shape `rest` from the
+    /// current start coefficients: kept from an evaluation of the same point, or simulated
+    /// (counted in `simulations`).
+    fn runs(
+        &mut self,
+        q: &[f64],
+        rest: &[Vector3<f64>],
+    ) -> Result<Vec<super::forward::SegmentRun>> {
+        if let Some(e) = self.evaluated_at(q, rest) {
+            return Ok(e.runs.clone());
+        }
+        let p = self.params(q);
         let start = self
             .start_modes
             .as_ref()
             .map(|m| (m, self.start.as_slice()));
-        let r = match self.forward.simulate_from(&p, &self.rest, start) {
+        self.simulations += 1;
+        let runs = self.forward.simulate_from(&p, rest, start)?;
+        self.keep_runs(q, rest, &runs);
+        Ok(runs)
+    }
+
+    fn evaluated_at(&self, q: &[f64], rest: &[Vector3<f64>]) -> Option<&Evaluated> {
+        self.evaluated
+            .iter()
+            .rev()
+            .find(|e| e.q == q && e.start == self.start && e.rest == rest)
+    }
+
+    fn keep_runs(&mut self, q: &[f64], rest: &[Vector3<f64>], runs: &[super::forward::SegmentRun]) {
+        if self.evaluated.len() == RUN_CACHE {
+            self.evaluated.remove(0);
+        }
+        // The residuals and the reported runs need the observed (given) nodes only.
+        let observed = self.forward.observed();
+        let n = observed.iter().rposition(|&o| o).map_or(0, |i| i + 1);
+        let runs = runs
+            .iter()
+            .map(|r| super::forward::SegmentRun {
+                segment: r.segment.clone(),
+                positions_m: r.positions_m.iter().map(|x| x[..n].to_vec()).collect(),
+                max_iteration_steps: r.max_iteration_steps,
+                failure: r.failure.clone(),
+            })
+            .collect();
+        self.evaluated.push(Evaluated {
+            q: q.to_vec(),
+            start: self.start.clone(),
+            rest: rest.to_vec(),
+            runs,
+        });
+    }
+
+    /// Residuals (non-finite where a simulation failed).
+    fn eval(&mut self, q: &[f64]) -> Vec<f64> {
+        if let Some(xs) = self.static_m
+            && let Ok((x, _)) = self.rest_of(q, xs)
+        {
+            self.rest = x;
+        }
+        let rest = std::mem::take(&mut self.rest);
+        let runs = self.runs(q, &rest);
+        self.rest = rest;
+        let r = match runs {
             Ok(runs) => self.forward.residuals(&runs),
             Err(_) => vec![f64::NAN; self.forward.num_residuals()],
         };
+        self.note(q, &r);
+        r
+    }
+
+    /// Keeps `q` as the best point if its residuals `r` are the least so far.
+    fn note(&mut self, q: &[f64], r: &[f64]) {
         let f: f64 = r.iter().map(|v| v * v).sum();
         if f.is_finite() && f < self.best.0 {
             self.best = (f, q.to_vec(), self.start.clone());
         }
-        r
+    }
+
+    /// [`Self::eval`] of several points (the columns of a finite-difference Jacobian): their
+    /// rest shapes one after another, each solved from the current one (or kept,
+    /// [`Self::rest_of`]), then the simulations not kept from before in one parallel pass
+    /// ([`Forward::simulate_batch`]); results in the order of `qs`, the same on any number of
+    /// threads. The current rest shape is the last point's afterwards, as after `eval`s.
+    fn eval_many(&mut self, qs: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let base = self.rest.clone();
+        let rests: Vec<Vec<Vector3<f64>>> = qs
+            .iter()
+            .map(|q| match self.static_m {
+                Some(xs) => self
+                    .rest_of(q, xs)
+                    .map_or_else(|_| base.clone(), |(x, _)| x),
+                None => base.clone(),
+            })
+            .collect();
+        // The residuals of points kept from before (taken now: keeping the new runs below may
+        // drop them).
+        let kept: Vec<Option<Vec<f64>>> = qs
+            .iter()
+            .zip(&rests)
+            .map(|(q, rest)| {
+                self.evaluated_at(q, rest)
+                    .map(|e| self.forward.residuals(&e.runs))
+            })
+            .collect();
+        let todo: Vec<usize> = (0..qs.len()).filter(|&j| kept[j].is_none()).collect();
+        let params: Vec<DynamicParams> = todo.iter().map(|&j| self.params(&qs[j])).collect();
+        let start = self
+            .start_modes
+            .as_ref()
+            .map(|m| (m, self.start.as_slice()));
+        let jobs: Vec<_> = todo
+            .iter()
+            .zip(&params)
+            .map(|(&j, p)| (p, rests[j].as_slice(), start))
+            .collect();
+        let mut simulated = self.forward.simulate_batch(&jobs).into_iter();
+        self.simulations += todo.len();
+        let mut out = Vec::with_capacity(qs.len());
+        for ((q, rest), kept) in qs.iter().zip(&rests).zip(kept) {
+            let runs = match kept {
+                Some(r) => Ok(r),
+                None => {
+                    let runs = simulated.next().expect("one result per job");
+                    if let Ok(r) = &runs {
+                        self.keep_runs(q, rest, r);
+                    }
+                    runs.map(|r| self.forward.residuals(&r))
+                }
+            };
+            let r = runs.unwrap_or_else(|_| vec![f64::NAN; self.forward.num_residuals()]);
+            self.note(q, &r);
+            out.push(r);
+        }
+        if let Some(last) = rests.into_iter().last() {
+            self.rest = last;
+        }
+        out
     }
 
     /// Start-state coefficients fitted by the least-squares p-step.
@@ -525,13 +723,16 @@ impl LeastSquaresProblem for Problem<'_> {
         let nm = params.len() - self.num_start();
         let js = self.start_columns(&q0, &r0);
         jacobian.columns_mut(nm, js.ncols()).copy_from(&js);
-        let h = 1e-4;
-        for j in 0..nm {
-            let mut q = q0.clone();
-            q[j] += h;
-            let r = self.eval(&q);
+        let qs: Vec<Vec<f64>> = (0..nm)
+            .map(|j| {
+                let mut q = q0.clone();
+                q[j] += FD_STEP;
+                q
+            })
+            .collect();
+        for (j, r) in self.eval_many(&qs).iter().enumerate() {
             for i in 0..r.len() {
-                jacobian[(i, j)] = (r[i] - r0[i]) / h;
+                jacobian[(i, j)] = (r[i] - r0[i]) / FD_STEP;
             }
         }
         r0.iter().all(|v| v.is_finite())
@@ -746,21 +947,7 @@ fn fit_level(
     let fine_damping = coarse.is_some() && settings.elements == Elements::Quadratic;
     let static_m = fit_mesh.vertices.clone();
     let nc = cp.len();
-    let mut problem = Problem {
-        forward: &forward,
-        rest: Vec::new(),
-        static_m: None,
-        weights: &fit_weights,
-        poisson: settings.poisson,
-        nc,
-        held: Vec::new(),
-        start_modes: None,
-        start: Vec::new(),
-        fit_start: false,
-        simulations: 0,
-        segment_simulations: 0,
-        best: (f64::INFINITY, Vec::new(), Vec::new()),
-    };
+    let mut problem = Problem::new(&forward, &fit_weights, settings.poisson);
     let mut q: Vec<f64> = match coarse {
         Some(c) => c
             .young_pa
@@ -800,7 +987,7 @@ fn fit_level(
         4,
         "rest shape and trajectory error at the starting material",
     );
-    let (mut rest, _) = rest_shape(&forward, &problem.params(&q), &static_m, None)?;
+    let (mut rest, _) = problem.rest_of(&q, &static_m)?;
     problem.rest = rest.clone();
     let rms_initial_m = rms_of(&mut problem, &q);
 
@@ -819,11 +1006,13 @@ fn fit_level(
         }
         bounds.clamp(&mut q);
     }
-    let (rest_w, _) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
+    let (rest_w, _) = problem.rest_of(&q, &static_m)?;
     rest = rest_w;
     problem.rest = rest.clone();
     if settings.forward.start_fit_modes > 0 && settings.forward.start_fit_choice {
         forward.choose_start_states(&problem.params(&q), &rest)?;
+        // The start states changed: no run from before holds.
+        problem.evaluated.clear();
     }
     let rms_warm_m = rms_of(&mut problem, &q);
     let (warm_young, warm_damping) = unpack(&q, nc);
@@ -839,7 +1028,7 @@ fn fit_level(
 
     // Algorithm 1.
     if settings.rest_shape_per_evaluation {
-        problem.static_m = Some(static_m.clone());
+        problem.static_m = Some(&static_m);
     }
     let mut history = Vec::new();
     let mut status = "max-iterations".to_string();
@@ -850,12 +1039,13 @@ fn fit_level(
     };
     for outer in 0..outer_iterations {
         progress.step(3, 4, &format!("Algorithm 1, iteration {}", outer + 1));
-        let (x, s) = rest_shape(&forward, &problem.params(&q), &static_m, Some(&rest))?;
+        problem.rest = rest;
+        let (x, s) = problem.rest_of(&q, &static_m)?;
         rest = x;
         rest_status = s;
         problem.rest = rest.clone();
         problem.best = (f64::INFINITY, Vec::new(), Vec::new());
-        let value = match settings.optimizer {
+        let (value, step_converged) = match settings.optimizer {
             Optimizer::NelderMead => {
                 // Simplex in offsets from the current point (steps of 0.2 in every log-parameter).
                 let q0 = q.clone();
@@ -888,7 +1078,9 @@ fn fit_level(
                     status: e.to_string(),
                 })?;
                 q = r.params.iter().zip(&q0).map(|(a, b)| a + b).collect();
-                r.value
+                // A collapsed simplex is not a stationary point: restarting it (the next outer
+                // iteration) can still move.
+                (r.value, false)
             }
             Optimizer::LevenbergMarquardt => {
                 // Coarse to fine: α and β are held (the modal damping ratios they give do not
@@ -939,7 +1131,7 @@ fn fit_level(
                 q = problem.split(&r.params);
                 problem.held.clear();
                 problem.fit_start = false;
-                2.0 * r.cost
+                (2.0 * r.cost, r.status.is_converged())
             }
         };
         if problem.best.0 < value {
@@ -955,7 +1147,11 @@ fn fit_level(
             status = "failed: no parameters gave a finite trajectory".into();
             break;
         }
-        if converged || (coarse.is_some() && f.is_finite()) {
+        // With the rest shape solved at every evaluation the p-step minimized the reduced
+        // objective F(p, X(p)) itself: once it converged there is nothing left to alternate
+        // (another outer iteration restarts it at its own optimum).
+        let reduced = settings.rest_shape_per_evaluation && step_converged;
+        if converged || reduced || (coarse.is_some() && f.is_finite()) {
             status = "converged".into();
             break;
         }
@@ -972,7 +1168,7 @@ fn fit_level(
     };
     let rms_m = rms_of(&mut problem, &q);
     let params = problem.params(&q);
-    let (rest, final_rest_status) = rest_shape(&forward, &params, &static_m, Some(&problem.rest))?;
+    let (rest, final_rest_status) = problem.rest_of(&q, &static_m)?;
     if settings.rest_shape_per_evaluation {
         rest_status = final_rest_status;
     }
@@ -990,13 +1186,7 @@ fn fit_level(
         .unwrap_or_default();
     let (young_pa, damping) = unpack(&q, nc);
     let frames = segments.iter().map(|s| s.end - s.start).sum();
-    let start = problem
-        .start_modes
-        .as_ref()
-        .map(|m| (m, problem.start.as_slice()));
-    let mut runs = forward
-        .simulate_from(&params, &rest, start)
-        .unwrap_or_default();
+    let mut runs = problem.runs(&q, &rest).unwrap_or_default();
     let timing = forward.timing();
     for r in &mut runs {
         for x in &mut r.positions_m {
@@ -1113,25 +1303,27 @@ fn warm_start(
 
 /// 1-σ uncertainties of the first `n` log-parameters (≈ relative uncertainties) from
 /// s² (JᵀJ)⁻¹, the other log-parameters held; fitted start-state coefficients are columns of J
-/// too (their uncertainty is the parameters' as well).
+/// too (their uncertainty is the parameters' as well). J by forward differences of step
+/// [`FD_STEP`], the Levenberg–Marquardt Jacobian's: at the point where the p-step last
+/// linearized, its columns are the kept runs ([`Problem::runs`]), not new simulations.
 fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>, DMatrix<f64>) {
     let r0 = problem.eval(q);
     let m = r0.len();
     problem.fit_start = problem.start_modes.is_some();
     let js = problem.start_columns(q, &r0);
     problem.fit_start = false;
-    let h = 1e-3;
     let mut j = DMatrix::<f64>::zeros(m, n + js.ncols());
     j.columns_mut(n, js.ncols()).copy_from(&js);
-    for k in 0..n {
-        let mut qp = q.to_vec();
-        let mut qm = q.to_vec();
-        qp[k] += h;
-        qm[k] -= h;
-        let rp = problem.eval(&qp);
-        let rm = problem.eval(&qm);
+    let points: Vec<Vec<f64>> = (0..n)
+        .map(|k| {
+            let mut p = q.to_vec();
+            p[k] += FD_STEP;
+            p
+        })
+        .collect();
+    for (k, r) in problem.eval_many(&points).iter().enumerate() {
         for i in 0..m {
-            j[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
+            j[(i, k)] = (r[i] - r0[i]) / FD_STEP;
         }
     }
     let ss: f64 = r0.iter().map(|v| v * v).sum();
@@ -1146,5 +1338,147 @@ fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>
             vec![f64::INFINITY; n],
             DMatrix::from_element(n, n, f64::INFINITY),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector3;
+    use softcap_fem::RayleighDamping;
+
+    use super::super::Elements;
+    use super::super::synthetic::{Synthetic, SyntheticSpec, clamped_box, synthesize};
+    use super::*;
+
+    /// A 160 × 30 × 20 mm bar (8 × 2 × 2 cells) clamped at x = 0, sagging under gravity, pushed
+    /// for 0.2 s: 20 frames at 30 Hz, no noise.
+    fn bar() -> Synthetic {
+        let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
+        synthesize(&SyntheticSpec {
+            young_pa: vec![5.0e5; mesh.tets.len()],
+            rest_mesh: mesh,
+            support_nodes: support,
+            poisson: 0.45,
+            density_kg_m3: 1100.0,
+            damping: RayleighDamping {
+                alpha_per_s: 0.8,
+                beta_s: 1.0e-3,
+            },
+            gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
+            push_nodes: push,
+            push_force_n: Vector3::new(0.0, 0.4, -0.3),
+            push_s: 0.2,
+            frames: 20,
+            frame_rate_hz: 30.0,
+            substeps: 4,
+            refine: 0,
+            elements: Elements::Linear,
+            noise_m: 0.0,
+            seed: 1,
+        })
+        .unwrap()
+    }
+
+    fn forward(s: &Synthetic) -> Forward {
+        let settings = FitDynamicSettings::default();
+        let segments = s.sequence.segments(
+            settings.segment_frames,
+            settings.min_segment_frames,
+            settings.forward.velocity_half_window,
+        );
+        let observed = vec![true; s.template.vertices.len()];
+        Forward::new(
+            &s.template,
+            &s.sequence,
+            segments,
+            observed,
+            &settings.forward,
+        )
+        .unwrap()
+    }
+
+    /// The rest shape kept for a modulus is the one a fresh solve of eq. 7 gives (to its
+    /// tolerance), whatever α and β; a new modulus is solved again.
+    #[test]
+    fn the_kept_rest_shape_is_a_fresh_solve_of_its_modulus() {
+        let s = bar();
+        let forward = forward(&s);
+        let weights = vec![vec![1.0]; s.template.tets.len()];
+        let static_m = s.template.vertices.clone();
+        let mut problem = Problem::new(&forward, &weights, 0.45);
+        let q = [4.0e5f64.ln(), 0.8f64.ln(), 1.0e-3f64.ln()];
+        let (x, _) = problem.rest_of(&q, &static_m).unwrap();
+        problem.rest = x.clone();
+        let other_damping = [q[0], 2.0f64.ln(), 3.0e-3f64.ln()];
+        let (kept, _) = problem.rest_of(&other_damping, &static_m).unwrap();
+        assert_eq!(kept, x, "α and β do not enter eq. 7");
+        for p in [q, other_damping] {
+            let (fresh, _) = rest_shape(&forward, &problem.params(&p), &static_m, None).unwrap();
+            let d = fresh
+                .iter()
+                .zip(&kept)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            assert!(d < 1e-9, "kept vs fresh rest shape: {d:.3e} m");
+        }
+        let softer = [3.0e5f64.ln(), q[1], q[2]];
+        let (y, _) = problem.rest_of(&softer, &static_m).unwrap();
+        let sag = |x: &[Vector3<f64>]| {
+            x.iter()
+                .zip(&static_m)
+                .map(|(a, b)| (a - b).norm())
+                .sum::<f64>()
+        };
+        assert!(
+            sag(&y) > 1.2 * sag(&x),
+            "a softer body sags more: its X lies further from x_s"
+        );
+    }
+
+    /// [`Problem::eval_many`] (one parallel pass) gives, bit for bit, the residuals of
+    /// [`Problem::eval`] one point after another, on one thread or two, and counts the
+    /// simulations it ran (a point evaluated before is not simulated again).
+    #[test]
+    fn batched_evaluations_equal_sequential_ones_on_one_and_two_threads() {
+        let s = bar();
+        let forward = forward(&s);
+        let weights = vec![vec![1.0]; s.template.tets.len()];
+        let static_m = s.template.vertices.clone();
+        let q0 = vec![4.0e5f64.ln(), 0.8f64.ln(), 1.0e-3f64.ln()];
+        let qs: Vec<Vec<f64>> = (0..3)
+            .map(|j| {
+                let mut q = q0.clone();
+                q[j] += 1e-4;
+                q
+            })
+            .collect();
+        let run = |threads: usize, batched: bool| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut problem = Problem::new(&forward, &weights, 0.45);
+                problem.static_m = Some(&static_m);
+                let r0 = problem.eval(&q0);
+                let rs = if batched {
+                    problem.eval_many(&qs)
+                } else {
+                    qs.iter().map(|q| problem.eval(q)).collect()
+                };
+                let again = problem.eval(&q0);
+                assert_eq!(again, r0);
+                (r0, rs, problem.simulations)
+            })
+        };
+        let sequential = run(1, false);
+        assert!(sequential.0.iter().all(|v| v.is_finite()));
+        assert_eq!(
+            sequential.2, 4,
+            "q0 and the three columns; q0 again is kept"
+        );
+        for threads in [1, 2] {
+            assert_eq!(run(threads, true), sequential, "{threads} threads");
+        }
     }
 }

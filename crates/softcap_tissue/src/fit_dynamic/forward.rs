@@ -653,6 +653,57 @@ impl Forward {
         })
     }
 
+    /// Several evaluations at once (e.g. the columns of a finite-difference Jacobian): every
+    /// segment of every job is one task of one parallel pass (the segments are independent,
+    /// each starts from its own state, wang2015 eq. 6/9), so a pass of n jobs keeps the threads
+    /// busy where one job's few, unequal segments would not. The results are in job order, each
+    /// equal bit for bit to [`Self::simulate_from`] of that job alone, on any number of threads.
+    pub fn simulate_batch(
+        &self,
+        jobs: &[(
+            &DynamicParams,
+            &[Vector3<f64>],
+            Option<(&StartModes, &[f64])>,
+        )],
+    ) -> Vec<Result<Vec<SegmentRun>>> {
+        self.timed(Phase::Simulate, || {
+            let prepared: Vec<Result<(FitModel, Vec<_>)>> = jobs
+                .iter()
+                .map(|(params, rest, _)| {
+                    let model = self.model(params, rest)?;
+                    let starts = self.start_states(&model, params.damping)?;
+                    Ok((model, starts))
+                })
+                .collect();
+            let ns = self.segments.len();
+            let tasks: Vec<(usize, usize)> = (0..jobs.len())
+                .filter(|&j| prepared[j].is_ok())
+                .flat_map(|j| (0..ns).map(move |k| (j, k)))
+                .collect();
+            let mut runs = tasks
+                .into_par_iter()
+                .map(|(j, k)| {
+                    let Ok((model, starts)) = &prepared[j] else {
+                        unreachable!("only prepared jobs are tasks")
+                    };
+                    let (params, _, start) = &jobs[j];
+                    let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
+                    self.simulate_segment(k, model, params.damping, &starts[k], correction)
+                })
+                .collect::<Vec<_>>()
+                .into_iter();
+            prepared
+                .into_iter()
+                .map(|p| {
+                    p?;
+                    // Take all of the job's segments before looking for a failure in them.
+                    let job: Vec<Result<SegmentRun>> = runs.by_ref().take(ns).collect();
+                    job.into_iter().collect()
+                })
+                .collect()
+        })
+    }
+
     /// Where segment `k`'s residuals sit in [`Self::residuals`].
     pub fn residual_range(&self, k: usize) -> std::ops::Range<usize> {
         let per_frame = 3 * self.free_nodes.len();
