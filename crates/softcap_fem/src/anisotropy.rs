@@ -38,6 +38,17 @@
 //! for an anisotropic C it is not the gradient of an energy (σ is not coaxial with the stretch),
 //! so [`ElasticModel::energy`] is `None` and the consistent tangent is the exact ∂f/∂x
 //! (non-symmetric in general; the warped matrix R K Rᵀ is the symmetric alternative).
+//!
+//! **Fibre families** ([`AnisotropicModel::with_fibre_families`]). The HGO material (Holzapfel,
+//! Gasser & Ogden 2000, J. Elasticity 61, §4.2) adds to an isotropic matrix one term per fibre
+//! family a_i, Ψ_i = k1/(2k2) (exp(k2 (I4_i − 1)²) − 1) with I4_i = a_i·C a_i; two families
+//! symmetric about an axis (angles ±θ) make the body orthotropic, not transversely isotropic.
+//! At the rest state ∂Ψ_i/∂I4_i = 0 and ∂²Ψ_i/∂I4_i² = k1, and I4_i − 1 = 2 a_i·E a_i, so to first
+//! order the family's stress is S_i = 4 k1 (a_i·E a_i) a_i ⊗ a_i: on the Voigt strain the rank-one
+//! matrix 4 k1 w_i w_iᵀ, w_i = (a_x², a_y², a_z², a_x a_y, a_x a_z, a_y a_z)
+//! ([`fibre_family_stiffness`]). It is added to the element's rest-frame matrix C_e, so the same
+//! corotational kernel carries it. The families bear tension and compression alike (HGO's
+//! tension-only switch is a finite-strain refinement that this linear element does not carry).
 
 use crate::corotated::{forces_from_stress, kinematics, tangent_from_stress};
 use crate::element::{Matrix12, StiffnessKind, TetGeometry, strain_voigt, tet_geometries};
@@ -299,14 +310,61 @@ pub fn stiffness_in_frame(c_local: &Matrix6<f64>, fibre: &Unit<Vector3<f64>>) ->
     out
 }
 
-/// Corotational tet model with per-element transversely isotropic stiffness and fibre direction.
+/// One HGO fibre family (Holzapfel, Gasser & Ogden 2000, §4.2) linearized at the rest state.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FibreFamily {
+    /// Fibre direction a_i (rest frame).
+    pub direction: Unit<Vector3<f64>>,
+    /// HGO stiffness-like parameter k1 \[Pa\] (the family's uniaxial modulus along a_i is 4 k1).
+    pub k1_pa: f64,
+}
+
+/// Voigt matrix (engineering shears) of one linearized fibre family: 4 k1 w wᵀ with
+/// w = (a_x², a_y², a_z², a_x a_y, a_x a_z, a_y a_z), the first-order stress
+/// S = 4 k1 (a·E a) a ⊗ a of Ψ = k1/(2k2) (exp(k2 (I4 − 1)²) − 1) (HGO 2000 §4.2).
+pub fn fibre_family_stiffness(family: &FibreFamily) -> Matrix6<f64> {
+    let a = family.direction.into_inner();
+    let w = Vector6::new(
+        a.x * a.x,
+        a.y * a.y,
+        a.z * a.z,
+        a.x * a.y,
+        a.x * a.z,
+        a.y * a.z,
+    );
+    w * w.transpose() * (4.0 * family.k1_pa)
+}
+
+/// The two fibre directions at angles ±`half_angle_rad` about `bisector` in the plane with unit
+/// normal `normal` (`bisector` is projected into that plane first): a_± = cos θ b ± sin θ (n × b).
+/// θ = 0 gives one family twice. `None` when `bisector` is (nearly) along `normal`.
+pub fn symmetric_fibre_pair(
+    bisector: &Vector3<f64>,
+    normal: &Vector3<f64>,
+    half_angle_rad: f64,
+) -> Option<[Unit<Vector3<f64>>; 2]> {
+    let n = normal.try_normalize(1e-12)?;
+    let b = (bisector - n * n.dot(bisector)).try_normalize(1e-9)?;
+    let t = n.cross(&b);
+    let (s, c) = half_angle_rad.sin_cos();
+    Some([
+        Unit::new_normalize(b * c + t * s),
+        Unit::new_normalize(b * c - t * s),
+    ])
+}
+
+/// Corotational tet model with per-element transversely isotropic stiffness and fibre direction,
+/// optionally reinforced by HGO fibre families ([`AnisotropicModel::with_fibre_families`]).
 #[derive(Clone, Debug)]
 pub struct AnisotropicModel {
     rest: Vec<Vector3<f64>>,
     geometry: Vec<TetGeometry>,
     params: Vec<TransverselyIsotropicParams>,
     fibres: Vec<Unit<Vector3<f64>>>,
-    /// Rest-frame Voigt matrices C_e (cached).
+    /// Per-element sum of the fibre families' matrices ([`fibre_family_stiffness`]); zero
+    /// without families.
+    reinforcement: Vec<Matrix6<f64>>,
+    /// Rest-frame Voigt matrices C_e (cached), reinforcement included.
     stiffness: Vec<Matrix6<f64>>,
 }
 
@@ -341,10 +399,41 @@ impl AnisotropicModel {
         Ok(Self {
             rest: mesh.vertices.clone(),
             geometry,
+            reinforcement: vec![Matrix6::zeros(); params.len()],
             params,
             fibres,
             stiffness,
         })
+    }
+
+    /// [`Self::new`] plus, per element, HGO fibre families linearized at the rest state
+    /// (HGO 2000 §4.2, [`fibre_family_stiffness`]) added to C_e: an isotropic matrix
+    /// ([`TransverselyIsotropicParams::from_isotropic`]) with two families at ±θ is the
+    /// orthotropic two-family material. Every k1 must be finite and ≥ 0 (the sum then stays PD).
+    pub fn with_fibre_families(
+        mesh: &TetMesh,
+        params: Vec<TransverselyIsotropicParams>,
+        fibres: Vec<Unit<Vector3<f64>>>,
+        families: &[Vec<FibreFamily>],
+    ) -> Result<Self, FemError> {
+        let mut model = Self::new(mesh, params, fibres)?;
+        if families.len() != model.params.len() {
+            return Err(FemError::LengthMismatch {
+                what: "per-element fibre families",
+                expected: model.params.len(),
+                got: families.len(),
+            });
+        }
+        for (e, fam) in families.iter().enumerate() {
+            if fam.iter().any(|f| !(f.k1_pa.is_finite() && f.k1_pa >= 0.0)) {
+                return Err(FemError::NonFinite {
+                    what: "fibre family k1 (finite and >= 0 needed)",
+                });
+            }
+            model.reinforcement[e] = fam.iter().map(fibre_family_stiffness).sum();
+            model.stiffness[e] += model.reinforcement[e];
+        }
+        Ok(model)
     }
 
     /// Homogeneous model with one fibre direction.
@@ -404,7 +493,8 @@ impl AnisotropicModel {
                 p.project_positive_definite(min_eigenvalue_rel * top)
             };
             self.params[e] = q;
-            self.stiffness[e] = stiffness_in_frame(&q.stiffness_local(), &self.fibres[e]);
+            self.stiffness[e] =
+                stiffness_in_frame(&q.stiffness_local(), &self.fibres[e]) + self.reinforcement[e];
         }
         Ok(projected)
     }
@@ -413,7 +503,8 @@ impl AnisotropicModel {
         stress_to_tensor(&(self.stiffness[e] * strain_voigt(strain)))
     }
 
-    /// ∂f_e/∂p_k for k over (E11, E12, E13, E33, E44) at fixed rotation (exact: E is linear in p);
+    /// ∂f_e/∂p_k for k over (E11, E12, E13, E33, E44) at fixed rotation (exact: E is linear in p;
+    /// the fibre families do not depend on p);
     /// the per-element right-hand sides of the adjoint Jacobian (bickel2009 appendix eq. 11–12
     /// with five parameters).
     pub fn parameter_forces(&self, e: usize, x: &[Vector3<f64>]) -> [[Vector3<f64>; 4]; 5] {

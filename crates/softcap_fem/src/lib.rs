@@ -65,7 +65,8 @@ pub mod support;
 pub mod viscoelastic;
 
 pub use anisotropy::{
-    AnisotropicModel, TransverselyIsotropicParams, material_frame, stiffness_in_frame,
+    AnisotropicModel, FibreFamily, TransverselyIsotropicParams, fibre_family_stiffness,
+    material_frame, stiffness_in_frame, symmetric_fibre_pair,
 };
 pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPattern};
 pub use contact::{ContactProblem, ContactReport, ContactSettings, ContactSpring, Probe, TipShape};

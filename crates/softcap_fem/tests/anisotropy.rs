@@ -2,7 +2,7 @@
 //! gives the analytic moduli, the isotropic special case is bickel2009 eq. 5, PD check/projection,
 //! and tangent / parameter derivatives against finite differences.
 
-use softcap_fem::nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+use softcap_fem::nalgebra::{Matrix3, Matrix6, Rotation3, Unit, Vector3};
 use softcap_fem::*;
 
 const L: f64 = 1.0;
@@ -317,5 +317,116 @@ fn newton_converges_on_a_stiff_oblique_fibre_under_a_disk_press() {
             worst_iterations <= 8,
             "ratio {ratio}: {worst_iterations} iterations"
         );
+    }
+}
+
+/// HGO fibre families (HGO 2000 §4.2, linearized): one family along the fibre axis of an isotropic
+/// matrix is exactly the transversely isotropic matrix of eq. 8.5 with E33 raised by 4 k1 (same
+/// element forces at a finitely rotated, strained configuration); two families at ±θ about x in the
+/// xy-plane are orthotropic in the (x, y, z) frame (no normal–shear coupling) and stiffer along x
+/// than along y for θ < 45° (by 4 k1 · 2 (cos⁴θ − sin⁴θ) on the normal diagonal); the tangent
+/// matches finite differences.
+#[test]
+fn fibre_families_are_hgo_linearized_and_orthotropic() {
+    let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [1.0, 1.0, 1.0], [1, 1, 1]);
+    let iso = TransverselyIsotropicParams::from_isotropic(
+        &LinearParams::from_young_poisson(5.0e4, 0.45).unwrap(),
+    );
+    let nt = mesh.tets.len();
+    let z = Unit::new_normalize(Vector3::z());
+    let k1 = 2.0e4;
+    let one = vec![
+        vec![FibreFamily {
+            direction: z,
+            k1_pa: k1
+        }];
+        nt
+    ];
+    let fam =
+        AnisotropicModel::with_fibre_families(&mesh, vec![iso; nt], vec![z; nt], &one).unwrap();
+    let mut ti = iso;
+    ti.e33_pa += 4.0 * k1;
+    let reference = AnisotropicModel::homogeneous(&mesh, ti, z).unwrap();
+    let rot = Rotation3::from_euler_angles(0.3, -0.2, 0.7);
+    let a = Matrix3::new(1.03, 0.02, -0.01, 0.01, 0.98, 0.03, -0.02, 0.01, 1.04);
+    let x: Vec<Vector3<f64>> = mesh.vertices.iter().map(|v| rot * (a * v)).collect();
+    for e in 0..nt {
+        let (f, g) = (fam.element_forces(e, &x), reference.element_forces(e, &x));
+        for i in 0..4 {
+            assert!(
+                (f[i] - g[i]).norm() < 1e-9 * g[i].norm().max(1.0),
+                "element {e}"
+            );
+        }
+    }
+    // two families at ±30° about x in the xy-plane
+    let theta = 30f64.to_radians();
+    let pair = symmetric_fibre_pair(&Vector3::x(), &Vector3::z(), theta).unwrap();
+    assert!((pair[0].y + pair[1].y).abs() < 1e-15 && (pair[0].x - theta.cos()).abs() < 1e-15);
+    let two: Vec<FibreFamily> = pair
+        .iter()
+        .map(|&direction| FibreFamily {
+            direction,
+            k1_pa: k1,
+        })
+        .collect();
+    let c: Matrix6<f64> = two.iter().map(fibre_family_stiffness).sum();
+    for (i, j) in [
+        (0, 3),
+        (1, 3),
+        (2, 3),
+        (0, 4),
+        (1, 5),
+        (3, 4),
+        (3, 5),
+        (4, 5),
+    ] {
+        assert!(
+            c[(i, j)].abs() < 1e-9 * k1,
+            "coupling ({i}, {j}) = {}",
+            c[(i, j)]
+        );
+    }
+    let (c4, s4) = (theta.cos().powi(4), theta.sin().powi(4));
+    assert!((c[(0, 0)] - c[(1, 1)] - 8.0 * k1 * (c4 - s4)).abs() < 1e-9 * k1);
+    assert!(symmetric_fibre_pair(&Vector3::z(), &Vector3::z(), theta).is_none());
+    let model =
+        AnisotropicModel::with_fibre_families(&mesh, vec![iso; nt], vec![z; nt], &vec![two; nt])
+            .unwrap();
+    assert!(
+        AnisotropicModel::with_fibre_families(
+            &mesh,
+            vec![iso; nt],
+            vec![z; nt],
+            &vec![
+                vec![FibreFamily {
+                    direction: z,
+                    k1_pa: -1.0
+                }];
+                nt
+            ],
+        )
+        .is_err()
+    );
+    let h = 1e-6;
+    for e in 0..nt {
+        let k = model.element_matrix(e, &x, StiffnessKind::Consistent);
+        let nodes = model.elements()[e].nodes;
+        let mut worst: f64 = 0.0;
+        for b in 0..4 {
+            for j in 0..3 {
+                let (mut xp, mut xm) = (x.clone(), x.clone());
+                xp[nodes[b]][j] += h;
+                xm[nodes[b]][j] -= h;
+                let (fp, fm) = (model.element_forces(e, &xp), model.element_forces(e, &xm));
+                for aa in 0..4 {
+                    let d = (fp[aa] - fm[aa]) / (2.0 * h);
+                    for i in 0..3 {
+                        worst = worst.max((d[i] - k[(3 * aa + i, 3 * b + j)]).abs());
+                    }
+                }
+            }
+        }
+        assert!(worst < 1e-6 * k.norm(), "element {e}: tangent FD {worst}");
     }
 }
