@@ -75,8 +75,8 @@ def cases():
         case("support-slip-pair", 212, "Paired control of support-slip: the same oblique probe (15 degrees), bonded base.",
              probe_axis=oblique),
         case("anisotropy", 205, "Effect anisotropy: HGO-like matrix (neo-Hooke mu = 0.017 MPa) with two fibre families "
-             "at +-30 degrees to x in the top plane, k1 = 0.02 MPa, k2 = 4.",
-             material={"kind": "hgo", "mu": MU, "bulk": 20 * MU, "k1": 0.02, "k2": 4.0,
+             "at +-30 degrees to x in the top plane, k1 = 0.1 MPa, k2 = 4.",
+             material={"kind": "hgo", "mu": MU, "bulk": 20 * MU, "k1": 0.1, "k2": 4.0,
                        "fibres": [[0.866, 0.5, 0.0], [0.866, -0.5, 0.0]]},
              effect="anisotropy", pair="clean"),
         case("gravity-preload", 206, "Effect gravity-preload: a soft tall block (mu = 3.5 kPa, 28 mm) sagged under its "
