@@ -63,6 +63,14 @@ pub struct Signatures {
     /// |Σ_l v_l| / Σ_l |v_l| of those per-location shifts (1: the same direction everywhere).
     #[serde(default)]
     pub lateral_shift_consistency: f64,
+    /// |mean over locations of the second azimuthal harmonic (cos 2ψ, sin 2ψ) of the probed
+    /// markers' in-plane radial residual in contact|, m: an in-plane stiffness that differs between
+    /// body-fixed directions (two fibre families, [`in_plane_ellipse`]).
+    #[serde(default)]
+    pub in_plane_ellipse_m: f64,
+    /// |Σ_l h_l| / Σ_l |h_l| of those per-location harmonics (1: the same axes everywhere).
+    #[serde(default)]
+    pub in_plane_ellipse_consistency: f64,
     /// How far the surface under the probe rebounds past its rest shape after the probe lets go,
     /// beyond the model ([`release_rebound`]), m: 0 without released frames.
     #[serde(default)]
@@ -290,6 +298,7 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
     );
     s.contact_drag_m = drag_signature_m(rec, seg, res);
     (s.lateral_shift_m, s.lateral_shift_consistency) = lateral_shift(rec, seg, res);
+    (s.in_plane_ellipse_m, s.in_plane_ellipse_consistency) = in_plane_ellipse(rec, seg, res);
     s.attached_motion_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Attached,
         &|r, _| r.norm(),
@@ -571,6 +580,68 @@ pub fn lateral_shift(
     (sum.norm() / shifts.len() as f64, consistency)
 }
 
+/// The in-plane ellipse signature of two fibre families: per location l, the probed markers'
+/// (within the segmentation's near radius) in-plane radial residual ρ = (r − r̄_rest)·e over the
+/// location's contact frames, e the unit direction from the tip to the marker in the plane across
+/// the probe axis, fitted as ρ ≈ c₀ + c cos 2ψ + s sin 2ψ with ψ the azimuth of e from world x
+/// (projected into that plane); h_l = (c, s). Returns (|mean_l h_l|, |Σ_l h_l| / Σ_l |h_l|), m and 1.
+///
+/// Why: two fibre families at ±θ in the surface plane are orthotropic — no normal–shear coupling,
+/// so no lateral shift ([`lateral_shift`]) — but stiffer along their bisector than across it: under
+/// every press the surface spreads less along the stiff axis than the isotropic model predicts, a
+/// second harmonic of the radial residual whose axes are body-fixed (the same phase at every
+/// location). A stiff inclusion or the block's edges give a second harmonic whose axes turn with
+/// the location. Locations with fewer than 6 observations are skipped; (0, 0) with fewer than 2.
+pub fn in_plane_ellipse(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &[Vec<Option<Vector3<f64>>>],
+) -> (f64, f64) {
+    let nm = rec.num_markers();
+    let rest_mean = rest_mean(res, seg, nm);
+    let mut harmonics = Vec::new();
+    for l in &seg.locations {
+        let near: Vec<usize> = (0..nm)
+            .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
+            .collect();
+        let (mut ata, mut atb, mut n) = (nalgebra::Matrix3::zeros(), Vector3::zeros(), 0usize);
+        for &k in &l.contact_frames {
+            if !seg.phases[k].in_contact() {
+                continue;
+            }
+            let axis = rec.frames[k].axis;
+            let Some(u1) = (Vector3::x() - axis * axis.x).try_normalize(1e-6) else {
+                continue;
+            };
+            let u2 = axis.cross(&u1);
+            for &m in &near {
+                let Some(r) = res[k][m] else { continue };
+                let arm = rec.rest_markers_m[m] - rec.frames[k].tip_m;
+                let Some(e) = (arm - axis * axis.dot(&arm)).try_normalize(1e-6) else {
+                    continue;
+                };
+                let psi = e.dot(&u2).atan2(e.dot(&u1));
+                let row = Vector3::new(1.0, (2.0 * psi).cos(), (2.0 * psi).sin());
+                ata += row * row.transpose();
+                atb += row * (r - rest_mean[m]).dot(&e);
+                n += 1;
+            }
+        }
+        if n >= 6
+            && let Some(c) = ata.try_inverse().map(|inv| inv * atb)
+        {
+            harmonics.push(nalgebra::Vector2::new(c[1], c[2]));
+        }
+    }
+    if harmonics.len() < 2 {
+        return (0.0, 0.0);
+    }
+    let sum: nalgebra::Vector2<f64> = harmonics.iter().sum();
+    let total: f64 = harmonics.iter().map(|v| v.norm()).sum();
+    let consistency = if total > 0.0 { sum.norm() / total } else { 0.0 };
+    (sum.norm() / harmonics.len() as f64, consistency)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -640,6 +711,60 @@ mod tests {
             near_radius_m: 0.008,
         };
         (rec, seg)
+    }
+
+    /// The in-plane ellipse: a radial residual c₀ + A cos 2(ψ − φ_l) around each press gives
+    /// h_l = A (cos 2φ_l, sin 2φ_l): amplitude A and consistency 1 when the axes are body-fixed,
+    /// consistency 0 when they turn by 90° between the locations; a purely radial (isotropic)
+    /// residual and a rest offset give nothing.
+    #[test]
+    fn in_plane_ellipse_is_the_body_fixed_second_harmonic() {
+        let (rec, seg) = two_presses();
+        let nm = rec.num_markers();
+        let amplitude = 4e-5;
+        let offset = Vector3::new(1e-4, -2e-4, 3e-4);
+        let field = |phi: [f64; 2], c0: f64| -> Vec<Vec<Option<Vector3<f64>>>> {
+            (0..3)
+                .map(|k| {
+                    (0..nm)
+                        .map(|m| {
+                            if k == 0 {
+                                return Some(offset);
+                            }
+                            let arm = rec.rest_markers_m[m] - seg.locations[k - 1].contact_tip_m;
+                            let e = Vector3::new(arm.x, arm.y, 0.0)
+                                .try_normalize(1e-9)
+                                .unwrap_or_else(Vector3::zeros);
+                            let psi = e.y.atan2(e.x);
+                            let rho = c0 + amplitude * (2.0 * (psi - phi[k - 1])).cos();
+                            Some(offset + e * rho + Vector3::z() * 1e-4)
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let (a, consistency) = in_plane_ellipse(&rec, &seg, &field([0.3, 0.3], 1e-5));
+        assert!((a - amplitude).abs() < 1e-12, "{a}");
+        assert!((consistency - 1.0).abs() < 1e-9, "{consistency}");
+        let turned = [0.3, 0.3 + std::f64::consts::FRAC_PI_2];
+        let (a, consistency) = in_plane_ellipse(&rec, &seg, &field(turned, 1e-5));
+        assert!(a < 1e-12 && consistency < 1e-6, "{a} {consistency}");
+        let isotropic: Vec<Vec<Option<Vector3<f64>>>> = (0..3)
+            .map(|k| {
+                (0..nm)
+                    .map(|m| {
+                        let arm = rec.rest_markers_m[m] - seg.locations[k.max(1) - 1].contact_tip_m;
+                        Some(if k == 0 {
+                            offset
+                        } else {
+                            offset + Vector3::new(arm.x, arm.y, 0.0) * 0.01
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        let (a, _) = in_plane_ellipse(&rec, &seg, &isotropic);
+        assert!(a < 1e-3 * amplitude, "{a}");
     }
 
     #[test]

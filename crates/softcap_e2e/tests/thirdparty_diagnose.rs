@@ -206,6 +206,12 @@ fn check(case: &str) {
         s[0], s[1], s[2]
     );
     let all = summary(d);
+    if let Some(top) = d.ranked.first() {
+        println!(
+            "{case} signatures: {}",
+            top.evidence.to_json()["signatures"]
+        );
+    }
     if effect == "none" {
         let none = ranked(d, "none").map(|(_, r)| r.heldout_rmse_before_m);
         println!(
@@ -364,7 +370,7 @@ cases! {
     clock_offset => "clock-offset",
     gravity_preload => "gravity-preload",
     support_slip => "support-slip",
-    #[ignore = "verdict none: anisotropy 0.1380 -> 0.1390 mm on contact/away-from-probe (rank 10), clean 0.1080; below the 2√3σ noise rule on those cells (0.169 mm); one fibre cannot fit two HGO families at +-30 deg"]
+    #[ignore = "verdict none: anisotropy (k1 = 0.1 MPa fixture) 0.1964 -> 0.1710 mm on contact/away-from-probe (rank 2), clean 0.1080; routed by the in-plane ellipse signature (0.184 mm, consistency 1.00), two HGO families fitted at the truth's phi 0, theta 30 deg (ratio 8), but the held-out gain 0.24 is below min_heldout_gain; 79 CPU-s"]
     anisotropy => "anisotropy",
     #[ignore = "passes (named on the force channel: 0.2506 -> 0.0710 N held-out; markers 0.1695 -> 0.1668 mm, clean 0.1691) but costs about 100 CPU-s (the de-lagged grid's re-simulations with material refits)"]
     sensor_lag => "sensor-lag",

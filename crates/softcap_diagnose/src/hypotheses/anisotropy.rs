@@ -9,7 +9,10 @@
 //! re-simulation after the screen's candidates even when its screen (a poor proxy for the
 //! redirected field) does not qualify. Confirmation: `softcap_fem::AnisotropicModel` (thesis
 //! eq. 8.5) with the screened fibre and its mirror across the probe axis ([`mirrored_fibres`]),
-//! fibre ratio and both Poisson ratios on a grid; each fold's choice and its fibre-ratio neighbours
+//! fibre ratio and both Poisson ratios on a grid, and two HGO fibre families at ±θ in the plane
+//! across the probe axis (`Extension::FibreFamilies`, HGO 2000 §4.2 linearized; [`family_grid`]):
+//! their orientation (φ, θ) on one ratio first, the other ratios only at the full data's choice
+//! when it is a pair of families; each fold's choice and its fibre-ratio neighbours
 //! (`ratio_neighbourhood`) re-simulated on the fit mesh refined 1 → 8
 //! (`ProbeSimulator::refined`), offered only to the folds whose choice they refine.
 
@@ -19,12 +22,13 @@ use crate::Result;
 use crate::cells::{EffectCells, contact_cells, touched_balls};
 use crate::confirm::{ComplianceScale, Confirmed, lolo_choices};
 use crate::recording::Recording;
-use crate::resim::{GridPoint, Replays};
+use crate::resim::{GridPoint, Replays, simulate_grid};
 use crate::screen::{Basis, Refit, Variant};
 use crate::segment::Segmentation;
 use crate::signatures::Signatures;
 use crate::sim::{Extension, ProbeSimulator};
 use nalgebra::Vector3;
+use softcap_fem::symmetric_fibre_pair;
 
 /// The anisotropy hypothesis.
 pub struct Anisotropy;
@@ -42,6 +46,18 @@ pub const LATERAL_CONSISTENCY: f64 = 0.8;
 pub fn shifts_laterally(sig: &Signatures) -> bool {
     sig.lateral_shift_m > 3.0 * sig.noise_sigma_m
         && sig.lateral_shift_consistency >= LATERAL_CONSISTENCY
+}
+
+/// Least consistency |Σ_l h_l| / Σ_l |h_l| of the per-location in-plane ellipses
+/// ([`crate::signatures::in_plane_ellipse`]) for the two-family signature.
+pub const ELLIPSE_CONSISTENCY: f64 = 0.8;
+
+/// The in-plane ellipse signature of two fibre families is present: a second harmonic of the
+/// in-plane radial residual above 3σ whose axes are the same at every location
+/// (≥ [`ELLIPSE_CONSISTENCY`]).
+pub fn spreads_elliptically(sig: &Signatures) -> bool {
+    sig.in_plane_ellipse_m > 3.0 * sig.noise_sigma_m
+        && sig.in_plane_ellipse_consistency >= ELLIPSE_CONSISTENCY
 }
 
 impl Hypothesis for Anisotropy {
@@ -87,11 +103,15 @@ impl Hypothesis for Anisotropy {
     }
 
     fn signature_support(&self, s: &Signatures) -> f64 {
-        if shifts_laterally(s) { 1.0 } else { 0.0 }
+        if shifts_laterally(s) || spreads_elliptically(s) {
+            1.0
+        } else {
+            0.0
+        }
     }
 
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
-        shifts_laterally(s).then_some(SignatureRoute::AfterScreen)
+        (shifts_laterally(s) || spreads_elliptically(s)).then_some(SignatureRoute::AfterScreen)
     }
 
     fn confirm(
@@ -135,8 +155,34 @@ impl Hypothesis for Anisotropy {
                 }
             }
         }
+        // Two HGO fibre families at ±θ in the plane across the probe axis (HGO 2000 §4.2): their
+        // in-plane orientation φ and angle θ first, at one ratio; the ratios only around the
+        // full data's choice when it is a pair of families.
+        let axis = mean_probe_axis(rec, seg);
+        grid.extend(family_grid(
+            &axis,
+            &FAMILY_ORIENTATIONS,
+            &[FAMILY_FIRST_RATIO],
+            p,
+        ));
         let scale = ComplianceScale::new(true, 0.1, 10.0);
         let mut replays = Replays::run(sim, grid, Vec::new(), rec, seg, p, true)?;
+        let choices = lolo_choices(&replays.forced, rec, seg, p, scale, scored, false);
+        if let Some(&full) = choices.last()
+            && replays.sources[full]
+                .0
+                .iter()
+                .any(|(n, _)| n == "family_theta_deg")
+        {
+            let src = &replays.sources[full].0;
+            let value = |name: &str| super::contract::param(src, name).unwrap_or(0.0);
+            let orientation = [(value("family_phi_deg"), value("family_theta_deg"))];
+            let more = family_grid(&axis, &orientation, &FAMILY_MORE_RATIOS, p);
+            let (forced, total, sources) = simulate_grid(sim, more, rec, seg, p, true)?;
+            replays.forced.extend(forced);
+            replays.sources.extend(sources);
+            replays.total += total;
+        }
         // Each fold's choice and its neighbours along the fibre ratio re-simulated on the
         // refined fit mesh — only where the template does not already resolve the tip
         // (`ProbeSimulator::resolves_footprint`): there the refined mesh changes the field under
@@ -158,6 +204,69 @@ impl Hypothesis for Anisotropy {
         }
         replays.confirm(rec, seg, p, scale, scored, false, "AnisotropicModel", CELLS)
     }
+}
+
+/// The (φ, θ) of the two-family grid, degrees: in-plane orientation φ of the bisector and
+/// half-angle θ; θ = 0 is one in-plane family, θ = 45° is the same pair for φ and φ + 90°.
+pub const FAMILY_ORIENTATIONS: [(f64, f64); 10] = [
+    (0.0, 0.0),
+    (45.0, 0.0),
+    (90.0, 0.0),
+    (135.0, 0.0),
+    (0.0, 30.0),
+    (45.0, 30.0),
+    (90.0, 30.0),
+    (135.0, 30.0),
+    (0.0, 45.0),
+    (45.0, 45.0),
+];
+
+/// The ratio 4 k1 / E of each family on which the orientation is chosen (a fibre-dominated
+/// tissue, the HGO arterial fits' k1 ≫ μ) and the ratios tried around the chosen orientation.
+pub const FAMILY_FIRST_RATIO: f64 = 8.0;
+/// See [`FAMILY_FIRST_RATIO`].
+pub const FAMILY_MORE_RATIOS: [f64; 3] = [2.0, 4.0, 16.0];
+
+/// Grid points of [`Extension::FibreFamilies`]: for each (φ, θ) of `orientations` (degrees) and
+/// each ratio, the two fibres at ±θ about the in-plane direction φ of the plane across the unit
+/// probe axis `axis` (φ from world x projected into that plane, or y when x is along the axis).
+pub fn family_grid(
+    axis: &Vector3<f64>,
+    orientations: &[(f64, f64)],
+    ratios: &[f64],
+    p: &crate::baseline::Prepared,
+) -> Vec<GridPoint> {
+    let reference = if axis.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let mut out = Vec::new();
+    for &(phi, theta) in orientations {
+        let rotation = nalgebra::Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(*axis),
+            phi.to_radians(),
+        );
+        let Some(pair) = symmetric_fibre_pair(&(rotation * reference), axis, theta.to_radians())
+        else {
+            continue;
+        };
+        for &ratio in ratios {
+            out.push((
+                vec![
+                    ("family_phi_deg".into(), phi),
+                    ("family_theta_deg".into(), theta),
+                    ("family_ratio".into(), ratio),
+                ],
+                Extension::FibreFamilies {
+                    fibres: pair.map(|a| a.into_inner()),
+                    ratio,
+                },
+                p.force_n.clone(),
+            ));
+        }
+    }
+    out
 }
 
 /// Thirteen directions covering the hemisphere (axes, face and space diagonals).
@@ -202,13 +311,14 @@ pub fn mirrored_fibres(a: &Vector3<f64>, n: &Vector3<f64>) -> Vec<Vector3<f64>> 
 }
 
 /// Grid point `i` and its neighbours along the fibre ratio (the grid points that differ from it
-/// in `fibre_ratio` only, the next lower and higher ratio), in grid order.
+/// in `fibre_ratio` or `family_ratio` only, the next lower and higher ratio), in grid order.
 fn ratio_neighbourhood(points: &[GridPoint], i: usize) -> Vec<usize> {
+    let is_ratio = |n: &str| n == "fibre_ratio" || n == "family_ratio";
     let ratio_of = |j: usize| {
         points[j]
             .0
             .iter()
-            .find(|(n, _)| n == "fibre_ratio")
+            .find(|(n, _)| is_ratio(n))
             .map(|&(_, v)| v)
     };
     let Some(r0) = ratio_of(i) else {
@@ -218,8 +328,8 @@ fn ratio_neighbourhood(points: &[GridPoint], i: usize) -> Vec<usize> {
         points[j]
             .0
             .iter()
-            .filter(|(n, _)| n != "fibre_ratio")
-            .eq(points[i].0.iter().filter(|(n, _)| n != "fibre_ratio"))
+            .filter(|(n, _)| !is_ratio(n))
+            .eq(points[i].0.iter().filter(|(n, _)| !is_ratio(n)))
     };
     let (mut below, mut above): (Option<(usize, f64)>, Option<(usize, f64)>) = (None, None);
     for j in 0..points.len() {

@@ -224,6 +224,16 @@ pub enum Extension {
         /// Rayleigh stiffness-proportional coefficient β, s.
         beta_s: f64,
     },
+    /// Two HGO fibre families (Holzapfel, Gasser & Ogden 2000 §4.2, linearized:
+    /// `softcap_fem::AnisotropicModel::with_fibre_families`) on the default model's isotropic
+    /// (E, ν): each family adds 4 k1 = `ratio` · E along its direction. The two directions are
+    /// symmetric about an axis (angles ±θ); θ = 0 is one family of twice the modulus.
+    FibreFamilies {
+        /// The two fibre directions (world, unit).
+        fibres: [Vector3<f64>; 2],
+        /// Each family's modulus 4 k1 over the element's Young's modulus E.
+        ratio: f64,
+    },
     /// Transversely isotropic with the Poisson ratios as parameters.
     TransverselyIsotropic {
         /// Fibre direction (world, unit).

@@ -11,9 +11,9 @@ use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use softcap_fem::{
     AnisotropicModel, ContactProblem, DynamicSolver, DynamicState, DynamicStepStatus,
     DynamicsSettings, ElasticModel, ElastoplasticModel, EquilibriumReport, EquilibriumSettings,
-    FrictionParams, FrictionalContact, Integrator, J2PlasticityParams, LaggedIterations,
-    LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries, RayleighDamping,
-    StaticSolver, StepLoads, StiffnessKind, SupportPlane, SupportTangential,
+    FibreFamily, FrictionParams, FrictionalContact, Integrator, J2PlasticityParams,
+    LaggedIterations, LinearParams, NodalSolver, NodalTerm, NormalForceLag, Probe, PronySeries,
+    RayleighDamping, StaticSolver, StepLoads, StiffnessKind, SupportPlane, SupportTangential,
     TransverselyIsotropicParams, ViscoelasticModel, lumped_masses, solve_lagged,
 };
 use softcap_probing::probe_pose;
@@ -128,6 +128,39 @@ impl FemProbeSimulator {
     /// The `AnisotropicModel` of an anisotropy extension over the default model's (λ, α).
     fn anisotropic_model(&self, ext: &Extension) -> Result<AnisotropicModel> {
         let base = self.model();
+        if let Extension::FibreFamilies { fibres, ratio } = *ext {
+            let dirs = fibres.map(|a| Unit::try_new(a, 1e-12));
+            let [Some(a0), Some(a1)] = dirs else {
+                return Err(DiagnoseError::BadRecording {
+                    what: "fibre families: zero fibre direction".into(),
+                });
+            };
+            let mut params = Vec::with_capacity(base.params().len());
+            let mut families = Vec::with_capacity(base.params().len());
+            for p in base.params() {
+                let (e, _) = p.to_young_poisson().map_err(fem)?;
+                params.push(TransverselyIsotropicParams::from_isotropic(p));
+                let k1_pa = 0.25 * ratio * e;
+                families.push(vec![
+                    FibreFamily {
+                        direction: a0,
+                        k1_pa,
+                    },
+                    FibreFamily {
+                        direction: a1,
+                        k1_pa,
+                    },
+                ]);
+            }
+            let nt = params.len();
+            return AnisotropicModel::with_fibre_families(
+                &self.setup().mesh,
+                params,
+                vec![a0; nt],
+                &families,
+            )
+            .map_err(fem);
+        }
         let (fibre, params) = match *ext {
             Extension::TransverselyIsotropic {
                 fibre,
@@ -246,7 +279,9 @@ impl FemProbeSimulator {
                     },
                 )
             }
-            Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
+            Extension::Anisotropic { .. }
+            | Extension::TransverselyIsotropic { .. }
+            | Extension::FibreFamilies { .. } => {
                 let an = self.anisotropic_model(ext)?;
                 self.run_static(an, frames, |_, _| Ok(()), |_, _| {})
             }
@@ -733,7 +768,9 @@ impl FemProbeSimulator {
                     },
                 )?
             }
-            Extension::Anisotropic { .. } | Extension::TransverselyIsotropic { .. } => {
+            Extension::Anisotropic { .. }
+            | Extension::TransverselyIsotropic { .. }
+            | Extension::FibreFamilies { .. } => {
                 let an = self.anisotropic_model(ext)?;
                 self.run_rigid(an, tip, None, frames, true, |_, _| Ok(()), |_, _| {})?
             }
