@@ -4,7 +4,7 @@
 //! 0.8.0's own `CameraGroup.triangulate` of the same points, written to
 //! fixtures/aniposelib/reference.toml by scripts/aniposelib_reference.py.
 
-mod common;
+use crate::common;
 
 use softcap_capture::pipeline::median_sorted;
 use softcap_capture::{

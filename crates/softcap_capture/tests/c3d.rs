@@ -2,7 +2,7 @@
 //! to 40 frames): marker counts, rates, analog channels, and values checked against a raw decode of
 //! the files (C3D float format: 4 × f32 per point; analog f32 with SCALE 1, OFFSET 0 in these files).
 
-mod common;
+use crate::common;
 
 use softcap_capture::read_c3d;
 

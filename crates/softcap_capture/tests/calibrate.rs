@@ -3,7 +3,7 @@
 //! aniposelib rig it lowers the median per-point error ≥ 3× and matches aniposelib's own bundle
 //! adjustment; bad input is exit code 2 naming it, with nothing written.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -1,7 +1,7 @@
 //! The `softcap-capture` binary: exit codes and messages on bad input, and a full run writing
 //! capture.mcap that reads back.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,7 +1,7 @@
 //! Robot rigs: forward kinematics of a hand-written URDF (fixtures/robot/arm.urdf) against its
 //! analytic tool pose, and F/T readings rotated into the world frame.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

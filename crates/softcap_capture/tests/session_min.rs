@@ -1,6 +1,6 @@
 //! Accuracy of the capture stage on the session-min fixture against its truth/ (which only tests read).
 
-mod common;
+use crate::common;
 
 use softcap_capture::{CaptureSettings, MarkerSource, Session, capture};
 

@@ -4,7 +4,7 @@
 //! within 0.25 mm RMS of `truth/markers.csv` and the axial probe force within 2 % of its maximum
 //! (RMS over all frames) of `truth/probe.csv` (except where the FSR itself lags the force).
 
-mod common;
+use crate::common;
 
 use softcap_capture::{CaptureSettings, MarkerSource, Session, capture};
 

@@ -1,7 +1,7 @@
 //! Slender cantilever (L/h = 10) under a tip shear load: tip deflection vs Euler–Bernoulli
 //! PL³/3EI plus the Timoshenko shear term PL/(κGA).
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::*;
 

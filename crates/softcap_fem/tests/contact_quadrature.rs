@@ -8,7 +8,7 @@
 //!   suite's probe-friction regime, docs/notes/2026-11-27-frictional-replay-slip.md): the drag as
 //!   a function of μ.
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use softcap_fem::*;
 

@@ -13,7 +13,7 @@
 //! known stiffness of constant-strain triangles in bending, not a loading error: with ν = 0 (no
 //! thickness coupling) the 3D and 2D answers agree to 0.3 % at every level.
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
 use softcap_fem::*;
 

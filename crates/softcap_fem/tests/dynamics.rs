@@ -9,7 +9,7 @@
 //! continuous pole s = −ζω + iω√(1 − ζ²) with ζ = α/(2ω) + βω/2, mapped by the integrator
 //! (backward Euler z = 1/(1 − hs), average acceleration = trapezoidal rule z = (1 + hs/2)/(1 − hs/2)).
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::{Complex, Vector3};
 use softcap_fem::*;
 

@@ -2,7 +2,7 @@
 //! FD) and a probe pressed on a block and dragged sideways: the tangential force on the probe
 //! matches a bonded probe while sticking, stays ≤ μN on the way, and equals μN when sliding.
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use softcap_fem::*;
 

@@ -2,7 +2,6 @@
 //! solve from the observed sag back to the rest shape; a column under self-weight against the
 //! analytic displacement ρ g z (2L − z) / (2E) (ν = 0).
 
-mod common;
 use softcap_fem::*;
 
 /// Cantilever sagging under its own weight: L = 0.1 m, 0.02 m × 0.02 m, E = 50 kPa, ρ = 1000 kg/m³

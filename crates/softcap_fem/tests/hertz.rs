@@ -14,7 +14,7 @@
 //! left most of the patch inside the probe). Asserted: converged in few iterations, and no top node
 //! inside the sphere by more than 1e-4 d at equilibrium.
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use softcap_fem::*;
 

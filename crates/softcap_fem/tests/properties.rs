@@ -3,7 +3,7 @@
 //! panic — and a converged result has finite positions (a non-finite one is reported, not
 //! returned as converged). Case counts are kept CI-cheap (`PROPTEST_CASES` raises them).
 
-mod common;
+use crate::common;
 
 use proptest::prelude::*;
 use softcap_fem::nalgebra::Vector3;

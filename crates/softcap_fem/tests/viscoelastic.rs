@@ -2,7 +2,7 @@
 //! standard-linear-solid responses: stress relaxation under a held strain step and creep under a
 //! held force step, for the corotational and the stable neo-Hookean base models.
 
-mod common;
+use crate::common;
 use softcap_fem::nalgebra::Vector3;
 use softcap_fem::*;
 

@@ -1,0 +1,43 @@
+//! The integration tests of softcap_design in one test binary, `design_tests`: every file under tests/ is a
+//! module of it (`autotests = false` in Cargo.toml), so the generics the files share are compiled
+//! and the binary is linked once instead of once per file. One file's tests:
+//! `cargo test --workspace --test design_tests -- capture::` (a module path prefix filters).
+
+#[path = "capture.rs"]
+mod capture;
+#[path = "cli.rs"]
+mod cli;
+#[path = "experiment.rs"]
+mod experiment;
+#[path = "fit.rs"]
+mod fit;
+#[path = "fit_transverse.rs"]
+mod fit_transverse;
+#[path = "newton.rs"]
+mod newton;
+#[path = "print.rs"]
+mod print;
+#[path = "quarter.rs"]
+mod quarter;
+#[path = "rubber.rs"]
+mod rubber;
+
+/// A file under tests/ that is neither a module above nor its own `[[test]]` in Cargo.toml would
+/// never be compiled or run (`autotests = false`).
+#[test]
+fn every_test_file_is_compiled() {
+    let main = include_str!("main.rs");
+    let manifest = include_str!("../Cargo.toml");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let file = entry.unwrap().file_name().into_string().unwrap();
+        if file.ends_with(".rs") && file != "main.rs" {
+            let module = format!("#[path = \"{file}\"]");
+            let target = format!("path = \"tests/{file}\"");
+            assert!(
+                main.contains(&module) || manifest.contains(&target),
+                "tests/{file} is neither a module of tests/main.rs nor a [[test]] of Cargo.toml"
+            );
+        }
+    }
+}
