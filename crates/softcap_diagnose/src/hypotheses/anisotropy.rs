@@ -163,6 +163,7 @@ impl Hypothesis for Anisotropy {
             &axis,
             &FAMILY_ORIENTATIONS,
             &[FAMILY_FIRST_RATIO],
+            &[None],
             p,
         ));
         let scale = ComplianceScale::new(true, 0.1, 10.0);
@@ -177,7 +178,15 @@ impl Hypothesis for Anisotropy {
             let src = &replays.sources[full].0;
             let value = |name: &str| super::contract::param(src, name).unwrap_or(0.0);
             let orientation = [(value("family_phi_deg"), value("family_theta_deg"))];
-            let more = family_grid(&axis, &orientation, &FAMILY_MORE_RATIOS, p);
+            let mut more = family_grid(&axis, &orientation, &FAMILY_MORE_RATIOS, &[None], p);
+            let poissons = FAMILY_MATRIX_POISSON.map(Some);
+            more.extend(family_grid(
+                &axis,
+                &orientation,
+                &FAMILY_POISSON_RATIOS,
+                &poissons,
+                p,
+            ));
             let (forced, total, sources) = simulate_grid(sim, more, rec, seg, p, true)?;
             replays.forced.extend(forced);
             replays.sources.extend(sources);
@@ -227,13 +236,22 @@ pub const FAMILY_FIRST_RATIO: f64 = 8.0;
 /// See [`FAMILY_FIRST_RATIO`].
 pub const FAMILY_MORE_RATIOS: [f64; 3] = [2.0, 4.0, 16.0];
 
-/// Grid points of [`Extension::FibreFamilies`]: for each (φ, θ) of `orientations` (degrees) and
-/// each ratio, the two fibres at ±θ about the in-plane direction φ of the plane across the unit
-/// probe axis `axis` (φ from world x projected into that plane, or y when x is along the axis).
+/// The matrix Poisson ratios tried at the chosen orientation (the fibres carry stiffness the
+/// isotropic fit took as a lower ν; soft-tissue matrices are nearly incompressible), each at
+/// [`FAMILY_POISSON_RATIOS`].
+pub const FAMILY_MATRIX_POISSON: [f64; 2] = [0.45, 0.49];
+/// See [`FAMILY_MATRIX_POISSON`].
+pub const FAMILY_POISSON_RATIOS: [f64; 3] = [2.0, 4.0, 8.0];
+
+/// Grid points of [`Extension::FibreFamilies`]: for each (φ, θ) of `orientations` (degrees), each
+/// matrix Poisson ratio of `poissons` (`None`: the default model's) and each ratio, the two fibres
+/// at ±θ about the in-plane direction φ of the plane across the unit probe axis `axis` (φ from
+/// world x projected into that plane, or y when x is along the axis).
 pub fn family_grid(
     axis: &Vector3<f64>,
     orientations: &[(f64, f64)],
     ratios: &[f64],
+    poissons: &[Option<f64>],
     p: &crate::baseline::Prepared,
 ) -> Vec<GridPoint> {
     let reference = if axis.x.abs() < 0.9 {
@@ -251,19 +269,26 @@ pub fn family_grid(
         else {
             continue;
         };
-        for &ratio in ratios {
-            out.push((
-                vec![
+        for &poisson in poissons {
+            for &ratio in ratios {
+                let mut params = vec![
                     ("family_phi_deg".into(), phi),
                     ("family_theta_deg".into(), theta),
                     ("family_ratio".into(), ratio),
-                ],
-                Extension::FibreFamilies {
-                    fibres: pair.map(|a| a.into_inner()),
-                    ratio,
-                },
-                p.force_n.clone(),
-            ));
+                ];
+                if let Some(nu) = poisson {
+                    params.push(("family_poisson".into(), nu));
+                }
+                out.push((
+                    params,
+                    Extension::FibreFamilies {
+                        fibres: pair.map(|a| a.into_inner()),
+                        ratio,
+                        poisson,
+                    },
+                    p.force_n.clone(),
+                ));
+            }
         }
     }
     out

@@ -128,7 +128,12 @@ impl FemProbeSimulator {
     /// The `AnisotropicModel` of an anisotropy extension over the default model's (λ, α).
     fn anisotropic_model(&self, ext: &Extension) -> Result<AnisotropicModel> {
         let base = self.model();
-        if let Extension::FibreFamilies { fibres, ratio } = *ext {
+        if let Extension::FibreFamilies {
+            fibres,
+            ratio,
+            poisson,
+        } = *ext
+        {
             let dirs = fibres.map(|a| Unit::try_new(a, 1e-12));
             let [Some(a0), Some(a1)] = dirs else {
                 return Err(DiagnoseError::BadRecording {
@@ -138,8 +143,10 @@ impl FemProbeSimulator {
             let mut params = Vec::with_capacity(base.params().len());
             let mut families = Vec::with_capacity(base.params().len());
             for p in base.params() {
-                let (e, _) = p.to_young_poisson().map_err(fem)?;
-                params.push(TransverselyIsotropicParams::from_isotropic(p));
+                let (e, nu) = p.to_young_poisson().map_err(fem)?;
+                let matrix =
+                    LinearParams::from_young_poisson(e, poisson.unwrap_or(nu)).map_err(fem)?;
+                params.push(TransverselyIsotropicParams::from_isotropic(&matrix));
                 let k1_pa = 0.25 * ratio * e;
                 families.push(vec![
                     FibreFamily {
