@@ -570,9 +570,7 @@ fn draw_loops(root: &Root<'_>, rec: &Recording, run: &DiagnosisRun) -> DrawResul
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let cells = root.split_evenly((nloc.div_ceil(3), 3));
     for (li, area) in seg.locations.iter().take(nloc).zip(cells.iter()) {
-        let near: Vec<usize> = (0..rec.num_markers())
-            .filter(|&m| (rec.rest_markers_m[m] - li.contact_tip_m).norm() <= seg.near_radius_m)
-            .collect();
+        let near = seg.near_markers(rec, li);
         if near.is_empty() {
             continue;
         }

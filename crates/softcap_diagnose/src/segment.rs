@@ -170,6 +170,23 @@ impl Segmentation {
             .filter(|&k| self.phases[k] == Phase::Hold)
             .collect()
     }
+
+    /// The frames of location `l` in contact (loading, hold or unloading), in time order.
+    pub fn in_contact_frames(&self, l: &Location) -> Vec<usize> {
+        l.contact_frames
+            .iter()
+            .copied()
+            .filter(|&k| self.phases[k].in_contact())
+            .collect()
+    }
+
+    /// The markers near location `l`: those whose rest position lies within `near_radius_m` of its
+    /// contact point (its probed markers), ascending.
+    pub fn near_markers(&self, rec: &Recording, l: &Location) -> Vec<usize> {
+        (0..rec.num_markers())
+            .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= self.near_radius_m)
+            .collect()
+    }
 }
 
 /// Maximal runs `[s, e)` of contact frames (‖f‖ above the contact threshold), split where the tip

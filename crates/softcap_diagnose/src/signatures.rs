@@ -236,9 +236,7 @@ fn ramp_signatures(
 /// The geometry signal of location `l` per frame: the mean displacement of the markers near its
 /// contact point along its probe axis, m (0 where none is observed).
 fn near_marker_depth(rec: &Recording, seg: &Segmentation, l: &Location) -> Vec<f64> {
-    let near: Vec<usize> = (0..rec.num_markers())
-        .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
-        .collect();
+    let near = seg.near_markers(rec, l);
     (0..rec.frames.len())
         .map(|k| {
             let (mut acc, mut n) = (0.0, 0);
@@ -550,14 +548,9 @@ pub fn lateral_shift(
     let rest_mean = rest_mean(res, seg, nm);
     let mut shifts = Vec::new();
     for l in &seg.locations {
-        let near: Vec<usize> = (0..nm)
-            .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
-            .collect();
+        let near = seg.near_markers(rec, l);
         let (mut v, mut n) = (Vector3::zeros(), 0usize);
-        for &k in &l.contact_frames {
-            if !seg.phases[k].in_contact() {
-                continue;
-            }
+        for k in seg.in_contact_frames(l) {
             for &m in &near {
                 if let Some(r) = res[k][m] {
                     let d = r - rest_mean[m];
@@ -601,14 +594,9 @@ pub fn in_plane_ellipse(
     let rest_mean = rest_mean(res, seg, nm);
     let mut harmonics = Vec::new();
     for l in &seg.locations {
-        let near: Vec<usize> = (0..nm)
-            .filter(|&m| (rec.rest_markers_m[m] - l.contact_tip_m).norm() <= seg.near_radius_m)
-            .collect();
+        let near = seg.near_markers(rec, l);
         let (mut ata, mut atb, mut n) = (nalgebra::Matrix3::zeros(), Vector3::zeros(), 0usize);
-        for &k in &l.contact_frames {
-            if !seg.phases[k].in_contact() {
-                continue;
-            }
+        for k in seg.in_contact_frames(l) {
             let axis = rec.frames[k].axis;
             let Some(u1) = (Vector3::x() - axis * axis.x).try_normalize(1e-6) else {
                 continue;
