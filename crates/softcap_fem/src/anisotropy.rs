@@ -319,19 +319,26 @@ pub struct FibreFamily {
     pub k1_pa: f64,
 }
 
-/// Voigt matrix (engineering shears) of one linearized fibre family: 4 k1 w wᵀ with
-/// w = (a_x², a_y², a_z², a_x a_y, a_x a_z, a_y a_z), the first-order stress
-/// S = 4 k1 (a·E a) a ⊗ a of Ψ = k1/(2k2) (exp(k2 (I4 − 1)²) − 1) (HGO 2000 §4.2).
-pub fn fibre_family_stiffness(family: &FibreFamily) -> Matrix6<f64> {
-    let a = family.direction.into_inner();
-    let w = Vector6::new(
+/// The dyad a ⊗ a of a direction in the Voigt order of this module:
+/// w = (a_x², a_y², a_z², a_x a_y, a_x a_z, a_y a_z). On the Voigt strain (engineering shears)
+/// w·ε = a·E a, the normal strain along a unit a; as a Voigt stress it is the uniaxial stress of
+/// unit magnitude along a unit a.
+pub fn voigt_dyad(a: &Vector3<f64>) -> Vector6<f64> {
+    Vector6::new(
         a.x * a.x,
         a.y * a.y,
         a.z * a.z,
         a.x * a.y,
         a.x * a.z,
         a.y * a.z,
-    );
+    )
+}
+
+/// Voigt matrix (engineering shears) of one linearized fibre family: 4 k1 w wᵀ with
+/// w = [`voigt_dyad`]`(a)` = (a_x², a_y², a_z², a_x a_y, a_x a_z, a_y a_z), the first-order stress
+/// S = 4 k1 (a·E a) a ⊗ a of Ψ = k1/(2k2) (exp(k2 (I4 − 1)²) − 1) (HGO 2000 §4.2).
+pub fn fibre_family_stiffness(family: &FibreFamily) -> Matrix6<f64> {
+    let w = voigt_dyad(&family.direction.into_inner());
     w * w.transpose() * (4.0 * family.k1_pa)
 }
 

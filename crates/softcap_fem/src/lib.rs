@@ -66,7 +66,7 @@ pub mod viscoelastic;
 
 pub use anisotropy::{
     AnisotropicModel, FibreFamily, TransverselyIsotropicParams, fibre_family_stiffness,
-    material_frame, stiffness_in_frame, symmetric_fibre_pair,
+    material_frame, stiffness_in_frame, symmetric_fibre_pair, voigt_dyad,
 };
 pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPattern};
 pub use contact::{ContactProblem, ContactReport, ContactSettings, ContactSpring, Probe, TipShape};

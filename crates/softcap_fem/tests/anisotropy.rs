@@ -121,21 +121,9 @@ fn isotropic_special_case_is_bickel_eq5_in_any_fibre_frame() {
     // E_a along an arbitrary fibre: σ_aa for a uniaxial stress state along the fibre.
     let comp = c2.try_inverse().unwrap();
     let a = fibre.into_inner();
-    let sigma = softcap_fem::nalgebra::Vector6::new(
-        a.x * a.x,
-        a.y * a.y,
-        a.z * a.z,
-        a.x * a.y,
-        a.x * a.z,
-        a.y * a.z,
-    );
+    let sigma = voigt_dyad(&a);
     let eps = comp * sigma;
-    let eaa = eps[0] * a.x * a.x
-        + eps[1] * a.y * a.y
-        + eps[2] * a.z * a.z
-        + eps[3] * a.x * a.y
-        + eps[4] * a.x * a.z
-        + eps[5] * a.y * a.z;
+    let eaa = eps.dot(&sigma);
     assert!((1.0 / eaa - 8.0e4).abs() < 1e-6 * 8.0e4, "{}", 1.0 / eaa);
 }
 
