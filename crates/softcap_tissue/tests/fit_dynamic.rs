@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
 use softcap_tissue::fit_dynamic::Elements;
 use softcap_tissue::fit_dynamic::synthetic::{
-    Synthetic, SyntheticSpec, clamped_box, synthesize, write_track_mcap,
+    Synthetic, SyntheticSpec, synthesize, write_track_mcap,
 };
 
 const E_TRUE: f64 = 5.0e5;
@@ -28,29 +28,15 @@ fn bar(frames: usize, refine: usize, noise_m: f64, seed: u64) -> Synthetic {
 
 /// [`bar`] with linear or quadratic tets in the truth.
 fn bar_of(frames: usize, refine: usize, elements: Elements, noise_m: f64, seed: u64) -> Synthetic {
-    let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
-    let tets = mesh.tets.len();
+    let spec = SyntheticSpec::small_clamped_bar();
     synthesize(&SyntheticSpec {
-        rest_mesh: mesh,
-        support_nodes: support,
-        young_pa: vec![E_TRUE; tets],
-        poisson: 0.45,
-        density_kg_m3: 1100.0,
-        damping: RayleighDamping {
-            alpha_per_s: 0.8,
-            beta_s: 1.0e-3,
-        },
-        gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
-        push_nodes: push,
-        push_force_n: Vector3::new(0.0, 0.4, -0.3),
-        push_s: 0.2,
+        young_pa: vec![E_TRUE; spec.young_pa.len()],
         frames,
-        frame_rate_hz: 30.0,
-        substeps: 4,
         refine,
         elements,
         noise_m,
         seed,
+        ..spec
     })
     .unwrap()
 }

@@ -1344,39 +1344,14 @@ fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>
 #[cfg(test)]
 mod tests {
     use nalgebra::Vector3;
-    use softcap_fem::RayleighDamping;
 
-    use super::super::Elements;
-    use super::super::synthetic::{Synthetic, SyntheticSpec, clamped_box, synthesize};
+    use super::super::synthetic::{Synthetic, SyntheticSpec, synthesize};
     use super::*;
 
-    /// A 160 × 30 × 20 mm bar (8 × 2 × 2 cells) clamped at x = 0, sagging under gravity, pushed
-    /// for 0.2 s: 20 frames at 30 Hz, no noise.
+    /// [`SyntheticSpec::small_clamped_bar`]: a 160 × 30 × 20 mm bar (8 × 2 × 2 cells) clamped at
+    /// x = 0, sagging under gravity, pushed for 0.2 s: 20 frames at 30 Hz, no noise.
     fn bar() -> Synthetic {
-        let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
-        synthesize(&SyntheticSpec {
-            young_pa: vec![5.0e5; mesh.tets.len()],
-            rest_mesh: mesh,
-            support_nodes: support,
-            poisson: 0.45,
-            density_kg_m3: 1100.0,
-            damping: RayleighDamping {
-                alpha_per_s: 0.8,
-                beta_s: 1.0e-3,
-            },
-            gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
-            push_nodes: push,
-            push_force_n: Vector3::new(0.0, 0.4, -0.3),
-            push_s: 0.2,
-            frames: 20,
-            frame_rate_hz: 30.0,
-            substeps: 4,
-            refine: 0,
-            elements: Elements::Linear,
-            noise_m: 0.0,
-            seed: 1,
-        })
-        .unwrap()
+        synthesize(&SyntheticSpec::small_clamped_bar()).unwrap()
     }
 
     fn forward(s: &Synthetic) -> Forward {

@@ -62,6 +62,39 @@ pub struct SyntheticSpec {
     pub seed: u64,
 }
 
+impl SyntheticSpec {
+    /// The small bar of the tests: a 160 × 30 × 20 mm [`clamped_box`] (8 × 2 × 2 cells), E 500 kPa
+    /// in every tet, ν 0.45, ρ 1100 kg/m³, Rayleigh α 0.8 1/s and β 1 ms, sagging under gravity
+    /// (9.80665 m/s² along −z), its far end's top nodes pushed with (0, 0.4, −0.3) N for 0.2 s;
+    /// 20 frames at 30 Hz with 4 steps each, linear tets, no refinement, no noise (seed 1).
+    /// Change what a test varies with struct update syntax (`..SyntheticSpec::small_clamped_bar()`).
+    pub fn small_clamped_bar() -> Self {
+        let (mesh, support, push) = clamped_box([0.16, 0.03, 0.02], [8, 2, 2]);
+        SyntheticSpec {
+            young_pa: vec![5.0e5; mesh.tets.len()],
+            rest_mesh: mesh,
+            support_nodes: support,
+            poisson: 0.45,
+            density_kg_m3: 1100.0,
+            damping: RayleighDamping {
+                alpha_per_s: 0.8,
+                beta_s: 1.0e-3,
+            },
+            gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
+            push_nodes: push,
+            push_force_n: Vector3::new(0.0, 0.4, -0.3),
+            push_s: 0.2,
+            frames: 20,
+            frame_rate_hz: 30.0,
+            substeps: 4,
+            refine: 0,
+            elements: super::Elements::Linear,
+            noise_m: 0.0,
+            seed: 1,
+        }
+    }
+}
+
 /// A known-truth sequence: the static shape (the template at frame 0), the noisy trajectories
 /// of the given mesh's nodes and the truth's rest shape and static shape.
 #[derive(Clone, Debug, PartialEq)]
