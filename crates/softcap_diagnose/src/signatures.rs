@@ -9,7 +9,7 @@ use crate::recording::Recording;
 use crate::residual::{Component, Residuals, component, noise_sigma_m, rest_mean};
 use crate::segment::{Location, Phase, Region, Segmentation};
 use crate::signal::crossing_time;
-use nalgebra::Vector3;
+use nalgebra::{SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Signature features separating look-alikes (see the "Use signatures" paragraph).
@@ -544,14 +544,10 @@ pub fn lateral_shift(
     seg: &Segmentation,
     res: &[Vec<Option<Vector3<f64>>>],
 ) -> (f64, f64) {
-    let nm = rec.num_markers();
-    let rest_mean = rest_mean(res, seg, nm);
-    let mut shifts = Vec::new();
-    for l in &seg.locations {
-        let near = seg.near_markers(rec, l);
+    body_fixed_consistency(rec, seg, res, |l, near, rest_mean| {
         let (mut v, mut n) = (Vector3::zeros(), 0usize);
         for k in seg.in_contact_frames(l) {
-            for &m in &near {
+            for &m in near {
                 if let Some(r) = res[k][m] {
                     let d = r - rest_mean[m];
                     let nrm = rec.normals[m];
@@ -560,17 +556,8 @@ pub fn lateral_shift(
                 }
             }
         }
-        if n >= 3 {
-            shifts.push(v / n as f64);
-        }
-    }
-    if shifts.len() < 2 {
-        return (0.0, 0.0);
-    }
-    let sum: Vector3<f64> = shifts.iter().sum();
-    let total: f64 = shifts.iter().map(|v| v.norm()).sum();
-    let consistency = if total > 0.0 { sum.norm() / total } else { 0.0 };
-    (sum.norm() / shifts.len() as f64, consistency)
+        (n >= 3).then(|| v / n as f64)
+    })
 }
 
 /// The in-plane ellipse signature of two fibre families: per location l, the probed markers'
@@ -590,11 +577,7 @@ pub fn in_plane_ellipse(
     seg: &Segmentation,
     res: &[Vec<Option<Vector3<f64>>>],
 ) -> (f64, f64) {
-    let nm = rec.num_markers();
-    let rest_mean = rest_mean(res, seg, nm);
-    let mut harmonics = Vec::new();
-    for l in &seg.locations {
-        let near = seg.near_markers(rec, l);
+    body_fixed_consistency(rec, seg, res, |l, near, rest_mean| {
         let (mut ata, mut atb, mut n) = (nalgebra::Matrix3::zeros(), Vector3::zeros(), 0usize);
         for k in seg.in_contact_frames(l) {
             let axis = rec.frames[k].axis;
@@ -602,7 +585,7 @@ pub fn in_plane_ellipse(
                 continue;
             };
             let u2 = axis.cross(&u1);
-            for &m in &near {
+            for &m in near {
                 let Some(r) = res[k][m] else { continue };
                 let arm = rec.rest_markers_m[m] - rec.frames[k].tip_m;
                 let Some(e) = (arm - axis * axis.dot(&arm)).try_normalize(1e-6) else {
@@ -615,19 +598,40 @@ pub fn in_plane_ellipse(
                 n += 1;
             }
         }
-        if n >= 6
-            && let Some(c) = ata.try_inverse().map(|inv| inv * atb)
-        {
-            harmonics.push(nalgebra::Vector2::new(c[1], c[2]));
+        if n < 6 {
+            return None;
+        }
+        let c = ata.try_inverse().map(|inv| inv * atb)?;
+        Some(nalgebra::Vector2::new(c[1], c[2]))
+    })
+}
+
+/// How body-fixed a per-location vector is, the frame shared by [`lateral_shift`] and
+/// [`in_plane_ellipse`]: h_l = `per_location(l, near, rest_mean)` from location l's probed markers
+/// ([`Segmentation::near_markers`]) and every marker's mean residual at rest, `None` to skip l.
+/// Returns (|mean_l h_l|, |Σ_l h_l| / Σ_l |h_l|), (0, 0) with fewer than 2 locations kept.
+fn body_fixed_consistency<const D: usize>(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &[Vec<Option<Vector3<f64>>>],
+    per_location: impl Fn(&Location, &[usize], &[Vector3<f64>]) -> Option<SVector<f64, D>>,
+) -> (f64, f64) {
+    let nm = rec.num_markers();
+    let rest_mean = rest_mean(res, seg, nm);
+    let mut kept = Vec::new();
+    for l in &seg.locations {
+        let near = seg.near_markers(rec, l);
+        if let Some(h) = per_location(l, &near, &rest_mean) {
+            kept.push(h);
         }
     }
-    if harmonics.len() < 2 {
+    if kept.len() < 2 {
         return (0.0, 0.0);
     }
-    let sum: nalgebra::Vector2<f64> = harmonics.iter().sum();
-    let total: f64 = harmonics.iter().map(|v| v.norm()).sum();
+    let sum: SVector<f64, D> = kept.iter().sum();
+    let total: f64 = kept.iter().map(|v| v.norm()).sum();
     let consistency = if total > 0.0 { sum.norm() / total } else { 0.0 };
-    (sum.norm() / harmonics.len() as f64, consistency)
+    (sum.norm() / kept.len() as f64, consistency)
 }
 
 #[cfg(test)]
