@@ -9,10 +9,11 @@
 //! re-simulation after the screen's candidates even when its screen (a poor proxy for the
 //! redirected field) does not qualify. Confirmation: `softcap_fem::AnisotropicModel` (thesis
 //! eq. 8.5) with the screened fibre and its mirror across the probe axis ([`mirrored_fibres`]),
-//! fibre ratio and both Poisson ratios on a grid, and two HGO fibre families at ±θ in the plane
-//! across the probe axis (`Extension::FibreFamilies`, HGO 2000 §4.2 linearized; [`family_grid`]):
-//! their orientation (φ, θ) on one ratio first, the other ratios only at the full data's choice
-//! when it is a pair of families; each fold's choice and its fibre-ratio neighbours
+//! fibre ratio and both Poisson ratios on a grid, and, when the in-plane ellipse signature is
+//! present ([`spreads_elliptically`]), two HGO fibre families at ±θ in the plane across the probe
+//! axis (`Extension::FibreFamilies`, HGO 2000 §4.2 linearized; [`family_grid`]): their
+//! orientation (φ, θ) on one ratio first, the other ratios only at the full data's choice when it
+//! is a pair of families; each fold's choice and its fibre-ratio neighbours
 //! (`ratio_neighbourhood`) re-simulated on the fit mesh refined 1 → 8
 //! (`ProbeSimulator::refined`), offered only to the folds whose choice they refine.
 
@@ -155,17 +156,20 @@ impl Hypothesis for Anisotropy {
                 }
             }
         }
-        // Two HGO fibre families at ±θ in the plane across the probe axis (HGO 2000 §4.2): their
-        // in-plane orientation φ and angle θ first, at one ratio; the ratios only around the
-        // full data's choice when it is a pair of families.
+        // Two HGO fibre families at ±θ in the plane across the probe axis (HGO 2000 §4.2), only
+        // when their signature, the in-plane ellipse, is present: their in-plane orientation φ
+        // and angle θ first, at one ratio; the ratios only around the full data's choice when it
+        // is a pair of families.
         let axis = mean_probe_axis(rec, seg);
-        grid.extend(family_grid(
-            &axis,
-            &FAMILY_ORIENTATIONS,
-            &[FAMILY_FIRST_RATIO],
-            &[None],
-            p,
-        ));
+        if spreads_elliptically(cx.signatures) {
+            grid.extend(family_grid(
+                &axis,
+                &FAMILY_ORIENTATIONS,
+                &[FAMILY_FIRST_RATIO],
+                &[None],
+                p,
+            ));
+        }
         let scale = ComplianceScale::new(true, 0.1, 10.0);
         let mut replays = Replays::run(sim, grid, Vec::new(), rec, seg, p, true)?;
         let choices = lolo_choices(&replays.forced, rec, seg, p, scale, scored, false);
