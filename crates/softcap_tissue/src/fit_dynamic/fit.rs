@@ -647,6 +647,24 @@ impl<'a> Problem<'a> {
     /// about the residuals `r0` of the last evaluation, which solved the rest shape of `q`):
     /// a coefficient moves its own segment only, so each column is one one-segment simulation
     /// (all in parallel) and is zero outside that segment's rows.
+    /// Columns 0..n of J by forward differences of step [`FD_STEP`] in the first `n`
+    /// log-parameters at `q` (residuals `r0` there), one batch of simulations
+    /// ([`Problem::eval_many`]): the Levenberg–Marquardt Jacobian's and the covariance's.
+    fn parameter_columns(&mut self, q: &[f64], r0: &[f64], n: usize, jacobian: &mut DMatrix<f64>) {
+        let points: Vec<Vec<f64>> = (0..n)
+            .map(|k| {
+                let mut p = q.to_vec();
+                p[k] += FD_STEP;
+                p
+            })
+            .collect();
+        for (k, r) in self.eval_many(&points).iter().enumerate() {
+            for i in 0..r.len() {
+                jacobian[(i, k)] = (r[i] - r0[i]) / FD_STEP;
+            }
+        }
+    }
+
     fn start_columns(&mut self, q: &[f64], r0: &[f64]) -> DMatrix<f64> {
         let (forward, modes) = match (&self.start_modes, self.fit_start) {
             (Some(m), true) => (self.forward, m),
@@ -723,18 +741,7 @@ impl LeastSquaresProblem for Problem<'_> {
         let nm = params.len() - self.num_start();
         let js = self.start_columns(&q0, &r0);
         jacobian.columns_mut(nm, js.ncols()).copy_from(&js);
-        let qs: Vec<Vec<f64>> = (0..nm)
-            .map(|j| {
-                let mut q = q0.clone();
-                q[j] += FD_STEP;
-                q
-            })
-            .collect();
-        for (j, r) in self.eval_many(&qs).iter().enumerate() {
-            for i in 0..r.len() {
-                jacobian[(i, j)] = (r[i] - r0[i]) / FD_STEP;
-            }
-        }
+        self.parameter_columns(&q0, &r0, nm, jacobian);
         r0.iter().all(|v| v.is_finite())
     }
 }
@@ -1314,18 +1321,7 @@ fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>
     problem.fit_start = false;
     let mut j = DMatrix::<f64>::zeros(m, n + js.ncols());
     j.columns_mut(n, js.ncols()).copy_from(&js);
-    let points: Vec<Vec<f64>> = (0..n)
-        .map(|k| {
-            let mut p = q.to_vec();
-            p[k] += FD_STEP;
-            p
-        })
-        .collect();
-    for (k, r) in problem.eval_many(&points).iter().enumerate() {
-        for i in 0..m {
-            j[(i, k)] = (r[i] - r0[i]) / FD_STEP;
-        }
-    }
+    problem.parameter_columns(q, &r0, n, &mut j);
     let ss: f64 = r0.iter().map(|v| v * v).sum();
     let s2 = ss / (m.saturating_sub(j.ncols())).max(1) as f64;
     let jtj = j.transpose() * &j;
