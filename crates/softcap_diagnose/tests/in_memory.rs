@@ -514,7 +514,7 @@ fn slow_creep(g: f64, tau_s: f64) -> Vec<Effect> {
 /// Re-recorded under it, the creep truth is named `viscoelasticity` and the plastic truth
 /// `plasticity`. With `plasticity::PERMANENT_PERSISTENCE` at 0.9 the first protocol named
 /// the creep `plasticity`. ≈ 220 CPU-s (three diagnoses with Prony re-simulations):
-/// `cargo test --workspace --test in_memory -- --ignored slow_creep_and_plasticity_decided_by_longer_holds`.
+/// `cargo test --workspace --test diagnose_tests -- --ignored in_memory::slow_creep_and_plasticity_decided_by_longer_holds`.
 #[test]
 #[ignore = "≈ 220 CPU-s: three diagnoses with the Prony grid re-simulations"]
 fn slow_creep_and_plasticity_decided_by_longer_holds() {

@@ -3,7 +3,7 @@
 //! `truth/` (which only tests read). The other suite scenarios' capture checks run in their
 //! diagnose_suite case (`common::assert_suite_capture`), so each is synthesized once per run.
 
-mod common;
+use crate::common;
 
 use common::{Accuracy, accuracy, assert_geometry_recovered};
 use softcap_capture::{CaptureSettings, Session, capture};

@@ -1,7 +1,7 @@
 //! `softcap tissue fit` on a virtual session with a known two-layer neo-Hookean truth:
 //! material.mcap round trip, accuracy against the homogeneous baseline, determinism, bad input.
 
-mod common;
+use crate::common;
 
 use common::{SessionSpec, write_session};
 use softcap_fem::nalgebra::Vector6;

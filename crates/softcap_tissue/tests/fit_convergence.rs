@@ -3,7 +3,7 @@
 //! a projected-gradient tolerance ([`ExampleFitSettings::gradient_tolerance`]) and the same
 //! example with every observed marker coordinate moved by one ulp end at the same parameters.
 
-mod common;
+use crate::common;
 
 use common::in_memory::{three_layer_setup, three_layer_truth, truth_examples};
 use softcap_fem::LinearParams;

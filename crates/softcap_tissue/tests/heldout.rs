@@ -3,7 +3,7 @@
 //! contact (bickel2009 §3.4) to 0.8 N at a fifth location (issue 7: "a held-out probe — a location
 //! and tip shape not in training — is predicted better than by the homogeneous model").
 
-mod common;
+use crate::common;
 
 use common::in_memory::{prepared, three_layer_setup, three_layer_truth, truth_examples};
 use softcap_fem::nalgebra::Vector3;

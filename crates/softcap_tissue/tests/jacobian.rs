@@ -5,7 +5,7 @@
 //! material at a captured example's equilibrium agrees with central finite differences of the
 //! simulated markers.
 
-mod common;
+use crate::common;
 
 use common::{SessionSpec, write_session};
 use softcap_fem::{CorotationalModel, EquilibriumSettings, LinearParams, StiffnessKind};

@@ -3,7 +3,7 @@
 //! processes writing one output at once leave one complete file. `make test` runs a few trials
 //! per command; `scripts/kill-test` runs 50 (`SOFTCAP_KILL_TRIALS`).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -2,7 +2,7 @@
 //! truth (stable neo-Hookean layers E 60 / 30 / 15 kPa, ν 0.45). Figures are printed and copied
 //! into docs/tissue.md.
 
-mod common;
+use crate::common;
 
 use common::in_memory::{prepared, three_layer_setup, three_layer_truth, truth_examples};
 use rand::SeedableRng;

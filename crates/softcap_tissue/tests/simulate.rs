@@ -1,7 +1,7 @@
 //! `softcap tissue simulate`: a fitted material synthesizes a sphere probe by incremental
 //! loading with contact (bickel2009 §3.4); sim.mcap carries markers, mesh and force per step.
 
-mod common;
+use crate::common;
 
 use common::{SessionSpec, quiet_fit, write_session};
 use softcap_mcap::{Recording, topics};
