@@ -720,7 +720,7 @@ fn determines_constant_modes(sys: &NormalSystem<'_>) -> bool {
 /// Algorithm 5.3), from Δs = 0 to ‖M Δs + g‖ ≤ `tolerance` ‖g‖ and the same in the P⁻¹-norm,
 /// or `max_iterations` (module docs). The preconditioner is the Woodbury solve over the soft
 /// rows s ([`soft_rows`]), symmetric positive definite whatever the rows:
-/// - when the soft rows determine the six constant modes ([`determines_constant_modes`]),
+/// - when the soft rows determine the six constant modes ([`CONSTANT_MODE_RATIO`]),
 ///   P = A₀ + V_sᵀ W_s V_s by the singular lemma ([`WoodburySolver::new`]):
 ///   P⁻¹M = I + P⁻¹V_rᵀ W_r V_r, the identity plus a positive part of rank ≤ r from the
 ///   remaining rows r (small);
