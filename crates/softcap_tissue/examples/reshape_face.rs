@@ -36,7 +36,7 @@ use rand_chacha::ChaCha8Rng;
 use softcap_core::{Rbf, RbfSettings, ScatteredData};
 use softcap_fem::nalgebra::Vector3;
 use softcap_mesh::{LayerSettings, LinearShell, ShellSettings, TriMesh, extrude_layer};
-use softcap_tissue::reshape::cv::{choose, standard_error};
+use softcap_tissue::reshape::cv::{choose, fold_assignment, standard_error};
 use softcap_tissue::reshape::{
     Attachment, CvRule, IcpMarker, Landmark, MaterialPoint, ReshapeProblem, ReshapeSettings,
     Smoothness, reshape,
@@ -267,6 +267,44 @@ fn breakdown(x: &[Vector3<f64>], truth: &TriMesh, landmarks: &[usize]) -> String
     )
 }
 
+/// How far cross-validation extrapolates (template geometry only, no truth): the distance from
+/// each held-out landmark to the nearest kept one, next to the distance from each region vertex
+/// to the nearest landmark (what the reshape extrapolates over).
+fn fold_geometry(v: &[Vector3<f64>], landmarks: &[usize], settings: &ReshapeSettings) -> String {
+    let cv = &settings.cross_validation;
+    let at: Vec<Vector3<f64>> = landmarks.iter().map(|&l| v[l]).collect();
+    let fold = fold_assignment(&at, cv.folds, cv.split);
+    let nearest = |p: &Vector3<f64>, keep: &dyn Fn(usize) -> bool| {
+        (0..at.len())
+            .filter(|&j| keep(j))
+            .map(|j| (p - at[j]).norm() * 1e3)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let quantiles = |mut d: Vec<f64>| {
+        d.sort_by(f64::total_cmp);
+        let q = |f: f64| d[(f * (d.len() - 1) as f64).round() as usize];
+        format!(
+            "median {:.1} / p95 {:.1} / max {:.1} mm",
+            q(0.5),
+            q(0.95),
+            q(1.0)
+        )
+    };
+    let held: Vec<f64> = (0..at.len())
+        .map(|i| nearest(&at[i], &|j| fold[j] != fold[i]))
+        .collect();
+    let vertices: Vec<f64> = v.iter().map(|p| nearest(p, &|_| true)).collect();
+    let sizes: Vec<usize> = (0..cv.folds)
+        .map(|f| fold.iter().filter(|&&g| g == f).count())
+        .collect();
+    format!(
+        "cross-validation folds ({:?}): sizes {sizes:?}; held-out landmark to nearest kept {}; region vertex to nearest landmark {}",
+        cv.split,
+        quantiles(held),
+        quantiles(vertices)
+    )
+}
+
 /// (mean, p95, max) in mm of the per-vertex errors at the non-landmark vertices.
 fn errors(x: &[Vector3<f64>], truth: &[Vector3<f64>], skip: &[usize]) -> (f64, f64, f64) {
     let mut e: Vec<f64> = (0..x.len())
@@ -315,6 +353,12 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
             ..ReshapeSettings::default()
         },
     };
+    if settings.smoothness == Smoothness::CrossValidated {
+        eprintln!(
+            "{}",
+            fold_geometry(&surface.vertices, &landmarks, &settings)
+        );
+    }
     for id in ids {
         let full = read_face(&dir.join(format!("identities/identity{id:03}.obj")))?;
         let truth: Vec<Vector3<f64>> = original.iter().map(|&v| full.vertices[v]).collect();

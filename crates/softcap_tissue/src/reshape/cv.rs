@@ -5,7 +5,8 @@
 //! saito-barbic fix α (eq. 3) by hand. α̂ trades how closely the reshaped surface follows the
 //! markers against how smooth the plastic strain is; the right trade depends on the object (a
 //! bulky organ vs a thin layer) and on how dense and noisy the markers are. With
-//! `smoothness = "cv"` the ICP markers are split into k folds (marker i in fold i mod k); for
+//! `smoothness = "cv"` the ICP markers are split into k folds (marker i in fold i mod k, or
+//! k contiguous blocks with `split = "spatial-blocks"`, [`FoldSplit`]); for
 //! every α̂ of a log grid each fold is held out in turn, the reshape is run with the other
 //! markers, and the held-out markers' distances to the reshaped ICP surface are collected. The
 //! score of α̂ is the root mean square of those distances over all markers (each is held out once);
@@ -19,6 +20,7 @@
 //! stages. Only the ICP markers are held out: landmarks and attachments carry correspondence,
 //! few of them each, and every fold needs them.
 
+use nalgebra::Vector3;
 use serde::de::{self, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -94,6 +96,8 @@ pub struct CrossValidationSettings {
     pub hold_out: HoldOut,
     /// How the α̂ is picked from the scores.
     pub rule: CvRule,
+    /// How the held-out points are split into folds.
+    pub split: FoldSplit,
 }
 
 impl Default for CrossValidationSettings {
@@ -103,8 +107,25 @@ impl Default for CrossValidationSettings {
             grid: vec![3e-5, 3e-4, 3e-3, 3e-2, 0.3, 3.0],
             hold_out: HoldOut::IcpMarkers,
             rule: CvRule::Minimum,
+            split: FoldSplit::Interleaved,
         }
     }
+}
+
+/// How cross-validation splits the held-out points into k folds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FoldSplit {
+    /// Point i in fold i mod k: a held-out point keeps kept neighbours on every side, so the
+    /// score measures interpolation between the kept points.
+    Interleaved,
+    /// Spatially blocked folds (Roberts et al. 2017, *Ecography* 40:913, "block
+    /// cross-validation"): the points' positions (template positions of attachments and
+    /// landmarks, marker positions) are grouped into k contiguous clusters by k-means
+    /// ([`spatial_blocks`]) and fold j is cluster j. A held-out point's near neighbours are held
+    /// out with it, so the score measures extrapolation away from the kept points — as at a free
+    /// boundary or a gap between landmarks — rather than interpolation.
+    SpatialBlocks,
 }
 
 /// How cross-validation picks α̂ from the scores of the grid.
@@ -158,18 +179,90 @@ pub struct CrossValidationReport {
     pub chosen: f64,
 }
 
-/// Marker i of `markers` is in fold i mod `folds`: (the others, fold `fold`).
+/// Marker i of `markers` is in fold `assignment[i]`: (the others, fold `fold`).
 pub fn split_fold(
     markers: &[IcpMarker],
-    folds: usize,
+    assignment: &[usize],
     fold: usize,
 ) -> (Vec<IcpMarker>, Vec<IcpMarker>) {
     let (held, kept): (Vec<_>, Vec<_>) = markers
         .iter()
-        .enumerate()
-        .partition(|(i, _)| i % folds == fold);
-    let strip = |v: Vec<(usize, &IcpMarker)>| v.into_iter().map(|(_, m)| m.clone()).collect();
+        .zip(assignment)
+        .partition(|(_, f)| **f == fold);
+    let strip = |v: Vec<(&IcpMarker, &usize)>| v.into_iter().map(|(m, _)| m.clone()).collect();
     (strip(kept), strip(held))
+}
+
+/// The fold of each point (0 … k − 1) under `split`; `positions` are the points' positions.
+pub fn fold_assignment(positions: &[Vector3<f64>], folds: usize, split: FoldSplit) -> Vec<usize> {
+    match split {
+        FoldSplit::Interleaved => (0..positions.len()).map(|i| i % folds.max(1)).collect(),
+        FoldSplit::SpatialBlocks => spatial_blocks(positions, folds),
+    }
+}
+
+/// k contiguous blocks of `points` by k-means (Lloyd's algorithm): the cluster of each point.
+///
+/// Deterministic: the seeds are farthest-point samples (the point farthest from the centroid,
+/// then each next the point farthest from the seeds so far; ties to the lower index); Lloyd's
+/// iterations (assign each point to its nearest centre, ties to the lower cluster; move each
+/// centre to its cluster's mean) run until no assignment changes (at most 100). A cluster left
+/// empty is re-seeded at the point farthest from its own centre. At the fixed point every point
+/// is nearer its own cluster's mean than any other's: the clusters are the cells of a Voronoi
+/// partition, contiguous in space. `k` is clamped to 1 … the number of points.
+pub fn spatial_blocks(points: &[Vector3<f64>], k: usize) -> Vec<usize> {
+    let n = points.len();
+    let k = k.clamp(1, n.max(1));
+    if n == 0 {
+        return Vec::new();
+    }
+    let centroid = points.iter().sum::<Vector3<f64>>() / n as f64;
+    let farthest_from = |d: &[f64]| {
+        (0..n)
+            .max_by(|&a, &b| d[a].total_cmp(&d[b]).then(b.cmp(&a)))
+            .unwrap_or(0)
+    };
+    let mut d: Vec<f64> = points.iter().map(|p| (p - centroid).norm()).collect();
+    let mut centres = Vec::with_capacity(k);
+    while centres.len() < k {
+        let next = farthest_from(&d);
+        centres.push(points[next]);
+        for (di, p) in d.iter_mut().zip(points) {
+            *di = di.min((p - points[next]).norm());
+        }
+        d[next] = -1.0;
+    }
+    let nearest = |p: &Vector3<f64>, centres: &[Vector3<f64>]| {
+        (0..centres.len())
+            .min_by(|&a, &b| {
+                (p - centres[a])
+                    .norm_squared()
+                    .total_cmp(&(p - centres[b]).norm_squared())
+                    .then(a.cmp(&b))
+            })
+            .unwrap_or(0)
+    };
+    let mut cluster: Vec<usize> = points.iter().map(|p| nearest(p, &centres)).collect();
+    for _ in 0..100 {
+        for (j, centre) in centres.iter_mut().enumerate() {
+            let members: Vec<&Vector3<f64>> = (0..n)
+                .filter(|&i| cluster[i] == j)
+                .map(|i| &points[i])
+                .collect();
+            if members.is_empty() {
+                let d: Vec<f64> = points.iter().map(|p| (p - *centre).norm()).collect();
+                *centre = points[farthest_from(&d)];
+            } else {
+                *centre = members.iter().copied().sum::<Vector3<f64>>() / members.len() as f64;
+            }
+        }
+        let next: Vec<usize> = points.iter().map(|p| nearest(p, &centres)).collect();
+        if next == cluster {
+            break;
+        }
+        cluster = next;
+    }
+    cluster
 }
 
 /// Checks the cross-validation settings against `markers` ICP markers.
@@ -211,6 +304,8 @@ pub(super) fn cross_validated(
     check(settings, all.len())?;
     let folds = settings.folds;
     let grid = settings.grid.clone();
+    let positions: Vec<Vector3<f64>> = all.iter().map(|m| m.position_m).collect();
+    let assignment = fold_assignment(&positions, folds, settings.split);
     let schedule = solver.schedule();
     let (icp, before): (Vec<_>, Vec<_>) = schedule.into_iter().partition(|s| s.icp);
     let mut starts = Vec::with_capacity(grid.len());
@@ -228,7 +323,7 @@ pub(super) fn cross_validated(
         let mut fold_rms_m = Vec::with_capacity(folds);
         let mut iterations = 0;
         for fold in 0..folds {
-            let (kept, held) = split_fold(&all, folds, fold);
+            let (kept, held) = split_fold(&all, &assignment, fold);
             solver.set_icp_markers(kept);
             let mut trial = state.clone();
             let label = format!("{label} fold {}/{folds}", fold + 1);
@@ -267,8 +362,8 @@ pub(super) fn cross_validated(
     Ok(solver.finish(state, stages, history, Some(report)))
 }
 
-/// [`HoldOut::Correspondence`]: the attachments and landmarks (in that order, point i in fold
-/// i mod k) are held out in turn; every fold runs the whole reshape without them, the score is
+/// [`HoldOut::Correspondence`]: the attachments and landmarks (in that order, split by
+/// [`FoldSplit`] on their template positions) are held out in turn; every fold runs the whole reshape without them, the score is
 /// the RMS distance of the held-out template points from their targets.
 fn correspondence_cross_validated(
     solver: Solver<'_>,
@@ -279,6 +374,11 @@ fn correspondence_cross_validated(
     let (attachments, landmarks) = (problem.attachments.len(), problem.landmarks.len());
     let points = attachments + landmarks;
     check(cv, points)?;
+    let rest = &problem.template.vertices;
+    let positions: Vec<Vector3<f64>> = (problem.attachments.iter().map(|a| rest[a.node]))
+        .chain(problem.landmarks.iter().map(|l| l.point.at(rest)))
+        .collect();
+    let assignment = fold_assignment(&positions, cv.folds, cv.split);
     let mut scores = Vec::with_capacity(cv.grid.len());
     for &smoothness in &cv.grid {
         let settings = super::solve::ReshapeSettings {
@@ -289,7 +389,7 @@ fn correspondence_cross_validated(
         let mut fold_rms_m = Vec::with_capacity(cv.folds);
         let mut iterations = 0;
         for fold in 0..cv.folds {
-            let held = |i: usize| i % cv.folds == fold;
+            let held = |i: usize| assignment[i] == fold;
             let mut train = problem.clone();
             train.attachments = keep(&problem.attachments, |i| !held(i));
             train.landmarks = keep(&problem.landmarks, |i| !held(attachments + i));
@@ -441,6 +541,74 @@ mod tests {
         assert!(choose(&[score(1.0, &[f64::NAN; 2])], CvRule::Minimum).is_err());
     }
 
+    /// Spatial blocks on four well-separated groups of points (listed interleaved, so index
+    /// folds would mix them): each block is one group, every point is in exactly one block, and
+    /// the split does not depend on anything but the positions (same call, same answer).
+    #[test]
+    fn spatial_blocks_are_contiguous_deterministic_and_cover_every_point_once() {
+        let corners = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(1.0, 1.0, 0.2),
+        ];
+        let points: Vec<Vector3<f64>> = (0..40)
+            .map(|i| {
+                let u = |k: usize| (((3 * i + k) as f64 * 12.9898).sin() * 43758.5453).fract();
+                corners[i % 4] + Vector3::new(u(0), u(1), u(2)) * 0.1
+            })
+            .collect();
+        let blocks = fold_assignment(&points, 4, FoldSplit::SpatialBlocks);
+        assert_eq!(blocks.len(), points.len());
+        assert_eq!(blocks, spatial_blocks(&points, 4));
+        for i in 0..points.len() {
+            assert!(blocks[i] < 4);
+            // Same group ⇔ same block.
+            for j in 0..points.len() {
+                assert_eq!(blocks[i] == blocks[j], i % 4 == j % 4, "points {i} and {j}");
+            }
+        }
+        // Contiguity on points without obvious groups (a 7 × 6 grid): every point is nearer
+        // its own block's mean than any other block's (the blocks are Voronoi cells), and
+        // every block holds points.
+        let grid: Vec<Vector3<f64>> = (0..42)
+            .map(|i| Vector3::new((i % 7) as f64, (i / 7) as f64 * 1.1, 0.0))
+            .collect();
+        let blocks = spatial_blocks(&grid, 4);
+        let means: Vec<Vector3<f64>> = (0..4)
+            .map(|j| {
+                let m: Vec<&Vector3<f64>> = (0..42)
+                    .filter(|&i| blocks[i] == j)
+                    .map(|i| &grid[i])
+                    .collect();
+                assert!(!m.is_empty(), "block {j} is empty");
+                m.iter().copied().sum::<Vector3<f64>>() / m.len() as f64
+            })
+            .collect();
+        for (p, &b) in grid.iter().zip(&blocks) {
+            for m in &means {
+                assert!((p - means[b]).norm() <= (p - m).norm() + 1e-12);
+            }
+        }
+        let interleaved = fold_assignment(&grid, 4, FoldSplit::Interleaved);
+        assert_eq!(interleaved[..5], [0, 1, 2, 3, 0]);
+        // Degenerate sizes: more blocks than points, no points.
+        assert_eq!(spatial_blocks(&grid[..2], 4).len(), 2);
+        assert!(spatial_blocks(&[], 3).is_empty());
+    }
+
+    #[test]
+    fn split_reads_from_toml() {
+        let s: ReshapeSettings =
+            toml::from_str("smoothness = \"cv\"\n[cross_validation]\nsplit = \"spatial-blocks\"\n")
+                .unwrap();
+        assert_eq!(s.cross_validation.split, FoldSplit::SpatialBlocks);
+        assert_eq!(
+            CrossValidationSettings::default().split,
+            FoldSplit::Interleaved
+        );
+    }
+
     #[test]
     fn folds_partition_the_markers() {
         let markers: Vec<IcpMarker> = (0..11)
@@ -451,7 +619,9 @@ mod tests {
             .collect();
         let mut seen = Vec::new();
         for fold in 0..3 {
-            let (kept, held) = split_fold(&markers, 3, fold);
+            let assignment =
+                fold_assignment(&vec![Vector3::zeros(); 11], 3, FoldSplit::Interleaved);
+            let (kept, held) = split_fold(&markers, &assignment, fold);
             assert_eq!(kept.len() + held.len(), 11);
             assert!(held.iter().all(|m| !kept.contains(m)));
             seen.extend(held.into_iter().map(|m| m.id));

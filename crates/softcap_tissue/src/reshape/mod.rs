@@ -29,8 +29,8 @@ pub mod step;
 pub mod target;
 
 pub use cv::{
-    CrossValidationReport, CrossValidationScore, CrossValidationSettings, CvRule, HoldOut,
-    Smoothness,
+    CrossValidationReport, CrossValidationScore, CrossValidationSettings, CvRule, FoldSplit,
+    HoldOut, Smoothness,
 };
 pub use equilibrium::{Equilibrium, EquilibriumOutcome, EquilibriumSettings, EquilibriumStatus};
 pub use problem::{
