@@ -8,7 +8,8 @@
 //! ```
 //!
 //! `OUT/region.json` (written when OUT is given) holds the region — ICT vertex index of each
-//! region vertex, triangles, landmark vertices — for the libigl peers.
+//! region vertex, triangles, landmark vertices — for the libigl peers; `OUT/reshape_NNN.csv` the
+//! reshaped region vertices of identity NNN.
 //!
 //! The face region (nose, mouth, cheeks: |x| < 5 cm, −7 cm < y < 2 cm of the ICT frame, its
 //! largest connected piece) is extruded into a 3 mm layer of one tet through the thickness
@@ -305,6 +306,11 @@ fn fold_geometry(v: &[Vector3<f64>], landmarks: &[usize], settings: &ReshapeSett
     )
 }
 
+/// `OUT/reshape_NNN.csv`: the reshaped region vertices of identity NNN (per-vertex comparisons).
+fn out_dir_file(out: &std::path::Path, id: usize) -> PathBuf {
+    out.join(format!("reshape_{id:03}.csv"))
+}
+
 /// (mean, p95, max) in mm of the per-vertex errors at the non-landmark vertices.
 fn errors(x: &[Vector3<f64>], truth: &[Vector3<f64>], skip: &[usize]) -> (f64, f64, f64) {
     let mut e: Vec<f64> = (0..x.len())
@@ -324,8 +330,9 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
     let neutral = read_face(&dir.join("neutral.obj"))?;
     let (surface, original, volume) = layer(&neutral)?;
     let landmarks = farthest_points(&surface.vertices, LANDMARKS);
-    if let Some(out) = out {
-        std::fs::create_dir_all(&out)?;
+    let out_dir = out;
+    if let Some(out) = &out_dir {
+        std::fs::create_dir_all(out)?;
         let region = format!(
             "{{\"ict_vertex\": {original:?}, \"triangles\": {:?}, \"landmarks\": {landmarks:?}}}\n",
             surface.triangles
@@ -453,6 +460,13 @@ fn run(dir: &std::path::Path, out: Option<PathBuf>) -> Result<(), Box<dyn std::e
             eprintln!("  identity {id:03} {s} {i}: max error {:.3} mm", e * 1e3)
         })?;
         let n = surface.vertices.len();
+        if let Some(dir) = &out_dir {
+            let mut csv = String::from("vertex,x_m,y_m,z_m\n");
+            for (i, p) in out.positions_m[..n].iter().enumerate() {
+                csv += &format!("{i},{:.9},{:.9},{:.9}\n", p.x, p.y, p.z);
+            }
+            std::fs::write(out_dir_file(dir, id), csv)?;
+        }
         row(
             "plastic-strain reshape",
             &out.positions_m[..n],
