@@ -13,8 +13,9 @@
 //! over its rest shape). Before criterion starts, the truth and one evaluation are timed (wall
 //! and CPU-s, Newton updates and factorizations per step). Environment:
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_ONCE=1` runs the whole fit once with the stage defaults instead
-//! and prints wall, CPU-s, evaluations and where the time went (forward simulation,
-//! factorization, rest shape, modal warm start; `DynamicFit::timing`);
+//! and prints wall, CPU-s, evaluations (those of the first segments of a fit coarse to fine in
+//! time apart), rest-shape solves and where the time went (forward simulation, factorization,
+//! rest shape, modal warm start; `DynamicFit::timing`);
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE=1` also times the evaluation with the system matrix
 //! assembled at every Newton iteration (`ForwardSettings::residual_only` off) and with a
 //! factorization at every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the
@@ -140,6 +141,16 @@ fn full_fit(truth: &Synthetic) {
         t.newton_iterations as f64 / t.steps.max(1) as f64,
         t.factorizations,
         t.factorizations as f64 / t.steps.max(1) as f64
+    );
+    if let Some(e) = &fit.early {
+        eprintln!(
+            "  coarse to fine in time: {} simulations of the first {} segments first (E {:.4e} Pa, α {:.3} 1/s, β {:.3e} s)",
+            e.simulations, e.segments, e.young_pa[0], e.damping.alpha_per_s, e.damping.beta_s
+        );
+    }
+    eprintln!(
+        "  {} rest-shape solves, {} Newton iterations; objective history {:?}",
+        t.rest_shape_solves, t.rest_shape_iterations, fit.history
     );
     eprintln!(
         "  E {:.4e} Pa ({:+.1} %), α {:.3} 1/s ({:+.1} %), β {:.3e} s ({:+.1} %); trajectory RMS {:.3} mm (warm start {:.3} mm)",

@@ -515,3 +515,55 @@ fn start_states_against_the_truth_and_the_per_segment_choice() {
         assert!(rms(&chosen[k].1, &expected.1) < 1e-12, "segment {k}");
     }
 }
+
+/// Coarse to fine in time (`early_segments`): the parameters fitted on the first two of five
+/// segments, then polished on all five with a few Levenberg–Marquardt iterations, are those of
+/// the fit on all five segments from the warm start (E within 1 %, α and β within 10 %), with
+/// fewer simulations of all segments; the truth is recovered as by the plain fit.
+#[test]
+fn coarse_to_fine_in_time_reaches_the_all_segment_fit() {
+    let truth = bar(52, 0, 3.0e-4, 13);
+    let fit = |early_segments: usize| {
+        let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
+            segment_frames: 9,
+            early_segments,
+            progress: false,
+            ..Default::default()
+        };
+        softcap_tissue::fit_dynamic::fit_sequence(
+            &truth.template,
+            &truth.sequence,
+            &settings,
+            &softcap_tissue::Progress::hidden(),
+        )
+        .unwrap()
+    };
+    let (all, staged) = (fit(0), fit(2));
+    let show = |name: &str, f: &softcap_tissue::fit_dynamic::DynamicFit| {
+        eprintln!(
+            "{name}: E {:.4e}, alpha {:.4}, beta {:.4e}, RMS {:.4} mm, {} simulations of all {} segments (+ {:?} of the first), status {}",
+            f.young_pa[0],
+            f.damping.alpha_per_s,
+            f.damping.beta_s,
+            1e3 * f.rms_m,
+            f.simulations,
+            f.segments,
+            f.early.as_ref().map(|e| e.simulations),
+            f.status
+        );
+    };
+    show("all segments", &all);
+    show("coarse to fine in time", &staged);
+    assert!(all.segments >= 4, "{} segments", all.segments);
+    assert!(all.early.is_none());
+    let early = staged.early.as_ref().expect("the early stage ran");
+    assert_eq!(early.segments, 2);
+    assert!(early.simulations > 0);
+    assert!(staged.simulations < all.simulations);
+    let rel = |a: f64, b: f64| (a / b - 1.0).abs();
+    assert!(rel(staged.young_pa[0], all.young_pa[0]) < 0.01);
+    assert!(rel(staged.damping.alpha_per_s, all.damping.alpha_per_s) < 0.10);
+    assert!(rel(staged.damping.beta_s, all.damping.beta_s) < 0.10);
+    assert!(rel(staged.young_pa[0], E_TRUE) < 0.05);
+    assert!(staged.rms_m <= 1.01 * all.rms_m);
+}

@@ -113,6 +113,13 @@ pub struct FitDynamicSettings {
     pub coarse_to_fine: bool,
     /// Forward simulations of the polish on the refined mesh at most (coarse to fine).
     pub fine_max_simulations: usize,
+    /// Coarse to fine in time: the parameters are first fitted on the first this many segments
+    /// of every free-motion run alone, to a looser tolerance, and the fit on all segments
+    /// starts from there (a few segments fix E, and the damping of a motion, nearly as well as
+    /// all: the iterations on all segments are fewer). Only when those are at most half of the
+    /// segments, with the Levenberg–Marquardt p-step, the rest shape per evaluation and the
+    /// tracked start states. 0: all segments from the warm start.
+    pub early_segments: usize,
     /// Frame intervals per segment at most.
     pub segment_frames: usize,
     /// Shorter free runs are not used.
@@ -153,6 +160,7 @@ impl Default for FitDynamicSettings {
             elements: Elements::Linear,
             coarse_to_fine: true,
             fine_max_simulations: 24,
+            early_segments: 2,
             segment_frames: 30,
             min_segment_frames: 4,
             forward: ForwardSettings::default(),
@@ -290,7 +298,26 @@ pub struct DynamicFit {
     pub fit_mesh_size: (usize, usize),
     /// The segments simulated with the fitted parameters (the given mesh's nodes only).
     pub runs: Vec<super::forward::SegmentRun>,
-    /// Where the fit's time went (both levels of a coarse-to-fine fit).
+    /// Where the fit's time went (both levels of a coarse-to-fine fit, both stages of a
+    /// coarse-to-fine fit in time).
+    pub timing: FitTiming,
+    /// Coarse to fine in time ([`FitDynamicSettings::early_segments`]): the fit on the first
+    /// segments the fit on all of them started from; `None` when it did not run.
+    pub early: Option<EarlyFit>,
+}
+
+/// The first stage of a fit coarse to fine in time: the p-step on the first segments only.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EarlyFit {
+    /// Segments fitted (the first ones of every free-motion run).
+    pub segments: usize,
+    /// Forward simulations of those segments (not counted in [`DynamicFit::simulations`]).
+    pub simulations: usize,
+    /// E per control point fitted on them, Pa.
+    pub young_pa: Vec<f64>,
+    /// Damping fitted on them.
+    pub damping: RayleighDamping,
+    /// Where its time went (included in [`DynamicFit::timing`]).
     pub timing: FitTiming,
 }
 
@@ -420,6 +447,15 @@ const FD_STEP: f64 = 1e-4;
 /// Bound of the start-state coefficients (mm at a mode's peak).
 const START_BOUND: f64 = 50.0;
 
+/// Convergence of the Levenberg–Marquardt p-step ([`lm_p_step`]): relative decrease of F, and
+/// step relative to ‖p‖.
+const LM_TOLERANCES: (f64, f64) = (1e-8, 1e-6);
+
+/// The same for the fit on the early segments of a fit coarse to fine in time: its optimum is
+/// only the starting point of the fit on all segments (F's relative change at one standard
+/// deviation of the parameters is about 1/m, m ≈ 3·10⁵ residuals in two segments of the 2k bar).
+const EARLY_LM_TOLERANCES: (f64, f64) = (1e-5, 1e-4);
+
 impl<'a> Problem<'a> {
     /// The problem of `forward` with `weights` (per element, of each control point) and ν; the
     /// rest shape held until one is set (`rest`, or `static_m` to solve it per evaluation).
@@ -488,7 +524,11 @@ impl<'a> Problem<'a> {
             self.rest_cache.push(hit.clone());
             return Ok((hit.1, hit.2));
         }
-        let initial = (!self.rest.is_empty()).then_some(self.rest.as_slice());
+        let guess = self.rest_guess(key, static_m);
+        let initial = match &guess {
+            Some(x) => Some(x.as_slice()),
+            None => (!self.rest.is_empty()).then_some(self.rest.as_slice()),
+        };
         let (x, status) = rest_shape(self.forward, &self.params(q), static_m, initial)?;
         if self.rest_cache.len() == REST_CACHE {
             self.rest_cache.remove(0);
@@ -496,6 +536,32 @@ impl<'a> Problem<'a> {
         self.rest_cache
             .push((key.to_vec(), x.clone(), status.clone()));
         Ok((x, status))
+    }
+
+    /// Newton's starting X for the moduli of log-parameters `key` (eq. 7): the kept rest shape
+    /// of the nearest moduli (largest log difference), its sag X − x_s scaled by E_kept / E
+    /// (the geometric mean of the ratios over the control points): under a uniform change of
+    /// the moduli the linear sag K⁻¹ M g scales so exactly, and Newton is left with the
+    /// nonlinear remainder. `None` when nothing is kept.
+    fn rest_guess(&self, key: &[f64], static_m: &[Vector3<f64>]) -> Option<Vec<Vector3<f64>>> {
+        let distance = |k: &[f64]| {
+            k.iter()
+                .zip(key)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        let (k, x, _) = self
+            .rest_cache
+            .iter()
+            .min_by(|a, b| distance(&a.0).total_cmp(&distance(&b.0)))?;
+        let shift = key.iter().zip(k).map(|(a, b)| a - b).sum::<f64>() / key.len().max(1) as f64;
+        let factor = (-shift).exp();
+        Some(
+            x.iter()
+                .zip(static_m)
+                .map(|(x, s)| s + (x - s) * factor)
+                .collect(),
+        )
     }
 
     /// The runs of every segment at log-parameters `q` over the rest shape `rest` from the
@@ -795,6 +861,7 @@ fn rest_shape_untimed(
         initial,
         &RestShapeSettings::default(),
     )?;
+    forward.record_rest_shape(rest.report.iterations);
     let status = format!(
         "{:?} after {} Newton iterations, residual {:.2e} of {:.2e} N",
         rest.report.status,
@@ -819,8 +886,8 @@ fn rest_shape_untimed(
 
 /// Fixed-point sag inversion X ← X + (x_s − sag(X)): each pass one static solve of the body over
 /// X under gravity, the support held at x_s, until the sagged shape is x_s (mean node distance
-/// ≤ 10⁻⁹ of the body's size). Returns X and the passes; `None` when a static solve fails or 50
-/// passes do not get there.
+/// ≤ 10⁻⁹ of the body's size). Returns X and the passes; `None` when a static solve fails, three
+/// passes in a row miss by more than the least miss so far, or 50 passes do not get there.
 fn sag_inversion(
     forward: &Forward,
     params: &DynamicParams,
@@ -840,6 +907,7 @@ fn sag_inversion(
         bc.fix_node(i, static_m[i]);
         rest[i] = static_m[i];
     }
+    let mut least = (f64::INFINITY, 0);
     for pass in 1..=50 {
         let mut sagged = rest.clone();
         let converged = match forward.model(params, &rest).ok()? {
@@ -871,6 +939,13 @@ fn sag_inversion(
             / static_m.len() as f64;
         if miss <= tolerance {
             return Some((rest, pass));
+        }
+        // A contraction lowers the miss at every pass; three passes without a new least miss
+        // mean it diverges (a material too soft for any rest shape to sag into x_s).
+        if miss < least.0 {
+            least = (miss, pass);
+        } else if pass >= least.1 + 3 {
+            return None;
         }
         for ((r, s), o) in rest.iter_mut().zip(&sagged).zip(static_m) {
             *r += o - s;
@@ -945,10 +1020,10 @@ fn fit_level(
         &fit_mesh,
         &fit_seq,
         segments.clone(),
-        observed,
+        observed.clone(),
         &settings.forward,
     )?;
-    if let Some(elements) = quadratic {
+    if let Some(elements) = quadratic.clone() {
         forward = forward.with_quadratic(elements);
     }
     let fine_damping = coarse.is_some() && settings.elements == Elements::Quadratic;
@@ -1044,6 +1119,62 @@ fn fit_level(
         Some(_) => (1, settings.fine_max_simulations),
         None => (settings.outer_iterations.max(1), settings.max_simulations),
     };
+    // Coarse to fine in time: the p-step on the first `early_segments` segments, then on all of
+    // them from there.
+    let early_set = early_segment_set(&segments, settings.early_segments);
+    let mut early = None;
+    if coarse.is_none()
+        && !early_set.is_empty()
+        && segments.len() >= 2 * early_set.len()
+        && settings.optimizer == Optimizer::LevenbergMarquardt
+        && settings.rest_shape_per_evaluation
+        && settings.start_state_modes == 0
+        && settings.forward.start_fit_modes == 0
+    {
+        let early_segments = early_set.len();
+        progress.step(
+            3,
+            4,
+            &format!("Algorithm 1 on {early_segments} early segments"),
+        );
+        let mut early_forward = Forward::new(
+            &fit_mesh,
+            &fit_seq,
+            early_set,
+            observed.clone(),
+            &settings.forward,
+        )?;
+        if let Some(elements) = quadratic.clone() {
+            early_forward = early_forward.with_quadratic(elements);
+        }
+        let mut ep = Problem::new(&early_forward, &fit_weights, settings.poisson);
+        ep.static_m = Some(&static_m);
+        ep.rest = rest.clone();
+        ep.rest_cache = std::mem::take(&mut problem.rest_cache);
+        let (next, value, _) = lm_p_step(
+            &mut ep,
+            &q,
+            nc + 2,
+            &bounds,
+            early_segments,
+            settings.max_simulations,
+            EARLY_LM_TOLERANCES,
+        )?;
+        q = if ep.best.0 < value {
+            ep.best.1.clone()
+        } else {
+            next
+        };
+        problem.rest_cache = std::mem::take(&mut ep.rest_cache);
+        rest = std::mem::take(&mut ep.rest);
+        early = Some(EarlyFit {
+            segments: early_segments,
+            simulations: ep.simulations,
+            young_pa: unpack(&q, nc).0,
+            damping: unpack(&q, nc).1,
+            timing: early_forward.timing(),
+        });
+    }
     for outer in 0..outer_iterations {
         progress.step(3, 4, &format!("Algorithm 1, iteration {}", outer + 1));
         problem.rest = rest;
@@ -1097,48 +1228,17 @@ fn fit_level(
                 } else {
                     nc + 2
                 };
-                problem.held = q[free..].to_vec();
-                // The start-state coefficients follow (bounded to ±START_BOUND mm at a mode's
-                // peak); their Jacobian columns cost one segment each.
-                problem.fit_start = problem.start_modes.is_some();
-                let ns = problem.num_start();
-                let free_bounds = Bounds::new(
-                    bounds.lower[..free]
-                        .iter()
-                        .copied()
-                        .chain(std::iter::repeat_n(-START_BOUND, ns))
-                        .collect(),
-                    bounds.upper[..free]
-                        .iter()
-                        .copied()
-                        .chain(std::iter::repeat_n(START_BOUND, ns))
-                        .collect(),
-                )
-                .map_err(|e| TissueError::BadSettings {
-                    field: "bounds".into(),
-                    problem: e.to_string(),
-                })?;
-                let initial: Vec<f64> = q[..free].iter().chain(&problem.start).copied().collect();
-                let per_iteration = free + 1 + ns / segments.len();
-                let r = levenberg_marquardt(
+                let (next, value, converged) = lm_p_step(
                     &mut problem,
-                    &initial,
-                    Some(&free_bounds),
-                    &LevenbergMarquardtSettings {
-                        max_iterations: (max_simulations / per_iteration).max(2),
-                        relative_cost_tolerance: 1e-8,
-                        step_tolerance: 1e-6,
-                        ..LevenbergMarquardtSettings::default()
-                    },
-                )
-                .map_err(|e| TissueError::NotConverged {
-                    what: "Levenberg–Marquardt".into(),
-                    status: e.to_string(),
-                })?;
-                q = problem.split(&r.params);
-                problem.held.clear();
-                problem.fit_start = false;
-                (2.0 * r.cost, r.status.is_converged())
+                    &q,
+                    free,
+                    &bounds,
+                    segments.len(),
+                    max_simulations,
+                    LM_TOLERANCES,
+                )?;
+                q = next;
+                (value, converged)
             }
         };
         if problem.best.0 < value {
@@ -1194,7 +1294,10 @@ fn fit_level(
     let (young_pa, damping) = unpack(&q, nc);
     let frames = segments.iter().map(|s| s.end - s.start).sum();
     let mut runs = problem.runs(&q, &rest).unwrap_or_default();
-    let timing = forward.timing();
+    let timing = match &early {
+        Some(e) => forward.timing().plus(&e.timing),
+        None => forward.timing(),
+    };
     for r in &mut runs {
         for x in &mut r.positions_m {
             x.truncate(n_given);
@@ -1233,7 +1336,88 @@ fn fit_level(
         fit_mesh_size: (fit_mesh.vertices.len(), forward.num_elements()),
         runs,
         timing: coarse.map_or(timing, |c| c.timing.plus(&timing)),
+        early,
     })
+}
+
+/// The segments a fit coarse to fine in time starts on: the first `per_run` segments of every
+/// free-motion run (the pieces of one run share their boundary frame; separate runs are motions
+/// excited apart — between interactions, or the motions of [`TrackedSequence::joined`] — whose
+/// modes and damping the first run alone may not show).
+fn early_segment_set(
+    segments: &[super::sequence::Segment],
+    per_run: usize,
+) -> Vec<super::sequence::Segment> {
+    let mut out = Vec::new();
+    let mut in_run = 0;
+    for (k, s) in segments.iter().enumerate() {
+        in_run = match k.checked_sub(1) {
+            Some(j) if segments[j].end == s.start => in_run + 1,
+            _ => 0,
+        };
+        if in_run < per_run {
+            out.push(s.clone());
+        }
+    }
+    out
+}
+
+/// One Levenberg–Marquardt p-step on `problem` from the log-parameters `q`, the first `free`
+/// of them free (the rest held), the start-state coefficients too when the problem has them;
+/// at most about `max_simulations` evaluations of the `segments` segments, converged when an
+/// accepted step lowers F by less than `relative_cost` × F or moves p by less than `step` ×
+/// ‖p‖. Returns the log-parameters reached, F there and whether LM converged.
+fn lm_p_step(
+    problem: &mut Problem<'_>,
+    q: &[f64],
+    free: usize,
+    bounds: &Bounds,
+    segments: usize,
+    max_simulations: usize,
+    (relative_cost, step): (f64, f64),
+) -> Result<(Vec<f64>, f64, bool)> {
+    problem.held = q[free..].to_vec();
+    // The start-state coefficients follow (bounded to ±START_BOUND mm at a mode's peak); their
+    // Jacobian columns cost one segment each.
+    problem.fit_start = problem.start_modes.is_some();
+    let ns = problem.num_start();
+    let free_bounds = Bounds::new(
+        bounds.lower[..free]
+            .iter()
+            .copied()
+            .chain(std::iter::repeat_n(-START_BOUND, ns))
+            .collect(),
+        bounds.upper[..free]
+            .iter()
+            .copied()
+            .chain(std::iter::repeat_n(START_BOUND, ns))
+            .collect(),
+    )
+    .map_err(|e| TissueError::BadSettings {
+        field: "bounds".into(),
+        problem: e.to_string(),
+    })?;
+    let initial: Vec<f64> = q[..free].iter().chain(&problem.start).copied().collect();
+    let per_iteration = free + 1 + ns / segments.max(1);
+    let r = levenberg_marquardt(
+        problem,
+        &initial,
+        Some(&free_bounds),
+        &LevenbergMarquardtSettings {
+            max_iterations: (max_simulations / per_iteration).max(2),
+            relative_cost_tolerance: relative_cost,
+            step_tolerance: step,
+            ..LevenbergMarquardtSettings::default()
+        },
+    )
+    .map_err(|e| TissueError::NotConverged {
+        what: "Levenberg–Marquardt".into(),
+        status: e.to_string(),
+    })?;
+    let q = problem.split(&r.params);
+    problem.held.clear();
+    problem.fit_start = false;
+    Ok((q, 2.0 * r.cost, r.status.is_converged()))
 }
 
 fn rms_of(problem: &mut Problem<'_>, q: &[f64]) -> f64 {
@@ -1262,7 +1446,6 @@ fn warm_start(
     );
     let mut scale = 1.0;
     let mut fits = Vec::new();
-    let mut rest: Option<Vec<Vector3<f64>>> = None;
     let mut last_modes = None;
     // Until the dominant mode's frequency matches to 0.1 %: the rest shape, and with it the
     // modes, depend on E, and a rest shape solved at a far-off starting E can be poor, so the
@@ -1271,9 +1454,11 @@ fn warm_start(
         let mut qq = q.to_vec();
         qq[..nc].iter_mut().for_each(|v| *v += f64::ln(scale));
         let params = problem.params(&qq);
-        let (x, _) = rest_shape(forward, &params, static_m, rest.as_deref())?;
+        // Kept from the starting point's solve on the first pass, then from the nearest kept
+        // modulus (`Problem::rest_of`).
+        let (x, _) = problem.rest_of(&qq, static_m)?;
         let model = forward.model(&params, &x)?;
-        rest = Some(x);
+        problem.rest = x;
         let modes = forward.timed(Phase::Modal, || {
             warm::modes(forward, &model, settings.warm_start_modes)
         })?;
@@ -1366,6 +1551,27 @@ mod tests {
             &settings.forward,
         )
         .unwrap()
+    }
+
+    /// The early segments of a fit coarse to fine in time are the first ones of every
+    /// free-motion run (pieces of one run share their boundary frame).
+    #[test]
+    fn early_segments_are_the_first_of_every_run() {
+        use super::super::sequence::Segment;
+        let seg = |start, end| Segment { start, end };
+        let segments = [
+            seg(6, 36),
+            seg(36, 66),
+            seg(66, 96),
+            seg(100, 130),
+            seg(130, 160),
+        ];
+        assert_eq!(
+            early_segment_set(&segments, 2),
+            [seg(6, 36), seg(36, 66), seg(100, 130), seg(130, 160)]
+        );
+        assert_eq!(early_segment_set(&segments, 1), [seg(6, 36), seg(100, 130)]);
+        assert!(early_segment_set(&segments, 0).is_empty());
     }
 
     /// The rest shape kept for a modulus is the one a fresh solve of eq. 7 gives (to its

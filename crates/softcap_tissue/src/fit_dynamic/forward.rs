@@ -294,6 +294,10 @@ pub struct FitTiming {
     pub segment_thread_s: f64,
     /// Thread-s in factorizations.
     pub factor_thread_s: f64,
+    /// Rest-shape solves (eq. 7; a rest shape kept for its modulus is not counted).
+    pub rest_shape_solves: usize,
+    /// Their Newton iterations (one Jacobian assembly and sparse LU each).
+    pub rest_shape_iterations: usize,
 }
 
 impl FitTiming {
@@ -321,6 +325,8 @@ impl FitTiming {
             factorizations: self.factorizations + o.factorizations,
             segment_thread_s: self.segment_thread_s + o.segment_thread_s,
             factor_thread_s: self.factor_thread_s + o.factor_thread_s,
+            rest_shape_solves: self.rest_shape_solves + o.rest_shape_solves,
+            rest_shape_iterations: self.rest_shape_iterations + o.rest_shape_iterations,
         }
     }
 }
@@ -1002,6 +1008,14 @@ impl Forward {
         }
         self.record_segment(&solver, t0, steps, iterations);
         Ok(run)
+    }
+
+    /// Counts a rest-shape solve of `iterations` Newton iterations in [`Self::timing`].
+    pub(crate) fn record_rest_shape(&self, iterations: usize) {
+        self.timing.update(|t| {
+            t.rest_shape_solves += 1;
+            t.rest_shape_iterations += iterations;
+        });
     }
 
     fn record_segment(
