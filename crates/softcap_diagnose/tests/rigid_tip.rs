@@ -52,6 +52,16 @@ fn frames() -> Vec<SequenceFrame> {
 
 /// A straight press down onto `centre`: one frame per depth below the top surface (mm).
 fn press_frames(centre: &Vector3<f64>, depths_mm: &[f64]) -> Vec<SequenceFrame> {
+    press_frames_along(centre, &-Vector3::z(), depths_mm)
+}
+
+/// A straight press onto `centre` along the unit `axis` (the tip's axis, into the body): one
+/// frame per depth past `centre` along it (mm).
+fn press_frames_along(
+    centre: &Vector3<f64>,
+    axis: &Vector3<f64>,
+    depths_mm: &[f64],
+) -> Vec<SequenceFrame> {
     depths_mm
         .iter()
         .enumerate()
@@ -59,8 +69,8 @@ fn press_frames(centre: &Vector3<f64>, depths_mm: &[f64]) -> Vec<SequenceFrame> 
             time_s: 0.05 * k as f64,
             load: SimLoad {
                 probe: Some(ProbeLoad {
-                    tip_m: centre - Vector3::z() * (1e-3 * d),
-                    axis: -Vector3::z(),
+                    tip_m: centre + axis * (1e-3 * d),
+                    axis: *axis,
                     force_n: Vector3::zeros(),
                 }),
                 body_force_n_m3: Vector3::zeros(),
@@ -618,22 +628,7 @@ fn a_node_sticks_to_a_tilted_disk_where_it_first_touched() {
     );
     let tilt = 20f64.to_radians();
     let axis = Vector3::new(tilt.sin(), 0.0, -tilt.cos());
-    let depths_mm = [-3.0, 0.4];
-    let frames: Vec<SequenceFrame> = depths_mm
-        .iter()
-        .enumerate()
-        .map(|(k, d)| SequenceFrame {
-            time_s: 0.05 * k as f64,
-            load: SimLoad {
-                probe: Some(ProbeLoad {
-                    tip_m: centre + axis * (1e-3 * d),
-                    axis,
-                    force_n: Vector3::zeros(),
-                }),
-                body_force_n_m3: Vector3::zeros(),
-            },
-        })
-        .collect();
+    let frames = press_frames_along(&centre, &axis, &[-3.0, 0.4]);
     let tip = frames[1].load.probe.unwrap().tip_m;
     let eps = softcap_diagnose::sim::friction_slip_distance_m(
         &sim.setup().mesh,

@@ -41,6 +41,20 @@ fn bar_of(frames: usize, refine: usize, elements: Elements, noise_m: f64, seed: 
     .unwrap()
 }
 
+/// `s` fitted with `settings`, no progress shown; a fit error fails the test.
+fn fit_quietly(
+    s: &Synthetic,
+    settings: &softcap_tissue::fit_dynamic::FitDynamicSettings,
+) -> softcap_tissue::fit_dynamic::DynamicFit {
+    softcap_tissue::fit_dynamic::fit_sequence(
+        &s.template,
+        &s.sequence,
+        settings,
+        &softcap_tissue::Progress::hidden(),
+    )
+    .unwrap()
+}
+
 /// The small bar's true parameters (E_TRUE everywhere, ν 0.45, α 0.8 1/s, β 1 ms), for the
 /// start-state tests.
 fn true_params(s: &Synthetic) -> softcap_tissue::fit_dynamic::DynamicParams {
@@ -242,13 +256,7 @@ fn refine_fits_the_material_not_the_coarse_mesh() {
         refine: 1,
         ..Default::default()
     };
-    let fit = softcap_tissue::fit_dynamic::fit_sequence(
-        &truth.template,
-        &truth.sequence,
-        &settings,
-        &softcap_tissue::Progress::hidden(),
-    )
-    .unwrap();
+    let fit = fit_quietly(&truth, &settings);
     let coarse = fit.coarse_young_pa.as_ref().unwrap()[0];
     let fine = fit.young_pa[0];
     eprintln!(
@@ -284,13 +292,7 @@ fn quadratic_tets_fit_a_converged_truth() {
         elements: Elements::Quadratic,
         ..Default::default()
     };
-    let fit = softcap_tissue::fit_dynamic::fit_sequence(
-        &truth.template,
-        &truth.sequence,
-        &settings,
-        &softcap_tissue::Progress::hidden(),
-    )
-    .unwrap();
+    let fit = fit_quietly(&truth, &settings);
     let coarse = fit.coarse_young_pa.as_ref().unwrap()[0];
     let fine = fit.young_pa[0];
     eprintln!(
@@ -320,13 +322,7 @@ fn start_states_are_fitted_with_the_parameters() {
             progress: false,
             ..Default::default()
         };
-        softcap_tissue::fit_dynamic::fit_sequence(
-            &truth.template,
-            &truth.sequence,
-            &settings,
-            &softcap_tissue::Progress::hidden(),
-        )
-        .unwrap()
+        fit_quietly(&truth, &settings)
     };
     let tracked = fit_with(0);
     let fitted = fit_with(2);
@@ -530,13 +526,7 @@ fn coarse_to_fine_in_time_reaches_the_all_segment_fit() {
             progress: false,
             ..Default::default()
         };
-        softcap_tissue::fit_dynamic::fit_sequence(
-            &truth.template,
-            &truth.sequence,
-            &settings,
-            &softcap_tissue::Progress::hidden(),
-        )
-        .unwrap()
+        fit_quietly(&truth, &settings)
     };
     let (all, staged) = (fit(0), fit(2));
     let show = |name: &str, f: &softcap_tissue::fit_dynamic::DynamicFit| {
