@@ -109,6 +109,29 @@ impl Default for DynamicsSettings {
     }
 }
 
+/// Settings of [`DynamicSolver::step_sensitivity`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensitivitySettings {
+    /// Step ε of the directional differences, in the parameter and along the sensitivity
+    /// (x + ε s): the residual is exact to round-off, so a small step loses nothing to the
+    /// Newton tolerance.
+    pub epsilon: f64,
+    /// Converged when an update is at most this × the largest |s| component.
+    pub tolerance: f64,
+    /// Updates per step at most.
+    pub max_iterations: usize,
+}
+
+impl Default for SensitivitySettings {
+    fn default() -> Self {
+        Self {
+            epsilon: 1e-6,
+            tolerance: 1e-5,
+            max_iterations: 8,
+        }
+    }
+}
+
 /// Positions, velocities and accelerations of every node at time t.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DynamicState {
@@ -507,6 +530,109 @@ impl DynamicSolver {
                 }
             }
         }
+    }
+
+    /// The step residual R = f_ext − f_int(x) − D v − M a over the free dofs for a trial
+    /// x_{n+1} = `x` of a step from `before` with `settings` (v, a from the integrator; one
+    /// residual-only element pass): the base that [`Self::step_sensitivity`] differences against.
+    pub fn step_residual<M: ElasticModel + ?Sized>(
+        &mut self,
+        model: &M,
+        before: &DynamicState,
+        x: &[Vector3<f64>],
+        external_forces_n: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+    ) -> Vec<f64> {
+        let (v, a) = Self::velocity_acceleration(settings, before, x);
+        let (fi, fd) = self.force_pass(model, x, &v, settings);
+        let r: Vec<Vector3<f64>> = (0..x.len())
+            .map(|i| external_forces_n[i] - fi[i] - fd[i] - a[i] * self.masses_kg[i])
+            .collect();
+        self.dofs().gather(&r)
+    }
+
+    /// Forward sensitivity of one parameter p through the step just taken from `before` to
+    /// x_{n+1} = `x` (wang2015 eq. 3 differentiated along the implicit step): with R(x_{n+1};
+    /// x_n, v_n, a_n, p) = 0 at every step, s_{n+1} = dx_{n+1}/dp solves
+    ///
+    /// −∂R/∂x_{n+1} s_{n+1} = ∂R/∂p + ∂R/∂(x_n, v_n, a_n) · (s_n, ṡ_n, s̈_n),
+    ///
+    /// and (ṡ, s̈)_{n+1} follow from the integrator's kinematics, which are linear. The right side
+    /// and the product with the exact tangent are taken as directional differences of the
+    /// residual: Φ(s) = (R(x + ε s; state_n + ε sens_n, p + ε) − R(x; state_n, p)) / ε with the
+    /// `perturbed` model and settings (p + ε) against the `base_residual`
+    /// ([`Self::step_residual`] of the step's own model and settings), and s is iterated as
+    /// s ← s + A⁻¹ Φ(s) with the factor of the step's system matrix A (the Newton updates'),
+    /// from the integrator's predictor of `sensitivity`, until an update is at most
+    /// `options.tolerance` × max |s|. Each iteration is one element pass and one
+    /// back-substitution; no factorization. The result is the derivative of the exact step, not
+    /// of its Newton iterate, so it does not need a tight Newton tolerance. `sensitivity` (s, ṡ,
+    /// s̈ at t_n, zero on the constrained dofs, whose prescribed motion does not depend on p) is
+    /// advanced to t_{n+1}. Returns the iterations; errors when no factor exists or the result
+    /// is not finite. Models with internal state ([`ElasticModel::update_state`]) are not
+    /// supported.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step_sensitivity<M: ElasticModel + ?Sized>(
+        &mut self,
+        before: &DynamicState,
+        x: &[Vector3<f64>],
+        base_residual: &[f64],
+        external_forces_n: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+        perturbed: (&M, &DynamicsSettings),
+        sensitivity: &mut DynamicState,
+        options: &SensitivitySettings,
+    ) -> Result<usize, FemError> {
+        if self.cholesky.kind().is_none() {
+            return Err(FemError::Factorization {
+                reason: "no factored system matrix for the sensitivity step".into(),
+            });
+        }
+        let (model, p_settings) = perturbed;
+        let eps = options.epsilon;
+        let h = settings.time_step_s;
+        let shifted = |a: &[Vector3<f64>], d: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+            a.iter().zip(d).map(|(a, d)| a + d * eps).collect()
+        };
+        let before_p = DynamicState {
+            time_s: before.time_s,
+            positions_m: shifted(&before.positions_m, &sensitivity.positions_m),
+            velocities_m_s: shifted(&before.velocities_m_s, &sensitivity.velocities_m_s),
+            accelerations_m_s2: shifted(
+                &before.accelerations_m_s2,
+                &sensitivity.accelerations_m_s2,
+            ),
+        };
+        let mut s = sensitivity.predicted_positions(h, settings.integrator);
+        for d in 0..3 * s.len() {
+            if self.dofs().free_index(d).is_none() {
+                s[d / 3][d % 3] = 0.0;
+            }
+        }
+        let mut iterations = 0;
+        for _ in 0..options.max_iterations.max(1) {
+            let xp = shifted(x, &s);
+            let mut phi = self.step_residual(model, &before_p, &xp, external_forces_n, p_settings);
+            for (f, b) in phi.iter_mut().zip(base_residual) {
+                *f = (*f - b) / eps;
+            }
+            self.cholesky.solve_in_place(&mut phi)?;
+            self.dofs().scatter_add(&phi, 1.0, &mut s);
+            iterations += 1;
+            let update = phi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let size = s.iter().fold(0.0f64, |m, v| m.max(v.amax()));
+            if !(update.is_finite() && size.is_finite()) {
+                return Err(FemError::Factorization {
+                    reason: "non-finite sensitivity".into(),
+                });
+            }
+            if update <= options.tolerance * size {
+                break;
+            }
+        }
+        let (v, a) = Self::velocity_acceleration(settings, sensitivity, &s);
+        sensitivity.advance(h, s, v, a);
+        Ok(iterations)
     }
 
     pub(crate) fn kinematics(settings: &DynamicsSettings) -> Kinematics {

@@ -554,6 +554,47 @@ pub fn solve_rest_shape<M: RestShapeModel>(
     Ok(problem.finish(rest, current, report))
 }
 
+/// Derivatives dX/dp_k of the rest shape of eq. 7 (wang2015 §6.1) with respect to parameters
+/// p_k of the material: differentiating r(X, p) = f_int(x_s; X, p) − f_ext = 0 at the solution
+/// X (`model`'s rest shape) gives J dX_k = −∂f_int(x_s; X)/∂p_k over the free dofs, J = ∂r/∂X
+/// the exact Jacobian of [`solve_rest_shape`] ([`element_rest_jacobian`], one sparse LU for all
+/// k); dX_k = 0 on `constrained_dofs` (X = x_s there). `force_derivatives` holds
+/// ∂f_int(x_s; X)/∂p_k per node for each k. Errors for inconsistent lengths or a singular J.
+pub fn rest_shape_sensitivities<M: ElasticModel + Sync + ?Sized>(
+    model: &M,
+    static_positions_m: &[Vector3<f64>],
+    constrained_dofs: &[usize],
+    force_derivatives: &[Vec<Vector3<f64>>],
+) -> Result<Vec<Vec<Vector3<f64>>>, FemError> {
+    let n = model.num_nodes();
+    for (what, len) in std::iter::once(("static positions", static_positions_m.len())).chain(
+        force_derivatives
+            .iter()
+            .map(|d| ("force derivative", d.len())),
+    ) {
+        if len != n {
+            return Err(FemError::LengthMismatch {
+                what,
+                expected: n,
+                got: len,
+            });
+        }
+    }
+    let (pattern, mut factor, _) = solver_setup(model, constrained_dofs)?;
+    let (lower, upper) = rest_jacobian(model, static_positions_m, &pattern);
+    factor.factor_general(&pattern, &lower, Some(&upper))?;
+    force_derivatives
+        .iter()
+        .map(|d| {
+            let mut rhs: Vec<f64> = pattern.dofs().gather(d).iter().map(|v| -v).collect();
+            factor.solve_in_place(&mut rhs)?;
+            let mut dx = vec![Vector3::zeros(); n];
+            pattern.dofs().scatter_add(&rhs, 1.0, &mut dx);
+            Ok(dx)
+        })
+        .collect()
+}
+
 /// Settings of [`solve_rest_shape_virtual_force`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

@@ -100,7 +100,8 @@ pub use support::{SupportPlane, SupportReport, SupportTangential};
 pub use gravity::{
     RestShape, RestShapeModel, RestShapeReport, RestShapeSettings, RestShapeStatus,
     STANDARD_GRAVITY_M_S2, VirtualForceSettings, element_rest_jacobian, gravity_forces,
-    lumped_masses, lumped_masses_per_element, solve_rest_shape, solve_rest_shape_virtual_force,
+    lumped_masses, lumped_masses_per_element, rest_shape_sensitivities, solve_rest_shape,
+    solve_rest_shape_virtual_force,
 };
 pub use viscoelastic::{
     PronyBranch, PronySeries, ViscoelasticModel, viscoelastic_quasi_static_step,
@@ -108,7 +109,7 @@ pub use viscoelastic::{
 
 pub use dynamics::{
     DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings,
-    Integrator, RayleighDamping, StepLoads,
+    Integrator, RayleighDamping, SensitivitySettings, StepLoads,
 };
 pub use modal::{LanczosModes, LanczosReport, ModalSettings, Modes, dense_modes, lanczos_modes};
 pub use quadratic::{QuadraticModel, QuadraticSolver, QuadraticTetMesh, quadratic_tets};

@@ -19,8 +19,13 @@
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE=1` also times the evaluation with the system matrix
 //! assembled at every Newton iteration (`ForwardSettings::residual_only` off) and with a
 //! factorization at every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the
-//! largest node distance of each to the default; `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
-//! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence.
+//! largest node distance of each to the default, and times the evaluation with the forward
+//! sensitivities of the three log-parameters (`Forward::simulate_with_sensitivities`);
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence;
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_JACOBIAN=forward-differences` fits with the forward-difference
+//! Jacobian instead of the forward sensitivities (`FitDynamicSettings::jacobian`);
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_NEWTON_TOL=t` sets `ForwardSettings::newton_tolerance`.
 
 use std::time::{Duration, Instant};
 
@@ -29,9 +34,10 @@ use softcap_app::process::cpu_seconds;
 use softcap_fem::RayleighDamping;
 use softcap_fem::nalgebra::Vector3;
 use softcap_tissue::Progress;
+use softcap_tissue::fit_dynamic::forward::Perturbed;
 use softcap_tissue::fit_dynamic::synthetic::{Synthetic, SyntheticSpec, clamped_box, synthesize};
 use softcap_tissue::fit_dynamic::{
-    DynamicParams, FitDynamicSettings, Forward, ForwardSettings, fit_sequence,
+    DynamicParams, FitDynamicSettings, Forward, ForwardSettings, JacobianMethod, fit_sequence,
 };
 
 const SIZE_M: [f64; 3] = [0.2, 0.03, 0.03];
@@ -78,6 +84,14 @@ fn frames() -> usize {
         .unwrap_or(FRAMES)
 }
 
+/// `SOFTCAP_FIT_DYNAMIC_BENCH_NEWTON_TOL`, or the default Newton tolerance.
+fn newton_tolerance() -> f64 {
+    std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_NEWTON_TOL")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(ForwardSettings::default().newton_tolerance)
+}
+
 /// Runs `f`, printing its wall time and the process's CPU-s.
 fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
     let (c0, t0) = (cpu_seconds(), Instant::now());
@@ -92,10 +106,24 @@ fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
 
 /// The whole fit with the stage defaults: wall, CPU-s, evaluations and where the time went.
 fn full_fit(truth: &Synthetic) {
+    let jacobian = match std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_JACOBIAN").as_deref() {
+        Ok("forward-differences") => JacobianMethod::ForwardDifferences,
+        _ => JacobianMethod::Sensitivities,
+    };
+    let defaults = FitDynamicSettings::default();
     let settings = FitDynamicSettings {
         progress: false,
-        ..FitDynamicSettings::default()
+        jacobian,
+        forward: ForwardSettings {
+            newton_tolerance: newton_tolerance(),
+            ..defaults.forward.clone()
+        },
+        ..defaults
     };
+    eprintln!(
+        "full fit, Jacobian {jacobian:?}, Newton tolerance {:e}",
+        settings.forward.newton_tolerance
+    );
     let (c0, t0) = (cpu_seconds(), Instant::now());
     let fit = fit_sequence(
         &truth.template,
@@ -134,13 +162,15 @@ fn full_fit(truth: &Synthetic) {
         other
     );
     eprintln!(
-        "  {} segment runs, {} time steps, {} Newton iterations ({:.2} per step), {} factorizations ({:.2} per step)",
+        "  {} segment runs, {} time steps, {} Newton iterations ({:.2} per step), {} factorizations ({:.2} per step), {} sensitivity iterations ({:.2} per step)",
         t.segment_runs,
         t.steps,
         t.newton_iterations,
         t.newton_iterations as f64 / t.steps.max(1) as f64,
         t.factorizations,
-        t.factorizations as f64 / t.steps.max(1) as f64
+        t.factorizations as f64 / t.steps.max(1) as f64,
+        t.sensitivity_iterations,
+        t.sensitivity_iterations as f64 / t.steps.max(1) as f64
     );
     if let Some(e) = &fit.early {
         eprintln!(
@@ -190,6 +220,7 @@ fn bench(c: &mut Criterion) {
             &ForwardSettings {
                 refactor_ratio,
                 residual_only,
+                newton_tolerance: newton_tolerance(),
                 ..settings.forward.clone()
             },
         )
@@ -244,6 +275,50 @@ fn bench(c: &mut Criterion) {
         eprintln!(
             "  largest node distance to the default: {:.3e} m",
             largest(&newton)
+        );
+        // The forward sensitivities of ln E, ln α, ln β (the rest shape held: a timing).
+        let eps = 1e-6;
+        let perturbed: Vec<Perturbed> = (0..3)
+            .map(|k| {
+                let mut p = params.clone();
+                match k {
+                    0 => p.young_pa.iter_mut().for_each(|e| *e *= f64::exp(eps)),
+                    1 => p.damping.alpha_per_s *= f64::exp(eps),
+                    _ => p.damping.beta_s *= f64::exp(eps),
+                }
+                Perturbed {
+                    params: p,
+                    rest_m: truth.rest_m.clone(),
+                }
+            })
+            .collect();
+        let sensitive = forward_with(settings.forward.refactor_ratio, true);
+        let with = timed(
+            "one evaluation with the forward sensitivities of 3 parameters",
+            || {
+                sensitive
+                    .simulate_with_sensitivities(
+                        &params,
+                        &truth.rest_m,
+                        None,
+                        &perturbed,
+                        &softcap_fem::SensitivitySettings {
+                            tolerance: std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_SENS_TOL")
+                                .ok()
+                                .and_then(|v| v.parse().ok())
+                                .unwrap_or(softcap_fem::SensitivitySettings::default().tolerance),
+                            ..softcap_fem::SensitivitySettings::default()
+                        },
+                    )
+                    .expect("simulate")
+            },
+        );
+        let t = sensitive.timing();
+        eprintln!(
+            "  {:.2} Newton iterations and {:.2} sensitivity iterations per step; largest node distance to the default: {:.3e} m",
+            t.newton_iterations as f64 / t.steps.max(1) as f64,
+            t.sensitivity_iterations as f64 / t.steps.max(1) as f64,
+            largest(&with)
         );
     }
     if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY").is_some() {

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use softcap_fem::{
     CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepReport,
     DynamicStepStatus, DynamicsSettings, Integrator, LinearParams, QuadraticModel, QuadraticSolver,
-    RayleighDamping, StepLoads, StiffnessKind,
+    RayleighDamping, SensitivitySettings, StepLoads, StiffnessKind,
 };
 use softcap_mesh::TetMesh;
 
@@ -40,6 +40,12 @@ pub struct ForwardSettings {
     pub substeps: usize,
     /// Newton iterations per step at most.
     pub newton_iterations: usize,
+    /// A step's Newton iterations stop when ‖r‖ ≤ this × the step's force scale
+    /// (`softcap_fem::DynamicsSettings::residual_tol_rel`); the displacement test stays at its
+    /// default (10⁻¹⁰ of the body's size). A forward-difference Jacobian needs the trajectories
+    /// far below its step's effect; the forward sensitivities differentiate the exact step
+    /// whatever the iterate.
+    pub newton_tolerance: f64,
     /// Factorization reuse (`softcap_fem::DynamicSolver::set_refactor_ratio`): a step's later
     /// Newton updates are solved with the factor of its first until an iteration reduces the
     /// residual by less than this factor; then the current matrix is factored. Every step
@@ -89,6 +95,7 @@ impl Default for ForwardSettings {
         Self {
             substeps: 4,
             newton_iterations: 12,
+            newton_tolerance: 1e-8,
             refactor_ratio: 0.3,
             residual_only: true,
             velocity_half_window: 2,
@@ -260,6 +267,26 @@ pub struct SegmentRun {
     pub max_iteration_steps: usize,
     /// Set when a step failed (the run stopped there).
     pub failure: Option<String>,
+    /// Forward sensitivities ∂x/∂p_k per parameter k, per frame after the start, per node, m
+    /// per unit of p_k ([`Forward::simulate_with_sensitivities`]; empty otherwise).
+    pub sensitivities_m: Vec<Vec<Vec<Vector3<f64>>>>,
+}
+
+/// The body at p + ε e_k for the forward sensitivity of parameter k
+/// ([`Forward::simulate_with_sensitivities`]): its parameters and rest shape (X + ε dX/dp_k,
+/// the rest shape of eq. 7 moving with the moduli).
+#[derive(Clone, Debug)]
+pub struct Perturbed {
+    /// Parameters at p + ε e_k.
+    pub params: DynamicParams,
+    /// Rest shape at p + ε e_k, m.
+    pub rest_m: Vec<Vector3<f64>>,
+}
+
+/// The perturbed bodies of one simulation with sensitivities, and their settings.
+struct SensitivityModels {
+    bodies: Vec<(FitModel, RayleighDamping)>,
+    options: SensitivitySettings,
 }
 
 /// Where the time of a fit went (summed over the fit; [`Forward::timing`]). CPU-s are the
@@ -294,6 +321,9 @@ pub struct FitTiming {
     pub segment_thread_s: f64,
     /// Thread-s in factorizations.
     pub factor_thread_s: f64,
+    /// Iterations of the forward-sensitivity steps (one element pass and one back-substitution
+    /// each, [`softcap_fem::DynamicSolver::step_sensitivity`]), over all parameters.
+    pub sensitivity_iterations: usize,
     /// Rest-shape solves (eq. 7; a rest shape kept for its modulus is not counted).
     pub rest_shape_solves: usize,
     /// Their Newton iterations (one Jacobian assembly and sparse LU each).
@@ -325,6 +355,7 @@ impl FitTiming {
             factorizations: self.factorizations + o.factorizations,
             segment_thread_s: self.segment_thread_s + o.segment_thread_s,
             factor_thread_s: self.factor_thread_s + o.factor_thread_s,
+            sensitivity_iterations: self.sensitivity_iterations + o.sensitivity_iterations,
             rest_shape_solves: self.rest_shape_solves + o.rest_shape_solves,
             rest_shape_iterations: self.rest_shape_iterations + o.rest_shape_iterations,
         }
@@ -448,6 +479,80 @@ impl Stepper {
         }
     }
 
+    /// The forward sensitivities of every perturbed body through the step just taken from
+    /// `before` to `after` ([`DynamicSolver::step_sensitivity`], one base residual for all);
+    /// returns the iterations. Linear tets only.
+    #[allow(clippy::too_many_arguments)]
+    fn sensitivity_step(
+        &mut self,
+        model: &FitModel,
+        before: &DynamicState,
+        after: &DynamicState,
+        forces: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+        perturbed: &SensitivityModels,
+        sensitivities: &mut [DynamicState],
+    ) -> Result<usize> {
+        let (Self::Linear(s), FitModel::Linear(m)) = (self, model) else {
+            return Err(not_linear());
+        };
+        let x = &after.positions_m;
+        let base = s.step_residual(m, before, x, forces, settings);
+        let mut iterations = 0;
+        for ((body, damping), sens) in perturbed.bodies.iter().zip(sensitivities) {
+            let FitModel::Linear(pm) = body else {
+                return Err(not_linear());
+            };
+            let ps = DynamicsSettings {
+                damping: *damping,
+                ..settings.clone()
+            };
+            iterations += s.step_sensitivity(
+                before,
+                x,
+                &base,
+                forces,
+                settings,
+                (pm, &ps),
+                sens,
+                &perturbed.options,
+            )?;
+        }
+        Ok(iterations)
+    }
+
+    /// The sensitivities of the consistent start acceleration a₀ = M⁻¹ (f_ext − f_int − D v)
+    /// (after [`Self::initialize_acceleration`] of `state`): the same with each perturbed body
+    /// at the state moved by ε × its sensitivity, differenced against `state`'s.
+    fn acceleration_sensitivities(
+        &self,
+        state: &DynamicState,
+        forces: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+        perturbed: &SensitivityModels,
+        sensitivities: &mut [DynamicState],
+    ) {
+        let eps = perturbed.options.epsilon;
+        for ((body, damping), sens) in perturbed.bodies.iter().zip(sensitivities) {
+            let shifted = |a: &[Vector3<f64>], d: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+                a.iter().zip(d).map(|(a, d)| a + d * eps).collect()
+            };
+            let mut moved = DynamicState::at_rest(shifted(&state.positions_m, &sens.positions_m));
+            moved.velocities_m_s = shifted(&state.velocities_m_s, &sens.velocities_m_s);
+            let ps = DynamicsSettings {
+                damping: *damping,
+                ..settings.clone()
+            };
+            self.initialize_acceleration(body, &mut moved, forces, &ps);
+            sens.accelerations_m_s2 = moved
+                .accelerations_m_s2
+                .iter()
+                .zip(&state.accelerations_m_s2)
+                .map(|(a, b)| (a - b) / eps)
+                .collect();
+        }
+    }
+
     fn initialize_acceleration(
         &self,
         model: &FitModel,
@@ -464,6 +569,15 @@ impl Stepper {
             }
             _ => unreachable!("a stepper is built for its model"),
         }
+    }
+}
+
+/// The error of a sensitivity run on quadratic tets.
+fn not_linear() -> crate::TissueError {
+    crate::TissueError::BadSettings {
+        field: "jacobian".into(),
+        problem: "forward sensitivities are implemented for linear tets (use forward differences)"
+            .into(),
     }
 }
 
@@ -659,6 +773,54 @@ impl Forward {
         })
     }
 
+    /// [`Self::simulate_from`] with the forward sensitivities ∂x_t/∂p_k of every segment's
+    /// frames for each `perturbed` body k (the parameters and rest shape at p + ε e_k,
+    /// [`Perturbed`]; ε = `options.epsilon`): along every implicit step the sensitivity of each
+    /// parameter is one linear solve with the step's factored system matrix
+    /// ([`softcap_fem::DynamicSolver::step_sensitivity`]), instead of a simulation per parameter
+    /// as forward differences take. Linear tets and the tracked start states (which do not
+    /// depend on p) only.
+    pub fn simulate_with_sensitivities(
+        &self,
+        params: &DynamicParams,
+        rest_m: &[Vector3<f64>],
+        start: Option<(&StartModes, &[f64])>,
+        perturbed: &[Perturbed],
+        options: &SensitivitySettings,
+    ) -> Result<Vec<SegmentRun>> {
+        if self.quadratic.is_some() {
+            return Err(not_linear());
+        }
+        if self.settings.start_fit_modes > 0 {
+            return Err(crate::TissueError::BadSettings {
+                field: "forward.start_fit_modes".into(),
+                problem: "forward sensitivities need start states that do not depend on the \
+                          parameters (use forward differences)"
+                    .into(),
+            });
+        }
+        self.timed(Phase::Simulate, || {
+            let model = self.model(params, rest_m)?;
+            let bodies = perturbed
+                .iter()
+                .map(|p| Ok((self.model(&p.params, &p.rest_m)?, p.params.damping)))
+                .collect::<Result<Vec<_>>>()?;
+            let sens = SensitivityModels {
+                bodies,
+                options: *options,
+            };
+            let runs = (0..self.segments.len())
+                .into_par_iter()
+                .map(|k| {
+                    let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
+                    let start = &self.starts[k];
+                    self.run_segment(k, &model, params.damping, start, correction, Some(&sens))
+                })
+                .collect::<Vec<_>>();
+            runs.into_iter().collect()
+        })
+    }
+
     /// Several evaluations at once (e.g. the columns of a finite-difference Jacobian): every
     /// segment of every job is one task of one parallel pass (the segments are independent,
     /// each starts from its own state, wang2015 eq. 6/9), so a pass of n jobs keeps the threads
@@ -725,6 +887,7 @@ impl Forward {
             damping,
             stiffness: StiffnessKind::Warped,
             max_iterations: self.settings.newton_iterations.max(1),
+            residual_tol_rel: self.settings.newton_tolerance,
             ..DynamicsSettings::default()
         }
     }
@@ -901,6 +1064,21 @@ impl Forward {
         start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
         correction: Option<(&StartModes, &[f64])>,
     ) -> Result<SegmentRun> {
+        self.run_segment(k, model, damping, start, correction, None)
+    }
+
+    /// [`Self::simulate_segment`], with the forward sensitivities of the `perturbed` bodies if
+    /// given (every step followed by their sensitivity steps; the start state's sensitivity is
+    /// zero).
+    fn run_segment(
+        &self,
+        k: usize,
+        model: &FitModel,
+        damping: RayleighDamping,
+        start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
+        correction: Option<(&StartModes, &[f64])>,
+        perturbed: Option<&SensitivityModels>,
+    ) -> Result<SegmentRun> {
         let t0 = std::time::Instant::now();
         let seg = self.segments[k].clone();
         let mut model = model.clone();
@@ -926,11 +1104,17 @@ impl Forward {
             (self.seq.times_s[seg.start + 1] - self.seq.times_s[seg.start]) / substeps as f64;
         let mut startup = self.settings.startup_euler_steps;
         let (mut steps, mut iterations) = (0, 0);
+        let n_sens = perturbed.map_or(0, |p| p.bodies.len());
+        let mut sens: Vec<DynamicState> = (0..n_sens)
+            .map(|_| DynamicState::at_rest(vec![Vector3::zeros(); state.positions_m.len()]))
+            .collect();
+        let mut sens_iterations = 0;
         let mut run = SegmentRun {
             segment: seg.clone(),
             positions_m: Vec::with_capacity(seg.end - seg.start),
             max_iteration_steps: 0,
             failure: None,
+            sensitivities_m: vec![Vec::with_capacity(seg.end - seg.start); n_sens],
         };
         for j in seg.start..seg.end {
             let (ta, tb) = (self.seq.times_s[j], self.seq.times_s[j + 1]);
@@ -967,6 +1151,7 @@ impl Forward {
                     };
                     let mut last = None;
                     for _ in 0..startup {
+                        let before = perturbed.map(|_| state.clone());
                         let r = solver.step(&mut model, &mut state, &loads, &euler);
                         iterations += r.iterations;
                         let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
@@ -974,9 +1159,29 @@ impl Forward {
                         if failed {
                             break;
                         }
+                        if let (Some(p), Some(before)) = (perturbed, &before) {
+                            sens_iterations += solver.sensitivity_step(
+                                &model,
+                                before,
+                                &state,
+                                &self.gravity_n,
+                                &euler,
+                                p,
+                                &mut sens,
+                            )?;
+                        }
                     }
                     startup = 0;
                     solver.initialize_acceleration(&model, &mut state, &self.gravity_n, &settings);
+                    if let Some(p) = perturbed {
+                        solver.acceleration_sensitivities(
+                            &state,
+                            &self.gravity_n,
+                            &settings,
+                            p,
+                            &mut sens,
+                        );
+                    }
                     steps += self.settings.startup_euler_steps - 1;
                     let last = last.expect("startup_euler_steps > 0");
                     iterations -= last.iterations; // counted below with the step
@@ -989,8 +1194,34 @@ impl Forward {
                             &self.gravity_n,
                             &settings,
                         );
+                        if let Some(p) = perturbed {
+                            solver.acceleration_sensitivities(
+                                &state,
+                                &self.gravity_n,
+                                &settings,
+                                p,
+                                &mut sens,
+                            );
+                        }
                     }
-                    solver.step(&mut model, &mut state, &loads, &settings)
+                    let before = perturbed.map(|_| state.clone());
+                    let report = solver.step(&mut model, &mut state, &loads, &settings);
+                    if let (Some(p), Some(before), false) = (
+                        perturbed,
+                        &before,
+                        matches!(report.status, DynamicStepStatus::Failed { .. }),
+                    ) {
+                        sens_iterations += solver.sensitivity_step(
+                            &model,
+                            before,
+                            &state,
+                            &self.gravity_n,
+                            &settings,
+                            p,
+                            &mut sens,
+                        )?;
+                    }
+                    report
                 };
                 steps += 1;
                 iterations += report.iterations;
@@ -999,14 +1230,17 @@ impl Forward {
                     DynamicStepStatus::MaxIterations => run.max_iteration_steps += 1,
                     DynamicStepStatus::Failed { reason } => {
                         run.failure = Some(format!("frame {}: {reason}", j + 1));
-                        self.record_segment(&solver, t0, steps, iterations);
+                        self.record_segment(&solver, t0, steps, [iterations, sens_iterations]);
                         return Ok(run);
                     }
                 }
             }
             run.positions_m.push(state.positions_m.clone());
+            for (out, s) in run.sensitivities_m.iter_mut().zip(&sens) {
+                out.push(s.positions_m.clone());
+            }
         }
-        self.record_segment(&solver, t0, steps, iterations);
+        self.record_segment(&solver, t0, steps, [iterations, sens_iterations]);
         Ok(run)
     }
 
@@ -1023,7 +1257,7 @@ impl Forward {
         solver: &Stepper,
         t0: std::time::Instant,
         steps: usize,
-        iterations: usize,
+        [iterations, sensitivity_iterations]: [usize; 2],
     ) {
         let wall = t0.elapsed().as_secs_f64();
         let (factorizations, factor_s) = match solver {
@@ -1034,6 +1268,7 @@ impl Forward {
             t.segment_runs += 1;
             t.steps += steps;
             t.newton_iterations += iterations;
+            t.sensitivity_iterations += sensitivity_iterations;
             t.factorizations += factorizations;
             t.segment_thread_s += wall;
             t.factor_thread_s += factor_s;
@@ -1063,6 +1298,25 @@ impl Forward {
                 r.extend([d.x, d.y, d.z]);
             }
         }
+    }
+
+    /// Column k of the Jacobian ∂r/∂p_k of [`Self::residuals`] (same order) from the forward
+    /// sensitivities of `runs` ([`Self::simulate_with_sensitivities`]; non-finite where a
+    /// segment failed or has none).
+    pub fn sensitivity_column(&self, runs: &[SegmentRun], k: usize) -> Vec<f64> {
+        let mut out = Vec::with_capacity(self.num_residuals());
+        for run in runs {
+            let seg = &run.segment;
+            let sens = run.sensitivities_m.get(k);
+            for o in 0..seg.end - seg.start {
+                let frame = sens.and_then(|s| s.get(o));
+                for &i in &self.free_nodes {
+                    let d = frame.map_or(Vector3::repeat(f64::NAN), |x| x[i]);
+                    out.extend([d.x, d.y, d.z]);
+                }
+            }
+        }
+        out
     }
 
     /// Root-mean-square node distance of `runs` to the tracked positions, m (over the residuals).

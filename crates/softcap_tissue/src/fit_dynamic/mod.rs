@@ -23,7 +23,9 @@ pub mod synthetic;
 pub mod warm;
 
 pub use blend::{Blending, ControlPoints, control_points};
-pub use fit::{DynamicFit, EarlyFit, Elements, FitDynamicSettings, Optimizer, fit_sequence};
-pub use forward::{DynamicParams, FitModel, FitTiming, Forward, ForwardSettings};
+pub use fit::{
+    DynamicFit, EarlyFit, Elements, FitDynamicSettings, JacobianMethod, Optimizer, fit_sequence,
+};
+pub use forward::{DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Perturbed};
 pub use run::{FitDynamicConfig, SimulateDynamicConfig, SimulateDynamicOutcome, simulate};
 pub use sequence::{Segment, TrackedSequence};
