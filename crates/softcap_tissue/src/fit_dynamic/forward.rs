@@ -479,6 +479,53 @@ impl Stepper {
         }
     }
 
+    /// [`Self::step`], then the sensitivities of the `perturbed` bodies (if any) through it
+    /// ([`Self::sensitivity_step`]; not after a failed step). Returns the report and the
+    /// sensitivity iterations.
+    fn step_and_sensitivities(
+        &mut self,
+        model: &mut FitModel,
+        state: &mut DynamicState,
+        loads: &StepLoads<'_>,
+        settings: &DynamicsSettings,
+        perturbed: Option<&SensitivityModels>,
+        sensitivities: &mut [DynamicState],
+    ) -> Result<(DynamicStepReport, usize)> {
+        let before = perturbed.map(|_| state.clone());
+        let report = self.step(model, state, loads, settings);
+        let failed = matches!(report.status, DynamicStepStatus::Failed { .. });
+        let iterations = match (perturbed, before) {
+            (Some(p), Some(before)) if !failed => self.sensitivity_step(
+                model,
+                &before,
+                state,
+                loads.external_forces_n,
+                settings,
+                p,
+                sensitivities,
+            )?,
+            _ => 0,
+        };
+        Ok((report, iterations))
+    }
+
+    /// [`Self::initialize_acceleration`], and the sensitivities of a₀ for the `perturbed`
+    /// bodies if any ([`Self::acceleration_sensitivities`]).
+    fn start_acceleration(
+        &self,
+        model: &FitModel,
+        state: &mut DynamicState,
+        forces: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+        perturbed: Option<&SensitivityModels>,
+        sensitivities: &mut [DynamicState],
+    ) {
+        self.initialize_acceleration(model, state, forces, settings);
+        if let Some(p) = perturbed {
+            self.acceleration_sensitivities(state, forces, settings, p, sensitivities);
+        }
+    }
+
     /// The forward sensitivities of every perturbed body through the step just taken from
     /// `before` to `after` ([`DynamicSolver::step_sensitivity`], one base residual for all);
     /// returns the iterations. Linear tets only.
@@ -1102,7 +1149,7 @@ impl Forward {
         let substeps = self.settings.substeps.max(1);
         let first_h =
             (self.seq.times_s[seg.start + 1] - self.seq.times_s[seg.start]) / substeps as f64;
-        let mut startup = self.settings.startup_euler_steps;
+        let startup = self.settings.startup_euler_steps;
         let (mut steps, mut iterations) = (0, 0);
         let n_sens = perturbed.map_or(0, |p| p.bodies.len());
         let mut sens: Vec<DynamicState> = (0..n_sens)
@@ -1143,85 +1190,51 @@ impl Forward {
                     contact: None,
                     initial_guess: Some(&guess),
                 };
-                let report = if startup > 0 {
-                    let euler = DynamicsSettings {
-                        integrator: Integrator::ImplicitEuler,
-                        time_step_s: first_h / startup as f64,
-                        ..settings.clone()
-                    };
-                    let mut last = None;
-                    for _ in 0..startup {
-                        let before = perturbed.map(|_| state.clone());
-                        let r = solver.step(&mut model, &mut state, &loads, &euler);
-                        iterations += r.iterations;
-                        let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
-                        last = Some(r);
-                        if failed {
-                            break;
-                        }
-                        if let (Some(p), Some(before)) = (perturbed, &before) {
-                            sens_iterations += solver.sensitivity_step(
-                                &model,
-                                before,
-                                &state,
-                                &self.gravity_n,
-                                &euler,
-                                p,
-                                &mut sens,
+                // A segment's first step: the startup Euler steps (standing for it) if any,
+                // then the consistent acceleration for the Newmark steps.
+                let mut startup_report = None;
+                if j == seg.start && s == 1 {
+                    if startup > 0 {
+                        let euler = DynamicsSettings {
+                            integrator: Integrator::ImplicitEuler,
+                            time_step_s: first_h / startup as f64,
+                            ..settings.clone()
+                        };
+                        for _ in 0..startup {
+                            let (r, si) = solver.step_and_sensitivities(
+                                &mut model, &mut state, &loads, &euler, perturbed, &mut sens,
                             )?;
+                            iterations += r.iterations;
+                            sens_iterations += si;
+                            let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
+                            startup_report = Some(r);
+                            if failed {
+                                break;
+                            }
                         }
+                        steps += startup - 1;
                     }
-                    startup = 0;
-                    solver.initialize_acceleration(&model, &mut state, &self.gravity_n, &settings);
-                    if let Some(p) = perturbed {
-                        solver.acceleration_sensitivities(
-                            &state,
-                            &self.gravity_n,
-                            &settings,
-                            p,
-                            &mut sens,
-                        );
-                    }
-                    steps += self.settings.startup_euler_steps - 1;
-                    let last = last.expect("startup_euler_steps > 0");
-                    iterations -= last.iterations; // counted below with the step
-                    last
-                } else {
-                    if j == seg.start && s == 1 {
-                        solver.initialize_acceleration(
-                            &model,
-                            &mut state,
-                            &self.gravity_n,
-                            &settings,
-                        );
-                        if let Some(p) = perturbed {
-                            solver.acceleration_sensitivities(
-                                &state,
-                                &self.gravity_n,
-                                &settings,
-                                p,
-                                &mut sens,
-                            );
-                        }
-                    }
-                    let before = perturbed.map(|_| state.clone());
-                    let report = solver.step(&mut model, &mut state, &loads, &settings);
-                    if let (Some(p), Some(before), false) = (
+                    solver.start_acceleration(
+                        &model,
+                        &mut state,
+                        &self.gravity_n,
+                        &settings,
                         perturbed,
-                        &before,
-                        matches!(report.status, DynamicStepStatus::Failed { .. }),
-                    ) {
-                        sens_iterations += solver.sensitivity_step(
-                            &model,
-                            before,
-                            &state,
-                            &self.gravity_n,
-                            &settings,
-                            p,
-                            &mut sens,
-                        )?;
+                        &mut sens,
+                    );
+                }
+                let report = match startup_report {
+                    Some(last) => {
+                        iterations -= last.iterations; // counted below with the step
+                        last
                     }
-                    report
+                    None => {
+                        let (report, si) = solver.step_and_sensitivities(
+                            &mut model, &mut state, &loads, &settings, perturbed, &mut sens,
+                        )?;
+                        sens_iterations += si;
+                        report
+                    }
                 };
                 steps += 1;
                 iterations += report.iterations;
