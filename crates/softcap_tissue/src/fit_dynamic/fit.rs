@@ -10,13 +10,14 @@
 //!
 //! p = (ln E_c for each control point, ln α, ln β) (ν shared and held; E_e = Σ_c w_ec E_c).
 //! The p-step is either the paper's Nelder–Mead (downhill simplex) or Levenberg–Marquardt on the
-//! residual vector of eq. 9 with a forward-difference Jacobian (n_p extra segment simulations per
-//! iteration); the report gives the simulations each needed. The fit runs on `refine` levels of
+//! residual vector of eq. 9 with the Jacobian from forward sensitivities carried along each
+//! simulation ([`JacobianMethod::Sensitivities`]) or by forward differences (n_p extra segment
+//! simulations per iteration); the report gives the simulations each needed. The fit runs on `refine` levels of
 //! uniform 1 → 8 refinement of the given mesh (the tracked positions of the new edge-midpoint
 //! nodes are their edges' means; residuals are taken on the given nodes only), because coarse
 //! linear tets are too stiff in bending and E would be the mesh's rather than the material's.
 //! Uncertainty: the covariance s² (JᵀJ)⁻¹ of the log-parameters at the optimum,
-//! s² = ‖r‖²/(m − n), J by forward differences.
+//! s² = ‖r‖²/(m − n), J as the p-step's.
 //!
 //! Cost: X depends on the E field, ν and ρ, not on α and β, so a rest shape is solved once per
 //! modulus and kept; a point evaluated again (the Jacobian at the step just accepted, the
@@ -52,7 +53,7 @@ use crate::error::{Result, TissueError};
 pub enum Optimizer {
     /// Downhill simplex (wang2015 §6.2).
     NelderMead,
-    /// Levenberg–Marquardt with a forward-difference Jacobian.
+    /// Levenberg–Marquardt ([`JacobianMethod`]).
     LevenbergMarquardt,
 }
 
@@ -1662,9 +1663,10 @@ fn warm_start(
 
 /// 1-σ uncertainties of the first `n` log-parameters (≈ relative uncertainties) from
 /// s² (JᵀJ)⁻¹, the other log-parameters held; fitted start-state coefficients are columns of J
-/// too (their uncertainty is the parameters' as well). J by forward differences of step
-/// [`FD_STEP`], the Levenberg–Marquardt Jacobian's: at the point where the p-step last
-/// linearized, its columns are the kept runs ([`Problem::runs`]), not new simulations.
+/// too (their uncertainty is the parameters' as well). J as the Levenberg–Marquardt
+/// Jacobian's ([`Problem::material_columns`]: forward sensitivities, or forward differences of
+/// step [`FD_STEP`]): at the point where the p-step last linearized, its columns come from the
+/// kept runs ([`Problem::runs`]), not new simulations.
 fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>, DMatrix<f64>) {
     let r0 = problem.eval(q);
     let m = r0.len();
