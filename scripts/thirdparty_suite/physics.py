@@ -114,6 +114,7 @@ class Model:
         top_tris = tris[np.all(np.abs(points10[tris][:, :, 2] - height) < 1e-6, axis=1)]
         self.top = np.unique(self._tri6(cells10, top_tris))
         self.top_area = self._lumped_area(cells10, top_tris)
+        self.top_six = self._tri6(cells10, top_tris).reshape(-1, 6)  # the top faces' tri6 nodes
         base_tris = tris[np.all(points10[tris][:, :, 2] < 1e-6, axis=1)]
         self.base_area = self._lumped_area(cells10, base_tris)
         self.base_cells = self._cells_on(cells10, base_tris)
@@ -263,7 +264,7 @@ class Model:
                 r = r + fp
                 extra.append(trip)
             for rows, cols, v in extra:
-                if rows:
+                if len(rows):
                     K = K + sp.csr_matrix((v, (rows, cols)), shape=K.shape)
             rf = r[free]
             if du is not None and halvings < 8 and np.linalg.norm(rf) > 4.0 * last_norm:

@@ -6,12 +6,22 @@ hovering above the first location. The punch is a rigid flat disk with a sharp e
 - vertical shaft: an active set of top-face nodes under the disk take the punch's z displacement
   (frictionless: their x, y are free); nodes that penetrate the face are added; when the total
   force turns tensile the punch has lost contact and the set is emptied;
-- tilted shaft (probe friction case and its pair): the disk face is perpendicular to the shaft and
-  contact is a penalty on the nodes under the disk: a one-sided penalty on the normal gap of the
-  nodes nearer the face than the rim (frictionless), or on an active set's full relative motion
-  from where each node touched (sticking friction).
+- tilted shaft (probe friction case and its pair, support-slip and its pair): the punch is a solid
+  disk (its face perpendicular to the shaft, its side wall a cylinder of the disk's radius round
+  the shaft) that touches the surface from the depth −R tan θ on (its low rim first; the punch
+  travels there from first touch in steps, `approach`). The top face is sampled on a lattice of
+  points per 6-node face (`surface_lattice`, the nodes among them); a point inside the solid is
+  projected onto the face, or onto the side wall when it was beside the disk and is nearer the
+  wall (`disk_projection`), and a penalty pushes it out along that normal: one-sided on the gap
+  (frictionless), or, for an active set, on the full relative motion from the point where it
+  touched (sticking friction). Point-to-rigid-surface penalty with the closest-point projection
+  (Wriggers, Computational Contact Mechanics, 2nd ed., §4.1, §5.2). Before (a face without side
+  wall, on the nodes only), material beside the low rim of the tilted disk moved into the solid
+  (1.66 mm behind the face, 1.1 mm inside the rim in probe-friction-pair's first fixtures) and
+  the element faces between the nodes cut through the rim.
 """
 import numpy as np
+import scipy.sparse as sp
 
 from .physics import Model, interpolate_markers
 
@@ -53,6 +63,7 @@ class Punch:
         self.friction = friction  # "none" | "stick"
         self.active = set()
         self.anchor = {}
+        self.beside = None
         self.k_pen = None
 
     def step(self, tip, axis, fixed_support):
@@ -95,85 +106,183 @@ class Punch:
         force[2] = sum(r[3 * i + 2] for i in self.active)
         return force
 
-    def _tilted(self, tip, axis, fixed_support):
-        m = self.m
-        k = self.k_pen
-        for _ in range(8):
-            ids, along, lat = self._candidates(tip, axis)
-            add = {int(i) for i, a, l in zip(ids, along, lat) if l <= self.R and a < 0.0} - self.active
-            for i in add:
-                x = m_pos(m)[i]
-                y = x - tip
-                self.anchor[i] = y - (y @ axis) * axis
-            self.active |= add
-            active = sorted(self.active)
+    def _surface_points(self):
+        """The top face sampled for the tilted punch's contact: on each 6-node face the lattice
+        of barycentric points i/p, j/p (p = SURFACE_LATTICE, the face's nodes among them), each
+        with the area its p² sub-triangles lump to it. Returns the sampling matrix S (points ×
+        nodes; the points' positions are S x through the tri6 shape functions) and the areas."""
+        if getattr(self, "_sampling", None) is None:
+            self._sampling = surface_lattice(self.m.points, self.m.top_six, SURFACE_LATTICE)
+        return self._sampling
 
-            def penalty(u, active=active):
-                f = np.zeros(3 * m.n)
-                rows, cols, vals = [], [], []
-                for i in active:
-                    A = m.top_area[i]
-                    x = m.points[i] + u[i]
-                    g = x - tip - self.anchor[i]
-                    f[3 * i:3 * i + 3] = k * A * g
-                    K = k * A * np.eye(3)
-                    for a in range(3):
-                        for b in range(3):
-                            rows.append(3 * i + a)
-                            cols.append(3 * i + b)
-                            vals.append(K[a, b])
-                return f, (rows, cols, vals)
+    def _beside(self, tip, axis):
+        """Which surface points are beside the disk (their distance from the shaft's line at
+        least its radius less BESIDE_TOLERANCE_MM, so that a point the side wall holds stays
+        beside) in the last converged state at this location, or in the current state at a
+        location's first contact."""
+        if self.beside is None:
+            self._note_beside(tip, axis)
+        return self.beside
+
+    def _note_beside(self, tip, axis):
+        S, _ = self._surface_points()
+        d = S @ m_pos(self.m) - tip
+        lat = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
+        self.beside = lat >= self.R - BESIDE_TOLERANCE_MM
+
+    def _tilted(self, tip, axis, fixed_support):
+        """Sticking tilted punch: an active set of surface points (`_surface_points`) inside the
+        solid disk; each is anchored (punch frame) at its closest point on the disk's boundary
+        when it touched (`disk_projection`: the face, or the side wall for a point nearer it)
+        and a penalty k w on its full relative motion from there holds it; a point the punch
+        would pull (tensile force along that normal) is released. Returns the force on the
+        object."""
+        m = self.m
+        S, w = self._surface_points()
+        k = self.k_pen
+        beside = self._beside(tip, axis)
+        for _ in range(8):
+            x = S @ m_pos(m) - tip
+            inside, normal, gap = disk_projection(x, axis, self.R, beside)
+            add = {int(p) for p in np.flatnonzero(inside)} - self.active
+            for p in add:
+                self.anchor[p] = (x[p] - gap[p] * normal[p], normal[p])
+            self.active |= add
+            active = np.array(sorted(self.active), dtype=int)
+            anchors = np.array([self.anchor[p][0] for p in active]).reshape(-1, 3)
+            S3 = sp.kron(S[active], sp.eye(3), format="csr")
+            kw = np.repeat(k * w[active], 3)
+
+            def penalty(u, S3=S3, kw=kw, active=active, anchors=anchors):
+                g = (S[active] @ (m.points + u) - tip - anchors).reshape(-1)
+                f = S3.T @ (kw * g)
+                K = (S3.T @ sp.diags(kw) @ S3).tocoo()
+                return f, (K.row, K.col, K.data)
 
             m.solve(dict(fixed_support), penalty=penalty)
-            fp, _ = penalty(m.u)
-            # release nodes the punch would pull (tensile normal force)
-            pull = {i for i in active if -(fp[3 * i:3 * i + 3] @ axis) < 0.0}
+            fp = (kw * (S[active] @ m_pos(m) - tip - anchors).reshape(-1)).reshape(-1, 3)
+            # release points the punch would pull (tensile force along the normal where they touched)
+            pull = {int(p) for p, f in zip(active, fp) if -(f @ self.anchor[int(p)][1]) < 0.0}
             self.active -= pull
-            for i in pull:
-                self.anchor.pop(i, None)
+            for p in pull:
+                self.anchor.pop(p, None)
             if not add and not pull:
                 break
-        fp, _ = penalty(m.u, sorted(self.active))
-        force = np.zeros(3)
-        for i in self.active:
-            force -= fp[3 * i:3 * i + 3]
-        return force
+        active = np.array(sorted(self.active), dtype=int)
+        if not len(active):
+            self._note_beside(tip, axis)
+            return np.zeros(3)
+        anchors = np.array([self.anchor[p][0] for p in active])
+        fp = k * w[active, None] * (S[active] @ m_pos(m) - tip - anchors)
+        self._note_beside(tip, axis)
+        return -fp.sum(axis=0)
 
     def _tilted_frictionless(self, tip, axis, fixed_support):
-        """Frictionless tilted punch: a one-sided penalty on the normal gap of every top node
-        under the disk face, the face being the contact geometry of the sticking punch too (no
-        side wall). A node counts as under the face while it is nearer the face than the rim
-        (penetration along the shaft ≤ R − lateral distance): the surface slides along the face
-        toward the sharp low edge, and material carried past the rim (behind the face from its
-        side) takes no load: the punch has no side wall, frictionless or sticking, and its force
-        stays along the shaft. With an active set of face nodes (as the sticking punch has),
-        such material joined the set deep behind the face and Newton diverged (location 4,
-        2 mm). Returns the force on the object."""
+        """Frictionless tilted punch: a one-sided penalty k w g² / 2 on the gap g of every surface
+        point (`_surface_points`) inside the solid disk, along the normal of the nearest part of
+        its boundary (`disk_projection`): the face for a point nearer the face than the rim, the
+        side wall otherwise. Material carried toward the shaft beside the low rim of the tilted
+        disk is pushed back out through the wall (before, the punch had no side wall and such
+        nodes were released: the surface passed into it). The tangent is the penalty's
+        Gauss–Newton part k w (S n)(S n)ᵀ (the side wall's curvature term k w g/r (I − a aᵀ −
+        n nᵀ) is dropped: at equilibrium g is the penalty's µm-scale penetration). Returns the
+        force on the object."""
         m = self.m
-        top = m.top
-        kA = self.k_pen * m.top_area[top]
+        S, w = self._surface_points()
+        k = self.k_pen
         R = self.R
-        K1 = np.outer(axis, axis)
+        beside = self._beside(tip, axis)
+
+        def contact(u):
+            inside, normal, gap = disk_projection(S @ (m.points + u) - tip, axis, R, beside)
+            idx = np.flatnonzero(inside)
+            return idx, normal[idx], k * w[idx] * gap[idx]
 
         def penalty(u):
-            d = m.points[top] + u[top] - tip
-            a = d @ axis
-            lat = np.linalg.norm(d - np.outer(a, axis), axis=1)
-            f = np.zeros(3 * m.n)
-            rows, cols, vals = [], [], []
-            for j in np.flatnonzero((a < 0.0) & (-a <= R - lat)):
-                i = top[j]
-                f[3 * i:3 * i + 3] = kA[j] * a[j] * axis
-                for r in range(3):
-                    for c in range(3):
-                        rows.append(3 * i + r)
-                        cols.append(3 * i + c)
-                        vals.append(kA[j] * K1[r, c])
-            return f, (rows, cols, vals)
+            idx, n, c = contact(u)
+            Si = S[idx].tocoo()
+            # B: one row per touching point, its normal spread over its nodes' x, y, z dofs
+            rows = np.repeat(Si.row, 3)
+            cols = 3 * np.repeat(Si.col, 3) + np.tile(np.arange(3), len(Si.col))
+            vals = np.repeat(Si.data, 3) * n[Si.row].reshape(-1)
+            B = sp.csr_matrix((vals, (rows, cols)), shape=(len(idx), 3 * m.n))
+            f = B.T @ c
+            K = (B.T @ sp.diags(k * w[idx]) @ B).tocoo()
+            return f, (K.row, K.col, K.data)
 
         m.solve(dict(fixed_support), penalty=penalty)
-        fp, _ = penalty(m.u)
-        return -fp.reshape(-1, 3).sum(axis=0)
+        _, n, c = contact(m.u)
+        self._note_beside(tip, axis)
+        return -(c[:, None] * n).sum(axis=0)
+
+
+SURFACE_LATTICE = 4
+BESIDE_TOLERANCE_MM = 0.1
+
+
+def surface_lattice(points, six, p):
+    """Sampling of 6-node triangles at the barycentric lattice (i/p, j/p, 1 − i/p − j/p), each
+    point weighted by a third of the area of each of the p² sub-triangles it is a corner of.
+    Returns (S, w): S (points × nodes, sparse) the tri6 shape functions at the points (corner
+    L(2L − 1), edge 4 Li Lj), w the points' areas (mm²; they sum to the faces' area)."""
+    lat = [(i, j) for i in range(p + 1) for j in range(p + 1 - i)]
+    index = {ij: q for q, ij in enumerate(lat)}
+    share = np.zeros(len(lat))
+    for i in range(p):
+        for j in range(p - i):
+            for v in ((i, j), (i + 1, j), (i, j + 1)):
+                share[index[v]] += 1.0
+            if i + j <= p - 2:
+                for v in ((i + 1, j), (i, j + 1), (i + 1, j + 1)):
+                    share[index[v]] += 1.0
+    share /= 3.0 * p * p
+    L = np.array([[i / p, j / p, 1.0 - (i + j) / p] for i, j in lat])
+    L1, L2, L3 = L.T
+    N = np.stack([L1 * (2 * L1 - 1), L2 * (2 * L2 - 1), L3 * (2 * L3 - 1),
+                  4 * L1 * L2, 4 * L2 * L3, 4 * L3 * L1], axis=1)  # (q, 6), tri6 node order
+    c = points[six[:, :3]]
+    area = 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+    nq = len(lat)
+    rows = np.repeat(np.arange(len(six) * nq), 6)
+    cols = np.repeat(six, nq, axis=0).reshape(-1)
+    vals = np.tile(N, (len(six), 1)).reshape(-1)
+    S = sp.csr_matrix((vals, (rows, cols)), shape=(len(six) * nq, len(points)))
+    S.eliminate_zeros()
+    w = (area[:, None] * share[None, :]).reshape(-1)
+    return S, w
+
+
+def disk_projection(d, axis, radius, beside):
+    """Projection of points inside the punch's solid disk onto its boundary, the gap along the
+    normal of the projected point (Wriggers, Computational Contact Mechanics §4.1). `d` (n, 3):
+    the points relative to the disk centre (tip); `axis`: the shaft's unit direction, pointing
+    into the object. The solid: behind the face (d·axis < 0) within `radius` of the axis. A point
+    can have entered the solid only through the face unless it was `beside` the disk (at least
+    `radius` from the shaft's line) when the step started: those go out through the nearer of
+    face and side wall (closest point), the others through the face. (The tilted disk's first
+    contact puts its low rim 1.7 mm into the surface at once; a closest point would push the
+    surface under the rim sideways.) Returns (inside (n,) bool, outward normal (n, 3) — the
+    face's `axis` or the side wall's radial direction —, gap (n,) along it, negative inside)."""
+    a = d @ axis
+    v = d - np.outer(a, axis)
+    lat = np.linalg.norm(v, axis=1)
+    inside = (a < 0.0) & (lat < radius)
+    side = inside & beside & (-a > radius - lat) & (lat > 1e-12)
+    normal = np.tile(axis, (len(d), 1))
+    gap = a.copy()
+    normal[side] = v[side] / lat[side, None]
+    gap[side] = lat[side] - radius
+    return inside, normal, gap
+
+
+def disk_intrusion(punch, tip, axis):
+    """Deepest point of the sampled top face (`Punch._surface_points`) inside the punch's solid
+    disk (mm along its nearest boundary's normal; 0 when none is inside): the contact
+    constraint's violation, the penalty's compliance where the contact holds."""
+    S, _ = punch._surface_points()
+    everywhere = np.ones(S.shape[0], dtype=bool)
+    inside, _, gap = disk_projection(S @ m_pos(punch.m) - tip, axis, punch.R, everywhere)
+    return float(-gap[inside].min()) if inside.any() else 0.0
 
 
 def m_pos(m):
@@ -213,19 +322,22 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     )
     cache = {}
     history = []
-    markers, tips, forces = [], [], []
+    markers, tips, forces, intrusion = [], [], [], []
     prev = None
+    touch = touch_depth(punch.R, axis)
     for fi, fr in enumerate(frames):
         tip = surface_pts[fr["loc"]] + fr["depth"] * axis
-        key = (fr["loc"], round(max(fr["depth"], 0.0), 9))
-        if fr["depth"] <= 0.0:
-            key = ("free",)
+        touching = fr["depth"] > touch
+        key = (fr["loc"], round(max(fr["depth"], 0.0), 9)) if touching else ("free",)
         if prev is not None and key[0] != prev[0]:
             # a new location or lift-off: the punch starts without contact
             punch.active = set()
             punch.anchor = {}
+            punch.beside = None
         same = prev == key
-        if fr["depth"] > 0 and not same:
+        if touching and (prev is None or prev[0] != key[0]):
+            approach(model, punch, surface_pts[fr["loc"]], axis, fixed_support, history, fr["depth"])
+        if touching and not same:
             predict(model, history, fr["loc"], fr["depth"])
         if rate_dependent or (path_dependent and not same):
             force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], not rate_dependent)
@@ -235,7 +347,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             model.field[0].values[:] = cache[key][0]
             force = cache[key][1].copy()
         else:
-            if fr["depth"] > 0:
+            if touching:
                 force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], True)
             else:
                 model.field[0].values[:] = rest_u
@@ -246,8 +358,11 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         markers.append(m_pos_markers(model, cells10, marker_cells, marker_lams))
         tips.append(tip)
         forces.append(force)
+        intrusion.append(disk_intrusion(punch, tip, axis) if touching else 0.0)
         if fi % 20 == 0:
             log(f"  frame {fi}/{len(frames)}: depth {fr['depth']:.3f} mm, force {force[2]:.4f} N")
+    deepest = int(np.argmax(intrusion))
+    log(f"  deepest top-face point inside the punch's disk: {intrusion[deepest] * 1e3:.2f} µm (frame {deepest})")
     return {
         "frames": frames,
         "dt": dt,
@@ -267,11 +382,12 @@ def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_subs
     from .physics import NotConverged
 
     def once(t, d):
-        force = punch.step(t, axis, fixed_support) if d > 0 else free_step(model, punch, fixed_support)
+        touching = d > touch_depth(punch.R, axis)
+        force = punch.step(t, axis, fixed_support) if touching else free_step(model, punch, fixed_support)
         model.commit()
         return force
 
-    active, anchor = set(punch.active), dict(punch.anchor)
+    active, anchor, beside = set(punch.active), dict(punch.anchor), punch.beside
     try:
         return once(tip, depth)
     except NotConverged:
@@ -280,20 +396,46 @@ def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_subs
         raise NotConverged("first frame")
     _, d_prev, u_prev = history[-1]
     model.field[0].values[:] = u_prev
-    punch.active, punch.anchor = set(active), dict(anchor)
+    punch.active, punch.anchor, punch.beside = set(active), dict(anchor), beside
     try:
         return once(tip, depth)
     except NotConverged:
         if not may_substep:
             raise
     model.field[0].values[:] = u_prev
-    punch.active, punch.anchor = set(active), dict(anchor)
+    punch.active, punch.anchor, punch.beside = set(active), dict(anchor), beside
     start = tip - (depth - d_prev) * axis
     force = None
     for k in range(1, 5):
         d = d_prev + (depth - d_prev) * k / 4
         force = once(start + (d - d_prev) * axis, d)
     return force
+
+
+APPROACH_STEP_MM = 0.5
+
+
+def touch_depth(radius, axis):
+    """The depth along the shaft (below the surface point under the disk centre) at which the
+    disk first meets a flat top face: 0 for a vertical shaft, −R tan θ for a shaft θ from the
+    vertical (its low rim reaches the surface first)."""
+    sin = np.sqrt(max(1.0 - axis[2] ** 2, 0.0))
+    return -radius * sin / -axis[2]
+
+
+def approach(model, punch, surface, axis, fixed_support, history, depth):
+    """A tilted disk's first contact at a location: a frame that jumps from hovering to a depth
+    d puts the low rim d − `touch_depth` into the surface at once. The punch instead travels from
+    its first touch to d in committed steps of at most APPROACH_STEP_MM (the sticking disk's
+    points stick where they touch on the way). A vertical punch touches with its whole face at
+    depth 0: nothing to do."""
+    touch = touch_depth(punch.R, axis)
+    if touch > -1e-9:
+        return
+    n = int(np.ceil((depth - touch) / APPROACH_STEP_MM))
+    for k in range(1, n):
+        d = touch + (depth - touch) * k / n
+        robust_step(model, punch, surface + d * axis, axis, fixed_support, history, d, True)
 
 
 def predict(model, history, loc, depth):
@@ -310,6 +452,7 @@ def predict(model, history, loc, depth):
 def free_step(model, punch, fixed_support):
     punch.active = set()
     punch.anchor = {}
+    punch.beside = None
     model.solve(dict(fixed_support))
     return np.zeros(3)
 
