@@ -584,6 +584,35 @@ fn support_slip_seen_from_above_is_named() {
     );
 }
 
+/// Support springs of 1500 N/m, the calibration's middle strength (noise seed 101): stiffer than
+/// the block's own shear stiffness, so the base slips more under the load than away from it and
+/// the screen's rigid translation does not qualify. The far-field push (> 3σ) sends support-slip
+/// to re-simulation after the screen's candidates, and its springs grid reaches the stiffness whose
+/// slip is the signature's 3σ (`support_slip::stiffness_grid`): named, k within √2 of the truth.
+/// Before both (main 73544ae1) the verdict was `unexplained`. ≈ 14 CPU-s.
+#[test]
+fn stiff_support_springs_are_named() {
+    let s = session_with(&[Effect::SupportSlip(1500.0)], true, &LOCATIONS, 101);
+    let mut sim = simulator(20e3);
+    let d = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default())
+        .unwrap()
+        .diagnosis;
+    print_ranked(&d);
+    assert_eq!(d.verdict, "support-slip", "{:?}", d.unexplained);
+    let e = &d.effects[0];
+    assert!(
+        3.0 * e.heldout_rmse_after_m <= e.heldout_rmse_before_m,
+        "held-out {} → {}",
+        e.heldout_rmse_before_m,
+        e.heldout_rmse_after_m
+    );
+    let k = e.params["support_tangential_stiffness_n_per_m"];
+    assert!(
+        (1500.0 / 2f64.sqrt()..=1500.0 * 2f64.sqrt()).contains(&k),
+        "k {k} N/m"
+    );
+}
+
 /// A set above 3σ whose persistence over the gaps between releases is `p`.
 fn persisting(p: f64) -> softcap_diagnose::Signatures {
     softcap_diagnose::Signatures {
@@ -1223,13 +1252,17 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
         Some("timing") => timing_probe(),
         Some("ten-locations") => full_catalog_on_ten_locations_timing(),
         Some("docs-report") => write_docs_report(),
-        Some("calibration") => calibration()?,
+        Some("effect-size") => effect_sizes(std::env::args().nth(2).as_deref().unwrap_or("")),
+        Some("calibration") => match std::env::args().nth(2) {
+            None => calibration()?,
+            Some(filter) => calibration_sessions(&filter, std::env::args().nth(3).as_deref())?,
+        },
         Some("pairs") => pairs_table(std::env::args().nth(2).as_deref()),
         Some("next-experiment") => next_experiment_table(std::env::args().nth(2).as_deref()),
         Some("lookalike") => lookalike_table(std::env::args().nth(2).as_deref()),
         other => {
             return Err(format!(
-                "part {other:?}: one of timing, ten-locations, docs-report, calibration, pairs, next-experiment, lookalike"
+                "part {other:?}: one of timing, ten-locations, docs-report, calibration, effect-size, pairs, next-experiment, lookalike"
             ));
         }
     }
@@ -1389,6 +1422,114 @@ fn calibration() -> Result<(), String> {
         png.display()
     );
     Ok(())
+}
+
+/// The calibration's effect sessions whose "effect strength" label contains `filter` (e.g.
+/// `"support-slip k 1500"`), diagnosed alone with their ranked rows on stderr and a line each on
+/// stdout: with the table's noise seed (100 + strength column), or with `seed` (another draw of
+/// the same truth).
+#[cfg(not(test))]
+fn calibration_sessions(filter: &str, seed: Option<&str>) -> Result<(), String> {
+    let seed: Option<u64> = seed
+        .map(|s| s.parse().map_err(|_| format!("seed {s:?}: not an integer")))
+        .transpose()?;
+    for (name, oblique, strengths) in calibration_effects() {
+        for (i, e) in strengths.iter().enumerate() {
+            let label = format!("{name} {}", strength_label(e));
+            if !label.contains(filter) {
+                continue;
+            }
+            let seed = seed.unwrap_or(100 + i as u64);
+            let t0 = std::time::Instant::now();
+            let s = session_with(&[*e], oblique, &LOCATIONS, seed);
+            let mut sim = simulator(20e3);
+            let d = diagnose(&s.rec, &mut sim, &DiagnoseSettings::default())
+                .map_err(|e| e.to_string())?
+                .diagnosis;
+            eprintln!("{label}, seed {seed}:");
+            print_ranked(&d);
+            let named: Vec<&str> = d.effects.iter().map(|e| e.hypothesis.as_str()).collect();
+            println!(
+                "| {label} | {seed} | `{}` | {} | {:.2} | {:.0} s |",
+                d.verdict,
+                named.join(", "),
+                d.confidence,
+                t0.elapsed().as_secs_f64()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// How far each calibration effect whose label contains `filter` lifts the data above the noise
+/// ([`effect_size_row`]); with the filter `yield onset`, J2 plasticity (hardening 1 kPa) at
+/// σ_y 2–4 kPa instead: where the 0.25 N probe starts to yield the 648-tet block.
+#[cfg(not(test))]
+fn effect_sizes(filter: &str) {
+    println!(
+        "| session | markers RMS / max, µm (× √3σ) | released near the probe RMS / max, µm | force RMS, mN |"
+    );
+    println!("|---|---|---|---|");
+    if filter == "yield onset" {
+        for yield_pa in [2000.0, 2500.0, 3000.0, 3500.0, 4000.0] {
+            let e = Effect::Plastic {
+                yield_pa,
+                hardening_pa: 1000.0,
+            };
+            effect_size_row(&format!("plasticity {}", strength_label(&e)), e, false, 101);
+        }
+        return;
+    }
+    for (name, oblique, strengths) in calibration_effects() {
+        for (i, e) in strengths.iter().enumerate() {
+            let label = format!("{name} {}", strength_label(e));
+            if label.contains(filter) {
+                effect_size_row(&label, *e, oblique, 100 + i as u64);
+            }
+        }
+    }
+}
+
+/// One row of [`effect_sizes`]: the session of `effect` minus the clean session of the same probe
+/// path and noise seed (the same noise draws, so the difference is the effect alone), as RMS and
+/// largest marker difference over the location frames (all, and the released frames within the
+/// contact radius of the probed point) in µm and in units of the noise RMS √3σ, and the RMS
+/// difference of the measured force, mN.
+#[cfg(not(test))]
+fn effect_size_row(label: &str, effect: Effect, oblique: bool, seed: u64) {
+    let noise_rms_m = 3f64.sqrt() * 5e-6;
+    let a = session_with(&[effect], oblique, &LOCATIONS, seed).rec;
+    let b = session_with(&[Effect::Clean], oblique, &LOCATIONS, seed).rec;
+    let seg = Segmentation::new(&b, &SegmentSettings::default());
+    let radius = softcap_diagnose::cells::contact_radius_m(&b);
+    let (mut all, mut rel) = ((0.0, 0usize, 0.0f64), (0.0, 0usize, 0.0f64));
+    let mut force = 0.0;
+    for (k, (fa, fb)) in a.frames.iter().zip(&b.frames).enumerate() {
+        force += (fa.force_n - fb.force_n).norm_squared();
+        let Some(l) = seg.fold_of_frame[k] else {
+            continue;
+        };
+        for (m, (x, y)) in fa.markers_m.iter().zip(&fb.markers_m).enumerate() {
+            let (Some(x), Some(y)) = (x, y) else { continue };
+            let d = (x - y).norm();
+            all = (all.0 + d * d, all.1 + 1, all.2.max(d));
+            let near = (seg.locations[l].contact_tip_m - b.rest_markers_m[m]).norm() <= radius;
+            if seg.phases[k] == softcap_diagnose::Phase::Released && near {
+                rel = (rel.0 + d * d, rel.1 + 1, rel.2.max(d));
+            }
+        }
+    }
+    let rms = |x: (f64, usize, f64)| (x.0 / x.1.max(1) as f64).sqrt();
+    println!(
+        "| {label} | {:.1} / {:.1} ({:.2} / {:.2}) | {:.1} / {:.1} | {:.2} |",
+        1e6 * rms(all),
+        1e6 * all.2,
+        rms(all) / noise_rms_m,
+        all.2 / noise_rms_m,
+        1e6 * rms(rel),
+        1e6 * rel.2,
+        1e3 * (force / a.frames.len() as f64).sqrt()
+    );
 }
 
 /// Detection per effect and the rate against strength, with the false-alarm rate as a line.
@@ -1588,13 +1729,15 @@ fn print_ranked(d: &softcap_diagnose::Diagnosis) {
         );
     }
     for r in d.ranked.iter().take(7) {
-        let sup = r
-            .evidence
-            .screened
-            .as_ref()
-            .map(|s| (s.signature_support, s.qualifies));
+        let sup = r.evidence.screened.as_ref().map(|s| {
+            (
+                s.signature_support,
+                s.qualifies,
+                (1e3 * s.heldout_rmse_linearised_m * 1e4).round() / 1e4,
+            )
+        });
         eprintln!(
-            "  {:>16} score {:+.3} before {:.4} after {:.4} mm support/qualifies {sup:?} {:?} {:?}",
+            "  {:>16} score {:+.3} before {:.4} after {:.4} mm support/qualifies/screen mm {sup:?} {:?} {:?}",
             r.hypothesis,
             r.score,
             1e3 * r.heldout_rmse_before_m,

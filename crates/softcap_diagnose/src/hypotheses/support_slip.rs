@@ -5,13 +5,17 @@
 //! plane, or on the plane across gravity without a support). Effect cells: contact frames,
 //! markers away from the active contact. Signature: the attached markers move in contact, or the
 //! markers away from the probe follow an oblique push
-//! ([`crate::signatures::far_field_push`]), above 3σ. Confirmation: the default model on a `softcap_fem::SupportPlane` with tangential springs
-//! under the attached face instead of fixed nodes, the total stiffness k on a √2 log grid around
-//! the indentation stiffness (the compliance scale d makes the family (material stiffness / d,
-//! k / d)).
+//! ([`crate::signatures::far_field_push`]), above 3σ; that signature alone also sends it to
+//! re-simulation after the screen's candidates ([`slides`]): the rigid translation is the slip of
+//! a support much softer than the body, and a stiffer interface slips more under the load than
+//! away from it, which the screen's translation does not follow. Confirmation: the default model
+//! on a `softcap_fem::SupportPlane` with tangential springs under the attached face instead of
+//! fixed nodes, the total stiffness k on a √2 log grid from an eighth of the indentation stiffness
+//! up to the stiffness whose slip under the largest tangential force is the signature's 3σ
+//! ([`stiffness_grid`]; the compliance scale d makes the family (material stiffness / d, k / d)).
 
 use super::Effect;
-use super::contract::{Context, Hypothesis};
+use super::contract::{Context, Hypothesis, SignatureRoute};
 use crate::Result;
 use crate::cells::{EffectCells, contact_cells};
 use crate::confirm::{ComplianceScale, Confirmed};
@@ -28,6 +32,32 @@ pub struct SupportSlip;
 
 /// Name of the effect cells.
 const CELLS: &str = "contact/away-from-probe";
+
+/// The body slides on its support beyond the noise: the attached markers move in contact, or the
+/// markers away from the probe follow an oblique push ([`crate::signatures::far_field_push`]), by
+/// more than three marker noise σ.
+pub fn slides(s: &Signatures) -> bool {
+    s.attached_motion_m > s.three_sigma_m() || s.far_field_push_m > s.three_sigma_m()
+}
+
+/// The total tangential stiffnesses of the support springs the confirmation re-simulates, N/m:
+/// k_ind · 2^{i/2} from i = −6 (an eighth of the indentation stiffness `k_ind`, a support far
+/// softer than the body) up to the first point at or above k_max = F_t / (3σ) — the stiffness
+/// whose rigid slip F_t / k under the largest tangential force F_t is the far-field signature's
+/// 3σ threshold (a stiffer support slips less than the signature can see) — at least 4 k_ind and
+/// at most 64 k_ind.
+pub fn stiffness_grid(k_ind: f64, max_tangential_n: f64, noise_sigma_m: f64) -> Vec<f64> {
+    let k_max = max_tangential_n / (3.0 * noise_sigma_m).max(1e-300);
+    let top = (2.0 * (k_max / k_ind).log2()).ceil();
+    let top = if top.is_nan() {
+        4
+    } else {
+        top.clamp(4.0, 12.0) as i32
+    };
+    (-6..=top)
+        .map(|i| k_ind * 2f64.powf(0.5 * i as f64))
+        .collect()
+}
 
 impl Hypothesis for SupportSlip {
     fn effect(&self) -> Effect {
@@ -89,11 +119,13 @@ impl Hypothesis for SupportSlip {
     }
 
     fn signature_support(&self, s: &Signatures) -> f64 {
-        if s.attached_motion_m > s.three_sigma_m() || s.far_field_push_m > s.three_sigma_m() {
-            1.0
-        } else {
-            -1.0
-        }
+        if slides(s) { 1.0 } else { -1.0 }
+    }
+
+    /// Re-simulated after the screen's candidates when it [`slides`]: the screen's rigid
+    /// translation misses the non-uniform slip of a support stiffer than the body.
+    fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
+        slides(s).then_some(SignatureRoute::AfterScreen)
     }
 
     fn confirm(
@@ -112,10 +144,22 @@ impl Hypothesis for SupportSlip {
             .fold(0.0, f64::max)
             .max(1e-5);
         let k_ind = seg.peak_force_n() / depth_m;
-        // Slip ≈ rigid translation F_t / k: a log grid in steps of √2 around k_ind.
-        let grid: Vec<GridPoint> = (-6..=4)
-            .map(|i| {
-                let k = k_ind * 2f64.powf(0.5 * i as f64);
+        // Slip ≈ rigid translation F_t / k: a log grid in steps of √2 from k_ind / 8 up to the
+        // stiffness whose slip the far-field signature can still see.
+        let normal = rec
+            .support
+            .as_ref()
+            .map(|s| s.normal)
+            .unwrap_or(rec.gravity_dir());
+        let max_tangential_n = p
+            .force_n
+            .iter()
+            .map(|f| (f - normal * normal.dot(f)).norm())
+            .fold(0.0, f64::max);
+        let ks = stiffness_grid(k_ind, max_tangential_n, cx.signatures.noise_sigma_m);
+        let grid: Vec<GridPoint> = ks
+            .into_iter()
+            .map(|k| {
                 (
                     vec![("support_tangential_stiffness_n_per_m".into(), k)],
                     Extension::SupportSprings {
@@ -136,5 +180,33 @@ impl Hypothesis for SupportSlip {
             "SupportPlane springs",
             CELLS,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The in-memory rig's oblique session: k_ind 122 N/m, tangential force 0.0826 N, σ 5 µm →
+    /// k_max = 0.0826 / 15 µm = 5,507 N/m, reached at i = 11 (122 · 2^5.5 = 5,521 N/m); the
+    /// grid keeps its √2 steps and its lower end, and its top is clamped to [4, 64] k_ind.
+    #[test]
+    fn stiffness_grid_reaches_the_stiffness_the_signature_can_see() {
+        let ks = stiffness_grid(122.0, 0.0826, 5e-6);
+        assert_eq!(ks.len(), 18);
+        assert!((ks[0] - 122.0 / 8.0).abs() < 1e-9);
+        assert!(
+            ks.windows(2)
+                .all(|w| (w[1] / w[0] - 2f64.sqrt()).abs() < 1e-12)
+        );
+        let top = ks[ks.len() - 1];
+        assert!((5507.0..5507.0 * 2f64.sqrt()).contains(&top), "{top}");
+        // a straight probe (no tangential force): the old grid up to 4 k_ind
+        let ks = stiffness_grid(122.0, 0.0, 5e-6);
+        assert_eq!(ks.len(), 11);
+        assert!((ks[10] - 4.0 * 122.0).abs() < 1e-9);
+        // noise-free data: at most 64 k_ind
+        let ks = stiffness_grid(122.0, 0.0826, 0.0);
+        assert!((ks[ks.len() - 1] - 64.0 * 122.0).abs() < 1e-6);
     }
 }
