@@ -6,8 +6,8 @@ use softcap_tissue::reshape::gauge::best_rigid;
 use softcap_tissue::reshape::known_truth::{self, moved, problem, truth};
 use softcap_tissue::reshape::{
     ConstraintKind, CrossValidationSettings, HoldOut, Landmark, MaterialPoint, ReshapeOutcome,
-    ReshapeProblem, ReshapeSettings, ReshapeStatus, Smoothness, SurfaceProjector, reshape,
-    write_target,
+    ReshapeProblem, ReshapeSettings, ReshapeStatus, Smoothness, StopReason, SurfaceProjector,
+    reshape, write_target,
 };
 
 /// (mean, 95th percentile, max) of `v`.
@@ -87,6 +87,51 @@ fn recovers_a_known_anisotropic_plastic_deformation() {
     let landmarks = stats(&mut out.errors_of(ConstraintKind::Landmark));
     assert!(landmarks.2 <= 0.5e-3, "landmark error {}", mm(landmarks));
     assert_eq!(out.reshaped_quality.inverted_tets, 0);
+    assert_stopping_rules(&out, &ReshapeSettings::default());
+}
+
+/// The schedule and stopping rules of §3.4 on a finished reshape: the stages in order (constant
+/// guess → attachments → + landmarks → ICP), the history in the same order with one record per
+/// iteration, and each stage's stop justified by its records — (i) the iteration cap reached,
+/// (ii) the largest image-constraint error within the tolerance, (iii) the last iteration lowering
+/// the objective by less than the relative threshold; the status converged.
+fn assert_stopping_rules(out: &ReshapeOutcome, settings: &ReshapeSettings) {
+    let names: Vec<&str> = out.stages.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(names, ["constant", "attachments", "landmarks", "icp"]);
+    let mut history = out.history.iter();
+    for stage in &out.stages {
+        let records: Vec<_> = history.by_ref().take(stage.iterations).collect();
+        assert!(
+            records.len() == stage.iterations && records.iter().all(|r| r.stage == stage.name),
+            "{stage:?}: history out of order"
+        );
+        let cap = if stage.name == "constant" {
+            settings.constant_iterations
+        } else {
+            settings.max_iterations
+        };
+        match stage.stop {
+            StopReason::MaxIterations => assert_eq!(stage.iterations, cap, "{stage:?}"),
+            StopReason::ErrorTolerance => {
+                assert!(stage.max_error_m <= settings.error_tolerance_m, "{stage:?}")
+            }
+            StopReason::SmallProgress => {
+                let last = records.last().expect("an iteration").objective;
+                let before = records
+                    .len()
+                    .checked_sub(2)
+                    .map_or(stage.objective_start, |k| records[k].objective);
+                let decrease = (before - last) / before;
+                assert!(
+                    decrease < settings.relative_progress && stage.iterations < cap,
+                    "{stage:?}: last decrease {decrease}"
+                );
+            }
+            StopReason::NoDescent => panic!("{stage:?}: no descent on the known truth"),
+        }
+    }
+    assert!(history.next().is_none(), "history longer than the stages");
+    assert_eq!(out.status, ReshapeStatus::Converged);
 }
 
 /// saito-barbic §3.6: the same targets moved rigidly (29°, 3 cm) and no attachments (free-flying:
@@ -223,17 +268,28 @@ fn up_to_a_rigid_motion(
     }
 }
 
-/// `softcap-tissue reshape` end to end with a two-iteration budget: exit 0, the iteration cap is
-/// reported as status `max-iterations`, reshaped.mcap holds the mesh and every constraint; a
-/// landmark outside the template is exit 2 naming landmarks.csv and its line, nothing written.
+/// `softcap-tissue reshape` end to end with a two-iteration budget and α̂ cross-validated (two
+/// folds of the attachments and landmarks, the one-standard-error rule): exit 0, the iteration cap
+/// is reported as status `max-iterations`; reshaped.mcap holds the mesh, every constraint, the
+/// plastic strains, the mesh quality and the report (status, how α̂ was chosen); `--report`
+/// writes report.md and its three figures (the Fig. 16 error histogram, the Fig. 9 convergence,
+/// the before/after renders). A landmark outside the template is exit 2 naming landmarks.csv and
+/// its line, nothing written.
 #[test]
-fn cli_reshapes_a_target_folder_and_rejects_a_landmark_outside_the_template() {
+fn cli_reshapes_a_target_folder_with_its_report_and_rejects_a_landmark_outside_the_template() {
     let (p, _) = problem(false);
     let dir = tempfile::tempdir().unwrap();
     write_target(dir.path(), &p, "mm").unwrap();
     let settings = dir.path().join("reshape.toml");
-    std::fs::write(&settings, "max_iterations = 2\nconstant_iterations = 2\n").unwrap();
+    std::fs::write(
+        &settings,
+        "max_iterations = 2\nconstant_iterations = 2\nsmoothness = \"cv\"\n\
+         cross_validation = { folds = 2, grid = [3e-4, 3e-2], hold_out = \"correspondence\", \
+         rule = \"one-standard-error\" }\n",
+    )
+    .unwrap();
     let out = dir.path().join("reshaped.mcap");
+    let report = dir.path().join("report");
     let bin = env!("CARGO_BIN_EXE_softcap-tissue");
     let run = |target: &str, output: &std::path::Path| {
         std::process::Command::new(bin)
@@ -246,6 +302,8 @@ fn cli_reshapes_a_target_folder_and_rejects_a_landmark_outside_the_template() {
             .arg(output)
             .arg("--settings")
             .arg(&settings)
+            .arg("--report")
+            .arg(&report)
             .arg("--quiet")
             .output()
             .unwrap()
@@ -268,6 +326,64 @@ fn cli_reshapes_a_target_folder_and_rejects_a_landmark_outside_the_template() {
         constraints.constraints.len(),
         p.attachments.len() + p.landmarks.len() + p.icp_markers.len()
     );
+    let strains = r
+        .read_static(&softcap_mcap::topics::PLASTIC_STRAINS)
+        .unwrap();
+    assert_eq!(strains.strains.len(), 6 * p.template.tets.len());
+    let quality = r
+        .read_static(&softcap_mcap::topics::RESHAPE_QUALITY)
+        .unwrap();
+    let reshaped = quality.reshaped.unwrap();
+    assert!(reshaped.min_dihedral_deg > 0.0 && reshaped.max_dihedral_deg < 180.0);
+    assert!(quality.template.unwrap().max_aspect_ratio >= 1.0);
+    let entries = r
+        .read_static(&softcap_mcap::topics::RESHAPE_REPORT)
+        .unwrap()
+        .entries;
+    let text_of = |key: &str| {
+        entries
+            .iter()
+            .find(|e| e.key == key)
+            .and_then(|e| match &e.value {
+                Some(softcap_mcap::proto::key_value::Value::Text(t)) => Some(t.clone()),
+                _ => None,
+            })
+            .unwrap_or_else(|| panic!("no text entry {key}"))
+    };
+    assert_eq!(text_of("status"), "max-iterations");
+    assert_eq!(text_of("cv.hold_out"), "correspondence");
+    assert_eq!(text_of("cv.rule"), "one-standard-error");
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    for needle in [
+        "Status **max-iterations**",
+        "2-fold cross-validation holding out the attachments and landmarks",
+        "one-standard-error rule",
+        "| landmark | 12 |",
+        "| icp | 150 |",
+        "| reshaped |",
+        "![constraint errors](constraint_errors.png)",
+        "![before and after](before_after.png)",
+    ] {
+        assert!(md.contains(needle), "`{needle}` not in report.md:\n{md}");
+    }
+    // The figures are PNG files of their drawing sizes (IHDR width and height).
+    for (file, width) in [
+        ("constraint_errors.png", 800),
+        ("convergence.png", 800),
+        ("before_after.png", 0),
+    ] {
+        let png = std::fs::read(report.join(file)).unwrap();
+        assert!(
+            png.starts_with(b"\x89PNG\r\n\x1a\n") && &png[12..16] == b"IHDR",
+            "{file}"
+        );
+        let w = u32::from_be_bytes(png[16..20].try_into().unwrap());
+        let h = u32::from_be_bytes(png[20..24].try_into().unwrap());
+        assert!(
+            w > 0 && h > 0 && (width == 0 || w == width),
+            "{file}: {w} × {h}"
+        );
+    }
     // A landmark 1 m outside the template on line 3.
     let bad = dir.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();

@@ -17,8 +17,10 @@
 //! Cost: the stages before the ICP stage (constant guess, attachments, landmarks) do not see the
 //! ICP markers, so they run once per α̂ and every fold starts its ICP stage from their result;
 //! the refit reuses them too. A cross-validated reshape costs about (grid × (folds + 1)) ICP
-//! stages. Only the ICP markers are held out: landmarks and attachments carry correspondence,
-//! few of them each, and every fold needs them.
+//! stages. Held-out markers score the surface, not where the material lies on it; with
+//! `hold_out = "correspondence"` ([`HoldOut`]) the attachments and landmarks are held out instead,
+//! scored by the distance of their template point from its target, and every fold runs the whole
+//! reshape (grid × folds + 1 reshapes).
 
 use nalgebra::Vector3;
 use serde::de::{self, Visitor};
@@ -142,6 +144,16 @@ pub enum CvRule {
     OneStandardError,
 }
 
+impl CvRule {
+    /// Name in reports (as in TOML).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Minimum => "minimum",
+            Self::OneStandardError => "one-standard-error",
+        }
+    }
+}
+
 /// The target points cross-validation holds out.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -152,6 +164,16 @@ pub enum HoldOut {
     /// Attachments and landmarks, scored by the distance of their template point from its
     /// target: correspondence, tangential error included. Every fold runs the whole reshape.
     Correspondence,
+}
+
+impl HoldOut {
+    /// Name in reports (as in TOML).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::IcpMarkers => "icp-markers",
+            Self::Correspondence => "correspondence",
+        }
+    }
 }
 
 /// The cross-validation score of one α̂.
@@ -173,6 +195,10 @@ pub struct CrossValidationScore {
 pub struct CrossValidationReport {
     /// k.
     pub folds: usize,
+    /// Which target points were held out.
+    pub hold_out: HoldOut,
+    /// How α̂ was picked from the scores.
+    pub rule: CvRule,
     /// One score per α̂ of the grid, in grid order.
     pub scores: Vec<CrossValidationScore>,
     /// The α̂ chosen (by the settings' [`CvRule`]).
@@ -356,6 +382,8 @@ pub(super) fn cross_validated(
     stages.extend(solver.run_stages(&icp, &mut state, &mut history, progress)?);
     let report = CrossValidationReport {
         folds,
+        hold_out: HoldOut::IcpMarkers,
+        rule: settings.rule,
         scores,
         chosen,
     };
@@ -429,6 +457,8 @@ fn correspondence_cross_validated(
     let mut out = super::solve::reshape(problem, &settings, progress)?;
     out.cross_validation = Some(CrossValidationReport {
         folds: cv.folds,
+        hold_out: HoldOut::Correspondence,
+        rule: cv.rule,
         scores,
         chosen,
     });

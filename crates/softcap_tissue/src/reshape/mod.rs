@@ -2,7 +2,7 @@
 //!
 //! | module | what | paper |
 //! |---|---|---|
-//! | [`cv`] | α̂ by k-fold cross-validation on held-out ICP markers (`smoothness = "cv"`) | |
+//! | [`cv`] | α̂ by k-fold cross-validation on held-out ICP markers or correspondences (`smoothness = "cv"`) | |
 //! | [`problem`] | landmarks, ICP markers, attachments, closest points (parry3d) | §3.1, eq. 5 |
 //! | [`laplacian`] | plastic-strain Laplacian, its null space, A⁻¹ by the singular lemma | Appendix A, §3.5 |
 //! | [`equilibrium`] | Newton equilibrium under plastic strains and attachment springs | §3.2–3.3, eq. 1, 4, 7 |

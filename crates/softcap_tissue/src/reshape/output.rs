@@ -87,6 +87,8 @@ pub fn report_message(run: &ReshapeRun) -> proto::Report {
     ];
     if let Some(cv) = &o.cross_validation {
         entries.push(integer("cv.folds", cv.folds as i64));
+        entries.push(text("cv.hold_out", cv.hold_out.name()));
+        entries.push(text("cv.rule", cv.rule.name()));
         for (k, score) in cv.scores.iter().enumerate() {
             entries.push(number(&format!("cv.{k}.smoothness"), score.smoothness, ""));
             entries.push(number(&format!("cv.{k}.rms"), score.rms_m, "m"));

@@ -10,6 +10,7 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use plotters::prelude::*;
 use softcap_mesh::TetMesh;
 
+use super::cv::{CvRule, HoldOut};
 use super::output::error_stats;
 use super::problem::ConstraintKind;
 use super::run::ReshapeRun;
@@ -60,9 +61,21 @@ fn report_markdown(run: &ReshapeRun) -> String {
             let _ = writeln!(s, "Smoothness α̂ = {:e}.\n", o.smoothness);
         }
         Some(cv) => {
+            let held = match cv.hold_out {
+                HoldOut::IcpMarkers => "the ICP markers (distance to the reshaped surface)",
+                HoldOut::Correspondence => {
+                    "the attachments and landmarks (distance of the template point from its target)"
+                }
+            };
+            let rule = match cv.rule {
+                CvRule::Minimum => "the lowest held-out error",
+                CvRule::OneStandardError => {
+                    "the largest α̂ within one standard error of the lowest (one-standard-error rule)"
+                }
+            };
             let _ = writeln!(
                 s,
-                "Smoothness α̂ = {:e}, chosen by {}-fold cross-validation on the ICP markers:\n",
+                "Smoothness α̂ = {:e}, chosen by {}-fold cross-validation holding out {held}: {rule}.\n",
                 o.smoothness, cv.folds
             );
             let _ = writeln!(

@@ -73,7 +73,8 @@ pub const DEFAULT_SMOOTHNESS: f64 = 3e-4;
 pub struct ReshapeSettings {
     /// α̂: smoothness weight α = α̂ L³ / h (L the template's bounding-box diagonal, h its mean
     /// edge length, so the continuum weight does not change with refinement); a number, or
-    /// `"cv"`: chosen by k-fold cross-validation on held-out ICP markers ([`super::cv`]).
+    /// `"cv"`: chosen by k-fold cross-validation on held-out ICP markers or correspondences
+    /// ([`super::cv`]).
     pub smoothness: Smoothness,
     /// The folds and α̂ grid of `smoothness = "cv"`.
     pub cross_validation: CrossValidationSettings,
