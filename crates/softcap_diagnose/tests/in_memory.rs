@@ -575,13 +575,7 @@ fn support_slip_seen_from_above_is_named() {
     assert_eq!(s.attached_motion_m, 0.0, "no support marker is observed");
     assert!(s.far_field_push_m > 3.0 * s.three_sigma_m(), "{s:?}");
     assert_eq!(d.verdict, "support-slip", "{:?}", d.candidates);
-    let e = &d.effects[0];
-    assert!(
-        3.0 * e.heldout_rmse_after_m <= e.heldout_rmse_before_m,
-        "held-out {} → {}",
-        e.heldout_rmse_before_m,
-        e.heldout_rmse_after_m
-    );
+    first_effect_three_fold(&d);
 }
 
 /// Support springs of 1500 N/m, the calibration's middle strength (noise seed 101): stiffer than
@@ -599,13 +593,7 @@ fn stiff_support_springs_are_named() {
         .diagnosis;
     print_ranked(&d);
     assert_eq!(d.verdict, "support-slip", "{:?}", d.unexplained);
-    let e = &d.effects[0];
-    assert!(
-        3.0 * e.heldout_rmse_after_m <= e.heldout_rmse_before_m,
-        "held-out {} → {}",
-        e.heldout_rmse_before_m,
-        e.heldout_rmse_after_m
-    );
+    let e = first_effect_three_fold(&d);
     let k = e.params["support_tangential_stiffness_n_per_m"];
     assert!(
         (1500.0 / 2f64.sqrt()..=1500.0 * 2f64.sqrt()).contains(&k),
@@ -1710,6 +1698,18 @@ fn pairs_table(filter: Option<&str>) {
         );
         eprintln!("{name}: {:?}", t0.elapsed());
     }
+}
+
+/// The first named effect, asserted to lower its held-out error at least 3×.
+fn first_effect_three_fold(d: &softcap_diagnose::Diagnosis) -> &softcap_diagnose::NamedEffect {
+    let e = &d.effects[0];
+    assert!(
+        3.0 * e.heldout_rmse_after_m <= e.heldout_rmse_before_m,
+        "held-out {} → {}",
+        e.heldout_rmse_before_m,
+        e.heldout_rmse_after_m
+    );
+    e
 }
 
 /// The top of the ranked table, the named effects and the candidates on stderr.
