@@ -1261,10 +1261,6 @@ pub(crate) fn harness(part: Option<&str>) -> Result<(), String> {
 /// strong) and whether the session needs the oblique probe.
 #[cfg(not(test))]
 fn calibration_effects() -> Vec<(&'static str, bool, [Effect; 3])> {
-    let plastic = |y: f64| Effect::Plastic {
-        yield_pa: y,
-        hardening_pa: 1000.0,
-    };
     let creep = |g: f64| Effect::Creep { g, tau_s: 0.2 };
     vec![
         (
@@ -1293,8 +1289,13 @@ fn calibration_effects() -> Vec<(&'static str, bool, [Effect; 3])> {
             false,
             [1.5, 2.5, 5.0].map(Effect::Anisotropic),
         ),
-        // the two with rigid-tip replays (tens of CPU-s per session) last
-        ("plasticity", false, [8000.0, 4000.0, 2000.0].map(plastic)),
+        // the two with rigid-tip replays (tens of CPU-s per session) last; plasticity's σ_y by
+        // the effect size of the other seven at each level (`effect-size "plasticity strengths"`)
+        (
+            "plasticity",
+            false,
+            [2200.0, 2000.0, 1750.0].map(plastic_hardening_1kpa),
+        ),
         (
             "probe-friction",
             true,
@@ -1320,8 +1321,9 @@ fn strength_label(e: &Effect) -> String {
 }
 
 /// False alarms on 20 seeded clean sessions (alternately straight and oblique probe) and
-/// detection against strength (8 effects × 3 strengths): a table on stdout, the CSV and the plot
-/// under `SOFTCAP_CALIBRATION_OUT` (default `target/calibration`).
+/// detection against strength (8 effects × 3 strengths, each with its effect size against the
+/// default model, [`EffectSize`]): a table on stdout, the CSV and the plot under
+/// `SOFTCAP_CALIBRATION_OUT` (default `target/calibration`).
 #[cfg(not(test))]
 fn calibration() -> Result<(), String> {
     use std::fmt::Write as _;
@@ -1329,7 +1331,8 @@ fn calibration() -> Result<(), String> {
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|| "target/calibration".into());
     std::fs::create_dir_all(&out).map_err(|e| e.to_string())?;
-    let mut csv = String::from("kind,effect,strength,seed,verdict,effects,confidence,named\n");
+    let mut csv =
+        String::from("kind,effect,strength,seed,effect_size_um,verdict,effects,confidence,named\n");
     let diagnose_one = |effects: &[Effect], oblique: bool, seed: u64| {
         let s = session_with(effects, oblique, &LOCATIONS, seed);
         let mut sim = simulator(20e3);
@@ -1346,7 +1349,7 @@ fn calibration() -> Result<(), String> {
         eprintln!("clean seed {seed}: {} ({:.3})", d.verdict, d.confidence);
         let _ = writeln!(
             csv,
-            "clean,none,0,{seed},{},{},{:.4},{}",
+            "clean,none,0,{seed},0.0,{},{},{:.4},{}",
             d.verdict,
             named.join("+"),
             d.confidence,
@@ -1356,13 +1359,16 @@ fn calibration() -> Result<(), String> {
     let mut rows = Vec::new();
     for (name, oblique, strengths) in calibration_effects() {
         let mut hit = [false; 3];
+        let mut labels = strengths.map(|e| strength_label(&e));
         for (i, e) in strengths.iter().enumerate() {
             let seed = 100 + i as u64;
+            let size_um = 1e6 * EffectSize::of(*e, oblique, seed).model_rms_m;
+            labels[i] = format!("{} ({size_um:.1} µm)", labels[i]);
             let d = diagnose_one(&[*e], oblique, seed).map_err(|e| e.to_string())?;
             let named: Vec<&str> = d.effects.iter().map(|e| e.hypothesis.as_str()).collect();
             hit[i] = named.contains(&name);
             eprintln!(
-                "{name} {}: {} {:?} ({:.3})",
+                "{name} {} (effect size {size_um:.1} µm): {} {:?} ({:.3})",
                 strength_label(e),
                 d.verdict,
                 named,
@@ -1370,7 +1376,7 @@ fn calibration() -> Result<(), String> {
             );
             let _ = writeln!(
                 csv,
-                "effect,{name},{},{seed},{},{},{:.4},{}",
+                "effect,{name},{},{seed},{size_um:.1},{},{},{:.4},{}",
                 strength_label(e),
                 d.verdict,
                 named.join("+"),
@@ -1378,7 +1384,7 @@ fn calibration() -> Result<(), String> {
                 hit[i]
             );
         }
-        rows.push((name, strengths.map(|e| strength_label(&e)), hit));
+        rows.push((name, labels, hit));
     }
     std::fs::write(out.join("calibration.csv"), &csv).map_err(|e| e.to_string())?;
     println!(
@@ -1450,21 +1456,25 @@ fn calibration_sessions(filter: &str, seed: Option<&str>) -> Result<(), String> 
 }
 
 /// How far each calibration effect whose label contains `filter` lifts the data above the noise
-/// ([`effect_size_row`]); with the filter `yield onset`, J2 plasticity (hardening 1 kPa) at
-/// σ_y 2–4 kPa instead: where the 0.25 N probe starts to yield the 648-tet block.
+/// ([`EffectSize`]); with the filter `yield onset`, J2 plasticity (hardening 1 kPa) at σ_y
+/// 2–4 kPa instead: where the 0.25 N probe starts to yield the 648-tet block; with the filter
+/// `plasticity strengths`, the rule that sets plasticity's three calibration strengths
+/// ([`plasticity_strengths`]).
 #[cfg(not(test))]
 fn effect_sizes(filter: &str) {
-    println!(
-        "| session | markers RMS / max, µm (× √3σ) | released near the probe RMS / max, µm | force RMS, mN |"
-    );
-    println!("|---|---|---|---|");
+    if filter == "plasticity strengths" {
+        plasticity_strengths();
+        return;
+    }
+    println!("{}", EffectSize::HEADER);
     if filter == "yield onset" {
         for yield_pa in [2000.0, 2500.0, 3000.0, 3500.0, 4000.0] {
-            let e = Effect::Plastic {
-                yield_pa,
-                hardening_pa: 1000.0,
-            };
-            effect_size_row(&format!("plasticity {}", strength_label(&e)), e, false, 101);
+            let e = plastic_hardening_1kpa(yield_pa);
+            let size = EffectSize::of(e, false, 101);
+            println!(
+                "{}",
+                size.row(&format!("plasticity {}", strength_label(&e)))
+            );
         }
         return;
     }
@@ -1472,52 +1482,172 @@ fn effect_sizes(filter: &str) {
         for (i, e) in strengths.iter().enumerate() {
             let label = format!("{name} {}", strength_label(e));
             if label.contains(filter) {
-                effect_size_row(&label, *e, oblique, 100 + i as u64);
+                println!(
+                    "{}",
+                    EffectSize::of(*e, oblique, 100 + i as u64).row(&label)
+                );
             }
         }
     }
 }
 
-/// One row of [`effect_sizes`]: the session of `effect` minus the clean session of the same probe
-/// path and noise seed (the same noise draws, so the difference is the effect alone), as RMS and
-/// largest marker difference over the location frames (all, and the released frames within the
-/// contact radius of the probed point) in µm and in units of the noise RMS √3σ, and the RMS
-/// difference of the measured force, mN.
+/// J2 plasticity with the calibration's hardening modulus, 1 kPa.
 #[cfg(not(test))]
-fn effect_size_row(label: &str, effect: Effect, oblique: bool, seed: u64) {
-    let noise_rms_m = 3f64.sqrt() * 5e-6;
-    let a = session_with(&[effect], oblique, &LOCATIONS, seed).rec;
-    let b = session_with(&[Effect::Clean], oblique, &LOCATIONS, seed).rec;
-    let seg = Segmentation::new(&b, &SegmentSettings::default());
-    let radius = softcap_diagnose::cells::contact_radius_m(&b);
-    let (mut all, mut rel) = ((0.0, 0usize, 0.0f64), (0.0, 0usize, 0.0f64));
-    let mut force = 0.0;
-    for (k, (fa, fb)) in a.frames.iter().zip(&b.frames).enumerate() {
-        force += (fa.force_n - fb.force_n).norm_squared();
-        let Some(l) = seg.fold_of_frame[k] else {
-            continue;
+fn plastic_hardening_1kpa(yield_pa: f64) -> Effect {
+    Effect::Plastic {
+        yield_pa,
+        hardening_pa: 1000.0,
+    }
+}
+
+/// The rule for plasticity's calibration strengths: at each level (weak, middle, strong; noise
+/// seed 100, 101, 102) the median over the seven other effects of the effect size the default
+/// model sees ([`EffectSize::model_rms_m`]), and the yield stress σ_y of the grid (hardening
+/// 1 kPa, the 0.25 N probe) whose session's effect size is closest to it (absolute difference).
+/// The grid is swept once at seed 101: a marker-only effect's size does not depend on the noise
+/// draw (the same draws cancel). One table row per level on stdout, the sweep on stderr.
+#[cfg(not(test))]
+fn plasticity_strengths() {
+    let grid = [
+        500.0, 750.0, 1000.0, 1250.0, 1500.0, 1750.0, 2000.0, 2100.0, 2200.0, 2300.0, 2400.0,
+        2500.0,
+    ];
+    let sweep: Vec<(f64, f64)> = grid
+        .iter()
+        .map(|&y| {
+            let size = EffectSize::of(plastic_hardening_1kpa(y), false, 101);
+            eprintln!("{}", size.row(&format!("plasticity σy {} kPa", y / 1e3)));
+            (y, size.model_rms_m)
+        })
+        .collect();
+    println!(
+        "| level (seed) | effect size of the seven others, µm (× √3σ) | median | σ_y whose size is closest (its size) |"
+    );
+    println!("|---|---|---|---|");
+    for (i, level) in ["weak", "middle", "strong"].iter().enumerate() {
+        let seed = 100 + i as u64;
+        let mut others: Vec<(&str, f64)> = calibration_effects()
+            .into_iter()
+            .filter(|(name, ..)| *name != "plasticity")
+            .map(|(name, oblique, strengths)| {
+                (
+                    name,
+                    EffectSize::of(strengths[i], oblique, seed).model_rms_m,
+                )
+            })
+            .collect();
+        others.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let median = others[others.len() / 2].1;
+        let (y, size) = sweep
+            .iter()
+            .min_by(|a, b| (a.1 - median).abs().total_cmp(&(b.1 - median).abs()))
+            .copied()
+            .expect("a non-empty grid");
+        let um = |x: f64| format!("{:.1} ({:.2})", 1e6 * x, x / noise_rms_m());
+        let listed: Vec<String> = others
+            .iter()
+            .map(|(name, x)| format!("{name} {:.1}", 1e6 * x))
+            .collect();
+        println!(
+            "| {level} ({seed}) | {} | {} | σy {} kPa ({}) |",
+            listed.join(", "),
+            um(median),
+            y / 1e3,
+            um(size)
+        );
+    }
+}
+
+/// The noise RMS of a marker position, √3σ (σ = 5 µm per axis), m.
+#[cfg(not(test))]
+fn noise_rms_m() -> f64 {
+    3f64.sqrt() * 5e-6
+}
+
+/// How far a calibration session lies from the clean session of the same probe path and noise
+/// seed (the same noise draws, so the difference is the effect alone), over the location frames:
+/// the marker difference (all markers, and the released frames within the contact radius of the
+/// probed point), the measured force's difference, and the difference of the residuals against
+/// the default model each one's measured force drives (the effect as the diagnosis sees it: the
+/// marker difference for effects on the object, the model's response to the force difference for
+/// effects on the force channel).
+#[cfg(not(test))]
+struct EffectSize {
+    /// RMS and largest marker difference, m.
+    markers_m: (f64, f64),
+    /// RMS and largest marker difference on released frames near the probed point, m.
+    released_m: (f64, f64),
+    /// RMS difference of the measured force over all frames, N.
+    force_rms_n: f64,
+    /// RMS difference of the residuals against the default model, m.
+    model_rms_m: f64,
+    /// Largest such difference, m.
+    model_max_m: f64,
+}
+
+#[cfg(not(test))]
+impl EffectSize {
+    const HEADER: &str = "| session | markers RMS / max, µm (× √3σ) | released near the probe RMS / max, µm | force RMS, mN | against the default model RMS / max, µm (× √3σ) |\n|---|---|---|---|---|";
+
+    fn of(effect: Effect, oblique: bool, seed: u64) -> EffectSize {
+        let a = session_with(&[effect], oblique, &LOCATIONS, seed).rec;
+        let b = session_with(&[Effect::Clean], oblique, &LOCATIONS, seed).rec;
+        let baseline = |rec: &Recording| {
+            let seg = Segmentation::new(rec, &SegmentSettings::default());
+            let mut sim = simulator(20e3);
+            let progress = indicatif::ProgressBar::hidden();
+            softcap_diagnose::prepare(rec, &seg, &mut sim, &DiagnoseSettings::default(), &progress)
+                .expect("the default model reaches equilibrium")
+                .baseline_m
         };
-        for (m, (x, y)) in fa.markers_m.iter().zip(&fb.markers_m).enumerate() {
-            let (Some(x), Some(y)) = (x, y) else { continue };
-            let d = (x - y).norm();
-            all = (all.0 + d * d, all.1 + 1, all.2.max(d));
-            let near = (seg.locations[l].contact_tip_m - b.rest_markers_m[m]).norm() <= radius;
-            if seg.phases[k] == softcap_diagnose::Phase::Released && near {
-                rel = (rel.0 + d * d, rel.1 + 1, rel.2.max(d));
+        let (pa, pb) = (baseline(&a), baseline(&b));
+        let seg = Segmentation::new(&b, &SegmentSettings::default());
+        let radius = softcap_diagnose::cells::contact_radius_m(&b);
+        let acc = |x: &mut (f64, usize, f64), d: f64| *x = (x.0 + d * d, x.1 + 1, x.2.max(d));
+        let (mut all, mut rel, mut model) = ((0.0, 0, 0.0), (0.0, 0, 0.0), (0.0, 0, 0.0));
+        let mut force = 0.0;
+        for (k, (fa, fb)) in a.frames.iter().zip(&b.frames).enumerate() {
+            force += (fa.force_n - fb.force_n).norm_squared();
+            let Some(l) = seg.fold_of_frame[k] else {
+                continue;
+            };
+            for (m, (x, y)) in fa.markers_m.iter().zip(&fb.markers_m).enumerate() {
+                let (Some(x), Some(y)) = (x, y) else { continue };
+                acc(&mut all, (x - y).norm());
+                acc(&mut model, ((x - pa[k][m]) - (y - pb[k][m])).norm());
+                let near = (seg.locations[l].contact_tip_m - b.rest_markers_m[m]).norm() <= radius;
+                if seg.phases[k] == softcap_diagnose::Phase::Released && near {
+                    acc(&mut rel, (x - y).norm());
+                }
             }
         }
+        let rms = |x: (f64, usize, f64)| (x.0 / x.1.max(1) as f64).sqrt();
+        EffectSize {
+            markers_m: (rms(all), all.2),
+            released_m: (rms(rel), rel.2),
+            force_rms_n: (force / a.frames.len() as f64).sqrt(),
+            model_rms_m: rms(model),
+            model_max_m: model.2,
+        }
     }
-    let rms = |x: (f64, usize, f64)| (x.0 / x.1.max(1) as f64).sqrt();
-    println!(
-        "| {label} | {:.1} / {:.1} ({:.2} / {:.2}) | {:.1} / {:.1} | {:.2} |",
-        1e6 * rms(all),
-        1e6 * all.2,
-        rms(all) / noise_rms_m,
-        all.2 / noise_rms_m,
-        1e6 * rms(rel),
-        1e6 * rel.2,
-        1e3 * (force / a.frames.len() as f64).sqrt()
-    );
+
+    fn row(&self, label: &str) -> String {
+        let (n, um) = (noise_rms_m(), 1e6);
+        format!(
+            "| {label} | {:.1} / {:.1} ({:.2} / {:.2}) | {:.1} / {:.1} | {:.2} | {:.1} / {:.1} ({:.2} / {:.2}) |",
+            um * self.markers_m.0,
+            um * self.markers_m.1,
+            self.markers_m.0 / n,
+            self.markers_m.1 / n,
+            um * self.released_m.0,
+            um * self.released_m.1,
+            1e3 * self.force_rms_n,
+            um * self.model_rms_m,
+            um * self.model_max_m,
+            self.model_rms_m / n,
+            self.model_max_m / n
+        )
+    }
 }
 
 /// Detection per effect and the rate against strength, with the false-alarm rate as a line.
