@@ -109,7 +109,7 @@ impl Default for DynamicsSettings {
     }
 }
 
-/// Settings of [`DynamicSolver::step_sensitivity`].
+/// Settings of [`DynamicSolver::step_sensitivities`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SensitivitySettings {
     /// Step ε of the directional differences, in the parameter and along the sensitivity
@@ -238,6 +238,9 @@ pub struct DynamicSolver {
     factor_s: f64,
     /// Evaluate the residual after the last Newton update (see [`DynamicSolver::set_final_residual`]).
     final_residual: bool,
+    /// The residual over the free dofs at the state the last step committed, when that step
+    /// evaluated it there ([`Self::committed_residual`]).
+    committed_residual: Option<Vec<f64>>,
 }
 
 /// What one element pass of [`DynamicSolver::linearize`] depends on besides the solver: the
@@ -397,6 +400,7 @@ impl DynamicSolver {
             factorizations: 0,
             factor_s: 0.0,
             final_residual: true,
+            committed_residual: None,
         })
     }
 
@@ -534,7 +538,7 @@ impl DynamicSolver {
 
     /// The step residual R = f_ext − f_int(x) − D v − M a over the free dofs for a trial
     /// x_{n+1} = `x` of a step from `before` with `settings` (v, a from the integrator; one
-    /// residual-only element pass): the base that [`Self::step_sensitivity`] differences against.
+    /// residual-only element pass): the base that [`Self::step_sensitivities`] differences against.
     pub fn step_residual<M: ElasticModel + ?Sized>(
         &mut self,
         model: &M,
@@ -551,36 +555,51 @@ impl DynamicSolver {
         self.dofs().gather(&r)
     }
 
-    /// Forward sensitivity of one parameter p through the step just taken from `before` to
+    /// The step residual R = f_ext − f_int(x) − D v − M a over the free dofs at the state the
+    /// last step committed, bitwise [`Self::step_residual`] there, when that step evaluated it
+    /// there with the same residual-only pass: its Newton iterations ended on the residual test
+    /// (converged, or at their limit with [`Self::set_final_residual`] on) after an update that
+    /// reused the factor ([`Self::set_refactor_ratio`]), without contact or nodal terms. `None`
+    /// otherwise (a pass that also assembled the matrix differs from it by round-off, which the
+    /// directional differences of [`Self::step_sensitivities`] divide by ε). The base of
+    /// [`Self::step_sensitivities`] without another element pass.
+    pub fn committed_residual(&self) -> Option<&[f64]> {
+        self.committed_residual.as_deref()
+    }
+
+    /// Forward sensitivities of parameters p_k through the step just taken from `before` to
     /// x_{n+1} = `x` (wang2015 eq. 3 differentiated along the implicit step): with R(x_{n+1};
-    /// x_n, v_n, a_n, p) = 0 at every step, s_{n+1} = dx_{n+1}/dp solves
+    /// x_n, v_n, a_n, p) = 0 at every step, s_{n+1} = dx_{n+1}/dp_k solves
     ///
-    /// −∂R/∂x_{n+1} s_{n+1} = ∂R/∂p + ∂R/∂(x_n, v_n, a_n) · (s_n, ṡ_n, s̈_n),
+    /// −∂R/∂x_{n+1} s_{n+1} = ∂R/∂p_k + ∂R/∂(x_n, v_n, a_n) · (s_n, ṡ_n, s̈_n),
     ///
     /// and (ṡ, s̈)_{n+1} follow from the integrator's kinematics, which are linear. The right side
     /// and the product with the exact tangent are taken as directional differences of the
-    /// residual: Φ(s) = (R(x + ε s; state_n + ε sens_n, p + ε) − R(x; state_n, p)) / ε with the
-    /// `perturbed` model and settings (p + ε) against the `base_residual`
-    /// ([`Self::step_residual`] of the step's own model and settings), and s is iterated as
-    /// s ← s + A⁻¹ Φ(s) with the factor of the step's system matrix A (the Newton updates'),
-    /// from the integrator's predictor of `sensitivity`, until an update is at most
-    /// `options.tolerance` × max |s|. Each iteration is one element pass and one
-    /// back-substitution; no factorization. The result is the derivative of the exact step, not
-    /// of its Newton iterate, so it does not need a tight Newton tolerance. `sensitivity` (s, ṡ,
-    /// s̈ at t_n, zero on the constrained dofs, whose prescribed motion does not depend on p) is
-    /// advanced to t_{n+1}. Returns the iterations; errors when no factor exists or the result
-    /// is not finite. Models with internal state ([`ElasticModel::update_state`]) are not
+    /// residual: Φ_k(s) = (R(x + ε s; state_n + ε sens_n, p + ε e_k) − R(x; state_n, p)) / ε with
+    /// the `perturbed` model and settings of p + ε e_k against the `base_residual`
+    /// ([`Self::step_residual`] of the step's own model and settings, or
+    /// [`Self::committed_residual`]), and each s is iterated as s ← s + A⁻¹ Φ_k(s) with the
+    /// factor of the step's system matrix A (the Newton updates'), from the integrator's
+    /// predictor of its `sensitivities` entry, until an update is at most `options.tolerance` ×
+    /// max |s|. The parameters iterate in lockstep: each round is
+    /// one element pass per parameter still iterating and one back-substitution of all their
+    /// updates as a block of right-hand sides (one sweep through the factor); no factorization.
+    /// The result is the derivative of the exact step, not of its Newton iterate, so it does not
+    /// need a tight Newton tolerance. Each `sensitivities` entry (s, ṡ, s̈ at t_n, zero on the
+    /// constrained dofs, whose prescribed motion does not depend on p) is advanced to t_{n+1}.
+    /// Returns the iterations summed over the parameters; errors when no factor exists or a
+    /// result is not finite. Models with internal state ([`ElasticModel::update_state`]) are not
     /// supported.
     #[allow(clippy::too_many_arguments)]
-    pub fn step_sensitivity<M: ElasticModel + ?Sized>(
+    pub fn step_sensitivities<M: ElasticModel + ?Sized>(
         &mut self,
         before: &DynamicState,
         x: &[Vector3<f64>],
         base_residual: &[f64],
         external_forces_n: &[Vector3<f64>],
         settings: &DynamicsSettings,
-        perturbed: (&M, &DynamicsSettings),
-        sensitivity: &mut DynamicState,
+        perturbed: &[(&M, &DynamicsSettings)],
+        sensitivities: &mut [DynamicState],
         options: &SensitivitySettings,
     ) -> Result<usize, FemError> {
         if self.cholesky.kind().is_none() {
@@ -588,50 +607,78 @@ impl DynamicSolver {
                 reason: "no factored system matrix for the sensitivity step".into(),
             });
         }
-        let (model, p_settings) = perturbed;
+        if perturbed.len() != sensitivities.len() {
+            return Err(FemError::LengthMismatch {
+                what: "sensitivities",
+                expected: perturbed.len(),
+                got: sensitivities.len(),
+            });
+        }
         let eps = options.epsilon;
         let h = settings.time_step_s;
         let shifted = |a: &[Vector3<f64>], d: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
             a.iter().zip(d).map(|(a, d)| a + d * eps).collect()
         };
-        let before_p = DynamicState {
-            time_s: before.time_s,
-            positions_m: shifted(&before.positions_m, &sensitivity.positions_m),
-            velocities_m_s: shifted(&before.velocities_m_s, &sensitivity.velocities_m_s),
-            accelerations_m_s2: shifted(
-                &before.accelerations_m_s2,
-                &sensitivity.accelerations_m_s2,
-            ),
-        };
-        let mut s = sensitivity.predicted_positions(h, settings.integrator);
-        for d in 0..3 * s.len() {
-            if self.dofs().free_index(d).is_none() {
-                s[d / 3][d % 3] = 0.0;
-            }
-        }
+        let befores: Vec<DynamicState> = sensitivities
+            .iter()
+            .map(|sens| DynamicState {
+                time_s: before.time_s,
+                positions_m: shifted(&before.positions_m, &sens.positions_m),
+                velocities_m_s: shifted(&before.velocities_m_s, &sens.velocities_m_s),
+                accelerations_m_s2: shifted(&before.accelerations_m_s2, &sens.accelerations_m_s2),
+            })
+            .collect();
+        let mut s: Vec<Vec<Vector3<f64>>> = sensitivities
+            .iter()
+            .map(|sens| {
+                let mut s = sens.predicted_positions(h, settings.integrator);
+                for d in 0..3 * s.len() {
+                    if self.dofs().free_index(d).is_none() {
+                        s[d / 3][d % 3] = 0.0;
+                    }
+                }
+                s
+            })
+            .collect();
+        let nf = base_residual.len();
         let mut iterations = 0;
+        let mut active: Vec<usize> = (0..perturbed.len()).collect();
+        let mut block = Vec::new();
         for _ in 0..options.max_iterations.max(1) {
-            let xp = shifted(x, &s);
-            let mut phi = self.step_residual(model, &before_p, &xp, external_forces_n, p_settings);
-            for (f, b) in phi.iter_mut().zip(base_residual) {
-                *f = (*f - b) / eps;
-            }
-            self.cholesky.solve_in_place(&mut phi)?;
-            self.dofs().scatter_add(&phi, 1.0, &mut s);
-            iterations += 1;
-            let update = phi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let size = s.iter().fold(0.0f64, |m, v| m.max(v.amax()));
-            if !(update.is_finite() && size.is_finite()) {
-                return Err(FemError::Factorization {
-                    reason: "non-finite sensitivity".into(),
-                });
-            }
-            if update <= options.tolerance * size {
+            if active.is_empty() {
                 break;
             }
+            block.clear();
+            for &k in &active {
+                let (model, p_settings) = perturbed[k];
+                let xp = shifted(x, &s[k]);
+                let phi =
+                    self.step_residual(model, &befores[k], &xp, external_forces_n, p_settings);
+                block.extend(phi.iter().zip(base_residual).map(|(f, b)| (f - b) / eps));
+            }
+            self.cholesky.solve_in_place(&mut block)?;
+            let mut still = Vec::with_capacity(active.len());
+            for (j, &k) in active.iter().enumerate() {
+                let du = &block[j * nf..(j + 1) * nf];
+                self.dofs().scatter_add(du, 1.0, &mut s[k]);
+                iterations += 1;
+                let update = du.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                let size = s[k].iter().fold(0.0f64, |m, v| m.max(v.amax()));
+                if !(update.is_finite() && size.is_finite()) {
+                    return Err(FemError::Factorization {
+                        reason: "non-finite sensitivity".into(),
+                    });
+                }
+                if update > options.tolerance * size {
+                    still.push(k);
+                }
+            }
+            active = still;
         }
-        let (v, a) = Self::velocity_acceleration(settings, sensitivity, &s);
-        sensitivity.advance(h, s, v, a);
+        for (sens, s) in sensitivities.iter_mut().zip(s) {
+            let (v, a) = Self::velocity_acceleration(settings, sens, &s);
+            sens.advance(h, s, v, a);
+        }
         Ok(iterations)
     }
 
@@ -731,6 +778,7 @@ impl DynamicSolver {
             residual_norm_n: f64::NAN,
             contact: ContactReport::default(),
         };
+        self.committed_residual = None;
         let n = model.num_nodes();
         let h = settings.time_step_s;
         if state.positions_m.len() != n
@@ -861,6 +909,9 @@ impl DynamicSolver {
                 .max(fc_norm);
             let diag_max = values.as_deref().map_or(self.factored_entry_max, entry_max);
             if finish_iteration(settings, it, rn, scale, diag_max, tol_x, &mut report.status) {
+                // Kept when it came from a residual-only pass: bitwise Self::step_residual's.
+                let plain = values.is_none() && contact.is_none() && terms.is_empty();
+                self.committed_residual = plain.then_some(rf);
                 state.advance(h, x, v, a);
                 return report;
             }

@@ -182,6 +182,29 @@ fn full_fit(truth: &Synthetic) {
         "  {} rest-shape solves, {} Newton iterations; objective history {:?}",
         t.rest_shape_solves, t.rest_shape_iterations, fit.history
     );
+    let changes = |h: &[f64]| -> Vec<String> {
+        h.windows(2)
+            .map(|w| format!("{:.1e}", (w[0] - w[1]) / w[0]))
+            .collect()
+    };
+    if let Some(e) = &fit.early {
+        eprintln!(
+            "  early p-step: F {:.6e} → {:.6e}, relative decrease per iteration {:?}",
+            e.p_step_history.first().unwrap_or(&f64::NAN),
+            e.p_step_history.last().unwrap_or(&f64::NAN),
+            changes(&e.p_step_history)
+        );
+    }
+    eprintln!(
+        "  p-step on all segments: F {:.6e} → {:.6e}, relative decrease per iteration {:?}",
+        fit.p_step_history.first().unwrap_or(&f64::NAN),
+        fit.p_step_history.last().unwrap_or(&f64::NAN),
+        changes(&fit.p_step_history)
+    );
+    eprintln!(
+        "  1-σ (relative): E {:.2e}, α {:.2e}, β {:.2e}",
+        fit.relative_sigma[0], fit.relative_sigma[1], fit.relative_sigma[2]
+    );
     eprintln!(
         "  E {:.4e} Pa ({:+.1} %), α {:.3} 1/s ({:+.1} %), β {:.3e} s ({:+.1} %); trajectory RMS {:.3} mm (warm start {:.3} mm)",
         fit.young_pa[0],

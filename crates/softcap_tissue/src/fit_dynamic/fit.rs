@@ -303,6 +303,9 @@ pub struct DynamicFit {
     pub start_state_modes: usize,
     /// Objective F after each outer iteration.
     pub history: Vec<f64>,
+    /// F after each Levenberg–Marquardt iteration of the last p-step on all segments (index 0:
+    /// its start; a rejected trial repeats the value before it): one forward simulation each.
+    pub p_step_history: Vec<f64>,
     /// `converged` | `max-iterations` | `failed: …`.
     pub status: String,
     /// Rest-shape solve status of the last outer iteration.
@@ -334,6 +337,9 @@ pub struct EarlyFit {
     pub young_pa: Vec<f64>,
     /// Damping fitted on them.
     pub damping: RayleighDamping,
+    /// F after each Levenberg–Marquardt iteration of its p-step (as
+    /// [`DynamicFit::p_step_history`]).
+    pub p_step_history: Vec<f64>,
     /// Where its time went (included in [`DynamicFit::timing`]).
     pub timing: FitTiming,
 }
@@ -469,7 +475,7 @@ const START_STEP: f64 = 1e-2;
 const FD_STEP: f64 = 1e-4;
 
 /// Directional-difference step and tolerance of the forward sensitivities
-/// ([`softcap_fem::DynamicSolver::step_sensitivity`]).
+/// ([`softcap_fem::DynamicSolver::step_sensitivities`]).
 const SENSITIVITY: softcap_fem::SensitivitySettings = softcap_fem::SensitivitySettings {
     epsilon: 1e-6,
     tolerance: 1e-5,
@@ -1278,6 +1284,7 @@ fn fit_level(
         problem.static_m = Some(&static_m);
     }
     let mut history = Vec::new();
+    let mut p_step_history = Vec::new();
     let mut status = "max-iterations".to_string();
     let mut rest_status = String::new();
     let (outer_iterations, max_simulations) = match coarse {
@@ -1317,7 +1324,7 @@ fn fit_level(
         ep.static_m = Some(&static_m);
         ep.rest = rest.clone();
         ep.rest_cache = std::mem::take(&mut problem.rest_cache);
-        let (next, value, _) = lm_p_step(
+        let (next, value, _, early_history) = lm_p_step(
             &mut ep,
             &q,
             nc + 2,
@@ -1338,6 +1345,7 @@ fn fit_level(
             simulations: ep.simulations,
             young_pa: unpack(&q, nc).0,
             damping: unpack(&q, nc).1,
+            p_step_history: early_history,
             timing: early_forward.timing(),
         });
     }
@@ -1394,7 +1402,7 @@ fn fit_level(
                 } else {
                     nc + 2
                 };
-                let (next, value, converged) = lm_p_step(
+                let (next, value, converged, costs) = lm_p_step(
                     &mut problem,
                     &q,
                     free,
@@ -1404,6 +1412,7 @@ fn fit_level(
                     LM_TOLERANCES,
                 )?;
                 q = next;
+                p_step_history = costs;
                 (value, converged)
             }
         };
@@ -1495,6 +1504,7 @@ fn fit_level(
             .as_ref()
             .map_or(0, |m| m.per_segment() / 2),
         history,
+        p_step_history,
         status,
         rest_status,
         segments: segments.len(),
@@ -1532,7 +1542,8 @@ fn early_segment_set(
 /// of them free (the rest held), the start-state coefficients too when the problem has them;
 /// at most about `max_simulations` evaluations of the `segments` segments, converged when an
 /// accepted step lowers F by less than `relative_cost` × F or moves p by less than `step` ×
-/// ‖p‖. Returns the log-parameters reached, F there and whether LM converged.
+/// ‖p‖. Returns the log-parameters reached, F there, whether LM converged and F after each of
+/// its iterations.
 fn lm_p_step(
     problem: &mut Problem<'_>,
     q: &[f64],
@@ -1541,7 +1552,7 @@ fn lm_p_step(
     segments: usize,
     max_simulations: usize,
     (relative_cost, step): (f64, f64),
-) -> Result<(Vec<f64>, f64, bool)> {
+) -> Result<(Vec<f64>, f64, bool, Vec<f64>)> {
     problem.held = q[free..].to_vec();
     problem.with_sensitivities = true;
     // The start-state coefficients follow (bounded to ±START_BOUND mm at a mode's peak); their
@@ -1585,7 +1596,8 @@ fn lm_p_step(
     let q = problem.split(&r.params);
     problem.held.clear();
     problem.fit_start = false;
-    Ok((q, 2.0 * r.cost, r.status.is_converged()))
+    let costs = r.cost_history.iter().map(|c| 2.0 * c).collect();
+    Ok((q, 2.0 * r.cost, r.status.is_converged(), costs))
 }
 
 fn rms_of(problem: &mut Problem<'_>, q: &[f64]) -> f64 {
@@ -1782,10 +1794,10 @@ mod tests {
     }
 
     /// The Jacobian ∂r/∂ln p from the forward sensitivities (E with the rest shape it moves,
-    /// α, β) equals central differences of the residuals (step 10⁻³ in ln p, truncation error
-    /// ~10⁻⁶) on the small bar to 10⁻⁴ of each column's norm (measured: 7.2·10⁻⁶, 1.2·10⁻⁶,
-    /// 3.6·10⁻⁶). Checked to fail: without the rest shape's dX/d ln E (`Perturbed::rest_m` = X)
-    /// the E column misses by 1.23 of its norm.
+    /// α, β; the default Newton tolerance) equals central differences of the residuals of
+    /// Newton iterated to 10⁻¹¹ (step 10⁻³ in ln p, truncation error ~10⁻⁶) on the small bar to
+    /// 10⁻⁴ of each column's norm (measured: see the messages). Checked to fail: without the rest
+    /// shape's dX/d ln E (`Perturbed::rest_m` = X) the E column misses by 1.23 of its norm.
     #[test]
     fn sensitivity_jacobian_matches_central_differences() {
         let s = bar();
@@ -1800,13 +1812,27 @@ mod tests {
         let m = r0.len();
         let mut js = DMatrix::<f64>::zeros(m, 3);
         assert!(problem.sensitivity_columns(&q, 3, &mut js));
+        let tight = Forward::new(
+            &s.template,
+            &s.sequence,
+            forward.segments().to_vec(),
+            vec![true; s.template.vertices.len()],
+            &ForwardSettings {
+                newton_tolerance: 1e-11,
+                newton_iterations: 40,
+                ..ForwardSettings::default()
+            },
+        )
+        .unwrap();
+        let mut reference = Problem::new(&tight, &weights, 0.45);
+        reference.static_m = Some(&static_m);
         let h = 1e-3;
         for k in 0..3 {
             let mut qp = q.clone();
             let mut qm = q.clone();
             qp[k] += h;
             qm[k] -= h;
-            let (rp, rm) = (problem.eval(&qp), problem.eval(&qm));
+            let (rp, rm) = (reference.eval(&qp), reference.eval(&qm));
             let fd = nalgebra::DVector::from_iterator(
                 m,
                 rp.iter().zip(&rm).map(|(a, b)| (a - b) / (2.0 * h)),

@@ -322,7 +322,7 @@ pub struct FitTiming {
     /// Thread-s in factorizations.
     pub factor_thread_s: f64,
     /// Iterations of the forward-sensitivity steps (one element pass and one back-substitution
-    /// each, [`softcap_fem::DynamicSolver::step_sensitivity`]), over all parameters.
+    /// each, [`softcap_fem::DynamicSolver::step_sensitivities`]), over all parameters.
     pub sensitivity_iterations: usize,
     /// Rest-shape solves (eq. 7; a rest shape kept for its modulus is not counted).
     pub rest_shape_solves: usize,
@@ -527,8 +527,8 @@ impl Stepper {
     }
 
     /// The forward sensitivities of every perturbed body through the step just taken from
-    /// `before` to `after` ([`DynamicSolver::step_sensitivity`], one base residual for all);
-    /// returns the iterations. Linear tets only.
+    /// `before` to `after` ([`DynamicSolver::step_sensitivities`]; the base residual is the
+    /// Newton iterations' last, at `after`); returns the iterations. Linear tets only.
     #[allow(clippy::too_many_arguments)]
     fn sensitivity_step(
         &mut self,
@@ -544,28 +544,38 @@ impl Stepper {
             return Err(not_linear());
         };
         let x = &after.positions_m;
-        let base = s.step_residual(m, before, x, forces, settings);
-        let mut iterations = 0;
-        for ((body, damping), sens) in perturbed.bodies.iter().zip(sensitivities) {
-            let FitModel::Linear(pm) = body else {
-                return Err(not_linear());
-            };
-            let ps = DynamicsSettings {
+        // The Newton iterations' last residual pass was at x (to round-off the same).
+        let base = match s.committed_residual() {
+            Some(r) => r.to_vec(),
+            None => s.step_residual(m, before, x, forces, settings),
+        };
+        let settings_p: Vec<DynamicsSettings> = perturbed
+            .bodies
+            .iter()
+            .map(|(_, damping)| DynamicsSettings {
                 damping: *damping,
                 ..settings.clone()
-            };
-            iterations += s.step_sensitivity(
-                before,
-                x,
-                &base,
-                forces,
-                settings,
-                (pm, &ps),
-                sens,
-                &perturbed.options,
-            )?;
-        }
-        Ok(iterations)
+            })
+            .collect();
+        let bodies = perturbed
+            .bodies
+            .iter()
+            .zip(&settings_p)
+            .map(|((body, _), ps)| match body {
+                FitModel::Linear(pm) => Ok((pm, ps)),
+                FitModel::Quadratic(_) => Err(not_linear()),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(s.step_sensitivities(
+            before,
+            x,
+            &base,
+            forces,
+            settings,
+            &bodies,
+            sensitivities,
+            &perturbed.options,
+        )?)
     }
 
     /// The sensitivities of the consistent start acceleration a₀ = M⁻¹ (f_ext − f_int − D v)
@@ -824,7 +834,7 @@ impl Forward {
     /// frames for each `perturbed` body k (the parameters and rest shape at p + ε e_k,
     /// [`Perturbed`]; ε = `options.epsilon`): along every implicit step the sensitivity of each
     /// parameter is one linear solve with the step's factored system matrix
-    /// ([`softcap_fem::DynamicSolver::step_sensitivity`]), instead of a simulation per parameter
+    /// ([`softcap_fem::DynamicSolver::step_sensitivities`]), instead of a simulation per parameter
     /// as forward differences take. Linear tets and the tracked start states (which do not
     /// depend on p) only.
     pub fn simulate_with_sensitivities(
