@@ -90,7 +90,7 @@ pub(crate) enum Engine {
     /// Implicit dynamics.
     Dynamic {
         model: Box<dyn ElasticModel>,
-        solver: DynamicSolver,
+        solver: Box<DynamicSolver>,
         state: Box<DynamicState>,
         settings: DynamicsSettings,
         saved: Option<Box<DynamicState>>,
@@ -154,7 +154,7 @@ impl Engine {
         x0: Vec<Vector3<f64>>,
         settings: DynamicsSettings,
     ) -> Result<Self> {
-        let solver = DynamicSolver::with_bc(&*model, masses_kg, bc)?;
+        let solver = Box::new(DynamicSolver::with_bc(&*model, masses_kg, bc)?);
         Ok(Self::Dynamic {
             model,
             solver,
