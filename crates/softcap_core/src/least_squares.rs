@@ -143,6 +143,9 @@ pub enum ConvergenceReason {
     Cost,
     /// An accepted step reduced F by less than `relative_cost_tolerance` · F.
     RelativeCost,
+    /// The largest decrease of F the Gauss–Newton model predicts, ½ gᵀ(JᵀJ)⁻¹g, is below
+    /// `predicted_cost_tolerance` · F (Levenberg–Marquardt).
+    PredictedCost,
     /// Nelder–Mead: the simplex shrank below `x_tolerance` and its values spread less than
     /// `f_tolerance`.
     SimplexSize,

@@ -53,6 +53,14 @@ pub struct LevenbergMarquardtSettings {
     pub cost_tolerance: f64,
     /// Stop when an accepted step lowers F by less than this · F.
     pub relative_cost_tolerance: f64,
+    /// Stop, before simulating a trial, when the largest decrease of F that the Gauss–Newton
+    /// model at the current linearization predicts — ½ gᵀ(JᵀJ)⁻¹g over the free parameters, the
+    /// decrease of the undamped step — is at most this · F (0: off). For a least-squares fit
+    /// of m residuals and n parameters, a Gauss–Newton step of δ standard deviations of the
+    /// parameters (s² (JᵀJ)⁻¹, s² = 2F/(m − n)) predicts the decrease δ²/(m − n) · F, so
+    /// δ²/(m − n) stops the iterations once the next step is below δ σ: finer steps are below
+    /// what the data resolve.
+    pub predicted_cost_tolerance: f64,
     /// τ: initial μ = τ · max diag(JᵀJ) for [`DampingScaling::Identity`], μ = τ for
     /// [`DampingScaling::Diagonal`].
     pub initial_damping: f64,
@@ -72,6 +80,7 @@ impl Default for LevenbergMarquardtSettings {
             step_tolerance: 1e-12,
             cost_tolerance: 0.0,
             relative_cost_tolerance: 1e-14,
+            predicted_cost_tolerance: 0.0,
             initial_damping: 1e-3,
             max_damping: 1e32,
             scaling: DampingScaling::Diagonal,
@@ -179,6 +188,18 @@ pub fn levenberg_marquardt<P: LeastSquaresProblem + ?Sized>(
             return Ok(report(p, r, cost, gnorm, it, &lin, history, status));
         }
         let free = bounds.free_mask(&p, &g);
+        if settings.predicted_cost_tolerance > 0.0
+            && let Some(h) = solve_damped(&a, &g, &free, 0.0, &d)
+        {
+            // ½ gᵀ(JᵀJ)⁻¹g = −½ hᵀg for the Gauss–Newton step h = −(JᵀJ)⁻¹g.
+            let largest = -0.5 * h.iter().zip(&g).map(|(s, gi)| s * gi).sum::<f64>();
+            if largest <= settings.predicted_cost_tolerance * cost {
+                let status = SolverStatus::Converged {
+                    reason: ConvergenceReason::PredictedCost,
+                };
+                return Ok(report(p, r, cost, gnorm, it, &lin, history, status));
+            }
+        }
         let Some(h) = solve_damped(&a, &g, &free, mu, &d) else {
             // Not positive definite at this damping: damp harder.
             mu *= nu;

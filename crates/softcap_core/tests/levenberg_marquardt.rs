@@ -417,3 +417,121 @@ fn large_problem_through_normal_equations_path() {
     );
     assert!(gmax < 1e-9, "{gmax}");
 }
+
+/// y = a e^{−b t} + c + noise (a fixed pseudo-random draw of σ = 0.01), analytic Jacobian.
+struct NoisyExp {
+    t: Vec<f64>,
+    y: Vec<f64>,
+    evaluations: usize,
+}
+
+impl NoisyExp {
+    fn new() -> Self {
+        let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.02).collect();
+        let mut state = 12345u64;
+        let y = t
+            .iter()
+            .map(|t| {
+                // Sum of 12 uniforms − 6: near-normal, unit variance.
+                let g: f64 = (0..12)
+                    .map(|_| {
+                        state = state
+                            .wrapping_mul(6364136223846793005)
+                            .wrapping_add(1442695040888963407);
+                        (state >> 11) as f64 / (1u64 << 53) as f64
+                    })
+                    .sum::<f64>()
+                    - 6.0;
+                2.0 * (-1.3 * t).exp() + 0.5 + 0.01 * g
+            })
+            .collect();
+        Self {
+            t,
+            y,
+            evaluations: 0,
+        }
+    }
+}
+
+impl LeastSquaresProblem for NoisyExp {
+    fn num_params(&self) -> usize {
+        3
+    }
+    fn num_residuals(&self) -> usize {
+        self.t.len()
+    }
+    fn residuals(&mut self, p: &[f64], r: &mut [f64]) {
+        self.evaluations += 1;
+        for (k, (t, y)) in self.t.iter().zip(&self.y).enumerate() {
+            r[k] = p[0] * (-p[1] * t).exp() + p[2] - y;
+        }
+    }
+    fn jacobian(&mut self, p: &[f64], j: &mut DMatrix<f64>) -> bool {
+        for (k, t) in self.t.iter().enumerate() {
+            let e = (-p[1] * t).exp();
+            j[(k, 0)] = e;
+            j[(k, 1)] = -p[0] * t * e;
+            j[(k, 2)] = 1.0;
+        }
+        true
+    }
+}
+
+/// `predicted_cost_tolerance` = δ²/(m − n) stops a noisy fit once the Gauss–Newton step left
+/// is below δ standard deviations of the parameters (s² (JᵀJ)⁻¹): with fewer residual
+/// evaluations than the fit run to its tightest tolerances, and every parameter within δ σ of
+/// that fit's optimum (δ = 0.3; the far start takes several steps). Checked to fail: without
+/// the criterion the status is `RelativeCost`/`Step` after more evaluations; with ½ gᵀ(JᵀJ)⁻¹g
+/// replaced by the damped step's predicted decrease it stops farther away.
+#[test]
+fn predicted_cost_tolerance_stops_below_the_resolution_of_the_data() {
+    let start = [1.0, 0.5, 0.0];
+    let mut tight = NoisyExp::new();
+    let reference = levenberg_marquardt(
+        &mut tight,
+        &start,
+        None,
+        &LevenbergMarquardtSettings::default(),
+    )
+    .unwrap();
+    assert!(reference.status.is_converged(), "{:?}", reference.status);
+    let (m, n) = (tight.t.len(), 3);
+    let p = &reference.params;
+    let mut j = DMatrix::<f64>::zeros(m, n);
+    tight.jacobian(p, &mut j);
+    let s2 = 2.0 * reference.cost / (m - n) as f64;
+    let cov = (j.transpose() * &j).try_inverse().unwrap() * s2;
+    let delta = 0.3;
+    let mut coarse = NoisyExp::new();
+    let r = levenberg_marquardt(
+        &mut coarse,
+        &start,
+        None,
+        &LevenbergMarquardtSettings {
+            predicted_cost_tolerance: delta * delta / (m - n) as f64,
+            ..LevenbergMarquardtSettings::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        r.status,
+        SolverStatus::Converged {
+            reason: ConvergenceReason::PredictedCost
+        }
+    );
+    assert!(
+        coarse.evaluations < tight.evaluations,
+        "{} vs {} evaluations",
+        coarse.evaluations,
+        tight.evaluations
+    );
+    for k in 0..n {
+        let sigma = cov[(k, k)].sqrt();
+        let off = (r.params[k] - p[k]).abs() / sigma;
+        eprintln!(
+            "parameter {k}: {off:.3} σ off the tight fit ({} vs {} evaluations)",
+            coarse.evaluations, tight.evaluations
+        );
+        assert!(off <= delta, "parameter {k}: {off:.3} σ");
+    }
+}
