@@ -114,6 +114,19 @@ pub(crate) fn forces_from_stress(
     ]
 }
 
+/// (tr S I − S)⁻¹ of the rotation derivative w = (tr S I − S)⁻¹ axial(M − Mᵀ) for the stretch S
+/// (McAdams et al. 2011), `None` near inversion (the matrix singular), where the rotation term
+/// is dropped.
+pub(crate) fn spin_inverse(stretch: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let s = stretch;
+    let sys = Matrix3::identity() * s.trace() - s;
+    if sys.determinant().abs() > 1e-10 * (1.0 + s.norm().powi(3)) {
+        sys.try_inverse()
+    } else {
+        None
+    }
+}
+
 /// Element matrix ∂f/∂x for stress σ at the current state and material tangent `dsigma`
 /// (dε ↦ dσ). With `include_rotation = false` the ∂R terms are dropped, which gives the warped
 /// matrix R (V Bᵀ C_t B) Rᵀ (bickel2009 eq. 10–11 with C_t in place of E).
@@ -127,13 +140,7 @@ pub(crate) fn tangent_from_stress(
 ) -> Matrix12 {
     let r = rotation;
     let s = stretch;
-    let sys = Matrix3::identity() * s.trace() - s;
-    let sys_inv = if include_rotation && sys.determinant().abs() > 1e-10 * (1.0 + s.norm().powi(3))
-    {
-        sys.try_inverse()
-    } else {
-        None
-    };
+    let sys_inv = include_rotation.then(|| spin_inverse(s)).flatten();
     let mut out = Matrix12::zeros();
     for b in 0..4 {
         for j in 0..3 {

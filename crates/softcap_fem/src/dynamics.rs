@@ -28,7 +28,7 @@ use crate::FemError;
 use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern, solver_setup};
 use crate::contact::{ContactProblem, ContactReport};
 use crate::element::StiffnessKind;
-use crate::model::{ElasticModel, element_product};
+use crate::model::{ElasticModel, StepTangent, element_product};
 use crate::nodal::NodalTerm;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -567,22 +567,26 @@ impl DynamicSolver {
         self.committed_residual.as_deref()
     }
 
-    /// Forward sensitivities of parameters p_k through the step just taken from `before` to
-    /// x_{n+1} = `x` (wang2015 eq. 3 differentiated along the implicit step): with R(x_{n+1};
-    /// x_n, v_n, a_n, p) = 0 at every step, s_{n+1} = dx_{n+1}/dp_k solves
+    /// Forward sensitivities of parameters p_k through the step just taken by `model` from
+    /// `before` to x_{n+1} = `x` (wang2015 eq. 3 differentiated along the implicit step): with
+    /// R(x_{n+1}; x_n, v_n, a_n, p) = 0 at every step, s_{n+1} = dx_{n+1}/dp_k solves
     ///
     /// −∂R/∂x_{n+1} s_{n+1} = ∂R/∂p_k + ∂R/∂(x_n, v_n, a_n) · (s_n, ṡ_n, s̈_n),
     ///
-    /// and (ṡ, s̈)_{n+1} follow from the integrator's kinematics, which are linear. The right side
-    /// and the product with the exact tangent are taken as directional differences of the
-    /// residual: Φ_k(s) = (R(x + ε s; state_n + ε sens_n, p + ε e_k) − R(x; state_n, p)) / ε with
-    /// the `perturbed` model and settings of p + ε e_k against the `base_residual`
-    /// ([`Self::step_residual`] of the step's own model and settings, or
-    /// [`Self::committed_residual`]), and each s is iterated as s ← s + A⁻¹ Φ_k(s) with the
-    /// factor of the step's system matrix A (the Newton updates'), from the integrator's
-    /// predictor of its `sensitivities` entry, until an update is at most `options.tolerance` ×
-    /// max |s|. The parameters iterate in lockstep: each round is
-    /// one element pass per parameter still iterating and one back-substitution of all their
+    /// and (ṡ, s̈)_{n+1} follow from the integrator's kinematics, which are linear. Each s is
+    /// iterated as s ← s + A⁻¹ Φ_k(s) with the factor of the step's system matrix A (the Newton
+    /// updates'), from the integrator's predictor of its `sensitivities` entry, until an update
+    /// is at most `options.tolerance` × max |s|, where the linearized residual is
+    /// Φ_k(s) = ∂R/∂p_k + ∂R/∂(state_n) · sens_n + ∂R/∂x_{n+1} s. Its first value is a
+    /// directional difference of the residual,
+    /// Φ_k(s) = (R(x + ε s; state_n + ε sens_n, p + ε e_k) − R(x; state_n, p)) / ε, with the
+    /// `perturbed` model and settings of p + ε e_k against the `base_residual`
+    /// ([`Self::step_residual`] of `model` and `settings`, or [`Self::committed_residual`]).
+    /// After an update Δs it moves by the exact tangent's product ∂R/∂x_{n+1} Δs
+    /// ([`ElasticModel::step_tangent`], the element state at x_{n+1} kept from one pass: no
+    /// polar decomposition per round; a model without it differences the residual again at
+    /// every round). The parameters iterate in lockstep: each round is one tangent product (or
+    /// element pass) per parameter still iterating and one back-substitution of all their
     /// updates as a block of right-hand sides (one sweep through the factor); no factorization.
     /// The result is the derivative of the exact step, not of its Newton iterate, so it does not
     /// need a tight Newton tolerance. Each `sensitivities` entry (s, ṡ, s̈ at t_n, zero on the
@@ -593,6 +597,7 @@ impl DynamicSolver {
     #[allow(clippy::too_many_arguments)]
     pub fn step_sensitivities<M: ElasticModel + ?Sized>(
         &mut self,
+        model: &M,
         before: &DynamicState,
         x: &[Vector3<f64>],
         base_residual: &[f64],
@@ -619,15 +624,6 @@ impl DynamicSolver {
         let shifted = |a: &[Vector3<f64>], d: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
             a.iter().zip(d).map(|(a, d)| a + d * eps).collect()
         };
-        let befores: Vec<DynamicState> = sensitivities
-            .iter()
-            .map(|sens| DynamicState {
-                time_s: before.time_s,
-                positions_m: shifted(&before.positions_m, &sens.positions_m),
-                velocities_m_s: shifted(&before.velocities_m_s, &sens.velocities_m_s),
-                accelerations_m_s2: shifted(&before.accelerations_m_s2, &sens.accelerations_m_s2),
-            })
-            .collect();
         let mut s: Vec<Vec<Vector3<f64>>> = sensitivities
             .iter()
             .map(|sens| {
@@ -643,18 +639,52 @@ impl DynamicSolver {
         let nf = base_residual.len();
         let mut iterations = 0;
         let mut active: Vec<usize> = (0..perturbed.len()).collect();
+        // Φ_k at the current s_k, and the last update of s_k.
+        let mut phis: Vec<Vec<f64>> = vec![Vec::new(); perturbed.len()];
+        let mut updates: Vec<Vec<f64>> = vec![Vec::new(); perturbed.len()];
+        // The tangent at x_{n+1}, built when a second round is needed.
+        let mut tangent: Option<Option<StepTangent>> = None;
         let mut block = Vec::new();
-        for _ in 0..options.max_iterations.max(1) {
+        for round in 0..options.max_iterations.max(1) {
             if active.is_empty() {
                 break;
             }
+            if round > 0 && tangent.is_none() {
+                tangent = Some(self.step_tangent(model, before, x, settings));
+            }
+            if let Some(Some(t)) = &tangent {
+                let du: Vec<&[f64]> = active.iter().map(|&k| &updates[k][..]).collect();
+                let products = self.residual_differentials(model, t, settings, &du);
+                for (&k, p) in active.iter().zip(products) {
+                    for (f, d) in phis[k].iter_mut().zip(p) {
+                        *f += d;
+                    }
+                }
+            } else {
+                for &k in &active {
+                    let (body, p_settings) = perturbed[k];
+                    let sens = &sensitivities[k];
+                    let moved = DynamicState {
+                        time_s: before.time_s,
+                        positions_m: shifted(&before.positions_m, &sens.positions_m),
+                        velocities_m_s: shifted(&before.velocities_m_s, &sens.velocities_m_s),
+                        accelerations_m_s2: shifted(
+                            &before.accelerations_m_s2,
+                            &sens.accelerations_m_s2,
+                        ),
+                    };
+                    let xp = shifted(x, &s[k]);
+                    let phi = self.step_residual(body, &moved, &xp, external_forces_n, p_settings);
+                    phis[k] = phi
+                        .iter()
+                        .zip(base_residual)
+                        .map(|(f, b)| (f - b) / eps)
+                        .collect();
+                }
+            }
             block.clear();
             for &k in &active {
-                let (model, p_settings) = perturbed[k];
-                let xp = shifted(x, &s[k]);
-                let phi =
-                    self.step_residual(model, &befores[k], &xp, external_forces_n, p_settings);
-                block.extend(phi.iter().zip(base_residual).map(|(f, b)| (f - b) / eps));
+                block.extend_from_slice(&phis[k]);
             }
             self.cholesky.solve_in_place(&mut block)?;
             let mut still = Vec::with_capacity(active.len());
@@ -670,6 +700,8 @@ impl DynamicSolver {
                     });
                 }
                 if update > options.tolerance * size {
+                    updates[k].clear();
+                    updates[k].extend_from_slice(du);
                     still.push(k);
                 }
             }
@@ -680,6 +712,56 @@ impl DynamicSolver {
             sens.advance(h, s, v, a);
         }
         Ok(iterations)
+    }
+
+    /// [`ElasticModel::step_tangent`] of `model` at the end x_{n+1} = `x` of the step from
+    /// `before` with `settings` (v_{n+1} of the integrator, its ∂v/∂x, the stiffness kind and β).
+    fn step_tangent<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        before: &DynamicState,
+        x: &[Vector3<f64>],
+        settings: &DynamicsSettings,
+    ) -> Option<StepTangent> {
+        let (v, _) = Self::velocity_acceleration(settings, before, x);
+        let cv = Self::kinematics(settings).cv;
+        model.step_tangent(x, &v, settings.stiffness, settings.damping.beta_s, cv)
+    }
+
+    /// The products ∂R/∂x_{n+1} du of the step residual R = f_ext − f_int(x) − D v − M a with
+    /// each free-dof direction of `directions`, over the free dofs: the element part from
+    /// `tangent` ([`StepTangent::apply`]: f_int and β K v with v = v(x)), the lumped-mass part
+    /// (c_x + α c_v) M du of the integrator's ∂a/∂x = c_x and ∂v/∂x = c_v.
+    fn residual_differentials<M: ElasticModel + ?Sized>(
+        &self,
+        model: &M,
+        tangent: &StepTangent,
+        settings: &DynamicsSettings,
+        directions: &[&[f64]],
+    ) -> Vec<Vec<f64>> {
+        let n = model.num_nodes();
+        let fields: Vec<Vec<Vector3<f64>>> = directions
+            .iter()
+            .map(|du| {
+                let mut field = vec![Vector3::zeros(); n];
+                self.dofs().scatter_add(du, 1.0, &mut field);
+                field
+            })
+            .collect();
+        let views: Vec<&[Vector3<f64>]> = fields.iter().map(|f| &f[..]).collect();
+        let mut out = vec![Vec::new(); fields.len()];
+        tangent.apply(model.elements(), &views, &mut out);
+        let kin = Self::kinematics(settings);
+        let c_mass = kin.cx + settings.damping.alpha_per_s * kin.cv;
+        out.iter_mut()
+            .zip(&fields)
+            .map(|(o, field)| {
+                for ((oi, fi), m) in o.iter_mut().zip(field).zip(&self.masses_kg) {
+                    *oi += fi * (c_mass * m);
+                }
+                self.dofs().gather(o).into_iter().map(|v| -v).collect()
+            })
+            .collect()
     }
 
     pub(crate) fn kinematics(settings: &DynamicsSettings) -> Kinematics {

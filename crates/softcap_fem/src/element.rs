@@ -283,6 +283,87 @@ pub fn corotational_tangent(geom: &TetGeometry, p: &LinearParams, x: &[Vector3<f
     crate::corotated::tangent_from_stress(geom, &r, &s, &sigma, |de| linear_stress(p, de), true)
 }
 
+/// One corotational element at a fixed step state (x, v), kept for the exact derivative of the
+/// element's share of a dynamic step's residual, f_e(x) + β K_e(x) v_e with the warped
+/// K_e(x) = R K_e Rᵀ (bickel2009 eq. 10) and v = v(x) of the integrator, along any number of
+/// directions ([`corotational_step_differential`]): what a direction does not change — the
+/// polar decomposition F = R S, the stress and the rotated velocity gradient — evaluated once.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CorotationalStepFrame {
+    rotation: Matrix3<f64>,
+    /// (tr S I − S)⁻¹ of the rotation derivative, zero near inversion (as in
+    /// [`corotational_tangent`]).
+    spin: Matrix3<f64>,
+    /// S + β Rᵀ Ḟ: what W = RᵀdR multiplies inside the strain increment.
+    stretch_rate: Matrix3<f64>,
+    /// σ(ε) + β σ(sym(Rᵀ Ḟ)): what W multiplies outside it.
+    stress: Matrix3<f64>,
+    /// (λ_L, μ) of [`LinearParams::lame`].
+    lame: (f64, f64),
+    /// 1 + β c_v (c_v = ∂v/∂x of the integrator).
+    rate_factor: f64,
+}
+
+/// The [`CorotationalStepFrame`] of element `geom` with parameters `p` at positions `x`,
+/// velocities `v`, stiffness-proportional damping `beta` and the integrator's c_v = ∂v/∂x.
+pub fn corotational_step_frame(
+    geom: &TetGeometry,
+    p: &LinearParams,
+    x: &[Vector3<f64>],
+    v: &[Vector3<f64>],
+    beta: f64,
+    cv: f64,
+) -> CorotationalStepFrame {
+    let (r, s) = crate::corotated::rotation_stretch(&geom.deformation_gradient(x));
+    let spin = crate::corotated::spin_inverse(&s).unwrap_or_else(Matrix3::zeros);
+    let rate = r.transpose() * geom.deformation_gradient(v);
+    let sigma = linear_stress(p, &(s - Matrix3::identity()));
+    let sigma_v = linear_stress(p, &((rate + rate.transpose()) * 0.5));
+    CorotationalStepFrame {
+        rotation: r,
+        spin,
+        stretch_rate: s + rate * beta,
+        stress: sigma + sigma_v * beta,
+        lame: p.lame(),
+        rate_factor: 1.0 + beta * cv,
+    }
+}
+
+/// The change of f_e + β K_e(x) v_e (per element node) when the element's nodes move by `du`
+/// and the velocities by c_v du, to first order, at the state of `frame` — the product of the
+/// exact step tangent ∂f_e/∂x + β ∂(K_e v_e)/∂x + β c_v K_e with `du`, without forming it.
+///
+/// With M = Rᵀ dF (dF = Σ_b du_b g_bᵀ) and W = RᵀdR = \[w\]×, w = (tr S I − S)⁻¹ axial(M − Mᵀ)
+/// (the rotation derivative of [`corotational_tangent`], McAdams et al. 2011), the elastic part
+/// is dP = R W σ + R σ(sym(M − W S)); the damping force V R σ(sym(Rᵀ Ḟ)) g_a (the warped
+/// K_e v_e, [`crate::ElasticModel::element_forces_products`]) changes by R W σ_v − R σ(sym(W Rᵀ Ḟ))
+/// through R and by c_v R σ(sym M) through v. Summed (σ is linear):
+/// dP = R (W (σ + β σ_v) + σ(sym((1 + β c_v) M − W (S + β Rᵀ Ḟ)))), and df_a = V dP g_a.
+pub fn corotational_step_differential(
+    geom: &TetGeometry,
+    frame: &CorotationalStepFrame,
+    du: &[Vector3<f64>; 4],
+) -> [Vector3<f64>; 4] {
+    let mut df = Matrix3::zeros();
+    for a in 0..4 {
+        df += du[a] * geom.grads[a].transpose();
+    }
+    let r = &frame.rotation;
+    let m = r.transpose() * df;
+    let axial = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    );
+    let w = (frame.spin * axial).cross_matrix();
+    let e = m * frame.rate_factor - w * frame.stretch_rate;
+    let e = (e + e.transpose()) * 0.5;
+    let (lame, mu) = frame.lame;
+    let de = e * (2.0 * mu) + Matrix3::identity() * (lame * e.trace());
+    let dp = r * (w * frame.stress + de) * geom.volume_m3;
+    std::array::from_fn(|a| dp * geom.grads[a])
+}
+
 /// ∂f_e/∂λ_e and ∂f_e/∂α_e at fixed rotation: R (V BᵀGB)(Rᵀx − X) and R (V BᵀHB)(Rᵀx − X)
 /// (the per-element right-hand sides of bickel2009 appendix eq. 11–12). Evaluated as V R σ g_a
 /// with σ_G = ε and σ_H = tr(ε) I − 2ε.

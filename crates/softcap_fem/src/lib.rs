@@ -72,8 +72,9 @@ pub use assembly::{DirichletBc, DofMap, FactorKind, SparseCholesky, SystemPatter
 pub use contact::{ContactProblem, ContactReport, ContactSettings, ContactSpring, Probe, TipShape};
 pub use derivatives::{Sensitivity, alpha_index, element_stiffness_derivative, lambda_index};
 pub use element::{
-    Matrix12, StiffnessKind, TetGeometry, corotated_strain, corotational_forces,
-    corotational_parameter_forces, corotational_tangent, element_stiffness, stiffness_basis,
+    CorotationalStepFrame, Matrix12, StiffnessKind, TetGeometry, corotated_strain,
+    corotational_forces, corotational_parameter_forces, corotational_step_differential,
+    corotational_step_frame, corotational_tangent, element_stiffness, stiffness_basis,
     strain_voigt, tet_geometries, warped_stiffness,
 };
 pub use error::FemError;
@@ -82,7 +83,9 @@ pub use friction::{
     LaggedSolve, NormalForceLag, mollifier, regularized_coulomb, solve_lagged,
 };
 pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
-pub use model::{CorotationalModel, ElasticModel, NeoHookeanModel, StrainDependentParams};
+pub use model::{
+    CorotationalModel, ElasticModel, NeoHookeanModel, StepTangent, StrainDependentParams,
+};
 pub use neohookean::{
     energy_density, neohookean_energy, neohookean_forces, neohookean_tangent, pk1, pk1_derivative,
 };

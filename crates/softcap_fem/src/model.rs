@@ -2,9 +2,9 @@
 //! parameters and an optional strain-dependent parameter hook, and the stable neo-Hookean model.
 
 use crate::element::{
-    Matrix12, StiffnessKind, TetGeometry, corotated_strain, corotational_forces,
-    corotational_linearization, corotational_tangent, strain_voigt, tet_geometries,
-    warped_stiffness,
+    CorotationalStepFrame, Matrix12, StiffnessKind, TetGeometry, corotated_strain,
+    corotational_forces, corotational_linearization, corotational_step_differential,
+    corotational_step_frame, corotational_tangent, strain_voigt, tet_geometries, warped_stiffness,
 };
 use crate::neohookean::{neohookean_energy, neohookean_forces, neohookean_tangent};
 use crate::{FemError, LinearParams, NeoHookeanParams};
@@ -121,6 +121,83 @@ pub trait ElasticModel {
                     &self.elements()[e].nodes,
                     v,
                 );
+            }
+        }
+    }
+
+    /// The exact derivative of the element pass of a dynamic step's residual — f_int(x) +
+    /// β Σ_e K_e(x) v_e with element matrices of `kind` and v = v(x) of the integrator (∂v/∂x =
+    /// `cv`) — at positions `x` and velocities `v`, kept per element for products with any
+    /// number of directions ([`StepTangent::apply`]; what
+    /// [`crate::DynamicSolver::step_sensitivities`] iterates with). Default `None`: not
+    /// available (the caller differences the residual instead).
+    fn step_tangent(
+        &self,
+        _x: &[Vector3<f64>],
+        _v: &[Vector3<f64>],
+        _kind: StiffnessKind,
+        _beta: f64,
+        _cv: f64,
+    ) -> Option<StepTangent> {
+        None
+    }
+}
+
+/// The per-element state of [`ElasticModel::step_tangent`] (corotational elements with warped
+/// element matrices: [`CorotationalStepFrame`]).
+#[derive(Clone, Debug)]
+pub struct StepTangent {
+    frames: Vec<CorotationalStepFrame>,
+}
+
+impl StepTangent {
+    /// The products of the tangent with each of `directions` (nodal fields; the elements of
+    /// `elements`, those the tangent was built on), summed per node into `out` (one field per
+    /// direction, overwritten): Σ_e of [`corotational_step_differential`]. Elements are
+    /// evaluated in chunks, possibly in parallel, and accumulated serially in element order
+    /// (the same bits on any number of threads).
+    pub fn apply(
+        &self,
+        elements: &[TetGeometry],
+        directions: &[&[Vector3<f64>]],
+        out: &mut [Vec<Vector3<f64>>],
+    ) {
+        let nd = directions.len();
+        for (o, d) in out.iter_mut().zip(directions) {
+            o.clear();
+            o.resize(d.len(), Vector3::zeros());
+        }
+        let n_el = elements.len().min(self.frames.len());
+        let chunk = ELEMENT_CHUNK.min(n_el.max(1));
+        let mut buf = vec![[Vector3::zeros(); 4]; chunk * nd.max(1)];
+        for start in (0..n_el).step_by(chunk) {
+            let len = chunk.min(n_el - start);
+            let element = |k: usize, slot: &mut [[Vector3<f64>; 4]]| {
+                let (g, frame) = (&elements[start + k], &self.frames[start + k]);
+                for (d, du) in directions.iter().enumerate() {
+                    let due = std::array::from_fn(|a| du[g.nodes[a]]);
+                    slot[d] = corotational_step_differential(g, frame, &due);
+                }
+            };
+            let slots = &mut buf[..len * nd];
+            if len < PARALLEL_MIN_ELEMENTS || nd == 0 {
+                for (k, slot) in slots.chunks_mut(nd.max(1)).enumerate() {
+                    element(k, slot);
+                }
+            } else {
+                use rayon::prelude::*;
+                slots
+                    .par_chunks_mut(nd)
+                    .enumerate()
+                    .for_each(|(k, slot)| element(k, slot));
+            }
+            for (k, g) in elements[start..start + len].iter().enumerate() {
+                for (d, o) in out.iter_mut().enumerate() {
+                    let df = &slots[k * nd + d];
+                    for q in 0..4 {
+                        o[g.nodes[q]] += df[q];
+                    }
+                }
             }
         }
     }
@@ -471,6 +548,25 @@ impl ElasticModel for CorotationalModel {
                 }
             };
         });
+    }
+    /// [`CorotationalStepFrame`] per element for the warped matrices; `None` for the consistent
+    /// ones and for strain-dependent parameters (which change with x).
+    fn step_tangent(
+        &self,
+        x: &[Vector3<f64>],
+        v: &[Vector3<f64>],
+        kind: StiffnessKind,
+        beta: f64,
+        cv: f64,
+    ) -> Option<StepTangent> {
+        if kind != StiffnessKind::Warped || self.hook.is_some() {
+            return None;
+        }
+        let mut frames = vec![CorotationalStepFrame::default(); self.geometry.len()];
+        fill_elements(&mut frames, |e, f| {
+            *f = corotational_step_frame(&self.geometry[e], &self.params[e], x, v, beta, cv);
+        });
+        Some(StepTangent { frames })
     }
     fn element_matrix(&self, e: usize, x: &[Vector3<f64>], kind: StiffnessKind) -> Matrix12 {
         let g = &self.geometry[e];

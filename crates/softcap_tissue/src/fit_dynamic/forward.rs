@@ -323,8 +323,9 @@ pub struct FitTiming {
     pub segment_thread_s: f64,
     /// Thread-s in factorizations.
     pub factor_thread_s: f64,
-    /// Iterations of the forward-sensitivity steps (one element pass and one back-substitution
-    /// each, [`softcap_fem::DynamicSolver::step_sensitivities`]), over all parameters.
+    /// Iterations of the forward-sensitivity steps (one back-substitution each after a
+    /// directional difference of the residual, the first, or a product with the step tangent,
+    /// [`softcap_fem::DynamicSolver::step_sensitivities`]), over all parameters.
     pub sensitivity_iterations: usize,
     /// Rest-shape solves (eq. 7; a rest shape kept for its modulus is not counted).
     pub rest_shape_solves: usize,
@@ -569,6 +570,7 @@ impl Stepper {
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(s.step_sensitivities(
+            m,
             before,
             x,
             &base,
