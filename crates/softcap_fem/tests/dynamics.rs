@@ -408,9 +408,9 @@ fn residual_only_pass_equals_the_full_element_pass() {
 /// direction du on a bent, twisted, moving bar (Newmark, α = 0.8 1/s, β = 0.02 s, rotations up
 /// to 1.3 rad): ∂R/∂x du = −(Σ_e df_e + (c_x + α c_v) M du), c_x = 4/h², c_v = 2/h. Within
 /// 10⁻⁷ of |∂R/∂x du| (measured 3.0·10⁻¹⁰ with steps of 10⁻⁷ m, the differences' truncation
-/// error: 3.0·10⁻⁶ at 10⁻⁵ m). Checked to fail: without the rotation derivative (w = 0) the
-/// miss is 3.9·10⁻², without the damping force's change through R (β W σ_v and β W Rᵀ Ḟ
-/// dropped) 3.9·10⁻².
+/// error: 3.0·10⁻⁶ at 10⁻⁵ m); the product the same bits on one thread and two. Checked to
+/// fail: without the rotation derivative (w = 0) the miss is 3.9·10⁻², without the damping
+/// force's change through R (β W σ_v and β W Rᵀ Ḟ dropped) 3.9·10⁻².
 #[test]
 fn step_tangent_matches_central_differences_of_the_step_residual() {
     use softcap_fem::nalgebra::Rotation3;
@@ -491,8 +491,18 @@ fn step_tangent_matches_central_differences_of_the_step_residual() {
     let tangent = model
         .step_tangent(&x, &v, StiffnessKind::Warped, settings.damping.beta_s, cv)
         .expect("corotational warped tangent");
-    let mut out = vec![Vec::new()];
-    tangent.apply(model.elements(), &[&du], &mut out);
+    // The same bits on one thread and two (864 tets: the parallel element loop).
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut out = vec![Vec::new()];
+        pool.install(|| tangent.apply(model.elements(), &[&du], &mut out));
+        out
+    };
+    let out = on(1);
+    assert_eq!(on(2), out, "one thread vs two");
     let c_mass = cx + settings.damping.alpha_per_s * cv;
     let full: Vec<Vector3<f64>> = out[0]
         .iter()
