@@ -642,17 +642,31 @@ impl DynamicSolver {
         // Φ_k at the current s_k, and the last update of s_k.
         let mut phis: Vec<Vec<f64>> = vec![Vec::new(); perturbed.len()];
         let mut updates: Vec<Vec<f64>> = vec![Vec::new(); perturbed.len()];
-        // The tangent at x_{n+1}, built when a second round is needed.
+        // Bodies with `model`'s elastic state differ in α, β only: R is linear in them, so their
+        // first right side is the tangent's too (no element pass).
+        let damping_only: Vec<bool> = perturbed
+            .iter()
+            .map(|(body, _)| body.state_id().is_some() && body.state_id() == model.state_id())
+            .collect();
+        let v_next = Self::velocity_acceleration(settings, before, x).0;
+        // The tangent at x_{n+1}, built when it is first needed.
         let mut tangent: Option<Option<StepTangent>> = None;
         let mut block = Vec::new();
         for round in 0..options.max_iterations.max(1) {
             if active.is_empty() {
                 break;
             }
-            if round > 0 && tangent.is_none() {
-                tangent = Some(self.step_tangent(model, before, x, settings));
+            if tangent.is_none() && (round > 0 || damping_only.contains(&true)) {
+                tangent = Some(model.step_tangent(
+                    x,
+                    &v_next,
+                    settings.stiffness,
+                    settings.damping.beta_s,
+                    Self::kinematics(settings).cv,
+                ));
             }
-            if let Some(Some(t)) = &tangent {
+            let t = tangent.as_ref().and_then(Option::as_ref);
+            if let (Some(t), true) = (t, round > 0) {
                 let du: Vec<&[f64]> = active.iter().map(|&k| &updates[k][..]).collect();
                 let products = self.residual_differentials(model, t, settings, &du);
                 for (&k, p) in active.iter().zip(products) {
@@ -661,7 +675,20 @@ impl DynamicSolver {
                     }
                 }
             } else {
-                for &k in &active {
+                let (linear, differenced): (Vec<usize>, Vec<usize>) = active
+                    .iter()
+                    .partition(|&&k| t.is_some() && damping_only[k]);
+                if let Some(t) = t.filter(|_| !linear.is_empty()) {
+                    let items: Vec<_> = linear
+                        .iter()
+                        .map(|&k| (&s[k][..], &sensitivities[k], perturbed[k].1))
+                        .collect();
+                    let sides = self.damping_right_sides(model, t, settings, &v_next, &items, eps);
+                    for (&k, side) in linear.iter().zip(sides) {
+                        phis[k] = side;
+                    }
+                }
+                for &k in &differenced {
                     let (body, p_settings) = perturbed[k];
                     let sens = &sensitivities[k];
                     let moved = DynamicState {
@@ -714,18 +741,54 @@ impl DynamicSolver {
         Ok(iterations)
     }
 
-    /// [`ElasticModel::step_tangent`] of `model` at the end x_{n+1} = `x` of the step from
-    /// `before` with `settings` (v_{n+1} of the integrator, its ∂v/∂x, the stiffness kind and β).
-    fn step_tangent<M: ElasticModel + ?Sized>(
+    /// The first right sides Φ_k(s⁰) of parameters that change only the damping (α + Δα,
+    /// β + Δβ in each item's settings; `items`: s⁰ as a nodal field, the sensitivity state at
+    /// t_n and the settings), from `tangent` at x_{n+1} with velocities `v` instead of an
+    /// element pass. R is linear in α and β and in the kinematics, so with (ṽ, ã) the
+    /// integrator's velocity and acceleration of the sensitivity state at s⁰:
+    /// Φ = −(∂(f_int + β K v)/∂x s⁰ [v moving by c_v s⁰] + K (β (ṽ − c_v s⁰) + Δβ/ε v)
+    /// + M (ã + α ṽ + Δα/ε v)), over the free dofs.
+    fn damping_right_sides<M: ElasticModel + ?Sized>(
         &self,
         model: &M,
-        before: &DynamicState,
-        x: &[Vector3<f64>],
+        tangent: &StepTangent,
         settings: &DynamicsSettings,
-    ) -> Option<StepTangent> {
-        let (v, _) = Self::velocity_acceleration(settings, before, x);
+        v: &[Vector3<f64>],
+        items: &[(&[Vector3<f64>], &DynamicState, &DynamicsSettings)],
+        eps: f64,
+    ) -> Vec<Vec<f64>> {
         let cv = Self::kinematics(settings).cv;
-        model.step_tangent(x, &v, settings.stiffness, settings.damping.beta_s, cv)
+        let (alpha, beta) = (settings.damping.alpha_per_s, settings.damping.beta_s);
+        let mut warped = Vec::with_capacity(items.len());
+        let mut inertial = Vec::with_capacity(items.len());
+        for (s0, sens, p_settings) in items {
+            let (vt, at) = Self::velocity_acceleration(settings, sens, s0);
+            let d_alpha = (p_settings.damping.alpha_per_s - alpha) / eps;
+            let d_beta = (p_settings.damping.beta_s - beta) / eps;
+            let w: Vec<Vector3<f64>> = (0..v.len())
+                .map(|i| (vt[i] - s0[i] * cv) * beta + v[i] * d_beta)
+                .collect();
+            let m: Vec<Vector3<f64>> = (0..v.len())
+                .map(|i| (at[i] + vt[i] * alpha + v[i] * d_alpha) * self.masses_kg[i])
+                .collect();
+            warped.push(w);
+            inertial.push(m);
+        }
+        let s0: Vec<&[Vector3<f64>]> = items.iter().map(|item| item.0).collect();
+        let w: Vec<&[Vector3<f64>]> = warped.iter().map(|w| &w[..]).collect();
+        let mut products = vec![Vec::new(); items.len()];
+        let mut kw = vec![Vec::new(); items.len()];
+        tangent.apply(model.elements(), &s0, &mut products);
+        tangent.warped_products(model.elements(), &w, &mut kw);
+        products
+            .iter()
+            .zip(&kw)
+            .zip(&inertial)
+            .map(|((p, k), m)| {
+                let total: Vec<Vector3<f64>> = (0..p.len()).map(|i| p[i] + k[i] + m[i]).collect();
+                self.dofs().gather(&total).into_iter().map(|r| -r).collect()
+            })
+            .collect()
     }
 
     /// The products ∂R/∂x_{n+1} du of the step residual R = f_ext − f_int(x) − D v − M a with

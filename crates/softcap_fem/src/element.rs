@@ -329,6 +329,26 @@ pub fn corotational_step_frame(
     }
 }
 
+/// The warped K_e w_e = R K_e Rᵀ w_e of a nodal field `w` (per element node) at the state of
+/// `frame`: V R σ(sym(Rᵀ ∇w)) g_a with ∇w = Σ_a w_a g_aᵀ (as
+/// [`crate::ElasticModel::element_forces_products`], the rotation kept).
+pub fn corotational_step_warped_product(
+    geom: &TetGeometry,
+    frame: &CorotationalStepFrame,
+    w: &[Vector3<f64>; 4],
+) -> [Vector3<f64>; 4] {
+    let mut grad = Matrix3::zeros();
+    for a in 0..4 {
+        grad += w[a] * geom.grads[a].transpose();
+    }
+    let rate = frame.rotation.transpose() * grad;
+    let e = (rate + rate.transpose()) * 0.5;
+    let (lame, mu) = frame.lame;
+    let p = frame.rotation * (e * (2.0 * mu) + Matrix3::identity() * (lame * e.trace()));
+    let p = p * geom.volume_m3;
+    std::array::from_fn(|a| p * geom.grads[a])
+}
+
 /// The change of f_e + β K_e(x) v_e (per element node) when the element's nodes move by `du`
 /// and the velocities by c_v du, to first order, at the state of `frame` — the product of the
 /// exact step tangent ∂f_e/∂x + β ∂(K_e v_e)/∂x + β c_v K_e with `du`, without forming it.

@@ -74,8 +74,8 @@ pub use derivatives::{Sensitivity, alpha_index, element_stiffness_derivative, la
 pub use element::{
     CorotationalStepFrame, Matrix12, StiffnessKind, TetGeometry, corotated_strain,
     corotational_forces, corotational_parameter_forces, corotational_step_differential,
-    corotational_step_frame, corotational_tangent, element_stiffness, stiffness_basis,
-    strain_voigt, tet_geometries, warped_stiffness,
+    corotational_step_frame, corotational_step_warped_product, corotational_tangent,
+    element_stiffness, stiffness_basis, strain_voigt, tet_geometries, warped_stiffness,
 };
 pub use error::FemError;
 pub use friction::{

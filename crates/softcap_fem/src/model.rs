@@ -4,7 +4,8 @@
 use crate::element::{
     CorotationalStepFrame, Matrix12, StiffnessKind, TetGeometry, corotated_strain,
     corotational_forces, corotational_linearization, corotational_step_differential,
-    corotational_step_frame, corotational_tangent, strain_voigt, tet_geometries, warped_stiffness,
+    corotational_step_frame, corotational_step_warped_product, corotational_tangent, strain_voigt,
+    tet_geometries, warped_stiffness,
 };
 use crate::neohookean::{neohookean_energy, neohookean_forces, neohookean_tangent};
 use crate::{FemError, LinearParams, NeoHookeanParams};
@@ -150,20 +151,47 @@ pub struct StepTangent {
     frames: Vec<CorotationalStepFrame>,
 }
 
+/// One element's share of a [`StepTangent`] product ([`corotational_step_differential`],
+/// [`corotational_step_warped_product`]).
+type ElementKernel =
+    fn(&TetGeometry, &CorotationalStepFrame, &[Vector3<f64>; 4]) -> [Vector3<f64>; 4];
+
 impl StepTangent {
     /// The products of the tangent with each of `directions` (nodal fields; the elements of
     /// `elements`, those the tangent was built on), summed per node into `out` (one field per
-    /// direction, overwritten): Σ_e of [`corotational_step_differential`]. Elements are
-    /// evaluated in chunks, possibly in parallel, and accumulated serially in element order
-    /// (the same bits on any number of threads).
+    /// direction, overwritten): Σ_e of [`corotational_step_differential`].
     pub fn apply(
         &self,
         elements: &[TetGeometry],
         directions: &[&[Vector3<f64>]],
         out: &mut [Vec<Vector3<f64>>],
     ) {
-        let nd = directions.len();
-        for (o, d) in out.iter_mut().zip(directions) {
+        self.accumulate(elements, directions, out, corotational_step_differential);
+    }
+
+    /// The warped products Σ_e K_e w_e (K_e = R K_e Rᵀ at the tangent's state) of each of
+    /// `fields`, summed per node into `out` ([`corotational_step_warped_product`]).
+    pub fn warped_products(
+        &self,
+        elements: &[TetGeometry],
+        fields: &[&[Vector3<f64>]],
+        out: &mut [Vec<Vector3<f64>>],
+    ) {
+        self.accumulate(elements, fields, out, corotational_step_warped_product);
+    }
+
+    /// Σ_e `element`(g_e, frame_e, field_e) per node for every field: elements in chunks,
+    /// possibly in parallel, accumulated serially in element order (the same bits on any number
+    /// of threads).
+    fn accumulate(
+        &self,
+        elements: &[TetGeometry],
+        fields: &[&[Vector3<f64>]],
+        out: &mut [Vec<Vector3<f64>>],
+        element: ElementKernel,
+    ) {
+        let nd = fields.len();
+        for (o, d) in out.iter_mut().zip(fields) {
             o.clear();
             o.resize(d.len(), Vector3::zeros());
         }
@@ -172,24 +200,24 @@ impl StepTangent {
         let mut buf = vec![[Vector3::zeros(); 4]; chunk * nd.max(1)];
         for start in (0..n_el).step_by(chunk) {
             let len = chunk.min(n_el - start);
-            let element = |k: usize, slot: &mut [[Vector3<f64>; 4]]| {
+            let one = |k: usize, slot: &mut [[Vector3<f64>; 4]]| {
                 let (g, frame) = (&elements[start + k], &self.frames[start + k]);
-                for (d, du) in directions.iter().enumerate() {
-                    let due = std::array::from_fn(|a| du[g.nodes[a]]);
-                    slot[d] = corotational_step_differential(g, frame, &due);
+                for (d, field) in fields.iter().enumerate() {
+                    let fe = std::array::from_fn(|a| field[g.nodes[a]]);
+                    slot[d] = element(g, frame, &fe);
                 }
             };
             let slots = &mut buf[..len * nd];
             if len < PARALLEL_MIN_ELEMENTS || nd == 0 {
                 for (k, slot) in slots.chunks_mut(nd.max(1)).enumerate() {
-                    element(k, slot);
+                    one(k, slot);
                 }
             } else {
                 use rayon::prelude::*;
                 slots
                     .par_chunks_mut(nd)
                     .enumerate()
-                    .for_each(|(k, slot)| element(k, slot));
+                    .for_each(|(k, slot)| one(k, slot));
             }
             for (k, g) in elements[start..start + len].iter().enumerate() {
                 for (d, o) in out.iter_mut().enumerate() {

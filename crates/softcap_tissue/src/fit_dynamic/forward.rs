@@ -862,9 +862,21 @@ impl Forward {
         }
         self.timed(Phase::Simulate, || {
             let model = self.model(params, rest_m)?;
+            // A perturbation of the damping only keeps the body (a clone: the same elastic
+            // state, which `step_sensitivities` differentiates without an element pass).
             let bodies = perturbed
                 .iter()
-                .map(|p| Ok((self.model(&p.params, &p.rest_m)?, p.params.damping)))
+                .map(|p| {
+                    let same = p.params.young_pa == params.young_pa
+                        && p.params.poisson == params.poisson
+                        && p.rest_m == rest_m;
+                    let body = if same {
+                        model.clone()
+                    } else {
+                        self.model(&p.params, &p.rest_m)?
+                    };
+                    Ok((body, p.params.damping))
+                })
                 .collect::<Result<Vec<_>>>()?;
             let sens = SensitivityModels {
                 bodies,
