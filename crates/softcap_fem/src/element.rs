@@ -161,7 +161,11 @@ pub fn element_stiffness(geom: &TetGeometry, p: &LinearParams) -> Matrix12 {
 /// Stress of the local linear material, σ = 2μ ε + λ_L tr(ε) I with (λ_L, μ) = (α, λ/2 − α):
 /// the tensor form of σ = (λG + αH) ε (bickel2009 eq. 1, 5).
 pub fn linear_stress(p: &LinearParams, strain: &Matrix3<f64>) -> Matrix3<f64> {
-    let (lame, mu) = p.lame();
+    lame_stress(p.lame(), strain)
+}
+
+/// σ = 2μ ε + λ_L tr(ε) I of the Lamé pair (λ_L, μ).
+fn lame_stress((lame, mu): (f64, f64), strain: &Matrix3<f64>) -> Matrix3<f64> {
     strain * (2.0 * mu) + Matrix3::identity() * (lame * strain.trace())
 }
 
@@ -337,16 +341,19 @@ pub fn corotational_step_warped_product(
     frame: &CorotationalStepFrame,
     w: &[Vector3<f64>; 4],
 ) -> [Vector3<f64>; 4] {
-    let mut grad = Matrix3::zeros();
-    for a in 0..4 {
-        grad += w[a] * geom.grads[a].transpose();
-    }
-    let rate = frame.rotation.transpose() * grad;
-    let e = (rate + rate.transpose()) * 0.5;
-    let (lame, mu) = frame.lame;
-    let p = frame.rotation * (e * (2.0 * mu) + Matrix3::identity() * (lame * e.trace()));
+    let rate = frame.rotation.transpose() * nodal_gradient(geom, w);
+    let p = frame.rotation * lame_stress(frame.lame, &((rate + rate.transpose()) * 0.5));
     let p = p * geom.volume_m3;
     std::array::from_fn(|a| p * geom.grads[a])
+}
+
+/// Σ_a u_a g_aᵀ of the element's node values `u`.
+fn nodal_gradient(geom: &TetGeometry, u: &[Vector3<f64>; 4]) -> Matrix3<f64> {
+    let mut grad = Matrix3::zeros();
+    for a in 0..4 {
+        grad += u[a] * geom.grads[a].transpose();
+    }
+    grad
 }
 
 /// The change of f_e + β K_e(x) v_e (per element node) when the element's nodes move by `du`
@@ -364,12 +371,8 @@ pub fn corotational_step_differential(
     frame: &CorotationalStepFrame,
     du: &[Vector3<f64>; 4],
 ) -> [Vector3<f64>; 4] {
-    let mut df = Matrix3::zeros();
-    for a in 0..4 {
-        df += du[a] * geom.grads[a].transpose();
-    }
     let r = &frame.rotation;
-    let m = r.transpose() * df;
+    let m = r.transpose() * nodal_gradient(geom, du);
     let axial = Vector3::new(
         m[(2, 1)] - m[(1, 2)],
         m[(0, 2)] - m[(2, 0)],
@@ -378,9 +381,7 @@ pub fn corotational_step_differential(
     let w = (frame.spin * axial).cross_matrix();
     let e = m * frame.rate_factor - w * frame.stretch_rate;
     let e = (e + e.transpose()) * 0.5;
-    let (lame, mu) = frame.lame;
-    let de = e * (2.0 * mu) + Matrix3::identity() * (lame * e.trace());
-    let dp = r * (w * frame.stress + de) * geom.volume_m3;
+    let dp = r * (w * frame.stress + lame_stress(frame.lame, &e)) * geom.volume_m3;
     std::array::from_fn(|a| dp * geom.grads[a])
 }
 
