@@ -43,6 +43,10 @@ def case(name, seed, description, **over):
 def cases():
     tilt = [0.342, 0.0, -0.940]  # 20° from the vertical, in the x–z plane
     oblique = [0.2588, 0.0, -0.9659]  # 15° (support-slip: the bonded twin converges at 15°, not at 20°)
+    # probe-friction's push: the tip also travels sideways, toward the shaft's lean (+x: the disk's
+    # high rim leads, its buried low rim trails), so the stuck disk drags the surface
+    oblique_path = {"ratio": 0.6, "dir": [1.0, 0.0, 0.0]}
+    oblique_push = dict(PROTOCOL, slide=oblique_path)
     gravity_block = dict(BLOCK, size_mm=[40.0, 40.0, 28.0], h_bottom_mm=7.5)
     soft = {"kind": "neo-hooke", "mu": 0.0035, "bulk": 20 * 0.0035}
     j2 = {"kind": "j2", "E": 0.05, "nu": 0.45, "yield": 0.0045, "hardening": 0.004}
@@ -85,11 +89,14 @@ def cases():
              depths_mm=[1.8, 2.1, 1.7, 2.2, 1.8, 2.0], effect="gravity-preload", pair="gravity-preload-pair"),
         case("gravity-preload-pair", 207, "Paired control of gravity-preload: the same soft tall block without gravity.",
              geometry=gravity_block, material=soft, depths_mm=[1.8, 2.1, 1.7, 2.2, 1.8, 2.0]),
-        case("probe-friction", 208, "Effect probe-friction: shaft tilted 20 degrees from the vertical, the disk sticks "
-             "to the surface where it touches (full friction).",
-             probe_axis=tilt, probe=dict(PROBE, friction="stick"), effect="probe-friction", pair="probe-friction-pair"),
-        case("probe-friction-pair", 209, "Paired control of probe-friction: the same tilted probe, frictionless.",
-             probe_axis=tilt),
+        case("probe-friction", 208, "Effect probe-friction: shaft tilted 20 degrees from the vertical, pushed in "
+             f"along an oblique path ({oblique_path['ratio']} mm sideways (+x) per mm of depth, back on the way out); "
+             "the disk sticks to the surface where it touches (full friction) and drags it along.",
+             probe_axis=tilt, probe=dict(PROBE, friction="stick"), protocol=oblique_push,
+             effect="probe-friction", pair="probe-friction-pair"),
+        case("probe-friction-pair", 209, "Paired control of probe-friction: the same tilted probe on the same oblique "
+             "path, frictionless.",
+             probe_axis=tilt, protocol=oblique_push),
         case("clock-offset", 210, "Effect clock-offset: no trigger line in fsr.csv; the DAQ clock runs 3.412 s ahead "
              "(drift 35 ppm). The physics is the clean case's.",
              effects={"no_trigger": True}, clock={"offset_s": 3.412, "drift": 3.5e-5},

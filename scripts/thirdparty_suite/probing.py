@@ -326,7 +326,8 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     prev = None
     touch = touch_depth(punch.R, axis)
     for fi, fr in enumerate(frames):
-        tip = surface_pts[fr["loc"]] + fr["depth"] * axis
+        path = probe_path(case, surface_pts[fr["loc"]], axis)
+        tip = path(fr["depth"])
         touching = fr["depth"] > touch
         key = (fr["loc"], round(max(fr["depth"], 0.0), 9)) if touching else ("free",)
         if prev is not None and key[0] != prev[0]:
@@ -336,11 +337,11 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             punch.beside = None
         same = prev == key
         if touching and (prev is None or prev[0] != key[0]):
-            approach(model, punch, surface_pts[fr["loc"]], axis, fixed_support, history, fr["depth"])
+            approach(model, punch, path, axis, fixed_support, history, fr["depth"])
         if touching and not same:
             predict(model, history, fr["loc"], fr["depth"])
         if rate_dependent or (path_dependent and not same):
-            force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], not rate_dependent)
+            force = robust_step(model, punch, path, axis, fixed_support, history, fr["depth"], not rate_dependent)
         elif path_dependent:
             force = forces[-1].copy()
         elif key in cache:
@@ -348,7 +349,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             force = cache[key][1].copy()
         else:
             if touching:
-                force = robust_step(model, punch, tip, axis, fixed_support, history, fr["depth"], True)
+                force = robust_step(model, punch, path, axis, fixed_support, history, fr["depth"], True)
             else:
                 model.field[0].values[:] = rest_u
                 force = np.zeros(3)
@@ -375,10 +376,11 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     }
 
 
-def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_substep):
-    """One frame's equilibrium, committed (one time step of the inelastic state); when Newton
-    fails, again from the last converged state without the predictor, then (rate-independent
-    materials only) in four committed substeps of the punch motion."""
+def robust_step(model, punch, path, axis, fixed_support, history, depth, may_substep):
+    """One frame's equilibrium, committed (one time step of the inelastic state), the tip at
+    `path(depth)` (`probe_path`); when Newton fails, again from the last converged state without
+    the predictor, then (rate-independent materials only) in four committed substeps of the
+    punch motion along its path."""
     from .physics import NotConverged
 
     def once(t, d):
@@ -387,6 +389,7 @@ def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_subs
         model.commit()
         return force
 
+    tip = path(depth)
     active, anchor, beside = set(punch.active), dict(punch.anchor), punch.beside
     try:
         return once(tip, depth)
@@ -404,15 +407,29 @@ def robust_step(model, punch, tip, axis, fixed_support, history, depth, may_subs
             raise
     model.field[0].values[:] = u_prev
     punch.active, punch.anchor, punch.beside = set(active), dict(anchor), beside
-    start = tip - (depth - d_prev) * axis
     force = None
     for k in range(1, 5):
         d = d_prev + (depth - d_prev) * k / 4
-        force = once(start + (d - d_prev) * axis, d)
+        force = once(path(d), d)
     return force
 
 
 APPROACH_STEP_MM = 0.5
+
+
+def probe_path(case, surface, axis):
+    """The tip's position (disk centre, mm) as a function of the depth d along the shaft below
+    the surface point `surface`: surface + d axis, plus, when the protocol has a `slide`
+    (probe-friction and its pair), a sideways travel `ratio` × max(d, 0) along its unit
+    direction `dir`, the same on the way in and on the way out: an oblique push, the path a
+    user's hand takes when it presses in at an angle to the shaft (the own rig's probe-friction
+    path, `friction_path_ratio`)."""
+    slide = case["protocol"].get("slide")
+    if slide is None:
+        return lambda d: surface + d * axis
+    direction = np.array(slide["dir"], float)
+    direction /= np.linalg.norm(direction)
+    return lambda d: surface + d * axis + slide["ratio"] * max(d, 0.0) * direction
 
 
 def touch_depth(radius, axis):
@@ -423,7 +440,7 @@ def touch_depth(radius, axis):
     return -radius * sin / -axis[2]
 
 
-def approach(model, punch, surface, axis, fixed_support, history, depth):
+def approach(model, punch, path, axis, fixed_support, history, depth):
     """A tilted disk's first contact at a location: a frame that jumps from hovering to a depth
     d puts the low rim d − `touch_depth` into the surface at once. The punch instead travels from
     its first touch to d in committed steps of at most APPROACH_STEP_MM (the sticking disk's
@@ -435,7 +452,7 @@ def approach(model, punch, surface, axis, fixed_support, history, depth):
     n = int(np.ceil((depth - touch) / APPROACH_STEP_MM))
     for k in range(1, n):
         d = touch + (depth - touch) * k / n
-        robust_step(model, punch, surface + d * axis, axis, fixed_support, history, d, True)
+        robust_step(model, punch, path, axis, fixed_support, history, d, True)
 
 
 def predict(model, history, loc, depth):
