@@ -374,7 +374,7 @@ cases! {
     anisotropy => "anisotropy",
     #[ignore = "passes (named on the force channel: 0.2506 -> 0.0710 N held-out; markers 0.1695 -> 0.1668 mm, clean 0.1691) but costs about 100 CPU-s (the de-lagged grid's re-simulations with material refits)"]
     sensor_lag => "sensor-lag",
-    #[ignore = "verdict none (0.2011 mm): probe-friction 0.2785 -> 0.2720 mm on contact/under-probe (rank 2, mu -0.034), within 1.25x of the pair's 0.2241 mm but not named; the truth is at fault: the frictionless pair's surface enters the disk at its low rim (up to 1.66 mm, 55 % of the case - pair difference; docs/notes/2026-12-01-probe-friction-pair-intrusion.md)"]
+    #[ignore = "verdict none: probe-friction rank 2, 0.3879 -> 0.3663 mm on contact/under-probe (mu 0.04), pair 0.2683 mm (the rule needs <= 0.3354); the truth is 0.208 mm from its pair beyond the contact (4.4 sigma) but the drag signature reads 0.065 mm < 3 sigma 0.143 (0.096 mm on the loading and hold frames only: in unloading the stuck disk keeps the surface forward while the sliding direction has reversed)"]
     probe_friction => "probe-friction",
     #[ignore = "default settings run past 30 min; with plasticity_refined_replays = 2: verdict plasticity, 0.492 -> 0.296 mm, 3.4x the pair's 0.087 mm (the rule needs <= 0.109 mm), 274 CPU-s"]
     plasticity => "plasticity",
