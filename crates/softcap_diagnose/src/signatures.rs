@@ -38,6 +38,10 @@ pub struct Signatures {
     /// that recovers (creep recovery); `None` without a later release to compare.
     #[serde(default)]
     pub released_set_persistence: Option<f64>,
+    /// The standard error of [`Signatures::released_set_persistence`] under the marker noise
+    /// ([`released_set_persistence_se`]); `None` with the persistence.
+    #[serde(default)]
+    pub released_set_persistence_se: Option<f64>,
     /// RMS tangential baseline residual of probed markers in contact, m.
     pub contact_tangential_m: f64,
     /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
@@ -282,6 +286,8 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
         &|r, m| (r - rest_mean[m]).norm(),
     );
     s.released_set_persistence = released_set_persistence(rec, seg, res, &rest_mean);
+    s.released_set_persistence_se =
+        released_set_persistence_se(rec, seg, res, &rest_mean, s.noise_sigma_m);
     s.contact_tangential_m = rms(
         &|k, m| seg.phases[k].in_contact() && seg.regions[m] == Region::Probed,
         &|r, m| {
@@ -335,12 +341,80 @@ fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize
     blocks
 }
 
-/// The persistence of the released set (`Signatures::released_set_persistence`): per block b of
+/// The released sets the persistence compares ([`released_set_persistence`]): per block b of
 /// consecutive released frames (after one press at location l_b) and marker m within
-/// [`contact_radius_m`] of l_b's contact point, the set s_bm = the mean of r − r̄_rest over b (r the
-/// baseline residual, r̄_rest the marker's mean residual at rest) and, for every later released
-/// block b' after a press farther than [`contact_radius_m`] from m, its mean s_b'm over b'.
-/// Returns Σ s_b'm · s_bm / Σ |s_bm|² over all such (b, m, b'), or `None` without such a pair.
+/// [`contact_radius_m`] of l_b's contact point with an observed frame in b, the set s_bm = the mean
+/// of r − r̄_rest over b's n_bm observed frames (r the baseline residual, r̄_rest the marker's mean
+/// residual at rest); and the pairs (i, j) of such sets of the same marker, j at a later block
+/// after a press farther than [`contact_radius_m`] from the marker (its own press would leave a
+/// set of its own there).
+struct ReleasedSets {
+    /// (s_bm, n_bm, m) per set.
+    sets: Vec<(Vector3<f64>, usize, usize)>,
+    /// (earlier, later) indices into `sets`.
+    pairs: Vec<(usize, usize)>,
+}
+
+impl ReleasedSets {
+    fn new(
+        rec: &Recording,
+        seg: &Segmentation,
+        res: &Residuals,
+        rest_mean: &[Vector3<f64>],
+    ) -> Self {
+        let radius = contact_radius_m(rec);
+        let blocks = released_blocks(seg, res.len());
+        let near = |l: usize, m: usize| {
+            (seg.locations[l].contact_tip_m - rec.rest_markers_m[m]).norm() <= radius
+        };
+        let mut sets = Vec::new();
+        // per block, per marker: the index of its set (None when not near or never observed)
+        let mut index: Vec<Vec<Option<usize>>> = Vec::with_capacity(blocks.len());
+        for (_, frames) in &blocks {
+            let row = (0..rec.num_markers())
+                .map(|m| {
+                    let (mut acc, mut n) = (Vector3::zeros(), 0usize);
+                    for &k in frames {
+                        if let Some(r) = res[k][m] {
+                            acc += r - rest_mean[m];
+                            n += 1;
+                        }
+                    }
+                    (n > 0).then(|| {
+                        sets.push((acc / n as f64, n, m));
+                        sets.len() - 1
+                    })
+                })
+                .collect();
+            index.push(row);
+        }
+        let mut pairs = Vec::new();
+        for (b, (l, _)) in blocks.iter().enumerate() {
+            for m in (0..rec.num_markers()).filter(|&m| near(*l, m)) {
+                let Some(i) = index[b][m] else { continue };
+                for (b2, (l2, _)) in blocks.iter().enumerate().skip(b + 1) {
+                    if let (false, Some(j)) = (near(*l2, m), index[b2][m]) {
+                        pairs.push((i, j));
+                    }
+                }
+            }
+        }
+        ReleasedSets { sets, pairs }
+    }
+
+    /// (Σ s_j · s_i, Σ |s_i|²) over the pairs (i, j).
+    fn sums(&self) -> (f64, f64) {
+        self.pairs.iter().fold((0.0, 0.0), |(num, den), &(i, j)| {
+            let own = &self.sets[i].0;
+            (num + self.sets[j].0.dot(own), den + own.norm_squared())
+        })
+    }
+}
+
+/// The persistence of the released set (`Signatures::released_set_persistence`): over the pairs
+/// (i, j) of [`ReleasedSets`] (a marker's set after a press near it, and its set at a later
+/// release after a press away from it), p = Σ s_j · s_i / Σ |s_i|², the least-squares slope of
+/// the later sets on the earlier ones; `None` without such a pair.
 ///
 /// Why: after the probe lifts off, the elastic default model is back at its rest shape, so the
 /// residual is what the press left. A plastic set is permanent (rate-independent J2 flow,
@@ -355,39 +429,63 @@ pub fn released_set_persistence(
     res: &Residuals,
     rest_mean: &[Vector3<f64>],
 ) -> Option<f64> {
-    let radius = contact_radius_m(rec);
-    let nm = rec.num_markers();
-    let blocks = released_blocks(seg, res.len());
-    let near = |l: usize, m: usize| {
-        (seg.locations[l].contact_tip_m - rec.rest_markers_m[m]).norm() <= radius
-    };
-    // the mean set of marker m over a block's observed frames
-    let set = |frames: &[usize], m: usize| -> Option<Vector3<f64>> {
-        let (mut acc, mut n) = (Vector3::zeros(), 0usize);
-        for &k in frames {
-            if let Some(r) = res[k][m] {
-                acc += r - rest_mean[m];
-                n += 1;
-            }
-        }
-        (n > 0).then(|| acc / n as f64)
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for (b, (l, frames)) in blocks.iter().enumerate() {
-        for m in (0..nm).filter(|&m| near(*l, m)) {
-            let Some(own) = set(frames, m) else { continue };
-            for (l2, later) in &blocks[b + 1..] {
-                if near(*l2, m) {
-                    continue;
-                }
-                if let Some(s) = set(later, m) {
-                    num += s.dot(&own);
-                    den += own.norm_squared();
-                }
+    let (num, den) = ReleasedSets::new(rec, seg, res, rest_mean).sums();
+    (den > 0.0).then(|| num / den)
+}
+
+/// The standard error of [`released_set_persistence`] under marker noise of `sigma_m` per
+/// coordinate, independent between frames, markers and coordinates (the noise model of
+/// [`noise_sigma_m`]): the first-order (delta-method) propagation of that noise through
+/// p = N / D, N = Σ_(i,j) s_j · s_i, D = Σ_(i,j) |s_i|². With g_i = ∂p/∂s_i =
+/// (Σ_{j:(i,j)} (s_j − 2p s_i) + Σ_{h:(h,i)} s_h) / D, and each set s_i of marker m the mean of n_i
+/// released frames minus the marker's rest mean over n_rest,m rest frames (shared by all of m's
+/// sets),
+///
+/// SE(p)² = σ² [ Σ_i |g_i|² / n_i + Σ_m |Σ_{i of m} g_i|² / n_rest,m ].
+///
+/// `None` without a pair. Why: a set of a few σ compared over a few releases has a persistence
+/// whose noise is of the order of its distance from 1 (the in-memory weak plastic set, 1.4 × √3σ,
+/// persists 0.988 and 1.075 on two noise draws): how far below 1 a measured persistence is must
+/// be read in units of this error before it says that the set decays.
+pub fn released_set_persistence_se(
+    rec: &Recording,
+    seg: &Segmentation,
+    res: &Residuals,
+    rest_mean: &[Vector3<f64>],
+    sigma_m: f64,
+) -> Option<f64> {
+    let sets = ReleasedSets::new(rec, seg, res, rest_mean);
+    let (num, den) = sets.sums();
+    if den <= 0.0 {
+        return None;
+    }
+    let p = num / den;
+    let mut grad = vec![Vector3::zeros(); sets.sets.len()];
+    for &(i, j) in &sets.pairs {
+        let (si, sj) = (sets.sets[i].0, sets.sets[j].0);
+        grad[i] += sj - 2.0 * p * si;
+        grad[j] += si;
+    }
+    let mut rest_count = vec![0usize; rec.num_markers()];
+    for (k, row) in res.iter().enumerate() {
+        if seg.phases[k] == Phase::Rest {
+            for (m, r) in row.iter().enumerate() {
+                rest_count[m] += usize::from(r.is_some());
             }
         }
     }
-    (den > 0.0).then(|| num / den)
+    let mut through_rest = vec![Vector3::zeros(); rec.num_markers()];
+    let mut var = 0.0;
+    for (g, &(_, n, m)) in grad.iter().zip(&sets.sets) {
+        var += (g / den).norm_squared() / n as f64;
+        through_rest[m] += g / den;
+    }
+    for (g, &n) in through_rest.iter().zip(&rest_count) {
+        if n > 0 {
+            var += g.norm_squared() / n as f64;
+        }
+    }
+    Some(sigma_m * var.sqrt())
 }
 
 /// The rebound after release (`Signatures::release_rebound_m`): per block b of consecutive

@@ -601,42 +601,55 @@ fn stiff_support_springs_are_named() {
     );
 }
 
-/// A set above 3σ whose persistence over the gaps between releases is `p`.
-fn persisting(p: f64) -> softcap_diagnose::Signatures {
+/// A set above 3σ whose persistence over the gaps between releases is `p`, with standard error
+/// `se`.
+fn persisting(p: f64, se: f64) -> softcap_diagnose::Signatures {
     softcap_diagnose::Signatures {
         noise_sigma_m: 5e-6,
         released_set_m: 8e-5,
         released_set_persistence: Some(p),
+        released_set_persistence_se: Some(se),
         ..Default::default()
     }
 }
 
-/// Plasticity's signature (`plasticity::PERMANENT_PERSISTENCE`): a creep recovering at zero load
-/// with the retardation time τ' leaves e^{−Δt/τ'} of its set after a gap Δt, below 1 however
-/// long τ' is: the creep g 1, τ 5 s of [`slow_creep_and_plasticity_decided_by_longer_holds`]
-/// (τ' = τ(1 + g) = 10 s) over its 0.85 s gaps persists 0.92 and gets no support; a set that
-/// does not decay (the suites' plastic sets measure 1.03–1.13) does; one recovering within a gap
-/// is contradicted, as is a set at the noise.
+/// Plasticity's signature (`plasticity::PERMANENT_PERSISTENCE`, `PERSISTENCE_Z`): a creep
+/// recovering at zero load with the retardation time τ' leaves e^{−Δt/τ'} of its set after a gap
+/// Δt, below 1 however long τ' is: the creep g 1, τ 5 s of
+/// [`slow_creep_and_plasticity_decided_by_longer_holds`] (τ' = τ(1 + g) = 10 s) over its 0.85 s
+/// gaps persists 0.92 in theory and measures 0.913 ± 0.036 there, 2.4 standard errors below 1:
+/// no support; a set within two standard errors of 1 (the calibration's weak plastic set, seed
+/// 100: 0.988 ± 0.044) is supported, as is one that does not decay (the suites' plastic sets
+/// measure 1.03–1.13); one recovering within a gap is contradicted, as is a set at the noise.
 #[test]
 fn only_a_released_set_that_does_not_decay_supports_plasticity() {
     use softcap_diagnose::Hypothesis;
     use softcap_diagnose::hypotheses::plasticity::Plasticity;
     let creep = (-0.85f64 / (5.0 * (1.0 + 1.0))).exp();
     assert!((0.9..1.0).contains(&creep), "{creep}");
-    assert_eq!(Plasticity.signature_support(&persisting(creep)), 0.0);
-    assert_eq!(Plasticity.signature_support(&persisting(0.999)), 0.0);
+    assert_eq!(Plasticity.signature_support(&persisting(creep, 0.036)), 0.0);
+    assert_eq!(Plasticity.signature_support(&persisting(0.913, 0.036)), 0.0);
+    assert_eq!(Plasticity.signature_support(&persisting(0.988, 0.044)), 1.0);
+    assert_eq!(Plasticity.signature_support(&persisting(0.913, 0.05)), 1.0);
+    // without a standard error the comparison is exact
+    assert_eq!(Plasticity.signature_support(&persisting(0.999, 0.0)), 0.0);
     for p in [1.0, 1.03, 1.13] {
-        assert_eq!(Plasticity.signature_support(&persisting(p)), 1.0, "{p}");
+        assert_eq!(
+            Plasticity.signature_support(&persisting(p, 0.01)),
+            1.0,
+            "{p}"
+        );
     }
-    assert_eq!(Plasticity.signature_support(&persisting(0.3)), -1.0);
+    assert_eq!(Plasticity.signature_support(&persisting(0.3, 0.01)), -1.0);
     let at_noise = softcap_diagnose::Signatures {
         released_set_m: 1e-5,
-        ..persisting(1.1)
+        ..persisting(1.1, 0.01)
     };
     assert_eq!(Plasticity.signature_support(&at_noise), -1.0);
     let single_release = softcap_diagnose::Signatures {
         released_set_persistence: None,
-        ..persisting(1.0)
+        released_set_persistence_se: None,
+        ..persisting(1.0, 0.01)
     };
     assert_eq!(Plasticity.signature_support(&single_release), 1.0);
 }
@@ -1846,12 +1859,13 @@ fn first_effect_three_fold(d: &softcap_diagnose::Diagnosis) -> &softcap_diagnose
 fn print_ranked(d: &softcap_diagnose::Diagnosis) {
     if let Some(s) = d.ranked.first().map(|r| &r.evidence.signatures) {
         eprintln!(
-            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} set {:.2e} persist {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
+            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} set {:.2e} persist {:?} ± {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
             s.hold_force_drift,
             s.force_delay_10_s,
             s.force_delay_50_s,
             s.released_set_m,
             s.released_set_persistence,
+            s.released_set_persistence_se,
             s.contact_drag_m,
             s.attached_motion_m,
             s.far_field_push_m,

@@ -11,5 +11,7 @@ mod cli;
 mod dynamic_replay;
 #[path = "in_memory.rs"]
 mod in_memory;
+#[path = "persistence.rs"]
+mod persistence;
 #[path = "rigid_tip.rs"]
 mod rigid_tip;
