@@ -412,7 +412,7 @@ impl ReleasedSets {
 }
 
 /// The persistence of the released set (`Signatures::released_set_persistence`): over the pairs
-/// (i, j) of [`ReleasedSets`] (a marker's set after a press near it, and its set at a later
+/// (i, j) of `ReleasedSets` (a marker's set after a press near it, and its set at a later
 /// release after a press away from it), p = Σ s_j · s_i / Σ |s_i|², the least-squares slope of
 /// the later sets on the earlier ones; `None` without such a pair.
 ///
@@ -855,95 +855,6 @@ mod tests {
             .collect();
         let (a, _) = in_plane_ellipse(&rec, &seg, &isotropic);
         assert!(a < 1e-3 * amplitude, "{a}");
-    }
-
-    #[test]
-    fn released_set_persistence_tells_a_permanent_set_from_a_recovering_one() {
-        // three presses 20 mm apart, each followed by a released frame; the markers within the
-        // contact radius (5 mm) of the first press carry a set after it, which at the two later
-        // releases is still all there (plastic) or has decayed to a fifth (creep recovery)
-        use crate::recording::Frame;
-        use crate::segment::{Location, Region};
-        let rest: Vec<Vector3<f64>> = (0..9)
-            .map(|i| Vector3::new(0.005 * i as f64, 0.0, 0.02))
-            .collect();
-        let nm = rest.len();
-        let tips: Vec<Vector3<f64>> = [0.0, 0.02, 0.04]
-            .iter()
-            .map(|&x| Vector3::new(x, 0.0, 0.02))
-            .collect();
-        let frames: Vec<Frame> = (0..7usize)
-            .map(|k| Frame {
-                frame: k as u64,
-                time_s: k as f64,
-                tip_m: tips[k.saturating_sub(1) / 2],
-                axis: -Vector3::z(),
-                force_n: Vector3::new(0.0, 0.0, if k % 2 == 1 { -0.5 } else { 0.0 }),
-                markers_m: rest.iter().map(|p| Some(*p)).collect(),
-            })
-            .collect();
-        let rec = top_face_recording(&rest, frames);
-        let loc = |l: usize| Location {
-            index: l,
-            peak_tip_m: tips[l],
-            contact_tip_m: tips[l],
-            axis: -Vector3::z(),
-            peak_frame: 2 * l + 1,
-            peak_force_n: 0.5,
-            contact_frames: vec![2 * l + 1],
-        };
-        let seg = Segmentation {
-            phases: (0..7)
-                .map(|k| match k {
-                    0 => Phase::Rest,
-                    k if k % 2 == 1 => Phase::Hold,
-                    _ => Phase::Released,
-                })
-                .collect(),
-            fold_of_frame: (0..7).map(|k| (k > 0).then(|| (k - 1) / 2)).collect(),
-            locations: (0..3).map(loc).collect(),
-            regions: vec![Region::Probed; nm],
-            near_radius_m: 0.008,
-        };
-        // a template offset (the same at rest and after release) cancels
-        let offset = Vector3::new(2e-5, 0.0, 1e-5);
-        let res = |later: f64| -> Residuals {
-            (0..7)
-                .map(|k| {
-                    (0..nm)
-                        .map(|m| {
-                            let set = Vector3::new(0.0, 0.0, -3e-4) * (1.0 - m as f64 / 2.0);
-                            let under_first = (rest[m] - tips[0]).norm() <= 0.005;
-                            Some(match k {
-                                2 if under_first => offset + set,
-                                4 | 6 if under_first => offset + set * later,
-                                _ => offset,
-                            })
-                        })
-                        .collect()
-                })
-                .collect()
-        };
-        let rest_mean = |r: &Residuals| rest_mean(r, &seg, nm);
-        let permanent = res(1.0);
-        let p = released_set_persistence(&rec, &seg, &permanent, &rest_mean(&permanent));
-        assert!((p.unwrap() - 1.0).abs() < 1e-12, "{p:?}");
-        let recovering = res(0.2);
-        let p = released_set_persistence(&rec, &seg, &recovering, &rest_mean(&recovering));
-        assert!((p.unwrap() - 0.2).abs() < 1e-12, "{p:?}");
-        // one press: no later release to compare
-        let mut one = seg.clone();
-        one.phases.truncate(3);
-        one.fold_of_frame.truncate(3);
-        let short = Recording {
-            frames: rec.frames[..3].to_vec(),
-            ..rec.clone()
-        };
-        let r3: Residuals = permanent[..3].to_vec();
-        assert_eq!(
-            released_set_persistence(&short, &one, &r3, &rest_mean(&permanent)),
-            None
-        );
     }
 
     #[test]
