@@ -353,6 +353,35 @@ mod tests {
         assert_eq!(dir[7], -Vector3::x());
     }
 
+    /// The drag signature reads the loading and hold frames only: a stuck patch holds the surface
+    /// forward (+x) through the unloading while the stiff-patch sliding direction has turned to
+    /// −x (frame 7), so counting that frame would lower the mean below the drag a of the frames
+    /// before it; a patch that slides back (−x at frame 7) reads the same.
+    #[test]
+    fn drag_signature_reads_the_frames_before_the_tip_turns_back() {
+        use crate::segment::Phase;
+        use crate::signatures::drag_signature_m;
+        let (rec, seg) = drag_recording(1.5);
+        assert_eq!(seg.phases[7], Phase::Unloading);
+        let a = 1e-4;
+        let field = |unload: f64| -> crate::residual::Residuals {
+            (0..rec.frames.len())
+                .map(|k| {
+                    let along = match seg.phases[k] {
+                        Phase::Loading | Phase::Hold => a,
+                        Phase::Unloading => unload,
+                        _ => 0.0,
+                    };
+                    vec![Some(Vector3::x() * along)]
+                })
+                .collect()
+        };
+        for unload in [a, -a] {
+            let drag = drag_signature_m(&rec, &seg, &field(unload));
+            assert!((drag - a).abs() < 1e-12, "unloading {unload}: drag {drag}");
+        }
+    }
+
     #[test]
     fn a_vertical_press_carries_no_travel_traction() {
         let (rec, seg) = drag_recording(0.0);

@@ -46,7 +46,8 @@ pub struct Signatures {
     pub contact_tangential_m: f64,
     /// Mean baseline residual along the tip's sliding direction (`crate::friction::sliding_direction`)
     /// of the markers within the contact radius of the tip (`crate::cells::contact_radius_m`)
-    /// over the contact frames of locations where the tip travels along the surface, m: > 0 when
+    /// over the loading and hold frames of locations where the tip travels along the surface
+    /// ([`drag_signature_m`]), m: > 0 when
     /// the surface is dragged along with the tip beyond the model (probe friction); 0 without
     /// tangential travel.
     #[serde(default)]
@@ -594,19 +595,31 @@ pub fn far_field_push(
     if count > 0 { acc / count as f64 } else { 0.0 }
 }
 
-/// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the contact
-/// frames k with a sliding direction d̂_k ([`sliding_direction`] of the measured forces) and the
-/// observed markers within [`contact_radius_m`] of the tip, where r is the
-/// baseline residual (measured − model), m. Friction drags the surface along with the tip, so
-/// the markers around the patch lead the model along d̂ (> 0); an effect without a preferred
-/// tangential sense averages out. 0 when no location has tangential travel.
+/// The drag signature (`Signatures::contact_drag_m`): the mean of r · d̂_k over the loading and
+/// hold frames k (the tip advancing or still at depth) with a sliding direction d̂_k
+/// ([`sliding_direction`] of the measured forces) and the observed markers within
+/// [`contact_radius_m`] of the tip, where r is the baseline residual (measured − model), m.
+/// Friction drags the surface along with the tip, so the markers around the patch lead the model
+/// along d̂ (> 0); an effect without a preferred tangential sense averages out. 0 when no location
+/// has tangential travel.
+///
+/// Why not the unloading frames: until the tip turns back, every Coulomb history — any μ, any
+/// stiffness of the stuck patch (module docs of [`crate::friction`]) — pulls the surface along the
+/// travel. Once the tip retracts, a patch that slides (μ f_n below the stick's unloading) reverses
+/// its traction, but a patch that stays stuck keeps holding the surface forward until lift-off
+/// (the traction decreases without reversing): the sense of the drag there depends on μ, which
+/// the signature does not know. On the third-party probe-friction session (a sticking disk,
+/// `fixtures/thirdparty/probe-friction`) the truth's case − pair difference within the contact
+/// radius stays along +x through the unloading (0.12 mm beyond the disk) while d̂ has turned to
+/// −x, which took the mean from 0.28 mm over loading and hold to 0.15 mm.
 pub fn drag_signature_m(rec: &Recording, seg: &Segmentation, res: &Residuals) -> f64 {
     let forces: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
     let dir = sliding_direction(rec, seg, &forces, indentation_stiffness_n_per_m(seg));
     let radius = contact_radius_m(rec);
     let (mut acc, mut n) = (0.0, 0usize);
     for (k, row) in res.iter().enumerate() {
-        if !seg.phases[k].in_contact() || dir[k] == Vector3::zeros() {
+        let advancing = matches!(seg.phases[k], Phase::Loading | Phase::Hold);
+        if !advancing || dir[k] == Vector3::zeros() {
             continue;
         }
         for (m, r) in row.iter().enumerate() {
