@@ -85,6 +85,7 @@ pub use friction::{
 pub use material::{LinearParams, NeoHookeanParams, matrix_g, matrix_h};
 pub use model::{
     CorotationalModel, ElasticModel, NeoHookeanModel, StepTangent, StrainDependentParams,
+    with_serial_element_loops,
 };
 pub use neohookean::{
     energy_density, neohookean_energy, neohookean_forces, neohookean_tangent, pk1, pk1_derivative,

@@ -208,7 +208,7 @@ impl StepTangent {
                 }
             };
             let slots = &mut buf[..len * nd];
-            if len < PARALLEL_MIN_ELEMENTS || nd == 0 {
+            if serial_loop(len) || nd == 0 {
                 for (k, slot) in slots.chunks_mut(nd.max(1)).enumerate() {
                     one(k, slot);
                 }
@@ -262,9 +262,36 @@ pub(crate) const ELEMENT_CHUNK: usize = 4096;
 /// it saves — a 5-tet model spent most of its time in them. The values are the same bits either way.
 pub(crate) const PARALLEL_MIN_ELEMENTS: usize = 256;
 
+thread_local! {
+    /// Whether this thread's element loops run serially ([`with_serial_element_loops`]).
+    static SERIAL_ELEMENT_LOOPS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` with the element loops of this thread serial if `serial` (else as they are): for
+/// callers that already keep every thread busy with independent work — e.g. the segments of a
+/// fit, one simulation per rayon task (`softcap_tissue::fit_dynamic::Forward`) — where nested
+/// element tasks only add wake-ups and let a thread waiting on one of them take up another
+/// simulation, delaying the first. The values are the same bits either way.
+pub fn with_serial_element_loops<T>(serial: bool, f: impl FnOnce() -> T) -> T {
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            SERIAL_ELEMENT_LOOPS.with(|s| s.set(self.0));
+        }
+    }
+    let _restore = Restore(SERIAL_ELEMENT_LOOPS.with(|s| s.replace(serial || s.get())));
+    f()
+}
+
+/// Whether an element loop over `len` elements runs serially on the calling thread (short, see
+/// [`PARALLEL_MIN_ELEMENTS`], or inside [`with_serial_element_loops`]).
+fn serial_loop(len: usize) -> bool {
+    len < PARALLEL_MIN_ELEMENTS || SERIAL_ELEMENT_LOOPS.with(|s| s.get())
+}
+
 /// `f(k, &mut buf[k])` for every k, in parallel for long buffers (see [`PARALLEL_MIN_ELEMENTS`]).
 pub(crate) fn fill_elements<T: Send>(buf: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
-    if buf.len() < PARALLEL_MIN_ELEMENTS {
+    if serial_loop(buf.len()) {
         for (k, v) in buf.iter_mut().enumerate() {
             f(k, v);
         }
@@ -282,7 +309,7 @@ pub(crate) fn fill_linearization<T: Send>(
     matrices: &mut [T],
     element: impl Fn(usize, &mut [Vector3<f64>; 4], &mut T) + Sync,
 ) {
-    if forces.len() < PARALLEL_MIN_ELEMENTS {
+    if serial_loop(forces.len()) {
         for (k, (f, m)) in forces.iter_mut().zip(matrices.iter_mut()).enumerate() {
             element(k, f, m);
         }
@@ -524,7 +551,7 @@ impl ElasticModel for CorotationalModel {
                     }
                 }
             };
-        if forces.len() < PARALLEL_MIN_ELEMENTS {
+        if serial_loop(forces.len()) {
             for (k, item) in forces
                 .iter_mut()
                 .zip(matrices.iter_mut())

@@ -20,7 +20,12 @@
 //! assembled at every Newton iteration (`ForwardSettings::residual_only` off) and with a
 //! factorization at every Newton update (`ForwardSettings::refactor_ratio` 0) and prints the
 //! largest node distance of each to the default, and times the evaluation with the forward
-//! sensitivities of the three log-parameters (`Forward::simulate_with_sensitivities`);
+//! sensitivities of the three log-parameters (`Forward::simulate_with_sensitivities`) and a
+//! nearby evaluation (Δ ln p = `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR_DQ`, default 0.01,0.05,-0.05)
+//! from the predictor and from that run moved along its sensitivities
+//! (`ForwardSettings::start_near`; `…_COMPARE=near` times only those);
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1`, `…_CARRY=0|1` and `…_NEAR_RATIO=ρ` set
+//! `ForwardSettings::start_near`, `carry_factor` and `near_refactor_ratio`;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_JACOBIAN=forward-differences` fits with the forward-difference
@@ -92,6 +97,25 @@ fn newton_tolerance() -> f64 {
         .unwrap_or(ForwardSettings::default().newton_tolerance)
 }
 
+/// `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR_RATIO`, or the default `ForwardSettings::near_refactor_ratio`.
+fn near_ratio() -> f64 {
+    std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_NEAR_RATIO")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(ForwardSettings::default().near_refactor_ratio)
+}
+
+/// `ForwardSettings::start_near` and `carry_factor` (`SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1`,
+/// `…_CARRY=0|1`; default: the settings' defaults).
+fn near_and_carry() -> (bool, bool) {
+    let d = ForwardSettings::default();
+    let flag = |k: &str, default: bool| std::env::var(k).map_or(default, |v| v != "0");
+    (
+        flag("SOFTCAP_FIT_DYNAMIC_BENCH_NEAR", d.start_near),
+        flag("SOFTCAP_FIT_DYNAMIC_BENCH_CARRY", d.carry_factor),
+    )
+}
+
 /// Runs `f`, printing its wall time and the process's CPU-s.
 fn timed<T>(what: &str, f: impl FnOnce() -> T) -> T {
     let (c0, t0) = (cpu_seconds(), Instant::now());
@@ -116,6 +140,9 @@ fn full_fit(truth: &Synthetic) {
         jacobian,
         forward: ForwardSettings {
             newton_tolerance: newton_tolerance(),
+            start_near: near_and_carry().0,
+            carry_factor: near_and_carry().1,
+            near_refactor_ratio: near_ratio(),
             ..defaults.forward.clone()
         },
         ..defaults
@@ -206,7 +233,7 @@ fn full_fit(truth: &Synthetic) {
         fit.relative_sigma[0], fit.relative_sigma[1], fit.relative_sigma[2]
     );
     eprintln!(
-        "  E {:.4e} Pa ({:+.1} %), α {:.3} 1/s ({:+.1} %), β {:.3e} s ({:+.1} %); trajectory RMS {:.3} mm (warm start {:.3} mm)",
+        "  E {:.4e} Pa ({:+.1} %), α {:.3} 1/s ({:+.1} %), β {:.3e} s ({:+.1} %); trajectory RMS {:.3} mm (warm start {:.3} mm{})",
         fit.young_pa[0],
         100.0 * (fit.young_pa[0] / YOUNG_PA - 1.0),
         fit.damping.alpha_per_s,
@@ -214,7 +241,8 @@ fn full_fit(truth: &Synthetic) {
         fit.damping.beta_s,
         100.0 * (fit.damping.beta_s / DAMPING.beta_s - 1.0),
         1e3 * fit.rms_m,
-        1e3 * fit.rms_warm_m
+        1e3 * fit.rms_warm_m,
+        fit.warm_rms_scope()
     );
 }
 
@@ -244,6 +272,9 @@ fn bench(c: &mut Criterion) {
                 refactor_ratio,
                 residual_only,
                 newton_tolerance: newton_tolerance(),
+                start_near: near_and_carry().0,
+                carry_factor: near_and_carry().1,
+                near_refactor_ratio: near_ratio(),
                 ..settings.forward.clone()
             },
         )
@@ -275,7 +306,8 @@ fn bench(c: &mut Criterion) {
         "factorization reuse, residual-only passes (default)",
         &forward,
     );
-    if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE").is_some() {
+    let compare = std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_COMPARE").ok();
+    if compare.is_some() {
         let largest = |other: &[softcap_tissue::fit_dynamic::forward::SegmentRun]| {
             runs.iter()
                 .zip(other)
@@ -283,22 +315,25 @@ fn bench(c: &mut Criterion) {
                 .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
                 .fold(0.0f64, f64::max)
         };
-        let assembled = evaluate(
-            "factorization reuse, the matrix assembled at every iteration",
-            &forward_with(settings.forward.refactor_ratio, false),
-        );
-        eprintln!(
-            "  largest node distance to the default: {:.3e} m",
-            largest(&assembled)
-        );
-        let newton = evaluate(
-            "a factorization per Newton update",
-            &forward_with(0.0, true),
-        );
-        eprintln!(
-            "  largest node distance to the default: {:.3e} m",
-            largest(&newton)
-        );
+        let only_near = compare.as_deref() == Some("near");
+        if !only_near {
+            let assembled = evaluate(
+                "factorization reuse, the matrix assembled at every iteration",
+                &forward_with(settings.forward.refactor_ratio, false),
+            );
+            eprintln!(
+                "  largest node distance to the default: {:.3e} m",
+                largest(&assembled)
+            );
+            let newton = evaluate(
+                "a factorization per Newton update",
+                &forward_with(0.0, true),
+            );
+            eprintln!(
+                "  largest node distance to the default: {:.3e} m",
+                largest(&newton)
+            );
+        }
         // The forward sensitivities of ln E, ln α, ln β (the rest shape held: a timing).
         let eps = 1e-6;
         let perturbed: Vec<Perturbed> = (0..3)
@@ -332,6 +367,7 @@ fn bench(c: &mut Criterion) {
                                 .unwrap_or(softcap_fem::SensitivitySettings::default().tolerance),
                             ..softcap_fem::SensitivitySettings::default()
                         },
+                        None,
                     )
                     .expect("simulate")
             },
@@ -342,6 +378,85 @@ fn bench(c: &mut Criterion) {
             t.newton_iterations as f64 / t.steps.max(1) as f64,
             t.sensitivity_iterations as f64 / t.steps.max(1) as f64,
             largest(&with)
+        );
+        // A nearby point, as a Levenberg–Marquardt step reaches it: Δ(ln E, ln α, ln β), every
+        // step started as usual and from the run above moved along its sensitivities.
+        let dq: Vec<f64> = std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_NEAR_DQ")
+            .ok()
+            .and_then(|v| v.split(',').map(|x| x.trim().parse().ok()).collect())
+            .unwrap_or(vec![0.01, 0.05, -0.05]);
+        let shifted = |p: &DynamicParams| {
+            let mut p = p.clone();
+            p.young_pa.iter_mut().for_each(|e| *e *= f64::exp(dq[0]));
+            p.damping.alpha_per_s *= f64::exp(dq[1]);
+            p.damping.beta_s *= f64::exp(dq[2]);
+            p
+        };
+        let params2 = shifted(&params);
+        let perturbed2: Vec<Perturbed> = perturbed
+            .iter()
+            .map(|p| Perturbed {
+                params: shifted(&p.params),
+                rest_m: p.rest_m.clone(),
+            })
+            .collect();
+        let tracks: Vec<_> = with.iter().map(|r| r.steps.clone()).collect();
+        let mut near_runs = Vec::new();
+        for (label, near) in [
+            ("from the predictor", None),
+            (
+                "from the run above moved by S Δp",
+                Some(softcap_tissue::fit_dynamic::Near {
+                    tracks: &tracks,
+                    dp: &dq[..],
+                }),
+            ),
+        ] {
+            let f = forward_with(settings.forward.refactor_ratio, true);
+            let runs = timed(
+                &format!("a nearby evaluation with sensitivities (Δ ln p = {dq:?}), {label}"),
+                || {
+                    f.simulate_with_sensitivities(
+                        &params2,
+                        &truth.rest_m,
+                        None,
+                        &perturbed2,
+                        &softcap_fem::SensitivitySettings::default(),
+                        near,
+                    )
+                    .expect("simulate")
+                },
+            );
+            let t = f.timing();
+            eprintln!(
+                "  {:.2} Newton iterations, {:.3} factorizations and {:.2} sensitivity iterations per step",
+                t.newton_iterations as f64 / t.steps.max(1) as f64,
+                t.factorizations as f64 / t.steps.max(1) as f64,
+                t.sensitivity_iterations as f64 / t.steps.max(1) as f64,
+            );
+            near_runs.push(runs);
+        }
+        let (a, b) = (&near_runs[0], &near_runs[1]);
+        let distance = a
+            .iter()
+            .zip(b)
+            .flat_map(|(a, b)| a.positions_m.iter().zip(&b.positions_m))
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+            .fold(0.0f64, f64::max);
+        let sens_miss = a
+            .iter()
+            .zip(b)
+            .flat_map(|(a, b)| a.sensitivities_m.iter().zip(&b.sensitivities_m))
+            .flat_map(|(a, b)| a.iter().zip(b))
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).norm()))
+            .fold(0.0f64, f64::max);
+        let sens_size = a
+            .iter()
+            .flat_map(|r| r.sensitivities_m.iter().flatten().flatten())
+            .map(|v| v.norm())
+            .fold(0.0f64, f64::max);
+        eprintln!(
+            "  largest node distance between the two: {distance:.3e} m; largest sensitivity difference {sens_miss:.3e} (of {sens_size:.3e})"
         );
     }
     if std::env::var_os("SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY").is_some() {

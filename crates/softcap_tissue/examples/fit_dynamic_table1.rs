@@ -326,10 +326,11 @@ fn main() {
             );
         }
         println!(
-            "trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm; warm E {:.3e}, α {:.3}, β {:.2e}); ΔX mean {:.2e} m ({:.2e} of the size); rest: {}",
+            "trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm{}; warm E {:.3e}, α {:.3}, β {:.2e}); ΔX mean {:.2e} m ({:.2e} of the size); rest: {}",
             fit.rms_m * 1e3,
             fit.rms_initial_m * 1e3,
             fit.rms_warm_m * 1e3,
+            fit.warm_rms_scope(),
             fit.warm_young_pa,
             fit.warm_damping.alpha_per_s,
             fit.warm_damping.beta_s,

@@ -101,7 +101,7 @@ impl FitDynamicArgs {
         let f = crate::fit_dynamic::run::run(&cfg, &progress)?;
         let young: Vec<String> = f.young_pa.iter().map(|e| format!("{e:.4e}")).collect();
         println!(
-            "{}: E [{}] Pa, nu {:.3}, alpha {:.4e} 1/s, beta {:.4e} s; trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm), {} simulations",
+            "{}: E [{}] Pa, nu {:.3}, alpha {:.4e} 1/s, beta {:.4e} s; trajectory RMS {:.3} mm (start {:.3} mm, warm start {:.3} mm{}), {} simulations",
             f.status,
             young.join(", "),
             f.poisson,
@@ -110,6 +110,7 @@ impl FitDynamicArgs {
             1e3 * f.rms_m,
             1e3 * f.rms_initial_m,
             1e3 * f.rms_warm_m,
+            f.warm_rms_scope(),
             f.simulations
         );
         Ok(())

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use softcap_fem::{
     CorotationalModel, DirichletBc, DynamicSolver, DynamicState, DynamicStepReport,
     DynamicStepStatus, DynamicsSettings, Integrator, LinearParams, QuadraticModel, QuadraticSolver,
-    RayleighDamping, SensitivitySettings, StepLoads, StiffnessKind,
+    RayleighDamping, SensitivitySettings, StepLoads, StiffnessKind, with_serial_element_loops,
 };
 use softcap_mesh::TetMesh;
 
@@ -90,6 +90,24 @@ pub struct ForwardSettings {
     /// simulation fits the segment better at the warm start ([`Forward::choose_start_states`])
     /// is used throughout the fit.
     pub start_fit_choice: bool,
+    /// In a simulation with forward sensitivities near an earlier one ([`Near`]): every step's
+    /// Newton iterations start from that run's x_{n+1} moved along its sensitivities,
+    /// x_{n+1}(p) + S_{n+1} Δp, and its sensitivity iterations from S_{n+1}, instead of the
+    /// predictor x_n + h v_n and the integrator's predictor of s. The same tolerances: the
+    /// trajectories stay Newton's to `newton_tolerance`.
+    pub start_near: bool,
+    /// With `start_near` and a [`Near`] run: a step's first Newton update reuses the last
+    /// factor (`softcap_fem::DynamicSolver::set_carry_factor`) — the guess is close, so the
+    /// chord updates start small — renewed by the `refactor_ratio` rule. Off by default: on the
+    /// 2k bench it saved 0.11 factorizations per step but took 0.9 more Newton updates, and
+    /// more CPU-s than without.
+    pub carry_factor: bool,
+    /// `refactor_ratio` of the steps started near an earlier run ([`Near`]): such a step
+    /// starts within the Newton tolerance's reach, where a Newton update with the warped
+    /// stiffness cuts ‖r‖ by less than 3× without the matrix being stale; at 0.3 the 60-frame
+    /// bench renewed the factor in 12 % of the steps (1.12 factorizations per step) for the same
+    /// Newton updates as at 0.9 (1.00).
+    pub near_refactor_ratio: f64,
 }
 
 impl Default for ForwardSettings {
@@ -108,6 +126,9 @@ impl Default for ForwardSettings {
             start_fit_frames: 30,
             start_fit_keeps_tracked: false,
             start_fit_choice: false,
+            start_near: true,
+            carry_factor: false,
+            near_refactor_ratio: 0.9,
         }
     }
 }
@@ -272,6 +293,29 @@ pub struct SegmentRun {
     /// Forward sensitivities ∂x/∂p_k per parameter k, per frame after the start, per node, m
     /// per unit of p_k ([`Forward::simulate_with_sensitivities`]; empty otherwise).
     pub sensitivities_m: Vec<Vec<Vec<Vector3<f64>>>>,
+    /// Every time step's x_{n+1} and sensitivities, all nodes (a run with sensitivities; the
+    /// start of a later run near it, [`Near`]).
+    pub steps: Option<std::sync::Arc<StepTrack>>,
+}
+
+/// Every time step's positions and forward sensitivities of one segment's run, all nodes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepTrack {
+    /// x_{n+1} per step (the startup Euler steps included), m.
+    pub positions_m: Vec<Vec<Vector3<f64>>>,
+    /// s_{n+1} = ∂x_{n+1}/∂p_k per step, per parameter k, m per unit of p_k.
+    pub sensitivities_m: Vec<Vec<Vec<Vector3<f64>>>>,
+}
+
+/// An earlier simulation with sensitivities to start from ([`ForwardSettings::start_near`]):
+/// its step tracks per segment ([`SegmentRun::steps`]) and Δp = p − p_earlier in the
+/// parameters of its sensitivities.
+#[derive(Clone, Copy, Debug)]
+pub struct Near<'a> {
+    /// Per segment, its run's steps (`None`: start as usual).
+    pub tracks: &'a [Option<std::sync::Arc<StepTrack>>],
+    /// Δp per parameter.
+    pub dp: &'a [f64],
 }
 
 /// The body at p + ε e_k for the forward sensitivity of parameter k
@@ -493,6 +537,7 @@ impl Stepper {
         settings: &DynamicsSettings,
         perturbed: Option<&SensitivityModels>,
         sensitivities: &mut [DynamicState],
+        initial: Option<&[Vec<Vector3<f64>>]>,
     ) -> Result<(DynamicStepReport, usize)> {
         let before = perturbed.map(|_| state.clone());
         let report = self.step(model, state, loads, settings);
@@ -506,6 +551,7 @@ impl Stepper {
                 settings,
                 p,
                 sensitivities,
+                initial,
             )?,
             _ => 0,
         };
@@ -542,6 +588,7 @@ impl Stepper {
         settings: &DynamicsSettings,
         perturbed: &SensitivityModels,
         sensitivities: &mut [DynamicState],
+        initial: Option<&[Vec<Vector3<f64>>]>,
     ) -> Result<usize> {
         let (Self::Linear(s), FitModel::Linear(m)) = (self, model) else {
             return Err(not_linear());
@@ -578,6 +625,7 @@ impl Stepper {
             settings,
             &bodies,
             sensitivities,
+            initial,
             &perturbed.options,
         )?)
     }
@@ -631,6 +679,14 @@ impl Stepper {
             _ => unreachable!("a stepper is built for its model"),
         }
     }
+}
+
+/// Whether `tasks` segment simulations in one parallel pass run their element loops serially
+/// (`softcap_fem::with_serial_element_loops`): with at least two per thread the segments keep
+/// every thread busy by themselves; fewer (the first segments of a fit coarse to fine in time)
+/// share their element loops between the threads.
+fn serial_segments(tasks: usize) -> bool {
+    tasks >= 2 * rayon::current_num_threads()
 }
 
 /// The error of a sensitivity run on quadratic tets.
@@ -823,11 +879,14 @@ impl Forward {
         self.timed(Phase::Simulate, || {
             let model = self.model(params, rest_m)?;
             let starts = self.start_states(&model, params.damping)?;
+            let serial = serial_segments(self.segments.len());
             let runs = (0..self.segments.len())
                 .into_par_iter()
                 .map(|k| {
                     let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
-                    self.simulate_segment(k, &model, params.damping, &starts[k], correction)
+                    with_serial_element_loops(serial, || {
+                        self.simulate_segment(k, &model, params.damping, &starts[k], correction)
+                    })
                 })
                 .collect::<Vec<_>>();
             runs.into_iter().collect()
@@ -840,7 +899,9 @@ impl Forward {
     /// parameter is one linear solve with the step's factored system matrix
     /// ([`softcap_fem::DynamicSolver::step_sensitivities`]), instead of a simulation per parameter
     /// as forward differences take. Linear tets and the tracked start states (which do not
-    /// depend on p) only.
+    /// depend on p) only. With `near` (and [`ForwardSettings::start_near`]) every step starts
+    /// from that earlier run's, moved along its sensitivities. Every run keeps its steps
+    /// ([`SegmentRun::steps`]).
     pub fn simulate_with_sensitivities(
         &self,
         params: &DynamicParams,
@@ -848,6 +909,7 @@ impl Forward {
         start: Option<(&StartModes, &[f64])>,
         perturbed: &[Perturbed],
         options: &SensitivitySettings,
+        near: Option<Near<'_>>,
     ) -> Result<Vec<SegmentRun>> {
         if self.quadratic.is_some() {
             return Err(not_linear());
@@ -882,12 +944,19 @@ impl Forward {
                 bodies,
                 options: *options,
             };
+            let serial = serial_segments(self.segments.len());
             let runs = (0..self.segments.len())
                 .into_par_iter()
                 .map(|k| {
                     let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
                     let start = &self.starts[k];
-                    self.run_segment(k, &model, params.damping, start, correction, Some(&sens))
+                    let near = near
+                        .filter(|n| self.settings.start_near && n.dp.len() == sens.bodies.len())
+                        .and_then(|n| Some((n.tracks.get(k)?.as_deref()?, n.dp)));
+                    with_serial_element_loops(serial, || {
+                        let d = params.damping;
+                        self.run_segment(k, &model, d, start, correction, Some(&sens), near)
+                    })
                 })
                 .collect::<Vec<_>>();
             runs.into_iter().collect()
@@ -921,6 +990,7 @@ impl Forward {
                 .filter(|&j| prepared[j].is_ok())
                 .flat_map(|j| (0..ns).map(move |k| (j, k)))
                 .collect();
+            let serial = serial_segments(tasks.len());
             let mut runs = tasks
                 .into_par_iter()
                 .map(|(j, k)| {
@@ -929,7 +999,9 @@ impl Forward {
                     };
                     let (params, _, start) = &jobs[j];
                     let correction = start.map(|(m, c)| (m, m.of_segment(c, k)));
-                    self.simulate_segment(k, model, params.damping, &starts[k], correction)
+                    with_serial_element_loops(serial, || {
+                        self.simulate_segment(k, model, params.damping, &starts[k], correction)
+                    })
                 })
                 .collect::<Vec<_>>()
                 .into_iter();
@@ -1137,12 +1209,14 @@ impl Forward {
         start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
         correction: Option<(&StartModes, &[f64])>,
     ) -> Result<SegmentRun> {
-        self.run_segment(k, model, damping, start, correction, None)
+        self.run_segment(k, model, damping, start, correction, None, None)
     }
 
     /// [`Self::simulate_segment`], with the forward sensitivities of the `perturbed` bodies if
     /// given (every step followed by their sensitivity steps; the start state's sensitivity is
-    /// zero).
+    /// zero; the steps kept in [`SegmentRun::steps`]), every step started from the `near` run's
+    /// if given ([`Near`]).
+    #[allow(clippy::too_many_arguments)]
     fn run_segment(
         &self,
         k: usize,
@@ -1151,6 +1225,7 @@ impl Forward {
         start: &(Vec<Vector3<f64>>, Vec<Vector3<f64>>),
         correction: Option<(&StartModes, &[f64])>,
         perturbed: Option<&SensitivityModels>,
+        near: Option<(&StepTrack, &[f64])>,
     ) -> Result<SegmentRun> {
         let t0 = std::time::Instant::now();
         let seg = self.segments[k].clone();
@@ -1162,6 +1237,11 @@ impl Forward {
             self.settings.refactor_ratio,
             self.settings.residual_only,
         )?;
+        if let (Stepper::Linear(s), Some(_)) = (&mut solver, near) {
+            s.set_carry_factor(self.settings.carry_factor);
+            let ratio = self.settings.near_refactor_ratio;
+            s.set_refactor_ratio((ratio > 0.0).then_some(ratio));
+        }
         let (mut x0, mut v0) = start.clone();
         if let Some((modes, c)) = correction {
             modes.apply(&mut x0, &mut v0, c);
@@ -1182,12 +1262,52 @@ impl Forward {
             .map(|_| DynamicState::at_rest(vec![Vector3::zeros(); state.positions_m.len()]))
             .collect();
         let mut sens_iterations = 0;
+        // Solver steps taken (the index into a near run's steps).
+        let mut n = 0;
         let mut run = SegmentRun {
             segment: seg.clone(),
             positions_m: Vec::with_capacity(seg.end - seg.start),
             max_iteration_steps: 0,
             failure: None,
             sensitivities_m: vec![Vec::with_capacity(seg.end - seg.start); n_sens],
+            steps: None,
+        };
+        let mut track = StepTrack::default();
+        // Step n's start (x guess, sensitivity guesses): from the near run's step moved by
+        // S Δp, else x_n + h v_n — rather than Newmark's predictor with h²/4 a_n: the
+        // acceleration of noisy tracked positions is large in the stiffest modes and its
+        // predictor can invert tets before Newton starts.
+        let start_of = |n: usize, state: &DynamicState, h: f64| {
+            let earlier = near
+                .and_then(|(t, dp)| Some((t.positions_m.get(n)?, t.sensitivities_m.get(n)?, dp)));
+            match earlier {
+                Some((x, s, dp)) => {
+                    let mut guess = x.clone();
+                    for (sk, d) in s.iter().zip(dp) {
+                        for (g, v) in guess.iter_mut().zip(sk) {
+                            *g += v * *d;
+                        }
+                    }
+                    (guess, Some(s))
+                }
+                None => (
+                    state
+                        .positions_m
+                        .iter()
+                        .zip(&state.velocities_m_s)
+                        .map(|(x, v)| x + v * h)
+                        .collect::<Vec<_>>(),
+                    None,
+                ),
+            }
+        };
+        let mut keep = |state: &DynamicState, sens: &[DynamicState]| {
+            if perturbed.is_some() {
+                track.positions_m.push(state.positions_m.clone());
+                track
+                    .sensitivities_m
+                    .push(sens.iter().map(|s| s.positions_m.clone()).collect());
+            }
         };
         for j in seg.start..seg.end {
             let (ta, tb) = (self.seq.times_s[j], self.seq.times_s[j + 1]);
@@ -1201,15 +1321,7 @@ impl Forward {
                         self.seq.positions_m[j][i] * (1.0 - w) + self.seq.positions_m[j + 1][i] * w;
                     bc.fix_node(i, p);
                 }
-                // Initial guess x_n + h v_n rather than Newmark's predictor with h²/4 a_n: the
-                // acceleration of noisy tracked positions is large in the stiffest modes and its
-                // predictor can invert tets before Newton starts.
-                let guess: Vec<Vector3<f64>> = state
-                    .positions_m
-                    .iter()
-                    .zip(&state.velocities_m_s)
-                    .map(|(x, v)| x + v * h)
-                    .collect();
+                let (guess, initial) = start_of(n, &state, h);
                 let loads = StepLoads {
                     external_forces_n: &self.gravity_n,
                     prescribed: Some(&bc),
@@ -1226,10 +1338,31 @@ impl Forward {
                             time_step_s: first_h / startup as f64,
                             ..settings.clone()
                         };
-                        for _ in 0..startup {
+                        for e in 0..startup {
+                            // Without a near run every startup step starts from x₀ + h v₀.
+                            let (near_guess, near_initial) = match near {
+                                Some(_) if e > 0 => start_of(n, &state, h),
+                                _ => (Vec::new(), initial),
+                            };
+                            let step_loads = StepLoads {
+                                initial_guess: Some(if near_guess.is_empty() {
+                                    &guess
+                                } else {
+                                    &near_guess
+                                }),
+                                ..loads
+                            };
                             let (r, si) = solver.step_and_sensitivities(
-                                &mut model, &mut state, &loads, &euler, perturbed, &mut sens,
+                                &mut model,
+                                &mut state,
+                                &step_loads,
+                                &euler,
+                                perturbed,
+                                &mut sens,
+                                near_initial.map(|v| v.as_slice()),
                             )?;
+                            n += 1;
+                            keep(&state, &sens);
                             iterations += r.iterations;
                             sens_iterations += si;
                             let failed = matches!(r.status, DynamicStepStatus::Failed { .. });
@@ -1256,8 +1389,16 @@ impl Forward {
                     }
                     None => {
                         let (report, si) = solver.step_and_sensitivities(
-                            &mut model, &mut state, &loads, &settings, perturbed, &mut sens,
+                            &mut model,
+                            &mut state,
+                            &loads,
+                            &settings,
+                            perturbed,
+                            &mut sens,
+                            initial.map(|v| v.as_slice()),
                         )?;
+                        n += 1;
+                        keep(&state, &sens);
                         sens_iterations += si;
                         report
                     }
@@ -1280,6 +1421,9 @@ impl Forward {
             }
         }
         self.record_segment(&solver, t0, steps, [iterations, sens_iterations]);
+        if perturbed.is_some() {
+            run.steps = Some(std::sync::Arc::new(track));
+        }
         Ok(run)
     }
 

@@ -26,6 +26,8 @@ pub use blend::{Blending, ControlPoints, control_points};
 pub use fit::{
     DynamicFit, EarlyFit, Elements, FitDynamicSettings, JacobianMethod, Optimizer, fit_sequence,
 };
-pub use forward::{DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Perturbed};
+pub use forward::{
+    DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Near, Perturbed, StepTrack,
+};
 pub use run::{FitDynamicConfig, SimulateDynamicConfig, SimulateDynamicOutcome, simulate};
 pub use sequence::{Segment, TrackedSequence};

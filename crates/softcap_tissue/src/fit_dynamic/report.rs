@@ -163,9 +163,10 @@ pub fn write_report(
     );
     let _ = writeln!(
         md,
-        "Trajectory RMS: {:.3} mm at the starting material, {:.3} mm after the modal warm start (E = {:.4e} Pa, α = {:.3e}, β = {:.3e}), {:.3} mm fitted.\n",
+        "Trajectory RMS: {:.3} mm at the starting material, {:.3} mm after the modal warm start{} (E = {:.4e} Pa, α = {:.3e}, β = {:.3e}), {:.3} mm fitted.\n",
         1e3 * fit.rms_initial_m,
         1e3 * fit.rms_warm_m,
+        fit.warm_rms_scope(),
         fit.warm_young_pa,
         fit.warm_damping.alpha_per_s,
         fit.warm_damping.beta_s,

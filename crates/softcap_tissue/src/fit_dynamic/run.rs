@@ -260,6 +260,11 @@ pub fn report_message(fit: &DynamicFit) -> proto::Report {
             Value::Number(fit.rms_warm_m),
             "m",
         ),
+        kv(
+            "trajectory_rmse_warm_start_segments".into(),
+            Value::Number(fit.rms_warm_segments as f64),
+            "",
+        ),
         kv("trajectory_rmse".into(), Value::Number(fit.rms_m), "m"),
         kv(
             "warm_start_young".into(),
