@@ -666,7 +666,6 @@ impl<'a> Problem<'a> {
                 .near
                 .as_ref()
                 .map(|(_, tracks)| Near { tracks, dp: &dq });
-            let t0 = self.forward.timing();
             let runs = self.forward.simulate_with_sensitivities(
                 &p,
                 rest,
@@ -675,17 +674,6 @@ impl<'a> Problem<'a> {
                 &SENSITIVITY,
                 near,
             )?;
-            if std::env::var_os("SOFTCAP_DEBUG_NEAR").is_some() {
-                let t = self.forward.timing();
-                let st = (t.steps - t0.steps).max(1) as f64;
-                eprintln!(
-                    "DEBUG eval dq {dq:?}: newton {:.2} fact {:.3} sens {:.2} per step, {:.1} CPU-s",
-                    (t.newton_iterations - t0.newton_iterations) as f64 / st,
-                    (t.factorizations - t0.factorizations) as f64 / st,
-                    (t.sensitivity_iterations - t0.sensitivity_iterations) as f64 / st,
-                    t.simulate_cpu_s - t0.simulate_cpu_s
-                );
-            }
             if runs.iter().all(|r| r.failure.is_none()) {
                 self.near = Some((q.to_vec(), runs.iter().map(|r| r.steps.clone()).collect()));
             }
