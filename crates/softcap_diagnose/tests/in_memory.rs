@@ -89,6 +89,11 @@ enum Effect {
     /// Transversely isotropic stiffening along the fibre [0.707, 0, 0.707], fibre / transverse
     /// Young's modulus (`Extension::Anisotropic`).
     Anisotropic(f64),
+    /// Stiffness-proportional Rayleigh damping β, s, without mass (`Extension::Dynamic` at
+    /// ρ 10⁻³ kg/m³): a Kelvin–Voigt solid, the response a first-order lag of the quasi-static one.
+    /// Only the harness (`examples/in_memory.rs`, `lookalike-spec "damping β"`) records it.
+    #[cfg_attr(test, allow(dead_code))]
+    Damping(f64),
 }
 
 struct Session {
@@ -239,6 +244,11 @@ fn session_planned(
         Effect::Anisotropic(ratio) => Some(Extension::Anisotropic {
             fibre: Vector3::new(1.0, 0.0, 1.0).normalize(),
             ratio,
+        }),
+        Effect::Damping(beta_s) => Some(Extension::Dynamic {
+            density_kg_m3: 1e-3,
+            alpha_per_s: 0.0,
+            beta_s,
         }),
         _ => None,
     });
@@ -2387,10 +2397,11 @@ fn parse_effects(spec: &str) -> Result<Vec<Effect>, String> {
             }],
             ("anisotropy", &[ratio]) => vec![Effect::Anisotropic(ratio)],
             ("stiffer", &[scale]) => vec![Effect::Stiffer(scale)],
+            ("damping", &[beta_s]) => vec![Effect::Damping(beta_s)],
             _ => {
                 return Err(format!(
                     "{part:?}: one of lag τ, offset δ, creep g τ, slow-creep g τ, gravity ρ, \
-                     friction μ, springs k, plastic σ_y H, anisotropy ratio, stiffer s"
+                     friction μ, springs k, plastic σ_y H, anisotropy ratio, stiffer s, damping β"
                 ));
             }
         };
