@@ -227,9 +227,6 @@ pub struct DynamicSolver {
     refactor_ratio: Option<f64>,
     refactor_due: bool,
     factored_coefficients: Option<[u64; 2]>,
-    /// Under `refactor_ratio`: a step's first update reuses the factor of an earlier step
-    /// ([`Self::set_carry_factor`]).
-    carry_factor: bool,
     /// Residual-only element passes for the updates that reuse the factor
     /// ([`Self::set_residual_only`]).
     residual_only: bool,
@@ -398,7 +395,6 @@ impl DynamicSolver {
             refactor_ratio: None,
             refactor_due: false,
             factored_coefficients: None,
-            carry_factor: false,
             residual_only: true,
             factored_entry_max: 0.0,
             factorizations: 0,
@@ -437,17 +433,6 @@ impl DynamicSolver {
     /// ([`Self::set_residual_only`]).
     pub fn set_refactor_ratio(&mut self, ratio: Option<f64>) {
         self.refactor_ratio = ratio.filter(|r| r.is_finite() && *r > 0.0);
-    }
-
-    /// Under [`Self::set_refactor_ratio`]: with `carry` on, a step's first update is solved with
-    /// the factor of the last factored matrix (an earlier step's, when built with the same
-    /// (mass, stiffness) coefficients) instead of factoring at the initial guess; the same
-    /// ratio rule renews it when an update cuts ‖r‖ by less than ρ. For callers whose initial
-    /// guess is already close to the step's solution — a trajectory simulated at nearby
-    /// parameters, moved along its sensitivities — so the chord updates start small (from the
-    /// integrator's predictor on noisy initial states they diverged, see above). Off by default.
-    pub fn set_carry_factor(&mut self, carry: bool) {
-        self.carry_factor = carry;
     }
 
     /// Whether, under [`Self::set_refactor_ratio`], an iteration whose update reuses the factor
@@ -590,8 +575,7 @@ impl DynamicSolver {
     ///
     /// and (ṡ, s̈)_{n+1} follow from the integrator's kinematics, which are linear. Each s is
     /// iterated as s ← s + A⁻¹ Φ_k(s) with the factor of the step's system matrix A (the Newton
-    /// updates', or the last factored one's, [`Self::set_carry_factor`]), from `initial[k]` when
-    /// given (e.g. the sensitivity of the same step at nearby parameters) or else the
+    /// updates' last factor), from `initial[k]` when given (e.g. the sensitivity of the same step at nearby parameters) or else the
     /// integrator's predictor of its `sensitivities` entry, until an update
     /// is at most `options.tolerance` × max |s|, where the linearized residual is
     /// Φ_k(s) = ∂R/∂p_k + ∂R/∂(state_n) · sens_n + ∂R/∂x_{n+1} s. Its first value is a
@@ -980,9 +964,8 @@ impl DynamicSolver {
         let mut frozen: Option<Vec<crate::contact::ContactSpring>> = None;
         let coefficients = [a_mass.to_bits(), a_stiff.to_bits()];
         let mut previous_rn: Option<f64> = None;
-        // Factorization reuse: the step's first update factors (Newton's first iteration),
-        // unless an earlier step's factor is carried over.
-        self.refactor_due = !self.carry_factor;
+        // Factorization reuse: the step's first update factors (Newton's first iteration).
+        self.refactor_due = true;
         for it in 0..settings.max_iterations.max(1) + 1 {
             if it == settings.max_iterations.max(1) && !self.final_residual {
                 // the iterations are used up and the caller does not want the residual there

@@ -23,9 +23,10 @@
 //! sensitivities of the three log-parameters (`Forward::simulate_with_sensitivities`) and a
 //! nearby evaluation (Δ ln p = `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR_DQ`, default 0.01,0.05,-0.05)
 //! from the predictor and from that run moved along its sensitivities
-//! (`ForwardSettings::start_near`; `…_COMPARE=near` times only those);
-//! `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1`, `…_CARRY=0|1` and `…_NEAR_RATIO=ρ` set
-//! `ForwardSettings::start_near`, `carry_factor` and `near_refactor_ratio`;
+//! (`ForwardSettings::start_near`; `…_COMPARE=near` times only those), all with the fit's
+//! sensitivity settings (`fit_dynamic::fit::SENSITIVITY`; `…_SENS_TOL=t` sets their tolerance);
+//! `SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1` and `…_NEAR_RATIO=ρ` set
+//! `ForwardSettings::start_near` and `near_refactor_ratio`;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_EVAL_ONLY=1` stops before criterion;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_FRAMES=N` shortens the sequence;
 //! `SOFTCAP_FIT_DYNAMIC_BENCH_JACOBIAN=forward-differences` fits with the forward-difference
@@ -105,15 +106,24 @@ fn near_ratio() -> f64 {
         .unwrap_or(ForwardSettings::default().near_refactor_ratio)
 }
 
-/// `ForwardSettings::start_near` and `carry_factor` (`SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1`,
-/// `…_CARRY=0|1`; default: the settings' defaults).
-fn near_and_carry() -> (bool, bool) {
-    let d = ForwardSettings::default();
-    let flag = |k: &str, default: bool| std::env::var(k).map_or(default, |v| v != "0");
-    (
-        flag("SOFTCAP_FIT_DYNAMIC_BENCH_NEAR", d.start_near),
-        flag("SOFTCAP_FIT_DYNAMIC_BENCH_CARRY", d.carry_factor),
-    )
+/// The fit's sensitivity settings (`fit_dynamic::fit::SENSITIVITY`), their tolerance set by
+/// `SOFTCAP_FIT_DYNAMIC_BENCH_SENS_TOL` if given.
+fn sensitivity_settings() -> softcap_fem::SensitivitySettings {
+    let fit = softcap_tissue::fit_dynamic::fit::SENSITIVITY;
+    softcap_fem::SensitivitySettings {
+        tolerance: std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_SENS_TOL")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(fit.tolerance),
+        ..fit
+    }
+}
+
+/// `ForwardSettings::start_near` (`SOFTCAP_FIT_DYNAMIC_BENCH_NEAR=0|1`; default: the settings'
+/// default).
+fn start_near() -> bool {
+    std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_NEAR")
+        .map_or(ForwardSettings::default().start_near, |v| v != "0")
 }
 
 /// Runs `f`, printing its wall time and the process's CPU-s.
@@ -140,8 +150,7 @@ fn full_fit(truth: &Synthetic) {
         jacobian,
         forward: ForwardSettings {
             newton_tolerance: newton_tolerance(),
-            start_near: near_and_carry().0,
-            carry_factor: near_and_carry().1,
+            start_near: start_near(),
             near_refactor_ratio: near_ratio(),
             ..defaults.forward.clone()
         },
@@ -272,8 +281,7 @@ fn bench(c: &mut Criterion) {
                 refactor_ratio,
                 residual_only,
                 newton_tolerance: newton_tolerance(),
-                start_near: near_and_carry().0,
-                carry_factor: near_and_carry().1,
+                start_near: start_near(),
                 near_refactor_ratio: near_ratio(),
                 ..settings.forward.clone()
             },
@@ -360,13 +368,7 @@ fn bench(c: &mut Criterion) {
                         &truth.rest_m,
                         None,
                         &perturbed,
-                        &softcap_fem::SensitivitySettings {
-                            tolerance: std::env::var("SOFTCAP_FIT_DYNAMIC_BENCH_SENS_TOL")
-                                .ok()
-                                .and_then(|v| v.parse().ok())
-                                .unwrap_or(softcap_fem::SensitivitySettings::default().tolerance),
-                            ..softcap_fem::SensitivitySettings::default()
-                        },
+                        &sensitivity_settings(),
                         None,
                     )
                     .expect("simulate")
@@ -421,7 +423,7 @@ fn bench(c: &mut Criterion) {
                         &truth.rest_m,
                         None,
                         &perturbed2,
-                        &softcap_fem::SensitivitySettings::default(),
+                        &sensitivity_settings(),
                         near,
                     )
                     .expect("simulate")

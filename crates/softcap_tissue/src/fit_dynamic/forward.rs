@@ -96,12 +96,6 @@ pub struct ForwardSettings {
     /// predictor x_n + h v_n and the integrator's predictor of s. The same tolerances: the
     /// trajectories stay Newton's to `newton_tolerance`.
     pub start_near: bool,
-    /// With `start_near` and a [`Near`] run: a step's first Newton update reuses the last
-    /// factor (`softcap_fem::DynamicSolver::set_carry_factor`) — the guess is close, so the
-    /// chord updates start small — renewed by the `refactor_ratio` rule. Off by default: on the
-    /// 2k bench it saved 0.11 factorizations per step but took 0.9 more Newton updates, and
-    /// more CPU-s than without.
-    pub carry_factor: bool,
     /// `refactor_ratio` of the steps started near an earlier run ([`Near`]): such a step
     /// starts within the Newton tolerance's reach, where a Newton update with the warped
     /// stiffness cuts ‖r‖ by less than 3× without the matrix being stale; at 0.3 the 60-frame
@@ -127,7 +121,6 @@ impl Default for ForwardSettings {
             start_fit_keeps_tracked: false,
             start_fit_choice: false,
             start_near: true,
-            carry_factor: false,
             near_refactor_ratio: 0.9,
         }
     }
@@ -1238,7 +1231,6 @@ impl Forward {
             self.settings.residual_only,
         )?;
         if let (Stepper::Linear(s), Some(_)) = (&mut solver, near) {
-            s.set_carry_factor(self.settings.carry_factor);
             let ratio = self.settings.near_refactor_ratio;
             s.set_refactor_ratio((ratio > 0.0).then_some(ratio));
         }
