@@ -1909,7 +1909,8 @@ mod tests {
     /// (measured: misses 7.1, 1.5, 3.6·10⁻⁶ against 6.2·10⁻⁴ for m = 2,376; moves 3–4·10⁻⁵ σ; at
     /// τ = 10⁻³: 1.9, 2.5, 4.4·10⁻⁴ and 1.3–2.5·10⁻³ σ, 0.3 of the worst case τ √(m − 3): the
     /// errors do follow the residuals). Checked to fail: without the rest shape's dX/d ln E
-    /// (`Perturbed::rest_m` = X) the E column misses by 1.23 of its norm.
+    /// (`Perturbed::rest_m` = X) the E column misses by 1.23 of its norm (the stop then moves by
+    /// 0.027 σ, inside its bound: the column bound is the one that fails).
     #[test]
     fn sensitivity_jacobian_matches_central_differences() {
         let s = bar();
