@@ -2,7 +2,7 @@
 #   make demo     synthesize the embedded default session (a virtual-rig probing session with one
 #                 concealed physical effect), run the tissue pipeline over it (capture → tissue fit →
 #                 tissue simulate → diagnose) and print the diagnosis verdict and where every file is
-#   make test     run the tests (cargo test --workspace --tests, then --doc)
+#   make test     run the tests (the binaries of cargo test --workspace --tests, two at a time; then --doc)
 #   make smoke    the workflow-engine smoke test (Snakemake over one synthesized session)
 # and
 #   make verify   rerun the demo pipeline from scratch and compare `softcap inspect digest` of every
@@ -32,8 +32,11 @@ build:
 # Every test of `cargo test --workspace` (unit, integration, doc tests) without building the 26
 # examples, which plain `cargo test` links only to see that they build (≈ 120 CPU-s in the test
 # profile; `cargo clippy --all-targets` in .ci/run still compiles them).
+# scripts/test-binaries builds exactly what `cargo test --workspace --tests` builds and runs the
+# same binaries two at a time (cargo runs them one after another, leaving a core idle most of the
+# time), then the doc tests.
 test:
-	$(CARGO) test --workspace --tests
+	CARGO=$(CARGO) scripts/test-binaries
 	$(CARGO) test --workspace --doc
 
 # The workflow-engine smoke test: Snakemake (installed into .venv-workflow on first use) runs
