@@ -4,6 +4,7 @@
 //! left after release, support motion, the drag along the tip's travel, a body-fixed lateral shift.
 
 use crate::cells::contact_radius_m;
+use crate::folds::mean_sd;
 use crate::friction::{indentation_stiffness_n_per_m, sliding_direction};
 use crate::recording::Recording;
 use crate::residual::{Component, Residuals, component, noise_sigma_m, rest_mean};
@@ -22,6 +23,15 @@ pub struct Signatures {
     pub force_delay_10_s: f64,
     /// … at 50 % of the ramp, s (pure time shift: equal delays; first-order lag: growing delay).
     pub force_delay_50_s: f64,
+    /// The standard error of the delay's growth from 10 % to 50 % of the ramp
+    /// (`force_delay_50_s − force_delay_10_s`) over the locations' own growths (sample spread /
+    /// √L); `None` with fewer than two locations ([`Signatures::delays_like_a_time_shift`]).
+    #[serde(default)]
+    pub force_delay_growth_se_s: Option<f64>,
+    /// The growth a first-order lag with the measured 50 % delay would show between the same
+    /// crossings ([`lag_delay_growth_s`], mean over the locations), s.
+    #[serde(default)]
+    pub force_delay_growth_lag_s: f64,
     /// Area of the normalised force–depth loop (0 elastic, > 0 hysteretic).
     pub force_depth_hysteresis: f64,
     /// Area of the normalised (probed-marker displacement along the axis)–depth loop.
@@ -92,13 +102,48 @@ impl Signatures {
         3.0 * self.noise_sigma_m
     }
 
-    /// The force delays of a pure time shift: equal at 10 % and 50 % of the ramp (within 35 %),
-    /// where a first-order lag's delay grows.
+    /// The force delays of a pure time shift, decided against their own noise: a reading that
+    /// leads the geometry (a 50 % delay below zero, which no lag gives), or a delay that grows
+    /// from 10 % to 50 % of the ramp less than a first-order lag of the same 50 % delay would
+    /// ([`Signatures::force_delay_growth_lag_s`]) by more than [`DELAY_GROWTH_Z`] standard errors
+    /// of the measured growth. A lag much shorter than the ramp's first tenth has nearly
+    /// finished growing at 10 %: its delays are a time shift's, and this abstains (`false`)
+    /// rather than call it one.
     pub fn delays_like_a_time_shift(&self) -> bool {
-        self.force_delay_50_s.abs() > 1e-6
-            && (self.force_delay_10_s - self.force_delay_50_s).abs()
-                < 0.35 * self.force_delay_50_s.abs()
+        let Some(se) = self.force_delay_growth_se_s else {
+            return false;
+        };
+        let growth = self.force_delay_50_s - self.force_delay_10_s;
+        self.force_delay_50_s < -DELAY_GROWTH_Z * se
+            || (self.force_delay_50_s > 1e-6
+                && growth < self.force_delay_growth_lag_s - DELAY_GROWTH_Z * se)
     }
+}
+
+/// How many standard errors of the measured delay growth separate a time shift from a lag
+/// ([`Signatures::delays_like_a_time_shift`]): one-sided, a lag is read as a shift in 2.3 % of
+/// sessions under normal noise — the same rule as the released set's persistence
+/// (`hypotheses::plasticity::PERSISTENCE_Z`), fixed before any verdict was looked at.
+pub const DELAY_GROWTH_Z: f64 = 2.0;
+
+/// The growth of a first-order lag's delay between two points of a linear ramp, s. Under a
+/// ramp started at t = 0 a lag τ reads r (t − τ (1 − e^{−t/τ})): its delay τ (1 − e^{−t/τ})
+/// grows towards τ. With the crossings of the geometry at 10 % and 50 % of a linear ramp
+/// (`a10`, `a50`) the ramp started at a10 − (a50 − a10)/4, so s10 = (a50 − a10)/4 and
+/// s50 = 5 (a50 − a10)/4; τ is the lag whose delay at s50 is `delay_50_s` (fixed point of
+/// τ = d / (1 − e^{−s50/τ})). 0 without a positive delay or ramp.
+pub fn lag_delay_growth_s(a10: f64, a50: f64, delay_50_s: f64) -> f64 {
+    let span = a50 - a10;
+    if span <= 0.0 || delay_50_s <= 0.0 || delay_50_s >= 1.25 * span {
+        return 0.0;
+    }
+    let (s10, s50) = (0.25 * span, 1.25 * span);
+    let mut tau = delay_50_s;
+    for _ in 0..50 {
+        tau = delay_50_s / (1.0 - (-s50 / tau).exp());
+    }
+    let delay = |s: f64| tau * (1.0 - (-s / tau).exp());
+    delay(s50) - delay(s10)
 }
 
 fn loop_area(x: &[f64], y: &[f64]) -> f64 {
@@ -143,6 +188,7 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
     let (mut drift, mut nd) = (0.0, 0);
     let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
+    let (mut growths, mut lag_growth) = (Vec::new(), 0.0);
     let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
     for l in &seg.locations {
         if let Some(d) = hold_drift(seg, l, &fmag) {
@@ -152,9 +198,11 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
         let Some(ramp) = ramp_signatures(rec, seg, l, &t, &fmag) else {
             continue;
         };
-        if let Some((a, b)) = ramp.delays_s {
-            d10 += a;
-            d50 += b;
+        if let Some(d) = ramp.delays_s {
+            d10 += d.delay_10_s;
+            d50 += d.delay_50_s;
+            growths.push(d.delay_50_s - d.delay_10_s);
+            lag_growth += lag_delay_growth_s(d.geometry_10_s, d.geometry_50_s, d.delay_50_s);
             ndel += 1;
         }
         fh += ramp.force_loop;
@@ -167,6 +215,10 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     if ndel > 0 {
         s.force_delay_10_s = d10 / ndel as f64;
         s.force_delay_50_s = d50 / ndel as f64;
+        s.force_delay_growth_lag_s = lag_growth / ndel as f64;
+    }
+    if growths.len() >= 2 {
+        s.force_delay_growth_se_s = Some(mean_sd(&growths).1 / (growths.len() as f64).sqrt());
     }
     if nh > 0 {
         s.force_depth_hysteresis = fh / nh as f64;
@@ -181,10 +233,22 @@ fn hold_drift(seg: &Segmentation, l: &Location, fmag: &[f64]) -> Option<f64> {
         .then(|| (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n)
 }
 
+/// The force's delays behind the geometry on one location's first ramp.
+struct Delays {
+    /// Force crossing minus geometry crossing at 10 % of their peaks, s.
+    delay_10_s: f64,
+    /// … at 50 %, s.
+    delay_50_s: f64,
+    /// The geometry's crossing time at 10 % of its peak, s.
+    geometry_10_s: f64,
+    /// … at 50 %, s.
+    geometry_50_s: f64,
+}
+
 /// What one location's contact run says about the force channel.
 struct Ramp {
-    /// Force crossing minus geometry crossing at 10 % and 50 % of their peaks, s.
-    delays_s: Option<(f64, f64)>,
+    /// The force's delays behind the geometry.
+    delays_s: Option<Delays>,
     /// Normalised force–depth loop area.
     force_loop: f64,
     /// Normalised geometry–depth loop area.
@@ -227,7 +291,12 @@ fn ramp_signatures(
         crossing_time(t, &geo, 0.5 * gmax, start..end),
         crossing_time(t, fmag, 0.5 * fpk_all, start..end),
     ) {
-        (Some(a10), Some(b10), Some(a50), Some(b50)) => Some((b10 - a10, b50 - a50)),
+        (Some(a10), Some(b10), Some(a50), Some(b50)) => Some(Delays {
+            delay_10_s: b10 - a10,
+            delay_50_s: b50 - a50,
+            geometry_10_s: a10,
+            geometry_50_s: a50,
+        }),
         _ => None,
     };
     let xs = &depth[start..end];

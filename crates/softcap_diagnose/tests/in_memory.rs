@@ -1907,10 +1907,12 @@ fn first_effect_three_fold(d: &softcap_diagnose::Diagnosis) -> &softcap_diagnose
 fn print_ranked(d: &softcap_diagnose::Diagnosis) {
     if let Some(s) = d.ranked.first().map(|r| &r.evidence.signatures) {
         eprintln!(
-            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} set {:.2e} persist {:?} ± {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
+            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} growth se {:?} lag growth {:.4} set {:.2e} persist {:?} ± {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
             s.hold_force_drift,
             s.force_delay_10_s,
             s.force_delay_50_s,
+            s.force_delay_growth_se_s,
+            s.force_delay_growth_lag_s,
             s.released_set_m,
             s.released_set_persistence,
             s.released_set_persistence_se,

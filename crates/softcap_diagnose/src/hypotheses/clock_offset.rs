@@ -1,18 +1,20 @@
 //! `clock-offset`: the camera and force clocks disagree by a constant offset.
 //!
 //! Screen: the force trace shifted in time, f_eff(t) = f(t + δ), δ on a grid of a quarter of the
-//! median frame interval over ±0.3 s (a fixed offset field through the tangent response).
-//! Signature: equal force delays at 10 % and 50 % of the ramp (a pure time shift; a lag's delay
-//! grows). Confirmation: the default model under the shifted force, δ around the screen's
-//! estimate, with the material refitted to the shifted forces (`force_channel`).
+//! median frame interval over ±0.3 s (a fixed offset field through the tangent response), and δ
+//! continuous in its small-offset limit f + δ ḟ ([`first_order_variant`]).
+//! Signature: the force still rising in the holds (a late reading, as a lag's), and force delays
+//! at 10 % and 50 % of the ramp that do not grow as a lag's would, beyond their standard error
+//! (a pure time shift). Confirmation: the default model under the shifted force, δ around the
+//! screen's estimate, with the material refitted to the shifted forces (`force_channel`).
 
 use super::Effect;
 use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
 use crate::confirm::Confirmed;
-use crate::screen::{Refit, Variant};
-use crate::signal::{median_dt, sample};
+use crate::screen::{Basis, Refit, Variant};
+use crate::signal::{derivative, median_dt, sample};
 use crate::signatures::Signatures;
 use crate::sim::ProbeSimulator;
 use nalgebra::Vector3;
@@ -23,6 +25,46 @@ pub struct ClockOffset;
 /// Force trace shifted in time, f_eff(t_k) = f(t_k + δ) (linear interpolation, held at the ends).
 pub fn shifted_forces(t: &[f64], f: &[Vector3<f64>], offset_s: f64) -> Vec<Vector3<f64>> {
     t.iter().map(|&tk| sample(t, f, tk + offset_s)).collect()
+}
+
+/// The hold force drift ((last − first)/peak over the holds) above which the force is still
+/// rising in the holds: the reading behind the force (`sensor_lag` reads it the same way).
+pub const RISING_HOLD_DRIFT: f64 = 0.005;
+
+/// The screen's variant of offset δ: the load of f(t + δ) − f(t) through the tangent response.
+fn offset_variant(cx: &Context<'_>, delta: f64) -> Variant {
+    let p = cx.prepared;
+    let (f, t) = (&p.force_n, &p.times_s);
+    let df: Vec<_> = (0..t.len())
+        .map(|k| sample(t, f, t[k] + delta) - f[k])
+        .collect();
+    Variant {
+        fixed: vec![("offset_s", delta)],
+        offset: Some(p.load_field(&df)),
+        bases: vec![],
+    }
+}
+
+/// The offset as a continuous parameter in its small-offset limit: f(t + δ) = f + δ ḟ + O(δ² f̈),
+/// ḟ by central differences — a free-sign linear basis fitted per leave-one-location-out fold
+/// like any other. The interpolated shift of a grid point re-samples the force between frames and
+/// cuts the ramp corners, which a shift shorter than a frame leaves as sharp as they were: on
+/// 50 ms frames a 12 ms offset scored 0.0127 mm held-out at the 10 ms grid point and 0.0120 mm at
+/// the RSS-optimal interpolated offset (10.9 ms by a golden-section search), against 0.0096 mm for
+/// the lag's first-order term τ ḟ on the same session. This is the lag's term without τ ≥ 0 and
+/// the play: below a frame the two screens read the same samples, and the signatures and the
+/// confirmations decide between them, or the verdict is `inconclusive`.
+fn first_order_variant(cx: &Context<'_>) -> Variant {
+    let p = cx.prepared;
+    Variant {
+        fixed: vec![],
+        offset: None,
+        bases: vec![Basis {
+            name: "offset_s",
+            nonneg: false,
+            field: p.load_field(&derivative(&p.times_s, &p.force_n)),
+        }],
+    }
 }
 
 impl Hypothesis for ClockOffset {
@@ -36,35 +78,31 @@ impl Hypothesis for ClockOffset {
 
     fn variants(&self, cx: &Context<'_>) -> Vec<Variant> {
         let p = cx.prepared;
-        let (f, t) = (&p.force_n, &p.times_s);
-        let nt = t.len();
-        let dt_med = {
-            let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-            d.sort_by(f64::total_cmp);
-            d.get(d.len() / 2).copied().unwrap_or(0.03)
-        };
-        let step = (dt_med / 4.0).clamp(1e-3, 0.01);
+        let step = (median_dt(&p.times_s) / 4.0).clamp(1e-3, 0.01);
         let nsteps = (0.3 / step).round() as i64;
-        (-nsteps..=nsteps)
+        let offsets: Vec<f64> = (-nsteps..=nsteps)
             .filter(|&i| i != 0)
             .map(|i| i as f64 * step)
-            .map(|delta| {
-                let df: Vec<_> = (0..nt).map(|k| sample(t, f, t[k] + delta) - f[k]).collect();
-                Variant {
-                    fixed: vec![("offset_s", delta)],
-                    offset: Some(p.load_field(&df)),
-                    bases: vec![],
-                }
-            })
+            .collect();
+        offsets
+            .into_iter()
+            .map(|d| offset_variant(cx, d))
+            .chain([first_order_variant(cx)])
             .collect()
     }
 
+    /// A late reading (δ > 0) still rises into the holds, as a lag's does (the hold force
+    /// drift); a delay that does not grow as a lag's would ([`Signatures::delays_like_a_time_shift`],
+    /// decided against its own standard error) is a time shift's alone.
     fn signature_support(&self, s: &Signatures) -> f64 {
-        if s.delays_like_a_time_shift() {
-            1.0
-        } else {
-            0.0
+        let mut v = 0.0;
+        if s.hold_force_drift > RISING_HOLD_DRIFT {
+            v += 1.0;
         }
+        if s.delays_like_a_time_shift() {
+            v += 1.0;
+        }
+        v
     }
 
     fn confirm(

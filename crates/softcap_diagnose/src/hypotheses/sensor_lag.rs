@@ -62,7 +62,7 @@ impl Hypothesis for SensorLag {
 
     fn signature_support(&self, s: &Signatures) -> f64 {
         let mut v = 0.0;
-        if s.hold_force_drift > 0.005 {
+        if s.hold_force_drift > super::clock_offset::RISING_HOLD_DRIFT {
             v += 1.0;
         } else if s.hold_force_drift < -0.01 {
             v -= 1.0;
