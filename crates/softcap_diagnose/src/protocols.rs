@@ -348,9 +348,19 @@ pub fn next_experiment(
             })
     };
     let (va, vb) = (fitted(a.0, a.1)?, fitted(b.0, b.1)?);
+    let prediction = |cx: &Context<'_>, h: &dyn Hypothesis, fitted: &Variant, r: &Refit| {
+        let Some(v) = h.planning_variant(cx, r) else {
+            return candidate_prediction(&h.variants(cx), fitted, r, cx.prepared);
+        };
+        let planned = Refit {
+            variant: 0,
+            ..r.clone()
+        };
+        predict(&[v], cx.prepared, &planned)
+    };
     let difference = |cx: &Context<'_>, observed: &[Vec<bool>]| {
-        let pa = candidate_prediction(&a.0.variants(cx), &va, a.1, cx.prepared);
-        let pb = candidate_prediction(&b.0.variants(cx), &vb, b.1, cx.prepared);
+        let pa = prediction(cx, a.0, &va, a.1);
+        let pb = prediction(cx, b.0, &vb, b.1);
         rms_difference(&pa, &pb, observed)
     };
     let seen = observed(cx.rec);

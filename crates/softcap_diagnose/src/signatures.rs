@@ -9,7 +9,7 @@ use crate::friction::{indentation_stiffness_n_per_m, sliding_direction};
 use crate::recording::Recording;
 use crate::residual::{Component, Residuals, component, noise_sigma_m, rest_mean};
 use crate::segment::{Location, Phase, Region, Segmentation};
-use crate::signal::crossing_time;
+use crate::signal::{crossing_time, low_pass, sample};
 use nalgebra::{SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -28,10 +28,13 @@ pub struct Signatures {
     /// √L); `None` with fewer than two locations ([`Signatures::delays_like_a_time_shift`]).
     #[serde(default)]
     pub force_delay_growth_se_s: Option<f64>,
-    /// The growth a first-order lag with the measured 50 % delay would show between the same
-    /// crossings ([`lag_delay_growth_s`], mean over the locations), s.
+    /// The growth a first-order lag with the measured 50 % delay would show, measured as the
+    /// data are ([`model_delay_growths`], mean over the locations), s.
     #[serde(default)]
     pub force_delay_growth_lag_s: f64,
+    /// … a clock shifted by the measured 50 % delay, s (0 but for the frames' interpolation).
+    #[serde(default)]
+    pub force_delay_growth_shift_s: f64,
     /// Area of the normalised force–depth loop (0 elastic, > 0 hysteretic).
     pub force_depth_hysteresis: f64,
     /// Area of the normalised (probed-marker displacement along the axis)–depth loop.
@@ -103,12 +106,12 @@ impl Signatures {
     }
 
     /// The force delays of a pure time shift, decided against their own noise: a reading that
-    /// leads the geometry (a 50 % delay below zero, which no lag gives), or a delay that grows
-    /// from 10 % to 50 % of the ramp less than a first-order lag of the same 50 % delay would
-    /// ([`Signatures::force_delay_growth_lag_s`]) by more than [`DELAY_GROWTH_Z`] standard errors
-    /// of the measured growth. A lag much shorter than the ramp's first tenth has nearly
-    /// finished growing at 10 %: its delays are a time shift's, and this abstains (`false`)
-    /// rather than call it one.
+    /// leads the geometry (a 50 % delay below zero, which no lag gives), or a delay growth from
+    /// 10 % to 50 % of the ramp within [`DELAY_GROWTH_Z`] standard errors of a shift's
+    /// ([`Signatures::force_delay_growth_shift_s`]) and below a lag's of the same 50 % delay by
+    /// more than that. A lag much shorter than the ramp's first tenth has nearly finished
+    /// growing at 10 %: its delays are a shift's, and neither this nor
+    /// [`Signatures::delays_like_a_lag`] decides.
     pub fn delays_like_a_time_shift(&self) -> bool {
         let Some(se) = self.force_delay_growth_se_s else {
             return false;
@@ -116,34 +119,75 @@ impl Signatures {
         let growth = self.force_delay_50_s - self.force_delay_10_s;
         self.force_delay_50_s < -DELAY_GROWTH_Z * se
             || (self.force_delay_50_s > 1e-6
+                && growth <= self.force_delay_growth_shift_s + DELAY_GROWTH_Z * se
                 && growth < self.force_delay_growth_lag_s - DELAY_GROWTH_Z * se)
+    }
+
+    /// The force delays of a first-order lag: a growth above a shift's by more than
+    /// [`DELAY_GROWTH_Z`] standard errors and within that of a lag's.
+    pub fn delays_like_a_lag(&self) -> bool {
+        let Some(se) = self.force_delay_growth_se_s else {
+            return false;
+        };
+        let growth = self.force_delay_50_s - self.force_delay_10_s;
+        self.force_delay_50_s > 1e-6
+            && growth > self.force_delay_growth_shift_s + DELAY_GROWTH_Z * se
+            && growth >= self.force_delay_growth_lag_s - DELAY_GROWTH_Z * se
     }
 }
 
 /// How many standard errors of the measured delay growth separate a time shift from a lag
-/// ([`Signatures::delays_like_a_time_shift`]): one-sided, a lag is read as a shift in 2.3 % of
-/// sessions under normal noise — the same rule as the released set's persistence
-/// (`hypotheses::plasticity::PERSISTENCE_Z`), fixed before any verdict was looked at.
+/// ([`Signatures::delays_like_a_time_shift`], [`Signatures::delays_like_a_lag`]): one-sided,
+/// each is misread in 2.3 % of sessions under normal noise — the same rule as the released set's
+/// persistence (`hypotheses::plasticity::PERSISTENCE_Z`), fixed before any verdict was looked at.
 pub const DELAY_GROWTH_Z: f64 = 2.0;
 
-/// The growth of a first-order lag's delay between two points of a linear ramp, s. Under a
-/// ramp started at t = 0 a lag τ reads r (t − τ (1 − e^{−t/τ})): its delay τ (1 − e^{−t/τ})
-/// grows towards τ. With the crossings of the geometry at 10 % and 50 % of a linear ramp
-/// (`a10`, `a50`) the ramp started at a10 − (a50 − a10)/4, so s10 = (a50 − a10)/4 and
-/// s50 = 5 (a50 − a10)/4; τ is the lag whose delay at s50 is `delay_50_s` (fixed point of
-/// τ = d / (1 − e^{−s50/τ})). 0 without a positive delay or ramp.
-pub fn lag_delay_growth_s(a10: f64, a50: f64, delay_50_s: f64) -> f64 {
-    let span = a50 - a10;
-    if span <= 0.0 || delay_50_s <= 0.0 || delay_50_s >= 1.25 * span {
-        return 0.0;
+/// The delay growths (50 % minus 10 % of the ramp) that a clock shift and a first-order lag
+/// would give on one location's ramp, measured as the data are: the geometry signal `geo` read
+/// through a clock shifted by δ (sampled at the frames, linearly interpolated between them) and
+/// through a lag τ (integrated exactly for the piecewise-linear input, `signal::low_pass`),
+/// each with the δ or τ whose 50 % delay is the measured `delay_50_s` (bisection), crossings
+/// found as [`ramp_signatures`] finds them. Under a linear ramp started at t = 0 a lag reads
+/// r (t − τ (1 − e^{−t/τ})): its delay grows towards τ, a shift's is δ throughout; on frames
+/// the interpolation of the crossings adds the same bias to both. `None` without a positive
+/// delay or a crossing.
+fn model_delay_growths(
+    t: &[f64],
+    geo: &[f64],
+    range: std::ops::Range<usize>,
+    delay_50_s: f64,
+) -> Option<(f64, f64)> {
+    if delay_50_s <= 0.0 {
+        return None;
     }
-    let (s10, s50) = (0.25 * span, 1.25 * span);
-    let mut tau = delay_50_s;
-    for _ in 0..50 {
-        tau = delay_50_s / (1.0 - (-s50 / tau).exp());
-    }
-    let delay = |s: f64| tau * (1.0 - (-s / tau).exp());
-    delay(s50) - delay(s10)
+    let (t, geo) = (&t[range.clone()], &geo[range]);
+    let g3: Vec<Vector3<f64>> = geo.iter().map(|&g| Vector3::new(g, 0.0, 0.0)).collect();
+    let delays = |reading: &[f64]| -> Option<(f64, f64)> {
+        let n = t.len();
+        let (gmax, rmax) = (
+            geo.iter().cloned().fold(0.0, f64::max),
+            reading.iter().cloned().fold(0.0, f64::max),
+        );
+        let at = |v: &[f64], level: f64| crossing_time(t, v, level, 0..n);
+        Some((
+            at(reading, 0.1 * rmax)? - at(geo, 0.1 * gmax)?,
+            at(reading, 0.5 * rmax)? - at(geo, 0.5 * gmax)?,
+        ))
+    };
+    let shifted = |d: f64| -> Vec<f64> { t.iter().map(|&tk| sample(t, &g3, tk - d).x).collect() };
+    let lagged = |tau: f64| -> Vec<f64> { low_pass(t, &g3, tau).iter().map(|v| v.x).collect() };
+    let growth = |read: &dyn Fn(f64) -> Vec<f64>| -> Option<f64> {
+        let (mut lo, mut hi) = (0.0, 4.0 * delay_50_s);
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            match delays(&read(mid)) {
+                Some((_, d50)) if d50 < delay_50_s => lo = mid,
+                _ => hi = mid,
+            }
+        }
+        delays(&read(0.5 * (lo + hi))).map(|(d10, d50)| d50 - d10)
+    };
+    Some((growth(&shifted)?, growth(&lagged)?))
 }
 
 fn loop_area(x: &[f64], y: &[f64]) -> f64 {
@@ -188,7 +232,7 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
     let (mut drift, mut nd) = (0.0, 0);
     let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
-    let (mut growths, mut lag_growth) = (Vec::new(), 0.0);
+    let (mut growths, mut shift_growth, mut lag_growth, mut nmodel) = (Vec::new(), 0.0, 0.0, 0);
     let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
     for l in &seg.locations {
         if let Some(d) = hold_drift(seg, l, &fmag) {
@@ -202,7 +246,11 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
             d10 += d.delay_10_s;
             d50 += d.delay_50_s;
             growths.push(d.delay_50_s - d.delay_10_s);
-            lag_growth += lag_delay_growth_s(d.geometry_10_s, d.geometry_50_s, d.delay_50_s);
+            if let Some((shift, lag)) = d.model_growths_s {
+                shift_growth += shift;
+                lag_growth += lag;
+                nmodel += 1;
+            }
             ndel += 1;
         }
         fh += ramp.force_loop;
@@ -215,7 +263,10 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     if ndel > 0 {
         s.force_delay_10_s = d10 / ndel as f64;
         s.force_delay_50_s = d50 / ndel as f64;
-        s.force_delay_growth_lag_s = lag_growth / ndel as f64;
+    }
+    if nmodel > 0 {
+        s.force_delay_growth_shift_s = shift_growth / nmodel as f64;
+        s.force_delay_growth_lag_s = lag_growth / nmodel as f64;
     }
     if growths.len() >= 2 {
         s.force_delay_growth_se_s = Some(mean_sd(&growths).1 / (growths.len() as f64).sqrt());
@@ -239,10 +290,9 @@ struct Delays {
     delay_10_s: f64,
     /// … at 50 %, s.
     delay_50_s: f64,
-    /// The geometry's crossing time at 10 % of its peak, s.
-    geometry_10_s: f64,
-    /// … at 50 %, s.
-    geometry_50_s: f64,
+    /// The growths a clock shift and a lag of the same 50 % delay would give
+    /// ([`model_delay_growths`]), s.
+    model_growths_s: Option<(f64, f64)>,
 }
 
 /// What one location's contact run says about the force channel.
@@ -294,8 +344,7 @@ fn ramp_signatures(
         (Some(a10), Some(b10), Some(a50), Some(b50)) => Some(Delays {
             delay_10_s: b10 - a10,
             delay_50_s: b50 - a50,
-            geometry_10_s: a10,
-            geometry_50_s: a50,
+            model_growths_s: model_delay_growths(t, &geo, start..end, b50 - a50),
         }),
         _ => None,
     };
@@ -937,6 +986,31 @@ mod tests {
             .collect();
         let (a, _) = in_plane_ellipse(&rec, &seg, &isotropic);
         assert!(a < 1e-3 * amplitude, "{a}");
+    }
+
+    /// On a linear ramp (0.5 s, 10 ms frames, starting at 0.1 s) a shift's delay does not grow
+    /// and a lag's grows as τ (1 − e^{−s/τ}) between s10 = 50 ms and s50 = 250 ms; both models
+    /// are set to the measured 50 % delay of 40 ms.
+    #[test]
+    fn model_delay_growths_tell_a_shift_from_a_lag() {
+        let t: Vec<f64> = (0..100).map(|k| 0.01 * k as f64).collect();
+        let geo: Vec<f64> = t
+            .iter()
+            .map(|&x| ((x - 0.1) / 0.5).clamp(0.0, 1.0))
+            .collect();
+        let (shift, lag) = model_delay_growths(&t, &geo, 0..100, 0.04).unwrap();
+        assert!(shift.abs() < 1e-3, "{shift}");
+        // the lag τ with τ (1 − e^{−0.25/τ}) = 0.04, then its delay at 0.25 s minus at 0.05 s
+        let mut tau: f64 = 0.04;
+        for _ in 0..50 {
+            tau = 0.04 / (1.0 - (-0.25 / tau).exp());
+        }
+        let expected = tau * ((-0.05 / tau).exp() - (-0.25 / tau).exp());
+        assert!(
+            (lag - expected).abs() < 0.1 * expected,
+            "{lag} vs {expected}"
+        );
+        assert!(model_delay_growths(&t, &geo, 0..100, -0.01).is_none());
     }
 
     #[test]

@@ -13,7 +13,7 @@ use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
 use crate::confirm::Confirmed;
-use crate::screen::{Basis, Refit, Variant};
+use crate::screen::{Basis, FrameStats, Refit, Variant, bounded_least_squares};
 use crate::signal::{derivative, median_dt, sample};
 use crate::signatures::Signatures;
 use crate::sim::ProbeSimulator;
@@ -53,10 +53,13 @@ fn offset_variant(cx: &Context<'_>, delta: f64) -> Variant {
 /// the RSS-optimal interpolated offset (10.9 ms by a golden-section search), against 0.0096 mm for
 /// the lag's first-order term τ ḟ on the same session. This is the lag's term without τ ≥ 0 and
 /// the play: below a frame the two screens read the same samples, and the signatures and the
-/// confirmations decide between them, or the verdict is `inconclusive`.
-fn first_order_variant(cx: &Context<'_>) -> Variant {
+/// confirmations decide between them, or the verdict is `inconclusive`. The limit holds only
+/// below half a frame: `None` when δ fitted on all observations is longer (the grid resolves
+/// such an offset, and a longer lag's first-order term would pass for one: a 120 ms lag's
+/// screen, τ ḟ, is this field at δ = τ).
+fn first_order_variant(cx: &Context<'_>) -> Option<Variant> {
     let p = cx.prepared;
-    Variant {
+    let v = Variant {
         fixed: vec![],
         offset: None,
         bases: vec![Basis {
@@ -64,7 +67,10 @@ fn first_order_variant(cx: &Context<'_>) -> Variant {
             nonneg: false,
             field: p.load_field(&derivative(&p.times_s, &p.force_n)),
         }],
-    }
+    };
+    let (g, h, _, _) = FrameStats::new(cx.rec, p, &v).sum(|_| true);
+    let delta = bounded_least_squares(&g, &h, &[false]);
+    (delta.len() == 1 && delta[0].abs() < 0.5 * median_dt(&p.times_s)).then_some(v)
 }
 
 impl Hypothesis for ClockOffset {
@@ -87,13 +93,14 @@ impl Hypothesis for ClockOffset {
         offsets
             .into_iter()
             .map(|d| offset_variant(cx, d))
-            .chain([first_order_variant(cx)])
+            .chain(first_order_variant(cx))
             .collect()
     }
 
     /// A late reading (δ > 0) still rises into the holds, as a lag's does (the hold force
     /// drift); a delay that does not grow as a lag's would ([`Signatures::delays_like_a_time_shift`],
-    /// decided against its own standard error) is a time shift's alone.
+    /// decided against its own standard error) is a time shift's alone, one that grows as a
+    /// lag's ([`Signatures::delays_like_a_lag`]) contradicts it.
     fn signature_support(&self, s: &Signatures) -> f64 {
         let mut v = 0.0;
         if s.hold_force_drift > RISING_HOLD_DRIFT {
@@ -101,8 +108,16 @@ impl Hypothesis for ClockOffset {
         }
         if s.delays_like_a_time_shift() {
             v += 1.0;
+        } else if s.delays_like_a_lag() {
+            v -= 1.0;
         }
         v
+    }
+
+    /// The shifted force itself, f(t + δ) at the fitted δ: below a frame the screen's f + δ ḟ
+    /// is the lag's first-order term, and only the shift tells them apart under another program.
+    fn planning_variant(&self, cx: &Context<'_>, refit: &Refit) -> Option<Variant> {
+        param(&refit.params, "offset_s").map(|d| offset_variant(cx, d))
     }
 
     fn confirm(

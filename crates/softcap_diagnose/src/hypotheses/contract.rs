@@ -94,6 +94,16 @@ pub trait Hypothesis: Sync {
         None
     }
 
+    /// Its fitted extension planned under another probing protocol
+    /// ([`crate::protocols::next_experiment`]), for an entry whose screen is only a first-order
+    /// limit of the model its confirmation re-simulates: that model's load on `cx` (the planned
+    /// program) with the screen's fitted parameters `refit`, as a variant without bases. `None`
+    /// (default): the screen's own variant with its fitted parameters.
+    fn planning_variant(&self, cx: &Context<'_>, refit: &Refit) -> Option<Variant> {
+        let _ = (cx, refit);
+        None
+    }
+
     /// Confirms it by re-simulating its extended model over the recording, leave-one-location-out,
     /// scored on `scored(k, m)`; `refit` is its screen. `Ok(None)` when it has no extended model
     /// to re-simulate here (the verdict then rests on the screen).

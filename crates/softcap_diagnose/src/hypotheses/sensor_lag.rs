@@ -69,8 +69,27 @@ impl Hypothesis for SensorLag {
         }
         if s.delays_like_a_time_shift() {
             v -= 0.5;
+        } else if s.delays_like_a_lag() {
+            v += 0.5;
         }
         v
+    }
+
+    /// The true force behind the reading through the inverse FSR chain
+    /// ([`crate::sensor::true_forces`]) at the fitted τ and play: the lag's exponential approach
+    /// after a ramp's corner, which its first-order screen term τ ḟ (a time shift's) leaves out.
+    fn planning_variant(&self, cx: &Context<'_>, refit: &Refit) -> Option<Variant> {
+        let p = cx.prepared;
+        let tau_s = param(&refit.params, "tau_s")?;
+        let h = param(&refit.params, "hysteresis").unwrap_or(0.0);
+        let axes: Vec<Vector3<f64>> = cx.rec.frames.iter().map(|f| f.axis).collect();
+        let f = crate::sensor::true_forces(&p.times_s, &p.force_n, &axes, tau_s, h);
+        let df: Vec<Vector3<f64>> = f.iter().zip(&p.force_n).map(|(a, b)| a - b).collect();
+        Some(Variant {
+            fixed: vec![],
+            offset: Some(p.load_field(&df)),
+            bases: vec![],
+        })
     }
 
     fn confirm(
