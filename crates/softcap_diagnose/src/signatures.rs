@@ -29,7 +29,7 @@ pub struct Signatures {
     #[serde(default)]
     pub force_delay_growth_se_s: Option<f64>,
     /// The growth a first-order lag with the measured 50 % delay would show, measured as the
-    /// data are ([`model_delay_growths`], mean over the locations), s.
+    /// data are (`model_delay_growths`, mean over the locations), s.
     #[serde(default)]
     pub force_delay_growth_lag_s: f64,
     /// … a clock shifted by the measured 50 % delay, s (0 but for the frames' interpolation).

@@ -2,7 +2,7 @@
 //!
 //! Screen: the force trace shifted in time, f_eff(t) = f(t + δ), δ on a grid of a quarter of the
 //! median frame interval over ±0.3 s (a fixed offset field through the tangent response), and δ
-//! continuous in its small-offset limit f + δ ḟ ([`first_order_variant`]).
+//! continuous in its small-offset limit f + δ ḟ (`first_order_variant`).
 //! Signature: the force still rising in the holds (a late reading, as a lag's), and force delays
 //! at 10 % and 50 % of the ramp that do not grow as a lag's would, beyond their standard error
 //! (a pure time shift). Confirmation: the default model under the shifted force, δ around the

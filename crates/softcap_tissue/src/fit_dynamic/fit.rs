@@ -512,7 +512,7 @@ const FD_NEWTON_TOLERANCE: f64 = 1e-8;
 ///   (s²(JᵀJ)⁻¹, s² = ‖r*‖²/(m − n)) by up to τ √(m − n), reached when the column errors
 ///   follow the residuals — both are smooth in time along a segment (r* carries the noise of
 ///   the start state each segment is simulated from). Kept below a tenth of the δ = 0.3 σ the
-///   p-step resolves ([`LM_TOLERANCES`]): τ ≤ δ / (10 √(m − n)), 2.5·10⁻⁵ for the 1.4·10⁶
+///   p-step resolves (`LM_TOLERANCES`): τ ≤ δ / (10 √(m − n)), 2.5·10⁻⁵ for the 1.4·10⁶
 ///   residuals of the 2k bench; 10⁻⁵ holds up to 9·10⁶.
 ///
 /// At τ = 10⁻³ the 2k bench's steps took 5.4 sensitivity iterations instead of 8.7, but its
