@@ -1921,6 +1921,53 @@ mod tests {
         forward_with(s, &FitDynamicSettings::default().forward)
     }
 
+    /// The Jacobian tests' inputs on the small bar: its forward simulation (default settings),
+    /// one control point and the template as the static shape.
+    struct BarProblem {
+        forward: Forward,
+        weights: Vec<Vec<f64>>,
+        static_m: Vec<Vector3<f64>>,
+    }
+
+    impl BarProblem {
+        /// The log-parameters (ln E, ln α, ln β) the Jacobian tests linearize at.
+        fn q() -> Vec<f64> {
+            vec![4.0e5f64.ln(), 0.8f64.ln(), 1.0e-3f64.ln()]
+        }
+
+        fn new(s: &Synthetic) -> Self {
+            Self {
+                forward: forward(s),
+                weights: vec![vec![1.0]; s.template.tets.len()],
+                static_m: s.template.vertices.clone(),
+            }
+        }
+
+        /// The problem on `forward` (the rest shape re-solved per E).
+        fn problem<'a>(&'a self, forward: &'a Forward) -> Problem<'a> {
+            let mut problem = Problem::new(forward, &self.weights, 0.45);
+            problem.static_m = Some(&self.static_m);
+            problem
+        }
+    }
+
+    /// Central differences (a − b)/2h of `f` along coordinate `k` of `x`, step `h`.
+    fn central_column(
+        x: &[f64],
+        k: usize,
+        h: f64,
+        mut f: impl FnMut(&[f64]) -> Vec<f64>,
+    ) -> nalgebra::DVector<f64> {
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[k] += h;
+        xm[k] -= h;
+        let (a, b) = (f(&xp), f(&xm));
+        nalgebra::DVector::from_iterator(
+            a.len(),
+            a.iter().zip(&b).map(|(a, b)| (a - b) / (2.0 * h)),
+        )
+    }
+
     /// The simulation of `s`'s segments (the default segmentation), every node observed, with
     /// `settings`.
     fn forward_with(s: &Synthetic, settings: &ForwardSettings) -> Forward {
@@ -2012,13 +2059,10 @@ mod tests {
     #[test]
     fn sensitivity_jacobian_matches_central_differences() {
         let s = bar();
-        let forward = forward(&s);
-        let weights = vec![vec![1.0]; s.template.tets.len()];
-        let static_m = s.template.vertices.clone();
-        let mut problem = Problem::new(&forward, &weights, 0.45);
-        problem.static_m = Some(&static_m);
+        let bar = BarProblem::new(&s);
+        let mut problem = bar.problem(&bar.forward);
         problem.sensitivities = true;
-        let q = vec![4.0e5f64.ln(), 0.8f64.ln(), 1.0e-3f64.ln()];
+        let q = BarProblem::q();
         let r0 = problem.eval(&q);
         let m = r0.len();
         let mut js = DMatrix::<f64>::zeros(m, 3);
@@ -2026,7 +2070,7 @@ mod tests {
         let tight = Forward::new(
             &s.template,
             &s.sequence,
-            forward.segments().to_vec(),
+            bar.forward.segments().to_vec(),
             vec![true; s.template.vertices.len()],
             &ForwardSettings {
                 newton_tolerance: 1e-11,
@@ -2035,19 +2079,10 @@ mod tests {
             },
         )
         .unwrap();
-        let mut reference = Problem::new(&tight, &weights, 0.45);
-        reference.static_m = Some(&static_m);
-        let h = 1e-3;
+        let mut reference = bar.problem(&tight);
         let mut jfd = DMatrix::<f64>::zeros(m, 3);
         for k in 0..3 {
-            let mut qp = q.clone();
-            let mut qm = q.clone();
-            qp[k] += h;
-            qm[k] -= h;
-            let (rp, rm) = (reference.eval(&qp), reference.eval(&qm));
-            for (i, (a, b)) in rp.iter().zip(&rm).enumerate() {
-                jfd[(i, k)] = (a - b) / (2.0 * h);
-            }
+            jfd.set_column(k, &central_column(&q, k, 1e-3, |q| reference.eval(q)));
             let fd = jfd.column(k);
             let miss = (js.column(k) - fd).norm() / fd.norm();
             let bound = STOP_SHIFT_SIGMAS / ((m - 3) as f64).sqrt();
@@ -2080,14 +2115,11 @@ mod tests {
     #[test]
     fn linear_damping_jacobian_is_the_chain_rule_of_the_log_one() {
         let s = bar();
-        let forward = forward(&s);
-        let weights = vec![vec![1.0]; s.template.tets.len()];
-        let static_m = s.template.vertices.clone();
-        let mut problem = Problem::new(&forward, &weights, 0.45);
-        problem.static_m = Some(&static_m);
+        let bar = BarProblem::new(&s);
+        let mut problem = bar.problem(&bar.forward);
         problem.sensitivities = true;
         problem.with_sensitivities = true;
-        let q = vec![4.0e5f64.ln(), 0.8f64.ln(), 1.0e-3f64.ln()];
+        let q = BarProblem::q();
         let mut lm = LinearDamping {
             damping: Some(([1, 2], [0.65f64.ln(), 0.85e-3f64.ln()])),
             problem: &mut problem,
@@ -2099,18 +2131,12 @@ mod tests {
         let m = lm.num_residuals();
         let mut j = DMatrix::<f64>::zeros(m, 3);
         assert!(lm.jacobian(&z, &mut j));
-        let h = 1e-3;
         for k in 1..3 {
-            let (mut zp, mut zm) = (z.clone(), z.clone());
-            zp[k] += h;
-            zm[k] -= h;
-            let (mut rp, mut rm) = (vec![0.0; m], vec![0.0; m]);
-            lm.residuals(&zp, &mut rp);
-            lm.residuals(&zm, &mut rm);
-            let fd = nalgebra::DVector::from_iterator(
-                m,
-                rp.iter().zip(&rm).map(|(a, b)| (a - b) / (2.0 * h)),
-            );
+            let fd = central_column(&z, k, 1e-3, |z| {
+                let mut r = vec![0.0; m];
+                lm.residuals(z, &mut r);
+                r
+            });
             let miss = (j.column(k) - &fd).norm() / fd.norm();
             eprintln!("column {k}: miss {miss:.2e}");
             assert!(fd.norm() > 0.0 && miss < 1e-2, "column {k}: {miss:.3e}");
