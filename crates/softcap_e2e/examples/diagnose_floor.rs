@@ -27,7 +27,7 @@
 //!   (the capture's error: `softcap synth` the same scenario to DIR first);
 //! - `FLOOR_MU=0.5,0.8,...` instead of the above, the frictional rigid-tip replay
 //!   (`Extension::ProbeFriction`) at each μ on the refined template (`FLOOR_LOCAL=F[:S]`: locally,
-//!   as `SOFTCAP_SUITE_REFINE=local:F:S`), each location's RMS on the probe-friction effect cells
+//!   as `SOFTCAP_SUITE_REFINE=local:F:S`, also for the refined models c / d), each location's RMS on the probe-friction effect cells
 //!   (`spatial::effect_mask`) at compliance 1, split by phase and normal / tangential component
 //!   (docs/diagnose.md, "Session 12 (fric)"); `FLOOR_FRAMES=1` adds per contact frame the scored
 //!   markers' mean measured and simulated displacement along the location's tangential travel;
@@ -404,10 +404,25 @@ fn main() {
     }
     if which.contains('c') || which.contains('d') {
         let levels: usize = env("FLOOR_LEVELS").map_or(1, |v| v.parse().unwrap());
-        let mut fine = sim.refined().unwrap();
+        let r = &sim.settings().refinement;
+        let mut fine = if r.local {
+            // FLOOR_LOCAL: inside the touched balls only, as the diagnosis' refined replays
+            let balls: Vec<_> = softcap_diagnose::cells::touched_balls(&rec, &seg)
+                .into_iter()
+                .map(|b| softcap_mesh::RefineBall {
+                    radius_m: b.radius_m * r.radius_scale,
+                    ..b
+                })
+                .collect();
+            sim.refined_near(&balls, r.edge_fraction * sim.longest_edge_m(), r.max_tets)
+                .unwrap()
+        } else {
+            sim.refined().unwrap()
+        };
         for _ in 1..levels {
             fine = fine.refined().unwrap();
         }
+        println!("FLOOR refined mesh: {} tets", fine.setup().mesh.tets.len());
         if which.contains('c') {
             run(&format!("refined x{levels}, force BC"), &fine, false);
         }
