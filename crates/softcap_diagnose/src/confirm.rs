@@ -20,6 +20,10 @@
 //!    forces of a force-channel hypothesis, `crate::hypotheses::sensor_lag`);
 //! 3. score it on l's `scored` observations (the affected cells) and on all of l's observations.
 //!
+//! When a candidate's own parameters must be refitted with the extension in place before it can
+//! be judged ([`lolo_confirm_each_refitted`]: the support springs and the material), every
+//! candidate is refitted per training set and step 1 chooses between the refitted candidates.
+//!
 //! The full-data choice (nothing held out) is the extended model's prediction and parameters.
 
 use crate::Result;
@@ -115,6 +119,169 @@ impl Sums {
 /// locations and of the full data are independent: [`lolo_confirm`] runs them in parallel
 /// (hence `Fn + Sync`).
 pub type RefitFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Field>> + Sync + 'a;
+
+/// A candidate refitted on one training set ([`lolo_confirm_each_refitted`]).
+pub struct Refitted {
+    /// Markers per frame of the refitted candidate, m.
+    pub prediction: Field,
+    /// The refitted parameters (named).
+    pub params: Vec<(String, f64)>,
+}
+
+/// The refit closure of [`lolo_confirm_each_refitted`]: `(candidate index, held-out location or
+/// None for the full data) -> that candidate with its parameters refitted without the held-out
+/// location`; `Ok(None)` when it cannot be refitted there (it is then not offered to that
+/// selection). Independent refits, run in parallel (hence `Fn + Sync`).
+pub type RefitEachFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Refitted>> + Sync + 'a;
+
+/// One candidate of [`lolo_confirm_each_refitted`] on its own (not selected): its full-data
+/// refit's parameters and scored RMS over the locations (in-sample), and its held-out scored
+/// RMS (each location predicted by its refit without that location), m; NaN where a refit
+/// declined.
+#[derive(Clone, Debug)]
+pub struct RefittedScore {
+    /// The candidate's parameters, then its full-data refit's.
+    pub params: Vec<(String, f64)>,
+    /// In-sample scored RMS of the full-data refit, m.
+    pub in_sample_m: f64,
+    /// Held-out scored RMS, m.
+    pub heldout_m: f64,
+}
+
+/// Leave-one-location-out in which EVERY candidate is refitted on every training set (the
+/// material of an extended model refitted with the extension in place,
+/// `crate::hypotheses::support_slip`): per held-out location l, each candidate i refitted
+/// without l (`refit(i, Some(l))`); the refitted candidate with the least squared error on the
+/// training observations (every observation outside l: the other locations and the rest frames;
+/// with `train_on_scored` the other locations' scored ones, and the held-out "all" number over
+/// the scored ones too) predicts l, scored on l's `scored` observations and on all of them; the
+/// full data's choice (`refit(i, None)`, nothing held out) is the extended model and its
+/// parameters. Unlike the refit closure of [`lolo_confirm`] — which refits only the candidate
+/// the unrefitted selection (with the compliance scale) chose — the choice is made between the
+/// refitted candidates, so no candidate is judged on the material a fit without the extension
+/// gave. No compliance scale: the refit replaces it. The `candidates × (locations + 1)` refits
+/// run in parallel (taken in order: the first error decides). Returns the confirmation (`None`
+/// without candidates or when some selection has no refitted candidate) and every candidate's
+/// [`RefittedScore`].
+pub fn lolo_confirm_each_refitted(
+    params: &[Vec<(String, f64)>],
+    rec: &Recording,
+    seg: &Segmentation,
+    scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
+    refit: &RefitEachFn<'_>,
+    method: String,
+) -> Result<(Option<Confirmed>, Vec<RefittedScore>)> {
+    use rayon::prelude::*;
+    let nf = seg.num_folds();
+    let jobs: Vec<(usize, Option<usize>)> = (0..params.len())
+        .flat_map(|i| (0..nf).map(Some).chain([None]).map(move |skip| (i, skip)))
+        .collect();
+    // Per job: the refit and its sums per bucket (the folds, then the rest frames).
+    let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
+    let refits: Vec<Result<Option<Refitted>>> =
+        jobs.par_iter().map(|&(i, skip)| refit(i, skip)).collect();
+    let sums = |r: Refitted| {
+        let (mut all, mut sc) = (vec![Sums::default(); nf + 1], vec![Sums::default(); nf + 1]);
+        for (k, f) in rec.frames.iter().enumerate() {
+            for (m, y) in f.markers_m.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let o = Sums {
+                    c: (y - r.prediction[k][m]).norm_squared(),
+                    n: 1,
+                    ..Sums::default()
+                };
+                let is_scored = seg.fold_of_frame[k].is_some() && scored(k, m);
+                if !train_on_scored || is_scored {
+                    all[bucket(k)].add(&o);
+                }
+                if is_scored {
+                    sc[bucket(k)].add(&o);
+                }
+            }
+        }
+        (r, all, sc)
+    };
+    let mut fits = Vec::with_capacity(refits.len());
+    for r in refits {
+        fits.push(r?.map(sums));
+    }
+    // fits[i * (nf + 1) + l]: candidate i without location l (l = nf: the full data)
+    let fit = |i: usize, l: usize| fits[i * (nf + 1) + l].as_ref();
+    let training = |i: usize, l: usize| {
+        fit(i, l).map(|(_, all, _)| {
+            all.iter()
+                .enumerate()
+                .filter(|&(b, _)| b != l)
+                .map(|(_, s)| s.c)
+                .sum::<f64>()
+        })
+    };
+    let choose = |l: usize| {
+        (0..params.len())
+            .filter_map(|i| training(i, l).map(|e| (i, e)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+    };
+    // every candidate on its own: held out per location, and its full-data refit in sample
+    let rms = |e: f64, n: usize| (e / n.max(1) as f64).sqrt();
+    let scores = (0..params.len())
+        .map(|i| {
+            let heldout = (0..nf).map(|l| fit(i, l).map(|(_, _, sc)| (sc[l].c, sc[l].n)));
+            let (e, n) = heldout.fold((0.0, 0), |(e, n), x| match x {
+                Some((c, k)) => (e + c, n + k),
+                None => (f64::NAN, n),
+            });
+            let mut params = params[i].clone();
+            let in_sample_m = match fit(i, nf) {
+                Some((r, _, sc)) => {
+                    params.extend(r.params.iter().cloned());
+                    let sc = &sc[..nf];
+                    rms(sc.iter().map(|s| s.c).sum(), sc.iter().map(|s| s.n).sum())
+                }
+                None => f64::NAN,
+            };
+            RefittedScore {
+                params,
+                in_sample_m,
+                heldout_m: rms(e, n),
+            }
+        })
+        .collect();
+    let mut choices = Vec::with_capacity(nf + 1);
+    for l in 0..=nf {
+        let Some(i) = choose(l) else {
+            return Ok((None, scores));
+        };
+        choices.push(i);
+    }
+    let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    let (mut fold_rss_m2, mut fold_n) = (Vec::with_capacity(nf), Vec::with_capacity(nf));
+    for (l, &i) in choices[..nf].iter().enumerate() {
+        let (_, all, sc) = fit(i, l).expect("chosen among the refitted");
+        e_sc += sc[l].c;
+        n_sc += sc[l].n;
+        e_all += all[l].c;
+        n_all += all[l].n;
+        fold_rss_m2.push(sc[l].c);
+        fold_n.push(sc[l].n);
+    }
+    let i = choices[nf];
+    let (full, _, _) = fit(i, nf).expect("chosen among the refitted");
+    let mut chosen = params[i].clone();
+    chosen.extend(full.params.iter().cloned());
+    let confirmed = Confirmed {
+        after_scored_m: rms(e_sc, n_sc),
+        after_all_m: rms(e_all, n_all),
+        params: chosen,
+        prediction: full.prediction.clone(),
+        method,
+        fold_rss_m2,
+        fold_n,
+        force: None,
+    };
+    Ok((Some(confirmed), scores))
+}
 
 /// Which candidates a selection may choose: `eligible(candidate, held-out fold)` (`None`: the
 /// full-data choice). A candidate whose very existence was decided with the data of a fold (a
@@ -625,6 +792,74 @@ mod tests {
         let want = (e / n as f64).sqrt();
         assert!((c.after_all_m - want).abs() < 1e-12 * want.max(1e-9) + 1e-18);
         assert!((c.params[1].1 - 1.5).abs() < 1e-12);
+    }
+
+    /// Every candidate refitted per training set: a refit of candidate 0 reproduces the data
+    /// (rest + 2u) and candidate 1's the wrong shape; each selection takes the better refitted
+    /// one, and a refit that declines for location 0 leaves that location to candidate 1 only
+    /// (held-out error there, none elsewhere), while the full data still chooses candidate 0 with
+    /// its refitted parameters.
+    #[test]
+    fn each_candidate_refitted_per_training_set() {
+        let (rec, seg, p, cands) = toy();
+        let names: Vec<Vec<(String, f64)>> = cands.iter().map(|c| c.params.clone()).collect();
+        let twice = |i: usize| -> Field {
+            cands[i]
+                .prediction
+                .iter()
+                .map(|row| {
+                    row.iter()
+                        .zip(&p.rest_model_m)
+                        .map(|(x, r)| r + (x - r) * 2.0)
+                        .collect()
+                })
+                .collect()
+        };
+        let calls = std::sync::Mutex::new(Vec::new());
+        let refit = |decline: Option<usize>| {
+            move |i: usize, skip: Option<usize>| -> Result<Option<Refitted>> {
+                calls.lock().unwrap().push((i, skip));
+                if i == 0 && skip.is_some() && skip == decline {
+                    return Ok(None);
+                }
+                Ok(Some(Refitted {
+                    prediction: twice(i),
+                    params: vec![("scale".into(), 2.0 + i as f64)],
+                }))
+            }
+        };
+        let scored = |_: usize, _: usize| true;
+        let run = |decline| {
+            lolo_confirm_each_refitted(
+                &names,
+                &rec,
+                &seg,
+                &scored,
+                false,
+                &refit(decline),
+                "toy".into(),
+            )
+            .unwrap()
+        };
+        let (c, scores) = run(None);
+        let c = c.unwrap();
+        assert!(c.after_scored_m < 1e-12, "{}", c.after_scored_m);
+        assert_eq!(
+            c.params,
+            vec![("a".to_string(), 1.0), ("scale".to_string(), 2.0)]
+        );
+        // two candidates × (two locations + the full data)
+        let mut calls_made = std::mem::take(&mut *calls.lock().unwrap());
+        calls_made.sort_unstable();
+        assert_eq!(calls_made.len(), 6);
+        assert!(scores[0].heldout_m < 1e-12 && scores[0].in_sample_m < 1e-12);
+        assert!(scores[1].heldout_m > 1e-5, "{}", scores[1].heldout_m);
+        let (c, scores) = run(Some(0));
+        let c = c.unwrap();
+        assert!(c.fold_rss_m2[0] > 1e-12, "{:?}", c.fold_rss_m2);
+        assert!(c.fold_rss_m2[1] < 1e-20, "{:?}", c.fold_rss_m2);
+        assert_eq!(c.params[1], ("scale".to_string(), 2.0));
+        assert!(scores[0].heldout_m.is_nan());
     }
 
     #[test]

@@ -1,11 +1,13 @@
 //! The average-fit homogeneous linear corotational model of bickel2009 §6 (Fig. 8 baseline):
-//! one (E, ν) for every tet and every example, by Levenberg–Marquardt over (ln E, ν).
+//! one (E, ν) for every tet and every example, by Levenberg–Marquardt over (ln E, ν) — with the
+//! attached nodes fixed ([`fit_homogeneous`]) or with the attached face on a support plane with
+//! tangential springs ([`fit_homogeneous_on_support`]).
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
-    CorotationalModel, EquilibriumReport, EquilibriumSettings, FemError, LinearParams, Sensitivity,
-    StaticSolver, StiffnessKind,
+    CorotationalModel, EquilibriumReport, EquilibriumSettings, FemError, LinearParams, NodalSolver,
+    Sensitivity, StaticSolver, StiffnessKind, SupportPlane,
 };
 
 use crate::setup::{marker_residuals, rms_of};
@@ -74,12 +76,28 @@ pub struct HomogeneousFit {
     pub iterations: usize,
 }
 
+/// How the examples are simulated: the attached nodes fixed (the default model), or the
+/// attached face on a support plane (`SupportPlane`: bilateral normal penalty, its tangential
+/// law) with no node fixed.
+enum Boundary {
+    Fixed(StaticSolver),
+    Support {
+        solver: NodalSolver,
+        plane: SupportPlane,
+    },
+}
+
+/// Forward-difference step in (ln E, ν) of the Jacobian on a support plane: 10⁻⁴ changes the
+/// displacements by ~10⁻⁴ of themselves, far above the equilibrium tolerance (10⁻⁹ of the
+/// length scale) and small enough that the curvature in (ln E, ν) is negligible for LM.
+const SUPPORT_FD_STEP: f64 = 1e-4;
+
 struct HomogeneousProblem<'a> {
     setup: &'a ProbingSetup,
     examples: &'a [ProbeExample],
     forces: Vec<Vec<Vector3<f64>>>,
     warm: Vec<Vec<Vector3<f64>>>,
-    solver: StaticSolver,
+    boundary: Boundary,
     model: CorotationalModel,
     young_ref: f64,
     settings: &'a HomogeneousFitSettings,
@@ -100,39 +118,47 @@ impl HomogeneousProblem<'_> {
         let mut row0 = 0;
         for (k, ex) in self.examples.iter().enumerate() {
             let mut x = self.warm[k].clone();
-            let ok = simulate_params(
-                self.setup,
-                &mut self.solver,
-                &mut self.model,
-                &vec![p; t],
-                &self.forces[k],
-                &mut x,
-                &self.settings.equilibrium,
-            )
+            let ok = match &mut self.boundary {
+                Boundary::Fixed(solver) => simulate_params(
+                    self.setup,
+                    solver,
+                    &mut self.model,
+                    &vec![p; t],
+                    &self.forces[k],
+                    &mut x,
+                    &self.settings.equilibrium,
+                ),
+                Boundary::Support { solver, plane } => {
+                    self.model.set_params(&vec![p; t]).map(|()| {
+                        solver.solve(
+                            &mut self.model,
+                            &mut x,
+                            &self.forces[k],
+                            &mut [plane],
+                            &self.settings.equilibrium,
+                        )
+                    })
+                }
+            }
             .map(|rep| rep.converged())
             .unwrap_or(false);
             let rk = marker_residuals(self.setup, ex, &x);
             for (i, v) in rk.iter().enumerate() {
                 r[row0 + i] = if ok { *v } else { f64::NAN };
             }
-            if let Some(j) = jac.as_deref_mut() {
+            if let (Some(j), Boundary::Fixed(solver)) = (jac.as_deref_mut(), &mut self.boundary) {
                 // Forward sensitivities (appendix eq. 11) along "every λ_e" and "every α_e": two
                 // solves per example instead of one adjoint solve per marker coordinate.
-                let columns = Sensitivity::new(
-                    &mut self.solver,
-                    &self.model,
-                    &x,
-                    StiffnessKind::Consistent,
-                    None,
-                )
-                .and_then(|sens| {
-                    let mut v = vec![0.0; 2 * t];
-                    v.iter_mut().step_by(2).for_each(|a| *a = 1.0);
-                    let dl = sens.jacobian_times(&v)?;
-                    v.iter_mut().for_each(|a| *a = 1.0 - *a);
-                    let da = sens.jacobian_times(&v)?;
-                    Ok((dl, da))
-                });
+                let columns =
+                    Sensitivity::new(solver, &self.model, &x, StiffnessKind::Consistent, None)
+                        .and_then(|sens| {
+                            let mut v = vec![0.0; 2 * t];
+                            v.iter_mut().step_by(2).for_each(|a| *a = 1.0);
+                            let dl = sens.jacobian_times(&v)?;
+                            v.iter_mut().for_each(|a| *a = 1.0 - *a);
+                            let da = sens.jacobian_times(&v)?;
+                            Ok((dl, da))
+                        });
                 if let Ok((dl, da)) = columns {
                     // (E, ν) ↦ (λ, α): λ = E/((1+ν)(1−2ν)), α = νλ; q0 = ln E/E_ref.
                     let (e_pa, nu) = (self.young_ref * q[0].exp(), q[1]);
@@ -179,6 +205,27 @@ impl softcap_core::LeastSquaresProblem for HomogeneousProblem<'_> {
     fn jacobian(&mut self, params: &[f64], jacobian: &mut nalgebra::DMatrix<f64>) -> bool {
         let mut r = vec![0.0; self.m];
         self.run(params, &mut r, Some(jacobian));
+        if matches!(self.boundary, Boundary::Support { .. }) {
+            // No sensitivity of the support plane's solver: forward differences, stepping into
+            // the ν bounds (the springs do not scale with E, so the columns are not 1/E-scaled).
+            let mut q = params.to_vec();
+            let mut rq = vec![0.0; self.m];
+            for c in 0..2 {
+                let h = if c == 1 && params[1] + SUPPORT_FD_STEP > self.settings.nu_bounds.1 {
+                    -SUPPORT_FD_STEP
+                } else {
+                    SUPPORT_FD_STEP
+                };
+                q.copy_from_slice(params);
+                q[c] += h;
+                self.run(&q, &mut rq, None);
+                for i in 0..self.m {
+                    jacobian[(i, c)] = (rq[i] - r[i]) / h;
+                }
+            }
+            // the warm starts back at `params`
+            self.run(params, &mut r, None);
+        }
         true
     }
 }
@@ -192,10 +239,41 @@ pub fn fit_homogeneous(
     examples: &[ProbeExample],
     settings: &HomogeneousFitSettings,
 ) -> Result<HomogeneousFit, FemError> {
+    fit_with(setup, examples, settings, None)
+}
+
+/// [`fit_homogeneous`] with the attached face on the support plane `plane` instead of fixed
+/// (`softcap_fem::SupportPlane`, e.g. tangential springs: the support-slip extension): the same
+/// (E, ν) least squares with every node free and the plane's forces in each equilibrium
+/// (`softcap_fem::NodalSolver`), the Jacobian by forward differences in (ln E, ν). A stiff
+/// support reproduces [`fit_homogeneous`]; a compliant one lets the slip carry the part of the
+/// markers' motion the fixed support gives to a softer material.
+pub fn fit_homogeneous_on_support(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    settings: &HomogeneousFitSettings,
+    plane: SupportPlane,
+) -> Result<HomogeneousFit, FemError> {
+    fit_with(setup, examples, settings, Some(plane))
+}
+
+/// [`fit_homogeneous`] (`plane` None) or [`fit_homogeneous_on_support`].
+fn fit_with(
+    setup: &ProbingSetup,
+    examples: &[ProbeExample],
+    settings: &HomogeneousFitSettings,
+    plane: Option<SupportPlane>,
+) -> Result<HomogeneousFit, FemError> {
     let t = setup.num_elements();
     let p0 = LinearParams::from_young_poisson(settings.initial_young_pa, settings.initial_nu)?;
     let model = CorotationalModel::homogeneous(&setup.mesh, p0)?;
-    let solver = setup.solver(&model)?;
+    let boundary = match plane {
+        None => Boundary::Fixed(setup.solver(&model)?),
+        Some(plane) => Boundary::Support {
+            solver: NodalSolver::new(&model, &[])?,
+            plane,
+        },
+    };
     let forces: Vec<_> = examples
         .iter()
         .map(|ex| setup.nodal_forces(ex, &settings.patch))
@@ -206,7 +284,7 @@ pub fn fit_homogeneous(
         examples,
         forces,
         warm: vec![setup.mesh.vertices.clone(); examples.len()],
-        solver,
+        boundary,
         model,
         young_ref: settings.initial_young_pa,
         settings,

@@ -70,7 +70,9 @@ pub use example_fit::{
     marker_jacobian,
 };
 pub use footprint::{FaceTilt, FootprintLoad, PatchSettings};
-pub use homogeneous::{HomogeneousFit, HomogeneousFitSettings, fit_homogeneous};
+pub use homogeneous::{
+    HomogeneousFit, HomogeneousFitSettings, fit_homogeneous, fit_homogeneous_on_support,
+};
 pub use lm_step::{normal_product, normal_product_unblocked};
 pub use setup::{ObservedMarker, ProbeExample, ProbingSetup, support_nodes};
 pub use strain_model::{StrainSpaceModel, StrainSpaceSolve, StrainSpaceSolveSettings};

@@ -560,6 +560,60 @@ fn homogeneous_fit_recovers_from_start(settings: HomogeneousFitSettings) {
     assert!(fit.rms_m < 1e-7, "rms {}", fit.rms_m);
 }
 
+/// The fit on a support plane with tangential springs recovers the material of a block that
+/// slides on such springs under oblique presses (1 N sideways per 1.6 N down, springs 300 N/m
+/// in total), where the fit with the bottom fixed gives the slip to a softer material (checked:
+/// its E is more than 10 % low). A support plane built with the truth's springs is the only
+/// thing that differs between the two fits.
+#[test]
+fn homogeneous_fit_on_support_springs_recovers_a_sliding_block() {
+    use softcap_fem::{NodalSolver, SupportPlane, SupportTangential};
+    use softcap_probing::fit_homogeneous_on_support;
+    let (setup, _) = block();
+    let plane = || {
+        let nodes = setup.attached_nodes.clone();
+        let k_node = 300.0 / nodes.len() as f64;
+        SupportPlane::new(
+            softcap_fem::nalgebra::Unit::new_normalize(Vector3::z()),
+            0.0,
+            nodes,
+            &setup.mesh.vertices,
+            SupportTangential::Springs {
+                stiffness_n_per_m: k_node,
+            },
+        )
+        .unwrap()
+    };
+    let truth = LinearParams::from_young_poisson(4.0e4, 0.35).unwrap();
+    let mut model = CorotationalModel::homogeneous(&setup.mesh, truth).unwrap();
+    let eq = EquilibriumSettings::default();
+    let examples: Vec<ProbeExample> = [(0.012, 0.015, -0.8), (0.018, 0.012, -1.6)]
+        .iter()
+        .map(|&(x, y, fz)| {
+            let tip = Vector3::new(x, y, 0.012);
+            let mut probe = example(&setup, &setup.mesh.vertices, tip, fz);
+            probe.force_n.x = -fz / 1.6;
+            let f = setup.nodal_forces(&probe, &Default::default());
+            let mut solver = NodalSolver::new(&model, &[]).unwrap();
+            let mut xs = setup.mesh.vertices.clone();
+            let rep = solver.solve(&mut model, &mut xs, &f, &mut [&mut plane()], &eq);
+            assert!(rep.converged(), "{rep:?}");
+            let mut ex = example(&setup, &xs, tip, fz);
+            ex.force_n = probe.force_n;
+            ex
+        })
+        .collect();
+    let settings = HomogeneousFitSettings::default();
+    let fit = fit_homogeneous_on_support(&setup, &examples, &settings, plane()).unwrap();
+    let (e, nu) = fit.params.to_young_poisson().unwrap();
+    assert!((e / 4.0e4 - 1.0).abs() < 1e-3, "E = {e}");
+    assert!((nu - 0.35).abs() < 5e-3, "nu = {nu}");
+    assert!(fit.rms_m < 1e-6, "rms {}", fit.rms_m);
+    let fixed = fit_homogeneous(&setup, &examples, &settings).unwrap();
+    let (e_fixed, _) = fixed.params.to_young_poisson().unwrap();
+    assert!(e_fixed < 0.9 * 4.0e4, "fixed-support fit E = {e_fixed}");
+}
+
 #[test]
 fn per_example_fit_of_a_neohookean_truth_beats_the_homogeneous_model() {
     let (setup, _) = block();

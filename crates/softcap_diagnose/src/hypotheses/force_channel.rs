@@ -104,7 +104,7 @@ pub(super) fn confirm(
 /// Probe examples of location `l` (bickel2009 §4.1) under per-frame forces `forces`: its frame
 /// of largest force and the frame before it whose force is nearest half of that (the two force
 /// levels the tissue fit uses per location), with every observed marker.
-fn location_examples(
+pub(super) fn location_examples(
     rec: &Recording,
     seg: &Segmentation,
     l: usize,
@@ -181,10 +181,10 @@ fn material_refit<'a>(
             .filter(|&l| Some(l) != skip)
             .flat_map(|l| location_examples(rec, seg, l, &forces))
             .collect();
-        let Some(mut refit) = sim.refit_homogeneous(&examples)? else {
+        let Some(mut refit) = sim.refit_homogeneous(&examples, &Extension::Elastic)? else {
             return Ok(None);
         };
-        match refit.simulate_sequence(&Extension::Elastic, seq) {
+        match refit.sim.simulate_sequence(&Extension::Elastic, seq) {
             Ok(x) => Ok(Some(x)),
             Err(DiagnoseError::Simulation { .. }) => Ok(None),
             Err(e) => Err(e),

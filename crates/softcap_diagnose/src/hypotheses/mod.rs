@@ -9,7 +9,7 @@
 //! | plasticity | [`plasticity`] | permanent set ∝ elastic response at each location's peak, above a yield force | f_y (grid), β ≥ 0 | J2 plasticity (Box 3.1–3.2), force-driven and as a rigid-tip replay on the refined mesh |
 //! | gravity-preload | [`gravity_preload`] | gravity body-force response of density ρ (wang2015 eq. 7) | ρ ≥ 0 | the default model under ρg, per fold |
 //! | probe-friction | [`probe_friction`] | tangential traction μ‖f‖ŝ at the contact patch, or sliding along the travel ([`crate::friction`]) | μ | Coulomb traction of the tip's travel; rigid-tip replay with Coulomb friction |
-//! | support-slip | [`support_slip`] | rigid translation c·P_t f (elastic) + c_p·P_t f at the running max (stick-slip) | c, c_p ≥ 0 | tangential support springs |
+//! | support-slip | [`support_slip`] | rigid translation c·P_t f (elastic) + c_p·P_t f at the running max (stick-slip) | c, c_p ≥ 0 | tangential support springs, the material refitted with them |
 //! | clock-offset | [`clock_offset`] | force trace shifted in time: f_eff(t) = f(t + δ) | δ (grid) | the shifted force, material refitted |
 //! | sensor-lag | [`sensor_lag`] | FSR chain, first order: f_true = f + τ ḟ + h sgn(ḟ) f | τ, h ≥ 0 | the inverse FSR chain ([`crate::sensor`]), material refitted |
 //! | anisotropy | [`anisotropy`] | displacement along a fibre direction a scaled: −κ a (a·u₀) | a (13 directions), κ | transversely isotropic model (thesis eq. 8.5) |

@@ -55,6 +55,16 @@ pub struct LoadPoint {
     pub response_m_per_n: Option<[Vector3<f64>; 3]>,
 }
 
+/// A homogeneous material refit ([`ProbeSimulator::refit_homogeneous`]).
+pub struct MaterialRefit {
+    /// The same setup with the refitted material.
+    pub sim: Box<dyn ProbeSimulator>,
+    /// Refitted Young's modulus, Pa.
+    pub young_pa: f64,
+    /// Refitted Poisson ratio.
+    pub poisson: f64,
+}
+
 /// One re-simulation of a grid: the extension and the frames of its sequence
 /// ([`ProbeSimulator::simulate_sequences`]).
 pub type SequenceJob = (Extension, Vec<SequenceFrame>);
@@ -69,14 +79,19 @@ pub trait ProbeSimulator: Send + Sync {
     fn simulate(&mut self, load: &SimLoad, want_response: bool) -> Result<SimOutput>;
 
     /// A simulator of the same setup whose material is a homogeneous (λ, α) refit to `examples`
-    /// (bickel2009 §6 average fit, `softcap_probing::fit_homogeneous`) — used after a
-    /// temporal extension corrected the forces the material was fitted with. `None` (default)
-    /// when this simulator cannot refit its material or the fit fails.
+    /// (bickel2009 §6 average fit) with the model extended by `ext` in every example's
+    /// equilibrium: [`Extension::Elastic`] (the attached nodes fixed,
+    /// `softcap_probing::fit_homogeneous`) — used after a temporal extension corrected the
+    /// forces the material was fitted with — or [`Extension::SupportSprings`] (the attached face
+    /// on the tangential springs, `softcap_probing::fit_homogeneous_on_support`): the tissue fit
+    /// gave the support's slip to the material. `None` (default) when this simulator cannot refit
+    /// its material under `ext` or the fit fails.
     fn refit_homogeneous(
         &self,
         examples: &[ProbeExample],
-    ) -> Result<Option<Box<dyn ProbeSimulator>>> {
-        let _ = examples;
+        ext: &Extension,
+    ) -> Result<Option<MaterialRefit>> {
+        let _ = (examples, ext);
         Ok(None)
     }
 

@@ -45,6 +45,28 @@ impl FemProbeSimulator {
         f
     }
 
+    /// The support of [`Extension::SupportSprings`]: the attached nodes on the recorded support
+    /// plane with tangential springs of total stiffness `stiffness_n_per_m` shared equally
+    /// (`softcap_fem::SupportPlane`, bilateral normal penalty); `None` without a support plane.
+    pub(super) fn support_springs(&self, stiffness_n_per_m: f64) -> Result<Option<SupportPlane>> {
+        let Some(plane) = self.support_plane() else {
+            return Ok(None);
+        };
+        let nodes = self.setup().attached_nodes.clone();
+        let k_node = stiffness_n_per_m / nodes.len().max(1) as f64;
+        SupportPlane::new(
+            plane.0,
+            plane.1,
+            nodes,
+            &self.setup().mesh.vertices,
+            SupportTangential::Springs {
+                stiffness_n_per_m: k_node,
+            },
+        )
+        .map(Some)
+        .map_err(fem)
+    }
+
     fn run_static<M: ElasticModel>(
         &self,
         mut model: M,
@@ -310,23 +332,11 @@ impl FemProbeSimulator {
             ),
             Extension::SupportSprings { stiffness_n_per_m } => {
                 let setup = self.setup();
-                let Some(plane) = self.support_plane() else {
+                let Some(mut sup) = self.support_springs(stiffness_n_per_m)? else {
                     return Err(DiagnoseError::BadRecording {
                         what: "support-slip: the simulator has no support plane".into(),
                     });
                 };
-                let nodes = setup.attached_nodes.clone();
-                let k_node = stiffness_n_per_m / nodes.len().max(1) as f64;
-                let mut sup = SupportPlane::new(
-                    plane.0,
-                    plane.1,
-                    nodes,
-                    &mesh.vertices,
-                    SupportTangential::Springs {
-                        stiffness_n_per_m: k_node,
-                    },
-                )
-                .map_err(fem)?;
                 let mut model = base;
                 let mut solver = NodalSolver::new(&model, &[]).map_err(fem)?;
                 let mut x = mesh.vertices.clone();

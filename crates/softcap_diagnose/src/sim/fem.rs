@@ -4,8 +4,8 @@
 //! nodal forces; the tangent response ∂x/∂f of the converged state.
 
 use super::contract::{
-    Extension, Field, LoadPoint, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad,
-    SimOutput,
+    Extension, Field, LoadPoint, MaterialRefit, ProbeLoad, ProbeSimulator, SequenceFrame,
+    SequenceJob, SimLoad, SimOutput,
 };
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
@@ -17,7 +17,8 @@ use softcap_fem::{
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use softcap_probing::{
     HomogeneousFitSettings, PatchSettings, ProbeExample, ProbingSetup, StrainSpaceMaterial,
-    StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, support_nodes,
+    StrainSpaceModel, StrainSpaceSolveSettings, fit_homogeneous, fit_homogeneous_on_support,
+    support_nodes,
 };
 use std::sync::Arc;
 
@@ -404,7 +405,8 @@ impl ProbeSimulator for FemProbeSimulator {
     fn refit_homogeneous(
         &self,
         examples: &[ProbeExample],
-    ) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        ext: &Extension,
+    ) -> Result<Option<MaterialRefit>> {
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
         let Some(p0) = self.model.params().first() else {
             return Ok(None);
@@ -416,15 +418,30 @@ impl ProbeSimulator for FemProbeSimulator {
             patch: self.settings.patch.clone(),
             ..Default::default()
         };
-        let Ok(fit) = fit_homogeneous(&self.setup, examples, &settings) else {
+        let fit = match *ext {
+            Extension::Elastic => fit_homogeneous(&self.setup, examples, &settings),
+            Extension::SupportSprings { stiffness_n_per_m } => {
+                let Some(plane) = self.support_springs(stiffness_n_per_m)? else {
+                    return Ok(None);
+                };
+                fit_homogeneous_on_support(&self.setup, examples, &settings, plane)
+            }
+            _ => return Ok(None),
+        };
+        let Ok(fit) = fit else {
             return Ok(None);
         };
+        let (young_pa, poisson) = fit.params.to_young_poisson().map_err(fem)?;
         let model = CorotationalModel::homogeneous(&self.setup.mesh, fit.params).map_err(fem)?;
         let mut sim =
             FemProbeSimulator::from_setup(self.setup.clone(), model, self.settings.clone())?;
         sim.support_plane = self.support_plane;
         sim.rigid_tip = self.rigid_tip.clone();
-        Ok(Some(Box::new(sim)))
+        Ok(Some(MaterialRefit {
+            sim: Box::new(sim),
+            young_pa,
+            poisson,
+        }))
     }
 
     fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
