@@ -816,9 +816,10 @@ mod tests {
                 .collect()
         };
         let calls = std::sync::Mutex::new(Vec::new());
+        let log = &calls;
         let refit = |decline: Option<usize>| {
             move |i: usize, skip: Option<usize>| -> Result<Option<Refitted>> {
-                calls.lock().unwrap().push((i, skip));
+                log.lock().unwrap().push((i, skip));
                 if i == 0 && skip.is_some() && skip == decline {
                     return Ok(None);
                 }

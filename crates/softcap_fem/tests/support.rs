@@ -1,6 +1,6 @@
 //! Support slip: a block whose bottom face rests on a plane with tangential springs, under a
-//! uniform shear load on its top face, translates by F/(n k_t) plus its fixed-base elastic shear;
-//! with Coulomb friction below μP it sticks.
+//! uniform shear load on its top face, translates by F/k_t (area-weighted mean, k_t the whole
+//! base's stiffness) plus its fixed-base elastic shear; with Coulomb friction below μP it sticks.
 
 use softcap_fem::nalgebra::{Unit, Vector3};
 use softcap_fem::*;
@@ -31,10 +31,11 @@ fn mean_x(x: &[Vector3<f64>], rest: &[Vector3<f64>], nodes: &[usize]) -> f64 {
 }
 
 #[test]
-fn block_on_tangential_springs_translates_by_f_over_n_kt_plus_elastic_shear() {
+fn block_on_tangential_springs_translates_by_f_over_kt_plus_elastic_shear() {
     let (mesh, mut model, bottom, top) = block();
     let force_n = 20.0;
-    let kt = 100.0;
+    // the whole base: 100 N/m for each of its 16 nodes on average
+    let kt = 1600.0;
     let mut f_ext = vec![Vector3::zeros(); mesh.vertices.len()];
     for &n in &top {
         f_ext[n].x = force_n / top.len() as f64;
@@ -59,6 +60,7 @@ fn block_on_tangential_springs_translates_by_f_over_n_kt_plus_elastic_shear() {
         0.0,
         bottom.clone(),
         &mesh.vertices,
+        &mesh.boundary_faces(),
         SupportTangential::Springs {
             stiffness_n_per_m: kt,
         },
@@ -69,8 +71,8 @@ fn block_on_tangential_springs_translates_by_f_over_n_kt_plus_elastic_shear() {
     let rep = solver.solve(&mut model, &mut x, &f_ext, &mut [&mut support], &settings);
     assert!(rep.converged(), "{rep:?}");
     let sr = support.report(&x);
-    let rigid = force_n / (bottom.len() as f64 * kt);
-    // Equilibrium: Σ k_t u = F, so the mean base slip is exactly F/(n k_t).
+    let rigid = force_n / kt;
+    // Equilibrium: Σ w_i k_t u_i = F, so the area-weighted mean base slip is exactly F/k_t.
     assert!(
         (sr.mean_slip_m.x - rigid).abs() < 1e-8 * rigid,
         "{} vs {rigid}",
@@ -85,12 +87,13 @@ fn block_on_tangential_springs_translates_by_f_over_n_kt_plus_elastic_shear() {
     );
     assert!(sr.normal_force_n.abs() < 1e-8 * force_n);
     // Top = rigid translation + the fixed-base elastic shear. Not exact: on springs the base
-    // traction is redistributed (and the base slip is not uniform), measured 1.0% of the total
-    // (4.6% of the elastic part) for k_t n = 0.3 × the block's shear stiffness.
+    // traction is redistributed (and the base slip is not uniform), measured 0.44 % of the total
+    // with the area-weighted springs (1.0 % with an equal split per node) for k_t = 0.3 × the
+    // block's shear stiffness.
     let top_mean = mean_x(&x, &mesh.vertices, &top);
     let rel = (top_mean - (rigid + shear)).abs() / (rigid + shear);
     eprintln!(
-        "support springs: mean base slip {:.10} m vs F/(n k_t) {rigid:.10} m; top {top_mean:.6} vs {:.6} (rel {rel:.2e}); gap {:.1e} m",
+        "support springs: mean base slip {:.10} m vs F/k_t {rigid:.10} m; top {top_mean:.6} vs {:.6} (rel {rel:.2e}); gap {:.1e} m",
         sr.mean_slip_m.x,
         rigid + shear,
         sr.max_normal_gap_m
@@ -113,6 +116,7 @@ fn block_on_frictional_plane_sticks_below_mu_p() {
         0.0,
         bottom.clone(),
         &mesh.vertices,
+        &mesh.boundary_faces(),
         SupportTangential::Friction(FrictionParams {
             mu,
             slip_distance_m: 1e-6,
@@ -156,6 +160,7 @@ fn block_dragged_over_frictional_plane_slides_at_mu_n() {
         0.0,
         bottom.clone(),
         &mesh.vertices,
+        &mesh.boundary_faces(),
         SupportTangential::Friction(FrictionParams {
             mu,
             slip_distance_m: 1e-5,
@@ -191,4 +196,71 @@ fn block_dragged_over_frictional_plane_slides_at_mu_n() {
     let sr = support.report(&x);
     assert!(sr.mean_slip_m.x > 0.02, "slip {}", sr.mean_slip_m.x);
     assert!(sr.tangential_force_n.x < 0.0);
+}
+
+/// The springs are weighted by the lumped area of the attached face: with the base's grid lines
+/// moved to x = 0, 0.1, 0.2, 1 the area shares' centroid Σ w_i x_i is the face's, 0.5 (the equal
+/// split's node mean is 0.325), the shares sum to 1, and a corner node of the wide column carries
+/// more than one of the narrow columns.
+#[test]
+fn support_springs_are_weighted_by_lumped_area() {
+    let (mesh, _, bottom, _) = block();
+    let squeeze = |x: f64| match (3.0 * x).round() as i32 {
+        0 => 0.0,
+        1 => 0.1,
+        2 => 0.2,
+        _ => 1.0,
+    };
+    let positions: Vec<Vector3<f64>> = mesh
+        .vertices
+        .iter()
+        .map(|v| Vector3::new(squeeze(v.x), v.y, v.z))
+        .collect();
+    let support = SupportPlane::new(
+        Unit::new_normalize(Vector3::z()),
+        0.0,
+        bottom.clone(),
+        &positions,
+        &mesh.boundary_faces(),
+        SupportTangential::Springs {
+            stiffness_n_per_m: 100.0,
+        },
+    )
+    .unwrap();
+    let w = support.area_shares();
+    assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    let centroid: Vector3<f64> = bottom
+        .iter()
+        .zip(w)
+        .map(|(&n, &wi)| positions[n] * wi)
+        .sum();
+    assert!((centroid.x - 0.5).abs() < 1e-12, "{centroid}");
+    assert!((centroid.y - 0.5).abs() < 1e-12, "{centroid}");
+    let at = |x: f64, y: f64| {
+        let i = bottom
+            .iter()
+            .position(|&n| (positions[n].x - x).abs() < 1e-12 && (positions[n].y - y).abs() < 1e-12)
+            .unwrap();
+        w[i]
+    };
+    assert!(
+        at(1.0, 0.0) > 2.0 * at(0.0, 0.0),
+        "{} vs {}",
+        at(1.0, 0.0),
+        at(0.0, 0.0)
+    );
+    // No attached triangle: springs cannot be weighted.
+    assert!(
+        SupportPlane::new(
+            Unit::new_normalize(Vector3::z()),
+            0.0,
+            bottom,
+            &positions,
+            &[],
+            SupportTangential::Springs {
+                stiffness_n_per_m: 100.0,
+            },
+        )
+        .is_err()
+    );
 }

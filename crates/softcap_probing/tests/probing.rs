@@ -571,15 +571,14 @@ fn homogeneous_fit_on_support_springs_recovers_a_sliding_block() {
     use softcap_probing::fit_homogeneous_on_support;
     let (setup, _) = block();
     let plane = || {
-        let nodes = setup.attached_nodes.clone();
-        let k_node = 300.0 / nodes.len() as f64;
         SupportPlane::new(
             softcap_fem::nalgebra::Unit::new_normalize(Vector3::z()),
             0.0,
-            nodes,
+            setup.attached_nodes.clone(),
             &setup.mesh.vertices,
+            &setup.mesh.boundary_faces(),
             SupportTangential::Springs {
-                stiffness_n_per_m: k_node,
+                stiffness_n_per_m: 300.0,
             },
         )
         .unwrap()
@@ -603,7 +602,16 @@ fn homogeneous_fit_on_support_springs_recovers_a_sliding_block() {
             ex
         })
         .collect();
-    let settings = HomogeneousFitSettings::default();
+    // 400 iterations: the corotational solve of a block free on its springs converges linearly
+    // and stalls at residual 1.4e-7 N (update 2.5e-10 m) after the default 60 at the start
+    // (E 30 kPa, nu 0.4), so that example never reaches equilibrium and the fit fails.
+    let settings = HomogeneousFitSettings {
+        equilibrium: softcap_fem::EquilibriumSettings {
+            max_iterations: 400,
+            ..HomogeneousFitSettings::default().equilibrium
+        },
+        ..HomogeneousFitSettings::default()
+    };
     let fit = fit_homogeneous_on_support(&setup, &examples, &settings, plane()).unwrap();
     let (e, nu) = fit.params.to_young_poisson().unwrap();
     assert!((e / 4.0e4 - 1.0).abs() < 1e-3, "E = {e}");
@@ -611,6 +619,7 @@ fn homogeneous_fit_on_support_springs_recovers_a_sliding_block() {
     assert!(fit.rms_m < 1e-6, "rms {}", fit.rms_m);
     let fixed = fit_homogeneous(&setup, &examples, &settings).unwrap();
     let (e_fixed, _) = fixed.params.to_young_poisson().unwrap();
+    eprintln!("sliding block: E {e:.1} Pa, nu {nu:.4} on the springs; E {e_fixed:.1} Pa fixed");
     assert!(e_fixed < 0.9 * 4.0e4, "fixed-support fit E = {e_fixed}");
 }
 

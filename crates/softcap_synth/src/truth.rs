@@ -608,14 +608,14 @@ fn build_engine(
             let nodes: Vec<usize> = (0..mesh.vertices.len())
                 .filter(|&i| mesh.vertices[i].z <= 1e-12)
                 .collect();
-            let k_t = es.support_stiffness_n_per_m / nodes.len().max(1) as f64;
             Some(SupportPlane::new(
                 nalgebra::Unit::new_normalize(Vector3::z()),
                 0.0,
                 nodes,
                 unloaded,
+                &mesh.boundary_faces(),
                 SupportTangential::Springs {
-                    stiffness_n_per_m: k_t,
+                    stiffness_n_per_m: es.support_stiffness_n_per_m,
                 },
             )?)
         } else {

@@ -29,6 +29,22 @@ fn not_converged(k: usize, what: String) -> DiagnoseError {
     }
 }
 
+/// The spread of the support springs' area shares w_i against the equal split 1/n (profile
+/// output): n, min and max of n w_i and the coefficient of variation of w.
+fn area_share_spread(w: &[f64]) -> String {
+    let n = w.len().max(1) as f64;
+    let scaled: Vec<f64> = w.iter().map(|wi| wi * n).collect();
+    let (lo, hi) = scaled.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &s| {
+        (lo.min(s), hi.max(s))
+    });
+    let var = scaled.iter().map(|s| (s - 1.0).powi(2)).sum::<f64>() / n;
+    format!(
+        "[profile] support springs: {} attached nodes, area share x n: min {lo:.3}, max {hi:.3}, CV {:.3} (equal split: 1, 1, 0)",
+        w.len(),
+        var.sqrt()
+    )
+}
+
 impl FemProbeSimulator {
     fn nodal_load(&self, load: &SimLoad) -> Vec<Vector3<f64>> {
         let n = self.setup().mesh.vertices.len();
@@ -46,25 +62,28 @@ impl FemProbeSimulator {
     }
 
     /// The support of [`Extension::SupportSprings`]: the attached nodes on the recorded support
-    /// plane with tangential springs of total stiffness `stiffness_n_per_m` shared equally
-    /// (`softcap_fem::SupportPlane`, bilateral normal penalty); `None` without a support plane.
+    /// plane with tangential springs of total stiffness `stiffness_n_per_m` shared by the nodes'
+    /// lumped areas of the attached face (`softcap_fem::SupportPlane`, bilateral normal
+    /// penalty); `None` without a support plane.
     pub(super) fn support_springs(&self, stiffness_n_per_m: f64) -> Result<Option<SupportPlane>> {
         let Some(plane) = self.support_plane() else {
             return Ok(None);
         };
-        let nodes = self.setup().attached_nodes.clone();
-        let k_node = stiffness_n_per_m / nodes.len().max(1) as f64;
-        SupportPlane::new(
+        let mesh = &self.setup().mesh;
+        let support = SupportPlane::new(
             plane.0,
             plane.1,
-            nodes,
-            &self.setup().mesh.vertices,
-            SupportTangential::Springs {
-                stiffness_n_per_m: k_node,
-            },
+            self.setup().attached_nodes.clone(),
+            &mesh.vertices,
+            &mesh.boundary_faces(),
+            SupportTangential::Springs { stiffness_n_per_m },
         )
-        .map(Some)
-        .map_err(fem)
+        .map_err(fem)?;
+        if crate::profile::enabled() {
+            static SPREAD: std::sync::Once = std::sync::Once::new();
+            SPREAD.call_once(|| eprintln!("{}", area_share_spread(support.area_shares())));
+        }
+        Ok(Some(support))
     }
 
     fn run_static<M: ElasticModel>(
