@@ -129,40 +129,45 @@ pub struct Refitted {
 }
 
 /// The refit closure of [`lolo_confirm_each_refitted`]: `(candidate index, held-out location or
-/// None for the full data) -> that candidate with its parameters refitted without the held-out
-/// location`; `Ok(None)` when it cannot be refitted there (it is then not offered to that
-/// selection). Independent refits, run in parallel (hence `Fn + Sync`).
-pub type RefitEachFn<'a> = dyn Fn(usize, Option<usize>) -> Result<Option<Refitted>> + Sync + 'a;
+/// None for the full data, the candidate's full-data refit to start from when a location is held
+/// out) -> that candidate with its parameters refitted without the held-out location`;
+/// `Ok(None)` when it cannot be refitted there (the closure reports why; the candidate is then not
+/// offered to that selection). Independent refits, run in parallel (hence `Fn + Sync`).
+pub type RefitEachFn<'a> =
+    dyn Fn(usize, Option<usize>, Option<&Refitted>) -> Result<Option<Refitted>> + Sync + 'a;
 
-/// One candidate of [`lolo_confirm_each_refitted`] on its own (not selected): its full-data
-/// refit's parameters and scored RMS over the locations (in-sample), and its held-out scored
-/// RMS (each location predicted by its refit without that location), m; NaN where a refit
-/// declined.
+/// One candidate of [`lolo_confirm_each_refitted`]: its full-data refit's parameters and scored
+/// RMS over the locations (in-sample), and its held-out scored RMS over the locations whose
+/// selection chose it (each predicted by its refit without that location), m; NaN where the
+/// full-data refit declined or no selection chose it.
 #[derive(Clone, Debug)]
 pub struct RefittedScore {
     /// The candidate's parameters, then its full-data refit's.
     pub params: Vec<(String, f64)>,
     /// In-sample scored RMS of the full-data refit, m.
     pub in_sample_m: f64,
-    /// Held-out scored RMS, m.
+    /// Held-out scored RMS over the locations that chose it, m.
     pub heldout_m: f64,
+    /// The locations whose selection chose it.
+    pub chosen_for: Vec<usize>,
 }
 
-/// Leave-one-location-out in which EVERY candidate is refitted on every training set (the
-/// material of an extended model refitted with the extension in place,
-/// `crate::hypotheses::support_slip`): per held-out location l, each candidate i refitted
-/// without l (`refit(i, Some(l))`); the refitted candidate with the least squared error on the
-/// training observations (every observation outside l: the other locations and the rest frames;
-/// with `train_on_scored` the other locations' scored ones, and the held-out "all" number over
-/// the scored ones too) predicts l, scored on l's `scored` observations and on all of them; the
-/// full data's choice (`refit(i, None)`, nothing held out) is the extended model and its
-/// parameters. Unlike the refit closure of [`lolo_confirm`] — which refits only the candidate
-/// the unrefitted selection (with the compliance scale) chose — the choice is made between the
-/// refitted candidates, so no candidate is judged on the material a fit without the extension
-/// gave. No compliance scale: the refit replaces it. The `candidates × (locations + 1)` refits
-/// run in parallel (taken in order: the first error decides). Returns the confirmation (`None`
-/// without candidates or when some selection has no refitted candidate) and every candidate's
-/// [`RefittedScore`].
+/// Leave-one-location-out in which the candidates' own parameters are refitted with the
+/// extension in place (the material of an extended model, `crate::hypotheses::support_slip`):
+/// every candidate i is refitted on the full data (`refit(i, None, None)`); the selection for a
+/// held-out location l takes the candidate whose full-data refit has the least squared error on
+/// l's training observations (every observation outside l: the other locations and the rest
+/// frames; with `train_on_scored` the other locations' scored ones, and the held-out "all" number
+/// over the scored ones too); only that candidate is refitted without l, starting from its
+/// full-data refit (`refit(i, Some(l), Some(full_i))`), and predicts l, scored on l's `scored`
+/// observations and on all of them (a refit that declines passes l to the next candidate by
+/// training error). The full data's choice is the extended model and its parameters. So the
+/// choice is made between refitted candidates (none is judged on the material a fit without the
+/// extension gave) for `candidates + locations` refits instead of `candidates × (locations + 1)`;
+/// the discrete choice for l sees l through the full-data refits' parameters, the held-out
+/// prediction does not. No compliance scale: the refit replaces it. Returns the confirmation
+/// (`None` without candidates or when a location has no refitted candidate) and every
+/// candidate's [`RefittedScore`].
 pub fn lolo_confirm_each_refitted(
     params: &[Vec<(String, f64)>],
     rec: &Recording,
@@ -174,13 +179,8 @@ pub fn lolo_confirm_each_refitted(
 ) -> Result<(Option<Confirmed>, Vec<RefittedScore>)> {
     use rayon::prelude::*;
     let nf = seg.num_folds();
-    let jobs: Vec<(usize, Option<usize>)> = (0..params.len())
-        .flat_map(|i| (0..nf).map(Some).chain([None]).map(move |skip| (i, skip)))
-        .collect();
-    // Per job: the refit and its sums per bucket (the folds, then the rest frames).
+    // The sums of a refit per bucket (the folds, then the rest frames): all, scored.
     let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
-    let refits: Vec<Result<Option<Refitted>>> =
-        jobs.par_iter().map(|&(i, skip)| refit(i, skip)).collect();
     let sums = |r: Refitted| {
         let (mut all, mut sc) = (vec![Sums::default(); nf + 1], vec![Sums::default(); nf + 1]);
         for (k, f) in rec.frames.iter().enumerate() {
@@ -202,14 +202,17 @@ pub fn lolo_confirm_each_refitted(
         }
         (r, all, sc)
     };
-    let mut fits = Vec::with_capacity(refits.len());
-    for r in refits {
-        fits.push(r?.map(sums));
+    let full_refits: Vec<Result<Option<Refitted>>> = (0..params.len())
+        .into_par_iter()
+        .map(|i| refit(i, None, None))
+        .collect();
+    let mut full = Vec::with_capacity(params.len());
+    for r in full_refits {
+        full.push(r?.map(sums));
     }
-    // fits[i * (nf + 1) + l]: candidate i without location l (l = nf: the full data)
-    let fit = |i: usize, l: usize| fits[i * (nf + 1) + l].as_ref();
+    // The training error of candidate i's full-data refit for held-out bucket l (l = nf: all).
     let training = |i: usize, l: usize| {
-        fit(i, l).map(|(_, all, _)| {
+        full[i].as_ref().map(|(_, all, _)| {
             all.iter()
                 .enumerate()
                 .filter(|&(b, _)| b != l)
@@ -217,23 +220,31 @@ pub fn lolo_confirm_each_refitted(
                 .sum::<f64>()
         })
     };
-    let choose = |l: usize| {
-        (0..params.len())
+    let by_training = |l: usize| {
+        let mut order: Vec<(usize, f64)> = (0..params.len())
             .filter_map(|i| training(i, l).map(|e| (i, e)))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(i, _)| i)
+            .collect();
+        order.sort_by(|a, b| a.1.total_cmp(&b.1));
+        order.into_iter().map(|(i, _)| i).collect::<Vec<_>>()
     };
-    // every candidate on its own: held out per location, and its full-data refit in sample
+    // Per location: the first candidate by training error whose refit without it succeeds.
+    let held: Vec<Result<Option<(usize, Refitted)>>> = (0..nf)
+        .into_par_iter()
+        .map(|l| {
+            for i in by_training(l) {
+                let from = full[i].as_ref().map(|(r, _, _)| r);
+                if let Some(r) = refit(i, Some(l), from)? {
+                    return Ok(Some((i, r)));
+                }
+            }
+            Ok(None)
+        })
+        .collect();
     let rms = |e: f64, n: usize| (e / n.max(1) as f64).sqrt();
-    let scores = (0..params.len())
+    let mut scores: Vec<RefittedScore> = (0..params.len())
         .map(|i| {
-            let heldout = (0..nf).map(|l| fit(i, l).map(|(_, _, sc)| (sc[l].c, sc[l].n)));
-            let (e, n) = heldout.fold((0.0, 0), |(e, n), x| match x {
-                Some((c, k)) => (e + c, n + k),
-                None => (f64::NAN, n),
-            });
             let mut params = params[i].clone();
-            let in_sample_m = match fit(i, nf) {
+            let in_sample_m = match &full[i] {
                 Some((r, _, sc)) => {
                     params.extend(r.params.iter().cloned());
                     let sc = &sc[..nf];
@@ -244,37 +255,50 @@ pub fn lolo_confirm_each_refitted(
             RefittedScore {
                 params,
                 in_sample_m,
-                heldout_m: rms(e, n),
+                heldout_m: f64::NAN,
+                chosen_for: Vec::new(),
             }
         })
         .collect();
-    let mut choices = Vec::with_capacity(nf + 1);
-    for l in 0..=nf {
-        let Some(i) = choose(l) else {
-            return Ok((None, scores));
-        };
-        choices.push(i);
+    let mut chosen_folds = Vec::with_capacity(nf);
+    for h in held {
+        chosen_folds.push(h?.map(|(i, r)| {
+            let (_, all, sc) = sums(r);
+            (i, all, sc)
+        }));
     }
     let (mut e_sc, mut n_sc, mut e_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
     let (mut fold_rss_m2, mut fold_n) = (Vec::with_capacity(nf), Vec::with_capacity(nf));
-    for (l, &i) in choices[..nf].iter().enumerate() {
-        let (_, all, sc) = fit(i, l).expect("chosen among the refitted");
+    let mut per_candidate = vec![(0.0, 0usize); params.len()];
+    for (l, h) in chosen_folds.iter().enumerate() {
+        let Some((i, all, sc)) = h else { continue };
         e_sc += sc[l].c;
         n_sc += sc[l].n;
         e_all += all[l].c;
         n_all += all[l].n;
         fold_rss_m2.push(sc[l].c);
         fold_n.push(sc[l].n);
+        per_candidate[*i].0 += sc[l].c;
+        per_candidate[*i].1 += sc[l].n;
+        scores[*i].chosen_for.push(l);
     }
-    let i = choices[nf];
-    let (full, _, _) = fit(i, nf).expect("chosen among the refitted");
+    for (s, &(e, n)) in scores.iter_mut().zip(&per_candidate) {
+        if !s.chosen_for.is_empty() {
+            s.heldout_m = rms(e, n);
+        }
+    }
+    let full_choice = by_training(nf).first().copied();
+    let (Some(i), true) = (full_choice, chosen_folds.iter().all(Option::is_some)) else {
+        return Ok((None, scores));
+    };
+    let (r, _, _) = full[i].as_ref().expect("chosen among the refitted");
     let mut chosen = params[i].clone();
-    chosen.extend(full.params.iter().cloned());
+    chosen.extend(r.params.iter().cloned());
     let confirmed = Confirmed {
         after_scored_m: rms(e_sc, n_sc),
         after_all_m: rms(e_all, n_all),
         params: chosen,
-        prediction: full.prediction.clone(),
+        prediction: r.prediction.clone(),
         method,
         fold_rss_m2,
         fold_n,
@@ -794,11 +818,12 @@ mod tests {
         assert!((c.params[1].1 - 1.5).abs() < 1e-12);
     }
 
-    /// Every candidate refitted per training set: a refit of candidate 0 reproduces the data
-    /// (rest + 2u) and candidate 1's the wrong shape; each selection takes the better refitted
-    /// one, and a refit that declines for location 0 leaves that location to candidate 1 only
-    /// (held-out error there, none elsewhere), while the full data still chooses candidate 0 with
-    /// its refitted parameters.
+    /// Every candidate refitted on the full data, only the chosen one per training set: a refit of
+    /// candidate 0 reproduces the data (rest + 2u), candidate 1's has the wrong shape; each
+    /// location's selection takes candidate 0 by its full-data training error and refits only it,
+    /// from its full-data refit (2 + 2 refits, not 2 × 3); a refit of candidate 0 that declines
+    /// for location 0 passes that location to candidate 1 (held-out error there, none elsewhere),
+    /// while the full data still chooses candidate 0 with its refitted parameters.
     #[test]
     fn each_candidate_refitted_per_training_set() {
         let (rec, seg, p, cands) = toy();
@@ -818,14 +843,20 @@ mod tests {
         let calls = std::sync::Mutex::new(Vec::new());
         let log = &calls;
         let refit = |decline: Option<usize>| {
-            move |i: usize, skip: Option<usize>| -> Result<Option<Refitted>> {
-                log.lock().unwrap().push((i, skip));
+            move |i: usize,
+                  skip: Option<usize>,
+                  from: Option<&Refitted>|
+                  -> Result<Option<Refitted>> {
+                // a held-out refit starts from the same candidate's full-data refit
+                assert_eq!(skip.is_some(), from.is_some());
+                let start = from.map(|f| f.params[0].1);
+                log.lock().unwrap().push((i, skip, start));
                 if i == 0 && skip.is_some() && skip == decline {
                     return Ok(None);
                 }
                 Ok(Some(Refitted {
                     prediction: twice(i),
-                    params: vec![("scale".into(), 2.0 + i as f64)],
+                    params: vec![("scale".into(), start.unwrap_or(2.0 + i as f64))],
                 }))
             }
         };
@@ -849,18 +880,30 @@ mod tests {
             c.params,
             vec![("a".to_string(), 1.0), ("scale".to_string(), 2.0)]
         );
-        // two candidates × (two locations + the full data)
+        // two candidates on the full data, then candidate 0 alone per location, from its full fit
         let mut calls_made = std::mem::take(&mut *calls.lock().unwrap());
-        calls_made.sort_unstable();
-        assert_eq!(calls_made.len(), 6);
+        calls_made.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        assert_eq!(
+            calls_made,
+            vec![
+                (0, None, None),
+                (0, Some(0), Some(2.0)),
+                (0, Some(1), Some(2.0)),
+                (1, None, None)
+            ]
+        );
         assert!(scores[0].heldout_m < 1e-12 && scores[0].in_sample_m < 1e-12);
-        assert!(scores[1].heldout_m > 1e-5, "{}", scores[1].heldout_m);
+        assert_eq!(scores[0].chosen_for, vec![0, 1]);
+        assert!(scores[1].in_sample_m > 1e-5, "{}", scores[1].in_sample_m);
+        assert!(scores[1].heldout_m.is_nan() && scores[1].chosen_for.is_empty());
         let (c, scores) = run(Some(0));
         let c = c.unwrap();
         assert!(c.fold_rss_m2[0] > 1e-12, "{:?}", c.fold_rss_m2);
         assert!(c.fold_rss_m2[1] < 1e-20, "{:?}", c.fold_rss_m2);
         assert_eq!(c.params[1], ("scale".to_string(), 2.0));
-        assert!(scores[0].heldout_m.is_nan());
+        assert_eq!(scores[0].chosen_for, vec![1]);
+        assert_eq!(scores[1].chosen_for, vec![0]);
+        assert!(scores[1].heldout_m > 1e-5, "{}", scores[1].heldout_m);
     }
 
     #[test]

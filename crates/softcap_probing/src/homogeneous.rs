@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
     CorotationalModel, EquilibriumReport, EquilibriumSettings, FemError, LinearParams, NodalSolver,
-    Sensitivity, StaticSolver, StiffnessKind, SupportPlane,
+    Sensitivity, SolveStatus, StaticSolver, StiffnessKind, SupportPlane,
 };
 
 use crate::setup::{marker_residuals, rms_of};
@@ -74,6 +74,11 @@ pub struct HomogeneousFit {
     pub rms_m: f64,
     /// LM iterations.
     pub iterations: usize,
+    /// Equilibrium solves of the fit (every residual and Jacobian evaluation, the start
+    /// included) that stopped at the iteration cap (`EquilibriumSettings::max_iterations`): their
+    /// residuals were NaN, so Levenberg–Marquardt rejected that trial point.
+    #[serde(default)]
+    pub stalled_solves: usize,
 }
 
 /// How the examples are simulated: the attached nodes fixed (the default model), or the
@@ -102,6 +107,8 @@ struct HomogeneousProblem<'a> {
     young_ref: f64,
     settings: &'a HomogeneousFitSettings,
     m: usize,
+    /// Equilibrium solves that stopped at the iteration cap so far.
+    stalled: usize,
 }
 
 impl HomogeneousProblem<'_> {
@@ -140,7 +147,10 @@ impl HomogeneousProblem<'_> {
                     })
                 }
             }
-            .map(|rep| rep.converged())
+            .map(|rep| {
+                self.stalled += usize::from(rep.status == SolveStatus::MaxIterations);
+                rep.converged()
+            })
             .unwrap_or(false);
             let rk = marker_residuals(self.setup, ex, &x);
             for (i, v) in rk.iter().enumerate() {
@@ -289,6 +299,7 @@ fn fit_with(
         young_ref: settings.initial_young_pa,
         settings,
         m,
+        stalled: 0,
     };
     // The start must reach equilibrium on every example: otherwise its residuals are NaN, the
     // linear rescaling below is skipped and Levenberg–Marquardt cannot leave the start, so the
@@ -337,9 +348,11 @@ fn fit_with(
     )
     .map_err(|e| probing_error(e.to_string()))?;
     if !report.residuals.iter().all(|v| v.is_finite()) {
-        return Err(probing_error(
-            "homogeneous fit: an example does not reach equilibrium at the fitted material",
-        ));
+        return Err(probing_error(format!(
+            "homogeneous fit: an example does not reach equilibrium at the fitted material \
+             ({} equilibrium solves of the fit stopped at the {}-iteration cap)",
+            problem.stalled, settings.equilibrium.max_iterations
+        )));
     }
     let params = problem
         .params(&report.params)
@@ -360,5 +373,6 @@ fn fit_with(
         example_rms_m,
         rms_m: (total / (m / 3).max(1) as f64).sqrt(),
         iterations: report.iterations,
+        stalled_solves: problem.stalled,
     })
 }

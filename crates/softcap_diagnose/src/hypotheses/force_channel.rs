@@ -8,7 +8,8 @@ use crate::recording::Recording;
 use crate::resim::sequence_candidates;
 use crate::segment::Segmentation;
 use crate::sim::{
-    Extension, Field, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob, SimLoad,
+    Extension, Field, MaterialRefitOutcome, ProbeLoad, ProbeSimulator, SequenceFrame, SequenceJob,
+    SimLoad,
 };
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
@@ -181,7 +182,9 @@ fn material_refit<'a>(
             .filter(|&l| Some(l) != skip)
             .flat_map(|l| location_examples(rec, seg, l, &forces))
             .collect();
-        let Some(mut refit) = sim.refit_homogeneous(&examples, &Extension::Elastic)? else {
+        let MaterialRefitOutcome::Refitted(mut refit) =
+            sim.refit_homogeneous(&examples, &Extension::Elastic, None)?
+        else {
             return Ok(None);
         };
         match refit.sim.simulate_sequence(&Extension::Elastic, seq) {

@@ -27,7 +27,7 @@ use crate::resim::{GridPoint, Replays, contact_sequence};
 use crate::screen::{Basis, Refit, Variant};
 use crate::segment::Segmentation;
 use crate::signatures::Signatures;
-use crate::sim::{Extension, ProbeSimulator, SequenceFrame};
+use crate::sim::{Extension, MaterialRefitOutcome, ProbeSimulator, SequenceFrame};
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use softcap_probing::ProbeExample;
@@ -194,13 +194,79 @@ impl Hypothesis for SupportSlip {
 /// Name of the support springs' total stiffness among the parameters.
 const STIFFNESS: &str = "support_tangential_stiffness_n_per_m";
 
+/// Names of the refitted material's parameters.
+const YOUNG: &str = "young_pa";
+const POISSON: &str = "poisson";
+
+/// The value of parameter `name` in `params`.
+fn param(params: &[(String, f64)], name: &str) -> Option<f64> {
+    params.iter().find(|(n, _)| n == name).map(|&(_, v)| v)
+}
+
+/// One material refit of [`confirm_with_material_refit`]: the grid point, the held-out location
+/// (`None`: the full data) and the outcome (its Levenberg–Marquardt iterations and equilibrium
+/// solves at the iteration cap, or why it declined).
+struct RefitStatus {
+    index: usize,
+    point: (String, f64),
+    skip: Option<usize>,
+    outcome: std::result::Result<(usize, usize), String>,
+}
+
+impl std::fmt::Display for RefitStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let data = match self.skip {
+            Some(l) => format!("without location {l}"),
+            None => "full data".into(),
+        };
+        match &self.outcome {
+            Ok((iterations, stalled)) => write!(
+                f,
+                "{} {:.4}, {data}: {iterations} LM iterations, {stalled} equilibrium solves at the cap",
+                self.point.0, self.point.1
+            ),
+            Err(why) => write!(
+                f,
+                "{} {:.4}, {data}: declined ({why})",
+                self.point.0, self.point.1
+            ),
+        }
+    }
+}
+
+/// The refits' status in one line: how many ran, how many had equilibrium solves at the
+/// iteration cap, and every declined one with its reason.
+fn refit_summary(log: &[RefitStatus]) -> String {
+    let capped = log
+        .iter()
+        .filter(|r| matches!(r.outcome, Ok((_, stalled)) if stalled > 0))
+        .count();
+    let declined: Vec<String> = log
+        .iter()
+        .filter(|r| r.outcome.is_err())
+        .map(|r| r.to_string())
+        .collect();
+    format!(
+        "{} material refits, {} with equilibrium solves at the iteration cap (trial points rejected), {} declined{}{}",
+        log.len(),
+        capped,
+        declined.len(),
+        if declined.is_empty() { "" } else { ": " },
+        declined.join("; ")
+    )
+}
+
 /// The confirmation with the material refitted with the springs in place
 /// ([`crate::confirm::lolo_confirm_each_refitted`]): for every grid stiffness k of `ks`, and a
 /// bonded point (the default model's fixed support, k = ∞), the homogeneous (E, ν) is refitted
-/// on the training locations' examples (bickel2009 §6: each location's peak and half-peak force
-/// frames, as the tissue fit) with the springs in every equilibrium
-/// (`ProbeSimulator::refit_homogeneous`), the recording re-simulated under the measured force,
-/// and the refitted point with the least training error predicts the held-out location. The
+/// on every location's examples (bickel2009 §6: each location's peak and half-peak force frames,
+/// as the tissue fit) with the springs in every equilibrium
+/// (`ProbeSimulator::refit_homogeneous`) and the recording re-simulated under the measured force;
+/// per held-out location the point whose full-data refit has the least error on the training
+/// observations is refitted without that location, starting from its full-data (E, ν), and
+/// predicts it (`grid + locations` refits, not `grid × (locations + 1)`). Every refit's status
+/// (iterations, equilibrium solves at the iteration cap, or why it declined) is appended to the
+/// method. The
 /// tissue fit saw the slip with a fixed support, so its material is biased by it (third-party
 /// soft-mat session: E 30 kPa, ν 0.47 against its bonded pair's 59 kPa, 0.39): springs added to
 /// that material over-predict the motion, which the compliance scale of the plain grid can only
@@ -234,45 +300,74 @@ pub fn confirm_with_material_refit(
         .collect();
     let frames: Vec<SequenceFrame> = solved.iter().map(|&k| all[k]).collect();
     let sim: &dyn ProbeSimulator = sim;
-    let refit = |i: usize, skip: Option<usize>| -> Result<Option<Refitted>> {
+    // Every refit's status (candidate, held-out location, what happened), reported in the method.
+    let log = std::sync::Mutex::new(Vec::<RefitStatus>::new());
+    let refit = |i: usize, skip: Option<usize>, from: Option<&Refitted>| {
         let ext = &points[i].1;
         let examples: Vec<ProbeExample> = (0..seg.num_folds())
             .filter(|&l| Some(l) != skip)
             .flat_map(|l| location_examples(rec, seg, l, &p.force_n))
             .collect();
-        let Some(mut m) = sim.refit_homogeneous(&examples, ext)? else {
-            return Ok(None);
+        let start = from.and_then(|f| Some((param(&f.params, YOUNG)?, param(&f.params, POISSON)?)));
+        let status = |outcome: std::result::Result<(usize, usize), String>| RefitStatus {
+            index: i,
+            point: points[i].0[0].clone(),
+            skip,
+            outcome,
+        };
+        let mut m = match sim.refit_homogeneous(&examples, ext, start)? {
+            MaterialRefitOutcome::Refitted(m) => m,
+            MaterialRefitOutcome::Declined(why) => {
+                log.lock().unwrap().push(status(Err(why)));
+                return Ok(None);
+            }
         };
         let x = match m.sim.simulate_sequence(ext, &frames) {
             Ok(x) => x,
-            Err(DiagnoseError::Simulation { .. }) => return Ok(None),
+            Err(DiagnoseError::Simulation { frame, reason }) => {
+                let why = format!("replay: frame {frame}: {reason}");
+                log.lock().unwrap().push(status(Err(why)));
+                return Ok(None);
+            }
             Err(e) => return Err(e),
         };
+        log.lock()
+            .unwrap()
+            .push(status(Ok((m.iterations, m.stalled_solves))));
         let mut prediction = vec![p.rest_model_m.clone(); rec.frames.len()];
         for (row, &k) in x.into_iter().zip(&solved) {
             prediction[k] = row;
         }
         Ok(Some(Refitted {
             prediction,
-            params: vec![
-                ("young_pa".into(), m.young_pa),
-                ("poisson".into(), m.poisson),
-            ],
+            params: vec![(YOUNG.into(), m.young_pa), (POISSON.into(), m.poisson)],
         }))
     };
     let names: Vec<Vec<(String, f64)>> = points.iter().map(|p| p.0.clone()).collect();
     let method = format!(
-        "re-simulated SupportPlane springs ({} stiffnesses and the bonded support) with the homogeneous (E, nu) refit with the springs per training set (bickel2009 §6), leave-one-location-out on {CELLS}",
+        "re-simulated SupportPlane springs ({} stiffnesses and the bonded support) with the homogeneous (E, nu) refit with the springs on the full data, the least training error's refit per held-out location from it (bickel2009 §6), leave-one-location-out on {CELLS}",
         ks.len()
     );
-    let (c, scores) = lolo_confirm_each_refitted(&names, rec, seg, scored, false, &refit, method)?;
+    let (mut c, scores) =
+        lolo_confirm_each_refitted(&names, rec, seg, scored, false, &refit, method)?;
+    // in grid order (the refits ran in parallel): the method text is deterministic
+    let mut log = log.into_inner().unwrap_or_else(|e| e.into_inner());
+    log.sort_by_key(|r| (r.index, r.skip.map_or(usize::MAX, |l| l)));
+    if let Some(c) = c.as_mut() {
+        c.method.push_str(&format!("; {}", refit_summary(&log)));
+    }
     if crate::profile::enabled() {
+        eprintln!("PROFILE-SUPPORT-SLIP refits: {}", refit_summary(&log));
+        for r in &log {
+            eprintln!("PROFILE-SUPPORT-SLIP refit {r}");
+        }
         for s in &scores {
             eprintln!(
-                "PROFILE-SUPPORT-SLIP {:?} in-sample {:.4} mm held-out {:.4} mm",
+                "PROFILE-SUPPORT-SLIP {:?} in-sample {:.4} mm held-out {:.4} mm (locations {:?})",
                 s.params,
                 1e3 * s.in_sample_m,
-                1e3 * s.heldout_m
+                1e3 * s.heldout_m,
+                s.chosen_for
             );
         }
     }

@@ -63,6 +63,21 @@ pub struct MaterialRefit {
     pub young_pa: f64,
     /// Refitted Poisson ratio.
     pub poisson: f64,
+    /// Levenberg–Marquardt iterations of the fit.
+    pub iterations: usize,
+    /// Equilibrium solves of the fit that stopped at the iteration cap (trial points the fit
+    /// rejected; `softcap_probing::HomogeneousFit::stalled_solves`).
+    pub stalled_solves: usize,
+}
+
+/// The outcome of [`ProbeSimulator::refit_homogeneous`]: the refit, or why there is none (a
+/// reported status, never a silent drop).
+pub enum MaterialRefitOutcome {
+    /// The refitted material.
+    Refitted(MaterialRefit),
+    /// No refit: the simulator cannot refit its material under the extension, or the fit failed
+    /// (e.g. an example's equilibrium stopped at the iteration cap at the fitted material).
+    Declined(String),
 }
 
 /// One re-simulation of a grid: the extension and the frames of its sequence
@@ -84,15 +99,20 @@ pub trait ProbeSimulator: Send + Sync {
     /// `softcap_probing::fit_homogeneous`) — used after a temporal extension corrected the
     /// forces the material was fitted with — or [`Extension::SupportSprings`] (the attached face
     /// on the tangential springs, `softcap_probing::fit_homogeneous_on_support`): the tissue fit
-    /// gave the support's slip to the material. `None` (default) when this simulator cannot refit
-    /// its material under `ext` or the fit fails.
+    /// gave the support's slip to the material. The fit starts from `start` = (E Pa, ν) — e.g. the
+    /// full data's refit when a training set is refitted — or, `None`, from this simulator's
+    /// material. [`MaterialRefitOutcome::Declined`] (default) with the reason when this simulator
+    /// cannot refit its material under `ext` or the fit fails.
     fn refit_homogeneous(
         &self,
         examples: &[ProbeExample],
         ext: &Extension,
-    ) -> Result<Option<MaterialRefit>> {
-        let _ = (examples, ext);
-        Ok(None)
+        start: Option<(f64, f64)>,
+    ) -> Result<MaterialRefitOutcome> {
+        let _ = (examples, ext, start);
+        Ok(MaterialRefitOutcome::Declined(
+            "this simulator cannot refit its material".into(),
+        ))
     }
 
     /// The same object on a refined mesh, each child tet with its parent's material, the markers

@@ -4,8 +4,8 @@
 //! nodal forces; the tangent response ∂x/∂f of the converged state.
 
 use super::contract::{
-    Extension, Field, LoadPoint, MaterialRefit, ProbeLoad, ProbeSimulator, SequenceFrame,
-    SequenceJob, SimLoad, SimOutput,
+    Extension, Field, LoadPoint, MaterialRefit, MaterialRefitOutcome, ProbeLoad, ProbeSimulator,
+    SequenceFrame, SequenceJob, SimLoad, SimOutput,
 };
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
@@ -406,30 +406,40 @@ impl ProbeSimulator for FemProbeSimulator {
         &self,
         examples: &[ProbeExample],
         ext: &Extension,
-    ) -> Result<Option<MaterialRefit>> {
+        start: Option<(f64, f64)>,
+    ) -> Result<MaterialRefitOutcome> {
         let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let declined = |why: String| Ok(MaterialRefitOutcome::Declined(why));
         let Some(p0) = self.model.params().first() else {
-            return Ok(None);
+            return declined("the model has no material parameters".into());
         };
-        let (e0, nu0) = p0.to_young_poisson().map_err(fem)?;
+        let defaults = HomogeneousFitSettings::default();
+        let (initial_young_pa, initial_nu) = match start {
+            Some((e, nu)) => (e, nu.clamp(defaults.nu_bounds.0, defaults.nu_bounds.1)),
+            None => {
+                let (e0, nu0) = p0.to_young_poisson().map_err(fem)?;
+                (e0, nu0.clamp(0.05, 0.45))
+            }
+        };
         let settings = HomogeneousFitSettings {
-            initial_young_pa: e0,
-            initial_nu: nu0.clamp(0.05, 0.45),
+            initial_young_pa,
+            initial_nu,
             patch: self.settings.patch.clone(),
-            ..Default::default()
+            ..defaults
         };
         let fit = match *ext {
             Extension::Elastic => fit_homogeneous(&self.setup, examples, &settings),
             Extension::SupportSprings { stiffness_n_per_m } => {
                 let Some(plane) = self.support_springs(stiffness_n_per_m)? else {
-                    return Ok(None);
+                    return declined("no support plane for the springs".into());
                 };
                 fit_homogeneous_on_support(&self.setup, examples, &settings, plane)
             }
-            _ => return Ok(None),
+            _ => return declined(format!("no material refit under {ext:?}")),
         };
-        let Ok(fit) = fit else {
-            return Ok(None);
+        let fit = match fit {
+            Ok(fit) => fit,
+            Err(e) => return declined(e.to_string()),
         };
         let (young_pa, poisson) = fit.params.to_young_poisson().map_err(fem)?;
         let model = CorotationalModel::homogeneous(&self.setup.mesh, fit.params).map_err(fem)?;
@@ -437,10 +447,12 @@ impl ProbeSimulator for FemProbeSimulator {
             FemProbeSimulator::from_setup(self.setup.clone(), model, self.settings.clone())?;
         sim.support_plane = self.support_plane;
         sim.rigid_tip = self.rigid_tip.clone();
-        Ok(Some(MaterialRefit {
+        Ok(MaterialRefitOutcome::Refitted(MaterialRefit {
             sim: Box::new(sim),
             young_pa,
             poisson,
+            iterations: fit.iterations,
+            stalled_solves: fit.stalled_solves,
         }))
     }
 
