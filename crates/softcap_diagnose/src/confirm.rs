@@ -139,7 +139,8 @@ pub type RefitEachFn<'a> =
 /// One candidate of [`lolo_confirm_each_refitted`]: its full-data refit's parameters and scored
 /// RMS over the locations (in-sample), and its held-out scored RMS over the locations whose
 /// selection chose it (each predicted by its refit without that location), m; NaN where the
-/// full-data refit declined or no selection chose it.
+/// full-data refit declined or was not made (not in the first pass nor a neighbour of a choice)
+/// or no selection chose it.
 #[derive(Clone, Debug)]
 pub struct RefittedScore {
     /// The candidate's parameters, then its full-data refit's.
@@ -154,7 +155,12 @@ pub struct RefittedScore {
 
 /// Leave-one-location-out in which the candidates' own parameters are refitted with the
 /// extension in place (the material of an extended model, `crate::hypotheses::support_slip`):
-/// every candidate i is refitted on the full data (`refit(i, None, None)`); the selection for a
+/// the candidates of `first_pass` are refitted on the full data (`refit(i, None, None)`), then,
+/// while some selection's least-training-error candidate (below) has `neighbours` not yet
+/// refitted, those — so every selection's choice is a local minimum of its training error over
+/// `neighbours` (on a grid whose training error is unimodal, the grid's minimum: a coarse pass
+/// and its refinement instead of every point; `first_pass` = every candidate refits them all).
+/// The selection for a
 /// held-out location l takes the candidate whose full-data refit has the least squared error on
 /// l's training observations (every observation outside l: the other locations and the rest
 /// frames; with `train_on_scored` the other locations' scored ones, and the held-out "all" number
@@ -163,7 +169,7 @@ pub struct RefittedScore {
 /// observations and on all of them (a refit that declines passes l to the next candidate by
 /// training error). The full data's choice is the extended model and its parameters. So the
 /// choice is made between refitted candidates (none is judged on the material a fit without the
-/// extension gave) for `candidates + locations` refits instead of `candidates × (locations + 1)`;
+/// extension gave) for at most `candidates + locations` refits instead of `candidates × (locations + 1)`;
 /// the discrete choice for l sees l through the full-data refits' parameters, the held-out
 /// prediction does not. No compliance scale: the refit replaces it. Returns the confirmation
 /// (`None` without candidates or when a location has no refitted candidate) and every
@@ -174,6 +180,8 @@ pub fn lolo_confirm_each_refitted(
     seg: &Segmentation,
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
+    first_pass: &[usize],
+    neighbours: &dyn Fn(usize) -> Vec<usize>,
     refit: &RefitEachFn<'_>,
     method: String,
 ) -> Result<(Option<Confirmed>, Vec<RefittedScore>)> {
@@ -202,24 +210,45 @@ pub fn lolo_confirm_each_refitted(
         }
         (r, all, sc)
     };
-    let full_refits: Vec<Result<Option<Refitted>>> = (0..params.len())
-        .into_par_iter()
-        .map(|i| refit(i, None, None))
-        .collect();
-    let mut full = Vec::with_capacity(params.len());
-    for r in full_refits {
-        full.push(r?.map(sums));
-    }
-    // The training error of candidate i's full-data refit for held-out bucket l (l = nf: all).
-    let training = |i: usize, l: usize| {
-        full[i].as_ref().map(|(_, all, _)| {
-            all.iter()
-                .enumerate()
-                .filter(|&(b, _)| b != l)
-                .map(|(_, s)| s.c)
-                .sum::<f64>()
-        })
+    // The training error of a full-data refit's sums for held-out bucket l (l = nf: all).
+    let training_of = |all: &[Sums], l: usize| {
+        all.iter()
+            .enumerate()
+            .filter(|&(b, _)| b != l)
+            .map(|(_, s)| s.c)
+            .sum::<f64>()
     };
+    // Full-data refits: the first pass, then the unrefitted neighbours of every selection's
+    // least-training-error candidate until each selection's choice is a local minimum.
+    let mut full: Vec<Option<(Refitted, Vec<Sums>, Vec<Sums>)>> =
+        (0..params.len()).map(|_| None).collect();
+    let mut tried = vec![false; params.len()];
+    let mut batch: Vec<usize> = first_pass
+        .iter()
+        .copied()
+        .filter(|&i| i < params.len())
+        .collect();
+    while !batch.is_empty() {
+        let refits: Vec<Result<Option<Refitted>>> =
+            batch.par_iter().map(|&i| refit(i, None, None)).collect();
+        for (&i, r) in batch.iter().zip(refits) {
+            tried[i] = true;
+            full[i] = r?.map(sums);
+        }
+        let mut next: Vec<usize> = (0..=nf)
+            .filter_map(|l| {
+                (0..params.len())
+                    .filter_map(|i| full[i].as_ref().map(|(_, all, _)| (i, training_of(all, l))))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+            })
+            .flat_map(|(i, _)| neighbours(i))
+            .filter(|&j| j < params.len() && !tried[j])
+            .collect();
+        next.sort_unstable();
+        next.dedup();
+        batch = next;
+    }
+    let training = |i: usize, l: usize| full[i].as_ref().map(|(_, all, _)| training_of(all, l));
     let by_training = |l: usize| {
         let mut order: Vec<(usize, f64)> = (0..params.len())
             .filter_map(|i| training(i, l).map(|e| (i, e)))
@@ -861,18 +890,31 @@ mod tests {
             }
         };
         let scored = |_: usize, _: usize| true;
-        let run = |decline| {
+        let none = |_: usize| -> Vec<usize> { Vec::new() };
+        let run_from = |first: &[usize], neighbours: &dyn Fn(usize) -> Vec<usize>, decline| {
             lolo_confirm_each_refitted(
                 &names,
                 &rec,
                 &seg,
                 &scored,
                 false,
+                first,
+                neighbours,
                 &refit(decline),
                 "toy".into(),
             )
             .unwrap()
         };
+        let run = |decline| run_from(&[0, 1], &none, decline);
+        // a first pass of candidate 1 alone: its neighbour 0 is refitted (1 is every selection's
+        // least error so far), then chosen everywhere; with no neighbours 1 alone is chosen
+        let other = |i: usize| vec![1 - i];
+        let (c, _) = run_from(&[1], &other, None);
+        assert!(c.unwrap().after_scored_m < 1e-12);
+        let (c, scores) = run_from(&[1], &none, None);
+        assert!(c.unwrap().after_scored_m > 1e-5);
+        assert!(scores[0].in_sample_m.is_nan());
+        calls.lock().unwrap().clear();
         let (c, scores) = run(None);
         let c = c.unwrap();
         assert!(c.after_scored_m < 1e-12, "{}", c.after_scored_m);

@@ -218,6 +218,9 @@ impl softcap_core::LeastSquaresProblem for HomogeneousProblem<'_> {
         if matches!(self.boundary, Boundary::Support { .. }) {
             // No sensitivity of the support plane's solver: forward differences, stepping into
             // the ν bounds (the springs do not scale with E, so the columns are not 1/E-scaled).
+            // Each column starts from the equilibria at `params` (kept, then restored: no
+            // re-solve at `params` afterwards).
+            let at_params = self.warm.clone();
             let mut q = params.to_vec();
             let mut rq = vec![0.0; self.m];
             for c in 0..2 {
@@ -228,13 +231,14 @@ impl softcap_core::LeastSquaresProblem for HomogeneousProblem<'_> {
                 };
                 q.copy_from_slice(params);
                 q[c] += h;
+                self.warm.clone_from(&at_params);
                 self.run(&q, &mut rq, None);
                 for i in 0..self.m {
                     jacobian[(i, c)] = (rq[i] - r[i]) / h;
                 }
             }
             // the warm starts back at `params`
-            self.run(params, &mut r, None);
+            self.warm = at_params;
         }
         true
     }

@@ -539,20 +539,33 @@ fn homogeneous_fit_recovers_from_a_start_without_equilibrium() {
     });
 }
 
-fn homogeneous_fit_recovers_from_start(settings: HomogeneousFitSettings) {
-    let (setup, _) = block();
+/// The two presses (tip at (x, y, 12 mm), axial force fz N) on `setup`'s block of the
+/// homogeneous truth (E 40 kPa, ν 0.35), each simulated by `press(model, tip, fz, settings)`.
+fn homogeneous_truth_examples(
+    setup: &ProbingSetup,
+    mut press: impl FnMut(
+        &mut CorotationalModel,
+        Vector3<f64>,
+        f64,
+        &EquilibriumSettings,
+    ) -> ProbeExample,
+) -> Vec<ProbeExample> {
     let truth = LinearParams::from_young_poisson(4.0e4, 0.35).unwrap();
     let mut model = CorotationalModel::homogeneous(&setup.mesh, truth).unwrap();
     let eq = EquilibriumSettings::default();
-    let examples: Vec<ProbeExample> = [(0.012, 0.015, -0.8), (0.018, 0.012, -1.6)]
+    [(0.012, 0.015, -0.8), (0.018, 0.012, -1.6)]
         .iter()
-        .map(|&(x, y, fz)| {
-            let tip = Vector3::new(x, y, 0.012);
-            let probe = example(&setup, &setup.mesh.vertices, tip, fz);
-            let xs = simulate(&setup, &mut model, &probe, &eq);
-            example(&setup, &xs, tip, fz)
-        })
-        .collect();
+        .map(|&(x, y, fz)| press(&mut model, Vector3::new(x, y, 0.012), fz, &eq))
+        .collect()
+}
+
+fn homogeneous_fit_recovers_from_start(settings: HomogeneousFitSettings) {
+    let (setup, _) = block();
+    let examples = homogeneous_truth_examples(&setup, |model, tip, fz, eq| {
+        let probe = example(&setup, &setup.mesh.vertices, tip, fz);
+        let xs = simulate(&setup, model, &probe, eq);
+        example(&setup, &xs, tip, fz)
+    });
     let fit = fit_homogeneous(&setup, &examples, &settings).unwrap();
     let (e, nu) = fit.params.to_young_poisson().unwrap();
     assert!((e / 4.0e4 - 1.0).abs() < 1e-3, "E = {e}");
@@ -583,25 +596,18 @@ fn homogeneous_fit_on_support_springs_recovers_a_sliding_block() {
         )
         .unwrap()
     };
-    let truth = LinearParams::from_young_poisson(4.0e4, 0.35).unwrap();
-    let mut model = CorotationalModel::homogeneous(&setup.mesh, truth).unwrap();
-    let eq = EquilibriumSettings::default();
-    let examples: Vec<ProbeExample> = [(0.012, 0.015, -0.8), (0.018, 0.012, -1.6)]
-        .iter()
-        .map(|&(x, y, fz)| {
-            let tip = Vector3::new(x, y, 0.012);
-            let mut probe = example(&setup, &setup.mesh.vertices, tip, fz);
-            probe.force_n.x = -fz / 1.6;
-            let f = setup.nodal_forces(&probe, &Default::default());
-            let mut solver = NodalSolver::new(&model, &[]).unwrap();
-            let mut xs = setup.mesh.vertices.clone();
-            let rep = solver.solve(&mut model, &mut xs, &f, &mut [&mut plane()], &eq);
-            assert!(rep.converged(), "{rep:?}");
-            let mut ex = example(&setup, &xs, tip, fz);
-            ex.force_n = probe.force_n;
-            ex
-        })
-        .collect();
+    let examples = homogeneous_truth_examples(&setup, |model, tip, fz, eq| {
+        let mut probe = example(&setup, &setup.mesh.vertices, tip, fz);
+        probe.force_n.x = -fz / 1.6;
+        let f = setup.nodal_forces(&probe, &Default::default());
+        let mut solver = NodalSolver::new(&*model, &[]).unwrap();
+        let mut xs = setup.mesh.vertices.clone();
+        let rep = solver.solve(model, &mut xs, &f, &mut [&mut plane()], eq);
+        assert!(rep.converged(), "{rep:?}");
+        let mut ex = example(&setup, &xs, tip, fz);
+        ex.force_n = probe.force_n;
+        ex
+    });
     // 400 iterations: the corotational solve of a block free on its springs converges linearly
     // and stalls at residual 1.4e-7 N (update 2.5e-10 m) after the default 60 at the start
     // (E 30 kPa, nu 0.4), so that example never reaches equilibrium and the fit fails.

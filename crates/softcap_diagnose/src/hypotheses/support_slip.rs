@@ -264,9 +264,11 @@ fn refit_summary(log: &[RefitStatus]) -> String {
 /// (`ProbeSimulator::refit_homogeneous`) and the recording re-simulated under the measured force;
 /// per held-out location the point whose full-data refit has the least error on the training
 /// observations is refitted without that location, starting from its full-data (E, ν), and
-/// predicts it (`grid + locations` refits, not `grid × (locations + 1)`). Every refit's status
-/// (iterations, equilibrium solves at the iteration cap, or why it declined) is appended to the
-/// method. The
+/// predicts it (at most `grid + locations` refits, not `grid × (locations + 1)`). The full-data
+/// refits start with every other point on the line in ln k (the bonded point last) and add the
+/// neighbours of each selection's least error until it is a local minimum on the line. Every
+/// refit's status (iterations, equilibrium solves at the iteration cap, or why it declined) is
+/// appended to the method. The
 /// tissue fit saw the slip with a fixed support, so its material is biased by it (third-party
 /// soft-mat session: E 30 kPa, ν 0.47 against its bonded pair's 59 kPa, 0.39): springs added to
 /// that material over-predict the motion, which the compliance scale of the plain grid can only
@@ -345,11 +347,31 @@ pub fn confirm_with_material_refit(
     };
     let names: Vec<Vec<(String, f64)>> = points.iter().map(|p| p.0.clone()).collect();
     let method = format!(
-        "re-simulated SupportPlane springs ({} stiffnesses and the bonded support) with the homogeneous (E, nu) refit with the springs on the full data, the least training error's refit per held-out location from it (bickel2009 §6), leave-one-location-out on {CELLS}",
+        "re-simulated SupportPlane springs ({} stiffnesses and the bonded support) with the homogeneous (E, nu) refit with the springs on the full data (every other point, then the neighbours of each selection's least training error), the least training error's refit per held-out location from it (bickel2009 §6), leave-one-location-out on {CELLS}",
         ks.len()
     );
-    let (mut c, scores) =
-        lolo_confirm_each_refitted(&names, rec, seg, scored, false, &refit, method)?;
+    // The points on one line in ln k, the bonded support (k = ∞) after the stiffest: a first
+    // pass over every other point and the last, then each selection's neighbours (the
+    // training error is smooth and unimodal in ln k: the soft-mat session's table).
+    let last = points.len() - 1;
+    let first_pass: Vec<usize> = (0..=last).filter(|&i| i % 2 == 0 || i == last).collect();
+    let neighbours = |i: usize| -> Vec<usize> {
+        [i.checked_sub(1), (i < last).then_some(i + 1)]
+            .into_iter()
+            .flatten()
+            .collect()
+    };
+    let (mut c, scores) = lolo_confirm_each_refitted(
+        &names,
+        rec,
+        seg,
+        scored,
+        false,
+        &first_pass,
+        &neighbours,
+        &refit,
+        method,
+    )?;
     // in grid order (the refits ran in parallel): the method text is deterministic
     let mut log = log.into_inner().unwrap_or_else(|e| e.into_inner());
     log.sort_by_key(|r| (r.index, r.skip.map_or(usize::MAX, |l| l)));
