@@ -924,7 +924,7 @@ mod tests {
         );
         // two candidates on the full data, then candidate 0 alone per location, from its full fit
         let mut calls_made = std::mem::take(&mut *calls.lock().unwrap());
-        calls_made.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        calls_made.sort_by_key(|a| (a.0, a.1));
         assert_eq!(
             calls_made,
             vec![
