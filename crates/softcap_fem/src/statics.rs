@@ -50,6 +50,11 @@ pub struct EquilibriumSettings {
     pub refactorization: Refactorization,
 }
 
+/// [`Refactorization::WhenStale`]: a reused factor is stale when its iteration reduced the
+/// residual norm to more than this fraction of the previous one (the modified Newton of
+/// [`StaticSolver::solve`] and [`crate::NodalSolver::solve`]).
+pub(crate) const STALE_CONTRACTION: f64 = 0.25;
+
 /// When the equilibrium iterations assemble and factor the system matrix A.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Refactorization {
@@ -61,7 +66,9 @@ pub enum Refactorization {
     /// fraction of a millimetre per frame): the numeric factor is kept across iterations *and
     /// across solves* and reused while it still contracts. A is re-assembled and refactored only
     /// when there is no factor, the contact active set (the set of spring nodes) differs from the
-    /// factored one, or the previous iteration reduced the residual norm by less than half. The
+    /// factored one, or an iteration left the residual norm above a quarter of the previous one
+    /// ([`crate::NodalSolver`]: when a node-level term's blocks differ from the factored ones,
+    /// or on that contraction test). The
     /// convergence test is the same, so the equilibrium is the same to the solver tolerance; each
     /// reused iteration costs one force pass and one back-substitution instead of an assembly and
     /// a factorization, and the accepted line-search point's forces (and energy) are carried into
@@ -574,7 +581,7 @@ impl StaticSolver {
                         .factored_springs
                         .as_deref()
                         .is_none_or(|f| !springs_match(f, &springs, penalty))
-                    || rnorm > 0.25 * previous_rnorm;
+                    || rnorm > STALE_CONTRACTION * previous_rnorm;
                 if stale {
                     if !assembled {
                         self.assemble_values(&*model, x, settings.stiffness);

@@ -358,19 +358,17 @@ impl FemProbeSimulator {
                 };
                 let mut model = base;
                 let mut solver = NodalSolver::new(&model, &[]).map_err(fem)?;
+                let settings = EquilibriumSettings {
+                    refactorization: self.settings().sequence_refactorization,
+                    ..self.settings().equilibrium.clone()
+                };
                 let mut x = mesh.vertices.clone();
                 let mut out = Vec::with_capacity(frames.len());
                 let _profile =
                     crate::profile::sequence("support springs", mesh.tets.len(), frames.len());
                 for (k, fr) in frames.iter().enumerate() {
                     let f = self.nodal_load(&fr.load);
-                    let rep = solver.solve(
-                        &mut model,
-                        &mut x,
-                        &f,
-                        &mut [&mut sup],
-                        &self.settings().equilibrium,
-                    );
+                    let rep = solver.solve(&mut model, &mut x, &f, &mut [&mut sup], &settings);
                     crate::profile::solve(rep.iterations, mesh.tets.len());
                     if !rep.converged() {
                         return Err(not_converged(

@@ -73,7 +73,9 @@ pub struct FemSimSettings {
     /// every own-rig and third-party suite case keeps its verdict and held-out numbers to
     /// 4 decimals (docs/diagnose.md, where the time goes). The baseline's single solves refactor
     /// at every iterate (their tangent response is read from the factor); no tangent response
-    /// is read from a sequence.
+    /// is read from a sequence. The support springs' replays (`Extension::SupportSprings`) and
+    /// the homogeneous refits on the springs (`ProbeSimulator::refit_homogeneous`, a Jacobian by
+    /// forward differences) follow it too (`softcap_fem::NodalSolver`).
     pub sequence_refactorization: Refactorization,
 }
 
@@ -432,6 +434,14 @@ impl ProbeSimulator for FemProbeSimulator {
             Extension::SupportSprings { stiffness_n_per_m } => {
                 let Some(plane) = self.support_springs(stiffness_n_per_m)? else {
                     return declined("no support plane for the springs".into());
+                };
+                // no tangent response is read from these solves (forward differences)
+                let settings = HomogeneousFitSettings {
+                    equilibrium: EquilibriumSettings {
+                        refactorization: self.settings.sequence_refactorization,
+                        ..settings.equilibrium
+                    },
+                    ..settings
                 };
                 fit_homogeneous_on_support(&self.setup, examples, &settings, plane)
             }
