@@ -128,28 +128,63 @@ pub(super) fn location_examples(
         .into_iter()
         .flatten()
         .filter(|&k| forces[k].norm() > 0.0)
-        .map(|k| {
-            let f = &rec.frames[k];
-            ProbeExample {
-                frame: f.frame,
-                time_s: f.time_s,
-                tip_m: f.tip_m,
-                axis: f.axis,
-                force_n: forces[k],
-                observed: f
-                    .markers_m
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(m, y)| {
-                        y.map(|position_m| ObservedMarker {
-                            marker: m,
-                            position_m,
-                        })
-                    })
-                    .collect(),
-            }
-        })
+        .map(|k| frame_example(rec, k, forces))
         .collect()
+}
+
+/// The probe example of location `l` where the force channel's timing does not bias the force:
+/// the hold frame (the segmentation's hold, from the tip's depth — the camera's clock) of largest
+/// force under `forces`, or without hold frames the location's frame of largest force; none when
+/// that force is zero. A force reading shifted in time or lagging (clock-offset, sensor-lag) is
+/// off by about its rate times the delay on a ramp, and the last frame of largest reading can lie
+/// past the hold: on the in-memory rig's 0.25 s ramps a reading 0.1 s late is two ramp levels
+/// off on the ramp, and its last full reading lies two frames into the unloading, at half the
+/// force. Inside the hold the reading is steady but within the delay of its ends, and a lagging
+/// one is nearest the force at its largest.
+pub(super) fn hold_example(
+    rec: &Recording,
+    seg: &Segmentation,
+    l: usize,
+    forces: &[Vector3<f64>],
+) -> Vec<ProbeExample> {
+    let loc = &seg.locations[l];
+    let hold = seg.hold_frames(loc);
+    let frames = if hold.is_empty() {
+        &loc.contact_frames
+    } else {
+        &hold
+    };
+    frames
+        .iter()
+        .copied()
+        .max_by(|&a, &b| forces[a].norm().total_cmp(&forces[b].norm()))
+        .filter(|&k| forces[k].norm() > 0.0)
+        .map(|k| frame_example(rec, k, forces))
+        .into_iter()
+        .collect()
+}
+
+/// The probe example of frame `k` under per-frame forces `forces`, with every observed marker.
+fn frame_example(rec: &Recording, k: usize, forces: &[Vector3<f64>]) -> ProbeExample {
+    let f = &rec.frames[k];
+    ProbeExample {
+        frame: f.frame,
+        time_s: f.time_s,
+        tip_m: f.tip_m,
+        axis: f.axis,
+        force_n: forces[k],
+        observed: f
+            .markers_m
+            .iter()
+            .enumerate()
+            .filter_map(|(m, y)| {
+                y.map(|position_m| ObservedMarker {
+                    marker: m,
+                    position_m,
+                })
+            })
+            .collect(),
+    }
 }
 
 /// The refit closure of a force-channel hypothesis for [`lolo_confirm`]: the complete extended

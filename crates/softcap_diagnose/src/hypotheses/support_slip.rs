@@ -19,7 +19,7 @@
 
 use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute};
-use super::force_channel::location_examples;
+use super::force_channel::hold_example;
 use crate::cells::{EffectCells, contact_cells};
 use crate::confirm::{ComplianceScale, Confirmed, Refitted, lolo_confirm_each_refitted};
 use crate::recording::Recording;
@@ -259,8 +259,10 @@ fn refit_summary(log: &[RefitStatus]) -> String {
 /// The confirmation with the material refitted with the springs in place
 /// ([`crate::confirm::lolo_confirm_each_refitted`]): for every grid stiffness k of `ks`, and a
 /// bonded point (the default model's fixed support, k = ∞), the homogeneous (E, ν) is refitted
-/// on every location's examples (bickel2009 §6: each location's peak and half-peak force frames,
-/// as the tissue fit) with the springs in every equilibrium
+/// on every location's example (bickel2009 §6 at one force level per location: its hold frame of
+/// largest force, `force_channel::hold_example`, where a time shift or lag of the force channel
+/// does not bias the force — the refit is this hypothesis's model, and the forward selection
+/// leaves the force channel's timing to its own entries) with the springs in every equilibrium
 /// (`ProbeSimulator::refit_homogeneous`) and the recording re-simulated under the measured force;
 /// per held-out location the point whose full-data refit has the least error on the training
 /// observations is refitted without that location, starting from its full-data (E, ν), and
@@ -308,7 +310,7 @@ pub fn confirm_with_material_refit(
         let ext = &points[i].1;
         let examples: Vec<ProbeExample> = (0..seg.num_folds())
             .filter(|&l| Some(l) != skip)
-            .flat_map(|l| location_examples(rec, seg, l, &p.force_n))
+            .flat_map(|l| hold_example(rec, seg, l, &p.force_n))
             .collect();
         let start = from.and_then(|f| Some((param(&f.params, YOUNG)?, param(&f.params, POISSON)?)));
         let status = |outcome: std::result::Result<(usize, usize), String>| RefitStatus {
