@@ -7,6 +7,9 @@
   on its recorded force, as the suite applies sensor lag to the clean physics), and
   viscoelasticity beside a stiff inclusion (the viscoelasticity case's Maxwell branches on the
   stiff-inclusion case's geometry and inclusion);
+- `lookalikes [PROTOCOL]`: issue 37's two look-alike pairs (slow creep / plasticity, sensor lag
+  12 ms / clock offset 12 ms; `lookalike_cases`), recorded under PROTOCOL (the suite's
+  `probing.replan`: standard, longer-holds, faster-ramps, ...; names get the suffix -PROTOCOL);
 - `clean N`: N clean sessions that differ only in the seed of the rig (cameras, detection noise,
   dropouts, spurious blobs, FSR calibration and noise, clock).
 
@@ -20,6 +23,7 @@ printed digit).
 
     python scripts/diagnose_thirdparty_sessions.py OUT pairs|clean [N] [CASE ...]
     python scripts/diagnose_thirdparty_sessions.py OUT check
+    python scripts/diagnose_thirdparty_sessions.py OUT lookalikes [PROTOCOL [--locations N] [CASE ...]]
 
 with PYTHONPATH=scripts and the suite's venv (scripts/thirdparty-suite installs it). Writes one
 raw session per case under OUT and OUT/suite.toml (case → effect)."""
@@ -32,7 +36,7 @@ import numpy as np
 
 import thirdparty_suite.cases as suite
 from thirdparty_suite.__main__ import main as generate
-from thirdparty_suite.probing import protocol
+from thirdparty_suite.probing import PROTOCOLS, protocol, replan
 from thirdparty_suite.session import write_session
 
 FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "fixtures", "thirdparty")
@@ -65,6 +69,36 @@ def pair_cases():
                 "equilibrium shear modulus).",
                 material=dict(visco["material"], mu_inclusion=8 * suite.MU),
                 inclusion=inclusion["inclusion"]),
+    ]
+
+
+def lookalike_cases():
+    """Issue 37's two look-alike pairs on the suite's physics (the own rig's pairs,
+    crates/softcap_diagnose/tests/in_memory.rs): pair 1, slow creep against plasticity (decided
+    by longer holds); pair 2, a sensor lag of 12 ms against a clock offset of 12 ms (decided by
+    faster ramps; at 12 ms as on the own rig's 50 ms frames, at 50 and 100 ms for the suite's 100 ms frames)."""
+    by = {c["name"]: c for c in suite.cases()}
+    clean, j2 = by["clean"], by["plasticity"]
+    half = suite.MU / 2
+    return [
+        derived(clean, "slow-creep", 401, "viscoelasticity",
+                "Slow creep: one finite-strain Maxwell branch (Shutov et al. 2013) g = 1, tau = 5 s, its "
+                f"instantaneous modulus the clean material's: mu = {half} MPa, mu_1 = {half} MPa.",
+                material={"kind": "viscoelastic", "mu": half, "bulk": 20 * suite.MU, "branches": [[half, 5.0]]}),
+        derived(j2, "plastic", 402, "plasticity", j2["description"], pair="plasticity-pair"),
+    ] + [
+        case
+        for ms, seed in ((12, 403), (50, 405), (100, 407))
+        for case in (
+            derived(clean, f"sensor-lag-{ms}ms", seed, "sensor-lag",
+                    f"Sensor lag {ms} ms: the FSR follows the axial force through a first-order lag "
+                    f"tau = {ms / 1e3} s, no play. Physics of the clean case.",
+                    effects={"sensor_lag": {"tau_s": ms / 1e3, "play_fraction": 0.0}}),
+            derived(clean, f"clock-offset-{ms}ms", seed + 1, "clock-offset",
+                    f"Clock offset {ms} ms: the cameras expose {ms} ms after their trigger pulse, so the force "
+                    f"the pulses synchronise is read {ms} ms before the frame. Physics of the clean case.",
+                    effects={"trigger_latency_s": ms / 1e3}),
+        )
     ]
 
 
@@ -206,13 +240,30 @@ def check(out, tolerance=0.002):
 
 
 def run(argv):
-    if len(argv) < 2 or argv[1] not in ("pairs", "clean", "check"):
+    if len(argv) < 2 or argv[1] not in ("pairs", "clean", "check", "lookalikes"):
         print(__doc__, file=sys.stderr)
         return 2
     out, part = argv[0], argv[1]
     if part == "check":
         return check(out)
-    if part == "pairs":
+    if part == "lookalikes":
+        name = argv[2] if len(argv) > 2 else "standard"
+        if name not in PROTOCOLS:
+            print(f"diagnose_thirdparty_sessions: unknown protocol '{name}' (one of {', '.join(PROTOCOLS)})",
+                  file=sys.stderr)
+            return 2
+        rest = argv[3:]
+        locations = None
+        if "--locations" in rest:
+            i = rest.index("--locations")
+            locations = int(rest[i + 1])
+            rest = rest[:i] + rest[i + 2:]
+        chosen = [replan(c, name) for c in lookalike_cases()]
+        for c in chosen:
+            if locations:  # the first N locations: a FElupe solve of their own, no committed replay
+                c["locations_mm"], c["depths_mm"] = c["locations_mm"][:locations], c["depths_mm"][:locations]
+        only = [f"{c}-{name}" if name != "standard" else c for c in rest]
+    elif part == "pairs":
         chosen = pair_cases()
         only = argv[2:]
     else:

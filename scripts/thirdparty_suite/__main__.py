@@ -10,7 +10,7 @@ import numpy as np
 
 from . import cases as suite
 from .geometry import locate, mesh_object, quadratic_cells
-from .probing import simulate
+from .probing import PROTOCOLS, replan, simulate, uniform_steps
 from .session import write_session
 
 
@@ -38,12 +38,17 @@ def main(argv=None):
     ap.add_argument("--case", action="append", default=[])
     ap.add_argument("--list", action="store_true")
     ap.add_argument("--locations", type=int, default=None, help="only the first N probe locations (a quick look)")
+    ap.add_argument("--protocol", choices=PROTOCOLS, default="standard",
+                    help="re-record every chosen case under this protocol of the diagnosis's planner "
+                         "(case names get the suffix -PROTOCOL; standard: the cases as they are)")
     a = ap.parse_args(argv)
-    all_cases = suite.cases()
+    all_cases = [replan(c, a.protocol) for c in suite.cases()]
     if a.list:
         for c in all_cases:
             print(f"{c['name']:22s} effect={c['effect'] or 'none':16s} pair={c['pair'] or '-'}")
         return 0
+    if a.protocol != "standard":
+        a.case = [f"{n}-{a.protocol}" for n in a.case]
     names = {c["name"] for c in all_cases}
     for n in a.case:
         if n not in names:
@@ -54,6 +59,11 @@ def main(argv=None):
         for c in chosen:
             c["locations_mm"] = c["locations_mm"][: a.locations]
             c["depths_mm"] = c["depths_mm"][: a.locations]
+    for c in chosen:
+        if c["material"]["kind"] == "viscoelastic" and not uniform_steps(c):
+            print(f"thirdparty-suite: {c['name']}: a viscoelastic material is integrated with one time step; "
+                  f"--protocol {a.protocol} changes the frame steps", file=sys.stderr)
+            return 2
     import felupe
     import gmsh
     versions = {"felupe": felupe.__version__, "gmsh": gmsh.__version__}

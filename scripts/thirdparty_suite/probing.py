@@ -28,30 +28,98 @@ from .physics import Model, interpolate_markers
 
 def protocol(case):
     """Frame list: dicts with t (s), loc (index or None), depth_mm along the shaft below the
-    surface point (negative: hovering), phase name."""
+    surface point (negative: hovering), phase name. The time of a frame is the sum of the steps
+    into it in units of the frame period 1/fps (exact in floating point for the standard
+    protocol's unit steps and `ramp_step` 0.5): the ramp and unload frames' steps are
+    `ramp_step` periods (`replan` "faster-ramps"), the rest frames after a release
+    `rest` = [frames, seconds] ("rest-after-release")."""
     p = case["protocol"]
     dt = 1.0 / p["fps"]
     frames = []
+    elapsed = [0.0]  # in frame periods
 
-    def add(loc, depth, phase):
-        frames.append({"t": len(frames) * dt, "loc": loc, "depth": depth, "phase": phase})
+    def add(loc, depth, phase, step=1.0):
+        if frames:
+            elapsed[0] += step
+        frames.append({"t": elapsed[0] * dt, "loc": loc, "depth": depth, "phase": phase})
 
     hover = -p["hover_mm"]
+    ramp_step = p.get("ramp_step", 1.0)
     add(0, hover, "rest")
     for li, dmax in enumerate(case["depths_mm"]):
         for _ in range(p["approach"]):
             add(li, hover, "approach")
         n = p["ramp"]
         for k in range(1, n + 1):
-            add(li, dmax * k / n, "ramp")
+            add(li, dmax * k / n, "ramp", ramp_step)
         for _ in range(p["hold"]):
             add(li, dmax, "hold")
         n = p["unload"]
         for k in range(n - 1, -1, -1):
-            add(li, dmax * k / n, "unload")
+            add(li, dmax * k / n, "unload", ramp_step)
         for _ in range(p["release"]):
             add(li, hover, "release")
+        if "rest" in p:
+            count, seconds = p["rest"]
+            for _ in range(count):
+                add(li, hover, "rest-after-release", seconds / count / dt)
     return frames, dt
+
+
+# The next experiments the diagnosis plans (crates/softcap_diagnose/src/protocols.rs, `Protocol`)
+# as changes of the probing schedule, with the planner's meaning; "standard" is the case as it is.
+PROTOCOLS = ("standard", "longer-holds", "faster-ramps", "rest-after-release", "oblique-probe")
+# protocols.rs REST_AFTER_RELEASE_S, REST_FRAMES
+REST_AFTER_RELEASE_S = 3.0
+REST_FRAMES = 10
+OBLIQUE_DEG = 20.0
+
+
+def replan(case, name):
+    """The case re-recorded under protocol `name` (PROTOCOLS), the case itself for "standard":
+    - longer-holds: every hold three times as long (three times the hold frames, same rate);
+    - faster-ramps: the loading and unloading ramps twice as fast (the same frames and depths,
+      half the time step between them: the camera and DAQ sample the ramps at twice the rate);
+    - rest-after-release: the object at rest REST_AFTER_RELEASE_S after each location's release,
+      observed at REST_FRAMES evenly spaced frames (the probe hovering);
+    - oblique-probe: the shaft tilted OBLIQUE_DEG about the axis perpendicular to it and the
+      support normal (world y for a vertical shaft), the protocol's depths along the new shaft.
+    The planner's fifth, near-support (locations moved towards the marker nearest the support),
+    has no meaning here: every marker of the suite is on the top face, none nearer the support.
+    The seed (the rig: cameras, FSR, clock, noise) stays: the same rig records again."""
+    import copy
+
+    if name not in PROTOCOLS:
+        raise ValueError(f"unknown protocol '{name}' (one of {', '.join(PROTOCOLS)})")
+    c = copy.deepcopy(case)
+    if name == "standard":
+        return c
+    p = c["protocol"]
+    if name == "longer-holds":
+        p["hold"] *= 3
+    elif name == "faster-ramps":
+        p["ramp_step"] = 0.5
+    elif name == "rest-after-release":
+        p["rest"] = [REST_FRAMES, REST_AFTER_RELEASE_S]
+    else:
+        axis = np.array(c.get("probe_axis", [0.0, 0.0, -1.0]), float)
+        axis /= np.linalg.norm(axis)
+        about = np.cross(axis, [0.0, 0.0, 1.0])
+        about = about / np.linalg.norm(about) if np.linalg.norm(about) > 1e-6 else np.array([0.0, 1.0, 0.0])
+        th = np.radians(OBLIQUE_DEG)
+        # Rodrigues' rotation of the shaft about `about`
+        tilted = axis * np.cos(th) + np.cross(about, axis) * np.sin(th) + about * (about @ axis) * (1 - np.cos(th))
+        c["probe_axis"] = [round(float(v), 4) for v in tilted]
+    c["name"] = f"{case['name']}-{name}"
+    c["description"] = f"{case['description']} Re-recorded under the protocol {name}."
+    return c
+
+
+def uniform_steps(case):
+    """Whether every frame step of the case's protocol is one frame period (a rate-dependent
+    material is integrated with that one time step)."""
+    p = case["protocol"]
+    return p.get("ramp_step", 1.0) == 1.0 and "rest" not in p
 
 
 class Punch:
@@ -316,6 +384,9 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         # surface point under the location along the shaft (top face, after any pre-load)
         surface_pts.append(surface_point(model, np.array([loc[0], loc[1], height]), axis))
     rate_dependent = case["material"]["kind"] == "viscoelastic"
+    if rate_dependent and not uniform_steps(case):
+        raise ValueError(f"{case['name']}: a viscoelastic material is integrated with one time step; "
+                         "its protocol's frame steps differ (faster-ramps, rest-after-release)")
     path_dependent = (
         case["material"]["kind"] == "j2" and case["material"].get("yield") is not None
         or support["kind"] == "friction" or punch.friction == "stick"

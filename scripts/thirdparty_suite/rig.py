@@ -159,9 +159,12 @@ def daq(rng, t_frames, axial_force, fsr, clock, effects):
     v = np.clip(np.round(v / lsb) * lsb, 0, fsr["supply_v"])
     trig = None
     if not effects.get("no_trigger"):
+        # a trigger latency: the cameras expose that long after their pulse (a force synchronised
+        # by the pulses reads the force that much before the frame: a small clock offset)
+        latency = effects.get("trigger_latency_s", 0.0)
         high = np.zeros(len(t_daq), bool)
         for tf in t_frames:
-            td = off + (1 + drift) * tf
+            td = off + (1 + drift) * (tf - latency)
             high |= np.abs(t_daq - td) <= 0.5 * fsr["exposure_s"]
         trig = np.where(high, fsr["trigger_high_v"], 0.0) + rng.normal(0, 0.01, len(t_daq))
     return t_daq, v, trig, sensed
