@@ -142,6 +142,11 @@ impl Signatures {
 /// persistence (`hypotheses::plasticity::PERSISTENCE_Z`), fixed before any verdict was looked at.
 pub const DELAY_GROWTH_Z: f64 = 2.0;
 
+/// How closely (relative) the 50 % delay of a model read as the data are (`model_delay_growths`)
+/// must match the measured one: the bisection's 40 halvings of [0, 4 d₅₀] leave 4 × 2⁻⁴⁰ d₅₀; a
+/// model that misses by more did not reach the measured delay in its bracket.
+const DELAY_MATCH_TOLERANCE: f64 = 1e-6;
+
 /// The delay growths (50 % minus 10 % of the ramp) that a clock shift and a first-order lag
 /// would give on one location's ramp, measured as the data are: the geometry signal `geo` read
 /// through a clock shifted by δ (sampled at the frames, linearly interpolated between them) and
@@ -150,7 +155,9 @@ pub const DELAY_GROWTH_Z: f64 = 2.0;
 /// found as [`ramp_signatures`] finds them. Under a linear ramp started at t = 0 a lag reads
 /// r (t − τ (1 − e^{−t/τ})): its delay grows towards τ, a shift's is δ throughout; on frames
 /// the interpolation of the crossings adds the same bias to both. `None` without a positive
-/// delay or a crossing.
+/// delay, when a reading on the way has no crossing (the delay is unknown there, neither too
+/// large nor too small: the bisection cannot go on), or when the bracket [0, 4 × `delay_50_s`]
+/// holds no δ or τ that reproduces the measured delay within [`DELAY_MATCH_TOLERANCE`].
 fn model_delay_growths(
     t: &[f64],
     geo: &[f64],
@@ -180,12 +187,17 @@ fn model_delay_growths(
         let (mut lo, mut hi) = (0.0, 4.0 * delay_50_s);
         for _ in 0..40 {
             let mid = 0.5 * (lo + hi);
-            match delays(&read(mid)) {
-                Some((_, d50)) if d50 < delay_50_s => lo = mid,
-                _ => hi = mid,
+            // a reading without a crossing says nothing about the delay (not "too large")
+            let (_, d50) = delays(&read(mid))?;
+            if d50 < delay_50_s {
+                lo = mid;
+            } else {
+                hi = mid;
             }
         }
-        delays(&read(0.5 * (lo + hi))).map(|(d10, d50)| d50 - d10)
+        let (d10, d50) = delays(&read(0.5 * (lo + hi)))?;
+        // the model read as the data are must reproduce the measured delay it was solved for
+        ((d50 - delay_50_s).abs() <= DELAY_MATCH_TOLERANCE * delay_50_s).then_some(d50 - d10)
     };
     Some((growth(&shifted)?, growth(&lagged)?))
 }
@@ -1017,6 +1029,39 @@ mod tests {
             "{lag} vs {expected}"
         );
         assert!(model_delay_growths(&t, &geo, 0..100, -0.01).is_none());
+    }
+
+    /// A reading without a crossing is no reading: the geometry starts at 15 % of its peak one
+    /// frame before it drops to rest (a pre-contact frame still above the 10 % level) and then
+    /// ramps as above. A lag τ > 0.1 s / ln 1.5 = 0.247 s keeps its reading above 10 % through
+    /// the dip (y₀ = f₀ = 0.15, decaying as e^{−t/τ} for 0.1 s), so it never crosses 10 % upwards;
+    /// a measured 50 % delay of 0.3 s needs a longer lag. The old bisection took the missing
+    /// crossing for "τ too large", settled at the 0.247 s edge and returned the growth of a lag
+    /// whose 50 % delay is not the measured one (checked: the first assertion fails on
+    /// main 45e2751d's `_ => hi = mid`); now the lag gives no reading, so no model growths. The
+    /// shift keeps the dip (it only delays it) and still reads a delay; one the bracket cannot
+    /// reach (a shift beyond the trace) gives none either.
+    #[test]
+    fn model_delay_growths_without_a_crossing_give_no_reading() {
+        let t: Vec<f64> = (0..100).map(|k| 0.01 * k as f64).collect();
+        let geo: Vec<f64> = t
+            .iter()
+            .map(|&x| match x {
+                x if x < 0.005 => 0.15,
+                x => ((x - 0.1) / 0.5).clamp(0.0, 1.0),
+            })
+            .collect();
+        assert_eq!(model_delay_growths(&t, &geo, 0..100, 0.3), None);
+        let lagged = |tau: f64| -> Vec<f64> {
+            let g3: Vec<Vector3<f64>> = geo.iter().map(|&g| Vector3::new(g, 0.0, 0.0)).collect();
+            low_pass(&t, &g3, tau).iter().map(|v| v.x).collect()
+        };
+        let no_crossing = lagged(0.3);
+        let rmax = no_crossing.iter().cloned().fold(0.0, f64::max);
+        assert!(crossing_time(&t, &no_crossing, 0.1 * rmax, 0..100).is_none());
+        // a short delay: both models read it and reproduce it
+        let (shift, lag) = model_delay_growths(&t, &geo, 0..100, 0.04).unwrap();
+        assert!(shift.abs() < 1e-4 && lag > 1e-3, "{shift} {lag}");
     }
 
     #[test]
