@@ -306,6 +306,12 @@ pub fn confirm_with_material_refit(
     let sim: &dyn ProbeSimulator = sim;
     // Every refit's status (candidate, held-out location, what happened), reported in the method.
     let log = std::sync::Mutex::new(Vec::<RefitStatus>::new());
+    // A refit that panicked elsewhere poisons the lock; the statuses pushed so far stay valid.
+    let record = |s: RefitStatus| {
+        log.lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .push(s)
+    };
     let refit = |i: usize, skip: Option<usize>, from: Option<&Refitted>| {
         let ext = &points[i].1;
         let examples: Vec<ProbeExample> = (0..seg.num_folds())
@@ -322,7 +328,7 @@ pub fn confirm_with_material_refit(
         let mut m = match sim.refit_homogeneous(&examples, ext, start)? {
             MaterialRefitOutcome::Refitted(m) => m,
             MaterialRefitOutcome::Declined(why) => {
-                log.lock().unwrap().push(status(Err(why)));
+                record(status(Err(why)));
                 return Ok(None);
             }
         };
@@ -330,14 +336,12 @@ pub fn confirm_with_material_refit(
             Ok(x) => x,
             Err(DiagnoseError::Simulation { frame, reason }) => {
                 let why = format!("replay: frame {frame}: {reason}");
-                log.lock().unwrap().push(status(Err(why)));
+                record(status(Err(why)));
                 return Ok(None);
             }
             Err(e) => return Err(e),
         };
-        log.lock()
-            .unwrap()
-            .push(status(Ok((m.iterations, m.stalled_solves))));
+        record(status(Ok((m.iterations, m.stalled_solves))));
         let mut prediction = vec![p.rest_model_m.clone(); rec.frames.len()];
         for (row, &k) in x.into_iter().zip(&solved) {
             prediction[k] = row;
@@ -375,7 +379,9 @@ pub fn confirm_with_material_refit(
         method,
     )?;
     // in grid order (the refits ran in parallel): the method text is deterministic
-    let mut log = log.into_inner().unwrap_or_else(|e| e.into_inner());
+    let mut log = log
+        .into_inner()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     log.sort_by_key(|r| (r.index, r.skip.map_or(usize::MAX, |l| l)));
     if let Some(c) = c.as_mut() {
         c.method.push_str(&format!("; {}", refit_summary(&log)));
