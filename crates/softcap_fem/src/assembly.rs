@@ -273,13 +273,19 @@ impl SystemPattern {
 
     /// Scatter-adds one element matrix.
     pub fn add_element(&self, e: usize, k: &Matrix12, values: &mut [f64]) {
+        self.add_element_scaled(e, k, 1.0, values);
+    }
+
+    /// Scatter-adds `scale` × one element matrix, each entry scaled as it is added (the same
+    /// products as scattering a scaled copy, without forming it).
+    pub fn add_element_scaled(&self, e: usize, k: &Matrix12, scale: f64, values: &mut [f64]) {
         let range = self.element_offsets[e]..self.element_offsets[e + 1];
         let k = k.as_slice();
         for (&slot, &local) in self.element_slots[range.clone()]
             .iter()
             .zip(&self.element_local[range])
         {
-            values[slot as usize] += k[local as usize];
+            values[slot as usize] += k[local as usize] * scale;
         }
     }
 

@@ -1276,7 +1276,7 @@ impl DynamicSolver {
             for (k, g) in model.elements()[start..start + len].iter().enumerate() {
                 let ke = &matrices[k];
                 self.pattern
-                    .add_element(start + k, &(ke * a_stiff), &mut values);
+                    .add_element_scaled(start + k, ke, a_stiff, &mut values);
                 for q in 0..4 {
                     fi[g.nodes[q]] += forces[k][q];
                 }

@@ -218,6 +218,19 @@ pub fn corotational_forces(
 ///
 /// which is R K_e Rᵀ without forming K_e or the 16 triple products.
 pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3<f64>) -> Matrix12 {
+    let mut out = Matrix12::zeros();
+    warped_stiffness_into(geom, p, rotation, &mut out);
+    out
+}
+
+/// [`warped_stiffness`] written into `out` (every entry), for element loops that fill their
+/// matrices in place.
+pub fn warped_stiffness_into(
+    geom: &TetGeometry,
+    p: &LinearParams,
+    rotation: &Matrix3<f64>,
+    out: &mut Matrix12,
+) {
     let r = [
         rotation * geom.grads[0],
         rotation * geom.grads[1],
@@ -226,7 +239,6 @@ pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3
     ];
     let cg = 0.5 * p.lambda * geom.volume_m3;
     let ch = p.alpha * geom.volume_m3;
-    let mut out = Matrix12::zeros();
     for a in 0..4 {
         for b in a..4 {
             let d = geom.grads[a].dot(&geom.grads[b]);
@@ -245,18 +257,19 @@ pub fn warped_stiffness(geom: &TetGeometry, p: &LinearParams, rotation: &Matrix3
             }
         }
     }
-    out
 }
 
 /// Forces, warped stiffness and elastic energy of one corotational element from a single polar
-/// decomposition: (f_a = V R σ g_a, R K_e Rᵀ, ½ V σ : ε) — [`corotational_forces`],
+/// decomposition: (f_a = V R σ g_a, ½ V σ : ε) returned and R K_e Rᵀ written into `stiffness`
+/// (every entry; element loops fill their matrices in place) — [`corotational_forces`],
 /// [`warped_stiffness`] and the element term of the model energy, evaluated together (what the
 /// equilibrium iterations of bickel2009 §3.4 need at every iterate).
 pub fn corotational_linearization(
     geom: &TetGeometry,
     p: &LinearParams,
     x: &[Vector3<f64>],
-) -> ([Vector3<f64>; 4], Matrix12, f64) {
+    stiffness: &mut Matrix12,
+) -> ([Vector3<f64>; 4], f64) {
     let f = geom.deformation_gradient(x);
     let (r, eps) = corotated_strain(&f);
     let sigma = linear_stress(p, &eps);
@@ -268,7 +281,8 @@ pub fn corotational_linearization(
         p_mat * geom.grads[2],
         p_mat * geom.grads[3],
     ];
-    (forces, warped_stiffness(geom, p, &r), energy)
+    warped_stiffness_into(geom, p, &r, stiffness);
+    (forces, energy)
 }
 
 /// Consistent tangent ∂f_e/∂x_e of the corotational element (parameters held fixed).
@@ -481,7 +495,8 @@ mod tests {
             assert!((r.determinant() - 1.0).abs() < 1e-13);
             // Fused forces / warped matrix / energy = the separate kernels.
             let x: Vec<Vector3<f64>> = rest.iter().map(|v| f * v).collect();
-            let (fo, km, en) = corotational_linearization(&g, &p, &x);
+            let mut km = Matrix12::from_element(f64::NAN);
+            let (fo, en) = corotational_linearization(&g, &p, &x, &mut km);
             let fr = corotational_forces(&g, &p, &x);
             for a in 0..4 {
                 assert!((fo[a] - fr[a]).norm() <= 1e-12 * (1.0 + fr[a].norm()));

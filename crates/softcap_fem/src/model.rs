@@ -544,7 +544,7 @@ impl ElasticModel for CorotationalModel {
             |k: usize, ((f, m), w): ((&mut [Vector3<f64>; 4], &mut Matrix12), &mut f64)| {
                 let (g, p) = (&self.geometry[first + k], &self.params[first + k]);
                 match kind {
-                    StiffnessKind::Warped => (*f, *m, *w) = corotational_linearization(g, p, x),
+                    StiffnessKind::Warped => (*f, *w) = corotational_linearization(g, p, x, m),
                     StiffnessKind::Consistent => {
                         *f = corotational_forces(g, p, x);
                         *m = corotational_tangent(g, p, x);
