@@ -231,18 +231,22 @@ impl DynamicSearch {
         last_step: [1.0 / 16.0, 0.25, 0.25],
         max_rounds: 12,
     };
-    /// On the fit mesh refined 1 → 8 (a replay ≈ 21–24 CPU-s on the 5184-tet refined suite
-    /// template, 16× the fit mesh's): few replays — the 1-D line [`REFINED_START_DENSITY_KG_M3`]
-    /// at the middle damping, then two compass rounds of an octave in ρ and a factor 4 in α, β
-    /// (each fold's search proposes at most 6 points a round; points shared by several folds are
-    /// replayed once).
+    /// On the fit mesh refined 1 → 8 (a rigid-tip replay on the 5184-tet refined suite template
+    /// costs ≈ 16× the fit mesh's, the light densities dearest: at ρ 1000 kg/m³ about 3× one at
+    /// 16000, its free steps taking ≈ 8 chord updates each): few replays — the 1-D line
+    /// [`REFINED_START_DENSITY_KG_M3`] at the middle damping, then one compass round of an
+    /// octave in ρ and a factor 4 in α, β (each fold's search proposes at most 6 points; points
+    /// shared by several folds are replayed once). Its tolerance is that step: ρ to an octave
+    /// (the start line's factor 4 halved), α, β to a factor 4. A second round (ρ to half an
+    /// octave) moved no search on the suite's inertia-damping session: the same ρ, α, β and
+    /// held-out error, for 5 more replays.
     pub const REFINED: Self = Self {
         densities_kg_m3: &REFINED_START_DENSITY_KG_M3,
         alphas_per_s: &REFINED_START_ALPHA_PER_S,
         betas_s: &REFINED_START_BETA_S,
         first_step: [1.0, 2.0, 2.0],
-        last_step: [0.5, 2.0, 2.0],
-        max_rounds: 2,
+        last_step: [1.0, 2.0, 2.0],
+        max_rounds: 1,
     };
 }
 
