@@ -16,15 +16,19 @@ use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute};
 use crate::DiagnoseError;
 use crate::Result;
-use crate::cells::touched_balls;
+use crate::baseline::Prepared;
+use crate::cells::{contact_radius_m, touched_balls};
 use crate::confirm::{
     Candidate, ComplianceScale, Confirmed, lolo_choices_among, lolo_confirm_among,
 };
+use crate::recording::Recording;
+use crate::residual::{residuals, rest_mean};
 use crate::resim::{contact_sequence, pose_sequence};
 use crate::screen::{Basis, Refit, Variant};
+use crate::segment::{Phase, Segmentation};
 use crate::signal::derivative;
 use crate::signatures::Signatures;
-use crate::sim::{Extension, Field, ProbeSimulator, SequenceJob};
+use crate::sim::{Extension, Field, MarkerMode, ProbeSimulator, SequenceJob};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 
@@ -123,6 +127,12 @@ impl Hypothesis for InertiaDamping {
             Some(f) => f,
             None => sim,
         };
+        // the density line about the modal estimate where the plan has one (wang2015 §6.3)
+        let modal_density = if plan.modal_line.is_empty() {
+            None
+        } else {
+            modal_density_kg_m3(rec, seg, p, sim)?
+        };
         // the rigid tip at its measured poses (position control: compliance scale 1), else the
         // measured force (force-driven: the material's compliance scale refitted)
         let poses = pose_sequence(rec);
@@ -145,7 +155,7 @@ impl Hypothesis for InertiaDamping {
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
             lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
         };
-        let mut fit = fit_dynamics(&mut simulate, nf, train, &plan)?;
+        let mut fit = fit_dynamics(&mut simulate, nf, train, &plan, modal_density)?;
         for c in &mut fit.candidates {
             c.params
                 .push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
@@ -167,7 +177,11 @@ impl Hypothesis for InertiaDamping {
             false,
             None,
             format!(
-                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search, {} sequences on the {}, {} failed), leave-one-location-out",
+                "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search{}, {} sequences on the {}, {} failed), leave-one-location-out",
+                match modal_density {
+                    Some(rho) => format!(" from the modal density {rho:.0} kg/m^3"),
+                    None => String::new(),
+                },
                 fit.candidates.len(),
                 if refined {
                     "fit mesh refined 1 -> 8"
@@ -198,6 +212,166 @@ pub const REFINED_START_ALPHA_PER_S: [f64; 1] = [6.324555320336759];
 /// … and of [`START_BETA_S`], s.
 pub const REFINED_START_BETA_S: [f64; 1] = [8.94427190999916e-4];
 
+/// The refined start line about the modal density estimate: 2^{-1/2}, 1 and 2^{1/2} times it.
+/// Half an octave either side brackets the estimate's uncertainty (the measured frequency
+/// differs by ±5 % between the projections on the lowest modes, ±10 % in ρ; the two modes the
+/// ringing shows most give ρ 0.37 octave apart on the suite's session), and it is the
+/// compass's step in ρ from this line ([`DynamicSearch::modal_step`]), so a search whose best
+/// line point is the estimate proposes no new density.
+pub const MODAL_LINE: [f64; 3] = [
+    std::f64::consts::FRAC_1_SQRT_2,
+    1.0,
+    std::f64::consts::SQRT_2,
+];
+
+/// Density of the modal analysis, kg/m³ (any positive value: ω² ∝ 1/ρ at a fixed stiffness).
+const MODAL_REFERENCE_DENSITY_KG_M3: f64 = 1000.0;
+
+/// The density at which the model rings as the measured body does after release (wang2015 §6.3,
+/// the modal warm start, with ρ in the place of E): with the material fixed, every natural
+/// frequency of K φ = ω² M φ scales as 1/√ρ, so a mode of frequency f₀ at a reference density
+/// ρ₀ ([`ProbeSimulator::natural_modes`]) matches the measured frequency f at ρ = ρ₀ (f₀ / f)².
+/// f is read, as wang2015 reads ω₁, from the captured displacements projected onto the mode:
+/// per block of released frames after a press (the probe has let go, so the body rings freely
+/// about its rest shape), the markers within [`contact_radius_m`] of the press's contact point,
+/// their baseline residual less its mean at rest projected onto the mode's marker shape; the
+/// frequency of a damped oscillation fitted to those projections ([`ringing_frequency_hz`]).
+/// The mode is the one of the lowest six whose shape explains the largest share of those
+/// displacements, not wang2015's first mode: their bar rings in its first mode, while a block
+/// pressed straight down at its top rings in a vertical mode above its two lateral sway modes
+/// (suite session: sway 22.6 Hz at ρ₀ gives ρ 4428 kg/m³ and a held-out error of 0.1420 mm;
+/// the mode explaining most, 37.0 Hz, 11428 kg/m³, against the fitted 16208). The
+/// position-controlled replay moves the markers through E/ρ only (the fitted material's E
+/// stands), so this is the density the search looks for; it replaces the fixed start line and
+/// its light end, the dearest replays. `None` when the simulator has no modes, the recording no
+/// ringing (fewer than 3 triples of consecutive released frames), or the fitted oscillation is
+/// not underdamped.
+pub fn modal_density_kg_m3(
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    sim: &dyn ProbeSimulator,
+) -> Result<Option<f64>> {
+    let Some(modes) = sim.natural_modes(MODAL_REFERENCE_DENSITY_KG_M3, 6)? else {
+        return Ok(None);
+    };
+    let h = frame_interval_s(&p.times_s);
+    let res = residuals(rec, &p.baseline_m);
+    let rest = rest_mean(&res, seg, rec.num_markers());
+    let radius = contact_radius_m(rec);
+    let blocks = released_blocks(seg, res.len());
+    // per block, the projections z_k = φ·d_k / |φ|² and the share (φ·d_k)² / |φ|² of |d_k|²
+    // they explain, over the observed near markers
+    let project = |mode: &MarkerMode| -> (Vec<Vec<f64>>, f64) {
+        let mut explained = 0.0;
+        let z = blocks
+            .iter()
+            .map(|(l, frames)| {
+                let tip = seg.locations[*l].contact_tip_m;
+                let near: Vec<usize> = (0..rec.num_markers())
+                    .filter(|&m| (tip - rec.rest_markers_m[m]).norm() <= radius)
+                    .collect();
+                frames
+                    .iter()
+                    .map(|&k| {
+                        let (mut num, mut den) = (0.0, 0.0);
+                        for &m in &near {
+                            if let Some(r) = res[k][m] {
+                                num += mode.markers[m].dot(&(r - rest[m]));
+                                den += mode.markers[m].norm_squared();
+                            }
+                        }
+                        if den > 0.0 {
+                            explained += num * num / den;
+                            num / den
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        (z, explained)
+    };
+    let projected: Vec<(Vec<Vec<f64>>, f64)> = modes.iter().map(project).collect();
+    // the mode the ringing shows most: the largest share of the released displacement
+    let Some((mode, (z, _))) = modes
+        .iter()
+        .zip(&projected)
+        .max_by(|a, b| a.1.1.total_cmp(&b.1.1))
+    else {
+        return Ok(None);
+    };
+    let Some(f) = ringing_frequency_hz(z, h) else {
+        return Ok(None);
+    };
+    Ok(Some(
+        MODAL_REFERENCE_DENSITY_KG_M3 * (mode.frequency_hz / f).powi(2),
+    ))
+}
+
+/// The median interval between consecutive frame times, s.
+fn frame_interval_s(times_s: &[f64]) -> f64 {
+    let mut dt: Vec<f64> = times_s.windows(2).map(|w| w[1] - w[0]).collect();
+    if dt.is_empty() {
+        return 0.0;
+    }
+    dt.sort_by(f64::total_cmp);
+    dt[dt.len() / 2]
+}
+
+/// The blocks of consecutive released frames among the first `n_frames`, each after one press:
+/// (location, frames) in frame order.
+fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize>)> {
+    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
+    for k in 0..n_frames.min(seg.phases.len()) {
+        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
+            continue;
+        };
+        match blocks.last_mut() {
+            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&q| q + 1 == k) => {
+                frames.push(k)
+            }
+            _ => blocks.push((l, vec![k])),
+        }
+    }
+    blocks
+}
+
+/// The undamped natural frequency, Hz, of a free damped oscillation z̈ + 2ζω ż + ω² z = 0 shared
+/// by the sampled signals `z` (frame interval `h_s`): sampled, each obeys the linear prediction
+/// z_{k+1} = a₁ z_k + a₂ z_{k−1} whose characteristic roots r e^{±iθ} are e^{(−ζω ± iω_d) h}
+/// (Prony's method with two poles), so a₁, a₂ are fitted by least squares over every signal's
+/// triples and ω = |ln(r e^{iθ})| / h = √(ln² r + θ²) / h. `None` with fewer than 3 equations
+/// in all or when the roots are real (no oscillation).
+pub fn ringing_frequency_hz(z: &[Vec<f64>], h_s: f64) -> Option<f64> {
+    let (mut s11, mut s12, mut s22, mut b1, mut b2, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0usize);
+    for w in z.iter().flat_map(|sig| sig.windows(3)) {
+        let (zm, z0, zp) = (w[0], w[1], w[2]);
+        s11 += z0 * z0;
+        s12 += z0 * zm;
+        s22 += zm * zm;
+        b1 += z0 * zp;
+        b2 += zm * zp;
+        n += 1;
+    }
+    let det = s11 * s22 - s12 * s12;
+    if n < 3 || !h_s.is_finite() || h_s <= 0.0 || !det.is_finite() || det <= 1e-12 * s11 * s22 {
+        return None;
+    }
+    let a1 = (b1 * s22 - b2 * s12) / det;
+    let a2 = (s11 * b2 - s12 * b1) / det;
+    // roots of r² − a₁ r − a₂ = 0: complex when a₁² + 4 a₂ < 0, then r² = −a₂
+    let discriminant = a1 * a1 + 4.0 * a2;
+    if discriminant.is_nan() || discriminant >= 0.0 {
+        return None;
+    }
+    let r = (-a2).sqrt();
+    let theta = (a1 / (2.0 * r)).clamp(-1.0, 1.0).acos();
+    let omega = (r.ln().powi(2) + theta * theta).sqrt() / h_s;
+    Some(omega / (2.0 * std::f64::consts::PI))
+}
+
 /// log₂ bounds of (ρ [kg/m³], α [1/s], β [s]).
 const LOG2_BOUNDS: [(f64, f64); 3] = [(5.0, 17.0), (-4.0, 9.0), (-17.0, -4.0)];
 
@@ -217,6 +391,11 @@ pub struct DynamicSearch {
     pub last_step: [f64; 3],
     /// At most this many compass rounds.
     pub max_rounds: usize,
+    /// The start line's densities as factors of the modal estimate ([`modal_density_kg_m3`]),
+    /// which replace [`Self::densities_kg_m3`] when there is one; empty: always the fixed line.
+    pub modal_line: &'static [f64],
+    /// The compass's step along log₂ ρ (first and last) from the modal line.
+    pub modal_step: f64,
 }
 
 impl DynamicSearch {
@@ -230,16 +409,19 @@ impl DynamicSearch {
         first_step: [1.0, 1.0, 1.0],
         last_step: [1.0 / 16.0, 0.25, 0.25],
         max_rounds: 12,
+        modal_line: &[],
+        modal_step: 1.0,
     };
     /// On the fit mesh refined 1 → 8 (a rigid-tip replay on the 5184-tet refined suite template
     /// costs ≈ 16× the fit mesh's, the light densities dearest: at ρ 1000 kg/m³ about 3× one at
     /// 16000, its free steps taking ≈ 8 chord updates each): few replays — the 1-D line
-    /// [`REFINED_START_DENSITY_KG_M3`] at the middle damping, then one compass round of an
-    /// octave in ρ and a factor 4 in α, β (each fold's search proposes at most 6 points; points
-    /// shared by several folds are replayed once). Its tolerance is that step: ρ to an octave
-    /// (the start line's factor 4 halved), α, β to a factor 4. A second round (ρ to half an
-    /// octave) moved no search on the suite's inertia-damping session: the same ρ, α, β and
-    /// held-out error, for 5 more replays.
+    /// [`MODAL_LINE`] about the modal density ([`modal_density_kg_m3`]; without one
+    /// [`REFINED_START_DENSITY_KG_M3`]) at the middle damping, then one compass round of half an
+    /// octave in ρ (an octave from the fixed line) and a factor 4 in α, β (each fold's search
+    /// proposes at most 6 points; points shared by several folds are replayed once). Its
+    /// tolerance is that step. On the suite's inertia-damping session an octave line about the
+    /// modal estimate (11428 kg/m³) kept ρ 11460 and missed the limit (0.1113 mm against
+    /// 0.1101); the half-octave line reaches 16208 (0.0906 mm).
     pub const REFINED: Self = Self {
         densities_kg_m3: &REFINED_START_DENSITY_KG_M3,
         alphas_per_s: &REFINED_START_ALPHA_PER_S,
@@ -247,6 +429,8 @@ impl DynamicSearch {
         first_step: [1.0, 2.0, 2.0],
         last_step: [1.0, 2.0, 2.0],
         max_rounds: 1,
+        modal_line: &MODAL_LINE,
+        modal_step: 0.5,
     };
 }
 
@@ -306,7 +490,8 @@ fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
 
 /// Fits the dynamic model's density ρ and Rayleigh α, β (wang2015 eq. 3: D = α M + β K) per
 /// fold on its training locations: every fold and the full data start from the best point of
-/// `plan`'s start grid (simulated once), then a compass search in log₂ (ρ, α, β) — each round
+/// `plan`'s start grid (simulated once; its densities about `modal_density_kg_m3` when `plan` has a
+/// modal line and the estimate is given), then a compass search in log₂ (ρ, α, β) — each round
 /// every search tries ± its step along each coordinate, moves to the best of its points
 /// (training error, `train`), and halves its steps when none is better, until they are below
 /// `plan.last_step` or after `plan.max_rounds` rounds. The searches run in lockstep: one round's points
@@ -321,6 +506,7 @@ pub fn fit_dynamics(
     folds: usize,
     train: impl Fn(&[Candidate], &dyn Fn(usize, Option<usize>) -> bool) -> Vec<Option<(usize, f64)>>,
     plan: &DynamicSearch,
+    modal_density_kg_m3: Option<f64>,
 ) -> Result<DynamicFit> {
     let mut fit = DynamicFit {
         candidates: Vec::new(),
@@ -361,8 +547,16 @@ pub fn fit_dynamics(
         }
         Ok(())
     };
+    let (mut first_step, mut last_step) = (plan.first_step, plan.last_step);
+    let densities: Vec<f64> = match modal_density_kg_m3 {
+        Some(rho) if !plan.modal_line.is_empty() => {
+            (first_step[0], last_step[0]) = (plan.modal_step, plan.modal_step);
+            plan.modal_line.iter().map(|f| f * rho).collect()
+        }
+        _ => plan.densities_kg_m3.to_vec(),
+    };
     let mut start = Vec::new();
-    for rho in plan.densities_kg_m3 {
+    for rho in &densities {
         for alpha in plan.alphas_per_s {
             for beta in plan.betas_s {
                 start.push((key([rho.log2(), alpha.log2(), beta.log2()]), None));
@@ -378,7 +572,7 @@ pub fn fit_dynamics(
     let first = choose(&fit);
     let mut searches: Vec<Option<(Key, [f64; 3])>> = first
         .iter()
-        .map(|c| c.map(|(i, _)| (keys[i], plan.first_step)))
+        .map(|c| c.map(|(i, _)| (keys[i], first_step)))
         .collect();
     for _ in 0..plan.max_rounds {
         // this round's points, each with the searches proposing it
@@ -389,7 +583,7 @@ pub fn fit_dynamics(
             };
             let c = theta(*centre);
             for d in 0..3 {
-                if step[d] < plan.last_step[d] {
+                if step[d] < last_step[d] {
                     continue;
                 }
                 for sign in [-1.0, 1.0] {
@@ -429,7 +623,7 @@ pub fn fit_dynamics(
                 continue;
             };
             if keys[i] == *centre {
-                for (s, last) in step.iter_mut().zip(plan.last_step) {
+                for (s, last) in step.iter_mut().zip(last_step) {
                     if *s >= last {
                         *s *= 0.5;
                     }
@@ -445,6 +639,28 @@ pub fn fit_dynamics(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ringing_frequency_recovers_a_sampled_damped_oscillation() {
+        // 9 Hz, ζ 0.15, sampled at 60 fps over 12 frames, two blocks of different phase/amplitude
+        let (f, zeta, h) = (9.0, 0.15, 1.0 / 60.0);
+        let w = 2.0 * std::f64::consts::PI * f;
+        let wd = w * (1.0f64 - zeta * zeta).sqrt();
+        let sig = |a: f64, phi: f64| -> Vec<f64> {
+            (0..12)
+                .map(|k| {
+                    let t = k as f64 * h;
+                    a * (-zeta * w * t).exp() * (wd * t + phi).cos()
+                })
+                .collect()
+        };
+        let z = vec![sig(1e-3, 0.3), sig(-4e-4, 1.2)];
+        let got = ringing_frequency_hz(&z, h).expect("an underdamped oscillation");
+        assert!((got - f).abs() < 1e-6 * f, "{got} Hz");
+        // a decay without oscillation has real roots
+        let decay: Vec<f64> = (0..12).map(|k| (-0.3 * k as f64).exp()).collect();
+        assert_eq!(ringing_frequency_hz(&[decay], h), None);
+    }
 
     #[test]
     fn lattice_keys_round_trip_and_name_the_parameters() {

@@ -80,6 +80,15 @@ pub enum MaterialRefitOutcome {
     Declined(String),
 }
 
+/// A natural mode of the model seen at the markers ([`ProbeSimulator::natural_modes`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MarkerMode {
+    /// Natural frequency ω / 2π, Hz.
+    pub frequency_hz: f64,
+    /// The mode shape φ at every marker (M-orthonormal over the mesh's nodes), m/√kg.
+    pub markers: Vec<Vector3<f64>>,
+}
+
 /// One re-simulation of a grid: the extension and the frames of its sequence
 /// ([`ProbeSimulator::simulate_sequences`]).
 pub type SequenceJob = (Extension, Vec<SequenceFrame>);
@@ -135,6 +144,15 @@ pub trait ProbeSimulator: Send + Sync {
     fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
         let _ = (tip_radius_m, tips_m);
         false
+    }
+
+    /// The lowest `count` natural modes of the model about its rest shape, K φ = ω² M φ with the
+    /// lumped mass matrix M of density `density_kg_m3` and the attached nodes fixed (wang2015
+    /// §6.3; `softcap_fem::lanczos_modes`), ascending: each mode's frequency and its shape at
+    /// the markers. `Ok(None)` (default) when this simulator has no mesh to analyse.
+    fn natural_modes(&self, density_kg_m3: f64, count: usize) -> Result<Option<Vec<MarkerMode>>> {
+        let _ = (density_kg_m3, count);
+        Ok(None)
     }
 
     /// Marker positions of every frame (time order) under the model extended by `ext`, with the

@@ -4,15 +4,16 @@
 //! nodal forces; the tangent response ∂x/∂f of the converged state.
 
 use super::contract::{
-    Extension, Field, LoadPoint, MaterialRefit, MaterialRefitOutcome, ProbeLoad, ProbeSimulator,
-    SequenceFrame, SequenceJob, SimLoad, SimOutput,
+    Extension, Field, LoadPoint, MarkerMode, MaterialRefit, MaterialRefitOutcome, ProbeLoad,
+    ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
 };
 use crate::{DiagnoseError, Result};
 use nalgebra::{Unit, Vector3};
 use serde::{Deserialize, Serialize};
 use softcap_fem::{
     ContactDiscretisation, ContactSettings, CorotationalModel, ElasticModel, EquilibriumSettings,
-    LinearParams, Refactorization, StaticSolver, TipShape,
+    LinearParams, ModalSettings, Refactorization, StaticSolver, TipShape, lanczos_modes,
+    lumped_masses,
 };
 use softcap_mesh::{RefineBall, RefinedTetMesh, TetMesh};
 use softcap_probing::{
@@ -464,6 +465,31 @@ impl ProbeSimulator for FemProbeSimulator {
             iterations: fit.iterations,
             stalled_solves: fit.stalled_solves,
         }))
+    }
+
+    fn natural_modes(&self, density_kg_m3: f64, count: usize) -> Result<Option<Vec<MarkerMode>>> {
+        let fem = |e: softcap_fem::FemError| DiagnoseError::Fem(Box::new(e));
+        let masses = lumped_masses(&self.model, density_kg_m3);
+        let settings = ModalSettings {
+            num_modes: count,
+            ..ModalSettings::default()
+        };
+        let fixed = self.setup.dirichlet().dofs();
+        let modes = lanczos_modes(&self.model, &masses, &fixed, &settings)
+            .map_err(fem)?
+            .modes;
+        Ok(Some(
+            modes
+                .frequencies_hz()
+                .into_iter()
+                .zip(&modes.shapes)
+                // the embedding is linear in the node field: the markers' share of the shape
+                .map(|(frequency_hz, shape)| MarkerMode {
+                    frequency_hz,
+                    markers: self.setup.marker_positions(shape),
+                })
+                .collect(),
+        ))
     }
 
     fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {

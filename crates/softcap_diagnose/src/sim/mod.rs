@@ -39,8 +39,8 @@ mod fem;
 mod resolution;
 
 pub use contract::{
-    Extension, Field, LoadPoint, MaterialRefit, MaterialRefitOutcome, ProbeLoad, ProbeSimulator,
-    SequenceFrame, SequenceJob, SimLoad, SimOutput,
+    Extension, Field, LoadPoint, MarkerMode, MaterialRefit, MaterialRefitOutcome, ProbeLoad,
+    ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
 };
 pub use extend::{DYNAMIC_STEPS_PER_FRAME, transverse_from_isotropic, transverse_with_poisson};
 pub use fem::{FemProbeSimulator, FemSimSettings, RefinementSettings};
