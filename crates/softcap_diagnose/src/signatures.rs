@@ -456,9 +456,9 @@ fn residual_signatures(rec: &Recording, seg: &Segmentation, res: &Residuals, s: 
 
 /// The blocks of consecutive released frames among the first `n_frames`, each after one press:
 /// (location, frames) in frame order.
-fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize>)> {
+pub(crate) fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize>)> {
     let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
-    for k in 0..n_frames {
+    for k in 0..n_frames.min(seg.phases.len()) {
         let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
             continue;
         };

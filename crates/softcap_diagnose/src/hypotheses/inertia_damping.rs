@@ -25,9 +25,10 @@ use crate::recording::Recording;
 use crate::residual::{residuals, rest_mean};
 use crate::resim::{contact_sequence, pose_sequence};
 use crate::screen::{Basis, Refit, Variant};
-use crate::segment::{Phase, Segmentation};
+use crate::segment::Segmentation;
 use crate::signal::derivative;
 use crate::signatures::Signatures;
+use crate::signatures::released_blocks;
 use crate::sim::{Extension, Field, MarkerMode, ProbeSimulator, SequenceJob};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
@@ -318,24 +319,6 @@ fn frame_interval_s(times_s: &[f64]) -> f64 {
     }
     dt.sort_by(f64::total_cmp);
     dt[dt.len() / 2]
-}
-
-/// The blocks of consecutive released frames among the first `n_frames`, each after one press:
-/// (location, frames) in frame order.
-fn released_blocks(seg: &Segmentation, n_frames: usize) -> Vec<(usize, Vec<usize>)> {
-    let mut blocks: Vec<(usize, Vec<usize>)> = Vec::new();
-    for k in 0..n_frames.min(seg.phases.len()) {
-        let (Phase::Released, Some(l)) = (seg.phases[k], seg.fold_of_frame[k]) else {
-            continue;
-        };
-        match blocks.last_mut() {
-            Some((lb, frames)) if *lb == l && frames.last().is_some_and(|&q| q + 1 == k) => {
-                frames.push(k)
-            }
-            _ => blocks.push((l, vec![k])),
-        }
-    }
-    blocks
 }
 
 /// The undamped natural frequency, Hz, of a free damped oscillation z̈ + 2ζω ż + ω² z = 0 shared
