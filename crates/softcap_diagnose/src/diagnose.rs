@@ -539,6 +539,25 @@ fn screened_candidates(rows: &[Row], settings: &DiagnoseSettings) -> Vec<Effect>
     c
 }
 
+/// The force screen's candidates ([`Row::force_qualifies`]) as the marker screen orders its
+/// look-alikes: by their signatures, then by their held-out force error — the lag and the clock
+/// offset both model the force channel, and the signatures (a delay that grows or not) say which
+/// to try first.
+fn force_candidates(rows: &[Row]) -> Vec<Effect> {
+    let mut q: Vec<&Row> = rows.iter().filter(|r| r.force_qualifies).collect();
+    q.sort_by(|a, b| {
+        let force = |r: &Row| {
+            r.force
+                .as_ref()
+                .map_or(f64::INFINITY, |f| f.heldout_force_rmse_after_n)
+        };
+        b.support
+            .total_cmp(&a.support)
+            .then(force(a).total_cmp(&force(b)))
+    });
+    q.iter().map(|r| r.hypothesis.effect()).collect()
+}
+
 /// Confirms the candidates with their extended FEM models (re-simulation,
 /// leave-one-location-out) until one keeps its gain: first those whose signature alone is
 /// unambiguous ([`SignatureRoute::BeforeScreen`]), then at most `max_confirmations` of the
@@ -570,11 +589,9 @@ fn confirm(
     let after_screen = sent(SignatureRoute::AfterScreen, &screened);
     // the force screen's: their marker error may sit at the noise (checked on the force
     // channel instead), after every candidate the markers or signatures sent
-    let by_force: Vec<Effect> = screen
-        .rows
-        .iter()
-        .filter(|r| settings.name_on_force_channel && r.force_qualifies)
-        .map(|r| r.hypothesis.effect())
+    let by_force: Vec<Effect> = force_candidates(&screen.rows)
+        .into_iter()
+        .filter(|_| settings.name_on_force_channel)
         .filter(|e| {
             !screened.contains(e) && !before_screen.contains(e) && !after_screen.contains(e)
         })
@@ -685,6 +702,13 @@ struct Selection {
 }
 
 impl Row {
+    /// Per-fold gains of its force screen's model on the force channel (`None` without one).
+    fn force_gains(&self) -> Option<Vec<f64>> {
+        self.force
+            .as_ref()
+            .map(|f| fold_gains(&f.fold_rss_before_n2, &f.fold_rss_after_n2))
+    }
+
     /// Per-fold gains of its linearised refit on its scored cells.
     fn screen_gains(&self, scoring: &Scoring<'_>) -> Vec<f64> {
         fold_gains(
@@ -726,7 +750,11 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
             prediction: None,
         };
     };
-    let lookalikes = lookalikes(row1, screen, confirmation, s);
+    let on_force = confirmation.by_force.contains(&e1);
+    let lookalikes = match on_force {
+        true => force_lookalikes(row1, screen, confirmation),
+        false => lookalikes(row1, screen, confirmation, s),
+    };
     let Some(mut x) = extended_prediction(cx, screen, confirmation) else {
         return match lookalikes.is_empty() {
             true => Selection {
@@ -735,7 +763,7 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
                 confidence: 0.0,
                 prediction: None,
             },
-            false => inconclusive(cx, screen, row1, &lookalikes),
+            false => inconclusive(cx, screen, row1, &lookalikes, on_force),
         };
     };
     let before_folds = scoring.fold_before(e1);
@@ -793,10 +821,12 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
     let lookalikes: Vec<&Row> = lookalikes
         .into_iter()
         .filter(|r| !named.contains(&r.hypothesis.effect()))
-        .filter(|r| same_cell_gains(cx, screen, r, e1).is_none_or(|g| !outexplains(&g1, &g)))
+        .filter(|r| {
+            on_force || same_cell_gains(cx, screen, r, e1).is_none_or(|g| !outexplains(&g1, &g))
+        })
         .collect();
     if !lookalikes.is_empty() {
-        return inconclusive(cx, screen, row1, &lookalikes);
+        return inconclusive(cx, screen, row1, &lookalikes, on_force);
     }
     Selection {
         confidence: effects[0].confidence,
@@ -807,21 +837,24 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
 }
 
 /// `inconclusive` between the confirmed `row1` and its `lookalikes`: each candidate with its fold
-/// gains on the verdict's cells (the comparison that could not separate them).
+/// gains on the verdict's cells, or on the force channel when the verdict was named there
+/// (`on_force`) — the comparison that could not separate them.
 fn inconclusive(
     cx: &Context<'_>,
     screen: &Screen<'_>,
     row1: &Row,
     lookalikes: &[&Row],
+    on_force: bool,
 ) -> Selection {
     let (s, scoring) = (cx.settings, &screen.scoring);
     let e1 = row1.hypothesis.effect();
     let candidates: Vec<Candidate> = std::iter::once(row1)
         .chain(lookalikes.iter().copied())
         .map(|r| {
-            let gains = match r.hypothesis.effect() == e1 {
-                true => None,
-                false => same_cell_gains(cx, screen, r, e1),
+            let gains = match (r.hypothesis.effect() == e1, on_force) {
+                (_, true) => r.force_gains(),
+                (true, false) => None,
+                (false, false) => same_cell_gains(cx, screen, r, e1),
             }
             .unwrap_or_else(|| r.screen_gains(scoring));
             Candidate {
@@ -891,6 +924,39 @@ fn lookalikes<'r>(
                 && r.support >= row1.support
                 && !rejected
                 && !separable(&g1, &r.screen_gains(scoring))
+        })
+        .collect()
+}
+
+/// The look-alikes of `row1` named on the force channel: the other force screen candidates
+/// ([`Row::force_qualifies`]) not ranked below it by their signatures, not rejected by their own
+/// re-simulation on the force channel (`force_confirmed`), with force fold gains not separable
+/// from `row1`'s ([`separable`]) — on a session whose markers sit at the model's floor, the
+/// force channel is the only evidence, so two force models it cannot tell apart are both named
+/// candidates (`inconclusive`) and the planner's re-recording decides.
+fn force_lookalikes<'r>(
+    row1: &Row,
+    screen: &'r Screen<'_>,
+    confirmation: &Confirmation,
+) -> Vec<&'r Row> {
+    let Some(g1) = row1.force_gains() else {
+        return Vec::new();
+    };
+    screen
+        .rows
+        .iter()
+        .filter(|r| {
+            let e = r.hypothesis.effect();
+            let rejected = match confirmation.confirmed.get(&e) {
+                Some(Ok(c)) => !force_confirmed(&screen.scoring, c, r.before_m),
+                Some(Err(_)) => true,
+                None => false,
+            };
+            e != row1.hypothesis.effect()
+                && r.force_qualifies
+                && r.support >= row1.support
+                && !rejected
+                && r.force_gains().is_some_and(|g| !separable(&g1, &g))
         })
         .collect()
 }

@@ -311,6 +311,17 @@ mod tests {
     /// with the reading of a sensor chain of lag `tau_s` and play `h`; the tip tracks the surface
     /// exactly but for a ±1 µm jitter. Returns the observations and the segmentation.
     fn presses(tau_s: f64, h: f64) -> (ForceObservations, Segmentation) {
+        let (obs, seg, _) = presses_read(tau_s, h, 0.0);
+        (obs, seg)
+    }
+
+    /// [`presses`] with the reading also `offset_s` late (the force at t − offset_s, a clock
+    /// offset); returns the recording too.
+    fn presses_read(
+        tau_s: f64,
+        h: f64,
+        offset_s: f64,
+    ) -> (ForceObservations, Segmentation, Recording) {
         let mut profile = vec![0.0; 3];
         profile.extend((1..=10).map(|i| i as f64 / 10.0));
         profile.extend([1.0; 10]);
@@ -327,6 +338,11 @@ mod tests {
             }
         }
         let (reading, _) = crate::sensor::reading(&t, &truth, tau_s, h, false);
+        let late: Vec<Vector3<f64>> = reading.iter().map(|&r| Vector3::new(r, 0.0, 0.0)).collect();
+        let reading: Vec<f64> = t
+            .iter()
+            .map(|&tk| crate::signal::sample(&t, &late, tk - offset_s).x)
+            .collect();
         let axis = -Vector3::z();
         let frames: Vec<Frame> = (0..t.len())
             .map(|k| {
@@ -370,7 +386,7 @@ mod tests {
                 assert!((y - truth[k]).abs() < 2e-3, "{k}: {y} vs {}", truth[k]);
             }
         }
-        (obs, seg)
+        (obs, seg, rec)
     }
 
     /// The first-order sensor columns of `crate::hypotheses::sensor_lag` on `obs`.
@@ -381,6 +397,41 @@ mod tests {
         cols.push(Column::nonneg("tau_s", d.clone()));
         let _ = seg;
         (Vec::new(), cols)
+    }
+
+    /// The lag and the clock offset on the same force channel: a reading one frame (0.1 s) late
+    /// is fitted by the shifted clock's y = a f(t + δ) + o / c (`clock_offset`) at δ = 0.1 s to
+    /// the tip jitter, better than by the lag's columns; a lagging reading (τ 0.15 s) the other
+    /// way round. Fails when the offset has no force-channel model or reads the clock the wrong
+    /// way (δ = −0.1 s does not undo a late reading).
+    #[test]
+    fn a_late_reading_and_a_lagging_one_compete_on_the_force_channel() {
+        let offsets: Vec<f64> = (-6..=6)
+            .filter(|&i| i != 0)
+            .map(|i| 0.05 * i as f64)
+            .collect();
+        let fit = |tau_s: f64, offset_s: f64| {
+            let (obs, seg, rec) = presses_read(tau_s, 0.0, offset_s);
+            let t: Vec<f64> = rec.times_s();
+            let f: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
+            let shift = crate::hypotheses::clock_offset::offset_force_candidates(
+                &obs, &rec, &t, &f, &offsets,
+            );
+            let shift = heldout_fit(&obs, &seg, &shift).unwrap();
+            let lag = heldout_fit(&obs, &seg, &[lag_candidate(&obs, &seg)]).unwrap();
+            (shift, lag)
+        };
+        let (shift, lag) = fit(0.0, 0.1);
+        assert!(
+            shift.gain() > 0.99 && shift.gain() > lag.gain(),
+            "{shift:?} {lag:?}"
+        );
+        assert_eq!(shift.force_params[0], ("offset_s".to_string(), 0.1));
+        let (shift, lag) = fit(0.15, 0.0);
+        assert!(
+            lag.heldout_force_rmse_after_n < shift.heldout_force_rmse_after_n,
+            "{shift:?} {lag:?}"
+        );
     }
 
     #[test]

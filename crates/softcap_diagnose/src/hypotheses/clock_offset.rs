@@ -7,12 +7,16 @@
 //! at 10 % and 50 % of the ramp that do not grow as a lag's would, beyond their standard error
 //! (a pure time shift). Confirmation: the default model under the shifted force, δ around the
 //! screen's estimate, with the material refitted to the shifted forces (`force_channel`).
+//! Force channel (`crate::indentation`): the force the default model needs at the tracked tip
+//! depth against the reading read through the shifted clock, y ≈ a f(t + δ) + o / c — the model
+//! the lag's y ≈ a f + o / c + τ ḟ + h sgn(ḟ) f competes with on the same observations.
 
 use super::Effect;
 use super::contract::{Context, Hypothesis, param};
 use super::force_channel;
 use crate::Result;
 use crate::confirm::Confirmed;
+use crate::indentation::{ForceCandidate, ForceObservations, heldout_fit};
 use crate::screen::{Basis, FrameStats, Refit, Variant, bounded_least_squares};
 use crate::signal::{derivative, median_dt, sample};
 use crate::signatures::Signatures;
@@ -73,6 +77,40 @@ fn first_order_variant(cx: &Context<'_>) -> Option<Variant> {
     (delta.len() == 1 && delta[0].abs() < 0.5 * median_dt(&p.times_s)).then_some(v)
 }
 
+/// The screen's offsets: a quarter of the median frame interval (1–10 ms) over ±0.3 s, 0 left out.
+fn screen_offsets(times_s: &[f64]) -> Vec<f64> {
+    let step = (median_dt(times_s) / 4.0).clamp(1e-3, 0.01);
+    let nsteps = (0.3 / step).round() as i64;
+    (-nsteps..=nsteps)
+        .filter(|&i| i != 0)
+        .map(|i| i as f64 * step)
+        .collect()
+}
+
+/// The force-channel models of a shifted clock (`ClockOffset::force_candidates`): per offset δ
+/// of `offsets`, y ≈ a f(t + δ) + o / c with f the recorded `forces` at the frames of `rec`
+/// (times `t`) read along each frame's axis.
+pub(crate) fn offset_force_candidates(
+    obs: &ForceObservations,
+    rec: &crate::recording::Recording,
+    t: &[f64],
+    forces: &[Vector3<f64>],
+    offsets: &[f64],
+) -> Vec<ForceCandidate> {
+    offsets
+        .iter()
+        .map(|&d| {
+            let params = vec![("offset_s".into(), d)];
+            force_channel::corrected_force_candidate(
+                obs,
+                params,
+                &shifted_forces(t, forces, d),
+                rec,
+            )
+        })
+        .collect()
+}
+
 impl Hypothesis for ClockOffset {
     fn effect(&self) -> Effect {
         Effect::ClockOffset
@@ -83,14 +121,7 @@ impl Hypothesis for ClockOffset {
     }
 
     fn variants(&self, cx: &Context<'_>) -> Vec<Variant> {
-        let p = cx.prepared;
-        let step = (median_dt(&p.times_s) / 4.0).clamp(1e-3, 0.01);
-        let nsteps = (0.3 / step).round() as i64;
-        let offsets: Vec<f64> = (-nsteps..=nsteps)
-            .filter(|&i| i != 0)
-            .map(|i| i as f64 * step)
-            .collect();
-        offsets
+        screen_offsets(&cx.prepared.times_s)
             .into_iter()
             .map(|d| offset_variant(cx, d))
             .chain(first_order_variant(cx))
@@ -133,17 +164,24 @@ impl Hypothesis for ClockOffset {
         let thr = 1e-3 * seg.peak_force_n().max(1e-9);
         let d0 = param(&refit.params, "offset_s").unwrap_or(0.0);
         let step = (dt / 8.0).clamp(1e-3, 0.01);
+        let obs = ForceObservations::new(rec, seg, p);
+        let mut force_grid = Vec::new();
         let grid = (-4..=4)
             .map(|i| {
                 let offset_s = d0 + i as f64 * step;
                 let f = shifted_forces(t, &p.force_n, offset_s);
-                (
-                    vec![("offset_s".into(), offset_s)],
-                    force_channel::frames_with_forces(rec, &f, thr),
-                )
+                let params = vec![("offset_s".into(), offset_s)];
+                force_grid.push(force_channel::corrected_force_candidate(
+                    &obs,
+                    params.clone(),
+                    &f,
+                    rec,
+                ));
+                (params, force_channel::frames_with_forces(rec, &f, thr))
             })
             .collect();
-        force_channel::confirm(
+        let force = heldout_fit(&obs, seg, &force_grid);
+        let confirmed = force_channel::confirm(
             grid,
             rec,
             seg,
@@ -153,7 +191,24 @@ impl Hypothesis for ClockOffset {
             scored,
             "time-shifted force f(t + offset)",
             "default model under the time-shifted force f(t + offset)",
-        )
+        )?;
+        Ok(confirmed.map(|c| Confirmed { force, ..c }))
+    }
+
+    /// The reading through the shifted clock on the force channel: y = a f(t + δ) + o / c, δ on
+    /// the screen's grid (each δ a candidate, chosen per held-out location as the lag's columns
+    /// are fitted): the model of a late or early reading, so that the shift and the lag compete
+    /// on the same evidence where the markers cannot tell them apart.
+    fn force_candidates(
+        &self,
+        cx: &Context<'_>,
+        obs: &ForceObservations,
+    ) -> Option<Vec<ForceCandidate>> {
+        let p = cx.prepared;
+        let offsets = screen_offsets(&p.times_s);
+        Some(offset_force_candidates(
+            obs, cx.rec, &p.times_s, &p.force_n, &offsets,
+        ))
     }
 }
 

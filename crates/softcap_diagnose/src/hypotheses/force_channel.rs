@@ -4,6 +4,7 @@
 
 use crate::baseline::Prepared;
 use crate::confirm::{ComplianceScale, Confirmed, lolo_confirm};
+use crate::indentation::{ForceCandidate, ForceObservations};
 use crate::recording::Recording;
 use crate::resim::sequence_candidates;
 use crate::segment::Segmentation;
@@ -14,6 +15,24 @@ use crate::sim::{
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use softcap_probing::{ObservedMarker, ProbeExample};
+
+/// A force-channel model that replaces the reading by a corrected force (`crate::indentation`):
+/// y ≈ a (f_corr · axis) + o / c, the nuisance's columns with the corrected axial force in place
+/// of the reading, named by `params`.
+pub(super) fn corrected_force_candidate(
+    obs: &ForceObservations,
+    params: Vec<(String, f64)>,
+    forces: &[Vector3<f64>],
+    rec: &Recording,
+) -> ForceCandidate {
+    let mut cols = obs.nuisance();
+    cols[0].values = forces
+        .iter()
+        .zip(&rec.frames)
+        .map(|(f, fr)| f.dot(&fr.axis))
+        .collect();
+    (params, cols)
+}
 
 /// The sequence to simulate under per-frame probe forces `forces`: a frame carries a probe load
 /// when its force exceeds `threshold_n` (shifted / de-lagged forces may move load into frames the

@@ -116,11 +116,8 @@ impl Hypothesis for SensorLag {
         let obs = ForceObservations::new(rec, seg, p);
         // the force channel's candidates: the reading itself (no lag), then every grid point's
         // true force, each with the nuisance's scale and tip offset
-        let force_column = |name: Vec<(String, f64)>, f: &[Vector3<f64>]| -> ForceCandidate {
-            let axial = f.iter().zip(&axes).map(|(f, a)| f.dot(a)).collect();
-            let mut cols = obs.nuisance();
-            cols[0].values = axial;
-            (name, cols)
+        let force_column = |params, f: &[Vector3<f64>]| {
+            force_channel::corrected_force_candidate(&obs, params, f, rec)
         };
         let mut force_grid = vec![force_column(
             vec![("tau_s".into(), 0.0), ("hysteresis".into(), 0.0)],
