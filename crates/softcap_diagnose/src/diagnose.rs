@@ -709,6 +709,20 @@ impl Row {
             .map(|f| fold_gains(&f.fold_rss_before_n2, &f.fold_rss_after_n2))
     }
 
+    /// Per-fold gains on the frames after a ramp's corner ([`crate::indentation::after_corner`])
+    /// of its best force-channel model: its confirmation's (the inverse sensor chain, the
+    /// shifted clock on the confirmation's grid) when it has one, else its force screen's.
+    fn corner_force_gains(&self, confirmation: &Confirmation) -> Option<Vec<f64>> {
+        let confirmed = match confirmation.confirmed.get(&self.hypothesis.effect()) {
+            Some(Ok(c)) => c.force.as_ref(),
+            _ => None,
+        };
+        confirmed
+            .or(self.force.as_ref())
+            .filter(|f| !f.corner_rss_before_n2.is_empty())
+            .map(|f| fold_gains(&f.corner_rss_before_n2, &f.corner_rss_after_n2))
+    }
+
     /// Per-fold gains of its linearised refit on its scored cells.
     fn screen_gains(&self, scoring: &Scoring<'_>) -> Vec<f64> {
         fold_gains(
@@ -942,6 +956,13 @@ fn force_lookalikes<'r>(
     let Some(g1) = row1.force_gains() else {
         return Vec::new();
     };
+    let c1 = row1.corner_force_gains(confirmation);
+    // after a ramp's corner a lag's approach and a shift's translation differ most: a candidate
+    // the verdict out-explains there, beyond the fold-to-fold spread, is not its look-alike
+    let outexplained_at_corners = |r: &Row| match (&c1, r.corner_force_gains(confirmation)) {
+        (Some(c1), Some(c)) if c1.len() == c.len() => outexplains(c1, &c),
+        _ => false,
+    };
     screen
         .rows
         .iter()
@@ -957,6 +978,7 @@ fn force_lookalikes<'r>(
                 && r.support >= row1.support
                 && !rejected
                 && r.force_gains().is_some_and(|g| !separable(&g1, &g))
+                && !outexplained_at_corners(r)
         })
         .collect()
 }
@@ -1076,8 +1098,20 @@ fn plan_next_experiment(
     };
     let (a, b) = (row(a)?, row(b)?);
     progress.set_message("inconclusive: planning the next experiment");
-    crate::protocols::next_experiment(cx, (a.hypothesis, &a.refit), (b.hypothesis, &b.refit), sim)
-        .ok()
+    // force-channel candidates are compared on the force channel, at their force fits
+    let force = a
+        .force
+        .as_ref()
+        .zip(b.force.as_ref())
+        .map(|(fa, fb)| (fa.force_params.as_slice(), fb.force_params.as_slice()));
+    crate::protocols::next_experiment(
+        cx,
+        (a.hypothesis, &a.refit),
+        (b.hypothesis, &b.refit),
+        force,
+        sim,
+    )
+    .ok()
 }
 
 // ------------------------------------------------------------------------------------------

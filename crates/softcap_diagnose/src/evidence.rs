@@ -127,6 +127,10 @@ pub struct ProtocolPrediction {
     pub protocol: String,
     /// RMS marker difference between the two leading candidates' predictions, m.
     pub predicted_difference_m: f64,
+    /// RMS difference of their predicted force readings over the planned contact frames, N,
+    /// when both are force-channel models (then it chooses the protocol).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_force_difference_n: Option<f64>,
 }
 
 /// One ranked hypothesis (the JSON schema of issue 8).

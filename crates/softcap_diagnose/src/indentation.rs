@@ -169,6 +169,12 @@ pub struct ForceScore {
     pub fold_rss_before_n2: Vec<f64>,
     /// Held-out RSS of the extension per location fold, N².
     pub fold_rss_after_n2: Vec<f64>,
+    /// The part of `fold_rss_before_n2` on the frames after a ramp's corner ([`after_corner`]), N².
+    #[serde(default)]
+    pub corner_rss_before_n2: Vec<f64>,
+    /// The part of `fold_rss_after_n2` on the frames after a ramp's corner, N².
+    #[serde(default)]
+    pub corner_rss_after_n2: Vec<f64>,
 }
 
 impl ForceScore {
@@ -224,7 +230,7 @@ fn heldout(
     obs: &ForceObservations,
     seg: &Segmentation,
     candidates: &[ForceCandidate],
-) -> Option<(Vec<f64>, usize, DVector<f64>, f64, usize)> {
+) -> Option<Heldout> {
     let nf = seg.num_folds();
     let training = |l: Option<usize>| {
         (0..nf)
@@ -242,7 +248,8 @@ fn heldout(
             .min_by(|a, b| a.1.total_cmp(&b.1))
     };
     let mut fold_rss = vec![0.0; nf];
-    for (l, acc) in fold_rss.iter_mut().enumerate() {
+    let mut corner_rss = vec![0.0; nf];
+    for l in 0..nf {
         let (i, _, theta, _) = best(Some(l))?;
         let cols = &candidates[i].1;
         for k in obs.frames_of(seg, l) {
@@ -252,11 +259,51 @@ fn heldout(
                 .zip(theta.iter())
                 .map(|(c, t)| c.values[k] * t)
                 .sum();
-            *acc += (y - pred).powi(2);
+            fold_rss[l] += (y - pred).powi(2);
+            if after_corner(seg, k) {
+                corner_rss[l] += (y - pred).powi(2);
+            }
         }
     }
     let (i, rss_all, theta, n) = best(None)?;
-    Some((fold_rss, i, theta, rss_all, n))
+    Some(Heldout {
+        fold_rss,
+        corner_rss,
+        best: i,
+        theta,
+        rss_all,
+        n,
+    })
+}
+
+/// The frames after a ramp's corner whose force error tells a lag from a time shift: the first
+/// [`CORNER_FRAMES`] frames of each in-contact phase (loading, hold, unloading: the segmentation's
+/// phases, from the tracked tip's depth — the camera's clock). A reading through a first-order
+/// lag approaches the force exponentially after a corner (the inverse sensor chain's
+/// `crate::sensor::true_forces`), a late reading is the force translated rigidly in time: over a
+/// ramp both are a delay, and they differ most just after its corners.
+pub fn after_corner(seg: &Segmentation, k: usize) -> bool {
+    let p = seg.phases[k];
+    p.in_contact() && (1..=CORNER_FRAMES.min(k)).any(|j| seg.phases[k - j] != p)
+}
+
+/// How many frames after a phase change count as after a corner ([`after_corner`]).
+pub const CORNER_FRAMES: usize = 3;
+
+/// A candidate set's leave-one-location-out result ([`heldout`]).
+struct Heldout {
+    /// Held-out RSS per fold, N².
+    fold_rss: Vec<f64>,
+    /// The part of `fold_rss` on the frames after a ramp's corner ([`after_corner`]), N².
+    corner_rss: Vec<f64>,
+    /// The candidate chosen on all locations.
+    best: usize,
+    /// Its coefficients on all locations.
+    theta: DVector<f64>,
+    /// Its RSS on all locations, N².
+    rss_all: f64,
+    /// Observed frames.
+    n: usize,
 }
 
 /// The held-out force error of the nuisance model (y ≈ a f + o/c) and of the best of the
@@ -270,8 +317,15 @@ pub fn heldout_fit(
     if seg.num_folds() < 2 || candidates.is_empty() {
         return None;
     }
-    let (before, _, _, rss0, n) = heldout(obs, seg, &[(Vec::new(), obs.nuisance())])?;
-    let (after, i, theta, rss1, _) = heldout(obs, seg, candidates)?;
+    let before = heldout(obs, seg, &[(Vec::new(), obs.nuisance())])?;
+    let after = heldout(obs, seg, candidates)?;
+    let (rss0, n, rss1, i, theta) = (
+        before.rss_all,
+        before.n,
+        after.rss_all,
+        after.best,
+        &after.theta,
+    );
     if n == 0 {
         return None;
     }
@@ -288,14 +342,16 @@ pub fn heldout_fit(
             .map(|(c, t)| (c.name.to_string(), *t)),
     );
     Some(ForceScore {
-        heldout_force_rmse_before_n: rmse(&before),
-        heldout_force_rmse_after_n: rmse(&after),
+        heldout_force_rmse_before_n: rmse(&before.fold_rss),
+        heldout_force_rmse_after_n: rmse(&after.fold_rss),
         force_noise_n: obs.noise_n,
         force_delta_bic: bic(rss1, k1) - bic(rss0, k0),
         force_frames: n,
         force_params,
-        fold_rss_before_n2: before,
-        fold_rss_after_n2: after,
+        corner_rss_before_n2: before.corner_rss,
+        corner_rss_after_n2: after.corner_rss,
+        fold_rss_before_n2: before.fold_rss,
+        fold_rss_after_n2: after.fold_rss,
     })
 }
 
@@ -431,6 +487,55 @@ mod tests {
         assert!(
             lag.heldout_force_rmse_after_n < shift.heldout_force_rmse_after_n,
             "{shift:?} {lag:?}"
+        );
+    }
+
+    /// After a ramp's corner the lag and the shift come apart: on a lagging reading (τ 0.15 s) the
+    /// inverse sensor chain (`crate::sensor::true_forces`, the lag's confirmation grid) out-explains
+    /// the best shifted clock on the frames after the corners, fold by fold beyond their spread
+    /// ([`crate::folds::outexplains`]), and on a reading 0.1 s late it does not out-explain the
+    /// shift there. Fails when no frame counts as after a corner (no corner gains: nothing
+    /// out-explains) or when the corner frames are the hold's steady ones (checked: with
+    /// `after_corner` always false the first assertion fails).
+    #[test]
+    fn a_lag_and_a_shift_part_after_the_ramp_corners() {
+        use crate::folds::{fold_gains, outexplains};
+        let offsets: Vec<f64> = (-12..=12)
+            .filter(|&i| i != 0)
+            .map(|i| 0.025 * i as f64)
+            .collect();
+        let corner_gains =
+            |s: &ForceScore| fold_gains(&s.corner_rss_before_n2, &s.corner_rss_after_n2);
+        let fit = |tau_s: f64, offset_s: f64| {
+            let (obs, seg, rec) = presses_read(tau_s, 0.0, offset_s);
+            let t: Vec<f64> = rec.times_s();
+            let f: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.force_n).collect();
+            let axes: Vec<Vector3<f64>> = rec.frames.iter().map(|f| f.axis).collect();
+            let shift = crate::hypotheses::clock_offset::offset_force_candidates(
+                &obs, &rec, &t, &f, &offsets,
+            );
+            let shift = heldout_fit(&obs, &seg, &shift).unwrap();
+            let chain: Vec<ForceCandidate> = [0.12, 0.135, 0.15, 0.165, 0.19]
+                .iter()
+                .map(|&tau| {
+                    let g = crate::sensor::true_forces(&t, &f, &axes, tau, 0.0);
+                    let mut cols = obs.nuisance();
+                    cols[0].values = g.iter().zip(&axes).map(|(g, a)| g.dot(a)).collect();
+                    (vec![("tau_s".to_string(), tau)], cols)
+                })
+                .collect();
+            let lag = heldout_fit(&obs, &seg, &chain).unwrap();
+            (corner_gains(&lag), corner_gains(&shift))
+        };
+        let (lag, shift) = fit(0.15, 0.0);
+        assert!(
+            lag.len() == 3 && outexplains(&lag, &shift),
+            "lag {lag:?} shift {shift:?}"
+        );
+        let (lag, shift) = fit(0.0, 0.1);
+        assert!(
+            shift.len() == 3 && !outexplains(&lag, &shift),
+            "lag {lag:?} shift {shift:?}"
         );
     }
 

@@ -324,15 +324,41 @@ fn rms_difference(a: &Field, b: &Field, observed: &[Vec<bool>]) -> f64 {
     if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
+/// RMS difference of two force-channel models' readings ([`Hypothesis::reading_of`], each with
+/// its force-fit parameters) of the program `rec`'s axial force, over its contact frames, N;
+/// `None` when either has no reading model or there is no contact frame.
+fn force_difference(
+    rec: &Recording,
+    seg: &Segmentation,
+    a: (&dyn Hypothesis, &[(String, f64)]),
+    b: (&dyn Hypothesis, &[(String, f64)]),
+) -> Option<f64> {
+    let t = rec.times_s();
+    let f: Vec<f64> = rec.frames.iter().map(|f| f.force_n.dot(&f.axis)).collect();
+    let ra = a.0.reading_of(a.1, &t, &f)?;
+    let rb = b.0.reading_of(b.1, &t, &f)?;
+    let d: Vec<f64> = (0..t.len())
+        .filter(|&k| seg.phases[k].in_contact())
+        .map(|k| (ra[k] - rb[k]).powi(2))
+        .collect();
+    (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64).sqrt())
+}
+
 /// The protocol that best separates the two leading candidates `a` and `b` (each a hypothesis
 /// with its screen refit on the recorded session): both simulated under the recorded program and
 /// under every [`Protocol`]; the largest RMS difference between their predicted markers wins,
 /// taken over the markers observed (per recorded frame, and per planned frame those of the
 /// recorded frame it is planned from; module docs).
+///
+/// Two force-channel candidates (`force`: each one's force-fit parameters, both with a reading
+/// model, [`Hypothesis::reading_of`]) are compared on the force channel instead: under each
+/// program, the planned force read through both models ([`force_difference`]); the largest
+/// difference wins.
 pub fn next_experiment(
     cx: &Context<'_>,
     a: (&dyn Hypothesis, &Refit),
     b: (&dyn Hypothesis, &Refit),
+    force: Option<(&[(String, f64)], &[(String, f64)])>,
     sim: &mut dyn ProbeSimulator,
 ) -> Result<NextExperiment> {
     let fitted = |h: &dyn Hypothesis, r: &Refit| -> Result<Variant> {
@@ -379,15 +405,22 @@ pub fn next_experiment(
         protocols.push(ProtocolPrediction {
             protocol: p.name().into(),
             predicted_difference_m: difference(&planned, &observed_planned(&seen, &sources)),
+            predicted_force_difference_n: force
+                .and_then(|(pa, pb)| force_difference(&rec, &seg, (a.0, pa), (b.0, pb))),
         });
     }
+    // on the force channel when both candidates have its difference, else on the markers
+    let on_force = protocols
+        .iter()
+        .all(|p| p.predicted_force_difference_n.is_some());
+    let score = |p: &ProtocolPrediction| match on_force {
+        true => p.predicted_force_difference_n.unwrap_or(0.0),
+        false => p.predicted_difference_m,
+    };
     let best = Protocol::ALL
         .into_iter()
         .zip(&protocols)
-        .max_by(|x, y| {
-            x.1.predicted_difference_m
-                .total_cmp(&y.1.predicted_difference_m)
-        })
+        .max_by(|x, y| score(x.1).total_cmp(&score(y.1)))
         .map(|(p, pp)| (p, pp.predicted_difference_m))
         .unwrap_or((Protocol::LongerHolds, 0.0));
     Ok(NextExperiment {
@@ -406,14 +439,19 @@ mod tests {
 
     /// Two locations, each: rest, ramp, hold, unload, released.
     fn toy() -> (Recording, Segmentation) {
-        let profile = [0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0, 0.5, 0.0, 0.0];
+        toy_of(&[0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0, 0.5, 0.0, 0.0], 0.1)
+    }
+
+    /// Two locations pressed along `profile` (depth and force fractions per frame), frames
+    /// `dt` apart.
+    fn toy_of(profile: &[f64], dt: f64) -> (Recording, Segmentation) {
         let mut frames = Vec::new();
         for tip in [Vector3::new(0.0, 0.0, 0.01), Vector3::new(0.03, 0.0, 0.01)] {
-            for &s in &profile {
+            for &s in profile {
                 let k = frames.len();
                 frames.push(Frame {
                     frame: k as u64,
-                    time_s: k as f64 * 0.1,
+                    time_s: k as f64 * dt,
                     tip_m: tip - Vector3::z() * 0.002 * s,
                     axis: -Vector3::z(),
                     force_n: -Vector3::z() * 2.0 * s,
@@ -424,6 +462,39 @@ mod tests {
         let rec = Recording::two_marker_toy(frames);
         let seg = Segmentation::new(&rec, &SegmentSettings::default());
         (rec, seg)
+    }
+
+    /// A lag (τ 0.1 s) and a clock offset (0.1 s) read the same ramps alike but part at the
+    /// corners, by the rate times the delay: on ramps of 10 frames 50 ms apart (0.5 s, five
+    /// times the delay) faster ramps part them more than the recorded program and than longer
+    /// holds (the planner's force-channel choice for that pair). Fails
+    /// when either reading model is missing (no difference) or the offset reads the clock the
+    /// wrong way (then the recorded program already parts them by twice the delay).
+    #[test]
+    fn faster_ramps_part_a_lag_from_a_clock_offset_on_the_force_channel() {
+        use crate::hypotheses::{clock_offset::ClockOffset, sensor_lag::SensorLag};
+        let mut profile = vec![0.0; 3];
+        profile.extend((1..=10).map(|i| i as f64 / 10.0));
+        profile.extend([1.0; 10]);
+        profile.extend((0..10).rev().map(|i| i as f64 / 10.0));
+        profile.extend([0.0; 3]);
+        let (rec, seg) = toy_of(&profile, 0.05);
+        let lag = vec![("tau_s".to_string(), 0.1), ("hysteresis".to_string(), 0.0)];
+        let shift = vec![("offset_s".to_string(), 0.1)];
+        let under = |p: Option<Protocol>| {
+            let planned = p.map_or_else(|| rec.clone(), |p| p.apply(&rec, &seg));
+            let seg = Segmentation::new(&planned, &SegmentSettings::default());
+            force_difference(&planned, &seg, (&SensorLag, &lag), (&ClockOffset, &shift)).unwrap()
+        };
+        let (recorded, faster, longer) = (
+            under(None),
+            under(Some(Protocol::FasterRamps)),
+            under(Some(Protocol::LongerHolds)),
+        );
+        assert!(
+            recorded > 0.0 && recorded < 0.5 && faster > 1.2 * recorded && faster > longer,
+            "recorded {recorded} faster {faster} longer {longer}"
+        );
     }
 
     #[test]

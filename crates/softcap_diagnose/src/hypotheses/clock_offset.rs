@@ -195,6 +195,14 @@ impl Hypothesis for ClockOffset {
         Ok(confirmed.map(|c| Confirmed { force, ..c }))
     }
 
+    /// The force read through the shifted clock, r(t) = f(t − δ) at the force fit's δ (the
+    /// screen reads f_eff(t) = r(t + δ)): a rigid translation in time.
+    fn reading_of(&self, params: &[(String, f64)], t: &[f64], force_n: &[f64]) -> Option<Vec<f64>> {
+        let d = param(params, "offset_s")?;
+        let f: Vec<Vector3<f64>> = force_n.iter().map(|&x| Vector3::new(x, 0.0, 0.0)).collect();
+        Some(shifted_forces(t, &f, -d).iter().map(|v| v.x).collect())
+    }
+
     /// The reading through the shifted clock on the force channel: y = a f(t + δ) + o / c, δ on
     /// the screen's grid (each δ a candidate, chosen per held-out location as the lag's columns
     /// are fitted): the model of a late or early reading, so that the shift and the lag compete

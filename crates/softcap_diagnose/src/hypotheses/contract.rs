@@ -104,6 +104,15 @@ pub trait Hypothesis: Sync {
         None
     }
 
+    /// The force sensor's axial reading of the true axial force `force_n` (per frame, at times
+    /// `t`) under its force-channel model with the parameters `params` of its force fit
+    /// ([`crate::indentation::ForceScore::force_params`]): what the planner compares between two
+    /// force-channel candidates under another program. `None` (default): no force-channel model.
+    fn reading_of(&self, params: &[(String, f64)], t: &[f64], force_n: &[f64]) -> Option<Vec<f64>> {
+        let _ = (params, t, force_n);
+        None
+    }
+
     /// Confirms it by re-simulating its extended model over the recording, leave-one-location-out,
     /// scored on `scored(k, m)`; `refit` is its screen. `Ok(None)` when it has no extended model
     /// to re-simulate here (the verdict then rests on the screen).

@@ -148,6 +148,14 @@ impl Hypothesis for SensorLag {
         Ok(confirmed.map(|c| Confirmed { force, ..c }))
     }
 
+    /// The FSR chain itself ([`crate::sensor::reading`]) at the force fit's lag and play: the
+    /// first-order approach after each ramp corner.
+    fn reading_of(&self, params: &[(String, f64)], t: &[f64], force_n: &[f64]) -> Option<Vec<f64>> {
+        let tau_s = param(params, "tau_s")?;
+        let h = param(params, "hysteresis").unwrap_or(0.0);
+        Some(crate::sensor::reading(t, force_n, tau_s, h, false).0)
+    }
+
     /// The FSR chain to first order on the force channel: y = a f + o / c + τ ḟ + h sgn(ḟ) f
     /// (the true force behind a lagging, looping reading f; τ, h ≥ 0).
     fn force_candidates(
