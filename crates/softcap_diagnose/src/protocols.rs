@@ -352,7 +352,7 @@ fn force_difference(
 ///
 /// Two force-channel candidates (`force`: each one's force-fit parameters, both with a reading
 /// model, [`Hypothesis::reading_of`]) are compared on the force channel instead: under each
-/// program, the planned force read through both models ([`force_difference`]); the largest
+/// program, the planned force read through both models (`force_difference`); the largest
 /// difference wins.
 pub fn next_experiment(
     cx: &Context<'_>,
