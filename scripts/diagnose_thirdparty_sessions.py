@@ -76,7 +76,8 @@ def lookalike_cases():
     """Issue 37's two look-alike pairs on the suite's physics (the own rig's pairs,
     crates/softcap_diagnose/tests/in_memory.rs): pair 1, slow creep against plasticity (decided
     by longer holds); pair 2, a sensor lag of 12 ms against a clock offset of 12 ms (decided by
-    faster ramps; at 12 ms as on the own rig's 50 ms frames, at 50 and 100 ms for the suite's 100 ms frames)."""
+    faster ramps; at 12 ms as on the own rig's 50 ms frames, at 50, 100, 150 and 200 ms for the suite's 100 ms
+    frames)."""
     by = {c["name"]: c for c in suite.cases()}
     clean, j2 = by["clean"], by["plasticity"]
     half = suite.MU / 2
@@ -88,7 +89,7 @@ def lookalike_cases():
         derived(j2, "plastic", 402, "plasticity", j2["description"], pair="plasticity-pair"),
     ] + [
         case
-        for ms, seed in ((12, 403), (50, 405), (100, 407))
+        for ms, seed in ((12, 403), (50, 405), (100, 407), (150, 409), (200, 411))
         for case in (
             derived(clean, f"sensor-lag-{ms}ms", seed, "sensor-lag",
                     f"Sensor lag {ms} ms: the FSR follows the axial force through a first-order lag "
