@@ -963,6 +963,32 @@ fn force_lookalikes<'r>(
         (Some(c1), Some(c)) if c1.len() == c.len() => outexplains(c1, &c),
         _ => false,
     };
+    if crate::profile::enabled() {
+        // the margins the two rules decided on, in fold spreads (a measuring aid)
+        for r in screen
+            .rows
+            .iter()
+            .filter(|r| r.force_qualifies && r.hypothesis.effect() != row1.hypothesis.effect())
+        {
+            let margin = |a: &Option<Vec<f64>>, b: Option<Vec<f64>>| match (a, b) {
+                (Some(a), Some(b)) if a.len() == b.len() => {
+                    let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+                    let (mean, sd) = mean_sd(&d);
+                    format!("{mean:.4} / {sd:.4} = {:.2}", mean / sd.max(1e-300))
+                }
+                _ => "-".into(),
+            };
+            eprintln!(
+                "LOOKALIKE | {} vs {} | force gains mean / sd of the difference {} | corner {} | support {:.2} vs {:.2}",
+                row1.hypothesis.effect().name(),
+                r.hypothesis.effect().name(),
+                margin(&Some(g1.clone()), r.force_gains()),
+                margin(&c1, r.corner_force_gains(confirmation)),
+                row1.support,
+                r.support,
+            );
+        }
+    }
     screen
         .rows
         .iter()

@@ -6,7 +6,10 @@
 //! assembly and factorization each under `Refactorization::EveryIteration`, the baseline's; a
 //! force pass and a back-substitution each, with a factorization only when the factor went
 //! stale, under `WhenStale`, the re-simulated sequences') and iterations × tets; and one
-//! `PROFILE-SEQ` line per re-simulated sequence with the CPU seconds of the thread that ran it.
+//! `PROFILE-SEQ` line per re-simulated sequence with the CPU seconds of the thread that ran it;
+//! for a verdict named on the force channel, one `LOOKALIKE` line per other force-qualifying
+//! hypothesis: the mean and spread of the paired fold-gain differences (verdict − it) on every
+//! contact frame and after the ramp corners, the margins `separable` and `outexplains` decide on.
 //!
 //! ```sh
 //! SOFTCAP_DIAGNOSE_PROFILE=1 softcap diagnose capture.mcap material.mcap -o /tmp/d.mcap
