@@ -9,7 +9,9 @@
   stiff-inclusion case's geometry and inclusion);
 - `lookalikes [PROTOCOL]`: issue 37's two look-alike pairs (slow creep / plasticity, sensor lag
   12 ms / clock offset 12 ms; `lookalike_cases`), recorded under PROTOCOL (the suite's
-  `probing.replan`: standard, longer-holds, faster-ramps, ...; names get the suffix -PROTOCOL);
+  `probing.replan`: standard, longer-holds, faster-ramps, ...; names get the suffix -PROTOCOL;
+  A+B re-records under A, then that recording under B, as the planner's next experiment of a
+  re-recorded session means: faster-ramps+faster-ramps has ramps four times as fast);
 - `clean N`: N clean sessions that differ only in the seed of the rig (cameras, detection noise,
   dropouts, spurious blobs, FSR calibration and noise, clock).
 
@@ -249,8 +251,10 @@ def run(argv):
         return check(out)
     if part == "lookalikes":
         name = argv[2] if len(argv) > 2 else "standard"
-        if name not in PROTOCOLS:
-            print(f"diagnose_thirdparty_sessions: unknown protocol '{name}' (one of {', '.join(PROTOCOLS)})",
+        names = name.split("+")  # a re-recording of a re-recording: faster-ramps+faster-ramps
+        bad = [n for n in names if n not in PROTOCOLS]
+        if bad:
+            print(f"diagnose_thirdparty_sessions: unknown protocol '{bad[0]}' (one of {', '.join(PROTOCOLS)})",
                   file=sys.stderr)
             return 2
         rest = argv[3:]
@@ -259,11 +263,14 @@ def run(argv):
             i = rest.index("--locations")
             locations = int(rest[i + 1])
             rest = rest[:i] + rest[i + 2:]
-        chosen = [replan(c, name) for c in lookalike_cases()]
+        chosen = lookalike_cases()
+        for n in names:
+            chosen = [replan(c, n) for c in chosen]
         for c in chosen:
             if locations:  # the first N locations: a FElupe solve of their own, no committed replay
                 c["locations_mm"], c["depths_mm"] = c["locations_mm"][:locations], c["depths_mm"][:locations]
-        only = [f"{c}-{name}" if name != "standard" else c for c in rest]
+        suffix = "".join(f"-{n}" for n in names if n != "standard")
+        only = [f"{c}{suffix}" for c in rest]
     elif part == "pairs":
         chosen = pair_cases()
         only = argv[2:]

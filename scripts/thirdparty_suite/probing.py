@@ -78,8 +78,9 @@ OBLIQUE_DEG = 20.0
 def replan(case, name):
     """The case re-recorded under protocol `name` (PROTOCOLS), the case itself for "standard":
     - longer-holds: every hold three times as long (three times the hold frames, same rate);
-    - faster-ramps: the loading and unloading ramps twice as fast (the same frames and depths,
-      half the time step between them: the camera and DAQ sample the ramps at twice the rate);
+    - faster-ramps: the loading and unloading ramps twice as fast as the case's (the same frames
+      and depths, half the time step between them: the camera and DAQ sample the ramps at twice
+      the rate), as the planner halves the recorded ramp steps (protocols.rs `frame_steps`);
     - rest-after-release: the object at rest REST_AFTER_RELEASE_S after each location's release,
       observed at REST_FRAMES evenly spaced frames (the probe hovering);
     - oblique-probe: the shaft tilted OBLIQUE_DEG about the axis perpendicular to it and the
@@ -98,7 +99,7 @@ def replan(case, name):
     if name == "longer-holds":
         p["hold"] *= 3
     elif name == "faster-ramps":
-        p["ramp_step"] = 0.5
+        p["ramp_step"] = p.get("ramp_step", 1.0) * 0.5
     elif name == "rest-after-release":
         p["rest"] = [REST_FRAMES, REST_AFTER_RELEASE_S]
     else:
