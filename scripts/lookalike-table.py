@@ -27,7 +27,8 @@ def params(p):
 def row(run: Path, case: str) -> str:
     d = run / case
     log = (d / "log.txt").read_text() if (d / "log.txt").exists() else ""
-    protocol = "faster-ramps" if case.endswith("faster-ramps") else "standard"
+    n = case.count("-faster-ramps")
+    protocol = {0: "standard", 1: "faster-ramps"}.get(n, f"faster-ramps ×{n} (ramps {2 ** n}× as fast)")
     try:
         j = json.loads((d / "diagnosis.json").read_text())
     except (OSError, ValueError):
