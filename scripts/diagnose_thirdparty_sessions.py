@@ -25,8 +25,11 @@ printed digit).
 
     python scripts/diagnose_thirdparty_sessions.py OUT pairs|clean [N] [CASE ...]
     python scripts/diagnose_thirdparty_sessions.py OUT check
-    python scripts/diagnose_thirdparty_sessions.py OUT lookalikes [PROTOCOL [--locations N] [CASE ...]]
+    python scripts/diagnose_thirdparty_sessions.py OUT lookalikes [PROTOCOL [--locations N] [--seed S] [CASE ...]]
 
+`--seed S` records the look-alike cases with the rig seed S instead of their own (another rig:
+cameras, detection noise, FSR calibration and noise, clock; the same FElupe solution); the
+re-recordings of a case keep the case's seed, as the same rig records again.
 with PYTHONPATH=scripts and the suite's venv (scripts/thirdparty-suite installs it). Writes one
 raw session per case under OUT and OUT/suite.toml (case → effect)."""
 import copy
@@ -263,7 +266,16 @@ def run(argv):
             i = rest.index("--locations")
             locations = int(rest[i + 1])
             rest = rest[:i] + rest[i + 2:]
+        seed = None
+        if "--seed" in rest:
+            i = rest.index("--seed")
+            seed = int(rest[i + 1])
+            rest = rest[:i] + rest[i + 2:]
         chosen = lookalike_cases()
+        if seed is not None:
+            for c in chosen:
+                c["seed"] = seed
+                c["description"] += f" Rig seed {seed}."
         for n in names:
             chosen = [replan(c, n) for c in chosen]
         for c in chosen:
