@@ -301,16 +301,18 @@ fn probe_friction_is_named() {
 /// frame, with (rho, alpha, beta) fitted per fold by `DynamicSearch::REFINED`: a 3-density line
 /// half an octave about the modal estimate (wang2015 section 6.3: the refined model's mode that
 /// explains most of the probed markers' released ringing, 37.0 Hz at 1000 kg/m^3, against the
-/// ringing's 10.95 Hz: 11428 kg/m^3) at the middle damping, one compass round: 8 replays. On the
-/// 648-tet template no (rho, alpha, beta) beats the quasi-static replay: its contact nodes
-/// overshoot under the fast press. Held to its paired control clean-fast (the same session with a
-/// quasi-static truth, `none`; its default model's error on inertia-damping's cells is the
-/// floor): 3x lower or within 1.25x of that. Measured (fresh chain, RAYON_NUM_THREADS=1, load
-/// ~5-7 on 2 cores): `inertia-damping`, 0.2291 -> 0.0906 mm (2.53x; clean-fast 0.0881, limit
-/// 0.1101), rho 16208 kg/m^3 (E/rho 0.73 of the fitted E 11.8 kPa; truth 3 kPa / 4000 = 0.75),
-/// alpha 6.3 1/s (10), beta 3.6 ms (2); 122.1 CPU-s for the test, clean-fast's chain included.
+/// ringing's 10.95 Hz: 11428 kg/m^3) with (alpha, beta) on the mode's Rayleigh line of the
+/// ringing's damping ratio (zeta = alpha / (2 omega) + beta omega / 2, wang2015 eq. 3 in modal
+/// coordinates; zeta 0.200 measured) at the alpha-share 1/2, then one compass round along the
+/// share (0 and 1): 5 replays. On the 648-tet template no (rho, alpha, beta) beats the
+/// quasi-static replay: its contact nodes overshoot under the fast press. Held to its paired
+/// control clean-fast (the same session with a quasi-static truth, `none`; its default model's
+/// error on inertia-damping's cells is the floor): 3x lower or within 1.25x of that. Measured
+/// (fresh chain, RAYON_NUM_THREADS=1, load ~5-8 on 2 cores): `inertia-damping`, 0.2291 ->
+/// 0.0959 mm (2.39x; clean-fast 0.0881, limit 0.1101), rho 16208 kg/m^3 (E/rho 0.73 of the
+/// fitted E 11.8 kPa; truth 3 kPa / 4000 = 0.75), alpha 11.6 1/s (10), beta 3.5 ms (2); 84.9
+/// CPU-s for the test, clean-fast's chain included.
 #[test]
-#[ignore = "passes (0.2291 -> 0.0906 mm, within 1.25x of clean-fast's 0.0881) but costs 122 CPU-s (8 refined dynamic replays ~11 CPU-s each); run with -- --ignored inertia_damping_is_named"]
 fn inertia_damping_is_named() {
     check_against("inertia-damping", Some("clean-fast"));
 }

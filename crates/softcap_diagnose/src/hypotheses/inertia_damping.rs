@@ -128,11 +128,12 @@ impl Hypothesis for InertiaDamping {
             Some(f) => f,
             None => sim,
         };
-        // the density line about the modal estimate where the plan has one (wang2015 §6.3)
-        let modal_density = if plan.modal_line.is_empty() {
+        // the density line (and the Rayleigh line) about the modal estimate where the plan has
+        // one (wang2015 §6.3)
+        let modal = if plan.modal_line.is_empty() {
             None
         } else {
-            modal_density_kg_m3(rec, seg, p, sim)?
+            modal_estimate(rec, seg, p, sim)?
         };
         // the rigid tip at its measured poses (position control: compliance scale 1), else the
         // measured force (force-driven: the material's compliance scale refitted)
@@ -156,7 +157,7 @@ impl Hypothesis for InertiaDamping {
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
             lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
         };
-        let mut fit = fit_dynamics(&mut simulate, nf, train, &plan, modal_density)?;
+        let mut fit = fit_dynamics(&mut simulate, nf, train, &plan, modal)?;
         for c in &mut fit.candidates {
             c.params
                 .push(("refined_mesh".into(), if refined { 1.0 } else { 0.0 }));
@@ -179,8 +180,12 @@ impl Hypothesis for InertiaDamping {
             None,
             format!(
                 "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search{}, {} sequences on the {}, {} failed), leave-one-location-out",
-                match modal_density {
-                    Some(rho) => format!(" from the modal density {rho:.0} kg/m^3"),
+                match modal {
+                    Some(m) if fit.on_rayleigh_line => format!(
+                        " from the modal density {:.0} kg/m^3 along the Rayleigh line of its damping ratio {:.3}",
+                        m.density_kg_m3, m.damping_ratio
+                    ),
+                    Some(m) => format!(" from the modal density {:.0} kg/m^3", m.density_kg_m3),
                     None => String::new(),
                 },
                 fit.candidates.len(),
@@ -228,31 +233,68 @@ pub const MODAL_LINE: [f64; 3] = [
 /// Density of the modal analysis, kg/m³ (any positive value: ω² ∝ 1/ρ at a fixed stiffness).
 const MODAL_REFERENCE_DENSITY_KG_M3: f64 = 1000.0;
 
-/// The density at which the model rings as the measured body does after release (wang2015 §6.3,
-/// the modal warm start, with ρ in the place of E): with the material fixed, every natural
-/// frequency of K φ = ω² M φ scales as 1/√ρ, so a mode of frequency f₀ at a reference density
-/// ρ₀ ([`ProbeSimulator::natural_modes`]) matches the measured frequency f at ρ = ρ₀ (f₀ / f)².
-/// f is read, as wang2015 reads ω₁, from the captured displacements projected onto the mode:
-/// per block of released frames after a press (the probe has let go, so the body rings freely
-/// about its rest shape), the markers within [`contact_radius_m`] of the press's contact point,
-/// their baseline residual less its mean at rest projected onto the mode's marker shape; the
-/// frequency of a damped oscillation fitted to those projections ([`ringing_frequency_hz`]).
-/// The mode is the one of the lowest six whose shape explains the largest share of those
-/// displacements, not wang2015's first mode: their bar rings in its first mode, while a block
-/// pressed straight down at its top rings in a vertical mode above its two lateral sway modes
-/// (suite session: sway 22.6 Hz at ρ₀ gives ρ 4428 kg/m³ and a held-out error of 0.1420 mm;
-/// the mode explaining most, 37.0 Hz, 11428 kg/m³, against the fitted 16208). The
-/// position-controlled replay moves the markers through E/ρ only (the fitted material's E
-/// stands), so this is the density the search looks for; it replaces the fixed start line and
-/// its light end, the dearest replays. `None` when the simulator has no modes, the recording no
-/// ringing (fewer than 3 triples of consecutive released frames), or the fitted oscillation is
-/// not underdamped.
-pub fn modal_density_kg_m3(
+/// The modal estimate of the measured body's dynamics ([`modal_estimate`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModalEstimate {
+    /// ρ̂, kg/m³: the density at which the model's chosen mode rings at the measured frequency.
+    pub density_kg_m3: f64,
+    /// The chosen mode's natural frequency f₀ at [`Self::reference_density_kg_m3`], Hz.
+    pub reference_frequency_hz: f64,
+    /// ρ₀, kg/m³.
+    pub reference_density_kg_m3: f64,
+    /// The measured ringing's damping ratio ζ ([`ringing`]).
+    pub damping_ratio: f64,
+}
+
+impl ModalEstimate {
+    /// The chosen mode's natural angular frequency at density ρ, rad/s: ω = 2π f₀ √(ρ₀ / ρ)
+    /// (K φ = ω² M φ with M ∝ ρ; at ρ̂ the measured one).
+    pub fn omega_at(&self, density_kg_m3: f64) -> f64 {
+        2.0 * std::f64::consts::PI
+            * self.reference_frequency_hz
+            * (self.reference_density_kg_m3 / density_kg_m3).sqrt()
+    }
+
+    /// The Rayleigh coefficients (α [1/s], β [s]) that give the chosen mode, at density ρ, the
+    /// measured damping ratio ζ with the share `alpha_share` of it from the mass term: in the
+    /// modal coordinates of wang2015 §6.3 (u = Φ z, K φ = ω² M φ) the damping D = α M + β K of
+    /// wang2015 eq. 3 decouples into z̈ + (α + β ω²) ż + ω² z = 0, so
+    /// ζ = α / (2ω) + β ω / 2; α = 2 ω ζ s and β = 2 ζ (1 − s) / ω with s = `alpha_share`.
+    pub fn rayleigh_at(&self, density_kg_m3: f64, alpha_share: f64) -> (f64, f64) {
+        let omega = self.omega_at(density_kg_m3);
+        let zeta = self.damping_ratio;
+        (
+            2.0 * omega * zeta * alpha_share,
+            2.0 * zeta * (1.0 - alpha_share) / omega,
+        )
+    }
+}
+
+/// The density at which the model rings as the measured body does after release, and the
+/// ringing's damping ratio (wang2015 §6.3, the modal warm start, with ρ in the place of E): with
+/// the material fixed, every natural frequency of K φ = ω² M φ scales as 1/√ρ, so a mode of
+/// frequency f₀ at a reference density ρ₀ ([`ProbeSimulator::natural_modes`]) matches the
+/// measured frequency f at ρ = ρ₀ (f₀ / f)². f is read, as wang2015 reads ω₁, from the captured
+/// displacements projected onto the mode: per block of released frames after a press (the
+/// probe has let go, so the body rings freely about its rest shape), the markers within
+/// [`contact_radius_m`] of the press's contact point, their baseline residual less its mean at
+/// rest projected onto the mode's marker shape; the frequency and damping ratio of a damped
+/// oscillation fitted to those projections ([`ringing`]). The mode is the one of the lowest six
+/// whose shape explains the largest share of those displacements, not wang2015's first mode:
+/// their bar rings in its first mode, while a block pressed straight down at its top rings in a
+/// vertical mode above its two lateral sway modes (suite session: sway 22.6 Hz at ρ₀ gives ρ
+/// 4428 kg/m³ and a held-out error of 0.1420 mm; the mode explaining most, 37.0 Hz, 11428 kg/m³,
+/// against the fitted 16208). The position-controlled replay moves the markers through E/ρ only
+/// (the fitted material's E stands), so this is the density the search looks for; it replaces
+/// the fixed start line and its light end, the dearest replays. `None` when the simulator has
+/// no modes, the recording no ringing (fewer than 3 triples of consecutive released frames), or
+/// the fitted oscillation is not underdamped.
+pub fn modal_estimate(
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     sim: &dyn ProbeSimulator,
-) -> Result<Option<f64>> {
+) -> Result<Option<ModalEstimate>> {
     let Some(modes) = sim.natural_modes(MODAL_REFERENCE_DENSITY_KG_M3, 6)? else {
         return Ok(None);
     };
@@ -303,12 +345,16 @@ pub fn modal_density_kg_m3(
     else {
         return Ok(None);
     };
-    let Some(f) = ringing_frequency_hz(z, h) else {
+    let Some(ring) = ringing(z, h) else {
         return Ok(None);
     };
-    Ok(Some(
-        MODAL_REFERENCE_DENSITY_KG_M3 * (mode.frequency_hz / f).powi(2),
-    ))
+    Ok(Some(ModalEstimate {
+        density_kg_m3: MODAL_REFERENCE_DENSITY_KG_M3
+            * (mode.frequency_hz / ring.frequency_hz).powi(2),
+        reference_frequency_hz: mode.frequency_hz,
+        reference_density_kg_m3: MODAL_REFERENCE_DENSITY_KG_M3,
+        damping_ratio: ring.damping_ratio,
+    }))
 }
 
 /// The median interval between consecutive frame times, s.
@@ -321,13 +367,22 @@ fn frame_interval_s(times_s: &[f64]) -> f64 {
     dt[dt.len() / 2]
 }
 
-/// The undamped natural frequency, Hz, of a free damped oscillation z̈ + 2ζω ż + ω² z = 0 shared
-/// by the sampled signals `z` (frame interval `h_s`): sampled, each obeys the linear prediction
-/// z_{k+1} = a₁ z_k + a₂ z_{k−1} whose characteristic roots r e^{±iθ} are e^{(−ζω ± iω_d) h}
-/// (Prony's method with two poles), so a₁, a₂ are fitted by least squares over every signal's
-/// triples and ω = |ln(r e^{iθ})| / h = √(ln² r + θ²) / h. `None` with fewer than 3 equations
-/// in all or when the roots are real (no oscillation).
-pub fn ringing_frequency_hz(z: &[Vec<f64>], h_s: f64) -> Option<f64> {
+/// A free damped oscillation z̈ + 2ζω ż + ω² z = 0 ([`ringing`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ringing {
+    /// The undamped natural frequency ω / 2π, Hz.
+    pub frequency_hz: f64,
+    /// The damping ratio ζ (negative when the oscillation grows).
+    pub damping_ratio: f64,
+}
+
+/// The free damped oscillation z̈ + 2ζω ż + ω² z = 0 shared by the sampled signals `z` (frame
+/// interval `h_s`): sampled, each obeys the linear prediction z_{k+1} = a₁ z_k + a₂ z_{k−1} whose
+/// characteristic roots r e^{±iθ} are e^{(−ζω ± iω_d) h} (Prony's method with two poles), so
+/// a₁, a₂ are fitted by least squares over every signal's triples; then ln(r e^{iθ}) = (−ζω + iω_d) h
+/// gives ω = √(ln² r + θ²) / h and ζ = −ln r / (ω h) (the modal coordinate's decay, wang2015
+/// §6.3). `None` with fewer than 3 equations in all or when the roots are real (no oscillation).
+pub fn ringing(z: &[Vec<f64>], h_s: f64) -> Option<Ringing> {
     let (mut s11, mut s12, mut s22, mut b1, mut b2, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0usize);
     for w in z.iter().flat_map(|sig| sig.windows(3)) {
         let (zm, z0, zp) = (w[0], w[1], w[2]);
@@ -351,8 +406,11 @@ pub fn ringing_frequency_hz(z: &[Vec<f64>], h_s: f64) -> Option<f64> {
     }
     let r = (-a2).sqrt();
     let theta = (a1 / (2.0 * r)).clamp(-1.0, 1.0).acos();
-    let omega = (r.ln().powi(2) + theta * theta).sqrt() / h_s;
-    Some(omega / (2.0 * std::f64::consts::PI))
+    let omega_h = (r.ln().powi(2) + theta * theta).sqrt();
+    Some(Ringing {
+        frequency_hz: omega_h / h_s / (2.0 * std::f64::consts::PI),
+        damping_ratio: -r.ln() / omega_h,
+    })
 }
 
 /// log₂ bounds of (ρ [kg/m³], α [1/s], β [s]).
@@ -374,12 +432,25 @@ pub struct DynamicSearch {
     pub last_step: [f64; 3],
     /// At most this many compass rounds.
     pub max_rounds: usize,
-    /// The start line's densities as factors of the modal estimate ([`modal_density_kg_m3`]),
+    /// The start line's densities as factors of the modal estimate ([`modal_estimate`]),
     /// which replace [`Self::densities_kg_m3`] when there is one; empty: always the fixed line.
     pub modal_line: &'static [f64],
     /// The compass's step along log₂ ρ (first and last) from the modal line.
     pub modal_step: f64,
+    /// `Some(rounds)`: with a modal estimate whose damping ratio is in (0, 1), (α, β) lie on the
+    /// chosen mode's Rayleigh line ([`ModalEstimate::rayleigh_at`]) — the start line at the
+    /// α-share [`RAYLEIGH_START_SHARE`], then `rounds` compass rounds along the share alone
+    /// (from a step of [`RAYLEIGH_SHARE_STEP`], halved when no point is better; ρ stays at the
+    /// search's best start-line point) — in place of the α, β grid and the (ρ, α, β) compass.
+    pub rayleigh_rounds: Option<usize>,
 }
+
+/// The α-share s of the Rayleigh line's start point ([`ModalEstimate::rayleigh_at`]): the
+/// mode's damping ratio half from the mass term, half from the stiffness term.
+pub const RAYLEIGH_START_SHARE: f64 = 0.5;
+/// The first step of the compass along the α-share: from the middle to either end (s = 0:
+/// stiffness-proportional damping alone, s = 1: mass-proportional alone).
+pub const RAYLEIGH_SHARE_STEP: f64 = 0.5;
 
 impl DynamicSearch {
     /// On the fit mesh (a replay 1.5–3.3 CPU-s on the 648-tet suite template): the 16-point grid
@@ -394,17 +465,20 @@ impl DynamicSearch {
         max_rounds: 12,
         modal_line: &[],
         modal_step: 1.0,
+        rayleigh_rounds: None,
     };
     /// On the fit mesh refined 1 → 8 (a rigid-tip replay on the 5184-tet refined suite template
     /// costs ≈ 16× the fit mesh's, the light densities dearest: at ρ 1000 kg/m³ about 3× one at
     /// 16000, its free steps taking ≈ 8 chord updates each): few replays — the 1-D line
-    /// [`MODAL_LINE`] about the modal density ([`modal_density_kg_m3`]; without one
-    /// [`REFINED_START_DENSITY_KG_M3`]) at the middle damping, then one compass round of half an
-    /// octave in ρ (an octave from the fixed line) and a factor 4 in α, β (each fold's search
-    /// proposes at most 6 points; points shared by several folds are replayed once). Its
-    /// tolerance is that step. On the suite's inertia-damping session an octave line about the
-    /// modal estimate (11428 kg/m³) kept ρ 11460 and missed the limit (0.1113 mm against
-    /// 0.1101); the half-octave line reaches 16208 (0.0906 mm).
+    /// [`MODAL_LINE`] about the modal density ([`modal_estimate`]) on the Rayleigh line of the
+    /// measured damping ratio at the α-share 1/2, then one compass round along the share (its
+    /// ends 0 and 1 at each search's best density: 5 replays when the searches agree on it).
+    /// Without a damping ratio the same density line at the middle damping, then one compass
+    /// round of half an octave in ρ and a factor 4 in α, β (each search proposes at most 6
+    /// points; points shared by several searches are replayed once); without a modal estimate
+    /// the line [`REFINED_START_DENSITY_KG_M3`] and an octave in ρ. On the suite's
+    /// inertia-damping session an octave line about the modal estimate (11428 kg/m³) kept ρ
+    /// 11460 and missed the limit (0.1113 mm against 0.1101); the half-octave line reaches 16208.
     pub const REFINED: Self = Self {
         densities_kg_m3: &REFINED_START_DENSITY_KG_M3,
         alphas_per_s: &REFINED_START_ALPHA_PER_S,
@@ -414,6 +488,7 @@ impl DynamicSearch {
         max_rounds: 1,
         modal_line: &MODAL_LINE,
         modal_step: 0.5,
+        rayleigh_rounds: Some(1),
     };
 }
 
@@ -430,6 +505,8 @@ pub struct DynamicFit {
     pub failed: usize,
     /// The sequences are rigid-tip replays (position control; else driven by the force).
     pub position_controlled: bool,
+    /// (α, β) were searched along the modal Rayleigh line ([`DynamicSearch::rayleigh_rounds`]).
+    pub on_rayleigh_line: bool,
 }
 
 impl DynamicFit {
@@ -471,41 +548,67 @@ fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
     )
 }
 
+/// The lattice key of the point (ρ, α, β), each clamped to its [`LOG2_BOUNDS`] (α or β 0 at an
+/// end of the Rayleigh line: the bound's 2⁻⁴ 1/s or 2⁻¹⁷ s).
+fn clamped_key(rho: f64, alpha: f64, beta: f64) -> Key {
+    let t = [rho, alpha, beta];
+    key(std::array::from_fn(|d| {
+        t[d].log2().clamp(LOG2_BOUNDS[d].0, LOG2_BOUNDS[d].1)
+    }))
+}
+
 /// Fits the dynamic model's density ρ and Rayleigh α, β (wang2015 eq. 3: D = α M + β K) per
 /// fold on its training locations: every fold and the full data start from the best point of
-/// `plan`'s start grid (simulated once; its densities about `modal_density_kg_m3` when `plan` has a
-/// modal line and the estimate is given), then a compass search in log₂ (ρ, α, β) — each round
-/// every search tries ± its step along each coordinate, moves to the best of its points
-/// (training error, `train`), and halves its steps when none is better, until they are below
-/// `plan.last_step` or after `plan.max_rounds` rounds. The searches run in lockstep: one round's points
-/// of every search are simulated together (in parallel, each point once however many
-/// searches propose it), and a point is offered only to the searches that proposed it
-/// ([`DynamicFit::eligible`]), so a held-out location never shapes its own model. `train` returns,
-/// per fold and then for the full data, the eligible candidate with the least training error;
-/// `simulate` replays a batch of extensions over the recording and says whether its replays are
-/// position-controlled.
+/// `plan`'s start grid (simulated once; its densities about the modal estimate `modal` when
+/// `plan` has a modal line and the estimate is given), then a compass search — each round every
+/// search tries ± its step along each coordinate, moves to the best of its points (training
+/// error, `train`), and halves its steps when none is better, until they are below
+/// `plan.last_step` or after `plan.max_rounds` rounds. The coordinates are log₂ (ρ, α, β), or,
+/// with `plan.rayleigh_rounds` and the estimate's damping ratio ζ in (0, 1), the α-share s of the
+/// mode's Rayleigh line ζ = α/(2ω) + βω/2 (wang2015 eq. 3 in the modal coordinates of §6.3,
+/// [`ModalEstimate::rayleigh_at`]; ω the mode's frequency at each density) with ρ kept at the
+/// search's best start-line point: the start line is then the density line at s =
+/// [`RAYLEIGH_START_SHARE`]. The searches run in lockstep: one round's points of every search
+/// are simulated together (in parallel, each point once however many searches propose it),
+/// and a point is offered only to the searches that proposed it ([`DynamicFit::eligible`]), so a
+/// held-out location never shapes its own model. `train` returns, per fold and then for the full
+/// data, the eligible candidate with the least training error; `simulate` replays a batch of
+/// extensions over the recording and says whether its replays are position-controlled.
 pub fn fit_dynamics(
     simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
     folds: usize,
     train: impl Fn(&[Candidate], &dyn Fn(usize, Option<usize>) -> bool) -> Vec<Option<(usize, f64)>>,
     plan: &DynamicSearch,
-    modal_density_kg_m3: Option<f64>,
+    modal: Option<ModalEstimate>,
 ) -> Result<DynamicFit> {
+    let modal = modal.filter(|_| !plan.modal_line.is_empty());
+    // the Rayleigh line's mode, when the plan and the estimate have one
+    let line = match (modal, plan.rayleigh_rounds) {
+        (Some(m), Some(rounds)) if m.damping_ratio > 0.0 && m.damping_ratio < 1.0 => {
+            Some((m, rounds))
+        }
+        _ => None,
+    };
     let mut fit = DynamicFit {
         candidates: Vec::new(),
         proposed_by: Vec::new(),
         folds,
         failed: 0,
         position_controlled: false,
+        on_rayleigh_line: line.is_some(),
     };
     // key -> candidate index (None: did not converge)
     let mut simulated: BTreeMap<Key, Option<usize>> = BTreeMap::new();
     let mut keys: Vec<Key> = Vec::new();
-    let mut run = |fit: &mut DynamicFit,
-                   keys: &mut Vec<Key>,
-                   simulated: &mut BTreeMap<Key, Option<usize>>,
-                   batch: Vec<(Key, Option<Vec<usize>>)>|
+    let run = |fit: &mut DynamicFit,
+               keys: &mut Vec<Key>,
+               simulated: &mut BTreeMap<Key, Option<usize>>,
+               simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
+               batch: Vec<(Key, Option<Vec<usize>>)>|
      -> Result<()> {
+        if batch.is_empty() {
+            return Ok(());
+        }
         let exts: Vec<Extension> = batch.iter().map(|(k, _)| extension(*k).1).collect();
         let (results, position_controlled) = simulate(&exts);
         fit.position_controlled = position_controlled;
@@ -530,13 +633,102 @@ pub fn fit_dynamics(
         }
         Ok(())
     };
-    let (mut first_step, mut last_step) = (plan.first_step, plan.last_step);
-    let densities: Vec<f64> = match modal_density_kg_m3 {
-        Some(rho) if !plan.modal_line.is_empty() => {
-            (first_step[0], last_step[0]) = (plan.modal_step, plan.modal_step);
-            plan.modal_line.iter().map(|f| f * rho).collect()
+    // one round's proposals (point -> the searches proposing it): points already simulated
+    // become eligible to their new proposers, the others are run
+    let offer = |fit: &mut DynamicFit,
+                 keys: &mut Vec<Key>,
+                 simulated: &mut BTreeMap<Key, Option<usize>>,
+                 simulate: &mut dyn FnMut(&[Extension]) -> (Vec<Result<Field>>, bool),
+                 proposals: BTreeMap<Key, Vec<usize>>|
+     -> Result<()> {
+        let mut batch = Vec::new();
+        for (k, by) in proposals {
+            match simulated.get(&k) {
+                Some(Some(i)) => {
+                    if let Some(list) = fit.proposed_by[*i].as_mut() {
+                        for s in by {
+                            if !list.contains(&s) {
+                                list.push(s);
+                            }
+                        }
+                    }
+                }
+                Some(None) => {}
+                None => batch.push((k, Some(by))),
+            }
         }
-        _ => plan.densities_kg_m3.to_vec(),
+        run(fit, keys, simulated, simulate, batch)
+    };
+    let choose = |fit: &DynamicFit| {
+        let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
+        train(&fit.candidates, &eligible)
+    };
+    if let Some((mode, rounds)) = line {
+        // the density line at the start share; per key its (ρ, α-share)
+        let mut on_line: BTreeMap<Key, (f64, f64)> = BTreeMap::new();
+        let point = |on_line: &mut BTreeMap<Key, (f64, f64)>, rho: f64, share: f64| -> Key {
+            let (alpha, beta) = mode.rayleigh_at(rho, share);
+            let k = clamped_key(rho, alpha, beta);
+            on_line.entry(k).or_insert((rho, share));
+            k
+        };
+        let mut start = Vec::new();
+        for f in plan.modal_line {
+            let k = point(&mut on_line, f * mode.density_kg_m3, RAYLEIGH_START_SHARE);
+            start.push((k, None));
+        }
+        run(&mut fit, &mut keys, &mut simulated, simulate, start)?;
+        // per search: centre and share step
+        let mut searches: Vec<Option<(Key, f64)>> = choose(&fit)
+            .iter()
+            .map(|c| c.map(|(i, _)| (keys[i], RAYLEIGH_SHARE_STEP)))
+            .collect();
+        for _ in 0..rounds {
+            let mut proposals: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
+            for (s, search) in searches.iter().enumerate() {
+                let Some((centre, step)) = search else {
+                    continue;
+                };
+                let Some(&(rho, share)) = on_line.get(centre) else {
+                    continue;
+                };
+                for sign in [-1.0, 1.0] {
+                    let to = (share + sign * step).clamp(0.0, 1.0);
+                    if to != share {
+                        let k = point(&mut on_line, rho, to);
+                        if k != *centre {
+                            proposals.entry(k).or_default().push(s);
+                        }
+                    }
+                }
+            }
+            if proposals.is_empty() {
+                break;
+            }
+            offer(&mut fit, &mut keys, &mut simulated, simulate, proposals)?;
+            for (search, choice) in searches.iter_mut().zip(choose(&fit)) {
+                let (Some((centre, step)), Some((i, _))) = (search.as_mut(), choice) else {
+                    continue;
+                };
+                if keys[i] == *centre {
+                    *step *= 0.5;
+                } else {
+                    *centre = keys[i];
+                }
+            }
+        }
+        return Ok(fit);
+    }
+    let (mut first_step, mut last_step) = (plan.first_step, plan.last_step);
+    let densities: Vec<f64> = match modal {
+        Some(m) => {
+            (first_step[0], last_step[0]) = (plan.modal_step, plan.modal_step);
+            plan.modal_line
+                .iter()
+                .map(|f| f * m.density_kg_m3)
+                .collect()
+        }
+        None => plan.densities_kg_m3.to_vec(),
     };
     let mut start = Vec::new();
     for rho in &densities {
@@ -546,14 +738,9 @@ pub fn fit_dynamics(
             }
         }
     }
-    run(&mut fit, &mut keys, &mut simulated, start)?;
+    run(&mut fit, &mut keys, &mut simulated, simulate, start)?;
     // per search (fold l, then the full data): centre and steps
-    let choose = |fit: &DynamicFit| {
-        let eligible = |i: usize, fold: Option<usize>| fit.eligible(i, fold);
-        train(&fit.candidates, &eligible)
-    };
-    let first = choose(&fit);
-    let mut searches: Vec<Option<(Key, [f64; 3])>> = first
+    let mut searches: Vec<Option<(Key, [f64; 3])>> = choose(&fit)
         .iter()
         .map(|c| c.map(|(i, _)| (keys[i], first_step)))
         .collect();
@@ -582,24 +769,7 @@ pub fn fit_dynamics(
         if proposals.is_empty() {
             break;
         }
-        // points already simulated become eligible to their new proposers; the others are run
-        let mut batch = Vec::new();
-        for (k, by) in proposals {
-            match simulated.get(&k) {
-                Some(Some(i)) => {
-                    if let Some(list) = fit.proposed_by[*i].as_mut() {
-                        for s in by {
-                            if !list.contains(&s) {
-                                list.push(s);
-                            }
-                        }
-                    }
-                }
-                Some(None) => {}
-                None => batch.push((k, Some(by))),
-            }
-        }
-        run(&mut fit, &mut keys, &mut simulated, batch)?;
+        offer(&mut fit, &mut keys, &mut simulated, simulate, proposals)?;
         let choices = choose(&fit);
         for (search, choice) in searches.iter_mut().zip(choices) {
             let (Some((centre, step)), Some((i, _))) = (search.as_mut(), choice) else {
@@ -623,26 +793,199 @@ pub fn fit_dynamics(
 mod tests {
     use super::*;
 
+    /// z_k = a e^{−ζω t_k} cos(ω_d t_k + φ), t_k = k h: the free damped oscillation of
+    /// frequency `f_hz` and damping ratio `zeta` sampled over `n` frames.
+    fn damped(f_hz: f64, zeta: f64, h: f64, n: usize, a: f64, phi: f64) -> Vec<f64> {
+        let w = 2.0 * std::f64::consts::PI * f_hz;
+        let wd = w * (1.0 - zeta * zeta).sqrt();
+        (0..n)
+            .map(|k| {
+                let t = k as f64 * h;
+                a * (-zeta * w * t).exp() * (wd * t + phi).cos()
+            })
+            .collect()
+    }
+
     #[test]
-    fn ringing_frequency_recovers_a_sampled_damped_oscillation() {
-        // 9 Hz, ζ 0.15, sampled at 60 fps over 12 frames, two blocks of different phase/amplitude
-        let (f, zeta, h) = (9.0, 0.15, 1.0 / 60.0);
-        let w = 2.0 * std::f64::consts::PI * f;
-        let wd = w * (1.0f64 - zeta * zeta).sqrt();
-        let sig = |a: f64, phi: f64| -> Vec<f64> {
-            (0..12)
-                .map(|k| {
-                    let t = k as f64 * h;
-                    a * (-zeta * w * t).exp() * (wd * t + phi).cos()
+    fn ringing_recovers_the_frequency_and_damping_ratio_of_a_sampled_damped_oscillation() {
+        // 9 Hz, ζ 0.15, sampled at 60 fps over 12 frames, two blocks of different phase/amplitude:
+        // the two-pole model is exact, so both to 1e-6 (relative)
+        let h = 1.0 / 60.0;
+        let z = vec![
+            damped(9.0, 0.15, h, 12, 1e-3, 0.3),
+            damped(9.0, 0.15, h, 12, -4e-4, 1.2),
+        ];
+        let got = ringing(&z, h).expect("an underdamped oscillation");
+        assert!((got.frequency_hz - 9.0).abs() < 1e-6 * 9.0, "{got:?}");
+        assert!((got.damping_ratio - 0.15).abs() < 1e-6 * 0.15, "{got:?}");
+        // the suite session's ringing: ≈ 11 Hz at 60 fps (5.5 frames a period), ζ ≈ 0.14, over
+        // 3 released blocks of 8 frames; and a lightly damped one, ζ 0.02
+        for (f, zeta) in [(10.95, 0.141), (10.95, 0.02)] {
+            let z: Vec<Vec<f64>> = (0..3)
+                .map(|b| damped(f, zeta, h, 8, 1e-4 * (1.0 + b as f64), 0.7 * b as f64))
+                .collect();
+            let got = ringing(&z, h).expect("an underdamped oscillation");
+            assert!((got.frequency_hz - f).abs() < 1e-6 * f, "{got:?}");
+            assert!((got.damping_ratio - zeta).abs() < 1e-6 * zeta, "{got:?}");
+        }
+        // with white noise of 2 % of the first amplitude (deterministic: a fixed LCG), ζ within
+        // 25 % and f within 5 %: noise on the regressors biases the two-pole fit
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut noise = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 * 3f64.sqrt()
+        };
+        let z: Vec<Vec<f64>> = (0..6)
+            .map(|b| {
+                damped(10.95, 0.141, h, 12, 1e-4, 0.9 * b as f64)
+                    .into_iter()
+                    .map(|v| v + 2e-6 * noise())
+                    .collect()
+            })
+            .collect();
+        let got = ringing(&z, h).expect("an underdamped oscillation");
+        assert!((got.frequency_hz - 10.95).abs() < 0.05 * 10.95, "{got:?}");
+        assert!((got.damping_ratio - 0.141).abs() < 0.25 * 0.141, "{got:?}");
+        // a growing oscillation has a negative damping ratio
+        let grow = damped(9.0, -0.05, h, 12, 1e-3, 0.0);
+        let got = ringing(&[grow], h).expect("an oscillation");
+        assert!((got.damping_ratio + 0.05).abs() < 1e-6, "{got:?}");
+        // a decay without oscillation has real roots
+        let decay: Vec<f64> = (0..12).map(|k| (-0.3 * k as f64).exp()).collect();
+        assert_eq!(ringing(&[decay], h), None);
+    }
+
+    #[test]
+    fn rayleigh_line_gives_the_mode_its_damping_ratio_at_every_share_and_density() {
+        let m = ModalEstimate {
+            density_kg_m3: 11428.0,
+            reference_frequency_hz: 37.0,
+            reference_density_kg_m3: 1000.0,
+            damping_ratio: 0.14,
+        };
+        // at ρ̂ the mode rings at the measured 37 √(1000/11428) Hz
+        let w_hat = 2.0 * std::f64::consts::PI * 37.0 * (1000.0f64 / 11428.0).sqrt();
+        assert!((m.omega_at(11428.0) - w_hat).abs() < 1e-12 * w_hat);
+        for rho in [8081.0, 11428.0, 16162.0] {
+            let w = m.omega_at(rho);
+            for share in [0.0, 0.25, 0.5, 1.0] {
+                let (alpha, beta) = m.rayleigh_at(rho, share);
+                let zeta = alpha / (2.0 * w) + beta * w / 2.0;
+                assert!((zeta - 0.14).abs() < 1e-12, "ρ {rho}, s {share}: ζ {zeta}");
+                assert!((alpha / (2.0 * w) - share * 0.14).abs() < 1e-12);
+            }
+        }
+        assert_eq!(m.rayleigh_at(11428.0, 1.0).1, 0.0);
+    }
+
+    /// A fake replay whose training error is the distance in (log₂ ρ, α-share) from a target,
+    /// the same for every fold: the Rayleigh-line search replays the 3-point density line and
+    /// the two ends of the share line, 5 replays, and every search ends at the best of them.
+    #[test]
+    fn rayleigh_line_search_replays_the_density_line_and_the_share_ends() {
+        let m = ModalEstimate {
+            density_kg_m3: 10000.0,
+            reference_frequency_hz: 30.0,
+            reference_density_kg_m3: 1000.0,
+            damping_ratio: 0.1,
+        };
+        let target_rho = 14142.0;
+        let mut replayed: Vec<Extension> = Vec::new();
+        let mut simulate = |exts: &[Extension]| -> (Vec<Result<Field>>, bool) {
+            replayed.extend_from_slice(exts);
+            (exts.iter().map(|_| Ok(Field::new())).collect(), true)
+        };
+        let folds = 4;
+        let error = |c: &Candidate| -> f64 {
+            let p = |n: &str| {
+                c.params
+                    .iter()
+                    .find(|(k, _)| k == n)
+                    .map(|(_, v)| *v)
+                    .expect("named")
+            };
+            let rho = p("density_kg_m3");
+            let w = m.omega_at(rho);
+            let share = p("rayleigh_alpha_per_s") / (2.0 * w) / m.damping_ratio;
+            (rho / target_rho).log2().abs() + (share - 0.9).abs()
+        };
+        let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
+            (0..=folds)
+                .map(|s| {
+                    let fold = (s < folds).then_some(s);
+                    (0..cands.len())
+                        .filter(|&i| eligible(i, fold))
+                        .map(|i| (i, error(&cands[i])))
+                        .min_by(|a, b| a.1.total_cmp(&b.1))
                 })
                 .collect()
         };
-        let z = vec![sig(1e-3, 0.3), sig(-4e-4, 1.2)];
-        let got = ringing_frequency_hz(&z, h).expect("an underdamped oscillation");
-        assert!((got - f).abs() < 1e-6 * f, "{got} Hz");
-        // a decay without oscillation has real roots
-        let decay: Vec<f64> = (0..12).map(|k| (-0.3 * k as f64).exp()).collect();
-        assert_eq!(ringing_frequency_hz(&[decay], h), None);
+        let fit = fit_dynamics(
+            &mut simulate,
+            folds,
+            train,
+            &DynamicSearch::REFINED,
+            Some(m),
+        )
+        .expect("fake replays");
+        assert!(fit.on_rayleigh_line);
+        assert_eq!(replayed.len(), 5, "{replayed:?}");
+        assert_eq!(fit.candidates.len(), 5);
+        // the density line at the share 1/2, then the ends at its best point ρ̂ √2
+        for (i, f) in MODAL_LINE.iter().enumerate() {
+            let Extension::Dynamic {
+                density_kg_m3,
+                alpha_per_s,
+                beta_s,
+            } = replayed[i]
+            else {
+                panic!("a dynamic replay")
+            };
+            let rho = f * m.density_kg_m3;
+            let (alpha, beta) = m.rayleigh_at(rho, 0.5);
+            assert!((density_kg_m3 / rho - 1.0).abs() < 0.011);
+            assert!((alpha_per_s / alpha - 1.0).abs() < 0.011);
+            assert!((beta_s / beta - 1.0).abs() < 0.011);
+        }
+        let best = (0..fit.candidates.len())
+            .min_by(|&a, &b| error(&fit.candidates[a]).total_cmp(&error(&fit.candidates[b])))
+            .expect("candidates");
+        assert_eq!(fit.proposed_by[best], Some((0..=folds).collect::<Vec<_>>()));
+        let (rho, alpha) = (
+            fit.candidates[best].params[0].1,
+            fit.candidates[best].params[1].1,
+        );
+        assert!((rho / (m.density_kg_m3 * std::f64::consts::SQRT_2) - 1.0).abs() < 0.011);
+        let (alpha_end, _) = m.rayleigh_at(m.density_kg_m3 * std::f64::consts::SQRT_2, 1.0);
+        assert!(
+            (alpha / alpha_end - 1.0).abs() < 0.011,
+            "{alpha} against {alpha_end}"
+        );
+        // without a damping ratio in (0, 1): the density line at the middle damping and the
+        // (ρ, α, β) compass
+        let mut count = 0;
+        let mut simulate = |exts: &[Extension]| -> (Vec<Result<Field>>, bool) {
+            count += exts.len();
+            (exts.iter().map(|_| Ok(Field::new())).collect(), true)
+        };
+        let off = ModalEstimate {
+            damping_ratio: -0.01,
+            ..m
+        };
+        let fit = fit_dynamics(
+            &mut simulate,
+            folds,
+            train,
+            &DynamicSearch::REFINED,
+            Some(off),
+        )
+        .expect("fake replays");
+        assert!(!fit.on_rayleigh_line);
+        // the line, then ± a factor 4 in α and β and ± half an octave in ρ (one of them on the
+        // line already when the best line point is an end)
+        assert!((3 + 5..=3 + 6).contains(&count), "{count}");
     }
 
     #[test]

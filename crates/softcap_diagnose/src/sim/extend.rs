@@ -733,7 +733,14 @@ impl FemProbeSimulator {
             .par_iter()
             .map(|ext| match &failed {
                 Some(_) if frictional(ext) => Ok(None), // replaced by the error below
-                _ => self.replay_rigid(ext, &tip, frames, fine.as_ref()),
+                _ => {
+                    let _profile = crate::profile::sequence(
+                        "rigid-tip replay",
+                        fine.as_ref().unwrap_or(self).setup().mesh.tets.len(),
+                        frames.len(),
+                    );
+                    self.replay_rigid(ext, &tip, frames, fine.as_ref())
+                }
             })
             .collect();
         // Every frictional replay fails with the refinement's error (the first with the error
