@@ -304,13 +304,13 @@ fn probe_friction_is_named() {
 /// ringing's 10.95 Hz: 11428 kg/m^3) with (alpha, beta) on the mode's Rayleigh line of the
 /// ringing's damping ratio (zeta = alpha / (2 omega) + beta omega / 2, wang2015 eq. 3 in modal
 /// coordinates; zeta 0.200 measured) at the alpha-share 1/2, then one compass round along the
-/// share (0 and 1): 5 replays. On the 648-tet template no (rho, alpha, beta) beats the
+/// share (1/4 and 3/4): 5 replays. On the 648-tet template no (rho, alpha, beta) beats the
 /// quasi-static replay: its contact nodes overshoot under the fast press. Held to its paired
 /// control clean-fast (the same session with a quasi-static truth, `none`; its default model's
 /// error on inertia-damping's cells is the floor): 3x lower or within 1.25x of that. Measured
 /// (fresh chain, RAYON_NUM_THREADS=1, load ~5-8 on 2 cores): `inertia-damping`, 0.2291 ->
 /// 0.0959 mm (2.39x; clean-fast 0.0881, limit 0.1101), rho 16208 kg/m^3 (E/rho 0.73 of the
-/// fitted E 11.8 kPa; truth 3 kPa / 4000 = 0.75), alpha 11.6 1/s (10), beta 3.5 ms (2); 84.9
+/// fitted E 11.8 kPa; truth 3 kPa / 4000 = 0.75), alpha 11.6 1/s (10), beta 3.5 ms (2); 71.9
 /// CPU-s for the test, clean-fast's chain included.
 #[test]
 fn inertia_damping_is_named() {

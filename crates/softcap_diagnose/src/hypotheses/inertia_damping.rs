@@ -448,9 +448,11 @@ pub struct DynamicSearch {
 /// The α-share s of the Rayleigh line's start point ([`ModalEstimate::rayleigh_at`]): the
 /// mode's damping ratio half from the mass term, half from the stiffness term.
 pub const RAYLEIGH_START_SHARE: f64 = 0.5;
-/// The first step of the compass along the α-share: from the middle to either end (s = 0:
-/// stiffness-proportional damping alone, s = 1: mass-proportional alone).
-pub const RAYLEIGH_SHARE_STEP: f64 = 0.5;
+/// The first step of the compass along the α-share: a quarter either side of the middle, both
+/// damping terms kept. An end of the line leaves the model's high modes undamped by one term:
+/// at s = 1 (β = 0) the rigid-tip replay's contact and release steps ring at every frequency
+/// the mesh has, and on the suite session that replay cost 24 CPU-s against 9–12 for the others.
+pub const RAYLEIGH_SHARE_STEP: f64 = 0.25;
 
 impl DynamicSearch {
     /// On the fit mesh (a replay 1.5–3.3 CPU-s on the 648-tet suite template): the 16-point grid
@@ -471,8 +473,8 @@ impl DynamicSearch {
     /// costs ≈ 16× the fit mesh's, the light densities dearest: at ρ 1000 kg/m³ about 3× one at
     /// 16000, its free steps taking ≈ 8 chord updates each): few replays — the 1-D line
     /// [`MODAL_LINE`] about the modal density ([`modal_estimate`]) on the Rayleigh line of the
-    /// measured damping ratio at the α-share 1/2, then one compass round along the share (its
-    /// ends 0 and 1 at each search's best density: 5 replays when the searches agree on it).
+    /// measured damping ratio at the α-share 1/2, then one compass round along the share (1/4
+    /// and 3/4 at each search's best density: 5 replays when the searches agree on it).
     /// Without a damping ratio the same density line at the middle damping, then one compass
     /// round of half an octave in ρ and a factor 4 in α, β (each search proposes at most 6
     /// points; points shared by several searches are replayed once); without a modal estimate
@@ -828,8 +830,9 @@ mod tests {
             assert!((got.frequency_hz - f).abs() < 1e-6 * f, "{got:?}");
             assert!((got.damping_ratio - zeta).abs() < 1e-6 * zeta, "{got:?}");
         }
-        // with white noise of 2 % of the first amplitude (deterministic: a fixed LCG), ζ within
-        // 25 % and f within 5 %: noise on the regressors biases the two-pole fit
+        // with white noise of 2 % of the first amplitude (deterministic: a fixed LCG), f within
+        // 2 % and ζ within 10 % (got: 11.005 Hz, ζ 0.1396): noise on the regressors biases the
+        // two-pole fit
         let mut state = 0x2545_f491_4f6c_dd1du64;
         let mut noise = || {
             state = state
@@ -846,8 +849,8 @@ mod tests {
             })
             .collect();
         let got = ringing(&z, h).expect("an underdamped oscillation");
-        assert!((got.frequency_hz - 10.95).abs() < 0.05 * 10.95, "{got:?}");
-        assert!((got.damping_ratio - 0.141).abs() < 0.25 * 0.141, "{got:?}");
+        assert!((got.frequency_hz - 10.95).abs() < 0.02 * 10.95, "{got:?}");
+        assert!((got.damping_ratio - 0.141).abs() < 0.10 * 0.141, "{got:?}");
         // a growing oscillation has a negative damping ratio
         let grow = damped(9.0, -0.05, h, 12, 1e-3, 0.0);
         let got = ringing(&[grow], h).expect("an oscillation");
@@ -882,7 +885,7 @@ mod tests {
 
     /// A fake replay whose training error is the distance in (log₂ ρ, α-share) from a target,
     /// the same for every fold: the Rayleigh-line search replays the 3-point density line and
-    /// the two ends of the share line, 5 replays, and every search ends at the best of them.
+    /// the share line a step either side, 5 replays, and every search ends at the best of them.
     #[test]
     fn rayleigh_line_search_replays_the_density_line_and_the_share_ends() {
         let m = ModalEstimate {
@@ -933,7 +936,7 @@ mod tests {
         assert!(fit.on_rayleigh_line);
         assert_eq!(replayed.len(), 5, "{replayed:?}");
         assert_eq!(fit.candidates.len(), 5);
-        // the density line at the share 1/2, then the ends at its best point ρ̂ √2
+        // the density line at the share 1/2, then a step either side at its best point ρ̂ √2
         for (i, f) in MODAL_LINE.iter().enumerate() {
             let Extension::Dynamic {
                 density_kg_m3,
@@ -958,7 +961,10 @@ mod tests {
             fit.candidates[best].params[1].1,
         );
         assert!((rho / (m.density_kg_m3 * std::f64::consts::SQRT_2) - 1.0).abs() < 0.011);
-        let (alpha_end, _) = m.rayleigh_at(m.density_kg_m3 * std::f64::consts::SQRT_2, 1.0);
+        let (alpha_end, _) = m.rayleigh_at(
+            m.density_kg_m3 * std::f64::consts::SQRT_2,
+            RAYLEIGH_START_SHARE + RAYLEIGH_SHARE_STEP,
+        );
         assert!(
             (alpha / alpha_end - 1.0).abs() < 0.011,
             "{alpha} against {alpha_end}"
