@@ -255,7 +255,7 @@ impl ModalEstimate {
             * (self.reference_density_kg_m3 / density_kg_m3).sqrt()
     }
 
-    /// The Rayleigh coefficients (α [1/s], β [s]) that give the chosen mode, at density ρ, the
+    /// The Rayleigh coefficients (α in 1/s, β in s) that give the chosen mode, at density ρ, the
     /// measured damping ratio ζ with the share `alpha_share` of it from the mass term: in the
     /// modal coordinates of wang2015 §6.3 (u = Φ z, K φ = ω² M φ) the damping D = α M + β K of
     /// wang2015 eq. 3 decouples into z̈ + (α + β ω²) ż + ω² z = 0, so
