@@ -9,7 +9,7 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -23,6 +23,12 @@
 //! `--noise-um N`: tracking noise, µm (default 500).
 //! `--velocity-window H`, `--velocity-degree D`: the tracked start states from a degree-D
 //! polynomial over ±H frames (`velocity_half_window`, `velocity_degree`; default ±2, 4).
+//! `--startup-euler N`: each segment's first step as N backward-Euler steps
+//! (`startup_euler_steps`; default 4, 0 = Newmark from the start, as the truth).
+//! `--true-velocities`: an oracle — every segment starts with the truth's node velocities
+//! (`TrackedSequence::velocities_m_s`) instead of the polynomial estimate.
+//! Every run first prints, per segment, the polynomial start velocity's error against the
+//! truth's on the noise-free frames.
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
@@ -100,6 +106,18 @@ fn main() {
         }
         None => false,
     };
+    // `--true-velocities`: an oracle, the truth's velocities as the segments' start velocities.
+    let true_velocities = match which.iter().position(|a| a == "--true-velocities") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => false,
+    };
+    // `--startup-euler N`: backward-Euler steps of the first step of a segment
+    // (`ForwardSettings::startup_euler_steps`).
+    let startup_euler = take_option(&mut which, "--startup-euler")
+        .map_or(defaults.startup_euler_steps, |m| m as usize);
     // `--noise-um N`: tracking noise in µm (default 500).
     let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
     let cases: Vec<&str> = if which.is_empty() {
@@ -202,6 +220,7 @@ fn main() {
                 })
                 .unwrap();
                 truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
+                truth.velocities_m_s.extend(twist.velocities_m_s);
             }
             truth
         };
@@ -222,6 +241,42 @@ fn main() {
                 }
             }
         }
+        {
+            // The polynomial start velocity's error against the truth's velocity, per segment,
+            // on the noise-free frames (relative RMS over the nodes; projection v·v_true/|v_true|²).
+            let d = FitDynamicSettings::default();
+            let clean = make(0.0);
+            for seg in
+                truth
+                    .sequence
+                    .segments(d.segment_frames, d.min_segment_frames, velocity_window)
+            {
+                let (_, v) = softcap_tissue::fit_dynamic::sequence::smoothed_state(
+                    &clean.sequence,
+                    seg.start,
+                    velocity_window,
+                    velocity_degree,
+                );
+                let vt = &clean.velocities_m_s[seg.start];
+                let (mut e2, mut t2, mut dot) = (0.0, 0.0, 0.0);
+                for (a, b) in v.iter().zip(vt) {
+                    e2 += (a - b).norm_squared();
+                    t2 += b.norm_squared();
+                    dot += a.dot(b);
+                }
+                println!(
+                    "segment {}..{} start velocity: |v_poly - v_true| / |v_true| {:.4}, projection ratio {:.4}, |v_true| {:.4e}",
+                    seg.start,
+                    seg.end,
+                    (e2 / t2).sqrt(),
+                    dot / t2,
+                    t2.sqrt()
+                );
+            }
+            if true_velocities {
+                truth.sequence.velocities_m_s = Some(clean.velocities_m_s.clone());
+            }
+        }
         let settings = FitDynamicSettings {
             control_points: ncp,
             progress: false,
@@ -234,6 +289,7 @@ fn main() {
                 start_fit_choice: choose_start,
                 velocity_half_window: velocity_window,
                 velocity_degree,
+                startup_euler_steps: startup_euler,
                 ..defaults.clone()
             },
             elements: if quadratic {

@@ -709,12 +709,15 @@ impl Forward {
         let starts = segments
             .iter()
             .map(|s| {
-                let (x, v) = smoothed_state(
+                let (x, mut v) = smoothed_state(
                     seq,
                     s.start,
                     settings.velocity_half_window,
                     settings.velocity_degree,
                 );
+                if let Some(known) = seq.velocities_m_s.as_ref().and_then(|vs| vs.get(s.start)) {
+                    v.clone_from(known);
+                }
                 let u: Vec<Vector3<f64>> =
                     x.iter().zip(&mesh.vertices).map(|(a, b)| a - b).collect();
                 let u = smoother.apply(&u);

@@ -133,6 +133,7 @@ pub fn sequence_from_track(
                     .collect()
             })
             .unwrap_or_default(),
+        velocities_m_s: None,
     })
 }
 

@@ -22,6 +22,10 @@ pub struct TrackedSequence {
     pub density_kg_m3: f64,
     /// Intervals [t₀, t₁] of camera time with unknown external forces (interactions.csv).
     pub interactions_s: Vec<[f64; 2]>,
+    /// Node velocities per frame, m/s, where they are known besides the positions (a synthetic
+    /// truth's, as an oracle for the start states): each segment then starts with them instead
+    /// of the polynomial estimate of [`smoothed_state`]. `None` for a tracked sequence.
+    pub velocities_m_s: Option<Vec<Vec<Vector3<f64>>>>,
 }
 
 /// A run of free-motion frames simulated from its first frame.
@@ -127,6 +131,10 @@ impl TrackedSequence {
         out.times_s.extend(other.times_s.iter().map(|t| t + shift));
         out.positions_m.extend(other.positions_m.iter().cloned());
         out.usable.extend(&other.usable);
+        out.velocities_m_s = match (&self.velocities_m_s, &other.velocities_m_s) {
+            (Some(a), Some(b)) => Some(a.iter().chain(b).cloned().collect()),
+            _ => None,
+        };
         out.interactions_s.push([end, end + gap_s]);
         out.interactions_s.extend(
             other
@@ -193,6 +201,7 @@ mod tests {
             gravity_m_s2: Vector3::zeros(),
             density_kg_m3: 1000.0,
             interactions_s: vec![],
+            velocities_m_s: None,
         }
     }
 

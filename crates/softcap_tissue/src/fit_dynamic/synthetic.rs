@@ -298,6 +298,7 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
             } else {
                 Vec::new()
             },
+            velocities_m_s: None,
         },
         rest_m: spec.rest_mesh.vertices.clone(),
         velocities_m_s: velocities,
