@@ -24,7 +24,7 @@ use crate::evidence::{
     Baseline, Candidate, Diagnosis, Evidence, ForceChannel, NamedEffect, NotApplicable,
     RankedHypothesis, Resimulated, Screened, Unexplained,
 };
-use crate::folds::{confidence, fold_gains, mean_sd, outexplains, separable};
+use crate::folds::{confidence, fold_gains, mean_sd, outexplains, outexplains_by, separable};
 use crate::hypotheses::Effect;
 use crate::hypotheses::{Context, Hypothesis, SignatureRoute, catalog};
 use crate::indentation::{ForceObservations, ForceScore, heldout_fit};
@@ -848,7 +848,9 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
     }
     // The look-alike check after forward selection: an entry it added explains what the verdict
     // leaves (a second effect, not an alternative); one that explains the verdict's own cells
-    // less than the verdict, beyond the fold-to-fold spread, is not a look-alike either.
+    // less than the verdict, beyond the fold-to-fold spread, is not a look-alike either; nor,
+    // for a verdict named on the markers, one it out-explains on the force channel
+    // ([`outexplained_on_force`]).
     let named: Vec<Effect> = effects
         .iter()
         .filter_map(|n| Effect::from_name(&n.hypothesis))
@@ -860,6 +862,7 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
         .filter(|r| {
             on_force || same_cell_gains(cx, screen, r, e1).is_none_or(|g| !outexplains(&g1, &g))
         })
+        .filter(|r| on_force || !outexplained_on_force(row1, r, s.force_tiebreak_spreads))
         .collect();
     if !lookalikes.is_empty() {
         return inconclusive(cx, screen, row1, &lookalikes, on_force);
@@ -869,6 +872,25 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
         effects,
         candidates: Vec::new(),
         prediction: Some(x),
+    }
+}
+
+/// The verdict `row1`, named on the markers, out-explains its marker look-alike `r` on the force
+/// channel: both have a force screen model, `row1`'s qualifies there ([`Row::force_qualifies`]),
+/// and its force fold gains exceed `r`'s by more than `spreads` fold-to-fold spreads of the
+/// paired differences ([`outexplains_by`]; `spreads` ≤ 0: never). Two force models that record
+/// the same markers (a sensor lag and a clock offset under fast ramps, whose marker fields are
+/// both δ·ḟ) can still differ in the force reading they imply; the stricter margin than the
+/// markers' one spread is because that channel did not name the verdict.
+fn outexplained_on_force(row1: &Row, r: &Row, spreads: f64) -> bool {
+    if spreads <= 0.0 || !row1.force_qualifies {
+        return false;
+    }
+    match (row1.force_gains(), r.force_gains()) {
+        (Some(g1), Some(g)) if g1.len() == g.len() && !g.is_empty() => {
+            outexplains_by(&g1, &g, spreads)
+        }
+        _ => false,
     }
 }
 

@@ -63,9 +63,16 @@ pub fn separable(a: &[f64], b: &[f64]) -> bool {
 /// observations): the mean of their paired differences exceeds its fold-to-fold spread (the
 /// one-sided [`separable`]).
 pub fn outexplains(a: &[f64], b: &[f64]) -> bool {
+    outexplains_by(a, b, 1.0)
+}
+
+/// `a` removes more of the held-out error than `b` by more than `spreads` fold-to-fold spreads:
+/// the mean of their paired differences d̄ > `spreads` · s (on L folds a paired t above
+/// `spreads` · √L; [`outexplains`] is `spreads` = 1).
+pub fn outexplains_by(a: &[f64], b: &[f64], spreads: f64) -> bool {
     let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
     let (mean, sd) = mean_sd(&d);
-    mean > sd
+    mean > spreads * sd
 }
 
 /// The standard normal distribution function Φ(z) = ½ erfc(−z/√2). Hand-written (no special
@@ -120,5 +127,9 @@ mod tests {
         // one-sided: only the first out-explains the second
         assert!(outexplains(&[0.9, 0.8, 0.85], &[0.5, 0.45, 0.55]));
         assert!(!outexplains(&[0.5, 0.45, 0.55], &[0.9, 0.8, 0.85]));
+        // paired differences 0.4, 0.35, 0.3: mean 0.35, spread 0.05, seven spreads
+        let (a, b) = ([0.9, 0.8, 0.85], [0.5, 0.45, 0.55]);
+        assert!(outexplains_by(&a, &b, 6.9) && !outexplains_by(&a, &b, 7.1));
+        assert!(!outexplains_by(&b, &a, 0.0));
     }
 }

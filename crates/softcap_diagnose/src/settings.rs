@@ -66,6 +66,12 @@ pub struct DiagnoseSettings {
     /// instead of > 1,000 CPU-s, but the own virtual rig's plasticity case then drops from 3.8×
     /// to 2.7× lower held-out error, so it is not the default).
     pub plasticity_refined_replays: usize,
+    /// A verdict named on the markers whose look-alike it cannot out-explain there is still
+    /// named when both have a force-channel model ([`crate::indentation`]), its own qualifies, and
+    /// it out-explains the look-alike on the force channel by more than this many fold-to-fold
+    /// spreads of their paired force fold-gain differences (`folds::outexplains_by`; twice the
+    /// markers' one spread: that channel did not name the verdict). 0: never.
+    pub force_tiebreak_spreads: f64,
 }
 
 impl Default for DiagnoseSettings {
@@ -89,6 +95,7 @@ impl Default for DiagnoseSettings {
             unexplained_noise_factor: 5.0,
             name_on_force_channel: true,
             plasticity_refined_replays: 0,
+            force_tiebreak_spreads: 2.0,
         }
     }
 }
