@@ -512,6 +512,18 @@ struct Confirmation {
     verdict: Option<Effect>,
 }
 
+impl Confirmation {
+    /// Whether `e`'s re-simulation speaks against it: it failed, or it ran and `refutes` its
+    /// confirmed model. Not re-simulated: no evidence against it.
+    fn rejected(&self, e: Effect, refutes: impl Fn(&Confirmed) -> bool) -> bool {
+        match self.confirmed.get(&e) {
+            Some(Ok(c)) => refutes(c),
+            Some(Err(_)) => true,
+            None => false,
+        }
+    }
+}
+
 /// The qualifying hypotheses; look-alikes (held-out MSE within the margin of the best) ordered by
 /// their signatures, then held-out error, then the other qualifying ones.
 fn screened_candidates(rows: &[Row], settings: &DiagnoseSettings) -> Vec<Effect> {
@@ -968,14 +980,9 @@ fn lookalikes<'r>(
         .iter()
         .filter(|r| {
             let e = r.hypothesis.effect();
-            let rejected = match confirmation.confirmed.get(&e) {
-                Some(Ok(c)) => {
-                    1.0 - c.after_scored_m.powi(2) / r.before_m.powi(2).max(1e-300)
-                        < s.min_heldout_gain
-                }
-                Some(Err(_)) => true,
-                None => false,
-            };
+            let rejected = confirmation.rejected(e, |c| {
+                1.0 - c.after_scored_m.powi(2) / r.before_m.powi(2).max(1e-300) < s.min_heldout_gain
+            });
             e != row1.hypothesis.effect()
                 && r.qualifies
                 && r.support >= 0.0
@@ -1038,11 +1045,8 @@ fn force_lookalikes<'r>(
         .iter()
         .filter(|r| {
             let e = r.hypothesis.effect();
-            let rejected = match confirmation.confirmed.get(&e) {
-                Some(Ok(c)) => !force_confirmed(&screen.scoring, c, e, r.before_m),
-                Some(Err(_)) => true,
-                None => false,
-            };
+            let rejected =
+                confirmation.rejected(e, |c| !force_confirmed(&screen.scoring, c, e, r.before_m));
             e != row1.hypothesis.effect()
                 && r.force_qualifies
                 && r.support >= row1.support
