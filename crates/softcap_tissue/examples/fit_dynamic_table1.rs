@@ -9,7 +9,7 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--twists N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -27,6 +27,9 @@
 //! (`startup_euler_steps`; default 4, 0 = Newmark from the start, as the truth).
 //! `--true-velocities`: an oracle — every segment starts with the truth's node velocities
 //! (`TrackedSequence::velocities_m_s`) instead of the polynomial estimate.
+//! `--frames-scale K`: K times the frames of every motion (a longer ring-down at the same frame
+//! rate; default 1: 60 frames each). `--twists N`: the `…ab` cases' twist motion N times, each
+//! with its own noise draw (noise seeds seed + 1, seed + 2, …; default 1).
 //! Every run first prints, per segment, the polynomial start velocity's error against the
 //! truth's on the noise-free frames.
 
@@ -118,6 +121,10 @@ fn main() {
     // (`ForwardSettings::startup_euler_steps`).
     let startup_euler = take_option(&mut which, "--startup-euler")
         .map_or(defaults.startup_euler_steps, |m| m as usize);
+    // `--frames-scale K`: K times the frames of every motion (the same frame rates).
+    let frames = 60 * take_option(&mut which, "--frames-scale").map_or(1, |k| k as usize);
+    // `--twists N`: the `…ab` cases' twist motion N times (default 1), each with its own noise.
+    let twists = take_option(&mut which, "--twists").map_or(1, |k| k as usize);
     // `--noise-um N`: tracking noise in µm (default 500).
     let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
     let cases: Vec<&str> = if which.is_empty() {
@@ -179,7 +186,7 @@ fn main() {
                 Vector3::new(0.0, 0.5, -0.4)
             },
             push_s: 0.2,
-            frames: 60,
+            frames,
             frame_rate_hz: 30.0,
             substeps: 4,
             refine: usize::from(quadratic),
@@ -209,18 +216,21 @@ fn main() {
                     .copied()
                     .filter(|&i| mesh.vertices[i].z >= 0.5 * size[2] * (1.0 - 1e-9))
                     .collect();
-                let twist = synthesize(&SyntheticSpec {
-                    push_nodes: top,
-                    push_force_n: Vector3::new(0.0, 0.6, 0.0),
-                    push_s: 0.05,
-                    frame_rate_hz: 120.0,
-                    seed: spec.seed + 1,
-                    frames: 60,
-                    ..spec.clone()
-                })
-                .unwrap();
-                truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
-                truth.velocities_m_s.extend(twist.velocities_m_s);
+                for t in 0..twists {
+                    // `--twists N`: the same twist N times, each with its own noise draw.
+                    let twist = synthesize(&SyntheticSpec {
+                        push_nodes: top.clone(),
+                        push_force_n: Vector3::new(0.0, 0.6, 0.0),
+                        push_s: 0.05,
+                        frame_rate_hz: 120.0,
+                        seed: spec.seed + 1 + t as u64,
+                        frames,
+                        ..spec.clone()
+                    })
+                    .unwrap();
+                    truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
+                    truth.velocities_m_s.extend(twist.velocities_m_s);
+                }
             }
             truth
         };
