@@ -9,7 +9,7 @@
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
 //! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--twists N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--settle-ms T] [--segment-frames N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -29,14 +29,21 @@
 //! (`TrackedSequence::velocities_m_s`) instead of the polynomial estimate.
 //! `--frames-scale K`: K times the frames of every motion (a longer ring-down at the same frame
 //! rate; default 1: 60 frames each). `--twists N`: the `…ab` cases' twist motion N times, each
-//! with its own noise draw (noise seeds seed + 1, seed + 2, …; default 1).
+//! with its own noise draw (noise seeds seed + 1, seed + 2, …; default 1). `--bends N`: the
+//! bending push N times, each with its own noise draw (seeds seed, seed + 501, …; default 1).
+//! `--twist-mn F`: the twist's push force in mN (default 600). `--settle-ms T`: every push's
+//! interaction interval extended by T ms (`synthetic::synthesize_motions`; default 0).
+//! `--segment-frames N`: frame intervals per fitted segment at most
+//! (`FitDynamicSettings::segment_frames`; default 30).
+//! Every run prints the sandwich 1-σ (`DynamicFit::segment_robust_sigma`, `frame_robust_sigma`)
+//! beside the s²(JᵀJ)⁻¹ ones.
 //! Every run first prints, per segment, the polynomial start velocity's error against the
 //! truth's on the noise-free frames.
 
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
 use softcap_tissue::Progress;
-use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize};
+use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize_motions};
 use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, control_points, fit_sequence,
 };
@@ -125,6 +132,16 @@ fn main() {
     let frames = 60 * take_option(&mut which, "--frames-scale").map_or(1, |k| k as usize);
     // `--twists N`: the `…ab` cases' twist motion N times (default 1), each with its own noise.
     let twists = take_option(&mut which, "--twists").map_or(1, |k| k as usize);
+    // `--segment-frames N`: frame intervals per fitted segment at most
+    // (`FitDynamicSettings::segment_frames`).
+    let segment_frames = take_option(&mut which, "--segment-frames")
+        .map_or(FitDynamicSettings::default().segment_frames, |n| n as usize);
+    // `--settle-ms T`: the pushes' interaction intervals extended by T ms (default 0).
+    let settle_ms = take_option(&mut which, "--settle-ms").unwrap_or(0);
+    // `--twist-mn F`: the twist's push force, mN (default 600).
+    let twist_mn = take_option(&mut which, "--twist-mn").unwrap_or(600);
+    // `--bends N`: the bending push N times (default 1), each with its own noise.
+    let bends = take_option(&mut which, "--bends").map_or(1, |k| k as usize);
     // `--noise-um N`: tracking noise in µm (default 500).
     let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
     let cases: Vec<&str> = if which.is_empty() {
@@ -162,6 +179,7 @@ fn main() {
         let cp = control_points(&mesh, &support, ncp, Blending::Linear).unwrap();
         let young = cp.blend(&e_cp);
         // Off-axis push: the far end's top nodes on the +y side (bending in y and z, twist).
+        let top_edge = push.clone();
         let push: Vec<usize> = push
             .into_iter()
             .filter(|&i| mesh.vertices[i].y >= 0.0)
@@ -198,41 +216,41 @@ fn main() {
             noise_m: noise,
             seed,
         };
-        // The truth's tracked sequence with `noise_m` of noise (the second motion of `…ab` too).
+        // The twist's pushed nodes: the far end's top edge (`clamped_box`'s push nodes).
+        let top = top_edge.clone();
+        // The truth's tracked sequence with `noise_m` of noise: the bending push `--bends` times
+        // and, for `…ab`, the twist `--twists` times, each with its own noise draw (seeds
+        // seed + 500 + k and seed + 1 + t), every push's interaction extended by `--settle-ms`
+        // (`synthesize_motions`).
         let make = |noise_m: f64| {
             let spec = SyntheticSpec {
                 noise_m,
                 ..spec.clone()
             };
-            let mut truth = synthesize(&spec).unwrap();
+            let mut specs: Vec<SyntheticSpec> = (0..bends)
+                .map(|k| SyntheticSpec {
+                    seed: if k == 0 {
+                        spec.seed
+                    } else {
+                        spec.seed + 500 + k as u64
+                    },
+                    ..spec.clone()
+                })
+                .collect();
             if case.ends_with("ab") {
-                // The second motion: the far end twisted by a couple (±y on its top and bottom
-                // nodes) for 0.05 s, released, 0.5 s at 120 Hz.
-                let end: Vec<usize> = (0..mesh.vertices.len())
-                    .filter(|&i| mesh.vertices[i].x >= size[0] * (1.0 - 1e-9))
-                    .collect();
-                let top: Vec<usize> = end
-                    .iter()
-                    .copied()
-                    .filter(|&i| mesh.vertices[i].z >= 0.5 * size[2] * (1.0 - 1e-9))
-                    .collect();
-                for t in 0..twists {
-                    // `--twists N`: the same twist N times, each with its own noise draw.
-                    let twist = synthesize(&SyntheticSpec {
-                        push_nodes: top.clone(),
-                        push_force_n: Vector3::new(0.0, 0.6, 0.0),
-                        push_s: 0.05,
-                        frame_rate_hz: 120.0,
-                        seed: spec.seed + 1 + t as u64,
-                        frames,
-                        ..spec.clone()
-                    })
-                    .unwrap();
-                    truth.sequence = truth.sequence.joined(&twist.sequence, 0.1).unwrap();
-                    truth.velocities_m_s.extend(twist.velocities_m_s);
-                }
+                // The twist: the far end's top edge pushed sideways (+y) for 0.05 s — a torque
+                // about the bar's axis and a lateral bend — released, 0.5 s at 120 Hz.
+                specs.extend((0..twists).map(|t| SyntheticSpec {
+                    push_nodes: top.clone(),
+                    push_force_n: Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
+                    push_s: 0.05,
+                    frame_rate_hz: 120.0,
+                    seed: spec.seed + 1 + t as u64,
+                    frames,
+                    ..spec.clone()
+                }));
             }
-            truth
+            synthesize_motions(&specs, 0.1, 1e-3 * settle_ms as f64).unwrap()
         };
         let mut truth = make(noise);
         if clean_starts {
@@ -244,7 +262,7 @@ fn main() {
             let last = truth.sequence.frames() - 1;
             for seg in truth
                 .sequence
-                .segments(d.segment_frames, d.min_segment_frames, h)
+                .segments(segment_frames, d.min_segment_frames, h)
             {
                 for j in seg.start.saturating_sub(h)..=(seg.start + h).min(last) {
                     truth.sequence.positions_m[j] = clean.sequence.positions_m[j].clone();
@@ -259,7 +277,7 @@ fn main() {
             for seg in
                 truth
                     .sequence
-                    .segments(d.segment_frames, d.min_segment_frames, velocity_window)
+                    .segments(segment_frames, d.min_segment_frames, velocity_window)
             {
                 let (_, v) = softcap_tissue::fit_dynamic::sequence::smoothed_state(
                     &clean.sequence,
@@ -289,6 +307,7 @@ fn main() {
         }
         let settings = FitDynamicSettings {
             control_points: ncp,
+            segment_frames,
             progress: false,
             max_simulations: 200,
             start_state_modes: start_modes,
@@ -331,10 +350,10 @@ fn main() {
             .sum::<f64>()
             / fit.rest_m.len() as f64;
         println!(
-            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames, keeps tracked {keep_tracked}, choice {choose_start}, clean starts {clean_starts}, velocity ±{velocity_window} frames degree {velocity_degree}): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s wall, {cpu:.1} CPU-s, {} simulations + {} one-segment, status {}",
+            "## {case} (seed {seed}, start modes {start_modes}, start fit {start_fit} modes over {start_frames} frames, keeps tracked {keep_tracked}, choice {choose_start}, clean starts {clean_starts}, velocity ±{velocity_window} frames degree {velocity_degree}, bends {bends}, twists {twists} at {twist_mn} mN, settle {settle_ms} ms, segments ≤ {segment_frames} frames): {} nodes, {} tets, {} frames, noise {:.1} mm, {wall:.0} s wall, {cpu:.1} CPU-s, {} simulations + {} one-segment, status {}",
             mesh.vertices.len(),
             mesh.tets.len(),
-            spec.frames,
+            truth.sequence.frames(),
             noise * 1e3,
             fit.simulations,
             fit.segment_simulations,
@@ -363,6 +382,17 @@ fn main() {
             fit.damping.beta_s,
             100.0 * (fit.damping.beta_s / truth_damping.beta_s - 1.0),
             100.0 * fit.relative_sigma[ncp + 1]
+        );
+        let pct = |v: &[f64]| {
+            v.iter()
+                .map(|x| format!("{:.1} %", 100.0 * x))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        println!(
+            "sandwich 1-σ (E…, α, β): per segment {}; per frame {}",
+            pct(&fit.segment_robust_sigma),
+            pct(&fit.frame_robust_sigma)
         );
         if ncp > 1 {
             // Which combinations of the moduli the motion determines: the eigen-directions of

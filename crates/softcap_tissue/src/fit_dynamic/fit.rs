@@ -280,6 +280,15 @@ pub struct DynamicFit {
     /// marginal over the fitted start states: its eigenvectors say which combinations of the
     /// control-point moduli the motion determines.
     pub covariance: DMatrix<f64>,
+    /// 1-σ relative uncertainty of each E_c, α, β from the sandwich (cluster-robust) covariance
+    /// (JᵀJ)⁻¹ (Σ_g J_gᵀ r_g r_gᵀ J_g) (JᵀJ)⁻¹ · G/(G − 1) with one cluster per segment: it
+    /// counts the residuals' correlation within a segment (spatially correlated tracking noise,
+    /// and a noisy start state's error carried through the segment), which
+    /// [`Self::relative_sigma`] takes as independent. Few segments make it a rough estimate
+    /// (G clusters: about √(2/G) relative scatter of its own).
+    pub segment_robust_sigma: Vec<f64>,
+    /// The same sandwich with one cluster per frame (the spatial correlation only).
+    pub frame_robust_sigma: Vec<f64>,
     /// Trajectory RMS at the starting parameters, m.
     pub rms_initial_m: f64,
     /// Trajectory RMS after the warm start, m, over the first [`Self::rms_warm_segments`]
@@ -1537,15 +1546,22 @@ fn fit_level(
         }
     }
     progress.step(4, 4, "uncertainty and modal frequencies");
-    let (relative_sigma, covariance) = match coarse.filter(|_| !fine_damping) {
-        // α and β were held: their uncertainty is the coarse fit's.
-        Some(c) => {
-            let (mut s, cov) = covariance_sigma(&mut problem, &q, nc);
-            s.extend_from_slice(&c.relative_sigma[nc..]);
-            (s, cov)
-        }
-        None => covariance_sigma(&mut problem, &q, nc + 2),
-    };
+    let (relative_sigma, covariance, segment_robust_sigma, frame_robust_sigma) =
+        match coarse.filter(|_| !fine_damping) {
+            // α and β were held: their uncertainty is the coarse fit's.
+            Some(c) => {
+                let mut u = covariance_sigma(&mut problem, &q, nc);
+                u.sigma.extend_from_slice(&c.relative_sigma[nc..]);
+                u.segment_sigma
+                    .extend_from_slice(&c.segment_robust_sigma[nc..]);
+                u.frame_sigma.extend_from_slice(&c.frame_robust_sigma[nc..]);
+                (u.sigma, u.covariance, u.segment_sigma, u.frame_sigma)
+            }
+            None => {
+                let u = covariance_sigma(&mut problem, &q, nc + 2);
+                (u.sigma, u.covariance, u.segment_sigma, u.frame_sigma)
+            }
+        };
     let rms_m = rms_of(&mut problem, &q);
     let params = problem.params(&q);
     let (rest, final_rest_status) = problem.rest_of(&q, &static_m)?;
@@ -1586,6 +1602,8 @@ fn fit_level(
         rest_m: rest[..n_given].to_vec(),
         relative_sigma,
         covariance,
+        segment_robust_sigma,
+        frame_robust_sigma,
         rms_initial_m,
         rms_warm_m,
         rms_warm_segments,
@@ -1874,13 +1892,29 @@ fn warm_start(
     Ok((fits, Some(scale), damping))
 }
 
+/// The fitted log-parameters' uncertainty ([`covariance_sigma`]).
+struct Uncertainty {
+    /// 1-σ of the first `n` log-parameters from s² (JᵀJ)⁻¹.
+    sigma: Vec<f64>,
+    /// Their block of s² (JᵀJ)⁻¹.
+    covariance: DMatrix<f64>,
+    /// 1-σ from the sandwich with one cluster per segment.
+    segment_sigma: Vec<f64>,
+    /// 1-σ from the sandwich with one cluster per frame.
+    frame_sigma: Vec<f64>,
+}
+
 /// 1-σ uncertainties of the first `n` log-parameters (≈ relative uncertainties) from
 /// s² (JᵀJ)⁻¹, the other log-parameters held; fitted start-state coefficients are columns of J
 /// too (their uncertainty is the parameters' as well). J as the Levenberg–Marquardt
 /// Jacobian's ([`Problem::material_columns`]: forward sensitivities, or forward differences of
 /// step [`FD_STEP`]): at the point where the p-step last linearized, its columns come from the
-/// kept runs ([`Problem::runs`]), not new simulations.
-fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>, DMatrix<f64>) {
+/// kept runs ([`Problem::runs`]), not new simulations. Also the cluster-robust (sandwich)
+/// 1-σ, (JᵀJ)⁻¹ (Σ_g J_gᵀ r_g r_gᵀ J_g) (JᵀJ)⁻¹ · G/(G − 1) (White 1980; Liang & Zeger 1986),
+/// with the residuals of one segment, or of one frame, as a cluster g: eq. 6/9's residuals are
+/// correlated in space (the tracking noise) and along a segment (its start state's error), so
+/// s² (JᵀJ)⁻¹ understates the scatter over noise draws.
+fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> Uncertainty {
     let r0 = problem.eval(q);
     let m = r0.len();
     problem.fit_start = problem.start_modes.is_some();
@@ -1892,15 +1926,49 @@ fn covariance_sigma(problem: &mut Problem<'_>, q: &[f64], n: usize) -> (Vec<f64>
     let ss: f64 = r0.iter().map(|v| v * v).sum();
     let s2 = ss / (m.saturating_sub(j.ncols())).max(1) as f64;
     let jtj = j.transpose() * &j;
-    match jtj.try_inverse() {
-        Some(inv) => {
-            let cov = inv.view((0, 0), (n, n)) * s2;
-            ((0..n).map(|k| cov[(k, k)].max(0.0).sqrt()).collect(), cov)
+    let unknown = || Uncertainty {
+        sigma: vec![f64::INFINITY; n],
+        covariance: DMatrix::from_element(n, n, f64::INFINITY),
+        segment_sigma: vec![f64::INFINITY; n],
+        frame_sigma: vec![f64::INFINITY; n],
+    };
+    let Some(inv) = jtj.try_inverse() else {
+        return unknown();
+    };
+    let cov = inv.view((0, 0), (n, n)) * s2;
+    // Rows per frame and frames per segment, in the order of `Forward::residuals`.
+    let frames: Vec<usize> = problem
+        .forward
+        .segments()
+        .iter()
+        .map(|s| s.end - s.start)
+        .collect();
+    let total: usize = frames.iter().sum();
+    let per_frame = m.checked_div(total).unwrap_or(0);
+    let sandwich = |clusters: &[usize]| -> Vec<f64> {
+        let g = clusters.len();
+        if g < 2 || per_frame * total != m {
+            return vec![f64::INFINITY; n];
         }
-        None => (
-            vec![f64::INFINITY; n],
-            DMatrix::from_element(n, n, f64::INFINITY),
-        ),
+        let mut meat = DMatrix::<f64>::zeros(j.ncols(), j.ncols());
+        let mut row = 0;
+        for &rows in clusters {
+            let jg = j.rows(row, rows);
+            let rg = nalgebra::DVector::from_column_slice(&r0[row..row + rows]);
+            let score = jg.transpose() * rg;
+            meat += &score * score.transpose();
+            row += rows;
+        }
+        let robust = &inv * meat * &inv * (g as f64 / (g - 1) as f64);
+        (0..n).map(|k| robust[(k, k)].max(0.0).sqrt()).collect()
+    };
+    let by_segment: Vec<usize> = frames.iter().map(|f| f * per_frame).collect();
+    let by_frame = vec![per_frame; total];
+    Uncertainty {
+        sigma: (0..n).map(|k| cov[(k, k)].max(0.0).sqrt()).collect(),
+        covariance: cov,
+        segment_sigma: sandwich(&by_segment),
+        frame_sigma: sandwich(&by_frame),
     }
 }
 

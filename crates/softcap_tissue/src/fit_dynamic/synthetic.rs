@@ -305,6 +305,41 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     })
 }
 
+/// Several recorded motions of one body as one known-truth sequence (wang2015 §7: each object
+/// is filmed in a few motions, fitted jointly): each spec synthesized on its own (its push,
+/// frame rate and noise seed), its push's interaction interval extended by `settle_s`, and
+/// the motions joined `gap_s` apart ([`TrackedSequence::joined`]). The settling time keeps
+/// segments (and the start velocities fitted over their first frames) off the modes the push
+/// excites beyond the frame rate's reach while they still ring. The specs must share the body
+/// (mesh, support, gravity, density); template and rest shape are the first's.
+pub fn synthesize_motions(specs: &[SyntheticSpec], gap_s: f64, settle_s: f64) -> Result<Synthetic> {
+    let mut out: Option<Synthetic> = None;
+    for spec in specs {
+        let mut s = synthesize(spec)?;
+        for iv in &mut s.sequence.interactions_s {
+            iv[1] += settle_s;
+        }
+        out = Some(match out {
+            None => s,
+            Some(mut joined) => {
+                joined.sequence = joined.sequence.joined(&s.sequence, gap_s).ok_or_else(|| {
+                    TissueError::BadSettings {
+                        field: "specs".into(),
+                        problem: "the motions are not of the same body, or the gap is not positive"
+                            .into(),
+                    }
+                })?;
+                joined.velocities_m_s.extend(s.velocities_m_s);
+                joined
+            }
+        });
+    }
+    out.ok_or_else(|| TissueError::BadSettings {
+        field: "specs".into(),
+        problem: "no motion".into(),
+    })
+}
+
 /// Writes `synthetic` as a track.mcap (what `softcap tissue track` would have written had it
 /// tracked the truth with this noise): `/mesh/volume`, `/capture/session` (gravity),
 /// `/capture/dynamic` (support nodes, the push as an interaction), `/tissue/dynamic_material`
