@@ -179,6 +179,7 @@ fn main() {
         let cp = control_points(&mesh, &support, ncp, Blending::Linear).unwrap();
         let young = cp.blend(&e_cp);
         // Off-axis push: the far end's top nodes on the +y side (bending in y and z, twist).
+        // The twist's pushed nodes: the far end's top edge (all of `clamped_box`'s push nodes).
         let top_edge = push.clone();
         let push: Vec<usize> = push
             .into_iter()
@@ -216,8 +217,6 @@ fn main() {
             noise_m: noise,
             seed,
         };
-        // The twist's pushed nodes: the far end's top edge (`clamped_box`'s push nodes).
-        let top = top_edge.clone();
         // The truth's tracked sequence with `noise_m` of noise: the bending push `--bends` times
         // and, for `…ab`, the twist `--twists` times, each with its own noise draw (seeds
         // seed + 500 + k and seed + 1 + t), every push's interaction extended by `--settle-ms`
@@ -241,7 +240,7 @@ fn main() {
                 // The twist: the far end's top edge pushed sideways (+y) for 0.05 s — a torque
                 // about the bar's axis and a lateral bend — released, 0.5 s at 120 Hz.
                 specs.extend((0..twists).map(|t| SyntheticSpec {
-                    push_nodes: top.clone(),
+                    push_nodes: top_edge.clone(),
                     push_force_n: Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
                     push_s: 0.05,
                     frame_rate_hz: 120.0,

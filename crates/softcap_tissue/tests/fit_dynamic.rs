@@ -570,7 +570,7 @@ fn coarse_to_fine_in_time_reaches_the_all_segment_fit() {
 /// carries 4× the 30 Hz noise, which rings in the bending modes and biased α up to 15 %
 /// without it). E within 5 %, α within 5 %, β within 20 % on seeds 11 and 71.
 #[test]
-#[ignore = "≈ 90 CPU-s (two fits of 420 frames, 45 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
+#[ignore = "≈ 81 CPU-s (two fits of 420 frames, ≈ 40 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
 fn table1_several_motions_give_alpha_within_5_and_beta_within_20_percent() {
     use softcap_tissue::fit_dynamic::synthetic::{clamped_box, synthesize_motions};
     let (l, h) = (0.2, 0.02);
