@@ -27,10 +27,12 @@ pub struct Diagnosis {
     /// re-simulated (a re-simulated one that did not keep its gain is rejected).
     #[serde(default)]
     pub confidence: f64,
-    /// `inconclusive`: the look-alikes the data cannot separate, best first.
+    /// `inconclusive`: the look-alikes the data cannot separate, best first. Beside named effects:
+    /// a later effect read on the force channel and its force look-alikes, which that channel
+    /// cannot separate (fold gains on the force channel; no effect of the pair is named).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub candidates: Vec<Candidate>,
-    /// `inconclusive`: the protocol whose recording would separate the candidates.
+    /// The protocol whose recording would separate the (first two) candidates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub next_experiment: Option<NextExperiment>,
     /// Outlier markers: runs of a marker's observations whose residual stepped away from the
@@ -69,7 +71,8 @@ pub struct NamedEffect {
     /// Catalog name.
     pub hypothesis: String,
     /// Parameters: the first effect's as confirmed; a later one's fitted on top of the earlier
-    /// ones (the joint extended model).
+    /// ones (the joint extended model); one read on the force channel, its force fit (with the
+    /// nuisance's `force_scale` and `tip_offset_m`).
     pub params: BTreeMap<String, f64>,
     /// Confidence that its held-out gain exceeds the naming threshold (`min_heldout_gain`), from
     /// the fold gains' mean and spread.
@@ -84,7 +87,8 @@ pub struct NamedEffect {
     pub heldout_rmse_single_m: f64,
     /// … of the joint model with it and the effects before it, m.
     pub heldout_rmse_after_m: f64,
-    /// Per probe location: 1 − after / without of the held-out mean-square error.
+    /// Per probe location: 1 − after / without of the held-out mean-square error (one named on
+    /// the force channel: of its force MSE against the nuisance).
     pub fold_gains: Vec<f64>,
 }
 
