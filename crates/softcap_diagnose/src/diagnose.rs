@@ -11,7 +11,7 @@
 //! 5. **select** — greedy forward selection from the confirmed effect: every other hypothesis
 //!    refitted on top of the effects named so far, kept when it lowers the held-out error beyond
 //!    the fold-to-fold spread (the joint extended model), or one read on the force channel
-//!    ([`force_step`]) after effects named on the markers; then the confirmed effect against its
+//!    (`force_step`) after effects named on the markers; then the confirmed effect against its
 //!    look-alikes not added as effects, over the folds on its own cells (`inconclusive` when the
 //!    data cannot separate them);
 //! 6. **verdict** — the ranked table with typed [`Evidence`], `none` placed among it, the named
