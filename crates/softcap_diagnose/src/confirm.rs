@@ -395,15 +395,16 @@ impl Tally {
         Self { all, sc, unscaled }
     }
 
-    /// The eligible candidate and compliance scale with the least training error without bucket
-    /// `skip` (`None`: every bucket): (candidate, scale, residual sum of squares).
-    fn best(
+    /// The eligible candidates with their compliance scales ordered by training error without
+    /// bucket `skip` (`None`: every bucket), least first, ties in candidate order: (candidate,
+    /// scale, residual sum of squares).
+    fn ranked(
         &self,
         skip: Option<usize>,
         scale: ComplianceScale,
         eligible: Option<&EligibleFn<'_>>,
-    ) -> (usize, f64, f64) {
-        (0..self.all.len())
+    ) -> Vec<(usize, f64, f64)> {
+        let mut ranked: Vec<(usize, f64, f64)> = (0..self.all.len())
             .filter(|&i| eligible.is_none_or(|e| e(i, skip)))
             .map(|i| {
                 let mut t = Sums::default();
@@ -419,7 +420,23 @@ impl Tally {
                 };
                 (i, d, t.rss(d))
             })
-            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .collect();
+        // stable: equal errors keep the candidate order (the first is the choice)
+        ranked.sort_by(|a, b| a.2.total_cmp(&b.2));
+        ranked
+    }
+
+    /// The eligible candidate and compliance scale with the least training error without bucket
+    /// `skip` (`None`: every bucket): (candidate, scale, residual sum of squares).
+    fn best(
+        &self,
+        skip: Option<usize>,
+        scale: ComplianceScale,
+        eligible: Option<&EligibleFn<'_>>,
+    ) -> (usize, f64, f64) {
+        self.ranked(skip, scale, eligible)
+            .first()
+            .copied()
             .unwrap_or((0, 1.0, f64::INFINITY))
     }
 
@@ -460,6 +477,37 @@ pub fn lolo_choices(
     t.best_per_fold(seg.num_folds(), scale, None)
         .into_iter()
         .map(|(_, i, _, _)| i)
+        .collect()
+}
+
+/// Per held-out location (index l of the result) and, last, for the full data: the `n`
+/// candidates with the least training error, least first (the first is [`lolo_choices`]'s
+/// choice); empty without candidates.
+#[allow(clippy::too_many_arguments)]
+pub fn lolo_rankings(
+    cands: &[Candidate],
+    rec: &Recording,
+    seg: &Segmentation,
+    p: &Prepared,
+    scale: ComplianceScale,
+    scored: &dyn Fn(usize, usize) -> bool,
+    train_on_scored: bool,
+    n: usize,
+) -> Vec<Vec<usize>> {
+    if cands.is_empty() {
+        return Vec::new();
+    }
+    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
+    (0..seg.num_folds())
+        .map(Some)
+        .chain([None])
+        .map(|skip| {
+            t.ranked(skip, scale, None)
+                .into_iter()
+                .take(n)
+                .map(|(i, _, _)| i)
+                .collect()
+        })
         .collect()
 }
 

@@ -12,7 +12,7 @@
 
 use crate::baseline::Prepared;
 use crate::cells::touched_balls;
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices, lolo_confirm_among};
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_confirm_among, lolo_rankings};
 use crate::recording::Recording;
 use crate::segment::Segmentation;
 use crate::sim::{
@@ -295,13 +295,15 @@ impl Replays {
         }
     }
 
-    /// As [`Replays::run`], but the rigid-tip replays are decided on the fit mesh first: every
+    /// As [`Replays::run`], but the rigid-tip replays are ranked on the fit mesh first: every
     /// point of `rigid` is replayed on the fit mesh (`refined_mesh` = 0; a fit-mesh replay costs
     /// about a sixteenth of a replay on the mesh refined 1 → 8), each fold (and the full data)
-    /// picks its best on its training cells ([`lolo_choices`]), and only the points picked
-    /// most often — at most `refine_at_most` — are replayed again on the refined copy
-    /// (`refined_mesh` = 1). A refined replay is offered only to the folds that picked its point
-    /// on the fit mesh (that pick was made without the fold's data); the fit-mesh replays stay
+    /// ranks them by its training error ([`lolo_rankings`]) and keeps its `refine_at_most` best,
+    /// and the points kept most often — at most `refine_at_most` — are replayed again on the
+    /// refined copy (`refined_mesh` = 1), where the fold decides between them: the fit mesh's
+    /// contact error can reorder close points (its best is not the refined best), so one point
+    /// per fold is not enough. A refined replay is offered only to the folds that kept its point
+    /// on the fit mesh (that ranking was made without the fold's data); the fit-mesh replays stay
     /// candidates of every fold. Without a refined copy, the fit-mesh replays are the rigid
     /// candidates, as in [`Replays::run`].
     #[allow(clippy::too_many_arguments)]
@@ -327,7 +329,7 @@ impl Replays {
         if replays.rigid.is_empty() || refine_at_most == 0 {
             return Ok(replays);
         }
-        let choices = lolo_choices(
+        let kept = lolo_rankings(
             &replays.rigid,
             rec,
             seg,
@@ -335,8 +337,10 @@ impl Replays {
             ComplianceScale::new(false, 1.0, 1.0),
             scored,
             train_on_scored,
+            refine_at_most,
         );
-        let chosen = most_chosen(&choices, refine_at_most);
+        let flat: Vec<usize> = kept.iter().flatten().copied().collect();
+        let chosen = most_chosen(&flat, refine_at_most);
         let Some(mut fine) = sim.refined(&touched_balls(rec, seg))? else {
             return Ok(replays);
         };
@@ -369,7 +373,7 @@ impl Replays {
         }
         replays.total += fine_total;
         replays.rigid_fine = fine_cands;
-        replays.rigid_neighbourhoods = choices.iter().map(|&i| vec![i]).collect();
+        replays.rigid_neighbourhoods = kept;
         replays.replay_mesh = Some(fine);
         Ok(replays)
     }
