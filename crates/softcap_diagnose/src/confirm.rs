@@ -480,9 +480,18 @@ pub fn lolo_choices(
         .collect()
 }
 
+/// The value of the parameter `name` of a candidate (`None`: it has no such parameter), the key
+/// of its family in [`lolo_rankings`].
+pub fn family_key(c: &Candidate, name: &str) -> Option<f64> {
+    c.params.iter().find(|(k, _)| k == name).map(|&(_, v)| v)
+}
+
 /// Per held-out location (index l of the result) and, last, for the full data: the `n`
 /// candidates with the least training error, least first (the first is [`lolo_choices`]'s
-/// choice); empty without candidates.
+/// choice); empty without candidates. With `family` = Some(name), only the best candidate of
+/// each value of the parameter `name` ([`family_key`]) is ranked: a biased error (the fit
+/// mesh's contact error under a rigid-tip replay) that shifts all of one family's points
+/// ahead of another's then still leaves one point per family to decide between.
 #[allow(clippy::too_many_arguments)]
 pub fn lolo_rankings(
     cands: &[Candidate],
@@ -493,6 +502,7 @@ pub fn lolo_rankings(
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
     n: usize,
+    family: Option<&str>,
 ) -> Vec<Vec<usize>> {
     if cands.is_empty() {
         return Vec::new();
@@ -502,10 +512,20 @@ pub fn lolo_rankings(
         .map(Some)
         .chain([None])
         .map(|skip| {
+            let mut seen: Vec<Option<f64>> = Vec::new();
             t.ranked(skip, scale, None)
                 .into_iter()
-                .take(n)
                 .map(|(i, _, _)| i)
+                .filter(|&i| match family {
+                    None => true,
+                    Some(name) => {
+                        let key = family_key(&cands[i], name);
+                        let first = !seen.contains(&key);
+                        seen.push(key);
+                        first
+                    }
+                })
+                .take(n)
                 .collect()
         })
         .collect()

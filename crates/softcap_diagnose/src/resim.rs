@@ -12,7 +12,9 @@
 
 use crate::baseline::Prepared;
 use crate::cells::touched_balls;
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_confirm_among, lolo_rankings};
+use crate::confirm::{
+    Candidate, ComplianceScale, Confirmed, family_key, lolo_confirm_among, lolo_rankings,
+};
 use crate::recording::Recording;
 use crate::segment::Segmentation;
 use crate::sim::{
@@ -302,10 +304,14 @@ impl Replays {
     /// and the points kept most often — at most `refine_at_most` — are replayed again on the
     /// refined copy (`refined_mesh` = 1), where the fold decides between them: the fit mesh's
     /// contact error can reorder close points (its best is not the refined best), so one point
-    /// per fold is not enough. A refined replay is offered only to the folds that kept its point
-    /// on the fit mesh (that ranking was made without the fold's data); the fit-mesh replays stay
-    /// candidates of every fold. Without a refined copy, the fit-mesh replays are the rigid
-    /// candidates, as in [`Replays::run`].
+    /// per fold is not enough. With `family` = Some(name) (plasticity: `poisson`), each fold
+    /// keeps its best point within each value of that parameter, and the points refined are
+    /// first each family's most kept: the fit mesh's contact error shifts the ranking between
+    /// the families (it ranks every ν = 0.45 point ahead of the tissue fit's ν), so it ranks
+    /// only within a family and the refined mesh decides across. A refined replay is offered
+    /// only to the folds that kept its point on the fit mesh (that ranking was made without the
+    /// fold's data); the fit-mesh replays stay candidates of every fold. Without a refined copy,
+    /// the fit-mesh replays are the rigid candidates, as in [`Replays::run`].
     #[allow(clippy::too_many_arguments)]
     pub fn run_coarse_first(
         sim: &mut dyn ProbeSimulator,
@@ -318,6 +324,7 @@ impl Replays {
         scored: &dyn Fn(usize, usize) -> bool,
         train_on_scored: bool,
         refine_at_most: usize,
+        family: Option<&str>,
     ) -> Result<Self> {
         let points = rigid.clone();
         for (params, _) in &mut rigid {
@@ -338,9 +345,15 @@ impl Replays {
             scored,
             train_on_scored,
             refine_at_most,
+            family,
         );
         let flat: Vec<usize> = kept.iter().flatten().copied().collect();
-        let chosen = most_chosen(&flat, refine_at_most);
+        let keys: Vec<Option<f64>> = replays
+            .rigid
+            .iter()
+            .map(|c| family.and_then(|name| family_key(c, name)))
+            .collect();
+        let chosen = most_chosen(&flat, &keys, refine_at_most);
         let Some(mut fine) = sim.refined(&touched_balls(rec, seg))? else {
             return Ok(replays);
         };
@@ -483,7 +496,7 @@ impl Replays {
 
 /// The candidates named most often in `choices` (per fold, then the full data), at most `n`:
 /// by how many choices name them, ties in the order they are first named.
-fn most_chosen(choices: &[usize], n: usize) -> Vec<usize> {
+fn most_chosen(choices: &[usize], family: &[Option<f64>], n: usize) -> Vec<usize> {
     let mut counts: Vec<(usize, usize)> = Vec::new();
     for &c in choices {
         match counts.iter_mut().find(|(i, _)| *i == c) {
@@ -493,7 +506,26 @@ fn most_chosen(choices: &[usize], n: usize) -> Vec<usize> {
     }
     // stable: ties keep their first-named order
     counts.sort_by_key(|c| std::cmp::Reverse(c.1));
-    counts.into_iter().take(n).map(|(i, _)| i).collect()
+    let key = |i: usize| family.get(i).copied().flatten();
+    // each family's most chosen first (in count order), then the rest by count
+    let mut seen: Vec<Option<f64>> = Vec::new();
+    let mut chosen: Vec<usize> = Vec::new();
+    for &(i, _) in &counts {
+        if !seen.contains(&key(i)) {
+            seen.push(key(i));
+            chosen.push(i);
+        }
+    }
+    chosen.truncate(n);
+    for &(i, _) in &counts {
+        if chosen.len() >= n {
+            break;
+        }
+        if !chosen.contains(&i) {
+            chosen.push(i);
+        }
+    }
+    chosen
 }
 
 #[cfg(test)]
@@ -502,9 +534,19 @@ mod tests {
 
     #[test]
     fn most_chosen_counts_then_first_named() {
-        assert_eq!(most_chosen(&[3, 1, 1, 3, 2, 1, 5], 2), vec![1, 3]);
-        assert_eq!(most_chosen(&[4, 2, 2, 4], 1), vec![4]);
-        assert_eq!(most_chosen(&[0, 7, 9], 5), vec![0, 7, 9]);
-        assert!(most_chosen(&[], 2).is_empty());
+        assert_eq!(most_chosen(&[3, 1, 1, 3, 2, 1, 5], &[], 2), vec![1, 3]);
+        assert_eq!(most_chosen(&[4, 2, 2, 4], &[], 1), vec![4]);
+        assert_eq!(most_chosen(&[0, 7, 9], &[], 5), vec![0, 7, 9]);
+        assert!(most_chosen(&[], &[], 2).is_empty());
+    }
+
+    #[test]
+    fn most_chosen_takes_each_family_first() {
+        // 0, 1: family None; 2, 3: family 0.45
+        let family = [None, None, Some(0.45), Some(0.45)];
+        // by count alone 2 and 3 (both 0.45); one per family: 2, then 0
+        assert_eq!(most_chosen(&[2, 3, 2, 3, 0, 2], &family, 2), vec![2, 0]);
+        assert_eq!(most_chosen(&[2, 3, 2, 3, 0, 2], &family, 3), vec![2, 0, 3]);
+        assert_eq!(most_chosen(&[2, 3, 2, 3, 0, 2], &family, 1), vec![2]);
     }
 }
