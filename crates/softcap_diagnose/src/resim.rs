@@ -297,21 +297,22 @@ impl Replays {
         }
     }
 
-    /// As [`Replays::run`], but the rigid-tip replays are ranked on the fit mesh first: every
-    /// point of `rigid` is replayed on the fit mesh (`refined_mesh` = 0; a fit-mesh replay costs
-    /// about a sixteenth of a replay on the mesh refined 1 → 8), each fold (and the full data)
-    /// ranks them by its training error ([`lolo_rankings`]) and keeps its `refine_at_most` best,
-    /// and the points kept most often — at most `refine_at_most` — are replayed again on the
-    /// refined copy (`refined_mesh` = 1), where the fold decides between them: the fit mesh's
-    /// contact error can reorder close points (its best is not the refined best), so one point
-    /// per fold is not enough. With `family` = Some(name) (plasticity: `poisson`), each fold
-    /// keeps its best point within each value of that parameter, and the points refined are
-    /// first each family's most kept: the fit mesh's contact error shifts the ranking between
-    /// the families (it ranks every ν = 0.45 point ahead of the tissue fit's ν), so it ranks
-    /// only within a family and the refined mesh decides across. A refined replay is offered
-    /// only to the folds that kept its point on the fit mesh (that ranking was made without the
-    /// fold's data); the fit-mesh replays stay candidates of every fold. Without a refined copy,
-    /// the fit-mesh replays are the rigid candidates, as in [`Replays::run`].
+    /// As [`Replays::run`], but the rigid-tip replays are ranked on a cheaper mesh first: every
+    /// point of `rigid` is replayed on the ranking mesh (`refined_mesh` = 0) — the fit mesh, or
+    /// with `rank_tet_factor` = r > 1 its copy bisected to r × its tets
+    /// ([`ProbeSimulator::bisected`]) — each fold (and the full data) ranks them by its training
+    /// error ([`lolo_rankings`]) and keeps its `refine_at_most` best, and the points kept most
+    /// often — at most `refine_at_most` — are replayed again on the refined copy (`refined_mesh`
+    /// = 1, 1 → 8), where the fold decides between them. The ranking is the element's: a rigid
+    /// tip's contact error on the fit mesh's linear tets reorders close points (own-rig
+    /// plasticity, 648 tets: the 1 → 8 winner ranks 6th of 8 in every fold), while the fit mesh
+    /// bisected once (1 → 2, 1,296 tets, ≈ 2× a fit-mesh replay's cost against ≈ 15× for
+    /// 1 → 8) ranks it first in every fold, its top 4 in the 1 → 8 order. With `family` =
+    /// Some(name), each fold keeps its best point within each value of that parameter, and the
+    /// points refined are first each family's most kept. A refined replay is offered only to the
+    /// folds that kept its point on the ranking mesh (that ranking was made without the fold's
+    /// data); the ranking-mesh replays stay candidates of every fold. Without a refined copy, the
+    /// ranking-mesh replays are the rigid candidates, as in [`Replays::run`].
     #[allow(clippy::too_many_arguments)]
     pub fn run_coarse_first(
         sim: &mut dyn ProbeSimulator,
@@ -325,13 +326,18 @@ impl Replays {
         train_on_scored: bool,
         refine_at_most: usize,
         family: Option<&str>,
+        rank_tet_factor: usize,
     ) -> Result<Self> {
         let points = rigid.clone();
         for (params, _) in &mut rigid {
             params.push(("refined_mesh".into(), 0.0));
         }
         let (forced, total, sources) = simulate_grid(sim, grid, rec, seg, p, contact_only)?;
-        let (coarse, coarse_total) = simulate_rigid_grid(sim, rigid, rec)?;
+        // the ranking mesh: the fit mesh, or (rank_tet_factor > 1) its bisected copy
+        let (coarse, coarse_total) = match sim.bisected(rank_tet_factor)? {
+            Some(mut ranking) => simulate_rigid_grid(ranking.as_mut(), rigid, rec)?,
+            None => simulate_rigid_grid(sim, rigid, rec)?,
+        };
         let mut replays = Self::unrefined((forced, sources), coarse, total + coarse_total, None);
         if replays.rigid.is_empty() || refine_at_most == 0 {
             return Ok(replays);

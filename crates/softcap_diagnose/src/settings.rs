@@ -66,6 +66,13 @@ pub struct DiagnoseSettings {
     /// instead of > 1,000 CPU-s, but the own virtual rig's plasticity case then drops from 3.8×
     /// to 2.7× lower held-out error, so it is not the default).
     pub plasticity_refined_replays: usize,
+    /// With `plasticity_refined_replays` > 0: the mesh the rigid-tip points are ranked on before
+    /// the few best are replayed refined, as a multiple of the fit mesh's tets — 1 (the default):
+    /// the fit mesh; r > 1: the fit mesh bisected along its longest edges to r × its tets
+    /// (`ProbeSimulator::bisected`). The fit mesh's ranking is its linear tets' contact error,
+    /// not the material's: on the own rig's plasticity case it ranks the 1 → 8 winner 6th of 8
+    /// in every fold, the fit mesh bisected once (r = 2) ranks it first in every fold.
+    pub plasticity_ranking_refinement: usize,
     /// A verdict named on the markers whose look-alike it cannot out-explain there is still
     /// named when both have a force-channel model ([`crate::indentation`]), its own qualifies, and
     /// it out-explains the look-alike on the force channel by more than this many fold-to-fold
@@ -95,6 +102,7 @@ impl Default for DiagnoseSettings {
             unexplained_noise_factor: 5.0,
             name_on_force_channel: true,
             plasticity_refined_replays: 0,
+            plasticity_ranking_refinement: 1,
             force_tiebreak_spreads: 2.0,
         }
     }

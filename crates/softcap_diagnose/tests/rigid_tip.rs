@@ -377,6 +377,38 @@ fn locally_refined_simulator_fixes_nested_midpoints_on_the_support_and_is_softer
     assert!(sf <= 1.25 * sc, "refined {sf} vs coarse {sc}");
 }
 
+/// `FemProbeSimulator::bisected` / `ProbeSimulator::bisected` (the ranking mesh of
+/// `Replays::run_coarse_first`): on cubes split in six tets around their body diagonal, 2 × the
+/// tets halves every body diagonal — each tet bisected once, no propagation — with the markers,
+/// the support plane's nodes and the tip kept and, nested, softer under gravity; 4 × also halves
+/// face diagonals; factor 1 is no copy.
+#[test]
+fn bisected_simulator_halves_body_diagonals_and_keeps_markers_and_support() {
+    let coarse = simulator(Some(sphere()));
+    let n = coarse.setup().mesh.tets.len();
+    let fine = coarse.bisected(2).unwrap();
+    let m = &fine.setup().mesh;
+    assert_eq!(m.tets.len(), 2 * n);
+    let longest = coarse.longest_edge_m();
+    assert!(m.longest_edge() < 0.9 * longest, "{}", m.longest_edge());
+    assert_eq!(fine.rigid_tip(), coarse.rigid_tip());
+    for (a, b) in coarse.rest_markers_m().iter().zip(&fine.rest_markers_m()) {
+        assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+    }
+    let on_base = FemProbeSimulator::nodes_on_plane(m, &Vector3::z(), 0.0, 1e-9);
+    assert_eq!(fine.setup().attached_nodes, on_base);
+    let four = coarse.bisected(4).unwrap().setup().mesh.tets.len();
+    assert!(four >= 4 * n && four < 8 * n, "{four}");
+    assert!(ProbeSimulator::bisected(&coarse, 1).unwrap().is_none());
+    let (sc, sf) = (gravity_sag(coarse), gravity_sag(fine));
+    println!(
+        "top-centre sag under gravity: coarse {:.4} mm, bisected 1 -> 2 {:.4} mm",
+        1e3 * sc,
+        1e3 * sf
+    );
+    assert!(sf >= sc && sf <= 1.25 * sc, "bisected {sf} vs coarse {sc}");
+}
+
 /// Press 2 mm beside the centre, drag 4 mm along +x across the centre marker while pressed,
 /// lift off: per frame (depth mm, x offset mm) of the tip from the block's top centre.
 const DRAG_MM: [(f64, f64); 10] = [

@@ -12,9 +12,12 @@
 //! mesh refined 1 → 8 (`ProbeSimulator::refined`: the coarse linear tets cannot form the dent
 //! between the markers), the latter also with ν = 0.45 (the tissue fit's ν is biased by the
 //! plastic flow it did not model). With `plasticity_refined_replays` = n > 0 the eight rigid-tip
-//! points are replayed on the fit mesh first, each fold keeps its best per ν, and only the n
-//! points kept most often (one per ν first) are replayed again on the refined mesh, which
-//! decides between them. The grid points are
+//! points are ranked first on a cheaper mesh — the fit mesh, or with
+//! `plasticity_ranking_refinement` = r > 1 the fit mesh bisected to r × its tets
+//! (`ProbeSimulator::bisected`; the fit mesh's ranking is its linear tets' contact error, r = 2
+//! ranks the own rig's 1 → 8 winner first in every fold) — each fold keeps its best per ν, and
+//! only the n points kept most often (one per ν first) are replayed again on the refined mesh,
+//! which decides between them. The grid points are
 //! picked on the other locations' effect cells only: in a rigid-tip replay the contact frames carry the coarse mesh's contact error,
 //! which would otherwise decide the pick.
 
@@ -208,7 +211,7 @@ impl Hypothesis for Plasticity {
                 }
             }
         }
-        // every rigid-tip point replayed refined, or (opt-in) decided on the fit mesh first
+        // every rigid-tip point replayed refined, or ranked on a cheaper mesh first
         let replays = match cx.settings.plasticity_refined_replays {
             0 => Replays::run(sim, grid, rigid, rec, seg, p, false)?,
             n => Replays::run_coarse_first(
@@ -223,6 +226,7 @@ impl Hypothesis for Plasticity {
                 true,
                 n,
                 Some("poisson"),
+                cx.settings.plasticity_ranking_refinement,
             )?,
         };
         replays.confirm(

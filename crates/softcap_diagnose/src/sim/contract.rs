@@ -136,6 +136,19 @@ pub trait ProbeSimulator: Send + Sync {
         Ok(None)
     }
 
+    /// The same object on its mesh refined everywhere by conforming longest-edge bisection
+    /// (`softcap_mesh::refine_near`) until it has at least `tet_factor` × its tets: the target
+    /// longest edge is lowered from the mesh's longest edge in steps of 5 % until the count is
+    /// reached (on a mesh of cubes split in six tets, 2 halves every cube's body diagonal: each
+    /// tet bisected once). Each child tet with its parent's material, the markers re-embedded, the
+    /// same support, tip and settings, as [`ProbeSimulator::refined`]. A cheaper ranking mesh than
+    /// the 1 → 8 one (`Replays::run_coarse_first`); `None` (default) when this simulator has no
+    /// mesh to refine, and for `tet_factor` ≤ 1.
+    fn bisected(&self, tet_factor: usize) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        let _ = tet_factor;
+        Ok(None)
+    }
+
     /// True when the fit mesh already resolves a tip of radius `tip_radius_m` at the tip
     /// positions `tips_m`: its boundary nodes there are spaced ≤ 0.8 tip radii, the rule of
     /// [`super::friction_refinement`] (which then adds no refinement level). A model

@@ -333,6 +333,48 @@ impl FemProbeSimulator {
         self.setup.mesh.longest_edge()
     }
 
+    /// This simulator on its mesh refined everywhere by conforming longest-edge bisection until it
+    /// has at least `tet_factor` × its tets (`ProbeSimulator::bisected`: the target longest edge
+    /// lowered from the longest edge by 5 % a step; material, attached nodes, markers, support,
+    /// tip and settings as in [`Self::refined`]). An error when 60 steps (a target edge of 5 % of
+    /// the longest) or `RefinementSettings::max_tets` do not reach the count.
+    pub fn bisected(&self, tet_factor: usize) -> Result<Self> {
+        let mesh = &self.setup.mesh;
+        let want = tet_factor.saturating_mul(mesh.tets.len());
+        let longest = self.longest_edge_m();
+        // one ball holding every vertex: the whole mesh is refined
+        let centre_m = mesh
+            .vertices
+            .first()
+            .copied()
+            .unwrap_or_else(Vector3::zeros);
+        let radius_m = 2.0
+            * mesh
+                .vertices
+                .iter()
+                .map(|v| (v - centre_m).norm())
+                .fold(0.0, f64::max);
+        let all = [RefineBall { centre_m, radius_m }];
+        let max_tets = self.settings.refinement.max_tets;
+        let mut fraction = 1.0;
+        for _ in 0..60 {
+            fraction *= 0.95;
+            let r = softcap_mesh::refine_near(mesh, &all, fraction * longest, max_tets)
+                .map_err(|e| DiagnoseError::Mesh(Box::new(e)))?;
+            if r.mesh.tets.len() >= want {
+                return self.refined_from(r);
+            }
+        }
+        Err(DiagnoseError::Mesh(Box::new(
+            softcap_mesh::MeshError::Refinement {
+                message: format!(
+                    "bisecting the mesh ({} tets) to {tet_factor}x its tets: not reached at 5 % of its longest edge",
+                    mesh.tets.len()
+                ),
+            },
+        )))
+    }
+
     /// This simulator on a refinement `r` of its mesh (material, attached nodes, markers,
     /// support, tip and settings as [`Self::refined`] says).
     fn refined_from(&self, r: RefinedTetMesh) -> Result<Self> {
@@ -513,6 +555,15 @@ impl ProbeSimulator for FemProbeSimulator {
         } else {
             FemProbeSimulator::refined(self)?
         })))
+    }
+
+    fn bisected(&self, tet_factor: usize) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        if tet_factor <= 1 {
+            return Ok(None);
+        }
+        Ok(Some(Box::new(FemProbeSimulator::bisected(
+            self, tet_factor,
+        )?)))
     }
 
     fn simulate_sequence(
