@@ -100,7 +100,7 @@ fn json_number(text: &str, key: &str) -> f64 {
     let at = text.find(&format!("\"{key}\": ")).expect(key) + key.len() + 4;
     let rest = &text[at..];
     let rest = rest.trim_start_matches('[');
-    let end = rest.find([',', '\n', ']']).unwrap();
+    let end = rest.find([',', '\n', ']', '}']).unwrap();
     rest[..end].trim().parse().unwrap()
 }
 
@@ -150,6 +150,37 @@ fn fit_dynamic_recovers_e_and_writes_material_json_report_rest_and_simulation() 
     }
     let e = json_number(&json, "E_pa");
     assert!((e / E_TRUE - 1.0).abs() < 0.05, "E {e}");
+    // The relative 1-σ of E, α, β: s²(JᵀJ)⁻¹ and the sandwich ones per frame and per segment;
+    // the segment sandwich needs two segments (`null` with one).
+    let report = std::fs::read_to_string(d.join("report/report.md")).unwrap();
+    assert!(report.contains("sandwich 1-σ per segment"), "{report}");
+    let segments: usize = report
+        .split_once(" segments,")
+        .and_then(|(head, _)| head.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .expect("segment count in report.md");
+    let object = |key: &str| {
+        let at = json.find(&format!("\"{key}\": {{")).expect(key);
+        json[at..=at + json[at..].find('}').expect("object ends")].to_string()
+    };
+    for of in ["E", "alpha", "beta"] {
+        let mut finite = vec![
+            json_number(&object("relative_sigma"), of),
+            json_number(&object("sigma_frame_robust"), of),
+        ];
+        if segments >= 2 {
+            finite.push(json_number(&object("sigma_segment_robust"), of));
+        } else {
+            assert!(
+                object("sigma_segment_robust").contains(&format!("\"{of}\": null"))
+                    || object("sigma_segment_robust").contains(&format!("\"{of}\": [null")),
+                "{of}: one segment, a segment sandwich in {json}"
+            );
+        }
+        for s in finite {
+            assert!(s.is_finite() && s > 0.0, "{of}: 1-sigma {s} in {json}");
+        }
+    }
     // The trajectory error is at the tracking-noise level (0.3 mm per coordinate).
     let rmse = json_number(&json, "trajectory_rmse_m");
     assert!(rmse < 1.0e-3, "rmse {rmse}");

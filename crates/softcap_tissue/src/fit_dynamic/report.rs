@@ -139,27 +139,55 @@ pub fn write_report(
         settings.refine,
         settings.optimizer
     );
-    let _ = writeln!(md, "| parameter | value | 1-σ (relative) |\n|---|---|---|");
+    // The relative 1-σ of parameter k: s²(JᵀJ)⁻¹, and the sandwich ones per segment and per
+    // frame (`DynamicFit::segment_robust_sigma`; "—" where the data do not bound it).
+    let sigmas = |k: usize| {
+        [
+            &fit.relative_sigma,
+            &fit.segment_robust_sigma,
+            &fit.frame_robust_sigma,
+        ]
+        .iter()
+        .map(|v| match v.get(k) {
+            Some(x) if x.is_finite() => format!("{x:.2e}"),
+            _ => "—".into(),
+        })
+        .collect::<Vec<_>>()
+        .join(" | ")
+    };
+    let _ = writeln!(
+        md,
+        "| parameter | value | 1-σ (relative) | sandwich 1-σ per segment | sandwich 1-σ per frame |\n|---|---|---|---|---|"
+    );
     let nc = fit.young_pa.len();
     for (c, e) in fit.young_pa.iter().enumerate() {
         let p = fit.control_points.positions_m[c];
         let _ = writeln!(
             md,
-            "| E at control point {c} ({:.3}, {:.3}, {:.3}) m | {:.4e} Pa | {:.2e} |",
-            p.x, p.y, p.z, e, fit.relative_sigma[c]
+            "| E at control point {c} ({:.3}, {:.3}, {:.3}) m | {:.4e} Pa | {} |",
+            p.x,
+            p.y,
+            p.z,
+            e,
+            sigmas(c)
         );
     }
-    let _ = writeln!(md, "| ν (held) | {:.3} | — |", fit.poisson);
+    let _ = writeln!(md, "| ν (held) | {:.3} | — | — | — |", fit.poisson);
     let _ = writeln!(
         md,
-        "| Rayleigh α | {:.4e} 1/s | {:.2e} |",
-        fit.damping.alpha_per_s, fit.relative_sigma[nc]
+        "| Rayleigh α | {:.4e} 1/s | {} |",
+        fit.damping.alpha_per_s,
+        sigmas(nc)
     );
     let _ = writeln!(
         md,
-        "| Rayleigh β | {:.4e} s | {:.2e} |\n",
+        "| Rayleigh β | {:.4e} s | {} |\n",
         fit.damping.beta_s,
-        fit.relative_sigma[nc + 1]
+        sigmas(nc + 1)
+    );
+    let _ = writeln!(
+        md,
+        "The s²(JᵀJ)⁻¹ 1-σ takes the residuals as independent; the sandwich (cluster-robust) 1-σ count their correlation within a segment (correlated tracking noise, a start state's error) or a frame, and are rough with few segments.\n"
     );
     let _ = writeln!(
         md,

@@ -183,7 +183,32 @@ pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
     }
 }
 
-/// The `--json` document (keys as in the issue; `E_pa` per control point).
+/// A JSON number, or `null` for a non-finite value (an uncertainty the data do not bound).
+fn json_number(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x:e}")
+    } else {
+        "null".into()
+    }
+}
+
+/// `{"E": [per control point], "alpha": …, "beta": …}` of a relative 1-σ vector (E_c…, α, β).
+fn json_sigma(sigma: &[f64], nc: usize) -> String {
+    let at = |k: usize| sigma.get(k).map_or("null".into(), |&x| json_number(x));
+    let e = (0..nc).map(at).collect::<Vec<_>>().join(", ");
+    format!(
+        "{{\"E\": [{e}], \"alpha\": {}, \"beta\": {}}}",
+        at(nc),
+        at(nc + 1)
+    )
+}
+
+/// The `--json` document (keys as in the issue; `E_pa` per control point). The relative 1-σ of
+/// E_c, α, β: `relative_sigma` from s²(JᵀJ)⁻¹, which takes the residuals as independent, and the
+/// sandwich (cluster-robust) ones `sigma_segment_robust` (one cluster per segment: spatially
+/// correlated tracking noise and a start state's error carried through its segment) and
+/// `sigma_frame_robust` (one cluster per frame); `null` where the data do not bound one (e.g. the
+/// segment sandwich of a single segment). See [`DynamicFit::segment_robust_sigma`].
 pub fn json(fit: &DynamicFit) -> String {
     let list = |v: &[f64]| {
         v.iter()
@@ -191,6 +216,7 @@ pub fn json(fit: &DynamicFit) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     };
+    let nc = fit.young_pa.len();
     let cps = fit
         .control_points
         .positions_m
@@ -199,7 +225,7 @@ pub fn json(fit: &DynamicFit) -> String {
         .collect::<Vec<_>>()
         .join(", ");
     format!(
-        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {:e},\n  \"status\": \"{}\"\n}}\n",
+        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {:e},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"status\": \"{}\"\n}}\n",
         list(&fit.young_pa),
         list(&fit.young_pa_tets),
         fit.poisson,
@@ -207,6 +233,9 @@ pub fn json(fit: &DynamicFit) -> String {
         fit.damping.beta_s,
         fit.density_kg_m3,
         fit.rms_m,
+        json_sigma(&fit.relative_sigma, nc),
+        json_sigma(&fit.segment_robust_sigma, nc),
+        json_sigma(&fit.frame_robust_sigma, nc),
         fit.status.replace('"', "'"),
     )
 }
