@@ -7,9 +7,11 @@
 //! and fitted with quadratic tets on the given mesh (coarse to fine), so E is checked against a
 //! discretization finer than the fit's; `bar1ab` — `bar1` and a second motion of the same bar
 //! (a twist, released, filmed at 120 Hz) fitted jointly, for α and β (wang2015 §7's "one more
-//! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`.
+//! shape": a mode far in frequency from the bending ones); `bar8ab` — the same for `bar8`;
+//! `leafab` — `leaf` and a twist of the blade (its far +y corner pushed up for 0.05 s, released,
+//! 0.5 s at 120 Hz; force `--twist-mn`).
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--settle-ms T] [--segment-frames N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--settle-ms T] [--segment-frames N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -166,7 +168,7 @@ fn main() {
                     vec![8.0e5, 7.0e5, 6.0e5, 5.5e5, 5.0e5, 4.5e5, 4.0e5, 3.5e5],
                     1e-6 * noise_um as f64,
                 ),
-                "leaf" => (
+                "leaf" | "leafab" => (
                     [0.2, 0.06, 0.006],
                     [10, 3, 1],
                     1,
@@ -181,6 +183,13 @@ fn main() {
         // Off-axis push: the far end's top nodes on the +y side (bending in y and z, twist).
         // The twist's pushed nodes: the far end's top edge (all of `clamped_box`'s push nodes).
         let top_edge = push.clone();
+        // The blade's twist (`leafab`): the far end's +y corner, top and bottom nodes.
+        let twist_corner: Vec<usize> = (0..mesh.vertices.len())
+            .filter(|&i| {
+                let v = mesh.vertices[i];
+                v.x >= size[0] * (1.0 - 1e-9) && v.y >= 0.5 * size[1] * (1.0 - 1e-9)
+            })
+            .collect();
         let push: Vec<usize> = push
             .into_iter()
             .filter(|&i| mesh.vertices[i].y >= 0.0)
@@ -199,7 +208,7 @@ fn main() {
             damping: truth_damping,
             gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
             push_nodes: push,
-            push_force_n: if case == "leaf" {
+            push_force_n: if case.starts_with("leaf") {
                 Vector3::new(0.0, 0.05, -0.08)
             } else {
                 Vector3::new(0.0, 0.5, -0.4)
@@ -239,9 +248,22 @@ fn main() {
             if case.ends_with("ab") {
                 // The twist: the far end's top edge pushed sideways (+y) for 0.05 s — a torque
                 // about the bar's axis and a lateral bend — released, 0.5 s at 120 Hz.
+                // `leafab`: the blade twisted instead — its far +y corner (top and bottom
+                // nodes) pushed up (+z), a torque about the blade's axis and a bend.
+                let (twist_nodes, twist_force) = if case == "leafab" {
+                    (
+                        twist_corner.clone(),
+                        Vector3::new(0.0, 0.0, 1e-3 * twist_mn as f64),
+                    )
+                } else {
+                    (
+                        top_edge.clone(),
+                        Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
+                    )
+                };
                 specs.extend((0..twists).map(|t| SyntheticSpec {
-                    push_nodes: top_edge.clone(),
-                    push_force_n: Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
+                    push_nodes: twist_nodes.clone(),
+                    push_force_n: twist_force,
                     push_s: 0.05,
                     frame_rate_hz: 120.0,
                     seed: spec.seed + 1 + t as u64,

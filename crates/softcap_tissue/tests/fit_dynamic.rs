@@ -590,31 +590,65 @@ fn coarse_to_fine_in_time_reaches_the_all_segment_fit() {
     assert!(staged.rms_m <= 1.01 * all.rms_m);
 }
 
+/// The Table 1 shapes: the clamped bar (bent, twisted by a sideways push on its far top edge)
+/// and the leaf blade (bent, twisted by an upward push on its far +y corner).
+#[derive(Clone, Copy, Debug)]
+enum Table1Shape {
+    Bar,
+    Leaf,
+}
+
 /// wang2015 Table 1 from several motions per noise draw (issue 36; §7 fits each object from a
-/// few recorded motions): the 200 × 30 × 20 mm bar of `examples/fit_dynamic_table1.rs`
-/// (E 5·10⁵ Pa, ν 0.45, ρ 1100 kg/m³, α 0.8 1/s, β 1 ms), three bending pushes (0.5 N off-axis
-/// for 0.2 s, 60 frames at 30 Hz) and four twists (3 N sideways on the far end's top edge for
-/// 0.05 s, 60 frames at 120 Hz), each with its own draw of 0.5 mm spatially correlated noise and
-/// its push's interaction extended by 50 ms (`synthesize_motions`). Fitted from the tracked
-/// start states, segments of up to 60 frames, the first two modes' share of every start fitted
-/// with the parameters (`start_state_modes`: a twist's start velocity from ±2 frames at 120 Hz
-/// carries 4× the 30 Hz noise, which rings in the bending modes and biased α up to 15 %
-/// without it). E within 5 %, α within 5 %, β within 20 % on seeds 11 and 71.
-#[test]
-#[ignore = "≈ 81 CPU-s (two fits of 420 frames, ≈ 40 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
-fn table1_several_motions_give_alpha_within_5_and_beta_within_20_percent() {
+/// few recorded motions), as `examples/fit_dynamic_table1.rs` `bar1ab` / `leafab --bends 3
+/// --twists 4 --twist-mn 3000 --settle-ms 50 --segment-frames 60 --start-modes 2`: the
+/// 200 × 30 × 20 mm bar (E 5·10⁵ Pa) or the 200 × 60 × 6 mm blade (E 2·10⁶ Pa), ν 0.45,
+/// ρ 1100 kg/m³, α 0.8 1/s, β 1 ms; three bending pushes (off-axis for 0.2 s, 60 frames at
+/// 30 Hz) and four twists (3 N for 0.05 s, 60 frames at 120 Hz), each with its own draw of
+/// 0.5 mm spatially correlated noise and its push's interaction extended by 50 ms
+/// (`synthesize_motions`). Fitted from the tracked start states, segments of up to 60 frames,
+/// the first two modes' share of every start fitted with the parameters (`start_state_modes`: a
+/// twist's start velocity from ±2 frames at 120 Hz carries 4× the 30 Hz noise, which rings in
+/// the bending modes and biased α up to 15 % without it). Asserts E within 5 %, α within 5 %,
+/// β within 20 % (the issue's tolerances): the bar meets them on all of seeds 11–101, the leaf
+/// on seeds 11, 21, 41, 51, 71 but not 31, 61 (α +5.1 %, −5.8 %; docs/dynamic-fit.md).
+fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
     use softcap_tissue::fit_dynamic::synthetic::{clamped_box, synthesize_motions};
-    let (l, h) = (0.2, 0.02);
-    let (mesh, support, top_edge) = clamped_box([l, 0.03, h], [12, 2, 2]);
+    let (size, cells, young, bend_force) = match shape {
+        Table1Shape::Bar => (
+            [0.2, 0.03, 0.02],
+            [12, 2, 2],
+            E_TRUE,
+            Vector3::new(0.0, 0.5, -0.4),
+        ),
+        Table1Shape::Leaf => (
+            [0.2, 0.06, 0.006],
+            [10, 3, 1],
+            2.0e6,
+            Vector3::new(0.0, 0.05, -0.08),
+        ),
+    };
+    let (mesh, support, top_edge) = clamped_box(size, cells);
     let off_axis: Vec<usize> = top_edge
         .iter()
         .copied()
         .filter(|&i| mesh.vertices[i].y >= 0.0)
         .collect();
+    let (twist_nodes, twist_force) = match shape {
+        Table1Shape::Bar => (top_edge, Vector3::new(0.0, 3.0, 0.0)),
+        Table1Shape::Leaf => (
+            (0..mesh.vertices.len())
+                .filter(|&i| {
+                    let v = mesh.vertices[i];
+                    v.x >= size[0] * (1.0 - 1e-9) && v.y >= 0.5 * size[1] * (1.0 - 1e-9)
+                })
+                .collect(),
+            Vector3::new(0.0, 0.0, 3.0),
+        ),
+    };
     let bend = SyntheticSpec {
         rest_mesh: mesh.clone(),
         support_nodes: support,
-        young_pa: vec![E_TRUE; mesh.tets.len()],
+        young_pa: vec![young; mesh.tets.len()],
         poisson: 0.45,
         density_kg_m3: 1100.0,
         damping: RayleighDamping {
@@ -623,7 +657,7 @@ fn table1_several_motions_give_alpha_within_5_and_beta_within_20_percent() {
         },
         gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
         push_nodes: off_axis,
-        push_force_n: Vector3::new(0.0, 0.5, -0.4),
+        push_force_n: bend_force,
         push_s: 0.2,
         frames: 60,
         frame_rate_hz: 30.0,
@@ -633,48 +667,74 @@ fn table1_several_motions_give_alpha_within_5_and_beta_within_20_percent() {
         noise_m: 5.0e-4,
         seed: 0,
     };
-    for seed in [11u64, 71] {
-        let mut specs: Vec<SyntheticSpec> = (0..3u64)
-            .map(|k| SyntheticSpec {
-                seed: if k == 0 { seed } else { seed + 500 + k },
-                ..bend.clone()
-            })
-            .collect();
-        specs.extend((0..4u64).map(|t| SyntheticSpec {
-            push_nodes: top_edge.clone(),
-            push_force_n: Vector3::new(0.0, 3.0, 0.0),
-            push_s: 0.05,
-            frame_rate_hz: 120.0,
-            seed: seed + 1 + t,
+    let mut specs: Vec<SyntheticSpec> = (0..3u64)
+        .map(|k| SyntheticSpec {
+            seed: if k == 0 { seed } else { seed + 500 + k },
             ..bend.clone()
-        }));
-        let truth = synthesize_motions(&specs, 0.1, 0.05).unwrap();
-        let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
-            segment_frames: 60,
-            start_state_modes: 2,
-            max_simulations: 200,
-            progress: false,
-            ..Default::default()
-        };
-        let fit = fit_quietly(&truth, &settings);
-        let e = fit.young_pa[0] / E_TRUE - 1.0;
-        let a = fit.damping.alpha_per_s / 0.8 - 1.0;
-        let b = fit.damping.beta_s / 1.0e-3 - 1.0;
-        eprintln!(
-            "seed {seed}: E {:+.1} %, alpha {:+.1} %, beta {:+.1} % (1-sigma {:.1} / {:.1} %, segment sandwich {:.1} / {:.1} %), {} frames, status {}",
-            100.0 * e,
-            100.0 * a,
-            100.0 * b,
-            100.0 * fit.relative_sigma[1],
-            100.0 * fit.relative_sigma[2],
-            100.0 * fit.segment_robust_sigma[1],
-            100.0 * fit.segment_robust_sigma[2],
-            truth.sequence.frames(),
-            fit.status
-        );
-        assert_eq!(truth.sequence.frames(), 420);
-        assert!(e.abs() < 0.05, "seed {seed}: E {:+.1} %", 100.0 * e);
-        assert!(a.abs() < 0.05, "seed {seed}: alpha {:+.1} %", 100.0 * a);
-        assert!(b.abs() < 0.20, "seed {seed}: beta {:+.1} %", 100.0 * b);
-    }
+        })
+        .collect();
+    specs.extend((0..4u64).map(|t| SyntheticSpec {
+        push_nodes: twist_nodes.clone(),
+        push_force_n: twist_force,
+        push_s: 0.05,
+        frame_rate_hz: 120.0,
+        seed: seed + 1 + t,
+        ..bend.clone()
+    }));
+    let truth = synthesize_motions(&specs, 0.1, 0.05).unwrap();
+    let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
+        segment_frames: 60,
+        start_state_modes: 2,
+        max_simulations: 200,
+        progress: false,
+        ..Default::default()
+    };
+    let fit = fit_quietly(&truth, &settings);
+    let e = fit.young_pa[0] / young - 1.0;
+    let a = fit.damping.alpha_per_s / 0.8 - 1.0;
+    let b = fit.damping.beta_s / 1.0e-3 - 1.0;
+    eprintln!(
+        "{shape:?} seed {seed}: E {:+.1} %, alpha {:+.1} %, beta {:+.1} % (1-sigma {:.1} / {:.1} %, segment sandwich {:.1} / {:.1} %), {} frames, status {}",
+        100.0 * e,
+        100.0 * a,
+        100.0 * b,
+        100.0 * fit.relative_sigma[1],
+        100.0 * fit.relative_sigma[2],
+        100.0 * fit.segment_robust_sigma[1],
+        100.0 * fit.segment_robust_sigma[2],
+        truth.sequence.frames(),
+        fit.status
+    );
+    assert_eq!(truth.sequence.frames(), 420);
+    assert!(
+        e.abs() < 0.05,
+        "{shape:?} seed {seed}: E {:+.1} %",
+        100.0 * e
+    );
+    assert!(
+        a.abs() < 0.05,
+        "{shape:?} seed {seed}: alpha {:+.1} %",
+        100.0 * a
+    );
+    assert!(
+        b.abs() < 0.20,
+        "{shape:?} seed {seed}: beta {:+.1} %",
+        100.0 * b
+    );
+}
+
+/// [`table1_protocol_meets_the_tolerances`] on one noise draw of each shape, in `make test`.
+#[test]
+fn table1_one_draw_of_the_bar_and_the_leaf() {
+    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 11);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 11);
+}
+
+/// [`table1_protocol_meets_the_tolerances`] on more draws.
+#[test]
+#[ignore = "≈ 80 CPU-s (the bar's seed 71, ≈ 40 CPU-s; the leaf's seeds 21, 41, ≈ 20 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
+fn table1_more_draws_of_the_bar_and_the_leaf() {
+    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 71);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 21);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 41);
 }
