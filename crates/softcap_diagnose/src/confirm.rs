@@ -470,13 +470,9 @@ pub fn lolo_choices(
     scored: &dyn Fn(usize, usize) -> bool,
     train_on_scored: bool,
 ) -> Vec<usize> {
-    if cands.is_empty() {
-        return Vec::new();
-    }
-    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
-    t.best_per_fold(seg.num_folds(), scale, None)
+    lolo_rankings(cands, rec, seg, p, scale, scored, train_on_scored, 1, None)
         .into_iter()
-        .map(|(_, i, _, _)| i)
+        .filter_map(|ranking| ranking.first().copied())
         .collect()
 }
 
