@@ -523,10 +523,11 @@ fn slow_creep(g: f64, tau_s: f64) -> Vec<Effect> {
 /// plastic set does not), predicted to separate them more than the recorded protocol does.
 /// Re-recorded under it, the creep truth is named `viscoelasticity` and the plastic truth
 /// `plasticity`. With `plasticity::PERMANENT_PERSISTENCE` at 0.9 the first protocol named
-/// the creep `plasticity`. ≈ 220 CPU-s (three diagnoses with Prony re-simulations):
+/// the creep `plasticity`. ≈ 54 CPU-s (three diagnoses with Prony re-simulations; ≈ 220 before
+/// plasticity's rigid-tip points were ranked on the fit mesh bisected once):
 /// `cargo test --workspace --test diagnose_tests -- --ignored in_memory::slow_creep_and_plasticity_decided_by_longer_holds`.
 #[test]
-#[ignore = "≈ 220 CPU-s: three diagnoses with the Prony grid re-simulations"]
+#[ignore = "≈ 54 CPU-s (53.7 at load 2-6): three diagnoses with the Prony grid re-simulations"]
 fn slow_creep_and_plasticity_decided_by_longer_holds() {
     let chain = lookalike_chain(
         &slow_creep(1.0, 5.0),
