@@ -71,6 +71,7 @@ fn sequence() -> Synthetic {
         gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
         push_nodes: push,
         push_force_n: Vector3::new(0.0, 0.5, -0.4),
+        counter_push_nodes: Vec::new(),
         push_s: 0.2,
         frames: frames(),
         frame_rate_hz: 30.0,

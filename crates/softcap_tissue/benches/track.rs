@@ -81,6 +81,7 @@ fn scene() -> Scene {
         gravity_m_s2: softcap_fem::STANDARD_GRAVITY_M_S2,
         push_nodes: push,
         push_force_n: Vector3::new(0.0, 0.5, -0.9),
+        counter_push_nodes: Vec::new(),
         push_s: 8.0 / FRAME_RATE_HZ,
         frames: FRAMES,
         frame_rate_hz: FRAME_RATE_HZ,

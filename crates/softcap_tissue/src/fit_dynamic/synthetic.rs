@@ -42,6 +42,9 @@ pub struct SyntheticSpec {
     pub push_nodes: Vec<usize>,
     /// Total push force, N (spread evenly over `push_nodes`).
     pub push_force_n: Vector3<f64>,
+    /// Nodes pushed the other way, −`push_force_n` spread evenly over them: with `push_nodes`
+    /// a couple (no net force; e.g. a blade twisted by its two far corners). Empty: none.
+    pub counter_push_nodes: Vec<usize>,
     /// The push acts for t ∈ [0, push_s].
     pub push_s: f64,
     /// Frames and frame rate.
@@ -83,6 +86,7 @@ impl SyntheticSpec {
             gravity_m_s2: Vector3::new(0.0, 0.0, -9.80665),
             push_nodes: push,
             push_force_n: Vector3::new(0.0, 0.4, -0.3),
+            counter_push_nodes: Vec::new(),
             push_s: 0.2,
             frames: 20,
             frame_rate_hz: 30.0,
@@ -212,11 +216,15 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     let mut solver = Stepper::new(&model, masses, &bc.dofs())?;
     let mut state = DynamicState::at_rest(xs.clone());
     let push_each = spec.push_force_n / spec.push_nodes.len().max(1) as f64;
+    let counter_each = -spec.push_force_n / spec.counter_push_nodes.len().max(1) as f64;
     let forces_at = |t: f64| {
         let mut f = gravity.clone();
         if t <= spec.push_s + 1e-12 {
             for &i in &spec.push_nodes {
                 f[i] += push_each;
+            }
+            for &i in &spec.counter_push_nodes {
+                f[i] += counter_each;
             }
         }
         f
