@@ -11,7 +11,7 @@
 //! `leafab` — `leaf` and a twist of the blade (its far +y corner pushed up for 0.05 s, released,
 //! 0.5 s at 120 Hz; force `--twist-mn`).
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--settle-ms T] [--segment-frames N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -33,7 +33,12 @@
 //! rate; default 1: 60 frames each). `--twists N`: the `…ab` cases' twist motion N times, each
 //! with its own noise draw (noise seeds seed + 1, seed + 2, …; default 1). `--bends N`: the
 //! bending push N times, each with its own noise draw (seeds seed, seed + 501, …; default 1).
-//! `--twist-mn F`: the twist's push force in mN (default 600). `--settle-ms T`: every push's
+//! `--twist-mn F`: the twist's push force in mN (default 600). `--twist-couple`: `leafab`'s twist
+//! by a couple, the far −y corner pushed down as hard as the +y corner is pushed up
+//! (`SyntheticSpec::counter_push_nodes`: the twist mode without the flap). `--bend-scale K`: the
+//! bending push K times as hard. `--mid-pushes N`: N more motions, the top edge at mid-span
+//! pushed along (0, 1, −1)/√2 with `--mid-mn F` mN (default 3000) for `--mid-ms T` ms (default
+//! 20), released, 0.5 s at 120 Hz, each with its own noise draw (seeds seed + 600 + k). `--settle-ms T`: every push's
 //! interaction interval extended by T ms (`synthetic::synthesize_motions`; default 0).
 //! `--segment-frames N`: frame intervals per fitted segment at most
 //! (`FitDynamicSettings::segment_frames`; default 30).
