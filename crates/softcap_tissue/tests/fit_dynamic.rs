@@ -1,7 +1,7 @@
 //! `softcap tissue fit-dynamic` / `simulate-dynamic` (wang2015 §6) end to end on a small known-truth
 //! sequence, and their bad-input handling. The Table 1 / Table 2 accuracy runs are in
-//! `examples/fit_dynamic_table1.rs` (too slow for `make test`); the Table 1 protocol's α / β check
-//! on two noise draws is the ignored `table1_several_motions_…` test below.
+//! `examples/fit_dynamic_table1.rs` (too slow for `make test`); the Table 1 protocol's checks are
+//! `table1_one_draw_…` and the ignored `table1_more_draws_…` below.
 
 use std::path::Path;
 use std::process::Command;
@@ -600,18 +600,21 @@ enum Table1Shape {
 
 /// wang2015 Table 1 from several motions per noise draw (issue 36; §7 fits each object from a
 /// few recorded motions), as `examples/fit_dynamic_table1.rs` `bar1ab` / `leafab --bends 3
-/// --twists 4 --twist-mn 3000 --settle-ms 50 --segment-frames 60 --start-modes 2`: the
+/// --twists N --twist-mn 3000 --settle-ms 50 --segment-frames 60 --start-modes 2`: the
 /// 200 × 30 × 20 mm bar (E 5·10⁵ Pa) or the 200 × 60 × 6 mm blade (E 2·10⁶ Pa), ν 0.45,
 /// ρ 1100 kg/m³, α 0.8 1/s, β 1 ms; three bending pushes (off-axis for 0.2 s, 60 frames at
-/// 30 Hz) and four twists (3 N for 0.05 s, 60 frames at 120 Hz), each with its own draw of
+/// 30 Hz) and `twists` twists (3 N for 0.05 s, 60 frames at 120 Hz), each with its own draw of
 /// 0.5 mm spatially correlated noise and its push's interaction extended by 50 ms
 /// (`synthesize_motions`). Fitted from the tracked start states, segments of up to 60 frames,
 /// the first two modes' share of every start fitted with the parameters (`start_state_modes`: a
 /// twist's start velocity from ±2 frames at 120 Hz carries 4× the 30 Hz noise, which rings in
 /// the bending modes and biased α up to 15 % without it). Asserts E within 5 %, α within 5 %,
-/// β within 20 % (the issue's tolerances): the bar meets them on all of seeds 11–101, the leaf
-/// on seeds 11, 21, 41, 51, 71 but not 31, 61 (α +5.1 %, −5.8 %; docs/dynamic-fit.md).
-fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
+/// β within 20 % (the issue's tolerances). The bar meets them with 4 twists on all of seeds
+/// 11–101. The leaf's α error is the noise's own (exact start states leave seed 31 at +4.2 %),
+/// along the line that keeps the flap's damping ratio (α and β errors of opposite sign), so it
+/// falls as 1/√twists: 4 twists miss seeds 31, 61 (α +5.1 %, −5.8 %), 12 meet seeds 11–111
+/// (docs/dynamic-fit.md).
+fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64, twists: u64) {
     use softcap_tissue::fit_dynamic::synthetic::{clamped_box, synthesize_motions};
     let (size, cells, young, bend_force) = match shape {
         Table1Shape::Bar => (
@@ -664,7 +667,7 @@ fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
             ..bend.clone()
         })
         .collect();
-    specs.extend((0..4u64).map(|t| SyntheticSpec {
+    specs.extend((0..twists).map(|t| SyntheticSpec {
         push_nodes: twist_nodes.clone(),
         push_force_n: twist_force,
         push_s: 0.05,
@@ -685,7 +688,7 @@ fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
     let a = fit.damping.alpha_per_s / 0.8 - 1.0;
     let b = fit.damping.beta_s / 1.0e-3 - 1.0;
     eprintln!(
-        "{shape:?} seed {seed}: E {:+.1} %, alpha {:+.1} %, beta {:+.1} % (1-sigma {:.1} / {:.1} %, segment sandwich {:.1} / {:.1} %), {} frames, status {}",
+        "{shape:?} seed {seed}, {twists} twists: E {:+.1} %, alpha {:+.1} %, beta {:+.1} % (1-sigma {:.1} / {:.1} %, segment sandwich {:.1} / {:.1} %), {} frames, status {}",
         100.0 * e,
         100.0 * a,
         100.0 * b,
@@ -696,7 +699,7 @@ fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
         truth.sequence.frames(),
         fit.status
     );
-    assert_eq!(truth.sequence.frames(), 420);
+    assert_eq!(truth.sequence.frames() as u64, 60 * (3 + twists));
     assert!(
         e.abs() < 0.05,
         "{shape:?} seed {seed}: E {:+.1} %",
@@ -714,18 +717,20 @@ fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64) {
     );
 }
 
-/// [`table1_protocol_meets_the_tolerances`] on one noise draw of each shape, in `make test`.
+/// [`table1_protocol_meets_the_tolerances`] on one noise draw of each shape with 4 twists, in
+/// `make test`.
 #[test]
 fn table1_one_draw_of_the_bar_and_the_leaf() {
-    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 11);
-    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 11);
+    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 11, 4);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 11, 4);
 }
 
-/// [`table1_protocol_meets_the_tolerances`] on more draws.
+/// [`table1_protocol_meets_the_tolerances`] on more draws: the bar's seed 71, and the leaf's
+/// seeds 31 and 61 with 12 twists (with 4, α +5.1 % and −5.8 %).
 #[test]
-#[ignore = "≈ 80 CPU-s (the bar's seed 71, ≈ 40 CPU-s; the leaf's seeds 21, 41, ≈ 20 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
+#[ignore = "≈ 180 CPU-s (the bar's seed 71, ≈ 40 CPU-s; the leaf's seeds 31, 61 with 12 twists, 55–80 CPU-s each); cargo test --profile test -p softcap_tissue --test tissue_tests fit_dynamic::table1 -- --ignored"]
 fn table1_more_draws_of_the_bar_and_the_leaf() {
-    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 71);
-    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 21);
-    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 41);
+    table1_protocol_meets_the_tolerances(Table1Shape::Bar, 71, 4);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 31, 12);
+    table1_protocol_meets_the_tolerances(Table1Shape::Leaf, 61, 12);
 }
