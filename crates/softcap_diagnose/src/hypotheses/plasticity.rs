@@ -6,9 +6,10 @@
 //! the released residual minus the same marker's rest residual above 3σ (a template offset cancels,
 //! a plastic set exists only after release) that persists at the later releases (creep recovers). Confirmation: J2 plasticity with linear isotropic
 //! hardening (`softcap_fem::ElastoplasticModel`, Simo & Hughes 1998 Box 3.1–3.2) over the default
-//! (λ, α), σ_y and H as fractions of the peak contact pressure, driven by the measured force over
-//! the patch (bickel2009 §4.1) AND replayed with the session's rigid tip at every measured pose
-//! (§3.4 position control: the tip's rim sets the stress the material yields under) on the fit
+//! (λ, α), driven by the measured force over the patch (bickel2009 §4.1; σ_y and H as fractions
+//! of the peak contact pressure) AND replayed with the session's rigid tip at every measured pose
+//! (§3.4 position control: the tip's rim sets the stress the material yields under; σ_y and H as
+//! fractions of the fit's Young's modulus, [`RIGID_YIELD_STRAINS`]) on the fit
 //! mesh refined 1 → 8 (`ProbeSimulator::refined`: the coarse linear tets cannot form the dent
 //! between the markers), the latter also with ν = 0.45 (the tissue fit's ν is biased by the
 //! plastic flow it did not model). With `plasticity_refined_replays` = n > 0 the eight rigid-tip
@@ -59,6 +60,22 @@ pub const PERMANENT_PERSISTENCE: f64 = 1.0;
 /// (normal noise). Fixed before any verdict was looked at (issue 37: the in-memory weak plastic
 /// set, 1.4 × √3σ, measured 0.988 on one noise draw and was read as decaying, exactly).
 pub const PERSISTENCE_Z: f64 = 2.0;
+
+/// The rigid-tip replays' yield stresses σ_y as fractions of the fit's Young's modulus E (yield
+/// strains; `ProbeSimulator::young_pa`). Under position control (the measured tip pose sets the
+/// depth) a J2 replay's displacements depend on σ_y/E, H/E and ν only (Simo & Hughes 1998
+/// Box 3.1: at fixed strains the trial stress, the yield function and the return all scale with
+/// E), so a grid in units of the peak contact pressure p — a force scale — moves with the
+/// session's p/E. The values are the former grid's, 0.3 and 0.4 p, on the own rig's plasticity
+/// case where it was chosen (p 10.26 kPa, fit E 35.23 kPa: p/E = 0.2912), so that case replays
+/// the same points. On the third-party plasticity case (p 13.76 kPa, fit E 23.98 kPa, truth
+/// 50 kPa) the former grid's 0.3 p was 0.17 E, twice the truth's yield strain σ_y/E = 0.09,
+/// and the replays' released set came out 2–2.5× too shallow (the force-driven point won).
+pub const RIGID_YIELD_STRAINS: [f64; 2] = [0.087358, 0.116477];
+
+/// The rigid-tip replays' hardening moduli H as fractions of the fit's Young's modulus E: the
+/// former 0.2 and 0.5 p on the own rig's case ([`RIGID_YIELD_STRAINS`]).
+pub const RIGID_HARDENING_RATIOS: [f64; 2] = [0.058239, 0.145597];
 
 /// Name of the effect cells.
 const CELLS: &str = "released/near-touched";
@@ -182,12 +199,16 @@ impl Hypothesis for Plasticity {
             }
         }
         // Rigid-tip replays (position control) with the tissue fit's ν and with ν = 0.45
-        // (`Extension::PlasticPoisson`); under position control E only scales σ_y and H.
+        // (`Extension::PlasticPoisson`); under position control the displacements depend on
+        // σ_y/E, H/E and ν only, so σ_y and H are set in units of the fit's E
+        // ([`RIGID_YIELD_STRAINS`], [`RIGID_HARDENING_RATIOS`]); none without an E.
+        let young_pa = sim.young_pa().filter(|e| e.is_finite() && *e > 0.0);
         let mut rigid: Vec<RigidPoint> = Vec::new();
         for nu in [None, Some(0.45)] {
-            for sy in [0.3, 0.4] {
-                for hh in [0.2, 0.5] {
-                    let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
+            for sy in RIGID_YIELD_STRAINS {
+                for hh in RIGID_HARDENING_RATIOS {
+                    let Some(e) = young_pa else { continue };
+                    let (yield_stress_pa, hardening_pa) = (sy * e, hh * e);
                     let mut params = vec![
                         ("yield_stress_pa".into(), yield_stress_pa),
                         ("hardening_modulus_pa".into(), hardening_pa),

@@ -149,6 +149,15 @@ pub trait ProbeSimulator: Send + Sync {
         Ok(None)
     }
 
+    /// The default model's Young's modulus E, Pa: the volume-weighted mean over its elements
+    /// (the homogeneous fit's E). Under position control a J2 model's displacements depend on
+    /// σ_y/E, H/E and ν only (the stresses scale with E at fixed strains), so the rigid-tip
+    /// replays of `crate::hypotheses::plasticity` set σ_y and H in units of it. `None` (default)
+    /// when this simulator has no elements to read it from.
+    fn young_pa(&self) -> Option<f64> {
+        None
+    }
+
     /// True when the fit mesh already resolves a tip of radius `tip_radius_m` at the tip
     /// positions `tips_m`: its boundary nodes there are spaced ≤ 0.8 tip radii, the rule of
     /// [`super::friction_refinement`] (which then adds no refinement level). A model

@@ -534,6 +534,16 @@ impl ProbeSimulator for FemProbeSimulator {
         ))
     }
 
+    fn young_pa(&self) -> Option<f64> {
+        let (mut sum, mut volume) = (0.0, 0.0);
+        for (g, p) in self.model.elements().iter().zip(self.model.params()) {
+            let (e, _) = p.to_young_poisson().ok()?;
+            sum += e * g.volume_m3;
+            volume += g.volume_m3;
+        }
+        (volume > 0.0).then(|| sum / volume)
+    }
+
     fn resolves_footprint(&self, tip_radius_m: f64, tips_m: &[Vector3<f64>]) -> bool {
         let tip = TipShape::Sphere {
             radius_m: tip_radius_m,
