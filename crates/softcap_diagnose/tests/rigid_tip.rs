@@ -701,3 +701,53 @@ fn a_node_sticks_to_a_tilted_disk_where_it_first_touched() {
         );
     }
 }
+
+/// Under position control a J2 replay depends on σ_y/E, H/E and ν only — the premise of the
+/// plasticity hypothesis's rigid-tip grid in units of the fit's E
+/// (`softcap_diagnose::hypotheses::plasticity::RIGID_YIELD_STRAINS`, Simo & Hughes 1998 Box 3.1:
+/// at fixed strains the trial stress, the yield function and the return scale with E): E, σ_y
+/// and H doubled together leave the markers, while σ_y doubled alone moves the set.
+/// `ProbeSimulator::young_pa` reads the homogeneous E.
+#[test]
+fn rigid_replay_of_j2_plasticity_depends_on_the_yield_strain_only() {
+    let replay = |young_pa: f64, yield_strain: f64| {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], SIZE, [6, 6, 3]);
+        let params = LinearParams::from_young_poisson(young_pa, 0.45).unwrap();
+        let model = CorotationalModel::homogeneous(&mesh, params).unwrap();
+        let fixed = FemProbeSimulator::nodes_on_plane(&mesh, &Vector3::z(), 0.0, 1e-9);
+        let sim =
+            FemProbeSimulator::new(&mesh, model, &fixed, &markers(), FemSimSettings::default())
+                .unwrap()
+                .with_rigid_tip(sphere());
+        let e = sim.young_pa().unwrap();
+        assert!((e - young_pa).abs() < 1e-9 * young_pa, "E {e} Pa");
+        sim.simulate_sequence_rigid_tip(
+            &Extension::Plastic {
+                yield_stress_pa: yield_strain * e,
+                hardening_pa: 0.01 * e,
+            },
+            &frames(),
+        )
+        .unwrap()
+        .unwrap()
+    };
+    let max_diff = |a: &[Vec<Vector3<f64>>], b: &[Vec<Vector3<f64>>]| {
+        a.iter()
+            .zip(b)
+            .flat_map(|(p, q)| p.iter().zip(q).map(|(u, v)| (u - v).norm()))
+            .fold(0.0, f64::max)
+    };
+    let soft = replay(2e4, 0.1);
+    let stiff = replay(4e4, 0.1);
+    let set = soft[8][0].z - markers()[0].z;
+    assert!(set < -1e-5, "no set at σ_y/E 0.1: {set:e} m");
+    let same = max_diff(&soft, &stiff);
+    // to the solver's tolerance paths (measured 1.95 µm of the 2 mm depth, as J2 without yield
+    // against the elastic replay above)
+    assert!(same < 5e-6, "E 20 vs 40 kPa at σ_y/E 0.1: {same:e} m");
+    let other = max_diff(&soft, &replay(2e4, 0.2));
+    assert!(
+        other > 5.0 * same,
+        "σ_y/E 0.1 vs 0.2: {other:e} m against {same:e} m"
+    );
+}
