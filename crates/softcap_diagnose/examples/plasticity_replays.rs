@@ -58,12 +58,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     let support = rec.support.ok_or("no support plane")?;
-    let fixed = FemProbeSimulator::nodes_on_plane(
-        &material.mesh,
-        &support.normal,
-        support.offset_m,
-        support.tolerance_m.max(1e-9),
-    );
+    let fixed = support.nodes(&material.mesh);
     let seg = Segmentation::new(&rec, &SegmentSettings::default());
     let cells = Plasticity
         .effect_cells(&rec, &seg)

@@ -44,12 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         policies
     };
     let support = rec.support.ok_or("no support plane")?;
-    let fixed = FemProbeSimulator::nodes_on_plane(
-        &material.mesh,
-        &support.normal,
-        support.offset_m,
-        support.tolerance_m.max(1e-9),
-    );
+    let fixed = support.nodes(&material.mesh);
     let seg = Segmentation::new(&rec, &SegmentSettings::default());
     let r_tip = rec.tip_radius_m.max(1e-4);
     let pressure_pa = seg.peak_force_n() / (std::f64::consts::PI * r_tip * r_tip);

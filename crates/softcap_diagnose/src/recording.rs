@@ -4,6 +4,7 @@
 use crate::{DiagnoseError, Result};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
+use softcap_mesh::TetMesh;
 
 /// One captured frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -37,6 +38,17 @@ impl SupportPlane {
     /// Signed distance of `p` from the plane, metres.
     pub fn distance_m(&self, p: &Vector3<f64>) -> f64 {
         self.normal.dot(p) - self.offset_m
+    }
+
+    /// The nodes of `mesh` attached to the plane: within `tolerance_m` of it, at least 1 nm
+    /// (`softcap_probing::support_nodes`).
+    pub fn nodes(&self, mesh: &TetMesh) -> Vec<usize> {
+        softcap_probing::support_nodes(
+            mesh,
+            &self.normal,
+            self.offset_m,
+            self.tolerance_m.max(1e-9),
+        )
     }
 }
 

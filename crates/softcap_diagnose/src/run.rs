@@ -82,12 +82,7 @@ pub fn run(cfg: &RunConfig) -> Result<Diagnosis> {
                 .into(),
         });
     };
-    let fixed = FemProbeSimulator::nodes_on_plane(
-        &material.mesh,
-        &support.normal,
-        support.offset_m,
-        support.tolerance_m.max(1e-9),
-    );
+    let fixed = support.nodes(&material.mesh);
     if fixed.is_empty() {
         return Err(DiagnoseError::BadInput {
             path: cfg.material.clone(),

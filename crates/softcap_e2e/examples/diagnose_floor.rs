@@ -86,12 +86,7 @@ fn main() {
     let material = read_material_from(&inputs.material, MaterialSource::Homogeneous).unwrap();
     let rec = recording_from_capture(&cap, &material.mesh).unwrap();
     let support = rec.support.expect("a support plane");
-    let fixed = FemProbeSimulator::nodes_on_plane(
-        &material.mesh,
-        &support.normal,
-        support.offset_m,
-        support.tolerance_m.max(1e-9),
-    );
+    let fixed = support.nodes(&material.mesh);
     let mut settings = FemSimSettings::default();
     // The load the material was fitted under (material.mcap), as the diagnosis replays it.
     if let Some(load) = material.footprint_load {
