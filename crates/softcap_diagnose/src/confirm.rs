@@ -342,6 +342,26 @@ pub fn lolo_confirm_each_refitted(
 /// offered to that fold.
 pub type EligibleFn<'a> = dyn Fn(usize, Option<usize>) -> bool + 'a;
 
+/// What a leave-one-location-out selection scores candidates against: the recording, its
+/// segmentation into folds (one per probe location) and the baseline's prepared data, the
+/// nuisance compliance scale, which observations `scored(frame, marker)` counts (the hypothesis's
+/// effect cells) and, with `train_on_scored`, that the training error counts only those too.
+#[derive(Clone, Copy)]
+pub struct Lolo<'a> {
+    /// The recording (its markers are the observations).
+    pub rec: &'a Recording,
+    /// Its segmentation (the folds: one per probe location).
+    pub seg: &'a Segmentation,
+    /// The baseline's prepared data (the model's unloaded markers).
+    pub p: &'a Prepared,
+    /// The compliance scale's refit and bounds.
+    pub scale: ComplianceScale,
+    /// Which observations (frame, marker) are scored.
+    pub scored: &'a dyn Fn(usize, usize) -> bool,
+    /// Train on the scored observations only (else on every one).
+    pub train_on_scored: bool,
+}
+
 /// Per (candidate, fold bucket) sums of the observations of a recording (module docs): `all`
 /// over the training observations (every one, or with `train_on_scored` only the scored ones),
 /// `sc` over the scored ones; bucket `num_folds` holds the frames of no fold (rest).
@@ -353,14 +373,15 @@ struct Tally {
 }
 
 impl Tally {
-    fn new(
-        cands: &[Candidate],
-        rec: &Recording,
-        seg: &Segmentation,
-        p: &Prepared,
-        scored: &dyn Fn(usize, usize) -> bool,
-        train_on_scored: bool,
-    ) -> Self {
+    fn new(cands: &[Candidate], lolo: &Lolo<'_>) -> Self {
+        let Lolo {
+            rec,
+            seg,
+            p,
+            scored,
+            train_on_scored,
+            ..
+        } = *lolo;
         let nf = seg.num_folds();
         let bucket = |k: usize| seg.fold_of_frame[k].unwrap_or(nf);
         let mut all = Vec::with_capacity(cands.len());
@@ -461,16 +482,8 @@ impl Tally {
 
 /// The candidate [`lolo_confirm`] chooses for each held-out location (index l of the result) and,
 /// last, for the full data (nothing held out); empty without candidates.
-pub fn lolo_choices(
-    cands: &[Candidate],
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scale: ComplianceScale,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
-) -> Vec<usize> {
-    lolo_rankings(cands, rec, seg, p, scale, scored, train_on_scored, 1, None)
+pub fn lolo_choices(cands: &[Candidate], lolo: &Lolo<'_>) -> Vec<usize> {
+    lolo_rankings(cands, lolo, 1, None)
         .into_iter()
         .filter_map(|ranking| ranking.first().copied())
         .collect()
@@ -488,28 +501,22 @@ pub fn family_key(c: &Candidate, name: &str) -> Option<f64> {
 /// each value of the parameter `name` ([`family_key`]) is ranked: a biased error (the fit
 /// mesh's contact error under a rigid-tip replay) that shifts all of one family's points
 /// ahead of another's then still leaves one point per family to decide between.
-#[allow(clippy::too_many_arguments)]
 pub fn lolo_rankings(
     cands: &[Candidate],
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scale: ComplianceScale,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
+    lolo: &Lolo<'_>,
     n: usize,
     family: Option<&str>,
 ) -> Vec<Vec<usize>> {
     if cands.is_empty() {
         return Vec::new();
     }
-    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
-    (0..seg.num_folds())
+    let t = Tally::new(cands, lolo);
+    (0..lolo.seg.num_folds())
         .map(Some)
         .chain([None])
         .map(|skip| {
             let mut seen: Vec<Option<f64>> = Vec::new();
-            t.ranked(skip, scale, None)
+            t.ranked(skip, lolo.scale, None)
                 .into_iter()
                 .map(|(i, _, _)| i)
                 .filter(|&i| match family {
@@ -530,19 +537,13 @@ pub fn lolo_rankings(
 /// [`lolo_choices`] with each selection restricted to the `eligible` candidates: per held-out
 /// location, then the full data, the eligible candidate with the least training error (its
 /// compliance scale fitted) and that error (RSS, m²); `None` where no candidate is eligible.
-#[allow(clippy::too_many_arguments)]
 pub fn lolo_choices_among(
     cands: &[Candidate],
     eligible: &EligibleFn<'_>,
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scale: ComplianceScale,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
+    lolo: &Lolo<'_>,
 ) -> Vec<Option<(usize, f64)>> {
-    let t = Tally::new(cands, rec, seg, p, scored, train_on_scored);
-    t.best_per_fold(seg.num_folds(), scale, Some(eligible))
+    let t = Tally::new(cands, lolo);
+    t.best_per_fold(lolo.seg.num_folds(), lolo.scale, Some(eligible))
         .into_iter()
         .map(|(_, i, _, rss)| rss.is_finite().then_some((i, rss)))
         .collect()
@@ -556,43 +557,20 @@ pub fn lolo_choices_among(
 /// full-data) prediction is the refit closure's instead of the scaled candidate (no compliance
 /// scale is then reported: the refit replaces it). `Ok(None)` when there is no candidate or the
 /// refit declines.
-#[allow(clippy::too_many_arguments)]
 pub fn lolo_confirm(
     cands: &[Candidate],
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scale: ComplianceScale,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
+    lolo: &Lolo<'_>,
     refit: Option<&RefitFn<'_>>,
     method: String,
 ) -> Result<Option<Confirmed>> {
-    lolo_confirm_among(
-        cands,
-        None,
-        rec,
-        seg,
-        p,
-        scale,
-        scored,
-        train_on_scored,
-        refit,
-        method,
-    )
+    lolo_confirm_among(cands, None, lolo, refit, method)
 }
 
 /// [`lolo_confirm`] with each selection restricted to the `eligible` candidates.
-#[allow(clippy::too_many_arguments)]
 pub fn lolo_confirm_among(
     cands: &[Candidate],
     eligible: Option<&EligibleFn<'_>>,
-    rec: &Recording,
-    seg: &Segmentation,
-    p: &Prepared,
-    scale: ComplianceScale,
-    scored: &dyn Fn(usize, usize) -> bool,
-    train_on_scored: bool,
+    lolo: &Lolo<'_>,
     refit: Option<&RefitFn<'_>>,
     method: String,
 ) -> Result<Option<Confirmed>> {
@@ -600,8 +578,16 @@ pub fn lolo_confirm_among(
     if cands.is_empty() {
         return Ok(None);
     }
+    let Lolo {
+        rec,
+        seg,
+        p,
+        scale,
+        scored,
+        ..
+    } = *lolo;
     let nf = seg.num_folds();
-    let tally = Tally::new(cands, rec, seg, p, scored, train_on_scored);
+    let tally = Tally::new(cands, lolo);
     let (all, sc) = (&tally.all, &tally.sc);
     // per held-out location, then the full data: the chosen candidate and compliance scale
     let choices: Vec<(Option<usize>, usize, f64)> = tally
@@ -773,21 +759,17 @@ mod tests {
         seg: &Segmentation,
         p: &Prepared,
     ) -> Confirmed {
-        let scored = |_: usize, _: usize| true;
-        let scale = ComplianceScale::new(true, 0.1, 10.0);
-        lolo_confirm(
-            cands,
+        let lolo = Lolo {
             rec,
             seg,
             p,
-            scale,
-            &scored,
-            false,
-            None,
-            "toy".into(),
-        )
-        .unwrap()
-        .unwrap()
+            scale: ComplianceScale::new(true, 0.1, 10.0),
+            scored: &|_, _| true,
+            train_on_scored: false,
+        };
+        lolo_confirm(cands, &lolo, None, "toy".into())
+            .unwrap()
+            .unwrap()
     }
 
     #[test]
@@ -844,25 +826,20 @@ mod tests {
     #[test]
     fn choices_and_eligibility_restrict_each_fold() {
         let (rec, seg, p, cands) = toy();
-        let scored = |_: usize, _: usize| true;
-        let scale = ComplianceScale::new(true, 0.1, 10.0);
-        let choices = lolo_choices(&cands, &rec, &seg, &p, scale, &scored, false);
+        let lolo = Lolo {
+            rec: &rec,
+            seg: &seg,
+            p: &p,
+            scale: ComplianceScale::new(true, 0.1, 10.0),
+            scored: &|_, _| true,
+            train_on_scored: false,
+        };
+        let choices = lolo_choices(&cands, &lolo);
         assert_eq!(choices, vec![0, 0, 0]);
         let run = |eligible: Option<&EligibleFn<'_>>| {
-            lolo_confirm_among(
-                &cands,
-                eligible,
-                &rec,
-                &seg,
-                &p,
-                scale,
-                &scored,
-                false,
-                None,
-                "toy".into(),
-            )
-            .unwrap()
-            .unwrap()
+            lolo_confirm_among(&cands, eligible, &lolo, None, "toy".into())
+                .unwrap()
+                .unwrap()
         };
         let all = run(None);
         assert!(all.after_scored_m < 1e-12);
@@ -882,20 +859,17 @@ mod tests {
         // d clamped at 1.5: the held-out residual is 0.5 u on every observation, so the held-out
         // RMS is 0.5 × RMS(u) over the location frames.
         let (rec, seg, p, cands) = toy();
-        let scored = |_: usize, _: usize| true;
-        let c = lolo_confirm(
-            &cands,
-            &rec,
-            &seg,
-            &p,
-            ComplianceScale::new(true, 0.1, 1.5),
-            &scored,
-            false,
-            None,
-            "toy".into(),
-        )
-        .unwrap()
-        .unwrap();
+        let lolo = Lolo {
+            rec: &rec,
+            seg: &seg,
+            p: &p,
+            scale: ComplianceScale::new(true, 0.1, 1.5),
+            scored: &|_, _| true,
+            train_on_scored: false,
+        };
+        let c = lolo_confirm(&cands, &lolo, None, "toy".into())
+            .unwrap()
+            .unwrap();
         let (mut e, mut n) = (0.0, 0);
         for (k, f) in rec.frames.iter().enumerate() {
             if seg.fold_of_frame[k].is_some() {
@@ -1031,20 +1005,17 @@ mod tests {
                     .collect(),
             ))
         };
-        let scored = |_: usize, m: usize| m == 0;
-        let c = lolo_confirm(
-            &cands,
-            &rec,
-            &seg,
-            &p,
-            ComplianceScale::new(true, 0.1, 10.0),
-            &scored,
-            false,
-            Some(&refit),
-            "toy".into(),
-        )
-        .unwrap()
-        .unwrap();
+        let lolo = Lolo {
+            rec: &rec,
+            seg: &seg,
+            p: &p,
+            scale: ComplianceScale::new(true, 0.1, 10.0),
+            scored: &|_, m| m == 0,
+            train_on_scored: false,
+        };
+        let c = lolo_confirm(&cands, &lolo, Some(&refit), "toy".into())
+            .unwrap()
+            .unwrap();
         // one refit per held-out location and one on the full data (run in parallel)
         let mut calls = calls.into_inner().unwrap();
         calls.sort_unstable();
@@ -1059,19 +1030,9 @@ mod tests {
         // a refit that declines gives no confirmation
         let no = |_: usize, _: Option<usize>| -> Result<Option<Field>> { Ok(None) };
         assert!(
-            lolo_confirm(
-                &cands,
-                &rec,
-                &seg,
-                &p,
-                ComplianceScale::new(true, 0.1, 10.0),
-                &scored,
-                false,
-                Some(&no),
-                String::new(),
-            )
-            .unwrap()
-            .is_none()
+            lolo_confirm(&cands, &lolo, Some(&no), String::new())
+                .unwrap()
+                .is_none()
         );
     }
 }

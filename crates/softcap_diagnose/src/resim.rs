@@ -13,7 +13,7 @@
 use crate::baseline::Prepared;
 use crate::cells::touched_balls;
 use crate::confirm::{
-    Candidate, ComplianceScale, Confirmed, family_key, lolo_confirm_among, lolo_rankings,
+    Candidate, ComplianceScale, Confirmed, Lolo, family_key, lolo_confirm_among, lolo_rankings,
 };
 use crate::recording::Recording;
 use crate::segment::Segmentation;
@@ -342,17 +342,15 @@ impl Replays {
         if replays.rigid.is_empty() || refine_at_most == 0 {
             return Ok(replays);
         }
-        let kept = lolo_rankings(
-            &replays.rigid,
+        let ranking = Lolo {
             rec,
             seg,
             p,
-            ComplianceScale::new(false, 1.0, 1.0),
+            scale: ComplianceScale::new(false, 1.0, 1.0),
             scored,
             train_on_scored,
-            refine_at_most,
-            family,
-        );
+        };
+        let kept = lolo_rankings(&replays.rigid, &ranking, refine_at_most, family);
         let flat: Vec<usize> = kept.iter().flatten().copied().collect();
         let keys: Vec<Option<f64>> = replays
             .rigid
@@ -440,22 +438,11 @@ impl Replays {
     /// refines: which grid points get refined was decided with the other folds' data, which
     /// include this fold's. `what` names the extended model in the method, `cells` the scored
     /// cells.
-    #[allow(clippy::too_many_arguments)]
-    pub fn confirm(
-        self,
-        rec: &Recording,
-        seg: &Segmentation,
-        p: &Prepared,
-        scale: ComplianceScale,
-        scored: &dyn Fn(usize, usize) -> bool,
-        train_on_scored: bool,
-        what: &str,
-        cells: &str,
-    ) -> Result<Option<Confirmed>> {
+    pub fn confirm(self, lolo: &Lolo<'_>, what: &str, cells: &str) -> Result<Option<Confirmed>> {
         let n_coarse = self.forced.len();
         // the refined rigid replays come after every other candidate
         let n_before_fine = n_coarse + self.refined.len() + self.rigid.len();
-        let nf = seg.num_folds();
+        let nf = lolo.seg.num_folds();
         let (refined_from, neighbourhoods) = (&self.refined_from, &self.neighbourhoods);
         let (rigid_fine_from, rigid_neighbourhoods) =
             (&self.rigid_fine_from, &self.rigid_neighbourhoods);
@@ -486,12 +473,7 @@ impl Replays {
         lolo_confirm_among(
             &cands,
             Some(&eligible),
-            rec,
-            seg,
-            p,
-            scale,
-            scored,
-            train_on_scored,
+            lolo,
             None,
             format!(
                 "re-simulated {what} ({n} of {total} grid points converged), leave-one-location-out on {cells}"

@@ -21,7 +21,7 @@ use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute, param};
 use crate::Result;
 use crate::cells::{EffectCells, contact_cells, touched_balls};
-use crate::confirm::{ComplianceScale, Confirmed, lolo_choices};
+use crate::confirm::{ComplianceScale, Confirmed, Lolo, lolo_choices};
 use crate::recording::Recording;
 use crate::resim::{GridPoint, Replays, simulate_grid};
 use crate::screen::{Basis, Refit, Variant};
@@ -170,9 +170,16 @@ impl Hypothesis for Anisotropy {
                 p,
             ));
         }
-        let scale = ComplianceScale::new(true, 0.1, 10.0);
+        let lolo = Lolo {
+            rec,
+            seg,
+            p,
+            scale: ComplianceScale::new(true, 0.1, 10.0),
+            scored,
+            train_on_scored: false,
+        };
         let mut replays = Replays::run(sim, grid, Vec::new(), rec, seg, p, true)?;
-        let choices = lolo_choices(&replays.forced, rec, seg, p, scale, scored, false);
+        let choices = lolo_choices(&replays.forced, &lolo);
         if let Some(&full) = choices.last()
             && replays.sources[full]
                 .0
@@ -205,7 +212,7 @@ impl Hypothesis for Anisotropy {
         if !sim.resolves_footprint(rec.tip_radius_m, &tips)
             && let Some(mut fine) = sim.refined(&balls)?
         {
-            let choices = lolo_choices(&replays.forced, rec, seg, p, scale, scored, false);
+            let choices = lolo_choices(&replays.forced, &lolo);
             let neighbourhoods: Vec<Vec<usize>> = choices
                 .iter()
                 .map(|&i| ratio_neighbourhood(&replays.sources, i))
@@ -215,7 +222,7 @@ impl Hypothesis for Anisotropy {
             chosen.dedup();
             replays.add_refined(fine.as_mut(), &chosen, neighbourhoods, rec, seg, p, true)?;
         }
-        replays.confirm(rec, seg, p, scale, scored, false, "AnisotropicModel", CELLS)
+        replays.confirm(&lolo, "AnisotropicModel", CELLS)
     }
 }
 

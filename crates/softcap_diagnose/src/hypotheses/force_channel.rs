@@ -3,7 +3,7 @@
 //! saw the distorted forces, so its material is biased by the same effect.
 
 use crate::baseline::Prepared;
-use crate::confirm::{ComplianceScale, Confirmed, lolo_confirm};
+use crate::confirm::{ComplianceScale, Confirmed, Lolo, lolo_confirm};
 use crate::indentation::{ForceCandidate, ForceObservations};
 use crate::recording::Recording;
 use crate::resim::sequence_candidates;
@@ -86,34 +86,27 @@ pub(super) fn confirm(
     let (cands, frames) = sequence_candidates(grid, results)?;
     let n = cands.len();
     let bounds = |fit| ComplianceScale::new(fit, 0.1, 10.0);
+    let lolo = |scale| Lolo {
+        rec,
+        seg,
+        p,
+        scale,
+        scored,
+        train_on_scored: false,
+    };
     if n > 0 {
         let method = format!(
             "re-simulated: {corrected} with the material refit on the corrected forces (homogeneous (lambda, alpha), bickel2009 §6), grid of {n} points, leave-one-location-out",
         );
         let run = material_refit(rec, seg, &frames, sim);
-        let c = lolo_confirm(
-            &cands,
-            rec,
-            seg,
-            p,
-            bounds(true),
-            scored,
-            false,
-            Some(&run),
-            method,
-        )?;
+        let c = lolo_confirm(&cands, &lolo(bounds(true)), Some(&run), method)?;
         if c.is_some() {
             return Ok(c);
         }
     }
     lolo_confirm(
         &cands,
-        rec,
-        seg,
-        p,
-        bounds(fit_scale),
-        scored,
-        false,
+        &lolo(bounds(fit_scale)),
         None,
         format!(
             "re-simulated extended model ({n} grid points of {total}, {model}), compliance scale, leave-one-location-out"

@@ -19,7 +19,7 @@ use crate::Result;
 use crate::baseline::Prepared;
 use crate::cells::{contact_radius_m, touched_balls};
 use crate::confirm::{
-    Candidate, ComplianceScale, Confirmed, lolo_choices_among, lolo_confirm_among,
+    Candidate, ComplianceScale, Confirmed, Lolo, lolo_choices_among, lolo_confirm_among,
 };
 use crate::recording::Recording;
 use crate::residual::{residuals, rest_mean};
@@ -152,10 +152,17 @@ impl Hypothesis for InertiaDamping {
             let jobs: Vec<SequenceJob> = exts.iter().map(|e| (*e, measured.clone())).collect();
             (sim.simulate_sequences(&jobs), false)
         };
-        let scale = ComplianceScale::new(cx.settings.refit_compliance_scale, 0.1, 10.0);
+        let lolo = Lolo {
+            rec,
+            seg,
+            p,
+            scale: ComplianceScale::new(cx.settings.refit_compliance_scale, 0.1, 10.0),
+            scored,
+            train_on_scored: false,
+        };
         let nf = seg.num_folds();
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
-            lolo_choices_among(cands, eligible, rec, seg, p, scale, scored, false)
+            lolo_choices_among(cands, eligible, &lolo)
         };
         let mut fit = fit_dynamics(&mut simulate, nf, train, &plan, modal)?;
         for c in &mut fit.candidates {
@@ -171,12 +178,7 @@ impl Hypothesis for InertiaDamping {
         lolo_confirm_among(
             &fit.candidates,
             Some(&eligible),
-            rec,
-            seg,
-            p,
-            scale,
-            scored,
-            false,
+            &lolo,
             None,
             format!(
                 "re-simulated extended model (implicit dynamics, Newmark, Rayleigh damping, {driven}; density, alpha, beta fitted per fold by a compass search{}, {} sequences on the {}, {} failed), leave-one-location-out",

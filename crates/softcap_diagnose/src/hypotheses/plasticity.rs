@@ -26,7 +26,7 @@ use super::Effect;
 use super::contract::{Context, Hypothesis};
 use crate::Result;
 use crate::cells::{EffectCells, contact_radius_m};
-use crate::confirm::{ComplianceScale, Confirmed};
+use crate::confirm::{ComplianceScale, Confirmed, Lolo};
 use crate::recording::Recording;
 use crate::resim::{GridPoint, Replays, RigidPoint};
 use crate::screen::{Basis, Refit, Variant};
@@ -250,15 +250,14 @@ impl Hypothesis for Plasticity {
                 cx.settings.plasticity_ranking_refinement,
             )?,
         };
-        replays.confirm(
+        let lolo = Lolo {
             rec,
             seg,
             p,
-            ComplianceScale::new(true, 0.1, 10.0),
+            scale: ComplianceScale::new(true, 0.1, 10.0),
             scored,
-            true,
-            "ElastoplasticModel",
-            CELLS,
-        )
+            train_on_scored: true,
+        };
+        replays.confirm(&lolo, "ElastoplasticModel", CELLS)
     }
 }

@@ -21,7 +21,7 @@ use super::contract::{Context, Hypothesis};
 use crate::Result;
 use crate::baseline::Prepared;
 use crate::cells::{EffectCells, contact_cells};
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices};
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, Lolo, lolo_choices};
 use crate::friction::{indentation_stiffness_n_per_m, sliding_direction, traction_history};
 use crate::recording::Recording;
 use crate::resim::{GridPoint, Replays, RigidPoint, simulate_rigid_grid};
@@ -149,16 +149,15 @@ impl Hypothesis for ProbeFriction {
         };
         replays.total +=
             bracket_friction(replay, &mut replays.rigid, rec, seg, p, scored, refined)?;
-        replays.confirm(
+        let lolo = Lolo {
             rec,
             seg,
             p,
-            ComplianceScale::new(true, 0.1, 10.0),
+            scale: ComplianceScale::new(true, 0.1, 10.0),
             scored,
-            true,
-            "default model under Coulomb traction",
-            CELLS,
-        )
+            train_on_scored: true,
+        };
+        replays.confirm(&lolo, "default model under Coulomb traction", CELLS)
     }
 }
 
@@ -274,15 +273,15 @@ fn bracket_friction(
         ) else {
             return Ok(attempted);
         };
-        let choices = lolo_choices(
-            cands,
+        let lolo = Lolo {
             rec,
             seg,
             p,
-            ComplianceScale::new(true, 0.1, 10.0),
+            scale: ComplianceScale::new(true, 0.1, 10.0),
             scored,
-            true,
-        );
+            train_on_scored: true,
+        };
+        let choices = lolo_choices(cands, &lolo);
         let Some(best) = choices.last().and_then(|&i| mu_of(&cands[i])) else {
             return Ok(attempted);
         };

@@ -21,7 +21,7 @@ use super::Effect;
 use super::contract::{Context, Hypothesis, SignatureRoute};
 use super::force_channel::hold_example;
 use crate::cells::{EffectCells, contact_cells};
-use crate::confirm::{ComplianceScale, Confirmed, Refitted, lolo_confirm_each_refitted};
+use crate::confirm::{ComplianceScale, Confirmed, Lolo, Refitted, lolo_confirm_each_refitted};
 use crate::recording::Recording;
 use crate::resim::{GridPoint, Replays, contact_sequence};
 use crate::screen::{Basis, Refit, Variant};
@@ -178,16 +178,15 @@ impl Hypothesis for SupportSlip {
             })
             .collect();
         let replays = Replays::run(sim, grid, Vec::new(), rec, seg, p, false)?;
-        replays.confirm(
+        let lolo = Lolo {
             rec,
             seg,
             p,
-            ComplianceScale::new(true, 0.1, 10.0),
+            scale: ComplianceScale::new(true, 0.1, 10.0),
             scored,
-            false,
-            "SupportPlane springs",
-            CELLS,
-        )
+            train_on_scored: false,
+        };
+        replays.confirm(&lolo, "SupportPlane springs", CELLS)
     }
 }
 

@@ -18,7 +18,7 @@ use crate::DiagnoseError;
 use crate::Result;
 use crate::baseline::Prepared;
 use crate::cells::touched_balls;
-use crate::confirm::{Candidate, ComplianceScale, Confirmed, lolo_choices, lolo_confirm};
+use crate::confirm::{Candidate, ComplianceScale, Confirmed, Lolo, lolo_choices, lolo_confirm};
 use crate::recording::Recording;
 use crate::resim::{contact_sequence, sequence_candidates};
 use crate::screen::{Basis, Refit, Variant};
@@ -225,9 +225,17 @@ impl Hypothesis for Viscoelasticity {
             1.0 / MAX_COMPLIANCE_SCALE,
             MAX_COMPLIANCE_SCALE,
         );
+        let lolo = Lolo {
+            rec,
+            seg,
+            p,
+            scale,
+            scored,
+            train_on_scored: false,
+        };
         if let Some(f) = fine.as_deref_mut() {
             total += extend_ridge(f, &mut cands, &mut ridge, centre, &measured, |c| {
-                lolo_choices(c, rec, seg, p, scale, scored, false)
+                lolo_choices(c, &lolo)
             })?;
         }
         drop(fine);
@@ -242,12 +250,7 @@ impl Hypothesis for Viscoelasticity {
         };
         lolo_confirm(
             &cands,
-            rec,
-            seg,
-            p,
-            scale,
-            scored,
-            false,
+            &lolo,
             None,
             format!(
                 "re-simulated extended model ({n} grid points of {total}, {model}), compliance scale, leave-one-location-out"
