@@ -12,7 +12,8 @@
 //! ```
 //! MESH: `fit`, `bisN` (bisected to N × the tets, `ProbeSimulator::bisected`), `ref8` (1 → 8),
 //! `local:F:S` (refined inside the touched balls scaled by S to a longest edge of F × the fit
-//! mesh's longest, `FemProbeSimulator::refined_near`). POINT: `r:SY:H:NU` a rigid-tip replay
+//! mesh's longest, `FemProbeSimulator::refined_near`), `localmm:L:S` (the same to a longest edge
+//! of L mm); `A+B` applies B to A's result (`ref8+localmm:1:0.6`). POINT: `r:SY:H:NU` a rigid-tip replay
 //! (σ_y and H as fractions of the peak contact pressure, NU a Poisson ratio or `fit`),
 //! `f:SY:H` a force-driven sequence, `none` (the meshes only); default: the hypothesis's eight
 //! rigid-tip points.
@@ -142,29 +143,45 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     for spec in meshes {
         let (c0, t0) = (cpu_s(), std::time::Instant::now());
-        let sim = if spec == "fit" {
-            build()?
-        } else if spec == "ref8" {
-            base.refined()?
-        } else if let Some(n) = spec.strip_prefix("bis") {
-            base.bisected(n.parse()?)?
-        } else if let Some(rest) = spec.strip_prefix("local:") {
-            let v: Vec<f64> = rest.split(':').map(str::parse).collect::<Result<_, _>>()?;
-            let balls: Vec<_> = softcap_diagnose::cells::touched_balls(&rec, &seg)
-                .into_iter()
-                .map(|b| softcap_mesh::RefineBall {
-                    radius_m: b.radius_m * v[1],
-                    ..b
-                })
-                .collect();
-            base.refined_near(&balls, v[0] * base.longest_edge_m(), 400_000)?
-        } else {
-            return Err(format!("unknown mesh {spec}").into());
-        };
+        // `+` chains refinements, each applied to the previous one's result
+        let mut sim = build()?;
+        for step in spec.split('+') {
+            sim = if step == "fit" {
+                sim
+            } else if step == "ref8" {
+                sim.refined()?
+            } else if let Some(n) = step.strip_prefix("bis") {
+                sim.bisected(n.parse()?)?
+            } else if let Some(rest) = step
+                .strip_prefix("local:")
+                .or_else(|| step.strip_prefix("localmm:"))
+            {
+                let v: Vec<f64> = rest.split(':').map(str::parse).collect::<Result<_, _>>()?;
+                let balls: Vec<_> = softcap_diagnose::cells::touched_balls(&rec, &seg)
+                    .into_iter()
+                    .map(|b| softcap_mesh::RefineBall {
+                        radius_m: b.radius_m * v[1],
+                        ..b
+                    })
+                    .collect();
+                let edge_m = if step.starts_with("localmm:") {
+                    v[0] * 1e-3
+                } else {
+                    v[0] * base.longest_edge_m()
+                };
+                sim.refined_near(&balls, edge_m, 400_000)?
+            } else {
+                return Err(format!("unknown mesh {step}").into());
+            };
+        }
+        let tips: Vec<Vector3<f64>> = seg.locations.iter().map(|l| l.peak_tip_m).collect();
         println!(
-            "MESH {spec}: {} tets, {} nodes, built in {:.1} CPU-s",
+            "MESH {spec}: {} tets, {} nodes, surface spacing near the tips {:.2} mm, built in {:.1} CPU-s",
             sim.model().params().len(),
             sim.setup().mesh.vertices.len(),
+            softcap_diagnose::sim::surface_spacing_near(&sim.setup().mesh, r_tip, &tips)
+                .unwrap_or(f64::NAN)
+                * 1e3,
             cpu_s() - c0
         );
         for pt in points.iter().filter(|p| *p != "none") {
