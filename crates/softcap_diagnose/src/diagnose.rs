@@ -575,7 +575,9 @@ fn force_candidates(rows: &[Row]) -> Vec<Effect> {
 /// leave-one-location-out) until one keeps its gain: first those whose signature alone is
 /// unambiguous ([`SignatureRoute::BeforeScreen`]), then at most `max_confirmations` of the
 /// screen's, then those a signature sends after the screen ([`SignatureRoute::AfterScreen`],
-/// which must also beat the stiffness-scale nuisance as a screened row must).
+/// which must also beat the stiffness-scale nuisance as a screened row must). A hypothesis its
+/// signatures rule out ([`Hypothesis::ruled_out`]) is none of these: its reason is recorded as
+/// its failed confirmation.
 fn confirm(
     cx: &Context<'_>,
     screen: &Screen<'_>,
@@ -584,12 +586,22 @@ fn confirm(
 ) -> Result<Confirmation> {
     let settings = cx.settings;
     let scoring = &screen.scoring;
+    // ruled out by their signatures: not re-simulated, the reason is their failed confirmation
+    let mut confirmed: BTreeMap<Effect, std::result::Result<Confirmed, String>> = screen
+        .rows
+        .iter()
+        .filter_map(|r| {
+            let why = r.hypothesis.ruled_out(cx.signatures)?;
+            Some((r.hypothesis.effect(), Err(why)))
+        })
+        .collect();
     let sent = |route: SignatureRoute, screened: &[Effect]| -> Vec<Effect> {
         catalog()
             .into_iter()
             .filter(|h| {
                 let e = h.effect();
                 h.signature_route(cx.signatures) == Some(route)
+                    && !confirmed.contains_key(&e)
                     && !(route == SignatureRoute::AfterScreen && screened.contains(&e))
                     && scoring.explainable(e, scoring.before_m(e))
                     && screen.row(e).is_some()
@@ -597,7 +609,10 @@ fn confirm(
             .map(|h| h.effect())
             .collect()
     };
-    let screened = screened_candidates(&screen.rows, settings);
+    let screened: Vec<Effect> = screened_candidates(&screen.rows, settings)
+        .into_iter()
+        .filter(|e| !confirmed.contains_key(e))
+        .collect();
     let before_screen = sent(SignatureRoute::BeforeScreen, &screened);
     let after_screen = sent(SignatureRoute::AfterScreen, &screened);
     // the force screen's: their marker error may sit at the noise (checked on the force
@@ -606,7 +621,10 @@ fn confirm(
         .into_iter()
         .filter(|_| settings.name_on_force_channel)
         .filter(|e| {
-            !screened.contains(e) && !before_screen.contains(e) && !after_screen.contains(e)
+            !screened.contains(e)
+                && !before_screen.contains(e)
+                && !after_screen.contains(e)
+                && !confirmed.contains_key(e)
         })
         .collect();
     let n_screened = screened
@@ -626,7 +644,6 @@ fn confirm(
         .chain(after_screen.iter().copied())
         .chain(by_force.iter().copied())
         .collect();
-    let mut confirmed = BTreeMap::new();
     let mut verdict = None;
     progress.set_length(candidates.len() as u64);
     progress.set_position(0);

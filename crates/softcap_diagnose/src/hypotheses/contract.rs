@@ -73,6 +73,17 @@ pub trait Hypothesis: Sync {
         None
     }
 
+    /// Why the signatures rule it out as the effect that explains the session: a feature its
+    /// physics cannot produce (a rate-independent set cannot relax a held force). Then it is
+    /// neither confirmed (not re-simulated: the reason is its failed confirmation) nor a
+    /// look-alike of the verdict; forward selection may still add it on top of a named effect
+    /// that explains that feature. `None` (default): the signatures only rank it
+    /// ([`Self::signature_support`]).
+    fn ruled_out(&self, s: &Signatures) -> Option<String> {
+        let _ = s;
+        None
+    }
+
     /// Whether its signature alone sends it to re-simulation, and when.
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
         let _ = s;

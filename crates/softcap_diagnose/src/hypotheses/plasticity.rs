@@ -170,6 +170,23 @@ impl Hypothesis for Plasticity {
         }
     }
 
+    /// Ruled out when the held force relaxes beyond its noise ([`Signatures::holds_relax`]) and
+    /// the surface does not rebound past rest after release (a body ringing against the held tip
+    /// loses hold force too, `super::inertia_damping::rebounds`): under position control a
+    /// rate-independent J2 body holds its force at the held depth (Simo & Hughes 1998 Box 3.1:
+    /// no flow at fixed strain); a creep relaxes it. A slow creep's set persists over the gaps
+    /// between releases as a plastic one does (issue 37's look-alike pair 1); its holds do not
+    /// hold the force.
+    fn ruled_out(&self, s: &Signatures) -> Option<String> {
+        (s.holds_relax() && !super::inertia_damping::rebounds(s)).then(|| {
+            format!(
+                "ruled out: the held force relaxes by {:.4} of the peak (standard error {:.4}), which a rate-independent set held at its depth does not",
+                -s.hold_force_drift,
+                s.hold_force_drift_se.unwrap_or(0.0)
+            )
+        })
+    }
+
     fn confirm(
         &self,
         cx: &Context<'_>,

@@ -137,8 +137,19 @@ impl Hypothesis for Viscoelasticity {
         }
     }
 
+    /// Before the screen's candidates when the holds relax beyond any elastic explanation
+    /// ([`relaxes`]); after them when they relax beyond their noise
+    /// ([`Signatures::holds_relax`], no rebound): then the rate-independent look-alike is ruled
+    /// out (`super::plasticity`) and the creep is re-simulated even when its linearised screen
+    /// (a poor proxy of a slow creep over short holds) does not qualify.
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
-        relaxes(s).then_some(SignatureRoute::BeforeScreen)
+        if relaxes(s) {
+            Some(SignatureRoute::BeforeScreen)
+        } else if s.holds_relax() && !super::inertia_damping::rebounds(s) {
+            Some(SignatureRoute::AfterScreen)
+        } else {
+            None
+        }
     }
 
     /// Not a confirmation when the full-data compliance scale sits at its bound
