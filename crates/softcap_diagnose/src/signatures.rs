@@ -351,7 +351,7 @@ pub fn hold_force_noise_n(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
 }
 
 /// The standard error of the mean hold-force drift ([`Signatures::hold_force_drift_se`]) over
-/// the L locations with a drift d_l = (f_last − f_first)/P_l ([`hold_drift`]): the larger of the
+/// the L locations with a drift d_l = (f_last − f_first)/P_l (`hold_drift`): the larger of the
 /// noise's, σ_f √(2 Σ_l P_l⁻²) / L (σ_f from [`hold_force_noise_n`]: each drift differences two
 /// frames), and the locations' spread, sd(d_l)/√L (L ≥ 2: what varies from hold to hold beyond
 /// the noise, a contact that changes mid-hold). `None` without a drift.
