@@ -169,10 +169,12 @@ pub const DELAY_GROWTH_Z: f64 = 2.0;
 pub const HOLD_DRIFT_Z: f64 = 3.0;
 
 /// The smallest relaxation of the held force, as a fraction of the peak force, that
-/// [`Signatures::holds_relax`] reads: the threshold of viscoelasticity's drift support
-/// (`hypotheses::viscoelasticity`), above the controls' drifts (≤ 0.5 %), so that a force
-/// channel without noise (a simulated one) does not read a numerical drift as relaxation.
-pub const HOLD_RELAXATION_FLOOR: f64 = 0.01;
+/// [`Signatures::holds_relax`] reads: twice the largest relaxation measured on a rate-independent
+/// truth — the own rig's J2 plasticity case drifts −0.0147 ± 0.0022 (its set forms against a tip
+/// that is not exactly held: 6.6 standard errors, and ruling plasticity out there named
+/// clock-offset); the third-party J2 truth −0.0024 ± 0.0012, the third-party controls within
+/// ±0.003; the third-party slow creep g 2, τ 30 s under tripled holds −0.0508 ± 0.0081.
+pub const HOLD_RELAXATION_FLOOR: f64 = 0.03;
 
 /// How closely (relative) the 50 % delay of a model read as the data are (`model_delay_growths`)
 /// must match the measured one: the bisection's 40 halvings of [0, 4 d₅₀] leave 4 × 2⁻⁴⁰ d₅₀; a
