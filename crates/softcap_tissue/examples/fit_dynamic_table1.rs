@@ -11,7 +11,7 @@
 //! `leafab` — `leaf` and a twist of the blade (its far +y corner pushed up for 0.05 s, released,
 //! 0.5 s at 120 Hz; force `--twist-mn`).
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N] [--write-sessions DIR] [--tracks DIR [--no-fit]]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -42,6 +42,13 @@
 //! interaction interval extended by T ms (`synthetic::synthesize_motions`; default 0).
 //! `--segment-frames N`: frame intervals per fitted segment at most
 //! (`FitDynamicSettings::segment_frames`; default 30).
+//! `--write-sessions DIR`: no fit; every motion's noise-free truth written as a dynamic scenario
+//! for the depth rig (`DIR/motion-K.toml` and its external truth `DIR/truth-K/`, depth-noise
+//! seed `--seed` + 1000 K), for `softcap synth` → `capture` → `tissue track` (the Table 1
+//! protocol through files: `scripts/fit-dynamic-table1-track`). `--tracks DIR`: the motions as
+//! tracked (`DIR/motion-K-track.mcap`) replace the emulated tracking noise; prints the tracking
+//! error against the truth per motion (`--no-fit`: that only), then fits as from the synthetic
+//! noise, every oracle above applying to the tracked frames.
 //! Every run prints the sandwich 1-σ (`DynamicFit::segment_robust_sigma`, `frame_robust_sigma`)
 //! beside the s²(JᵀJ)⁻¹ ones.
 //! Every run first prints, per segment, the polynomial start velocity's error against the
@@ -50,9 +57,10 @@
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
 use softcap_tissue::Progress;
+use softcap_tissue::fit_dynamic::run::{MOTION_GAP_S, sequence_from_track};
 use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize_motions};
 use softcap_tissue::fit_dynamic::{
-    Blending, Elements, FitDynamicSettings, control_points, fit_sequence,
+    Blending, Elements, FitDynamicSettings, Segment, TrackedSequence, control_points, fit_sequence,
 };
 
 /// Removes `name N` from `args` and returns N (integer), if present.
@@ -64,6 +72,264 @@ fn take_option(args: &mut Vec<String>, name: &str) -> Option<u64> {
         .unwrap_or_else(|| panic!("{name} takes an integer"));
     args.drain(k..=k + 1);
     Some(value)
+}
+
+/// Removes `name VALUE` from `args` and returns VALUE, if present.
+fn take_string(args: &mut Vec<String>, name: &str) -> Option<String> {
+    let k = args.iter().position(|a| a == name)?;
+    let value = args
+        .get(k + 1)
+        .cloned()
+        .unwrap_or_else(|| panic!("{name} takes a value"));
+    args.drain(k..=k + 1);
+    Some(value)
+}
+
+/// Writes, for motion k of `specs` (noise-free), `DIR/truth-k/{truth.toml, positions.csv}` (the
+/// external-truth folder of `softcap_synth::dynamic::external`: the given mesh is the structured
+/// box of `clamped_box`, whose node numbering the reader shares) and `DIR/motion-k.toml`, a
+/// dynamic scenario rendering it on the default depth rig with depth-noise seed `seed + 1000 k`;
+/// `DIR/motions.txt` lists the scenarios.
+fn write_sessions_for(
+    dir: &std::path::Path,
+    case: &str,
+    size: [f64; 3],
+    cells: [usize; 3],
+    specs: &[SyntheticSpec],
+    settle_s: f64,
+    seed: u64,
+) {
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir).unwrap();
+    let mut list = String::new();
+    for (k, spec) in specs.iter().enumerate() {
+        assert!(
+            spec.refine == 0 && spec.elements == Elements::Linear,
+            "--write-sessions: linear tets on the given mesh only"
+        );
+        let s = softcap_tissue::fit_dynamic::synthetic::synthesize(spec).unwrap();
+        let young = spec.young_pa[0];
+        let truth_dir = dir.join(format!("truth-{k}"));
+        std::fs::create_dir_all(&truth_dir).unwrap();
+        let g = spec.gravity_m_s2;
+        let push: Vec<String> = spec.push_nodes.iter().map(|i| i.to_string()).collect();
+        let toml = format!(
+            "# written by `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`; motion {k}\n\
+             solver = \"softcap corotational linear tets on the given mesh, lumped mass, Newmark average acceleration, {} steps per frame (softcap_tissue::fit_dynamic::synthetic)\"\n\
+             cells = [{}, {}, {}]\nmin_mm = [0.0, {:?}, {:?}]\nmax_mm = [{:?}, {:?}, {:?}]\n\
+             young_pa = {young:?}\npoisson = {:?}\ndensity_kg_m3 = {:?}\n\
+             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\ngravity_m_s2 = [{:?}, {:?}, {:?}]\n\
+             clamped_at_x_min = true\ninteractions = [[0.0, {:.6}]]\n\
+             motion = \"{case} motion {k}: sagging under gravity at frame 0, nodes [{}] pushed with ({:.4}, {:.4}, {:.4}) N for {} s (interaction extended by {} s), released, {} frames at {} Hz\"\n",
+            spec.substeps,
+            cells[0],
+            cells[1],
+            cells[2],
+            -500.0 * size[1],
+            -500.0 * size[2],
+            1e3 * size[0],
+            500.0 * size[1],
+            500.0 * size[2],
+            spec.poisson,
+            spec.density_kg_m3,
+            spec.damping.alpha_per_s,
+            spec.damping.beta_s,
+            g.x,
+            g.y,
+            g.z,
+            spec.push_s + settle_s,
+            push.join(", "),
+            spec.push_force_n.x,
+            spec.push_force_n.y,
+            spec.push_force_n.z,
+            spec.push_s,
+            settle_s,
+            spec.frames,
+            spec.frame_rate_hz
+        );
+        std::fs::write(truth_dir.join("truth.toml"), toml).unwrap();
+        let mut csv = String::from("frame,t_s,node,x,y,z\n");
+        for (f, (t, x)) in s
+            .sequence
+            .times_s
+            .iter()
+            .zip(&s.sequence.positions_m)
+            .enumerate()
+        {
+            for (i, p) in x.iter().enumerate() {
+                let _ = writeln!(
+                    csv,
+                    "{f},{t:.6},{i},{:.6},{:.6},{:.6}",
+                    1e3 * p.x,
+                    1e3 * p.y,
+                    1e3 * p.z
+                );
+            }
+        }
+        std::fs::write(truth_dir.join("positions.csv"), csv).unwrap();
+        let scenario = format!(
+            "# `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`: motion {k} of the\n\
+             # Table 1 truth (truth-{k}/) on the default depth rig (two Kinect-like cameras).\n\
+             name = \"table1-{case}-{k}\"\nkind = \"dynamic\"\nseed = {}\n\n\
+             [object]\nsize_mm = [{:?}, {:?}, {:?}]\nfit_cells = [{}, {}, {}]\ntruth_cells = [{}, {}, {}]\ndensity_kg_m3 = {:?}\n\n\
+             [material]\nyoung_pa = {young:?}\npoisson = {:?}\n\n\
+             [dynamic]\nmotion = \"release\"\nframes = {}\nframe_rate_hz = {:?}\n\
+             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\nexternal_truth = \"truth-{k}\"\n",
+            seed + 1000 * k as u64,
+            1e3 * size[0],
+            1e3 * size[1],
+            1e3 * size[2],
+            cells[0],
+            cells[1],
+            cells[2],
+            cells[0],
+            cells[1],
+            cells[2],
+            spec.density_kg_m3,
+            spec.poisson,
+            spec.frames,
+            spec.frame_rate_hz,
+            spec.damping.alpha_per_s,
+            spec.damping.beta_s
+        );
+        std::fs::write(dir.join(format!("motion-{k}.toml")), scenario).unwrap();
+        let _ = writeln!(list, "motion-{k}");
+    }
+    std::fs::write(dir.join("motions.txt"), list).unwrap();
+    println!(
+        "wrote {} motions of {case} to {}",
+        specs.len(),
+        dir.display()
+    );
+}
+
+/// The tracks `DIR/motion-K-track.mcap` (K < `motions`) on `template`'s tets, joined as
+/// `softcap tissue fit-dynamic A B …` joins them; returns the first track's template and the
+/// joined sequence.
+fn read_tracks(
+    dir: &std::path::Path,
+    motions: usize,
+    template: &softcap_mesh::TetMesh,
+) -> (softcap_mesh::TetMesh, TrackedSequence) {
+    let mut out: Option<(softcap_mesh::TetMesh, TrackedSequence)> = None;
+    for k in 0..motions {
+        let path = dir.join(format!("motion-{k}-track.mcap"));
+        let track = softcap_mcap::dynamic::read_track(&path).unwrap();
+        let mesh = softcap_mesh::TetMesh {
+            vertices: track
+                .mesh
+                .vertices_m
+                .iter()
+                .map(|p| Vector3::from(*p))
+                .collect(),
+            tets: track.mesh.tets.clone(),
+        };
+        assert_eq!(mesh.tets, template.tets, "{}: another mesh", path.display());
+        let seq = sequence_from_track(&path, &track, &mesh, &path).unwrap();
+        out = Some(match out {
+            None => (mesh, seq),
+            Some((m, joined)) => (m, joined.joined(&seq, MOTION_GAP_S).unwrap()),
+        });
+    }
+    out.expect("no motion")
+}
+
+/// The tracking error of the joined tracked sequence against the noise-free truth, per motion
+/// (RMS node distance over the free nodes and all frames, over the fitted segments' frames, at
+/// their start frames, the worst frame) and the segments' start-velocity error (polynomial of
+/// the tracked frames against that of the noise-free ones), to say where tracking errors enter
+/// the fit.
+fn report_tracking(
+    tracked: &TrackedSequence,
+    clean: &TrackedSequence,
+    segment_frames: usize,
+    velocity_window: usize,
+) {
+    assert_eq!(
+        tracked.frames(),
+        clean.frames(),
+        "tracks and truth differ in frames"
+    );
+    let free: Vec<usize> = {
+        let held: std::collections::BTreeSet<usize> =
+            tracked.support_nodes.iter().copied().collect();
+        (0..tracked.positions_m[0].len())
+            .filter(|i| !held.contains(i))
+            .collect()
+    };
+    let frame_ms = |j: usize| {
+        free.iter()
+            .map(|&i| (tracked.positions_m[j][i] - clean.positions_m[j][i]).norm_squared())
+            .sum::<f64>()
+            / free.len() as f64
+    };
+    let d = FitDynamicSettings::default();
+    let segments = tracked.segments(segment_frames, d.min_segment_frames, velocity_window);
+    // Motions: runs of frames between the joins (gaps longer than 0.05 s).
+    let mut starts = vec![0usize];
+    for j in 1..tracked.frames() {
+        if tracked.times_s[j] - tracked.times_s[j - 1] > 0.05 {
+            starts.push(j);
+        }
+    }
+    starts.push(tracked.frames());
+    println!(
+        "| motion | frames | unusable | RMS mm | in segments mm | at segment starts mm | worst frame mm | start velocity error (RMS over segments, relative) |\n|---|---|---|---|---|---|---|---|"
+    );
+    let (mut all, mut n_all) = (0.0, 0usize);
+    for (m, w) in starts.windows(2).enumerate() {
+        let (a, b) = (w[0], w[1]);
+        let ms: Vec<f64> = (a..b).map(frame_ms).collect();
+        all += ms.iter().sum::<f64>();
+        n_all += ms.len();
+        let segs: Vec<&Segment> = segments
+            .iter()
+            .filter(|s| s.start >= a && s.end < b)
+            .collect();
+        let in_seg: Vec<f64> = segs
+            .iter()
+            .flat_map(|s| (s.start..=s.end).map(frame_ms))
+            .collect();
+        let at_start: Vec<f64> = segs.iter().map(|s| frame_ms(s.start)).collect();
+        let mean = |v: &[f64]| (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt() * 1e3;
+        let worst = ms.iter().cloned().fold(0.0, f64::max).sqrt() * 1e3;
+        let verr: Vec<f64> = segs
+            .iter()
+            .map(|s| {
+                let (_, vt) = softcap_tissue::fit_dynamic::sequence::smoothed_state(
+                    tracked,
+                    s.start,
+                    velocity_window,
+                    d.forward.velocity_degree,
+                );
+                let (_, vc) = softcap_tissue::fit_dynamic::sequence::smoothed_state(
+                    clean,
+                    s.start,
+                    velocity_window,
+                    d.forward.velocity_degree,
+                );
+                let (mut e2, mut t2) = (0.0, 0.0);
+                for &i in &free {
+                    e2 += (vt[i] - vc[i]).norm_squared();
+                    t2 += vc[i].norm_squared();
+                }
+                e2 / t2.max(f64::MIN_POSITIVE)
+            })
+            .collect();
+        println!(
+            "| {m} | {} | {} | {:.3} | {:.3} | {:.3} | {worst:.3} | {:.3} |",
+            b - a,
+            tracked.usable[a..b].iter().filter(|u| !**u).count(),
+            mean(&ms),
+            mean(&in_seg),
+            mean(&at_start),
+            (verr.iter().sum::<f64>() / verr.len().max(1) as f64).sqrt()
+        );
+    }
+    println!(
+        "tracking RMS over all motions and frames: {:.3} mm",
+        (all / n_all.max(1) as f64).sqrt() * 1e3
+    );
 }
 
 fn main() {
@@ -167,6 +433,18 @@ fn main() {
     };
     // `--noise-um N`: tracking noise in µm (default 500).
     let noise_um = take_option(&mut which, "--noise-um").unwrap_or(500);
+    // `--write-sessions DIR`: write the motions' truth and scenarios for `softcap synth`, no fit.
+    let write_sessions = take_string(&mut which, "--write-sessions");
+    // `--tracks DIR`: fit the motions as tracked from depth (`DIR/motion-K-track.mcap`).
+    let tracks = take_string(&mut which, "--tracks");
+    // `--no-fit`: with `--tracks`, the tracking error only.
+    let no_fit = match which.iter().position(|a| a == "--no-fit") {
+        Some(k) => {
+            which.remove(k);
+            true
+        }
+        None => false,
+    };
     let cases: Vec<&str> = if which.is_empty() {
         vec!["bar1", "bar8", "leaf"]
     } else {
@@ -267,7 +545,7 @@ fn main() {
         // and, for `…ab`, the twist `--twists` times, each with its own noise draw (seeds
         // seed + 500 + k and seed + 1 + t), every push's interaction extended by `--settle-ms`
         // (`synthesize_motions`).
-        let make = |noise_m: f64| {
+        let specs_for = |noise_m: f64| {
             let spec = SyntheticSpec {
                 noise_m,
                 ..spec.clone()
@@ -329,9 +607,44 @@ fn main() {
                 frames,
                 ..spec.clone()
             }));
-            synthesize_motions(&specs, 0.1, 1e-3 * settle_ms as f64).unwrap()
+            specs
         };
+        let make = |noise_m: f64| {
+            synthesize_motions(&specs_for(noise_m), MOTION_GAP_S, 1e-3 * settle_ms as f64).unwrap()
+        };
+        if let Some(dir) = &write_sessions {
+            // The motions as dynamic sessions for the depth rig: the noise-free truth of each,
+            // written as an external truth (`softcap_synth::dynamic::external`), and a scenario
+            // rendering it with depth-noise seed `--seed` + 1000 k.
+            write_sessions_for(
+                std::path::Path::new(dir),
+                case,
+                size,
+                cells,
+                &specs_for(0.0),
+                1e-3 * settle_ms as f64,
+                seed,
+            );
+            continue;
+        }
         let mut truth = make(noise);
+        if let Some(dir) = &tracks {
+            // The motions as `softcap tissue track` tracked them from the rendered depth
+            // (`DIR/motion-K-track.mcap`), joined as `tissue fit-dynamic` joins several tracks,
+            // replace the emulated tracking noise; the tracking error against the truth per motion.
+            let clean = make(0.0);
+            let (template, tracked) = read_tracks(
+                std::path::Path::new(dir),
+                specs_for(0.0).len(),
+                &truth.template,
+            );
+            report_tracking(&tracked, &clean.sequence, segment_frames, velocity_window);
+            if no_fit {
+                continue;
+            }
+            truth.template = template;
+            truth.sequence = tracked;
+        }
         if clean_starts {
             // Oracle: the frames each segment's initial state is estimated from (±
             // velocity_half_window) without noise, every other frame noisy.

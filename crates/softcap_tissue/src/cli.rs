@@ -40,8 +40,10 @@ pub enum Command {
 
 #[derive(Debug, clap::Args)]
 pub struct FitDynamicArgs {
-    /// track.mcap (`softcap tissue track`).
-    pub track: PathBuf,
+    /// track.mcap (`softcap tissue track`); several: recorded motions of the same body (same
+    /// template and support), fitted jointly.
+    #[arg(required = true, num_args = 1..)]
+    pub track: Vec<PathBuf>,
     /// Template tet mesh (Gmsh 4.1, session length unit) the track was made with: the frame-0 shape.
     #[arg(long)]
     pub mesh: PathBuf,
@@ -89,7 +91,8 @@ impl FitDynamicArgs {
             settings.progress = false;
         }
         let cfg = crate::fit_dynamic::FitDynamicConfig {
-            track: self.track.clone(),
+            track: self.track[0].clone(),
+            more_tracks: self.track[1..].to_vec(),
             mesh: self.mesh.clone(),
             output: self.output.clone(),
             report: self.report.clone(),

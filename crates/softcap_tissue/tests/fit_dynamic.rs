@@ -272,6 +272,105 @@ fn bad_input_exits_2_naming_the_file_and_writes_nothing() {
     assert!(!d.join("d.mcap").exists() && !d.join("s.mcap").exists());
 }
 
+/// Several track.mcaps (recorded motions of one body) are fitted jointly: `fit-dynamic A B`
+/// gives what `fit_sequence` gives on the two sequences joined `run::MOTION_GAP_S` apart
+/// (the same objective, so the same parameters to 10⁻⁶; only the float text of the JSON
+/// differs), and a second track of another body (other gravity) exits 2 naming it.
+#[test]
+fn several_tracks_are_fitted_jointly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let first = bar(20, 0, 3.0e-4, 5);
+    let second = synthesize(&SyntheticSpec {
+        young_pa: vec![E_TRUE; first.template.tets.len()],
+        frames: 20,
+        push_force_n: Vector3::new(0.0, -0.5, 0.2),
+        noise_m: 3.0e-4,
+        seed: 6,
+        ..SyntheticSpec::small_clamped_bar()
+    })
+    .unwrap();
+    write_inputs(d, &first);
+    std::fs::rename(d.join("track.mcap"), d.join("a.mcap")).unwrap();
+    write_inputs(d, &second);
+    std::fs::rename(d.join("track.mcap"), d.join("b.mcap")).unwrap();
+    let p = |f: &str| d.join(f).display().to_string();
+    let out = tissue(&[
+        "fit-dynamic",
+        &p("a.mcap"),
+        &p("b.mcap"),
+        "--mesh",
+        &p("volume.msh"),
+        "-o",
+        &p("dynamic.mcap"),
+        "--json",
+        &p("fit.json"),
+        "--settings",
+        &p("settings.toml"),
+        "--quiet",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json = std::fs::read_to_string(d.join("fit.json")).unwrap();
+    let joined = first
+        .sequence
+        .joined(
+            &second.sequence,
+            softcap_tissue::fit_dynamic::run::MOTION_GAP_S,
+        )
+        .unwrap();
+    let settings: softcap_tissue::fit_dynamic::FitDynamicSettings =
+        toml::from_str(&std::fs::read_to_string(d.join("settings.toml")).unwrap()).unwrap();
+    let fit = softcap_tissue::fit_dynamic::fit_sequence(
+        &second.template,
+        &joined,
+        &settings,
+        &softcap_tissue::Progress::hidden(),
+    )
+    .unwrap();
+    for (key, expected) in [
+        ("E_pa", fit.young_pa[0]),
+        ("alpha", fit.damping.alpha_per_s),
+        ("beta", fit.damping.beta_s),
+    ] {
+        let got = json_number(&json, key);
+        assert!(
+            (got / expected - 1.0).abs() < 1e-6,
+            "{key}: command line {got}, joined in memory {expected}"
+        );
+    }
+    assert!(
+        (fit.young_pa[0] / E_TRUE - 1.0).abs() < 0.05,
+        "E {}",
+        fit.young_pa[0]
+    );
+    // Another body: the same mesh under other gravity.
+    let mut tilted = second.clone();
+    tilted.sequence.gravity_m_s2 = Vector3::new(0.0, -9.80665, 0.0);
+    write_inputs(d, &tilted);
+    let out = tissue(&[
+        "fit-dynamic",
+        &p("a.mcap"),
+        &p("track.mcap"),
+        "--mesh",
+        &p("volume.msh"),
+        "-o",
+        &p("d.mcap"),
+        "--quiet",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("track.mcap"));
+    assert!(!d.join("d.mcap").exists());
+}
+
 /// Coarse to fine (`refine = 1`): a truth simulated on the once-refined mesh, observed at the
 /// given mesh's nodes. Fitted on the given mesh, E comes out low by that mesh's extra bending
 /// stiffness; fitted on its refined copy, E is the truth's. The fine polish is short (α and β

@@ -22,6 +22,10 @@ use crate::output::tet_mesh_message;
 pub struct FitDynamicConfig {
     /// track.mcap (`softcap tissue track`).
     pub track: PathBuf,
+    /// Further track.mcaps: other recorded motions of the same body (same template, support,
+    /// gravity and density), fitted jointly with the first (wang2015 §7: each object filmed in a
+    /// few motions), joined [`MOTION_GAP_S`] apart by [`TrackedSequence::joined`].
+    pub more_tracks: Vec<PathBuf>,
     /// The template tet mesh (session length unit), the static shape of frame 0.
     pub mesh: PathBuf,
     /// dynamic.mcap to write.
@@ -150,12 +154,30 @@ fn metres_per_unit(path: &Path) -> Result<f64> {
     })
 }
 
+/// Time between two recorded motions joined into one sequence, s: marked as an interaction, so
+/// no segment spans it; its length only places the second motion's frames on the time axis.
+pub const MOTION_GAP_S: f64 = 0.1;
+
 /// Runs the fit and writes dynamic.mcap (and the report / JSON when asked).
 pub fn run(cfg: &FitDynamicConfig, progress: &Progress) -> Result<DynamicFit> {
     cfg.settings.validate()?;
     let track = read_track(&cfg.track).map_err(read_err(&cfg.track))?;
     let mesh = crate::session::read_volume_mesh(&cfg.mesh, metres_per_unit(&cfg.track)?)?;
-    let seq = sequence_from_track(&cfg.track, &track, &mesh, &cfg.mesh)?;
+    let mut seq = sequence_from_track(&cfg.track, &track, &mesh, &cfg.mesh)?;
+    for path in &cfg.more_tracks {
+        let more = read_track(path).map_err(read_err(path))?;
+        let next = sequence_from_track(path, &more, &mesh, &cfg.mesh)?;
+        seq = seq.joined(&next, MOTION_GAP_S).ok_or_else(|| {
+            TissueError::bad_input(
+                path,
+                "track",
+                format!(
+                    "is not a motion of the body of {} (support nodes, gravity or density differ)",
+                    cfg.track.display()
+                ),
+            )
+        })?;
+    }
     let fit = fit_sequence(&mesh, &seq, &cfg.settings, progress)?;
     write_dynamic(cfg, &mesh, &fit)?;
     if let Some(p) = &cfg.json {
@@ -383,7 +405,10 @@ fn write_dynamic(cfg: &FitDynamicConfig, mesh: &TetMesh, fit: &DynamicFit) -> Re
     let mut provenance = Provenance::new("tissue fit-dynamic", env!("CARGO_PKG_VERSION"))
         .with_arguments(cfg.arguments.iter())
         .with_settings(settings);
-    for p in [&cfg.track, &cfg.mesh] {
+    for p in std::iter::once(&cfg.track)
+        .chain(&cfg.more_tracks)
+        .chain([&cfg.mesh])
+    {
         provenance.add_input(p).map_err(read_err(p))?;
     }
     let mut w = Writer::create(path, &provenance).map_err(err)?;
