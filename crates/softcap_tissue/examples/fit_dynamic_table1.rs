@@ -11,7 +11,7 @@
 //! `leafab` — `leaf` and a twist of the blade (its far +y corner pushed up for 0.05 s, released,
 //! 0.5 s at 120 Hz; force `--twist-mn`).
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N] [--write-sessions DIR] [--tracks DIR [--no-fit]]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N] [--write-sessions DIR] [--tracks DIR [--no-fit] [--max-outlier F]]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -47,7 +47,8 @@
 //! seed `--seed` + 1000 K), for `softcap synth` → `capture` → `tissue track` (the Table 1
 //! protocol through files: `scripts/fit-dynamic-table1-track`). `--tracks DIR`: the motions as
 //! tracked (`DIR/motion-K-track.mcap`) replace the emulated tracking noise; prints the tracking
-//! error against the truth per motion (`--no-fit`: that only), then fits as from the synthetic
+//! error against the truth per motion (`--no-fit`: that only; `--max-outlier F`: frames with
+//! outlier fraction above F / 1000 left out, default `max_outlier_fraction`), then fits as from the synthetic
 //! noise, every oracle above applying to the tracked frames.
 //! Every run prints the sandwich 1-σ (`DynamicFit::segment_robust_sigma`, `frame_robust_sigma`)
 //! beside the s²(JᵀJ)⁻¹ ones.
@@ -57,7 +58,7 @@
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
 use softcap_tissue::Progress;
-use softcap_tissue::fit_dynamic::run::{MOTION_GAP_S, sequence_from_track};
+use softcap_tissue::fit_dynamic::run::{MOTION_GAP_S, drop_lost_frames, sequence_from_track};
 use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize_motions};
 use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, Segment, TrackedSequence, control_points, fit_sequence,
@@ -204,14 +205,21 @@ fn write_sessions_for(
 }
 
 /// The tracks `DIR/motion-K-track.mcap` (K < `motions`) on `template`'s tets, joined as
-/// `softcap tissue fit-dynamic A B …` joins them; returns the first track's template and the
-/// joined sequence.
+/// `softcap tissue fit-dynamic A B …` joins them, frames with outlier fraction above
+/// `max_outlier` left out (`run::drop_lost_frames`); returns the first track's template and the
+/// joined sequence, and the tracker's status of every frame.
 fn read_tracks(
     dir: &std::path::Path,
     motions: usize,
     template: &softcap_mesh::TetMesh,
-) -> (softcap_mesh::TetMesh, TrackedSequence) {
+    max_outlier: f64,
+) -> (
+    softcap_mesh::TetMesh,
+    TrackedSequence,
+    Vec<softcap_mcap::proto::TrackStatus>,
+) {
     let mut out: Option<(softcap_mesh::TetMesh, TrackedSequence)> = None;
+    let mut statuses = Vec::new();
     for k in 0..motions {
         let path = dir.join(format!("motion-{k}-track.mcap"));
         let track = softcap_mcap::dynamic::read_track(&path).unwrap();
@@ -225,23 +233,34 @@ fn read_tracks(
             tets: track.mesh.tets.clone(),
         };
         assert_eq!(mesh.tets, template.tets, "{}: another mesh", path.display());
-        let seq = sequence_from_track(&path, &track, &mesh, &path).unwrap();
+        let mut seq = sequence_from_track(&path, &track, &mesh, &path).unwrap();
+        let lost = drop_lost_frames(&mut seq, &track, max_outlier);
+        if lost > 0 {
+            println!(
+                "{}: {lost} frames left out (outlier fraction above {max_outlier})",
+                path.display()
+            );
+        }
+        statuses.extend(track.frames.iter().map(|f| f.status.clone()));
         out = Some(match out {
             None => (mesh, seq),
             Some((m, joined)) => (m, joined.joined(&seq, MOTION_GAP_S).unwrap()),
         });
     }
-    out.expect("no motion")
+    let (mesh, seq) = out.expect("no motion");
+    (mesh, seq, statuses)
 }
 
 /// The tracking error of the joined tracked sequence against the noise-free truth, per motion
 /// (RMS node distance over the free nodes and all frames, over the fitted segments' frames, at
 /// their start frames, the worst frame) and the segments' start-velocity error (polynomial of
 /// the tracked frames against that of the noise-free ones), to say where tracking errors enter
-/// the fit.
+/// the fit; then whether the tracker's own per-frame report (residual, outlier fraction, status)
+/// tells the frames it lost (error > 3 mm) from the others.
 fn report_tracking(
     tracked: &TrackedSequence,
     clean: &TrackedSequence,
+    statuses: &[softcap_mcap::proto::TrackStatus],
     segment_frames: usize,
     velocity_window: usize,
 ) {
@@ -330,6 +349,27 @@ fn report_tracking(
         "tracking RMS over all motions and frames: {:.3} mm",
         (all / n_all.max(1) as f64).sqrt() * 1e3
     );
+    // The tracker's report on the frames it lost (node RMS error > 3 mm) and on the others.
+    let (lost, kept): (Vec<usize>, Vec<usize>) =
+        (0..tracked.frames()).partition(|&j| frame_ms(j).sqrt() > 3e-3);
+    let median = |frames: &[usize], f: &dyn Fn(&softcap_mcap::proto::TrackStatus) -> f64| {
+        let mut v: Vec<f64> = frames.iter().map(|&j| f(&statuses[j])).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    for (name, frames) in [("lost (error > 3 mm)", &lost), ("others", &kept)] {
+        let not_converged = frames
+            .iter()
+            .filter(|&&j| statuses[j].status != "converged")
+            .count();
+        println!(
+            "{name}: {} frames, residual median {:.3} mm, outlier fraction median {:.3}, EM iterations median {}, not converged {not_converged}",
+            frames.len(),
+            1e3 * median(frames, &|s| s.residual_m),
+            median(frames, &|s| s.outlier_fraction),
+            median(frames, &|s| f64::from(s.em_iterations))
+        );
+    }
 }
 
 fn main() {
@@ -437,6 +477,12 @@ fn main() {
     let write_sessions = take_string(&mut which, "--write-sessions");
     // `--tracks DIR`: fit the motions as tracked from depth (`DIR/motion-K-track.mcap`).
     let tracks = take_string(&mut which, "--tracks");
+    // `--max-outlier F`: with `--tracks`, frames with outlier fraction above F / 1000 left out
+    // (`FitDynamicSettings::max_outlier_fraction`; default: its default).
+    let max_outlier = take_option(&mut which, "--max-outlier")
+        .map_or(FitDynamicSettings::default().max_outlier_fraction, |f| {
+            1e-3 * f as f64
+        });
     // `--no-fit`: with `--tracks`, the tracking error only.
     let no_fit = match which.iter().position(|a| a == "--no-fit") {
         Some(k) => {
@@ -633,12 +679,19 @@ fn main() {
             // (`DIR/motion-K-track.mcap`), joined as `tissue fit-dynamic` joins several tracks,
             // replace the emulated tracking noise; the tracking error against the truth per motion.
             let clean = make(0.0);
-            let (template, tracked) = read_tracks(
+            let (template, tracked, statuses) = read_tracks(
                 std::path::Path::new(dir),
                 specs_for(0.0).len(),
                 &truth.template,
+                max_outlier,
             );
-            report_tracking(&tracked, &clean.sequence, segment_frames, velocity_window);
+            report_tracking(
+                &tracked,
+                &clean.sequence,
+                &statuses,
+                segment_frames,
+                velocity_window,
+            );
             if no_fit {
                 continue;
             }

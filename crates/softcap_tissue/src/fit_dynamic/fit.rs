@@ -148,6 +148,12 @@ pub struct FitDynamicSettings {
     /// tracked, noisy state). Costs 2 × this many one-segment simulations per segment and
     /// Jacobian.
     pub start_state_modes: usize,
+    /// A tracked frame whose cloud the tracker's surface explains poorly — mean posterior
+    /// outlier probability of its points (`/tissue/track/status` `outlier_fraction`) above this —
+    /// is left out of the objective like a diverged one: the tracker lost the body there
+    /// (fast motion), and its nodes would pull α and β (`run::drop_lost_frames`). A tracked
+    /// frame's fraction is ≈ the GMM's outlier weight w = 0.1 or less.
+    pub max_outlier_fraction: f64,
     /// Bounds of E, Pa.
     pub young_bounds_pa: [f64; 2],
     /// Bounds of α, 1/s.
@@ -183,6 +189,7 @@ impl Default for FitDynamicSettings {
             min_segment_frames: 4,
             forward: ForwardSettings::default(),
             start_state_modes: 0,
+            max_outlier_fraction: 0.25,
             young_bounds_pa: [1.0e2, 1.0e10],
             alpha_bounds_per_s: [1.0e-4, 1.0e3],
             beta_bounds_s: [1.0e-7, 1.0],
@@ -236,6 +243,12 @@ impl FitDynamicSettings {
                 "segment_frames",
                 "segment_frames, forward.substeps, max_simulations and fine_max_simulations must be ≥ 1"
                     .into(),
+            );
+        }
+        if !(self.max_outlier_fraction > 0.0 && self.max_outlier_fraction <= 1.0) {
+            return bad(
+                "max_outlier_fraction",
+                format!("must be in (0, 1], got {}", self.max_outlier_fraction),
             );
         }
         if self.start_state_modes > 12 {
