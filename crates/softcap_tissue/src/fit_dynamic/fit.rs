@@ -1576,6 +1576,14 @@ fn fit_level(
             }
         };
     let rms_m = rms_of(&mut problem, &q);
+    // Converged only where the fitted parameters simulate: a final trajectory that does not
+    // finish (a failed step in some segment: its residuals are NaN) is a status of its own
+    // (not "failed": a coarse stage's parameters still start the refined one).
+    if !rms_m.is_finite() && !status.starts_with("failed") {
+        status = format!(
+            "not converged: the simulation at the fitted parameters did not finish (the search ended {status})"
+        );
+    }
     let params = problem.params(&q);
     let (rest, final_rest_status) = problem.rest_of(&q, &static_m)?;
     if settings.rest_shape_per_evaluation {

@@ -235,7 +235,8 @@ pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
     }
 }
 
-/// A JSON number, or `null` for a non-finite value (an uncertainty the data do not bound).
+/// A JSON number, or `null` for a non-finite value (an uncertainty the data do not bound, the
+/// trajectory RMS of a simulation that did not finish).
 fn json_number(x: f64) -> String {
     if x.is_finite() {
         format!("{x:e}")
@@ -277,14 +278,14 @@ pub fn json(fit: &DynamicFit) -> String {
         .collect::<Vec<_>>()
         .join(", ");
     format!(
-        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {:e},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"status\": \"{}\"\n}}\n",
+        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"status\": \"{}\"\n}}\n",
         list(&fit.young_pa),
         list(&fit.young_pa_tets),
         fit.poisson,
         fit.damping.alpha_per_s,
         fit.damping.beta_s,
         fit.density_kg_m3,
-        fit.rms_m,
+        json_number(fit.rms_m),
         json_sigma(&fit.relative_sigma, nc),
         json_sigma(&fit.segment_robust_sigma, nc),
         json_sigma(&fit.frame_robust_sigma, nc),
@@ -591,4 +592,19 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
         rms_m,
         max_iteration_steps: run.max_iteration_steps,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::json_number;
+
+    /// JSON has no NaN or infinity: a value that is not finite is written `null`, a finite one
+    /// round-trips exactly.
+    #[test]
+    fn non_finite_numbers_are_null() {
+        assert_eq!(json_number(f64::NAN), "null");
+        assert_eq!(json_number(f64::INFINITY), "null");
+        let x = 1.234_567_890_123e-4;
+        assert_eq!(json_number(x).parse::<f64>().unwrap(), x);
+    }
 }
