@@ -58,7 +58,9 @@
 use nalgebra::Vector3;
 use softcap_fem::RayleighDamping;
 use softcap_tissue::Progress;
-use softcap_tissue::fit_dynamic::run::{MOTION_GAP_S, drop_lost_frames, sequence_from_track};
+use softcap_tissue::fit_dynamic::run::{
+    MOTION_GAP_S, drop_lost_frames, sequence_from_track, tracked_mesh,
+};
 use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize_motions};
 use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, Segment, TrackedSequence, control_points, fit_sequence,
@@ -223,15 +225,7 @@ fn read_tracks(
     for k in 0..motions {
         let path = dir.join(format!("motion-{k}-track.mcap"));
         let track = softcap_mcap::dynamic::read_track(&path).unwrap();
-        let mesh = softcap_mesh::TetMesh {
-            vertices: track
-                .mesh
-                .vertices_m
-                .iter()
-                .map(|p| Vector3::from(*p))
-                .collect(),
-            tets: track.mesh.tets.clone(),
-        };
+        let mesh = tracked_mesh(&track);
         assert_eq!(mesh.tets, template.tets, "{}: another mesh", path.display());
         let mut seq = sequence_from_track(&path, &track, &mesh, &path).unwrap();
         let lost = drop_lost_frames(&mut seq, &track, max_outlier);

@@ -481,11 +481,9 @@ pub struct SimulateDynamicOutcome {
     pub max_iteration_steps: usize,
 }
 
-/// Simulates the fitted material from the tracked state at frame a to frame b (the support
-/// follows the track) and writes `/tissue/dynamic_sim/nodes`.
-pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
-    let track = read_track(&cfg.initial).map_err(read_err(&cfg.initial))?;
-    let mesh = TetMesh {
+/// The tracked body's tet mesh as track.mcap carries it (the template, in its node order).
+pub fn tracked_mesh(track: &TrackRecording) -> TetMesh {
+    TetMesh {
         vertices: track
             .mesh
             .vertices_m
@@ -493,7 +491,14 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
             .map(|p| Vector3::from(*p))
             .collect(),
         tets: track.mesh.tets.clone(),
-    };
+    }
+}
+
+/// Simulates the fitted material from the tracked state at frame a to frame b (the support
+/// follows the track) and writes `/tissue/dynamic_sim/nodes`.
+pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
+    let track = read_track(&cfg.initial).map_err(read_err(&cfg.initial))?;
+    let mesh = tracked_mesh(&track);
     let m = read_dynamic_material(&cfg.material, mesh.tets.len(), mesh.vertices.len())
         .map_err(read_err(&cfg.material))?;
     let seq = sequence_from_track(&cfg.initial, &track, &mesh, &cfg.material)?;
