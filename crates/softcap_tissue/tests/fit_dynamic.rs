@@ -96,6 +96,32 @@ fn tissue(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// `softcap-tissue fit-dynamic` on the `tracks` in `d` with `write_inputs`' mesh and settings
+/// (plus `extra` arguments), asserted to succeed; the `--json` document it wrote.
+fn fit_dynamic_json(d: &Path, tracks: &[&str], extra: &[&str]) -> String {
+    let p = |f: &str| d.join(f).display().to_string();
+    let mut args = vec!["fit-dynamic".to_string()];
+    args.extend(tracks.iter().map(|t| p(t)));
+    for (flag, file) in [
+        ("--mesh", "volume.msh"),
+        ("-o", "dynamic.mcap"),
+        ("--json", "fit.json"),
+        ("--settings", "settings.toml"),
+    ] {
+        args.extend([flag.to_string(), p(file)]);
+    }
+    args.extend(extra.iter().map(|a| a.to_string()));
+    args.push("--quiet".into());
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let out = tissue(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::read_to_string(d.join("fit.json")).unwrap()
+}
+
 fn json_number(text: &str, key: &str) -> f64 {
     let at = text.find(&format!("\"{key}\": ")).expect(key) + key.len() + 4;
     let rest = &text[at..];
@@ -111,27 +137,7 @@ fn fit_dynamic_recovers_e_and_writes_material_json_report_rest_and_simulation() 
     let s = small_bar();
     write_inputs(d, &s);
     let p = |f: &str| d.join(f).display().to_string();
-    let out = tissue(&[
-        "fit-dynamic",
-        &p("track.mcap"),
-        "--mesh",
-        &p("volume.msh"),
-        "-o",
-        &p("dynamic.mcap"),
-        "--json",
-        &p("fit.json"),
-        "--report",
-        &p("report"),
-        "--settings",
-        &p("settings.toml"),
-        "--quiet",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let json = std::fs::read_to_string(d.join("fit.json")).unwrap();
+    let json = fit_dynamic_json(d, &["track.mcap"], &["--report", &p("report")]);
     for key in [
         "E_pa",
         "control_points_m",
@@ -294,27 +300,8 @@ fn several_tracks_are_fitted_jointly() {
     std::fs::rename(d.join("track.mcap"), d.join("a.mcap")).unwrap();
     write_inputs(d, &second);
     std::fs::rename(d.join("track.mcap"), d.join("b.mcap")).unwrap();
+    let json = fit_dynamic_json(d, &["a.mcap", "b.mcap"], &[]);
     let p = |f: &str| d.join(f).display().to_string();
-    let out = tissue(&[
-        "fit-dynamic",
-        &p("a.mcap"),
-        &p("b.mcap"),
-        "--mesh",
-        &p("volume.msh"),
-        "-o",
-        &p("dynamic.mcap"),
-        "--json",
-        &p("fit.json"),
-        "--settings",
-        &p("settings.toml"),
-        "--quiet",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let json = std::fs::read_to_string(d.join("fit.json")).unwrap();
     let joined = first
         .sequence
         .joined(
