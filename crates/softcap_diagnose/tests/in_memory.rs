@@ -423,9 +423,9 @@ fn support_slip_and_clock_offset_are_both_named() {
 }
 
 /// The fourth pair: Coulomb probe friction μ 0.5 on the oblique path and a 0.1 s clock offset
-/// (the frictional rigid-tip replays of its confirmation cost ≈ 60 CPU-s in the test profile).
+/// (the frictional rigid-tip replays of its confirmation are most of its cost: with the three
+/// look-alike tests below, 78 CPU-s together in the test profile).
 #[test]
-#[ignore = "≈ 60 CPU-s: probe friction's rigid-tip replays"]
 fn probe_friction_and_clock_offset_are_both_named() {
     run_pair(
         &[Effect::Friction(0.5), Effect::ClockOffset(0.1)],
@@ -525,9 +525,8 @@ fn slow_creep(g: f64, tau_s: f64) -> Vec<Effect> {
 /// `plasticity`. With `plasticity::PERMANENT_PERSISTENCE` at 0.9 the first protocol named
 /// the creep `plasticity`. ≈ 54 CPU-s (three diagnoses with Prony re-simulations; ≈ 220 before
 /// plasticity's rigid-tip points were ranked on the fit mesh bisected once):
-/// `cargo test --workspace --test diagnose_tests -- --ignored in_memory::slow_creep_and_plasticity_decided_by_longer_holds`.
+/// `cargo test --workspace --test diagnose_tests -- in_memory::slow_creep_and_plasticity_decided_by_longer_holds`.
 #[test]
-#[ignore = "≈ 54 CPU-s (53.7 at load 2-6): three diagnoses with the Prony grid re-simulations"]
 fn slow_creep_and_plasticity_decided_by_longer_holds() {
     let chain = lookalike_chain(
         &slow_creep(1.0, 5.0),
@@ -597,9 +596,8 @@ fn assert_decided_by_re_recording(
 /// (1.8 ± 0.4 ms; a shift's 0.9, a lag's 2.0) and it is named `sensor-lag`; the offset's does
 /// not (−0.8 ± 0.45 ms) and it is named `clock-offset`. Before (main 5cbccc21) the first
 /// protocol named both `sensor-lag`. ≈ 25 CPU-s:
-/// `cargo test --workspace --test diagnose_tests -- --ignored in_memory::sensor_lag_and_clock_offset_decided_by_faster_ramps`.
+/// `cargo test --workspace --test diagnose_tests -- in_memory::sensor_lag_and_clock_offset_decided_by_faster_ramps`.
 #[test]
-#[ignore = "≈ 25 CPU-s: three diagnoses with their confirmations"]
 fn sensor_lag_and_clock_offset_decided_by_faster_ramps() {
     let chain = lookalike_chain(
         &[Effect::SensorLag(0.012)],
@@ -728,7 +726,6 @@ fn only_a_released_set_that_does_not_decay_supports_plasticity() {
 /// plasticity first: the creep is named, not plasticity (the reverse truth:
 /// [`plastic_set_is_named`]). ≈ 70 CPU-s: the Prony re-simulations.
 #[test]
-#[ignore = "≈ 70 CPU-s: the Prony grid re-simulations"]
 fn slow_creep_is_not_named_plasticity() {
     let s = session_with(
         &[Effect::Stiffer(0.5), Effect::Creep { g: 1.0, tau_s: 2.0 }],

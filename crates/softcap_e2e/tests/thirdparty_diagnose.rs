@@ -443,9 +443,12 @@ cases! {
     clock_offset => "clock-offset",
     gravity_preload => "gravity-preload",
     support_slip => "support-slip",
-    #[ignore = "passes (k1 = 0.1 MPa fixture): anisotropy 0.1964 -> 0.1165 mm on contact/away-from-probe, within 1.25x of clean's 0.1080; two HGO families phi 0, theta 30 deg, ratio 8, matrix nu 0.45, routed by the in-plane ellipse signature; costs about 75 CPU-s with capture and fits cached (more than make test's budget)"]
+    /// Two HGO families φ 0, θ 30°, ratio 8, matrix ν 0.45 (k1 = 0.1 MPa), routed by the in-plane
+    /// ellipse signature: 0.1964 → 0.1165 mm on contact/away-from-probe, within 1.25× of clean's
+    /// 0.1080; ≈ 50 CPU-s.
     anisotropy => "anisotropy",
-    #[ignore = "passes (named on the force channel: 0.2506 -> 0.0710 N held-out; markers 0.1695 -> 0.1668 mm, clean 0.1691) but costs about 100 CPU-s (the de-lagged grid's re-simulations with material refits)"]
+    /// Named on the force channel (0.2467 → 0.0691 N held-out; markers 0.1686 → 0.1436 mm, clean
+    /// 0.1691); ≈ 35 CPU-s.
     sensor_lag => "sensor-lag",
     #[ignore = "verdict none: probe-friction rank 2, 0.3879 -> 0.3663 mm on contact/under-probe (mu 0.04), pair 0.2683 mm (the rule needs <= 0.3354); the truth is 0.208 mm from its pair beyond the contact (4.4 sigma) but the drag signature reads 0.065 mm < 3 sigma 0.143 (0.096 mm on the loading and hold frames only: in unloading the stuck disk keeps the surface forward while the sliding direction has reversed)"]
     probe_friction => "probe-friction",
@@ -455,7 +458,6 @@ cases! {
 
 /// Issue 37 pair 2, the sensor lag: standard `inconclusive` → faster ramps name it.
 #[test]
-#[ignore = "passes (standard: inconclusive {sensor-lag 0.471, clock-offset 0.462 mean fold gains}, next faster-ramps; faster-ramps: sensor-lag tau 0.0476 s) but costs 114.6 CPU-s for its two chains (capture, homogeneous fit, diagnose; load 7-9), more than make test's budget"]
 fn lookalike_sensor_lag_decided_by_faster_ramps() {
     check_lookalike_chain("sensor-lag-50ms", 1, "sensor-lag", "tau_s");
 }
@@ -463,7 +465,6 @@ fn lookalike_sensor_lag_decided_by_faster_ramps() {
 /// Issue 37 pair 2, the clock offset: standard and faster ramps `inconclusive` → ramps four
 /// times as fast name it.
 #[test]
-#[ignore = "passes (standard: inconclusive {sensor-lag 0.472, clock-offset 0.471}, next faster-ramps; faster-ramps: inconclusive {0.775, 0.771}, next faster-ramps; faster-ramps x2: clock-offset 0.0531 s) but costs 186.1 CPU-s for its three chains (load 7-11), more than make test's budget"]
 fn lookalike_clock_offset_decided_by_faster_ramps_twice() {
     check_lookalike_chain("clock-offset-50ms", 2, "clock-offset", "offset_s");
 }
