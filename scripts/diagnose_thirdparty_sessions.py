@@ -10,7 +10,8 @@
   viscoelasticity beside a stiff inclusion (the viscoelasticity case's Maxwell branches on the
   stiff-inclusion case's geometry and inclusion);
 - `lookalikes [PROTOCOL]`: issue 37's two look-alike pairs (slow creep / plasticity, sensor lag
-  12 ms / clock offset 12 ms; `lookalike_cases`), recorded under PROTOCOL (the suite's
+  12 ms / clock offset 12 ms; `lookalike_cases`; a slow creep of any g and tau named
+  `slow-creep-gG-tauTs`, `creep_case`), recorded under PROTOCOL (the suite's
   `probing.replan`: standard, longer-holds, faster-ramps, ...; names get the suffix -PROTOCOL;
   A+B re-records under A, then that recording under B, as the planner's next experiment of a
   re-recorded session means: faster-ramps+faster-ramps has ramps four times as fast);
@@ -125,6 +126,27 @@ def lookalike_cases():
                     effects={"trigger_latency_s": ms / 1e3}),
         )
     ]
+
+
+CREEP_NAME = re.compile(r"slow-creep-g([0-9.]+)-tau([0-9.]+)s$")
+CREEP_SEED = 413
+
+
+def creep_case(name):
+    """The slow creep `slow-creep-gG-tauTs` (e.g. slow-creep-g2-tau15s): one finite-strain Maxwell
+    branch (Shutov et al. 2013) G(t)/G_inf = 1 + g e^{-t/tau} on the clean case's physics, its
+    instantaneous modulus the clean material's (mu = MU/(1 + g), mu_1 = g MU/(1 + g)), recorded by
+    slow-creep-30s's rig (seed 413); None when `name` is not of that form."""
+    m = CREEP_NAME.match(name)
+    if m is None:
+        return None
+    g, tau = float(m.group(1)), float(m.group(2))
+    clean = next(c for c in suite.cases() if c["name"] == "clean")
+    mu, mu1 = suite.MU / (1 + g), g * suite.MU / (1 + g)
+    return derived(clean, name, CREEP_SEED, "viscoelasticity",
+                   f"Slow creep: one finite-strain Maxwell branch (Shutov et al. 2013) g = {g:g}, tau = {tau:g} s, "
+                   f"its instantaneous modulus the clean material's: mu = {mu:.6g} MPa, mu_1 = {mu1:.6g} MPa.",
+                   material={"kind": "viscoelastic", "mu": mu, "bulk": 20 * suite.MU, "branches": [[mu1, tau]]})
 
 
 def clean_cases(n):
@@ -290,7 +312,7 @@ def run(argv):
             i = rest.index("--seed")
             seed = int(rest[i + 1])
             rest = rest[:i] + rest[i + 2:]
-        chosen = lookalike_cases()
+        chosen = lookalike_cases() + [c for c in map(creep_case, rest) if c is not None]
         if seed is not None:
             for c in chosen:
                 c["seed"] = seed
