@@ -357,16 +357,31 @@ fn check_below_noise(case: &str, pair: &str, d: &Diagnosis) {
     assert_eq!(d.verdict, "none", "{case}: {:#?}", summary(d));
 }
 
+/// One look-alike chain the planner follows ([`check_lookalike_chain`]).
+struct Lookalike<'a> {
+    /// The first recording, `fixtures/thirdparty/lookalikes/<case>`.
+    case: &'a str,
+    /// The look-alike pair every `inconclusive` recording must name as its candidates (sorted).
+    pair: [&'a str; 2],
+    /// The next experiment the planner must ask for; its recording is `<session>-<protocol>`.
+    protocol: &'a str,
+    /// How many recordings are `inconclusive` before the last names the effect.
+    rerecordings: usize,
+    /// The effect the last recording must name.
+    effect: &'a str,
+    /// The named effect's parameter, its truth and the relative tolerance on it.
+    param: (&'a str, f64, f64),
+}
+
 /// Follows the planner from `fixtures/thirdparty/lookalikes/<case>`: each of the first
-/// `rerecordings` diagnoses must be `inconclusive` between sensor-lag and clock-offset with the
-/// next experiment `faster-ramps`, and the test goes on with the session recorded under it
-/// (`<session>-faster-ramps`); the last must name `effect` with its `param` within
-/// [`LOOKALIKE_DELAY_TOLERANCE`] of [`LOOKALIKE_DELAY_S`]. Prints one `LOOKALIKE` row per
-/// session (verdict, candidates with their mean fold gains, next experiment, named effect,
-/// seconds).
-fn check_lookalike_chain(case: &str, rerecordings: usize, effect: &str, param: &str) {
-    let mut session = format!("lookalikes/{case}");
-    for step in 0..=rerecordings {
+/// `rerecordings` diagnoses must be `inconclusive` between the `pair` with the next experiment
+/// `protocol`, and the test goes on with the session recorded under it (`<session>-<protocol>`);
+/// the last must name `effect` with its parameter within the tolerance of the truth. Prints one
+/// `LOOKALIKE` row per session (verdict, candidates with their mean fold gains, next experiment,
+/// named effect, seconds).
+fn check_lookalike_chain(c: &Lookalike<'_>) {
+    let mut session = format!("lookalikes/{}", c.case);
+    for step in 0..=c.rerecordings {
         let o = outcome(&session);
         let d = &o.diagnosis;
         let mean = |g: &[f64]| g.iter().sum::<f64>() / g.len().max(1) as f64;
@@ -391,31 +406,41 @@ fn check_lookalike_chain(case: &str, rerecordings: usize, effect: &str, param: &
             s[2]
         );
         let all = summary(d);
-        if step < rerecordings {
+        if step < c.rerecordings {
             assert_eq!(d.verdict, "inconclusive", "{session}: ranked {all:#?}");
             let mut names: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
             names.sort_unstable();
-            assert_eq!(
-                names,
-                ["clock-offset", "sensor-lag"],
-                "{session}: candidates"
-            );
-            assert_eq!(next, Some("faster-ramps"), "{session}: next experiment");
-            session = format!("{session}-faster-ramps");
+            assert_eq!(names, c.pair, "{session}: candidates");
+            assert_eq!(next, Some(c.protocol), "{session}: next experiment");
+            session = format!("{session}-{}", c.protocol);
             continue;
         }
-        assert_eq!(d.verdict, effect, "{session}: ranked {all:#?}");
+        assert_eq!(d.verdict, c.effect, "{session}: ranked {all:#?}");
+        let (param, truth, tolerance) = c.param;
         let value = d
             .effects
             .first()
             .and_then(|e| e.params.get(param))
             .copied()
-            .unwrap_or_else(|| panic!("{session}: {effect} has no {param}"));
+            .unwrap_or_else(|| panic!("{session}: {} has no {param}", c.effect));
         assert!(
-            (value - LOOKALIKE_DELAY_S).abs() <= LOOKALIKE_DELAY_TOLERANCE * LOOKALIKE_DELAY_S,
-            "{session}: {param} {value} s, truth {LOOKALIKE_DELAY_S} s"
+            (value - truth).abs() <= tolerance * truth,
+            "{session}: {param} {value}, truth {truth}"
         );
     }
+}
+
+/// Issue 37's second pair on the look-alike sessions: a sensor lag or a clock offset of
+/// [`LOOKALIKE_DELAY_S`], `inconclusive` until the ramps are fast enough.
+fn force_pair(case: &str, rerecordings: usize, effect: &str, param: &str) {
+    check_lookalike_chain(&Lookalike {
+        case,
+        pair: ["clock-offset", "sensor-lag"],
+        protocol: "faster-ramps",
+        rerecordings,
+        effect,
+        param: (param, LOOKALIKE_DELAY_S, LOOKALIKE_DELAY_TOLERANCE),
+    })
 }
 
 macro_rules! cases {
@@ -459,12 +484,12 @@ cases! {
 /// Issue 37 pair 2, the sensor lag: standard `inconclusive` → faster ramps name it.
 #[test]
 fn lookalike_sensor_lag_decided_by_faster_ramps() {
-    check_lookalike_chain("sensor-lag-50ms", 1, "sensor-lag", "tau_s");
+    force_pair("sensor-lag-50ms", 1, "sensor-lag", "tau_s");
 }
 
 /// Issue 37 pair 2, the clock offset: standard and faster ramps `inconclusive` → ramps four
 /// times as fast name it.
 #[test]
 fn lookalike_clock_offset_decided_by_faster_ramps_twice() {
-    check_lookalike_chain("clock-offset-50ms", 2, "clock-offset", "offset_s");
+    force_pair("clock-offset-50ms", 2, "clock-offset", "offset_s");
 }
