@@ -493,3 +493,59 @@ fn lookalike_sensor_lag_decided_by_faster_ramps() {
 fn lookalike_clock_offset_decided_by_faster_ramps_twice() {
     force_pair("clock-offset-50ms", 2, "clock-offset", "offset_s");
 }
+
+/// Issue 37 pair 1 on this rig, slow creep g 2, τ 30 s (`fixtures/thirdparty/lookalikes/
+/// slow-creep-30s`): the standard recording is `none`, neither `plasticity` nor `inconclusive`.
+/// Its released set (0.120 mm) is below 3σ (0.144 mm), so plasticity is contradicted (support
+/// −1), and the linearised creep screen stays below the 30 % gain (0.109): the position-controlled
+/// holds relax the force (drift −0.019), which gives viscoelasticity signature support +1, and a
+/// look-alike must not be ranked below the verdict by its signatures, so plasticity could only be
+/// its look-alike with a set above 3σ that persists within 2 SE of permanent (the
+/// fixtures' README, "Pair 1"). ≈ 5 CPU-s.
+#[test]
+fn lookalike_slow_creep_standard_is_none() {
+    let o = outcome("lookalikes/slow-creep-30s");
+    let d = &o.diagnosis;
+    let (_, p) = ranked(d, "plasticity").expect("plasticity ranked");
+    let s = &p.evidence.signatures;
+    println!(
+        "LOOKALIKE | lookalikes/slow-creep-30s | {} | set {:.4} mm (3σ {:.4}), persistence {:?} ± {:?}, hold drift {:.4}",
+        d.verdict,
+        1e3 * s.released_set_m,
+        3e3 * s.noise_sigma_m,
+        s.released_set_persistence,
+        s.released_set_persistence_se,
+        s.hold_force_drift
+    );
+    assert_eq!(d.verdict, "none", "{:#?}", summary(d));
+    assert!(s.released_set_m <= s.three_sigma_m(), "{s:?}");
+    assert!(s.hold_force_drift < -0.01 && !s.holds_relax(), "{s:?}");
+}
+
+/// The same creep re-recorded under the planner's `longer-holds` (`…/slow-creep-30s-longer-holds`):
+/// its set persists as a plastic one would (0.954 ± 0.028) and the linearised plasticity screen
+/// qualifies (0.604), but the held force relaxes by 0.0508 ± 0.0081 of the peak
+/// (`Signatures::holds_relax`), which rules plasticity out (`Hypothesis::ruled_out`): the verdict
+/// is not the wrong `plasticity` of main before that rule. It is `none`: viscoelasticity's
+/// force-driven Prony re-simulation stays below the 30 % gain (the fixtures' README, "Pair 1").
+#[test]
+#[ignore = "passes (none; plasticity ruled out by the hold drift -0.0508 +- 0.0081; viscoelasticity re-simulated 0.1762 -> 0.1571 mm, gain 0.205) but costs about 93 CPU-s (98 with lookalike_slow_creep_standard_is_none, load 5-7; the 15 Prony re-simulations of 367 frames), more than make test's budget"]
+fn lookalike_slow_creep_longer_holds_rules_out_plasticity() {
+    let o = outcome("lookalikes/slow-creep-30s-longer-holds");
+    let d = &o.diagnosis;
+    println!(
+        "LOOKALIKE | lookalikes/slow-creep-30s-longer-holds | {} | {:#?}",
+        d.verdict,
+        summary(d)
+    );
+    assert_ne!(d.verdict, "plasticity", "{:#?}", summary(d));
+    let (_, p) = ranked(d, "plasticity").expect("plasticity ranked");
+    assert!(
+        p.evidence
+            .confirmation_failed
+            .as_deref()
+            .is_some_and(|w| w.starts_with("ruled out")),
+        "{:?}",
+        p.evidence.confirmation_failed
+    );
+}
