@@ -552,9 +552,9 @@ fn lookalike_slow_creep_standard_is_none() {
 /// and the linearised plasticity screen qualifies (0.604), but the held force relaxes by
 /// 0.0508 ± 0.0081 of the peak, which rules plasticity out: not the wrong `plasticity` of main
 /// before that rule, but `none` — viscoelasticity's force-driven Prony re-simulation stays below
-/// the 30 % gain (the fixtures' README, "Pair 1").
+/// the 30 % gain, 0.1762 → 0.1571 mm (the fixtures' README, "Pair 1"). ≈ 93 CPU-s: the 15 Prony
+/// re-simulations of 367 frames.
 #[test]
-#[ignore = "passes (none; plasticity ruled out by the hold drift -0.0508 +- 0.0081; viscoelasticity re-simulated 0.1762 -> 0.1571 mm, gain 0.205) but costs about 93 CPU-s (98 with lookalike_slow_creep_standard_is_none, load 5-7; the 15 Prony re-simulations of 367 frames), more than make test's budget"]
 fn lookalike_slow_creep_longer_holds_rules_out_plasticity() {
     check_creep_longer_holds("slow-creep-30s-longer-holds", "none");
 }
@@ -571,9 +571,8 @@ fn lookalike_slow_creep_g4_standard_is_none() {
 /// and the plasticity screen qualifies (0.729), but the holds relax (−0.0794 ± 0.0068): plasticity
 /// is ruled out and `viscoelasticity` named, 0.2075 → 0.1482 mm (Prony g 0.90, τ 11.8 s with the
 /// compliance scale 1.74, the template grid's longest τ around the screen's centre — whose creep
-/// time sits at the top of its grid, 9.49 s — not the truth's g 4, τ 23 s).
+/// time sits at the top of its grid, 9.49 s — not the truth's g 4, τ 23 s). ≈ 87 CPU-s.
 #[test]
-#[ignore = "passes (viscoelasticity 0.2075 -> 0.1482 mm, mean fold gain 0.407; plasticity ruled out by the hold drift -0.0794 +- 0.0068) but costs about 87 CPU-s (diagnose 86.5 at load 8-9: the 15 Prony re-simulations of 367 frames), more than make test's budget"]
 fn lookalike_slow_creep_g4_named_under_longer_holds() {
     check_creep_longer_holds("slow-creep-g4-tau23s-longer-holds", "viscoelasticity");
 }
