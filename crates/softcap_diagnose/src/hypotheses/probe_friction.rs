@@ -17,7 +17,7 @@
 //! against it.
 
 use super::Effect;
-use super::contract::{Context, Hypothesis};
+use super::contract::{Context, Hypothesis, SignatureRoute};
 use crate::Result;
 use crate::baseline::Prepared;
 use crate::cells::{EffectCells, contact_cells};
@@ -105,13 +105,21 @@ impl Hypothesis for ProbeFriction {
 
     fn signature_support(&self, s: &Signatures) -> f64 {
         // the surface dragged along with the tip
-        if s.contact_drag_m > s.three_sigma_m() {
+        if drags(s) {
             1.0
         } else if s.contact_tangential_m > s.three_sigma_m() {
             0.5
         } else {
             0.0
         }
+    }
+
+    /// Re-simulated after the screen's candidates when the residual under the tip is tangential
+    /// beyond 3σ: a patch that sticks (μ above the stick's need) holds the surface forward
+    /// after the tip turns back, so neither the drag signature nor the screen's traction along
+    /// the travel sees it, but the rigid tip replayed with Coulomb friction does.
+    fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
+        (s.contact_tangential_m > s.three_sigma_m()).then_some(SignatureRoute::AfterScreen)
     }
 
     fn confirm(
@@ -124,10 +132,16 @@ impl Hypothesis for ProbeFriction {
         let (rec, seg, p) = (cx.rec, cx.seg, cx.prepared);
         // The Coulomb return mapping of the tip's measured travel under the measured (lagged)
         // normal force, and the constant-sense traction.
-        let grid: Vec<GridPoint> = confirmation_grid(rec, seg, p)
-            .into_iter()
-            .map(|(params, forces)| (params, Extension::Elastic, forces))
-            .collect();
+        // Only when the surface is seen dragged along the travel (`drag`, above 3σ): these
+        // histories are a traction along the travel by construction.
+        let grid: Vec<GridPoint> = if drags(cx.signatures) {
+            confirmation_grid(rec, seg, p)
+                .into_iter()
+                .map(|(params, forces)| (params, Extension::Elastic, forces))
+                .collect()
+        } else {
+            vec![]
+        };
         // The rigid tip replayed at its measured poses WITH Coulomb friction: the stuck patch
         // drags the surface as in the recording, and under position control the depth is the
         // measured one whatever stiffness the tissue fit gave the material (it was fitted on
@@ -159,6 +173,12 @@ impl Hypothesis for ProbeFriction {
         };
         replays.confirm(&lolo, "default model under Coulomb traction", CELLS)
     }
+}
+
+/// Whether the surface around the patch is dragged along the tip's travel beyond 3σ
+/// ([`Signatures::contact_drag_m`]).
+fn drags(s: &Signatures) -> bool {
+    s.contact_drag_m > s.three_sigma_m()
 }
 
 /// Probe force plus the constant-sense traction μ‖f‖ŝ_l along the location's tangential travel
