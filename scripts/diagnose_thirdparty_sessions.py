@@ -28,7 +28,9 @@ printed digit).
 
     python scripts/diagnose_thirdparty_sessions.py OUT pairs|clean [N] [CASE ...]
     python scripts/diagnose_thirdparty_sessions.py OUT check
-    python scripts/diagnose_thirdparty_sessions.py OUT lookalikes [PROTOCOL [--locations N] [--seed S] [CASE ...]]
+    python scripts/diagnose_thirdparty_sessions.py OUT lookalikes [PROTOCOL [--locations N] [--seed S] [--force-control] [CASE ...]]
+
+`--force-control`: the cases under a force-controlled probe (`force_controlled`; names get -force).
 
 `--seed S` records the look-alike cases with the rig seed S instead of their own (another rig:
 cameras, detection noise, FSR calibration and noise, clock; the same FElupe solution); the
@@ -147,6 +149,28 @@ def creep_case(name):
                    f"Slow creep: one finite-strain Maxwell branch (Shutov et al. 2013) g = {g:g}, tau = {tau:g} s, "
                    f"its instantaneous modulus the clean material's: mu = {mu:.6g} MPa, mu_1 = {mu1:.6g} MPa.",
                    material={"kind": "viscoelastic", "mu": mu, "bulk": 20 * suite.MU, "branches": [[mu1, tau]]})
+
+
+def force_controlled(case):
+    """`case` under force control (issue 37's pair 1 as the own rig records it: the probe driven
+    to a force, `probing.force_controlled`): per location the peak axial force the committed
+    position-controlled case of the same kind of material reaches at its depth (`clean` for an
+    elastic or viscoelastic material, whose instantaneous modulus is the clean one, `plasticity`
+    for J2), ramped, held and unloaded on the protocol's frames. Name suffix -force."""
+    ref = "plasticity" if case["material"]["kind"] == "j2" else "clean"
+    probe = np.genfromtxt(os.path.join(FIXTURES, ref, "truth", "probe.csv"), delimiter=",", names=True)
+    refcase = next(c for c in suite.cases() if c["name"] == ref)
+    frames, _ = protocol(refcase)
+    axial = -probe["fz"]  # a vertical shaft: the force on the object along it
+    peaks = [round(float(max(axial[k] for k, fr in enumerate(frames) if fr["loc"] == li)), 6)
+             for li in range(len(refcase["locations_mm"]))]
+    c = copy.deepcopy(case)
+    c["protocol"] = dict(c["protocol"], control="force", peak_force_n=peaks[:len(c["locations_mm"])])
+    c["name"] = f"{case['name']}-force"
+    c["description"] = (f"{case['description']} Force-controlled probe: per location the axial force ramped to "
+                        f"{', '.join(f'{v:.4g}' for v in c['protocol']['peak_force_n'])} N (the {ref} case's peaks "
+                        "at its depths), held, unloaded.")
+    return c
 
 
 def clean_cases(n):
@@ -312,7 +336,11 @@ def run(argv):
             i = rest.index("--seed")
             seed = int(rest[i + 1])
             rest = rest[:i] + rest[i + 2:]
+        force = "--force-control" in rest
+        rest = [r for r in rest if r != "--force-control"]
         chosen = lookalike_cases() + [c for c in map(creep_case, rest) if c is not None]
+        if force:  # names: slow-creep-g4-tau23s-force, plastic-force, ... (+ the protocol's suffix)
+            chosen = [force_controlled(c) for c in chosen]
         if seed is not None:
             for c in chosen:
                 c["seed"] = seed
@@ -322,7 +350,7 @@ def run(argv):
         for c in chosen:
             if locations:  # the first N locations: a FElupe solve of their own, no committed replay
                 c["locations_mm"], c["depths_mm"] = c["locations_mm"][:locations], c["depths_mm"][:locations]
-        suffix = "".join(f"-{n}" for n in names if n != "standard")
+        suffix = ("-force" if force else "") + "".join(f"-{n}" for n in names if n != "standard")
         only = [f"{c}{suffix}" for c in rest]
     elif part == "pairs":
         chosen = pair_cases()
