@@ -478,7 +478,12 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
 # HOLD_RELAXATION_FLOOR). Measured on slow-creep-g4-tau23s-force's first location: held forces
 # 1.6525–1.6528 N for the target 1.652618 N.
 FORCE_TOLERANCE = 1e-4
-FORCE_MAX_ITER = 12
+FORCE_MAX_ITER = 40
+# The bracket of the force iteration below which its depth is taken as found, mm (1 nm).
+DEPTH_TOLERANCE_MM = 1e-6
+# A bracket narrower than this (mm) gives no slope for the next frame's first step (across a
+# kink or jump its secant is no stiffness).
+SLOPE_MIN_BRACKET_MM = 1e-3
 
 
 def force_controlled(case, frames, model, punch, axis, fixed_support, surface_pts, markers_now, log):
@@ -531,11 +536,16 @@ def force_controlled(case, frames, model, punch, axis, fixed_support, surface_pt
 
 
 def force_step(model, punch, path, axis, fixed_support, target, guess, slope, tol):
-    """The depth at which the vertical punch's axial force is `target` (N): secant iterations
-    from `guess` (the first step's slope `slope`, N/mm), every trial solved from the frame's
-    starting active set (`Punch.step`; `Model.solve` starts from the last committed inelastic
-    state). Newton failing at a trial depth: the trial halves its step from the last converged
-    one. Returns (force on the object, depth, the last secant slope or None)."""
+    """The depth at which the vertical punch's axial force is `target` (N): a safeguarded secant
+    (regula falsi, Illinois variant, inside a bracket; a bisection when a step leaves it) from
+    `guess`, the bracket found by steps of the slope `slope` (N/mm). Every trial is solved from
+    the frame's starting active set (`Punch.step`; `Model.solve` starts from the last committed
+    inelastic state). F(depth) is continuous but has a kink wherever a top node enters the
+    contact: a plain secant (this function's first version) oscillated there without converging
+    (slow-creep-g4-tau23s-force, location 2: 1.4883 N at 1.92694 mm for 1.4350 N after 12
+    steps). The bracket shrinking below DEPTH_TOLERANCE_MM ends it too. Newton failing at a
+    trial depth: that trial is halved towards the nearest converged one. Returns (force on the
+    object, depth, the last secant slope or None)."""
     from .physics import NotConverged
 
     active0 = set(punch.active)
@@ -546,28 +556,50 @@ def force_step(model, punch, path, axis, fixed_support, target, guess, slope, to
         f = punch.step(path(d), axis, fixed_support)
         return f, float(f @ axis)
 
-    d, last = guess, None
+    lo = hi = None  # (depth, force - target), below and above the target
+    best = None
+    d, a = guess, None
+    side, grow = 0, 1.0
     for _ in range(FORCE_MAX_ITER):
         try:
             f, a = axial_at(d)
         except NotConverged:
-            model.field[0].values[:] = u0 if last is None else last[3]
-            d = 0.5 * (d + (last[0] if last is not None else max(guess - 0.1, 0.0)))
+            model.field[0].values[:] = u0
+            ref = lo if lo is not None else hi
+            d = 0.5 * (d + (ref[0] if ref is not None else max(guess - 0.1, 0.0)))
             continue
-        if abs(a - target) <= tol:
-            s = None
-            if last is not None and abs(d - last[0]) > 1e-9 and a > 0.0 and last[1] > 0.0:
-                s = (a - last[1]) / (d - last[0])
-            return f, d, s if s is not None and s > 0.0 else None
-        s = slope
-        if last is not None and abs(d - last[0]) > 1e-9 and a > 0.0 and last[1] > 0.0:
-            s = (a - last[1]) / (d - last[0])
-            if s <= 0.0:
-                s = slope
-        slope = s
-        last = (d, a, f, model.u.copy())
-        d = d + (target - a) / s
-    raise NotConverged(f"force control: {a:.6f} N at depth {d:.5f} mm, target {target:.6f} N")
+        r = a - target
+        if best is None or abs(r) < abs(best[1]):
+            best = (d, r)
+        if abs(r) <= tol:
+            break
+        if r < 0.0:
+            lo = (d, r)
+            if side == -1 and hi is not None:
+                hi = (hi[0], hi[1] / 2)  # Illinois: halve the stale end
+            side = -1
+        else:
+            hi = (d, r)
+            if side == 1 and lo is not None:
+                lo = (lo[0], lo[1] / 2)
+            side = 1
+        if lo is None or hi is None:
+            d = d - grow * r / slope  # still looking for the bracket: steps doubling
+            grow *= 2.0
+            continue
+        if hi[0] - lo[0] <= DEPTH_TOLERANCE_MM:
+            break
+        d = lo[0] - lo[1] * (hi[0] - lo[0]) / (hi[1] - lo[1])
+        if not lo[0] < d < hi[0]:
+            d = 0.5 * (lo[0] + hi[0])
+    else:
+        raise NotConverged(f"force control: {a} N at depth {d:.5f} mm, target {target:.6f} N")
+    if best[0] != d:  # the closest trial was not the last one: solve it again as the state
+        f, a = axial_at(best[0])
+    s = None
+    if lo is not None and hi is not None and hi[0] - lo[0] > SLOPE_MIN_BRACKET_MM:
+        s = (hi[1] - lo[1]) / (hi[0] - lo[0])
+    return f, best[0], s if s is not None and s > 0.0 else None
 
 
 def resting_depth(model, surface, radius):
