@@ -92,13 +92,16 @@ fn take_string(args: &mut Vec<String>, name: &str) -> Option<String> {
 /// external-truth folder of `softcap_synth::dynamic::external`: the given mesh is the structured
 /// box of `clamped_box`, whose node numbering the reader shares) and `DIR/motion-k.toml`, a
 /// dynamic scenario rendering it on the default depth rig with depth-noise seed `seed + 1000 k`;
-/// `DIR/motions.txt` lists the scenarios.
+/// `DIR/motions.txt` lists the scenarios, `DIR/young-pa.txt` the truth's E at each of the case's
+/// control points (one line each: `bar8` has eight, blended linearly along the bar; the truth's
+/// `young_pa` is then the mean over the tets, a label only: the depth rig renders the positions).
 fn write_sessions_for(
     dir: &std::path::Path,
     case: &str,
     size: [f64; 3],
     cells: [usize; 3],
     specs: &[SyntheticSpec],
+    e_cp: &[f64],
     settle_s: f64,
     seed: u64,
 ) {
@@ -111,7 +114,7 @@ fn write_sessions_for(
             "--write-sessions: linear tets on the given mesh only"
         );
         let s = softcap_tissue::fit_dynamic::synthetic::synthesize(spec).unwrap();
-        let young = spec.young_pa[0];
+        let young = spec.young_pa.iter().sum::<f64>() / spec.young_pa.len() as f64;
         let truth_dir = dir.join(format!("truth-{k}"));
         std::fs::create_dir_all(&truth_dir).unwrap();
         let g = spec.gravity_m_s2;
@@ -199,6 +202,8 @@ fn write_sessions_for(
         let _ = writeln!(list, "motion-{k}");
     }
     std::fs::write(dir.join("motions.txt"), list).unwrap();
+    let young: String = e_cp.iter().map(|e| format!("{e:?}\n")).collect();
+    std::fs::write(dir.join("young-pa.txt"), young).unwrap();
     println!(
         "wrote {} motions of {case} to {}",
         specs.len(),
@@ -662,6 +667,7 @@ fn main() {
                 size,
                 cells,
                 &specs_for(0.0),
+                &e_cp,
                 1e-3 * settle_ms as f64,
                 seed,
             );
