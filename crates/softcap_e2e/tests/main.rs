@@ -13,6 +13,8 @@ mod capture_reads_synth;
 mod common;
 #[path = "export_markers.rs"]
 mod export_markers;
+#[path = "fit_dynamic_depth.rs"]
+mod fit_dynamic_depth;
 #[path = "fuzz_regressions.rs"]
 mod fuzz_regressions;
 #[path = "track_accuracy.rs"]

@@ -61,7 +61,9 @@ use softcap_tissue::Progress;
 use softcap_tissue::fit_dynamic::run::{
     MOTION_GAP_S, drop_lost_frames, sequence_from_track, tracked_mesh,
 };
-use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, synthesize_motions};
+use softcap_tissue::fit_dynamic::synthetic::{
+    SyntheticSpec, clamped_box, synthesize_motions, write_depth_sessions,
+};
 use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, Segment, TrackedSequence, control_points, fit_sequence,
 };
@@ -86,129 +88,6 @@ fn take_string(args: &mut Vec<String>, name: &str) -> Option<String> {
         .unwrap_or_else(|| panic!("{name} takes a value"));
     args.drain(k..=k + 1);
     Some(value)
-}
-
-/// Writes, for motion k of `specs` (noise-free), `DIR/truth-k/{truth.toml, positions.csv}` (the
-/// external-truth folder of `softcap_synth::dynamic::external`: the given mesh is the structured
-/// box of `clamped_box`, whose node numbering the reader shares) and `DIR/motion-k.toml`, a
-/// dynamic scenario rendering it on the default depth rig with depth-noise seed `seed + 1000 k`;
-/// `DIR/motions.txt` lists the scenarios, `DIR/young-pa.txt` the truth's E at each of the case's
-/// control points (one line each: `bar8` has eight, blended linearly along the bar; the truth's
-/// `young_pa` is then the mean over the tets, a label only: the depth rig renders the positions).
-fn write_sessions_for(
-    dir: &std::path::Path,
-    case: &str,
-    size: [f64; 3],
-    cells: [usize; 3],
-    specs: &[SyntheticSpec],
-    e_cp: &[f64],
-    settle_s: f64,
-    seed: u64,
-) {
-    use std::fmt::Write as _;
-    std::fs::create_dir_all(dir).unwrap();
-    let mut list = String::new();
-    for (k, spec) in specs.iter().enumerate() {
-        assert!(
-            spec.refine == 0 && spec.elements == Elements::Linear,
-            "--write-sessions: linear tets on the given mesh only"
-        );
-        let s = softcap_tissue::fit_dynamic::synthetic::synthesize(spec).unwrap();
-        let young = spec.young_pa.iter().sum::<f64>() / spec.young_pa.len() as f64;
-        let truth_dir = dir.join(format!("truth-{k}"));
-        std::fs::create_dir_all(&truth_dir).unwrap();
-        let g = spec.gravity_m_s2;
-        let push: Vec<String> = spec.push_nodes.iter().map(|i| i.to_string()).collect();
-        let toml = format!(
-            "# written by `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`; motion {k}\n\
-             solver = \"softcap corotational linear tets on the given mesh, lumped mass, Newmark average acceleration, {} steps per frame (softcap_tissue::fit_dynamic::synthetic)\"\n\
-             cells = [{}, {}, {}]\nmin_mm = [0.0, {:?}, {:?}]\nmax_mm = [{:?}, {:?}, {:?}]\n\
-             young_pa = {young:?}\npoisson = {:?}\ndensity_kg_m3 = {:?}\n\
-             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\ngravity_m_s2 = [{:?}, {:?}, {:?}]\n\
-             clamped_at_x_min = true\ninteractions = [[0.0, {:.6}]]\n\
-             motion = \"{case} motion {k}: sagging under gravity at frame 0, nodes [{}] pushed with ({:.4}, {:.4}, {:.4}) N for {} s (interaction extended by {} s), released, {} frames at {} Hz\"\n",
-            spec.substeps,
-            cells[0],
-            cells[1],
-            cells[2],
-            -500.0 * size[1],
-            -500.0 * size[2],
-            1e3 * size[0],
-            500.0 * size[1],
-            500.0 * size[2],
-            spec.poisson,
-            spec.density_kg_m3,
-            spec.damping.alpha_per_s,
-            spec.damping.beta_s,
-            g.x,
-            g.y,
-            g.z,
-            spec.push_s + settle_s,
-            push.join(", "),
-            spec.push_force_n.x,
-            spec.push_force_n.y,
-            spec.push_force_n.z,
-            spec.push_s,
-            settle_s,
-            spec.frames,
-            spec.frame_rate_hz
-        );
-        std::fs::write(truth_dir.join("truth.toml"), toml).unwrap();
-        let mut csv = String::from("frame,t_s,node,x,y,z\n");
-        for (f, (t, x)) in s
-            .sequence
-            .times_s
-            .iter()
-            .zip(&s.sequence.positions_m)
-            .enumerate()
-        {
-            for (i, p) in x.iter().enumerate() {
-                let _ = writeln!(
-                    csv,
-                    "{f},{t:.6},{i},{:.6},{:.6},{:.6}",
-                    1e3 * p.x,
-                    1e3 * p.y,
-                    1e3 * p.z
-                );
-            }
-        }
-        std::fs::write(truth_dir.join("positions.csv"), csv).unwrap();
-        let scenario = format!(
-            "# `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`: motion {k} of the\n\
-             # Table 1 truth (truth-{k}/) on the default depth rig (two Kinect-like cameras).\n\
-             name = \"table1-{case}-{k}\"\nkind = \"dynamic\"\nseed = {}\n\n\
-             [object]\nsize_mm = [{:?}, {:?}, {:?}]\nfit_cells = [{}, {}, {}]\ntruth_cells = [{}, {}, {}]\ndensity_kg_m3 = {:?}\n\n\
-             [material]\nyoung_pa = {young:?}\npoisson = {:?}\n\n\
-             [dynamic]\nmotion = \"release\"\nframes = {}\nframe_rate_hz = {:?}\n\
-             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\nexternal_truth = \"truth-{k}\"\n",
-            seed + 1000 * k as u64,
-            1e3 * size[0],
-            1e3 * size[1],
-            1e3 * size[2],
-            cells[0],
-            cells[1],
-            cells[2],
-            cells[0],
-            cells[1],
-            cells[2],
-            spec.density_kg_m3,
-            spec.poisson,
-            spec.frames,
-            spec.frame_rate_hz,
-            spec.damping.alpha_per_s,
-            spec.damping.beta_s
-        );
-        std::fs::write(dir.join(format!("motion-{k}.toml")), scenario).unwrap();
-        let _ = writeln!(list, "motion-{k}");
-    }
-    std::fs::write(dir.join("motions.txt"), list).unwrap();
-    let young: String = e_cp.iter().map(|e| format!("{e:?}\n")).collect();
-    std::fs::write(dir.join("young-pa.txt"), young).unwrap();
-    println!(
-        "wrote {} motions of {case} to {}",
-        specs.len(),
-        dir.display()
-    );
 }
 
 /// The tracks `DIR/motion-K-track.mcap` (K < `motions`) on `template`'s tets, joined as
@@ -661,16 +540,19 @@ fn main() {
             // The motions as dynamic sessions for the depth rig: the noise-free truth of each,
             // written as an external truth (`softcap_synth::dynamic::external`), and a scenario
             // rendering it with depth-noise seed `--seed` + 1000 k.
-            write_sessions_for(
+            let specs = specs_for(0.0);
+            write_depth_sessions(
                 std::path::Path::new(dir),
                 case,
                 size,
                 cells,
-                &specs_for(0.0),
+                &specs,
                 &e_cp,
                 1e-3 * settle_ms as f64,
                 seed,
-            );
+            )
+            .unwrap();
+            println!("wrote {} motions of {case} to {dir}", specs.len());
             continue;
         }
         let mut truth = make(noise);

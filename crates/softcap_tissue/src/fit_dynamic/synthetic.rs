@@ -442,3 +442,125 @@ pub fn write_track_mcap(
     w.finish().map_err(err)?;
     Ok(())
 }
+
+/// The Table 1 protocol through files (`examples/fit_dynamic_table1.rs --write-sessions`,
+/// `scripts/fit-dynamic-table1-track`): writes, for motion k of `specs` (noise-free), `DIR/truth-k/{truth.toml, positions.csv}` (the
+/// external-truth folder of `softcap_synth::dynamic::external`: the given mesh is the structured
+/// box of `clamped_box`, whose node numbering the reader shares) and `DIR/motion-k.toml`, a
+/// dynamic scenario rendering it on the default depth rig with depth-noise seed `seed + 1000 k`;
+/// `DIR/motions.txt` lists the scenarios, `DIR/young-pa.txt` the truth's E at each of the case's
+/// control points (one line each: `bar8` has eight, blended linearly along the bar; the truth's
+/// `young_pa` is then the mean over the tets, a label only: the depth rig renders the positions).
+#[allow(clippy::too_many_arguments)]
+pub fn write_depth_sessions(
+    dir: &std::path::Path,
+    case: &str,
+    size: [f64; 3],
+    cells: [usize; 3],
+    specs: &[SyntheticSpec],
+    e_cp: &[f64],
+    settle_s: f64,
+    seed: u64,
+) -> std::io::Result<()> {
+    use std::fmt::Write as _;
+    std::fs::create_dir_all(dir)?;
+    let mut list = String::new();
+    for (k, spec) in specs.iter().enumerate() {
+        if spec.refine != 0 || spec.elements != super::Elements::Linear {
+            return Err(std::io::Error::other(
+                "write_depth_sessions: linear tets on the given mesh only",
+            ));
+        }
+        let s = synthesize(spec).map_err(std::io::Error::other)?;
+        let young = spec.young_pa.iter().sum::<f64>() / spec.young_pa.len() as f64;
+        let truth_dir = dir.join(format!("truth-{k}"));
+        std::fs::create_dir_all(&truth_dir)?;
+        let g = spec.gravity_m_s2;
+        let push: Vec<String> = spec.push_nodes.iter().map(|i| i.to_string()).collect();
+        let toml = format!(
+            "# written by `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`; motion {k}\n\
+             solver = \"softcap corotational linear tets on the given mesh, lumped mass, Newmark average acceleration, {} steps per frame (softcap_tissue::fit_dynamic::synthetic)\"\n\
+             cells = [{}, {}, {}]\nmin_mm = [0.0, {:?}, {:?}]\nmax_mm = [{:?}, {:?}, {:?}]\n\
+             young_pa = {young:?}\npoisson = {:?}\ndensity_kg_m3 = {:?}\n\
+             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\ngravity_m_s2 = [{:?}, {:?}, {:?}]\n\
+             clamped_at_x_min = true\ninteractions = [[0.0, {:.6}]]\n\
+             motion = \"{case} motion {k}: sagging under gravity at frame 0, nodes [{}] pushed with ({:.4}, {:.4}, {:.4}) N for {} s (interaction extended by {} s), released, {} frames at {} Hz\"\n",
+            spec.substeps,
+            cells[0],
+            cells[1],
+            cells[2],
+            -500.0 * size[1],
+            -500.0 * size[2],
+            1e3 * size[0],
+            500.0 * size[1],
+            500.0 * size[2],
+            spec.poisson,
+            spec.density_kg_m3,
+            spec.damping.alpha_per_s,
+            spec.damping.beta_s,
+            g.x,
+            g.y,
+            g.z,
+            spec.push_s + settle_s,
+            push.join(", "),
+            spec.push_force_n.x,
+            spec.push_force_n.y,
+            spec.push_force_n.z,
+            spec.push_s,
+            settle_s,
+            spec.frames,
+            spec.frame_rate_hz
+        );
+        std::fs::write(truth_dir.join("truth.toml"), toml)?;
+        let mut csv = String::from("frame,t_s,node,x,y,z\n");
+        for (f, (t, x)) in s
+            .sequence
+            .times_s
+            .iter()
+            .zip(&s.sequence.positions_m)
+            .enumerate()
+        {
+            for (i, p) in x.iter().enumerate() {
+                let _ = writeln!(
+                    csv,
+                    "{f},{t:.6},{i},{:.6},{:.6},{:.6}",
+                    1e3 * p.x,
+                    1e3 * p.y,
+                    1e3 * p.z
+                );
+            }
+        }
+        std::fs::write(truth_dir.join("positions.csv"), csv)?;
+        let scenario = format!(
+            "# `cargo run --example fit_dynamic_table1 -- {case} --write-sessions`: motion {k} of the\n\
+             # Table 1 truth (truth-{k}/) on the default depth rig (two Kinect-like cameras).\n\
+             name = \"table1-{case}-{k}\"\nkind = \"dynamic\"\nseed = {}\n\n\
+             [object]\nsize_mm = [{:?}, {:?}, {:?}]\nfit_cells = [{}, {}, {}]\ntruth_cells = [{}, {}, {}]\ndensity_kg_m3 = {:?}\n\n\
+             [material]\nyoung_pa = {young:?}\npoisson = {:?}\n\n\
+             [dynamic]\nmotion = \"release\"\nframes = {}\nframe_rate_hz = {:?}\n\
+             rayleigh_alpha_per_s = {:?}\nrayleigh_beta_s = {:?}\nexternal_truth = \"truth-{k}\"\n",
+            seed + 1000 * k as u64,
+            1e3 * size[0],
+            1e3 * size[1],
+            1e3 * size[2],
+            cells[0],
+            cells[1],
+            cells[2],
+            cells[0],
+            cells[1],
+            cells[2],
+            spec.density_kg_m3,
+            spec.poisson,
+            spec.frames,
+            spec.frame_rate_hz,
+            spec.damping.alpha_per_s,
+            spec.damping.beta_s
+        );
+        std::fs::write(dir.join(format!("motion-{k}.toml")), scenario)?;
+        let _ = writeln!(list, "motion-{k}");
+    }
+    std::fs::write(dir.join("motions.txt"), list)?;
+    let young: String = e_cp.iter().map(|e| format!("{e:?}\n")).collect();
+    std::fs::write(dir.join("young-pa.txt"), young)?;
+    Ok(())
+}

@@ -1,0 +1,193 @@
+//! wang2015 Table 1 from depth (issue 36): the bar with 8 control points (E linear from 8.0 to
+//! 3.5·10⁵ Pa along it, ν 0.45, ρ 1100 kg/m³, α 0.8 1/s, β 1 ms), filmed in the Table 1 protocol's
+//! seven motions (three off-axis bending pushes at 30 Hz, four 3 N twists at 120 Hz, each push's
+//! interaction extended by 50 ms; `examples/fit_dynamic_table1.rs bar8ab --bends 3 --twists 4
+//! --twist-mn 3000 --settle-ms 50`), each rendered by the virtual depth rig (two Kinect-like
+//! cameras, depth-noise seed `seed + 1000 k`), captured, tracked with the default material
+//! (wang2015 §5) and fitted jointly (§6: segments of 60 frames, the first two modes' share of
+//! every start fitted); then tracked again with that fit (`track --material`, wang2015's tracking ↔
+//! estimation: the default E 100 kPa loses the fast bends) and fitted again. The chain of
+//! `scripts/fit-dynamic-table1-track` (`CASE=bar8ab`), run in-process; docs/dynamic-fit.md has
+//! its rows.
+
+use std::path::{Path, PathBuf};
+
+use softcap_capture::{CaptureSettings, Session, capture_dynamic, write_dynamic_capture_mcap};
+use softcap_mesh::nalgebra::Vector3;
+use softcap_synth::{Scenario, synthesize};
+use softcap_tissue::Progress;
+use softcap_tissue::fit_dynamic::run::{FitDynamicConfig, run as fit_run};
+use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, write_depth_sessions};
+use softcap_tissue::fit_dynamic::{
+    Blending, DynamicFit, FitDynamicSettings, control_points as make_control_points,
+};
+use softcap_tissue::track::{TrackConfig, TrackSettings, run as track_run};
+
+/// The truth's E at the 8 control points (`fit_dynamic_table1 bar8`), Pa.
+const E_CP: [f64; 8] = [8.0e5, 7.0e5, 6.0e5, 5.5e5, 5.0e5, 4.5e5, 4.0e5, 3.5e5];
+
+/// The seven motions' noise-free truth of `bar8ab` on noise seed `seed`, as
+/// `fit_dynamic_table1 bar8ab --bends 3 --twists 4 --twist-mn 3000 --settle-ms 50 --seed N`
+/// builds them, written for the depth rig in `dir`; returns the motions' scenario files.
+fn write_sessions(dir: &Path, seed: u64) -> Vec<PathBuf> {
+    let size = [0.2, 0.03, 0.02];
+    let cells = [12, 2, 2];
+    let (mesh, support, top_edge) = clamped_box(size, cells);
+    let cp = make_control_points(&mesh, &support, E_CP.len(), Blending::Linear).unwrap();
+    let off_axis: Vec<usize> = top_edge
+        .iter()
+        .copied()
+        .filter(|&i| mesh.vertices[i].y >= 0.0)
+        .collect();
+    let bend = SyntheticSpec {
+        rest_mesh: mesh.clone(),
+        support_nodes: support,
+        young_pa: cp.blend(&E_CP),
+        push_nodes: off_axis,
+        push_force_n: Vector3::new(0.0, 0.5, -0.4),
+        frames: 60,
+        noise_m: 0.0,
+        seed,
+        ..SyntheticSpec::small_clamped_bar()
+    };
+    let mut specs: Vec<SyntheticSpec> = (0..3u64)
+        .map(|k| SyntheticSpec {
+            seed: if k == 0 { seed } else { seed + 500 + k },
+            ..bend.clone()
+        })
+        .collect();
+    specs.extend((0..4u64).map(|t| SyntheticSpec {
+        push_nodes: top_edge.clone(),
+        push_force_n: Vector3::new(0.0, 3.0, 0.0),
+        push_s: 0.05,
+        frame_rate_hz: 120.0,
+        seed: seed + 1 + t,
+        ..bend.clone()
+    }));
+    write_depth_sessions(dir, "bar8ab", size, cells, &specs, &E_CP, 0.05, seed).unwrap();
+    (0..specs.len())
+        .map(|k| dir.join(format!("motion-{k}.toml")))
+        .collect()
+}
+
+/// `softcap synth` → `softcap capture` of one scenario; returns the session folder and the
+/// capture.mcap.
+fn render_and_capture(scenario: &Path) -> (PathBuf, PathBuf) {
+    let s = Scenario::load(scenario).unwrap();
+    let session_dir = scenario.with_extension("");
+    synthesize(&s, &session_dir).unwrap();
+    let session = Session::load(&session_dir).unwrap();
+    let settings = CaptureSettings::default();
+    let clouds = capture_dynamic(&session, &settings.depth).unwrap();
+    let capture = session_dir.with_extension("capture.mcap");
+    write_dynamic_capture_mcap(&capture, &session, &clouds, &settings, &["test".into()]).unwrap();
+    (session_dir, capture)
+}
+
+/// `softcap tissue track` of every capture (with `material` if given), then `tissue fit-dynamic`
+/// of all tracks jointly with 8 control points, segments of 60 frames, 2 start modes.
+fn track_and_fit(
+    dir: &Path,
+    sessions: &[(PathBuf, PathBuf)],
+    material: Option<&Path>,
+) -> (DynamicFit, PathBuf) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mesh = sessions[0].0.join("template/volume.msh");
+    let tracks: Vec<PathBuf> = sessions
+        .iter()
+        .enumerate()
+        .map(|(k, (session, capture))| {
+            let output = dir.join(format!("motion-{k}-track.mcap"));
+            track_run(&TrackConfig {
+                capture: capture.clone(),
+                mesh: session.join("template/volume.msh"),
+                material: material.map(Path::to_path_buf),
+                attach: None,
+                output: output.clone(),
+                settings: TrackSettings {
+                    progress: false,
+                    ..Default::default()
+                },
+                arguments: vec!["test".into()],
+            })
+            .unwrap();
+            output
+        })
+        .collect();
+    let output = dir.join("dynamic.mcap");
+    let fit = fit_run(
+        &FitDynamicConfig {
+            track: tracks[0].clone(),
+            more_tracks: tracks[1..].to_vec(),
+            mesh,
+            output: output.clone(),
+            report: None,
+            json: None,
+            settings: FitDynamicSettings {
+                control_points: E_CP.len(),
+                segment_frames: 60,
+                start_state_modes: 2,
+                progress: false,
+                ..Default::default()
+            },
+            arguments: vec!["test".into()],
+        },
+        &Progress::hidden(),
+    )
+    .unwrap();
+    (fit, output)
+}
+
+/// Per control point: (error, sandwich 1-σ per segment), both relative; then α's and β's errors.
+fn errors(fit: &DynamicFit) -> (Vec<(f64, f64)>, f64, f64) {
+    let e = fit
+        .young_pa
+        .iter()
+        .zip(E_CP)
+        .zip(&fit.segment_robust_sigma)
+        .map(|((f, t), s)| (f / t - 1.0, *s))
+        .collect();
+    (
+        e,
+        fit.damping.alpha_per_s / 0.8 - 1.0,
+        fit.damping.beta_s / 1.0e-3 - 1.0,
+    )
+}
+
+/// Pass 1 (tracked with pass 0's fit) of `bar8ab` from depth on one seed meets Table 1's
+/// tolerances (issue 36): E within 5 % at every control point the motions observe (2 × its
+/// sandwich 1-σ per segment ≤ 5 %, the rule of docs/dynamic-fit.md's `bar8` table; at least one),
+/// α within 5 %, β within 20 %.
+#[test]
+#[ignore = "≈ 300–500 CPU-s: seven motions rendered, captured, tracked and fitted with 8 control points twice"]
+fn bar8_from_depth_meets_table1() {
+    let seed = 11;
+    let tmp = tempfile::tempdir().unwrap();
+    let scenarios = write_sessions(tmp.path(), seed);
+    let sessions: Vec<(PathBuf, PathBuf)> =
+        scenarios.iter().map(|s| render_and_capture(s)).collect();
+    let (fit0, material) = track_and_fit(&tmp.path().join("pass0"), &sessions, None);
+    let (fit1, _) = track_and_fit(&tmp.path().join("pass1"), &sessions, Some(&material));
+    for (pass, fit) in [(0, &fit0), (1, &fit1)] {
+        let (e, a, b) = errors(fit);
+        eprintln!(
+            "bar8ab seed {seed} pass {pass}: E {}, alpha {:+.1} %, beta {:+.1} %, trajectory RMS {:.3} mm, status {}",
+            e.iter()
+                .map(|(e, s)| format!("{:+.1} ({:.1})", 100.0 * e, 100.0 * s))
+                .collect::<Vec<_>>()
+                .join(", "),
+            100.0 * a,
+            100.0 * b,
+            1e3 * fit.rms_m,
+            fit.status
+        );
+    }
+    let (e, a, b) = errors(&fit1);
+    let observable: Vec<usize> = (0..e.len()).filter(|&c| 2.0 * e[c].1 <= 0.05).collect();
+    assert!(!observable.is_empty(), "no control point observable: {e:?}");
+    for &c in &observable {
+        assert!(e[c].0.abs() <= 0.05, "E{c}: {:+.1} %", 100.0 * e[c].0);
+    }
+    assert!(a.abs() <= 0.05, "alpha {:+.1} %", 100.0 * a);
+    assert!(b.abs() <= 0.20, "beta {:+.1} %", 100.0 * b);
+}
