@@ -157,7 +157,10 @@ fn errors(fit: &DynamicFit) -> (Vec<(f64, f64)>, f64, f64) {
 /// Pass 1 (tracked with pass 0's fit) of `bar8ab` from depth on one seed meets Table 1's
 /// tolerances (issue 36): E within 5 % at every control point the motions observe (2 × its
 /// sandwich 1-σ per segment ≤ 5 %, the rule of docs/dynamic-fit.md's `bar8` table; at least one),
-/// α within 5 %, β within 20 %.
+/// α within 5 %, β within 20 %. Measured (scripts/fit-dynamic-table1-track, seed 11): pass 1 α −0.1 %, β +0.5 %,
+/// but E₀ … E₆ −18.9, +20.6, −7.8, −5.4, −0.6, +15.1, +46.9 % with sandwich 1-σ 0.6–2.8 %: the
+/// neighbours' trade-off the 1-σ do not show, so this test fails on E until the motions
+/// separate the control points (docs/dynamic-fit.md, `bar8`).
 #[test]
 #[ignore = "≈ 300–500 CPU-s: seven motions rendered, captured, tracked and fitted with 8 control points twice"]
 fn bar8_from_depth_meets_table1() {
