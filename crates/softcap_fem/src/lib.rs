@@ -60,6 +60,7 @@ pub mod neohookean;
 pub mod nodal;
 pub mod plasticity;
 pub mod quadratic;
+pub mod quadratic_plasticity;
 pub mod statics;
 pub mod support;
 pub mod viscoelastic;
@@ -116,7 +117,10 @@ pub use dynamics::{
     Integrator, RayleighDamping, SensitivitySettings, StepLoads,
 };
 pub use modal::{LanczosModes, LanczosReport, ModalSettings, Modes, dense_modes, lanczos_modes};
-pub use quadratic::{QuadraticModel, QuadraticSolver, QuadraticTetMesh, quadratic_tets};
+pub use quadratic::{
+    QuadraticModel, QuadraticSolver, QuadraticTetMesh, quadratic_tets, shape_functions,
+};
+pub use quadratic_plasticity::{QuadraticElastoplasticModel, QuadraticRigidTipSolver};
 
 pub use faer;
 pub use nalgebra;

@@ -76,8 +76,21 @@ pub fn quadratic_tets(mesh: &TetMesh) -> QuadraticTetMesh {
     }
 }
 
+/// The ten shape functions N_a at barycentric coordinates `l` (corners L_i (2L_i − 1), edges
+/// 4 L_i L_j in the order of [`EDGES`]): a field on the quadratic nodes evaluated inside an element.
+pub fn shape_functions(l: [f64; 4]) -> [f64; 10] {
+    let mut n = [0.0; 10];
+    for i in 0..4 {
+        n[i] = l[i] * (2.0 * l[i] - 1.0);
+    }
+    for (k, [i, j]) in EDGES.iter().enumerate() {
+        n[4 + k] = 4.0 * l[*i] * l[*j];
+    }
+    n
+}
+
 /// ∂N_a/∂L_k of the ten shape functions at barycentric coordinates `l`.
-fn shape_derivatives(l: [f64; 4]) -> [[f64; 4]; 10] {
+pub(crate) fn shape_derivatives(l: [f64; 4]) -> [[f64; 4]; 10] {
     let mut d = [[0.0; 4]; 10];
     for i in 0..4 {
         d[i][i] = 4.0 * l[i] - 1.0;
@@ -91,7 +104,7 @@ fn shape_derivatives(l: [f64; 4]) -> [[f64; 4]; 10] {
 
 /// Gradients ∇_X N_a at barycentric `l` of the element with nodes `x`, and det J (6 × the
 /// volume of a straight-sided element).
-fn gradients(x: &[Vector3<f64>; 10], l: [f64; 4]) -> Option<([Vector3<f64>; 10], f64)> {
+pub(crate) fn gradients(x: &[Vector3<f64>; 10], l: [f64; 4]) -> Option<([Vector3<f64>; 10], f64)> {
     // ξ = (L1, L2, L3), L0 = 1 − ξ₁ − ξ₂ − ξ₃: ∂N/∂ξ_j = ∂N/∂L_j − ∂N/∂L_0.
     let d = shape_derivatives(l);
     let dxi: [Vector3<f64>; 10] = std::array::from_fn(|a| {
@@ -108,7 +121,7 @@ fn gradients(x: &[Vector3<f64>; 10], l: [f64; 4]) -> Option<([Vector3<f64>; 10],
 
 /// The 4-point rule of degree 2 on the tet: barycentric points, weight 1/24 each (of the
 /// reference volume 1/6).
-fn quadrature() -> [[f64; 4]; 4] {
+pub(crate) fn quadrature() -> [[f64; 4]; 4] {
     let (a, b) = (0.585_410_196_624_968_5, 0.138_196_601_125_010_5);
     [[a, b, b, b], [b, a, b, b], [b, b, a, b], [b, b, b, a]]
 }
