@@ -368,6 +368,7 @@ fn quad_replay(
         if !unchanged {
             let (start_x, start_model) = (x.clone(), model.clone());
             let mut done = false;
+            let mut last = String::new();
             'attempts: for substeps in [1usize, 4, 16] {
                 x.clone_from(&start_x);
                 model = start_model.clone();
@@ -388,6 +389,12 @@ fn quad_replay(
                     solves += 1;
                     iterations += rep.iterations;
                     if !rep.converged {
+                        last = format!(
+                            "{substeps} sub-steps: {} iterations, residual {:.3e} N, {} springs",
+                            rep.iterations,
+                            rep.residual_norm_n,
+                            rep.contact.patch_nodes.len()
+                        );
                         continue 'attempts;
                     }
                     model.commit(&x);
@@ -396,7 +403,9 @@ fn quad_replay(
                 break;
             }
             if !done {
-                return Err(format!("quadratic replay: frame {k} did not converge").into());
+                return Err(
+                    format!("quadratic replay: frame {k} did not converge ({last})").into(),
+                );
             }
         }
         previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);

@@ -380,15 +380,17 @@ impl QuadraticRigidTipSolver {
             if !rn.is_finite() {
                 return report;
             }
+            for s in &springs {
+                self.pattern
+                    .add_node_block(s.node, &s.matrix(), &mut values);
+            }
+            // the matrix with its springs, as `StaticSolver::solve` tests: a residual below what
+            // a displacement of tol_x causes against the penalty-stiffened diagonal
             let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
             if it > 0 && res_ok && last_update <= tol_x {
                 report.converged = true;
                 return report;
-            }
-            for s in &springs {
-                self.pattern
-                    .add_node_block(s.node, &s.matrix(), &mut values);
             }
             if self.cholesky.factor(&self.pattern, &values).is_err() {
                 return report;
