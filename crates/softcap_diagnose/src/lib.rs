@@ -109,6 +109,7 @@ pub use signatures::{Signatures, signatures};
 pub use sim::{
     Extension, FemProbeSimulator, FemSimSettings, LoadPoint, ProbeLoad, ProbeSimulator,
     SequenceFrame, SimLoad, SimOutput, transverse_from_isotropic, transverse_with_poisson,
+    with_lame_ratio,
 };
 
 pub use nalgebra;

@@ -75,6 +75,7 @@ fn stiffness_proportional_damping_without_mass_is_a_first_order_lag() {
                 density_kg_m3: 1e-3,
                 alpha_per_s: 0.0,
                 beta_s: tau,
+                lame_ratio_factor: 1.0,
             },
             &seq,
         )
@@ -103,6 +104,7 @@ fn slow_probing_is_quasi_static() {
                 density_kg_m3: 1000.0,
                 alpha_per_s: 20.0,
                 beta_s: 1e-3,
+                lame_ratio_factor: 1.0,
             },
             &seq,
         )
@@ -128,6 +130,7 @@ fn a_fast_release_rebounds_past_the_rest_shape() {
                 density_kg_m3: 1000.0,
                 alpha_per_s: 0.0,
                 beta_s: 0.0,
+                lame_ratio_factor: 1.0,
             },
             &seq,
         )
@@ -185,6 +188,7 @@ fn slow_rigid_tip_probing_is_the_quasi_static_rigid_replay() {
                 density_kg_m3: 1000.0,
                 alpha_per_s: 20.0,
                 beta_s: 1e-3,
+                lame_ratio_factor: 1.0,
             },
             &seq,
         )
@@ -220,6 +224,7 @@ fn a_rigid_tip_lifted_at_once_leaves_the_surface_ringing() {
                 density_kg_m3: 1000.0,
                 alpha_per_s: 0.0,
                 beta_s: 0.0,
+                lame_ratio_factor: 1.0,
             },
             &seq,
         )

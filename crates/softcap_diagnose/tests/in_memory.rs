@@ -249,6 +249,7 @@ fn session_planned(
             density_kg_m3: 1e-3,
             alpha_per_s: 0.0,
             beta_s,
+            lame_ratio_factor: 1.0,
         }),
         _ => None,
     });

@@ -47,8 +47,8 @@
 //! - `FLOOR_EXT=ti:FX,FY,FZ,RATIO,NU_T,NU_A` simulates the transversely isotropic extension
 //!   (`Extension::TransverselyIsotropic` over the model's E) instead of the elastic default — the
 //!   anisotropy oracle with the truth's fibre and ratio (instead of `FLOOR_PRONY`);
-//! - `FLOOR_EXT=dyn:RHO,ALPHA,BETA` the dynamic replay (`Extension::Dynamic`: density kg/m³,
-//!   Rayleigh α 1/s, β s) instead — the inertia-damping oracle with the truth's values;
+//! - `FLOOR_EXT=dyn:RHO,ALPHA,BETA[,LAME]` the dynamic replay (`Extension::Dynamic`: density
+//!   kg/m³, Rayleigh α 1/s, β s, Lamé ratio factor, default 1) instead — the inertia-damping oracle with the truth's values;
 //! - `FLOOR_LAT=C,DX,DY,DZ` adds a lateral traction C‖f‖ along (DX, DY, DZ) to every measured
 //!   force (force BC only: the reaction an axial force sensor does not see);
 //! - `FLOOR_TRUTH_TIP=DIR/truth/probe.csv` replays the rigid tip at the synthetic truth's tip
@@ -362,6 +362,7 @@ fn main() {
                 density_kg_m3: v[0],
                 alpha_per_s: v[1],
                 beta_s: v[2],
+                lame_ratio_factor: v.get(3).copied().unwrap_or(1.0),
             }
         }
         Some(v) => {

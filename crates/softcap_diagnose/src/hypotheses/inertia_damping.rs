@@ -418,6 +418,21 @@ pub fn ringing(z: &[Vec<f64>], h_s: f64) -> Option<Ringing> {
 /// log₂ bounds of (ρ [kg/m³], α [1/s], β [s]).
 const LOG2_BOUNDS: [(f64, f64); 3] = [(5.0, 17.0), (-4.0, 9.0), (-17.0, -4.0)];
 
+/// log₂ bounds of the Lamé ratio factor ([`crate::sim::with_lame_ratio`]): a factor 8 either
+/// way takes ν 0.42 to 0.20 or 0.49.
+const LOG2_LAME_BOUNDS: (f64, f64) = (-3.0, 3.0);
+
+/// The coordinate a phase of the Rayleigh-line search steps along ([`fit_dynamics`]).
+#[derive(Clone, Copy, Debug)]
+enum LineCoordinate {
+    /// The α-share of the mode's damping ratio, ρ and the Lamé ratio kept.
+    Share,
+    /// log₂ of the Lamé ratio factor, ρ, α and β kept.
+    LameRatio,
+    /// log₂ ρ, (α, β) moved along the Rayleigh line to the new ρ at the same share.
+    Density,
+}
+
 /// How [`fit_dynamics`] searches (ρ, α, β): a start grid simulated once, then compass rounds in
 /// log₂ units.
 #[derive(Clone, Copy, Debug)]
@@ -445,6 +460,17 @@ pub struct DynamicSearch {
     /// (from a step of [`RAYLEIGH_SHARE_STEP`], halved when no point is better; ρ stays at the
     /// search's best start-line point) — in place of the α, β grid and the (ρ, α, β) compass.
     pub rayleigh_rounds: Option<usize>,
+    /// On the Rayleigh line, after the share: this many compass rounds along log₂ of the Lamé
+    /// ratio factor ([`Extension::Dynamic`]'s `lame_ratio_factor`: ν at the fitted E, wang2015
+    /// §6.2's p = (E, ν, α, β) with E/ρ standing for E under position control) …
+    pub lame_rounds: usize,
+    /// … from this step (halved when no point is better) …
+    pub lame_step: f64,
+    /// … then this many rounds along log₂ ρ, (α, β) kept on the Rayleigh line at the search's
+    /// share …
+    pub density_rounds: usize,
+    /// … from this step.
+    pub density_step: f64,
 }
 
 /// The α-share s of the Rayleigh line's start point ([`ModalEstimate::rayleigh_at`]): the
@@ -470,6 +496,10 @@ impl DynamicSearch {
         modal_line: &[],
         modal_step: 1.0,
         rayleigh_rounds: None,
+        lame_rounds: 0,
+        lame_step: 1.0,
+        density_rounds: 0,
+        density_step: 0.25,
     };
     /// On the fit mesh refined 1 → 8 (a rigid-tip replay on the 5184-tet refined suite template
     /// costs ≈ 16× the fit mesh's, the light densities dearest: at ρ 1000 kg/m³ about 3× one at
@@ -493,6 +523,10 @@ impl DynamicSearch {
         modal_line: &MODAL_LINE,
         modal_step: 0.5,
         rayleigh_rounds: Some(1),
+        lame_rounds: 2,
+        lame_step: 1.0,
+        density_rounds: 2,
+        density_step: 0.25,
     };
 }
 
@@ -525,39 +559,47 @@ impl DynamicFit {
     }
 }
 
-/// A point of the search: log₂ (ρ, α, β) on a 1/64 lattice.
-type Key = [i64; 3];
+/// A point of the search: log₂ (ρ, α, β, Lamé ratio factor) on a 1/64 lattice.
+type Key = [i64; 4];
 
-fn key(theta: [f64; 3]) -> Key {
+fn key(theta: [f64; 4]) -> Key {
     theta.map(|t| (t * 64.0).round() as i64)
 }
 
-fn theta(k: Key) -> [f64; 3] {
+fn theta(k: Key) -> [f64; 4] {
     k.map(|v| v as f64 / 64.0)
 }
 
+/// The parameters and the extension of the point `k`; the Lamé ratio factor is named only off
+/// the default model's material (a factor ≠ 1).
 fn extension(k: Key) -> (Vec<(String, f64)>, Extension) {
-    let [rho, alpha, beta] = theta(k).map(f64::exp2);
+    let [rho, alpha, beta, lame] = theta(k).map(f64::exp2);
+    let mut params = vec![
+        ("density_kg_m3".into(), rho),
+        ("rayleigh_alpha_per_s".into(), alpha),
+        ("rayleigh_beta_s".into(), beta),
+    ];
+    if k[3] != 0 {
+        params.push(("lame_ratio_factor".into(), lame));
+    }
     (
-        vec![
-            ("density_kg_m3".into(), rho),
-            ("rayleigh_alpha_per_s".into(), alpha),
-            ("rayleigh_beta_s".into(), beta),
-        ],
+        params,
         Extension::Dynamic {
             density_kg_m3: rho,
             alpha_per_s: alpha,
             beta_s: beta,
+            lame_ratio_factor: lame,
         },
     )
 }
 
 /// The lattice key of the point (ρ, α, β), each clamped to its [`LOG2_BOUNDS`] (α or β 0 at an
 /// end of the Rayleigh line: the bound's 2⁻⁴ 1/s or 2⁻¹⁷ s).
-fn clamped_key(rho: f64, alpha: f64, beta: f64) -> Key {
+fn clamped_key(rho: f64, alpha: f64, beta: f64, log2_lame: f64) -> Key {
     let t = [rho, alpha, beta];
-    key(std::array::from_fn(|d| {
-        t[d].log2().clamp(LOG2_BOUNDS[d].0, LOG2_BOUNDS[d].1)
+    key(std::array::from_fn(|d| match d {
+        3 => log2_lame,
+        _ => t[d].log2().clamp(LOG2_BOUNDS[d].0, LOG2_BOUNDS[d].1),
     }))
 }
 
@@ -670,56 +712,88 @@ pub fn fit_dynamics(
     if let Some((mode, rounds)) = line {
         // the density line at the start share; per key its (ρ, α-share)
         let mut on_line: BTreeMap<Key, (f64, f64)> = BTreeMap::new();
-        let point = |on_line: &mut BTreeMap<Key, (f64, f64)>, rho: f64, share: f64| -> Key {
-            let (alpha, beta) = mode.rayleigh_at(rho, share);
-            let k = clamped_key(rho, alpha, beta);
-            on_line.entry(k).or_insert((rho, share));
-            k
-        };
+        let point =
+            |on_line: &mut BTreeMap<Key, (f64, f64)>, rho: f64, share: f64, lame: f64| -> Key {
+                let (alpha, beta) = mode.rayleigh_at(rho, share);
+                let k = clamped_key(rho, alpha, beta, lame);
+                on_line.entry(k).or_insert((rho, share));
+                k
+            };
         let mut start = Vec::new();
         for f in plan.modal_line {
-            let k = point(&mut on_line, f * mode.density_kg_m3, RAYLEIGH_START_SHARE);
+            let k = point(
+                &mut on_line,
+                f * mode.density_kg_m3,
+                RAYLEIGH_START_SHARE,
+                0.0,
+            );
             start.push((k, None));
         }
         run(&mut fit, &mut keys, &mut simulated, simulate, start)?;
-        // per search: centre and share step
-        let mut searches: Vec<Option<(Key, f64)>> = choose(&fit)
+        // per search: its centre, carried from phase to phase
+        let mut centres: Vec<Option<Key>> = choose(&fit)
             .iter()
-            .map(|c| c.map(|(i, _)| (keys[i], RAYLEIGH_SHARE_STEP)))
+            .map(|c| c.map(|(i, _)| keys[i]))
             .collect();
-        for _ in 0..rounds {
-            let mut proposals: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
-            for (s, search) in searches.iter().enumerate() {
-                let Some((centre, step)) = search else {
-                    continue;
-                };
-                let Some(&(rho, share)) = on_line.get(centre) else {
-                    continue;
-                };
-                for sign in [-1.0, 1.0] {
-                    let to = (share + sign * step).clamp(0.0, 1.0);
-                    if to != share {
-                        let k = point(&mut on_line, rho, to);
-                        if k != *centre {
-                            proposals.entry(k).or_default().push(s);
+        let phases = [
+            (LineCoordinate::Share, rounds, RAYLEIGH_SHARE_STEP),
+            (LineCoordinate::LameRatio, plan.lame_rounds, plan.lame_step),
+            (
+                LineCoordinate::Density,
+                plan.density_rounds,
+                plan.density_step,
+            ),
+        ];
+        for (coordinate, rounds, first) in phases {
+            // per search: centre and step along this phase's coordinate
+            let mut searches: Vec<Option<(Key, f64)>> =
+                centres.iter().map(|c| c.map(|k| (k, first))).collect();
+            for _ in 0..rounds {
+                let mut proposals: BTreeMap<Key, Vec<usize>> = BTreeMap::new();
+                for (s, search) in searches.iter().enumerate() {
+                    let Some((centre, step)) = search else {
+                        continue;
+                    };
+                    let Some(&(rho, share)) = on_line.get(centre) else {
+                        continue;
+                    };
+                    let lame = theta(*centre)[3];
+                    for sign in [-1.0, 1.0] {
+                        let to = match coordinate {
+                            LineCoordinate::Share => {
+                                (rho, (share + sign * step).clamp(0.0, 1.0), lame)
+                            }
+                            LineCoordinate::LameRatio => (
+                                rho,
+                                share,
+                                (lame + sign * step).clamp(LOG2_LAME_BOUNDS.0, LOG2_LAME_BOUNDS.1),
+                            ),
+                            LineCoordinate::Density => (rho * (sign * step).exp2(), share, lame),
+                        };
+                        if to != (rho, share, lame) {
+                            let k = point(&mut on_line, to.0, to.1, to.2);
+                            if k != *centre {
+                                proposals.entry(k).or_default().push(s);
+                            }
                         }
                     }
                 }
-            }
-            if proposals.is_empty() {
-                break;
-            }
-            offer(&mut fit, &mut keys, &mut simulated, simulate, proposals)?;
-            for (search, choice) in searches.iter_mut().zip(choose(&fit)) {
-                let (Some((centre, step)), Some((i, _))) = (search.as_mut(), choice) else {
-                    continue;
-                };
-                if keys[i] == *centre {
-                    *step *= 0.5;
-                } else {
-                    *centre = keys[i];
+                if proposals.is_empty() {
+                    break;
+                }
+                offer(&mut fit, &mut keys, &mut simulated, simulate, proposals)?;
+                for (search, choice) in searches.iter_mut().zip(choose(&fit)) {
+                    let (Some((centre, step)), Some((i, _))) = (search.as_mut(), choice) else {
+                        continue;
+                    };
+                    if keys[i] == *centre {
+                        *step *= 0.5;
+                    } else {
+                        *centre = keys[i];
+                    }
                 }
             }
+            centres = searches.iter().map(|s| s.map(|(k, _)| k)).collect();
         }
         return Ok(fit);
     }
@@ -738,7 +812,7 @@ pub fn fit_dynamics(
     for rho in &densities {
         for alpha in plan.alphas_per_s {
             for beta in plan.betas_s {
-                start.push((key([rho.log2(), alpha.log2(), beta.log2()]), None));
+                start.push((key([rho.log2(), alpha.log2(), beta.log2(), 0.0]), None));
             }
         }
     }
@@ -885,11 +959,13 @@ mod tests {
         assert_eq!(m.rayleigh_at(11428.0, 1.0).1, 0.0);
     }
 
-    /// A fake replay whose training error is the distance in (log₂ ρ, α-share) from a target,
-    /// the same for every fold: the Rayleigh-line search replays the 3-point density line and
-    /// the share line a step either side, 5 replays, and every search ends at the best of them.
+    /// A fake replay whose training error is the distance in (log₂ ρ, α-share, log₂ Lamé ratio
+    /// factor) from a target, the same for every fold: the Rayleigh-line search replays the
+    /// 3-point density line and the share line a step either side (5 replays), the Lamé ratio
+    /// an octave either side and then a further octave up (3), ρ a quarter and an eighth of an
+    /// octave either side (4), and every search ends at the best of them.
     #[test]
-    fn rayleigh_line_search_replays_the_density_line_and_the_share_ends() {
+    fn rayleigh_line_search_replays_the_density_line_the_share_the_lame_ratio_and_density() {
         let m = ModalEstimate {
             density_kg_m3: 10000.0,
             reference_frequency_hz: 30.0,
@@ -914,7 +990,13 @@ mod tests {
             let rho = p("density_kg_m3");
             let w = m.omega_at(rho);
             let share = p("rayleigh_alpha_per_s") / (2.0 * w) / m.damping_ratio;
-            (rho / target_rho).log2().abs() + (share - 0.9).abs()
+            // the Lamé ratio factor is named off 1 only
+            let lame = c
+                .params
+                .iter()
+                .find(|(k, _)| k == "lame_ratio_factor")
+                .map_or(1.0, |(_, v)| *v);
+            (rho / target_rho).log2().abs() + (share - 0.9).abs() + (lame.log2() - 1.0).abs()
         };
         let train = |cands: &[Candidate], eligible: &dyn Fn(usize, Option<usize>) -> bool| {
             (0..=folds)
@@ -936,14 +1018,25 @@ mod tests {
         )
         .expect("fake replays");
         assert!(fit.on_rayleigh_line);
-        assert_eq!(replayed.len(), 5, "{replayed:?}");
-        assert_eq!(fit.candidates.len(), 5);
+        assert_eq!(replayed.len(), 5 + 3 + 4, "{replayed:?}");
+        assert_eq!(fit.candidates.len(), 5 + 3 + 4);
+        let lame: Vec<f64> = replayed[5..8]
+            .iter()
+            .map(|e| match e {
+                Extension::Dynamic {
+                    lame_ratio_factor, ..
+                } => *lame_ratio_factor,
+                _ => panic!("a dynamic replay"),
+            })
+            .collect();
+        assert_eq!(lame, [0.5, 2.0, 4.0]);
         // the density line at the share 1/2, then a step either side at its best point ρ̂ √2
         for (i, f) in MODAL_LINE.iter().enumerate() {
             let Extension::Dynamic {
                 density_kg_m3,
                 alpha_per_s,
                 beta_s,
+                ..
             } = replayed[i]
             else {
                 panic!("a dynamic replay")
@@ -963,6 +1056,10 @@ mod tests {
             fit.candidates[best].params[1].1,
         );
         assert!((rho / (m.density_kg_m3 * std::f64::consts::SQRT_2) - 1.0).abs() < 0.011);
+        assert_eq!(
+            fit.candidates[best].params[3],
+            ("lame_ratio_factor".to_string(), 2.0)
+        );
         let (alpha_end, _) = m.rayleigh_at(
             m.density_kg_m3 * std::f64::consts::SQRT_2,
             RAYLEIGH_START_SHARE + RAYLEIGH_SHARE_STEP,
@@ -998,8 +1095,8 @@ mod tests {
 
     #[test]
     fn lattice_keys_round_trip_and_name_the_parameters() {
-        let k = key([10.0, 3.0, -9.0]);
-        assert_eq!(theta(k), [10.0, 3.0, -9.0]);
+        let k = key([10.0, 3.0, -9.0, 0.0]);
+        assert_eq!(theta(k), [10.0, 3.0, -9.0, 0.0]);
         let (params, ext) = extension(k);
         assert_eq!(params[0], ("density_kg_m3".to_string(), 1024.0));
         assert_eq!(
@@ -1008,6 +1105,7 @@ mod tests {
                 density_kg_m3: 1024.0,
                 alpha_per_s: 8.0,
                 beta_s: 2f64.powi(-9),
+                lame_ratio_factor: 1.0,
             }
         );
     }

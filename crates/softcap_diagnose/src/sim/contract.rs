@@ -298,6 +298,11 @@ pub enum Extension {
         alpha_per_s: f64,
         /// Rayleigh stiffness-proportional coefficient β, s.
         beta_s: f64,
+        /// Factor on every element's Lamé ratio λ_L/μ of the default model, its Young's modulus
+        /// kept ([`crate::sim::with_lame_ratio`]; 1: the default model's material). Under
+        /// position control E and ρ act only through E/ρ, so ν is the material's one free
+        /// parameter left to the dynamic model (ν shared by the body, wang2015 §6.2).
+        lame_ratio_factor: f64,
     },
     /// Two HGO fibre families (Holzapfel, Gasser & Ogden 2000 §4.2, linearized:
     /// `softcap_fem::AnisotropicModel::with_fibre_families`) on the default model's isotropic

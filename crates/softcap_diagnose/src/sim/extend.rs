@@ -340,8 +340,9 @@ impl FemProbeSimulator {
                 density_kg_m3,
                 alpha_per_s,
                 beta_s,
+                lame_ratio_factor,
             } => self.run_dynamic(
-                base,
+                with_lame_ratio(&base, lame_ratio_factor)?,
                 density_kg_m3,
                 RayleighDamping {
                     alpha_per_s,
@@ -383,6 +384,41 @@ impl FemProbeSimulator {
             }
         }
     }
+}
+
+/// `model` with every element's Lamé ratio λ_L/μ scaled by `factor` at its Young's modulus E
+/// ([`Extension::Dynamic`]'s `lame_ratio_factor`): λ_L/μ = 2ν/(1 − 2ν) becomes r' = `factor` ·
+/// λ_L/μ, i.e. ν' = r' / (2 (1 + r')), which stays in (0, 1/2) for every positive factor and
+/// ν ≥ 0 (a negative ν keeps its sign). E is kept so that under position control the
+/// dynamics still sees the fitted E only through E/ρ, ρ fitted beside it; ν is the one
+/// material parameter left, one for the whole body as wang2015 §6.2 fits p = (E, ν, α, β) of a
+/// homogeneous material to the motion trajectories (eq. 9). A factor of exactly 1 returns the
+/// model unchanged.
+pub fn with_lame_ratio(
+    model: &softcap_fem::CorotationalModel,
+    factor: f64,
+) -> Result<softcap_fem::CorotationalModel> {
+    if factor == 1.0 {
+        return Ok(model.clone());
+    }
+    if !(factor > 0.0 && factor.is_finite()) {
+        return Err(DiagnoseError::BadRecording {
+            what: format!("dynamic replay: Lamé ratio factor {factor} is not positive"),
+        });
+    }
+    let params = model
+        .params()
+        .iter()
+        .map(|p| {
+            let (e, nu) = p.to_young_poisson()?;
+            let r = factor * 2.0 * nu / (1.0 - 2.0 * nu);
+            LinearParams::from_young_poisson(e, r / (2.0 * (1.0 + r)))
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(fem)?;
+    let mut out = model.clone();
+    out.set_params(&params).map_err(fem)?;
+    Ok(out)
 }
 
 /// Implicit time steps of the dynamic replay ([`Extension::Dynamic`]) per frame interval. With
@@ -834,8 +870,9 @@ impl FemProbeSimulator {
                 density_kg_m3,
                 alpha_per_s,
                 beta_s,
+                lame_ratio_factor,
             } => self.run_rigid_dynamic(
-                base,
+                with_lame_ratio(&base, lame_ratio_factor)?,
                 tip,
                 density_kg_m3,
                 RayleighDamping {

@@ -22,7 +22,7 @@
 //! | [`Extension::FibreFamilies`] | `AnisotropicModel::with_fibre_families`: the default model's isotropic (E, ν) plus two HGO fibre families at ±θ (HGO 2000 §4.2, linearized), each 4 k1 = r E | fibres a±, ratio r |
 //! | [`Extension::TransverselyIsotropic`] | `AnisotropicModel` as above with the Poisson ratios fitted too: ν_t across the fibre, ν_a fibre–transverse (thesis eq. 8.5, `TransverselyIsotropicParams::from_engineering`) | fibre a, ratio r, ν_t, ν_a |
 //! | [`Extension::ProbeFriction`] | the default model with regularized Coulomb friction between the rigid tip and the surface (`FrictionalContact`, IPC f₁ mollifier, stick anchors, normal forces lagged per solve and re-lagged until they settle, `softcap_fem::solve_lagged`), `NodalSolver`; rigid-tip replay only | μ |
-//! | [`Extension::Dynamic`] | the default model's implicit dynamics M ü + D u̇ + f_int(u) = f_ext with lumped mass of density ρ and Rayleigh damping D = αM + βK (wang2015 eq. 3), `DynamicSolver`, Newmark average acceleration, [`DYNAMIC_STEPS_PER_FRAME`] steps per frame interval, the measured force interpolated linearly between frames | ρ, α, β |
+//! | [`Extension::Dynamic`] | the default model's implicit dynamics M ü + D u̇ + f_int(u) = f_ext with lumped mass of density ρ and Rayleigh damping D = αM + βK (wang2015 eq. 3), `DynamicSolver`, Newmark average acceleration, [`DYNAMIC_STEPS_PER_FRAME`] steps per frame interval, the measured force interpolated linearly between frames; the Lamé ratio λ_L/μ scaled at fixed E ([`with_lame_ratio`]) | ρ, α, β, λ_L/μ factor |
 //! | [`Extension::Elastic`] | the default model itself (used with changed loads: gravity body force wang2015 eq. 7, shifted / de-lagged forces) | — |
 //!
 //! The probe force of every frame is spread over its contact patch exactly as in the baseline
@@ -42,6 +42,8 @@ pub use contract::{
     Extension, Field, LoadPoint, MarkerMode, MaterialRefit, MaterialRefitOutcome, ProbeLoad,
     ProbeSimulator, SequenceFrame, SequenceJob, SimLoad, SimOutput,
 };
-pub use extend::{DYNAMIC_STEPS_PER_FRAME, transverse_from_isotropic, transverse_with_poisson};
+pub use extend::{
+    DYNAMIC_STEPS_PER_FRAME, transverse_from_isotropic, transverse_with_poisson, with_lame_ratio,
+};
 pub use fem::{FemProbeSimulator, FemSimSettings, RefinementSettings};
 pub use resolution::{friction_refinement, friction_slip_distance_m, surface_spacing_near};
