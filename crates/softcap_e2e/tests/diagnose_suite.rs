@@ -303,17 +303,17 @@ fn probe_friction_is_named() {
 /// explains most of the probed markers' released ringing) with (alpha, beta) on the mode's
 /// Rayleigh line of the ringing's damping ratio (zeta = alpha / (2 omega) + beta omega / 2,
 /// wang2015 eq. 3 in modal coordinates) at the alpha-share 1/2, then one compass round along the
-/// share (1/4 and 3/4): 5 replays. On the 648-tet template no (rho, alpha, beta) beats the
+/// share (1/4 and 3/4), two along the Lame ratio lambda/mu at the fitted E (nu, wang2015 section
+/// 6.2) from an octave and two along rho from a quarter octave: 11 replays. On the 648-tet template no (rho, alpha, beta) beats the
 /// quasi-static replay: its contact nodes overshoot under the fast press. Held to its paired
 /// control clean-fast (the same session with a quasi-static truth, `none`; its default model's
 /// error on inertia-damping's cells is the floor): 3x lower or within 1.25x of that. Measured
-/// (fresh chain, RAYON_NUM_THREADS=1, load ~10 on 2 cores): `inertia-damping`, 0.2467 -> 0.0903
-/// mm (2.73x; clean-fast 0.0882, limit 0.1103; at E 3 kPa 0.2291 -> 0.0959, 2.39x), modal
-/// density 12846 kg/m^3, zeta 0.214, rho 18258 kg/m^3 (E/rho 0.44 of the tissue fit's E 8.0 kPa;
-/// truth 1.5 kPa / 4000 = 0.375), alpha 14.5 1/s (10), beta 2.4 ms (2); 37 CPU-s for the test,
-/// clean-fast's chain included. 3x is out of reach here: the after error tracks the dynamic
-/// signal (2-frame ramps 0.2811 -> 0.1117, E 1 kPa 0.2587 -> 0.1127, alpha 6 / beta 1.5 ms
-/// 0.2858 -> 0.1174 mm), not the floor.
+/// (fresh chain, RAYON_NUM_THREADS=1, load ~10 on 2 cores): `inertia-damping`, 0.2467 -> 0.0793
+/// mm (3.11x, limit 0.0822; clean-fast 0.0882), modal density 12846 kg/m^3, zeta 0.214, rho
+/// 21713 kg/m^3 (E/rho 0.37 of the tissue fit's E 8.0 kPa; truth 1.5 kPa / 4000 = 0.375), Lame
+/// ratio x2 (nu 0.4235 -> 0.4586; truth 0.45), alpha 13.3 1/s (10), beta 2.59 ms (2); 123 CPU-s
+/// for the test, both chains included (37 with the 5 replays before the Lame ratio: 0.0903 mm,
+/// 2.73x).
 #[test]
 fn inertia_damping_is_named() {
     check_against("inertia-damping", Some("clean-fast"));
