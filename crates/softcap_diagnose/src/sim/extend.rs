@@ -1237,3 +1237,39 @@ pub fn transverse_with_poisson(
         e / (2.0 * (1.0 + nu_t)),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The Lamé ratio factor scales λ_L/μ of every element and keeps its E: the suite's tissue
+    /// fit (E 8.0 kPa, ν 0.4235) at factor 2 has ν 0.4586; factor 1 is the model itself.
+    #[test]
+    fn lame_ratio_factor_scales_lambda_over_mu_at_the_fitted_young_modulus() {
+        let mesh = softcap_mesh::box_tet_mesh([0.0; 3], [0.02, 0.02, 0.01], [2, 2, 1]);
+        let p = LinearParams::from_young_poisson(8004.4, 0.423512).unwrap();
+        let model = softcap_fem::CorotationalModel::homogeneous(&mesh, p).unwrap();
+        assert_eq!(
+            with_lame_ratio(&model, 1.0).unwrap().params(),
+            model.params()
+        );
+        let (l0, m0) = p.lame();
+        for factor in [0.5, 2.0, 4.0] {
+            let scaled = with_lame_ratio(&model, factor).unwrap();
+            for q in scaled.params() {
+                let (l, m) = q.lame();
+                assert!(
+                    ((l / m) / (l0 / m0) / factor - 1.0).abs() < 1e-12,
+                    "{factor}"
+                );
+                let (e, _) = q.to_young_poisson().unwrap();
+                assert!((e / 8004.4 - 1.0).abs() < 1e-12, "{factor}: E {e}");
+            }
+        }
+        let (_, nu) = with_lame_ratio(&model, 2.0).unwrap().params()[0]
+            .to_young_poisson()
+            .unwrap();
+        assert!((nu - 0.4586).abs() < 5e-5, "{nu}");
+        assert!(with_lame_ratio(&model, 0.0).is_err());
+    }
+}
