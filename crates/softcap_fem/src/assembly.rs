@@ -488,6 +488,57 @@ pub fn solver_setup<M: ElasticModel + ?Sized>(
     Ok((pattern, cholesky, (hi - lo).norm().max(f64::MIN_POSITIVE)))
 }
 
+/// [`solver_setup`] for 10-node tets (`elements`: corners, then edge midpoints) on the nodes
+/// `rest`: a 10-node clique's pattern is covered by ten 4-node "tets" — the nodes in five pairs,
+/// every two pairs together (each node pair shares at least one of them).
+pub(crate) fn quadratic_solver_setup(
+    elements: &[[usize; 10]],
+    rest: &[Vector3<f64>],
+    constrained_dofs: &[usize],
+) -> Result<(SystemPattern, SparseCholesky, f64), FemError> {
+    let n = rest.len();
+    let cover: Vec<[usize; 4]> = elements
+        .iter()
+        .flat_map(|el| {
+            let mut out = Vec::with_capacity(10);
+            for p in 0..5 {
+                for q in p + 1..5 {
+                    out.push([el[2 * p], el[2 * p + 1], el[2 * q], el[2 * q + 1]]);
+                }
+            }
+            out
+        })
+        .collect();
+    let pattern = SystemPattern::new(n, &cover, DofMap::new(n, constrained_dofs)?)?;
+    let cholesky = SparseCholesky::new(&pattern)?;
+    let (lo, hi) = rest.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(a, b), p| (a.inf(p), b.sup(p)),
+    );
+    Ok((pattern, cholesky, (hi - lo).norm().max(f64::MIN_POSITIVE)))
+}
+
+/// [`free_residual`] with the contact springs' forces at `x` as the boundary forces.
+pub(crate) fn contact_residual(
+    dofs: &DofMap,
+    f_ext: &[Vector3<f64>],
+    f_int: &[Vector3<f64>],
+    x: &[Vector3<f64>],
+    springs: &[crate::contact::ContactSpring],
+) -> (Vec<f64>, f64) {
+    let mut fc = Vec::new();
+    if !springs.is_empty() {
+        fc = vec![Vector3::zeros(); x.len()];
+        for s in springs {
+            fc[s.node] += s.force(&x[s.node]);
+        }
+    }
+    free_residual(dofs, f_ext, f_int, &fc)
+}
+
 /// Free-dof residual r = (f_ext − f_int) + f_b (f_b: boundary forces such as contact, one per node
 /// or empty) and its scale max(‖f_ext‖₂, ‖f_int‖₂, ‖f_b‖₂) for the relative tolerance of the
 /// equilibrium iterations.

@@ -23,7 +23,7 @@
 //! the eight sub-tets' quarter masses, all positive, unlike the row sums of the consistent
 //! quadratic mass matrix).
 
-use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern};
+use crate::assembly::{DirichletBc, DofMap, SparseCholesky, SystemPattern, quadratic_solver_setup};
 use crate::dynamics::{
     DynamicSolver, DynamicState, DynamicStepReport, DynamicStepStatus, DynamicsSettings, entry_max,
     finish_iteration,
@@ -315,35 +315,13 @@ impl QuadraticSolver {
                 got: masses_kg.len(),
             });
         }
-        // The pattern of a 10-node clique as ten 4-node "tets": the nodes in five pairs, every
-        // two pairs together (each node pair shares at least one of them).
-        let cover: Vec<[usize; 4]> = model
-            .elements
-            .iter()
-            .flat_map(|el| {
-                let mut out = Vec::with_capacity(10);
-                for p in 0..5 {
-                    for q in p + 1..5 {
-                        out.push([el[2 * p], el[2 * p + 1], el[2 * q], el[2 * q + 1]]);
-                    }
-                }
-                out
-            })
-            .collect();
-        let pattern = SystemPattern::new(n, &cover, DofMap::new(n, constrained_dofs)?)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let (lo, hi) = model.rest.iter().fold(
-            (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            ),
-            |(a, b), p| (a.inf(p), b.sup(p)),
-        );
+        let (pattern, cholesky, length_scale_m) =
+            quadratic_solver_setup(&model.elements, &model.rest, constrained_dofs)?;
         Ok(Self {
             pattern,
             cholesky,
             masses_kg,
-            length_scale_m: (hi - lo).norm().max(f64::MIN_POSITIVE),
+            length_scale_m,
         })
     }
 

@@ -22,7 +22,9 @@
 //! iteration) by Newton with a backtracking line search on the residual norm (the path-dependent
 //! model has no potential in x alone).
 
-use crate::assembly::{DofMap, SparseCholesky, SystemPattern, free_residual};
+use crate::assembly::{
+    DofMap, SparseCholesky, SystemPattern, contact_residual, quadratic_solver_setup,
+};
 use crate::contact::{ContactProblem, ContactReport, ContactSpring};
 use crate::plasticity::{J2PlasticityParams, PlasticState, ReturnMapping, radial_return};
 use crate::quadratic::{gradients, quadrature};
@@ -268,34 +270,12 @@ impl QuadraticRigidTipSolver {
         model: &QuadraticElastoplasticModel,
         constrained_dofs: &[usize],
     ) -> Result<Self, FemError> {
-        let n = model.num_nodes();
-        // a 10-node clique as ten 4-node cliques (as QuadraticSolver::new)
-        let cover: Vec<[usize; 4]> = model
-            .elements
-            .iter()
-            .flat_map(|el| {
-                let mut out = Vec::with_capacity(10);
-                for p in 0..5 {
-                    for q in p + 1..5 {
-                        out.push([el[2 * p], el[2 * p + 1], el[2 * q], el[2 * q + 1]]);
-                    }
-                }
-                out
-            })
-            .collect();
-        let pattern = SystemPattern::new(n, &cover, DofMap::new(n, constrained_dofs)?)?;
-        let cholesky = SparseCholesky::new(&pattern)?;
-        let (lo, hi) = model.rest.iter().fold(
-            (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            ),
-            |(a, b), p| (a.inf(p), b.sup(p)),
-        );
+        let (pattern, cholesky, length_scale_m) =
+            quadratic_solver_setup(&model.elements, &model.rest, constrained_dofs)?;
         Ok(Self {
             pattern,
             cholesky,
-            length_scale_m: (hi - lo).norm().max(f64::MIN_POSITIVE),
+            length_scale_m,
         })
     }
 
@@ -333,14 +313,7 @@ impl QuadraticRigidTipSolver {
         f_ext: &[Vector3<f64>],
         springs: &[ContactSpring],
     ) -> (Vec<f64>, f64) {
-        let mut fc = Vec::new();
-        if !springs.is_empty() {
-            fc = vec![Vector3::zeros(); x.len()];
-            for s in springs {
-                fc[s.node] += s.force(&x[s.node]);
-            }
-        }
-        free_residual(self.dofs(), f_ext, fi, &fc)
+        contact_residual(self.dofs(), f_ext, fi, x, springs)
     }
 
     /// Solves f_int(x) = f_ext + f_c from `x` (constrained components as given): Newton with the

@@ -17,7 +17,7 @@
 
 use crate::FemError;
 use crate::assembly::{
-    AssemblyScratch, DirichletBc, DofMap, SparseCholesky, SystemPattern, free_residual,
+    AssemblyScratch, DirichletBc, DofMap, SparseCholesky, SystemPattern, contact_residual,
     solver_setup,
 };
 use crate::contact::{ContactProblem, ContactReport, ContactSpring};
@@ -396,14 +396,7 @@ impl StaticSolver {
         f_ext: &[Vector3<f64>],
         springs: &[ContactSpring],
     ) -> (Vec<f64>, f64) {
-        let mut fc = Vec::new();
-        if !springs.is_empty() {
-            fc = vec![Vector3::zeros(); x.len()];
-            for s in springs {
-                fc[s.node] += s.force(&x[s.node]);
-            }
-        }
-        free_residual(self.dofs(), f_ext, f_int, &fc)
+        contact_residual(self.dofs(), f_ext, f_int, x, springs)
     }
 
     /// Solves f_int(x) = f_ext (+ contact) for the free dofs, starting from `x` (whose constrained
