@@ -115,11 +115,14 @@ impl Hypothesis for ProbeFriction {
     }
 
     /// Re-simulated after the screen's candidates when the residual under the tip is tangential
-    /// beyond 3σ: a patch that sticks (μ above the stick's need) holds the surface forward
-    /// after the tip turns back, so neither the drag signature nor the screen's traction along
-    /// the travel sees it, but the rigid tip replayed with Coulomb friction does.
+    /// beyond 3σ and the body does not slide on its support ([`super::support_slip::slides`]: a
+    /// sliding body moves the surface under the tip too): a patch that sticks (μ above the
+    /// stick's need) holds the surface forward after the tip turns back, so neither the drag
+    /// signature nor the screen's traction along the travel sees it, but the rigid tip replayed
+    /// with Coulomb friction does.
     fn signature_route(&self, s: &Signatures) -> Option<SignatureRoute> {
-        (s.contact_tangential_m > s.three_sigma_m()).then_some(SignatureRoute::AfterScreen)
+        (s.contact_tangential_m > s.three_sigma_m() && !super::support_slip::slides(s))
+            .then_some(SignatureRoute::AfterScreen)
     }
 
     fn confirm(
