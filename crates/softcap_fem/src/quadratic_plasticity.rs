@@ -406,39 +406,10 @@ impl QuadraticRigidTipSolver {
 mod tests {
     use super::*;
     use crate::quadratic_tets;
-    use softcap_mesh::TetMesh;
-
-    /// Unit cube split into six tets (Kuhn triangulation).
-    fn cube(size: f64) -> TetMesh {
-        let v: Vec<Vector3<f64>> = (0..8)
-            .map(|i| {
-                Vector3::new(
-                    (i & 1) as f64 * size,
-                    ((i >> 1) & 1) as f64 * size,
-                    ((i >> 2) & 1) as f64 * size,
-                )
-            })
-            .collect();
-        let tets = vec![
-            [0, 1, 3, 7],
-            [0, 1, 5, 7],
-            [0, 2, 3, 7],
-            [0, 2, 6, 7],
-            [0, 4, 5, 7],
-            [0, 4, 6, 7],
-        ];
-        let mut m = TetMesh { vertices: v, tets };
-        for t in &mut m.tets {
-            let [a, b, c, d] = t.map(|i| m.vertices[i]);
-            if (b - a).dot(&(c - a).cross(&(d - a))) < 0.0 {
-                t.swap(2, 3);
-            }
-        }
-        m
-    }
+    use softcap_mesh::box_tet_mesh;
 
     fn model(corotated: bool) -> QuadraticElastoplasticModel {
-        let q = quadratic_tets(&cube(0.01));
+        let q = quadratic_tets(&box_tet_mesh([0.0; 3], [0.01; 3], [1, 1, 1]));
         let n = q.elements.len();
         QuadraticElastoplasticModel::new(
             &q.nodes,
