@@ -308,12 +308,7 @@ fn quad_replay(
     let setup = fine.setup();
     let dirichlet = setup.dirichlet();
     let mut solver = QuadraticRigidTipSolver::new(&model, &dirichlet.dofs())?;
-    let candidates: Vec<usize> = setup
-        .boundary_nodes
-        .iter()
-        .copied()
-        .filter(|n| setup.attached_nodes.binary_search(n).is_err())
-        .collect();
+    let candidates: Vec<usize> = setup.free_boundary_nodes();
     let mut settings = sim.settings().equilibrium.clone();
     settings.max_iterations = settings.max_iterations.max(80);
     let contact_settings = sim.settings().rigid_tip_contact.clone();

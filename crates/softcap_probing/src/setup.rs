@@ -145,6 +145,15 @@ impl ProbingSetup {
         self.mesh.tets.len()
     }
 
+    /// Boundary nodes that are not attached (increasing): the nodes a probe tip can touch.
+    pub fn free_boundary_nodes(&self) -> Vec<usize> {
+        self.boundary_nodes
+            .iter()
+            .copied()
+            .filter(|n| self.attached_nodes.binary_search(n).is_err())
+            .collect()
+    }
+
     /// Dirichlet conditions: the attached nodes at rest.
     pub fn dirichlet(&self) -> DirichletBc {
         let mut bc = DirichletBc::new();

@@ -274,12 +274,7 @@ impl<'a> Approach<'a> {
         touch: Probe,
         settings: &'a ContactSynthesisSettings,
     ) -> Result<Self, FemError> {
-        let candidates = setup
-            .boundary_nodes
-            .iter()
-            .copied()
-            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
-            .collect::<Vec<_>>();
+        let candidates = setup.free_boundary_nodes();
         Ok(Self {
             setup,
             settings,

@@ -1021,12 +1021,7 @@ struct RigidState<M> {
 impl<'a> RigidReplay<'a> {
     fn new(sim: &'a FemProbeSimulator, tip: &'a softcap_fem::TipShape, frictional: bool) -> Self {
         let setup = sim.setup();
-        let candidates: Vec<usize> = setup
-            .boundary_nodes
-            .iter()
-            .copied()
-            .filter(|n| setup.attached_nodes.binary_search(n).is_err())
-            .collect();
+        let candidates: Vec<usize> = setup.free_boundary_nodes();
         let max_iterations = if frictional {
             FRICTION_MAX_ITERATIONS
         } else {
