@@ -576,3 +576,25 @@ fn lookalike_slow_creep_g4_standard_is_none() {
 fn lookalike_slow_creep_g4_named_under_longer_holds() {
     check_creep_longer_holds("slow-creep-g4-tau23s-longer-holds", "viscoelasticity");
 }
+
+/// Issue 37 pair 1 under force control, the plastic side (`…/plastic-force`: J2 σ_y 4.5 kPa,
+/// H 4 kPa, E 50 kPa, the probe held at the plasticity case's peak forces): `plasticity` at once,
+/// 0.5006 → 0.1906 mm (σ_y 2.04 kPa, H 1.36 kPa on the homogeneous fit's E 23.4 kPa). Ignored:
+/// ≈ 510 CPU-s, and its look-alike, the slow creep under force control, has no committed session
+/// yet (the fixtures' README, "Pair 1 under force control").
+#[test]
+#[ignore]
+fn lookalike_plastic_force_named_plasticity() {
+    let session = "lookalikes/plastic-force";
+    let o = outcome(session);
+    let d = &o.diagnosis;
+    println!("LOOKALIKE | {session} | {} | {:#?}", d.verdict, summary(d));
+    assert_eq!(d.verdict, "plasticity", "{session}: {:#?}", summary(d));
+    let (_, p) = ranked(d, "plasticity").expect("plasticity ranked");
+    assert!(
+        p.heldout_rmse_after_m < 0.5 * p.heldout_rmse_before_m,
+        "{session}: {} -> {} m",
+        p.heldout_rmse_before_m,
+        p.heldout_rmse_after_m
+    );
+}
