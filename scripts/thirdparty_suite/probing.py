@@ -393,6 +393,20 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     for loc in case["locations_mm"]:
         # surface point under the location along the shaft (top face, after any pre-load)
         surface_pts.append(surface_point(model, np.array([loc[0], loc[1], height]), axis))
+
+    def recorded(markers, tips, forces):
+        """The recording: the per-frame markers, tips and forces with what every case returns."""
+        return {
+            "frames": frames,
+            "dt": dt,
+            "markers": np.array(markers),
+            "tips": np.array(tips),
+            "axis": axis,
+            "forces": np.array(forces),
+            "template_markers": template_markers,
+            "rest_u": rest_u,
+        }
+
     rate_dependent = case["material"]["kind"] == "viscoelastic"
     if rate_dependent and not uniform_steps(case):
         raise ValueError(f"{case['name']}: a viscoelastic material is integrated with one time step; "
@@ -406,16 +420,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             raise ValueError(f"{case['name']}: force control is implemented for a vertical shaft only")
         markers, tips, forces = force_controlled(case, frames, model, punch, axis, fixed_support, surface_pts,
                                                  lambda: m_pos_markers(model, cells10, marker_cells, marker_lams), log)
-        return {
-            "frames": frames,
-            "dt": dt,
-            "markers": np.array(markers),
-            "tips": np.array(tips),
-            "axis": axis,
-            "forces": np.array(forces),
-            "template_markers": template_markers,
-            "rest_u": rest_u,
-        }
+        return recorded(markers, tips, forces)
     cache = {}
     history = []
     markers, tips, forces, intrusion = [], [], [], []
@@ -460,16 +465,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             log(f"  frame {fi}/{len(frames)}: depth {fr['depth']:.3f} mm, force {force[2]:.4f} N")
     deepest = int(np.argmax(intrusion))
     log(f"  deepest top-face point inside the punch's disk: {intrusion[deepest] * 1e3:.2f} µm (frame {deepest})")
-    return {
-        "frames": frames,
-        "dt": dt,
-        "markers": np.array(markers),
-        "tips": np.array(tips),
-        "axis": axis,
-        "forces": np.array(forces),
-        "template_markers": template_markers,
-        "rest_u": rest_u,
-    }
+    return recorded(markers, tips, forces)
 
 
 # Force control: the secant iteration on the depth stops when the axial force is within this
