@@ -5,7 +5,8 @@ to the surface, lifts off and moves to the next location. Frame 0 is the rest st
 hovering above the first location. The punch is a rigid flat disk with a sharp edge:
 - vertical shaft: an active set of top-face nodes under the disk take the punch's z displacement
   (frictionless: their x, y are free); nodes that penetrate the face are added; when the total
-  force turns tensile the punch has lost contact and the set is emptied;
+  force turns tensile the punch has lost contact and the set is emptied. Under force control
+  the vertical punch is the tilted one's frictionless solid disk below (`Punch.walled`);
 - tilted shaft (probe friction case and its pair, support-slip and its pair): the punch is a solid
   disk (its face perpendicular to the shaft, its side wall a cylinder of the disk's radius round
   the shaft) that touches the surface from the depth −R tan θ on (its low rim first; the punch
@@ -20,6 +21,9 @@ hovering above the first location. The punch is a rigid flat disk with a sharp e
   (1.66 mm behind the face, 1.1 mm inside the rim in probe-friction-pair's first fixtures) and
   the element faces between the nodes cut through the rim.
 """
+import os
+import sys
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -143,11 +147,14 @@ class Punch:
         self.anchor = {}
         self.beside = None
         self.k_pen = None
+        # The vertical punch as the tilted one's disk with a side wall (penalty contact on the
+        # sampled surface) instead of its nodal active set: force control's F(depth) is then
+        # continuous (see force_controlled).
+        self.walled = False
 
     def step(self, tip, axis, fixed_support):
-        m = self.m
         vertical = abs(axis[2] + 1.0) < 1e-9
-        if vertical:
+        if vertical and not self.walled:
             return self._vertical(tip, fixed_support)
         if self.friction == "stick":
             return self._tilted(tip, axis, fixed_support)
@@ -418,6 +425,7 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
     if case["protocol"].get("control") == "force":
         if abs(axis[2] + 1.0) > 1e-9:
             raise ValueError(f"{case['name']}: force control is implemented for a vertical shaft only")
+        punch.walled = True
         markers, tips, forces = force_controlled(case, frames, model, punch, axis, fixed_support, surface_pts,
                                                  lambda: m_pos_markers(model, cells10, marker_cells, marker_lams), log)
         return recorded(markers, tips, forces)
@@ -477,6 +485,8 @@ FORCE_TOLERANCE = 1e-4
 FORCE_MAX_ITER = 40
 # The bracket of the force iteration below which its depth is taken as found, mm (1 nm).
 DEPTH_TOLERANCE_MM = 1e-6
+# Solves from the frame's committed depth to a trial depth at which Newton failed (force_step).
+CONTINUATION_STEPS = 4
 # A bracket narrower than this (mm) gives no slope for the next frame's first step (across a
 # kink or jump its secant is no stiffness).
 SLOPE_MIN_BRACKET_MM = 1e-3
@@ -492,6 +502,12 @@ def force_controlled(case, frames, model, punch, axis, fixed_support, surface_pt
     tip sinks; the force stays flat), which is what the own rig's pair 1 records. Off the object
     (force_n None, and 0 at the end of the unloading ramp) the body is free; at force 0 the disk
     rests on the surface under it (its tip where the highest top node under the disk is).
+    The punch is the walled disk (`Punch.walled`, the frictionless penalty contact of the tilted
+    punch): with the vertical punch's nodal active set, a top node beside the rim that the
+    nearly incompressible body pushes up above the disk's face is pulled down onto it once it
+    passes under the rim, and F(depth) jumps there (slow-creep-g4-tau23s-force, location 2: from
+    1.789 to 1.873 N between 2.38789 and 2.39113 mm, Newton failing on inverted tets in
+    between, for the target 1.7938 N). The disk's side wall keeps such a node outside.
     Returns the frames' markers, tips and forces on the object."""
     markers, tips, forces = [], [], []
     prev_loc = None
@@ -516,8 +532,8 @@ def force_controlled(case, frames, model, punch, axis, fixed_support, surface_pt
                 depth = resting_depth(model, surface_pts[loc], punch.R)
         else:
             guess = d_last + (target - a_last) / slope + (creep if target == a_last else 0.0)
-            force, depth, s = force_step(model, punch, path, axis, fixed_support, target, guess, slope,
-                                         FORCE_TOLERANCE * peaks[loc])
+            force, depth, s = force_step(model, punch, path, axis, fixed_support, target, d_last, guess,
+                                         slope, FORCE_TOLERANCE * peaks[loc])
             model.commit()
             if s is not None:
                 slope = s
@@ -531,26 +547,38 @@ def force_controlled(case, frames, model, punch, axis, fixed_support, surface_pt
     return markers, tips, forces
 
 
-def force_step(model, punch, path, axis, fixed_support, target, guess, slope, tol):
+def force_step(model, punch, path, axis, fixed_support, target, start, guess, slope, tol):
     """The depth at which the vertical punch's axial force is `target` (N): a safeguarded secant
     (regula falsi, Illinois variant, inside a bracket; a bisection when a step leaves it) from
-    `guess`, the bracket found by steps of the slope `slope` (N/mm). Every trial is solved from
-    the frame's starting active set (`Punch.step`; `Model.solve` starts from the last committed
-    inelastic state). F(depth) is continuous but has a kink wherever a top node enters the
-    contact: a plain secant (this function's first version) oscillated there without converging
-    (slow-creep-g4-tau23s-force, location 2: 1.4883 N at 1.92694 mm for 1.4350 N after 12
-    steps). The bracket shrinking below DEPTH_TOLERANCE_MM ends it too. Newton failing at a
-    trial depth: that trial is halved towards the nearest converged one. Returns (force on the
-    object, depth, the last secant slope or None)."""
+    `guess`, the bracket found by steps of the slope `slope` (N/mm). Every trial is solved from the
+    frame's starting contact state (`Punch.step`: its active set and which surface points are
+    beside the disk; `Model.solve` starts from the last committed inelastic state). F(depth) is
+    continuous but has a kink wherever the contact grows: a plain secant (this function's first
+    version) oscillated there without converging (slow-creep-g4-tau23s-force, location 2: 1.4883 N
+    at 1.92694 mm for 1.4350 N after 12 steps). The bracket shrinking below DEPTH_TOLERANCE_MM ends
+    it too. Newton failing at a trial depth: the trial again, Newton started from the frame's
+    committed state (depth `start`) moved there in CONTINUATION_STEPS solves (only Newton's
+    starting point changes: each is from the committed inelastic state); failing again, the trial
+    is halved towards the nearest converged one (plastic-force with the walled punch: its first
+    unloading frame, 1.46 → 1.17 mm, failed from the held state). Returns (force on the object,
+    depth, the last secant slope or None)."""
     from .physics import NotConverged
 
-    active0 = set(punch.active)
+    if punch.beside is None:
+        punch._note_beside(path(guess), axis)  # from the frame's committed state
+    active0, beside0 = set(punch.active), punch.beside.copy()
     u0 = model.u.copy()
 
     def axial_at(d):
-        punch.active, punch.anchor, punch.beside = set(active0), {}, None
+        punch.active, punch.anchor, punch.beside = set(active0), {}, beside0.copy()
         f = punch.step(path(d), axis, fixed_support)
         return f, float(f @ axis)
+
+    def axial_continued(d):
+        model.field[0].values[:] = u0
+        for k in range(1, CONTINUATION_STEPS + 1):
+            f, a = axial_at(start + (d - start) * k / CONTINUATION_STEPS)
+        return f, a
 
     lo = hi = None  # (depth, force - target), below and above the target
     best = None
@@ -558,13 +586,20 @@ def force_step(model, punch, path, axis, fixed_support, target, guess, slope, to
     side, grow = 0, 1.0
     for _ in range(FORCE_MAX_ITER):
         try:
-            f, a = axial_at(d)
+            try:
+                f, a = axial_at(d)
+            except NotConverged:
+                f, a = axial_continued(d)
         except NotConverged:
+            if os.environ.get("TP_DEBUG"):
+                print(f"    force trial at {d:.7f} mm: Newton failed", file=sys.stderr)
             model.field[0].values[:] = u0
             ref = lo if lo is not None else hi
             d = 0.5 * (d + (ref[0] if ref is not None else max(guess - 0.1, 0.0)))
             continue
         r = a - target
+        if os.environ.get("TP_DEBUG"):
+            print(f"    force trial at {d:.7f} mm: {a:.6f} N ({r:+.6f})", file=sys.stderr)
         if best is None or abs(r) < abs(best[1]):
             best = (d, r)
         if abs(r) <= tol:
