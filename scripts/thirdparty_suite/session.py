@@ -148,7 +148,7 @@ Effect switched on: **{eff}**.{f" Paired control: `{case['pair']}`." if case['pa
 - Object: {g['shape']} {g['size_mm']} mm on the table (z = 0); support: {case['support']['kind']}.
 - Material: {case['material']}.
 - Probe: rigid flat disk, radius {case['probe']['radius_mm']} mm, sharp edge, axis {np.round(sim['axis'], 3).tolist()},
-  contact: {case['probe'].get('friction', 'none')} friction; {'force-controlled (the depths of its position-controlled twin)' if case['protocol'].get('control') == 'force' else 'displacement-controlled'}.
+  contact: {case['probe'].get('friction', 'none')} friction; {'force-controlled (the depths of its position-controlled twin), the disk a solid with a side wall (penalty contact)' if case['protocol'].get('control') == 'force' else 'displacement-controlled'}.
 - Protocol: {len(case['locations_mm'])} locations, depths {case['depths_mm']} mm; per location hover,
   ramp {case['protocol']['ramp']} frames, hold {case['protocol']['hold']}, unload {case['protocol']['unload']},
   release {case['protocol']['release']}; {case['protocol']['fps']} Hz, {len(sim['frames'])} frames; peak axial force {peak:.3f} N.
