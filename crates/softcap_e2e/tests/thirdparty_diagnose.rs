@@ -515,7 +515,10 @@ fn check_creep_standard(case: &str, hold_drift: std::ops::Range<f64>) {
         s.hold_force_drift
     );
     assert_eq!(d.verdict, "none", "{session}: {:#?}", summary(d));
-    assert!(hold_drift.contains(&s.hold_force_drift) && !s.holds_relax(), "{s:?}");
+    assert!(
+        hold_drift.contains(&s.hold_force_drift) && !s.holds_relax(),
+        "{s:?}"
+    );
 }
 
 /// A slow creep's held force under position control: relaxing by more than 1 % of the peak.
