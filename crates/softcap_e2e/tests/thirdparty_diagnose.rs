@@ -596,6 +596,19 @@ fn lookalike_slow_creep_g4_force_is_none() {
     check_creep_standard("slow-creep-g4-tau23s-force", -0.01..0.01);
 }
 
+/// The force-controlled creep re-recorded under `longer-holds` (`…/slow-creep-g4-tau23s-force-longer-holds`:
+/// the tip sinks 154–235 µm over each 3.6 s hold at a held force): it must name viscoelasticity
+/// and rule plasticity out, as its position-controlled twin does by the relaxing holds. Ignored:
+/// ≈ 810 CPU-s, and it fails today — under force control the holds do not relax
+/// (−0.0013 ± 0.0011), the set persists (1.038 ± 0.020) and `plasticity` is named (0.2714 →
+/// 0.2176 mm, σ_y 4.94 kPa); the creep under a held force is not yet a rule against a
+/// rate-independent set (the fixtures' README, "Pair 1 under force control").
+#[test]
+#[ignore]
+fn lookalike_slow_creep_g4_force_named_under_longer_holds() {
+    check_creep_longer_holds("slow-creep-g4-tau23s-force-longer-holds", "viscoelasticity");
+}
+
 /// Issue 37 pair 1 under force control, the plastic side (`…/plastic-force`: J2 σ_y 4.5 kPa,
 /// H 4 kPa, E 50 kPa, the probe held at the plasticity case's peak forces): `plasticity` at once,
 /// 0.5006 → 0.1906 mm (σ_y 2.04 kPa, H 1.36 kPa on the homogeneous fit's E 23.4 kPa). Ignored:
