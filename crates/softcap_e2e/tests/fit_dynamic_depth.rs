@@ -17,7 +17,9 @@ use softcap_mesh::nalgebra::Vector3;
 use softcap_synth::{Scenario, synthesize};
 use softcap_tissue::Progress;
 use softcap_tissue::fit_dynamic::run::{FitDynamicConfig, run as fit_run};
-use softcap_tissue::fit_dynamic::synthetic::{SyntheticSpec, clamped_box, write_depth_sessions};
+use softcap_tissue::fit_dynamic::synthetic::{
+    SyntheticSpec, TwistPush, clamped_box, table1_motions, write_depth_sessions,
+};
 use softcap_tissue::fit_dynamic::{
     Blending, DynamicFit, FitDynamicSettings, control_points as make_control_points,
 };
@@ -50,20 +52,12 @@ fn write_sessions(dir: &Path, seed: u64) -> Vec<PathBuf> {
         seed,
         ..SyntheticSpec::small_clamped_bar()
     };
-    let mut specs: Vec<SyntheticSpec> = (0..3u64)
-        .map(|k| SyntheticSpec {
-            seed: if k == 0 { seed } else { seed + 500 + k },
-            ..bend.clone()
-        })
-        .collect();
-    specs.extend((0..4u64).map(|t| SyntheticSpec {
-        push_nodes: top_edge.clone(),
-        push_force_n: Vector3::new(0.0, 3.0, 0.0),
-        push_s: 0.05,
-        frame_rate_hz: 120.0,
-        seed: seed + 1 + t,
-        ..bend.clone()
-    }));
+    let twist = TwistPush {
+        nodes: top_edge,
+        counter_nodes: Vec::new(),
+        force_n: Vector3::new(0.0, 3.0, 0.0),
+    };
+    let specs = table1_motions(&bend, 3, &twist, 4, seed);
     write_depth_sessions(dir, "bar8ab", size, cells, &specs, &E_CP, 0.05, seed).unwrap();
     (0..specs.len())
         .map(|k| dir.join(format!("motion-{k}.toml")))

@@ -62,7 +62,7 @@ use softcap_tissue::fit_dynamic::run::{
     MOTION_GAP_S, drop_lost_frames, sequence_from_track, tracked_mesh,
 };
 use softcap_tissue::fit_dynamic::synthetic::{
-    SyntheticSpec, clamped_box, synthesize_motions, write_depth_sessions,
+    SyntheticSpec, TwistPush, clamped_box, synthesize_motions, table1_motions, write_depth_sessions,
 };
 use softcap_tissue::fit_dynamic::{
     Blending, Elements, FitDynamicSettings, Segment, TrackedSequence, control_points, fit_sequence,
@@ -474,50 +474,31 @@ fn main() {
                 noise_m,
                 ..spec.clone()
             };
-            let mut specs: Vec<SyntheticSpec> = (0..bends)
-                .map(|k| SyntheticSpec {
-                    seed: if k == 0 {
-                        spec.seed
+            // The twist: the far end's top edge pushed sideways (+y) for 0.05 s — a torque
+            // about the bar's axis and a lateral bend — released, 0.5 s at 120 Hz.
+            // `leafab`: the blade twisted instead — its far +y corner (top and bottom
+            // nodes) pushed up (+z), a torque about the blade's axis and a bend.
+            // `--twist-couple`: and its −y corner pushed down as hard (a couple: the twist
+            // mode without the flap).
+            let twist = if case == "leafab" {
+                TwistPush {
+                    nodes: twist_corner.clone(),
+                    counter_nodes: if twist_couple {
+                        counter_corner.clone()
                     } else {
-                        spec.seed + 500 + k as u64
+                        Vec::new()
                     },
-                    ..spec.clone()
-                })
-                .collect();
-            if case.ends_with("ab") {
-                // The twist: the far end's top edge pushed sideways (+y) for 0.05 s — a torque
-                // about the bar's axis and a lateral bend — released, 0.5 s at 120 Hz.
-                // `leafab`: the blade twisted instead — its far +y corner (top and bottom
-                // nodes) pushed up (+z), a torque about the blade's axis and a bend.
-                // `--twist-couple`: and its −y corner pushed down as hard (a couple: the twist
-                // mode without the flap).
-                let (twist_nodes, twist_force) = if case == "leafab" {
-                    (
-                        twist_corner.clone(),
-                        Vector3::new(0.0, 0.0, 1e-3 * twist_mn as f64),
-                    )
-                } else {
-                    (
-                        top_edge.clone(),
-                        Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
-                    )
-                };
-                let counter_nodes = if case == "leafab" && twist_couple {
-                    counter_corner.clone()
-                } else {
-                    Vec::new()
-                };
-                specs.extend((0..twists).map(|t| SyntheticSpec {
-                    push_nodes: twist_nodes.clone(),
-                    push_force_n: twist_force,
-                    counter_push_nodes: counter_nodes.clone(),
-                    push_s: 0.05,
-                    frame_rate_hz: 120.0,
-                    seed: spec.seed + 1 + t as u64,
-                    frames,
-                    ..spec.clone()
-                }));
-            }
+                    force_n: Vector3::new(0.0, 0.0, 1e-3 * twist_mn as f64),
+                }
+            } else {
+                TwistPush {
+                    nodes: top_edge.clone(),
+                    counter_nodes: Vec::new(),
+                    force_n: Vector3::new(0.0, 1e-3 * twist_mn as f64, 0.0),
+                }
+            };
+            let twists = if case.ends_with("ab") { twists } else { 0 };
+            let mut specs = table1_motions(&spec, bends, &twist, twists, seed);
             // The mid-span pushes: the top edge at x = L/2 pushed sideways and down, (0, 1, −1)/√2
             // × `--mid-mn`, for `--mid-ms`, released, 0.5 s at 120 Hz (noise seeds seed + 600 + k):
             // a short push at mid-span rings the second bending modes, whose curvature is spread

@@ -701,7 +701,9 @@ enum Table1Shape {
 /// falls as 1/√twists: 4 twists miss seeds 31, 61 (α +5.1 %, −5.8 %), 12 meet seeds 11–111
 /// (docs/dynamic-fit.md).
 fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64, twists: u64) {
-    use softcap_tissue::fit_dynamic::synthetic::{clamped_box, synthesize_motions};
+    use softcap_tissue::fit_dynamic::synthetic::{
+        TwistPush, clamped_box, synthesize_motions, table1_motions,
+    };
     let (size, cells, young, bend_force) = match shape {
         Table1Shape::Bar => (
             [0.2, 0.03, 0.02],
@@ -747,20 +749,12 @@ fn table1_protocol_meets_the_tolerances(shape: Table1Shape, seed: u64, twists: u
         seed: 0,
         ..SyntheticSpec::small_clamped_bar()
     };
-    let mut specs: Vec<SyntheticSpec> = (0..3u64)
-        .map(|k| SyntheticSpec {
-            seed: if k == 0 { seed } else { seed + 500 + k },
-            ..bend.clone()
-        })
-        .collect();
-    specs.extend((0..twists).map(|t| SyntheticSpec {
-        push_nodes: twist_nodes.clone(),
-        push_force_n: twist_force,
-        push_s: 0.05,
-        frame_rate_hz: 120.0,
-        seed: seed + 1 + t,
-        ..bend.clone()
-    }));
+    let twist = TwistPush {
+        nodes: twist_nodes,
+        counter_nodes: Vec::new(),
+        force_n: twist_force,
+    };
+    let specs = table1_motions(&bend, 3, &twist, twists as usize, seed);
     let truth = synthesize_motions(&specs, 0.1, 0.05).unwrap();
     let settings = softcap_tissue::fit_dynamic::FitDynamicSettings {
         segment_frames: 60,

@@ -313,6 +313,47 @@ pub fn synthesize(spec: &SyntheticSpec) -> Result<Synthetic> {
     })
 }
 
+/// The twist of the Table 1 protocol: `force_n` spread over `nodes` (and −`force_n` over
+/// `counter_nodes`, a couple; empty: none) for 0.05 s, released, filmed at 120 Hz.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TwistPush {
+    /// Nodes pushed.
+    pub nodes: Vec<usize>,
+    /// Nodes pushed the other way (a couple with `nodes`). Empty: none.
+    pub counter_nodes: Vec<usize>,
+    /// Total push force, N.
+    pub force_n: Vector3<f64>,
+}
+
+/// The Table 1 protocol's motion set (wang2015 §7, issue 36): `bend` (its push, frames, noise)
+/// `bends` times, then `twist` `twists` times (pushed for 0.05 s, `bend`'s frames at 120 Hz),
+/// each motion with its own noise draw: the bends on seeds `seed`, `seed` + 501, `seed` + 502, …,
+/// the twists on `seed` + 1, `seed` + 2, …. Join them with [`synthesize_motions`].
+pub fn table1_motions(
+    bend: &SyntheticSpec,
+    bends: usize,
+    twist: &TwistPush,
+    twists: usize,
+    seed: u64,
+) -> Vec<SyntheticSpec> {
+    let mut specs: Vec<SyntheticSpec> = (0..bends as u64)
+        .map(|k| SyntheticSpec {
+            seed: if k == 0 { seed } else { seed + 500 + k },
+            ..bend.clone()
+        })
+        .collect();
+    specs.extend((0..twists as u64).map(|t| SyntheticSpec {
+        push_nodes: twist.nodes.clone(),
+        push_force_n: twist.force_n,
+        counter_push_nodes: twist.counter_nodes.clone(),
+        push_s: 0.05,
+        frame_rate_hz: 120.0,
+        seed: seed + 1 + t,
+        ..bend.clone()
+    }));
+    specs
+}
+
 /// Several recorded motions of one body as one known-truth sequence (wang2015 §7: each object
 /// is filmed in a few motions, fitted jointly): each spec synthesized on its own (its push,
 /// frame rate and noise seed), its push's interaction interval extended by `settle_s`, and
