@@ -302,6 +302,14 @@ pub struct DynamicFit {
     pub segment_robust_sigma: Vec<f64>,
     /// The same sandwich with one cluster per frame (the spatial correlation only).
     pub frame_robust_sigma: Vec<f64>,
+    /// Per control point, the largest |correlation| of its ln E with its neighbours' (c ± 1 in
+    /// [`Self::covariance`]; 0 with one control point): near 1, the motion fixes only a
+    /// combination of the two (neighbours trade off).
+    pub neighbour_correlation: Vec<f64>,
+    /// Per control point, whether the motion determines its E on its own
+    /// ([`observable_control_points`]: 1-σ ≤ [`OBSERVABLE_SIGMA`], neighbour correlation <
+    /// [`OBSERVABLE_CORRELATION`], off the E bounds).
+    pub observable: Vec<bool>,
     /// Trajectory RMS at the starting parameters, m.
     pub rms_initial_m: f64,
     /// Trajectory RMS after the warm start, m, over the first [`Self::rms_warm_segments`]
@@ -366,6 +374,63 @@ impl DynamicFit {
             String::new()
         }
     }
+}
+
+/// Largest relative 1-σ of an observable control point's E: the larger of s²(JᵀJ)⁻¹'s and the
+/// per-segment sandwich's (where ≥ 2 segments bound it), so that 2σ is within the 5 % of
+/// wang2015 Table 1.
+pub const OBSERVABLE_SIGMA: f64 = 0.025;
+
+/// Largest |correlation| of an observable control point's ln E with a neighbour's.
+pub const OBSERVABLE_CORRELATION: f64 = 0.95;
+
+/// Per control point, the largest |correlation| of its ln E with its neighbours' (c − 1,
+/// c + 1) in the covariance `cov` of the log-parameters (the first `nc` are ln E_c).
+pub fn neighbour_correlation(cov: &DMatrix<f64>, nc: usize) -> Vec<f64> {
+    let corr = |a: usize, b: usize| {
+        let d = (cov[(a, a)] * cov[(b, b)]).sqrt();
+        if d > 0.0 && d.is_finite() {
+            (cov[(a, b)] / d).abs()
+        } else {
+            1.0
+        }
+    };
+    (0..nc)
+        .map(|c| {
+            let below = if c > 0 { corr(c, c - 1) } else { 0.0 };
+            let above = if c + 1 < nc { corr(c, c + 1) } else { 0.0 };
+            below.max(above)
+        })
+        .collect()
+}
+
+/// Per control point, whether the fit determines E_c on its own: its relative 1-σ (the larger
+/// of `relative_sigma`, s²(JᵀJ)⁻¹, and `segment_sigma`, the per-segment sandwich, where finite)
+/// ≤ [`OBSERVABLE_SIGMA`], its neighbour correlation < [`OBSERVABLE_CORRELATION`], and E_c
+/// not within 0.1 % of `bounds_pa`. These bound the noise's share of the error only: a bias the
+/// residuals do not show (a tracker's) is not in them.
+pub fn observable_control_points(
+    young_pa: &[f64],
+    relative_sigma: &[f64],
+    segment_sigma: &[f64],
+    neighbour_correlation: &[f64],
+    bounds_pa: [f64; 2],
+) -> Vec<bool> {
+    (0..young_pa.len())
+        .map(|c| {
+            let own = relative_sigma.get(c).copied().unwrap_or(f64::INFINITY);
+            let sandwich = segment_sigma
+                .get(c)
+                .copied()
+                .filter(|s| s.is_finite())
+                .unwrap_or(0.0);
+            let e = young_pa[c];
+            let off_bounds = e > bounds_pa[0] * 1.001 && e < bounds_pa[1] / 1.001;
+            own.max(sandwich) <= OBSERVABLE_SIGMA
+                && neighbour_correlation.get(c).copied().unwrap_or(1.0) < OBSERVABLE_CORRELATION
+                && off_bounds
+        })
+        .collect()
 }
 
 /// The first stage of a fit coarse to fine in time: the p-step on the first segments only.
@@ -1602,6 +1667,14 @@ fn fit_level(
         .map(|m| m.frequencies_hz())
         .unwrap_or_default();
     let (young_pa, damping) = unpack(&q, nc);
+    let neighbour_correlation = neighbour_correlation(&covariance, nc);
+    let observable = observable_control_points(
+        &young_pa,
+        &relative_sigma,
+        &segment_robust_sigma,
+        &neighbour_correlation,
+        settings.young_bounds_pa,
+    );
     let frames = segments.iter().map(|s| s.end - s.start).sum();
     let mut runs = problem.runs(&q, &rest).unwrap_or_default();
     let timing = match &early {
@@ -1625,6 +1698,8 @@ fn fit_level(
         covariance,
         segment_robust_sigma,
         frame_robust_sigma,
+        neighbour_correlation,
+        observable,
         rms_initial_m,
         rms_warm_m,
         rms_warm_segments,
@@ -2466,5 +2541,30 @@ mod tests {
         for threads in [1, 2] {
             assert_eq!(run(threads, true), sequential, "{threads} threads");
         }
+    }
+
+    /// Observable control points: a pair whose ln E correlate at 0.99 (a trade-off), a point
+    /// with 3 % 1-σ on the sandwich, one at its bound and two clean ones.
+    #[test]
+    fn observable_needs_small_sigma_low_neighbour_correlation_and_no_bound() {
+        let nc = 6;
+        let sigma = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01];
+        let mut cov = DMatrix::<f64>::from_diagonal_element(nc, nc, 1e-4);
+        cov[(0, 1)] = 0.99e-4;
+        cov[(1, 0)] = 0.99e-4;
+        cov[(3, 4)] = 0.5e-4;
+        cov[(4, 3)] = 0.5e-4;
+        let corr = neighbour_correlation(&cov, nc);
+        assert!((corr[0] - 0.99).abs() < 1e-12 && (corr[1] - 0.99).abs() < 1e-12);
+        assert_eq!(corr[2], 0.0);
+        assert!((corr[3] - 0.5).abs() < 1e-12);
+        let segment = [0.01, 0.01, 0.03, 0.01, 0.02, f64::INFINITY];
+        let young = [5e5, 5e5, 5e5, 5e5, 5e5, 1e2];
+        let flags = observable_control_points(&young, &sigma, &segment, &corr, [1e2, 1e10]);
+        assert_eq!(flags, [false, false, false, true, true, false]);
+        // An unbounded sandwich (one segment) leaves s²(JᵀJ)⁻¹'s 1-σ.
+        let flags =
+            observable_control_points(&[5e5], &[0.01], &[f64::INFINITY], &[0.0], [1e2, 1e10]);
+        assert_eq!(flags, [true]);
     }
 }

@@ -24,7 +24,8 @@ pub mod warm;
 
 pub use blend::{Blending, ControlPoints, control_points};
 pub use fit::{
-    DynamicFit, EarlyFit, Elements, FitDynamicSettings, JacobianMethod, Optimizer, fit_sequence,
+    DynamicFit, EarlyFit, Elements, FitDynamicSettings, JacobianMethod, OBSERVABLE_CORRELATION,
+    OBSERVABLE_SIGMA, Optimizer, fit_sequence,
 };
 pub use forward::{
     DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Near, Perturbed, StepTrack,

@@ -262,6 +262,7 @@ fn json_sigma(sigma: &[f64], nc: usize) -> String {
 /// correlated tracking noise and a start state's error carried through its segment) and
 /// `sigma_frame_robust` (one cluster per frame); `null` where the data do not bound one (e.g. the
 /// segment sandwich of a single segment). See [`DynamicFit::segment_robust_sigma`].
+/// `neighbour_correlation` and `observable` per control point: [`DynamicFit::observable`].
 pub fn json(fit: &DynamicFit) -> String {
     let list = |v: &[f64]| {
         v.iter()
@@ -278,7 +279,7 @@ pub fn json(fit: &DynamicFit) -> String {
         .collect::<Vec<_>>()
         .join(", ");
     format!(
-        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"status\": \"{}\"\n}}\n",
+        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"neighbour_correlation\": [{}],\n  \"observable\": [{}],\n  \"status\": \"{}\"\n}}\n",
         list(&fit.young_pa),
         list(&fit.young_pa_tets),
         fit.poisson,
@@ -289,6 +290,16 @@ pub fn json(fit: &DynamicFit) -> String {
         json_sigma(&fit.relative_sigma, nc),
         json_sigma(&fit.segment_robust_sigma, nc),
         json_sigma(&fit.frame_robust_sigma, nc),
+        fit.neighbour_correlation
+            .iter()
+            .map(|&x| json_number(x))
+            .collect::<Vec<_>>()
+            .join(", "),
+        fit.observable
+            .iter()
+            .map(bool::to_string)
+            .collect::<Vec<_>>()
+            .join(", "),
         fit.status.replace('"', "'"),
     )
 }
