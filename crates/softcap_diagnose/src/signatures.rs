@@ -24,6 +24,16 @@ pub struct Signatures {
     /// locations' spread / √L; `None` without a hold of two frames.
     #[serde(default)]
     pub hold_force_drift_se: Option<f64>,
+    /// Mean change of the tip's depth along the probe axis while the force is held, as a
+    /// fraction of its depth at the peak force, beyond the held force's own rise
+    /// ([`hold_tip_creep`]): > 0 the tip sinking under a held load (force control); 0 under
+    /// position control, where the tip is held.
+    #[serde(default)]
+    pub hold_tip_creep: f64,
+    /// The standard error of [`Signatures::hold_tip_creep`] from the tip depth's scatter about
+    /// its trend in each hold, or the locations' spread; `None` without a held force.
+    #[serde(default)]
+    pub hold_tip_creep_se: Option<f64>,
     /// Mean delay of the force behind the tip depth at 10 % of the ramp, s.
     pub force_delay_10_s: f64,
     /// … at 50 % of the ramp, s (pure time shift: equal delays; first-order lag: growing delay).
@@ -124,6 +134,21 @@ impl Signatures {
         })
     }
 
+    /// The tip sinks under a held load beyond its noise: [`Signatures::hold_tip_creep`] (net of
+    /// the held force's own rise: an elastic or rate-independent body's depth grows at most in
+    /// proportion to its force, as F^{2/3} under a Hertz contact) above [`HOLD_CREEP_FLOOR`] and
+    /// more than [`HOLD_DRIFT_Z`] standard errors above zero. Under force control a
+    /// rate-independent body stops where its load stops — J2 plasticity flows only while the
+    /// stress on its hardening yield surface grows (Simo & Hughes 1998 Box 3.1), an elastic body
+    /// not at all — while a Prony branch creeps at the held stress, J(t) growing by g e^{−t/τ}
+    /// terms (§10.3): the counterpart of [`Signatures::holds_relax`]. Under position control the
+    /// tip is held and this is false.
+    pub fn holds_creep(&self) -> bool {
+        self.hold_tip_creep_se.is_some_and(|se| {
+            self.hold_tip_creep > HOLD_CREEP_FLOOR && self.hold_tip_creep - HOLD_DRIFT_Z * se > 0.0
+        })
+    }
+
     /// The force delays of a pure time shift, decided against their own noise: a reading that
     /// leads the geometry (a 50 % delay below zero, which no lag gives), or a delay growth from
     /// 10 % to 50 % of the ramp within [`DELAY_GROWTH_Z`] standard errors of a shift's
@@ -175,6 +200,19 @@ pub const HOLD_DRIFT_Z: f64 = 3.0;
 /// clock-offset); the third-party J2 truth −0.0024 ± 0.0012, the third-party controls within
 /// ±0.003; the third-party slow creep g 2, τ 30 s under tripled holds −0.0508 ± 0.0081.
 pub const HOLD_RELAXATION_FLOOR: f64 = 0.03;
+
+/// The smallest creep of the tip under a held load, as a fraction of its depth at the peak
+/// force, that [`Signatures::holds_creep`] reads: about twice the largest measured on a
+/// rate-independent truth, each within 1.2 of its standard errors of 0: the third-party J2 case
+/// 0.0037 ± 0.0105 under position control and 0.0027 ± 0.0092 under force control
+/// (`lookalikes/plastic-force`), its elastic controls within ±0.012 (strain-stiffening
+/// 0.0113 ± 0.0103). The third-party g 4, τ 23 s creep under force control sinks 0.049 ± 0.011
+/// over 1.2 s holds and 0.109 ± 0.009 over 3.6 s holds.
+pub const HOLD_CREEP_FLOOR: f64 = 0.025;
+
+/// The band below its peak within which a location's force counts as held
+/// ([`held_force_frames`]): the segmentation's default `hold_fraction`.
+const HELD_FORCE_FRACTION: f64 = 0.03;
 
 /// How closely (relative) the 50 % delay of a model read as the data are (`model_delay_growths`)
 /// must match the measured one: the bisection's 40 halvings of [0, 4 d₅₀] leave 4 × 2⁻⁴⁰ d₅₀; a
@@ -276,16 +314,16 @@ pub fn signatures(rec: &Recording, seg: &Segmentation, res: &Residuals) -> Signa
 fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     let t = rec.times_s();
     let fmag: Vec<f64> = rec.frames.iter().map(|f| f.force_n.norm()).collect();
-    s.hold_force_drift_se = hold_drift_se(seg, &fmag);
-    let (mut drift, mut nd) = (0.0, 0);
+    if let Some((drift, se)) = hold_change(&force_holds(seg, &fmag)) {
+        (s.hold_force_drift, s.hold_force_drift_se) = (drift, Some(se));
+    }
+    if let Some((creep, se)) = hold_tip_creep(rec, seg, &fmag) {
+        (s.hold_tip_creep, s.hold_tip_creep_se) = (creep, Some(se));
+    }
     let (mut d10, mut d50, mut ndel) = (0.0, 0.0, 0);
     let (mut growths, mut shift_growth, mut lag_growth, mut nmodel) = (Vec::new(), 0.0, 0.0, 0);
     let (mut fh, mut gh, mut nh) = (0.0, 0.0, 0);
     for l in &seg.locations {
-        if let Some(d) = hold_drift(seg, l, &fmag) {
-            drift += d;
-            nd += 1;
-        }
         let Some(ramp) = ramp_signatures(rec, seg, l, &t, &fmag) else {
             continue;
         };
@@ -304,9 +342,6 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
         gh += ramp.geometry_loop;
         nh += 1;
     }
-    if nd > 0 {
-        s.hold_force_drift = drift / nd as f64;
-    }
     if ndel > 0 {
         s.force_delay_10_s = d10 / ndel as f64;
         s.force_delay_50_s = d50 / ndel as f64;
@@ -324,24 +359,132 @@ fn force_signatures(rec: &Recording, seg: &Segmentation, s: &mut Signatures) {
     }
 }
 
-/// (last − first) / peak of the force over location `l`'s hold frames (at least two).
-fn hold_drift(seg: &Segmentation, l: &Location, fmag: &[f64]) -> Option<f64> {
-    let hold = seg.hold_frames(l);
-    (hold.len() >= 2 && l.peak_force_n > 0.0)
-        .then(|| (fmag[*hold.last().unwrap_or(&0)] - fmag[hold[0]]) / l.peak_force_n)
+/// One location's hold: a signal at its hold frames (ascending) and the scale its change over
+/// the hold is measured in.
+struct HoldSeries {
+    frames: Vec<usize>,
+    values: Vec<f64>,
+    scale: f64,
 }
 
-/// The force noise σ_f per frame in the holds, N: the median |second difference| of ‖f‖ over
-/// three consecutive hold frames of one location, / (0.6745 √6) (white noise of σ_f gives second
-/// differences of σ_f √6; the median ignores a jump of the contact state as
-/// [`noise_sigma_m`] ignores a marker's). `None` without such three frames.
-pub fn hold_force_noise_n(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
-    let mut d: Vec<f64> = Vec::new();
+impl HoldSeries {
+    /// (last − first) / scale over the hold (at least two frames).
+    fn change(&self) -> Option<f64> {
+        (self.values.len() >= 2 && self.scale > 0.0)
+            .then(|| (self.values[self.values.len() - 1] - self.values[0]) / self.scale)
+    }
+}
+
+/// ‖f‖ over each location's holds, in units of its peak force.
+fn force_holds(seg: &Segmentation, fmag: &[f64]) -> Vec<HoldSeries> {
+    seg.locations
+        .iter()
+        .map(|l| {
+            let frames = seg.hold_frames(l);
+            HoldSeries {
+                values: frames.iter().map(|&k| fmag[k]).collect(),
+                frames,
+                scale: l.peak_force_n,
+            }
+        })
+        .collect()
+}
+
+/// The frames of location `l`'s contact run at which its force is held: from the first to the
+/// last with ‖f‖ within [`HELD_FORCE_FRACTION`] of its peak. Under force control the
+/// segmentation's hold — the frames within its `hold_fraction` of the deepest — misses the start
+/// of a hold whose tip sinks; under position control these are its hold.
+fn held_force_frames(l: &Location, fmag: &[f64]) -> Vec<usize> {
+    let level = (1.0 - HELD_FORCE_FRACTION) * l.peak_force_n;
+    let cf = &l.contact_frames;
+    match (
+        cf.iter().position(|&k| fmag[k] >= level),
+        cf.iter().rposition(|&k| fmag[k] >= level),
+    ) {
+        (Some(a), Some(b)) if b > a => cf[a..=b].to_vec(),
+        _ => Vec::new(),
+    }
+}
+
+/// The least-squares line through (t_k, y_k): its change over [t_first, t_last] and that
+/// change's standard error from the line's residual, σ̂ (t_last − t_first) / √Σ(t − t̄)²,
+/// σ̂² = Σ r² / (n − 2). `None` with fewer than three points or no spread in t.
+fn line_change(t: &[f64], y: &[f64]) -> Option<(f64, f64)> {
+    let n = t.len();
+    if n < 3 {
+        return None;
+    }
+    let (tm, ym) = (
+        t.iter().sum::<f64>() / n as f64,
+        y.iter().sum::<f64>() / n as f64,
+    );
+    let stt: f64 = t.iter().map(|ti| (ti - tm).powi(2)).sum();
+    if stt <= 0.0 {
+        return None;
+    }
+    let slope = t
+        .iter()
+        .zip(y)
+        .map(|(ti, yi)| (ti - tm) * (yi - ym))
+        .sum::<f64>()
+        / stt;
+    let rss: f64 = t
+        .iter()
+        .zip(y)
+        .map(|(ti, yi)| (yi - ym - slope * (ti - tm)).powi(2))
+        .sum();
+    let span = t[n - 1] - t[0];
+    let sigma = (rss / (n - 2) as f64).sqrt();
+    Some((slope * span, sigma * span / stt.sqrt()))
+}
+
+/// The tip's creep under the held force ([`Signatures::hold_tip_creep`]) and its standard error:
+/// per location, over its [`held_force_frames`], the change of the tip's depth along the probe
+/// axis ([`line_change`]) in units of its depth at the peak force, less the held force's own rise
+/// in units of its peak (its [`line_change`] where > 0); the mean over the locations, with the
+/// larger of √Σ se_l² / L and the locations' spread / √L. `None` without a location holding its
+/// force over three frames.
+fn hold_tip_creep(rec: &Recording, seg: &Segmentation, fmag: &[f64]) -> Option<(f64, f64)> {
+    let mut creeps: Vec<f64> = Vec::new();
+    let mut var = 0.0;
     for l in &seg.locations {
-        let hold = seg.hold_frames(l);
-        for w in hold.windows(3) {
+        let depth_at_peak = (l.peak_tip_m - l.contact_tip_m).dot(&l.axis);
+        let frames = held_force_frames(l, fmag);
+        if depth_at_peak <= 0.0 || l.peak_force_n <= 0.0 {
+            continue;
+        }
+        let t: Vec<f64> = frames.iter().map(|&k| rec.frames[k].time_s).collect();
+        let depth: Vec<f64> = frames
+            .iter()
+            .map(|&k| (rec.frames[k].tip_m - l.contact_tip_m).dot(&l.axis) / depth_at_peak)
+            .collect();
+        let force: Vec<f64> = frames.iter().map(|&k| fmag[k] / l.peak_force_n).collect();
+        let (Some((dc, dse)), Some((fc, _))) = (line_change(&t, &depth), line_change(&t, &force))
+        else {
+            continue;
+        };
+        creeps.push(dc - fc.max(0.0));
+        var += dse * dse;
+    }
+    if creeps.is_empty() {
+        return None;
+    }
+    let n = creeps.len() as f64;
+    let (mean, sd) = mean_sd(&creeps);
+    Some((mean, (var.sqrt() / n).max(sd / n.sqrt())))
+}
+
+/// The noise σ per frame of a signal in the holds: the median |second difference| over three
+/// consecutive hold frames of one location, / (0.6745 √6) (white noise of σ gives second
+/// differences of σ √6; the median ignores a jump of the contact state as [`noise_sigma_m`]
+/// ignores a marker's, and a smooth drift's curvature is below it). `None` without such three
+/// frames.
+fn hold_noise(holds: &[HoldSeries]) -> Option<f64> {
+    let mut d: Vec<f64> = Vec::new();
+    for h in holds {
+        for (w, v) in h.frames.windows(3).zip(h.values.windows(3)) {
             if w[1] == w[0] + 1 && w[2] == w[1] + 1 {
-                d.push((fmag[w[0]] - 2.0 * fmag[w[1]] + fmag[w[2]]).abs());
+                d.push((v[0] - 2.0 * v[1] + v[2]).abs());
             }
         }
     }
@@ -352,26 +495,38 @@ pub fn hold_force_noise_n(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
     Some(d[d.len() / 2] / (0.6745 * 6f64.sqrt()))
 }
 
-/// The standard error of the mean hold-force drift ([`Signatures::hold_force_drift_se`]) over
-/// the L locations with a drift d_l = (f_last − f_first)/P_l (`hold_drift`): the larger of the
-/// noise's, σ_f √(2 Σ_l P_l⁻²) / L (σ_f from [`hold_force_noise_n`]: each drift differences two
-/// frames), and the locations' spread, sd(d_l)/√L (L ≥ 2: what varies from hold to hold beyond
-/// the noise, a contact that changes mid-hold). `None` without a drift.
-pub fn hold_drift_se(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
-    let (drifts, inv_peak2): (Vec<f64>, Vec<f64>) = seg
-        .locations
+/// The mean change over the holds (`HoldSeries::change`) and its standard error over the L
+/// locations with a change c_l: the larger of the noise's, σ √(2 Σ_l s_l⁻²) / L (σ from
+/// [`hold_noise`]: each change differences two frames), and the locations' spread, sd(c_l)/√L
+/// (L ≥ 2: what varies from hold to hold beyond the noise, a contact that changes mid-hold).
+/// `None` without a change.
+fn hold_change(holds: &[HoldSeries]) -> Option<(f64, f64)> {
+    let (changes, inv_scale2): (Vec<f64>, Vec<f64>) = holds
         .iter()
-        .filter_map(|l| hold_drift(seg, l, fmag).map(|d| (d, l.peak_force_n.powi(-2))))
+        .filter_map(|h| h.change().map(|c| (c, h.scale.powi(-2))))
         .unzip();
-    if drifts.is_empty() {
+    if changes.is_empty() {
         return None;
     }
-    let n = drifts.len() as f64;
-    let noise = hold_force_noise_n(seg, fmag)
-        .map(|sf| sf * (2.0 * inv_peak2.iter().sum::<f64>()).sqrt() / n)
+    let n = changes.len() as f64;
+    let noise = hold_noise(holds)
+        .map(|sigma| sigma * (2.0 * inv_scale2.iter().sum::<f64>()).sqrt() / n)
         .unwrap_or(0.0);
-    let spread = mean_sd(&drifts).1 / n.sqrt();
-    Some(noise.max(spread))
+    let (mean, sd) = mean_sd(&changes);
+    Some((mean, noise.max(sd / n.sqrt())))
+}
+
+/// The force noise σ_f per frame in the holds, N ([`hold_noise`] of ‖f‖). `None` without three
+/// consecutive hold frames.
+pub fn hold_force_noise_n(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
+    hold_noise(&force_holds(seg, fmag))
+}
+
+/// The standard error of the mean hold-force drift ([`Signatures::hold_force_drift_se`]): the
+/// [`hold_change`] of ‖f‖ over the holds in units of each location's peak force, the noise's
+/// σ_f √(2 Σ_l P_l⁻²) / L or the locations' spread. `None` without a drift.
+pub fn hold_drift_se(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
+    hold_change(&force_holds(seg, fmag)).map(|(_, se)| se)
 }
 
 /// The force's delays behind the geometry on one location's first ramp.
@@ -1185,6 +1340,105 @@ mod tests {
             drifts.push((held[held.len() - 1] - held[0]) / held[0]);
         }
         (Recording::two_marker_toy(frames), drifts)
+    }
+
+    /// Four presses of a standard linear solid under force control: the force ramped to 0.6 N in
+    /// 0.5 s and held 2.9 s, the spring k and one Maxwell branch g k, τ (Simo & Hughes 1998
+    /// §10.3, the exact update of `sls_presses` solved for the depth at the given force), the tip
+    /// read with noise σ_x per frame and the force with σ_f. Returns the recording and each
+    /// press's noiseless depth over its held frames in units of its depth at the end of the ramp.
+    fn sls_force_presses(g: f64, tau: f64, sigma_x: f64, seed: u64) -> (Recording, Vec<Vec<f64>>) {
+        use crate::recording::Frame;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let (dt, k, force) = (0.1, 300.0, 0.6);
+        let mut profile = vec![0.0, 0.0];
+        profile.extend((1..=5).map(|i| i as f64 / 5.0));
+        profile.extend([1.0; 29]);
+        profile.extend([2.0 / 3.0, 1.0 / 3.0, 0.0, 0.0, 0.0, 0.0]);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let (nx, nf) = (
+            Normal::new(0.0, sigma_x).unwrap(),
+            Normal::new(0.0, 0.002).unwrap(),
+        );
+        let (mut frames, mut held) = (Vec::new(), Vec::new());
+        for i in 0..4 {
+            let tip = Vector3::new(0.01 * i as f64, 0.0, 0.01);
+            let (mut q, mut prev) = (0.0, 0.0);
+            let mut depths = Vec::new();
+            for &s in &profile {
+                let f = force * s;
+                let decay = (-dt / tau).exp();
+                let c = tau * (1.0 - decay) / dt;
+                // f = k (d + g q), q = q decay + (d − prev) c
+                let d = (f / k - g * (q * decay - prev * c)) / (1.0 + g * c);
+                q = q * decay + (d - prev) * c;
+                prev = d;
+                if s == 1.0 {
+                    depths.push(d);
+                }
+                let k_frame = frames.len();
+                frames.push(Frame {
+                    frame: k_frame as u64,
+                    time_s: k_frame as f64 * dt,
+                    tip_m: tip - Vector3::z() * (d + nx.sample(&mut rng)),
+                    axis: -Vector3::z(),
+                    force_n: -Vector3::z() * (f + nf.sample(&mut rng)).max(0.0),
+                    markers_m: vec![None; 2],
+                });
+            }
+            let d0 = depths[0];
+            held.push(depths.iter().map(|d| d / d0).collect());
+        }
+        (Recording::two_marker_toy(frames), held)
+    }
+
+    /// The tip's creep under a held force against the noiseless one: a Maxwell branch g 1,
+    /// τ 30 s sinks the held tip by ≈ 4.7 % of its depth over the 2.9 s hold, a rate-independent
+    /// body (g 0) not at all; the tip read with 10 µm noise on ≈ 1 mm. The creep is within 4
+    /// standard errors of the least-squares change of the noiseless held depths, the standard
+    /// error within 0.5–2 × the line's σ_x √(12/n) / depth / √L; only the Maxwell branch creeps
+    /// beyond [`HOLD_CREEP_FLOOR`], rules plasticity out and is read as relaxing by neither
+    /// holds' force (force control). Fails when the trend is read from two noisy frames, the
+    /// force's held frames are not found, or the sign or scale is wrong.
+    #[test]
+    fn hold_tip_creep_reads_a_maxwell_creep_under_a_held_force() {
+        use crate::hypotheses::Hypothesis;
+        use crate::hypotheses::plasticity::Plasticity;
+        use crate::segment::SegmentSettings;
+        let sigma_x = 10e-6;
+        for (g, seed) in [(1.0, 3), (0.0, 4)] {
+            let (rec, held) = sls_force_presses(g, 30.0, sigma_x, seed);
+            let seg = Segmentation::new(&rec, &SegmentSettings::default());
+            assert_eq!(seg.num_folds(), 4);
+            let t: Vec<f64> = (0..held[0].len()).map(|i| i as f64 * 0.1).collect();
+            let expected = held
+                .iter()
+                .map(|h| line_change(&t, h).unwrap().0)
+                .sum::<f64>()
+                / 4.0;
+            let mut s = Signatures::default();
+            force_signatures(&rec, &seg, &mut s);
+            let se = s.hold_tip_creep_se.unwrap();
+            let depth = 0.6 / 300.0 / (1.0 + g * 30.0 * (1.0 - (-0.1f64 / 30.0).exp()) / 0.1);
+            let line_se = sigma_x * (12.0 / 29.0f64).sqrt() / depth / 2.0;
+            assert!(
+                (0.5 * line_se..2.0 * line_se).contains(&se),
+                "se {se} vs {line_se}"
+            );
+            assert!(
+                (s.hold_tip_creep - expected).abs() < 4.0 * se,
+                "creep {} vs {expected}",
+                s.hold_tip_creep
+            );
+            if g > 0.0 {
+                assert!((0.04..0.06).contains(&expected), "{expected}");
+                assert!(s.hold_tip_creep > 5.0 * se, "{s:?}");
+            }
+            assert!(!s.holds_relax(), "{s:?}");
+            assert_eq!(s.holds_creep(), g > 0.0, "g {g}: {s:?}");
+            assert_eq!(Plasticity.ruled_out(&s).is_some(), g > 0.0);
+        }
     }
 
     /// The hold-force drift and its standard error against the analytic ones: a Maxwell branch

@@ -170,19 +170,31 @@ impl Hypothesis for Plasticity {
         }
     }
 
-    /// Ruled out when the held force relaxes beyond its noise ([`Signatures::holds_relax`]) and
-    /// the surface does not rebound past rest after release (a body ringing against the held tip
-    /// loses hold force too, `super::inertia_damping::rebounds`): under position control a
-    /// rate-independent J2 body holds its force at the held depth (Simo & Hughes 1998 Box 3.1:
-    /// no flow at fixed strain); a creep relaxes it. A slow creep's set persists over the gaps
-    /// between releases as a plastic one does (issue 37's look-alike pair 1); its holds do not
-    /// hold the force.
+    /// Ruled out when the held force relaxes beyond its noise ([`Signatures::holds_relax`]) or
+    /// the tip sinks under a held load ([`Signatures::holds_creep`]), and the surface does not
+    /// rebound past rest after release (a body ringing against the held tip loses hold force
+    /// too, `super::inertia_damping::rebounds`): a rate-independent J2 body holds its force at a
+    /// held depth and its depth at a held force (Simo & Hughes 1998 Box 3.1: no flow at fixed
+    /// strain or at a stress that stops growing); a creep does neither. A slow creep's set
+    /// persists over the gaps between releases as a plastic one does (issue 37's look-alike
+    /// pair 1, under position and under force control); its holds give it away.
     fn ruled_out(&self, s: &Signatures) -> Option<String> {
-        (s.holds_relax() && !super::inertia_damping::rebounds(s)).then(|| {
-            format!(
+        if super::inertia_damping::rebounds(s) {
+            return None;
+        }
+        if s.holds_relax() {
+            return Some(format!(
                 "ruled out: the held force relaxes by {:.4} of the peak (standard error {:.4}), which a rate-independent set held at its depth does not",
                 -s.hold_force_drift,
                 s.hold_force_drift_se.unwrap_or(0.0)
+            ));
+        }
+        s.holds_creep().then(|| {
+            format!(
+                "ruled out: the tip sinks by {:.4} of its depth under the held force (standard error {:.4}; the force drifts {:+.4}), which a rate-independent set at a held load does not",
+                s.hold_tip_creep,
+                s.hold_tip_creep_se.unwrap_or(0.0),
+                s.hold_force_drift
             )
         })
     }

@@ -122,13 +122,14 @@ impl Hypothesis for Viscoelasticity {
             .collect()
     }
 
-    /// The hold-force drift's sign, and no opinion when the surface rebounds past its rest
+    /// The hold-force drift's sign (+1 also when the tip creeps under a held load,
+    /// [`Signatures::holds_creep`]), and no opinion when the surface rebounds past its rest
     /// shape after release ([`super::inertia_damping::rebounds`]): creep recovery never
     /// overshoots rest, and a body ringing against the held tip loses hold force too.
     fn signature_support(&self, s: &Signatures) -> f64 {
         if super::inertia_damping::rebounds(s) {
             0.0
-        } else if s.hold_force_drift < -0.01 {
+        } else if s.hold_force_drift < -0.01 || s.holds_creep() {
             1.0
         } else if s.hold_force_drift > 0.01 {
             -1.0
