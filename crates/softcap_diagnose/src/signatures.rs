@@ -26,7 +26,7 @@ pub struct Signatures {
     pub hold_force_drift_se: Option<f64>,
     /// Mean change of the tip's depth along the probe axis while the force is held, as a
     /// fraction of its depth at the peak force, beyond the held force's own rise
-    /// ([`hold_tip_creep`]): > 0 the tip sinking under a held load (force control); 0 under
+    /// (`hold_tip_creep`): > 0 the tip sinking under a held load (force control); 0 under
     /// position control, where the tip is held.
     #[serde(default)]
     pub hold_tip_creep: f64,
@@ -516,14 +516,15 @@ fn hold_change(holds: &[HoldSeries]) -> Option<(f64, f64)> {
     Some((mean, noise.max(sd / n.sqrt())))
 }
 
-/// The force noise σ_f per frame in the holds, N ([`hold_noise`] of ‖f‖). `None` without three
+/// The force noise σ_f per frame in the holds, N (`hold_noise` of ‖f‖: the median |second
+/// difference| of ‖f‖ over three consecutive hold frames / (0.6745 √6)). `None` without three
 /// consecutive hold frames.
 pub fn hold_force_noise_n(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
     hold_noise(&force_holds(seg, fmag))
 }
 
 /// The standard error of the mean hold-force drift ([`Signatures::hold_force_drift_se`]): the
-/// [`hold_change`] of ‖f‖ over the holds in units of each location's peak force, the noise's
+/// `hold_change` of ‖f‖ over the holds in units of each location's peak force, the noise's
 /// σ_f √(2 Σ_l P_l⁻²) / L or the locations' spread. `None` without a drift.
 pub fn hold_drift_se(seg: &Segmentation, fmag: &[f64]) -> Option<f64> {
     hold_change(&force_holds(seg, fmag)).map(|(_, se)| se)
