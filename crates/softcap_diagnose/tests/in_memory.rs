@@ -1962,8 +1962,10 @@ fn first_effect_three_fold(d: &softcap_diagnose::Diagnosis) -> &softcap_diagnose
 fn print_ranked(d: &softcap_diagnose::Diagnosis) {
     if let Some(s) = d.ranked.first().map(|r| &r.evidence.signatures) {
         eprintln!(
-            "  signatures drift {:.4} delay10 {:.4} delay50 {:.4} growth se {:?} shift/lag growth {:.4}/{:.4} set {:.2e} persist {:?} ± {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
+            "  signatures drift {:.4} tip creep {:.4} ± {:?} delay10 {:.4} delay50 {:.4} growth se {:?} shift/lag growth {:.4}/{:.4} set {:.2e} persist {:?} ± {:?} drag {:.2e} attached {:.2e} far {:.2e} 3σ {:.2e}",
             s.hold_force_drift,
+            s.hold_tip_creep,
+            s.hold_tip_creep_se,
             s.force_delay_10_s,
             s.force_delay_50_s,
             s.force_delay_growth_se_s,
