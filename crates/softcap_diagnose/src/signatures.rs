@@ -1298,98 +1298,76 @@ mod tests {
         assert!(shift.abs() < 1e-4 && lag > 1e-3, "{shift} {lag}");
     }
 
-    /// Position-controlled presses at four places (dt 0.1 s: 2 rest frames, a 0.5 s ramp to
-    /// 2 mm, 30 frames at depth, a 0.3 s unload, 3 rest frames), the force of a standard linear
-    /// solid F = k (d + g q), q̇ = ḋ − q/τ (one Maxwell branch, Simo & Hughes 1998 §10.3),
-    /// integrated exactly for the piecewise-linear depth, plus white noise σ_f on ‖f‖. Returns the
-    /// recording and the noise-free drift of every hold, (F_last − F_first)/F_first.
-    fn sls_presses(g: f64, tau: f64, sigma_f: f64, seed: u64) -> (Recording, Vec<f64>) {
+    /// Four presses of a standard linear solid F = k (d + g q), q̇ = ḋ − q/τ (one Maxwell branch,
+    /// Simo & Hughes 1998 §10.3, integrated exactly for a piecewise-linear depth) at four places
+    /// (dt 0.1 s: 2 rest frames, a 0.5 s ramp, 30 held frames, a 0.3 s unload, 3 rest frames).
+    /// Position control (`force_control` false) ramps the depth to 2 mm and reads the force with
+    /// white noise σ_f on ‖f‖; force control ramps the force to 0.6 N, solves the same update for
+    /// the depth and reads the tip with noise `sigma_x` per frame (the force with 2 mN). Returns
+    /// the recording and, per press, the noise-free held signal — the force under position
+    /// control, the depth in units of its first held value under force control.
+    fn sls_session(
+        g: f64,
+        tau: f64,
+        force_control: bool,
+        sigma_f: f64,
+        sigma_x: f64,
+        seed: u64,
+    ) -> (Recording, Vec<Vec<f64>>) {
         use crate::recording::Frame;
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
-        let (dt, k, depth) = (0.1, 300.0, 0.002);
+        let (dt, k, depth, force) = (0.1, 300.0, 0.002, 0.6);
         let mut profile = vec![0.0, 0.0];
         profile.extend((1..=5).map(|i| i as f64 / 5.0));
         profile.extend([1.0; 29]);
         profile.extend([2.0 / 3.0, 1.0 / 3.0, 0.0, 0.0, 0.0, 0.0]);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let noise = Normal::new(0.0, sigma_f).unwrap();
-        let (mut frames, mut drifts) = (Vec::new(), Vec::new());
-        for i in 0..4 {
-            let tip = Vector3::new(0.01 * i as f64, 0.0, 0.01);
-            let (mut q, mut prev) = (0.0, 0.0);
-            let mut held = Vec::new();
-            for &s in &profile {
-                let d = depth * s;
-                let decay = (-dt / tau).exp();
-                q = q * decay + (d - prev) / dt * tau * (1.0 - decay);
-                prev = d;
-                let f = k * (d + g * q);
-                if s == 1.0 {
-                    held.push(f);
-                }
-                let k_frame = frames.len();
-                frames.push(Frame {
-                    frame: k_frame as u64,
-                    time_s: k_frame as f64 * dt,
-                    tip_m: tip - Vector3::z() * d,
-                    axis: -Vector3::z(),
-                    force_n: -Vector3::z() * (f + noise.sample(&mut rng)).max(0.0),
-                    markers_m: vec![None; 2],
-                });
-            }
-            drifts.push((held[held.len() - 1] - held[0]) / held[0]);
-        }
-        (Recording::two_marker_toy(frames), drifts)
-    }
-
-    /// Four presses of a standard linear solid under force control: the force ramped to 0.6 N in
-    /// 0.5 s and held 2.9 s, the spring k and one Maxwell branch g k, τ (Simo & Hughes 1998
-    /// §10.3, the exact update of `sls_presses` solved for the depth at the given force), the tip
-    /// read with noise σ_x per frame and the force with σ_f. Returns the recording and each
-    /// press's noiseless depth over its held frames in units of its depth at the end of the ramp.
-    fn sls_force_presses(g: f64, tau: f64, sigma_x: f64, seed: u64) -> (Recording, Vec<Vec<f64>>) {
-        use crate::recording::Frame;
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, Normal};
-        let (dt, k, force) = (0.1, 300.0, 0.6);
-        let mut profile = vec![0.0, 0.0];
-        profile.extend((1..=5).map(|i| i as f64 / 5.0));
-        profile.extend([1.0; 29]);
-        profile.extend([2.0 / 3.0, 1.0 / 3.0, 0.0, 0.0, 0.0, 0.0]);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let (nx, nf) = (
+        let (nf, nx) = (
+            Normal::new(0.0, sigma_f).unwrap(),
             Normal::new(0.0, sigma_x).unwrap(),
-            Normal::new(0.0, 0.002).unwrap(),
         );
         let (mut frames, mut held) = (Vec::new(), Vec::new());
         for i in 0..4 {
             let tip = Vector3::new(0.01 * i as f64, 0.0, 0.01);
             let (mut q, mut prev) = (0.0, 0.0);
-            let mut depths = Vec::new();
+            let mut signal = Vec::new();
             for &s in &profile {
-                let f = force * s;
                 let decay = (-dt / tau).exp();
                 let c = tau * (1.0 - decay) / dt;
-                // f = k (d + g q), q = q decay + (d − prev) c
-                let d = (f / k - g * (q * decay - prev * c)) / (1.0 + g * c);
+                // F = k (d + g q), q ← q decay + (d − prev) c: d given, or solved for at F
+                let (d, f) = if force_control {
+                    let f = force * s;
+                    ((f / k - g * (q * decay - prev * c)) / (1.0 + g * c), f)
+                } else {
+                    let d = depth * s;
+                    (d, k * (d + g * (q * decay + (d - prev) * c)))
+                };
                 q = q * decay + (d - prev) * c;
                 prev = d;
                 if s == 1.0 {
-                    depths.push(d);
+                    signal.push(if force_control { d } else { f });
                 }
                 let k_frame = frames.len();
+                let x_noise = if force_control {
+                    nx.sample(&mut rng)
+                } else {
+                    0.0
+                };
                 frames.push(Frame {
                     frame: k_frame as u64,
                     time_s: k_frame as f64 * dt,
-                    tip_m: tip - Vector3::z() * (d + nx.sample(&mut rng)),
+                    tip_m: tip - Vector3::z() * (d + x_noise),
                     axis: -Vector3::z(),
                     force_n: -Vector3::z() * (f + nf.sample(&mut rng)).max(0.0),
                     markers_m: vec![None; 2],
                 });
             }
-            let d0 = depths[0];
-            held.push(depths.iter().map(|d| d / d0).collect());
+            if force_control {
+                let d0 = signal[0];
+                signal.iter_mut().for_each(|d| *d /= d0);
+            }
+            held.push(signal);
         }
         (Recording::two_marker_toy(frames), held)
     }
@@ -1409,7 +1387,7 @@ mod tests {
         use crate::segment::SegmentSettings;
         let sigma_x = 10e-6;
         for (g, seed) in [(1.0, 3), (0.0, 4)] {
-            let (rec, held) = sls_force_presses(g, 30.0, sigma_x, seed);
+            let (rec, held) = sls_session(g, 30.0, true, 0.002, sigma_x, seed);
             let seg = Segmentation::new(&rec, &SegmentSettings::default());
             assert_eq!(seg.num_folds(), 4);
             let t: Vec<f64> = (0..held[0].len()).map(|i| i as f64 * 0.1).collect();
@@ -1461,7 +1439,11 @@ mod tests {
         let q0 = rate * tau * (1.0 - (-0.5f64 / tau).exp());
         let analytic = g * q0 * ((-29.0 * dt / tau).exp() - 1.0) / (0.002 + g * q0);
         for (g, seed) in [(1.0, 7), (0.0, 8)] {
-            let (rec, drifts) = sls_presses(g, tau, sigma_f, seed);
+            let (rec, held) = sls_session(g, tau, false, sigma_f, 0.0, seed);
+            let drifts: Vec<f64> = held
+                .iter()
+                .map(|h| (h[h.len() - 1] - h[0]) / h[0])
+                .collect();
             let seg = Segmentation::new(&rec, &SegmentSettings::default());
             assert_eq!(seg.num_folds(), 4);
             for l in &seg.locations {
