@@ -19,7 +19,9 @@
 //! the 10-node shape functions in their linear-mesh tets, `quad` must be the last step). POINT: `r:SY:H:NU` a rigid-tip replay
 //! (σ_y and H as fractions of the peak contact pressure, NU a Poisson ratio or `fit`),
 //! `f:SY:H` a force-driven sequence, `none` (the meshes only); default: the hypothesis's eight
-//! rigid-tip points.
+//! rigid-tip points. Environment of the `quad` replays: `QUAD_CONTACT` = `all` (default),
+//! `corners` or `midside` — the surface nodes that carry the tip's penalty springs;
+//! `QUAD_PENALTY` — the penalty factor (default `FemSimSettings::rigid_tip_contact`'s).
 
 use softcap_diagnose::hypotheses::Hypothesis;
 use softcap_diagnose::hypotheses::plasticity::Plasticity;
@@ -308,10 +310,28 @@ fn quad_replay(
     let setup = fine.setup();
     let dirichlet = setup.dirichlet();
     let mut solver = QuadraticRigidTipSolver::new(&model, &dirichlet.dofs())?;
-    let candidates: Vec<usize> = setup.free_boundary_nodes();
+    // QUAD_CONTACT=all (default) | corners | midside: which surface nodes of the 10-node mesh
+    // carry the rigid tip's penalty springs (corner nodes are the linear mesh's, < n_corner)
+    let n_corner = sim.setup().mesh.vertices.len();
+    let which = std::env::var("QUAD_CONTACT").unwrap_or_else(|_| "all".into());
+    let candidates: Vec<usize> = setup
+        .free_boundary_nodes()
+        .into_iter()
+        .filter(|&i| match which.as_str() {
+            "corners" => i < n_corner,
+            "midside" => i >= n_corner,
+            _ => true,
+        })
+        .collect();
     let mut settings = sim.settings().equilibrium.clone();
     settings.max_iterations = settings.max_iterations.max(80);
-    let contact_settings = sim.settings().rigid_tip_contact.clone();
+    let mut contact_settings = sim.settings().rigid_tip_contact.clone();
+    if let Some(f) = std::env::var("QUAD_PENALTY")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        contact_settings.penalty_factor = f;
+    }
     let problem = |iso: Isometry3<f64>| -> Result<ContactProblem, softcap_fem::FemError> {
         Ok(ContactProblem {
             probe: Probe::new(tip.clone(), iso)?.with_punch_face(),
