@@ -603,5 +603,42 @@ pub fn write_depth_sessions(
     std::fs::write(dir.join("motions.txt"), list)?;
     let young: String = e_cp.iter().map(|e| format!("{e:?}\n")).collect();
     std::fs::write(dir.join("young-pa.txt"), young)?;
+    if let Some(spec) = specs.first() {
+        write_truth_material(&dir.join("truth-material.mcap"), spec)?;
+    }
+    Ok(())
+}
+
+/// `/tissue/dynamic_material` of the truth of `spec` (E per tet, ν, ρ, α, β and the rest shape,
+/// m): `softcap tissue track --material` with it tracks with the material that made the motion
+/// (an oracle for the tracker's own bias; `TRUTH_MATERIAL=1 scripts/fit-dynamic-table1-track`).
+/// The tets are `box_tet_mesh`'s, as the depth sessions' template's.
+pub fn write_truth_material(path: &std::path::Path, spec: &SyntheticSpec) -> std::io::Result<()> {
+    use softcap_mcap::{Provenance, Writer, proto, topics};
+    let material = proto::DynamicMaterial {
+        element: "corotational".into(),
+        young_pa: spec.young_pa.clone(),
+        poisson: spec.poisson,
+        density_kg_m3: spec.density_kg_m3,
+        rayleigh_alpha_per_s: spec.damping.alpha_per_s,
+        rayleigh_beta_s: spec.damping.beta_s,
+        rest_positions_m: spec
+            .rest_mesh
+            .vertices
+            .iter()
+            .flat_map(|v| [v.x, v.y, v.z])
+            .collect(),
+    };
+    let mut w = Writer::create(
+        path,
+        &Provenance::new(
+            "fit_dynamic_table1 --write-sessions",
+            env!("CARGO_PKG_VERSION"),
+        ),
+    )
+    .map_err(std::io::Error::other)?;
+    w.write_static(&topics::DYNAMIC_MATERIAL, &material)
+        .map_err(std::io::Error::other)?;
+    w.finish().map_err(std::io::Error::other)?;
     Ok(())
 }
