@@ -45,7 +45,8 @@
 //! `--write-sessions DIR`: no fit; every motion's noise-free truth written as a dynamic scenario
 //! for the depth rig (`DIR/motion-K.toml` and its external truth `DIR/truth-K/`, depth-noise
 //! seed `--seed` + 1000 K), for `softcap synth` → `capture` → `tissue track` (the Table 1
-//! protocol through files: `scripts/fit-dynamic-table1-track`). `--tracks DIR`: the motions as
+//! protocol through files: `scripts/fit-dynamic-table1-track`), and the truth's material
+//! (`DIR/truth-material.mcap`, for `tissue track --material`). `--tracks DIR`: the motions as
 //! tracked (`DIR/motion-K-track.mcap`) replace the emulated tracking noise; prints the tracking
 //! error against the truth per motion (`--no-fit`: that only; `--max-outlier F`: frames with
 //! outlier fraction above F / 1000 left out, default `max_outlier_fraction`), then fits as from the synthetic
