@@ -81,6 +81,43 @@ impl Drop for Sequence {
     }
 }
 
+/// This thread's CPU seconds when profiling (0 otherwise).
+pub(crate) fn thread_cpu() -> f64 {
+    if enabled() {
+        softcap_app::process::thread_cpu_seconds().unwrap_or(f64::NAN)
+    } else {
+        0.0
+    }
+}
+
+/// One `PROFILE-FRAMES` line for a rigid-tip replay: frames stepped of `frames`, their thread
+/// CPU-s, the 5 costliest (frame: CPU-s) and the failure (`failed`: the last frame's status).
+pub(crate) fn replay_frames(
+    mu: Option<f64>,
+    tets: usize,
+    cpu: &[(usize, f64)],
+    frames: usize,
+    failed: Option<&str>,
+) {
+    if !enabled() {
+        return;
+    }
+    let total: f64 = cpu.iter().map(|c| c.1).sum();
+    let mut top = cpu.to_vec();
+    top.sort_by(|a, b| b.1.total_cmp(&a.1));
+    top.truncate(5);
+    let top: Vec<String> = top.iter().map(|(k, c)| format!("{k}: {c:.1}")).collect();
+    eprintln!(
+        "PROFILE-FRAMES | mu {mu:?} | {tets} tets | stepped {} of {frames} | {total:.1} thread CPU-s | costliest {} | {}",
+        cpu.len(),
+        top.join(", "),
+        failed.map_or("converged".to_string(), |s| format!(
+            "FAILED at frame {}: {s}",
+            cpu.last().map_or(0, |c| c.0)
+        ))
+    );
+}
+
 /// Counts one equilibrium solve of `iterations` iterations on a mesh of `tets` tets.
 pub(crate) fn solve(iterations: usize, tets: usize) {
     if enabled() {

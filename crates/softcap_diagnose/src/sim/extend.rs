@@ -919,6 +919,9 @@ impl FemProbeSimulator {
         let mut poses = CarriedPoses::default();
         // the body force of the previous frame when it was solved off the surface
         let mut previous_at_rest: Option<Vector3<f64>> = None;
+        // (frame, thread CPU-s of its step) for the profile
+        let mut frame_cpu: Vec<(usize, f64)> = Vec::new();
+        let mu = friction.map(|f| f.mu);
         for (k, fr) in frames.iter().enumerate() {
             let f = self.nodal_load(&SimLoad {
                 probe: None,
@@ -944,14 +947,31 @@ impl FemProbeSimulator {
                 && previous_at_rest.as_ref() == Some(&fr.load.body_force_n_m3)
                 && !out.is_empty();
             if !unchanged {
-                replay
-                    .step(&mut state, &f, path, dt, &mut before, &mut commit)?
-                    .map_err(|status| not_converged(k, status))?;
+                let t0 = crate::profile::thread_cpu();
+                let stepped = replay.step(&mut state, &f, path, dt, &mut before, &mut commit)?;
+                frame_cpu.push((k, crate::profile::thread_cpu() - t0));
+                if let Err(status) = stepped {
+                    crate::profile::replay_frames(
+                        mu,
+                        self.setup().mesh.tets.len(),
+                        &frame_cpu,
+                        frames.len(),
+                        Some(&status),
+                    );
+                    return Err(not_converged(k, status));
+                }
             }
             previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);
             prev_pose = pose;
             out.push(self.setup().marker_positions(&state.x));
         }
+        crate::profile::replay_frames(
+            mu,
+            self.setup().mesh.tets.len(),
+            &frame_cpu,
+            frames.len(),
+            None,
+        );
         Ok(out)
     }
 }
