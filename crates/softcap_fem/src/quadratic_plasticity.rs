@@ -334,6 +334,7 @@ impl QuadraticRigidTipSolver {
         let mut table: Vec<f64> = Vec::new();
         let mut last: Vec<ContactSpring> = Vec::new();
         let mut last_update = f64::INFINITY;
+        let trace = std::env::var_os("SOFTCAP_QUAD_TRACE").is_some();
         for it in 0..settings.max_iterations {
             let (mut values, fi) = self.assemble(model, x);
             if table.is_empty() {
@@ -341,11 +342,24 @@ impl QuadraticRigidTipSolver {
                     .map(|n| self.pattern.node_stiffness(n, &values))
                     .collect();
             }
-            let springs = contact.map_or(Vec::new(), |c| {
-                c.springs_with_hysteresis(x, |n| table[n], &last)
-            });
+            // the active set re-queried (with hysteresis) up to `contact_freeze_after`
+            // iterations, then frozen as a linear force field (as `StaticSolver::solve`)
+            let frozen = it >= settings.contact_freeze_after && it > 0;
+            let springs = if frozen {
+                last.clone()
+            } else {
+                contact.map_or(Vec::new(), |c| {
+                    c.springs_with_hysteresis(x, |n| table[n], &last)
+                })
+            };
             let (r, scale) = self.residual(&fi, x, f_ext, &springs);
             let rn = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if trace {
+                eprintln!(
+                    "quad it {it}: |r| {rn:.3e} N (scale {scale:.3e}), {} springs, last update {last_update:.3e} m",
+                    springs.len()
+                );
+            }
             report.residual_norm_n = rn;
             if let Some(c) = contact {
                 report.contact = c.report(&springs, x);
@@ -380,8 +394,11 @@ impl QuadraticRigidTipSolver {
                 for _ in 0..=settings.max_halvings {
                     let mut xt = x.to_vec();
                     self.dofs().scatter_add(&dx, s, &mut xt);
-                    let st =
-                        contact.map_or(Vec::new(), |c| c.springs_with(&xt, |n| table[n], &springs));
+                    let st = match contact {
+                        Some(_) if frozen => springs.clone(),
+                        Some(c) => c.springs_with(&xt, |n| table[n], &springs),
+                        None => Vec::new(),
+                    };
                     let fit = model.internal_forces(&xt);
                     let (rt, _) = self.residual(&fit, &xt, f_ext, &st);
                     let rtn = rt.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -542,5 +559,99 @@ mod tests {
         assert!(rep.converged, "{rep:?}");
         let set = 0.01 - top.iter().map(|&i| x[i].z).sum::<f64>() / top.len() as f64;
         assert!(set > 1e-4 && set < 1.5e-3, "permanent set {set}");
+    }
+
+    #[test]
+    fn flat_punch_contact_converges_to_the_prescribed_displacement_limit() {
+        // A cube (2 × 2 × 1 cells, bottom fixed) pressed 5, 10, 15 % by a frictionless flat punch
+        // wider than its top and released. As the penalty grows the contact solution tends to the
+        // one with the top nodes' z prescribed at the punch face and x, y free (the same
+        // frictionless limit): every contact step must converge, and the positions, the
+        // yielded points and the permanent set must match the prescribed-displacement replay
+        // to the penalty's relative error (k_c = 10⁴ × the node stiffness).
+        use crate::contact::{ContactSettings, Probe, TipShape};
+        use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+        let build = || {
+            let q = quadratic_tets(&box_tet_mesh([0.0; 3], [0.01; 3], [2, 2, 1]));
+            let n = q.elements.len();
+            QuadraticElastoplasticModel::new(
+                &q.nodes,
+                &q.elements,
+                vec![LinearParams::from_young_poisson(50e3, 0.45).unwrap(); n],
+                vec![
+                    J2PlasticityParams {
+                        yield_stress_pa: 4.5e3,
+                        hardening_modulus_pa: 4e3,
+                    };
+                    n
+                ],
+                true,
+            )
+            .unwrap()
+        };
+        let (mut mc, mut md) = (build(), build());
+        let rest = mc.rest.clone();
+        let n = rest.len();
+        let bottom: Vec<usize> = (0..n).filter(|&i| rest[i].z < 1e-9).collect();
+        let top: Vec<usize> = (0..n).filter(|&i| rest[i].z > 0.01 - 1e-9).collect();
+        let fixed: Vec<usize> = bottom
+            .iter()
+            .flat_map(|&i| [3 * i, 3 * i + 1, 3 * i + 2])
+            .collect();
+        let mut prescribed = fixed.clone();
+        prescribed.extend(top.iter().map(|&i| 3 * i + 2));
+        prescribed.sort_unstable();
+        let settings = EquilibriumSettings::default();
+        let f = vec![Vector3::zeros(); n];
+        let mut sc = QuadraticRigidTipSolver::new(&mc, &fixed).unwrap();
+        let mut sd = QuadraticRigidTipSolver::new(&md, &prescribed).unwrap();
+        let (mut xc, mut xd) = (rest.clone(), rest.clone());
+        // probe +z (approach) along world −z, leading face at the pressed height
+        let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+        for k in 1..=3 {
+            let z = 0.01 * (1.0 - 0.05 * k as f64);
+            let probe = Probe::new(
+                TipShape::Disk {
+                    radius_m: 0.02,
+                    thickness_m: 0.01,
+                },
+                Isometry3::from_parts(Translation3::new(0.005, 0.005, z), down),
+            )
+            .unwrap()
+            .with_punch_face();
+            let contact = ContactProblem {
+                probe,
+                candidate_nodes: top.clone(),
+                settings: ContactSettings::default(),
+            };
+            let rep = sc.solve(&mc, &mut xc, &f, Some(&contact), &settings);
+            assert!(rep.converged, "contact step {k}: {rep:?}");
+            assert!(rep.contact.axial_force_n > 0.0);
+            for &i in &top {
+                xd[i].z = z;
+            }
+            let rep = sd.solve(&md, &mut xd, &f, None, &settings);
+            assert!(rep.converged, "prescribed step {k}: {rep:?}");
+            let worst = (0..n).map(|i| (xc[i] - xd[i]).norm()).fold(0.0, f64::max);
+            assert!(
+                worst < 1e-3 * 0.0005 * k as f64 * 10.0,
+                "step {k}: {worst} m apart"
+            );
+            let (yc, yd) = (mc.commit(&xc), md.commit(&xd));
+            assert_eq!(yc, yd, "step {k}: yielded points");
+            assert!(yc > 0);
+        }
+        let mut sd = QuadraticRigidTipSolver::new(&md, &fixed).unwrap();
+        let rc = sc.solve(&mc, &mut xc, &f, None, &settings);
+        let rd = sd.solve(&md, &mut xd, &f, None, &settings);
+        assert!(rc.converged && rd.converged, "{rc:?} {rd:?}");
+        let set =
+            |x: &[Vector3<f64>]| 0.01 - top.iter().map(|&i| x[i].z).sum::<f64>() / top.len() as f64;
+        let (a, b) = (set(&xc), set(&xd));
+        assert!(b > 1e-4, "permanent set {b}");
+        assert!(
+            (a - b).abs() < 1e-3 * b,
+            "permanent set {a} (contact) vs {b}"
+        );
     }
 }
