@@ -426,7 +426,12 @@ mod tests {
     use softcap_mesh::box_tet_mesh;
 
     fn model(corotated: bool) -> QuadraticElastoplasticModel {
-        let q = quadratic_tets(&box_tet_mesh([0.0; 3], [0.01; 3], [1, 1, 1]));
+        model_on([1, 1, 1], corotated)
+    }
+
+    /// A 1 cm cube of `cells` Kuhn cells as 10-node tets, E 50 kPa, ν 0.45, σ_y 4.5 kPa, H 4 kPa.
+    fn model_on(cells: [usize; 3], corotated: bool) -> QuadraticElastoplasticModel {
+        let q = quadratic_tets(&box_tet_mesh([0.0; 3], [0.01; 3], cells));
         let n = q.elements.len();
         QuadraticElastoplasticModel::new(
             &q.nodes,
@@ -575,25 +580,7 @@ mod tests {
         // leave the patch: the unilateral limit differs from prescribing the whole top.
         use crate::contact::{ContactSettings, Probe, TipShape};
         use nalgebra::{Isometry3, Translation3, UnitQuaternion};
-        let build = || {
-            let q = quadratic_tets(&box_tet_mesh([0.0; 3], [0.01; 3], [2, 2, 1]));
-            let n = q.elements.len();
-            QuadraticElastoplasticModel::new(
-                &q.nodes,
-                &q.elements,
-                vec![LinearParams::from_young_poisson(50e3, 0.45).unwrap(); n],
-                vec![
-                    J2PlasticityParams {
-                        yield_stress_pa: 4.5e3,
-                        hardening_modulus_pa: 4e3,
-                    };
-                    n
-                ],
-                true,
-            )
-            .unwrap()
-        };
-        let (mut mc, mut md) = (build(), build());
+        let (mut mc, mut md) = (model_on([2, 2, 1], true), model_on([2, 2, 1], true));
         let rest = mc.rest.clone();
         let n = rest.len();
         let bottom: Vec<usize> = (0..n).filter(|&i| rest[i].z < 1e-9).collect();
