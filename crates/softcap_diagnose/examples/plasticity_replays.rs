@@ -13,15 +13,13 @@
 //! MESH: `fit`, `bisN` (bisected to N × the tets, `ProbeSimulator::bisected`), `ref8` (1 → 8),
 //! `local:F:S` (refined inside the touched balls scaled by S to a longest edge of F × the fit
 //! mesh's longest, `FemProbeSimulator::refined_near`), `localmm:L:S` (the same to a longest edge
-//! of L mm); `A+B` applies B to A's result (`ref8+localmm:1:0.6`); `quad` (`quadsmall`): the
-//! rigid-tip J2 replays on the 10-node tets of the mesh so far
-//! (`softcap_fem::QuadraticElastoplasticModel`, corotated or small-strain kinematics; markers by
-//! the 10-node shape functions in their linear-mesh tets, `quad` must be the last step). POINT: `r:SY:H:NU` a rigid-tip replay
+//! of L mm); `A+B` applies B to A's result (`ref8+localmm:1:0.6`); `quad`: the rigid-tip J2
+//! replays on the 10-node tets of the mesh so far (`FemProbeSimulator::quadratic`, small-strain
+//! kinematics; markers by the 10-node shape functions in their linear-mesh tets; the last step).
+//! POINT: `r:SY:H:NU` a rigid-tip replay
 //! (σ_y and H as fractions of the peak contact pressure, NU a Poisson ratio or `fit`),
 //! `f:SY:H` a force-driven sequence, `none` (the meshes only); default: the hypothesis's eight
-//! rigid-tip points. Environment of the `quad` replays: `QUAD_CONTACT` = `all` (default),
-//! `corners` or `midside` — the surface nodes that carry the tip's penalty springs;
-//! `QUAD_PENALTY` — the penalty factor (default `FemSimSettings::rigid_tip_contact`'s).
+//! rigid-tip points.
 
 use softcap_diagnose::hypotheses::Hypothesis;
 use softcap_diagnose::hypotheses::plasticity::Plasticity;
@@ -150,11 +148,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (c0, t0) = (cpu_s(), std::time::Instant::now());
         // `+` chains refinements, each applied to the previous one's result
         let mut sim = build()?;
-        let mut quad: Option<bool> = None;
         for step in spec.split('+') {
-            sim = if step == "quad" || step == "quadsmall" {
-                quad = Some(step == "quad");
-                sim
+            sim = if step == "quad" {
+                sim.quadratic()?
             } else if step == "fit" {
                 sim
             } else if step == "ref8" {
@@ -198,21 +194,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let (sy, hh) = (f[1].parse::<f64>()?, f[2].parse::<f64>()?);
             let (yield_stress_pa, hardening_pa) = (sy * pressure_pa, hh * pressure_pa);
             let (c1, t1) = (cpu_s(), std::time::Instant::now());
-            let x = if let (Some(corotated), "r") = (quad, f[0]) {
-                let nu = match f.get(3).copied() {
-                    None | Some("fit") => None,
-                    Some(nu) => Some(nu.parse::<f64>()?),
-                };
-                quad_replay(
-                    &sim,
-                    &rec,
-                    &tip,
-                    nu,
-                    yield_stress_pa,
-                    hardening_pa,
-                    corotated,
-                )?
-            } else if f[0] == "r" {
+            let x = if f[0] == "r" {
                 let ext = match f.get(3).copied() {
                     None | Some("fit") => Extension::Plastic {
                         yield_stress_pa,
@@ -259,184 +241,4 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
-}
-
-/// The rigid-tip J2 replay of `FemProbeSimulator::simulate_sequence_rigid_tip` on the 10-node tets
-/// of `sim`'s mesh (the same frames, poses, flat-punch tip, candidate surface nodes — here every
-/// boundary node of the once-refined mesh, i.e. corners and edge midpoints —, attached nodes,
-/// gravity lumped on the once-refined mesh, 1 / 4 / 16 sub-steps, commit after every converged
-/// sub-step); the elastic parameters per element from `sim` with Poisson ratio `nu` if given.
-/// Markers by the 10-node shape functions at their barycentric coordinates in `sim`'s tets.
-fn quad_replay(
-    sim: &FemProbeSimulator,
-    rec: &Recording,
-    tip: &TipShape,
-    nu: Option<f64>,
-    yield_stress_pa: f64,
-    hardening_pa: f64,
-    corotated: bool,
-) -> Result<Field, Box<dyn std::error::Error>> {
-    use softcap_diagnose::nalgebra::{Isometry3, Translation3};
-    use softcap_fem::{
-        ContactProblem, J2PlasticityParams, LinearParams, Probe, QuadraticElastoplasticModel,
-        QuadraticRigidTipSolver, quadratic_tets, shape_functions,
-    };
-    let fine = sim.refined()?;
-    let q = quadratic_tets(&sim.setup().mesh);
-    if q.nodes != fine.setup().mesh.vertices {
-        return Err("quadratic nodes differ from the refined mesh's".into());
-    }
-    let params: Vec<LinearParams> = sim
-        .model()
-        .params()
-        .iter()
-        .map(|p| match nu {
-            Some(nu) => LinearParams::from_young_poisson(p.to_young_poisson()?.0, nu),
-            None => Ok(*p),
-        })
-        .collect::<Result<_, _>>()?;
-    let plastic = J2PlasticityParams {
-        yield_stress_pa,
-        hardening_modulus_pa: hardening_pa,
-    };
-    let n_el = q.elements.len();
-    let mut model = QuadraticElastoplasticModel::new(
-        &q.nodes,
-        &q.elements,
-        params,
-        vec![plastic; n_el],
-        corotated,
-    )?;
-    let setup = fine.setup();
-    let dirichlet = setup.dirichlet();
-    let mut solver = QuadraticRigidTipSolver::new(&model, &dirichlet.dofs())?;
-    // QUAD_CONTACT=all (default) | corners | midside: which surface nodes of the 10-node mesh
-    // carry the rigid tip's penalty springs (corner nodes are the linear mesh's, < n_corner)
-    let n_corner = sim.setup().mesh.vertices.len();
-    let which = std::env::var("QUAD_CONTACT").unwrap_or_else(|_| "all".into());
-    let candidates: Vec<usize> = setup
-        .free_boundary_nodes()
-        .into_iter()
-        .filter(|&i| match which.as_str() {
-            "corners" => i < n_corner,
-            "midside" => i >= n_corner,
-            _ => true,
-        })
-        .collect();
-    let mut settings = sim.settings().equilibrium.clone();
-    settings.max_iterations = settings.max_iterations.max(80);
-    let mut contact_settings = sim.settings().rigid_tip_contact.clone();
-    if let Some(f) = std::env::var("QUAD_PENALTY")
-        .ok()
-        .and_then(|v| v.parse().ok())
-    {
-        contact_settings.penalty_factor = f;
-    }
-    let problem = |iso: Isometry3<f64>| -> Result<ContactProblem, softcap_fem::FemError> {
-        Ok(ContactProblem {
-            probe: Probe::new(tip.clone(), iso)?.with_punch_face(),
-            candidate_nodes: candidates.clone(),
-            settings: contact_settings.clone(),
-        })
-    };
-    let rest = q.nodes.clone();
-    let markers = |x: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
-        sim.setup()
-            .markers
-            .iter()
-            .map(|m| {
-                let n = shape_functions(m.weights);
-                let el = &q.elements[m.tet];
-                (0..10).map(|a| x[el[a]] * n[a]).sum()
-            })
-            .collect()
-    };
-    let frames = pose_sequence(rec);
-    let mut x = rest.clone();
-    let mut out = Vec::with_capacity(frames.len());
-    let mut prev_pose: Option<Isometry3<f64>> = None;
-    let mut previous_at_rest: Option<Vector3<f64>> = None;
-    let (mut solves, mut iterations) = (0usize, 0usize);
-    for (k, fr) in frames.iter().enumerate() {
-        let f = fine.body_forces(&fr.load.body_force_n_m3);
-        let pose = fr
-            .load
-            .probe
-            .map(|p| softcap_probing::synthesis::probe_pose(&p.tip_m, &p.axis));
-        let touches = match pose {
-            Some(iso) => {
-                let p = problem(iso)?;
-                candidates.iter().any(|&i| {
-                    p.probe.penetration(&rest[i]).is_some() || p.probe.penetration(&x[i]).is_some()
-                })
-            }
-            None => false,
-        };
-        let path = match (touches, pose) {
-            (true, Some(to)) => Some((prev_pose.unwrap_or(to), to)),
-            _ => None,
-        };
-        let at_rest = path.is_none();
-        let unchanged = at_rest
-            && previous_at_rest.as_ref() == Some(&fr.load.body_force_n_m3)
-            && !out.is_empty();
-        if !unchanged {
-            let (start_x, start_model) = (x.clone(), model.clone());
-            let mut done = false;
-            let mut last = String::new();
-            'attempts: for substeps in [1usize, 4, 16] {
-                x.clone_from(&start_x);
-                model = start_model.clone();
-                for s in 1..=substeps {
-                    let t = s as f64 / substeps as f64;
-                    let pr = path
-                        .map(|(from, to)| {
-                            problem(Isometry3::from_parts(
-                                Translation3::from(
-                                    from.translation.vector.lerp(&to.translation.vector, t),
-                                ),
-                                from.rotation.slerp(&to.rotation, t),
-                            ))
-                        })
-                        .transpose()?;
-                    dirichlet.apply(&mut x);
-                    let rep = solver.solve(&model, &mut x, &f, pr.as_ref(), &settings);
-                    solves += 1;
-                    iterations += rep.iterations;
-                    if !rep.converged {
-                        last = format!(
-                            "{substeps} sub-steps: {} iterations, residual {:.3e} N, {} springs",
-                            rep.iterations,
-                            rep.residual_norm_n,
-                            rep.contact.patch_nodes.len()
-                        );
-                        continue 'attempts;
-                    }
-                    model.commit(&x);
-                }
-                done = true;
-                break;
-            }
-            if !done {
-                return Err(
-                    format!("quadratic replay: frame {k} did not converge ({last})").into(),
-                );
-            }
-        }
-        previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);
-        prev_pose = pose;
-        out.push(markers(&x));
-    }
-    let yielded = model
-        .plastic_states()
-        .iter()
-        .flatten()
-        .filter(|s| s.equivalent_plastic_strain > 0.0)
-        .count();
-    println!(
-        "QUAD {} elements, {} nodes, corotated {corotated}: {solves} solves, {iterations} Newton iterations, {yielded} yielded points",
-        n_el,
-        q.nodes.len()
-    );
-    Ok(out)
 }

@@ -201,8 +201,8 @@ pub struct Replays {
     pub neighbourhoods: Vec<Vec<usize>>,
     /// Converged rigid-tip replays.
     pub rigid: Vec<Candidate>,
-    /// Rigid-tip replays of some of `rigid`'s points re-run on the refined mesh
-    /// ([`Replays::run_coarse_first`]; empty otherwise).
+    /// Rigid-tip replays of some of `rigid`'s points re-run on the refined mesh or the 10-node
+    /// tets ([`Replays::run_coarse_first`]; empty otherwise).
     pub rigid_fine: Vec<Candidate>,
     /// The rigid candidate (index into `rigid`) each of `rigid_fine` refines.
     pub rigid_fine_from: Vec<usize>,
@@ -210,7 +210,8 @@ pub struct Replays {
     pub rigid_neighbourhoods: Vec<Vec<usize>>,
     /// Grid points attempted.
     pub total: usize,
-    /// The refined copy the rigid-tip replays ran on (`None`: they ran on the fit mesh).
+    /// The refined (or 10-node) copy the rigid-tip replays ran on (`None`: they ran on the fit
+    /// mesh).
     pub replay_mesh: Option<Box<dyn ProbeSimulator>>,
 }
 
@@ -303,7 +304,9 @@ impl Replays {
     /// ([`ProbeSimulator::bisected`]) — each fold (and the full data) ranks them by its training
     /// error ([`lolo_rankings`]) and keeps its `refine_at_most` best, and the points kept most
     /// often — at most `refine_at_most` — are replayed again on the refined copy (`refined_mesh`
-    /// = 1, 1 → 8), where the fold decides between them. The ranking is the element's: a rigid
+    /// = 1, 1 → 8) or, with `quadratic`, on the 10-node tets of the fit mesh
+    /// ([`ProbeSimulator::quadratic`]; `quadratic_mesh` = 1 in place of `refined_mesh`), where the
+    /// fold decides between them. The ranking is the element's: a rigid
     /// tip's contact error on the fit mesh's linear tets reorders close points (own-rig
     /// plasticity, 648 tets: the 1 → 8 winner ranks 6th of 8 in every fold), while the fit mesh
     /// bisected once (1 → 2, 1,296 tets, ≈ 2× a fit-mesh replay's cost against ≈ 15× for
@@ -327,6 +330,7 @@ impl Replays {
         refine_at_most: usize,
         family: Option<&str>,
         rank_tet_factor: usize,
+        quadratic: bool,
     ) -> Result<Self> {
         let points = rigid.clone();
         for (params, _) in &mut rigid {
@@ -358,8 +362,18 @@ impl Replays {
             .map(|c| family.and_then(|name| family_key(c, name)))
             .collect();
         let chosen = most_chosen(&flat, &keys, refine_at_most);
-        let Some(mut fine) = sim.refined(&touched_balls(rec, seg))? else {
+        let fine = if quadratic {
+            sim.quadratic()?
+        } else {
+            sim.refined(&touched_balls(rec, seg))?
+        };
+        let Some(mut fine) = fine else {
             return Ok(replays);
+        };
+        let mesh_param = if quadratic {
+            "quadratic_mesh"
+        } else {
+            "refined_mesh"
         };
         // the chosen points (their parameters without the coarse `refined_mesh` entry)
         let grid: Vec<RigidPoint> = chosen
@@ -373,7 +387,7 @@ impl Replays {
                     .ok_or_else(|| DiagnoseError::BadRecording {
                         what: "coarse-first replay: a candidate without its grid point".into(),
                     })?;
-                params.push(("refined_mesh".into(), 1.0));
+                params.push((mesh_param.into(), 1.0));
                 Ok((params, ext))
             })
             .collect::<Result<_>>()?;

@@ -75,6 +75,10 @@ pub struct DiagnoseSettings {
     /// in every fold, the fit mesh bisected once (r = 2) ranks it first in every fold (r = 4
     /// scrambles it again).
     pub plasticity_ranking_refinement: usize,
+    /// With `plasticity_refined_replays` > 0: the kept rigid-tip points are replayed on the
+    /// 10-node tets of the fit mesh (`ProbeSimulator::quadratic`, small-strain J2) instead of
+    /// the linear tets refined 1 → 8, which lock under the isochoric plastic flow.
+    pub plasticity_quadratic_replays: bool,
     /// A verdict named on the markers whose look-alike it cannot out-explain there is still
     /// named when both have a force-channel model ([`crate::indentation`]), its own qualifies, and
     /// it out-explains the look-alike on the force channel by more than this many fold-to-fold
@@ -103,8 +107,9 @@ impl Default for DiagnoseSettings {
             outliers: OutlierSettings::default(),
             unexplained_noise_factor: 5.0,
             name_on_force_channel: true,
-            plasticity_refined_replays: 1,
+            plasticity_refined_replays: 2,
             plasticity_ranking_refinement: 2,
+            plasticity_quadratic_replays: true,
             force_tiebreak_spreads: 2.0,
         }
     }

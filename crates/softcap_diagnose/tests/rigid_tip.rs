@@ -216,6 +216,54 @@ fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_dro
     assert!(s_lo > -2e-3);
 }
 
+/// `FemProbeSimulator::quadratic`: the plasticity replays on the 10-node tets of the same mesh
+/// (small-strain J2 at their quadrature points). The markers read by the 10-node shape functions
+/// sit at their rest positions while the tip hovers (the straight-sided 10-node tet interpolates
+/// X exactly); without yield the contact node follows the tip as on the linear tets (position
+/// control, within 8 % of the depth) and nothing is left after release; with yield a downward
+/// set, larger for a lower yield stress and smaller than the 2 mm press.
+#[test]
+fn quadratic_replay_of_j2_plasticity_follows_the_tip_and_leaves_a_set() {
+    let sim = simulator(Some(sphere())).quadratic().unwrap();
+    let rest = markers();
+    let set = |yield_stress_pa: f64| {
+        let x = sim
+            .simulate_sequence_rigid_tip(
+                &Extension::Plastic {
+                    yield_stress_pa,
+                    hardening_pa: 200.0,
+                },
+                &frames(),
+            )
+            .unwrap()
+            .unwrap();
+        (x[8][0].z - rest[0].z, x)
+    };
+    let (s_hi, x_hi) = set(1e9);
+    for (m, r) in rest.iter().enumerate() {
+        assert!(
+            (x_hi[0][m] - r).norm() < 1e-12,
+            "marker {m} off rest while hovering"
+        );
+    }
+    for (k, d) in DEPTHS_MM.iter().enumerate() {
+        let (dz, want) = (x_hi[k][0].z - rest[0].z, -1e-3 * d.max(0.0));
+        assert!(
+            (dz - want).abs() <= 8e-2 * want.abs() + 1e-9,
+            "frame {k}: centre marker dz {dz:e} m, tip depth {want:e} m"
+        );
+    }
+    assert!(s_hi.abs() < 1e-9, "no yield, set {s_hi:e} m");
+    let (s_mid, _) = set(2000.0);
+    let (s_lo, _) = set(500.0);
+    assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
+    assert!(
+        s_lo < s_mid,
+        "set at 0.5 kPa {s_lo:e} m vs 2 kPa {s_mid:e} m"
+    );
+    assert!(s_lo > -2e-3);
+}
+
 /// A recording whose every frame is offset by the same vector (template ≠ observed rest shape,
 /// as under gravity pre-load) has a released offset but no released SET; a dent that appears only
 /// after the probe left has both.

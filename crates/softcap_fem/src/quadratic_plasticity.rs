@@ -254,6 +254,9 @@ pub struct QuadraticSolveReport {
     pub residual_norm_n: f64,
     /// The probe's contact at the end.
     pub contact: ContactReport,
+    /// Per Newton iteration: ‖r‖ on the free dofs (N), the contact springs it used and the
+    /// largest update before it (m; infinite at the first).
+    pub history: Vec<(f64, usize, f64)>,
 }
 
 /// Equilibrium of a [`QuadraticElastoplasticModel`] with a rigid probe (module docs).
@@ -334,7 +337,6 @@ impl QuadraticRigidTipSolver {
         let mut table: Vec<f64> = Vec::new();
         let mut last: Vec<ContactSpring> = Vec::new();
         let mut last_update = f64::INFINITY;
-        let trace = std::env::var_os("SOFTCAP_QUAD_TRACE").is_some();
         for it in 0..settings.max_iterations {
             let (mut values, fi) = self.assemble(model, x);
             if table.is_empty() {
@@ -354,12 +356,7 @@ impl QuadraticRigidTipSolver {
             };
             let (r, scale) = self.residual(&fi, x, f_ext, &springs);
             let rn = r.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if trace {
-                eprintln!(
-                    "quad it {it}: |r| {rn:.3e} N (scale {scale:.3e}), {} springs, last update {last_update:.3e} m",
-                    springs.len()
-                );
-            }
+            report.history.push((rn, springs.len(), last_update));
             report.residual_norm_n = rn;
             if let Some(c) = contact {
                 report.contact = c.report(&springs, x);

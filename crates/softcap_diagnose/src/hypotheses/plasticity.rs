@@ -261,7 +261,17 @@ impl Hypothesis for Plasticity {
                 }
             }
         }
-        // every rigid-tip point replayed refined, or ranked on a cheaper mesh first
+        // every rigid-tip point replayed refined, or ranked on a cheaper mesh first: per ν
+        // family for the 1 → 8 replays; per yield strain for the 10-node ones, since the linear
+        // ranking mesh locks under the isochoric flow, its set comes out too shallow and it
+        // ranks the lower σ_y/E first whatever the material (third-party plasticity: every fold
+        // keeps σ_y/E 0.087, whose 10-node replay is 0.186 mm against 0.113 at 0.103)
+        let quadratic = cx.settings.plasticity_quadratic_replays;
+        let family = if quadratic {
+            "yield_stress_pa"
+        } else {
+            "poisson"
+        };
         let replays = match cx.settings.plasticity_refined_replays {
             0 => Replays::run(sim, grid, rigid, rec, seg, p, false)?,
             n => Replays::run_coarse_first(
@@ -275,8 +285,9 @@ impl Hypothesis for Plasticity {
                 scored,
                 true,
                 n,
-                Some("poisson"),
+                Some(family),
                 cx.settings.plasticity_ranking_refinement,
+                quadratic,
             )?,
         };
         let lolo = Lolo {

@@ -136,6 +136,15 @@ pub trait ProbeSimulator: Send + Sync {
         Ok(None)
     }
 
+    /// The same object whose rigid-tip replays of the plasticity extensions
+    /// ([`Extension::Plastic`], [`Extension::PlasticPoisson`]) run on the 10-node tets of its
+    /// mesh (the truth's element order; linear tets lock under the isochoric plastic flow, refined
+    /// or not); everything else as this one. The replay mesh of `Replays::run_coarse_first` with
+    /// `plasticity_quadratic_replays`. `None` (default) when this simulator has no mesh.
+    fn quadratic(&self) -> Result<Option<Box<dyn ProbeSimulator>>> {
+        Ok(None)
+    }
+
     /// The same object on its mesh refined everywhere by conforming longest-edge bisection
     /// (`softcap_mesh::refine_near`) until it has at least `tet_factor` × its tets: the target
     /// longest edge is lowered from the mesh's longest edge in steps of 5 % until the count is

@@ -247,6 +247,18 @@ impl FemProbeSimulator {
     /// The `ElastoplasticModel` of a plasticity extension over the default model's (λ, α) — with
     /// the Poisson ratio replaced for [`Extension::PlasticPoisson`].
     fn plastic_model(&self, ext: &Extension) -> Result<ElastoplasticModel> {
+        let (params, q) = self.plastic_params(ext)?;
+        let nt = self.setup().mesh.tets.len();
+        ElastoplasticModel::new(&self.setup().mesh, params, vec![q; nt]).map_err(fem)
+    }
+
+    /// The per-element elastic parameters and the J2 parameters of a plasticity extension: the
+    /// default model's (λ, α), with the Poisson ratio replaced for
+    /// [`Extension::PlasticPoisson`].
+    pub(super) fn plastic_params(
+        &self,
+        ext: &Extension,
+    ) -> Result<(Vec<LinearParams>, J2PlasticityParams)> {
         let base = self.model();
         let (yield_stress_pa, hardening_pa, params) = match *ext {
             Extension::Plastic {
@@ -279,8 +291,7 @@ impl FemProbeSimulator {
             yield_stress_pa,
             hardening_modulus_pa: hardening_pa,
         };
-        let nt = self.setup().mesh.tets.len();
-        ElastoplasticModel::new(&self.setup().mesh, params, vec![q; nt]).map_err(fem)
+        Ok((params, q))
     }
 
     /// Marker positions of every frame of `frames` (time order) under the default model extended
@@ -697,7 +708,7 @@ fn replay_dynamics_settings(
 }
 
 /// Rigid-tip replay: the settings of one frame's contact solve.
-const RIGID_MAX_ITERATIONS: usize = 80;
+pub(super) const RIGID_MAX_ITERATIONS: usize = 80;
 /// Frictional rigid-tip replay: iterations of one solve (regularized Coulomb with lagged normal
 /// forces converges more slowly: stick stiffness 2μf_n/ε).
 const FRICTION_MAX_ITERATIONS: usize = 150;
@@ -847,18 +858,20 @@ impl FemProbeSimulator {
                 )?
             }
             Extension::Plastic { .. } | Extension::PlasticPoisson { .. } => {
-                let ep = self.plastic_model(ext)?;
-                self.run_rigid(
-                    ep,
-                    tip,
-                    None,
-                    frames,
-                    true,
-                    |_, _| Ok(()),
-                    |m, x| {
-                        m.commit(x);
-                    },
-                )?
+                match self.quadratic_mesh() {
+                    Some(q) => self.replay_plastic_quadratic(q, ext, tip, frames)?,
+                    None => self.run_rigid(
+                        self.plastic_model(ext)?,
+                        tip,
+                        None,
+                        frames,
+                        true,
+                        |_, _| Ok(()),
+                        |m, x| {
+                            m.commit(x);
+                        },
+                    )?,
+                }
             }
             Extension::Anisotropic { .. }
             | Extension::TransverselyIsotropic { .. }

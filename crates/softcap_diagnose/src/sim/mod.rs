@@ -36,6 +36,7 @@
 mod contract;
 mod extend;
 mod fem;
+mod quadratic;
 mod resolution;
 
 pub use contract::{
