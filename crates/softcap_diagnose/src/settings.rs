@@ -61,11 +61,11 @@ pub struct DiagnoseSettings {
     /// (docs/thirdparty.md, confusion tables).
     pub name_on_force_channel: bool,
     /// Plasticity's rigid-tip replays: 0 replays every grid point on the refined mesh; n > 0
-    /// (the default 1) ranks them all on a cheaper mesh first (`plasticity_ranking_refinement`)
-    /// and replays only the n points the folds keep most often on the refined mesh
-    /// (`Replays::run_coarse_first`). Default 1 with ranking refinement 2: own virtual rig's
-    /// plasticity case 0.6751 → 0.1676 mm held-out, the same as every point refined, in 45
-    /// instead of ≈ 180 CPU-s; third-party plasticity 403 CPU-s instead of > 30 min.
+    /// (the default 2) ranks them all on a cheaper mesh first (`plasticity_ranking_refinement`)
+    /// and replays only the n points the folds keep most often (one per yield strain with
+    /// `plasticity_quadratic_replays`, else one per ν first) on the 10-node tets or the refined
+    /// mesh (`Replays::run_coarse_first`). Third-party plasticity with the default 2 on 10-node
+    /// tets: 0.4918 → 0.1248 mm held-out in ≈ 420 CPU-s (every point refined: > 30 min).
     pub plasticity_refined_replays: usize,
     /// With `plasticity_refined_replays` > 0: the mesh the rigid-tip points are ranked on before
     /// the few best are replayed refined, as a multiple of the fit mesh's tets — 1: the fit mesh;

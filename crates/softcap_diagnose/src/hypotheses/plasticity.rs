@@ -10,15 +10,15 @@
 //! of the peak contact pressure) AND replayed with the session's rigid tip at every measured pose
 //! (§3.4 position control: the tip's rim sets the stress the material yields under; σ_y and H as
 //! fractions of the fit's Young's modulus, [`RIGID_YIELD_STRAINS`]) on the fit
-//! mesh refined 1 → 8 (`ProbeSimulator::refined`: the coarse linear tets cannot form the dent
-//! between the markers), the latter also with ν = 0.45 (the tissue fit's ν is biased by the
-//! plastic flow it did not model). With `plasticity_refined_replays` = n > 0 the eight rigid-tip
-//! points are ranked first on a cheaper mesh — the fit mesh, or with
-//! `plasticity_ranking_refinement` = r > 1 the fit mesh bisected to r × its tets
-//! (`ProbeSimulator::bisected`; the fit mesh's ranking is its linear tets' contact error, r = 2
-//! ranks the own rig's 1 → 8 winner first in every fold) — each fold keeps its best per ν, and
-//! only the n points kept most often (one per ν first) are replayed again on the refined mesh,
-//! which decides between them. The grid points are
+//! mesh's 10-node tets (`ProbeSimulator::quadratic`, small-strain J2: linear tets, even refined
+//! 1 → 8, lock under the isochoric flow and leave the set too shallow) — or, with
+//! `plasticity_quadratic_replays` off, on the fit mesh refined 1 → 8 (`ProbeSimulator::refined`)
+//! —, also with ν = 0.45 (the tissue fit's ν is biased by the plastic flow it did not model).
+//! With `plasticity_refined_replays` = n > 0 the eight rigid-tip points are ranked first on a
+//! cheaper linear mesh — the fit mesh, or with `plasticity_ranking_refinement` = r > 1 the fit
+//! mesh bisected to r × its tets (`ProbeSimulator::bisected`) — each fold keeps its best per
+//! yield strain (per ν for the 1 → 8 replays), and only the n points kept most often (one per
+//! family first) are replayed again on the 10-node tets, which decide between them. The grid points are
 //! picked on the other locations' effect cells only: in a rigid-tip replay the contact frames carry the coarse mesh's contact error,
 //! which would otherwise decide the pick.
 
