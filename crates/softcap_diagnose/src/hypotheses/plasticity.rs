@@ -265,8 +265,13 @@ impl Hypothesis for Plasticity {
         // family for the 1 → 8 replays; per yield strain for the 10-node ones, since the linear
         // ranking mesh locks under the isochoric flow, its set comes out too shallow and it
         // ranks the lower σ_y/E first whatever the material (third-party plasticity: every fold
-        // keeps σ_y/E 0.087, whose 10-node replay is 0.186 mm against 0.113 at 0.103)
-        let quadratic = cx.settings.plasticity_quadratic_replays;
+        // keeps σ_y/E 0.087, whose 10-node replay is 0.186 mm against 0.113 at 0.103). The
+        // 10-node tets of the fit mesh only where it resolves the footprint
+        // (`ProbeSimulator::resolves_footprint`): the own rig's 6.7 mm fit mesh under a 7 mm
+        // punch leaves 0.37–0.45 mm on its 10-node tets against 0.17 on the 1 → 8 linear ones.
+        let tips: Vec<Vector3<f64>> = seg.locations.iter().map(|l| l.peak_tip_m).collect();
+        let quadratic = cx.settings.plasticity_quadratic_replays
+            && sim.resolves_footprint(rec.tip_radius_m, &tips);
         let family = if quadratic {
             "yield_stress_pa"
         } else {
