@@ -11,7 +11,7 @@
 //! `leafab` — `leaf` and a twist of the blade (its far +y corner pushed up for 0.05 s, released,
 //! 0.5 s at 120 Hz; force `--twist-mn`).
 //!
-//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N] [--write-sessions DIR] [--tracks DIR [--no-fit] [--max-outlier F]]`
+//! `cargo run --workspace --profile test --example fit_dynamic_table1 -- [bar1|bar1q|bar1ab|bar8|bar8ab|leaf|leafab] [--seed N] [--start-modes M] [--start-fit M] [--start-frames K] [--keep-tracked] [--choose-start] [--per-segment] [--clean-starts] [--noise-um N] [--velocity-window H] [--velocity-degree D] [--startup-euler N] [--true-velocities] [--frames-scale K] [--bends N] [--twists N] [--twist-mn F] [--twist-couple] [--bend-scale K] [--bend-hz F] [--mid-pushes N] [--mid-mn F] [--mid-ms T] [--settle-ms T] [--segment-frames N] [--write-sessions DIR] [--tracks DIR [--no-fit] [--max-outlier F]]`
 //!
 //! `--start-modes M`: fit the share of the first M modes in every segment's initial state with
 //! the parameters (`FitDynamicSettings::start_state_modes`; default: the setting's default).
@@ -36,7 +36,8 @@
 //! `--twist-mn F`: the twist's push force in mN (default 600). `--twist-couple`: `leafab`'s twist
 //! by a couple, the far −y corner pushed down as hard as the +y corner is pushed up
 //! (`SyntheticSpec::counter_push_nodes`: the twist mode without the flap). `--bend-scale K`: the
-//! bending push K times as hard. `--mid-pushes N`: N more motions, the top edge at mid-span
+//! bending push K times as hard. `--bend-hz F`: the bending pushes filmed at F Hz (default 30; the
+//! same 60 frames, so 120 films the first 0.5 s like the twists). `--mid-pushes N`: N more motions, the top edge at mid-span
 //! pushed along (0, 1, −1)/√2 with `--mid-mn F` mN (default 3000) for `--mid-ms T` ms (default
 //! 20), released, 0.5 s at 120 Hz, each with its own noise draw (seeds seed + 600 + k). `--settle-ms T`: every push's
 //! interaction interval extended by T ms (`synthetic::synthesize_motions`; default 0).
@@ -336,6 +337,8 @@ fn main() {
     let bends = take_option(&mut which, "--bends").map_or(1, |k| k as usize);
     // `--bend-scale K`: the bending push's force K times the case's default (default 1).
     let bend_scale = take_option(&mut which, "--bend-scale").unwrap_or(1) as f64;
+    // `--bend-hz F`: the bending pushes' frame rate (default 30 Hz, the same 60 frames).
+    let bend_hz = take_option(&mut which, "--bend-hz").unwrap_or(30) as f64;
     // `--mid-pushes N`: N more motions, the top edge at mid-span pushed down and sideways for
     // `--mid-ms` ms with `--mid-mn` mN, filmed at 120 Hz (default 0).
     let mid_pushes = take_option(&mut which, "--mid-pushes").map_or(0, |k| k as usize);
@@ -455,7 +458,7 @@ fn main() {
             counter_push_nodes: Vec::new(),
             push_s: 0.2,
             frames,
-            frame_rate_hz: 30.0,
+            frame_rate_hz: bend_hz,
             substeps: 4,
             refine: usize::from(quadratic),
             elements: if quadratic {
