@@ -230,6 +230,6 @@ cases! {
     probe_friction => "probe-friction",
     /// J2 rigid-tip replays ranked on the fit mesh bisected once, the best point of each yield
     /// strain replayed on the fit mesh's 10-node tets: 0.4918 → 0.1248 mm on released/near-touched
-    /// (3.9× lower; σ_y 0.1165 E, H 0.058 E, ν 0.45); ≈ 420 CPU-s.
+    /// (3.9× lower; σ_y 0.1165 E, H 0.058 E, ν 0.45); 420–470 CPU-s.
     plasticity => "plasticity",
 }
