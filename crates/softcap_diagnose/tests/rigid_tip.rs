@@ -170,28 +170,30 @@ fn rigid_replay_is_none_without_a_tip() {
     );
 }
 
+/// The rigid-tip replay of `frames()` under J2 plasticity (σ_y `yield_stress_pa`, H 200 Pa):
+/// the first marker's vertical set after release (frame 8, m; negative is downward) and every
+/// frame's markers.
+fn plastic_set(sim: &FemProbeSimulator, yield_stress_pa: f64) -> (f64, Vec<Vec<Vector3<f64>>>) {
+    let ext = Extension::Plastic {
+        yield_stress_pa,
+        hardening_pa: 200.0,
+    };
+    let x = sim
+        .simulate_sequence_rigid_tip(&ext, &frames())
+        .unwrap()
+        .unwrap();
+    (x[8][0].z - markers()[0].z, x)
+}
+
 #[test]
 fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_drops() {
-    let mut sim = simulator(Some(sphere()));
+    let sim = simulator(Some(sphere()));
     let elastic = sim
         .simulate_sequence_rigid_tip(&Extension::Elastic, &frames())
         .unwrap()
         .unwrap();
-    let set = |sim: &mut FemProbeSimulator, yield_stress_pa: f64| {
-        let x = sim
-            .simulate_sequence_rigid_tip(
-                &Extension::Plastic {
-                    yield_stress_pa,
-                    hardening_pa: 200.0,
-                },
-                &frames(),
-            )
-            .unwrap()
-            .unwrap();
-        (x[8][0].z - markers()[0].z, x)
-    };
     // a yield stress far above any stress reached: the elastic replay to round-off
-    let (s_hi, x_hi) = set(&mut sim, 1e9);
+    let (s_hi, x_hi) = plastic_set(&sim, 1e9);
     assert!(s_hi.abs() < 1e-12, "no yield, set {s_hi:e} m");
     // the same equilibria as the elastic replay to 0.1 % of the 2 mm depth (measured 0.74 µm: the
     // J2 element and the corotational one differ only in round-off and solver tolerance paths)
@@ -205,8 +207,8 @@ fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_dro
         "J2 without yield vs elastic: {max_diff:e} m"
     );
     // yielding: a permanent dent under the tip after release (downward), larger for lower yield
-    let (s_mid, _) = set(&mut sim, 2000.0);
-    let (s_lo, _) = set(&mut sim, 500.0);
+    let (s_mid, _) = plastic_set(&sim, 2000.0);
+    let (s_lo, _) = plastic_set(&sim, 500.0);
     assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
     assert!(
         s_lo < s_mid,
@@ -226,20 +228,7 @@ fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_dro
 fn quadratic_replay_of_j2_plasticity_follows_the_tip_and_leaves_a_set() {
     let sim = simulator(Some(sphere())).quadratic().unwrap();
     let rest = markers();
-    let set = |yield_stress_pa: f64| {
-        let x = sim
-            .simulate_sequence_rigid_tip(
-                &Extension::Plastic {
-                    yield_stress_pa,
-                    hardening_pa: 200.0,
-                },
-                &frames(),
-            )
-            .unwrap()
-            .unwrap();
-        (x[8][0].z - rest[0].z, x)
-    };
-    let (s_hi, x_hi) = set(1e9);
+    let (s_hi, x_hi) = plastic_set(&sim, 1e9);
     for (m, r) in rest.iter().enumerate() {
         assert!(
             (x_hi[0][m] - r).norm() < 1e-12,
@@ -254,8 +243,8 @@ fn quadratic_replay_of_j2_plasticity_follows_the_tip_and_leaves_a_set() {
         );
     }
     assert!(s_hi.abs() < 1e-9, "no yield, set {s_hi:e} m");
-    let (s_mid, _) = set(2000.0);
-    let (s_lo, _) = set(500.0);
+    let (s_mid, _) = plastic_set(&sim, 2000.0);
+    let (s_lo, _) = plastic_set(&sim, 500.0);
     assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
     assert!(
         s_lo < s_mid,
