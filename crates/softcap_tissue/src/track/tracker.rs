@@ -12,7 +12,7 @@
 //!    over the frame interval (`softcap_fem::DynamicSolver::step_with`, Rayleigh damping), from
 //!    the state of frame t − 1, Newton warm-started at the current positions (with `substeps`
 //!    n > 1: around the material's own prediction of frame t in n steps of h / n, see
-//!    [`Tracker::substep_prediction`]);
+//!    `Tracker::substep_prediction`);
 //! 4. σ ← max(σ_min, min(σ_ML, a σ)) (annealing); stop when the nodes move less than the
 //!    tolerance at σ_min, or after the iteration limit.
 //!
