@@ -185,6 +185,22 @@ fn plastic_set(sim: &FemProbeSimulator, yield_stress_pa: f64) -> (f64, Vec<Vec<V
     (x[8][0].z - markers()[0].z, x)
 }
 
+/// Yielding leaves a permanent dent under the tip after release (downward), deeper for a lower
+/// yield stress (0.5 against 2 kPa) and shallower than the deepest press (2 mm).
+fn assert_set_grows_as_the_yield_stress_drops(sim: &FemProbeSimulator) {
+    let (s_mid, _) = plastic_set(sim, 2000.0);
+    let (s_lo, _) = plastic_set(sim, 500.0);
+    assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
+    assert!(
+        s_lo < s_mid,
+        "set at 0.5 kPa {s_lo:e} m vs 2 kPa {s_mid:e} m"
+    );
+    assert!(
+        s_lo > -2e-3,
+        "set at 0.5 kPa {s_lo:e} m, deeper than the 2 mm press"
+    );
+}
+
 #[test]
 fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_drops() {
     let sim = simulator(Some(sphere()));
@@ -206,16 +222,7 @@ fn rigid_replay_of_j2_plasticity_leaves_a_set_that_grows_as_the_yield_stress_dro
         max_diff < 2e-6,
         "J2 without yield vs elastic: {max_diff:e} m"
     );
-    // yielding: a permanent dent under the tip after release (downward), larger for lower yield
-    let (s_mid, _) = plastic_set(&sim, 2000.0);
-    let (s_lo, _) = plastic_set(&sim, 500.0);
-    assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
-    assert!(
-        s_lo < s_mid,
-        "set at 0.5 kPa {s_lo:e} m vs 2 kPa {s_mid:e} m"
-    );
-    // and smaller than the deepest indentation (2 mm)
-    assert!(s_lo > -2e-3);
+    assert_set_grows_as_the_yield_stress_drops(&sim);
 }
 
 /// `FemProbeSimulator::quadratic`: the plasticity replays on the 10-node tets of the same mesh
@@ -243,14 +250,7 @@ fn quadratic_replay_of_j2_plasticity_follows_the_tip_and_leaves_a_set() {
         );
     }
     assert!(s_hi.abs() < 1e-9, "no yield, set {s_hi:e} m");
-    let (s_mid, _) = plastic_set(&sim, 2000.0);
-    let (s_lo, _) = plastic_set(&sim, 500.0);
-    assert!(s_mid < -1e-5, "set at 2 kPa {s_mid:e} m");
-    assert!(
-        s_lo < s_mid,
-        "set at 0.5 kPa {s_lo:e} m vs 2 kPa {s_mid:e} m"
-    );
-    assert!(s_lo > -2e-3);
+    assert_set_grows_as_the_yield_stress_drops(&sim);
 }
 
 /// A recording whose every frame is offset by the same vector (template ≠ observed rest shape,
