@@ -629,14 +629,7 @@ impl FemProbeSimulator {
                 settings.time_step_s = dt / n as f64;
                 for j in 1..=n {
                     let t = j as f64 / n as f64;
-                    let iso = path.map(|(from, to)| {
-                        Isometry3::from_parts(
-                            Translation3::from(
-                                from.translation.vector.lerp(&to.translation.vector, t),
-                            ),
-                            from.rotation.slerp(&to.rotation, t),
-                        )
-                    });
+                    let iso = path.map(|path| pose_along(path, t));
                     let loads = StepLoads {
                         external_forces_n: &f,
                         prescribed: None,
@@ -989,6 +982,16 @@ impl FemProbeSimulator {
     }
 }
 
+/// The tip's pose a fraction `t` ∈ [0, 1] along a frame's `(from, to)` path: the position
+/// interpolated linearly, the rotation along the shortest arc (slerp) — the sub-steps of a
+/// rigid-tip replay.
+pub(super) fn pose_along((from, to): (Isometry3<f64>, Isometry3<f64>), t: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(from.translation.vector.lerp(&to.translation.vector, t)),
+        from.rotation.slerp(&to.rotation, t),
+    )
+}
+
 /// The tip frame at the measured `tip_m` and `axis`, carried from the last frame's rotation by
 /// the smallest rotation that turns its axis onto the measured one (parallel transport).
 /// `probe_pose` alone fixes the rotation about the axis arbitrarily: near an axis pointing
@@ -1164,12 +1167,7 @@ impl<'a> RigidReplay<'a> {
             for s in 1..=substeps {
                 let t = s as f64 / substeps as f64;
                 before(&mut state.model, dt / substeps as f64)?;
-                let iso = path.map(|(from, to)| {
-                    Isometry3::from_parts(
-                        Translation3::from(from.translation.vector.lerp(&to.translation.vector, t)),
-                        from.rotation.slerp(&to.rotation, t),
-                    )
-                });
+                let iso = path.map(|path| pose_along(path, t));
                 let rep = self.solve(state, f, iso)?;
                 if !rep.converged() {
                     status = format!(

@@ -12,9 +12,10 @@
 //! are read by the 10-node shape functions at their barycentric coordinates in the fit mesh's tets.
 
 use super::contract::{Extension, SequenceFrame};
+use super::extend::pose_along;
 use super::fem::FemProbeSimulator;
 use crate::{DiagnoseError, Result};
-use nalgebra::{Isometry3, Translation3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 use softcap_fem::{
     ContactProblem, EquilibriumSettings, Probe, QuadraticElastoplasticModel,
     QuadraticRigidTipSolver, QuadraticTetMesh, TipShape, shape_functions,
@@ -136,16 +137,7 @@ impl FemProbeSimulator {
                     model = start_model.clone();
                     for s in 1..=substeps {
                         let t = s as f64 / substeps as f64;
-                        let pr = path
-                            .map(|(from, to)| {
-                                problem(Isometry3::from_parts(
-                                    Translation3::from(
-                                        from.translation.vector.lerp(&to.translation.vector, t),
-                                    ),
-                                    from.rotation.slerp(&to.rotation, t),
-                                ))
-                            })
-                            .transpose()?;
+                        let pr = path.map(|path| problem(pose_along(path, t))).transpose()?;
                         dirichlet.apply(&mut x);
                         let rep = solver.solve(&model, &mut x, &f, pr.as_ref(), &settings);
                         crate::profile::solve(rep.iterations, n_el);
