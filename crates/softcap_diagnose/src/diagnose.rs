@@ -575,7 +575,10 @@ fn force_candidates(rows: &[Row]) -> Vec<Effect> {
 /// leave-one-location-out) until one keeps its gain: first those whose signature alone is
 /// unambiguous ([`SignatureRoute::BeforeScreen`]), then at most `max_confirmations` of the
 /// screen's, then those a signature sends after the screen ([`SignatureRoute::AfterScreen`],
-/// which must also beat the stiffness-scale nuisance as a screened row must). A hypothesis its
+/// which must also beat the stiffness-scale nuisance as a screened row must). Among those a
+/// signature sends, the strongest signature support goes first (an anisotropic block's lateral
+/// shift, support 1, before the tangential residual under the tip that sends probe-friction
+/// at 0.5 when the surface is not seen dragged). A hypothesis its
 /// signatures rule out ([`Hypothesis::ruled_out`]) is none of these: its reason is recorded as
 /// its failed confirmation.
 fn confirm(
@@ -596,7 +599,7 @@ fn confirm(
         })
         .collect();
     let sent = |route: SignatureRoute, screened: &[Effect]| -> Vec<Effect> {
-        catalog()
+        let mut sent: Vec<Effect> = catalog()
             .into_iter()
             .filter(|h| {
                 let e = h.effect();
@@ -607,7 +610,12 @@ fn confirm(
                     && screen.row(e).is_some()
             })
             .map(|h| h.effect())
-            .collect()
+            .collect();
+        // the strongest signature first, as the screen orders its look-alikes (stable: the
+        // catalog's order among equals)
+        let support = |e: &Effect| screen.row(*e).map_or(0.0, |r| r.support);
+        sent.sort_by(|a, b| support(b).total_cmp(&support(a)));
+        sent
     };
     let screened: Vec<Effect> = screened_candidates(&screen.rows, settings)
         .into_iter()
