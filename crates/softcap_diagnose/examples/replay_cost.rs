@@ -6,6 +6,7 @@
 //! frozen after N equilibrium iterations instead of 12 (`freezeN`,
 //! `EquilibriumSettings::contact_freeze_after`), with the mesh refined only inside the touched
 //! balls (`local`) or on the fit mesh itself (`coarse`), with CPU seconds and the largest marker difference to the first policy.
+//! With `REPLAY_MU=μ` in the environment, the frictional replay of `probe-friction` at μ instead.
 //!
 //! ```sh
 //! cargo run --profile test -p softcap_diagnose --example replay_cost -- \
@@ -25,7 +26,23 @@ fn cpu_s() -> f64 {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let a: Vec<String> = std::env::args().collect();
+    run(std::env::args().collect())
+}
+
+/// `main` under the test harness (`cargo test --profile test -p softcap_e2e -p softcap_diagnose
+/// --example replay_cost --no-run` builds it with the test build's dependencies):
+/// `REPLAY_COST_ARGS="capture.mcap material.mcap [frames] [policies]" replay_cost-HASH --ignored`.
+#[test]
+#[ignore = "a measuring aid: needs REPLAY_COST_ARGS"]
+fn replay_cost_from_env() {
+    let args = std::env::var("REPLAY_COST_ARGS").expect("REPLAY_COST_ARGS");
+    let a = std::iter::once("replay_cost".to_string())
+        .chain(args.split_whitespace().map(String::from))
+        .collect();
+    run(a).unwrap();
+}
+
+fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
     if a.len() < 3 {
         return Err(
             "usage: replay_cost capture.mcap material.mcap [frames] [every|step|stale|freezeN|local|coarse ...]".into(),
@@ -51,6 +68,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let ext = Extension::Plastic {
         yield_stress_pa: 0.3 * pressure_pa,
         hardening_pa: 0.2 * pressure_pa,
+    };
+    // REPLAY_MU=μ: the frictional replay of `probe-friction` (`Extension::ProbeFriction`, on the
+    // fit mesh refined as `friction_refinement` asks on top of the policy's mesh) instead
+    let ext = match std::env::var("REPLAY_MU") {
+        Ok(mu) => Extension::ProbeFriction { mu: mu.parse()? },
+        Err(_) => ext,
     };
     let frames = pose_sequence(&rec);
     let mut reference: Option<Vec<Vec<softcap_diagnose::nalgebra::Vector3<f64>>>> = None;

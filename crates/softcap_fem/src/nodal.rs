@@ -223,7 +223,11 @@ impl NodalSolver {
     /// iterations and solves (module docs; the terms are then refreshed with the node stiffnesses
     /// of the factored matrix, and the accepted line-search point's forces are carried into the
     /// next iteration, which requires a model whose forces do not change in
-    /// [`ElasticModel::update_state`] unless its state id does); any other policy assembles and
+    /// [`ElasticModel::update_state`] unless its state id does). [`Refactorization::EveryStep`]
+    /// assembles and factors at every iterate that takes a step: an iterate whose previous update
+    /// was within the displacement tolerance is first tested with its forces alone (the terms
+    /// refreshed with the last assembled matrix's node stiffnesses, the alternative residual bound
+    /// with its max |A_ij|), as [`crate::StaticSolver`] does; `EveryIteration` assembles and
     /// factors at every iteration.
     pub fn solve<M: ElasticModel + ?Sized>(
         &mut self,
@@ -245,9 +249,38 @@ impl NodalSolver {
         // f_int at the current x from the accepted line-search point, with its model state id
         let mut carried: Option<(Vec<Vector3<f64>>, Option<u64>)> = None;
         let mut previous_rnorm = f64::INFINITY;
+        // EveryStep: the forces-only convergence test of an iterate whose previous update was
+        // within tol_x (`Refactorization::EveryStep`), with the searched forces, and the node
+        // stiffnesses and max |A_ij| of the last assembled matrix.
+        let lazy = settings.refactorization == Refactorization::EveryStep;
+        let mut searched: Option<(Vec<Vector3<f64>>, Option<u64>)> = None;
+        let mut last_assembled: Option<(Vec<f64>, f64)> = None;
         for it in 0..settings.max_iterations {
             model.update_state(x);
             let requery = it < settings.contact_freeze_after || it == 0;
+            if lazy
+                && it > 0
+                && report.last_update_m <= tol_x
+                && let Some((node_stiffness, abs_max)) = &last_assembled
+            {
+                let f_int = match searched.take() {
+                    Some((f, Some(id))) if model.state_id() == Some(id) => f,
+                    _ => model.internal_forces(x),
+                };
+                for t in terms.iter_mut() {
+                    t.refresh(x, &|n| node_stiffness[n], requery);
+                }
+                let (r, scale) = self.residual_with(&f_int, x, f_ext, terms);
+                let rnorm = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if rnorm.is_finite()
+                    && (rnorm <= settings.residual_tol_rel * scale || rnorm <= abs_max * tol_x)
+                {
+                    report.residual_norm_n = rnorm;
+                    report.status = SolveStatus::Converged;
+                    return report;
+                }
+            }
+            searched = None;
             let mut lin = match &self.factored {
                 Some(fac) if reuse => {
                     let f_int = match carried.take() {
@@ -281,6 +314,9 @@ impl NodalSolver {
                 (None, Some(fac)) => fac.abs_max,
                 (None, None) => 0.0,
             };
+            if lazy && let Some(a) = &lin.assembled {
+                last_assembled = Some((a.node_stiffness.clone(), abs_max));
+            }
             let res_ok = rnorm <= settings.residual_tol_rel * scale || rnorm <= abs_max * tol_x;
             if it > 0 && res_ok && report.last_update_m <= tol_x {
                 report.status = SolveStatus::Converged;
@@ -329,6 +365,8 @@ impl NodalSolver {
                         step = s;
                         if reuse {
                             carried = Some((f_t, model.state_id()));
+                        } else if lazy {
+                            searched = Some((f_t, model.state_id()));
                         }
                         break;
                     }
