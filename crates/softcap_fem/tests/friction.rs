@@ -341,3 +341,69 @@ fn lagged_normal_forces_settle_and_the_drag_slides_at_mu_n() {
     );
     assert!(out.equilibrium.converged() && out.lag_mismatch == 0.0);
 }
+
+/// The lagged drag of `lagged_normal_forces_settle_and_the_drag_slides_at_mu_n` under
+/// `refactorization`: per step the positions, the last solve's iterations and the lag mismatch.
+fn lagged_drag(refactorization: Refactorization) -> Vec<(Vec<Vector3<f64>>, usize, f64)> {
+    let mut r = rig();
+    let mut fc = disk_contact(&r, 0.3);
+    fc.normal_force_lag = NormalForceLag::Solve;
+    let mut solver = NodalSolver::new(&r.model, &r.bc.dofs()).unwrap();
+    let mut x = r.mesh.vertices.clone();
+    let zero = vec![Vector3::zeros(); x.len()];
+    let settings = EquilibriumSettings {
+        refactorization,
+        ..EquilibriumSettings::newton()
+    };
+    let mut path: Vec<(f64, f64)> = (1..=4).map(|k| (0.01 * k as f64 / 4.0, 0.0)).collect();
+    path.extend((1..=8).map(|k| (0.01, 0.0025 * k as f64)));
+    let mut out = Vec::new();
+    for (k, &(depth, s)) in path.iter().enumerate() {
+        fc.move_probe(&mut x, pose(depth, s));
+        let lagged = solve_lagged(
+            &mut solver,
+            &mut r.model,
+            &mut x,
+            &zero,
+            Some(&mut fc),
+            &mut [],
+            &settings,
+            &LaggedIterations::default(),
+        );
+        assert!(lagged.equilibrium.converged(), "step {k}: {lagged:?}");
+        fc.commit(&x);
+        out.push((
+            x.clone(),
+            lagged.equilibrium.iterations,
+            lagged.lag_mismatch,
+        ));
+    }
+    out
+}
+
+#[test]
+fn every_step_takes_the_lagged_drag_of_every_iteration() {
+    // `Refactorization::EveryStep` in `NodalSolver`: the converged iterate is tested with its
+    // forces alone instead of a fresh assembly and factorization; the iterates are those of
+    // `EveryIteration`, so every step's equilibrium is the same to the displacement tolerance
+    // (1e-8 of the 1.1 m block's diagonal; 2x for the one iterate the alternative residual bound
+    // may stop earlier) and takes as many iterations or one fewer.
+    let every = lagged_drag(Refactorization::EveryIteration);
+    let step = lagged_drag(Refactorization::EveryStep);
+    let tol_x = EquilibriumSettings::newton().displacement_tol_rel * 1.5;
+    for (k, (a, b)) in every.iter().zip(&step).enumerate() {
+        let d =
+            a.0.iter()
+                .zip(&b.0)
+                .map(|(p, q)| (p - q).norm())
+                .fold(0.0, f64::max);
+        assert!(d <= 2.0 * tol_x, "step {k}: {d:e} m");
+        assert!(
+            b.1 <= a.1 && b.1 + 1 >= a.1,
+            "step {k}: {} vs {} iterations",
+            b.1,
+            a.1
+        );
+        assert!((a.2 - b.2).abs() < 1e-4, "step {k}: lag {} vs {}", a.2, b.2);
+    }
+}
