@@ -89,9 +89,18 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
         {
             settings.equilibrium.contact_freeze_after = n;
         }
+        // "fricmaxN": the frictional replay's solves capped at N iterations (default 150,
+        // `FemSimSettings::friction_max_iterations`), the rest as `step`
+        if let Some(n) = policy
+            .strip_prefix("fricmax")
+            .and_then(|n| n.parse::<usize>().ok())
+        {
+            settings.friction_max_iterations = n;
+        }
         settings.replay_refactorization = match policy {
             "stale" => Refactorization::WhenStale,
             "step" => Refactorization::EveryStep,
+            p if p.starts_with("fricmax") => Refactorization::EveryStep,
             _ => Refactorization::EveryIteration,
         };
         let sim = FemProbeSimulator::new(
@@ -108,8 +117,46 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
         });
         // "local": refined only inside the touched balls (`RefinementSettings::local`), as
         // `ProbeSimulator::refined` does with that setting
+        // "nearK": refined only inside the touched balls with K × their radius, to a longest edge
+        // there of REPLAY_NEAR_EDGE (default ½) × the surface spacing near the tips
+        // (`surface_spacing_near`: the uniform 1 → 8 refinement's spacing there)
+        let near = policy
+            .strip_prefix("near")
+            .and_then(|k| k.parse::<f64>().ok());
         let fine = if policy == "coarse" {
             sim
+        } else if let Some(k) = near {
+            let r = softcap_diagnose::cells::contact_radius_m(&rec);
+            let balls: Vec<_> = softcap_diagnose::cells::touched_balls(&rec, &seg)
+                .into_iter()
+                .map(|b| softcap_mesh::RefineBall {
+                    radius_m: k * b.radius_m,
+                    ..b
+                })
+                .collect();
+            let tips: Vec<_> = frames
+                .iter()
+                .filter_map(|f| f.load.probe.map(|p| p.tip_m))
+                .collect();
+            let h = softcap_diagnose::sim::surface_spacing_near(
+                &material.mesh,
+                cap.session.tip_radius_m,
+                &tips,
+            )
+            .ok_or("no surface")?;
+            let frac: f64 = std::env::var("REPLAY_NEAR_EDGE")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0.5);
+            println!(
+                "{policy}: balls {} of radius {:.2} mm, surface spacing near the tips {:.2} mm, longest edge {:.2} mm, target edge {:.2} mm",
+                balls.len(),
+                k * r * 1e3,
+                h * 1e3,
+                sim.longest_edge_m() * 1e3,
+                frac * h * 1e3
+            );
+            sim.refined_near(&balls, frac * h, 200_000)?
         } else if policy == "local" {
             let balls = softcap_diagnose::cells::touched_balls(&rec, &seg);
             let edge = 0.5 * sim.longest_edge_m();
@@ -122,6 +169,29 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
             .simulate_sequence_rigid_tip(&ext, &frames)?
             .ok_or("no rigid tip")?;
         let (cpu, wall) = (cpu_s() - c0, t0.elapsed().as_secs_f64());
+        // RMS marker difference to the first policy on probe-friction's effect cells (contact
+        // frames, markers under the tip: `contact_cells`) and on every marker of those frames
+        let cells = softcap_diagnose::cells::contact_cells(&rec, &seg, true);
+        let rms = |under: bool| {
+            reference.as_ref().map_or(0.0, |r| {
+                let (mut s, mut n) = (0.0, 0usize);
+                for (k, (a, b)) in r.iter().zip(&x).enumerate() {
+                    for (m, (p, q)) in a.iter().zip(b).enumerate() {
+                        let in_contact = seg.fold_of_frame[k].is_some() && seg.phases[k].in_contact();
+                        if (under && cells[k][m]) || (!under && in_contact) {
+                            s += (p - q).norm_squared();
+                            n += 1;
+                        }
+                    }
+                }
+                (s / n.max(1) as f64).sqrt()
+            })
+        };
+        println!(
+            "{policy:>6}: rms marker difference to the first on the effect cells {:.4} mm, on every marker of the contact frames {:.4} mm",
+            rms(true) * 1e3,
+            rms(false) * 1e3
+        );
         // the largest marker difference over every frame, and over the released frames (where
         // the plasticity hypothesis scores a permanent set)
         let diff = |released_only: bool| {

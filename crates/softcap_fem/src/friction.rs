@@ -733,6 +733,10 @@ pub struct LaggedSolve {
     pub equilibrium: EquilibriumReport,
     /// The last outer iteration's max_n |Δf_n| / Σ f_n (0 without lagged friction).
     pub lag_mismatch: f64,
+    /// Equilibrium solves run (outer iterations; 1 without lagged friction).
+    pub outer: usize,
+    /// Equilibrium iterations over every solve (`equilibrium.iterations` counts the last one's).
+    pub iterations: usize,
 }
 
 /// One quasi-static step with node-level terms and frictional probe contact whose normal forces
@@ -758,6 +762,7 @@ pub fn solve_lagged<M: ElasticModel + ?Sized>(
         .is_some_and(|c| c.normal_force_lag == NormalForceLag::Solve);
     let mut lag_mismatch = 0.0;
     let mut outer = 0;
+    let mut iterations = 0;
     loop {
         let mut rep = {
             let mut terms: Vec<&mut dyn NodalTerm> = Vec::with_capacity(1 + others.len());
@@ -769,10 +774,13 @@ pub fn solve_lagged<M: ElasticModel + ?Sized>(
             }
             solver.solve(model, x, f_ext, &mut terms, settings)
         };
+        iterations += rep.iterations;
         let Some(c) = contact.as_deref_mut().filter(|_| lagged && rep.converged()) else {
             return LaggedSolve {
                 equilibrium: rep,
                 lag_mismatch,
+                outer: outer + 1,
+                iterations,
             };
         };
         let relaxation = if outer < 2 { 1.0 } else { lag.relaxation };
@@ -786,6 +794,8 @@ pub fn solve_lagged<M: ElasticModel + ?Sized>(
             return LaggedSolve {
                 equilibrium: rep,
                 lag_mismatch,
+                outer,
+                iterations,
             };
         }
     }

@@ -702,9 +702,6 @@ fn replay_dynamics_settings(
 
 /// Rigid-tip replay: the settings of one frame's contact solve.
 pub(super) const RIGID_MAX_ITERATIONS: usize = 80;
-/// Frictional rigid-tip replay: iterations of one solve (regularized Coulomb with lagged normal
-/// forces converges more slowly: stick stiffness 2μf_n/ε).
-const FRICTION_MAX_ITERATIONS: usize = 150;
 
 /// The solver of a rigid-tip replay: penalty contact, or penalty contact with friction.
 enum RigidSolver {
@@ -1059,7 +1056,7 @@ impl<'a> RigidReplay<'a> {
         let setup = sim.setup();
         let candidates: Vec<usize> = setup.free_boundary_nodes();
         let max_iterations = if frictional {
-            FRICTION_MAX_ITERATIONS
+            sim.settings().friction_max_iterations
         } else {
             RIGID_MAX_ITERATIONS
         };
@@ -1168,12 +1165,14 @@ impl<'a> RigidReplay<'a> {
                 let t = s as f64 / substeps as f64;
                 before(&mut state.model, dt / substeps as f64)?;
                 let iso = path.map(|path| pose_along(path, t));
+                let t0 = crate::profile::thread_cpu();
                 let rep = self.solve(state, f, iso)?;
                 if !rep.converged() {
                     status = format!(
                         "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
                         rep.status, rep.iterations
                     );
+                    crate::profile::failed_attempt(&status, crate::profile::thread_cpu() - t0);
                     continue 'attempts;
                 }
                 commit(&mut state.model, &state.x);
@@ -1202,7 +1201,7 @@ impl<'a> RigidReplay<'a> {
                 if let Some(iso) = iso {
                     contact.move_probe(x, iso);
                 }
-                let rep = solve_lagged(
+                let lagged = solve_lagged(
                     solver,
                     model,
                     x,
@@ -1211,8 +1210,14 @@ impl<'a> RigidReplay<'a> {
                     &mut [],
                     &self.settings,
                     &LaggedIterations::default(),
-                )
-                .equilibrium;
+                );
+                crate::profile::lagged(
+                    lagged.outer,
+                    lagged.iterations,
+                    lagged.equilibrium.iterations,
+                    lagged.lag_mismatch,
+                );
+                let rep = lagged.equilibrium;
                 if rep.converged() && iso.is_some() {
                     NodalTerm::commit(&mut **contact, x);
                 }

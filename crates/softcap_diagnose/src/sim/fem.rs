@@ -55,6 +55,11 @@ pub struct FemSimSettings {
     /// the replayed mesh's surface node spacing near the tips
     /// (`crate::sim::friction_slip_distance_m`: why; never below `FrictionParams`' 10 µm).
     pub friction_slip_fraction: f64,
+    /// Equilibrium iterations of one solve of the frictional rigid-tip replay
+    /// (`Extension::ProbeFriction`; regularized Coulomb with lagged normal forces converges more
+    /// slowly than the frictionless replay's 80: stick stiffness 2μf_n/ε). A solve that does not
+    /// converge within them is retried from the frame's start in 4, then 16 sub-steps.
+    pub friction_max_iterations: usize,
     /// When the frictionless rigid-tip replays (`Extension::{Elastic, Plastic, Anisotropic, …}`
     /// replayed at the measured poses) refactor their system matrix
     /// (`softcap_fem::Refactorization`): at every iterate that takes a Newton step (the default,
@@ -125,6 +130,7 @@ impl Default for FemSimSettings {
             friction_contact: ContactDiscretisation::Nodes,
             rigid_tip_contact: ContactSettings::default(),
             friction_slip_fraction: 0.1,
+            friction_max_iterations: 150,
             replay_refactorization: Refactorization::EveryStep,
             sequence_refactorization: Refactorization::WhenStale,
         }
