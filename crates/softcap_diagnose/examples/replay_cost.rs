@@ -3,8 +3,8 @@
 //! (`Extension::Plastic`, σ_y = 0.3 and H = 0.2 of the peak contact pressure) on the fit mesh
 //! refined 1 → 8, at the session's measured poses, once per refactorization policy
 //! (`FemSimSettings::replay_refactorization`: `every`, `step`, `stale`), with the contact active set
-//! frozen after N equilibrium iterations instead of 12 (`freezeN`,
-//! `EquilibriumSettings::contact_freeze_after`), with the mesh refined only inside the touched
+//! frozen after N equilibrium iterations instead of 12 (3 frictional) (`freezeN`,
+//! `EquilibriumSettings::contact_freeze_after`, `FemSimSettings::friction_contact_freeze_after`), with the mesh refined only inside the touched
 //! balls (`local`) or on the fit mesh itself (`coarse`), with CPU seconds and the largest marker difference to the first policy.
 //! With `REPLAY_MU=μ` in the environment, the frictional replay of `probe-friction` at μ instead.
 //!
@@ -82,12 +82,15 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
         if let Some(load) = material.footprint_load {
             settings.patch.load = load;
         }
-        // "freezeN": the contact active set frozen after N equilibrium iterations (default 12)
+        // "freezeN": the contact active set frozen after N equilibrium iterations (default 12,
+        // 3 in the frictional replay: `FemSimSettings::friction_contact_freeze_after`), the rest
+        // as `step` (the replays' default policy)
         if let Some(n) = policy
             .strip_prefix("freeze")
             .and_then(|n| n.parse::<usize>().ok())
         {
             settings.equilibrium.contact_freeze_after = n;
+            settings.friction_contact_freeze_after = n;
         }
         // "fricmaxN": the frictional replay's solves capped at N iterations (default 150,
         // `FemSimSettings::friction_max_iterations`), the rest as `step`
@@ -100,7 +103,7 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
         settings.replay_refactorization = match policy {
             "stale" => Refactorization::WhenStale,
             "step" => Refactorization::EveryStep,
-            p if p.starts_with("fricmax") => Refactorization::EveryStep,
+            p if p.starts_with("fricmax") || p.starts_with("freeze") => Refactorization::EveryStep,
             _ => Refactorization::EveryIteration,
         };
         let sim = FemProbeSimulator::new(

@@ -1067,6 +1067,11 @@ impl<'a> RigidReplay<'a> {
                 .max_iterations
                 .max(max_iterations),
             refactorization: sim.settings().replay_refactorization,
+            contact_freeze_after: if frictional {
+                sim.settings().friction_contact_freeze_after
+            } else {
+                sim.settings().equilibrium.contact_freeze_after
+            },
             ..sim.settings().equilibrium.clone()
         };
         Self {
