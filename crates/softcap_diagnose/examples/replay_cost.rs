@@ -3,7 +3,7 @@
 //! (`Extension::Plastic`, σ_y = 0.3 and H = 0.2 of the peak contact pressure) on the fit mesh
 //! refined 1 → 8, at the session's measured poses, once per refactorization policy
 //! (`FemSimSettings::replay_refactorization`: `every`, `step`, `stale`), with the contact active set
-//! frozen after N equilibrium iterations instead of 12 (3 frictional) (`freezeN`,
+//! frozen after N equilibrium iterations instead of 12 (`freezeN`,
 //! `EquilibriumSettings::contact_freeze_after`, `FemSimSettings::friction_contact_freeze_after`), with the mesh refined only inside the touched
 //! balls (`local`) or on the fit mesh itself (`coarse`), with CPU seconds and the largest marker difference to the first policy.
 //! With `REPLAY_MU=μ` in the environment, the frictional replay of `probe-friction` at μ instead.
@@ -82,8 +82,8 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
         if let Some(load) = material.footprint_load {
             settings.patch.load = load;
         }
-        // "freezeN": the contact active set frozen after N equilibrium iterations (default 12,
-        // 3 in the frictional replay: `FemSimSettings::friction_contact_freeze_after`), the rest
+        // "freezeN": the contact active set frozen after N equilibrium iterations (default 12;
+        // the frictional replay's `FemSimSettings::friction_contact_freeze_after` too), the rest
         // as `step` (the replays' default policy)
         if let Some(n) = policy
             .strip_prefix("freeze")
@@ -180,7 +180,8 @@ fn run(a: Vec<String>) -> Result<(), Box<dyn std::error::Error>> {
                 let (mut s, mut n) = (0.0, 0usize);
                 for (k, (a, b)) in r.iter().zip(&x).enumerate() {
                     for (m, (p, q)) in a.iter().zip(b).enumerate() {
-                        let in_contact = seg.fold_of_frame[k].is_some() && seg.phases[k].in_contact();
+                        let in_contact =
+                            seg.fold_of_frame[k].is_some() && seg.phases[k].in_contact();
                         if (under && cells[k][m]) || (!under && in_contact) {
                             s += (p - q).norm_squared();
                             n += 1;

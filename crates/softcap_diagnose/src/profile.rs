@@ -131,7 +131,9 @@ pub(crate) fn failed_attempt(status: &str, cpu_s: f64) {
 pub(crate) fn lagged(outer: usize, iterations: usize, last: usize, mismatch: f64) {
     static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     if *TRACE.get_or_init(|| std::env::var_os("SOFTCAP_LAGGED_TRACE").is_some()) {
-        eprintln!("LAGGED | outer {outer} | iterations {iterations} | last {last} | mismatch {mismatch:.2e}");
+        eprintln!(
+            "LAGGED | outer {outer} | iterations {iterations} | last {last} | mismatch {mismatch:.2e}"
+        );
     }
 }
 
