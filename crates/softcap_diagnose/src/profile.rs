@@ -126,17 +126,6 @@ pub(crate) fn failed_attempt(status: &str, cpu_s: f64) {
     }
 }
 
-/// With `SOFTCAP_LAGGED_TRACE` set, one `LAGGED` line per lagged frictional solve: its outer
-/// iterations, equilibrium iterations over all of them and in the last one, last f_n mismatch.
-pub(crate) fn lagged(outer: usize, iterations: usize, last: usize, mismatch: f64) {
-    static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    if *TRACE.get_or_init(|| std::env::var_os("SOFTCAP_LAGGED_TRACE").is_some()) {
-        eprintln!(
-            "LAGGED | outer {outer} | iterations {iterations} | last {last} | mismatch {mismatch:.2e}"
-        );
-    }
-}
-
 /// Counts one equilibrium solve of `iterations` iterations on a mesh of `tets` tets.
 pub(crate) fn solve(iterations: usize, tets: usize) {
     if enabled() {

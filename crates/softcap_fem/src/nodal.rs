@@ -28,12 +28,6 @@ use crate::statics::{
 };
 use nalgebra::{Matrix3, Vector3};
 
-/// `SOFTCAP_NODAL_TRACE` set: one `NODAL` line per iteration of [`NodalSolver::solve`] (stderr).
-fn trace() -> bool {
-    static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *TRACE.get_or_init(|| std::env::var_os("SOFTCAP_NODAL_TRACE").is_some())
-}
-
 /// A node-level boundary term.
 pub trait NodalTerm {
     /// Refreshes the term at positions `x`. `requery` is false once the active set is frozen
@@ -382,14 +376,6 @@ impl NodalSolver {
             self.dofs().scatter_add(&dx, step, x);
             report.iterations = it + 1;
             report.last_update_m = dx_inf * step;
-            if trace() {
-                eprintln!(
-                    "NODAL | it {it} | |r| {rnorm:.3e} | tol {:.3e} | alt {:.3e} | |dx| {dx_inf:.3e} | step {step} | tol_x {tol_x:.3e} | assembled {}",
-                    settings.residual_tol_rel * scale,
-                    abs_max * tol_x,
-                    lin.assembled.is_some()
-                );
-            }
         }
         report
     }

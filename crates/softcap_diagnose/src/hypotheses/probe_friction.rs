@@ -164,8 +164,21 @@ impl Hypothesis for ProbeFriction {
             Some(f) => f,
             None => sim,
         };
-        replays.total +=
-            bracket_friction(replay, &mut replays.rigid, rec, seg, p, scored, refined)?;
+        let converged: Vec<f64> = replays.rigid.iter().filter_map(mu_of).collect();
+        let failed: Vec<f64> = RIGID_MU_GRID
+            .into_iter()
+            .filter(|mu| !converged.iter().any(|m| (m - mu).abs() <= 1e-9 * mu))
+            .collect();
+        replays.total += bracket_friction(
+            replay,
+            &mut replays.rigid,
+            failed,
+            rec,
+            seg,
+            p,
+            scored,
+            refined,
+        )?;
         let lolo = Lolo {
             rec,
             seg,
@@ -269,33 +282,51 @@ pub fn confirmation_grid(
     grid
 }
 
+/// The next μ of the bracketing search ([`bracket_friction`]), or `None` when it ends.
+/// `converged`: the μ replayed to the end; `failed`: the μ whose replay did not converge;
+/// `best`: the full-data choice among `converged`. While `best` is the smallest (largest)
+/// converged μ, the next is that μ ÷ (×) [`RIGID_MU_STEP`] within [`RIGID_MU_RANGE`], unless a
+/// failed μ lies beyond it in that direction (the bracket ends there) or the next μ was already
+/// attempted (within 1e-9 relative: 0.7071 × √2 after a failed 1.0).
+pub fn next_bracket_mu(converged: &[f64], failed: &[f64], best: f64) -> Option<f64> {
+    let lo = converged.iter().copied().reduce(f64::min)?;
+    let hi = converged.iter().copied().reduce(f64::max)?;
+    let attempted = |mu: f64| {
+        converged
+            .iter()
+            .chain(failed)
+            .any(|&m| (m - mu).abs() <= 1e-9 * mu.abs())
+    };
+    let down = (best <= lo && !failed.iter().any(|&m| m < lo)).then(|| lo / RIGID_MU_STEP);
+    let up = (best >= hi && !failed.iter().any(|&m| m > hi)).then(|| hi * RIGID_MU_STEP);
+    [down, up]
+        .into_iter()
+        .flatten()
+        .find(|&mu| !attempted(mu) && (RIGID_MU_RANGE.0..=RIGID_MU_RANGE.1).contains(&mu))
+}
+
 /// Extends the frictional rigid-tip replay's μ grid ([`RIGID_MU_GRID`]) until
 /// it brackets the optimum: while the full-data choice among the frictional replays (the
 /// leave-one-location-out loop's pick on every location's effect cells, with the compliance
 /// scale) is the smallest or the largest μ simulated, the next μ beyond it
-/// (× or ÷ [`RIGID_MU_STEP`], within [`RIGID_MU_RANGE`]) is
+/// ([`next_bracket_mu`]: never one attempted, never past a failed replay) is
 /// replayed and added, at most [`RIGID_MU_EXTENSIONS`] times. Each fold still
-/// picks among all simulated candidates on its training locations only. Returns the number of
-/// replays attempted.
+/// picks among all simulated candidates on its training locations only. `failed`: the grid's μ
+/// whose replay did not converge. Returns the number of replays attempted.
+#[allow(clippy::too_many_arguments)]
 fn bracket_friction(
     replay: &mut dyn ProbeSimulator,
     cands: &mut Vec<Candidate>,
+    mut failed: Vec<f64>,
     rec: &Recording,
     seg: &Segmentation,
     p: &Prepared,
     scored: &dyn Fn(usize, usize) -> bool,
     refined: bool,
 ) -> Result<usize> {
-    let mu_of = |c: &Candidate| c.params.iter().find(|(k, _)| k == "mu").map(|(_, v)| *v);
     let mut attempted = 0;
     for _ in 0..RIGID_MU_EXTENSIONS {
         let mus: Vec<f64> = cands.iter().filter_map(mu_of).collect();
-        let (Some(lo), Some(hi)) = (
-            mus.iter().copied().reduce(f64::min),
-            mus.iter().copied().reduce(f64::max),
-        ) else {
-            return Ok(attempted);
-        };
         let lolo = Lolo {
             rec,
             seg,
@@ -308,16 +339,9 @@ fn bracket_friction(
         let Some(best) = choices.last().and_then(|&i| mu_of(&cands[i])) else {
             return Ok(attempted);
         };
-        let next = if best <= lo {
-            lo / RIGID_MU_STEP
-        } else if best >= hi {
-            hi * RIGID_MU_STEP
-        } else {
+        let Some(next) = next_bracket_mu(&mus, &failed, best) else {
             return Ok(attempted);
         };
-        if !(RIGID_MU_RANGE.0..=RIGID_MU_RANGE.1).contains(&next) {
-            return Ok(attempted);
-        }
         let params = vec![
             ("mu".into(), next),
             ("rigid_tip_replay".into(), 1.0),
@@ -330,9 +354,60 @@ fn bracket_friction(
         )?;
         attempted += tried;
         if more.is_empty() {
-            return Ok(attempted);
+            if tried == 0 {
+                return Ok(attempted);
+            }
+            failed.push(next);
         }
         cands.extend(more);
     }
     Ok(attempted)
+}
+
+/// The friction coefficient of a frictional rigid-tip replay's candidate.
+fn mu_of(c: &Candidate) -> Option<f64> {
+    c.params.iter().find(|(k, _)| k == "mu").map(|(_, v)| *v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const S: f64 = RIGID_MU_STEP;
+
+    #[test]
+    fn bracket_extends_past_the_best_end() {
+        let grid = RIGID_MU_GRID;
+        assert_eq!(next_bracket_mu(&grid, &[], 1.0), Some(S));
+        assert_eq!(next_bracket_mu(&grid, &[], 0.5), Some(0.5 / S));
+        assert_eq!(next_bracket_mu(&grid, &[], grid[1]), None);
+    }
+
+    #[test]
+    fn bracket_never_replays_an_attempted_mu() {
+        // μ 1.0 failed: 0.7071 × √2 = 1.0000000000000002 is the same replay
+        let (conv, failed) = ([0.5, 0.5 * S], [1.0]);
+        assert_eq!(next_bracket_mu(&conv, &failed, 0.5 * S), None);
+        // the other end still extends
+        assert_eq!(next_bracket_mu(&conv, &failed, 0.5), Some(0.5 / S));
+        assert_eq!(next_bracket_mu(&[0.5 * S, 1.0], &[0.5], 0.5 * S), None);
+    }
+
+    #[test]
+    fn a_failed_mu_ends_the_bracket_in_its_direction() {
+        // μ 2.0 failed after 1.4142 converged: nothing above 1.4142, even a μ between
+        let conv = [0.5, 0.5 * S, 1.0, S];
+        assert_eq!(next_bracket_mu(&conv, &[2.0 * S], S), None);
+        assert_eq!(next_bracket_mu(&conv, &[2.0 * S], 0.5), Some(0.5 / S));
+        // a single converged μ with a failed one above extends downwards only
+        assert_eq!(next_bracket_mu(&[1.0], &[S], 1.0), Some(1.0 / S));
+        assert_eq!(next_bracket_mu(&[1.0], &[1.0 / S, S], 1.0), None);
+    }
+
+    #[test]
+    fn bracket_stays_in_range() {
+        assert_eq!(next_bracket_mu(&[0.12, 0.2], &[], 0.12), None);
+        assert_eq!(next_bracket_mu(&[1.5, 2.5], &[], 2.5), None);
+        assert_eq!(next_bracket_mu(&[], &[], 1.0), None);
+    }
 }

@@ -1041,6 +1041,9 @@ struct RigidReplay<'a> {
     rest: Vec<Vector3<f64>>,
     candidates: Vec<usize>,
     settings: EquilibriumSettings,
+    /// `settings` for the attempts of a frame that are not its last (fewer iterations for the
+    /// frictional replay: `FemSimSettings::friction_attempt_max_iterations`).
+    attempt_settings: EquilibriumSettings,
 }
 
 /// What a rigid-tip replay carries from frame to frame: the solver (with the friction history),
@@ -1074,12 +1077,23 @@ impl<'a> RigidReplay<'a> {
             },
             ..sim.settings().equilibrium.clone()
         };
+        let attempt_settings = if frictional {
+            EquilibriumSettings {
+                max_iterations: settings
+                    .max_iterations
+                    .min(sim.settings().friction_attempt_max_iterations),
+                ..settings.clone()
+            }
+        } else {
+            settings.clone()
+        };
         Self {
             sim,
             tip,
             rest: setup.mesh.vertices.clone(),
             candidates,
             settings,
+            attempt_settings,
         }
     }
 
@@ -1158,7 +1172,13 @@ impl<'a> RigidReplay<'a> {
         };
         let (start_x, start_model) = (state.x.clone(), state.model.clone());
         let mut status = String::new();
-        'attempts: for substeps in [1usize, 4, 16] {
+        const ATTEMPTS: [usize; 3] = [1, 4, 16];
+        'attempts: for substeps in ATTEMPTS {
+            let settings = if substeps == ATTEMPTS[ATTEMPTS.len() - 1] {
+                &self.settings
+            } else {
+                &self.attempt_settings
+            };
             state.x.clone_from(&start_x);
             state.model = start_model.clone();
             if let (RigidSolver::Frictional { contact, .. }, Some(c)) =
@@ -1171,7 +1191,7 @@ impl<'a> RigidReplay<'a> {
                 before(&mut state.model, dt / substeps as f64)?;
                 let iso = path.map(|path| pose_along(path, t));
                 let t0 = crate::profile::thread_cpu();
-                let rep = self.solve(state, f, iso)?;
+                let rep = self.solve(state, f, iso, settings)?;
                 if !rep.converged() {
                     status = format!(
                         "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
@@ -1194,13 +1214,14 @@ impl<'a> RigidReplay<'a> {
         state: &mut RigidState<M>,
         f: &[Vector3<f64>],
         iso: Option<Isometry3<f64>>,
+        settings: &EquilibriumSettings,
     ) -> Result<EquilibriumReport> {
         let RigidState { solver, model, x } = state;
         self.sim.setup().dirichlet().apply(x);
         let rep = match solver {
             RigidSolver::Frictionless(solver) => {
                 let problem = iso.map(|iso| self.problem_at(iso)).transpose()?;
-                solver.solve(model, x, f, problem.as_ref(), &self.settings)
+                solver.solve(model, x, f, problem.as_ref(), settings)
             }
             RigidSolver::Frictional { solver, contact } => {
                 if let Some(iso) = iso {
@@ -1213,14 +1234,8 @@ impl<'a> RigidReplay<'a> {
                     f,
                     iso.is_some().then_some(&mut **contact),
                     &mut [],
-                    &self.settings,
+                    settings,
                     &LaggedIterations::default(),
-                );
-                crate::profile::lagged(
-                    lagged.outer,
-                    lagged.iterations,
-                    lagged.equilibrium.iterations,
-                    lagged.lag_mismatch,
                 );
                 let rep = lagged.equilibrium;
                 if rep.converged() && iso.is_some() {

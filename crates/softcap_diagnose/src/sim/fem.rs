@@ -60,6 +60,11 @@ pub struct FemSimSettings {
     /// slowly than the frictionless replay's 80: stick stiffness 2μf_n/ε). A solve that does not
     /// converge within them is retried from the frame's start in 4, then 16 sub-steps.
     pub friction_max_iterations: usize,
+    /// Equilibrium iterations of one solve of the frictional rigid-tip replay in the attempts
+    /// that are not the last (1 and 4 sub-steps; the 16-sub-step attempt keeps
+    /// `friction_max_iterations`): a solve that has not converged within them is retried in
+    /// more sub-steps at once instead of running out its iterations.
+    pub friction_attempt_max_iterations: usize,
     /// The frictional rigid-tip replay's contact active set is re-queried in the first this many
     /// equilibrium iterations of each solve, then frozen (`EquilibriumSettings::
     /// contact_freeze_after`). On the refined probe-friction session the re-queried set cycles
@@ -140,6 +145,7 @@ impl Default for FemSimSettings {
             rigid_tip_contact: ContactSettings::default(),
             friction_slip_fraction: 0.1,
             friction_max_iterations: 150,
+            friction_attempt_max_iterations: 40,
             friction_contact_freeze_after: 12,
             replay_refactorization: Refactorization::EveryStep,
             sequence_refactorization: Refactorization::WhenStale,
