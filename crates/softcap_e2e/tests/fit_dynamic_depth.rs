@@ -120,6 +120,7 @@ fn track_and_fit(
             output: output.clone(),
             report: None,
             json: None,
+            next_material: None,
             settings: FitDynamicSettings {
                 control_points: E_CP.len(),
                 segment_frames: 60,

@@ -56,6 +56,11 @@ pub struct FitDynamicArgs {
     /// Also write the fitted parameters as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Also write the material for the next `tissue track --material` pass here: the fit's, with
+    /// control points at an E bound given their nearest free neighbour's E, rest shape solved by
+    /// the tracker.
+    #[arg(long)]
+    pub next_material: Option<PathBuf>,
     /// Settings TOML (softcap_tissue::fit_dynamic::FitDynamicSettings).
     #[arg(long)]
     pub settings: Option<PathBuf>,
@@ -97,6 +102,7 @@ impl FitDynamicArgs {
             output: self.output.clone(),
             report: self.report.clone(),
             json: self.json.clone(),
+            next_material: self.next_material.clone(),
             settings,
             arguments,
         };

@@ -404,6 +404,40 @@ pub fn neighbour_correlation(cov: &DMatrix<f64>, nc: usize) -> Vec<f64> {
         .collect()
 }
 
+/// E within 0.1 % of neither bound.
+fn off_bounds(e: f64, bounds_pa: [f64; 2]) -> bool {
+    e > bounds_pa[0] * 1.001 && e < bounds_pa[1] / 1.001
+}
+
+/// E per control point for the next tracking pass (wang2015 §6.2's blending between neighbours):
+/// a control point the fit left at a bound of `bounds_pa` (within 0.1 %, never observable: the
+/// motion does not determine it) takes the value of the nearest control point off the bounds
+/// (the geometric mean of the two when both sides are as near); the others keep theirs. A tip
+/// the tracked motion hardly strains runs to the lower bound, and a tracker with that almost
+/// massless-spring tip would bend the tip's track toward it, which the next fit reads as a
+/// stiffer neighbour.
+pub fn young_for_tracking(young_pa: &[f64], bounds_pa: [f64; 2]) -> Vec<f64> {
+    let n = young_pa.len();
+    let free = |c: usize| off_bounds(young_pa[c], bounds_pa);
+    (0..n)
+        .map(|c| {
+            if free(c) {
+                return young_pa[c];
+            }
+            for d in 1..n {
+                let below = (c >= d && free(c - d)).then(|| young_pa[c - d]);
+                let above = (c + d < n && free(c + d)).then(|| young_pa[c + d]);
+                match (below, above) {
+                    (Some(a), Some(b)) => return (a * b).sqrt(),
+                    (Some(a), None) | (None, Some(a)) => return a,
+                    (None, None) => {}
+                }
+            }
+            young_pa[c]
+        })
+        .collect()
+}
+
 /// Per control point, whether the fit determines E_c on its own: its relative 1-σ (the larger
 /// of `relative_sigma`, s²(JᵀJ)⁻¹, and `segment_sigma`, the per-segment sandwich, where finite)
 /// ≤ [`OBSERVABLE_SIGMA`], its neighbour correlation < [`OBSERVABLE_CORRELATION`], and E_c
@@ -424,11 +458,9 @@ pub fn observable_control_points(
                 .copied()
                 .filter(|s| s.is_finite())
                 .unwrap_or(0.0);
-            let e = young_pa[c];
-            let off_bounds = e > bounds_pa[0] * 1.001 && e < bounds_pa[1] / 1.001;
             own.max(sandwich) <= OBSERVABLE_SIGMA
                 && neighbour_correlation.get(c).copied().unwrap_or(1.0) < OBSERVABLE_CORRELATION
-                && off_bounds
+                && off_bounds(young_pa[c], bounds_pa)
         })
         .collect()
 }
@@ -2566,5 +2598,18 @@ mod tests {
         let flags =
             observable_control_points(&[5e5], &[0.01], &[f64::INFINITY], &[0.0], [1e2, 1e10]);
         assert_eq!(flags, [true]);
+    }
+
+    /// At a bound: the nearest control point off the bounds, the geometric mean when both sides
+    /// are as near; none off the bounds: unchanged.
+    #[test]
+    fn control_points_at_a_bound_take_the_nearest_free_value_for_tracking() {
+        let b = [1e2, 1e10];
+        let young = [1e2, 8e5, 1e2, 2e5, 5e5, 1e10, 1e2];
+        let e = young_for_tracking(&young, b);
+        assert_eq!(e[..2], [8e5, 8e5]);
+        assert!((e[2] - 4e5).abs() < 1e-6, "{}", e[2]);
+        assert_eq!(e[3..], [2e5, 5e5, 5e5, 5e5]);
+        assert_eq!(young_for_tracking(&[1e2, 1e10], b), [1e2, 1e10]);
     }
 }

@@ -25,7 +25,7 @@ pub mod warm;
 pub use blend::{Blending, ControlPoints, control_points};
 pub use fit::{
     DynamicFit, EarlyFit, Elements, FitDynamicSettings, JacobianMethod, OBSERVABLE_CORRELATION,
-    OBSERVABLE_SIGMA, Optimizer, fit_sequence,
+    OBSERVABLE_SIGMA, Optimizer, fit_sequence, young_for_tracking,
 };
 pub use forward::{
     DynamicParams, FitModel, FitTiming, Forward, ForwardSettings, Near, Perturbed, StepTrack,

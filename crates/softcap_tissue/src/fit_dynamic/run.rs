@@ -34,6 +34,8 @@ pub struct FitDynamicConfig {
     pub report: Option<PathBuf>,
     /// Also write the parameters as JSON here.
     pub json: Option<PathBuf>,
+    /// Also write the material for the next tracking pass here ([`tracking_material_message`]).
+    pub next_material: Option<PathBuf>,
     /// Settings.
     pub settings: FitDynamicSettings,
     /// Command line (provenance).
@@ -210,6 +212,9 @@ pub fn run(cfg: &FitDynamicConfig, progress: &Progress) -> Result<DynamicFit> {
     }
     let fit = fit_sequence(&mesh, &seq, &cfg.settings, progress)?;
     write_dynamic(cfg, &mesh, &fit)?;
+    if let Some(p) = &cfg.next_material {
+        write_next_material(cfg, p, &mesh, &fit)?;
+    }
     if let Some(p) = &cfg.json {
         softcap_app::write_atomic(p, json(&fit).as_bytes()).map_err(|e| TissueError::Output {
             path: p.clone(),
@@ -233,6 +238,43 @@ pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
         rayleigh_beta_s: fit.damping.beta_s,
         rest_positions_m: fit.rest_m.iter().flat_map(|v| [v.x, v.y, v.z]).collect(),
     }
+}
+
+/// The material for the next tracking pass (tracking ↔ estimation, wang2015 §7): the fit's, with
+/// every control point the fit left at a bound given its nearest free neighbour's E
+/// ([`super::fit::young_for_tracking`]) and no rest shape (the tracker solves it for these E
+/// from its frame 0).
+pub fn tracking_material_message(fit: &DynamicFit, bounds_pa: [f64; 2]) -> proto::DynamicMaterial {
+    let young = super::fit::young_for_tracking(&fit.young_pa, bounds_pa);
+    proto::DynamicMaterial {
+        young_pa: fit.control_points.blend(&young),
+        rest_positions_m: Vec::new(),
+        ..material_message(fit)
+    }
+}
+
+fn write_next_material(
+    cfg: &FitDynamicConfig,
+    path: &Path,
+    mesh: &TetMesh,
+    fit: &DynamicFit,
+) -> Result<()> {
+    let err = |e: softcap_mcap::Error| TissueError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let provenance = Provenance::new("tissue fit-dynamic", env!("CARGO_PKG_VERSION"))
+        .with_arguments(cfg.arguments.iter());
+    let mut w = Writer::create(path, &provenance).map_err(err)?;
+    w.write_static(&topics::VOLUME_MESH, &tet_mesh_message(mesh))
+        .map_err(err)?;
+    w.write_static(
+        &topics::DYNAMIC_MATERIAL,
+        &tracking_material_message(fit, cfg.settings.young_bounds_pa),
+    )
+    .map_err(err)?;
+    w.finish().map_err(err)?;
+    Ok(())
 }
 
 /// A JSON number, or `null` for a non-finite value (an uncertainty the data do not bound, the
