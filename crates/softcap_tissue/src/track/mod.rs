@@ -67,7 +67,11 @@ pub struct TrackSettings {
     /// one Newmark step over h around that prediction (from the start state whose Newmark
     /// relations give v_p, a_p at x_p; see `tracker`): the data pull as with one step. 1: the
     /// M-step's own prediction (one step over h). More: modes with ω h > 1 (a stiff body filmed
-    /// slowly) are predicted as the material moves them. Needs the Newmark integrator.
+    /// slowly) are predicted as the material moves them. Needs the Newmark integrator. Default 1:
+    /// 4 tracks `bar8ab`'s 30 Hz bends with a good material at 0.28 mm (was 0.78–0.84) but the
+    /// 30 Hz bar push and release (`scripts/track-table`, 60 frames) worse: FElupe's truth
+    /// 0.27 → 2.39 mm with the default material, 0.34 → 1.18 mm with the true one; softcap's
+    /// 0.47 → 2.91 mm with the true one (single frames off by up to 12 mm).
     pub substeps: usize,
     /// Outlier weight w of the GMM.
     pub outlier_weight: f64,
