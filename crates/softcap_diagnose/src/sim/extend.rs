@@ -570,27 +570,26 @@ impl FemProbeSimulator {
         };
         // frame 0: quasi-static equilibrium with the tip at its pose (the recording starts at rest)
         let mut poses = CarriedPoses::default();
-        let mut state = RigidState {
-            solver: replay.solver(&model, None)?,
-            model,
-            x: replay.rest.clone(),
+        let mut stepper = LinearTip {
+            state: RigidState {
+                solver: replay.solver(&model, None)?,
+                model,
+                x: replay.rest.clone(),
+            },
+            replay: &replay,
+            saved: None,
+            before: |_: &mut softcap_fem::CorotationalModel, _| Ok(()),
+            commit: |_: &mut softcap_fem::CorotationalModel, _: &[Vector3<f64>]| {},
         };
         let pose0 = poses.pose(first);
         let probe0 = pose0.map(|iso| replay.probe(iso)).transpose()?;
         let path0 = pose0
-            .filter(|_| replay.touches(probe0.as_ref(), &state.x))
+            .filter(|_| replay.touches(probe0.as_ref(), &stepper.state.x))
             .map(|p| (p, p));
         replay
-            .step(
-                &mut state,
-                &body_load(first),
-                path0,
-                0.0,
-                &mut |_, _| Ok(()),
-                &mut |_, _| {},
-            )?
+            .step(&mut stepper, &body_load(first), path0, 0.0)?
             .map_err(|status| not_converged(0, status))?;
-        let RigidState { mut model, x, .. } = state;
+        let RigidState { mut model, x, .. } = stepper.state;
         let setup = self.setup();
         let masses = lumped_masses(&model, density_kg_m3);
         let mut dynamic =
@@ -902,80 +901,29 @@ impl FemProbeSimulator {
         friction: Option<FrictionParams>,
         frames: &[SequenceFrame],
         rate_independent: bool,
-        mut before: impl FnMut(&mut M, f64) -> Result<()>,
-        mut commit: impl FnMut(&mut M, &[Vector3<f64>]),
+        before: impl FnMut(&mut M, f64) -> Result<()>,
+        commit: impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let replay = RigidReplay::new(self, tip, friction.is_some());
-        let _profile = crate::profile::sequence(
+        let mut stepper = LinearTip {
+            state: RigidState {
+                solver: replay.solver(&model, friction)?,
+                model,
+                x: replay.rest.clone(),
+            },
+            replay: &replay,
+            saved: None,
+            before,
+            commit,
+        };
+        replay.frames(
+            &mut stepper,
+            frames,
+            rate_independent,
             "rigid-tip replay",
             self.setup().mesh.tets.len(),
-            frames.len(),
-        );
-        let mut state = RigidState {
-            solver: replay.solver(&model, friction)?,
-            model,
-            x: replay.rest.clone(),
-        };
-        let mut out = Vec::with_capacity(frames.len());
-        let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
-        let mut prev_pose: Option<Isometry3<f64>> = None;
-        let mut poses = CarriedPoses::default();
-        // the body force of the previous frame when it was solved off the surface
-        let mut previous_at_rest: Option<Vector3<f64>> = None;
-        // (frame, thread CPU-s of its step) for the profile
-        let mut frame_cpu: Vec<(usize, f64)> = Vec::new();
-        let mu = friction.map(|f| f.mu);
-        for (k, fr) in frames.iter().enumerate() {
-            let f = self.nodal_load(&SimLoad {
-                probe: None,
-                body_force_n_m3: fr.load.body_force_n_m3,
-            });
-            let pose = poses.pose(fr);
-            let probe = pose.map(|iso| replay.probe(iso)).transpose()?;
-            let touches = replay.touches(probe.as_ref(), &state.x);
-            let dt = (fr.time_s - t_prev).max(0.0);
-            t_prev = fr.time_s;
-            if let RigidSolver::Frictional { contact, .. } = &mut state.solver
-                && !touches
-            {
-                // the tip left the surface: no stick history carries over to the next touch
-                contact.reset_history();
-            }
-            let path = match (touches, pose) {
-                (true, Some(to)) => Some((prev_pose.unwrap_or(to), to)),
-                _ => None,
-            };
-            let at_rest = path.is_none() && rate_independent;
-            let unchanged = at_rest
-                && previous_at_rest.as_ref() == Some(&fr.load.body_force_n_m3)
-                && !out.is_empty();
-            if !unchanged {
-                let t0 = crate::profile::thread_cpu();
-                let stepped = replay.step(&mut state, &f, path, dt, &mut before, &mut commit)?;
-                frame_cpu.push((k, crate::profile::thread_cpu() - t0));
-                if let Err(status) = stepped {
-                    crate::profile::replay_frames(
-                        mu,
-                        self.setup().mesh.tets.len(),
-                        &frame_cpu,
-                        frames.len(),
-                        Some(&status),
-                    );
-                    return Err(not_converged(k, status));
-                }
-            }
-            previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);
-            prev_pose = pose;
-            out.push(self.setup().marker_positions(&state.x));
-        }
-        crate::profile::replay_frames(
-            mu,
-            self.setup().mesh.tets.len(),
-            &frame_cpu,
-            frames.len(),
-            None,
-        );
-        Ok(out)
+            friction.map(|f| f.mu),
+        )
     }
 }
 
@@ -1035,12 +983,12 @@ impl CarriedPoses {
 /// What a rigid-tip replay holds fixed: the simulator, the session's tip, the rest shape, the
 /// surface nodes the tip may touch (boundary nodes off the attached region) and the
 /// equilibrium settings.
-struct RigidReplay<'a> {
-    sim: &'a FemProbeSimulator,
+pub(super) struct RigidReplay<'a> {
+    pub(super) sim: &'a FemProbeSimulator,
     tip: &'a softcap_fem::TipShape,
     rest: Vec<Vector3<f64>>,
     candidates: Vec<usize>,
-    settings: EquilibriumSettings,
+    pub(super) settings: EquilibriumSettings,
     /// `settings` for the attempts of a frame that are not its last (fewer iterations for the
     /// frictional replay: `FemSimSettings::friction_attempt_max_iterations`).
     attempt_settings: EquilibriumSettings,
@@ -1054,8 +1002,117 @@ struct RigidState<M> {
     x: Vec<Vector3<f64>>,
 }
 
+/// One rigid-tip replay's solver and the state it steps (model history, node positions,
+/// contact history): "step the tip to pose P from state S". [`RigidReplay::frames`] is the one
+/// frame loop (touch test, frames at rest not solved again, 1 / 4 / 16 sub-step attempts) for
+/// the linear, frictional ([`LinearTip`]) and 10-node (`super::quadratic`) replays.
+pub(super) trait TipStepper {
+    /// The node positions now.
+    fn positions(&self) -> &[Vector3<f64>];
+    /// Keeps the state as the start of a frame's attempts.
+    fn save(&mut self);
+    /// Restores the state kept by [`Self::save`].
+    fn restore(&mut self);
+    /// One sub-step: equilibrium under the nodal body load `f` with the tip at `iso` (`None`: no
+    /// contact) after `dt` s, the history committed when it converged; `Ok(Err(status))` when it
+    /// did not. `last`: the frame's last attempt (a stepper may give the others fewer
+    /// iterations).
+    fn sub_step(
+        &mut self,
+        f: &[Vector3<f64>],
+        iso: Option<Isometry3<f64>>,
+        dt: f64,
+        last: bool,
+    ) -> Result<std::result::Result<(), String>>;
+    /// The tip is off the surface this frame (no stick history carries over to the next touch).
+    fn lifted(&mut self) {}
+    /// The markers at the node positions now.
+    fn markers(&self) -> Vec<Vector3<f64>>;
+}
+
+/// The [`TipStepper`] of the linear tets: the static solver or the frictional nodal solver
+/// ([`RigidReplay::solve`]), `before` each sub-step (the time step of rate-dependent models)
+/// and `commit` after it.
+struct LinearTip<'r, 'a, M, B, C> {
+    replay: &'r RigidReplay<'a>,
+    state: RigidState<M>,
+    saved: Option<(Vec<Vector3<f64>>, M, Option<FrictionalContact>)>,
+    before: B,
+    commit: C,
+}
+
+impl<M, B, C> TipStepper for LinearTip<'_, '_, M, B, C>
+where
+    M: ElasticModel + Clone,
+    B: FnMut(&mut M, f64) -> Result<()>,
+    C: FnMut(&mut M, &[Vector3<f64>]),
+{
+    fn positions(&self) -> &[Vector3<f64>] {
+        &self.state.x
+    }
+
+    fn save(&mut self) {
+        let contact = match &self.state.solver {
+            RigidSolver::Frictional { contact, .. } => Some((**contact).clone()),
+            RigidSolver::Frictionless(_) => None,
+        };
+        self.saved = Some((self.state.x.clone(), self.state.model.clone(), contact));
+    }
+
+    fn restore(&mut self) {
+        let Some((x, model, contact)) = &self.saved else {
+            return;
+        };
+        self.state.x.clone_from(x);
+        self.state.model = model.clone();
+        if let (RigidSolver::Frictional { contact: c, .. }, Some(saved)) =
+            (&mut self.state.solver, contact)
+        {
+            (**c).clone_from(saved);
+        }
+    }
+
+    fn sub_step(
+        &mut self,
+        f: &[Vector3<f64>],
+        iso: Option<Isometry3<f64>>,
+        dt: f64,
+        last: bool,
+    ) -> Result<std::result::Result<(), String>> {
+        (self.before)(&mut self.state.model, dt)?;
+        let settings = if last {
+            &self.replay.settings
+        } else {
+            &self.replay.attempt_settings
+        };
+        let rep = self.replay.solve(&mut self.state, f, iso, settings)?;
+        if !rep.converged() {
+            return Ok(Err(format!(
+                "rigid-tip replay: {:?} after {} iterations",
+                rep.status, rep.iterations
+            )));
+        }
+        (self.commit)(&mut self.state.model, &self.state.x);
+        Ok(Ok(()))
+    }
+
+    fn lifted(&mut self) {
+        if let RigidSolver::Frictional { contact, .. } = &mut self.state.solver {
+            contact.reset_history();
+        }
+    }
+
+    fn markers(&self) -> Vec<Vector3<f64>> {
+        self.replay.sim.setup().marker_positions(&self.state.x)
+    }
+}
+
 impl<'a> RigidReplay<'a> {
-    fn new(sim: &'a FemProbeSimulator, tip: &'a softcap_fem::TipShape, frictional: bool) -> Self {
+    pub(super) fn new(
+        sim: &'a FemProbeSimulator,
+        tip: &'a softcap_fem::TipShape,
+        frictional: bool,
+    ) -> Self {
         let setup = sim.setup();
         let candidates: Vec<usize> = setup.free_boundary_nodes();
         let max_iterations = if frictional {
@@ -1108,7 +1165,7 @@ impl<'a> RigidReplay<'a> {
     }
 
     /// The contact problem of the tip at `iso`.
-    fn problem_at(&self, iso: Isometry3<f64>) -> Result<ContactProblem> {
+    pub(super) fn problem_at(&self, iso: Isometry3<f64>) -> Result<ContactProblem> {
         Ok(ContactProblem {
             probe: self.probe(iso)?,
             candidate_nodes: self.candidates.clone(),
@@ -1154,53 +1211,99 @@ impl<'a> RigidReplay<'a> {
         })
     }
 
+    /// The frames of a replay (time order) stepped by `stepper`: a frame whose pose (carried,
+    /// [`CarriedPoses`]) makes the tip penetrate a candidate node at rest or where it is now
+    /// moves the tip there from the previous frame's pose ([`Self::step`]); any other frame is
+    /// solved without the tip. With `rate_independent`, a frame off the surface after a frame off
+    /// the surface under the same body force is the previous equilibrium and is not solved
+    /// again. The markers of every frame; `kind`, `tets` and `mu` label the profile lines.
+    pub(super) fn frames<S: TipStepper>(
+        &self,
+        stepper: &mut S,
+        frames: &[SequenceFrame],
+        rate_independent: bool,
+        kind: &'static str,
+        tets: usize,
+        mu: Option<f64>,
+    ) -> Result<Vec<Vec<Vector3<f64>>>> {
+        let _profile = crate::profile::sequence(kind, tets, frames.len());
+        let mut out = Vec::with_capacity(frames.len());
+        let mut t_prev = frames.first().map(|f| f.time_s).unwrap_or(0.0);
+        let mut prev_pose: Option<Isometry3<f64>> = None;
+        let mut poses = CarriedPoses::default();
+        // the body force of the previous frame when it was solved off the surface
+        let mut previous_at_rest: Option<Vector3<f64>> = None;
+        // (frame, thread CPU-s of its step) for the profile
+        let mut frame_cpu: Vec<(usize, f64)> = Vec::new();
+        for (k, fr) in frames.iter().enumerate() {
+            let f = self.sim.nodal_load(&SimLoad {
+                probe: None,
+                body_force_n_m3: fr.load.body_force_n_m3,
+            });
+            let pose = poses.pose(fr);
+            let probe = pose.map(|iso| self.probe(iso)).transpose()?;
+            let touches = self.touches(probe.as_ref(), stepper.positions());
+            let dt = (fr.time_s - t_prev).max(0.0);
+            t_prev = fr.time_s;
+            if !touches {
+                stepper.lifted();
+            }
+            let path = match (touches, pose) {
+                (true, Some(to)) => Some((prev_pose.unwrap_or(to), to)),
+                _ => None,
+            };
+            let at_rest = path.is_none() && rate_independent;
+            let unchanged = at_rest
+                && previous_at_rest.as_ref() == Some(&fr.load.body_force_n_m3)
+                && !out.is_empty();
+            if !unchanged {
+                let t0 = crate::profile::thread_cpu();
+                let stepped = self.step(stepper, &f, path, dt)?;
+                frame_cpu.push((k, crate::profile::thread_cpu() - t0));
+                if let Err(status) = stepped {
+                    crate::profile::replay_frames(
+                        mu,
+                        tets,
+                        &frame_cpu,
+                        frames.len(),
+                        Some(&status),
+                    );
+                    return Err(not_converged(k, status));
+                }
+            }
+            previous_at_rest = at_rest.then_some(fr.load.body_force_n_m3);
+            prev_pose = pose;
+            out.push(stepper.markers());
+        }
+        crate::profile::replay_frames(mu, tets, &frame_cpu, frames.len(), None);
+        Ok(out)
+    }
+
     /// One frame: the tip moved along `path` (from, to; `None`: off the surface) over `dt` in 1,
     /// else 4, else 16 sub-steps, each solved to equilibrium and committed; a failed attempt
     /// restarts from the frame's start. `Ok(Err(status))` when no attempt converged.
-    fn step<M: ElasticModel + Clone>(
+    fn step<S: TipStepper>(
         &self,
-        state: &mut RigidState<M>,
+        stepper: &mut S,
         f: &[Vector3<f64>],
         path: Option<(Isometry3<f64>, Isometry3<f64>)>,
         dt: f64,
-        before: &mut impl FnMut(&mut M, f64) -> Result<()>,
-        commit: &mut impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<std::result::Result<(), String>> {
-        let start_contact = match &state.solver {
-            RigidSolver::Frictional { contact, .. } => Some(contact.clone()),
-            RigidSolver::Frictionless(_) => None,
-        };
-        let (start_x, start_model) = (state.x.clone(), state.model.clone());
+        stepper.save();
         let mut status = String::new();
         const ATTEMPTS: [usize; 3] = [1, 4, 16];
         'attempts: for substeps in ATTEMPTS {
-            let settings = if substeps == ATTEMPTS[ATTEMPTS.len() - 1] {
-                &self.settings
-            } else {
-                &self.attempt_settings
-            };
-            state.x.clone_from(&start_x);
-            state.model = start_model.clone();
-            if let (RigidSolver::Frictional { contact, .. }, Some(c)) =
-                (&mut state.solver, &start_contact)
-            {
-                contact.clone_from(c);
-            }
+            let last = substeps == ATTEMPTS[ATTEMPTS.len() - 1];
+            stepper.restore();
             for s in 1..=substeps {
                 let t = s as f64 / substeps as f64;
-                before(&mut state.model, dt / substeps as f64)?;
                 let iso = path.map(|path| pose_along(path, t));
                 let t0 = crate::profile::thread_cpu();
-                let rep = self.solve(state, f, iso, settings)?;
-                if !rep.converged() {
-                    status = format!(
-                        "rigid-tip replay: {:?} after {} iterations ({substeps} sub-steps)",
-                        rep.status, rep.iterations
-                    );
+                if let Err(why) = stepper.sub_step(f, iso, dt / substeps as f64, last)? {
+                    status = format!("{why} ({substeps} sub-steps)");
                     crate::profile::failed_attempt(&status, crate::profile::thread_cpu() - t0);
                     continue 'attempts;
                 }
-                commit(&mut state.model, &state.x);
             }
             return Ok(Ok(()));
         }
