@@ -297,8 +297,8 @@ pub fn next_bracket_mu(converged: &[f64], failed: &[f64], best: f64) -> Option<f
             .chain(failed)
             .any(|&m| (m - mu).abs() <= 1e-9 * mu.abs())
     };
-    let down = (best <= lo && !failed.iter().any(|&m| m < lo)).then(|| lo / RIGID_MU_STEP);
-    let up = (best >= hi && !failed.iter().any(|&m| m > hi)).then(|| hi * RIGID_MU_STEP);
+    let down = (best <= lo && !failed.iter().any(|&m| m < lo)).then_some(lo / RIGID_MU_STEP);
+    let up = (best >= hi && !failed.iter().any(|&m| m > hi)).then_some(hi * RIGID_MU_STEP);
     [down, up]
         .into_iter()
         .flatten()
