@@ -570,17 +570,12 @@ impl FemProbeSimulator {
         };
         // frame 0: quasi-static equilibrium with the tip at its pose (the recording starts at rest)
         let mut poses = CarriedPoses::default();
-        let mut stepper = LinearTip {
-            state: RigidState {
-                solver: replay.solver(&model, None)?,
-                model,
-                x: replay.rest.clone(),
-            },
-            replay: &replay,
-            saved: None,
-            before: |_: &mut softcap_fem::CorotationalModel, _| Ok(()),
-            commit: |_: &mut softcap_fem::CorotationalModel, _: &[Vector3<f64>]| {},
-        };
+        let mut stepper = replay.linear_tip(
+            model,
+            None,
+            |_: &mut softcap_fem::CorotationalModel, _| Ok(()),
+            |_: &mut softcap_fem::CorotationalModel, _: &[Vector3<f64>]| {},
+        )?;
         let pose0 = poses.pose(first);
         let probe0 = pose0.map(|iso| replay.probe(iso)).transpose()?;
         let path0 = pose0
@@ -905,17 +900,7 @@ impl FemProbeSimulator {
         commit: impl FnMut(&mut M, &[Vector3<f64>]),
     ) -> Result<Vec<Vec<Vector3<f64>>>> {
         let replay = RigidReplay::new(self, tip, friction.is_some());
-        let mut stepper = LinearTip {
-            state: RigidState {
-                solver: replay.solver(&model, friction)?,
-                model,
-                x: replay.rest.clone(),
-            },
-            replay: &replay,
-            saved: None,
-            before,
-            commit,
-        };
+        let mut stepper = replay.linear_tip(model, friction, before, commit)?;
         replay.frames(
             &mut stepper,
             frames,
@@ -1170,6 +1155,27 @@ impl<'a> RigidReplay<'a> {
             probe: self.probe(iso)?,
             candidate_nodes: self.candidates.clone(),
             settings: self.sim.settings().rigid_tip_contact.clone(),
+        })
+    }
+
+    /// The [`LinearTip`] of `model` at rest (with `friction`: the frictional solver).
+    fn linear_tip<M: ElasticModel + Clone, B, C>(
+        &self,
+        model: M,
+        friction: Option<FrictionParams>,
+        before: B,
+        commit: C,
+    ) -> Result<LinearTip<'_, 'a, M, B, C>> {
+        Ok(LinearTip {
+            state: RigidState {
+                solver: self.solver(&model, friction)?,
+                model,
+                x: self.rest.clone(),
+            },
+            replay: self,
+            saved: None,
+            before,
+            commit,
         })
     }
 

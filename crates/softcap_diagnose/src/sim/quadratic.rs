@@ -18,8 +18,8 @@ use super::fem::FemProbeSimulator;
 use crate::{DiagnoseError, Result};
 use nalgebra::{Isometry3, Vector3};
 use softcap_fem::{
-    DirichletBc, QuadraticElastoplasticModel, QuadraticRigidTipSolver, QuadraticTetMesh, TipShape,
-    shape_functions,
+    DirichletBc, EquilibriumSettings, QuadraticElastoplasticModel, QuadraticRigidTipSolver,
+    QuadraticTetMesh, TipShape, shape_functions,
 };
 
 fn fem(e: softcap_fem::FemError) -> DiagnoseError {
@@ -50,14 +50,20 @@ impl QuadraticMesh {
     }
 }
 
+/// The 10-node replay's displacement tolerance (`EquilibriumSettings::displacement_tol_rel`, of
+/// the model's size; the linear replays' 1e-8): third-party `plasticity`: MEASURED.
+const QUADRATIC_DISPLACEMENT_TOL_REL: f64 = 1e-6;
+
 /// The [`TipStepper`] of the 10-node tets: `QuadraticRigidTipSolver` on the model's state, the
-/// contact problem and settings those of the refined copy's [`RigidReplay`].
+/// contact problem those of the refined copy's [`RigidReplay`], its settings with
+/// [`QUADRATIC_DISPLACEMENT_TOL_REL`].
 struct QuadraticTip<'r, 'a> {
     replay: &'r RigidReplay<'a>,
     q: &'r QuadraticMesh,
     /// The fit mesh's simulator (its markers' tets and weights).
     sim: &'r FemProbeSimulator,
     dirichlet: DirichletBc,
+    settings: EquilibriumSettings,
     model: QuadraticElastoplasticModel,
     solver: QuadraticRigidTipSolver,
     x: Vec<Vector3<f64>>,
@@ -94,7 +100,7 @@ impl TipStepper for QuadraticTip<'_, '_> {
             &mut self.x,
             f,
             problem.as_ref(),
-            &self.replay.settings,
+            &self.settings,
         );
         crate::profile::solve(rep.iterations, self.q.tets.elements.len());
         if !rep.converged {
@@ -152,6 +158,10 @@ impl FemProbeSimulator {
             q,
             sim: self,
             dirichlet,
+            settings: EquilibriumSettings {
+                displacement_tol_rel: QUADRATIC_DISPLACEMENT_TOL_REL,
+                ..replay.settings.clone()
+            },
             model,
             solver,
             x: q.tets.nodes.clone(),
