@@ -51,7 +51,9 @@ impl QuadraticMesh {
 }
 
 /// The 10-node replay's displacement tolerance (`EquilibriumSettings::displacement_tol_rel`, of
-/// the model's size; the linear replays' 1e-8): third-party `plasticity`: MEASURED.
+/// the model's size; the linear replays' 1e-8). Third-party `plasticity` (two 10-node replays of
+/// 223 frames on 1,666 tets): 1446 / 1462 → 1336 / 1383 Newton iterations, 131 / 126 → 120 / 119
+/// thread CPU-s, held-out 0.1248 → 0.1244 mm.
 const QUADRATIC_DISPLACEMENT_TOL_REL: f64 = 1e-6;
 
 /// The [`TipStepper`] of the 10-node tets: `QuadraticRigidTipSolver` on the model's state, the
