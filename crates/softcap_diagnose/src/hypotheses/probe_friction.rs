@@ -282,7 +282,7 @@ pub fn confirmation_grid(
     grid
 }
 
-/// The next μ of the bracketing search ([`bracket_friction`]), or `None` when it ends.
+/// The next μ of the bracketing search (`bracket_friction`), or `None` when it ends.
 /// `converged`: the μ replayed to the end; `failed`: the μ whose replay did not converge;
 /// `best`: the full-data choice among `converged`. While `best` is the smallest (largest)
 /// converged μ, the next is that μ ÷ (×) [`RIGID_MU_STEP`] within [`RIGID_MU_RANGE`], unless a
