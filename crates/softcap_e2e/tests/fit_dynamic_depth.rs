@@ -123,6 +123,7 @@ fn track_and_fit(
             report: None,
             json: None,
             next_material: Some(next.clone()),
+            previous_passes: Vec::new(),
             settings: FitDynamicSettings {
                 control_points: E_CP.len(),
                 segment_frames: 60,

@@ -61,6 +61,11 @@ pub struct FitDynamicArgs {
     /// the tracker.
     #[arg(long)]
     pub next_material: Option<PathBuf>,
+    /// With --next-material: the --json of this loop's earlier passes, oldest first (the last
+    /// one's next material is what these tracks were tracked with); the next material is then
+    /// Anderson-accelerated over the last two of them and this pass.
+    #[arg(long, num_args = 1.., requires = "next_material")]
+    pub previous_passes: Vec<PathBuf>,
     /// Settings TOML (softcap_tissue::fit_dynamic::FitDynamicSettings).
     #[arg(long)]
     pub settings: Option<PathBuf>,
@@ -103,6 +108,7 @@ impl FitDynamicArgs {
             report: self.report.clone(),
             json: self.json.clone(),
             next_material: self.next_material.clone(),
+            previous_passes: self.previous_passes.clone(),
             settings,
             arguments,
         };

@@ -36,6 +36,11 @@ pub struct FitDynamicConfig {
     pub json: Option<PathBuf>,
     /// Also write the material for the next tracking pass here ([`tracking_material_message`]).
     pub next_material: Option<PathBuf>,
+    /// The `--json` of this loop's earlier passes, oldest first, the last one's next material
+    /// being what these tracks were tracked with: the next material is then Anderson-accelerated
+    /// over them ([`super::next_pass::anderson_next`], the last [`super::next_pass::ANDERSON_DEPTH`]
+    /// used). Empty: the plain loop.
+    pub previous_passes: Vec<PathBuf>,
     /// Settings.
     pub settings: FitDynamicSettings,
     /// Command line (provenance).
@@ -210,13 +215,24 @@ pub fn run(cfg: &FitDynamicConfig, progress: &Progress) -> Result<DynamicFit> {
             "{lost} tracked frames left out: outlier fraction above {max_outlier} (the tracker lost the body)"
         );
     }
+    let previous = cfg
+        .previous_passes
+        .iter()
+        .map(|p| read_pass_json(p, cfg.settings.control_points))
+        .collect::<Result<Vec<_>>>()?;
     let fit = fit_sequence(&mesh, &seq, &cfg.settings, progress)?;
     write_dynamic(cfg, &mesh, &fit)?;
-    if let Some(p) = &cfg.next_material {
-        write_next_material(cfg, p, &mesh, &fit)?;
-    }
+    let next = match &cfg.next_material {
+        Some(p) => {
+            let next = next_pass_parameters(&fit, &previous, &cfg.settings);
+            write_next_material(cfg, p, &mesh, &fit, &next)?;
+            Some(next)
+        }
+        None => None,
+    };
     if let Some(p) = &cfg.json {
-        softcap_app::write_atomic(p, json(&fit).as_bytes()).map_err(|e| TissueError::Output {
+        let text = json(&fit, next.as_deref());
+        softcap_app::write_atomic(p, text.as_bytes()).map_err(|e| TissueError::Output {
             path: p.clone(),
             reason: e.to_string(),
         })?;
@@ -240,14 +256,122 @@ pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
     }
 }
 
-/// The material for the next tracking pass (tracking ↔ estimation, wang2015 §7): the fit's, with
-/// every control point the fit left at a bound given its nearest free neighbour's E
-/// ([`super::fit::young_for_tracking`]) and no rest shape (the tracker solves it for these E
-/// from its frame 0).
-pub fn tracking_material_message(fit: &DynamicFit, bounds_pa: [f64; 2]) -> proto::DynamicMaterial {
-    let young = super::fit::young_for_tracking(&fit.young_pa, bounds_pa);
+/// An earlier pass's `--json`: its fit's E per control point, α, β and, when it wrote one, the
+/// next material's (what the pass after it tracked with).
+#[derive(Clone, Debug, serde::Deserialize)]
+pub struct PassJson {
+    /// E per control point, Pa.
+    #[serde(rename = "E_pa")]
+    pub young_pa: Vec<f64>,
+    /// Rayleigh α, 1/s.
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+    /// The `--next-material` written (absent before session 50: it was the plain loop's).
+    pub next_material: Option<NextMaterialJson>,
+}
+
+/// The `next_material` of a `--json`: E per control point (Pa), α (1/s), β (s).
+#[derive(Clone, Debug, serde::Deserialize)]
+pub struct NextMaterialJson {
+    /// E per control point, Pa.
+    #[serde(rename = "E_pa")]
+    pub young_pa: Vec<f64>,
+    /// Rayleigh α, 1/s.
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+}
+
+/// An earlier pass's `--json`, with `control_points` E each.
+fn read_pass_json(path: &Path, control_points: usize) -> Result<PassJson> {
+    let bad = |field: &str, e: String| TissueError::bad_input(path, field, e);
+    let text = std::fs::read_to_string(path).map_err(|e| bad("file", e.to_string()))?;
+    let j: PassJson = serde_json::from_str(&text).map_err(|e| bad("JSON", e.to_string()))?;
+    let next = j.next_material.as_ref().map(|n| n.young_pa.len());
+    for (field, n) in [
+        ("E_pa", Some(j.young_pa.len())),
+        ("next_material.E_pa", next),
+    ] {
+        if let Some(n) = n.filter(|&n| n != control_points) {
+            return Err(bad(
+                field,
+                format!("has {n} control points, this fit {control_points}"),
+            ));
+        }
+    }
+    Ok(j)
+}
+
+/// (E per control point, α, β) a fit proposes for the next pass: a control point at an E bound
+/// given its nearest free neighbour's E ([`super::fit::young_for_tracking`]).
+fn proposed(young_pa: &[f64], alpha: f64, beta: f64, bounds_pa: [f64; 2]) -> Vec<f64> {
+    let mut v = super::fit::young_for_tracking(young_pa, bounds_pa);
+    v.extend([alpha, beta]);
+    v
+}
+
+/// The next tracking pass's (E per control point, α, β): what the fit proposes, Anderson-
+/// accelerated over the earlier passes when there are any ([`super::next_pass::anderson_next`];
+/// a pass's x is the previous pass's next material, its g(x) what its own fit proposed).
+pub fn next_pass_parameters(
+    fit: &DynamicFit,
+    previous: &[PassJson],
+    settings: &FitDynamicSettings,
+) -> Vec<f64> {
+    use super::next_pass::{LoopPass, anderson_next};
+    let b = settings.young_bounds_pa;
+    let nc = fit.young_pa.len();
+    let proposed_by = |j: &PassJson| proposed(&j.young_pa, j.alpha, j.beta, b);
+    let next_of = |j: &PassJson| match &j.next_material {
+        Some(n) => [n.young_pa.as_slice(), &[n.alpha, n.beta]].concat(),
+        None => proposed_by(j),
+    };
+    let current = proposed(
+        &fit.young_pa,
+        fit.damping.alpha_per_s,
+        fit.damping.beta_s,
+        b,
+    );
+    let mut passes: Vec<LoopPass> = previous
+        .windows(2)
+        .map(|w| LoopPass {
+            tracked_with: next_of(&w[0]),
+            proposed: proposed_by(&w[1]),
+        })
+        .collect();
+    passes.push(LoopPass {
+        tracked_with: previous.last().map_or_else(|| current.clone(), next_of),
+        proposed: current,
+    });
+    let sigma: Vec<f64> = (0..nc + 2)
+        .map(|i| {
+            let own = fit.relative_sigma.get(i).copied().unwrap_or(f64::INFINITY);
+            let sandwich = fit
+                .segment_robust_sigma
+                .get(i)
+                .copied()
+                .filter(|s| s.is_finite())
+                .unwrap_or(0.0);
+            own.max(sandwich)
+        })
+        .collect();
+    let mut lower = vec![b[0]; nc];
+    lower.extend([settings.alpha_bounds_per_s[0], settings.beta_bounds_s[0]]);
+    let mut upper = vec![b[1]; nc];
+    upper.extend([settings.alpha_bounds_per_s[1], settings.beta_bounds_s[1]]);
+    anderson_next(&passes, &sigma, &lower, &upper)
+}
+
+/// The material for the next tracking pass (tracking ↔ estimation, wang2015 §7): E per control
+/// point, α and β of `next` ([`next_pass_parameters`]) with the fit's Poisson ratio and density,
+/// and no rest shape (the tracker solves it for these E from its frame 0).
+pub fn tracking_material_message(fit: &DynamicFit, next: &[f64]) -> proto::DynamicMaterial {
+    let nc = fit.young_pa.len();
     proto::DynamicMaterial {
-        young_pa: fit.control_points.blend(&young),
+        young_pa: fit.control_points.blend(&next[..nc]),
+        rayleigh_alpha_per_s: next[nc],
+        rayleigh_beta_s: next[nc + 1],
         rest_positions_m: Vec::new(),
         ..material_message(fit)
     }
@@ -258,6 +382,7 @@ fn write_next_material(
     path: &Path,
     mesh: &TetMesh,
     fit: &DynamicFit,
+    next: &[f64],
 ) -> Result<()> {
     let err = |e: softcap_mcap::Error| TissueError::Output {
         path: path.to_path_buf(),
@@ -270,7 +395,7 @@ fn write_next_material(
         .map_err(err)?;
     w.write_static(
         &topics::DYNAMIC_MATERIAL,
-        &tracking_material_message(fit, cfg.settings.young_bounds_pa),
+        &tracking_material_message(fit, next),
     )
     .map_err(err)?;
     w.finish().map_err(err)?;
@@ -305,7 +430,9 @@ fn json_sigma(sigma: &[f64], nc: usize) -> String {
 /// `sigma_frame_robust` (one cluster per frame); `null` where the data do not bound one (e.g. the
 /// segment sandwich of a single segment). See [`DynamicFit::segment_robust_sigma`].
 /// `neighbour_correlation` and `observable` per control point: [`DynamicFit::observable`].
-pub fn json(fit: &DynamicFit) -> String {
+/// `next_material` (with `--next-material`): the E per control point, α and β written there
+/// ([`next_pass_parameters`]), read back by the next pass's `--previous-passes`.
+pub fn json(fit: &DynamicFit, next: Option<&[f64]>) -> String {
     let list = |v: &[f64]| {
         v.iter()
             .map(|x| format!("{x:e}"))
@@ -321,7 +448,7 @@ pub fn json(fit: &DynamicFit) -> String {
         .collect::<Vec<_>>()
         .join(", ");
     format!(
-        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"neighbour_correlation\": [{}],\n  \"observable\": [{}],\n  \"status\": \"{}\"\n}}\n",
+        "{{\n  \"E_pa\": [{}],\n  \"control_points_m\": [{cps}],\n  \"E_pa_tets\": [{}],\n  \"nu\": {:e},\n  \"alpha\": {:e},\n  \"beta\": {:e},\n  \"density_kg_m3\": {:e},\n  \"trajectory_rmse_m\": {},\n  \"relative_sigma\": {},\n  \"sigma_segment_robust\": {},\n  \"sigma_frame_robust\": {},\n  \"neighbour_correlation\": [{}],\n  \"observable\": [{}],\n  \"status\": \"{}\"{}\n}}\n",
         list(&fit.young_pa),
         list(&fit.young_pa_tets),
         fit.poisson,
@@ -343,6 +470,15 @@ pub fn json(fit: &DynamicFit) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         fit.status.replace('"', "'"),
+        next.map_or(String::new(), |v| {
+            let (e, ab) = v.split_at(nc);
+            format!(
+                ",\n  \"next_material\": {{\"E_pa\": [{}], \"alpha\": {:e}, \"beta\": {:e}}}",
+                list(e),
+                ab[0],
+                ab[1]
+            )
+        }),
     )
 }
 
