@@ -118,6 +118,32 @@ pub(crate) fn replay_frames(
     );
 }
 
+/// One `PROFILE-RANK` line for a coarse-first ranking (`Replays::run_coarse_first`): the ranking
+/// mesh's tets as a multiple of the fit mesh's, the candidates (index: parameters) and what each fold (then the full data) kept,
+/// and the points chosen for the refined replays.
+pub(crate) fn ranking(
+    tet_factor: usize,
+    params: &[&[(String, f64)]],
+    kept: &[Vec<usize>],
+    chosen: &[usize],
+) {
+    if !enabled() {
+        return;
+    }
+    let points: Vec<String> = params
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let p: Vec<String> = p.iter().map(|(k, v)| format!("{k} {v:.6e}")).collect();
+            format!("{i}: {}", p.join(" "))
+        })
+        .collect();
+    eprintln!(
+        "PROFILE-RANK | {tet_factor} x the fit mesh's tets | kept per fold {kept:?} | chosen {chosen:?} | {}",
+        points.join("; ")
+    );
+}
+
 /// One `PROFILE-ATTEMPT` line for a rigid-tip replay's solve that did not converge (`status`)
 /// and its thread CPU-s.
 pub(crate) fn failed_attempt(status: &str, cpu_s: f64) {

@@ -362,6 +362,11 @@ impl Replays {
             .map(|c| family.and_then(|name| family_key(c, name)))
             .collect();
         let chosen = most_chosen(&flat, &keys, refine_at_most);
+        if crate::profile::enabled() {
+            let params: Vec<&[(String, f64)]> =
+                replays.rigid.iter().map(|c| &c.params[..]).collect();
+            crate::profile::ranking(rank_tet_factor, &params, &kept, &chosen);
+        }
         let fine = if quadratic {
             sim.quadratic()?
         } else {

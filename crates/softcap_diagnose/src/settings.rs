@@ -68,12 +68,14 @@ pub struct DiagnoseSettings {
     /// tets: 0.4918 → 0.1248 mm held-out in 420–470 CPU-s (every point refined: > 30 min).
     pub plasticity_refined_replays: usize,
     /// With `plasticity_refined_replays` > 0: the mesh the rigid-tip points are ranked on before
-    /// the few best are replayed refined, as a multiple of the fit mesh's tets — 1: the fit mesh;
-    /// r > 1 (the default 2): the fit mesh bisected along its longest edges to r × its tets
-    /// (`ProbeSimulator::bisected`). The fit mesh's ranking is its linear tets' contact error,
-    /// not the material's: on the own rig's plasticity case it ranks the 1 → 8 winner 6th of 8
-    /// in every fold, the fit mesh bisected once (r = 2) ranks it first in every fold (r = 4
-    /// scrambles it again).
+    /// the few best are replayed refined 1 → 8, as a multiple of the fit mesh's tets — 1: the
+    /// fit mesh; r > 1 (the default 2): the fit mesh bisected along its longest edges to r × its
+    /// tets (`ProbeSimulator::bisected`). The fit mesh's ranking is its linear tets' contact
+    /// error, not the material's: on the own rig's plasticity case it ranks the 1 → 8 winner 6th
+    /// of 8 in every fold, the fit mesh bisected once (r = 2) ranks it first in every fold (r = 4
+    /// scrambles it again). Before the 10-node replays (one per yield strain) the points are
+    /// ranked on the fit mesh itself: on the third-party plasticity case every fold keeps the
+    /// two points the bisected mesh kept, at half its cost.
     pub plasticity_ranking_refinement: usize,
     /// With `plasticity_refined_replays` > 0: the kept rigid-tip points are replayed on the
     /// 10-node tets of the fit mesh (`ProbeSimulator::quadratic`, small-strain J2) instead of
