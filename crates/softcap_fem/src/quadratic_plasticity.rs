@@ -321,9 +321,13 @@ impl QuadraticRigidTipSolver {
 
     /// Solves f_int(x) = f_ext + f_c from `x` (constrained components as given): Newton with the
     /// consistent tangent plus the springs' n nᵀ k_c, the active set re-queried with hysteresis
-    /// every iteration, backtracking (`settings.max_halvings`) on ‖r‖. Converged when
+    /// every iteration until `settings.contact_freeze_after` iterations or until it comes back to
+    /// a set it left (a cycle), then frozen; backtracking (`settings.max_halvings`) on ‖r‖ with
+    /// the iteration's springs. Converged when
     /// ‖r‖ ≤ `residual_tol_rel` × the force scale and the last update ≤ `displacement_tol_rel` ×
-    /// the model's size.
+    /// the model's size. An iterate reached by the line search is tested with the forces the
+    /// search computed there and the previous iterate's tangent (with this iterate's springs):
+    /// the converged iterate is not assembled again.
     pub fn solve(
         &mut self,
         model: &QuadraticElastoplasticModel,
@@ -337,16 +341,29 @@ impl QuadraticRigidTipSolver {
         let mut table: Vec<f64> = Vec::new();
         let mut last: Vec<ContactSpring> = Vec::new();
         let mut last_update = f64::INFINITY;
+        // f_int at x when the line search computed it, and the last assembled tangent
+        let mut known: Option<Vec<Vector3<f64>>> = None;
+        let mut tangent: Vec<f64> = Vec::new();
+        // the active sets (nodes) met so far, and whether the set is frozen
+        let mut sets: Vec<Vec<usize>> = Vec::new();
+        let mut cycled = false;
         for it in 0..settings.max_iterations {
-            let (mut values, fi) = self.assemble(model, x);
+            let (fi, assembled) = match known.take() {
+                Some(fi) => (fi, false),
+                None => {
+                    let (values, fi) = self.assemble(model, x);
+                    tangent = values;
+                    (fi, true)
+                }
+            };
             if table.is_empty() {
                 table = (0..x.len())
-                    .map(|n| self.pattern.node_stiffness(n, &values))
+                    .map(|n| self.pattern.node_stiffness(n, &tangent))
                     .collect();
             }
             // the active set re-queried (with hysteresis) up to `contact_freeze_after`
             // iterations, then frozen as a linear force field (as `StaticSolver::solve`)
-            let frozen = it >= settings.contact_freeze_after && it > 0;
+            let frozen = (it >= settings.contact_freeze_after || cycled) && it > 0;
             let springs = if frozen {
                 last.clone()
             } else {
@@ -354,6 +371,13 @@ impl QuadraticRigidTipSolver {
                     c.springs_with_hysteresis(x, |n| table[n], &last)
                 })
             };
+            if !frozen {
+                // a set met before, other than the last one, is a cycle: frozen from here on
+                let set: Vec<usize> = springs.iter().map(|s| s.node).collect();
+                let n = sets.len();
+                cycled = n >= 2 && sets[n - 1] != set && sets[..n - 1].contains(&set);
+                sets.push(set);
+            }
             let (r, scale) = self.residual(&fi, x, f_ext, &springs);
             let rn = r.iter().map(|v| v * v).sum::<f64>().sqrt();
             report.history.push((rn, springs.len(), last_update));
@@ -364,17 +388,27 @@ impl QuadraticRigidTipSolver {
             if !rn.is_finite() {
                 return report;
             }
+            // the matrix with its springs, as `StaticSolver::solve` tests: a residual below what
+            // a displacement of tol_x causes against the penalty-stiffened diagonal
+            let mut values = tangent.clone();
             for s in &springs {
                 self.pattern
                     .add_node_block(s.node, &s.matrix(), &mut values);
             }
-            // the matrix with its springs, as `StaticSolver::solve` tests: a residual below what
-            // a displacement of tol_x causes against the penalty-stiffened diagonal
             let diag_max = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let res_ok = rn <= settings.residual_tol_rel * scale || rn <= diag_max * tol_x;
             if it > 0 && res_ok && last_update <= tol_x {
                 report.converged = true;
                 return report;
+            }
+            if !assembled {
+                let (fresh, _) = self.assemble(model, x);
+                tangent = fresh;
+                values.clone_from(&tangent);
+                for s in &springs {
+                    self.pattern
+                        .add_node_block(s.node, &s.matrix(), &mut values);
+                }
             }
             if self.cholesky.factor(&self.pattern, &values).is_err() {
                 return report;
@@ -383,29 +417,35 @@ impl QuadraticRigidTipSolver {
             if self.cholesky.solve_in_place(&mut dx).is_err() || dx.iter().any(|v| !v.is_finite()) {
                 return report;
             }
-            // backtracking on ‖r‖ with the iteration's springs fixed and fresh ones elsewhere
+            // backtracking on ‖r‖ with the iteration's springs, a linear force field: a node the
+            // step pushes into the tip joins the set at the next iteration (fresh springs in the
+            // trials cut the step to what keeps the set, 0.1–1 % of it, for ~10 iterations)
             let mut step = 1.0;
             if settings.line_search {
                 let mut s = 1.0;
-                let mut accepted = false;
+                let mut accepted = None;
+                let mut full = None;
                 for _ in 0..=settings.max_halvings {
                     let mut xt = x.to_vec();
                     self.dofs().scatter_add(&dx, s, &mut xt);
                     let st = match contact {
-                        Some(_) if frozen => springs.clone(),
-                        Some(c) => c.springs_with(&xt, |n| table[n], &springs),
+                        Some(_) => springs.clone(),
                         None => Vec::new(),
                     };
                     let fit = model.internal_forces(&xt);
                     let (rt, _) = self.residual(&fit, &xt, f_ext, &st);
                     let rtn = rt.iter().map(|v| v * v).sum::<f64>().sqrt();
                     if rtn.is_finite() && rtn <= (1.0 - 1e-4 * s) * rn {
-                        accepted = true;
+                        accepted = Some(fit);
                         break;
+                    }
+                    if full.is_none() {
+                        full = Some(fit);
                     }
                     s *= 0.5;
                 }
-                step = if accepted { s } else { 1.0 };
+                step = if accepted.is_some() { s } else { 1.0 };
+                known = accepted.or(full);
             }
             self.dofs().scatter_add(&dx, step, x);
             last_update = dx.iter().fold(0.0f64, |m, v| m.max(v.abs())) * step;
