@@ -65,7 +65,7 @@ pub struct DiagnoseSettings {
     /// and replays only the n points the folds keep most often (one per yield strain with
     /// `plasticity_quadratic_replays`, else one per ν first) on the 10-node tets or the refined
     /// mesh (`Replays::run_coarse_first`). Third-party plasticity with the default 2 on 10-node
-    /// tets: 0.4918 → 0.1248 mm held-out in 420–470 CPU-s (every point refined: > 30 min).
+    /// tets: 0.4918 → 0.1215 mm held-out in 260 CPU-s (every point refined: > 30 min).
     pub plasticity_refined_replays: usize,
     /// With `plasticity_refined_replays` > 0: the mesh the rigid-tip points are ranked on before
     /// the few best are replayed refined 1 → 8, as a multiple of the fit mesh's tets — 1: the

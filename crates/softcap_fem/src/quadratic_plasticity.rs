@@ -323,9 +323,8 @@ impl QuadraticRigidTipSolver {
     /// consistent tangent plus the springs' n nᵀ k_c, the active set re-queried with hysteresis
     /// every iteration until `settings.contact_freeze_after` iterations or until it comes back to
     /// a set it left (a cycle), then frozen; backtracking (`settings.max_halvings`) on ‖r‖ with
-    /// the iteration's springs. Converged when
-    /// ‖r‖ ≤ `residual_tol_rel` × the force scale and the last update ≤ `displacement_tol_rel` ×
-    /// the model's size. An iterate reached by the line search is tested with the forces the
+    /// the iteration's springs. Converged when ‖r‖ ≤ `residual_tol_rel` × the force scale and
+    /// the last update ≤ `displacement_tol_rel` × the model's size. An iterate reached by the line search is tested with the forces the
     /// search computed there and the previous iterate's tangent (with this iterate's springs):
     /// the converged iterate is not assembled again.
     pub fn solve(
@@ -362,7 +361,8 @@ impl QuadraticRigidTipSolver {
                     .collect();
             }
             // the active set re-queried (with hysteresis) up to `contact_freeze_after`
-            // iterations, then frozen as a linear force field (as `StaticSolver::solve`)
+            // iterations or until it cycles, then frozen as a linear force field (as
+            // `StaticSolver::solve`)
             let frozen = (it >= settings.contact_freeze_after || cycled) && it > 0;
             let springs = if frozen {
                 last.clone()
@@ -428,12 +428,8 @@ impl QuadraticRigidTipSolver {
                 for _ in 0..=settings.max_halvings {
                     let mut xt = x.to_vec();
                     self.dofs().scatter_add(&dx, s, &mut xt);
-                    let st = match contact {
-                        Some(_) => springs.clone(),
-                        None => Vec::new(),
-                    };
                     let fit = model.internal_forces(&xt);
-                    let (rt, _) = self.residual(&fit, &xt, f_ext, &st);
+                    let (rt, _) = self.residual(&fit, &xt, f_ext, &springs);
                     let rtn = rt.iter().map(|v| v * v).sum::<f64>().sqrt();
                     if rtn.is_finite() && rtn <= (1.0 - 1e-4 * s) * rn {
                         accepted = Some(fit);
