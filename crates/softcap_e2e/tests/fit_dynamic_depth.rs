@@ -174,10 +174,11 @@ fn errors(fit: &DynamicFit) -> (Vec<(f64, f64)>, f64, f64) {
 /// the loop accelerates once; pass 7 plain after pass 6 stays within 3.4 % (+3.1, +1.1, −3.4, +2.6,
 /// +0.2, −2.0, −1.1 %). Accelerated one pass earlier (pass 4 over passes 1–4) pass 5 meets it too,
 /// with less margin: +4.0, +0.1, −2.1, +1.3, +1.5, −2.9, +1.2 % (`/work/team/s50/dyn/d.sh`). Pass 0 tracked with one step a frame (substeps 1) converges no
-/// faster: E₆ +45.6, +39.5, +29.8 % at passes 0–2. CPU-s a pass ≈ 35 tracking + 180–280 fitting:
-/// ≈ 1,700 for the seven passes.
+/// faster: E₆ +45.6, +39.5, +29.8 % at passes 0–2. This test, run end to end (its own renders,
+/// `RAYON_NUM_THREADS=1`, session 50): every pass as the CLI chain above, pass 6 the same
+/// +3.1 … +0.2 %; passed in 1,453 user CPU-s (24:49 wall at load 4–5).
 #[test]
-#[ignore = "meets Table 1 at pass 6 (E0-E6 within 3.1 %, alpha +0.6 %, beta -0.2 %; measured on the CLI, session 50) but costs ~1,700 CPU-s (7 passes of ~35 tracking + 180-280 fitting CPU-s)"]
+#[ignore = "passes (pass 6: E0-E6 within 3.1 %, alpha +0.6 %, beta -0.2 %) but costs 1,453 CPU-s (7 passes of ~35 tracking + 160-280 fitting CPU-s)"]
 fn bar8_from_depth_meets_table1() {
     let seed = 11;
     let tmp = tempfile::tempdir().unwrap();
