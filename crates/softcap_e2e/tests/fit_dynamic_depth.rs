@@ -163,8 +163,7 @@ fn errors(fit: &DynamicFit) -> (Vec<(f64, f64)>, f64, f64) {
 /// at least one), α within 5 %, β within 20 %. Passes 0–5 are the plain loop (pass 0 default
 /// material, each later one tracked with the previous fit's `--next-material`); pass 5's next
 /// material is Anderson-accelerated over passes 2–5 (`--previous-passes`, depth 2), pass 6
-/// tracks with it. Measured (`/work/team/s50/dyn/c.sh` on session 48's captures, the plain passes
-/// of session 49; 8 twists, seed 11, substeps 4): the plain loop converges linearly where the
+/// tracks with it. Measured with the CLI chain (`scripts/fit-dynamic-table1-track`, `ANDERSON=5`; 8 twists, seed 11, substeps 4): the plain loop converges linearly where the
 /// tracker's pull toward its own material is strong, E₆ +26.2 (pass 0), +36.3, +31.3, +23.4,
 /// +16.9, +12.0 % (pass 5, × 0.72 a pass; E₀–E₅ within 3.3 %); the accelerated material has
 /// E₆ +1.8 % (E₇, unflagged, +66 %) and pass 6 flags E₀–E₆ at +3.1, +0.9, −2.9, +2.0, +0.6,
@@ -173,7 +172,7 @@ fn errors(fit: &DynamicFit) -> (Vec<(f64, f64)>, f64, f64) {
 /// reproduces the material it was tracked with within 0.3 points): E₂ −5.7, E₃ +5.4, E₆ −5.4 %, so
 /// the loop accelerates once; pass 7 plain after pass 6 stays within 3.4 % (+3.1, +1.1, −3.4, +2.6,
 /// +0.2, −2.0, −1.1 %). Accelerated one pass earlier (pass 4 over passes 1–4) pass 5 meets it too,
-/// with less margin: +4.0, +0.1, −2.1, +1.3, +1.5, −2.9, +1.2 % (`/work/team/s50/dyn/d.sh`). Pass 0 tracked with one step a frame (substeps 1) converges no
+/// with less margin: +4.0, +0.1, −2.1, +1.3, +1.5, −2.9, +1.2 % (`ITERATIONS=5 ANDERSON=4`). Pass 0 tracked with one step a frame (substeps 1) converges no
 /// faster: E₆ +45.6, +39.5, +29.8 % at passes 0–2. This test, run end to end (its own renders,
 /// `RAYON_NUM_THREADS=1`, session 50): every pass as the CLI chain above, pass 6 the same
 /// +3.1 … +0.2 %; passed in 1,453 user CPU-s (24:49 wall at load 4–5).

@@ -260,20 +260,17 @@ pub fn material_message(fit: &DynamicFit) -> proto::DynamicMaterial {
 /// next material's (what the pass after it tracked with).
 #[derive(Clone, Debug, serde::Deserialize)]
 pub struct PassJson {
-    /// E per control point, Pa.
-    #[serde(rename = "E_pa")]
-    pub young_pa: Vec<f64>,
-    /// Rayleigh α, 1/s.
-    pub alpha: f64,
-    /// Rayleigh β, s.
-    pub beta: f64,
-    /// The `--next-material` written (absent before session 50: it was the plain loop's).
-    pub next_material: Option<NextMaterialJson>,
+    /// The fit's parameters (the JSON's top-level `E_pa`, `alpha`, `beta`).
+    #[serde(flatten)]
+    pub fit: PassParameters,
+    /// The `--next-material` written; absent when the pass wrote none (the plain loop's, read as
+    /// the fit's with [`super::fit::young_for_tracking`]).
+    pub next_material: Option<PassParameters>,
 }
 
-/// The `next_material` of a `--json`: E per control point (Pa), α (1/s), β (s).
+/// E per control point (Pa), α (1/s), β (s), as a `--json` writes them.
 #[derive(Clone, Debug, serde::Deserialize)]
-pub struct NextMaterialJson {
+pub struct PassParameters {
     /// E per control point, Pa.
     #[serde(rename = "E_pa")]
     pub young_pa: Vec<f64>,
@@ -290,7 +287,7 @@ fn read_pass_json(path: &Path, control_points: usize) -> Result<PassJson> {
     let j: PassJson = serde_json::from_str(&text).map_err(|e| bad("JSON", e.to_string()))?;
     let next = j.next_material.as_ref().map(|n| n.young_pa.len());
     for (field, n) in [
-        ("E_pa", Some(j.young_pa.len())),
+        ("E_pa", Some(j.fit.young_pa.len())),
         ("next_material.E_pa", next),
     ] {
         if let Some(n) = n.filter(|&n| n != control_points) {
@@ -322,7 +319,7 @@ pub fn next_pass_parameters(
     use super::next_pass::{LoopPass, anderson_next};
     let b = settings.young_bounds_pa;
     let nc = fit.young_pa.len();
-    let proposed_by = |j: &PassJson| proposed(&j.young_pa, j.alpha, j.beta, b);
+    let proposed_by = |j: &PassJson| proposed(&j.fit.young_pa, j.fit.alpha, j.fit.beta, b);
     let next_of = |j: &PassJson| match &j.next_material {
         Some(n) => [n.young_pa.as_slice(), &[n.alpha, n.beta]].concat(),
         None => proposed_by(j),
@@ -790,7 +787,31 @@ pub fn simulate(cfg: &SimulateDynamicConfig) -> Result<SimulateDynamicOutcome> {
 
 #[cfg(test)]
 mod tests {
-    use super::json_number;
+
+    /// A pass's `--json` read back by `--previous-passes`: the top-level E, α, β and the
+    /// `next_material` when written; a count of control points other than the fit's is an error
+    /// naming the field.
+    #[test]
+    fn previous_pass_json_reads_the_fit_and_its_next_material() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("fit.json");
+        std::fs::write(
+            &p,
+            r#"{"E_pa": [1e5, 2e5], "alpha": 0.8, "beta": 1e-3, "status": "converged",
+                "next_material": {"E_pa": [1.5e5, 2e5], "alpha": 0.7, "beta": 2e-3}}"#,
+        )
+        .unwrap();
+        let j = read_pass_json(&p, 2).unwrap();
+        assert_eq!(
+            (j.fit.young_pa.clone(), j.fit.alpha, j.fit.beta),
+            (vec![1e5, 2e5], 0.8, 1e-3)
+        );
+        let n = j.next_material.unwrap();
+        assert_eq!((n.young_pa, n.alpha, n.beta), (vec![1.5e5, 2e5], 0.7, 2e-3));
+        let e = read_pass_json(&p, 3).unwrap_err().to_string();
+        assert!(e.contains("E_pa") && e.contains("2 control points"), "{e}");
+    }
+    use super::{json_number, read_pass_json};
 
     /// JSON has no NaN or infinity: a value that is not finite is written `null`, a finite one
     /// round-trips exactly.
