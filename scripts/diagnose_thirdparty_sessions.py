@@ -11,7 +11,8 @@
   stiff-inclusion case's geometry and inclusion);
 - `lookalikes [PROTOCOL]`: issue 37's two look-alike pairs (slow creep / plasticity, sensor lag
   12 ms / clock offset 12 ms; `lookalike_cases`; a slow creep of any g and tau named
-  `slow-creep-gG-tauTs`, `creep_case`), recorded under PROTOCOL (the suite's
+  `slow-creep-gG-tauTs`, `creep_case`; a clock offset of either sign `clock-offset-[m]Nms`,
+  `offset_case`), recorded under PROTOCOL (the suite's
   `probing.replan`: standard, longer-holds, faster-ramps, ...; names get the suffix -PROTOCOL;
   A+B re-records under A, then that recording under B, as the planner's next experiment of a
   re-recorded session means: faster-ramps+faster-ramps has ramps four times as fast);
@@ -149,6 +150,29 @@ def creep_case(name):
                    f"Slow creep: one finite-strain Maxwell branch (Shutov et al. 2013) g = {g:g}, tau = {tau:g} s, "
                    f"its instantaneous modulus the clean material's: mu = {mu:.6g} MPa, mu_1 = {mu1:.6g} MPa.",
                    material={"kind": "viscoelastic", "mu": mu, "bulk": 20 * suite.MU, "branches": [[mu1, tau]]})
+
+
+OFFSET_NAME = re.compile(r"clock-offset-(m?)([0-9.]+)ms$")
+OFFSET_SEED = 414
+
+
+def offset_case(name):
+    """The clock offset `clock-offset-Nms` or, negative, `clock-offset-mNms` (e.g.
+    clock-offset-m80ms) of any N on the clean case's physics, recorded by its own rig (seed 414):
+    a trigger latency of N ms (the force read N ms before the frame, as clock-offset-50ms) or,
+    negative, the cameras exposing N ms before their trigger pulse (the force read N ms after the
+    frame: the lead a short creep gives the force, `slow-creep-gG-tauTs` with tau of a few frames);
+    None when `name` is not of that form or is one of `lookalike_cases`' (their own seeds)."""
+    m = OFFSET_NAME.match(name)
+    if m is None or any(c["name"] == name for c in lookalike_cases()):
+        return None
+    ms = (-1.0 if m.group(1) else 1.0) * float(m.group(2))
+    clean = next(c for c in suite.cases() if c["name"] == "clean")
+    when = "after" if ms < 0 else "before"
+    return derived(clean, name, OFFSET_SEED, "clock-offset",
+                   f"Clock offset {ms:g} ms: the cameras expose {ms:g} ms after their trigger pulse, so the force "
+                   f"the pulses synchronise is read {abs(ms):g} ms {when} the frame. Physics of the clean case.",
+                   effects={"trigger_latency_s": ms / 1e3})
 
 
 def force_controlled(case):
@@ -338,7 +362,7 @@ def run(argv):
             rest = rest[:i] + rest[i + 2:]
         force = "--force-control" in rest
         rest = [r for r in rest if r != "--force-control"]
-        chosen = lookalike_cases() + [c for c in map(creep_case, rest) if c is not None]
+        chosen = lookalike_cases() + [c for f in (creep_case, offset_case) for c in map(f, rest) if c is not None]
         if force:  # names: slow-creep-g4-tau23s-force, plastic-force, ... (+ the protocol's suffix)
             chosen = [force_controlled(c) for c in chosen]
         if seed is not None:
