@@ -175,6 +175,14 @@ def offset_case(name):
                    effects={"trigger_latency_s": ms / 1e3})
 
 
+def suite_case(name):
+    """A committed suite case by its name (e.g. viscoelasticity), recorded as the look-alike
+    cases are: `--seed S` re-rigs it (its committed FElupe solution, a new rig; named
+    NAME-seedS), a PROTOCOL re-records it (a new solve when the protocol changes its physics).
+    None when `name` is no suite case."""
+    return next((copy.deepcopy(c) for c in suite.cases() if c["name"] == name), None)
+
+
 def force_controlled(case):
     """`case` under force control (issue 37's pair 1 as the own rig records it: the probe driven
     to a force, `probing.force_controlled`): per location the peak axial force the committed
@@ -363,12 +371,17 @@ def run(argv):
         force = "--force-control" in rest
         rest = [r for r in rest if r != "--force-control"]
         chosen = lookalike_cases() + [c for f in (creep_case, offset_case) for c in map(f, rest) if c is not None]
+        own = [c for c in map(suite_case, rest) if c is not None]
         if force:  # names: slow-creep-g4-tau23s-force, plastic-force, ... (+ the protocol's suffix)
             chosen = [force_controlled(c) for c in chosen]
         if seed is not None:
-            for c in chosen:
+            for c in own:  # a suite case's name keeps its committed session's apart
+                c["name"] = f"{c['name']}-seed{seed}"
+                rest[rest.index(c["name"].rsplit("-seed", 1)[0])] = c["name"]
+            for c in chosen + own:
                 c["seed"] = seed
                 c["description"] += f" Rig seed {seed}."
+        chosen += own
         for n in names:
             chosen = [replan(c, n) for c in chosen]
         for c in chosen:
