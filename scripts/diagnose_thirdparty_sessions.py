@@ -183,6 +183,28 @@ def suite_case(name):
     return next((copy.deepcopy(c) for c in suite.cases() if c["name"] == name), None)
 
 
+SHORT_CREEP_NAME = re.compile(r"creep-g([0-9.]+)-tau([0-9.]+)s$")
+SHORT_CREEP_SEED = 415
+
+
+def short_creep_case(name):
+    """A creep on the clean material `creep-gG-tauTs` (e.g. creep-g0.6-tau0.3s): one
+    finite-strain Maxwell branch (Shutov et al. 2013) mu_1 = g MU, tau on top of the clean
+    neo-Hooke (its long-time modulus the clean material's, as the suite's viscoelasticity case,
+    whose 0.3 s branch is mu_1 = 0.59 MU), recorded by its own rig (seed 415); None when `name` is
+    not of that form."""
+    m = SHORT_CREEP_NAME.match(name)
+    if m is None:
+        return None
+    g, tau = float(m.group(1)), float(m.group(2))
+    clean = next(c for c in suite.cases() if c["name"] == "clean")
+    return derived(clean, name, SHORT_CREEP_SEED, "viscoelasticity",
+                   f"Creep: the clean neo-Hooke (mu = {suite.MU:g} MPa) plus one finite-strain Maxwell branch "
+                   f"(Shutov et al. 2013) mu_1 = {g * suite.MU:.6g} MPa (g = {g:g}), tau = {tau:g} s.",
+                   material={"kind": "viscoelastic", "mu": suite.MU, "bulk": 20 * suite.MU,
+                             "branches": [[g * suite.MU, tau]]})
+
+
 def force_controlled(case):
     """`case` under force control (issue 37's pair 1 as the own rig records it: the probe driven
     to a force, `probing.force_controlled`): per location the peak axial force the committed
@@ -370,7 +392,7 @@ def run(argv):
             rest = rest[:i] + rest[i + 2:]
         force = "--force-control" in rest
         rest = [r for r in rest if r != "--force-control"]
-        chosen = lookalike_cases() + [c for f in (creep_case, offset_case) for c in map(f, rest) if c is not None]
+        chosen = lookalike_cases() + [c for f in (creep_case, short_creep_case, offset_case) for c in map(f, rest) if c is not None]
         own = [c for c in map(suite_case, rest) if c is not None]
         if force:  # names: slow-creep-g4-tau23s-force, plastic-force, ... (+ the protocol's suffix)
             chosen = [force_controlled(c) for c in chosen]

@@ -60,8 +60,10 @@ def main(argv=None):
             c["locations_mm"] = c["locations_mm"][: a.locations]
             c["depths_mm"] = c["depths_mm"][: a.locations]
     for c in chosen:
-        if c["material"]["kind"] == "viscoelastic" and not uniform_steps(c):
-            print(f"thirdparty-suite: {c['name']}: a viscoelastic material is integrated with one time step; "
+        if (c["material"]["kind"] == "viscoelastic" and not uniform_steps(c)
+                and c["protocol"].get("control") == "force"):
+            print(f"thirdparty-suite: {c['name']}: a force-controlled viscoelastic material is integrated with "
+                  "one time step; "
                   f"--protocol {a.protocol} changes the frame steps", file=sys.stderr)
             return 2
     import felupe

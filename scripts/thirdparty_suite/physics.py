@@ -296,6 +296,13 @@ class Model:
             raise NotConverged(f"no equilibrium after {max_iter} Newton iterations (|r| = {np.linalg.norm(rf):.3g} N)")
         return r
 
+    def set_time_step(self, dtime):
+        """The time step of the next commits (s): the Maxwell branches' `dtime` (a rate-dependent
+        material integrates each frame, or each substep of one, with the time it spans)."""
+        for b in self.bodies:
+            if "dtime" in getattr(b.umat, "kwargs", {}):
+                b.umat.kwargs["dtime"] = dtime
+
     def commit(self):
         """Ends a load step at the current (converged) state: the inelastic state variables
         (Maxwell branches, plastic strain) and the base's slip move on. Called once per frame (per

@@ -130,8 +130,9 @@ def replan(case, name):
 
 
 def uniform_steps(case):
-    """Whether every frame step of the case's protocol is one frame period (a rate-dependent
-    material is integrated with that one time step)."""
+    """Whether every frame step of the case's protocol is one frame period (a force-controlled
+    rate-dependent material is integrated with that one time step; under position control each
+    frame takes the time it spans, `simulate`)."""
     p = case["protocol"]
     return p.get("ramp_step", 1.0) == 1.0 and "rest" not in p
 
@@ -415,9 +416,9 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
         }
 
     rate_dependent = case["material"]["kind"] == "viscoelastic"
-    if rate_dependent and not uniform_steps(case):
-        raise ValueError(f"{case['name']}: a viscoelastic material is integrated with one time step; "
-                         "its protocol's frame steps differ (faster-ramps, rest-after-release)")
+    if rate_dependent and not uniform_steps(case) and case["protocol"].get("control") == "force":
+        raise ValueError(f"{case['name']}: a force-controlled viscoelastic material is integrated with one "
+                         "time step; its protocol's frame steps differ (faster-ramps, rest-after-release)")
     path_dependent = (
         case["material"]["kind"] == "j2" and case["material"].get("yield") is not None
         or support["kind"] == "friction" or punch.friction == "stick"
@@ -449,8 +450,13 @@ def simulate(case, mesh10, marker_cells, marker_lams, log=print):
             approach(model, punch, path, axis, fixed_support, history, fr["depth"])
         if touching and not same:
             predict(model, history, fr["loc"], fr["depth"])
-        if rate_dependent or (path_dependent and not same):
-            force = robust_step(model, punch, path, axis, fixed_support, history, fr["depth"], not rate_dependent)
+        if rate_dependent:
+            # the time the frame spans (frame periods: exact, `protocol`); the first frame one period
+            step = round((fr["t"] - frames[fi - 1]["t"]) / dt, 9) if fi else 1.0
+            model.set_time_step(step * dt)
+            force = robust_step(model, punch, path, axis, fixed_support, history, fr["depth"], False, step * dt)
+        elif path_dependent and not same:
+            force = robust_step(model, punch, path, axis, fixed_support, history, fr["depth"], True)
         elif path_dependent:
             force = forces[-1].copy()
         elif key in cache:
@@ -641,11 +647,12 @@ def resting_depth(model, surface, radius):
     return float(surface[2] - x[near, 2].max()) if near.any() else 0.0
 
 
-def robust_step(model, punch, path, axis, fixed_support, history, depth, may_substep):
+def robust_step(model, punch, path, axis, fixed_support, history, depth, may_substep, dtime=None):
     """One frame's equilibrium, committed (one time step of the inelastic state), the tip at
     `path(depth)` (`probe_path`); when Newton fails, again from the last converged state without
-    the predictor, then (rate-independent materials only) in four committed substeps of the
-    punch motion along its path."""
+    the predictor, then in four committed substeps of the punch motion along its path: for a
+    rate-independent material (`may_substep`), or a rate-dependent one given the frame's time
+    step `dtime` (each substep a quarter of it: the frame's time integrated in four steps)."""
     from .physics import NotConverged
 
     def once(t, d):
@@ -668,14 +675,20 @@ def robust_step(model, punch, path, axis, fixed_support, history, depth, may_sub
     try:
         return once(tip, depth)
     except NotConverged:
-        if not may_substep:
+        if not may_substep and dtime is None:
             raise
     model.field[0].values[:] = u_prev
     punch.active, punch.anchor, punch.beside = set(active), dict(anchor), beside
     force = None
-    for k in range(1, 5):
-        d = d_prev + (depth - d_prev) * k / 4
-        force = once(path(d), d)
+    if dtime is not None:
+        model.set_time_step(dtime / 4)
+    try:
+        for k in range(1, 5):
+            d = d_prev + (depth - d_prev) * k / 4
+            force = once(path(d), d)
+    finally:
+        if dtime is not None:
+            model.set_time_step(dtime)
     return force
 
 
