@@ -792,6 +792,46 @@ impl Row {
     }
 }
 
+/// The rivals on the markers of `row1`, named on the force channel: the hypotheses re-simulated
+/// before it (their gain below the naming rule, not at a bound) whose signatures rank it below
+/// them (support strictly above `row1`'s), whose re-simulated model removes held-out marker
+/// error beyond the fold-to-fold spread ([`outexplains`] over zero gains) and that `row1`'s own
+/// re-simulated model does not out-explain on the markers (each on its scored cells). A force
+/// model that does not explain what the signatures read (a short creep's relaxing holds, which a
+/// shifted clock leaves flat, read on the force channel as a clock running late) is no verdict
+/// beside one that does: the two are candidates (`inconclusive`) and the planner's re-recording
+/// decides.
+fn marker_rivals<'r>(
+    row1: &Row,
+    screen: &'r Screen<'_>,
+    confirmation: &Confirmation,
+) -> Vec<&'r Row> {
+    let scoring = &screen.scoring;
+    let marker_gains = |e: Effect| match confirmation.confirmed.get(&e) {
+        Some(Ok(c)) if c.fold_rss_m2.len() == scoring.fold_before(e).len() => {
+            Some(fold_gains(&scoring.fold_before(e), &c.fold_rss_m2))
+        }
+        _ => None,
+    };
+    let e1 = row1.hypothesis.effect();
+    let Some(g1) = marker_gains(e1) else {
+        return Vec::new();
+    };
+    screen
+        .rows
+        .iter()
+        .filter(|r| {
+            let e = r.hypothesis.effect();
+            e != e1
+                && !confirmation.by_force.contains(&e)
+                && r.support > row1.support
+                && marker_gains(e).is_some_and(|g| {
+                    g.len() == g1.len() && outexplains(&g, &vec![0.0; g.len()]) && !outexplains(&g1, &g)
+                })
+        })
+        .collect()
+}
+
 /// Adds further effects to the confirmed one by greedy forward selection ([`forward_step`]), then
 /// checks it against its look-alikes ([`lookalikes`]) that selection did not add: one that the
 /// confirmed effect does not out-explain on its own cells ([`outexplains`], fold gains of both
@@ -826,7 +866,10 @@ fn select(cx: &Context<'_>, screen: &Screen<'_>, confirmation: &Confirmation) ->
     };
     let on_force = confirmation.by_force.contains(&e1);
     let lookalikes = match on_force {
-        true => force_lookalikes(row1, screen, confirmation),
+        true => force_lookalikes(row1, screen, confirmation)
+            .into_iter()
+            .chain(marker_rivals(row1, screen, confirmation))
+            .collect(),
         false => lookalikes(row1, screen, confirmation, s),
     };
     let Some(mut x) = extended_prediction(cx, screen, confirmation) else {
