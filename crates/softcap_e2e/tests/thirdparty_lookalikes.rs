@@ -91,7 +91,7 @@ fn check_lookalike_chain(c: &Lookalike<'_>) {
             .copied()
             .unwrap_or_else(|| panic!("{session}: {} has no {param}", c.effect));
         assert!(
-            (value - truth).abs() <= tolerance * truth,
+            (value - truth).abs() <= tolerance * truth.abs(),
             "{session}: {param} {value}, truth {truth}"
         );
     }
@@ -121,6 +121,43 @@ fn lookalike_sensor_lag_decided_by_faster_ramps() {
 #[test]
 fn lookalike_clock_offset_decided_by_faster_ramps_twice() {
     force_pair("clock-offset-50ms", 2, "clock-offset", "offset_s");
+}
+
+/// Issue 37's third pair on this rig: a short creep (`…/creep-g0.6-tau0.3s`: one 0.3 s Maxwell
+/// branch μ₁ = 0.6 μ on the clean material) leads the force as a clock running late would; its
+/// marker screen stays below the naming rule, so the force channel alone named `clock-offset`
+/// (−0.07 s). The held force relaxes by 8 % of the peak (viscoelasticity support +1, the offset
+/// 0) and the re-simulated Prony model explains the markers beyond the fold spread, no worse than
+/// the offset (`marker_rivals`): `inconclusive` between the two, and the planner asks for
+/// `oblique-probe` — whose recording (`…-oblique-probe`) does not decide them (the fixtures'
+/// README, pair 3). ≈ 110 CPU-s.
+#[test]
+fn lookalike_short_creep_is_inconclusive() {
+    let session = "lookalikes/creep-g0.6-tau0.3s";
+    let o = outcome(session);
+    let d = &o.diagnosis;
+    let mut names: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
+    names.sort_unstable();
+    let next = d.next_experiment.as_ref().map(|n| n.protocol.as_str());
+    println!("LOOKALIKE | {session} | {} | {names:?} | {next:?}", d.verdict);
+    assert_eq!(d.verdict, "inconclusive", "{session}: {:#?}", summary(d));
+    assert_eq!(names, ["clock-offset", "viscoelasticity"], "{session}");
+    assert_eq!(next, Some("oblique-probe"), "{session}: next experiment");
+}
+
+/// Its look-alike's truth, a clock running 80 ms late (`…/clock-offset-m80ms`, the clean case's
+/// solution, the force read 80 ms after the frame): named `clock-offset` at once, −0.08 s. ≈ 45
+/// CPU-s.
+#[test]
+fn lookalike_late_clock_is_named() {
+    check_lookalike_chain(&Lookalike {
+        case: "clock-offset-m80ms",
+        pair: ["clock-offset", "viscoelasticity"],
+        protocol: "oblique-probe",
+        rerecordings: 0,
+        effect: "clock-offset",
+        param: ("offset_s", -0.08, LOOKALIKE_DELAY_TOLERANCE),
+    });
 }
 
 /// A slow creep's standard recording (`fixtures/thirdparty/lookalikes/<case>`): `none`, neither
