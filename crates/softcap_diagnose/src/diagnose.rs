@@ -826,7 +826,9 @@ fn marker_rivals<'r>(
                 && !confirmation.by_force.contains(&e)
                 && r.support > row1.support
                 && marker_gains(e).is_some_and(|g| {
-                    g.len() == g1.len() && outexplains(&g, &vec![0.0; g.len()]) && !outexplains(&g1, &g)
+                    g.len() == g1.len()
+                        && outexplains(&g, &vec![0.0; g.len()])
+                        && !outexplains(&g1, &g)
                 })
         })
         .collect()

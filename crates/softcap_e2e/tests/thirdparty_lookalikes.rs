@@ -139,7 +139,10 @@ fn lookalike_short_creep_is_inconclusive() {
     let mut names: Vec<&str> = d.candidates.iter().map(|c| c.hypothesis.as_str()).collect();
     names.sort_unstable();
     let next = d.next_experiment.as_ref().map(|n| n.protocol.as_str());
-    println!("LOOKALIKE | {session} | {} | {names:?} | {next:?}", d.verdict);
+    println!(
+        "LOOKALIKE | {session} | {} | {names:?} | {next:?}",
+        d.verdict
+    );
     assert_eq!(d.verdict, "inconclusive", "{session}: {:#?}", summary(d));
     assert_eq!(names, ["clock-offset", "viscoelasticity"], "{session}");
     assert_eq!(next, Some("oblique-probe"), "{session}: next experiment");
