@@ -8,7 +8,8 @@
 //! the test diagnoses the session recorded under that protocol, until the verdict names the
 //! effect with its delay within [`LOOKALIKE_DELAY_TOLERANCE`] of the truth's. The
 //! `lookalike_slow_creep_*` and `lookalike_plastic_*` tests hold the first pair (slow creep against
-//! plasticity) under position and force control.
+//! plasticity) under position and force control; `lookalike_short_creep_*` and
+//! `lookalike_late_clock_*` a third (a 0.3 s creep against a clock running late).
 
 mod common;
 mod thirdparty;
