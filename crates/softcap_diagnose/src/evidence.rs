@@ -116,7 +116,8 @@ pub struct NextExperiment {
     pub protocol: String,
     /// What to record.
     pub description: String,
-    /// RMS marker difference between the two leading candidates' predictions under it, m.
+    /// RMS marker difference between the two leading candidates' predictions under it, net of
+    /// what a refitted global stiffness scale takes up (`protocols` module docs), m.
     pub predicted_difference_m: f64,
     /// The same under the recorded protocol, m.
     pub recorded_difference_m: f64,
@@ -129,7 +130,8 @@ pub struct NextExperiment {
 pub struct ProtocolPrediction {
     /// Protocol name.
     pub protocol: String,
-    /// RMS marker difference between the two leading candidates' predictions, m.
+    /// RMS marker difference between the two leading candidates' predictions, net of what a
+    /// refitted global stiffness scale takes up, m.
     pub predicted_difference_m: f64,
     /// RMS difference of their predicted force readings over the planned contact frames, N,
     /// when both are force-channel models (then it chooses the protocol).

@@ -10,13 +10,16 @@
 //!
 //! The differences are measured only where the cameras can see them: on the markers the recording
 //! observes (after outlier runs are left out — the observations the held-out scores use), frame
-//! by frame; a planned frame is observed as the recorded frame it is planned from.
+//! by frame; a planned frame is observed as the recorded frame it is planned from. They are net
+//! of a global stiffness refit (the screen's nuisance model, [`stiffness_scale_variant`]): the
+//! re-recorded session is fitted afresh, and a difference a stiffer or softer material takes up
+//! does not separate the candidates.
 
 use crate::baseline::{Prepared, prepare};
 use crate::evidence::{NextExperiment, ProtocolPrediction};
 use crate::hypotheses::{Context, Hypothesis};
 use crate::recording::{Frame, Recording};
-use crate::screen::{Refit, Variant, predict};
+use crate::screen::{Refit, Variant, predict, stiffness_scale_variant};
 use crate::segment::{Phase, Segmentation};
 use crate::sim::{Field, ProbeSimulator};
 use crate::{DiagnoseError, Result};
@@ -42,8 +45,8 @@ pub enum Protocol {
     /// The object at rest for [`REST_AFTER_RELEASE_S`] after each release, observed at
     /// [`REST_FRAMES`] evenly spaced frames.
     RestAfterRelease,
-    /// The probe force and shaft tilted by 20° (about the axis perpendicular to the shaft and the
-    /// support normal, else world y).
+    /// The probe force and shaft tilted by [`OBLIQUE_TILT_DEG`] about [`tilt_axis`] of the
+    /// location's mean shaft.
     ObliqueProbe,
     /// Every location moved towards the marker nearest the support, stopping three tip radii
     /// short of it (measured across the shaft).
@@ -130,14 +133,11 @@ impl Protocol {
                     .iter()
                     .enumerate()
                     .map(|(k, f)| {
-                        let about = f
-                            .axis
-                            .cross(&n)
-                            .try_normalize(1e-6)
-                            .unwrap_or_else(Vector3::y);
+                        // the location's mean shaft: a measured one tilts the same way all along
+                        let shaft = seg.fold_of_frame[k].map_or(f.axis, |l| seg.locations[l].axis);
                         let r = Rotation3::from_axis_angle(
-                            &nalgebra::Unit::new_normalize(about),
-                            20f64.to_radians(),
+                            &tilt_axis(&shaft, &n),
+                            OBLIQUE_TILT_DEG.to_radians(),
                         );
                         let planned = Frame {
                             axis: r * f.axis,
@@ -173,6 +173,32 @@ impl Protocol {
         };
         (planned, sources)
     }
+}
+
+/// The tilt of [`Protocol::ObliqueProbe`], degrees.
+pub const OBLIQUE_TILT_DEG: f64 = 20.0;
+
+/// A shaft closer than this to the support normal, degrees, counts as along it
+/// ([`tilt_axis`]): a measured straight probe is a fraction of a degree off.
+const SHAFT_ALONG_NORMAL_DEG: f64 = 5.0;
+
+/// The axis [`Protocol::ObliqueProbe`] tilts a shaft about: perpendicular to the shaft and the
+/// support normal `n`; for a shaft along the normal (within [`SHAFT_ALONG_NORMAL_DEG`]) world y
+/// made perpendicular to the shaft (else world x). The threshold keeps a measured straight shaft,
+/// whose cross product with the normal is its measurement noise, from tilting in the noise's
+/// direction — one direction per frame (seen on the third-party sessions: the tilted force
+/// turned from frame to frame, and a clock offset's f(t + δ) − f(t) grew to 80 % of the force).
+fn tilt_axis(shaft: &Vector3<f64>, n: &Vector3<f64>) -> nalgebra::Unit<Vector3<f64>> {
+    let shaft = shaft.try_normalize(1e-12).unwrap_or(*n);
+    let across = shaft.cross(n);
+    if across.norm() > SHAFT_ALONG_NORMAL_DEG.to_radians().sin() {
+        return nalgebra::Unit::new_normalize(across);
+    }
+    [Vector3::y(), Vector3::x()]
+        .into_iter()
+        .map(|e| e - shaft * shaft.dot(&e))
+        .find(|e| e.norm() > 0.5)
+        .map_or_else(Vector3::y_axis, nalgebra::Unit::new_normalize)
 }
 
 /// The median time step of the recording, s.
@@ -311,16 +337,36 @@ fn observed_planned(rec_observed: &[Vec<bool>], sources: &[usize]) -> Vec<Vec<bo
 /// the cameras never see (e.g. the support markers under a camera above the block) cannot be
 /// measured by re-recording with the same cameras, so it must not make a protocol the next
 /// experiment; and the samples are those the held-out scores of the candidates are taken on.
-fn rms_difference(a: &Field, b: &Field, observed: &[Vec<bool>]) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for ((ra, rb), seen) in a.iter().zip(b).zip(observed) {
-        for ((x, y), &seen) in ra.iter().zip(rb).zip(seen) {
-            if seen {
-                s += (x - y).norm_squared();
-                n += 1;
-            }
-        }
+///
+/// The part of the difference along `absorbed` (the program's global stiffness-scale field,
+/// [`stiffness_scale_variant`]) is removed first, by least squares over the same samples: a
+/// re-recording is fitted afresh, and the stiffness scale is the nuisance every hypothesis is
+/// refitted with, so a difference the re-fitted stiffness takes up separates nothing. (A
+/// viscoelastic candidate carries an instantaneous compliance term of exactly that field; under
+/// an oblique program its linearised difference from a clock offset is mostly that term.)
+fn rms_difference(a: &Field, b: &Field, absorbed: &Field, observed: &[Vec<bool>]) -> f64 {
+    let samples = || {
+        a.iter()
+            .zip(b)
+            .zip(absorbed)
+            .zip(observed)
+            .flat_map(|(((ra, rb), rc), seen)| {
+                ra.iter()
+                    .zip(rb)
+                    .zip(rc)
+                    .zip(seen)
+                    .filter(|(_, seen)| **seen)
+                    .map(|(((x, y), c), _)| (x - y, *c))
+            })
+    };
+    let (mut dc, mut cc, mut n) = (0.0, 0.0, 0usize);
+    for (d, c) in samples() {
+        dc += d.dot(&c);
+        cc += c.norm_squared();
+        n += 1;
     }
+    let scale = if cc > 0.0 { dc / cc } else { 0.0 };
+    let s: f64 = samples().map(|(d, c)| (d - c * scale).norm_squared()).sum();
     if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
@@ -387,7 +433,8 @@ pub fn next_experiment(
     let difference = |cx: &Context<'_>, observed: &[Vec<bool>]| {
         let pa = prediction(cx, a.0, &va, a.1);
         let pb = prediction(cx, b.0, &vb, b.1);
-        rms_difference(&pa, &pb, observed)
+        let absorbed = &stiffness_scale_variant(cx.prepared).bases[0].field;
+        rms_difference(&pa, &pb, absorbed, observed)
     };
     let seen = observed(cx.rec);
     let recorded = difference(cx, &seen);
@@ -508,18 +555,59 @@ mod tests {
             row[2] = Vector3::new(1e-3, -2e-3, 5e-3);
         }
         b[0][1] = Vector3::new(7e-3, 0.0, 0.0);
-        assert_eq!(rms_difference(&a, &b, &seen), 0.0);
+        let none = a.clone();
+        assert_eq!(rms_difference(&a, &b, &none, &seen), 0.0);
         // observed differences: (3, 4, 0) mm at frame 0 marker 0, (0, 0, 1) mm at frame 1
         // marker 1, 0 at frame 1 marker 0: RMS √((25 + 1 + 0)/3) mm
         b[0][0] = Vector3::new(3e-3, 4e-3, 0.0);
         b[1][1] = Vector3::new(0.0, 0.0, 1e-3);
         let want = 1e-3 * (26.0f64 / 3.0).sqrt();
-        assert!((rms_difference(&a, &b, &seen) - want).abs() < 1e-15);
+        assert!((rms_difference(&a, &b, &none, &seen) - want).abs() < 1e-15);
         // nothing observed: no difference
         assert_eq!(
-            rms_difference(&a, &b, &[vec![false; 3], vec![false; 3]]),
+            rms_difference(&a, &b, &none, &[vec![false; 3], vec![false; 3]]),
             0.0
         );
+    }
+
+    #[test]
+    fn predicted_difference_is_net_of_a_stiffness_refit() {
+        // 3 frames × 2 markers, all observed; the stiffness field c and a difference d = 0.4 c + e
+        // with e ⟂ c over the samples: only e remains
+        let seen = vec![vec![true; 2]; 3];
+        let c: Field = (0..3)
+            .map(|k| {
+                let k = k as f64;
+                vec![Vector3::new(k, 0.0, 1.0), Vector3::new(0.0, 2.0 * k, 0.0)]
+            })
+            .collect();
+        let e: Field = (0..3)
+            .map(|k| {
+                let k = k as f64;
+                vec![
+                    Vector3::new(0.0, 1e-3 * k, 0.0),
+                    Vector3::new(0.0, 0.0, 2e-3),
+                ]
+            })
+            .collect();
+        let dot = |x: &Field, y: &Field| -> f64 {
+            x.iter()
+                .zip(y)
+                .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| p.dot(q)))
+                .sum()
+        };
+        assert_eq!(dot(&c, &e), 0.0);
+        let a: Field = vec![vec![Vector3::zeros(); 2]; 3];
+        let b: Field = c
+            .iter()
+            .zip(&e)
+            .map(|(rc, re)| rc.iter().zip(re).map(|(c, e)| 0.4 * c + e).collect())
+            .collect();
+        let want = (dot(&e, &e) / 6.0).sqrt();
+        let got = rms_difference(&a, &b, &c, &seen);
+        assert!((got - want).abs() < 1e-15, "{got} {want}");
+        // a difference that is all stiffness separates nothing
+        assert!(rms_difference(&a, &c, &c, &seen) < 1e-15);
     }
 
     #[test]
@@ -601,5 +689,33 @@ mod tests {
             assert!((a.force_n.norm() - b.force_n.norm()).abs() < 1e-12);
             assert!(a.markers_m.iter().all(|m| m.is_none()));
         }
+    }
+
+    /// A measured straight shaft (0.3° off the normal, in a direction that turns from frame to
+    /// frame) is tilted one way all along: about world y, as an exact one; a shaft 30° off the
+    /// normal is tilted about the axis across both.
+    #[test]
+    fn oblique_probe_tilts_a_noisy_straight_shaft_one_way() {
+        let (mut rec, _) = toy();
+        let wobble = 0.3f64.to_radians();
+        for (k, f) in rec.frames.iter_mut().enumerate() {
+            let phi = k as f64 * 2.4;
+            let axis = Vector3::new(wobble * phi.cos(), wobble * phi.sin(), -1.0).normalize();
+            f.force_n = axis * f.force_n.norm();
+            f.axis = axis;
+        }
+        let seg = Segmentation::new(&rec, &SegmentSettings::default());
+        let oblique = Protocol::ObliqueProbe.apply(&rec, &seg);
+        for (a, b) in oblique.frames.iter().zip(&rec.frames) {
+            // tilted towards −x (about +y, 20°) within the wobble
+            let tilted = a.axis - b.axis * b.axis.dot(&a.axis);
+            assert!(tilted.normalize().x < -0.999, "{tilted:?}");
+            assert!((a.axis.angle(&b.axis) - OBLIQUE_TILT_DEG.to_radians()).abs() < 2.0 * wobble);
+        }
+        let n = Vector3::z();
+        assert_eq!(tilt_axis(&-Vector3::z(), &n).into_inner(), Vector3::y());
+        let shaft = Vector3::new(30f64.to_radians().sin(), 0.0, -30f64.to_radians().cos());
+        let about = tilt_axis(&shaft, &n);
+        assert!((about.dot(&shaft)).abs() < 1e-12 && about.z.abs() < 1e-12);
     }
 }
