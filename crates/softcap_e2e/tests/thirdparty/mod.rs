@@ -1,4 +1,5 @@
-//! The chain of the third-party truth tests (`thirdparty_diagnose.rs`, `thirdparty_lookalikes.rs`):
+//! The chain of the third-party truth tests (`thirdparty_diagnose.rs`, `thirdparty_lookalikes.rs`,
+//! `thirdparty_pairs.rs`):
 //! capture from the unlabeled detections → tissue fit → diagnose on a session of
 //! `fixtures/thirdparty/`, in process through each stage's library API, once per test process.
 // Each test binary uses a part of it.
