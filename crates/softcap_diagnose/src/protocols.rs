@@ -45,8 +45,8 @@ pub enum Protocol {
     /// The object at rest for [`REST_AFTER_RELEASE_S`] after each release, observed at
     /// [`REST_FRAMES`] evenly spaced frames.
     RestAfterRelease,
-    /// The probe force and shaft tilted by [`OBLIQUE_TILT_DEG`] about [`tilt_axis`] of the
-    /// location's mean shaft.
+    /// The probe force and shaft tilted by [`OBLIQUE_TILT_DEG`] about the axis across the
+    /// location's mean shaft and the support normal (world y for a shaft within 5° of the normal).
     ObliqueProbe,
     /// Every location moved towards the marker nearest the support, stopping three tip radii
     /// short of it (measured across the shaft).
