@@ -226,7 +226,10 @@ cases! {
     /// Named on the force channel (0.2467 → 0.0691 N held-out; markers 0.1686 → 0.1436 mm, clean
     /// 0.1691); ≈ 35 CPU-s.
     sensor_lag => "sensor-lag",
-    #[ignore = "passes (probe-friction, 0.3879 -> 0.3138 mm on contact/under-probe, mu 0.71 rigid tip, within 1.25x the pair's 0.2683 = 0.3354) but past issue 38's 5 minutes: on 2 idle cores 713 CPU-s, diagnose 389 s wall, of which the 3 frictional rigid-tip replays on the 13,328-tet refined mesh 699 CPU-s / 385 s (mu 0.5 299, mu 0.71 230, mu 1.0 154 thread CPU-s until it fails at frame 195; two threads, so mu 0.71 and 1.0 run one after the other)"]
+    /// The 20°-tilted disk pushed obliquely and sticking: named by the rigid tip replayed with
+    /// Coulomb friction on the 13,328-tet refined mesh, μ bracketed at 1.0 (0.5 does not converge,
+    /// 0.71 and 1.41 fit worse): 0.3879 → 0.2708 mm on contact/under-probe, within 1.25× of the
+    /// frictionless pair's 0.2683; ≈ 330 CPU-s, 237 s wall on 2 idle cores.
     probe_friction => "probe-friction",
     /// J2 rigid-tip replays ranked on the fit mesh bisected once, the best point of each yield
     /// strain replayed on the fit mesh's 10-node tets: 0.4918 → 0.1248 mm on released/near-touched

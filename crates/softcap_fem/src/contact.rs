@@ -240,6 +240,32 @@ impl Probe {
         Some(Some((-local.z, n, c)))
     }
 
+    /// Where a contact point kept by the active set's hysteresis ([`ContactProblem`]'s
+    /// `point_springs`) is re-linearized: for a flat punch ([`Self::with_punch_face`]) the face
+    /// plane (outward normal along the axis, the point projected onto the plane; the signed
+    /// distance is its height above the plane), also just past the rim, where the face is what
+    /// pressed the point; for any other tip its closest feature ([`Self::closest`]). A punch's
+    /// closest feature past the rim is the rim edge, whose diagonal normal pushes a point that
+    /// friction or the tissue's own pull carried there out and up, so it leaves the set, relaxes
+    /// back under the face and re-enters: the set cycles (period 3) until it is frozen.
+    pub(crate) fn kept_projection(
+        &self,
+        point_world: &Vector3<f64>,
+    ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+        if !(self.punch_face && matches!(self.tip, TipShape::Disk { .. })) {
+            return self.closest(point_world);
+        }
+        let local = self
+            .world_from_probe
+            .inverse_transform_point(&Point3::from(*point_world));
+        let n = self.world_from_probe.rotation * Vector3::z();
+        let c = self
+            .world_from_probe
+            .transform_point(&Point3::new(local.x, local.y, 0.0))
+            .coords;
+        Some((local.z, n, c))
+    }
+
     /// The tip description.
     pub fn tip(&self) -> &TipShape {
         &self.tip
@@ -427,7 +453,8 @@ impl ContactProblem {
     /// inside the tip gets a spring at its closest point. With hysteresis (`previous` non-empty):
     /// a point that had a spring in `previous` but is no longer inside stays in the set while it
     /// is still compressed against that spring's plane, n·(c − x) > 0, re-linearized at its
-    /// current closest surface point (so the next iteration pulls it back onto the tip). Without
+    /// current closest surface point (a flat punch's face plane, [`Probe::kept_projection`]), so
+    /// the next iteration pulls it back onto the tip. Without
     /// this, a rim point that the last iteration placed on the tangent plane of its closest point
     /// — outside a curved tip by ≈ s²/2R for a tangential slip s, more than the penalty
     /// penetration ≈ f/k_c — drops out, springs back in at the next iteration, and the active set
@@ -471,7 +498,7 @@ impl ContactProblem {
             if s.normal.dot(&(s.target_m - p)) <= 0.0 {
                 continue;
             }
-            if let Some((_, normal, target_m)) = self.probe.closest(&p) {
+            if let Some((_, normal, target_m)) = self.probe.kept_projection(&p) {
                 springs.push(ContactSpring {
                     node: s.node,
                     normal,
@@ -548,5 +575,56 @@ impl ContactProblem {
         r.probe_reaction_n = -r.contact_force_n;
         r.axial_force_n = r.contact_force_n.dot(&self.probe.axis_world());
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A node that was pressed by a flat punch's face and has been carried just past the rim (still
+    /// below the face plane) is kept on the face plane, pushed along the axis; the plain disk keeps
+    /// it on its closest feature, the side wall, pushed out sideways (the re-linearization whose
+    /// diagonal rim normals made the probe-friction replay's set cycle until it was frozen).
+    #[test]
+    fn a_punch_keeps_a_node_past_its_rim_on_the_face_plane() {
+        // probe +z (approach) ↦ world −z, leading face at world z = 0.3, r = 0.05 around (0.1, 0.2)
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1, 0.2, 0.3),
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+        );
+        let disk = Probe::new(
+            TipShape::Disk {
+                radius_m: 0.05,
+                thickness_m: 0.02,
+            },
+            pose,
+        )
+        .unwrap();
+        let down = Vector3::new(0.0, 0.0, -1.0);
+        let was = ContactSpring {
+            node: 0,
+            normal: down,
+            target_m: Vector3::new(0.148, 0.2, 0.3),
+            stiffness_n_per_m: 1.0,
+        };
+        // 1 mm past the rim, 0.5 mm behind the face plane: outside the disk, compressed
+        let x = [Vector3::new(0.151, 0.2, 0.3005)];
+        let kept = |probe: Probe| {
+            let problem = ContactProblem {
+                probe,
+                candidate_nodes: vec![0],
+                settings: ContactSettings::default(),
+            };
+            let springs = problem.springs_with_hysteresis(&x, |_| 1.0, std::slice::from_ref(&was));
+            assert_eq!(springs.len(), 1, "kept while compressed");
+            springs[0].clone()
+        };
+        let s = kept(disk.clone().with_punch_face());
+        assert!((s.normal - down).norm() < 1e-12, "{}", s.normal);
+        assert!((s.target_m - Vector3::new(0.151, 0.2, 0.3)).norm() < 1e-12);
+        let s = kept(disk);
+        assert!((s.normal - Vector3::x()).norm() < 1e-12, "{}", s.normal);
     }
 }
