@@ -67,12 +67,11 @@ pub struct FemSimSettings {
     pub friction_attempt_max_iterations: usize,
     /// The frictional rigid-tip replay's contact active set is re-queried in the first this many
     /// equilibrium iterations of each solve, then frozen (`EquilibriumSettings::
-    /// contact_freeze_after`). On the refined probe-friction session the re-queried set cycles
-    /// with period 3 under the punch face (a node entering with its penalty force, pushed out,
-    /// re-entering) until it is frozen; then Newton converges in about 3 iterations. 3 instead of
-    /// 12 cut the μ 0.7071 replay's first 20 frames 2.5× (markers 0.057 mm RMS apart on the
-    /// effect cells) but not the whole test: other frames then fail their 150-iteration attempts,
-    /// and μ 1.0 still fails (session 48), so the default stays 12.
+    /// contact_freeze_after`). A set that still changes after them is a cycle: a flat punch keeps a
+    /// point that slid past its rim on its face plane (`softcap_fem::Probe::kept_projection`), so
+    /// on the third-party probe-friction session most solves settle in 4–10 iterations; before,
+    /// the rim edge pushed such a point out and up and the set cycled with period 3 until it was
+    /// frozen here.
     pub friction_contact_freeze_after: usize,
     /// When the frictionless rigid-tip replays (`Extension::{Elastic, Plastic, Anisotropic, …}`
     /// replayed at the measured poses) refactor their system matrix
