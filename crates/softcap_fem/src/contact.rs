@@ -241,18 +241,23 @@ impl Probe {
     }
 
     /// Where a contact point kept by the active set's hysteresis ([`ContactProblem`]'s
-    /// `point_springs`) is re-linearized: for a flat punch ([`Self::with_punch_face`]) the face
-    /// plane (outward normal along the axis, the point projected onto the plane; the signed
-    /// distance is its height above the plane), also just past the rim, where the face is what
-    /// pressed the point; for any other tip its closest feature ([`Self::closest`]). A punch's
-    /// closest feature past the rim is the rim edge, whose diagonal normal pushes a point that
-    /// friction or the tissue's own pull carried there out and up, so it leaves the set, relaxes
-    /// back under the face and re-enters: the set cycles (period 3) until it is frozen.
+    /// `point_springs`) is re-linearized: with `on_face` and a flat punch
+    /// ([`Self::with_punch_face`]) the face plane (outward normal along the axis, the point
+    /// projected onto the plane; the signed distance is its height above the plane), also past
+    /// the rim, where the face is what pressed the point; otherwise its closest feature
+    /// ([`Self::closest`]). Frictional contact keeps its points on the face
+    /// ([`crate::FrictionalContact`]): a punch's closest feature past the rim is the rim edge,
+    /// whose diagonal normal pushes a point that the stuck patch carried there out and up, so it
+    /// leaves the set, falls back under the face and re-enters, and the set cycles (period 3)
+    /// until it is frozen. Frictionless contact keeps the closest feature: there the surface
+    /// slides outward under a pressed punch, and points kept on the face past the rim would
+    /// widen it.
     pub(crate) fn kept_projection(
         &self,
         point_world: &Vector3<f64>,
+        on_face: bool,
     ) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
-        if !(self.punch_face && matches!(self.tip, TipShape::Disk { .. })) {
+        if !(on_face && self.punch_face && matches!(self.tip, TipShape::Disk { .. })) {
             return self.closest(point_world);
         }
         let local = self
@@ -427,6 +432,7 @@ impl ContactProblem {
             &points,
             |n| self.settings.penalty_factor * node_stiffness(n),
             &[],
+            false,
         )
     }
 
@@ -437,6 +443,7 @@ impl ContactProblem {
         x: &[Vector3<f64>],
         node_stiffness: impl Fn(usize) -> f64,
         previous: &[ContactSpring],
+        keep_on_face: bool,
     ) -> Vec<ContactSpring> {
         let points: Vec<(usize, Vector3<f64>)> =
             self.candidate_nodes.iter().map(|&n| (n, x[n])).collect();
@@ -444,6 +451,7 @@ impl ContactProblem {
             &points,
             |n| self.settings.penalty_factor * node_stiffness(n),
             previous,
+            keep_on_face,
         )
     }
 
@@ -453,8 +461,8 @@ impl ContactProblem {
     /// inside the tip gets a spring at its closest point. With hysteresis (`previous` non-empty):
     /// a point that had a spring in `previous` but is no longer inside stays in the set while it
     /// is still compressed against that spring's plane, n·(c − x) > 0, re-linearized at its
-    /// current closest surface point (a flat punch's face plane, [`Probe::kept_projection`]), so
-    /// the next iteration pulls it back onto the tip. Without
+    /// current closest surface point (with `keep_on_face` a flat punch's face plane,
+    /// [`Probe::kept_projection`]), so the next iteration pulls it back onto the tip. Without
     /// this, a rim point that the last iteration placed on the tangent plane of its closest point
     /// — outside a curved tip by ≈ s²/2R for a tangential slip s, more than the penalty
     /// penetration ≈ f/k_c — drops out, springs back in at the next iteration, and the active set
@@ -465,6 +473,7 @@ impl ContactProblem {
         points: &[(usize, Vector3<f64>)],
         stiffness: impl Fn(usize) -> f64,
         previous: &[ContactSpring],
+        keep_on_face: bool,
     ) -> Vec<ContactSpring> {
         let mut springs: Vec<ContactSpring> = points
             .iter()
@@ -498,7 +507,7 @@ impl ContactProblem {
             if s.normal.dot(&(s.target_m - p)) <= 0.0 {
                 continue;
             }
-            if let Some((_, normal, target_m)) = self.probe.kept_projection(&p) {
+            if let Some((_, normal, target_m)) = self.probe.kept_projection(&p, keep_on_face) {
                 springs.push(ContactSpring {
                     node: s.node,
                     normal,
@@ -611,20 +620,25 @@ mod tests {
         };
         // 1 mm past the rim, 0.5 mm behind the face plane: outside the disk, compressed
         let x = [Vector3::new(0.151, 0.2, 0.3005)];
-        let kept = |probe: Probe| {
+        let kept = |probe: Probe, on_face: bool| {
             let problem = ContactProblem {
                 probe,
                 candidate_nodes: vec![0],
                 settings: ContactSettings::default(),
             };
-            let springs = problem.springs_with_hysteresis(&x, |_| 1.0, std::slice::from_ref(&was));
+            let springs =
+                problem.springs_with_hysteresis(&x, |_| 1.0, std::slice::from_ref(&was), on_face);
             assert_eq!(springs.len(), 1, "kept while compressed");
             springs[0].clone()
         };
-        let s = kept(disk.clone().with_punch_face());
+        let punch = disk.clone().with_punch_face();
+        let s = kept(punch.clone(), true);
         assert!((s.normal - down).norm() < 1e-12, "{}", s.normal);
         assert!((s.target_m - Vector3::new(0.151, 0.2, 0.3)).norm() < 1e-12);
-        let s = kept(disk);
-        assert!((s.normal - Vector3::x()).norm() < 1e-12, "{}", s.normal);
+        // frictionless (StaticSolver's hysteresis) and the plain disk: the side wall
+        for (probe, on_face) in [(punch, false), (disk, true)] {
+            let s = kept(probe, on_face);
+            assert!((s.normal - Vector3::x()).norm() < 1e-12, "{}", s.normal);
+        }
     }
 }

@@ -368,7 +368,7 @@ impl QuadraticRigidTipSolver {
                 last.clone()
             } else {
                 contact.map_or(Vec::new(), |c| {
-                    c.springs_with_hysteresis(x, |n| table[n], &last)
+                    c.springs_with_hysteresis(x, |n| table[n], &last, false)
                 })
             };
             if !frozen {

@@ -354,7 +354,7 @@ impl StaticSolver {
                                 }
                             }
                         }
-                        c.springs_with_hysteresis(x, |n| table[n], previous)
+                        c.springs_with_hysteresis(x, |n| table[n], previous, false)
                     }
                     None => c.springs(x, |n| pat.node_stiffness(n, vals)),
                 }
