@@ -245,7 +245,7 @@ impl Probe {
     /// ([`Self::with_punch_face`]) the face plane (outward normal along the axis, the point
     /// projected onto the plane; the signed distance is its height above the plane), also past
     /// the rim, where the face is what pressed the point; otherwise its closest feature
-    /// ([`Self::closest`]). Frictional contact keeps its points on the face
+    /// ([`Self::closest`]). Frictional contact (μ > 0) keeps its points on the face
     /// ([`crate::FrictionalContact`]): a punch's closest feature past the rim is the rim edge,
     /// whose diagonal normal pushes a point that the stuck patch carried there out and up, so it
     /// leaves the set, falls back under the face and re-enters, and the set cycles (period 3)

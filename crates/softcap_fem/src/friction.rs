@@ -312,8 +312,9 @@ pub struct FrictionalContact {
     /// re-query, the original behaviour). Switch it on for sharp-rimmed tips that move sideways
     /// (a disk dragged over a coarse mesh): without it a rim node pushed out by the side wall
     /// relaxes back in at the next iteration and the active set cycles until it is frozen, leaving
-    /// that node inside the tip. A flat punch's kept points stay on its face plane, also past the
-    /// rim (`Probe::kept_projection`; the frictionless solvers keep them on the closest feature).
+    /// that node inside the tip. With μ > 0 a flat punch's kept points stay on its face plane, also
+    /// past the rim (`Probe::kept_projection`; frictionless, μ = 0, and in the other solvers they
+    /// are kept on the closest feature).
     pub active_set_hysteresis: bool,
     /// Where the normal forces f_n of the friction law come from (default
     /// [`NormalForceLag::Iteration`], the original behaviour).
@@ -583,11 +584,14 @@ impl NodalTerm for FrictionalContact {
             } else {
                 &[]
             };
+            // a stuck patch carried past a punch's rim stays on its face (μ > 0 only:
+            // `Probe::kept_projection`)
+            let on_face = self.friction.mu > 0.0;
             let springs = match &self.quadrature {
                 None if previous.is_empty() => self.contact.springs(x, node_stiffness),
                 None => self
                     .contact
-                    .springs_with_hysteresis(x, node_stiffness, previous, true),
+                    .springs_with_hysteresis(x, node_stiffness, previous, on_face),
                 Some(q) => {
                     let nr = q.rule.len();
                     let keep: BTreeSet<usize> = previous.iter().map(|s| s.node / nr).collect();
@@ -597,7 +601,7 @@ impl NodalTerm for FrictionalContact {
                         &points,
                         |key| q.stiffness(key, pf, node_stiffness),
                         previous,
-                        true,
+                        on_face,
                     )
                 }
             };
