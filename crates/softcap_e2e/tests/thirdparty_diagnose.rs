@@ -229,7 +229,7 @@ cases! {
     /// The 20°-tilted disk pushed obliquely and sticking: named by the rigid tip replayed with
     /// Coulomb friction on the 13,328-tet refined mesh, μ bracketed at 1.0 (0.5 does not converge,
     /// 0.71 and 1.41 fit worse): 0.3879 → 0.2708 mm on contact/under-probe, within 1.25× of the
-    /// frictionless pair's 0.2683; ≈ 330 CPU-s, 237 s wall on 2 idle cores.
+    /// frictionless pair's 0.2683; 331–345 CPU-s, 237–243 s wall on 2 idle cores.
     probe_friction => "probe-friction",
     /// J2 rigid-tip replays ranked on the fit mesh bisected once, the best point of each yield
     /// strain replayed on the fit mesh's 10-node tets: 0.4918 → 0.1248 mm on released/near-touched
